@@ -1,0 +1,62 @@
+"""One error hierarchy for rigcal.
+
+The library raises these; only the CLI boundary (``rigcal.cli.main``) turns them into a
+one-line ``Error: ...`` on stderr and the exit code each class carries. Anything that is
+not a :class:`RigcalError` is a bug and keeps its traceback.
+
+Exit codes (documented in docs/cli.md):
+
+===  ==========================================================
+ 0   success
+ 1   a check ran and its verdict is negative (e.g. drift found)
+ 2   command-line usage error (click)
+ 3   bad input: missing, unreadable, malformed or invalid file
+ 4   calibration failed: too few data, degenerate geometry, no consensus
+ 5   output refused or failed: file exists without --force, write error
+===  ==========================================================
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+
+class RigcalError(Exception):
+    """Base of every error rigcal raises on purpose."""
+
+    exit_code = 1
+
+
+class InputError(RigcalError):
+    """A file or value given by the user is missing, unreadable or invalid."""
+
+    exit_code = 3
+
+    @classmethod
+    def at(cls, path: str | Path | None, key: str, value: Any, expected: str) -> InputError:
+        """Build the standard message: ``FILE: KEY: got VALUE; expected EXPECTED``.
+
+        Args:
+            path: the file the value came from (None when it came from elsewhere).
+            key: the key path inside the file, e.g. ``captures[3].scan``.
+            value: the offending value; long values are shortened.
+            expected: what would have been accepted.
+        """
+        shown = repr(value)
+        if len(shown) > 80:
+            shown = shown[:77] + "..."
+        where = f"{path}: " if path is not None else ""
+        return cls(f"{where}{key}: got {shown}; expected {expected}")
+
+
+class CalibrationError(RigcalError):
+    """The data are valid but cannot determine a calibration."""
+
+    exit_code = 4
+
+
+class OutputError(RigcalError):
+    """A result could not or must not be written."""
+
+    exit_code = 5

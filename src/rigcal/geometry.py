@@ -1,0 +1,99 @@
+"""Rigid transforms with frame-carrying names.
+
+``T_a_b`` is a 4x4 homogeneous matrix that maps points from frame b into frame a:
+``p_a = T_a_b @ p_b``, so ``T_a_c = T_a_b @ T_b_c``. Rotations are stored on disk as
+rotation vectors (axis times angle, radians; mrcal's ``r``). See docs/conventions.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+FloatArray = NDArray[np.float64]
+
+
+def make_T(R: ArrayLike, t: ArrayLike) -> FloatArray:
+    """Homogeneous 4x4 transform from a (3, 3) rotation and a (3,) translation."""
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(R, dtype=float)
+    T[:3, 3] = np.asarray(t, dtype=float)
+    return T
+
+
+def inv_T(T: ArrayLike) -> FloatArray:
+    """Inverse of a rigid transform, using R^T rather than a general inverse."""
+    T = np.asarray(T, dtype=float)
+    R = T[:3, :3]
+    t = T[:3, 3]
+    return make_T(R.T, -R.T @ t)
+
+
+def transform_points(T_a_b: ArrayLike, points_b: ArrayLike) -> FloatArray:
+    """Apply T_a_b to points.
+
+    Args:
+        T_a_b: (4, 4) transform from frame b to frame a.
+        points_b: (N, 3) points in frame b, or (N, 2) points in a plane z = 0 of frame b
+            (laser points).
+
+    Returns:
+        (N, 3) points in frame a.
+    """
+    T_a_b = np.asarray(T_a_b, dtype=float)
+    p = np.atleast_2d(np.asarray(points_b, dtype=float))
+    if p.shape[1] == 2:
+        p = np.column_stack([p, np.zeros(len(p))])
+    out: FloatArray = p @ T_a_b[:3, :3].T + T_a_b[:3, 3]
+    return out
+
+
+def rotvec_to_R(rotvec: ArrayLike) -> FloatArray:
+    """(3,) rotation vector (axis * angle, rad) to a (3, 3) rotation matrix."""
+    out: FloatArray = Rotation.from_rotvec(np.asarray(rotvec, dtype=float)).as_matrix()
+    return out
+
+
+def R_to_rotvec(R: ArrayLike) -> FloatArray:
+    """(3, 3) rotation matrix to a (3,) rotation vector (axis * angle, rad)."""
+    out: FloatArray = Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec()
+    return out
+
+
+def T_from_rt(rt: ArrayLike) -> FloatArray:
+    """(6,) [rotation vector (rad), translation] to a 4x4 transform (mrcal's rt layout)."""
+    rt = np.asarray(rt, dtype=float)
+    return make_T(rotvec_to_R(rt[:3]), rt[3:])
+
+
+def rt_from_T(T: ArrayLike) -> FloatArray:
+    """4x4 transform to (6,) [rotation vector (rad), translation]."""
+    T = np.asarray(T, dtype=float)
+    return np.concatenate([R_to_rotvec(T[:3, :3]), T[:3, 3]])
+
+
+def rotation_angle_rad(R: ArrayLike) -> float:
+    """Angle of a rotation matrix, in [0, pi] radians."""
+    R = np.asarray(R, dtype=float)
+    c = (np.trace(R) - 1.0) / 2.0
+    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def pose_error(T_est: ArrayLike, T_ref: ArrayLike) -> tuple[float, float]:
+    """Rotation (deg) and translation (m) difference between two transforms of the same frames."""
+    T_est = np.asarray(T_est, dtype=float)
+    T_ref = np.asarray(T_ref, dtype=float)
+    dR = T_est[:3, :3] @ T_ref[:3, :3].T
+    return float(np.degrees(rotation_angle_rad(dR))), float(np.linalg.norm(T_est[:3, 3] - T_ref[:3, 3]))
+
+
+def random_rotation(rng: np.random.Generator, max_angle_rad: float | None = None) -> FloatArray:
+    """A random rotation, uniform on SO(3), or with a uniform angle up to max_angle_rad."""
+    if max_angle_rad is None:
+        q = rng.normal(size=4)
+        out: FloatArray = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
+        return out
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    return rotvec_to_R(axis * rng.uniform(0.0, max_angle_rad))
