@@ -75,7 +75,10 @@ def check_keys(
     for key in mapping:
         if key not in allowed:
             raise InputError.at(
-                path, _join(keypath, str(key)), mapping[key], f"no such key; allowed keys are {sorted(allowed)}"
+                path,
+                _join(keypath, str(key)),
+                mapping[key],
+                f"no such key; allowed keys are {sorted(allowed)}",
             )
     for key in required:
         if key not in mapping:
