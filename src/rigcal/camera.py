@@ -1,0 +1,277 @@
+"""Camera model: project, unproject and bearings, on top of mrcal's lens models.
+
+A :class:`Camera` is a mrcal lens model (``LENSMODEL_PINHOLE``, ``LENSMODEL_OPENCV4/5/8/12``,
+``LENSMODEL_SPLINED_STEREOGRAPHIC_...``, ...) with its intrinsics and image size. It is read
+from a mrcal ``.cameramodel`` file or from a rigcal camera file holding OpenCV's K and
+distortion coefficients (docs/formats/camera.md); OpenCV's coefficient order
+(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4]]]) is exactly mrcal's ``LENSMODEL_OPENCVn``.
+
+Camera frame: x right, y down, z forward (optical axis). Pixel coordinates: (0, 0) is the
+centre of the top-left pixel (mrcal's and OpenCV's convention). See docs/conventions.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from rigcal.errors import InputError
+from rigcal.io.files import check_keys, load_yaml
+
+FloatArray = NDArray[np.float64]
+
+CAMERA_SCHEMA_VERSION = 1
+
+# Number of OpenCV distortion coefficients -> mrcal lens model.
+_OPENCV_MODELS = {
+    0: "LENSMODEL_PINHOLE",
+    4: "LENSMODEL_OPENCV4",
+    5: "LENSMODEL_OPENCV5",
+    8: "LENSMODEL_OPENCV8",
+    12: "LENSMODEL_OPENCV12",
+}
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A calibrated camera.
+
+    Attributes:
+        lensmodel: mrcal lens model name, e.g. ``LENSMODEL_OPENCV5``.
+        intrinsics: (n,) float64: fx, fy, cx, cy, then the model's distortion parameters.
+        width_px, height_px: image size.
+        source: where the model was read from (informative).
+    """
+
+    lensmodel: str
+    intrinsics: FloatArray
+    width_px: int
+    height_px: int
+    source: str | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        intr = np.array(self.intrinsics, dtype=float)
+        intr.setflags(write=False)
+        object.__setattr__(self, "intrinsics", intr)
+
+    # --- constructors -------------------------------------------------------------------
+    @classmethod
+    def from_opencv(
+        cls,
+        K: ArrayLike,
+        distortion: ArrayLike,
+        width_px: int,
+        height_px: int,
+        source: str | None = None,
+    ) -> Camera:
+        """From OpenCV's 3x3 K (no skew) and 0/4/5/8/12 distortion coefficients."""
+        K = np.asarray(K, dtype=float)
+        dist = np.asarray(distortion, dtype=float).ravel()
+        if len(dist) not in _OPENCV_MODELS:
+            raise InputError.at(source, "distortion", dist.tolist(), "0, 4, 5, 8 or 12 coefficients")
+        intr = np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], dist])
+        return cls(_OPENCV_MODELS[len(dist)], intr, int(width_px), int(height_px), source)
+
+    @classmethod
+    def from_mrcal(cls, model: Any, source: str | None = None) -> Camera:
+        """From a ``mrcal.cameramodel``."""
+        lensmodel, intr = model.intrinsics()
+        w, h = model.imagersize()
+        return cls(str(lensmodel), np.asarray(intr, dtype=float), int(w), int(h), source)
+
+    # --- geometry -----------------------------------------------------------------------
+    @property
+    def K(self) -> FloatArray:
+        """(3, 3) pinhole part of the model (Eq. (1) of the paper)."""
+        fx, fy, cx, cy = self.intrinsics[:4]
+        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def distortion(self) -> FloatArray:
+        """Distortion parameters (OpenCV order for the OPENCVn models)."""
+        return np.array(self.intrinsics[4:])
+
+    def project(self, points_cam: ArrayLike) -> FloatArray:
+        """Project camera-frame points to pixels (paper Eq. (1) plus lens distortion).
+
+        Args:
+            points_cam: (N, 3) points in the camera frame, metres.
+
+        Returns:
+            (N, 2) pixel coordinates; NaN for points at or behind the camera plane (z <= 0).
+        """
+        q, _ = self.project_with_gradient(points_cam)
+        return q
+
+    def project_with_gradient(self, points_cam: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Project, and also return dq/dp.
+
+        Returns:
+            q: (N, 2) pixels (NaN where z <= 0); dq_dp: (N, 2, 3) Jacobian of q with respect
+            to the camera-frame point.
+        """
+        import mrcal
+
+        p = np.atleast_2d(np.asarray(points_cam, dtype=float))
+        q, dq_dp, _ = mrcal.project(p, self.lensmodel, self.intrinsics, get_gradients=True)
+        q = np.array(q, dtype=float).reshape(-1, 2)
+        dq_dp = np.array(dq_dp, dtype=float).reshape(-1, 2, 3)
+        behind = ~(p[:, 2] > 0)
+        q[behind] = np.nan
+        dq_dp[behind] = np.nan
+        return q, dq_dp
+
+    def bearings(self, pixels: ArrayLike) -> FloatArray:
+        """Unit rays in the camera frame through pixels (paper Eq. (2), with distortion undone).
+
+        Args:
+            pixels: (N, 2) pixel coordinates.
+
+        Returns:
+            (N, 3) unit vectors in the camera frame.
+        """
+        import mrcal
+
+        q = np.atleast_2d(np.asarray(pixels, dtype=float))
+        v = np.asarray(mrcal.unproject(q, self.lensmodel, self.intrinsics, normalize=True), dtype=float)
+        return v.reshape(-1, 3)
+
+    def in_image(self, pixels: ArrayLike, margin_px: float = 0.0) -> NDArray[np.bool_]:
+        """(N,) mask of pixels inside the image (pixel centres at integers, edges at -0.5)."""
+        q = np.atleast_2d(np.asarray(pixels, dtype=float))
+        lo = -0.5 + margin_px
+        with np.errstate(invalid="ignore"):
+            return (
+                (q[:, 0] >= lo)
+                & (q[:, 1] >= lo)
+                & (q[:, 0] <= self.width_px - 0.5 - margin_px)
+                & (q[:, 1] <= self.height_px - 0.5 - margin_px)
+            )
+
+    # --- serialisation ------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """The embedded form used in rig files (mrcal's key names)."""
+        return {
+            "lensmodel": self.lensmodel,
+            "intrinsics": [float(x) for x in self.intrinsics],
+            "imagersize": [self.width_px, self.height_px],
+        }
+
+    def to_cameramodel(self, rt_cam_ref: ArrayLike | None = None) -> Any:
+        """A ``mrcal.cameramodel`` with these intrinsics (and optional extrinsics)."""
+        import mrcal
+
+        rt = np.zeros(6) if rt_cam_ref is None else np.asarray(rt_cam_ref, dtype=float)
+        return mrcal.cameramodel(
+            intrinsics=(self.lensmodel, np.array(self.intrinsics)),
+            imagersize=np.array([self.width_px, self.height_px]),
+            rt_cam_ref=rt,
+        )
+
+
+def camera_from_dict(d: Any, path: str | Path | None, keypath: str) -> Camera:
+    """Parse the embedded form written by :meth:`Camera.to_dict` (rig files)."""
+    import mrcal
+
+    d = check_keys(d, path, keypath, ["lensmodel", "intrinsics", "imagersize"])
+    lensmodel = d["lensmodel"]
+    try:
+        n = mrcal.lensmodel_num_params(lensmodel)
+    except Exception:
+        raise InputError.at(path, f"{keypath}.lensmodel", lensmodel, "a mrcal lens model name") from None
+    intr = _float_list(d["intrinsics"], path, f"{keypath}.intrinsics", n)
+    size = d["imagersize"]
+    if not (isinstance(size, list) and len(size) == 2 and all(_is_pos_int(x) for x in size)):
+        raise InputError.at(path, f"{keypath}.imagersize", size, "[width, height], positive integers")
+    return Camera(str(lensmodel), np.array(intr), int(size[0]), int(size[1]), str(path) if path else None)
+
+
+def read_camera(path: str | Path) -> Camera:
+    """Read a camera: a mrcal ``.cameramodel``, or a rigcal camera YAML file (OpenCV K + distortion).
+
+    Raises:
+        InputError: missing, unreadable or invalid file.
+    """
+    path = Path(path)
+    if path.suffix == ".cameramodel":
+        return _read_cameramodel(path)
+    return _read_opencv_yaml(path)
+
+
+def _read_cameramodel(path: Path) -> Camera:
+    import mrcal
+
+    if not path.is_file():
+        raise InputError(f"{path}: camera model not found")
+    try:
+        model = mrcal.cameramodel(str(path))
+    except Exception as exc:  # mrcal raises bare Exceptions for malformed files
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{path}: not a valid mrcal cameramodel: {first}") from None
+    return Camera.from_mrcal(model, source=str(path))
+
+
+def _read_opencv_yaml(path: Path) -> Camera:
+    data = load_yaml(path, "camera file")
+    d = check_keys(
+        data, path, "", ["schema_version", "image_width_px", "image_height_px", "K"], ["distortion", "name"]
+    )
+    if d["schema_version"] != CAMERA_SCHEMA_VERSION:
+        raise InputError.at(path, "schema_version", d["schema_version"], f"{CAMERA_SCHEMA_VERSION}")
+    for key in ("image_width_px", "image_height_px"):
+        if not _is_pos_int(d[key]):
+            raise InputError.at(path, key, d[key], "a positive integer")
+    K_rows = d["K"]
+    if not (isinstance(K_rows, list) and len(K_rows) == 3):
+        raise InputError.at(path, "K", K_rows, "3 rows [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
+    K = np.array([_float_list(row, path, f"K[{i}]", 3) for i, row in enumerate(K_rows)])
+    if K[0, 1] != 0 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+        raise InputError.at(path, "K", K_rows, "[[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise InputError.at(path, "K", K_rows, "positive focal lengths fx, fy")
+    dist_raw = d.get("distortion", [])
+    if not isinstance(dist_raw, list) or len(dist_raw) not in _OPENCV_MODELS:
+        raise InputError.at(path, "distortion", dist_raw, "a list of 0, 4, 5, 8 or 12 coefficients")
+    dist = _float_list(dist_raw, path, "distortion", len(dist_raw))
+    return Camera.from_opencv(K, dist, d["image_width_px"], d["image_height_px"], source=str(path))
+
+
+def camera_to_opencv_yaml(camera: Camera) -> str:
+    """Text of a rigcal camera file for an OPENCVn or PINHOLE camera."""
+    n_dist = {v: k for k, v in _OPENCV_MODELS.items()}.get(camera.lensmodel)
+    if n_dist is None:
+        raise InputError.at(None, "lensmodel", camera.lensmodel, f"one of {sorted(_OPENCV_MODELS.values())}")
+    K = camera.K
+    rows = ",\n".join(f"    [{', '.join(_fmt(x) for x in row)}]" for row in K)
+    dist = ", ".join(_fmt(x) for x in camera.distortion)
+    return (
+        f"schema_version: {CAMERA_SCHEMA_VERSION}\n"
+        f"image_width_px: {camera.width_px}\n"
+        f"image_height_px: {camera.height_px}\n"
+        f"K: [\n{rows}]\n"
+        f"distortion: [{dist}]  # OpenCV order: k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4]]]\n"
+    )
+
+
+def _fmt(x: float) -> str:
+    return f"{float(x):.10g}"
+
+
+def _is_pos_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool) and x > 0
+
+
+def _float_list(value: Any, path: str | Path | None, key: str, n: int) -> list[float]:
+    if not isinstance(value, list) or len(value) != n:
+        raise InputError.at(path, key, value, f"a list of {n} numbers")
+    return [_one_float(v, path, f"{key}[{i}]") for i, v in enumerate(value)]
+
+
+def _one_float(v: Any, path: str | Path | None, key: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+        raise InputError.at(path, key, v, "a finite number")
+    return float(v)
