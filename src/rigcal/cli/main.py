@@ -1,0 +1,63 @@
+"""The ``rigcal`` command: a click group and the one error boundary.
+
+Each command lives in its own thin module (parse -> call one library function -> write ->
+summary) and imports the heavy libraries inside its body, so ``rigcal --help`` is instant.
+A :class:`~rigcal.errors.RigcalError` becomes one ``Error: ...`` line on stderr and the
+exit code of its class (docs/cli.md); anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from rigcal import __version__
+from rigcal.cli import lines as lines_cmd
+from rigcal.cli import project as project_cmd
+from rigcal.cli import simulate as simulate_cmd
+from rigcal.cli import solve as solve_cmd
+from rigcal.errors import RigcalError
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="rigcal")
+def cli() -> None:
+    """Laser-camera extrinsic calibration and image-augmented laser scan matching.
+
+    \b
+    Examples:
+      rigcal lines session/scans/cap00.yaml --png lines.png
+      rigcal solve session/picks.yaml -o rig.yaml --report report/
+      rigcal project rig.yaml session/scans/cap00.yaml session/images/cap00.png -o overlay.png
+      rigcal simulate calib-session -o session/ --seed 1
+    """
+
+
+cli.add_command(solve_cmd.solve)
+cli.add_command(lines_cmd.lines)
+cli.add_command(project_cmd.project)
+cli.add_command(simulate_cmd.simulate)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the console script; returns the process exit code."""
+    try:
+        rv = cli.main(args=argv, prog_name="rigcal", standalone_mode=False)
+    except RigcalError as exc:
+        click.echo(f"Error: {exc}", err=True)
+        return exc.exit_code
+    except click.exceptions.Abort:
+        click.echo("Aborted.", err=True)
+        return 130
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except click.exceptions.Exit as exc:
+        return int(exc.exit_code)
+    # A command may return its exit code (e.g. a check's verdict); None means success.
+    return rv if isinstance(rv, int) else 0
+
+
+def entry() -> None:  # pragma: no cover - the console script
+    sys.exit(main())
