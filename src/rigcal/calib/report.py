@@ -1,0 +1,216 @@
+"""Residual report of a solve: per-end and per-capture residuals, summary, warnings.
+
+The report is a plain dictionary (written as ``report.yaml``) plus a readable table
+(``report.txt`` and the terminal). Warnings name what is weak about the data: few
+captures, little spread in distance or angle, large uncertainty, strongly correlated
+(nearly unobservable) parameter combinations, and picks that look swapped or wrong.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.calib.ransac import reprojection_errors
+from rigcal.calib.solve import CalibResult
+from rigcal.geometry import R_to_rotvec
+
+FloatArray = NDArray[np.float64]
+
+# Thresholds of the weak-geometry warnings (docs/calibration.md explains each).
+RECOMMENDED_CAPTURES = 8
+MIN_DISTANCE_SPREAD_M = 1.0
+MIN_BEARING_SPREAD_DEG = 15.0
+MAX_SIGMA_ROTATION_DEG = 0.3
+MAX_SIGMA_TRANSLATION_MM = 10.0
+MAX_CORRELATION = 0.98
+
+PARAMETER_NAMES = ("rot_x", "rot_y", "rot_z", "t_x", "t_y", "t_z")
+
+
+def build_report(result: CalibResult, T_truth: FloatArray | None = None) -> dict[str, Any]:
+    """Everything a user needs to judge a solve, as plain types.
+
+    Args:
+        result: the solve.
+        T_truth: (4, 4) known T_cam_laser (simulated sessions), to report the true error.
+    """
+    obs = result.problem.observations
+    meas = result.measurements
+    names = {o.capture: o.name for o in obs}
+    ends = []
+    for k in range(len(meas.points_laser)):
+        ends.append(
+            {
+                "capture": names[int(meas.capture[k])],
+                "end": int(meas.end[k]),
+                "picked_px": [round(float(x), 2) for x in meas.pixels[k]],
+                "error_px": _r(result.errors_px[k], 3),
+                "inlier": bool(result.inliers[k]),
+            }
+        )
+    per_capture = []
+    for o in obs:
+        m = meas.capture == o.capture
+        e = result.errors_px[m]
+        per_capture.append(
+            {
+                "capture": o.name,
+                "rms_px": _r(np.sqrt(np.mean(e**2)), 3),
+                "max_px": _r(e.max(), 3),
+                "inlier_ends": int(result.inliers[m].sum()),
+                "distance_m": _r(float(np.linalg.norm(o.laser_endpoints.mean(axis=0))), 3),
+            }
+        )
+    e_in = result.errors_px[result.inliers]
+    sig_rot = np.degrees(np.sqrt(np.diag(result.covariance)[:3]))
+    sig_t = 1000.0 * np.sqrt(np.diag(result.covariance)[3:])
+    summary = {
+        "captures": len(obs),
+        "captures_used": len(np.unique(meas.capture[result.inliers])),
+        "box_ends": len(meas.points_laser),
+        "inlier_ends": int(result.inliers.sum()),
+        "rms_px": _r(np.sqrt(np.mean(e_in**2)), 4),
+        "median_px": _r(np.median(e_in), 4),
+        "max_px": _r(e_in.max(), 4),
+        "residual_scale": _r(result.refine.residual_scale, 4),
+        "sigma_rotation_deg": [_r(x, 5) for x in sig_rot],
+        "sigma_translation_mm": [_r(x, 3) for x in sig_t],
+        "ransac_triples": result.ransac.triples_drawn,
+        "ransac_hypotheses": result.ransac.hypotheses,
+    }
+    report: dict[str, Any] = {
+        "summary": summary,
+        "rejected": [
+            {"capture": e["capture"], "end": e["end"], "error_px": e["error_px"]}
+            for e in ends
+            if not e["inlier"]
+        ],
+        "warnings": _warnings(result, sig_rot, sig_t),
+        "per_capture": per_capture,
+        "ends": ends,
+    }
+    if T_truth is not None:
+        report["truth"] = truth_comparison(result.T_cam_laser, result.covariance, T_truth)
+    return report
+
+
+def truth_comparison(T_est: FloatArray, cov: FloatArray, T_truth: FloatArray) -> dict[str, Any]:
+    """Error of an estimate against the truth, and its normalised squared size (NEES).
+
+    The error is expressed in the covariance's tangent space: R_truth = Exp(d) R_est,
+    t_truth = t_est + e; NEES = [d, e]^T C^-1 [d, e], chi-square with 6 dof if the
+    covariance is honest.
+    """
+    d = R_to_rotvec(T_truth[:3, :3] @ T_est[:3, :3].T)
+    e = T_truth[:3, 3] - T_est[:3, 3]
+    x = np.concatenate([d, e])
+    nees = float(x @ np.linalg.solve(cov, x))
+    return {
+        "rotation_error_deg": _r(np.degrees(np.linalg.norm(d)), 5),
+        "translation_error_mm": _r(1000.0 * np.linalg.norm(e), 3),
+        "nees": _r(nees, 3),
+    }
+
+
+def _warnings(result: CalibResult, sig_rot: FloatArray, sig_t: FloatArray) -> list[str]:
+    out: list[str] = []
+    obs = result.problem.observations
+    meas = result.measurements
+    used = [o for o in obs if result.inliers[meas.capture == o.capture].any()]
+    if len(used) < RECOMMENDED_CAPTURES:
+        out.append(
+            f"only {len(used)} captures used; {RECOMMENDED_CAPTURES} or more at different distances "
+            "and angles make a reliable calibration"
+        )
+    centres = np.array([o.laser_endpoints.mean(axis=0) for o in used])
+    dist = np.linalg.norm(centres, axis=1)
+    if dist.max() - dist.min() < MIN_DISTANCE_SPREAD_M:
+        out.append(
+            f"captures span only {dist.min():.2f}-{dist.max():.2f} m of distance; "
+            f"spread them over at least {MIN_DISTANCE_SPREAD_M:g} m"
+        )
+    bearing = np.degrees(np.arctan2(centres[:, 1], centres[:, 0]))
+    if bearing.max() - bearing.min() < MIN_BEARING_SPREAD_DEG:
+        out.append(
+            f"the box was seen within {bearing.max() - bearing.min():.1f} deg of bearing; "
+            "place it across the whole image width"
+        )
+    if sig_rot.max() > MAX_SIGMA_ROTATION_DEG or sig_t.max() > MAX_SIGMA_TRANSLATION_MM:
+        out.append(
+            f"large uncertainty: 1-sigma rotation up to {sig_rot.max():.3f} deg, translation up to "
+            f"{sig_t.max():.1f} mm; add captures"
+        )
+    s = np.sqrt(np.diag(result.covariance))
+    corr = result.covariance / np.outer(s, s)
+    np.fill_diagonal(corr, 0.0)
+    i, j = np.unravel_index(int(np.argmax(np.abs(corr))), corr.shape)
+    if abs(corr[i, j]) > MAX_CORRELATION:
+        out.append(
+            f"{PARAMETER_NAMES[i]} and {PARAMETER_NAMES[j]} are nearly indistinguishable from these "
+            f"captures (correlation {corr[i, j]:+.3f}); vary the box distance and bearing more"
+        )
+    out += _swapped_or_wrong(result)
+    return out
+
+
+def _swapped_or_wrong(result: CalibResult) -> list[str]:
+    """Name captures whose picks look swapped (both ends fit once exchanged) or wrong."""
+    out = []
+    meas = result.measurements
+    T = result.T_cam_laser
+    thr = result.problem.settings.ransac.threshold_px
+    for o in result.problem.observations:
+        m = meas.capture == o.capture
+        if result.inliers[m].all():
+            continue
+        swapped = reprojection_errors(
+            result.problem.camera, T[:3, :3], T[:3, 3], meas.points_laser[m], meas.pixels[m][::-1]
+        )
+        if (swapped < thr).all():
+            out.append(f"capture {o.name}: the two image ends look swapped (they fit in the other order)")
+        else:
+            worst = float(result.errors_px[m].max())
+            out.append(
+                f"capture {o.name}: pick rejected ({worst:.1f} px off); check the picks and segment id"
+            )
+    return out
+
+
+def report_table(report: dict[str, Any]) -> str:
+    """Readable summary: per-capture table, totals, rejected picks and warnings."""
+    s = report["summary"]
+    lines = [f"{'capture':<14}{'dist_m':>8}{'rms_px':>9}{'max_px':>9}{'ends':>6}"]
+    for c in report["per_capture"]:
+        lines.append(
+            f"{c['capture']:<14}{c['distance_m']:>8.2f}{c['rms_px']:>9.2f}{c['max_px']:>9.2f}{c['inlier_ends']:>4}/2"
+        )
+    lines.append("")
+    lines.append(
+        f"captures {s['captures_used']}/{s['captures']} used; box ends {s['inlier_ends']}/{s['box_ends']} inliers"
+    )
+    lines.append(
+        f"reprojection error (inliers): rms {s['rms_px']:.3f} px, median {s['median_px']:.3f} px, "
+        f"max {s['max_px']:.3f} px; residual scale {s['residual_scale']:.2f}"
+    )
+    rot = ", ".join(f"{x:.4f}" for x in s["sigma_rotation_deg"])
+    tr = ", ".join(f"{x:.2f}" for x in s["sigma_translation_mm"])
+    lines.append(f"1-sigma rotation (deg, about cam x/y/z): {rot}")
+    lines.append(f"1-sigma translation (mm, along cam x/y/z): {tr}")
+    if "truth" in report:
+        t = report["truth"]
+        lines.append(
+            f"error against truth: rotation {t['rotation_error_deg']:.4f} deg, translation "
+            f"{t['translation_error_mm']:.2f} mm (NEES {t['nees']:.2f}, expected about 6)"
+        )
+    for r in report["rejected"]:
+        lines.append(f"rejected: capture {r['capture']} end {r['end']} ({r['error_px']:.1f} px)")
+    for w in report["warnings"]:
+        lines.append(f"warning: {w}")
+    return "\n".join(lines) + "\n"
+
+
+def _r(x: float | np.floating[Any], nd: int) -> float:
+    return round(float(x), nd)

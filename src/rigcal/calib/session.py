@@ -1,0 +1,141 @@
+"""From a picking file to a rig and its report: the library side of ``rigcal solve``.
+
+Data flow: picking file -> :func:`rigcal.calib.picks.read_picks` -> :class:`CalibProblem`
+-> :func:`rigcal.calib.solve.solve` -> report + :class:`~rigcal.rig.Rig` -> writers.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from rigcal.calib.picks import PickSession, read_picks
+from rigcal.calib.report import build_report, report_table
+from rigcal.calib.solve import CalibProblem, CalibResult, SolveSettings, solve
+from rigcal.calib.truth import read_truth
+from rigcal.errors import OutputError
+from rigcal.rig import Rig
+from rigcal.rigfile import provenance
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A finished calibration: the session, the solve, its report and the rig to write."""
+
+    session: PickSession
+    result: CalibResult
+    report: dict[str, Any]
+    rig: Rig
+
+
+def calibrate(
+    picks_path: str | Path,
+    settings: SolveSettings | None = None,
+    truth_path: str | Path | None = None,
+    command: str = "",
+) -> Calibration:
+    """Read a picking file, solve, and build the report and the rig.
+
+    Raises:
+        InputError: bad picking file or any file it names, or a bad truth file.
+        CalibrationError: the data cannot determine a calibration.
+    """
+    settings = settings or SolveSettings()
+    T_truth = read_truth(truth_path) if truth_path is not None else None
+    session = read_picks(picks_path)
+    result = solve(CalibProblem(session.camera, session.observations, settings))
+    report = build_report(result, T_truth)
+    s = report["summary"]
+    laser = {**session.laser, **_scanner_description(session)}
+    rig = Rig(
+        T_cam_laser=result.T_cam_laser,
+        camera=session.camera,
+        covariance=result.covariance,
+        laser=laser,
+        residuals={
+            k: s[k] for k in ("captures", "captures_used", "box_ends", "inlier_ends", "rms_px", "median_px")
+        }
+        | {"max_px": s["max_px"], "residual_scale": s["residual_scale"]},
+        provenance=provenance(
+            command,
+            session.input_files(),
+            {
+                "method": "box-target (Algorithm 1)",
+                "camera_source": str(session.camera_path),
+                **settings.to_dict(),
+            },
+        ),
+    )
+    return Calibration(session, result, report, rig)
+
+
+def _scanner_description(session: PickSession) -> dict[str, Any]:
+    steps = [o.beam_step_rad for o in session.observations if o.beam_step_rad > 0]
+    return {"angle_increment_deg": round(float(np.degrees(np.median(steps))), 6)} if steps else {}
+
+
+def check_report_dir(folder: str | Path, force: bool) -> Path:
+    """Refuse an existing report folder unless ``force`` (checked before solving)."""
+    folder = Path(folder)
+    if folder.exists() and not force:
+        raise OutputError(f"{folder}: exists; pass --force to replace the report folder")
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{folder}: is a file; expected a folder for the report")
+    return folder
+
+
+def write_report_dir(folder: str | Path, cal: Calibration, force: bool = False) -> Path:
+    """Write report.yaml, report.json, report.txt and one overlay PNG per capture.
+
+    Everything goes into a temporary sibling folder first, then replaces ``folder`` in one
+    rename, so a failure leaves no half-written report.
+    """
+    from rigcal.scan import read_scan
+    from rigcal.viz.overlay import draw_overlay, read_image, write_png
+
+    folder = check_report_dir(folder, force)
+    try:
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}."))
+    except OSError as exc:
+        raise OutputError(f"{folder}: cannot create: {exc.strerror or exc}") from None
+    try:
+        (tmp / "report.yaml").write_text(
+            "# rigcal solve report (docs/formats/report.md)\n"
+            + yaml.safe_dump(cal.report, sort_keys=False, default_flow_style=None, width=110)
+        )
+        (tmp / "report.json").write_text(json.dumps(cal.report, indent=1) + "\n")
+        (tmp / "report.txt").write_text(report_table(cal.report))
+        res = cal.result
+        T = res.T_cam_laser
+        for obs in cal.session.observations:
+            m = res.measurements.capture == obs.capture
+            ends3 = np.column_stack([res.measurements.points_laser[m], np.zeros(int(m.sum()))])
+            projected = cal.session.camera.project(ends3 @ T[:3, :3].T + T[:3, 3])
+            img = draw_overlay(
+                read_image(obs.image_path),
+                cal.session.camera,
+                T,
+                read_scan(obs.scan_path),
+                picked_px=obs.image_endpoints_px,
+                projected_ends_px=projected,
+                end_inlier=res.inliers[m],
+            )
+            write_png(tmp / f"overlay_{obs.name}.png", img)
+        if folder.exists():
+            shutil.rmtree(folder)
+        tmp.rename(folder)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise OutputError(f"{folder}: cannot write the report: {exc.strerror or exc}") from None
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return folder

@@ -1,0 +1,55 @@
+"""``rigcal lines``: the line segments of a scan, to help picking the box side."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+
+@click.command("lines")
+@click.argument("scan", type=click.Path(path_type=Path))
+@click.option("--png", type=click.Path(path_type=Path), help="Also draw the scan with numbered segments.")
+@click.option("--force", is_flag=True, help="Overwrite an existing PNG.")
+@click.option("--json", "as_json", is_flag=True, help="Print the segments as JSON on stdout.")
+def lines(scan: Path, png: Path | None, force: bool, as_json: bool) -> None:
+    """List the line segments of SCAN (paper Section III-B), numbered as picking files use them.
+
+    \b
+    Examples:
+      rigcal lines examples/box-session/scans/cap00.yaml
+      rigcal lines scan.yaml --png lines.png --force
+      rigcal lines scan.yaml --json | jq '.[] | select(.length_m > 0.5)'
+    """
+    from rigcal.calib.lines import extract_lines, segments_table
+    from rigcal.io.files import check_writable
+    from rigcal.scan import read_scan
+
+    if png is not None:
+        check_writable(png, force)
+    s = read_scan(scan)
+    segments = extract_lines(s)
+    if png is not None:
+        from rigcal.viz.scan_plot import render_scan_segments
+
+        render_scan_segments(s, segments, png, force=force)
+    if as_json:
+        doc = [
+            {
+                "id": g.id,
+                "points": len(g.indices),
+                "first_beam": int(g.indices[0]),
+                "last_beam": int(g.indices[-1]),
+                "start_m": [round(float(x), 4) for x in g.start],
+                "end_m": [round(float(x), 4) for x in g.end],
+                "length_m": round(float(g.length_m), 4),
+                "angle_deg": round(float(g.angle_rad) * 180.0 / 3.141592653589793, 3),
+                "rms_residual_mm": round(1000.0 * float(g.rms_residual_m), 3),
+            }
+            for g in segments
+        ]
+        click.echo(json.dumps(doc, indent=1))
+    else:
+        click.echo(segments_table(segments), nl=False)
+    click.echo(f"{len(segments)} segments" + (f"; drew {png}" if png else ""), err=True)

@@ -1,0 +1,54 @@
+"""The in-memory rig: the calibrated laser-camera pair that every later command reads."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.camera import Camera
+
+FloatArray = NDArray[np.float64]
+
+# Order and meaning of the covariance's parameters, written into every rig file.
+COVARIANCE_PARAMETERS = (
+    "[dtheta_x, dtheta_y, dtheta_z] rad, [dt_x, dt_y, dt_z] m, in the camera frame: "
+    "R_true = Exp(dtheta) R, t_true = t + dt"
+)
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A calibrated rig.
+
+    Attributes:
+        T_cam_laser: (4, 4) maps laser-frame points into the camera frame (paper Eq. (3)).
+        camera: the camera model.
+        covariance: (6, 6) covariance of T_cam_laser (see COVARIANCE_PARAMETERS), or None.
+        laser: description of the scanner (name, field of view, step, max range).
+        residuals: residual summary of the solve that made it (rms_px, ...), or empty.
+        provenance: how it was made (version, time, command, input hashes, settings).
+    """
+
+    T_cam_laser: FloatArray
+    camera: Camera
+    covariance: FloatArray | None = None
+    laser: dict[str, Any] = field(default_factory=dict)
+    residuals: dict[str, Any] = field(default_factory=dict)
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def T_laser_cam(self) -> FloatArray:
+        """(4, 4) the inverse direction: camera-frame points into the laser frame."""
+        from rigcal.geometry import inv_T
+
+        return inv_T(self.T_cam_laser)
+
+    def sigmas(self) -> tuple[FloatArray, FloatArray] | None:
+        """1-sigma rotation (deg, per camera axis) and translation (mm), or None."""
+        if self.covariance is None:
+            return None
+        d = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+        return np.degrees(d[:3]), 1000.0 * d[3:]

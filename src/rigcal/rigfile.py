@@ -1,0 +1,154 @@
+"""The rig file: a versioned YAML file holding a calibrated rig (docs/formats/rig.md).
+
+Schema version 1::
+
+    schema_version: 1
+    T_cam_laser: {maps: laser -> cam, rotation_vector_rad: [...], translation_m: [...]}
+    uncertainty:                       # optional
+      parameters: <text: order and meaning of the covariance's parameters>
+      covariance: 6 rows of 6
+      sigma_rotation_deg: [x, y, z]
+      sigma_translation_mm: [x, y, z]
+    camera: {lensmodel: ..., intrinsics: [...], imagersize: [w, h]}   # mrcal's names
+    laser: {...}                       # free-form description of the scanner
+    residuals: {...}                   # summary of the solve
+    provenance: {...}                  # rigcal version, UTC time, command, inputs, settings
+
+Reading validates every field and rejects unknown keys.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from rigcal import __version__
+from rigcal.camera import camera_from_dict
+from rigcal.errors import InputError
+from rigcal.io.files import atomic_write_text, check_keys, load_yaml
+from rigcal.io.transform import float_matrix, float_vector, transform_from_dict, transform_to_dict
+from rigcal.rig import COVARIANCE_PARAMETERS, Rig
+
+RIG_SCHEMA_VERSION = 1
+
+_HEADER = (
+    "# rigcal rig file, schema 1 (docs/formats/rig.md).\n"
+    "# T_cam_laser maps laser-frame points into the camera frame: p_cam = R p_laser + t,\n"
+    "# R given as a rotation vector (axis * angle, rad), t in metres.\n"
+)
+
+
+def rig_to_dict(rig: Rig) -> dict[str, Any]:
+    """The YAML document of a rig (plain Python types only)."""
+    doc: dict[str, Any] = {
+        "schema_version": RIG_SCHEMA_VERSION,
+        "T_cam_laser": transform_to_dict(rig.T_cam_laser, "cam", "laser"),
+    }
+    sig = rig.sigmas()
+    if rig.covariance is not None and sig is not None:
+        doc["uncertainty"] = {
+            "parameters": COVARIANCE_PARAMETERS,
+            "covariance": [[float(f"{x:.6e}") for x in row] for row in rig.covariance],
+            "sigma_rotation_deg": [round(float(x), 6) for x in sig[0]],
+            "sigma_translation_mm": [round(float(x), 4) for x in sig[1]],
+        }
+    doc["camera"] = rig.camera.to_dict()
+    doc["laser"] = _plain(rig.laser)
+    doc["residuals"] = _plain(rig.residuals)
+    doc["provenance"] = _plain(rig.provenance)
+    return doc
+
+
+def rig_to_text(rig: Rig) -> str:
+    """Text of a rig file."""
+    return _HEADER + yaml.safe_dump(rig_to_dict(rig), sort_keys=False, default_flow_style=None, width=100)
+
+
+def write_rig(path: str | Path, rig: Rig, force: bool = False) -> Path:
+    """Write a rig file atomically; refuses to overwrite unless ``force``."""
+    return atomic_write_text(path, rig_to_text(rig), force=force)
+
+
+def read_rig(path: str | Path) -> Rig:
+    """Read and validate a rig file.
+
+    Raises:
+        InputError: missing, unreadable or invalid file, naming the key and value.
+    """
+    path = Path(path)
+    d = check_keys(
+        load_yaml(path, "rig file"),
+        path,
+        "",
+        ["schema_version", "T_cam_laser", "camera"],
+        ["uncertainty", "laser", "residuals", "provenance"],
+    )
+    if d["schema_version"] != RIG_SCHEMA_VERSION:
+        raise InputError.at(
+            path, "schema_version", d["schema_version"], f"{RIG_SCHEMA_VERSION} (this rigcal)"
+        )
+    T = transform_from_dict(d["T_cam_laser"], path, "T_cam_laser", "cam", "laser")
+    camera = camera_from_dict(d["camera"], path, "camera")
+    cov = None
+    if "uncertainty" in d:
+        u = check_keys(
+            d["uncertainty"],
+            path,
+            "uncertainty",
+            ["parameters", "covariance"],
+            ["sigma_rotation_deg", "sigma_translation_mm"],
+        )
+        if u["parameters"] != COVARIANCE_PARAMETERS:
+            raise InputError.at(path, "uncertainty.parameters", u["parameters"], repr(COVARIANCE_PARAMETERS))
+        cov = float_matrix(u["covariance"], path, "uncertainty.covariance", 6, 6)
+        if not np.allclose(cov, cov.T, rtol=1e-4, atol=1e-15) or np.linalg.eigvalsh(cov).min() < -1e-15:
+            raise InputError.at(
+                path, "uncertainty.covariance", "...", "a symmetric positive semi-definite matrix"
+            )
+        for key in ("sigma_rotation_deg", "sigma_translation_mm"):
+            if key in u:
+                float_vector(u[key], path, f"uncertainty.{key}", 3)
+    sections = {}
+    for key in ("laser", "residuals", "provenance"):
+        value = d.get(key, {})
+        if not isinstance(value, dict):
+            raise InputError.at(path, key, value, "a mapping")
+        sections[key] = value
+    return Rig(T, camera, cov, sections["laser"], sections["residuals"], sections["provenance"])
+
+
+def provenance(command: str, inputs: list[Path], settings: dict[str, Any]) -> dict[str, Any]:
+    """How a result was made: version, UTC time, command line, input hashes, settings."""
+    import datetime
+
+    from rigcal.io.files import sha256_file
+
+    return {
+        "rigcal_version": __version__,
+        "created_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "command": command,
+        "inputs": [{"path": str(p), "sha256": sha256_file(p)} for p in inputs],
+        **settings,
+    }
+
+
+def _plain(x: Any) -> Any:
+    """Convert numpy scalars/arrays and paths to plain YAML-safe types."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, np.bool_):
+        return bool(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, (np.floating, float)):
+        return float(x)
+    if isinstance(x, Path):
+        return str(x)
+    return x

@@ -1,0 +1,89 @@
+"""A scan projected onto its image with the rig's calibration (the paper's Fig. 2a).
+
+Laser points are mapped into the camera frame with T_cam_laser (Eq. (3)) and projected
+through the camera model (Eq. (1) with distortion). Picked box ends are marked as green
+circles, the projected laser box ends as crosses (red when rejected).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.camera import Camera
+from rigcal.errors import InputError
+from rigcal.geometry import transform_points
+from rigcal.io.files import atomic_write_bytes
+from rigcal.scan import Scan
+
+FloatArray = NDArray[np.float64]
+
+SCAN_BGR = (255, 120, 0)  # blue, as in Fig. 2a
+PICK_BGR = (0, 200, 0)
+END_BGR = (0, 255, 255)
+REJECTED_BGR = (0, 0, 255)
+
+
+def read_image(path: str | Path) -> NDArray[np.uint8]:
+    """Read an image as 8-bit BGR; InputError if missing or unreadable."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: image not found")
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise InputError(f"{path}: cannot decode image (expected PNG, JPEG or another format OpenCV reads)")
+    out: NDArray[np.uint8] = img
+    return out
+
+
+def project_scan(camera: Camera, T_cam_laser: FloatArray, scan: Scan) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Pixels of every beam (N, 2) and the mask of those that land in the image (N,)."""
+    pts = scan.points
+    q = np.full((len(pts), 2), np.nan)
+    valid = scan.valid
+    if valid.any():
+        q[valid] = camera.project(transform_points(T_cam_laser, pts[valid]))
+    inside = valid & camera.in_image(q)
+    return q, inside
+
+
+def draw_overlay(
+    image: NDArray[np.uint8],
+    camera: Camera,
+    T_cam_laser: FloatArray,
+    scan: Scan,
+    picked_px: FloatArray | None = None,
+    projected_ends_px: FloatArray | None = None,
+    end_inlier: NDArray[np.bool_] | None = None,
+) -> NDArray[np.uint8]:
+    """Draw the projected scan and the picks on a copy of ``image`` (BGR)."""
+    import cv2
+
+    out = image.copy()
+    q, inside = project_scan(camera, T_cam_laser, scan)
+    for u, v in q[inside]:
+        cv2.circle(out, (round(u), round(v)), 2, SCAN_BGR, -1, cv2.LINE_AA)
+    if picked_px is not None:
+        for u, v in picked_px:
+            cv2.circle(out, (round(u), round(v)), 7, PICK_BGR, 2, cv2.LINE_AA)
+    if projected_ends_px is not None:
+        ok = np.ones(len(projected_ends_px), bool) if end_inlier is None else end_inlier
+        for (u, v), good in zip(projected_ends_px, ok, strict=True):
+            if np.isfinite(u) and np.isfinite(v):
+                colour = END_BGR if good else REJECTED_BGR
+                cv2.drawMarker(out, (round(u), round(v)), colour, cv2.MARKER_CROSS, 14, 2, cv2.LINE_AA)
+    return out
+
+
+def write_png(path: str | Path, image: NDArray[np.uint8], force: bool = False) -> Path:
+    """Encode as PNG and write atomically."""
+    import cv2
+
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:  # pragma: no cover - cv2 encodes any 8-bit image
+        raise RuntimeError("PNG encoding failed")
+    return atomic_write_bytes(path, buf.tobytes(), force=force)
