@@ -1,0 +1,160 @@
+"""`rigcal solve`, `rigcal lines` and `rigcal project` through the command line."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from rigcal.cli.main import main
+from rigcal.rigfile import read_rig
+from rigcal.sim.box_session import SessionSpec, generate_session, write_session
+
+
+@pytest.fixture(scope="module")
+def session_dir(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("sess") / "session"
+    write_session(generate_session(SessionSpec(n_captures=8, seed=21)), folder)
+    return folder
+
+
+def run(capsys, *args: str) -> tuple[int, str, str]:
+    code = main(list(args))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_solve_writes_rig_and_report(session_dir, tmp_path, capsys):
+    rig = tmp_path / "rig.yaml"
+    rep = tmp_path / "report"
+    code, out, _ = run(
+        capsys,
+        "solve",
+        str(session_dir / "picks.yaml"),
+        "-o",
+        str(rig),
+        "--report",
+        str(rep),
+        "--truth",
+        str(session_dir / "truth.yaml"),
+    )
+    assert code == 0
+    assert "reprojection error" in out
+    assert "error against truth" in out
+    r = read_rig(rig)
+    assert r.covariance is not None
+    assert r.provenance["inputs"]
+    assert {p.name for p in rep.iterdir()} >= {
+        "report.yaml",
+        "report.json",
+        "report.txt",
+        "overlay_cap00.png",
+    }
+    assert yaml.safe_load((rep / "report.yaml").read_text().split("\n", 1)[1])["summary"]["captures"] == 8
+
+
+def test_solve_json(session_dir, tmp_path, capsys):
+    code, out, _ = run(
+        capsys, "solve", str(session_dir / "picks.yaml"), "-o", str(tmp_path / "r.yaml"), "--json"
+    )
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["summary"]["box_ends"] == 16
+    assert doc["rig_file"].endswith("r.yaml")
+
+
+def test_solve_refuses_to_overwrite(session_dir, tmp_path, capsys):
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("keep me")
+    code, _, err = run(capsys, "solve", str(session_dir / "picks.yaml"), "-o", str(rig))
+    assert code == 5
+    assert "exists" in err
+    assert "--force" in err
+    assert rig.read_text() == "keep me"
+    code, _, _ = run(capsys, "solve", str(session_dir / "picks.yaml"), "-o", str(rig), "--force")
+    assert code == 0
+    assert read_rig(rig).camera.width_px > 0
+
+
+def test_solve_bad_input_writes_nothing(session_dir, tmp_path, capsys):
+    bad = tmp_path / "sess"
+    shutil.copytree(session_dir, bad)
+    picks = yaml.safe_load((bad / "picks.yaml").read_text())
+    picks["captures"][2]["laser_side"] = {"segment": 999}
+    (bad / "picks.yaml").write_text(yaml.safe_dump(picks))
+    rig = tmp_path / "rig.yaml"
+    code, out, err = run(
+        capsys, "solve", str(bad / "picks.yaml"), "-o", str(rig), "--report", str(tmp_path / "rep")
+    )
+    assert code == 3
+    assert err.count("\n") == 1
+    assert "captures[2].laser_side.segment" in err
+    assert "999" in err
+    assert not rig.exists()
+    assert not (tmp_path / "rep").exists()
+    assert out == ""
+
+
+def test_solve_missing_file_and_usage(tmp_path, capsys):
+    code, _, err = run(capsys, "solve", str(tmp_path / "nope.yaml"), "-o", str(tmp_path / "r.yaml"))
+    assert code == 3
+    assert "nope.yaml" in err
+    code, _, _ = run(capsys, "solve", str(tmp_path / "nope.yaml"))
+    assert code == 2
+    code, _, _ = run(capsys, "solve", "x", "-o", "y", "--threshold-px", "-1")
+    assert code == 2
+
+
+def test_solve_too_few_captures_exit_4(session_dir, tmp_path, capsys):
+    picks = yaml.safe_load((session_dir / "picks.yaml").read_text())
+    picks["captures"] = picks["captures"][:2]
+    p = session_dir / "two.yaml"
+    p.write_text(yaml.safe_dump(picks))
+    try:
+        code, _, err = run(capsys, "solve", str(p), "-o", str(tmp_path / "r.yaml"))
+    finally:
+        p.unlink()
+    assert code == 4
+    assert "at least 3" in err
+    assert not (tmp_path / "r.yaml").exists()
+
+
+def test_lines_table_json_and_png(session_dir, tmp_path, capsys):
+    scan = session_dir / "scans" / "cap00.yaml"
+    code, out, err = run(capsys, "lines", str(scan))
+    assert code == 0
+    assert "segments" in err
+    code, out, _ = run(capsys, "lines", str(scan), "--json", "--png", str(tmp_path / "l.png"))
+    assert code == 0
+    segs = json.loads(out)
+    assert segs
+    assert segs[0]["id"] == 0
+    assert (tmp_path / "l.png").stat().st_size > 1000
+    code, _, _ = run(capsys, "lines", str(scan), "--png", str(tmp_path / "l.png"))
+    assert code == 5
+
+
+def test_project_overlay(session_dir, tmp_path, capsys):
+    rig = tmp_path / "rig.yaml"
+    assert run(capsys, "solve", str(session_dir / "picks.yaml"), "-o", str(rig))[0] == 0
+    png = tmp_path / "o.png"
+    args = [str(rig), str(session_dir / "scans" / "cap00.yaml"), str(session_dir / "images" / "cap00.png")]
+    code, out, err = run(capsys, "project", *args, "-o", str(png), "--json")
+    assert code == 0
+    assert json.loads(out)["beams_in_image"] > 10
+    assert png.exists()
+    code, _, err = run(
+        capsys, "project", str(tmp_path / "none.yaml"), *args[1:], "-o", str(tmp_path / "p.png")
+    )
+    assert code == 3
+    assert "none.yaml" in err
+
+
+def test_help_has_examples(capsys):
+    for cmd in ("solve", "lines", "project"):
+        code, out, _ = run(capsys, cmd, "--help")
+        assert code == 0
+        assert "Examples:" in out
