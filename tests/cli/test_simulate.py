@@ -1,0 +1,88 @@
+"""`rigcal simulate calib-session` through the command line."""
+
+from __future__ import annotations
+
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from rigcal.calib.picks import read_picks
+from rigcal.calib.truth import read_truth
+from rigcal.cli.main import cli, main
+from rigcal.sim.box_session import default_T_cam_laser
+
+
+def test_writes_a_session(tmp_path):
+    out = tmp_path / "sess"
+    res = CliRunner().invoke(
+        cli,
+        ["simulate", "calib-session", "-o", str(out), "--captures", "4", "--seed", "2", "--no-images"],
+    )
+    assert res.exit_code == 0, res.output
+    assert res.stdout == ""  # results are files; the summary goes to stderr
+    assert "4 captures" in res.stderr
+    assert "rigcal solve" in res.stderr
+    session = read_picks(out / "picks.yaml")
+    assert [o.name for o in session.observations] == ["cap00", "cap01", "cap02", "cap03"]
+    assert (read_truth(out / "truth.yaml") == pytest.approx(default_T_cam_laser(), abs=1e-11))
+    assert "--seed 2 --captures 4" in (out / "picks.yaml").read_text()
+
+
+def test_noise_and_wrong_picks_reach_the_truth_file(tmp_path):
+    out = tmp_path / "sess"
+    args = ["simulate", "calib-session", "-o", str(out), "--captures", "4", "--no-images"]
+    args += ["--pick-sigma-px", "2.5", "--range-sigma-m", "0.02", "--wrong-picks", "0.5"]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 0, res.output
+    gen = yaml.safe_load((out / "truth.yaml").read_text())["generator"]
+    assert gen["pick_sigma_px"] == 2.5
+    assert gen["range_sigma_m"] == 0.02
+    assert len(gen["wrong_picks"]) == 2
+    assert "wrong picks in" in res.stderr
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        ["--captures", "0"],
+        ["--captures", "many"],
+        ["--wrong-picks", "1.5"],
+        ["--pick-sigma-px", "-1"],
+        ["--range-sigma-m", "-0.01"],
+        ["--seed", "-3"],
+    ],
+)
+def test_bad_option_values_are_usage_errors(tmp_path, bad):
+    res = CliRunner().invoke(cli, ["simulate", "calib-session", "-o", str(tmp_path / "s"), *bad])
+    assert res.exit_code == 2
+    assert not (tmp_path / "s").exists()
+
+
+def test_output_is_required():
+    assert CliRunner().invoke(cli, ["simulate", "calib-session"]).exit_code == 2
+
+
+def test_existing_folder_needs_force(tmp_path, capsys):
+    out = tmp_path / "sess"
+    out.mkdir()
+    (out / "mine.txt").write_text("keep")
+    args = ["simulate", "calib-session", "-o", str(out), "--captures", "3", "--no-images"]
+    assert main(args) == 5
+    err = capsys.readouterr().err
+    assert err.startswith("Error: ")
+    assert "exists" in err
+    assert "--force" in err
+    assert (out / "mine.txt").read_text() == "keep"
+    assert main([*args, "--force"]) == 0
+    assert not (out / "mine.txt").exists()
+    assert (out / "picks.yaml").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sess"]
+
+
+def test_help_has_examples():
+    for args in (["simulate", "--help"], ["simulate", "calib-session", "--help"]):
+        res = CliRunner().invoke(cli, args)
+        assert res.exit_code == 0
+        assert "Examples:" in res.output
+    res = CliRunner().invoke(cli, ["simulate", "calib-session", "--help"])
+    assert "rigcal simulate calib-session -o examples/box-session --seed 1" in res.output
