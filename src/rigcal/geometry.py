@@ -76,8 +76,11 @@ def rt_from_T(T: ArrayLike) -> FloatArray:
 def rotation_angle_rad(R: ArrayLike) -> float:
     """Angle of a rotation matrix, in [0, pi] radians."""
     R = np.asarray(R, dtype=float)
+    # atan2 of sin and cos stays accurate near 0 and pi, where arccos of the trace alone
+    # cannot resolve angles below ~1e-8 rad.
     c = (np.trace(R) - 1.0) / 2.0
-    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+    s = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    return float(np.arctan2(s, c))
 
 
 def pose_error(T_est: ArrayLike, T_ref: ArrayLike) -> tuple[float, float]:

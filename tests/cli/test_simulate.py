@@ -24,7 +24,7 @@ def test_writes_a_session(tmp_path):
     assert "rigcal solve" in res.stderr
     session = read_picks(out / "picks.yaml")
     assert [o.name for o in session.observations] == ["cap00", "cap01", "cap02", "cap03"]
-    assert (read_truth(out / "truth.yaml") == pytest.approx(default_T_cam_laser(), abs=1e-11))
+    assert read_truth(out / "truth.yaml") == pytest.approx(default_T_cam_laser(), abs=1e-11)
     assert "--seed 2 --captures 4" in (out / "picks.yaml").read_text()
 
 

@@ -201,7 +201,9 @@ def test_rendered_capture_shows_the_box_at_the_picked_ends(session):
     for j, inward in ((0, along), (1, -along)):
         u, v = np.round(c.true_pixels[j]).astype(int)
         assert any(is_box_colour(p) for p in img[v - 1 : v + 2, u - 1 : u + 2].reshape(-1, 3))
-        q = session.camera.project(transform_points(session.T_cam_laser, [c.true_laser_ends[j] + 0.02 * inward]))
+        q = session.camera.project(
+            transform_points(session.T_cam_laser, [c.true_laser_ends[j] + 0.02 * inward])
+        )
         ui, vi = np.round(q[0]).astype(int)
         assert is_box_colour(img[vi, ui])
     # Well above the box: not box-coloured.
@@ -297,4 +299,6 @@ def test_rendered_images_are_written(tmp_path):
     folder = write_session(sess, tmp_path / "s")
     img = cv2.imread(str(folder / "images" / "cap00.png"))
     assert img.shape == (480, 640, 3)
-    np.testing.assert_array_equal(img, render_image(sess.camera, sess.T_cam_laser, sess.scene(sess.captures[0])))
+    np.testing.assert_array_equal(
+        img, render_image(sess.camera, sess.T_cam_laser, sess.scene(sess.captures[0]))
+    )

@@ -158,9 +158,7 @@ def _end_spacings(side: FloatArray) -> FloatArray:
     return np.array([np.linalg.norm(side[1] - side[0]), np.linalg.norm(side[-1] - side[-2])])
 
 
-def whitening(
-    camera: Camera, T_cam_laser: FloatArray, meas: EndpointSet, noise: NoiseModel
-) -> FloatArray:
+def whitening(camera: Camera, T_cam_laser: FloatArray, meas: EndpointSet, noise: NoiseModel) -> FloatArray:
     """(P, 2, 2) matrices W with W^T W = inverse covariance of each end's pixel residual."""
     R = T_cam_laser[:3, :3]
     p = np.column_stack([meas.points_laser, np.zeros(len(meas.points_laser))]) @ R.T + T_cam_laser[:3, 3]

@@ -42,7 +42,9 @@ def transform_from_dict(
         raise InputError.at(path, f"{keypath}.maps", d["maps"], f"'{want}'")
     r = float_vector(d["rotation_vector_rad"], path, f"{keypath}.rotation_vector_rad", 3)
     if np.linalg.norm(r) > np.pi + 1e-9:
-        raise InputError.at(path, f"{keypath}.rotation_vector_rad", r.tolist(), "a rotation of at most pi rad")
+        raise InputError.at(
+            path, f"{keypath}.rotation_vector_rad", r.tolist(), "a rotation of at most pi rad"
+        )
     t = float_vector(d["translation_m"], path, f"{keypath}.translation_m", 3)
     return make_T(rotvec_to_R(r), t)
 

@@ -338,7 +338,10 @@ def _capture(
         )
         ends = _order_ends(box.front_ends(*pose))
         found = find_face_segment(
-            scan, ends, face_beams, tolerance_m=max(FACE_TOLERANCE_M, FACE_TOLERANCE_SIGMAS * spec.range_sigma_m)
+            scan,
+            ends,
+            face_beams,
+            tolerance_m=max(FACE_TOLERANCE_M, FACE_TOLERANCE_SIGMAS * spec.range_sigma_m),
         )
         if found is None:
             # At steep incidence the box's side shows next to its face and the two may not

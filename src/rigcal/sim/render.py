@@ -142,9 +142,7 @@ def render_image(camera: Camera, T_cam_laser: ArrayLike, scene: Scene) -> Image:
     return render_scene(camera, T_cam_laser, scene)[0]
 
 
-def render_scene(
-    camera: Camera, T_cam_laser: ArrayLike, scene: Scene
-) -> tuple[Image, NDArray[np.int8]]:
+def render_scene(camera: Camera, T_cam_laser: ArrayLike, scene: Scene) -> tuple[Image, NDArray[np.int8]]:
     """Render the scene, also returning which surface each pixel shows.
 
     Returns:

@@ -1,0 +1,296 @@
+"""The 3-point algorithm (P3P), vectorised over many triples (paper Algorithm 1, step 5).
+
+Given three unit bearings y_i from the camera centre and the three points x_i they see
+(any frame), P3P finds the depths lambda_i > 0 with lambda_i y_i at mutual distances
+|x_i - x_j|. This is the Lambda Twist formulation (Persson and Nordberg, ECCV 2018):
+
+1. The law of cosines for the three pairs, lambda_i^2 + lambda_j^2 - 2 b_ij lambda_i lambda_j
+   = a_ij (b_ij = y_i . y_j, a_ij = |x_i - x_j|^2), written as quadratic forms
+   Lambda^T M_ij Lambda = a_ij.
+2. Two homogeneous forms D1 = a_23 M_12 - a_12 M_23 and D2 = a_23 M_13 - a_13 M_23 vanish on
+   every solution; a member of their pencil D0 = D1 + g D2 with det(D0) = 0 (a cubic in g)
+   is a pair of planes through the origin: D0 = s1 e1 e1^T + s2 e2 e2^T with s1 s2 < 0, so
+   (e1 +/- sqrt(-s2/s1) e2) . Lambda = 0.
+3. In each plane, D1 restricted to the plane is a binary quadratic form whose two null
+   directions, scaled by the sum of the three distance equations, give the solutions.
+4. A few Gauss-Newton steps on the three original equations polish the depths.
+
+Where Lambda Twist solves a 2x2 quadratic for a ratio, we parametrise the plane by an
+orthonormal basis and solve for an angle, which has no division by a small plane
+coefficient; the cubic's real roots come from batched companion-matrix eigenvalues, and
+of them the one whose plane pair is best conditioned is used. The pose follows from the
+camera-frame points lambda_i y_i by Horn's method (:mod:`rigcal.calib.horn`), as the
+paper's step 6 does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+_GAUSS_NEWTON_STEPS = 3
+# A solution is kept when its three distance equations hold to this relative error.
+_RELATIVE_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class P3PSolutions:
+    """All real P3P solutions of a batch of triples.
+
+    Attributes:
+        triple: (K,) index of the triple (in the batch) each solution belongs to; a triple
+            has 0 to 4 solutions.
+        depths: (K, 3) metres: the distances lambda_i along the bearings, so the camera-frame
+            points are ``depths[k, i] * bearings[triple[k], i]``.
+    """
+
+    triple: NDArray[np.int64]
+    depths: FloatArray
+
+
+def p3p(bearings: ArrayLike, points: ArrayLike) -> P3PSolutions:
+    """Solve P3P for every triple of a batch.
+
+    Args:
+        bearings: (n, 3, 3) unit bearings, camera frame: ``bearings[k, i]`` sees point i.
+        points: (n, 3, 3) the points, metres, in any frame.
+
+    Returns:
+        Every real solution with positive depths. Collinear or coincident points, or
+        coincident bearings, give no solution rather than a wrong one.
+    """
+    y = np.asarray(bearings, dtype=float)
+    x = np.asarray(points, dtype=float)
+    if y.ndim == 2:
+        y, x = y[None], x[None]
+    n = len(y)
+    if n == 0:
+        return P3PSolutions(np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
+    y = y / np.linalg.norm(y, axis=2, keepdims=True)
+
+    a12 = _sq(x[:, 0] - x[:, 1])
+    a13 = _sq(x[:, 0] - x[:, 2])
+    a23 = _sq(x[:, 1] - x[:, 2])
+    b12 = np.einsum("ki,ki->k", y[:, 0], y[:, 1])
+    b13 = np.einsum("ki,ki->k", y[:, 0], y[:, 2])
+    b23 = np.einsum("ki,ki->k", y[:, 1], y[:, 2])
+
+    M12 = _form(n, (0, 1), b12)
+    M13 = _form(n, (0, 2), b13)
+    M23 = _form(n, (1, 2), b23)
+    # Step 2: two homogeneous forms that vanish on every solution.
+    D1 = a23[:, None, None] * M12 - a12[:, None, None] * M23
+    D2 = a23[:, None, None] * M13 - a13[:, None, None] * M23
+    D0 = _degenerate_member(D1, D2)
+
+    # Plane pairs of D0: eigen-decomposition, the null eigenvalue dropped.
+    w, E = np.linalg.eigh(D0)
+    order = np.argsort(-np.abs(w), axis=1)  # |s1| >= |s2| >= |s3| ~ 0
+    s = np.take_along_axis(w, order, axis=1)
+    E = np.take_along_axis(E, order[:, None, :], axis=2)
+    s1, s2 = s[:, 0], s[:, 1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.sqrt(np.where(s1 * s2 < 0, -s2 / s1, np.nan))
+    Msum = M12 + M13 + M23
+    asum = a12 + a13 + a23
+    scale = np.maximum(asum, np.finfo(float).tiny)
+
+    triples = []
+    depths = []
+    for sign in (1.0, -1.0):
+        normal = E[:, :, 0] + sign * ratio[:, None] * E[:, :, 1]  # (n, 3), plane normal
+        p, q = _plane_basis(normal)
+        # Step 3: D1 restricted to the plane (D2 when D1 vanishes there: on the plane
+        # D1 = -g D2, so either carries the same null directions).
+        F = np.where(
+            (_frob(_restrict(D1, p, q)) >= _frob(_restrict(D2, p, q)))[:, None, None],
+            _restrict(D1, p, q),
+            _restrict(D2, p, q),
+        )
+        A, B, C = F[:, 0, 0], F[:, 0, 1], F[:, 1, 1]
+        # A c^2 + 2 B c s + C s^2 = 0 with (c, s) = (cos t, sin t):
+        # (A + C)/2 + R cos(2t - phi) = 0.
+        R = np.hypot(0.5 * (A - C), B)
+        phi = np.arctan2(B, 0.5 * (A - C))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            arg = -0.5 * (A + C) / R
+        arg = np.where(np.abs(arg) <= 1.0 + 1e-9, np.clip(arg, -1.0, 1.0), np.nan)
+        for branch in (1.0, -1.0):
+            t = 0.5 * (phi + branch * np.arccos(arg))
+            u = np.cos(t)[:, None] * p + np.sin(t)[:, None] * q  # (n, 3) direction of Lambda
+            quad = np.einsum("ki,kij,kj->k", u, Msum, u)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                k = np.sqrt(asum / quad)
+            lam = k[:, None] * u
+            lam = np.where((lam.sum(axis=1) < 0)[:, None], -lam, lam)  # Lambda and -Lambda
+            triples.append(np.arange(n))
+            depths.append(lam)
+    idx = np.concatenate(triples)
+    lam = np.concatenate(depths)
+    ok = np.isfinite(lam).all(axis=1) & (lam > 0).all(axis=1)
+    idx, lam = idx[ok], lam[ok]
+    # Step 4: Gauss-Newton on the three distance equations.
+    bb = np.column_stack([b12, b13, b23])[idx]
+    aa = np.column_stack([a12, a13, a23])[idx]
+    for _ in range(_GAUSS_NEWTON_STEPS):
+        lam = _gauss_newton_step(lam, bb, aa)
+    res = np.abs(_residuals(lam, bb) - aa).max(axis=1) / scale[idx]
+    ok = np.isfinite(res) & (res < _RELATIVE_TOLERANCE) & (lam > 0).all(axis=1)
+    idx, lam = idx[ok], lam[ok]
+    idx, lam = _unique(idx, lam)
+    return P3PSolutions(idx.astype(np.int64), lam)
+
+
+def _sq(v: FloatArray) -> FloatArray:
+    out: FloatArray = np.einsum("ki,ki->k", v, v)
+    return out
+
+
+def _form(n: int, pair: tuple[int, int], b: FloatArray) -> FloatArray:
+    """(n, 3, 3) M with Lambda^T M Lambda = l_i^2 + l_j^2 - 2 b l_i l_j."""
+    i, j = pair
+    M = np.zeros((n, 3, 3))
+    M[:, i, i] = 1.0
+    M[:, j, j] = 1.0
+    M[:, i, j] = -b
+    M[:, j, i] = -b
+    return M
+
+
+def _degenerate_member(D1: FloatArray, D2: FloatArray) -> FloatArray:
+    """A singular D0 = D1 + g D2 per triple (or D2 itself), chosen among the real roots of
+    det(D1 + g D2) = 0 as the one whose two remaining eigenvalues are best balanced with
+    opposite signs (the best-conditioned pair of planes)."""
+    n = len(D1)
+    # det(D1 + g D2) = c3 g^3 + c2 g^2 + c1 g + c0
+    c0 = np.linalg.det(D1)
+    c3 = np.linalg.det(D2)
+    c1 = np.einsum("kij,kji->k", _adjugate(D1), D2)
+    c2 = np.einsum("kij,kji->k", D1, _adjugate(D2))
+    lead = np.abs(c3) > 1e-12 * (np.abs(c0) + np.abs(c1) + np.abs(c2) + 1e-300)
+    candidates = [D2]  # g = infinity: D2 is singular itself when c3 = 0
+    safe_c3 = np.where(lead, c3, 1.0)
+    comp = np.zeros((n, 3, 3))
+    comp[:, 0, :] = -np.column_stack([c2, c1, c0]) / safe_c3[:, None]
+    comp[:, 1, 0] = 1.0
+    comp[:, 2, 1] = 1.0
+    roots = np.linalg.eigvals(comp)
+    for r in range(3):
+        g = roots[:, r]
+        real = np.abs(g.imag) <= 1e-8 * (1.0 + np.abs(g.real))
+        g = np.where(real & lead, g.real, np.nan)
+        g = _polish_root(g, c3, c2, c1, c0)
+        candidates.append(D1 + g[:, None, None] * D2)
+    best = np.full((n, 3, 3), np.nan)
+    best_quality = np.full(n, -1.0)
+    for k, D in enumerate(candidates):
+        usable = np.isfinite(D).all(axis=(1, 2))
+        if k == 0:
+            usable &= ~lead
+        Dz = np.where(usable[:, None, None], D, 0.0)
+        w = np.linalg.eigvalsh(Dz)
+        aw = np.sort(np.abs(w), axis=1)
+        w_sorted = np.take_along_axis(w, np.argsort(-np.abs(w), axis=1), axis=1)
+        opposite = w_sorted[:, 0] * w_sorted[:, 1] < 0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            quality = np.where(usable & opposite, aw[:, 1] / aw[:, 2], -1.0)
+        take = quality > best_quality
+        best[take] = Dz[take]
+        best_quality[take] = quality[take]
+    return best
+
+
+def _polish_root(g: FloatArray, c3: FloatArray, c2: FloatArray, c1: FloatArray, c0: FloatArray) -> FloatArray:
+    """Two Newton steps on the cubic (the companion eigenvalues are accurate to ~1e-10)."""
+    for _ in range(2):
+        f = ((c3 * g + c2) * g + c1) * g + c0
+        df = (3.0 * c3 * g + 2.0 * c2) * g + c1
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = np.where(np.abs(df) > 0, f / df, 0.0)
+        g = g - step
+    return g
+
+
+def _adjugate(M: FloatArray) -> FloatArray:
+    """Adjugate of (n, 3, 3) matrices (exists for singular ones, unlike the inverse)."""
+    a = M
+    adj = np.empty_like(a)
+    adj[:, 0, 0] = a[:, 1, 1] * a[:, 2, 2] - a[:, 1, 2] * a[:, 2, 1]
+    adj[:, 0, 1] = a[:, 0, 2] * a[:, 2, 1] - a[:, 0, 1] * a[:, 2, 2]
+    adj[:, 0, 2] = a[:, 0, 1] * a[:, 1, 2] - a[:, 0, 2] * a[:, 1, 1]
+    adj[:, 1, 0] = a[:, 1, 2] * a[:, 2, 0] - a[:, 1, 0] * a[:, 2, 2]
+    adj[:, 1, 1] = a[:, 0, 0] * a[:, 2, 2] - a[:, 0, 2] * a[:, 2, 0]
+    adj[:, 1, 2] = a[:, 0, 2] * a[:, 1, 0] - a[:, 0, 0] * a[:, 1, 2]
+    adj[:, 2, 0] = a[:, 1, 0] * a[:, 2, 1] - a[:, 1, 1] * a[:, 2, 0]
+    adj[:, 2, 1] = a[:, 0, 1] * a[:, 2, 0] - a[:, 0, 0] * a[:, 2, 1]
+    adj[:, 2, 2] = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+    return adj
+
+
+def _plane_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Orthonormal (p, q), each (n, 3), spanning the planes with the given normals."""
+    nrm = normal / np.linalg.norm(normal, axis=1, keepdims=True)
+    # Cross with the axis least aligned with the normal.
+    axis = np.eye(3)[np.argmin(np.abs(nrm), axis=1)]
+    p = np.cross(nrm, axis)
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    q = np.cross(nrm, p)
+    return p, q
+
+
+def _restrict(D: FloatArray, p: FloatArray, q: FloatArray) -> FloatArray:
+    """(n, 2, 2) the form D on the plane spanned by (p, q)."""
+    B = np.stack([p, q], axis=2)  # (n, 3, 2)
+    out: FloatArray = np.einsum("kia,kij,kjb->kab", B, D, B)
+    return out
+
+
+def _frob(M: FloatArray) -> FloatArray:
+    out: FloatArray = np.sqrt(np.einsum("kij,kij->k", M, M))
+    return out
+
+
+def _residuals(lam: FloatArray, bb: FloatArray) -> FloatArray:
+    """(K, 3) left-hand sides of the distance equations for pairs (12), (13), (23)."""
+    l1, l2, l3 = lam[:, 0], lam[:, 1], lam[:, 2]
+    return np.column_stack(
+        [
+            l1 * l1 + l2 * l2 - 2.0 * bb[:, 0] * l1 * l2,
+            l1 * l1 + l3 * l3 - 2.0 * bb[:, 1] * l1 * l3,
+            l2 * l2 + l3 * l3 - 2.0 * bb[:, 2] * l2 * l3,
+        ]
+    )
+
+
+def _gauss_newton_step(lam: FloatArray, bb: FloatArray, aa: FloatArray) -> FloatArray:
+    l1, l2, l3 = lam[:, 0], lam[:, 1], lam[:, 2]
+    J = np.zeros((len(lam), 3, 3))
+    J[:, 0, 0] = 2.0 * l1 - 2.0 * bb[:, 0] * l2
+    J[:, 0, 1] = 2.0 * l2 - 2.0 * bb[:, 0] * l1
+    J[:, 1, 0] = 2.0 * l1 - 2.0 * bb[:, 1] * l3
+    J[:, 1, 2] = 2.0 * l3 - 2.0 * bb[:, 1] * l1
+    J[:, 2, 1] = 2.0 * l2 - 2.0 * bb[:, 2] * l3
+    J[:, 2, 2] = 2.0 * l3 - 2.0 * bb[:, 2] * l2
+    r = _residuals(lam, bb) - aa
+    det = np.linalg.det(J)
+    good = np.abs(det) > 1e-12 * np.maximum(np.abs(lam).max(axis=1), 1.0) ** 3
+    Jg = np.where(good[:, None, None], J, np.eye(3))
+    step = np.linalg.solve(Jg, r[:, :, None])[:, :, 0]
+    return np.where(good[:, None], lam - step, lam)
+
+
+def _unique(idx: NDArray[np.int64], lam: FloatArray) -> tuple[NDArray[np.int64], FloatArray]:
+    """Drop repeated solutions of one triple (the two planes can share a solution)."""
+    if len(idx) == 0:
+        return idx, lam
+    order = np.lexsort((lam[:, 0], idx))
+    idx, lam = idx[order], lam[order]
+    same = (idx[1:] == idx[:-1]) & (
+        np.abs(lam[1:] - lam[:-1]).max(axis=1) <= 1e-7 * np.maximum(lam[1:].max(axis=1), 1.0)
+    )
+    keep = np.concatenate([[True], ~same])
+    return idx[keep], lam[keep]

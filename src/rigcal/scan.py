@@ -1,0 +1,205 @@
+"""The 2D laser scan record and its YAML file (docs/formats/scan.md).
+
+A scan is one sweep of a horizontal 2D scanner: beam angles (radians, counter-clockwise
+from the laser's +x, strictly increasing) and ranges (metres). Returns that are 0, NaN,
+inf, below ``range_min_m`` or above ``range_max_m`` are invalid: they are kept in the
+record (beam indices stay those of the file) and masked by :attr:`Scan.valid`, never
+crashed on.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from rigcal.errors import InputError
+from rigcal.io.files import atomic_write_text, check_keys, get_float, load_yaml
+
+FloatArray = NDArray[np.float64]
+
+SCAN_SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class Scan:
+    """One 2D laser scan.
+
+    Attributes:
+        angles_rad: (N,) beam angles, radians, laser frame, strictly increasing.
+        ranges_m: (N,) measured ranges, metres; invalid returns as they were recorded.
+        range_min_m, range_max_m: the scanner's valid range interval, metres.
+        stamp_s: time of the scan, seconds (None when unknown).
+        angle_increment_rad: the step when the angles are exactly
+            ``angles_rad[0] + i * angle_increment_rad`` (set by :meth:`from_uniform`), else None.
+    """
+
+    angles_rad: FloatArray
+    ranges_m: FloatArray
+    range_min_m: float
+    range_max_m: float
+    stamp_s: float | None = None
+    angle_increment_rad: float | None = None
+
+    def __post_init__(self) -> None:
+        a = np.array(self.angles_rad, dtype=float).reshape(-1)
+        r = np.array(self.ranges_m, dtype=float).reshape(-1)
+        if a.shape != r.shape:
+            raise ValueError(f"Scan: {len(a)} angles but {len(r)} ranges")
+        if len(a) > 1 and not np.all(np.diff(a) > 0):
+            raise ValueError("Scan: angles must be strictly increasing")
+        if not 0.0 <= self.range_min_m < self.range_max_m:
+            raise ValueError("Scan: need 0 <= range_min_m < range_max_m")
+        a.setflags(write=False)
+        r.setflags(write=False)
+        object.__setattr__(self, "angles_rad", a)
+        object.__setattr__(self, "ranges_m", r)
+        with np.errstate(invalid="ignore"):
+            valid = np.isfinite(r) & (r > 0.0) & (r >= self.range_min_m) & (r <= self.range_max_m)
+        valid.setflags(write=False)
+        object.__setattr__(self, "_valid", valid)
+        pts = np.full((len(r), 2), np.nan)
+        pts[valid, 0] = r[valid] * np.cos(a[valid])
+        pts[valid, 1] = r[valid] * np.sin(a[valid])
+        pts.setflags(write=False)
+        object.__setattr__(self, "_points", pts)
+
+    @classmethod
+    def from_uniform(
+        cls,
+        angle_min_rad: float,
+        angle_increment_rad: float,
+        ranges_m: ArrayLike,
+        range_min_m: float,
+        range_max_m: float,
+        stamp_s: float | None = None,
+    ) -> Scan:
+        """A scan whose beam i points at ``angle_min_rad + i * angle_increment_rad``."""
+        r = np.asarray(ranges_m, dtype=float).reshape(-1)
+        angles = angle_min_rad + angle_increment_rad * np.arange(len(r))
+        return cls(angles, r, range_min_m, range_max_m, stamp_s, float(angle_increment_rad))
+
+    @property
+    def valid(self) -> NDArray[np.bool_]:
+        """(N,) bool: the returns that are finite, > 0 and within [range_min_m, range_max_m]."""
+        out: NDArray[np.bool_] = self._valid  # type: ignore[attr-defined]
+        return out
+
+    @property
+    def points(self) -> FloatArray:
+        """(N, 2) metres, laser frame (z = 0): x = r cos(angle), y = r sin(angle); NaN where invalid."""
+        out: FloatArray = self._points  # type: ignore[attr-defined]
+        return out
+
+    @property
+    def step_rad(self) -> float:
+        """The median angular step between beams (0 for a single beam)."""
+        return float(np.median(np.diff(self.angles_rad))) if len(self.angles_rad) > 1 else 0.0
+
+
+# --- file ------------------------------------------------------------------------------------
+def read_scan(path: str | Path) -> Scan:
+    """Read and validate a scan file (docs/formats/scan.md).
+
+    Raises:
+        InputError: missing or unreadable file, malformed YAML, unknown or missing keys,
+            wrong types, angles not strictly increasing, or lengths that disagree.
+    """
+    path = Path(path)
+    data = load_yaml(path, "scan file")
+    d = check_keys(
+        data,
+        path,
+        "",
+        ["schema_version", "range_min_m", "range_max_m", "ranges_m"],
+        ["stamp_s", "frame", "angle_min_rad", "angle_increment_rad", "angles_rad"],
+    )
+    if d["schema_version"] != SCAN_SCHEMA_VERSION:
+        raise InputError.at(path, "schema_version", d["schema_version"], f"{SCAN_SCHEMA_VERSION}")
+    if "frame" in d and d["frame"] != "laser":
+        raise InputError.at(path, "frame", d["frame"], "'laser'")
+    range_min = get_float(d, "range_min_m", path)
+    range_max = get_float(d, "range_max_m", path, positive=True)
+    if not 0.0 <= range_min < range_max:
+        raise InputError.at(path, "range_min_m", range_min, f"a number in [0, range_max_m = {range_max:g})")
+    ranges = _ranges(d["ranges_m"], path)
+    stamp = get_float(d, "stamp_s", path) if "stamp_s" in d else None
+    uniform = "angle_min_rad" in d or "angle_increment_rad" in d
+    if uniform == ("angles_rad" in d):
+        raise InputError(
+            f"{path}: angles: expected either angle_min_rad and angle_increment_rad, or angles_rad (not both)"
+        )
+    if uniform:
+        for key in ("angle_min_rad", "angle_increment_rad"):
+            if key not in d:
+                raise InputError(f"{path}: {key}: missing; angle_min_rad needs angle_increment_rad")
+        a0 = get_float(d, "angle_min_rad", path)
+        step = get_float(d, "angle_increment_rad", path, positive=True)
+        return Scan.from_uniform(a0, step, ranges, range_min, range_max, stamp)
+    angles = _finite_list(d["angles_rad"], path, "angles_rad")
+    if len(angles) != len(ranges):
+        raise InputError.at(
+            path, "angles_rad", f"{len(angles)} angles", f"one angle per range ({len(ranges)})"
+        )
+    bad = np.flatnonzero(np.diff(angles) <= 0)
+    if len(bad):
+        i = int(bad[0]) + 1
+        raise InputError.at(path, f"angles_rad[{i}]", float(angles[i]), f"an angle > angles_rad[{i - 1}]")
+    return Scan(angles, ranges, range_min, range_max, stamp)
+
+
+def _ranges(value: Any, path: Path) -> FloatArray:
+    """ranges_m: a non-empty list of numbers; .nan and .inf are allowed (invalid returns)."""
+    if not isinstance(value, list) or not value:
+        raise InputError.at(path, "ranges_m", value, "a non-empty list of ranges in metres")
+    for i, x in enumerate(value):
+        if isinstance(x, bool) or not isinstance(x, (int, float)):
+            raise InputError.at(path, f"ranges_m[{i}]", x, "a number (0, .nan or .inf for no return)")
+        if x < 0:
+            raise InputError.at(path, f"ranges_m[{i}]", x, "a range >= 0")
+    return np.array(value, dtype=float)
+
+
+def _finite_list(value: Any, path: Path, key: str) -> FloatArray:
+    if not isinstance(value, list) or not value:
+        raise InputError.at(path, key, value, "a non-empty list of numbers")
+    for i, x in enumerate(value):
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+            raise InputError.at(path, f"{key}[{i}]", x, "a finite number")
+    return np.array(value, dtype=float)
+
+
+def _num(x: float) -> str:
+    """A float as YAML that reads back to the same float (repr round-trips)."""
+    if math.isnan(x):
+        return ".nan"
+    if math.isinf(x):
+        return ".inf" if x > 0 else "-.inf"
+    return repr(float(x))
+
+
+def scan_to_text(scan: Scan) -> str:
+    """The YAML text of a scan file; every number reads back bit for bit."""
+    lines = ["# rigcal scan (docs/formats/scan.md)", f"schema_version: {SCAN_SCHEMA_VERSION}", "frame: laser"]
+    if scan.stamp_s is not None:
+        lines.append(f"stamp_s: {_num(scan.stamp_s)}")
+    step = scan.angle_increment_rad
+    if step is not None:
+        lines += [f"angle_min_rad: {_num(scan.angles_rad[0])}", f"angle_increment_rad: {_num(step)}"]
+    else:
+        lines.append("angles_rad: [" + ", ".join(_num(a) for a in scan.angles_rad) + "]")
+    lines += [
+        f"range_min_m: {_num(scan.range_min_m)}",
+        f"range_max_m: {_num(scan.range_max_m)}",
+        "ranges_m: [" + ", ".join(_num(r) for r in scan.ranges_m) + "]",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def write_scan(path: str | Path, scan: Scan, force: bool = False) -> Path:
+    """Write a scan file atomically (refuses to overwrite unless ``force``)."""
+    return atomic_write_text(path, scan_to_text(scan), force=force)
