@@ -68,7 +68,8 @@ def row(label: str, o: Outcome) -> str:
     n = len(r)
     return (
         f"| {label} | {n} | {np.median(r):.3f} | {np.percentile(r, 90):.3f} | {np.median(t):.2f} | "
-        f"{np.percentile(t, 90):.2f} | {np.mean(o.nees):.2f} | {o.failures} | {1000 * o.seconds / max(n, 1):.0f} |"
+        f"{np.percentile(t, 90):.2f} | {np.mean(o.nees):.2f} | {o.failures} | "
+        f"{1000 * o.seconds / max(n, 1):.0f} |"
     )
 
 
@@ -128,7 +129,8 @@ def main() -> None:
     mean = float(np.mean(main_outcome.nees))
     verdict = "inside" if lo <= mean <= hi else "OUTSIDE"
     print(
-        f"mean NEES {mean:.3f} over {len(main_outcome.nees)} sessions; 95% band for 6 dof [{lo:.3f}, {hi:.3f}]: {verdict}"
+        f"mean NEES {mean:.3f} over {len(main_outcome.nees)} sessions; "
+        f"95% band for 6 dof [{lo:.3f}, {hi:.3f}]: {verdict}"
     )
 
 

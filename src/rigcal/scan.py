@@ -79,8 +79,8 @@ class Scan:
         stamp_s: float | None = None,
     ) -> Scan:
         """A scan whose beam i points at ``angle_min_rad + i * angle_increment_rad``."""
-        r = np.asarray(ranges_m, dtype=float).reshape(-1)
-        angles = angle_min_rad + angle_increment_rad * np.arange(len(r))
+        r: FloatArray = np.asarray(ranges_m, dtype=float).reshape(-1)
+        angles: FloatArray = angle_min_rad + angle_increment_rad * np.arange(len(r), dtype=np.float64)
         return cls(angles, r, range_min_m, range_max_m, stamp_s, float(angle_increment_rad))
 
     @property

@@ -95,10 +95,10 @@ def horn(points_a: ArrayLike, points_b: ArrayLike) -> tuple[FloatArray, FloatArr
 
 def quaternion_to_R(q: ArrayLike) -> FloatArray:
     """(K, 4) unit quaternions (w, x, y, z) to (K, 3, 3) rotation matrices."""
-    q = np.asarray(q, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    R = np.empty(q.shape[:-1] + (3, 3))
+    qa: FloatArray = np.asarray(q, dtype=float)
+    qa = qa / np.linalg.norm(qa, axis=-1, keepdims=True)
+    w, x, y, z = qa[..., 0], qa[..., 1], qa[..., 2], qa[..., 3]
+    R = np.empty((*qa.shape[:-1], 3, 3))
     R[..., 0, 0] = w * w + x * x - y * y - z * z
     R[..., 0, 1] = 2 * (x * y - w * z)
     R[..., 0, 2] = 2 * (x * z + w * y)
@@ -114,7 +114,8 @@ def quaternion_to_R(q: ArrayLike) -> FloatArray:
 def _spread_ok(C: FloatArray, min_ratio: float) -> NDArray[np.bool_]:
     """(K,) whether centred point sets (K, N, 3) span at least a line's worth more: their
     second singular value is at least min_ratio times the first."""
-    s = np.linalg.svd(np.where(np.isfinite(C), C, 0.0), compute_uv=False)  # (K, min(N, 3))
+    Cz: FloatArray = np.where(np.isfinite(C), C, 0.0)
+    s: FloatArray = np.linalg.svd(Cz, compute_uv=False)  # (K, min(N, 3))
     if s.shape[1] < 2:
         return np.zeros(len(C), dtype=bool)
     out: NDArray[np.bool_] = s[:, 1] > min_ratio * np.maximum(s[:, 0], np.finfo(float).tiny)

@@ -26,6 +26,7 @@ localization methods (IASM's line-angle histogram, H-IASM's plane normals).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +36,12 @@ from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+
+
+# An end return farther than this many robust sigmas (median absolute residual * 1.4826,
+# at least END_TRIM_FLOOR_M) from the line of the other returns is trimmed.
+END_TRIM_SIGMAS = 4.0
+END_TRIM_FLOOR_M = 0.0005
 
 
 @dataclass(frozen=True)
@@ -201,8 +208,9 @@ def extract_lines(scan: Scan, params: LineParams | None = None) -> list[Segment]
     groups: list[IntArray] = []
     for lo, hi in runs:
         groups += _grow_run(pts, lo, hi, params)
-    segments = []
+    segments: list[Segment] = []
     for g in groups:
+        g = _trim_ends(pts, g, params)
         seg = _segment(len(segments), beams[g], pts[g])
         if len(g) >= params.min_points and seg.length_m >= params.min_length_m:
             segments.append(seg)
@@ -215,7 +223,7 @@ def _runs(pts: FloatArray, max_gap_m: float) -> list[tuple[int, int]]:
         return []
     gaps = np.linalg.norm(np.diff(pts, axis=0), axis=1) > max_gap_m
     cuts = np.concatenate([[0], np.flatnonzero(gaps) + 1, [len(pts)]])
-    return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
+    return [(int(a), int(b)) for a, b in itertools.pairwise(cuts)]
 
 
 def _grow_run(pts: FloatArray, lo: int, hi: int, params: LineParams) -> list[IntArray]:
@@ -254,6 +262,29 @@ def _grow_run(pts: FloatArray, lo: int, hi: int, params: LineParams) -> list[Int
         # A filtered return just before the stop starts the next seed.
         i = members[-1] + 1
     return out
+
+
+def _trim_ends(pts: FloatArray, members: IntArray, params: LineParams) -> IntArray:
+    """Drop end returns that sit off the line of the others by more than END_TRIM_SIGMAS
+    robust sigmas (a return from the next surface at a corner, which the distance test
+    lets in when it is within max_point_distance_m)."""
+    for _ in range(2 * params.seed_points):
+        if len(members) <= params.min_points:
+            break
+        trimmed = False
+        for end in (0, -1):
+            rest = members[1:] if end == 0 else members[:-1]
+            centroid, direction, _ = fit_line(pts[rest])
+            q = pts[rest] - centroid
+            d = np.abs(q[:, 0] * direction[1] - q[:, 1] * direction[0])
+            sigma = max(1.4826 * float(np.median(d)), END_TRIM_FLOOR_M)
+            if _distance(pts[members[end]], centroid, direction) > END_TRIM_SIGMAS * sigma:
+                members = rest
+                trimmed = True
+                break
+        if not trimmed:
+            break
+    return members
 
 
 def _seed_end(pts: FloatArray, i: int, hi: int, params: LineParams) -> int | None:

@@ -182,9 +182,9 @@ def _degenerate_member(D1: FloatArray, D2: FloatArray) -> FloatArray:
     for r in range(3):
         g = roots[:, r]
         real = np.abs(g.imag) <= 1e-8 * (1.0 + np.abs(g.real))
-        g = np.where(real & lead, g.real, np.nan)
-        g = _polish_root(g, c3, c2, c1, c0)
-        candidates.append(D1 + g[:, None, None] * D2)
+        g_real: FloatArray = np.where(real & lead, g.real, np.nan)
+        g_real = _polish_root(g_real, c3, c2, c1, c0)
+        candidates.append(D1 + g_real[:, None, None] * D2)
     best = np.full((n, 3, 3), np.nan)
     best_quality = np.full(n, -1.0)
     for k, D in enumerate(candidates):

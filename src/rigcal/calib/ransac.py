@@ -37,6 +37,9 @@ class RansacParams:
         batch_size: triples drawn and solved together.
         min_triangle_ratio: a triple whose laser triangle has 2*area / longest_side^2 under
             this is nearly collinear (P3P and Horn are ill-posed on it) and is redrawn.
+        min_inliers: a consensus needs this many box ends. A triple always explains its own
+            three, and with 6 px thresholds a 4th or 5th random pick agreeing by chance is
+            likely over thousands of hypotheses; a 6th is not.
         seed: seed of the random generator, so a solve can be reproduced.
     """
 
@@ -46,6 +49,7 @@ class RansacParams:
     max_iterations: int = 5000
     batch_size: int = 64
     min_triangle_ratio: float = 0.05
+    min_inliers: int = 6
     seed: int = 0
 
 
@@ -110,7 +114,7 @@ def ransac_pose(
 
     Raises:
         CalibrationError: fewer than 3 correspondences, no non-collinear triple, or no
-            hypothesis with at least 3 inliers.
+            hypothesis with at least ``params.min_inliers`` inliers.
     """
     params = params or RansacParams()
     P = len(points_laser)
@@ -157,12 +161,12 @@ def ransac_pose(
             best_inliers = err[k] < params.threshold_px
             w = best_inliers.mean()
             needed = _iterations_needed(w, params.confidence)
-    if best is None or best_inliers.sum() < 3:
+    if best is None or best_inliers.sum() < params.min_inliers:
         n = int(best_inliers.sum())
         raise CalibrationError(
             f"RANSAC found no consensus: the best of {scored} hypotheses explains {n} of {P} box ends "
-            f"within {params.threshold_px:g} px; check the picks (order of the two ends, segment ids) "
-            "and the camera model"
+            f"within {params.threshold_px:g} px (at least {params.min_inliers} needed); check the picks "
+            "(order of the two ends, segment ids) and the camera model"
         )
     T = make_T(*best)
     errors = reprojection_errors(camera, best[0], best[1], points_laser, pixels)

@@ -189,7 +189,8 @@ def report_table(report: dict[str, Any]) -> str:
         )
     lines.append("")
     lines.append(
-        f"captures {s['captures_used']}/{s['captures']} used; box ends {s['inlier_ends']}/{s['box_ends']} inliers"
+        f"captures {s['captures_used']}/{s['captures']} used; "
+        f"box ends {s['inlier_ends']}/{s['box_ends']} inliers"
     )
     lines.append(
         f"reprojection error (inliers): rms {s['rms_px']:.3f} px, median {s['median_px']:.3f} px, "

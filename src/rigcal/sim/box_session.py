@@ -128,7 +128,7 @@ class SessionSpec:
     @property
     def n_beams(self) -> int:
         """Number of beams per scan (the field of view's both ends included)."""
-        return int(round(self.fov_deg / self.angle_increment_deg)) + 1
+        return round(self.fov_deg / self.angle_increment_deg) + 1
 
     @property
     def angle_min_rad(self) -> float:
@@ -138,7 +138,7 @@ class SessionSpec:
     @property
     def n_wrong_picks(self) -> int:
         """Number of captures given wrong picks."""
-        return int(round(self.wrong_pick_fraction * self.n_captures))
+        return round(self.wrong_pick_fraction * self.n_captures)
 
 
 def default_camera() -> Camera:
@@ -382,9 +382,9 @@ def find_face_segment(
     The segment with the most returns within ``tolerance_m`` of the true face, of which
     they must be most (80%). When ``face_beams`` is given, the segment must also span the
     face: its first and last returns at most one valid return away from the face's, and
-    within ``tolerance_m`` of the face (a return from the box's side only at the corner). Finally, the box ends
-    picks.py derives from it must lie within 10 cm of the true ends. A face cut in two, or
-    merged with something else, does not qualify.
+    within ``tolerance_m`` of the face (a return from the box's side only at the corner).
+    Finally, the box ends picks.py derives from it must lie within 10 cm of the true ends.
+    A face cut in two, or merged with something else, does not qualify.
 
     Args:
         scan: the scan.
@@ -718,7 +718,8 @@ def picks_text(session: BoxSession, camera_file: str = "camera.yaml") -> str:
         "# rigcal picking file (docs/formats/session.md)",
         f"# Synthetic box-target session (rigcal.sim.box_session), seed {spec.seed}: "
         f"{len(session.captures)} captures,",
-        f"# box face at {spec.distance_m[0]:g}-{spec.distance_m[1]:g} m, pick noise {spec.pick_sigma_px:g} px, "
+        f"# box face at {spec.distance_m[0]:g}-{spec.distance_m[1]:g} m, "
+        f"pick noise {spec.pick_sigma_px:g} px, "
         f"range noise {spec.range_sigma_m:g} m, dropouts {spec.dropout_fraction:g},",
         f"# {n_wrong} captures with deliberately wrong picks (named in truth.yaml).",
         "# The true T_cam_laser is in truth.yaml:",

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -302,7 +303,7 @@ def _wall(
     """
     base = np.array(_WALL_BGR[k], dtype=np.float32)
     shade = 1.0 + 0.05 * np.sin(0.9 * along + 1.7 * k) * np.cos(1.3 * z - 0.6 * along)
-    col = shade[:, None] * base
+    col: NDArray[Any] = shade[:, None] * base
     # Posters: 0.7 m x 0.9 m, one every 2.3 m, bottom edge 1.0 m above the floor.
     pitch, pw, ph, z0 = 2.3, 0.7, 0.9, 1.0
     slot = np.floor((along + 0.37 * k) / pitch)
@@ -316,7 +317,7 @@ def _wall(
         # stay within green-cyan-blue-violet, so that nothing but the box is orange.
         band = np.clip((zz[on] / ph * 3).astype(np.int64), 0, 2)
         hue = _POSTER_HUES[0] + (h * 3.0 + band * 1.1) % (_POSTER_HUES[1] - _POSTER_HUES[0])
-        pc = _hue_bgr(hue) * np.float32(200) + np.float32(30)
+        pc: NDArray[Any] = _hue_bgr(hue) * np.float32(200) + np.float32(30)
         circle = (a[on] - 0.5 * pw) ** 2 + (zz[on] - 0.62 * ph) ** 2 < (0.18 + 0.08 * h) ** 2
         disc = _POSTER_HUES[0] + (hue[circle] - _POSTER_HUES[0] + 1.5) % (_POSTER_HUES[1] - _POSTER_HUES[0])
         pc[circle] = np.array([40, 40, 40], dtype=np.float32) + 180 * _hue_bgr(disc)
@@ -329,7 +330,7 @@ def _wall(
     return col
 
 
-def _hue_bgr(hue: NDArray[np.float32]) -> NDArray[np.float32]:
+def _hue_bgr(hue: NDArray[Any]) -> NDArray[np.float32]:
     """Saturated colours on the hue circle (hue in [0, 6)), as BGR in [0, 1]."""
     h = hue[:, None] + np.array([4.0, 2.0, 0.0], dtype=np.float32)  # B, G, R phase
     out: NDArray[np.float32] = np.clip(np.abs((h % 6.0) - 3.0) - 1.0, 0.0, 1.0).astype(np.float32)

@@ -36,7 +36,7 @@ def read_image(path: str | Path) -> NDArray[np.uint8]:
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise InputError(f"{path}: cannot decode image (expected PNG, JPEG or another format OpenCV reads)")
-    out: NDArray[np.uint8] = img
+    out: NDArray[np.uint8] = np.asarray(img, dtype=np.uint8)
     return out
 
 

@@ -42,7 +42,7 @@ def draw_scan_segments(scan: Scan, segments: list[Segment], size_px: int = 900) 
     scale = (size_px - 2 * margin) / (2.0 * extent)
 
     def px(p: NDArray[np.float64]) -> tuple[int, int]:
-        return int(round(size_px / 2 + scale * p[0])), int(round(size_px / 2 - scale * p[1]))
+        return round(size_px / 2 + scale * float(p[0])), round(size_px / 2 - scale * float(p[1]))
 
     # Grid every metre, and the scanner's axes.
     for m in range(-int(extent), int(extent) + 1):
