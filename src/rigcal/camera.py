@@ -220,7 +220,7 @@ def _read_opencv_yaml(path: Path) -> Camera:
     d = check_keys(
         data, path, "", ["schema_version", "image_width_px", "image_height_px", "K"], ["distortion", "name"]
     )
-    if d["schema_version"] != CAMERA_SCHEMA_VERSION:
+    if isinstance(d["schema_version"], bool) or d["schema_version"] != CAMERA_SCHEMA_VERSION:
         raise InputError.at(path, "schema_version", d["schema_version"], f"{CAMERA_SCHEMA_VERSION}")
     for key in ("image_width_px", "image_height_px"):
         if not _is_pos_int(d[key]):
@@ -258,7 +258,9 @@ def camera_to_opencv_yaml(camera: Camera) -> str:
 
 
 def _fmt(x: float) -> str:
-    return f"{float(x):.10g}"
+    text = f"{float(x):.10g}"
+    # YAML 1.1 reads an exponent form without a '.' (1e-05, 1e+20) as a string.
+    return text.replace("e", ".0e") if "e" in text and "." not in text else text
 
 
 def _is_pos_int(x: Any) -> bool:

@@ -86,7 +86,7 @@ def read_rig(path: str | Path) -> Rig:
         ["schema_version", "T_cam_laser", "camera"],
         ["uncertainty", "laser", "residuals", "provenance"],
     )
-    if d["schema_version"] != RIG_SCHEMA_VERSION:
+    if isinstance(d["schema_version"], bool) or d["schema_version"] != RIG_SCHEMA_VERSION:
         raise InputError.at(
             path, "schema_version", d["schema_version"], f"{RIG_SCHEMA_VERSION} (this rigcal)"
         )
@@ -104,7 +104,13 @@ def read_rig(path: str | Path) -> Rig:
         if u["parameters"] != COVARIANCE_PARAMETERS:
             raise InputError.at(path, "uncertainty.parameters", u["parameters"], repr(COVARIANCE_PARAMETERS))
         cov = float_matrix(u["covariance"], path, "uncertainty.covariance", 6, 6)
-        if not np.allclose(cov, cov.T, rtol=1e-4, atol=1e-15) or np.linalg.eigvalsh(cov).min() < -1e-15:
+        # Tolerances relative to the matrix's scale: the writer keeps 7 significant digits,
+        # which can push a (near-)zero eigenvalue slightly below 0.
+        scale = float(np.abs(cov).max())
+        if (
+            not np.allclose(cov, cov.T, rtol=1e-4, atol=1e-9 * scale)
+            or np.linalg.eigvalsh(cov).min() < -1e-5 * scale
+        ):
             raise InputError.at(
                 path, "uncertainty.covariance", "...", "a symmetric positive semi-definite matrix"
             )

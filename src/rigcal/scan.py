@@ -118,7 +118,7 @@ def read_scan(path: str | Path) -> Scan:
         ["schema_version", "range_min_m", "range_max_m", "ranges_m"],
         ["stamp_s", "frame", "angle_min_rad", "angle_increment_rad", "angles_rad"],
     )
-    if d["schema_version"] != SCAN_SCHEMA_VERSION:
+    if isinstance(d["schema_version"], bool) or d["schema_version"] != SCAN_SCHEMA_VERSION:
         raise InputError.at(path, "schema_version", d["schema_version"], f"{SCAN_SCHEMA_VERSION}")
     if "frame" in d and d["frame"] != "laser":
         raise InputError.at(path, "frame", d["frame"], "'laser'")
@@ -179,7 +179,9 @@ def _num(x: float) -> str:
         return ".nan"
     if math.isinf(x):
         return ".inf" if x > 0 else "-.inf"
-    return repr(float(x))
+    text = repr(float(x))
+    # YAML 1.1 reads an exponent form without a '.' (repr's 1e-05, 1e+16) as a string.
+    return text if "." in text else text.replace("e", ".0e")
 
 
 def scan_to_text(scan: Scan) -> str:

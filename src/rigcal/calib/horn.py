@@ -51,10 +51,11 @@ def horn_batch(
     K = len(a)
     if K == 0:
         return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, dtype=bool)
-    ca = a.mean(axis=1)
-    cb = b.mean(axis=1)
-    A = a - ca[:, None]
-    B = b - cb[:, None]
+    with np.errstate(invalid="ignore"):  # inf input: flagged below
+        ca = a.mean(axis=1)
+        cb = b.mean(axis=1)
+        A = a - ca[:, None]
+        B = b - cb[:, None]
     ok = _spread_ok(A, min_spread_ratio) & _spread_ok(B, min_spread_ratio)
     ok &= np.isfinite(a).all(axis=(1, 2)) & np.isfinite(b).all(axis=(1, 2))
     S = np.einsum("kni,knj->kij", np.where(ok[:, None, None], B, 0.0), np.where(ok[:, None, None], A, 0.0))

@@ -85,7 +85,10 @@ def p3p(bearings: ArrayLike, points: ArrayLike) -> P3PSolutions:
     # Step 2: two homogeneous forms that vanish on every solution.
     D1 = a23[:, None, None] * M12 - a12[:, None, None] * M23
     D2 = a23[:, None, None] * M13 - a13[:, None, None] * M23
+    # A triple with no usable pencil member (coincident or collinear points) has D0 = NaN;
+    # zero gives it no opposite-sign eigenvalues below, hence no solution.
     D0 = _degenerate_member(D1, D2)
+    D0 = np.where(np.isfinite(D0), D0, 0.0)
 
     # Plane pairs of D0: eigen-decomposition, the null eigenvalue dropped.
     w, E = np.linalg.eigh(D0)

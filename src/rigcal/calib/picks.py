@@ -29,6 +29,13 @@ PICKS_SCHEMA_VERSION = 1
 # Laser points within this distance of the line through two given laser points count as
 # points of the box side (for the `points:` form of laser_side).
 SIDE_POINT_TOLERANCE_M = 0.03
+# At most this many missing returns next to a box end widen its interval (beyond that the
+# scanner sees nothing there at all, e.g. open space, and more steps only add noise).
+MAX_DROPOUT_STEPS = 4
+# A return this close beyond a box end means the scan goes on around the box's corner (its
+# side is visible); the end is then known to about CORNER_STEPS beam steps.
+CORNER_GAP_M = 0.1
+CORNER_STEPS = 3
 
 
 @dataclass(frozen=True)
@@ -45,6 +52,9 @@ class BoxObservation:
         side_beams: (M,) beam indices of those returns in the scan.
         beam_step_rad: angular step of the scanner, for the endpoint noise model.
         image_endpoints_px: (2, 2) picked pixels of the two box ends.
+        end_gap_steps: (2,) for each end, in beam steps, the width of the interval in which
+            the true box end lies (see :func:`extended_ends`): 1 at a clean depth jump, more
+            at a corner or next to missing returns.
     """
 
     capture: int
@@ -56,6 +66,7 @@ class BoxObservation:
     side_beams: NDArray[np.int64]
     beam_step_rad: float
     image_endpoints_px: FloatArray
+    end_gap_steps: tuple[int, int] = (1, 1)
 
 
 @dataclass(frozen=True)
@@ -85,7 +96,7 @@ def read_picks(path: str | Path, line_params: LineParams | None = None) -> PickS
     path = Path(path)
     data = load_yaml(path, "picking file")
     d = check_keys(data, path, "", ["schema_version", "camera", "captures"], ["laser", "name"])
-    if d["schema_version"] != PICKS_SCHEMA_VERSION:
+    if isinstance(d["schema_version"], bool) or d["schema_version"] != PICKS_SCHEMA_VERSION:
         raise InputError.at(path, "schema_version", d["schema_version"], f"{PICKS_SCHEMA_VERSION}")
     camera_path = _file(path, "camera", d["camera"])
     camera = read_camera(camera_path)
@@ -135,9 +146,41 @@ def _read_capture(path: Path, i: int, c: Any, camera: Camera, line_params: LineP
             )
     if np.linalg.norm(px[0] - px[1]) < 2.0:
         raise InputError.at(path, f"{kp}.image_endpoints_px", px.tolist(), "two distinct box ends")
-    ends, side, beams = _laser_side(path, kp, c["laser_side"], scan, scan_path, line_params)
-    step = float(np.median(np.diff(scan.angles_rad))) if len(scan.angles_rad) > 1 else 0.0
-    return BoxObservation(i, name, scan_path, image_path, ends, side, beams, step, px)
+    side = _laser_side(path, kp, c["laser_side"], scan, scan_path, line_params)
+    if isinstance(side, tuple):  # two laser points given: no returns to fit
+        ends, pts, beams = side
+        return BoxObservation(i, name, scan_path, image_path, ends, pts, beams, scan.step_rad, px)
+    return side_observation(i, name, scan_path, image_path, scan, side, px)
+
+
+def side_observation(
+    capture: int,
+    name: str,
+    scan_path: Path,
+    image_path: Path,
+    scan: Scan,
+    beams: NDArray[np.int64],
+    image_endpoints_px: FloatArray,
+) -> BoxObservation:
+    """A capture whose box side is the scan's returns ``beams`` (a line segment's).
+
+    The box ends are :func:`extended_ends` of those returns.
+    """
+    beams = np.asarray(beams, dtype=np.int64)
+    points = np.array(scan.points[beams])
+    ends, gaps = extended_ends(points, beams, scan)
+    return BoxObservation(
+        capture,
+        name,
+        scan_path,
+        image_path,
+        ends,
+        points,
+        beams,
+        scan.step_rad,
+        np.array(image_endpoints_px, dtype=float),
+        gaps,
+    )
 
 
 def _pairs(value: Any, path: Path, key: str, what: str) -> FloatArray:
@@ -158,8 +201,9 @@ def _pairs(value: Any, path: Path, key: str, what: str) -> FloatArray:
 
 def _laser_side(
     path: Path, kp: str, side: Any, scan: Scan, scan_path: Path, line_params: LineParams
-) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
-    """Resolve `laser_side` into (ends (2,2), side points (M,2), beam indices (M,))."""
+) -> NDArray[np.int64] | tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+    """Resolve `laser_side`: the beam indices of a segment, or for two given laser points
+    (ends (2,2), side points (M,2), beam indices (M,))."""
     key = f"{kp}.laser_side"
     if not isinstance(side, dict) or len(side) != 1 or next(iter(side)) not in ("segment", "points"):
         raise InputError.at(path, key, side, "either {segment: ID} or {points: [[x1, y1], [x2, y2]]}")
@@ -176,10 +220,15 @@ def _laser_side(
                 else "a segment id, but the scan has no line segments",
             )
         seg: Segment = segments[sid]
-        return _extended_ends(seg.points, seg.indices, scan), np.array(seg.points), np.array(seg.indices)
+        return np.array(seg.indices, dtype=np.int64)
     ends = _pairs(side["points"], path, f"{key}.points", "laser point")
     if np.linalg.norm(ends[0] - ends[1]) < 0.05:
         raise InputError.at(path, f"{key}.points", ends.tolist(), "two distinct ends at least 5 cm apart")
+    # End 0 is the end at the smaller beam angle (docs/conventions.md), as for a segment,
+    # whatever order the file lists the points in; angles measured from the scan's first beam.
+    a = np.mod(np.arctan2(ends[:, 1], ends[:, 0]) - scan.angles_rad[0], 2.0 * np.pi)
+    if a[1] < a[0]:
+        ends = ends[::-1].copy()
     beams = _beams_near(scan, ends)
     pts = scan.points[beams]
     if len(beams) < 2:
@@ -203,24 +252,51 @@ def _beams_near(scan: Scan, ends: FloatArray) -> NDArray[np.int64]:
     return np.flatnonzero(keep).astype(np.int64)
 
 
-def _extended_ends(points: FloatArray, beams: NDArray[np.int64], scan: Scan) -> FloatArray:
-    """Box-side ends from a segment: the fitted line cut by the rays half a beam step outside
-    the first and last returns.
+def extended_ends(
+    points: FloatArray, beams: NDArray[np.int64], scan: Scan
+) -> tuple[FloatArray, tuple[int, int]]:
+    """Box-side ends from its returns: the fitted line cut by rays just outside the first
+    and last returns.
 
-    The first and last returns on the box lie up to one beam step inside its true ends;
-    half a step outward removes that bias on average (the residual is uniform within
-    +/- half a step, the noise model the refinement uses).
+    Where the next beam jumps to something farther (the wall behind the box), the
+    outermost return on the box lies up to one beam step inside the true end, so the true
+    end is uniform over the next step: the ray half a step outward removes that bias on
+    average. When neighbouring beams returned nothing (dropouts: 0, NaN, out of range) the
+    true end may lie under any of them too: with k such beams the interval is k + 1 steps
+    wide and the ray goes (k + 1) / 2 steps outward.
+
+    Where the scan instead continues around the box's corner onto its side (the next
+    return within CORNER_GAP_M), the first side returns lie within range noise of the
+    side's line and the segment may hold one or two of them, or stop a return short: the
+    end is taken at the outermost return (plus half of any dropouts) with an interval of
+    CORNER_STEPS steps.
+
+    Returns:
+        (ends (2, 2) metres, end 0 at the smaller beam angle; interval widths in steps,
+        which the refinement's noise model uses).
     """
     centroid, direction, _ = fit_line(points)
-    a_first = scan.angles_rad[beams[0]]
-    a_last = scan.angles_rad[beams[-1]]
-    step = float(np.median(np.diff(scan.angles_rad)))
-    return np.array(
-        [
-            _ray_line(a_first - 0.5 * step, centroid, direction),
-            _ray_line(a_last + 0.5 * step, centroid, direction),
-        ]
-    )
+    step = scan.step_rad
+    valid = scan.valid
+    offsets = []
+    widths = []
+    for beam, outward in ((int(beams[0]), -1), (int(beams[-1]), 1)):
+        k = 0
+        b = beam + outward
+        while 0 <= b < len(valid) and not valid[b] and k < MAX_DROPOUT_STEPS:
+            k += 1
+            b += outward
+        corner = (
+            0 <= b < len(valid)
+            and bool(valid[b])
+            and float(np.linalg.norm(scan.points[b] - scan.points[beam])) < CORNER_GAP_M
+        )
+        offsets.append(0.5 * k if corner else 0.5 * (k + 1))
+        widths.append(CORNER_STEPS + k if corner else k + 1)
+    a_first = scan.angles_rad[beams[0]] - offsets[0] * step
+    a_last = scan.angles_rad[beams[-1]] + offsets[1] * step
+    ends = np.array([_ray_line(a_first, centroid, direction), _ray_line(a_last, centroid, direction)])
+    return ends, (widths[0], widths[1])
 
 
 def _ray_line(angle: float, c: FloatArray, u: FloatArray) -> FloatArray:

@@ -113,11 +113,20 @@ def endpoint_set(
 ) -> EndpointSet:
     """Build the measurement set, with each laser end's covariance.
 
-    With side points the end lies on a line fitted to M returns: across the side its error
-    is about that of a fitted line's end, 2 sigma_r / sqrt(M); along the side the true box
-    end is somewhere in the gap to the next beam, uniform over the last beam spacing, so
-    sigma = spacing / sqrt(12). Without side points (the paper), the raw first/last return
-    has the range noise in every direction plus the same along-side quantisation.
+    With side points each end is where a ray half a beam step outside the outermost return
+    meets the line fitted to the M returns of the side (picks.py). Two errors move it:
+
+    - the fitted line's offset at its end, about 2 sigma_r / sqrt(M) across the side,
+      slides the end along that ray by offset / cos(incidence), where incidence is the
+      angle between the ray and the side's normal;
+    - the true box end lies anywhere within the beam step's footprint on the side,
+      w = k * range * step / cos(incidence) along it, sigma = w / sqrt(12), where k is
+      the end's interval in beam steps (``end_gap_steps``: 1 at a clean depth jump, more
+      at a corner or next to missing returns).
+
+    Without side points (the paper), the raw first/last return has the range noise in
+    every direction plus the same along-side quantisation (with the footprint measured
+    between the two outermost returns).
     """
     pts, px, covs, cap, end = [], [], [], [], []
     for obs in observations:
@@ -127,11 +136,15 @@ def endpoint_set(
             u = ends[1] - ends[0]
             u = u / np.linalg.norm(u)
             n = np.array([-u[1], u[0]])
-            spacing = _end_spacings(side)
             across = 2.0 * noise.range_sigma_m / np.sqrt(len(side))
             for j in range(2):
-                along = spacing[j] / np.sqrt(12.0)
-                covs.append(along**2 * np.outer(u, u) + across**2 * np.outer(n, n))
+                rng = float(np.linalg.norm(ends[j]))
+                ray = ends[j] / rng
+                cos_inc = max(abs(float(ray @ n)), 0.1)
+                footprint = obs.end_gap_steps[j] * rng * obs.beam_step_rad / cos_inc
+                covs.append(
+                    (footprint**2 / 12.0) * np.outer(u, u) + (across / cos_inc) ** 2 * np.outer(ray, ray)
+                )
         else:
             ends = side[[0, -1]] if len(side) >= 2 else obs.laser_endpoints
             spacing = _end_spacings(side) if len(side) >= 2 else np.zeros(2)

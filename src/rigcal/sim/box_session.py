@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from rigcal.calib.lines import LineParams, Segment, extract_lines
-from rigcal.calib.picks import BoxObservation, _extended_ends
+from rigcal.calib.picks import BoxObservation, extended_ends, side_observation
 from rigcal.camera import Camera
 from rigcal.errors import InputError, OutputError
 from rigcal.geometry import inv_T, make_T, transform_points
@@ -420,7 +420,7 @@ def find_face_segment(
         first_last = np.asarray(seg.points, dtype=float)[[0, -1]]
         if (_distance_to_segment(first_last, true_ends) > tolerance_m).any():
             return None
-    ends = _extended_ends(np.asarray(seg.points, dtype=float), indices, scan)
+    ends, _ = extended_ends(np.asarray(seg.points, dtype=float), indices, scan)
     if np.linalg.norm(ends - true_ends, axis=1).max() > END_TOLERANCE_M:
         return None
     return best
@@ -556,21 +556,7 @@ def session_observations(
         scan_rel, image_rel = _capture_files(c.name)
         scan_path = base / scan_rel if base else Path(scan_rel)
         image_path = base / image_rel if base else Path(image_rel)
-        angles = c.scan.angles_rad
-        step = float(np.median(np.diff(angles))) if len(angles) > 1 else 0.0
-        out.append(
-            BoxObservation(
-                capture=i,
-                name=c.name,
-                scan_path=scan_path,
-                image_path=image_path,
-                laser_endpoints=_extended_ends(seg.points, seg.indices, c.scan),
-                side_points=np.array(seg.points),
-                side_beams=np.array(seg.indices),
-                beam_step_rad=step,
-                image_endpoints_px=np.array(c.picked_pixels, dtype=float),
-            )
-        )
+        out.append(side_observation(i, c.name, scan_path, image_path, c.scan, seg.indices, c.picked_pixels))
     return out
 
 
