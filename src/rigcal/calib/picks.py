@@ -1,6 +1,6 @@
 """Picking files: the captures of a box-target session and what the user picked in each.
 
-A picking file (docs/formats/picks.md) lists, per capture, a scan file, an image file, the
+A picking file (docs/formats/session.md) lists, per capture, a scan file, an image file, the
 laser side of the box (a segment id as printed by ``rigcal lines``, or two laser points)
 and the pixels of the two box ends in the image (paper Algorithm 1, step 2). Paths are
 relative to the picking file. :func:`read_picks` validates everything and resolves each
