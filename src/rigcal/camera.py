@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rigcal.errors import InputError
-from rigcal.io.files import check_keys, load_yaml
+from rigcal.io.files import check_keys, check_schema_version, load_yaml
 
 FloatArray = NDArray[np.float64]
 
@@ -220,8 +220,7 @@ def _read_opencv_yaml(path: Path) -> Camera:
     d = check_keys(
         data, path, "", ["schema_version", "image_width_px", "image_height_px", "K"], ["distortion", "name"]
     )
-    if isinstance(d["schema_version"], bool) or d["schema_version"] != CAMERA_SCHEMA_VERSION:
-        raise InputError.at(path, "schema_version", d["schema_version"], f"{CAMERA_SCHEMA_VERSION}")
+    check_schema_version(d, path, CAMERA_SCHEMA_VERSION)
     for key in ("image_width_px", "image_height_px"):
         if not _is_pos_int(d[key]):
             raise InputError.at(path, key, d[key], "a positive integer")

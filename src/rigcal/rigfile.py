@@ -28,7 +28,7 @@ import yaml
 from rigcal import __version__
 from rigcal.camera import camera_from_dict
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_write_text, check_keys, load_yaml
+from rigcal.io.files import atomic_write_text, check_keys, check_schema_version, load_yaml
 from rigcal.io.transform import float_matrix, float_vector, transform_from_dict, transform_to_dict
 from rigcal.rig import COVARIANCE_PARAMETERS, Rig
 
@@ -86,10 +86,7 @@ def read_rig(path: str | Path) -> Rig:
         ["schema_version", "T_cam_laser", "camera"],
         ["uncertainty", "laser", "residuals", "provenance"],
     )
-    if isinstance(d["schema_version"], bool) or d["schema_version"] != RIG_SCHEMA_VERSION:
-        raise InputError.at(
-            path, "schema_version", d["schema_version"], f"{RIG_SCHEMA_VERSION} (this rigcal)"
-        )
+    check_schema_version(d, path, RIG_SCHEMA_VERSION)
     T = transform_from_dict(d["T_cam_laser"], path, "T_cam_laser", "cam", "laser")
     camera = camera_from_dict(d["camera"], path, "camera")
     cov = None

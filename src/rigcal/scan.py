@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_write_text, check_keys, get_float, load_yaml
+from rigcal.io.files import atomic_write_text, check_keys, check_schema_version, get_float, load_yaml
 
 FloatArray = NDArray[np.float64]
 
@@ -118,8 +118,7 @@ def read_scan(path: str | Path) -> Scan:
         ["schema_version", "range_min_m", "range_max_m", "ranges_m"],
         ["stamp_s", "frame", "angle_min_rad", "angle_increment_rad", "angles_rad"],
     )
-    if isinstance(d["schema_version"], bool) or d["schema_version"] != SCAN_SCHEMA_VERSION:
-        raise InputError.at(path, "schema_version", d["schema_version"], f"{SCAN_SCHEMA_VERSION}")
+    check_schema_version(d, path, SCAN_SCHEMA_VERSION)
     if "frame" in d and d["frame"] != "laser":
         raise InputError.at(path, "frame", d["frame"], "'laser'")
     range_min = get_float(d, "range_min_m", path)

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from rigcal.calib.lines import LineParams, Segment, extract_lines, fit_line
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import InputError
-from rigcal.io.files import check_keys, load_yaml
+from rigcal.io.files import check_keys, check_schema_version, load_yaml
 from rigcal.scan import Scan, read_scan
 
 FloatArray = NDArray[np.float64]
@@ -96,8 +96,7 @@ def read_picks(path: str | Path, line_params: LineParams | None = None) -> PickS
     path = Path(path)
     data = load_yaml(path, "picking file")
     d = check_keys(data, path, "", ["schema_version", "camera", "captures"], ["laser", "name"])
-    if isinstance(d["schema_version"], bool) or d["schema_version"] != PICKS_SCHEMA_VERSION:
-        raise InputError.at(path, "schema_version", d["schema_version"], f"{PICKS_SCHEMA_VERSION}")
+    check_schema_version(d, path, PICKS_SCHEMA_VERSION)
     camera_path = _file(path, "camera", d["camera"])
     camera = read_camera(camera_path)
     laser = d.get("laser", {})

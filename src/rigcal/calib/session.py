@@ -7,8 +7,6 @@ Data flow: picking file -> :func:`rigcal.calib.picks.read_picks` -> :class:`Cali
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,7 +18,7 @@ from rigcal.calib.picks import PickSession, read_picks
 from rigcal.calib.report import build_report, report_table
 from rigcal.calib.solve import CalibProblem, CalibResult, SolveSettings, solve
 from rigcal.calib.truth import read_truth
-from rigcal.errors import OutputError
+from rigcal.io.files import atomic_folder, check_folder_writable
 from rigcal.rig import Rig
 from rigcal.rigfile import provenance
 
@@ -83,12 +81,7 @@ def _scanner_description(session: PickSession) -> dict[str, Any]:
 
 def check_report_dir(folder: str | Path, force: bool) -> Path:
     """Refuse an existing report folder unless ``force`` (checked before solving)."""
-    folder = Path(folder)
-    if folder.exists() and not force:
-        raise OutputError(f"{folder}: exists; pass --force to replace the report folder")
-    if folder.exists() and not folder.is_dir():
-        raise OutputError(f"{folder}: is a file; expected a folder for the report")
-    return folder
+    return check_folder_writable(folder, force)
 
 
 def write_report_dir(folder: str | Path, cal: Calibration, force: bool = False) -> Path:
@@ -100,13 +93,7 @@ def write_report_dir(folder: str | Path, cal: Calibration, force: bool = False) 
     from rigcal.scan import read_scan
     from rigcal.viz.overlay import draw_overlay, read_image, write_png
 
-    folder = check_report_dir(folder, force)
-    try:
-        folder.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(dir=folder.parent, prefix=f".{folder.name}."))
-    except OSError as exc:
-        raise OutputError(f"{folder}: cannot create: {exc.strerror or exc}") from None
-    try:
+    with atomic_folder(check_report_dir(folder, force), force) as tmp:
         (tmp / "report.yaml").write_text(
             "# rigcal solve report (docs/formats/report.md)\n"
             + yaml.safe_dump(cal.report, sort_keys=False, default_flow_style=None, width=110)
@@ -129,13 +116,4 @@ def write_report_dir(folder: str | Path, cal: Calibration, force: bool = False) 
                 end_inlier=res.inliers[m],
             )
             write_png(tmp / f"overlay_{obs.name}.png", img)
-        if folder.exists():
-            shutil.rmtree(folder)
-        tmp.rename(folder)
-    except OSError as exc:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise OutputError(f"{folder}: cannot write the report: {exc.strerror or exc}") from None
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return folder
+    return Path(folder)

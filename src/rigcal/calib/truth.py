@@ -16,8 +16,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from rigcal.errors import InputError
-from rigcal.io.files import check_keys, load_yaml
+from rigcal.io.files import check_keys, check_schema_version, load_yaml
 from rigcal.io.transform import transform_from_dict, transform_to_dict
 
 TRUTH_SCHEMA_VERSION = 1
@@ -39,6 +38,5 @@ def read_truth(path: str | Path) -> NDArray[np.float64]:
     """Read a truth file; returns T_cam_laser (4, 4)."""
     path = Path(path)
     d = check_keys(load_yaml(path, "truth file"), path, "", ["schema_version", "T_cam_laser"], ["generator"])
-    if d["schema_version"] != TRUTH_SCHEMA_VERSION:
-        raise InputError.at(path, "schema_version", d["schema_version"], f"{TRUTH_SCHEMA_VERSION}")
+    check_schema_version(d, path, TRUTH_SCHEMA_VERSION)
     return transform_from_dict(d["T_cam_laser"], path, "T_cam_laser", "cam", "laser")

@@ -9,10 +9,13 @@ or refused write leaves nothing half-written.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import secrets
+import shutil
 import tempfile
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -158,3 +161,72 @@ def atomic_write_bytes(path: str | Path, data: bytes, force: bool = False) -> Pa
 def atomic_write_text(path: str | Path, text: str, force: bool = False) -> Path:
     """Text version of :func:`atomic_write_bytes` (UTF-8)."""
     return atomic_write_bytes(path, text.encode("utf-8"), force=force)
+
+
+def check_schema_version(mapping: Mapping[str, Any], path: str | Path | None, expected: int) -> None:
+    """``schema_version`` must be the integer ``expected`` (booleans and floats rejected)."""
+    value = mapping["schema_version"]
+    if type(value) is not int or value != expected:
+        raise InputError.at(path, "schema_version", value, f"{expected} (the version this rigcal reads)")
+
+
+def check_folder_writable(folder: str | Path, force: bool) -> Path:
+    """Refuse an existing folder unless ``force``, and anything there that is not a folder."""
+    folder = Path(folder)
+    if folder.exists() or folder.is_symlink():
+        if not force:
+            raise OutputError(f"{folder}: exists; pass --force to replace it")
+        if not folder.is_dir() or folder.is_symlink():
+            raise OutputError(f"{folder}: exists and is not a folder; refusing to replace it")
+    return folder
+
+
+@contextlib.contextmanager
+def atomic_folder(folder: str | Path, force: bool = False) -> Iterator[Path]:
+    """Write a whole folder atomically: yields a fresh hidden sibling to fill, which then
+    replaces ``folder`` by rename (an existing folder is moved aside first and removed
+    after, or put back if the rename fails). On any error the sibling is removed and
+    ``folder`` is left as it was.
+
+    Raises:
+        OutputError: the folder exists and ``force`` is false, or a write failed.
+    """
+    folder = check_folder_writable(folder, force)
+    try:
+        folder.absolute().parent.mkdir(parents=True, exist_ok=True)
+        tmp = _fresh_sibling(folder, "tmp")
+        tmp.mkdir()
+    except OSError as exc:
+        raise OutputError(f"{folder}: cannot write: {exc.strerror or exc}") from None
+    try:
+        yield tmp
+        _swap_into_place(tmp, folder)
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise OutputError(f"{folder}: cannot write: {exc.strerror or exc}") from None
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _fresh_sibling(folder: Path, tag: str) -> Path:
+    """A name next to ``folder`` that does not exist yet (hidden, random)."""
+    while True:
+        p = folder.absolute().parent / f".{folder.name}.{secrets.token_hex(4)}.{tag}"
+        if not p.exists():
+            return p
+
+
+def _swap_into_place(tmp: Path, folder: Path) -> None:
+    """Rename tmp to folder; an existing folder is moved aside first and removed after."""
+    if not folder.exists():
+        os.rename(tmp, folder)
+        return
+    old = _fresh_sibling(folder, "old")
+    os.rename(folder, old)
+    try:
+        os.rename(tmp, folder)
+    except BaseException:
+        os.rename(old, folder)
+        raise
+    shutil.rmtree(old, ignore_errors=True)

@@ -21,9 +21,6 @@ byte for byte.
 
 from __future__ import annotations
 
-import os
-import secrets
-import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +35,7 @@ from rigcal.calib.picks import BoxObservation, extended_ends, side_observation
 from rigcal.camera import Camera
 from rigcal.errors import InputError, OutputError
 from rigcal.geometry import inv_T, make_T, transform_points
+from rigcal.io.files import atomic_folder
 from rigcal.scan import Scan
 from rigcal.sim.raycast import cast_scan_hits
 from rigcal.sim.render import Room, Scene
@@ -585,20 +583,7 @@ def write_session(
     """
     from rigcal.scan import write_scan
 
-    folder = Path(folder)
-    if folder.exists() or folder.is_symlink():
-        if not force:
-            raise OutputError(f"{folder}: exists; pass --force to replace it")
-        if not folder.is_dir() or folder.is_symlink():
-            raise OutputError(f"{folder}: exists and is not a folder; refusing to replace it")
-    parent = folder.absolute().parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-        tmp = _fresh_sibling(folder, "tmp")
-        tmp.mkdir()
-    except OSError as exc:
-        raise OutputError(f"{folder}: cannot write: {exc.strerror or exc}") from None
-    try:
+    with atomic_folder(folder, force) as tmp:
         (tmp / "scans").mkdir()
         (tmp / "images").mkdir()
         camera_file = _write_camera(session.camera, tmp)
@@ -608,37 +593,7 @@ def write_session(
             (tmp / image_rel).write_bytes(_png(session, c, render_images))
         (tmp / "picks.yaml").write_text(picks_text(session, camera_file), encoding="utf-8")
         (tmp / "truth.yaml").write_text(truth_text(session), encoding="utf-8")
-        _swap_into_place(tmp, folder)
-    except OSError as exc:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise OutputError(f"{folder}: cannot write: {exc.strerror or exc}") from None
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return folder
-
-
-def _fresh_sibling(folder: Path, tag: str) -> Path:
-    """A name next to ``folder`` that does not exist yet (hidden, random)."""
-    while True:
-        p = folder.absolute().parent / f".{folder.name}.{secrets.token_hex(4)}.{tag}"
-        if not p.exists():
-            return p
-
-
-def _swap_into_place(tmp: Path, folder: Path) -> None:
-    """Rename tmp to folder; an existing folder is moved aside first and removed after."""
-    if not folder.exists():
-        os.rename(tmp, folder)
-        return
-    old = _fresh_sibling(folder, "old")
-    os.rename(folder, old)
-    try:
-        os.rename(tmp, folder)
-    except BaseException:
-        os.rename(old, folder)
-        raise
-    shutil.rmtree(old, ignore_errors=True)
+    return Path(folder)
 
 
 def _capture_files(name: str) -> tuple[str, str]:
