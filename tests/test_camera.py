@@ -456,3 +456,15 @@ def test_embedded_camera_missing_key():
     del d["imagersize"]
     with pytest.raises(InputError, match=re.escape("rig.yaml: camera.imagersize: missing")):
         camera_from_dict(d, "rig.yaml", "camera")
+
+
+def test_cameramodel_with_a_negative_focal_length_is_refused(tmp_path):
+    import mrcal
+
+    path = tmp_path / "neg.cameramodel"
+    intrinsics = ("LENSMODEL_PINHOLE", np.array([-500.0, 500.0, 320.0, 240.0]))
+    mrcal.cameramodel(intrinsics=intrinsics, imagersize=(640, 480)).write(str(path))
+    with pytest.raises(
+        InputError, match=r"neg\.cameramodel: intrinsics: got \[-500\.0.*positive focal lengths"
+    ):
+        read_camera(path)

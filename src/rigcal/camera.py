@@ -211,7 +211,15 @@ def _read_cameramodel(path: Path) -> Camera:
         model = mrcal.cameramodel(str(path))
     except Exception as exc:  # mrcal raises bare Exceptions for malformed files
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if len(first) > 120:
+            first = first[:117] + "..."
         raise InputError(f"{path}: not a valid mrcal cameramodel: {first}") from None
+    lensmodel, intrinsics = model.intrinsics()
+    # Every mrcal lens model starts its intrinsics with fx, fy, cx, cy.
+    if not (np.all(np.isfinite(intrinsics)) and intrinsics[0] > 0 and intrinsics[1] > 0):
+        raise InputError.at(
+            path, "intrinsics", [float(x) for x in intrinsics[:4]], f"{lensmodel} with positive focal lengths"
+        )
     return Camera.from_mrcal(model, source=str(path))
 
 

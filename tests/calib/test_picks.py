@@ -130,11 +130,29 @@ def test_points_form_in_reverse_beam_order_still_puts_end_zero_at_the_smaller_an
     assert o.side_beams[0] < o.side_beams[-1]
 
 
-def test_points_form_away_from_any_return_falls_back_to_the_given_ends(session):
+def test_points_form_away_from_any_return_is_refused(session):
     edit_capture(session, 0, laser_side={"points": [[0.5, 5.0], [0.5, 5.5]]})
-    o = read_picks(session).observations[0]
-    np.testing.assert_array_equal(o.laser_endpoints, [[0.5, 5.0], [0.5, 5.5]])
-    assert len(o.side_beams) == 0
+    with pytest.raises(
+        InputError, match=r"captures\[0\]\.laser_side\.points: got .*fewer than 2 valid returns"
+    ):
+        read_picks(session)
+
+
+def test_image_of_another_size_is_refused(session):
+    import cv2
+
+    img = cv2.imread(str(session.parent / "images" / "cap01.png"))
+    cv2.imwrite(str(session.parent / "images" / "cap01.png"), cv2.resize(img, (320, 240)))
+    with pytest.raises(
+        InputError, match=r"captures\[1\]\.image: got 'images/cap01.png'.*640x480, not 320x240"
+    ):
+        read_picks(session)
+
+
+def test_unreadable_image_is_refused(session):
+    (session.parent / "images" / "cap02.png").write_bytes(b"not a png")
+    with pytest.raises(InputError, match=r"captures\[2\]\.image: got 'images/cap02.png'.*OpenCV can read"):
+        read_picks(session)
 
 
 def test_capture_names_default_to_their_index(session):

@@ -132,6 +132,7 @@ def _read_capture(path: Path, i: int, c: Any, camera: Camera, line_params: LineP
         raise InputError.at(path, f"{kp}.name", name, "a non-empty string")
     scan_path = _file(path, f"{kp}.scan", c["scan"])
     image_path = _file(path, f"{kp}.image", c["image"])
+    _check_image(path, f"{kp}.image", c["image"], image_path, camera)
     scan = read_scan(scan_path)
     px = _pairs(c["image_endpoints_px"], path, f"{kp}.image_endpoints_px", "pixel")
     inside = camera.in_image(px)
@@ -180,6 +181,24 @@ def side_observation(
         np.array(image_endpoints_px, dtype=float),
         gaps,
     )
+
+
+def _check_image(path: Path, key: str, value: str, image_path: Path, camera: Camera) -> None:
+    """The image must decode and have the camera's size (a wrong camera file or a resized
+    image would silently bias every pick)."""
+    import cv2
+
+    img = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputError.at(path, key, value, "an image file OpenCV can read (PNG, JPEG, ...)")
+    h, w = img.shape[:2]
+    if (w, h) != (camera.width_px, camera.height_px):
+        raise InputError.at(
+            path,
+            key,
+            value,
+            f"an image of the camera's size {camera.width_px}x{camera.height_px}, not {w}x{h}",
+        )
 
 
 def _pairs(value: Any, path: Path, key: str, what: str) -> FloatArray:
@@ -231,7 +250,13 @@ def _laser_side(
     beams = _beams_near(scan, ends)
     pts = scan.points[beams]
     if len(beams) < 2:
-        return ends, ends.copy(), np.zeros(0, dtype=np.int64)
+        raise InputError.at(
+            path,
+            f"{key}.points",
+            ends.tolist(),
+            f"two points on the box side in the scan: fewer than 2 valid returns lie within "
+            f"{100 * SIDE_POINT_TOLERANCE_M:g} cm of the line between them",
+        )
     return ends, pts, beams
 
 
