@@ -202,3 +202,14 @@ def test_quaternion_to_R_conventions():
     assert R.shape == (3, 3)
     np.testing.assert_allclose(R @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-15)
     np.testing.assert_array_equal(quaternion_to_R([[1.0, 0.0, 0.0, 0.0]]), np.eye(3)[None])
+
+
+def test_closed_form_symmetric_eigenvalues_match_numpy():
+    from rigcal.calib.horn import sym3_eigvalsh
+
+    rng = np.random.default_rng(21)
+    A = rng.normal(size=(500, 3, 3))
+    S = A + np.transpose(A, (0, 2, 1))
+    S[:5] = np.diag([2.0, 2.0, 2.0])  # a triple eigenvalue
+    S[5:10] = np.diag([0.0, 1.0, 1.0])  # a double one
+    np.testing.assert_allclose(sym3_eigvalsh(S), np.linalg.eigvalsh(S), atol=1e-9)

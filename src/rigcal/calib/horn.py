@@ -113,11 +113,42 @@ def quaternion_to_R(q: ArrayLike) -> FloatArray:
 
 
 def _spread_ok(C: FloatArray, min_ratio: float) -> NDArray[np.bool_]:
-    """(K,) whether centred point sets (K, N, 3) span at least a line's worth more: their
-    second singular value is at least min_ratio times the first."""
+    """(K,) whether centred point sets (K, N, 3) span more than a line: the second singular
+    value is at least min_ratio times the first.
+
+    The singular values are the square roots of the eigenvalues of the 3x3 scatter
+    matrix C^T C, taken in closed form (the trigonometric solution of its characteristic
+    cubic), which is faster than a batched SVD.
+    """
     Cz: FloatArray = np.where(np.isfinite(C), C, 0.0)
-    s: FloatArray = np.linalg.svd(Cz, compute_uv=False)  # (K, min(N, 3))
-    if s.shape[1] < 2:
-        return np.zeros(len(C), dtype=bool)
-    out: NDArray[np.bool_] = s[:, 1] > min_ratio * np.maximum(s[:, 0], np.finfo(float).tiny)
+    S = np.einsum("kni,knj->kij", Cz, Cz)
+    w = sym3_eigvalsh(S)  # ascending
+    top = np.maximum(w[:, 2], np.finfo(float).tiny)
+    out: NDArray[np.bool_] = np.maximum(w[:, 1], 0.0) > min_ratio**2 * top
+    return out
+
+
+def sym3_eigvalsh(S: FloatArray) -> FloatArray:
+    """(K, 3) eigenvalues, ascending, of symmetric (K, 3, 3) matrices, in closed form."""
+    p1 = S[:, 0, 1] ** 2 + S[:, 0, 2] ** 2 + S[:, 1, 2] ** 2
+    q = (S[:, 0, 0] + S[:, 1, 1] + S[:, 2, 2]) / 3.0
+    p2 = (S[:, 0, 0] - q) ** 2 + (S[:, 1, 1] - q) ** 2 + (S[:, 2, 2] - q) ** 2 + 2.0 * p1
+    p = np.sqrt(p2 / 6.0)
+    safe = np.where(p > 0, p, 1.0)
+    B = (S - q[:, None, None] * np.eye(3)) / safe[:, None, None]
+    r = np.clip(
+        0.5
+        * (
+            B[:, 0, 0] * (B[:, 1, 1] * B[:, 2, 2] - B[:, 1, 2] * B[:, 2, 1])
+            - B[:, 0, 1] * (B[:, 1, 0] * B[:, 2, 2] - B[:, 1, 2] * B[:, 2, 0])
+            + B[:, 0, 2] * (B[:, 1, 0] * B[:, 2, 1] - B[:, 1, 1] * B[:, 2, 0])
+        ),
+        -1.0,
+        1.0,
+    )
+    phi = np.arccos(r) / 3.0
+    hi = q + 2.0 * p * np.cos(phi)
+    lo = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    mid = 3.0 * q - hi - lo
+    out: FloatArray = np.column_stack([lo, mid, hi])
     return out

@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
 
-_GAUSS_NEWTON_STEPS = 3
+_GAUSS_NEWTON_STEPS = 2
 # A solution is kept when its three distance equations hold to this relative error.
 _RELATIVE_TOLERANCE = 1e-6
 
@@ -87,15 +87,12 @@ def p3p(bearings: ArrayLike, points: ArrayLike) -> P3PSolutions:
     D2 = a23[:, None, None] * M13 - a13[:, None, None] * M23
     # A triple with no usable pencil member (coincident or collinear points) has D0 = NaN;
     # zero gives it no opposite-sign eigenvalues below, hence no solution.
-    D0 = _degenerate_member(D1, D2)
+    D0, s1, s2 = _degenerate_member(D1, D2)
     D0 = np.where(np.isfinite(D0), D0, 0.0)
-
-    # Plane pairs of D0: eigen-decomposition, the null eigenvalue dropped.
-    w, E = np.linalg.eigh(D0)
-    order = np.argsort(-np.abs(w), axis=1)  # |s1| >= |s2| >= |s3| ~ 0
-    s = np.take_along_axis(w, order, axis=1)
-    E = np.take_along_axis(E, order[:, None, :], axis=2)
-    s1, s2 = s[:, 0], s[:, 1]
+    # Eigenvectors of the two non-zero eigenvalues (closed form: D0 - s I is singular).
+    e1 = _null_vector(D0 - s1[:, None, None] * np.eye(3))
+    e2 = _null_vector(D0 - s2[:, None, None] * np.eye(3))
+    E = np.stack([e1, e2], axis=2)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.sqrt(np.where(s1 * s2 < 0, -s2 / s1, np.nan))
     Msum = M12 + M13 + M23
@@ -109,12 +106,10 @@ def p3p(bearings: ArrayLike, points: ArrayLike) -> P3PSolutions:
         p, q = _plane_basis(normal)
         # Step 3: D1 restricted to the plane (D2 when D1 vanishes there: on the plane
         # D1 = -g D2, so either carries the same null directions).
-        F = np.where(
-            (_frob(_restrict(D1, p, q)) >= _frob(_restrict(D2, p, q)))[:, None, None],
-            _restrict(D1, p, q),
-            _restrict(D2, p, q),
-        )
-        A, B, C = F[:, 0, 0], F[:, 0, 1], F[:, 1, 1]
+        A1, B1, C1 = _restrict(D1, p, q)
+        A2, B2, C2 = _restrict(D2, p, q)
+        use1 = A1 * A1 + 2 * B1 * B1 + C1 * C1 >= A2 * A2 + 2 * B2 * B2 + C2 * C2
+        A, B, C = np.where(use1, A1, A2), np.where(use1, B1, B2), np.where(use1, C1, C2)
         # A c^2 + 2 B c s + C s^2 = 0 with (c, s) = (cos t, sin t):
         # (A + C)/2 + R cos(2t - phi) = 0.
         R = np.hypot(0.5 * (A - C), B)
@@ -125,7 +120,7 @@ def p3p(bearings: ArrayLike, points: ArrayLike) -> P3PSolutions:
         for branch in (1.0, -1.0):
             t = 0.5 * (phi + branch * np.arccos(arg))
             u = np.cos(t)[:, None] * p + np.sin(t)[:, None] * q  # (n, 3) direction of Lambda
-            quad = np.einsum("ki,kij,kj->k", u, Msum, u)
+            quad = _quad(Msum, u)
             with np.errstate(invalid="ignore", divide="ignore"):
                 k = np.sqrt(asum / quad)
             lam = k[:, None] * u
@@ -164,47 +159,98 @@ def _form(n: int, pair: tuple[int, int], b: FloatArray) -> FloatArray:
     return M
 
 
-def _degenerate_member(D1: FloatArray, D2: FloatArray) -> FloatArray:
+def _degenerate_member(D1: FloatArray, D2: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """A singular D0 = D1 + g D2 per triple (or D2 itself), chosen among the real roots of
     det(D1 + g D2) = 0 as the one whose two remaining eigenvalues are best balanced with
-    opposite signs (the best-conditioned pair of planes)."""
+    opposite signs (the best-conditioned pair of planes).
+
+    Returns:
+        (D0 (n, 3, 3), s1 (n,), s2 (n,)): the member and its two non-zero eigenvalues,
+        |s1| >= |s2|; NaN where no member has eigenvalues of opposite signs.
+    """
     n = len(D1)
     # det(D1 + g D2) = c3 g^3 + c2 g^2 + c1 g + c0
-    c0 = np.linalg.det(D1)
-    c3 = np.linalg.det(D2)
-    c1 = np.einsum("kij,kji->k", _adjugate(D1), D2)
-    c2 = np.einsum("kij,kji->k", D1, _adjugate(D2))
+    c0 = _det(D1)
+    c3 = _det(D2)
+    # tr(adj(D1) D2) and tr(D1 adj(D2)); every matrix here is symmetric.
+    c1 = (_adjugate(D1) * D2).sum(axis=(1, 2))
+    c2 = (D1 * _adjugate(D2)).sum(axis=(1, 2))
     lead = np.abs(c3) > 1e-12 * (np.abs(c0) + np.abs(c1) + np.abs(c2) + 1e-300)
-    candidates = [D2]  # g = infinity: D2 is singular itself when c3 = 0
     safe_c3 = np.where(lead, c3, 1.0)
-    comp = np.zeros((n, 3, 3))
-    comp[:, 0, :] = -np.column_stack([c2, c1, c0]) / safe_c3[:, None]
-    comp[:, 1, 0] = 1.0
-    comp[:, 2, 1] = 1.0
-    roots = np.linalg.eigvals(comp)
-    for r in range(3):
-        g = roots[:, r]
-        real = np.abs(g.imag) <= 1e-8 * (1.0 + np.abs(g.real))
-        g_real: FloatArray = np.where(real & lead, g.real, np.nan)
-        g_real = _polish_root(g_real, c3, c2, c1, c0)
-        candidates.append(D1 + g_real[:, None, None] * D2)
+    roots = _cubic_real_roots(c2 / safe_c3, c1 / safe_c3, c0 / safe_c3)
     best = np.full((n, 3, 3), np.nan)
+    best_s = np.full((n, 2), np.nan)
     best_quality = np.full(n, -1.0)
-    for k, D in enumerate(candidates):
-        usable = np.isfinite(D).all(axis=(1, 2))
-        if k == 0:
-            usable &= ~lead
-        Dz = np.where(usable[:, None, None], D, 0.0)
-        w = np.linalg.eigvalsh(Dz)
-        aw = np.sort(np.abs(w), axis=1)
-        w_sorted = np.take_along_axis(w, np.argsort(-np.abs(w), axis=1), axis=1)
-        opposite = w_sorted[:, 0] * w_sorted[:, 1] < 0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            quality = np.where(usable & opposite, aw[:, 1] / aw[:, 2], -1.0)
+    candidates = [(D2, ~lead)]  # g = infinity: D2 is singular itself when c3 = 0
+    for r in range(3):
+        g = _polish_root(np.where(lead, roots[:, r], np.nan), c3, c2, c1, c0)
+        candidates.append((D1 + g[:, None, None] * D2, lead & np.isfinite(g)))
+    for D, usable in candidates:
+        # Non-zero eigenvalues of a singular symmetric 3x3: roots of s^2 - tr s + m = 0,
+        # m the sum of its principal 2x2 minors; opposite signs iff m < 0.
+        tr = D[:, 0, 0] + D[:, 1, 1] + D[:, 2, 2]
+        m = (
+            D[:, 0, 0] * D[:, 1, 1]
+            - D[:, 0, 1] ** 2
+            + D[:, 0, 0] * D[:, 2, 2]
+            - D[:, 0, 2] ** 2
+            + D[:, 1, 1] * D[:, 2, 2]
+            - D[:, 1, 2] ** 2
+        )
+        with np.errstate(invalid="ignore"):
+            root = np.sqrt(np.maximum(tr * tr - 4.0 * m, 0.0))
+            big = 0.5 * (tr + np.where(tr >= 0, root, -root))  # the larger in magnitude
+            small = np.where(big != 0, m / np.where(big != 0, big, 1.0), 0.0)
+            quality = np.where(usable & (m < 0), np.abs(small) / np.abs(big), -1.0)
         take = quality > best_quality
-        best[take] = Dz[take]
+        best[take] = D[take]
+        best_s[take] = np.column_stack([big, small])[take]
         best_quality[take] = quality[take]
-    return best
+    return best, best_s[:, 0], best_s[:, 1]
+
+
+def _cubic_real_roots(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
+    """(n, 3) real roots of x^3 + a x^2 + b x + c (NaN for complex ones), in closed form."""
+    p = b - a * a / 3.0
+    q = 2.0 * a**3 / 27.0 - a * b / 3.0 + c
+    shift = -a / 3.0
+    disc = (q / 2.0) ** 2 + (p / 3.0) ** 3
+    out = np.full((len(a), 3), np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # One real root (Cardano).
+        sq = np.sqrt(np.maximum(disc, 0.0))
+        one = np.cbrt(-q / 2.0 + sq) + np.cbrt(-q / 2.0 - sq)
+        # Three real roots (trigonometric form).
+        rho = 2.0 * np.sqrt(np.maximum(-p / 3.0, 0.0))
+        arg = np.clip(3.0 * q / (p * rho), -1.0, 1.0)
+        phi = np.arccos(arg) / 3.0
+    three = disc < 0
+    out[:, 0] = np.where(three, rho * np.cos(phi), one) + shift
+    out[:, 1] = np.where(three, rho * np.cos(phi - 2.0 * np.pi / 3.0) + shift, np.nan)
+    out[:, 2] = np.where(three, rho * np.cos(phi - 4.0 * np.pi / 3.0) + shift, np.nan)
+    return out
+
+
+def _null_vector(A: FloatArray) -> FloatArray:
+    """(n, 3) unit vectors spanning the null space of rank-2 (n, 3, 3) matrices: the
+    longest cross product of two of their rows."""
+    c = np.stack([np.cross(A[:, 0], A[:, 1]), np.cross(A[:, 0], A[:, 2]), np.cross(A[:, 1], A[:, 2])], axis=1)
+    norms = np.einsum("kij,kij->ki", c, c)
+    pick = np.argmax(norms, axis=1)
+    v = c[np.arange(len(A)), pick]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out: FloatArray = v / np.sqrt(norms[np.arange(len(A)), pick])[:, None]
+    return out
+
+
+def _det(M: FloatArray) -> FloatArray:
+    """Determinants of (n, 3, 3) matrices, by cofactors."""
+    out: FloatArray = (
+        M[:, 0, 0] * (M[:, 1, 1] * M[:, 2, 2] - M[:, 1, 2] * M[:, 2, 1])
+        - M[:, 0, 1] * (M[:, 1, 0] * M[:, 2, 2] - M[:, 1, 2] * M[:, 2, 0])
+        + M[:, 0, 2] * (M[:, 1, 0] * M[:, 2, 1] - M[:, 1, 1] * M[:, 2, 0])
+    )
+    return out
 
 
 def _polish_root(g: FloatArray, c3: FloatArray, c2: FloatArray, c1: FloatArray, c0: FloatArray) -> FloatArray:
@@ -245,15 +291,16 @@ def _plane_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
     return p, q
 
 
-def _restrict(D: FloatArray, p: FloatArray, q: FloatArray) -> FloatArray:
-    """(n, 2, 2) the form D on the plane spanned by (p, q)."""
-    B = np.stack([p, q], axis=2)  # (n, 3, 2)
-    out: FloatArray = np.einsum("kia,kij,kjb->kab", B, D, B)
-    return out
+def _restrict(D: FloatArray, p: FloatArray, q: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The form D on the plane spanned by (p, q): (p^T D p, p^T D q, q^T D q), each (n,)."""
+    Dp = (D * p[:, None, :]).sum(axis=2)
+    Dq = (D * q[:, None, :]).sum(axis=2)
+    return (p * Dp).sum(axis=1), (q * Dp).sum(axis=1), (q * Dq).sum(axis=1)
 
 
-def _frob(M: FloatArray) -> FloatArray:
-    out: FloatArray = np.sqrt(np.einsum("kij,kij->k", M, M))
+def _quad(M: FloatArray, u: FloatArray) -> FloatArray:
+    """(n,) u^T M u for (n, 3, 3) M and (n, 3) u."""
+    out: FloatArray = (u * (M * u[:, None, :]).sum(axis=2)).sum(axis=1)
     return out
 
 
@@ -279,10 +326,9 @@ def _gauss_newton_step(lam: FloatArray, bb: FloatArray, aa: FloatArray) -> Float
     J[:, 2, 1] = 2.0 * l2 - 2.0 * bb[:, 2] * l3
     J[:, 2, 2] = 2.0 * l3 - 2.0 * bb[:, 2] * l2
     r = _residuals(lam, bb) - aa
-    det = np.linalg.det(J)
+    det = _det(J)
     good = np.abs(det) > 1e-12 * np.maximum(np.abs(lam).max(axis=1), 1.0) ** 3
-    Jg = np.where(good[:, None, None], J, np.eye(3))
-    step = np.linalg.solve(Jg, r[:, :, None])[:, :, 0]
+    step = (_adjugate(J) * r[:, None, :]).sum(axis=2) / np.where(good, det, 1.0)[:, None]
     return np.where(good[:, None], lam - step, lam)
 
 
