@@ -123,19 +123,39 @@ def read_rig(path: str | Path) -> Rig:
     return Rig(T, camera, cov, sections["laser"], sections["residuals"], sections["provenance"])
 
 
-def provenance(command: str, inputs: list[Path], settings: dict[str, Any]) -> dict[str, Any]:
-    """How a result was made: version, UTC time, command line, input hashes, settings."""
+def provenance(
+    command: str, inputs: list[Path], settings: dict[str, Any], base: Path | None = None
+) -> dict[str, Any]:
+    """How a result was made: version, UTC time, command line, input hashes, settings.
+
+    Args:
+        command: the command line.
+        inputs: every file read.
+        settings: solver settings to record.
+        base: when given, recorded as ``inputs_base`` (absolute) and input paths are written
+            relative to it where they lie below it.
+    """
     import datetime
 
     from rigcal.io.files import sha256_file
 
-    return {
+    def shown(p: Path) -> str:
+        if base is not None:
+            try:
+                return Path(p).resolve().relative_to(base.resolve()).as_posix()
+            except ValueError:
+                pass
+        return str(Path(p).resolve())
+
+    out: dict[str, Any] = {
         "rigcal_version": __version__,
         "created_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "command": command,
-        "inputs": [{"path": str(p), "sha256": sha256_file(p)} for p in inputs],
-        **settings,
     }
+    if base is not None:
+        out["inputs_base"] = str(base.resolve())
+    out["inputs"] = [{"path": shown(p), "sha256": sha256_file(p)} for p in inputs]
+    return out | settings
 
 
 def _plain(x: Any) -> Any:

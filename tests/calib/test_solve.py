@@ -115,3 +115,25 @@ def test_swapped_picks_are_diagnosed():
     obs[3] = swapped
     rep = build_report(solve(replace(prob, observations=tuple(obs))))
     assert any(o.name in w and "swapped" in w for w in rep["warnings"])
+
+
+def test_correct_picks_stay_inliers_by_their_own_covariance():
+    # 40 captures with 20% wrong picks: every correct end must survive the Mahalanobis gate
+    # (a fixed pixel threshold would drop far, steep ends whose laser uncertainty projects
+    # to several pixels), and every wrong one must be caught.
+    from rigcal.calib.solve import INLIER_GATE_CHI2
+
+    sess, prob = problem(SessionSpec(n_captures=40, wrong_pick_fraction=0.2, seed=11))
+    res = solve(prob)
+    wrong = np.repeat([c.is_wrong_pick for c in sess.captures], 2)
+    kinds = np.repeat([c.wrong_pick_kind for c in sess.captures], 2)
+    ends = res.measurements.end
+    # A "moved end 0" capture has a correct end 1, and vice versa.
+    truly_wrong = (
+        wrong & ~((kinds == "moved end 0") & (ends == 1)) & ~((kinds == "moved end 1") & (ends == 0))
+    )
+    assert res.inliers[~truly_wrong].all()
+    assert not res.inliers[truly_wrong].any()
+    assert (
+        res.errors_sigma[res.inliers] ** 2 < INLIER_GATE_CHI2 * max(1.0, res.refine.residual_scale**2) * 2
+    ).all()

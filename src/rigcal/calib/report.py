@@ -48,6 +48,7 @@ def build_report(result: CalibResult, T_truth: FloatArray | None = None) -> dict
                 "end": int(meas.end[k]),
                 "picked_px": [round(float(x), 2) for x in meas.pixels[k]],
                 "error_px": _r(result.errors_px[k], 3),
+                "error_sigma": _r(result.errors_sigma[k], 2),
                 "inlier": bool(result.inliers[k]),
             }
         )
@@ -84,7 +85,12 @@ def build_report(result: CalibResult, T_truth: FloatArray | None = None) -> dict
     report: dict[str, Any] = {
         "summary": summary,
         "rejected": [
-            {"capture": e["capture"], "end": e["end"], "error_px": e["error_px"]}
+            {
+                "capture": e["capture"],
+                "end": e["end"],
+                "error_px": e["error_px"],
+                "error_sigma": e["error_sigma"],
+            }
             for e in ends
             if not e["inlier"]
         ],
@@ -172,9 +178,11 @@ def _swapped_or_wrong(result: CalibResult) -> list[str]:
         if (swapped < thr).all():
             out.append(f"capture {o.name}: the two image ends look swapped (they fit in the other order)")
         else:
-            worst = float(result.errors_px[m].max())
+            k = int(np.argmax(np.where(result.inliers[m], -np.inf, result.errors_sigma[m])))
+            px, sig = float(result.errors_px[m][k]), float(result.errors_sigma[m][k])
             out.append(
-                f"capture {o.name}: pick rejected ({worst:.1f} px off); check the picks and segment id"
+                f"capture {o.name}: pick rejected ({px:.1f} px, {sig:.1f} sigma off); "
+                "check the picks and segment id"
             )
     return out
 
@@ -207,7 +215,10 @@ def report_table(report: dict[str, Any]) -> str:
             f"{t['translation_error_mm']:.2f} mm (NEES {t['nees']:.2f}, expected about 6)"
         )
     for r in report["rejected"]:
-        lines.append(f"rejected: capture {r['capture']} end {r['end']} ({r['error_px']:.1f} px)")
+        lines.append(
+            f"rejected: capture {r['capture']} end {r['end']} "
+            f"({r['error_px']:.1f} px, {r['error_sigma']:.1f} sigma)"
+        )
     for w in report["warnings"]:
         lines.append(f"warning: {w}")
     return "\n".join(lines) + "\n"

@@ -66,9 +66,10 @@ def calibrate(
             session.input_files(),
             {
                 "method": "box-target (Algorithm 1)",
-                "camera_source": str(session.camera_path),
+                "camera_source": str(session.camera_path.resolve()),
                 **settings.to_dict(),
             },
+            base=Path(picks_path).resolve().parent,
         ),
     )
     return Calibration(session, result, report, rig)

@@ -23,6 +23,7 @@ from rigcal.calib.refine import (
     RefineResult,
     endpoint_set,
     refine_pose,
+    whitening,
 )
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError
@@ -30,6 +31,11 @@ from rigcal.errors import CalibrationError
 FloatArray = NDArray[np.float64]
 
 MIN_CAPTURES = 3
+# After refinement a box end is an inlier when its squared whitened reprojection error
+# (Mahalanobis distance under its own pixel covariance) is under the chi-square 99.9%
+# point for 2 dof, times the robust noise scale of the inliers (at least 1).
+INLIER_GATE_CHI2 = 13.815510557964274
+_CHI2_2DOF_MEDIAN = 1.3862943611198906
 
 
 @dataclass(frozen=True)
@@ -67,6 +73,8 @@ class CalibResult:
         measurements: every box end (inliers and outliers).
         inliers: (P,) bool over ``measurements``.
         errors_px: (P,) reprojection error of every box end under the final pose.
+        errors_sigma: (P,) the same, whitened by each end's pixel covariance (Mahalanobis
+            distance, in sigmas).
         ransac: the RANSAC stage's result.
         refine: the refinement's result.
     """
@@ -79,6 +87,7 @@ class CalibResult:
     errors_px: FloatArray
     ransac: RansacResult
     refine: RefineResult
+    errors_sigma: FloatArray
 
 
 def solve(problem: CalibProblem) -> CalibResult:
@@ -91,9 +100,9 @@ def solve(problem: CalibProblem) -> CalibResult:
     meas = endpoint_set(problem.observations, problem.settings.noise, problem.settings.refine.use_side_points)
     _check_not_collinear(meas)
     ransac = ransac_pose(problem.camera, meas.points_laser, meas.pixels, problem.settings.ransac)
-    refined, inliers, errors = _refine_with_reclassification(problem, meas, ransac)
+    refined, inliers, errors, sigmas = _refine_with_reclassification(problem, meas, ransac)
     return CalibResult(
-        problem, refined.T_cam_laser, refined.covariance, meas, inliers, errors, ransac, refined
+        problem, refined.T_cam_laser, refined.covariance, meas, inliers, errors, ransac, refined, sigmas
     )
 
 
@@ -118,30 +127,42 @@ def _check_not_collinear(meas: EndpointSet) -> None:
 
 def _refine_with_reclassification(
     problem: CalibProblem, meas: EndpointSet, ransac: RansacResult
-) -> tuple[RefineResult, NDArray[np.bool_], FloatArray]:
-    """Refine on RANSAC's inliers; re-classify under the refined pose and refine again if needed."""
-    thr = problem.settings.ransac.threshold_px
+) -> tuple[RefineResult, NDArray[np.bool_], FloatArray, FloatArray]:
+    """Refine on RANSAC's inliers; re-classify every end under the refined pose by its
+    Mahalanobis distance (:data:`INLIER_GATE_CHI2`) and refine again until stable."""
+    noise = problem.settings.noise
     inliers = ransac.inliers
     T = ransac.T_cam_laser
     refined: RefineResult | None = None
-    for _ in range(3):
+    for _ in range(4):
         if int(inliers.sum()) < 4 or len(np.unique(meas.capture[inliers])) < 2:
             raise CalibrationError(
-                f"only {int(inliers.sum())} box end(s) agree within {thr:g} px; "
+                f"only {int(inliers.sum())} box end(s) agree with the calibration; "
                 "the solve needs at least 4 from 2 captures (check the picks)"
             )
-        refined = refine_pose(
-            problem.camera, T, _subset(meas, inliers), problem.settings.noise, problem.settings.refine
-        )
+        refined = refine_pose(problem.camera, T, _subset(meas, inliers), noise, problem.settings.refine)
         T = refined.T_cam_laser
-        errors = reprojection_errors(problem.camera, T[:3, :3], T[:3, 3], meas.points_laser, meas.pixels)
-        new = errors < thr
+        z2 = _whitened_sq_errors(problem.camera, T, meas, noise)
+        scale2 = max(1.0, float(np.median(z2[inliers])) / _CHI2_2DOF_MEDIAN)
+        new = z2 < INLIER_GATE_CHI2 * scale2
         if np.array_equal(new, inliers):
             break
         inliers = new
     assert refined is not None
     errors = reprojection_errors(problem.camera, T[:3, :3], T[:3, 3], meas.points_laser, meas.pixels)
-    return refined, inliers, errors
+    sigmas = np.sqrt(_whitened_sq_errors(problem.camera, T, meas, noise))
+    return refined, inliers, errors, sigmas
+
+
+def _whitened_sq_errors(camera: Camera, T: FloatArray, meas: EndpointSet, noise: NoiseModel) -> FloatArray:
+    """(P,) squared Mahalanobis reprojection errors of every end (inf behind the camera)."""
+    W = whitening(camera, T, meas, noise)
+    q = camera.project(
+        np.column_stack([meas.points_laser, np.zeros(len(meas.points_laser))]) @ T[:3, :3].T + T[:3, 3]
+    )
+    z = np.einsum("pij,pj->pi", W, q - meas.pixels)
+    out: FloatArray = np.where(np.isfinite(z).all(axis=1), (z**2).sum(axis=1), np.inf)
+    return out
 
 
 def _subset(meas: EndpointSet, mask: NDArray[np.bool_]) -> EndpointSet:
