@@ -74,6 +74,8 @@ class EndpointSet:
         cov_laser: (P, 2, 2) covariance of each laser end, m^2.
         capture: (P,) index of the capture (picking-file order) each end came from.
         end: (P,) 0 or 1, which end of its capture.
+        cross_laser: (P, 2, 2) covariance between each end and the other end of its capture
+            (both come from one fitted line), m^2; None when the ends are independent.
     """
 
     points_laser: FloatArray
@@ -81,6 +83,19 @@ class EndpointSet:
     cov_laser: FloatArray
     capture: NDArray[np.int64]
     end: NDArray[np.int64]
+    cross_laser: FloatArray | None = None
+
+    def subset(self, mask: NDArray[np.bool_]) -> EndpointSet:
+        """The ends selected by a (P,) mask."""
+        cross = None if self.cross_laser is None else self.cross_laser[mask]
+        return EndpointSet(
+            self.points_laser[mask],
+            self.pixels[mask],
+            self.cov_laser[mask],
+            self.capture[mask],
+            self.end[mask],
+            cross,
+        )
 
 
 @dataclass(frozen=True)
@@ -90,8 +105,9 @@ class RefineResult:
     Attributes:
         T_cam_laser: (4, 4) refined pose.
         covariance: (6, 6) over [dtheta (rad), t (m)], see the module docstring.
-        residual_scale: sqrt(chi^2 / dof) of the whitened residuals (1 when the noise model
-            is right); the covariance is scaled by its square.
+        residual_scale: sqrt(chi^2 / dof) of the whitened residuals (about 1 when the noise
+            model is right); when above 1 the covariance is inflated by its square (the
+            data are noisier than the model says), when below it is left as it is.
         chi2: sum of squared whitened residuals.
         dof: number of residuals minus 6.
         information_eigen: eigenvalues (ascending) of the information matrix J^T J, scaled to
@@ -128,29 +144,21 @@ def endpoint_set(
     every direction plus the same along-side quantisation (with the footprint measured
     between the two outermost returns).
     """
-    pts, px, covs, cap, end = [], [], [], [], []
+    pts, px, covs, cross, cap, end = [], [], [], [], [], []
     for obs in observations:
         side = obs.side_points
         if use_side_points and len(side) >= 3:
             ends = obs.laser_endpoints
-            u = ends[1] - ends[0]
-            u = u / np.linalg.norm(u)
-            n = np.array([-u[1], u[0]])
-            across = 2.0 * noise.range_sigma_m / np.sqrt(len(side))
-            for j in range(2):
-                rng = float(np.linalg.norm(ends[j]))
-                ray = ends[j] / rng
-                cos_inc = max(abs(float(ray @ n)), 0.1)
-                footprint = obs.end_gap_steps[j] * rng * obs.beam_step_rad / cos_inc
-                covs.append(
-                    (footprint**2 / 12.0) * np.outer(u, u) + (across / cos_inc) ** 2 * np.outer(ray, ray)
-                )
+            c_end, x_end = _side_end_covariances(obs, noise.range_sigma_m)
+            covs += list(c_end)
+            cross += list(x_end)
         else:
             ends = side[[0, -1]] if len(side) >= 2 else obs.laser_endpoints
             spacing = _end_spacings(side) if len(side) >= 2 else np.zeros(2)
             for j in range(2):
                 s2 = noise.range_sigma_m**2 + spacing[j] ** 2 / 12.0
                 covs.append(s2 * np.eye(2))
+                cross.append(np.zeros((2, 2)))
         pts.append(ends)
         px.append(obs.image_endpoints_px)
         cap += [obs.capture, obs.capture]
@@ -161,7 +169,48 @@ def endpoint_set(
         np.array(covs),
         np.array(cap, dtype=np.int64),
         np.array(end, dtype=np.int64),
+        np.array(cross),
     )
+
+
+def _side_end_covariances(obs: BoxObservation, range_sigma_m: float) -> tuple[FloatArray, FloatArray]:
+    """Covariances (2, 2, 2) of a capture's two box ends and their cross-covariances
+    (2, 2, 2): [cov(e0, e1), cov(e1, e0)].
+
+    The fitted line's offset d across the side at along-side position s has variance
+    sigma^2 (1/M + s^2 / S) and cov(d(s0), d(s1)) = sigma^2 (1/M + s0 s1 / S) (least
+    squares: offset at the centroid and slope independent; S = sum of the returns' squared
+    along-side positions; sigma the returns' noise across the side, the range noise times
+    the cosine of each beam's incidence). An offset d moves the end along its ray r by
+    d / (r . n); the quantisation of the end along the side (``end_gap_steps``) is
+    independent per end.
+    """
+    ends = obs.laser_endpoints
+    side = obs.side_points
+    u = ends[1] - ends[0]
+    u = u / np.linalg.norm(u)
+    n = np.array([-u[1], u[0]])
+    centroid = side.mean(axis=0)
+    along = (side - centroid) @ u
+    rays = side / np.linalg.norm(side, axis=1, keepdims=True)
+    sigma = range_sigma_m * float(np.sqrt(np.mean((rays @ n) ** 2)))
+    M = len(side)
+    S = max(float(along @ along), 1e-12)
+    s_end = (ends - centroid) @ u
+    a = []
+    quant = []
+    for j in range(2):
+        rng = float(np.linalg.norm(ends[j]))
+        ray = ends[j] / rng
+        cos_inc = max(abs(float(ray @ n)), 0.1)
+        a.append(ray / cos_inc)
+        footprint = obs.end_gap_steps[j] * rng * obs.beam_step_rad / cos_inc
+        quant.append((footprint**2 / 12.0) * np.outer(u, u))
+    var_d = sigma**2 * (1.0 / M + s_end**2 / S)
+    cov_d01 = sigma**2 * (1.0 / M + s_end[0] * s_end[1] / S)
+    covs = np.array([var_d[j] * np.outer(a[j], a[j]) + quant[j] for j in range(2)])
+    x01 = cov_d01 * np.outer(a[0], a[1])
+    return covs, np.array([x01, x01.T])
 
 
 def _end_spacings(side: FloatArray) -> FloatArray:
@@ -171,14 +220,49 @@ def _end_spacings(side: FloatArray) -> FloatArray:
     return np.array([np.linalg.norm(side[1] - side[0]), np.linalg.norm(side[-1] - side[-2])])
 
 
-def whitening(camera: Camera, T_cam_laser: FloatArray, meas: EndpointSet, noise: NoiseModel) -> FloatArray:
-    """(P, 2, 2) matrices W with W^T W = inverse covariance of each end's pixel residual."""
+def _laser_to_pixel_jacobians(camera: Camera, T_cam_laser: FloatArray, meas: EndpointSet) -> FloatArray:
+    """(P, 2, 2): pixels per metre of laser-frame motion of each end."""
     R = T_cam_laser[:3, :3]
     p = np.column_stack([meas.points_laser, np.zeros(len(meas.points_laser))]) @ R.T + T_cam_laser[:3, 3]
     _, dq_dp = camera.project_with_gradient(p)
-    J = dq_dp @ R[:, :2]  # (P, 2, 2): pixels per metre of laser-frame motion
+    out: FloatArray = dq_dp @ R[:, :2]
+    return out
+
+
+def whitening(camera: Camera, T_cam_laser: FloatArray, meas: EndpointSet, noise: NoiseModel) -> FloatArray:
+    """(P, 2, 2) matrices W with W^T W = inverse covariance of each end's pixel residual
+    (each end on its own: the marginal, for per-end tests such as the inlier gate)."""
+    J = _laser_to_pixel_jacobians(camera, T_cam_laser, meas)
     cov = noise.pick_sigma_px**2 * np.eye(2) + J @ meas.cov_laser @ np.transpose(J, (0, 2, 1))
     L = np.linalg.cholesky(cov)
+    out: FloatArray = np.linalg.inv(L)
+    return out
+
+
+def pixel_covariance(
+    camera: Camera, T_cam_laser: FloatArray, meas: EndpointSet, noise: NoiseModel
+) -> FloatArray:
+    """(2P, 2P) covariance of all the ends' pixel residuals [u0, v0, u1, v1, ...]: pick
+    noise plus the laser ends' covariance through the projection, with the cross terms
+    between the two ends of a capture."""
+    J = _laser_to_pixel_jacobians(camera, T_cam_laser, meas)
+    P = len(J)
+    cov = np.zeros((2 * P, 2 * P))
+    blocks = noise.pick_sigma_px**2 * np.eye(2) + J @ meas.cov_laser @ np.transpose(J, (0, 2, 1))
+    for k in range(P):
+        cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = blocks[k]
+    if meas.cross_laser is not None:
+        for k in range(P):
+            for m in np.flatnonzero((meas.capture == meas.capture[k]) & (meas.end != meas.end[k])):
+                cov[2 * k : 2 * k + 2, 2 * m : 2 * m + 2] = J[k] @ meas.cross_laser[k] @ J[m].T
+    return cov
+
+
+def whitening_matrix(
+    camera: Camera, T_cam_laser: FloatArray, meas: EndpointSet, noise: NoiseModel
+) -> FloatArray:
+    """(2P, 2P) W with W^T W = inverse of :func:`pixel_covariance`."""
+    L = np.linalg.cholesky(pixel_covariance(camera, T_cam_laser, meas, noise))
     out: FloatArray = np.linalg.inv(L)
     return out
 
@@ -213,13 +297,12 @@ def refine_pose(
     R0 = T0[:3, :3]
     t0 = T0[:3, 3]
     p3 = np.column_stack([meas.points_laser, np.zeros(P)])
-    W = whitening(camera, T0, meas, noise)
+    W = whitening_matrix(camera, T0, meas, noise)
 
     def residuals(x: FloatArray) -> FloatArray:
         R = rotvec_to_R(x[:3]) @ R0
         q = camera.project(p3 @ R.T + x[3:])
-        e = q - meas.pixels
-        r = np.einsum("pij,pj->pi", W, e).ravel()
+        r = W @ (q - meas.pixels).ravel()
         # A point behind the camera gets a large finite residual so LM can back away.
         return np.nan_to_num(r, nan=1e6)
 
@@ -231,14 +314,17 @@ def refine_pose(
     R = rotvec_to_R(sol.x[:3]) @ R0
     T = make_T(R, sol.x[3:])
     # Re-whiten at the solution (the projection Jacobians moved a little) and linearise there.
-    W = whitening(camera, T, meas, noise)
+    W = whitening_matrix(camera, T, meas, noise)
     r, J = _whitened_residuals_and_jacobian(camera, T, meas, W)
     weights = _loss_weights(r, params)
     Jw = J * np.sqrt(weights)[:, None]
     info = Jw.T @ Jw
     dof = len(r) - 6
     chi2 = float(np.sum(weights * r**2))
-    scale2 = chi2 / dof if dof > 0 else 1.0
+    # Inflate the covariance when the residuals say the data are noisier than the noise
+    # model, never shrink it: a small chi-square over a few dozen residuals is mostly
+    # chance, and shrinking on it makes the reported uncertainty optimistic.
+    scale2 = max(1.0, chi2 / dof) if dof > 0 else 1.0
     evals, evecs = np.linalg.eigh(info)
     if evals[0] <= 1e-12 * max(evals[-1], 1e-300):
         raise CalibrationError(
@@ -252,20 +338,34 @@ def refine_pose(
 def _whitened_residuals_and_jacobian(
     camera: Camera, T: FloatArray, meas: EndpointSet, W: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """Whitened residuals (2P,) and their analytic Jacobian (2P, 6) at dtheta = 0."""
+    """Whitened residuals (2P,) and their analytic Jacobian (2P, 6) at dtheta = 0.
+
+    ``W`` is the (2P, 2P) whitening matrix, or (P, 2, 2) per-end blocks.
+    """
+    if W.ndim == 3:
+        W = _block_diagonal(W)
     R = T[:3, :3]
     p = np.column_stack([meas.points_laser, np.zeros(len(meas.points_laser))])
     rp = p @ R.T
     q, dq_dp = camera.project_with_gradient(rp + T[:3, 3])
-    r = np.einsum("pij,pj->pi", W, q - meas.pixels).ravel()
+    r = W @ (q - meas.pixels).ravel()
     # d(Exp(d) R p + t)/dd at d = 0 is -[R p]x ; d/dt is I.
     skew = np.zeros((len(p), 3, 3))
     skew[:, 0, 1], skew[:, 0, 2] = -rp[:, 2], rp[:, 1]
     skew[:, 1, 0], skew[:, 1, 2] = rp[:, 2], -rp[:, 0]
     skew[:, 2, 0], skew[:, 2, 1] = -rp[:, 1], rp[:, 0]
     dp_dx = np.concatenate([-skew, np.broadcast_to(np.eye(3), skew.shape)], axis=2)  # (P, 3, 6)
-    J = W @ dq_dp @ dp_dx  # (P, 2, 6)
-    return r, J.reshape(-1, 6)
+    J = (dq_dp @ dp_dx).reshape(-1, 6)  # (2P, 6) unwhitened
+    return r, W @ J
+
+
+def _block_diagonal(blocks: FloatArray) -> FloatArray:
+    """(2P, 2P) block-diagonal matrix from (P, 2, 2) blocks."""
+    P = len(blocks)
+    out = np.zeros((2 * P, 2 * P))
+    for k in range(P):
+        out[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = blocks[k]
+    return out
 
 
 def _loss_weights(r: FloatArray, params: RefineParams) -> FloatArray:

@@ -140,7 +140,7 @@ def _refine_with_reclassification(
                 f"only {int(inliers.sum())} box end(s) agree with the calibration; "
                 "the solve needs at least 4 from 2 captures (check the picks)"
             )
-        refined = refine_pose(problem.camera, T, _subset(meas, inliers), noise, problem.settings.refine)
+        refined = refine_pose(problem.camera, T, meas.subset(inliers), noise, problem.settings.refine)
         T = refined.T_cam_laser
         z2 = _whitened_sq_errors(problem.camera, T, meas, noise)
         scale2 = max(1.0, float(np.median(z2[inliers])) / _CHI2_2DOF_MEDIAN)
@@ -163,9 +163,3 @@ def _whitened_sq_errors(camera: Camera, T: FloatArray, meas: EndpointSet, noise:
     z = np.einsum("pij,pj->pi", W, q - meas.pixels)
     out: FloatArray = np.where(np.isfinite(z).all(axis=1), (z**2).sum(axis=1), np.inf)
     return out
-
-
-def _subset(meas: EndpointSet, mask: NDArray[np.bool_]) -> EndpointSet:
-    return EndpointSet(
-        meas.points_laser[mask], meas.pixels[mask], meas.cov_laser[mask], meas.capture[mask], meas.end[mask]
-    )
