@@ -13,6 +13,7 @@ import sys
 import click
 
 from rigcal import __version__
+from rigcal.cli import check as check_cmd
 from rigcal.cli import lines as lines_cmd
 from rigcal.cli import project as project_cmd
 from rigcal.cli import simulate as simulate_cmd
@@ -30,6 +31,7 @@ def cli() -> None:
       rigcal lines session/scans/cap00.yaml --png lines.png
       rigcal solve session/picks.yaml -o rig.yaml --report report/
       rigcal project rig.yaml session/scans/cap00.yaml session/images/cap00.png -o overlay.png
+      rigcal check rig.yaml --picks today/picks.yaml
       rigcal simulate calib-session -o session/ --seed 1
     """
 
@@ -38,6 +40,7 @@ cli.add_command(solve_cmd.solve)
 cli.add_command(lines_cmd.lines)
 cli.add_command(project_cmd.project)
 cli.add_command(simulate_cmd.simulate)
+cli.add_command(check_cmd.check)
 
 
 def main(argv: list[str] | None = None) -> int:

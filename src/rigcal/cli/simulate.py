@@ -55,6 +55,20 @@ def simulate() -> None:
     type=click.FloatRange(min=0.0, max=1.0),
     help="Fraction of captures whose image picks are grossly wrong (moved 15-60 px or swapped).",
 )
+@click.option(
+    "--move-deg",
+    default=0.0,
+    show_default=True,
+    type=click.FloatRange(min=0.0, max=30.0),
+    help="Turn the camera on the rig by this much (random axis) before simulating, to try drift checks.",
+)
+@click.option(
+    "--move-mm",
+    default=0.0,
+    show_default=True,
+    type=click.FloatRange(min=0.0, max=500.0),
+    help="Shift the camera on the rig by this much (random direction) before simulating.",
+)
 @click.option("--no-images", is_flag=True, help="Write flat grey placeholder images instead of renders.")
 @click.option("--force", is_flag=True, help="Replace an existing session folder.")
 def calib_session(
@@ -64,6 +78,8 @@ def calib_session(
     pick_sigma_px: float,
     range_sigma_m: float,
     wrong_picks: float,
+    move_deg: float,
+    move_mm: float,
     no_images: bool,
     force: bool,
 ) -> None:
@@ -81,9 +97,18 @@ def calib_session(
       rigcal simulate calib-session -o /tmp/s --captures 8 --wrong-picks 0.25 --force
       rigcal simulate calib-session -o /tmp/s --pick-sigma-px 2 --range-sigma-m 0.02 --no-images
       rigcal solve /tmp/s/picks.yaml -o rig.yaml --truth /tmp/s/truth.yaml
+      rigcal simulate calib-session -o /tmp/moved --captures 8 --seed 2 --move-deg 0.5 --no-images
+      rigcal check rig.yaml --picks /tmp/moved/picks.yaml
     """
     from rigcal.errors import OutputError
-    from rigcal.sim.box_session import SessionSpec, describe_session, generate_session, write_session
+    from rigcal.sim.box_session import (
+        SessionSpec,
+        default_T_cam_laser,
+        describe_session,
+        generate_session,
+        moved_T_cam_laser,
+        write_session,
+    )
 
     # Refuse before working: generating and rendering take a few seconds.
     if output.exists() and not force:
@@ -95,7 +120,10 @@ def calib_session(
         wrong_pick_fraction=wrong_picks,
         seed=seed,
     )
-    session = generate_session(spec)
+    T = default_T_cam_laser()
+    if move_deg or move_mm:
+        T = moved_T_cam_laser(T, move_deg, move_mm, seed=seed)
+    session = generate_session(spec, T_cam_laser=T)
     write_session(session, output, force=force, render_images=not no_images)
     click.echo(
         f"wrote {output}/: {describe_session(session)} "

@@ -166,6 +166,22 @@ def default_T_cam_laser() -> FloatArray:
     return inv_T(T_laser_cam)
 
 
+def moved_T_cam_laser(
+    T_cam_laser: ArrayLike, rotation_deg: float, translation_mm: float, seed: int = 0
+) -> FloatArray:
+    """T_cam_laser after the camera has moved on the rig: turned by ``rotation_deg`` about a
+    random axis and shifted by ``translation_mm`` in a random direction (both in the camera
+    frame, seeded), for drift-check tests and benchmarks."""
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    shift = rng.normal(size=3)
+    shift /= np.linalg.norm(shift)
+    T = np.asarray(T_cam_laser, dtype=float)
+    dR = Rotation.from_rotvec(np.radians(rotation_deg) * axis).as_matrix()
+    return make_T(dR @ T[:3, :3], T[:3, 3] + 0.001 * translation_mm * shift)
+
+
 @dataclass(frozen=True, eq=False)
 class SimCapture:
     """One simulated capture and its ground truth.

@@ -1,0 +1,253 @@
+"""Drift check: has the rig moved since it was calibrated?
+
+A new box-target session (a full one, or just a few captures) is compared with a stored
+rig in up to two ways:
+
+1. **Residual test.** The new box ends are projected with the stored T_cam_laser. Their
+   reprojection errors e (2P,) should be explained by the measurement noise and by the
+   stored calibration's own uncertainty: e ~ N(0, S), S = S_pix + J C_rig J^T, with S_pix
+   the ends' pixel covariance (:func:`rigcal.calib.refine.pixel_covariance`), J the
+   derivative of the pixels with respect to the pose and C_rig the rig's covariance. So
+   e^T S^-1 e is chi-square with 2P degrees of freedom when nothing moved.
+2. **Pose test** (when the new session has at least ``min_captures_for_solve`` captures):
+   a fresh solve T_new with covariance C_new is compared with the stored one in the rig's
+   tangent space, d = [log(R_new R_rig^T), t_new - t_rig]; the two sessions are
+   independent, so d^T (C_rig + C_new)^-1 d is chi-square with 6 dof when nothing moved.
+
+Each test is run at ``level / (number of tests)`` (Bonferroni), so the chance of a false
+alarm on an unmoved rig is at most ``level``. Box ends whose own Mahalanobis distance under
+the stored calibration is beyond the solve's inlier gate are wrong picks, not drift: they
+are left out of the residual test and reported, unless they are most of the ends (then the
+rig has moved too far for any of them to agree).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+from rigcal.calib.picks import PickSession
+from rigcal.calib.refine import (
+    EndpointSet,
+    NoiseModel,
+    _whitened_residuals_and_jacobian,
+    endpoint_set,
+    pixel_covariance,
+    whitening,
+)
+from rigcal.calib.solve import INLIER_GATE_CHI2, CalibProblem, CalibResult, SolveSettings, solve
+from rigcal.errors import CalibrationError, InputError
+from rigcal.geometry import R_to_rotvec
+from rigcal.rig import Rig
+
+FloatArray = NDArray[np.float64]
+
+DRIFT_LOG_SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True)
+class DriftSettings:
+    """Settings of a drift check.
+
+    Attributes:
+        level: probability of a false alarm on an unmoved rig (both tests together).
+        min_captures_for_solve: a fresh solve (and the pose test) needs this many captures.
+        noise: the measurement noise model (default: the one the rig was solved with).
+        solve: settings of the fresh solve.
+    """
+
+    level: float = 0.01
+    min_captures_for_solve: int = 5
+    noise: NoiseModel | None = None
+    solve: SolveSettings = field(default_factory=SolveSettings)
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.level < 1.0:
+            raise ValueError("DriftSettings: level must be in (0, 1)")
+
+
+@dataclass(frozen=True)
+class DriftResult:
+    """Outcome of a drift check.
+
+    Attributes:
+        drifted: the verdict.
+        level: the false-alarm level it was tested at.
+        residual: the residual test: ends used and rejected, RMS px, chi2, dof, p_value.
+        pose: the pose test (rotation_deg, translation_mm, per-axis differences,
+            mahalanobis2, p_value, combined 1-sigma), or None without a fresh solve.
+        fresh: the fresh solve, or None.
+        reasons: human sentences behind the verdict and any caveats.
+    """
+
+    drifted: bool
+    level: float
+    residual: dict[str, Any]
+    pose: dict[str, Any] | None
+    fresh: CalibResult | None
+    reasons: list[str]
+
+    @property
+    def verdict(self) -> str:
+        return "drifted" if self.drifted else "ok"
+
+
+def check_drift(rig: Rig, session: PickSession, settings: DriftSettings | None = None) -> DriftResult:
+    """Test a new session against a stored rig (see the module docstring).
+
+    Raises:
+        InputError: the rig has no covariance (nothing to test against).
+        CalibrationError: the session has fewer than 1 capture usable.
+    """
+    settings = settings or DriftSettings()
+    if rig.covariance is None:
+        raise InputError(
+            "the rig file has no uncertainty block (covariance); a drift check needs the stored "
+            "calibration's covariance: re-solve the rig with `rigcal solve`"
+        )
+    noise = settings.noise or rig_noise_model(rig)
+    meas = endpoint_set(session.observations, noise, use_side_points=True)
+    reasons: list[str] = []
+    if session.camera.lensmodel != rig.camera.lensmodel or not np.allclose(
+        session.camera.intrinsics, rig.camera.intrinsics
+    ):
+        reasons.append("the session's camera file differs from the rig's camera; the rig's camera is used")
+    n_tests = 2 if len(session.observations) >= settings.min_captures_for_solve else 1
+    alpha = settings.level / n_tests
+
+    residual, moved_far = _residual_test(rig, meas, noise, alpha)
+    if moved_far:
+        reasons.append(
+            f"{residual['rejected_ends']} of {residual['ends']} box ends disagree with the stored "
+            "calibration beyond the inlier gate"
+        )
+    elif residual["p_value"] < alpha:
+        reasons.append(
+            f"the new picks' reprojection errors under the stored calibration are too large for the "
+            f"noise (chi2 {residual['chi2']:.1f} over {residual['dof']} dof, p = {residual['p_value']:.2g})"
+        )
+
+    pose = None
+    fresh = None
+    if n_tests == 2:
+        try:
+            fresh = solve(CalibProblem(rig.camera, session.observations, _with_noise(settings.solve, noise)))
+        except CalibrationError as exc:
+            reasons.append(f"no fresh solve ({exc}); only the residual test was run")
+        else:
+            pose = _pose_test(rig, fresh)
+            if pose["p_value"] < alpha:
+                reasons.append(
+                    f"a fresh solve differs by {pose['rotation_deg']:.3f} deg and "
+                    f"{pose['translation_mm']:.1f} mm (Mahalanobis^2 {pose['mahalanobis2']:.1f}, "
+                    f"p = {pose['p_value']:.2g})"
+                )
+    else:
+        reasons.append(
+            f"{len(session.observations)} captures: fewer than {settings.min_captures_for_solve} for a "
+            "fresh solve; only the residual test was run"
+        )
+    drifted = moved_far or residual["p_value"] < alpha or (pose is not None and pose["p_value"] < alpha)
+    return DriftResult(drifted, settings.level, residual, pose, fresh, reasons)
+
+
+def rig_noise_model(rig: Rig) -> NoiseModel:
+    """The noise model the rig was solved with (its provenance), else the default."""
+    recorded = rig.provenance.get("noise")
+    if isinstance(recorded, dict):
+        try:
+            return NoiseModel(
+                pick_sigma_px=float(recorded["pick_sigma_px"]), range_sigma_m=float(recorded["range_sigma_m"])
+            )
+        except (KeyError, TypeError, ValueError):
+            pass
+    return NoiseModel()
+
+
+def _with_noise(settings: SolveSettings, noise: NoiseModel) -> SolveSettings:
+    return SolveSettings(ransac=settings.ransac, refine=settings.refine, noise=noise)
+
+
+def _residual_test(
+    rig: Rig, meas: EndpointSet, noise: NoiseModel, alpha: float
+) -> tuple[dict[str, Any], bool]:
+    """The residual test; also whether most ends are beyond the gate (moved far)."""
+    camera = rig.camera
+    T = rig.T_cam_laser
+    P = len(meas.points_laser)
+    # Per-end gate, with the stored calibration's uncertainty included.
+    _, J = _whitened_residuals_and_jacobian(camera, T, meas, np.eye(2 * P))
+    q = camera.project(np.column_stack([meas.points_laser, np.zeros(P)]) @ T[:3, :3].T + T[:3, 3])
+    e = (q - meas.pixels).ravel()
+    assert rig.covariance is not None
+    pose_cov = J @ rig.covariance @ J.T
+    W_end = whitening(camera, T, meas, noise)
+    z2 = np.array(
+        [
+            _end_chi2(e[2 * k : 2 * k + 2], W_end[k], pose_cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2])
+            for k in range(P)
+        ]
+    )
+    keep = np.isfinite(z2) & (z2 < INLIER_GATE_CHI2)
+    moved_far = int(keep.sum()) < max(2, P // 2)
+    idx = np.flatnonzero(keep)
+    rows = np.concatenate([[2 * k, 2 * k + 1] for k in idx]) if len(idx) else np.zeros(0, dtype=int)
+    sub = meas.subset(keep)
+    S = pixel_covariance(camera, T, sub, noise) + pose_cov[np.ix_(rows, rows)]
+    e_in = e[rows]
+    chi2_value = float(e_in @ np.linalg.solve(S, e_in)) if len(rows) else 0.0
+    dof = len(rows)
+    p_value = float(chi2.sf(chi2_value, dof)) if dof else 1.0
+    err_px = np.linalg.norm((q - meas.pixels), axis=1)
+    return (
+        {
+            "ends": P,
+            "used_ends": int(keep.sum()),
+            "rejected_ends": int(P - keep.sum()),
+            "rms_px": _r(float(np.sqrt(np.mean(err_px[keep] ** 2))) if keep.any() else float("nan"), 4),
+            "max_px": _r(
+                float(np.max(err_px[np.isfinite(err_px)])) if np.isfinite(err_px).any() else float("inf"), 4
+            ),
+            "chi2": _r(chi2_value, 4),
+            "dof": dof,
+            "p_value": float(f"{p_value:.4g}"),
+        },
+        moved_far,
+    )
+
+
+def _end_chi2(e: FloatArray, W: FloatArray, pose_block: FloatArray) -> float:
+    """Squared Mahalanobis distance of one end's error under noise + pose uncertainty."""
+    if not np.isfinite(e).all():
+        return float("inf")
+    S = np.linalg.inv(W.T @ W) + pose_block
+    return float(e @ np.linalg.solve(S, e))
+
+
+def _pose_test(rig: Rig, fresh: CalibResult) -> dict[str, Any]:
+    assert rig.covariance is not None
+    T0, T1 = rig.T_cam_laser, fresh.T_cam_laser
+    d_rot = R_to_rotvec(T1[:3, :3] @ T0[:3, :3].T)
+    d_t = T1[:3, 3] - T0[:3, 3]
+    d = np.concatenate([d_rot, d_t])
+    C = rig.covariance + fresh.covariance
+    m2 = float(d @ np.linalg.solve(C, d))
+    sig = np.sqrt(np.diag(C))
+    return {
+        "rotation_deg": _r(float(np.degrees(np.linalg.norm(d_rot))), 5),
+        "translation_mm": _r(float(1000.0 * np.linalg.norm(d_t)), 3),
+        "rotation_diff_deg": [_r(float(x), 5) for x in np.degrees(d_rot)],
+        "translation_diff_mm": [_r(float(x), 3) for x in 1000.0 * d_t],
+        "sigma_rotation_deg": [_r(float(x), 5) for x in np.degrees(sig[:3])],
+        "sigma_translation_mm": [_r(float(x), 3) for x in 1000.0 * sig[3:]],
+        "mahalanobis2": _r(m2, 4),
+        "p_value": float(f"{float(chi2.sf(m2, 6)):.4g}"),
+    }
+
+
+def _r(x: float, digits: int) -> float:
+    return round(float(x), digits)
