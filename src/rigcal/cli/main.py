@@ -14,6 +14,7 @@ import click
 
 from rigcal import __version__
 from rigcal.cli import check as check_cmd
+from rigcal.cli import export as export_cmd
 from rigcal.cli import lines as lines_cmd
 from rigcal.cli import project as project_cmd
 from rigcal.cli import simulate as simulate_cmd
@@ -32,6 +33,7 @@ def cli() -> None:
       rigcal solve session/picks.yaml -o rig.yaml --report report/
       rigcal project rig.yaml session/scans/cap00.yaml session/images/cap00.png -o overlay.png
       rigcal check rig.yaml --picks today/picks.yaml
+      rigcal export rig.yaml --format ros
       rigcal simulate calib-session -o session/ --seed 1
     """
 
@@ -41,6 +43,7 @@ cli.add_command(lines_cmd.lines)
 cli.add_command(project_cmd.project)
 cli.add_command(simulate_cmd.simulate)
 cli.add_command(check_cmd.check)
+cli.add_command(export_cmd.export)
 
 
 def main(argv: list[str] | None = None) -> int:
