@@ -191,15 +191,26 @@ def camera_from_dict(d: Any, path: str | Path | None, keypath: str) -> Camera:
 
 
 def read_camera(path: str | Path) -> Camera:
-    """Read a camera: a mrcal ``.cameramodel``, or a rigcal camera YAML file (OpenCV K + distortion).
+    """Read a camera: a mrcal ``.cameramodel``, a rigcal camera YAML file (OpenCV K +
+    distortion), a ROS ``camera_info`` YAML file, or an OpenCV FileStorage file (XML or
+    ``%YAML:1.0``); see docs/formats/camera.md.
 
     Raises:
         InputError: missing, unreadable or invalid file.
     """
+    from rigcal.io import camera_formats
+
     path = Path(path)
     if path.suffix == ".cameramodel":
         return _read_cameramodel(path)
-    return _read_opencv_yaml(path)
+    if not path.is_file():
+        raise InputError(f"{path}: camera file not found")
+    if camera_formats.is_opencv_storage(path):
+        return camera_formats.camera_from_opencv_storage(path)
+    data = load_yaml(path, "camera file")
+    if camera_formats.is_ros_camera_info(data):
+        return camera_formats.camera_from_ros_camera_info(data, path)
+    return _read_opencv_yaml(path, data)
 
 
 def _read_cameramodel(path: Path) -> Camera:
@@ -223,8 +234,7 @@ def _read_cameramodel(path: Path) -> Camera:
     return Camera.from_mrcal(model, source=str(path))
 
 
-def _read_opencv_yaml(path: Path) -> Camera:
-    data = load_yaml(path, "camera file")
+def _read_opencv_yaml(path: Path, data: Any) -> Camera:
     d = check_keys(
         data, path, "", ["schema_version", "image_width_px", "image_height_px", "K"], ["distortion", "name"]
     )

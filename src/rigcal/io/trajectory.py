@@ -1,0 +1,133 @@
+"""Trajectory files: TUM and KITTI, as evo and most SLAM tools read them.
+
+- TUM: one pose per line, ``timestamp tx ty tz qx qy qz qw`` (seconds, metres, unit
+  quaternion in x, y, z, w order); ``#`` starts a comment. The pose is T_world_body: it
+  maps body-frame points into the world frame.
+- KITTI: one pose per line, the 12 numbers of the 3x4 matrix [R | t] of T_world_body in
+  row-major order; no time stamps.
+
+Readers validate every line and name the file and line number of a bad one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from rigcal.errors import InputError
+from rigcal.io.files import atomic_write_text
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Poses over time.
+
+    Attributes:
+        poses: (N, 4, 4) T_world_body.
+        stamps_s: (N,) seconds, increasing; None for KITTI files.
+    """
+
+    poses: FloatArray
+    stamps_s: FloatArray | None = None
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+
+def _lines(path: Path) -> list[tuple[int, list[str]]]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{path}: trajectory file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the trajectory: {exc}") from None
+    out = []
+    for n, line in enumerate(text.splitlines(), start=1):
+        body = line.split("#", 1)[0].strip()
+        if body:
+            out.append((n, body.replace(",", " ").split()))
+    return out
+
+
+def _numbers(path: Path, n: int, fields: list[str], count: int, what: str) -> FloatArray:
+    if len(fields) != count:
+        raise InputError(f"{path}: line {n}: got {len(fields)} fields; expected {count} ({what})")
+    try:
+        v = np.array([float(f) for f in fields])
+    except ValueError:
+        raise InputError(
+            f"{path}: line {n}: got {' '.join(fields)[:60]!r}; expected {count} numbers"
+        ) from None
+    if not np.all(np.isfinite(v)):
+        raise InputError(f"{path}: line {n}: got a non-finite number; expected {count} finite numbers")
+    return v
+
+
+def read_tum(path: str | Path) -> Trajectory:
+    """Read a TUM trajectory (quaternions are normalised if within 1e-3 of unit length)."""
+    path = Path(path)
+    stamps: list[float] = []
+    poses: list[FloatArray] = []
+    for n, fields in _lines(path):
+        v = _numbers(path, n, fields, 8, "timestamp tx ty tz qx qy qz qw")
+        q = v[4:8]
+        norm = float(np.linalg.norm(q))
+        if abs(norm - 1.0) > 1e-3:
+            raise InputError(f"{path}: line {n}: quaternion norm {norm:.6g}; expected a unit quaternion")
+        if stamps and v[0] <= stamps[-1]:
+            raise InputError(
+                f"{path}: line {n}: timestamp {v[0]!r} not after {stamps[-1]!r}; expected increasing"
+            )
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(q / norm).as_matrix()
+        T[:3, 3] = v[1:4]
+        stamps.append(float(v[0]))
+        poses.append(T)
+    if not poses:
+        raise InputError(f"{path}: no poses; expected lines 'timestamp tx ty tz qx qy qz qw'")
+    return Trajectory(np.array(poses), np.array(stamps))
+
+
+def read_kitti(path: str | Path) -> Trajectory:
+    """Read a KITTI trajectory (rotations must be orthonormal to 1e-6)."""
+    path = Path(path)
+    poses: list[FloatArray] = []
+    for n, fields in _lines(path):
+        v = _numbers(path, n, fields, 12, "the 3x4 matrix [R | t], row-major")
+        T = np.eye(4)
+        T[:3, :] = v.reshape(3, 4)
+        R = T[:3, :3]
+        if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+            raise InputError(f"{path}: line {n}: the 3x3 part is not a rotation matrix")
+        poses.append(T)
+    if not poses:
+        raise InputError(f"{path}: no poses; expected lines of 12 numbers")
+    return Trajectory(np.array(poses), None)
+
+
+def tum_text(traj: Trajectory) -> str:
+    if traj.stamps_s is None:
+        raise ValueError("TUM files need time stamps")
+    rows = ["# timestamp tx ty tz qx qy qz qw"]
+    for t, T in zip(traj.stamps_s, traj.poses, strict=True):
+        q = Rotation.from_matrix(T[:3, :3]).as_quat()
+        rows.append(" ".join(repr(float(x)) for x in (t, *T[:3, 3], *q)))
+    return "\n".join(rows) + "\n"
+
+
+def kitti_text(traj: Trajectory) -> str:
+    return "".join(" ".join(repr(float(x)) for x in T[:3, :].ravel()) + "\n" for T in traj.poses)
+
+
+def write_tum(path: str | Path, traj: Trajectory, force: bool = False) -> Path:
+    return atomic_write_text(path, tum_text(traj), force=force)
+
+
+def write_kitti(path: str | Path, traj: Trajectory, force: bool = False) -> Path:
+    return atomic_write_text(path, kitti_text(traj), force=force)
