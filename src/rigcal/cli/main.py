@@ -15,6 +15,7 @@ import click
 from rigcal import __version__
 from rigcal.cli import check as check_cmd
 from rigcal.cli import export as export_cmd
+from rigcal.cli import intrinsics as intrinsics_cmd
 from rigcal.cli import lines as lines_cmd
 from rigcal.cli import project as project_cmd
 from rigcal.cli import simulate as simulate_cmd
@@ -34,6 +35,7 @@ def cli() -> None:
       rigcal project rig.yaml session/scans/cap00.yaml session/images/cap00.png -o overlay.png
       rigcal check rig.yaml --picks today/picks.yaml
       rigcal export rig.yaml --format ros
+      rigcal intrinsics calib/*.jpg --board 9x6 --square-m 0.025 -o camera.cameramodel
       rigcal simulate calib-session -o session/ --seed 1
     """
 
@@ -44,6 +46,7 @@ cli.add_command(project_cmd.project)
 cli.add_command(simulate_cmd.simulate)
 cli.add_command(check_cmd.check)
 cli.add_command(export_cmd.export)
+cli.add_command(intrinsics_cmd.intrinsics)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,350 @@
+"""Camera intrinsics from chessboard images: OpenCV detection, mrcal solve.
+
+1. **Corners.** Each image's inner chessboard corners are found with OpenCV
+   (``findChessboardCornersSB``, falling back to ``findChessboardCorners`` refined with
+   ``cornerSubPix``), or read from a corners file in mrcal's ``corners.vnl`` form
+   (``# filename x y level``, as mrgingham writes it).
+2. **Seed.** mrcal's ``seed_stereographic`` estimates a stereographic core and the board
+   poses from a focal-length guess, which two short mrcal solves refine (geometry only,
+   then the core), as ``mrcal-calibrate-cameras`` does.
+3. **Solve.** The full lens model (e.g. ``LENSMODEL_OPENCV8`` or a splined model) is
+   optimised by ``mrcal.optimize`` with outlier rejection and regularisation; the result is
+   a mrcal camera model that keeps its optimisation inputs, so mrcal's projection
+   uncertainty is available from it.
+4. **Report.** RMS and worst reprojection errors, per image, outliers, and mrcal's
+   projection uncertainty (1-sigma, worst direction) at the image centre and corners.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.errors import CalibrationError, InputError
+
+FloatArray = NDArray[np.float64]
+
+MIN_IMAGES = 3
+# An image whose board has fewer non-outlier corners than this is reported as unusable.
+MIN_CORNERS_PER_BOARD = 10
+
+
+@dataclass(frozen=True)
+class Board:
+    """A chessboard: its inner-corner grid and square size.
+
+    Attributes:
+        width_n, height_n: inner corners per row and per column (OpenCV's patternSize).
+        spacing_m: square size, metres.
+    """
+
+    width_n: int
+    height_n: int
+    spacing_m: float
+
+    def __post_init__(self) -> None:
+        if self.width_n < 2 or self.height_n < 2 or not self.spacing_m > 0:
+            raise ValueError("Board: need at least 2x2 inner corners and a positive spacing")
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Corners of the images a board was found in.
+
+    Attributes:
+        paths: the images (or names from a corners file) with a board, in input order.
+        corners: (N, height_n, width_n, 3) x, y (px) and weight per corner (mrcal's
+            ``observations_board``; weight < 0 marks a corner to ignore).
+        missing: images in which no board was found.
+        imagersize: (width, height) of the images.
+    """
+
+    paths: tuple[str, ...]
+    corners: FloatArray
+    missing: tuple[str, ...]
+    imagersize: tuple[int, int]
+
+
+@dataclass(frozen=True)
+class IntrinsicsResult:
+    """A solved camera and how well it fits."""
+
+    model: Any  # mrcal.cameramodel, with its optimization_inputs
+    rms_px: float
+    worst_px: float
+    per_image_rms_px: dict[str, float]
+    outliers: int
+    corners: int
+    uncertainty_px: dict[str, float]
+    images_used: int
+
+
+def detect_corners(images: list[Path], board: Board) -> Detections:
+    """Find the board in every image.
+
+    Raises:
+        InputError: an image is missing or unreadable, or the images differ in size.
+    """
+    import cv2
+
+    paths: list[str] = []
+    found: list[FloatArray] = []
+    missing: list[str] = []
+    size: tuple[int, int] | None = None
+    first: Path | None = None
+    for path in images:
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise InputError(f"{path}: image not found or not readable (expected PNG, JPEG, ...)")
+        h, w = img.shape
+        if size is None:
+            size, first = (w, h), path
+        elif (w, h) != size:
+            raise InputError(f"{path}: image is {w}x{h}; expected {size[0]}x{size[1]} like {first}")
+        xy = _find_board(cv2, img, board)
+        if xy is None:
+            missing.append(str(path))
+            continue
+        grid = np.concatenate(
+            [xy.reshape(board.height_n, board.width_n, 2), np.ones((board.height_n, board.width_n, 1))],
+            axis=2,
+        )
+        paths.append(str(path))
+        found.append(grid)
+    if size is None:
+        raise InputError("no images given")
+    corners = np.array(found) if found else np.zeros((0, board.height_n, board.width_n, 3))
+    return Detections(tuple(paths), corners, tuple(missing), size)
+
+
+def _find_board(cv2: Any, img: NDArray[Any], board: Board) -> FloatArray | None:
+    pattern = (board.width_n, board.height_n)
+    ok, xy = cv2.findChessboardCornersSB(img, pattern, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+    if not ok:
+        ok, xy = cv2.findChessboardCorners(
+            img, pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+        )
+        if not ok:
+            return None
+        criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.01)
+        xy = cv2.cornerSubPix(img, xy, (11, 11), (-1, -1), criteria)
+    # Row-major, width_n per row. OpenCV may start the grid at either end; both orders are
+    # the same planar grid (turned 180 deg about its centre), which mrcal's per-image board
+    # poses absorb.
+    out: FloatArray = np.asarray(xy, dtype=float).reshape(-1, 2)
+    return out
+
+
+def read_corners_vnl(path: Path, board: Board, imagersize: tuple[int, int]) -> Detections:
+    """Read a corners file in mrcal's ``corners.vnl`` form.
+
+    Each row is ``filename x y [level]``; an image whose board was not found has one row
+    ``filename - - -``. ``level`` is a decimation level (weight 1/2^level; ``-`` or < 0:
+    ignore the corner). Rows of one image are consecutive, width_n * height_n of them.
+
+    Raises:
+        InputError: unreadable file, or a row or image that does not fit the board.
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{path}: corners file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the corners file: {exc}") from None
+    per_image: dict[str, list[tuple[float, float, float]]] = {}
+    order: list[str] = []
+    missing: list[str] = []
+    for n, line in enumerate(text.splitlines(), start=1):
+        body = line.strip()
+        if not body or body.startswith("#"):
+            continue
+        f = body.split()
+        if len(f) not in (3, 4):
+            raise InputError(f"{path}: line {n}: got {len(f)} fields; expected 'filename x y [level]'")
+        name = f[0]
+        if f[1] == "-":
+            missing.append(name)
+            continue
+        try:
+            x, y = float(f[1]), float(f[2])
+            level = f[3] if len(f) == 4 else "0"
+            weight = -1.0 if level == "-" or float(level) < 0 else 0.5 ** float(level)
+        except ValueError:
+            raise InputError(
+                f"{path}: line {n}: got {body[:60]!r}; expected 'filename x y [level]' numbers"
+            ) from None
+        if name not in per_image:
+            per_image[name] = []
+            order.append(name)
+        per_image[name].append((x, y, weight))
+    need = board.width_n * board.height_n
+    grids = []
+    for name in order:
+        rows = per_image[name]
+        if len(rows) != need:
+            raise InputError(
+                f"{path}: {name}: got {len(rows)} corners; "
+                f"expected {need} for a {board.width_n}x{board.height_n} board"
+            )
+        grids.append(np.array(rows).reshape(board.height_n, board.width_n, 3))
+    corners = np.array(grids) if grids else np.zeros((0, board.height_n, board.width_n, 3))
+    return Detections(tuple(order), corners, tuple(missing), imagersize)
+
+
+def write_corners_vnl(detections: Detections) -> str:
+    """The detections as a ``corners.vnl`` text (weights written back as levels)."""
+    rows = ["# filename x y level"]
+    for name, grid in zip(detections.paths, detections.corners, strict=True):
+        for x, y, w in grid.reshape(-1, 3):
+            level = "-" if w <= 0 else f"{abs(float(np.log2(w))):g}"
+            rows.append(f"{name} {x:.4f} {y:.4f} {level}")
+    rows += [f"{name} - - -" for name in detections.missing]
+    return "\n".join(rows) + "\n"
+
+
+def solve_intrinsics(
+    detections: Detections,
+    board: Board,
+    lensmodel: str = "LENSMODEL_OPENCV8",
+    focal_estimate_px: float | None = None,
+) -> IntrinsicsResult:
+    """Solve the camera's intrinsics with mrcal.
+
+    Args:
+        detections: the board corners.
+        board: the board.
+        lensmodel: the mrcal lens model to fit.
+        focal_estimate_px: a rough focal length for the seed (default: the image width,
+            about a 53 deg field of view; mrcal's seed is tolerant of a factor of 2).
+
+    Raises:
+        CalibrationError: too few images with a board, or the solve failed.
+        InputError: an unknown lens model.
+    """
+    import mrcal
+
+    try:
+        mrcal.lensmodel_num_params(lensmodel)
+    except Exception:
+        raise InputError.at(
+            None, "lensmodel", lensmodel, "a mrcal lens model, e.g. LENSMODEL_OPENCV8"
+        ) from None
+    n = len(detections.paths)
+    if n < MIN_IMAGES:
+        raise CalibrationError(
+            f"the board was found in {n} image(s); at least {MIN_IMAGES} are needed (20 or more, "
+            "tilted and covering the whole image, are recommended)"
+            + (
+                f"; not found in: {', '.join(Path(p).name for p in detections.missing)}"
+                if detections.missing
+                else ""
+            )
+        )
+    W, H = detections.imagersize
+    imagersizes = np.array([[W, H]], dtype=np.int32)
+    # mrcal marks outliers in place: work on a copy, the detections stay as found.
+    observations = np.array(detections.corners, dtype=float, order="C", copy=True)
+    indices_frame_camera = np.column_stack([np.arange(n), np.zeros(n)]).astype(np.int32)
+    indices = np.column_stack([indices_frame_camera, -np.ones(n)]).astype(np.int32)
+    focal = float(focal_estimate_px or W)
+    try:
+        intr, rt_cam_ref, rt_ref_frame = mrcal.seed_stereographic(
+            imagersizes=imagersizes,
+            focal_estimate=focal,
+            indices_frame_camera=indices_frame_camera,
+            observations=observations,
+            object_spacing=board.spacing_m,
+        )
+        common: dict[str, Any] = {
+            "rt_cam_ref": rt_cam_ref,
+            "rt_ref_frame": rt_ref_frame,
+            "points": None,
+            "observations_point": None,
+            "indices_point_camintrinsics_camextrinsics": None,
+            "calobject_warp": None,
+            "observations_board": observations,
+            "indices_frame_camintrinsics_camextrinsics": indices,
+            "imagersizes": imagersizes,
+            "calibration_object_spacing": board.spacing_m,
+            "do_optimize_calobject_warp": False,
+            "verbose": False,
+        }
+        # Seed refinement: board poses only, then the stereographic core too.
+        for core in (False, True):
+            mrcal.optimize(
+                intrinsics=intr,
+                lensmodel="LENSMODEL_STEREOGRAPHIC",
+                do_optimize_intrinsics_core=core,
+                do_optimize_intrinsics_distortions=False,
+                do_apply_outlier_rejection=False,
+                do_apply_regularization=False,
+                **common,
+            )
+        n_extra = mrcal.lensmodel_num_params(lensmodel) - intr.shape[-1]
+        rng = np.random.default_rng(0)
+        extra = (rng.random((1, n_extra)) - 0.5) * 2e-6
+        if re.search("OPENCV([0-9]+)", lensmodel) and int(re.search("OPENCV([0-9]+)", lensmodel)[1]) >= 8:  # type: ignore[index]
+            extra[:, 5:8] *= 1e-3  # keep the rational terms near 0 (mrcal-calibrate-cameras)
+        intrinsics = np.ascontiguousarray(np.concatenate([intr, extra], axis=1))
+        inputs: dict[str, Any] = {
+            "intrinsics": intrinsics,
+            "lensmodel": lensmodel,
+            "do_optimize_intrinsics_core": not lensmodel.startswith("LENSMODEL_SPLINED"),
+            "do_optimize_intrinsics_distortions": True,
+            "do_optimize_extrinsics": False,
+            "do_optimize_frames": True,
+            "do_apply_outlier_rejection": True,
+            "do_apply_regularization": True,
+            **common,
+        }
+        stats = mrcal.optimize(**inputs)
+    except CalibrationError:
+        raise
+    except Exception as exc:  # mrcal raises plain exceptions for failed solves
+        raise CalibrationError(f"the mrcal solve failed: {str(exc).strip().splitlines()[0][:120]}") from None
+    model = mrcal.cameramodel(optimization_inputs=inputs, icam_intrinsics=0)
+    return _result(model, inputs, stats, detections)
+
+
+def _result(model: Any, inputs: dict[str, Any], stats: dict[str, Any], det: Detections) -> IntrinsicsResult:
+    import mrcal
+
+    obs = inputs["observations_board"]  # mrcal marks outliers with weight -1 in place
+    H, W = obs.shape[1:3]
+    ref = mrcal.ref_calibration_object(W, H, inputs["calibration_object_spacing"])  # (H, W, 3)
+    p_cam = mrcal.transform_point_rt(inputs["rt_ref_frame"][:, None, None, :], ref[None])
+    q = mrcal.project(p_cam, *model.intrinsics())
+    err = np.linalg.norm(q - obs[..., :2], axis=-1).reshape(obs.shape[0], -1)  # pixels, unweighted
+    inlier = obs[..., 2].reshape(obs.shape[0], -1) > 0
+    per_image = {
+        Path(p).name: round(
+            float(np.sqrt(np.mean(err[i][inlier[i]] ** 2))) if inlier[i].any() else float("nan"), 4
+        )
+        for i, p in enumerate(det.paths)
+    }
+    W, H = det.imagersize
+    where = {
+        "centre": (0.5 * (W - 1), 0.5 * (H - 1)),
+        "top_left_corner": (0.05 * W, 0.05 * H),
+        "bottom_right_corner": (0.95 * W, 0.95 * H),
+    }
+    unc: dict[str, float] = {}
+    for name, q in where.items():
+        v = mrcal.unproject(np.array(q, dtype=float), *model.intrinsics())
+        s = mrcal.projection_uncertainty(v * 10.0, model, what="worstdirection-stdev")
+        unc[name] = round(float(s), 4)
+    return IntrinsicsResult(
+        model=model,
+        rms_px=round(float(np.sqrt(np.mean(err[inlier] ** 2))), 4),
+        worst_px=round(float(err[inlier].max()), 4),
+        per_image_rms_px=per_image,
+        outliers=int(stats.get("Noutliers_board", (~inlier).sum())),
+        corners=int(inlier.size),
+        uncertainty_px=unc,
+        images_used=len(det.paths),
+    )

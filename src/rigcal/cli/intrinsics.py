@@ -1,0 +1,162 @@
+"""``rigcal intrinsics``: camera intrinsics from chessboard images (OpenCV detection, mrcal solve)."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import click
+
+
+def _board(value: str) -> tuple[int, int]:
+    m = re.fullmatch(r"(\d+)x(\d+)", value)
+    if not m:
+        raise click.BadParameter(f"{value!r}: expected inner corners as WxH, e.g. 9x6")
+    return int(m[1]), int(m[2])
+
+
+@click.command("intrinsics")
+@click.argument("images", nargs=-1, type=click.Path(path_type=Path))
+@click.option("--board", required=True, help="Inner corners per row x per column, e.g. 9x6.")
+@click.option(
+    "--square-m", required=True, type=click.FloatRange(min=0.0, min_open=True), help="Square size, metres."
+)
+@click.option(
+    "--corners",
+    "corners_file",
+    type=click.Path(path_type=Path),
+    help="Use pre-detected corners (mrcal corners.vnl: filename x y level) instead of detecting.",
+)
+@click.option(
+    "--imagersize",
+    help="WxH of the images, with --corners when the images are not given (e.g. 640x480).",
+)
+@click.option(
+    "--lensmodel",
+    default="LENSMODEL_OPENCV8",
+    show_default=True,
+    help="mrcal lens model, e.g. LENSMODEL_OPENCV5, LENSMODEL_OPENCV8, "
+    "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg=100.",
+)
+@click.option(
+    "--focal-px", type=click.FloatRange(min=1.0), help="Rough focal length for the seed [image width]."
+)
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path), help="The .cameramodel to write."
+)
+@click.option(
+    "--save-corners", type=click.Path(path_type=Path), help="Also write the detected corners (corners.vnl)."
+)
+@click.option("--force", is_flag=True, help="Overwrite existing outputs.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+def intrinsics(
+    images: tuple[Path, ...],
+    board: str,
+    square_m: float,
+    corners_file: Path | None,
+    imagersize: str | None,
+    lensmodel: str,
+    focal_px: float | None,
+    output: Path,
+    save_corners: Path | None,
+    force: bool,
+    as_json: bool,
+) -> None:
+    """Calibrate a camera's intrinsics from IMAGES of a chessboard.
+
+    Corners are found with OpenCV (or read from --corners), and the lens model is fitted by
+    mrcal with outlier rejection. Writes a mrcal .cameramodel (which rig files and picking
+    files can use) holding the solve, and prints the RMS and worst reprojection errors,
+    per-image RMS, outliers, and mrcal's projection uncertainty at the centre and corners.
+
+    \b
+    Examples:
+      rigcal intrinsics calib/*.jpg --board 9x6 --square-m 0.025 -o camera.cameramodel
+      rigcal intrinsics calib/*.png --board 10x7 --square-m 0.03 --lensmodel LENSMODEL_OPENCV5 \\
+          -o cam.cameramodel --save-corners corners.vnl --json
+      rigcal intrinsics --corners corners.vnl --imagersize 640x480 --board 9x6 --square-m 0.025 \\
+          -o camera.cameramodel
+    """
+    from rigcal.calib.intrinsics import (
+        Board,
+        detect_corners,
+        read_corners_vnl,
+        solve_intrinsics,
+        write_corners_vnl,
+    )
+    from rigcal.errors import InputError
+    from rigcal.io.files import atomic_write_text, check_writable
+
+    w_n, h_n = _board(board)
+    check_writable(output, force)
+    if save_corners is not None:
+        check_writable(save_corners, force)
+    spec = Board(w_n, h_n, square_m)
+    if corners_file is not None:
+        if imagersize is not None:
+            size = _board(imagersize)
+        elif images:
+            import cv2
+
+            img = cv2.imread(str(images[0]), cv2.IMREAD_GRAYSCALE)
+            if img is None:
+                raise InputError(f"{images[0]}: image not found or not readable")
+            size = (img.shape[1], img.shape[0])
+        else:
+            raise click.UsageError("with --corners, give --imagersize WxH or one of the images")
+        det = read_corners_vnl(corners_file, spec, size)
+    else:
+        if not images:
+            raise click.UsageError("give the chessboard images, or --corners")
+        det = detect_corners(list(images), spec)
+    for name in det.missing:
+        click.echo(f"board not found in {name}", err=True)
+    result = solve_intrinsics(det, spec, lensmodel, focal_px)
+    text = _model_text(
+        result.model, f"rigcal intrinsics: {len(det.paths)} images, board {board}, {square_m:g} m"
+    )
+    atomic_write_text(output, text, force=force)
+    if save_corners is not None:
+        atomic_write_text(save_corners, write_corners_vnl(det), force=force)
+    lens, intr = result.model.intrinsics()
+    doc = {
+        "output": str(output),
+        "lensmodel": lens,
+        "intrinsics": [round(float(x), 8) for x in intr],
+        "imagersize": list(det.imagersize),
+        "images_used": result.images_used,
+        "boards_not_found": list(det.missing),
+        "rms_px": result.rms_px,
+        "worst_px": result.worst_px,
+        "outliers": result.outliers,
+        "corners": result.corners,
+        "per_image_rms_px": result.per_image_rms_px,
+        "projection_uncertainty_px": result.uncertainty_px,
+    }
+    if as_json:
+        click.echo(json.dumps(doc, indent=1))
+        return
+    worst = sorted(result.per_image_rms_px.items(), key=lambda kv: -kv[1])[:3]
+    click.echo(
+        "\n".join(
+            [
+                f"{lens}: fx {intr[0]:.3f}, fy {intr[1]:.3f}, cx {intr[2]:.3f}, cy {intr[3]:.3f} px",
+                f"images used {result.images_used} (board not found in {len(det.missing)}); "
+                f"outliers {result.outliers} of {result.corners} corners",
+                f"reprojection: RMS {result.rms_px:.3f} px, worst {result.worst_px:.3f} px",
+                "worst images (RMS px): " + ", ".join(f"{k} {v:.3f}" for k, v in worst),
+                "projection uncertainty (1-sigma, worst direction, px): "
+                + ", ".join(f"{k.replace('_', ' ')} {v:.3f}" for k, v in result.uncertainty_px.items()),
+            ]
+        )
+    )
+    click.echo(f"wrote {output}", err=True)
+
+
+def _model_text(model: object, note: str) -> str:
+    import io
+
+    buf = io.StringIO()
+    model.write(buf, note=note)  # type: ignore[attr-defined]
+    return buf.getvalue()
