@@ -36,7 +36,7 @@ _OPENCV_MODELS = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Camera:
     """A calibrated camera.
 
@@ -57,6 +57,19 @@ class Camera:
         intr = np.array(self.intrinsics, dtype=float)
         intr.setflags(write=False)
         object.__setattr__(self, "intrinsics", intr)
+
+    def __eq__(self, other: object) -> bool:
+        """Same lens model, intrinsics and image size (the source is not compared)."""
+        if not isinstance(other, Camera):
+            return NotImplemented
+        return (
+            self.lensmodel == other.lensmodel
+            and (self.width_px, self.height_px) == (other.width_px, other.height_px)
+            and np.array_equal(self.intrinsics, other.intrinsics)
+        )
+
+    def __hash__(self) -> int:
+        return hash((self.lensmodel, self.width_px, self.height_px, self.intrinsics.tobytes()))
 
     # --- constructors -------------------------------------------------------------------
     @classmethod

@@ -44,7 +44,7 @@ def is_ros_camera_info(data: Any) -> bool:
 
 def is_opencv_storage(path: Path) -> bool:
     """An OpenCV FileStorage file: ``.xml``, YAML with OpenCV's ``%YAML:1.0`` header, or
-    YAML holding ``!!opencv-matrix`` nodes (what OpenCV 4.x/5.x writes)."""
+    YAML holding ``!!opencv-matrix`` / ``!!opencv-nd-matrix`` nodes (what OpenCV 4.x/5.x writes)."""
     if path.suffix.lower() == ".xml":
         return True
     try:
@@ -52,7 +52,10 @@ def is_opencv_storage(path: Path) -> bool:
             head = f.read(1 << 14)
     except OSError:
         return False
-    return head.startswith(b"%YAML:1.0") or (head.startswith(b"%YAML") and b"opencv-matrix" in head)
+    # 2-D arrays are written as ``!!opencv-matrix``, 1-D ones as ``!!opencv-nd-matrix``.
+    return head.startswith(b"%YAML:1.0") or (
+        head.startswith(b"%YAML") and (b"opencv-matrix" in head or b"opencv-nd-matrix" in head)
+    )
 
 
 def camera_from_ros_camera_info(data: Mapping[str, Any], path: Path) -> Camera:
@@ -106,9 +109,11 @@ def camera_from_opencv_storage(path: Path) -> Camera:
 
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
+    except (cv2.error, SystemError) as exc:
+        # opencv-python 5 wraps the constructor's cv2.error in a SystemError.
+        cause = exc.__cause__ if isinstance(exc.__cause__, cv2.error) else exc
         raise InputError(
-            f"{path}: not a readable OpenCV FileStorage file: {str(exc).strip()[:100]}"
+            f"{path}: not a readable OpenCV FileStorage file: {str(cause).strip()[:100]}"
         ) from None
     if not fs.isOpened():
         raise InputError(f"{path}: not a readable OpenCV FileStorage file")

@@ -12,6 +12,7 @@ All functions are pure (text in, text out); :func:`export_rig` picks one by name
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -98,7 +99,11 @@ def urdf_joint(
     pl = parent_link or ("laser" if p == "laser" else "camera_optical_frame")
     cl = child_link or ("camera_optical_frame" if c == "camera" else "laser")
     # URDF rpy: fixed-axis roll about x, then pitch about y, then yaw about z: R = Rz Ry Rx.
-    rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz")
+    # At pitch +-pi/2 (e.g. parent camera, optical axis along the laser's x) scipy warns of
+    # gimbal lock; the angles it returns still give the same rotation, so the warning is noise.
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Gimbal lock detected", category=UserWarning)
+        rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz")
     xyz = T[:3, 3]
     return "\n".join(
         [

@@ -82,7 +82,7 @@ def read_tum(path: str | Path) -> Trajectory:
             raise InputError(f"{path}: line {n}: quaternion norm {norm:.6g}; expected a unit quaternion")
         if stamps and v[0] <= stamps[-1]:
             raise InputError(
-                f"{path}: line {n}: timestamp {v[0]!r} not after {stamps[-1]!r}; expected increasing"
+                f"{path}: line {n}: timestamp {float(v[0])!r} not after {stamps[-1]!r}; expected increasing"
             )
         T = np.eye(4)
         T[:3, :3] = Rotation.from_quat(q / norm).as_matrix()
