@@ -158,3 +158,78 @@ def test_help_has_examples(capsys):
         code, out, _ = run(capsys, cmd, "--help")
         assert code == 0
         assert "Examples:" in out
+
+
+def _edit(picks: dict, case: str, folder: Path) -> dict:
+    """Break a copied session's picking file (or its files) in one way."""
+    caps = picks["captures"]
+    if case == "unknown key":
+        caps[1]["colour"] = "red"
+    elif case == "wrong type":
+        caps[1]["image_endpoints_px"] = "left and right"
+    elif case == "pick outside image":
+        caps[3]["image_endpoints_px"][0] = [700.0, 100.0]
+    elif case == "scan all NaN":
+        scan = folder / caps[0]["scan"]
+        doc = yaml.safe_load(scan.read_text())
+        doc["ranges_m"] = [float("nan")] * len(doc["ranges_m"])
+        scan.write_text(yaml.safe_dump(doc))
+    elif case == "laser points off the scan":
+        for c in caps:
+            c["laser_side"] = {"points": [[2.0, -0.3], [2.0, 0.3]]}
+    elif case == "no consensus":
+        rng = __import__("numpy").random.default_rng(0)
+        for c in caps:
+            c["image_endpoints_px"] = rng.uniform([0, 0], [639, 479], (2, 2)).round(1).tolist()
+    return picks
+
+
+@pytest.mark.parametrize(
+    ("case", "code", "needle"),
+    [
+        ("unknown key", 3, "captures[1].colour"),
+        ("wrong type", 3, "captures[1].image_endpoints_px"),
+        ("pick outside image", 3, "captures[3].image_endpoints_px[0]"),
+        ("scan all NaN", 3, "captures[0].laser_side.segment"),
+        ("laser points off the scan", 3, "captures[0].laser_side.points"),
+        ("no consensus", 4, "RANSAC found no consensus"),
+    ],
+)
+def test_each_bad_session_gives_one_line_and_writes_nothing(
+    session_dir, tmp_path, capsys, case, code, needle
+):
+    bad = tmp_path / "sess"
+    shutil.copytree(session_dir, bad)
+    picks = _edit(yaml.safe_load((bad / "picks.yaml").read_text()), case, bad)
+    (bad / "picks.yaml").write_text(yaml.safe_dump(picks))
+    rig, rep = tmp_path / "rig.yaml", tmp_path / "report"
+    got, out, err = run(capsys, "solve", str(bad / "picks.yaml"), "-o", str(rig), "--report", str(rep))
+    assert got == code, err
+    assert needle in err
+    assert err.startswith("Error: ")
+    assert err.count("\n") == 1
+    assert out == ""
+    assert not rig.exists()
+    assert not rep.exists()
+
+
+def test_malformed_yaml_names_the_line(session_dir, tmp_path, capsys):
+    bad = tmp_path / "sess"
+    shutil.copytree(session_dir, bad)
+    (bad / "picks.yaml").write_text("schema_version: 1\ncaptures: [\n")
+    got, _, err = run(capsys, "solve", str(bad / "picks.yaml"), "-o", str(tmp_path / "r.yaml"))
+    assert got == 3
+    assert "not valid YAML at line" in err
+
+
+def test_existing_report_folder_needs_force(session_dir, tmp_path, capsys):
+    rep = tmp_path / "report"
+    rep.mkdir()
+    (rep / "keep.txt").write_text("mine")
+    got, _, err = run(
+        capsys, "solve", str(session_dir / "picks.yaml"), "-o", str(tmp_path / "r.yaml"), "--report", str(rep)
+    )
+    assert got == 5
+    assert "--force" in err
+    assert (rep / "keep.txt").read_text() == "mine"
+    assert not (tmp_path / "r.yaml").exists()
