@@ -2,8 +2,10 @@
 
 1. **Corners.** Each image's inner chessboard corners are found with OpenCV
    (``findChessboardCornersSB``, falling back to ``findChessboardCorners`` refined with
-   ``cornerSubPix``), or read from a corners file in mrcal's ``corners.vnl`` form
-   (``# filename x y level``, as mrgingham writes it).
+   ``cornerSubPix``), or the corners of a ChArUco board with ``cv2.aruco.CharucoDetector``
+   (partly visible boards count: unseen corners get weight -1), or they are read from a
+   corners file in mrcal's ``corners.vnl`` form (``# filename x y level``, as mrgingham
+   writes it).
 2. **Seed.** mrcal's ``seed_stereographic`` estimates a stereographic core and the board
    poses from a focal-length guess, which two short mrcal solves refine (geometry only,
    then the core), as ``mrcal-calibrate-cameras`` does.
@@ -50,6 +52,41 @@ class Board:
     def __post_init__(self) -> None:
         if self.width_n < 2 or self.height_n < 2 or not self.spacing_m > 0:
             raise ValueError("Board: need at least 2x2 inner corners and a positive spacing")
+
+
+@dataclass(frozen=True)
+class CharucoBoard:
+    """A ChArUco board (OpenCV's ``cv2.aruco.CharucoBoard``).
+
+    Attributes:
+        squares_x, squares_y: squares per row and per column.
+        square_m, marker_m: square and marker sizes, metres.
+        dictionary: the ArUco dictionary's name in ``cv2.aruco``, e.g. ``DICT_5X5_100``.
+    """
+
+    squares_x: int
+    squares_y: int
+    square_m: float
+    marker_m: float
+    dictionary: str = "DICT_5X5_100"
+
+    def __post_init__(self) -> None:
+        if self.squares_x < 3 or self.squares_y < 3 or not 0 < self.marker_m < self.square_m:
+            raise ValueError("CharucoBoard: need at least 3x3 squares and 0 < marker_m < square_m")
+
+    @property
+    def grid(self) -> Board:
+        """Its inner-corner grid, as mrcal sees it."""
+        return Board(self.squares_x - 1, self.squares_y - 1, self.square_m)
+
+    def opencv(self) -> Any:
+        import cv2
+
+        name = self.dictionary
+        if not name.startswith("DICT_") or not hasattr(cv2.aruco, name):
+            raise InputError.at(None, "dictionary", name, "an ArUco dictionary such as DICT_5X5_100")
+        d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+        return cv2.aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_m, self.marker_m, d)
 
 
 @dataclass(frozen=True)
@@ -120,6 +157,48 @@ def detect_corners(images: list[Path], board: Board) -> Detections:
         raise InputError("no images given")
     corners = np.array(found) if found else np.zeros((0, board.height_n, board.width_n, 3))
     return Detections(tuple(paths), corners, tuple(missing), size)
+
+
+def detect_charuco(images: list[Path], board: CharucoBoard) -> Detections:
+    """Find a ChArUco board in every image. Corners it does not see get weight -1 (mrcal
+    ignores them); an image with fewer than MIN_CORNERS_PER_BOARD corners counts as
+    missing.
+
+    Raises:
+        InputError: an image is missing or unreadable, or the images differ in size.
+    """
+    import cv2
+
+    detector = cv2.aruco.CharucoDetector(board.opencv())
+    grid = board.grid
+    paths: list[str] = []
+    found: list[FloatArray] = []
+    missing: list[str] = []
+    size: tuple[int, int] | None = None
+    first: Path | None = None
+    for path in images:
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise InputError(f"{path}: image not found or not readable (expected PNG, JPEG, ...)")
+        h, w = img.shape
+        if size is None:
+            size, first = (w, h), path
+        elif (w, h) != size:
+            raise InputError(f"{path}: image is {w}x{h}; expected {size[0]}x{size[1]} like {first}")
+        corners, ids, _, _ = detector.detectBoard(img)
+        if ids is None or len(ids) < MIN_CORNERS_PER_BOARD:
+            missing.append(str(path))
+            continue
+        obs = np.zeros((grid.height_n * grid.width_n, 3))
+        obs[:, 2] = -1.0
+        obs[ids.ravel(), :2] = corners.reshape(-1, 2)
+        obs[ids.ravel(), 2] = 1.0
+        paths.append(str(path))
+        found.append(obs.reshape(grid.height_n, grid.width_n, 3))
+    if size is None:
+        raise InputError("no images given")
+    corners_all = np.array(found) if found else np.zeros((0, grid.height_n, grid.width_n, 3))
+    return Detections(tuple(paths), corners_all, tuple(missing), size)
 
 
 def _find_board(cv2: Any, img: NDArray[Any], board: Board) -> FloatArray | None:

@@ -18,7 +18,17 @@ def _board(value: str) -> tuple[int, int]:
 
 @click.command("intrinsics")
 @click.argument("images", nargs=-1, type=click.Path(path_type=Path))
-@click.option("--board", required=True, help="Inner corners per row x per column, e.g. 9x6.")
+@click.option("--board", help="Chessboard: inner corners per row x per column, e.g. 9x6.")
+@click.option("--charuco", help="ChArUco board instead: squares per row x per column, e.g. 8x6.")
+@click.option(
+    "--marker-m", type=click.FloatRange(min=0.0, min_open=True), help="ChArUco marker size, metres."
+)
+@click.option(
+    "--dictionary",
+    default="DICT_5X5_100",
+    show_default=True,
+    help="ChArUco's ArUco dictionary (cv2.aruco name).",
+)
 @click.option(
     "--square-m", required=True, type=click.FloatRange(min=0.0, min_open=True), help="Square size, metres."
 )
@@ -52,7 +62,10 @@ def _board(value: str) -> tuple[int, int]:
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 def intrinsics(
     images: tuple[Path, ...],
-    board: str,
+    board: str | None,
+    charuco: str | None,
+    marker_m: float | None,
+    dictionary: str,
     square_m: float,
     corners_file: Path | None,
     imagersize: str | None,
@@ -77,9 +90,12 @@ def intrinsics(
           -o cam.cameramodel --save-corners corners.vnl --json
       rigcal intrinsics --corners corners.vnl --imagersize 640x480 --board 9x6 --square-m 0.025 \\
           -o camera.cameramodel
+      rigcal intrinsics shots/*.png --charuco 8x6 --square-m 0.04 --marker-m 0.03 -o cam.cameramodel
     """
     from rigcal.calib.intrinsics import (
         Board,
+        CharucoBoard,
+        detect_charuco,
         detect_corners,
         read_corners_vnl,
         solve_intrinsics,
@@ -88,11 +104,26 @@ def intrinsics(
     from rigcal.errors import InputError
     from rigcal.io.files import atomic_write_text, check_writable
 
-    w_n, h_n = _board(board)
+    if (board is None) == (charuco is None):
+        raise click.UsageError("give exactly one of --board WxH (chessboard) and --charuco WxH (ChArUco)")
+    charuco_board = None
+    if charuco is not None:
+        if marker_m is None:
+            raise click.UsageError("--charuco needs --marker-m")
+        sx, sy = _board(charuco)
+        try:
+            charuco_board = CharucoBoard(sx, sy, square_m, marker_m, dictionary)
+        except ValueError as exc:
+            raise click.UsageError(str(exc)) from None
+        charuco_board.opencv()  # checks the dictionary name
+        spec = charuco_board.grid
+    else:
+        assert board is not None
+        w_n, h_n = _board(board)
+        spec = Board(w_n, h_n, square_m)
     check_writable(output, force)
     if save_corners is not None:
         check_writable(save_corners, force)
-    spec = Board(w_n, h_n, square_m)
     if corners_file is not None:
         if imagersize is not None:
             size = _board(imagersize)
@@ -109,13 +140,16 @@ def intrinsics(
     else:
         if not images:
             raise click.UsageError("give the chessboard images, or --corners")
-        det = detect_corners(list(images), spec)
+        det = (
+            detect_charuco(list(images), charuco_board)
+            if charuco_board
+            else detect_corners(list(images), spec)
+        )
     for name in det.missing:
         click.echo(f"board not found in {name}", err=True)
     result = solve_intrinsics(det, spec, lensmodel, focal_px)
-    text = _model_text(
-        result.model, f"rigcal intrinsics: {len(det.paths)} images, board {board}, {square_m:g} m"
-    )
+    what = f"board {board}" if board else f"ChArUco {charuco} ({dictionary})"
+    text = _model_text(result.model, f"rigcal intrinsics: {len(det.paths)} images, {what}, {square_m:g} m")
     atomic_write_text(output, text, force=force)
     if save_corners is not None:
         atomic_write_text(save_corners, write_corners_vnl(det), force=force)
