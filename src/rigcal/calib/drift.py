@@ -77,7 +77,8 @@ class DriftResult:
     Attributes:
         drifted: the verdict.
         level: the false-alarm level it was tested at.
-        residual: the residual test: ends used and rejected, RMS px, chi2, dof, p_value.
+        residual: the residual test: ends used and rejected (with their capture names and
+            Mahalanobis distances), RMS px, chi2, dof, p_value.
         pose: the pose test (rotation_deg, translation_mm, per-axis differences,
             mahalanobis2, p_value, combined 1-sigma), or None without a fresh solve.
         fresh: the fresh solve, or None.
@@ -120,6 +121,14 @@ def check_drift(rig: Rig, session: PickSession, settings: DriftSettings | None =
     alpha = settings.level / n_tests
 
     residual, moved_far = _residual_test(rig, meas, noise, alpha)
+    names = {o.capture: o.name for o in session.observations}
+    for r in residual["rejected"]:
+        r["capture"] = names.get(r["capture"], str(r["capture"]))
+    if residual["rejected"] and not moved_far:
+        listed = ", ".join(
+            f"{r['capture']} end {r['end']} ({r['sigma']:.1f} sigma)" for r in residual["rejected"]
+        )
+        reasons.append(f"left out of the residual test as wrong picks (beyond the inlier gate): {listed}")
     if moved_far:
         reasons.append(
             f"{residual['rejected_ends']} of {residual['ends']} box ends disagree with the stored "
@@ -192,8 +201,10 @@ def _residual_test(
             for k in range(P)
         ]
     )
-    keep = np.isfinite(z2) & (z2 < INLIER_GATE_CHI2)
-    moved_far = int(keep.sum()) < max(2, P // 2)
+    gated = np.isfinite(z2) & (z2 < INLIER_GATE_CHI2)
+    moved_far = int(gated.sum()) < max(2, P // 2)
+    # When most ends are beyond the gate they are the evidence, not wrong picks: test them all.
+    keep = np.isfinite(z2) if moved_far else gated
     idx = np.flatnonzero(keep)
     rows = np.concatenate([[2 * k, 2 * k + 1] for k in idx]) if len(idx) else np.zeros(0, dtype=int)
     sub = meas.subset(keep)
@@ -208,6 +219,14 @@ def _residual_test(
             "ends": P,
             "used_ends": int(keep.sum()),
             "rejected_ends": int(P - keep.sum()),
+            "rejected": [
+                {
+                    "capture": int(meas.capture[k]),
+                    "end": int(meas.end[k]),
+                    "sigma": _r(float(np.sqrt(z2[k])), 2),
+                }
+                for k in np.flatnonzero(~keep)
+            ],
             "rms_px": _r(float(np.sqrt(np.mean(err_px[keep] ** 2))) if keep.any() else float("nan"), 4),
             "max_px": _r(
                 float(np.max(err_px[np.isfinite(err_px)])) if np.isfinite(err_px).any() else float("inf"), 4

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -42,10 +43,21 @@ def drift_record(result: DriftResult, picks_path: str | Path) -> dict[str, Any]:
         "picks_sha256": sha256_file(picks_path),
         "verdict": result.verdict,
         "level": result.level,
-        "residual": result.residual,
-        "pose": result.pose,
+        "residual": _json_safe(result.residual),
+        "pose": _json_safe(result.pose),
         "reasons": result.reasons,
     }
+
+
+def _json_safe(x: Any) -> Any:
+    """NaN and infinities (e.g. the RMS of no ends) become null: JSON has no such numbers."""
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
 
 
 def append_record(path: str | Path, record: dict[str, Any]) -> Path:

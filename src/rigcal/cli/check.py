@@ -72,6 +72,7 @@ def check(
     from rigcal.calib.drift import DriftSettings, check_drift
     from rigcal.calib.driftlog import append_record, default_log_path, drift_record, read_log
     from rigcal.calib.picks import read_picks
+    from rigcal.errors import InputError
     from rigcal.io.files import check_writable
     from rigcal.rigfile import read_rig
     from rigcal.viz.drift_plot import write_drift_png
@@ -79,6 +80,11 @@ def check(
     if plot is not None:
         check_writable(plot, force)
     stored = read_rig(rig)
+    if stored.covariance is None:
+        raise InputError(
+            f"{rig}: uncertainty: missing; a drift check needs the stored calibration's covariance "
+            "(re-solve the rig with `rigcal solve`)"
+        )
     session = read_picks(picks)
     result = check_drift(stored, session, DriftSettings(level=level, min_captures_for_solve=min_captures))
     record = drift_record(result, picks)
@@ -86,7 +92,9 @@ def check(
     if not no_log:
         append_record(log, record)
     if plot is not None:
-        records = read_log(log) if log.exists() else [record]
+        records = read_log(log) if log.exists() else []
+        if no_log:  # this check is not in the log: draw it after the history
+            records.append(record)
         write_drift_png(plot, records, force=force)
     if as_json:
         click.echo(json.dumps(record, indent=1))
@@ -102,7 +110,7 @@ def _summary(record: dict[str, object]) -> str:
     assert isinstance(r, dict)
     lines = [
         f"verdict: {record['verdict']} (false-alarm level {record['level']})",
-        f"residual test: {r['used_ends']}/{r['ends']} box ends, RMS {r['rms_px']:.2f} px under the stored "
+        f"residual test: {r['used_ends']}/{r['ends']} box ends, RMS {_px(r['rms_px'])} px under the stored "
         f"calibration, chi2 {r['chi2']:.1f} over {r['dof']} dof, p = {r['p_value']:.3g}",
     ]
     pose = record["pose"]
@@ -116,3 +124,8 @@ def _summary(record: dict[str, object]) -> str:
     assert isinstance(reasons, list)
     lines += [f"note: {x}" for x in reasons]
     return "\n".join(lines)
+
+
+def _px(value: object) -> str:
+    """A pixel figure of a record, or n/a (null: no box end within the gate)."""
+    return f"{value:.2f}" if isinstance(value, (int, float)) else "n/a"

@@ -44,7 +44,8 @@ def draw_drift(records: list[dict[str, Any]], width_px: int = 900, panel_px: int
         for r in records:
             pose = r.get("pose")
             if key is None:
-                values.append(float(r["residual"]["rms_px"]))
+                rms = r["residual"]["rms_px"]  # null when no end was within the gate
+                values.append(float("nan") if rms is None else float(rms))
                 bands.append(0.0)
             elif pose:
                 values.append(float(pose[key]))
