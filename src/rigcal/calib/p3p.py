@@ -124,7 +124,8 @@ def p3p(bearings: ArrayLike, points: ArrayLike) -> P3PSolutions:
             with np.errstate(invalid="ignore", divide="ignore"):
                 k = np.sqrt(asum / quad)
             lam = k[:, None] * u
-            lam = np.where((lam.sum(axis=1) < 0)[:, None], -lam, lam)  # Lambda and -Lambda
+            flip = (lam[:, 0] + lam[:, 1] + lam[:, 2]) < 0  # Lambda and -Lambda
+            lam = np.where(flip[:, None], -lam, lam)
             triples.append(np.arange(n))
             depths.append(lam)
     idx = np.concatenate(triples)
@@ -173,8 +174,8 @@ def _degenerate_member(D1: FloatArray, D2: FloatArray) -> tuple[FloatArray, Floa
     c0 = _det(D1)
     c3 = _det(D2)
     # tr(adj(D1) D2) and tr(D1 adj(D2)); every matrix here is symmetric.
-    c1 = (_adjugate(D1) * D2).sum(axis=(1, 2))
-    c2 = (D1 * _adjugate(D2)).sum(axis=(1, 2))
+    c1 = _sum9(_adjugate(D1) * D2)
+    c2 = _sum9(D1 * _adjugate(D2))
     lead = np.abs(c3) > 1e-12 * (np.abs(c0) + np.abs(c1) + np.abs(c2) + 1e-300)
     safe_c3 = np.where(lead, c3, 1.0)
     roots = _cubic_real_roots(c2 / safe_c3, c1 / safe_c3, c0 / safe_c3)
@@ -293,14 +294,34 @@ def _plane_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 def _restrict(D: FloatArray, p: FloatArray, q: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The form D on the plane spanned by (p, q): (p^T D p, p^T D q, q^T D q), each (n,)."""
-    Dp = (D * p[:, None, :]).sum(axis=2)
-    Dq = (D * q[:, None, :]).sum(axis=2)
-    return (p * Dp).sum(axis=1), (q * Dp).sum(axis=1), (q * Dq).sum(axis=1)
+    Dp = _mv(D, p)
+    Dq = _mv(D, q)
+    return _dot(p, Dp), _dot(q, Dp), _dot(q, Dq)
 
 
 def _quad(M: FloatArray, u: FloatArray) -> FloatArray:
     """(n,) u^T M u for (n, 3, 3) M and (n, 3) u."""
-    out: FloatArray = (u * (M * u[:, None, :]).sum(axis=2)).sum(axis=1)
+    return _dot(u, _mv(M, u))
+
+
+# Small fixed-size products written out: numpy's reductions over axes of length 3 cost
+# more than the arithmetic itself.
+def _mv(M: FloatArray, v: FloatArray) -> FloatArray:
+    """(n, 3): M @ v for (n, 3, 3) M and (n, 3) v."""
+    out: FloatArray = np.stack(
+        [M[:, i, 0] * v[:, 0] + M[:, i, 1] * v[:, 1] + M[:, i, 2] * v[:, 2] for i in range(3)], axis=1
+    )
+    return out
+
+
+def _dot(a: FloatArray, b: FloatArray) -> FloatArray:
+    out: FloatArray = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+    return out
+
+
+def _sum9(M: FloatArray) -> FloatArray:
+    """(n,) sums of (n, 3, 3) matrices' entries."""
+    out: FloatArray = M.reshape(len(M), 9) @ np.ones(9)
     return out
 
 
@@ -328,18 +349,27 @@ def _gauss_newton_step(lam: FloatArray, bb: FloatArray, aa: FloatArray) -> Float
     r = _residuals(lam, bb) - aa
     det = _det(J)
     good = np.abs(det) > 1e-12 * np.maximum(np.abs(lam).max(axis=1), 1.0) ** 3
-    step = (_adjugate(J) * r[:, None, :]).sum(axis=2) / np.where(good, det, 1.0)[:, None]
+    step = _mv(_adjugate(J), r) / np.where(good, det, 1.0)[:, None]
     return np.where(good[:, None], lam - step, lam)
 
 
 def _unique(idx: NDArray[np.int64], lam: FloatArray) -> tuple[NDArray[np.int64], FloatArray]:
-    """Drop repeated solutions of one triple (the two planes can share a solution)."""
+    """Drop repeated solutions of one triple (the two planes can share a solution).
+
+    A triple has at most 4 candidates, so after a stable sort by triple a repeat lies at
+    most 3 places after its twin.
+    """
     if len(idx) == 0:
         return idx, lam
-    order = np.lexsort((lam[:, 0], idx))
+    order = np.argsort(idx, kind="stable")
     idx, lam = idx[order], lam[order]
-    same = (idx[1:] == idx[:-1]) & (
-        np.abs(lam[1:] - lam[:-1]).max(axis=1) <= 1e-7 * np.maximum(lam[1:].max(axis=1), 1.0)
-    )
-    keep = np.concatenate([[True], ~same])
-    return idx[keep], lam[keep]
+    scale = np.maximum(lam.max(axis=1), 1.0)
+    dup = np.zeros(len(idx), dtype=bool)
+    for shift in (1, 2, 3):
+        if shift >= len(idx):
+            break
+        same = (idx[shift:] == idx[:-shift]) & (
+            np.abs(lam[shift:] - lam[:-shift]).max(axis=1) <= 1e-7 * scale[shift:]
+        )
+        dup[shift:] |= same & ~dup[:-shift]
+    return idx[~dup], lam[~dup]
