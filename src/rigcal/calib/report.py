@@ -179,7 +179,8 @@ def _swapped_or_wrong(result: CalibResult) -> list[str]:
             out.append(f"capture {o.name}: the two image ends look swapped (they fit in the other order)")
         else:
             k = int(np.argmax(np.where(result.inliers[m], -np.inf, result.errors_sigma[m])))
-            px, sig = float(result.errors_px[m][k]), float(result.errors_sigma[m][k])
+            # Rounded as the report's "rejected" entries are, so both lines agree.
+            px, sig = _r(result.errors_px[m][k], 3), _r(result.errors_sigma[m][k], 2)
             out.append(
                 f"capture {o.name}: pick rejected ({px:.1f} px, {sig:.1f} sigma off); "
                 "check the picks and segment id"
