@@ -395,3 +395,32 @@ def test_segments_table_has_a_header_and_one_row_per_segment():
         assert cells[2] == f"{g.indices[0]}-{g.indices[-1]}"
         assert float(cells[-3]) == pytest.approx(g.length_m, abs=5e-4)
     assert segments_table([]).splitlines() == lines[:1]
+
+
+def test_a_wall_cut_by_noise_is_joined_again():
+    # Seed 52 of this setting cut a 7 m wall after 6 returns when pieces were not joined.
+    from rigcal.sim.raycast import cast_scan as cast
+
+    angles = np.radians(np.arange(-135, 135.001, 0.25))
+    rng = np.random.default_rng(52)
+    d = rng.uniform(6, 8)
+    r = cast([[[d, -6], [d, 6]]], angles, 30.0)
+    r = np.where(np.isfinite(r), r + rng.normal(0, 0.01, len(r)), 0)
+    segs = extract_lines(Scan.from_uniform(angles[0], np.radians(0.25), r, 0.1, 30.0))
+    assert len(segs) == 1
+    assert abs(np.degrees(segs[0].angle_rad)) == pytest.approx(90.0, abs=0.5)
+
+
+@pytest.mark.parametrize("turn_deg", [90.0, 30.0, 15.0])
+def test_pieces_meeting_at_a_corner_are_not_joined(turn_deg):
+    from rigcal.sim.raycast import cast_scan as cast
+
+    # Two noiseless walls meeting at (3, 1), the second turned by turn_deg towards the scanner.
+    t = np.radians(turn_deg)
+    walls = [[[3.0, -2.0], [3.0, 1.0]], [[3.0, 1.0], [3.0 - 2.0 * np.sin(t), 1.0 + 2.0 * np.cos(t)]]]
+    angles = np.radians(np.arange(-60, 60.001, 0.25))
+    r = cast(walls, angles, 30.0)
+    segs = extract_lines(
+        Scan.from_uniform(angles[0], np.radians(0.25), np.where(np.isfinite(r), r, 0), 0.1, 30.0)
+    )
+    assert len(segs) == 2

@@ -18,6 +18,8 @@ order of the spacing of neighbouring returns at short range:
   returns") rather than ending it.
 
 A gap of more than ``max_gap_m`` between neighbouring returns always ends a segment.
+Neighbouring pieces of one line that noise has cut apart are joined again
+(:func:`_merge_collinear`).
 Segments shorter than ``min_length_m`` or with fewer than ``min_points`` returns are
 dropped; the others are numbered 0, 1, ... in beam order: these are the ids that
 ``rigcal lines`` prints and picking files use. This module is shared with the
@@ -42,6 +44,9 @@ IntArray = NDArray[np.int64]
 # at least END_TRIM_FLOOR_M) from the line of the other returns is trimmed.
 END_TRIM_SIGMAS = 4.0
 END_TRIM_FLOOR_M = 0.0005
+# Two pieces of one line are joined only if their directions agree, when the smaller
+# piece is at least this long (a shorter one's direction is mostly noise).
+MERGE_ANGLE_TEST_M = 0.3
 
 
 @dataclass(frozen=True)
@@ -207,7 +212,7 @@ def extract_lines(scan: Scan, params: LineParams | None = None) -> list[Segment]
     runs = _runs(pts, params.max_gap_m)
     groups: list[IntArray] = []
     for lo, hi in runs:
-        groups += _grow_run(pts, lo, hi, params)
+        groups += _merge_collinear(pts, _grow_run(pts, lo, hi, params), params)
     segments: list[Segment] = []
     for g in groups:
         g = _trim_ends(pts, g, params)
@@ -261,6 +266,41 @@ def _grow_run(pts: FloatArray, lo: int, hi: int, params: LineParams) -> list[Int
         out.append(np.array(members, dtype=np.int64))
         # A filtered return just before the stop starts the next seed.
         i = members[-1] + 1
+    return out
+
+
+def _merge_collinear(pts: FloatArray, groups: list[IntArray], params: LineParams) -> list[IntArray]:
+    """Join neighbouring segments of one run that are one line cut by noise.
+
+    Two returns in a row that are each a little over 1.5 sigma off the line end a growing
+    segment (the distance test is per return); the two pieces then lie on one line. They
+    are joined when at most one return separates them, every return of the smaller piece
+    lies within max_point_distance_m of the larger piece's line, the joined fit is as
+    tight as the pieces (RMS residual at most 1.2 times the larger of theirs, plus 1 mm),
+    and, when the smaller piece is long enough (MERGE_ANGLE_TEST_M) for its direction to
+    mean something, the two directions differ by less than max_angle_change_deg. A corner
+    or a step between parallel surfaces fails the distance test.
+    """
+    cos_turn = np.cos(np.radians(params.max_angle_change_deg))
+    out: list[IntArray] = []
+    for g in groups:
+        if out and len(out[-1]) >= 2 and len(g) >= 2 and g[0] - out[-1][-1] <= 2:
+            small, large = (out[-1], g) if len(out[-1]) < len(g) else (g, out[-1])
+            cl, ul, rl = fit_line(pts[large])
+            _, us, rs = fit_line(pts[small])
+            q = pts[small] - cl
+            off = np.abs(q[:, 0] * ul[1] - q[:, 1] * ul[0])
+            joined = np.concatenate([out[-1], g])
+            _, _, rj = fit_line(pts[joined])
+            small_len = float(np.linalg.norm(pts[small[-1]] - pts[small[0]]))
+            if (
+                off.max() <= params.max_point_distance_m
+                and rj <= 1.2 * max(rl, rs) + 0.001
+                and (small_len < MERGE_ANGLE_TEST_M or abs(float(ul @ us)) >= cos_turn)
+            ):
+                out[-1] = joined
+                continue
+        out.append(g)
     return out
 
 
