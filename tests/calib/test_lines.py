@@ -424,3 +424,14 @@ def test_pieces_meeting_at_a_corner_are_not_joined(turn_deg):
         Scan.from_uniform(angles[0], np.radians(0.25), np.where(np.isfinite(r), r, 0), 0.1, 30.0)
     )
     assert len(segs) == 2
+
+
+def test_thresholds_scale_with_the_range_noise_never_below_the_defaults():
+    d = LineParams()
+    assert LineParams.for_range_noise(0.005) == d
+    assert LineParams.for_range_noise(0.01) == d
+    p = LineParams.for_range_noise(0.03)
+    assert p.max_point_distance_m == pytest.approx(3 * d.max_point_distance_m)
+    assert p.seed_length_m == pytest.approx(3 * d.seed_length_m)
+    assert p.max_gap_m == pytest.approx(0.3)
+    assert p.min_points == d.min_points

@@ -414,3 +414,15 @@ def test_first_bad_capture_is_the_one_reported(session):
     doc["captures"][12]["laser_side"] = {"segment": 50}
     doc["captures"][15]["laser_side"] = {"segment": 60}
     expect_error(save(session, doc), "captures[12].laser_side.segment", "50")
+
+
+def test_laser_range_noise_sets_the_line_thresholds(session):
+    from rigcal.calib.lines import LineParams
+    from rigcal.calib.picks import line_params_for
+
+    assert line_params_for(session, {}) == LineParams()
+    assert line_params_for(session, {"range_sigma_m": 0.02}) == LineParams.for_range_noise(0.02)
+    doc = load(session)
+    doc["laser"]["range_sigma_m"] = "1 cm"
+    save(session, doc)
+    expect_error(session, "laser.range_sigma_m", "'1 cm'")

@@ -49,6 +49,10 @@ END_TRIM_FLOOR_M = 0.0005
 MERGE_ANGLE_TEST_M = 0.3
 
 
+# The range noise the default thresholds are made for (a Hokuyo-class scanner).
+DEFAULT_RANGE_SIGMA_M = 0.01
+
+
 @dataclass(frozen=True)
 class LineParams:
     """Thresholds of the region growing (defaults suit a Hokuyo-class scanner, 1 cm noise).
@@ -72,6 +76,22 @@ class LineParams:
     seed_length_m: float = 0.08
     min_points: int = 5
     min_length_m: float = 0.1
+
+    @classmethod
+    def for_range_noise(cls, range_sigma_m: float) -> LineParams:
+        """Defaults for a scanner with this range noise (1 sigma): the distance thresholds
+        scale with the noise above the 1 cm the defaults are made for, never below them."""
+        k = max(1.0, range_sigma_m / DEFAULT_RANGE_SIGMA_M)
+        d = cls()
+        return cls(
+            max_point_distance_m=d.max_point_distance_m * k,
+            max_angle_change_deg=d.max_angle_change_deg,
+            max_gap_m=max(d.max_gap_m, 10.0 * range_sigma_m),
+            seed_points=d.seed_points,
+            seed_length_m=d.seed_length_m * k,
+            min_points=d.min_points,
+            min_length_m=d.min_length_m,
+        )
 
     def __post_init__(self) -> None:
         if not (self.max_point_distance_m > 0 and self.max_gap_m > 0 and self.max_angle_change_deg > 0):

@@ -105,14 +105,25 @@ def read_picks(path: str | Path, line_params: LineParams | None = None) -> PickS
     captures = d["captures"]
     if not isinstance(captures, list) or not captures:
         raise InputError.at(path, "captures", captures, "a non-empty list of captures")
-    obs = tuple(
-        _read_capture(path, i, c, camera, line_params or LineParams()) for i, c in enumerate(captures)
-    )
+    params = line_params or line_params_for(path, laser)
+    obs = tuple(_read_capture(path, i, c, camera, params) for i, c in enumerate(captures))
     names = [o.name for o in obs]
     for i, n in enumerate(names):
         if names.index(n) != i:
             raise InputError.at(path, f"captures[{i}].name", n, "a name not used by another capture")
     return PickSession(path, camera, camera_path, dict(laser), obs)
+
+
+def line_params_for(path: Path | None, laser: dict[str, Any]) -> LineParams:
+    """Line-extraction thresholds for the picking file's scanner: scaled to its
+    ``laser.range_sigma_m`` when given (``rigcal lines --range-sigma-m`` must then be
+    given the same value to print the same segment ids), else the defaults."""
+    if "range_sigma_m" not in laser:
+        return LineParams()
+    sigma = laser["range_sigma_m"]
+    if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not 0 < sigma < 1:
+        raise InputError.at(path, "laser.range_sigma_m", sigma, "a range noise in metres, 0 < sigma < 1")
+    return LineParams.for_range_noise(float(sigma))
 
 
 def _file(base: Path, key: str, value: Any) -> Path:

@@ -13,7 +13,13 @@ import click
 @click.option("--png", type=click.Path(path_type=Path), help="Also draw the scan with numbered segments.")
 @click.option("--force", is_flag=True, help="Overwrite an existing PNG.")
 @click.option("--json", "as_json", is_flag=True, help="Print the segments as JSON on stdout.")
-def lines(scan: Path, png: Path | None, force: bool, as_json: bool) -> None:
+@click.option(
+    "--range-sigma-m",
+    type=click.FloatRange(min=0.0, min_open=True, max=1.0, max_open=True),
+    help="The scanner's range noise, as in the picking file's laser.range_sigma_m "
+    "(thresholds scale with it; the same value gives the same segment ids) [default: 0.01].",
+)
+def lines(scan: Path, png: Path | None, force: bool, as_json: bool, range_sigma_m: float | None) -> None:
     """List the line segments of SCAN (paper Section III-B), numbered as picking files use them.
 
     \b
@@ -22,14 +28,14 @@ def lines(scan: Path, png: Path | None, force: bool, as_json: bool) -> None:
       rigcal lines scan.yaml --png lines.png --force
       rigcal lines scan.yaml --json | jq '.[] | select(.length_m > 0.5)'
     """
-    from rigcal.calib.lines import extract_lines, segments_table
+    from rigcal.calib.lines import LineParams, extract_lines, segments_table
     from rigcal.io.files import check_writable
     from rigcal.scan import read_scan
 
     if png is not None:
         check_writable(png, force)
     s = read_scan(scan)
-    segments = extract_lines(s)
+    segments = extract_lines(s, LineParams.for_range_noise(range_sigma_m) if range_sigma_m else None)
     if png is not None:
         from rigcal.viz.scan_plot import render_scan_segments
 

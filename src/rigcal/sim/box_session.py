@@ -355,6 +355,7 @@ def _capture(
             scan,
             ends,
             face_beams,
+            line_params=LineParams.for_range_noise(spec.range_sigma_m),
             tolerance_m=max(FACE_TOLERANCE_M, FACE_TOLERANCE_SIGMAS * spec.range_sigma_m),
         )
         if found is None:
@@ -550,8 +551,8 @@ def session_observations(
 
     Args:
         session: the simulated session.
-        line_params: line extraction parameters (segment ids refer to the defaults, as in
-            the picking file).
+        line_params: line extraction parameters (default: those the picking file implies,
+            scaled to the session's range noise, as read_picks uses them).
         folder: where the session is (or would be) written; only used for the
             observations' ``scan_path`` and ``image_path`` (relative paths when None).
 
@@ -561,7 +562,9 @@ def session_observations(
     base = Path(folder).resolve() if folder is not None else None
     out = []
     for i, c in enumerate(session.captures):
-        segments = extract_lines(c.scan, line_params)
+        segments = extract_lines(
+            c.scan, line_params or LineParams.for_range_noise(session.spec.range_sigma_m)
+        )
         if not 0 <= c.segment_id < len(segments):
             raise InputError.at(
                 None, f"captures[{i}].laser_side.segment", c.segment_id, f"a segment id below {len(segments)}"
