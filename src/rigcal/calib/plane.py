@@ -1,0 +1,243 @@
+"""Laser-camera calibration from a plane seen by both sensors (a checkerboard, say).
+
+Beyond the paper's box target: in each capture the camera gives the board's plane in the
+camera frame, n . p = d (n unit, d > 0, e.g. from the board's corners by PnP), and the
+scanner gives returns p_l on the board (the line where the board cuts the scan plane).
+Every such return, mapped into the camera frame, must lie on the plane (Zhang and Pless,
+"Extrinsic calibration of a camera and laser range finder", IROS 2004):
+
+    n_i^T (R p_l + t) = d_i
+
+1. **Closed form** (no initial guess). With laser points in their z = 0 plane,
+   R p_l + t = H [x, y, 1]^T for H = [r1 r2 t], so each return gives one equation that is
+   linear in H's 9 entries. A capture's returns lie on one line and so give 2 independent
+   equations: 5 captures with planes of different orientations determine H. R is the
+   rotation nearest [h1, h2, h1 x h2], t = h3.
+2. **RANSAC over captures** (optional): closed forms from random 5-capture samples,
+   scored by the point-to-plane residuals of all captures, so a capture with a wrong
+   plane or wrong returns cannot spoil the start.
+3. **Levenberg-Marquardt** of the 6-DoF pose on point-to-plane distances, each whitened
+   by its noise (the range noise along the beam projected on the plane's normal, and the
+   plane's own distance noise), with the same covariance as the box method
+   (``rigcal.calib.refine``'s tangent space) inflated by the residual scale when above 1.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from rigcal.errors import CalibrationError
+from rigcal.geometry import make_T, rotvec_to_R
+
+FloatArray = NDArray[np.float64]
+
+MIN_CAPTURES = 5
+# A set of planes whose normals span less than this (smallest singular value of the
+# stacked normals, relative to the largest) leaves the pose unobservable.
+MIN_NORMAL_SPREAD = 0.05
+
+
+@dataclass(frozen=True)
+class PlaneObservation:
+    """One capture: the board plane in the camera frame and the laser returns on it.
+
+    Attributes:
+        capture: index of the capture.
+        name: its name.
+        normal_cam: (3,) unit normal of the plane, camera frame, with distance_m > 0.
+        distance_m: distance from the camera centre to the plane.
+        points_laser: (M, 2) laser returns on the board, metres, laser frame (z = 0).
+        distance_sigma_m: 1-sigma uncertainty of the plane's distance (from the board's pose).
+    """
+
+    capture: int
+    name: str
+    normal_cam: FloatArray
+    distance_m: float
+    points_laser: FloatArray
+    distance_sigma_m: float = 0.001
+
+
+@dataclass(frozen=True)
+class PlaneResult:
+    """Outcome of a plane-based solve.
+
+    Attributes:
+        T_cam_laser: (4, 4) the pose.
+        covariance: (6, 6) over [dtheta (rad), t (m)] in the camera frame, as the box method.
+        residuals_m: per capture, (M,) signed point-to-plane distances, metres.
+        residual_scale: sqrt(chi^2 / dof) of the whitened residuals.
+        inlier_captures: (C,) bool, captures RANSAC kept.
+    """
+
+    T_cam_laser: FloatArray
+    covariance: FloatArray
+    residuals_m: tuple[FloatArray, ...]
+    residual_scale: float
+    inlier_captures: NDArray[np.bool_]
+
+
+def closed_form(observations: Sequence[PlaneObservation]) -> FloatArray:
+    """T_cam_laser from the linear point-on-plane equations (step 1).
+
+    Raises:
+        CalibrationError: fewer than MIN_CAPTURES captures, or planes too alike in
+            orientation for the equations to determine the pose.
+    """
+    _check_observable(observations)
+    rows = []
+    rhs = []
+    for o in observations:
+        n = np.asarray(o.normal_cam, dtype=float)
+        q = np.column_stack([o.points_laser, np.ones(len(o.points_laser))])  # (M, 3)
+        # n^T H q = sum_ij n_i H_ij q_j: coefficient of H_ij (row-major) is n_i q_j.
+        rows.append((n[None, :, None] * q[:, None, :]).reshape(len(q), 9))
+        rhs.append(np.full(len(q), o.distance_m))
+    A = np.concatenate(rows)
+    b = np.concatenate(rhs)
+    h, *_ = np.linalg.lstsq(A, b, rcond=None)
+    H = h.reshape(3, 3)
+    r1, r2, t = H[:, 0], H[:, 1], H[:, 2]
+    M = np.column_stack([r1, r2, np.cross(r1, r2)])
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    return make_T(R, t)
+
+
+def point_to_plane(T: FloatArray, o: PlaneObservation) -> FloatArray:
+    """(M,) signed distances of the capture's returns from its plane, metres."""
+    p = np.column_stack([o.points_laser, np.zeros(len(o.points_laser))]) @ T[:3, :3].T + T[:3, 3]
+    out: FloatArray = p @ np.asarray(o.normal_cam, dtype=float) - o.distance_m
+    return out
+
+
+def ransac_closed_form(
+    observations: Sequence[PlaneObservation],
+    threshold_m: float = 0.03,
+    iterations: int = 200,
+    seed: int = 0,
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Closed forms from random MIN_CAPTURES-capture samples; a capture is an inlier when
+    the RMS of its point-to-plane distances is under ``threshold_m``. Returns the best
+    pose (re-solved on its inliers) and the inlier mask (step 2)."""
+    _check_observable(observations)
+    rng = np.random.default_rng(seed)
+    C = len(observations)
+    best_mask = np.zeros(C, dtype=bool)
+    best_cost = np.inf
+    for _ in range(iterations if C > MIN_CAPTURES else 1):
+        idx = rng.choice(C, size=MIN_CAPTURES, replace=False) if C > MIN_CAPTURES else np.arange(C)
+        sample = [observations[i] for i in idx]
+        try:
+            T = closed_form(sample)
+        except CalibrationError:
+            continue
+        rms = np.array([np.sqrt(np.mean(point_to_plane(T, o) ** 2)) for o in observations])
+        cost = float(np.minimum(rms, threshold_m).sum())
+        if cost < best_cost:
+            best_cost, best_mask = cost, rms < threshold_m
+    if best_mask.sum() < MIN_CAPTURES:
+        raise CalibrationError(
+            f"no {MIN_CAPTURES} captures agree on a calibration within {threshold_m * 1000:g} mm RMS; "
+            "check the board planes and the laser returns chosen on the board"
+        )
+    inliers = [o for o, keep in zip(observations, best_mask, strict=True) if keep]
+    return closed_form(inliers), best_mask
+
+
+def solve_plane(
+    observations: Sequence[PlaneObservation],
+    range_sigma_m: float = 0.01,
+    use_ransac: bool = True,
+    seed: int = 0,
+) -> PlaneResult:
+    """Calibrate T_cam_laser from board planes and laser returns (steps 1-3).
+
+    Raises:
+        CalibrationError: too few captures, planes too alike, or no consensus.
+    """
+    if use_ransac:
+        T0, mask = ransac_closed_form(observations, seed=seed)
+    else:
+        T0, mask = closed_form(observations), np.ones(len(observations), dtype=bool)
+    used = [o for o, keep in zip(observations, mask, strict=True) if keep]
+    R0 = T0[:3, :3]
+
+    def pose(x: FloatArray) -> FloatArray:
+        return make_T(rotvec_to_R(x[:3]) @ R0, x[3:])
+
+    def residuals(x: FloatArray) -> FloatArray:
+        T = pose(x)
+        return np.concatenate([point_to_plane(T, o) / _sigmas(T, o, range_sigma_m) for o in used])
+
+    x0 = np.concatenate([np.zeros(3), T0[:3, 3]])
+    sol = least_squares(residuals, x0, method="lm", x_scale="jac")
+    T = pose(sol.x)
+    r, J = _whitened_and_jacobian(T, used, range_sigma_m)
+    dof = len(r) - 6
+    info = J.T @ J
+    evals = np.linalg.eigvalsh(info)
+    if evals[0] <= 1e-12 * max(evals[-1], 1e-300):
+        raise CalibrationError(
+            "the calibration is unobservable from these board poses (singular normal equations)"
+        )
+    scale2 = max(1.0, float(r @ r) / dof) if dof > 0 else 1.0
+    cov = scale2 * np.linalg.inv(info)
+    return PlaneResult(
+        T,
+        0.5 * (cov + cov.T),
+        tuple(point_to_plane(T, o) for o in observations),
+        float(np.sqrt(float(r @ r) / dof)) if dof > 0 else 1.0,
+        mask,
+    )
+
+
+def _sigmas(T: FloatArray, o: PlaneObservation, range_sigma_m: float) -> FloatArray:
+    """(M,) 1-sigma of each point-to-plane distance: range noise along the beam, projected
+    on the plane's normal, and the plane's distance noise."""
+    p = o.points_laser
+    rays = np.column_stack([p, np.zeros(len(p))]) / np.linalg.norm(p, axis=1, keepdims=True)
+    along_normal = rays @ T[:3, :3].T @ np.asarray(o.normal_cam, dtype=float)
+    out: FloatArray = np.sqrt((range_sigma_m * along_normal) ** 2 + o.distance_sigma_m**2)
+    return out
+
+
+def _whitened_and_jacobian(
+    T: FloatArray, observations: Sequence[PlaneObservation], range_sigma_m: float
+) -> tuple[FloatArray, FloatArray]:
+    """Whitened residuals and their Jacobian over [dtheta, t] at dtheta = 0 (left
+    perturbation in the camera frame: d(Exp(w) R p)/dw = -[R p]x)."""
+    rs, Js = [], []
+    for o in observations:
+        s = _sigmas(T, o, range_sigma_m)
+        n = np.asarray(o.normal_cam, dtype=float)
+        rp = np.column_stack([o.points_laser, np.zeros(len(o.points_laser))]) @ T[:3, :3].T
+        rs.append((rp @ n + T[:3, 3] @ n - o.distance_m) / s)
+        # d(n . (Exp(w) R p))/dw = n . (w x Rp) = w . (Rp x n)
+        Js.append(np.column_stack([np.cross(rp, n), np.broadcast_to(n, rp.shape)]) / s[:, None])
+    return np.concatenate(rs), np.concatenate(Js)
+
+
+def _check_observable(observations: Sequence[PlaneObservation]) -> None:
+    if len(observations) < MIN_CAPTURES:
+        raise CalibrationError(
+            f"{len(observations)} board capture(s); the plane method needs at least {MIN_CAPTURES} "
+            "(each plane gives 2 constraints on the 9 unknowns of its closed form)"
+        )
+    normals = np.array([np.asarray(o.normal_cam, dtype=float) for o in observations])
+    s = np.linalg.svd(normals, compute_uv=False)
+    if len(s) < 3 or s[2] < MIN_NORMAL_SPREAD * s[0]:
+        names = ", ".join(o.name for o in observations)
+        raise CalibrationError(
+            f"the board planes of captures {names} are (nearly) parallel or share an axis "
+            f"(normals' spread {s[-1] / s[0]:.3f} < {MIN_NORMAL_SPREAD}); tilt the board about "
+            "both of its axes between captures"
+        )
+    for o in observations:
+        if len(o.points_laser) < 2:
+            raise CalibrationError(f"capture {o.name}: fewer than 2 laser returns on the board")

@@ -1,0 +1,100 @@
+"""Plane-based (checkerboard) laser-camera calibration on synthetic board captures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rigcal.calib.plane import PlaneObservation, closed_form, point_to_plane, solve_plane
+from rigcal.errors import CalibrationError
+from rigcal.geometry import pose_error, rotvec_to_R
+from rigcal.sim.box_session import default_T_cam_laser
+
+T_TRUE = default_T_cam_laser()
+
+
+def board_capture(rng: np.random.Generator, k: int, sigma_m: float, n_points: int = 60) -> PlaneObservation:
+    """A board 1.5-3 m ahead of the laser, turned up to 40 deg about its vertical and
+    tilted up to 30 deg back, crossing the scan plane: its plane in the camera frame and
+    noisy returns along its cut with the scan plane."""
+    dist = rng.uniform(1.5, 3.0)
+    bearing = rng.uniform(-0.4, 0.4)
+    centre = dist * np.array([np.cos(bearing), np.sin(bearing), 0.0])
+    yaw = bearing + np.pi + rng.uniform(-0.7, 0.7)  # facing the scanner, turned
+    tilt = rng.uniform(-0.5, 0.5)
+    n_laser = rotvec_to_R([0.0, 0.0, yaw]) @ rotvec_to_R([0.0, tilt, 0.0]) @ np.array([1.0, 0.0, 0.0])
+    # The cut with z = 0: direction perpendicular to n's horizontal part.
+    u = np.array([-n_laser[1], n_laser[0], 0.0])
+    u /= np.linalg.norm(u)
+    s = np.linspace(-0.3, 0.3, n_points)
+    pts = centre[None, :2] + s[:, None] * u[None, :2]
+    r = np.linalg.norm(pts, axis=1)
+    pts = pts * ((r + rng.normal(0.0, sigma_m, n_points)) / r)[:, None]
+    # Plane in the camera frame: n_c . p_c = d_c.
+    n_c = T_TRUE[:3, :3] @ n_laser
+    d_c = float(n_c @ (T_TRUE[:3, :3] @ centre + T_TRUE[:3, 3]))
+    if d_c < 0:
+        n_c, d_c = -n_c, -d_c
+    return PlaneObservation(k, f"board{k:02d}", n_c, d_c, pts, distance_sigma_m=1e-4)
+
+
+def captures(seed: int, n: int = 12, sigma_m: float = 0.01) -> list[PlaneObservation]:
+    rng = np.random.default_rng(seed)
+    return [board_capture(rng, k, sigma_m) for k in range(n)]
+
+
+def test_closed_form_is_exact_without_noise():
+    T = closed_form(captures(1, sigma_m=0.0))
+    rot, trans = pose_error(T, T_TRUE)
+    assert rot < 1e-6
+    assert trans < 1e-8
+
+
+def test_true_pose_puts_every_return_on_its_plane():
+    for o in captures(2, sigma_m=0.0):
+        assert np.abs(point_to_plane(T_TRUE, o)).max() < 1e-12
+
+
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_noisy_solve_is_within_its_uncertainty(seed):
+    res = solve_plane(captures(seed), range_sigma_m=0.01)
+    rot, trans = pose_error(res.T_cam_laser, T_TRUE)
+    sig = np.sqrt(np.diag(res.covariance))
+    assert rot < 4 * np.degrees(np.linalg.norm(sig[:3]))
+    assert trans < 4 * np.linalg.norm(sig[3:])
+    assert trans < 0.02
+    assert res.inlier_captures.all()
+    assert 0.7 < res.residual_scale < 1.3
+
+
+def test_covariance_is_honest_over_trials():
+    from rigcal.calib.report import truth_comparison
+
+    nees = []
+    for k in range(30):
+        res = solve_plane(captures(100 + k), 0.01)
+        nees.append(truth_comparison(res.T_cam_laser, res.covariance, T_TRUE)["nees"])
+    # Mean of 30 chi-square(6): 95 % band about [4.9, 7.2]; allow a little more.
+    assert 4.5 < np.mean(nees) < 7.8
+
+
+def test_a_capture_with_a_wrong_plane_is_rejected():
+    obs = captures(6)
+    bad = obs[3]
+    obs[3] = PlaneObservation(bad.capture, bad.name, bad.normal_cam, bad.distance_m + 0.2, bad.points_laser)
+    res = solve_plane(obs, 0.01)
+    assert not res.inlier_captures[3]
+    assert res.inlier_captures.sum() == len(obs) - 1
+    assert pose_error(res.T_cam_laser, T_TRUE)[1] < 0.02
+
+
+def test_too_few_captures():
+    with pytest.raises(CalibrationError, match="at least 5"):
+        solve_plane(captures(7, n=4))
+
+
+def test_parallel_boards_are_unobservable_and_named():
+    obs = captures(8, n=6)
+    same = [PlaneObservation(o.capture, o.name, obs[0].normal_cam, o.distance_m, o.points_laser) for o in obs]
+    with pytest.raises(CalibrationError, match=r"board00, board01.*parallel"):
+        solve_plane(same)
