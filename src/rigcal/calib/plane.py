@@ -16,9 +16,10 @@ Every such return, mapped into the camera frame, must lie on the plane (Zhang an
 2. **RANSAC over captures** (optional): closed forms from random 5-capture samples,
    scored by the point-to-plane residuals of all captures, so a capture with a wrong
    plane or wrong returns cannot spoil the start.
-3. **Levenberg-Marquardt** of the 6-DoF pose on point-to-plane distances, each whitened
-   by its noise (the range noise along the beam projected on the plane's normal, and the
-   plane's own distance noise), with the same covariance as the box method
+3. **Levenberg-Marquardt** of the 6-DoF pose on point-to-plane distances, whitened per
+   capture by their covariance (the range noise along each beam projected on the plane's
+   normal, plus the plane's own error, which all returns of a capture share through the
+   board's pose from PnP), with the same covariance as the box method
    (``rigcal.calib.refine``'s tangent space) inflated by the residual scale when above 1.
 """
 
@@ -52,7 +53,12 @@ class PlaneObservation:
         normal_cam: (3,) unit normal of the plane, camera frame, with distance_m > 0.
         distance_m: distance from the camera centre to the plane.
         points_laser: (M, 2) laser returns on the board, metres, laser frame (z = 0).
-        distance_sigma_m: 1-sigma uncertainty of the plane's distance (from the board's pose).
+        distance_sigma_m: 1-sigma uncertainty of the plane's distance, used when the board's
+            pose covariance is not known.
+        board_origin_cam: (3,) a point of the plane (the board's origin), camera frame, and
+        board_pose_cov: (6, 6) covariance of the board's pose from PnP over [w (rad), dt (m)]
+            (left perturbation in the camera frame); when given, each capture's residuals
+            are whitened with the errors they share through the board's pose.
     """
 
     capture: int
@@ -61,6 +67,8 @@ class PlaneObservation:
     distance_m: float
     points_laser: FloatArray
     distance_sigma_m: float = 0.001
+    board_origin_cam: FloatArray | None = None
+    board_pose_cov: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -171,14 +179,17 @@ def solve_plane(
     def pose(x: FloatArray) -> FloatArray:
         return make_T(rotvec_to_R(x[:3]) @ R0, x[3:])
 
+    W = [_whitener(T0, o, range_sigma_m) for o in used]
+
     def residuals(x: FloatArray) -> FloatArray:
         T = pose(x)
-        return np.concatenate([point_to_plane(T, o) / _sigmas(T, o, range_sigma_m) for o in used])
+        return np.concatenate([w @ point_to_plane(T, o) for w, o in zip(W, used, strict=True)])
 
     x0 = np.concatenate([np.zeros(3), T0[:3, 3]])
     sol = least_squares(residuals, x0, method="lm", x_scale="jac")
     T = pose(sol.x)
-    r, J = _whitened_and_jacobian(T, used, range_sigma_m)
+    W = [_whitener(T, o, range_sigma_m) for o in used]
+    r, J = _whitened_and_jacobian(T, used, W)
     dof = len(r) - 6
     info = J.T @ J
     evals = np.linalg.eigvalsh(info)
@@ -197,29 +208,40 @@ def solve_plane(
     )
 
 
-def _sigmas(T: FloatArray, o: PlaneObservation, range_sigma_m: float) -> FloatArray:
-    """(M,) 1-sigma of each point-to-plane distance: range noise along the beam, projected
-    on the plane's normal, and the plane's distance noise."""
+def _whitener(T: FloatArray, o: PlaneObservation, range_sigma_m: float) -> FloatArray:
+    """(M, M) W with W^T W the inverse covariance of a capture's point-to-plane distances:
+    each return's range noise along its beam, projected on the plane's normal, plus the
+    plane's own error, shared by all returns of the capture (through the board's pose when
+    its covariance is known, else through an independent distance error)."""
     p = o.points_laser
+    n = np.asarray(o.normal_cam, dtype=float)
     rays = np.column_stack([p, np.zeros(len(p))]) / np.linalg.norm(p, axis=1, keepdims=True)
-    along_normal = rays @ T[:3, :3].T @ np.asarray(o.normal_cam, dtype=float)
-    out: FloatArray = np.sqrt((range_sigma_m * along_normal) ** 2 + o.distance_sigma_m**2)
+    along_normal = rays @ T[:3, :3].T @ n
+    cov = np.diag((range_sigma_m * along_normal) ** 2)
+    if o.board_pose_cov is not None and o.board_origin_cam is not None:
+        # res = n . (p - b); d res = w . (n x (p - b)) - n . db for a board pose change (w, db).
+        pc = np.column_stack([p, np.zeros(len(p))]) @ T[:3, :3].T + T[:3, 3]
+        G = np.column_stack([np.cross(n, pc - o.board_origin_cam), np.broadcast_to(-n, pc.shape)])
+        cov = cov + G @ o.board_pose_cov @ G.T
+    else:
+        cov = cov + o.distance_sigma_m**2
+    cov += 1e-18 * np.eye(len(p))
+    out: FloatArray = np.linalg.inv(np.linalg.cholesky(cov))
     return out
 
 
 def _whitened_and_jacobian(
-    T: FloatArray, observations: Sequence[PlaneObservation], range_sigma_m: float
+    T: FloatArray, observations: Sequence[PlaneObservation], whiteners: Sequence[FloatArray]
 ) -> tuple[FloatArray, FloatArray]:
     """Whitened residuals and their Jacobian over [dtheta, t] at dtheta = 0 (left
     perturbation in the camera frame: d(Exp(w) R p)/dw = -[R p]x)."""
     rs, Js = [], []
-    for o in observations:
-        s = _sigmas(T, o, range_sigma_m)
+    for o, W in zip(observations, whiteners, strict=True):
         n = np.asarray(o.normal_cam, dtype=float)
         rp = np.column_stack([o.points_laser, np.zeros(len(o.points_laser))]) @ T[:3, :3].T
-        rs.append((rp @ n + T[:3, 3] @ n - o.distance_m) / s)
+        rs.append(W @ (rp @ n + T[:3, 3] @ n - o.distance_m))
         # d(n . (Exp(w) R p))/dw = n . (w x Rp) = w . (Rp x n)
-        Js.append(np.column_stack([np.cross(rp, n), np.broadcast_to(n, rp.shape)]) / s[:, None])
+        Js.append(W @ np.column_stack([np.cross(rp, n), np.broadcast_to(n, rp.shape)]))
     return np.concatenate(rs), np.concatenate(Js)
 
 

@@ -130,3 +130,58 @@ def calib_session(
         f"Solve it with: rigcal solve {output}/picks.yaml -o rig.yaml --truth {output}/truth.yaml",
         err=True,
     )
+
+
+@simulate.command("board-session")
+@click.option(
+    "-o",
+    "--output",
+    "output",
+    required=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    help="Folder to create.",
+)
+@click.option(
+    "--captures", default=12, show_default=True, type=click.IntRange(min=1, max=999), help="Board captures."
+)
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
+@click.option(
+    "--corner-sigma-px",
+    default=0.3,
+    show_default=True,
+    type=click.FloatRange(min=0.0, max=5.0),
+    help="Corner noise.",
+)
+@click.option(
+    "--range-sigma-m",
+    default=0.01,
+    show_default=True,
+    type=click.FloatRange(min=0.0, max=0.05),
+    help="Range noise.",
+)
+@click.option("--force", is_flag=True, help="Replace an existing folder.")
+def board_session(
+    output: Path, captures: int, seed: int, corner_sigma_px: float, range_sigma_m: float, force: bool
+) -> None:
+    """Write a synthetic checkerboard session (board corners listed, scans, truth) for the
+    plane method of `rigcal solve`. See docs/formats/board-session.md.
+
+    \b
+    Examples:
+      rigcal simulate board-session -o /tmp/board --seed 1
+      rigcal solve /tmp/board/board_session.yaml -o rig.yaml --truth /tmp/board/truth.yaml
+    """
+    from rigcal.errors import OutputError
+    from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
+
+    if output.exists() and not force:
+        raise OutputError(f"{output}: exists; pass --force to replace it")
+    spec = BoardSpec(
+        n_captures=captures, corner_sigma_px=corner_sigma_px, range_sigma_m=range_sigma_m, seed=seed
+    )
+    write_board_session(generate_board_session(spec), output, force=force)
+    click.echo(
+        f"wrote {output}/: {captures} board captures, seed {seed}. Solve it with: rigcal solve "
+        f"{output}/board_session.yaml -o rig.yaml --truth {output}/truth.yaml",
+        err=True,
+    )

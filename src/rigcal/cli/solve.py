@@ -102,6 +102,12 @@ def solve(
         noise=NoiseModel(pick_sigma_px=pick_sigma_px, range_sigma_m=range_sigma_m),
     )
     command = "rigcal " + shlex.join(sys.argv[1:]) if sys.argv else "rigcal solve"
+    from rigcal.calib.board_session import is_board_session
+    from rigcal.io.files import load_yaml
+
+    if is_board_session(load_yaml(picks, "picking file")):
+        _solve_board(picks, output, report_dir, truth, seed, range_sigma_m, command, force, as_json)
+        return
     cal = calibrate(picks, settings, truth, command=command)
     if report_dir is not None:
         write_report_dir(report_dir, cal, force=force)
@@ -114,4 +120,46 @@ def solve(
         click.echo(json.dumps(doc, indent=1))
     else:
         click.echo(report_table(cal.report), nl=False)
+        click.echo(f"wrote {output}" + (f" and {report_dir}/" if report_dir else ""), err=True)
+
+
+def _solve_board(
+    session: Path,
+    output: Path,
+    report_dir: Path | None,
+    truth: Path | None,
+    seed: int,
+    range_sigma_m: float,
+    command: str,
+    force: bool,
+    as_json: bool,
+) -> None:
+    """A board session (``method: board``): the plane method, then the same outputs."""
+    import yaml
+
+    from rigcal.calib.board_calibrate import board_report_table, calibrate_board
+    from rigcal.io.files import atomic_folder
+    from rigcal.rigfile import write_rig
+
+    sigma = (
+        None
+        if click.get_current_context().get_parameter_source("range_sigma_m").name == "DEFAULT"
+        else range_sigma_m
+    )
+    cal = calibrate_board(session, sigma, truth, command=command, seed=seed)
+    if report_dir is not None:
+        with atomic_folder(report_dir, force) as tmp:
+            (tmp / "report.yaml").write_text(
+                "# rigcal solve report, board method (docs/formats/report.md)\n"
+                + yaml.safe_dump(cal.report, sort_keys=False, default_flow_style=None, width=110)
+            )
+            (tmp / "report.json").write_text(json.dumps(cal.report, indent=1) + "\n")
+            (tmp / "report.txt").write_text(board_report_table(cal.report))
+    write_rig(output, cal.rig, force=force)
+    if as_json:
+        doc = dict(cal.report)
+        doc["rig_file"] = str(output)
+        click.echo(json.dumps(doc, indent=1))
+    else:
+        click.echo(board_report_table(cal.report), nl=False)
         click.echo(f"wrote {output}" + (f" and {report_dir}/" if report_dir else ""), err=True)

@@ -1,0 +1,240 @@
+"""Board sessions: captures of a checkerboard seen by both the camera and the scanner.
+
+A board session file (docs/formats/board-session.md) is a picking file with
+``method: board``: the camera, the board (inner corners and square size), and per capture
+a scan, the board's corners in the image (listed, or detected in an image), and the
+board's returns in the scan (a segment id as ``rigcal lines`` prints it, or two laser
+points). :func:`read_board_session` validates it and turns each capture into a
+:class:`~rigcal.calib.plane.PlaneObservation`: the board's pose by PnP from its corners
+(through the full lens model: bearings, then PnP on normalised coordinates), its plane in
+the camera frame, and the pose's covariance from the corners' reprojection Jacobian.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.calib.intrinsics import Board, detect_corners
+from rigcal.calib.lines import extract_lines
+from rigcal.calib.picks import _beams_near, _file, _pairs, line_params_for
+from rigcal.calib.plane import PlaneObservation
+from rigcal.camera import Camera, read_camera
+from rigcal.errors import InputError
+from rigcal.geometry import make_T, rotvec_to_R
+from rigcal.io.files import check_keys, check_schema_version, get_float, load_yaml
+from rigcal.scan import read_scan
+
+FloatArray = NDArray[np.float64]
+
+BOARD_SESSION_SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True)
+class BoardSession:
+    """A board session, resolved.
+
+    Attributes:
+        path: the session file.
+        camera, camera_path: the camera and its file.
+        board: the board.
+        laser: the scanner's description.
+        observations: one plane observation per capture.
+        T_cam_board: (C, 4, 4) the boards' poses from PnP.
+        corner_rms_px: (C,) RMS reprojection error of each board's corners under its pose.
+        files: every file read (for provenance).
+    """
+
+    path: Path
+    camera: Camera
+    camera_path: Path
+    board: Board
+    laser: dict[str, Any]
+    observations: tuple[PlaneObservation, ...]
+    T_cam_board: FloatArray
+    corner_rms_px: FloatArray
+    files: tuple[Path, ...]
+
+
+def is_board_session(data: Any) -> bool:
+    """Whether a parsed session file asks for the board method."""
+    return isinstance(data, dict) and data.get("method") == "board"
+
+
+def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardSession:
+    """Read and validate a board session and every file it names.
+
+    Args:
+        path: the session file.
+        corner_sigma_px: noise of a board corner in the image (for the board pose's
+            covariance).
+
+    Raises:
+        InputError: anything missing, unreadable or invalid, naming the file, key and value.
+    """
+    path = Path(path)
+    d = check_keys(
+        load_yaml(path, "board session file"),
+        path,
+        "",
+        ["schema_version", "method", "camera", "board", "captures"],
+        ["laser", "name"],
+    )
+    check_schema_version(d, path, BOARD_SESSION_SCHEMA_VERSION)
+    camera_path = _file(path, "camera", d["camera"])
+    camera = read_camera(camera_path)
+    b = check_keys(d["board"], path, "board", ["corners_x", "corners_y", "spacing_m"])
+    for key in ("corners_x", "corners_y"):
+        v = b[key]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 2:
+            raise InputError.at(path, f"board.{key}", v, "an integer >= 2 (inner corners)")
+    board = Board(b["corners_x"], b["corners_y"], get_float(b, "spacing_m", path, "board", positive=True))
+    laser = d.get("laser", {})
+    if not isinstance(laser, dict):
+        raise InputError.at(path, "laser", laser, "a mapping describing the scanner")
+    params = line_params_for(path, laser)
+    captures = d["captures"]
+    if not isinstance(captures, list) or not captures:
+        raise InputError.at(path, "captures", captures, "a non-empty list of captures")
+    obs, poses, rms, files = [], [], [], [path, camera_path]
+    for i, c in enumerate(captures):
+        kp = f"captures[{i}]"
+        c = check_keys(c, path, kp, ["scan", "laser_side"], ["name", "corners_px", "image"])
+        name = c.get("name", f"capture{i:02d}")
+        if not isinstance(name, str) or not name:
+            raise InputError.at(path, f"{kp}.name", name, "a non-empty string")
+        scan_path = _file(path, f"{kp}.scan", c["scan"])
+        files.append(scan_path)
+        corners = _corners(path, kp, c, board, camera, files)
+        T, cov, err = board_pose(camera, board, corners, corner_sigma_px)
+        scan = read_scan(scan_path)
+        side = c["laser_side"]
+        key = f"{kp}.laser_side"
+        if not isinstance(side, dict) or len(side) != 1 or next(iter(side)) not in ("segment", "points"):
+            raise InputError.at(path, key, side, "either {segment: ID} or {points: [[x1, y1], [x2, y2]]}")
+        if "segment" in side:
+            segments = extract_lines(scan, params)
+            sid = side["segment"]
+            if not (isinstance(sid, int) and not isinstance(sid, bool) and 0 <= sid < len(segments)):
+                raise InputError.at(
+                    path,
+                    f"{key}.segment",
+                    sid,
+                    f"a segment id from 0 to {len(segments) - 1} (`rigcal lines`)",
+                )
+            pts = np.array(segments[sid].points)
+        else:
+            ends = _pairs(side["points"], path, f"{key}.points", "laser point")
+            beams = _beams_near(scan, ends)
+            if len(beams) < 2:
+                raise InputError.at(
+                    path,
+                    f"{key}.points",
+                    ends.tolist(),
+                    "two points on the board in the scan (no returns near)",
+                )
+            pts = scan.points[beams]
+        n = T[:3, 2]
+        dist = float(n @ T[:3, 3])
+        if dist < 0:
+            n, dist = -n, -dist
+        obs.append(
+            PlaneObservation(i, name, n, dist, pts, board_origin_cam=T[:3, 3].copy(), board_pose_cov=cov)
+        )
+        poses.append(T)
+        rms.append(err)
+    names = [o.name for o in obs]
+    for i, nme in enumerate(names):
+        if names.index(nme) != i:
+            raise InputError.at(path, f"captures[{i}].name", nme, "a name not used by another capture")
+    return BoardSession(
+        path,
+        camera,
+        camera_path,
+        board,
+        dict(laser),
+        tuple(obs),
+        np.array(poses),
+        np.array(rms),
+        tuple(files),
+    )
+
+
+def _corners(path: Path, kp: str, c: Any, board: Board, camera: Camera, files: list[Path]) -> FloatArray:
+    """(N, 2) the board's corners in the image, row-major (corners_x per row)."""
+    n = board.width_n * board.height_n
+    if ("corners_px" in c) == ("image" in c):
+        raise InputError.at(
+            path, kp, sorted(c), "exactly one of corners_px (listed corners) or image (detect them)"
+        )
+    if "image" in c:
+        image = _file(path, f"{kp}.image", c["image"])
+        files.append(image)
+        det = detect_corners([image], board)
+        if not det.paths:
+            raise InputError.at(
+                path,
+                f"{kp}.image",
+                c["image"],
+                f"an image showing the {board.width_n}x{board.height_n} board",
+            )
+        return np.array(det.corners[0, :, :, :2].reshape(-1, 2))
+    v = c["corners_px"]
+    if not isinstance(v, list) or len(v) != n:
+        shown = f"{len(v)} corners" if isinstance(v, list) else v
+        raise InputError.at(path, f"{kp}.corners_px", shown, f"{n} [u, v] pairs, row-major")
+    out = np.empty((n, 2))
+    for j, uv in enumerate(v):
+        if not (
+            isinstance(uv, list)
+            and len(uv) == 2
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in uv)
+        ):
+            raise InputError.at(path, f"{kp}.corners_px[{j}]", uv, "a pixel [u, v] of finite numbers")
+        out[j] = uv
+    if not camera.in_image(out).all():
+        j = int(np.flatnonzero(~camera.in_image(out))[0])
+        raise InputError.at(path, f"{kp}.corners_px[{j}]", out[j].tolist(), "a pixel inside the image")
+    return out
+
+
+def board_points(board: Board) -> FloatArray:
+    """(N, 3) the inner corners in the board frame, row-major: x along a row, y down the
+    columns, z = 0 (the board's plane)."""
+    j, i = np.meshgrid(np.arange(board.height_n), np.arange(board.width_n), indexing="ij")
+    return np.column_stack([i.ravel() * board.spacing_m, j.ravel() * board.spacing_m, np.zeros(i.size)])
+
+
+def board_pose(
+    camera: Camera, board: Board, corners_px: FloatArray, corner_sigma_px: float
+) -> tuple[FloatArray, FloatArray, float]:
+    """T_cam_board by PnP, its (6, 6) covariance over [w, dt] (left perturbation, camera
+    frame) and the corners' RMS reprojection error (px)."""
+    import cv2
+
+    P = board_points(board)
+    b = camera.bearings(corners_px)
+    norm = b[:, :2] / b[:, 2:3]
+    ok, rvec, tvec = cv2.solvePnP(P, norm, np.eye(3), None, flags=cv2.SOLVEPNP_ITERATIVE)
+    if not ok:  # pragma: no cover - PnP on a full board does not fail
+        raise InputError("PnP failed on a board's corners")
+    T = make_T(rotvec_to_R(rvec.ravel()), tvec.ravel())
+
+    def project(x: FloatArray) -> FloatArray:
+        R = rotvec_to_R(x[:3]) @ T[:3, :3]
+        return camera.project(P @ R.T + T[:3, 3] + x[3:]).ravel()
+
+    q0 = project(np.zeros(6))
+    J = np.empty((len(q0), 6))
+    for k in range(6):
+        h = 1e-6
+        dx = np.zeros(6)
+        dx[k] = h
+        J[:, k] = (project(dx) - project(-dx)) / (2 * h)
+    cov = corner_sigma_px**2 * np.linalg.inv(J.T @ J)
+    err = float(np.sqrt(np.mean(np.sum((q0.reshape(-1, 2) - corners_px) ** 2, axis=1))))
+    return T, 0.5 * (cov + cov.T), err
