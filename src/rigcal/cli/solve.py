@@ -141,11 +141,9 @@ def _solve_board(
     from rigcal.io.files import atomic_folder
     from rigcal.rigfile import write_rig
 
-    sigma = (
-        None
-        if click.get_current_context().get_parameter_source("range_sigma_m").name == "DEFAULT"
-        else range_sigma_m
-    )
+    # The session's laser.range_sigma_m applies unless --range-sigma-m was given.
+    source = click.get_current_context().get_parameter_source("range_sigma_m")
+    sigma = range_sigma_m if source is not None and source.name != "DEFAULT" else None
     cal = calibrate_board(session, sigma, truth, command=command, seed=seed)
     if report_dir is not None:
         with atomic_folder(report_dir, force) as tmp:
