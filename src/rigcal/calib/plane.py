@@ -15,7 +15,9 @@ Every such return, mapped into the camera frame, must lie on the plane (Zhang an
    rotation nearest [h1, h2, h1 x h2], t = h3.
 2. **RANSAC over captures** (optional): closed forms from random 5-capture samples,
    scored by the point-to-plane residuals of all captures, so a capture with a wrong
-   plane or wrong returns cannot spoil the start.
+   plane or wrong returns cannot spoil the start. Both starts (all captures, and RANSAC's)
+   are refined, every capture re-classified under the refined pose (chi-square 99.9 %),
+   and the fit that explains most captures is kept.
 3. **Levenberg-Marquardt** of the 6-DoF pose on point-to-plane distances, whitened per
    capture by their covariance (the range noise along each beam projected on the plane's
    normal, plus the plane's own error, which all returns of a capture share through the
@@ -25,6 +27,7 @@ Every such return, mapped into the camera frame, must lie on the plane (Zhang an
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -169,25 +172,25 @@ def solve_plane(
     Raises:
         CalibrationError: too few captures, planes too alike, or no consensus.
     """
+    # Start from the closed form on every capture and, when asked, from RANSAC's best
+    # sample; refine and re-classify each, and keep the one that explains most captures
+    # (then the lowest chi-square). A 5-capture closed form is often poorly conditioned,
+    # so RANSAC alone can settle on a wrong pose that a few captures fit.
+    _check_observable(observations)
+    starts = [(closed_form(observations), np.ones(len(observations), dtype=bool))]
     if use_ransac:
-        T0, mask = ransac_closed_form(observations, seed=seed)
-    else:
-        T0, mask = closed_form(observations), np.ones(len(observations), dtype=bool)
+        with contextlib.suppress(CalibrationError):
+            starts.append(ransac_closed_form(observations, seed=seed))
+    fits = []
+    for T0, mask0 in starts:
+        try:
+            fits.append(_fit_and_classify(T0, mask0, observations, range_sigma_m))
+        except CalibrationError as exc:
+            failure = exc
+    if not fits:
+        raise failure
+    T, mask, _ = max(fits, key=lambda f: (int(f[1].sum()), -f[2]))
     used = [o for o, keep in zip(observations, mask, strict=True) if keep]
-    R0 = T0[:3, :3]
-
-    def pose(x: FloatArray) -> FloatArray:
-        return make_T(rotvec_to_R(x[:3]) @ R0, x[3:])
-
-    W = [_whitener(T0, o, range_sigma_m) for o in used]
-
-    def residuals(x: FloatArray) -> FloatArray:
-        T = pose(x)
-        return np.concatenate([w @ point_to_plane(T, o) for w, o in zip(W, used, strict=True)])
-
-    x0 = np.concatenate([np.zeros(3), T0[:3, 3]])
-    sol = least_squares(residuals, x0, method="lm", x_scale="jac")
-    T = pose(sol.x)
     W = [_whitener(T, o, range_sigma_m) for o in used]
     r, J = _whitened_and_jacobian(T, used, W)
     dof = len(r) - 6
@@ -206,6 +209,57 @@ def solve_plane(
         float(np.sqrt(float(r @ r) / dof)) if dof > 0 else 1.0,
         mask,
     )
+
+
+def _fit_and_classify(
+    T0: FloatArray, mask: NDArray[np.bool_], observations: Sequence[PlaneObservation], range_sigma_m: float
+) -> tuple[FloatArray, NDArray[np.bool_], float]:
+    """Refine on the captures in ``mask``, re-classify every capture under the refined
+    pose, and repeat until stable. Returns (pose, inlier mask, chi-square per dof)."""
+    T = T0
+    for _ in range(5):
+        used = [o for o, keep in zip(observations, mask, strict=True) if keep]
+        if len(used) < MIN_CAPTURES:
+            raise CalibrationError(
+                f"only {len(used)} captures agree with the calibration; the plane method needs "
+                f"{MIN_CAPTURES} (check the segment ids and corners of the others)"
+            )
+        T = _refine(T, used, range_sigma_m)
+        # Every capture's whitened residuals must be plausible for its number of returns
+        # (chi-square 99.9 %).
+        new = np.array([_capture_chi2_ok(T, o, range_sigma_m) for o in observations])
+        if np.array_equal(new, mask):
+            break
+        mask = new
+    used = [o for o, keep in zip(observations, mask, strict=True) if keep]
+    z = np.concatenate([_whitener(T, o, range_sigma_m) @ point_to_plane(T, o) for o in used])
+    return T, mask, float(z @ z) / max(len(z) - 6, 1)
+
+
+def _refine(T0: FloatArray, used: Sequence[PlaneObservation], range_sigma_m: float) -> FloatArray:
+    """Levenberg-Marquardt on the whitened point-to-plane distances from T0 (step 3)."""
+    R0 = T0[:3, :3]
+
+    def pose(x: FloatArray) -> FloatArray:
+        return make_T(rotvec_to_R(x[:3]) @ R0, x[3:])
+
+    W = [_whitener(T0, o, range_sigma_m) for o in used]
+
+    def residuals(x: FloatArray) -> FloatArray:
+        T = pose(x)
+        return np.concatenate([w @ point_to_plane(T, o) for w, o in zip(W, used, strict=True)])
+
+    x0 = np.concatenate([np.zeros(3), T0[:3, 3]])
+    sol = least_squares(residuals, x0, method="lm", x_scale="jac")
+    return pose(sol.x)
+
+
+def _capture_chi2_ok(T: FloatArray, o: PlaneObservation, range_sigma_m: float) -> bool:
+    """Whether a capture's whitened residuals fit its noise (chi-square 99.9 %, M dof)."""
+    from scipy.stats import chi2
+
+    z = _whitener(T, o, range_sigma_m) @ point_to_plane(T, o)
+    return bool(float(z @ z) < chi2.ppf(0.999, len(z)))
 
 
 def _whitener(T: FloatArray, o: PlaneObservation, range_sigma_m: float) -> FloatArray:
