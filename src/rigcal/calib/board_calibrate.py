@@ -57,7 +57,8 @@ def calibrate_board(
     """
     T_truth = read_truth(truth_path) if truth_path is not None else None
     session = read_board_session(path)
-    sigma = range_sigma_m or float(session.laser.get("range_sigma_m", DEFAULT_RANGE_SIGMA_M))
+    # A noise-free (simulated) scanner still gets a floor, so the whitening stays finite.
+    sigma = max(range_sigma_m or float(session.laser.get("range_sigma_m", DEFAULT_RANGE_SIGMA_M)), 1e-4)
     result = solve_plane(session.observations, range_sigma_m=sigma, seed=seed)
     report = board_report(session, result, T_truth)
     s = report["summary"]

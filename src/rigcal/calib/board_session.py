@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from rigcal.calib.intrinsics import Board, detect_corners
 from rigcal.calib.lines import extract_lines
-from rigcal.calib.picks import _beams_near, _file, _pairs, line_params_for
+from rigcal.calib.picks import _beams_near, _check_image, _file, _pairs, line_params_for
 from rigcal.calib.plane import PlaneObservation
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import InputError
@@ -71,7 +71,7 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
     Args:
         path: the session file.
         corner_sigma_px: noise of a board corner in the image (for the board pose's
-            covariance).
+            covariance), unless the file's ``board.corner_sigma_px`` gives it.
 
     Raises:
         InputError: anything missing, unreadable or invalid, naming the file, key and value.
@@ -85,9 +85,15 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         ["laser", "name"],
     )
     check_schema_version(d, path, BOARD_SESSION_SCHEMA_VERSION)
+    if d["method"] != "board":
+        raise InputError.at(
+            path, "method", d["method"], "'board' (a box-target picking file has no method key)"
+        )
     camera_path = _file(path, "camera", d["camera"])
     camera = read_camera(camera_path)
-    b = check_keys(d["board"], path, "board", ["corners_x", "corners_y", "spacing_m"])
+    b = check_keys(d["board"], path, "board", ["corners_x", "corners_y", "spacing_m"], ["corner_sigma_px"])
+    if "corner_sigma_px" in b:
+        corner_sigma_px = get_float(b, "corner_sigma_px", path, "board", positive=True)
     for key in ("corners_x", "corners_y"):
         v = b[key]
         if isinstance(v, bool) or not isinstance(v, int) or v < 2:
@@ -129,6 +135,10 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
             pts = np.array(segments[sid].points)
         else:
             ends = _pairs(side["points"], path, f"{key}.points", "laser point")
+            if np.linalg.norm(ends[0] - ends[1]) < 0.05:
+                raise InputError.at(
+                    path, f"{key}.points", ends.tolist(), "two distinct ends at least 5 cm apart"
+                )
             beams = _beams_near(scan, ends)
             if len(beams) < 2:
                 raise InputError.at(
@@ -173,6 +183,7 @@ def _corners(path: Path, kp: str, c: Any, board: Board, camera: Camera, files: l
         )
     if "image" in c:
         image = _file(path, f"{kp}.image", c["image"])
+        _check_image(path, f"{kp}.image", c["image"], image, camera)
         files.append(image)
         det = detect_corners([image], board)
         if not det.paths:

@@ -121,8 +121,8 @@ def line_params_for(path: Path | None, laser: dict[str, Any]) -> LineParams:
     if "range_sigma_m" not in laser:
         return LineParams()
     sigma = laser["range_sigma_m"]
-    if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not 0 < sigma < 1:
-        raise InputError.at(path, "laser.range_sigma_m", sigma, "a range noise in metres, 0 < sigma < 1")
+    if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not 0 <= sigma < 1:
+        raise InputError.at(path, "laser.range_sigma_m", sigma, "a range noise in metres, 0 <= sigma < 1")
     return LineParams.for_range_noise(float(sigma))
 
 

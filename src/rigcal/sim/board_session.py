@@ -208,7 +208,8 @@ def board_session_text(session: SimBoardSession, camera_file: str = "camera.yaml
         "method: board",
         f"name: simulated board session, seed {spec.seed}",
         f"camera: {camera_file}",
-        f"board: {{corners_x: {b.width_n}, corners_y: {b.height_n}, spacing_m: {b.spacing_m:g}}}",
+        f"board: {{corners_x: {b.width_n}, corners_y: {b.height_n}, spacing_m: {b.spacing_m:g}, "
+        f"corner_sigma_px: {max(spec.corner_sigma_px, 0.01):g}}}",
         "laser:",
         "  name: simulated 2D scanner (Hokuyo UTM-30LX-like)",
         f"  angle_increment_deg: {spec.angle_increment_deg:g}",

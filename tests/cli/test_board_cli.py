@@ -1,0 +1,156 @@
+"""`rigcal simulate board-session` and `rigcal solve` on board sessions through the command line."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from rigcal.cli.main import main
+from rigcal.rigfile import read_rig
+
+
+def run(capsys, *args: str) -> tuple[int, str, str]:
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def session_dir(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("cli") / "board"
+    assert main(["simulate", "board-session", "-o", str(folder), "--seed", "4", "--captures", "8"]) == 0
+    return folder
+
+
+@pytest.fixture
+def copy(session_dir, tmp_path) -> Path:
+    """A writable copy of the simulated session; returns its board session file."""
+    folder = tmp_path / "board"
+    shutil.copytree(session_dir, folder)
+    return folder / "board_session.yaml"
+
+
+def edit(path: Path, change) -> Path:
+    doc = yaml.safe_load(path.read_text())
+    change(doc)
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def test_simulate_writes_a_board_session(session_dir):
+    assert {p.name for p in session_dir.iterdir()} == {
+        "camera.yaml",
+        "scans",
+        "board_session.yaml",
+        "truth.yaml",
+    }
+    doc = yaml.safe_load((session_dir / "board_session.yaml").read_text())
+    assert doc["method"] == "board"
+    assert [c["name"] for c in doc["captures"]] == [f"cap{i:02d}" for i in range(8)]
+    assert yaml.safe_load((session_dir / "truth.yaml").read_text())["generator"]["seed"] == 4
+
+
+def test_solve_board_session_writes_rig_and_report(session_dir, tmp_path, capsys):
+    rig, rep = tmp_path / "rig.yaml", tmp_path / "report"
+    code, out, err = run(
+        capsys,
+        "solve",
+        session_dir / "board_session.yaml",
+        "-o",
+        rig,
+        "--truth",
+        session_dir / "truth.yaml",
+        "--report",
+        rep,
+    )
+    assert code == 0, err
+    assert "point-to-plane error" in out
+    assert "error against truth" in out
+    assert "captures 8/8 used" in out
+    r = read_rig(rig)
+    assert r.covariance is not None
+    assert r.covariance.shape == (6, 6)
+    assert "board" in r.provenance["method"]
+    assert {p.name for p in rep.iterdir()} == {"report.yaml", "report.json", "report.txt"}
+    assert (rep / "report.txt").read_text() == out
+    doc = json.loads((rep / "report.json").read_text())
+    assert doc["summary"]["captures"] == 8
+    assert yaml.safe_load((rep / "report.yaml").read_text()) == doc
+
+
+def test_solve_board_session_json(session_dir, tmp_path, capsys):
+    code, out, _ = run(
+        capsys, "solve", session_dir / "board_session.yaml", "-o", tmp_path / "r.yaml", "--json"
+    )
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["summary"]["method"] == "board"
+    assert len(doc["per_capture"]) == 8
+    assert doc["rig_file"].endswith("r.yaml")
+    assert "truth" not in doc
+
+
+def test_range_sigma_option_overrides_the_sessions(session_dir, tmp_path, capsys):
+    rig = tmp_path / "r.yaml"
+    code, _, _ = run(
+        capsys, "solve", session_dir / "board_session.yaml", "-o", rig, "--range-sigma-m", "0.02"
+    )
+    assert code == 0
+    assert read_rig(rig).provenance["noise"] == {"range_sigma_m": 0.02}
+
+
+def test_four_captures_exit_4(copy, tmp_path, capsys):
+    edit(copy, lambda d: d.update(captures=d["captures"][:4]))
+    rig = tmp_path / "rig.yaml"
+    code, out, err = run(capsys, "solve", copy, "-o", rig)
+    assert code == 4
+    assert "at least 5" in err
+    assert out == ""
+    assert not rig.exists()
+
+
+def test_parallel_boards_exit_4_and_name_the_captures(copy, tmp_path, capsys):
+    def same_corners(d):
+        for c in d["captures"]:
+            c["corners_px"] = d["captures"][0]["corners_px"]
+
+    edit(copy, same_corners)
+    rig = tmp_path / "rig.yaml"
+    code, _, err = run(capsys, "solve", copy, "-o", rig)
+    assert code == 4
+    assert "parallel" in err
+    for i in range(8):
+        assert f"cap{i:02d}" in err
+    assert not rig.exists()
+
+
+def test_bad_file_exits_3_and_writes_nothing(copy, tmp_path, capsys):
+    edit(copy, lambda d: d["captures"][2].update(laser_side={"segment": 999}))
+    rig, rep = tmp_path / "rig.yaml", tmp_path / "report"
+    code, out, err = run(capsys, "solve", copy, "-o", rig, "--report", rep)
+    assert code == 3
+    assert err.count("\n") == 1
+    assert "captures[2].laser_side.segment" in err
+    assert "999" in err
+    assert out == ""
+    assert not rig.exists()
+    assert not rep.exists()
+
+
+def test_simulate_refuses_an_existing_folder_without_force(tmp_path, capsys):
+    folder = tmp_path / "board"
+    folder.mkdir()
+    (folder / "keep.txt").write_text("keep me")
+    args = ["simulate", "board-session", "-o", folder, "--captures", "5"]
+    code, _, err = run(capsys, *args)
+    assert code == 5
+    assert "--force" in err
+    assert [p.name for p in folder.iterdir()] == ["keep.txt"]
+    code, _, _ = run(capsys, *args, "--force")
+    assert code == 0
+    assert (folder / "board_session.yaml").is_file()
+    assert not (folder / "keep.txt").exists()
