@@ -479,3 +479,38 @@ def test_missing_image_file(session):
     edit(session, lambda d: d["captures"][1].pop("corners_px"))
     edit_capture(session, 1, image="nope.png")
     expect_error(session, "captures[1].image", "'nope.png'")
+
+
+def test_auto_laser_side_finds_every_boards_segment(tmp_path):
+    """`laser_side: auto` picks, in every capture, the segment the simulator put on the board."""
+    import re
+
+    from rigcal.calib.lines import LineParams, extract_lines
+    from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
+
+    sim = generate_board_session(BoardSpec(n_captures=10, seed=5))
+    folder = write_board_session(sim, tmp_path / "auto")
+    f = folder / "board_session.yaml"
+    f.write_text(re.sub(r"laser_side: \{segment: \d+\}", "laser_side: auto", f.read_text()))
+    session = read_board_session(f)
+    params = LineParams.for_range_noise(sim.spec.range_sigma_m)
+    for o, c in zip(session.observations, sim.captures, strict=True):
+        true_points = np.array(extract_lines(c.scan, params)[c.segment_id].points)
+        np.testing.assert_array_equal(o.points_laser, true_points)
+
+
+def test_auto_laser_side_without_a_board_sized_segment_is_refused(tmp_path):
+    import re
+
+    from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
+
+    sim = generate_board_session(BoardSpec(n_captures=6, seed=6))
+    folder = write_board_session(sim, tmp_path / "s")
+    f = folder / "board_session.yaml"
+    f.write_text(re.sub(r"laser_side: \{segment: \d+\}", "laser_side: auto", f.read_text(), count=1))
+    scan = folder / "scans" / "cap00.yaml"
+    doc = yaml.safe_load(scan.read_text())
+    doc["ranges_m"] = [0.0] * len(doc["ranges_m"])
+    scan.write_text(yaml.safe_dump(doc))
+    with pytest.raises(InputError, match=r"captures\[0\]\.laser_side: got 'auto'.*none found"):
+        read_board_session(f)

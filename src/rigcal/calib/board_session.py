@@ -24,7 +24,7 @@ from rigcal.calib.lines import extract_lines
 from rigcal.calib.picks import _beams_near, _check_image, _file, _pairs, line_params_for
 from rigcal.calib.plane import PlaneObservation
 from rigcal.camera import Camera, read_camera
-from rigcal.errors import InputError
+from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import make_T, rotvec_to_R
 from rigcal.io.files import check_keys, check_schema_version, get_float, load_yaml
 from rigcal.scan import read_scan
@@ -106,7 +106,11 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
     captures = d["captures"]
     if not isinstance(captures, list) or not captures:
         raise InputError.at(path, "captures", captures, "a non-empty list of captures")
-    obs, poses, rms, files = [], [], [], [path, camera_path]
+    obs: list[PlaneObservation] = []
+    poses: list[FloatArray] = []
+    rms: list[float] = []
+    files = [path, camera_path]
+    auto: dict[int, list[FloatArray]] = {}
     for i, c in enumerate(captures):
         kp = f"captures[{i}]"
         c = check_keys(c, path, kp, ["scan", "laser_side"], ["name", "corners_px", "image"])
@@ -120,9 +124,22 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         scan = read_scan(scan_path)
         side = c["laser_side"]
         key = f"{kp}.laser_side"
-        if not isinstance(side, dict) or len(side) != 1 or next(iter(side)) not in ("segment", "points"):
-            raise InputError.at(path, key, side, "either {segment: ID} or {points: [[x1, y1], [x2, y2]]}")
-        if "segment" in side:
+        if side == "auto":
+            candidates = [
+                np.array(g.points) for g in extract_lines(scan, params) if _board_sized(g.length_m, board)
+            ]
+            if not candidates:
+                raise InputError.at(
+                    path,
+                    key,
+                    side,
+                    "a scan with a segment as long as the board's cut (none found; give the segment)",
+                )
+            auto[len(obs)] = candidates
+            pts = candidates[0]
+        elif not isinstance(side, dict) or len(side) != 1 or next(iter(side)) not in ("segment", "points"):
+            raise InputError.at(path, key, side, "auto, {segment: ID} or {points: [[x1, y1], [x2, y2]]}")
+        elif "segment" in side:
             segments = extract_lines(scan, params)
             sid = side["segment"]
             if not (isinstance(sid, int) and not isinstance(sid, bool) and 0 <= sid < len(segments)):
@@ -157,6 +174,8 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         )
         poses.append(T)
         rms.append(err)
+    if auto:
+        obs = _choose_board_returns(path, obs, auto)
     names = [o.name for o in obs]
     for i, nme in enumerate(names):
         if names.index(nme) != i:
@@ -172,6 +191,33 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         np.array(rms),
         tuple(files),
     )
+
+
+def _board_sized(length_m: float, board: Board) -> bool:
+    """Whether a segment could be the board's cut with the scan plane: at least a fifth
+    of the board's width, at most its diagonal with a square's margin all round."""
+    w = (board.width_n + 1) * board.spacing_m
+    h = (board.height_n + 1) * board.spacing_m
+    return 0.2 * w <= length_m <= float(np.hypot(w, h))
+
+
+def _choose_board_returns(
+    path: Path, obs: list[PlaneObservation], auto: dict[int, list[FloatArray]]
+) -> list[PlaneObservation]:
+    """Replace the returns of ``laser_side: auto`` captures by the candidate segment that
+    lies on the capture's board plane under a consensus calibration."""
+    from dataclasses import replace
+
+    from rigcal.calib.plane import choose_candidates
+
+    candidates = [auto.get(i, [o.points_laser]) for i, o in enumerate(obs)]
+    try:
+        chosen = choose_candidates([(o.normal_cam, o.distance_m) for o in obs], candidates)
+    except CalibrationError as exc:
+        raise CalibrationError(f"{path}: laser_side auto: {exc}") from None
+    return [
+        replace(o, points_laser=candidates[i][k]) for i, (o, k) in enumerate(zip(obs, chosen, strict=True))
+    ]
 
 
 def _corners(path: Path, kp: str, c: Any, board: Board, camera: Camera, files: list[Path]) -> FloatArray:

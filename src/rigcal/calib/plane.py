@@ -120,6 +120,68 @@ def closed_form(observations: Sequence[PlaneObservation]) -> FloatArray:
     return make_T(R, t)
 
 
+def choose_candidates(
+    planes: Sequence[tuple[FloatArray, float]],
+    candidates: Sequence[Sequence[FloatArray]],
+    threshold_m: float = 0.03,
+    iterations: int = 20000,
+    seed: int = 0,
+) -> list[int]:
+    """For each capture, which of its candidate laser segments lies on its board plane.
+
+    RANSAC over captures and candidates: draw MIN_CAPTURES captures and one candidate of
+    each, solve the closed form, and count the captures that have a candidate within
+    ``threshold_m`` RMS of their plane; the hypothesis with most such captures (then the
+    lowest summed RMS) picks each capture's closest candidate. Captures with one candidate
+    (given segments) take part as they are.
+
+    Args:
+        planes: per capture, (unit normal (3,), distance m) of its board in the camera frame.
+        candidates: per capture, a list of (M, 2) laser point sets.
+
+    Raises:
+        CalibrationError: fewer than MIN_CAPTURES captures agree on any hypothesis.
+    """
+    rng = np.random.default_rng(seed)
+    C = len(planes)
+    if C < MIN_CAPTURES:
+        raise CalibrationError(f"{C} captures; at least {MIN_CAPTURES} are needed")
+    obs_all = [
+        [
+            PlaneObservation(i, str(i), np.asarray(planes[i][0], dtype=float), float(planes[i][1]), p)
+            for p in cands
+        ]
+        for i, cands in enumerate(candidates)
+    ]
+    best: tuple[int, float] = (-1, np.inf)
+    best_T: FloatArray | None = None
+    for _ in range(iterations):
+        idx = rng.choice(C, size=MIN_CAPTURES, replace=False)
+        sample = [obs_all[i][int(rng.integers(len(obs_all[i])))] for i in idx]
+        normals = np.array([o.normal_cam for o in sample])
+        s = np.linalg.svd(normals, compute_uv=False)
+        if s[2] < MIN_NORMAL_SPREAD * s[0]:
+            continue
+        T = closed_form(sample)
+        rms = np.array(
+            [min(float(np.sqrt(np.mean(point_to_plane(T, o) ** 2))) for o in obs_all[i]) for i in range(C)]
+        )
+        score = (int((rms < threshold_m).sum()), -float(np.minimum(rms, threshold_m).sum()))
+        if (score[0], score[1]) > (best[0], -best[1]):
+            best, best_T = (score[0], -score[1]), T
+        if best[0] == C:
+            break
+    if best_T is None or best[0] < MIN_CAPTURES:
+        raise CalibrationError(
+            f"no calibration puts the returns of {MIN_CAPTURES} or more captures on their boards; "
+            "give the board's segment ids (`rigcal lines`)"
+        )
+    T = best_T
+    return [
+        int(np.argmin([np.sqrt(np.mean(point_to_plane(T, o) ** 2)) for o in obs_all[i]])) for i in range(C)
+    ]
+
+
 def point_to_plane(T: FloatArray, o: PlaneObservation) -> FloatArray:
     """(M,) signed distances of the capture's returns from its plane, metres."""
     p = np.column_stack([o.points_laser, np.zeros(len(o.points_laser))]) @ T[:3, :3].T + T[:3, 3]
