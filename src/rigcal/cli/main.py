@@ -15,6 +15,7 @@ import click
 from rigcal import __version__
 from rigcal.cli import check as check_cmd
 from rigcal.cli import export as export_cmd
+from rigcal.cli import import_bag as import_bag_cmd
 from rigcal.cli import intrinsics as intrinsics_cmd
 from rigcal.cli import lines as lines_cmd
 from rigcal.cli import project as project_cmd
@@ -47,6 +48,7 @@ cli.add_command(simulate_cmd.simulate)
 cli.add_command(check_cmd.check)
 cli.add_command(export_cmd.export)
 cli.add_command(intrinsics_cmd.intrinsics)
+cli.add_command(import_bag_cmd.import_bag)
 
 
 def main(argv: list[str] | None = None) -> int:

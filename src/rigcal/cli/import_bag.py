@@ -1,0 +1,57 @@
+"""``rigcal import-bag``: a ROS 1 or ROS 2 bag into a sequence folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command("import-bag")
+@click.argument("bag", type=click.Path(path_type=Path))
+@click.option("--scan-topic", required=True, help="sensor_msgs/LaserScan topic.")
+@click.option("--image-topic", required=True, help="sensor_msgs/Image or CompressedImage topic.")
+@click.option("--camera-info-topic", help="sensor_msgs/CameraInfo topic: also write camera.yaml.")
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Sequence folder."
+)
+@click.option("--force", is_flag=True, help="Replace an existing folder.")
+def import_bag(
+    bag: Path, scan_topic: str, image_topic: str, camera_info_topic: str | None, output: Path, force: bool
+) -> None:
+    """Write the scans, images (and camera) of BAG as a sequence folder (docs/formats/sequence.md).
+
+    Works on ROS 1 (.bag) and ROS 2 (folder with metadata.yaml) bags through the rosbags
+    package; no ROS installation is needed.
+
+    \b
+    Examples:
+      rigcal import-bag run1.bag --scan-topic /scan --image-topic /camera/image_raw -o run1/
+      rigcal import-bag run2/ --scan-topic /scan --image-topic /cam/image/compressed \\
+          --camera-info-topic /cam/camera_info -o run2-seq/ --force
+    """
+    from rigcal.errors import OutputError
+    from rigcal.io.bag import import_bag as run
+
+    if output.exists() and not force:
+        raise OutputError(f"{output}: exists; pass --force to replace it")
+    counter = {"n": 0}
+
+    def tick(k: int) -> None:
+        if k % 500 == 0:
+            click.echo(f"\r{k} messages", err=True, nl=False)
+        counter["n"] = k + 1
+
+    s = run(bag, output, scan_topic, image_topic, camera_info_topic, force=force, progress=tick)
+    click.echo(f"\r{counter['n']} messages", err=True)
+    notes = []
+    for what in ("scans", "images"):
+        if s.reordered.get(what):
+            notes.append(f"{s.reordered[what]} {what} out of order (sorted)")
+        if s.duplicates.get(what):
+            notes.append(f"{s.duplicates[what]} {what} with a repeated stamp (dropped)")
+    click.echo(
+        f"wrote {output}/: {s.scans} scans, {s.images} images"
+        + (", camera.yaml" if s.camera else "")
+        + ("; " + "; ".join(notes) if notes else "")
+    )

@@ -1,0 +1,187 @@
+"""Sequence folders: time-stamped scans and images of a drive (docs/formats/sequence.md).
+
+The input of the localization pipeline and the output of ``rigcal import-bag``::
+
+    SEQUENCE/
+      sequence.yaml     schema_version, name, where it came from, the streams
+      scans.npz         every scan: stamps_s (N,), ranges_m (N, B) (NaN-padded),
+                        n_beams, angle_min_rad, angle_increment_rad, range_min_m, range_max_m (N,)
+      images/           one image file per frame
+      images.csv        stamp_s,file per line, in time order
+      camera.yaml       the camera, when the source had it (rigcal camera file)
+
+Stamps are seconds, increasing within each stream. :func:`write_sequence` writes a whole
+folder atomically; :func:`read_sequence` validates it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from rigcal.errors import InputError
+from rigcal.io.files import atomic_folder, check_keys, check_schema_version, load_yaml
+from rigcal.scan import Scan
+
+FloatArray = NDArray[np.float64]
+
+SEQUENCE_SCHEMA_VERSION = 1
+SCAN_KEYS = (
+    "stamps_s",
+    "ranges_m",
+    "n_beams",
+    "angle_min_rad",
+    "angle_increment_rad",
+    "range_min_m",
+    "range_max_m",
+)
+
+
+@dataclass(frozen=True)
+class ImageFrame:
+    """One image: its stamp (s), its file name inside images/, and its encoded bytes."""
+
+    stamp_s: float
+    name: str
+    data: bytes = field(repr=False)
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """A sequence in memory (as read: image bytes are not loaded)."""
+
+    folder: Path | None
+    name: str
+    scans: tuple[Scan, ...]
+    image_stamps_s: FloatArray
+    image_files: tuple[str, ...]
+    camera_file: str | None
+    source: dict[str, Any]
+
+
+def write_sequence(
+    folder: str | Path,
+    name: str,
+    scans: list[Scan],
+    images: list[ImageFrame],
+    camera_yaml: str | None,
+    source: dict[str, Any],
+    force: bool = False,
+) -> Path:
+    """Write a sequence folder atomically (refuses an existing folder unless ``force``)."""
+    B = max((len(s.ranges_m) for s in scans), default=0)
+    ranges = np.full((len(scans), B), np.nan)
+    for i, s in enumerate(scans):
+        ranges[i, : len(s.ranges_m)] = s.ranges_m
+    arrays = {
+        "stamps_s": np.array([s.stamp_s if s.stamp_s is not None else np.nan for s in scans]),
+        "ranges_m": ranges,
+        "n_beams": np.array([len(s.ranges_m) for s in scans], dtype=np.int64),
+        "angle_min_rad": np.array([s.angles_rad[0] for s in scans]),
+        "angle_increment_rad": np.array([s.angle_increment_rad or 0.0 for s in scans]),
+        "range_min_m": np.array([s.range_min_m for s in scans]),
+        "range_max_m": np.array([s.range_max_m for s in scans]),
+    }
+    doc: dict[str, Any] = {
+        "schema_version": SEQUENCE_SCHEMA_VERSION,
+        "name": name,
+        "source": source,
+        "scans": {"file": "scans.npz", "count": len(scans)},
+        "images": {"folder": "images", "index": "images.csv", "count": len(images)},
+    }
+    if camera_yaml is not None:
+        doc["camera"] = "camera.yaml"
+    with atomic_folder(folder, force) as tmp:
+        np.savez_compressed(tmp / "scans.npz", **arrays)  # type: ignore[arg-type]
+        (tmp / "images").mkdir()
+        rows = []
+        for im in images:
+            (tmp / "images" / im.name).write_bytes(im.data)
+            rows.append(f"{im.stamp_s!r},{im.name}")
+        (tmp / "images.csv").write_text("stamp_s,file\n" + "".join(r + "\n" for r in rows), encoding="utf-8")
+        if camera_yaml is not None:
+            (tmp / "camera.yaml").write_text(camera_yaml, encoding="utf-8")
+        (tmp / "sequence.yaml").write_text(
+            "# rigcal sequence (docs/formats/sequence.md)\n" + yaml.safe_dump(doc, sort_keys=False),
+            encoding="utf-8",
+        )
+    return Path(folder)
+
+
+def read_sequence(folder: str | Path) -> Sequence:
+    """Read and validate a sequence folder.
+
+    Raises:
+        InputError: a missing or malformed file, naming it and the key or line.
+    """
+    folder = Path(folder)
+    path = folder / "sequence.yaml"
+    d = check_keys(
+        load_yaml(path, "sequence file"),
+        path,
+        "",
+        ["schema_version", "name", "scans", "images"],
+        ["source", "camera", "rig"],
+    )
+    check_schema_version(d, path, SEQUENCE_SCHEMA_VERSION)
+    sc = check_keys(d["scans"], path, "scans", ["file", "count"])
+    npz = folder / str(sc["file"])
+    try:
+        with np.load(npz) as z:
+            arrays = {k: np.array(z[k]) for k in SCAN_KEYS}
+    except FileNotFoundError:
+        raise InputError(f"{npz}: scans file not found") from None
+    except (KeyError, ValueError, OSError) as exc:
+        raise InputError(f"{npz}: not a scans file with arrays {list(SCAN_KEYS)}: {exc}") from None
+    n = len(arrays["stamps_s"])
+    if n != sc["count"]:
+        raise InputError.at(path, "scans.count", sc["count"], f"{n}, the number of scans in {npz.name}")
+    scans = []
+    for i in range(n):
+        nb = int(arrays["n_beams"][i])
+        scans.append(
+            Scan.from_uniform(
+                float(arrays["angle_min_rad"][i]),
+                float(arrays["angle_increment_rad"][i]),
+                arrays["ranges_m"][i, :nb],
+                float(arrays["range_min_m"][i]),
+                float(arrays["range_max_m"][i]),
+                stamp_s=float(arrays["stamps_s"][i]),
+            )
+        )
+    im = check_keys(d["images"], path, "images", ["folder", "index", "count"])
+    index = folder / str(im["index"])
+    stamps, files = _read_index(index)
+    if len(files) != im["count"]:
+        raise InputError.at(path, "images.count", im["count"], f"{len(files)}, the rows of {index.name}")
+    for f in files:
+        if not (folder / str(im["folder"]) / f).is_file():
+            raise InputError(f"{index}: image {f} not found in {folder / str(im['folder'])}")
+    return Sequence(
+        folder, str(d["name"]), tuple(scans), stamps, tuple(files), d.get("camera"), d.get("source", {})
+    )
+
+
+def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
+    try:
+        lines = index.read_text(encoding="utf-8").splitlines()
+    except FileNotFoundError:
+        raise InputError(f"{index}: image index not found") from None
+    if not lines or lines[0].strip() != "stamp_s,file":
+        raise InputError(f"{index}: line 1: expected the header 'stamp_s,file'")
+    stamps, files = [], []
+    for n, line in enumerate(lines[1:], start=2):
+        parts = line.split(",")
+        try:
+            stamps.append(float(parts[0]))
+            files.append(parts[1].strip())
+        except (ValueError, IndexError):
+            raise InputError(f"{index}: line {n}: got {line[:60]!r}; expected 'stamp_s,file'") from None
+        if len(stamps) > 1 and stamps[-1] <= stamps[-2]:
+            raise InputError(f"{index}: line {n}: stamp {stamps[-1]!r} not after {stamps[-2]!r}")
+    return np.array(stamps), files
