@@ -514,3 +514,31 @@ def test_auto_laser_side_without_a_board_sized_segment_is_refused(tmp_path):
     scan.write_text(yaml.safe_dump(doc))
     with pytest.raises(InputError, match=r"captures\[0\]\.laser_side: got 'auto'.*none found"):
         read_board_session(f)
+
+
+def test_corners_from_a_corners_vnl_file_give_the_same_planes(tmp_path):
+    """A session whose captures name images listed in a mrcal corners.vnl file reads its
+    corners from there, exactly as if they were listed inline."""
+    sim = generate_board_session(BoardSpec(n_captures=6, seed=8))
+    folder = write_board_session(sim, tmp_path / "s")
+    f = folder / "board_session.yaml"
+    doc = yaml.safe_load(f.read_text())
+    rows = ["# filename x y level"]
+    for c in doc["captures"]:
+        rows += [f"{c['name']}.png {u} {v} 0" for u, v in c.pop("corners_px")]
+        c["image"] = f"images/{c['name']}.png"
+    (folder / "corners.vnl").write_text("\n".join(rows) + "\n")
+    doc["corners_vnl"] = "corners.vnl"
+    inline = read_board_session(f)
+    f2 = folder / "vnl_session.yaml"
+    f2.write_text(yaml.safe_dump(doc))
+    from_vnl = read_board_session(f2)
+    for a, b in zip(inline.observations, from_vnl.observations, strict=True):
+        np.testing.assert_allclose(a.normal_cam, b.normal_cam, atol=1e-9)
+        assert a.distance_m == pytest.approx(b.distance_m, abs=1e-9)
+    doc["captures"][2]["image"] = "images/other.png"
+    f2.write_text(yaml.safe_dump(doc))
+    with pytest.raises(
+        InputError, match=r"captures\[2\]\.image: got 'images/other.png'; expected an image listed"
+    ):
+        read_board_session(f2)

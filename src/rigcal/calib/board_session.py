@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.intrinsics import Board, detect_corners
+from rigcal.calib.intrinsics import Board, detect_corners, read_corners_vnl
 from rigcal.calib.lines import extract_lines
 from rigcal.calib.picks import _beams_near, _check_image, _file, _pairs, line_params_for
 from rigcal.calib.plane import PlaneObservation
@@ -82,7 +82,7 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         path,
         "",
         ["schema_version", "method", "camera", "board", "captures"],
-        ["laser", "name"],
+        ["laser", "name", "corners_vnl"],
     )
     check_schema_version(d, path, BOARD_SESSION_SCHEMA_VERSION)
     if d["method"] != "board":
@@ -110,6 +110,12 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
     poses: list[FloatArray] = []
     rms: list[float] = []
     files = [path, camera_path]
+    vnl: dict[str, FloatArray] | None = None
+    if "corners_vnl" in d:
+        vnl_path = _file(path, "corners_vnl", d["corners_vnl"])
+        files.append(vnl_path)
+        det = read_corners_vnl(vnl_path, board, (camera.width_px, camera.height_px))
+        vnl = {Path(p).name: g for p, g in zip(det.paths, det.corners, strict=True)}
     auto: dict[int, list[FloatArray]] = {}
     for i, c in enumerate(captures):
         kp = f"captures[{i}]"
@@ -119,7 +125,7 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
             raise InputError.at(path, f"{kp}.name", name, "a non-empty string")
         scan_path = _file(path, f"{kp}.scan", c["scan"])
         files.append(scan_path)
-        corners = _corners(path, kp, c, board, camera, files)
+        corners = _corners(path, kp, c, board, camera, files, vnl)
         T, cov, err = board_pose(camera, board, corners, corner_sigma_px)
         scan = read_scan(scan_path)
         side = c["laser_side"]
@@ -220,13 +226,34 @@ def _choose_board_returns(
     ]
 
 
-def _corners(path: Path, kp: str, c: Any, board: Board, camera: Camera, files: list[Path]) -> FloatArray:
-    """(N, 2) the board's corners in the image, row-major (corners_x per row)."""
+def _corners(
+    path: Path,
+    kp: str,
+    c: Any,
+    board: Board,
+    camera: Camera,
+    files: list[Path],
+    vnl: dict[str, FloatArray] | None,
+) -> FloatArray:
+    """(N, 2) the board's corners in the image, row-major (corners_x per row): listed, or
+    from the session's corners file for this image's name, or detected in the image."""
     n = board.width_n * board.height_n
     if ("corners_px" in c) == ("image" in c):
         raise InputError.at(
             path, kp, sorted(c), "exactly one of corners_px (listed corners) or image (detect them)"
         )
+    if "image" in c and vnl is not None:
+        name = Path(str(c["image"])).name
+        if name not in vnl:
+            raise InputError.at(
+                path, f"{kp}.image", c["image"], "an image listed with a board in corners_vnl"
+            )
+        grid = vnl[name]
+        if (grid[..., 2] <= 0).any():
+            raise InputError.at(
+                path, f"{kp}.image", c["image"], "an image whose corners are all detected in corners_vnl"
+            )
+        return np.array(grid[..., :2].reshape(-1, 2))
     if "image" in c:
         image = _file(path, f"{kp}.image", c["image"])
         _check_image(path, f"{kp}.image", c["image"], image, camera)
