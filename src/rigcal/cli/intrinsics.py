@@ -76,7 +76,7 @@ def intrinsics(
     force: bool,
     as_json: bool,
 ) -> None:
-    """Calibrate a camera's intrinsics from IMAGES of a chessboard.
+    """Calibrate a camera's intrinsics from IMAGES of a chessboard or ChArUco board.
 
     Corners are found with OpenCV (or read from --corners), and the lens model is fitted by
     mrcal with outlier rejection. Writes a mrcal .cameramodel (which rig files and picking

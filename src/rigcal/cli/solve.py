@@ -71,12 +71,13 @@ def solve(
     force: bool,
     as_json: bool,
 ) -> None:
-    """Solve T_cam_laser from a box-target session's picking file.
+    """Solve T_cam_laser from a box-target picking file or a board session.
 
-    Runs the paper's Algorithm 1: line extraction, RANSAC over P3P + Horn hypotheses,
-    Levenberg-Marquardt refinement with covariance. Writes the rig file, and with --report
-    a folder with report.yaml/json/txt and one overlay PNG per capture. Prints the residual
-    table (or JSON) on stdout.
+    For a box-target picking file, runs the paper's Algorithm 1: line extraction, RANSAC
+    over P3P + Horn hypotheses, Levenberg-Marquardt refinement with covariance. For a board
+    session (method: board) runs the plane method (docs/formats/board-session.md). Writes
+    the rig file, and with --report a folder with report.yaml/json/txt (and, for the box
+    method, one overlay PNG per capture). Prints the residual table (or JSON) on stdout.
 
     \b
     Examples:
