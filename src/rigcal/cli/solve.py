@@ -84,6 +84,7 @@ def solve(
       rigcal solve examples/box-session/picks.yaml -o rig.yaml
       rigcal solve session/picks.yaml -o rig.yaml --report report/ --force
       rigcal solve session/picks.yaml -o rig.yaml --truth session/truth.yaml --json
+      rigcal solve board/board_session.yaml -o rig.yaml --report board-report/
     """
     from rigcal.calib.ransac import RansacParams
     from rigcal.calib.refine import NoiseModel, RefineParams
