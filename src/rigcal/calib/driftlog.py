@@ -13,7 +13,7 @@ from typing import Any
 
 from rigcal.calib.drift import DRIFT_LOG_SCHEMA_VERSION, DriftResult
 from rigcal.errors import InputError, OutputError
-from rigcal.io.files import sha256_file
+from rigcal.io.files import read_text, sha256_file
 
 RECORD_KEYS = (
     "schema_version",
@@ -86,12 +86,7 @@ def read_log(path: str | Path) -> list[dict[str, Any]]:
             schema (named by its line number).
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{path}: drift log not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the drift log: {exc}") from None
+    text = read_text(path, "drift log")
     out = []
     for n, line in enumerate(text.splitlines(), start=1):
         if not line.strip():

@@ -20,6 +20,7 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.errors import CalibrationError, InputError
+from rigcal.io.files import read_text
 
 FloatArray = NDArray[np.float64]
 
@@ -122,41 +124,22 @@ class IntrinsicsResult:
 
 
 def detect_corners(images: list[Path], board: Board) -> Detections:
-    """Find the board in every image.
+    """Find the chessboard in every image.
 
     Raises:
         InputError: an image is missing or unreadable, or the images differ in size.
     """
     import cv2
 
-    paths: list[str] = []
-    found: list[FloatArray] = []
-    missing: list[str] = []
-    size: tuple[int, int] | None = None
-    first: Path | None = None
-    for path in images:
-        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if img is None:
-            raise InputError(f"{path}: image not found or not readable (expected PNG, JPEG, ...)")
-        h, w = img.shape
-        if size is None:
-            size, first = (w, h), path
-        elif (w, h) != size:
-            raise InputError(f"{path}: image is {w}x{h}; expected {size[0]}x{size[1]} like {first}")
+    def find(img: NDArray[Any]) -> FloatArray | None:
         xy = _find_board(cv2, img, board)
         if xy is None:
-            missing.append(str(path))
-            continue
-        grid = np.concatenate(
-            [xy.reshape(board.height_n, board.width_n, 2), np.ones((board.height_n, board.width_n, 1))],
-            axis=2,
-        )
-        paths.append(str(path))
-        found.append(grid)
-    if size is None:
-        raise InputError("no images given")
-    corners = np.array(found) if found else np.zeros((0, board.height_n, board.width_n, 3))
-    return Detections(tuple(paths), corners, tuple(missing), size)
+            return None
+        ones = np.ones((board.height_n, board.width_n, 1))
+        out: FloatArray = np.concatenate([xy.reshape(board.height_n, board.width_n, 2), ones], axis=2)
+        return out
+
+    return _detect_all(images, board, find)
 
 
 def detect_charuco(images: list[Path], board: CharucoBoard) -> Detections:
@@ -171,6 +154,28 @@ def detect_charuco(images: list[Path], board: CharucoBoard) -> Detections:
 
     detector = cv2.aruco.CharucoDetector(board.opencv())
     grid = board.grid
+
+    def find(img: NDArray[Any]) -> FloatArray | None:
+        corners, ids, _, _ = detector.detectBoard(img)
+        if ids is None or len(ids) < MIN_CORNERS_PER_BOARD:
+            return None
+        obs = np.zeros((grid.height_n * grid.width_n, 3))
+        obs[:, 2] = -1.0
+        obs[ids.ravel(), :2] = corners.reshape(-1, 2)
+        obs[ids.ravel(), 2] = 1.0
+        out: FloatArray = obs.reshape(grid.height_n, grid.width_n, 3)
+        return out
+
+    return _detect_all(images, grid, find)
+
+
+def _detect_all(
+    images: list[Path], grid: Board, find: Callable[[NDArray[Any]], FloatArray | None]
+) -> Detections:
+    """Read every image (grey), check they share one size, and run ``find`` on each: it
+    returns the (height_n, width_n, 3) observations of the board, or None."""
+    import cv2
+
     paths: list[str] = []
     found: list[FloatArray] = []
     missing: list[str] = []
@@ -185,20 +190,16 @@ def detect_charuco(images: list[Path], board: CharucoBoard) -> Detections:
             size, first = (w, h), path
         elif (w, h) != size:
             raise InputError(f"{path}: image is {w}x{h}; expected {size[0]}x{size[1]} like {first}")
-        corners, ids, _, _ = detector.detectBoard(img)
-        if ids is None or len(ids) < MIN_CORNERS_PER_BOARD:
+        obs = find(img)
+        if obs is None:
             missing.append(str(path))
             continue
-        obs = np.zeros((grid.height_n * grid.width_n, 3))
-        obs[:, 2] = -1.0
-        obs[ids.ravel(), :2] = corners.reshape(-1, 2)
-        obs[ids.ravel(), 2] = 1.0
         paths.append(str(path))
-        found.append(obs.reshape(grid.height_n, grid.width_n, 3))
+        found.append(obs)
     if size is None:
         raise InputError("no images given")
-    corners_all = np.array(found) if found else np.zeros((0, grid.height_n, grid.width_n, 3))
-    return Detections(tuple(paths), corners_all, tuple(missing), size)
+    corners = np.array(found) if found else np.zeros((0, grid.height_n, grid.width_n, 3))
+    return Detections(tuple(paths), corners, tuple(missing), size)
 
 
 def _find_board(cv2: Any, img: NDArray[Any], board: Board) -> FloatArray | None:
@@ -229,12 +230,7 @@ def read_corners_vnl(path: Path, board: Board, imagersize: tuple[int, int]) -> D
     Raises:
         InputError: unreadable file, or a row or image that does not fit the board.
     """
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{path}: corners file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the corners file: {exc}") from None
+    text = read_text(path, "corners file")
     per_image: dict[str, list[tuple[float, float, float]]] = {}
     order: list[str] = []
     missing: list[str] = []

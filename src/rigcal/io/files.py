@@ -29,6 +29,21 @@ except AttributeError:  # pragma: no cover - depends on how PyYAML was built
     _SafeLoader = yaml.SafeLoader
 
 
+def read_text(path: str | Path, what: str = "file") -> str:
+    """A UTF-8 text file's contents.
+
+    Raises:
+        InputError: the file is missing or unreadable, naming it as ``what``.
+    """
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{path}: {what} not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read {what}: {exc}") from None
+
+
 def load_yaml(path: str | Path, what: str = "file") -> Any:
     """Read a YAML file with ``safe_load`` semantics.
 
@@ -36,12 +51,7 @@ def load_yaml(path: str | Path, what: str = "file") -> Any:
         InputError: the file is missing, unreadable, or not valid YAML.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{path}: {what} not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read {what}: {exc}") from None
+    text = read_text(path, what)
     try:
         return yaml.load(text, Loader=_SafeLoader)
     except yaml.YAMLError as exc:

@@ -25,7 +25,7 @@ import yaml
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_folder, check_keys, check_schema_version, load_yaml
+from rigcal.io.files import atomic_folder, check_keys, check_schema_version, load_yaml, read_text
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
@@ -168,10 +168,7 @@ def read_sequence(folder: str | Path) -> Sequence:
 
 
 def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
-    try:
-        lines = index.read_text(encoding="utf-8").splitlines()
-    except FileNotFoundError:
-        raise InputError(f"{index}: image index not found") from None
+    lines = read_text(index, "image index").splitlines()
     if not lines or lines[0].strip() != "stamp_s,file":
         raise InputError(f"{index}: line 1: expected the header 'stamp_s,file'")
     stamps, files = [], []

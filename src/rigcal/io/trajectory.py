@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_write_text
+from rigcal.io.files import atomic_write_text, read_text
 
 FloatArray = NDArray[np.float64]
 
@@ -41,12 +41,7 @@ class Trajectory:
 
 
 def _lines(path: Path) -> list[tuple[int, list[str]]]:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{path}: trajectory file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the trajectory: {exc}") from None
+    text = read_text(path, "trajectory file")
     out = []
     for n, line in enumerate(text.splitlines(), start=1):
         body = line.split("#", 1)[0].strip()
