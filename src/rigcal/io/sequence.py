@@ -9,6 +9,8 @@ The input of the localization pipeline and the output of ``rigcal import-bag``::
       images/           one image file per frame
       images.csv        stamp_s,file per line, in time order
       camera.yaml       the camera, when the source had it (rigcal camera file)
+      rig.yaml          the rig, when known (rig file)
+      groundtruth.tum   the laser's true poses in the world, when known (simulations)
 
 Stamps are seconds, increasing within each stream. :func:`write_sequence` writes a whole
 folder atomically; :func:`read_sequence` validates it.
@@ -72,8 +74,14 @@ def write_sequence(
     camera_yaml: str | None,
     source: dict[str, Any],
     force: bool = False,
+    groundtruth_tum: str | None = None,
+    rig_yaml: str | None = None,
 ) -> Path:
-    """Write a sequence folder atomically (refuses an existing folder unless ``force``)."""
+    """Write a sequence folder atomically (refuses an existing folder unless ``force``).
+
+    ``groundtruth_tum`` (the laser's poses in the world, TUM text) and ``rig_yaml`` (a rig
+    file's text) are written when given.
+    """
     B = max((len(s.ranges_m) for s in scans), default=0)
     ranges = np.full((len(scans), B), np.nan)
     for i, s in enumerate(scans):
@@ -96,6 +104,10 @@ def write_sequence(
     }
     if camera_yaml is not None:
         doc["camera"] = "camera.yaml"
+    if rig_yaml is not None:
+        doc["rig"] = "rig.yaml"
+    if groundtruth_tum is not None:
+        doc["groundtruth"] = "groundtruth.tum"
     with atomic_folder(folder, force) as tmp:
         np.savez_compressed(tmp / "scans.npz", **arrays)  # type: ignore[arg-type]
         (tmp / "images").mkdir()
@@ -106,6 +118,10 @@ def write_sequence(
         (tmp / "images.csv").write_text("stamp_s,file\n" + "".join(r + "\n" for r in rows), encoding="utf-8")
         if camera_yaml is not None:
             (tmp / "camera.yaml").write_text(camera_yaml, encoding="utf-8")
+        if rig_yaml is not None:
+            (tmp / "rig.yaml").write_text(rig_yaml, encoding="utf-8")
+        if groundtruth_tum is not None:
+            (tmp / "groundtruth.tum").write_text(groundtruth_tum, encoding="utf-8")
         (tmp / "sequence.yaml").write_text(
             "# rigcal sequence (docs/formats/sequence.md)\n" + yaml.safe_dump(doc, sort_keys=False),
             encoding="utf-8",
@@ -126,7 +142,7 @@ def read_sequence(folder: str | Path) -> Sequence:
         path,
         "",
         ["schema_version", "name", "scans", "images"],
-        ["source", "camera", "rig"],
+        ["source", "camera", "rig", "groundtruth"],
     )
     check_schema_version(d, path, SEQUENCE_SCHEMA_VERSION)
     sc = check_keys(d["scans"], path, "scans", ["file", "count"])
