@@ -1,0 +1,83 @@
+"""Trajectory errors as the paper's Table 1 reports them, and as evo computes them.
+
+All trajectories are planar poses (x, y, yaw) of the same frame at the same stamps.
+
+- Loop-closure error (Table 1): for a drive that ends where it started, the distance
+  between the estimate's end and start positions, also as a percentage of the path length.
+- Average position error (Table 1): the mean distance between estimated and true
+  positions over all stamps, with the estimate started at the true first pose.
+- ATE RMSE: root mean square position error after the rigid SE(2) alignment that
+  minimises it (Umeyama without scale; evo's ``evo_ape --align``).
+- RPE over a distance d: for every pose i and the first pose j whose true path length
+  from i reaches d, the translation error of the relative motion, RMSE over all pairs
+  (evo's ``evo_rpe --delta d --delta_unit m``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.localize.icp import pose_of, se2
+
+FloatArray = NDArray[np.float64]
+
+
+def path_length_m(poses: FloatArray) -> float:
+    return float(np.linalg.norm(np.diff(poses[:, :2], axis=0), axis=1).sum())
+
+
+def anchored(est: FloatArray, gt: FloatArray) -> FloatArray:
+    """The estimate moved rigidly so that its first pose is the truth's first pose."""
+    A = se2(gt[0]) @ np.linalg.inv(se2(est[0]))
+    return np.array([pose_of(A @ se2(p)) for p in est])
+
+
+def align_se2(est: FloatArray, gt: FloatArray) -> FloatArray:
+    """The estimate moved by the SE(2) transform minimising its position error."""
+    a, b = est[:, :2], gt[:, :2]
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    H = (a - ca).T @ (b - cb)
+    yaw = float(np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1]))
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.array([[c, -s], [s, c]])
+    t = cb - R @ ca
+    return np.column_stack([a @ R.T + t, est[:, 2] + yaw])
+
+
+def rpe_rmse(est: FloatArray, gt: FloatArray, delta_m: float) -> float:
+    """RMSE of the relative translation error over true path-length steps of delta_m."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(gt[:, :2], axis=0), axis=1))])
+    errs = []
+    for i in range(len(gt)):
+        j = int(np.searchsorted(s, s[i] + delta_m))
+        if j >= len(gt):
+            break
+        rel_gt = np.linalg.inv(se2(gt[i])) @ se2(gt[j])
+        rel_est = np.linalg.inv(se2(est[i])) @ se2(est[j])
+        e = np.linalg.inv(rel_gt) @ rel_est
+        errs.append(np.hypot(e[0, 2], e[1, 2]))
+    return float(np.sqrt(np.mean(np.square(errs)))) if errs else float("nan")
+
+
+def evaluate(est: FloatArray, gt: FloatArray) -> dict[str, Any]:
+    """Every figure above, for an estimate and the truth at the same stamps."""
+    if est.shape != gt.shape:
+        raise ValueError(f"estimate {est.shape} and truth {gt.shape} differ in shape")
+    a = anchored(est, gt)
+    length = path_length_m(gt)
+    loop = float(np.linalg.norm(a[-1, :2] - a[0, :2]))
+    gt_gap = float(np.linalg.norm(gt[-1, :2] - gt[0, :2]))
+    ali = align_se2(est, gt)
+    return {
+        "path_length_m": round(length, 3),
+        "loop_closure_error_m": round(loop, 4),
+        "loop_closure_error_percent": round(100.0 * loop / length, 3) if length > 0 else None,
+        "truth_loop_gap_m": round(gt_gap, 4),
+        "average_position_error_m": round(float(np.mean(np.linalg.norm(a[:, :2] - gt[:, :2], axis=1))), 4),
+        "ate_rmse_m": round(float(np.sqrt(np.mean(np.sum((ali[:, :2] - gt[:, :2]) ** 2, axis=1)))), 4),
+        "rpe_1m_rmse_m": round(rpe_rmse(est, gt, 1.0), 4),
+        "rpe_10m_rmse_m": round(rpe_rmse(est, gt, 10.0), 4),
+    }

@@ -1,0 +1,53 @@
+"""Laser odometry: ICP between successive scans of a sequence, chained into a trajectory."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.localize.icp import IcpParams, icp, pose_of, se2
+from rigcal.scan import Scan
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Odometry:
+    """Poses (N, 3) of the laser in the first scan's frame, per-step degeneracy and ICP
+    fit RMS, and how many steps were skipped (too few points) and kept the last motion."""
+
+    poses: FloatArray
+    degeneracy: FloatArray
+    rms_m: FloatArray
+    skipped: int
+
+
+def icp_odometry(scans: Sequence[Scan], params: IcpParams | None = None) -> Odometry:
+    """Chain ICP increments T_prev_cur over the scans, each started from the previous
+    increment (constant velocity)."""
+    params = params or IcpParams()
+    T = np.eye(3)
+    poses = [pose_of(T)]
+    deg, rms = [1.0], [0.0]
+    last = np.zeros(3)
+    skipped = 0
+    prev = scans[0].points[scans[0].valid]
+    for scan in scans[1:]:
+        cur = scan.points[scan.valid]
+        if len(cur) < 10 or len(prev) < 10:
+            step, d, r = last, 0.0, float("nan")
+            skipped += 1
+        else:
+            res = icp(prev, cur, initial=last, params=params)
+            step, d, r = res.pose, res.degeneracy, res.rms_m
+        T = T @ se2(step)
+        poses.append(pose_of(T))
+        deg.append(d)
+        rms.append(r)
+        last = step
+        if len(cur) >= 10:
+            prev = cur
+    return Odometry(np.array(poses), np.array(deg), np.array(rms), skipped)

@@ -1,0 +1,63 @@
+"""Trajectory metrics (Table 1 figures, ATE, RPE) on constructed trajectories."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rigcal.localize.icp import pose_of, se2
+from rigcal.localize.metrics import align_se2, anchored, evaluate, rpe_rmse
+
+
+def square_loop(n: int = 400) -> np.ndarray:
+    """A 40 m closed square (10 m sides), poses heading along the path."""
+    s = np.linspace(0, 40, n, endpoint=False)
+    side = (s // 10).astype(int)
+    u = s % 10
+    x = np.choose(side, [u, np.full_like(u, 10), 10 - u, np.zeros_like(u)])
+    y = np.choose(side, [np.zeros_like(u), u, np.full_like(u, 10), 10 - u])
+    yaw = side * np.pi / 2
+    return np.column_stack([x, y, yaw])
+
+
+def test_a_perfect_estimate_scores_zero_even_in_another_frame():
+    gt = square_loop()
+    moved = np.array([pose_of(se2([3.0, -1.0, 0.4]) @ se2(p)) for p in gt])
+    m = evaluate(moved, gt)
+    assert m["average_position_error_m"] == pytest.approx(0.0, abs=1e-9)
+    assert m["ate_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    assert m["rpe_1m_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    assert m["path_length_m"] == pytest.approx(39.9, abs=0.2)
+
+
+def test_loop_closure_error_is_the_end_to_start_gap():
+    gt = square_loop()
+    est = gt.copy()
+    est[:, 0] += np.linspace(0.0, 0.4, len(gt))  # drifts 0.4 m along x by the end
+    m = evaluate(est, gt)
+    assert m["loop_closure_error_m"] == pytest.approx(
+        np.hypot(0.4 + gt[-1, 0] - gt[0, 0], gt[-1, 1] - gt[0, 1]), abs=1e-3
+    )
+    assert m["loop_closure_error_percent"] == pytest.approx(
+        100 * m["loop_closure_error_m"] / m["path_length_m"], rel=1e-3
+    )
+    assert m["average_position_error_m"] == pytest.approx(0.2, abs=0.01)
+
+
+def test_rpe_of_a_constant_scale_error():
+    gt = square_loop(800)
+    est = gt.copy()
+    est[:, :2] *= 1.01  # 1 % too long everywhere
+    # Over 1 m steps the relative translation is 1 % too long: about 1 cm.
+    assert rpe_rmse(est, gt, 1.0) == pytest.approx(0.01, rel=0.1)
+    assert rpe_rmse(est, gt, 10.0) == pytest.approx(0.1, rel=0.2)
+
+
+def test_alignment_and_anchoring():
+    gt = square_loop()
+    T = se2([1.0, 2.0, -0.3])
+    est = np.array([pose_of(T @ se2(p)) for p in gt])
+    np.testing.assert_allclose(align_se2(est, gt)[:, :2], gt[:, :2], atol=1e-9)
+    np.testing.assert_allclose(anchored(est, gt)[:, :2], gt[:, :2], atol=1e-9)
+    with pytest.raises(ValueError, match="shape"):
+        evaluate(est[:-1], gt)
