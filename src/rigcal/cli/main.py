@@ -18,6 +18,7 @@ from rigcal.cli import export as export_cmd
 from rigcal.cli import import_bag as import_bag_cmd
 from rigcal.cli import intrinsics as intrinsics_cmd
 from rigcal.cli import lines as lines_cmd
+from rigcal.cli import localize as localize_cmd
 from rigcal.cli import project as project_cmd
 from rigcal.cli import simulate as simulate_cmd
 from rigcal.cli import solve as solve_cmd
@@ -49,6 +50,8 @@ cli.add_command(check_cmd.check)
 cli.add_command(export_cmd.export)
 cli.add_command(intrinsics_cmd.intrinsics)
 cli.add_command(import_bag_cmd.import_bag)
+cli.add_command(localize_cmd.localize)
+cli.add_command(localize_cmd.evaluate_cmd, name="evaluate")
 
 
 def main(argv: list[str] | None = None) -> int:
