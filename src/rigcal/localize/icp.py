@@ -28,6 +28,8 @@ from scipy.spatial import cKDTree
 FloatArray = NDArray[np.float64]
 
 
+# Point-to-point iterations before point-to-line (enough to take a turn's rotation).
+COARSE_ITERATIONS = 10
 # Information eigenvalues below this fraction of the largest count as unconstrained.
 DEGENERATE_EIGEN_RATIO = 1e-3
 
@@ -46,8 +48,8 @@ class IcpParams:
 
     method: str = "point-to-line"
     max_iterations: int = 50
-    tolerance_m: float = 1e-5
-    tolerance_rad: float = 1e-6
+    tolerance_m: float = 1e-4
+    tolerance_rad: float = 1e-5
     reject_m: float = 0.3
     normal_neighbours: int = 5
 
@@ -94,7 +96,7 @@ def icp(
     if params.method == "point-to-line":
         # Coarse to fine: point-to-point first, whose closed-form steps take large
         # rotations in turns, then point-to-line from there.
-        coarse = IcpParams("point-to-point", params.max_iterations, 1e-3, 1e-4, params.reject_m)
+        coarse = IcpParams("point-to-point", COARSE_ITERATIONS, 1e-3, 1e-4, params.reject_m)
         pose = icp(model, data, pose, coarse).pose
         normals = _normals(model, tree, params.normal_neighbours)
     iterations = 0
