@@ -34,7 +34,7 @@ from rigcal.sim.box_session import (
     default_T_cam_laser,
     find_face_segment,
 )
-from rigcal.sim.raycast import cast_scan_hits
+from rigcal.sim.raycast import beam_angles, cast_scan_hits, noisy_ranges
 from rigcal.sim.render import Room
 
 FloatArray = NDArray[np.float64]
@@ -106,10 +106,7 @@ def generate_board_session(
     camera = camera or default_camera()
     T = default_T_cam_laser() if T_cam_laser is None else np.asarray(T_cam_laser, dtype=float)
     rng = np.random.default_rng(spec.seed)
-    n_beams = round(spec.fov_deg / spec.angle_increment_deg) + 1
-    step = float(np.radians(spec.angle_increment_deg))
-    angle_min = -0.5 * step * (n_beams - 1)
-    angles: FloatArray = angle_min + step * np.arange(n_beams, dtype=np.float64)
+    angle_min, step, angles = beam_angles(spec.fov_deg, spec.angle_increment_deg)
     params = LineParams.for_range_noise(spec.range_sigma_m)
     captures = []
     for i in range(spec.n_captures):
@@ -162,9 +159,7 @@ def _capture(
         walls = spec.room.wall_segments(room_pose)
         ranges, hit = cast_scan_hits(np.concatenate([walls, cut[None]]), angles, spec.range_max_m)
         board_beams = np.flatnonzero(hit == len(walls))
-        ranges = ranges + rng.normal(0.0, spec.range_sigma_m, len(ranges))
-        lost = rng.uniform(size=len(ranges)) < spec.dropout_fraction
-        ranges = np.where(lost | ~np.isfinite(ranges), 0.0, np.round(ranges, 4))
+        ranges = noisy_ranges(rng, ranges, spec.range_sigma_m, spec.dropout_fraction)
         scan = Scan.from_uniform(angle_min, step, ranges, spec.range_min_m, spec.range_max_m)
         order = np.argsort(np.arctan2(cut[:, 1], cut[:, 0]))
         found = find_face_segment(

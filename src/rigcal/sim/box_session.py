@@ -37,7 +37,7 @@ from rigcal.errors import InputError, OutputError
 from rigcal.geometry import inv_T, make_T, transform_points
 from rigcal.io.files import atomic_folder
 from rigcal.scan import Scan
-from rigcal.sim.raycast import cast_scan_hits
+from rigcal.sim.raycast import beam_angles, cast_scan_hits, noisy_ranges
 from rigcal.sim.render import Room, Scene
 from rigcal.targets.box import FRONT_FACE_SEGMENT, BoxTarget
 
@@ -126,12 +126,12 @@ class SessionSpec:
     @property
     def n_beams(self) -> int:
         """Number of beams per scan (the field of view's both ends included)."""
-        return round(self.fov_deg / self.angle_increment_deg) + 1
+        return len(beam_angles(self.fov_deg, self.angle_increment_deg)[2])
 
     @property
     def angle_min_rad(self) -> float:
         """Angle of the first beam: the field of view is symmetric about the laser's +x."""
-        return float(-0.5 * np.radians(self.angle_increment_deg) * (self.n_beams - 1))
+        return beam_angles(self.fov_deg, self.angle_increment_deg)[0]
 
     @property
     def n_wrong_picks(self) -> int:
@@ -267,7 +267,7 @@ def generate_session(
     camera = camera or default_camera()
     T = default_T_cam_laser() if T_cam_laser is None else np.asarray(T_cam_laser, dtype=float)
     rng = np.random.default_rng(spec.seed)
-    angles = spec.angle_min_rad + np.radians(spec.angle_increment_deg) * np.arange(spec.n_beams)
+    angles = beam_angles(spec.fov_deg, spec.angle_increment_deg)[2]
     n = spec.n_captures
     # Stratified distances and incidences (each capture in its own slice of the range, in
     # random order) spread the geometry even over a few captures.
@@ -338,10 +338,7 @@ def _capture(
         segments = np.concatenate([walls, box.footprint_segments(*pose)])
         ranges, hit = cast_scan_hits(segments, angles, spec.range_max_m)
         face_beams = np.flatnonzero(hit == len(walls) + FRONT_FACE_SEGMENT)
-        ranges = ranges + rng.normal(0.0, spec.range_sigma_m, size=len(ranges))
-        lost = rng.uniform(size=len(ranges)) < spec.dropout_fraction
-        # Lost returns and beams that hit nothing read 0 (below range_min: invalid).
-        ranges = np.where(lost | ~np.isfinite(ranges), 0.0, np.round(ranges, RANGE_DECIMALS))
+        ranges = noisy_ranges(rng, ranges, spec.range_sigma_m, spec.dropout_fraction, RANGE_DECIMALS)
         scan = Scan.from_uniform(
             spec.angle_min_rad,
             float(np.radians(spec.angle_increment_deg)),

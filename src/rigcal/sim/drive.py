@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.scan import Scan
-from rigcal.sim.raycast import cast_scan
+from rigcal.sim.raycast import beam_angles, cast_scan, noisy_ranges
 from rigcal.sim.world import World
 
 FloatArray = NDArray[np.float64]
@@ -129,10 +129,7 @@ def laser_stamps(motion: Motion, spec: DriveSpec) -> FloatArray:
 def simulate_scans(world: World, poses: FloatArray, stamps: FloatArray, spec: DriveSpec) -> list[Scan]:
     """One noisy scan per pose (x, y, yaw of the laser in the world)."""
     rng = np.random.default_rng(spec.seed + 1)
-    step = float(np.radians(spec.angle_increment_deg))
-    n_beams = round(spec.fov_deg / spec.angle_increment_deg) + 1
-    angle_min = -0.5 * step * (n_beams - 1)
-    angles = angle_min + step * np.arange(n_beams, dtype=np.float64)
+    angle_min, step, angles = beam_angles(spec.fov_deg, spec.angle_increment_deg)
     segs = world.scan_segments()
     scans = []
     for (x, y, yaw), t in zip(poses, stamps, strict=True):
@@ -140,9 +137,7 @@ def simulate_scans(world: World, poses: FloatArray, stamps: FloatArray, spec: Dr
         R = np.array([[c, s], [-s, c]])  # world -> laser rotation (R_laser_world)
         local = (segs - np.array([x, y])) @ R.T
         r = cast_scan(local, angles, spec.range_max_m)
-        r = r + rng.normal(0.0, spec.range_sigma_m, len(r))
-        lost = rng.uniform(size=len(r)) < spec.dropout_fraction
-        r = np.where(lost | ~np.isfinite(r), 0.0, np.round(r, 4))
+        r = noisy_ranges(rng, r, spec.range_sigma_m, spec.dropout_fraction)
         scans.append(Scan.from_uniform(angle_min, step, r, 0.1, spec.range_max_m, float(t)))
     return scans
 

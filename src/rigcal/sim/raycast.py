@@ -66,3 +66,27 @@ def cast_scan_hits(
 def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
     out: FloatArray = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
     return out
+
+
+def beam_angles(fov_deg: float, increment_deg: float) -> tuple[float, float, FloatArray]:
+    """Beams of a scanner whose field of view is symmetric about its +x, both ends included.
+
+    Returns:
+        (first angle, step, (N,) angles), radians.
+    """
+    step = float(np.radians(increment_deg))
+    n = round(fov_deg / increment_deg) + 1
+    first = -0.5 * step * (n - 1)
+    angles: FloatArray = first + step * np.arange(n, dtype=np.float64)
+    return first, step, angles
+
+
+def noisy_ranges(
+    rng: np.random.Generator, ranges: FloatArray, sigma_m: float, dropout_fraction: float, decimals: int = 4
+) -> FloatArray:
+    """Ranges as a scanner reports them: Gaussian noise, returns lost at random, kept to
+    ``decimals`` places; lost returns and beams that hit nothing read 0 (invalid)."""
+    noisy = ranges + rng.normal(0.0, sigma_m, size=len(ranges))
+    lost = rng.uniform(size=len(ranges)) < dropout_fraction
+    out: FloatArray = np.where(lost | ~np.isfinite(noisy), 0.0, np.round(noisy, decimals))
+    return out
