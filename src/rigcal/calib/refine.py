@@ -233,9 +233,13 @@ def whitening(camera: Camera, T_cam_laser: FloatArray, meas: EndpointSet, noise:
     """(P, 2, 2) matrices W with W^T W = inverse covariance of each end's pixel residual
     (each end on its own: the marginal, for per-end tests such as the inlier gate)."""
     J = _laser_to_pixel_jacobians(camera, T_cam_laser, meas)
-    cov = noise.pick_sigma_px**2 * np.eye(2) + J @ meas.cov_laser @ np.transpose(J, (0, 2, 1))
-    L = np.linalg.cholesky(cov)
-    out: FloatArray = np.linalg.inv(L)
+    out: FloatArray = np.linalg.inv(np.linalg.cholesky(_end_pixel_covariances(J, meas, noise)))
+    return out
+
+
+def _end_pixel_covariances(J: FloatArray, meas: EndpointSet, noise: NoiseModel) -> FloatArray:
+    """(P, 2, 2) each end's pixel covariance: pick noise plus its laser covariance projected."""
+    out: FloatArray = noise.pick_sigma_px**2 * np.eye(2) + J @ meas.cov_laser @ np.transpose(J, (0, 2, 1))
     return out
 
 
@@ -246,13 +250,9 @@ def pixel_covariance(
     noise plus the laser ends' covariance through the projection, with the cross terms
     between the two ends of a capture."""
     J = _laser_to_pixel_jacobians(camera, T_cam_laser, meas)
-    P = len(J)
-    cov = np.zeros((2 * P, 2 * P))
-    blocks = noise.pick_sigma_px**2 * np.eye(2) + J @ meas.cov_laser @ np.transpose(J, (0, 2, 1))
-    for k in range(P):
-        cov[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = blocks[k]
+    cov = _block_diagonal(_end_pixel_covariances(J, meas, noise))
     if meas.cross_laser is not None:
-        for k in range(P):
+        for k in range(len(J)):
             for m in np.flatnonzero((meas.capture == meas.capture[k]) & (meas.end != meas.end[k])):
                 cov[2 * k : 2 * k + 2, 2 * m : 2 * m + 2] = J[k] @ meas.cross_laser[k] @ J[m].T
     return cov
