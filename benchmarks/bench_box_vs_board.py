@@ -20,9 +20,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from rigcal.calib.board_session import board_pose
+from rigcal.calib.board_session import board_pose, plane_observation
 from rigcal.calib.lines import LineParams, extract_lines
-from rigcal.calib.plane import PlaneObservation, solve_plane
+from rigcal.calib.plane import solve_plane
 from rigcal.calib.refine import NoiseModel
 from rigcal.calib.report import truth_comparison
 from rigcal.calib.solve import CalibProblem, SolveSettings, solve
@@ -55,13 +55,8 @@ def board_trial(job: tuple[int, int]) -> tuple[float, float, float] | None:
     obs = []
     for i, c in enumerate(sess.captures):
         T, cov, _ = board_pose(sess.camera, spec.board, c.corners_px, CORNER_SIGMA_PX)
-        n, d = T[:3, 2], float(T[:3, 2] @ T[:3, 3])
-        if d < 0:
-            n, d = -n, -d
         pts = np.array(extract_lines(c.scan, params)[c.segment_id].points)
-        obs.append(
-            PlaneObservation(i, c.name, n, d, pts, board_origin_cam=T[:3, 3].copy(), board_pose_cov=cov)
-        )
+        obs.append(plane_observation(i, c.name, T, cov, pts))
     try:
         res = solve_plane(obs, spec.range_sigma_m)
     except CalibrationError:

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from rigcal.calib.intrinsics import Board, detect_corners, read_corners_vnl
 from rigcal.calib.lines import extract_lines
-from rigcal.calib.picks import _beams_near, _check_image, _file, _pairs, line_params_for
+from rigcal.calib.picks import _beams_near, _check_image, _file, _pairs, line_params_for, segment_by_id
 from rigcal.calib.plane import PlaneObservation
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import CalibrationError, InputError
@@ -146,16 +146,9 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         elif not isinstance(side, dict) or len(side) != 1 or next(iter(side)) not in ("segment", "points"):
             raise InputError.at(path, key, side, "auto, {segment: ID} or {points: [[x1, y1], [x2, y2]]}")
         elif "segment" in side:
-            segments = extract_lines(scan, params)
-            sid = side["segment"]
-            if not (isinstance(sid, int) and not isinstance(sid, bool) and 0 <= sid < len(segments)):
-                raise InputError.at(
-                    path,
-                    f"{key}.segment",
-                    sid,
-                    f"a segment id from 0 to {len(segments) - 1} (`rigcal lines`)",
-                )
-            pts = np.array(segments[sid].points)
+            pts = np.array(
+                segment_by_id(path, f"{key}.segment", side["segment"], scan, scan_path, params).points
+            )
         else:
             ends = _pairs(side["points"], path, f"{key}.points", "laser point")
             if np.linalg.norm(ends[0] - ends[1]) < 0.05:
@@ -171,13 +164,7 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
                     "two points on the board in the scan (no returns near)",
                 )
             pts = scan.points[beams]
-        n = T[:3, 2]
-        dist = float(n @ T[:3, 3])
-        if dist < 0:
-            n, dist = -n, -dist
-        obs.append(
-            PlaneObservation(i, name, n, dist, pts, board_origin_cam=T[:3, 3].copy(), board_pose_cov=cov)
-        )
+        obs.append(plane_observation(i, name, T, cov, pts))
         poses.append(T)
         rms.append(err)
     if auto:
@@ -284,6 +271,26 @@ def _corners(
         j = int(np.flatnonzero(~camera.in_image(out))[0])
         raise InputError.at(path, f"{kp}.corners_px[{j}]", out[j].tolist(), "a pixel inside the image")
     return out
+
+
+def plane_observation(
+    capture: int, name: str, T_cam_board: FloatArray, pose_cov: FloatArray, points_laser: FloatArray
+) -> PlaneObservation:
+    """A capture's plane observation from its board pose (the board's z = 0 plane, normal
+    oriented so that the distance is positive) and its laser returns on the board."""
+    n = T_cam_board[:3, 2]
+    dist = float(n @ T_cam_board[:3, 3])
+    if dist < 0:
+        n, dist = -n, -dist
+    return PlaneObservation(
+        capture,
+        name,
+        n,
+        dist,
+        points_laser,
+        board_origin_cam=T_cam_board[:3, 3].copy(),
+        board_pose_cov=pose_cov,
+    )
 
 
 def board_points(board: Board) -> FloatArray:

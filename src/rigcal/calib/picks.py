@@ -237,18 +237,7 @@ def _laser_side(
     if not isinstance(side, dict) or len(side) != 1 or next(iter(side)) not in ("segment", "points"):
         raise InputError.at(path, key, side, "either {segment: ID} or {points: [[x1, y1], [x2, y2]]}")
     if "segment" in side:
-        sid = side["segment"]
-        segments = extract_lines(scan, line_params)
-        if not (isinstance(sid, int) and not isinstance(sid, bool) and 0 <= sid < len(segments)):
-            raise InputError.at(
-                path,
-                f"{key}.segment",
-                sid,
-                f"a segment id from 0 to {len(segments) - 1} (see `rigcal lines {scan_path}`)"
-                if segments
-                else "a segment id, but the scan has no line segments",
-            )
-        seg: Segment = segments[sid]
+        seg = segment_by_id(path, f"{key}.segment", side["segment"], scan, scan_path, line_params)
         return np.array(seg.indices, dtype=np.int64)
     ends = _pairs(side["points"], path, f"{key}.points", "laser point")
     if np.linalg.norm(ends[0] - ends[1]) < 0.05:
@@ -269,6 +258,27 @@ def _laser_side(
             f"{100 * SIDE_POINT_TOLERANCE_M:g} cm of the line between them",
         )
     return ends, pts, beams
+
+
+def segment_by_id(
+    path: Path, key: str, sid: Any, scan: Scan, scan_path: Path, line_params: LineParams
+) -> Segment:
+    """The scan's line segment ``sid``, numbered as ``rigcal lines`` prints them.
+
+    Raises:
+        InputError: not a segment id of this scan, naming the file, key and value.
+    """
+    segments = extract_lines(scan, line_params)
+    if not (isinstance(sid, int) and not isinstance(sid, bool) and 0 <= sid < len(segments)):
+        raise InputError.at(
+            path,
+            key,
+            sid,
+            f"a segment id from 0 to {len(segments) - 1} (see `rigcal lines {scan_path}`)"
+            if segments
+            else "a segment id, but the scan has no line segments",
+        )
+    return segments[sid]
 
 
 def _beams_near(scan: Scan, ends: FloatArray) -> NDArray[np.int64]:
