@@ -25,7 +25,7 @@ from rigcal.io.files import atomic_folder
 from rigcal.io.sequence import read_sequence
 from rigcal.io.trajectory import Trajectory, kitti_text, read_tum, tum_text
 from rigcal.localize.icp import IcpParams
-from rigcal.localize.metrics import evaluate
+from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import Odometry, icp_odometry
 from rigcal.scan import Scan
 
@@ -77,8 +77,6 @@ def run(
     poses = od.poses
     if gt is not None:
         # Express the estimate in the world frame: start it at the true first pose.
-        from rigcal.localize.metrics import anchored
-
         poses = anchored(od.poses, gt)
         metrics = evaluate(poses, gt)
     traj = Trajectory(
