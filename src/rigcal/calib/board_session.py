@@ -21,7 +21,16 @@ from numpy.typing import NDArray
 
 from rigcal.calib.intrinsics import Board, detect_corners, read_corners_vnl
 from rigcal.calib.lines import extract_lines
-from rigcal.calib.picks import _beams_near, _check_image, _file, _pairs, line_params_for, segment_by_id
+from rigcal.calib.picks import (
+    _beams_near,
+    _check_image,
+    _file,
+    _pairs,
+    capture_name,
+    check_unique_names,
+    line_params_for,
+    segment_by_id,
+)
 from rigcal.calib.plane import PlaneObservation
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import CalibrationError, InputError
@@ -120,9 +129,7 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
     for i, c in enumerate(captures):
         kp = f"captures[{i}]"
         c = check_keys(c, path, kp, ["scan", "laser_side"], ["name", "corners_px", "image"])
-        name = c.get("name", f"capture{i:02d}")
-        if not isinstance(name, str) or not name:
-            raise InputError.at(path, f"{kp}.name", name, "a non-empty string")
+        name = capture_name(path, kp, c, i)
         scan_path = _file(path, f"{kp}.scan", c["scan"])
         files.append(scan_path)
         corners = _corners(path, kp, c, board, camera, files, vnl)
@@ -169,10 +176,7 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         rms.append(err)
     if auto:
         obs = _choose_board_returns(path, obs, auto)
-    names = [o.name for o in obs]
-    for i, nme in enumerate(names):
-        if names.index(nme) != i:
-            raise InputError.at(path, f"captures[{i}].name", nme, "a name not used by another capture")
+    check_unique_names(path, [o.name for o in obs])
     return BoardSession(
         path,
         camera,

@@ -107,10 +107,7 @@ def read_picks(path: str | Path, line_params: LineParams | None = None) -> PickS
         raise InputError.at(path, "captures", captures, "a non-empty list of captures")
     params = line_params or line_params_for(path, laser)
     obs = tuple(_read_capture(path, i, c, camera, params) for i, c in enumerate(captures))
-    names = [o.name for o in obs]
-    for i, n in enumerate(names):
-        if names.index(n) != i:
-            raise InputError.at(path, f"captures[{i}].name", n, "a name not used by another capture")
+    check_unique_names(path, [o.name for o in obs])
     return PickSession(path, camera, camera_path, dict(laser), obs)
 
 
@@ -126,6 +123,21 @@ def line_params_for(path: Path | None, laser: dict[str, Any]) -> LineParams:
     return LineParams.for_range_noise(float(sigma))
 
 
+def capture_name(path: Path, kp: str, capture: Any, i: int) -> str:
+    """A capture's ``name`` (default capture00, capture01, ...), a non-empty string."""
+    name = capture.get("name", f"capture{i:02d}")
+    if not isinstance(name, str) or not name:
+        raise InputError.at(path, f"{kp}.name", name, "a non-empty string")
+    return name
+
+
+def check_unique_names(path: Path, names: list[str]) -> None:
+    """No two captures share a name (reports and overlays are named after them)."""
+    for i, n in enumerate(names):
+        if names.index(n) != i:
+            raise InputError.at(path, f"captures[{i}].name", n, "a name not used by another capture")
+
+
 def _file(base: Path, key: str, value: Any) -> Path:
     if not isinstance(value, str) or not value:
         raise InputError.at(base, key, value, "a file path (relative to the picking file)")
@@ -138,9 +150,7 @@ def _file(base: Path, key: str, value: Any) -> Path:
 def _read_capture(path: Path, i: int, c: Any, camera: Camera, line_params: LineParams) -> BoxObservation:
     kp = f"captures[{i}]"
     c = check_keys(c, path, kp, ["scan", "image", "laser_side", "image_endpoints_px"], ["name"])
-    name = c.get("name", f"capture{i:02d}")
-    if not isinstance(name, str) or not name:
-        raise InputError.at(path, f"{kp}.name", name, "a non-empty string")
+    name = capture_name(path, kp, c, i)
     scan_path = _file(path, f"{kp}.scan", c["scan"])
     image_path = _file(path, f"{kp}.image", c["image"])
     _check_image(path, f"{kp}.image", c["image"], image_path, camera)
