@@ -25,17 +25,17 @@ def test_localize_writes_trajectory_summary_and_table(sequence, tmp_path, capsys
     assert main(["localize", str(sequence), "--method", "icp", "-o", str(out), "--kitti"]) == 0
     table = capsys.readouterr().out
     assert "| icp |" in table
-    traj = read_tum(out / "trajectory.tum")
-    truth = read_tum(sequence / "groundtruth.tum")
-    assert len(traj) == len(truth)
-    assert (out / "trajectory.kitti").read_text().count("\n") == len(traj)
+    traj = read_tum(out / "icp" / "trajectory.tum")
     summary = yaml.safe_load((out / "summary.yaml").read_text())
-    assert summary["config"]["method"] == "icp"
-    m = summary["metrics"]
+    assert len(traj) == summary["methods"]["icp"]["poses"]
+    assert (out / "icp" / "trajectory.kitti").read_text().count("\n") == len(traj)
+    assert summary["config"]["methods"] == ["icp"]
+    assert (out / "paths.png").stat().st_size > 1000
+    m = summary["methods"]["icp"]["metrics"]
     # A clean simulated office: point-to-line ICP closes the 35 m loop within a metre.
     assert m["loop_closure_error_m"] < 1.0
     assert m["path_length_m"] == pytest.approx(35.0, rel=0.05)
-    assert json.loads((out / "summary.json").read_text())["metrics"] == m
+    assert json.loads((out / "summary.json").read_text())["methods"]["icp"]["metrics"] == m
 
 
 def test_evaluate_agrees_with_the_summary(sequence, tmp_path, capsys):
@@ -43,18 +43,28 @@ def test_evaluate_agrees_with_the_summary(sequence, tmp_path, capsys):
     assert main(["localize", str(sequence), "--method", "icp-p2p", "-o", str(out)]) == 0
     capsys.readouterr()
     assert (
-        main(["evaluate", str(out / "trajectory.tum"), "--gt", str(sequence / "groundtruth.tum"), "--json"])
+        main(
+            [
+                "evaluate",
+                str(out / "icp-p2p" / "trajectory.tum"),
+                "--gt",
+                str(sequence / "groundtruth.tum"),
+                "--json",
+            ]
+        )
         == 0
     )
     m = json.loads(capsys.readouterr().out)
-    summary = yaml.safe_load((out / "summary.yaml").read_text())["metrics"]
+    summary = yaml.safe_load((out / "summary.yaml").read_text())["methods"]["icp-p2p"]["metrics"]
     assert m["loop_closure_error_m"] == pytest.approx(summary["loop_closure_error_m"], abs=1e-3)
     assert m["ate_rmse_m"] == pytest.approx(summary["ate_rmse_m"], abs=1e-3)
 
 
 def test_bad_method_and_existing_output(sequence, tmp_path, capsys):
-    assert main(["localize", str(sequence), "--method", "vo", "-o", str(tmp_path / "x")]) == 3
-    assert "--method: got 'vo'" in capsys.readouterr().err
+    assert main(["localize", str(sequence), "--method", "sift", "-o", str(tmp_path / "x")]) == 3
+    assert "--method: got 'sift'" in capsys.readouterr().err
+    assert main(["localize", str(sequence), "--method", "icp,icp", "-o", str(tmp_path / "x")]) == 3
+    assert not (tmp_path / "x").exists()
     (tmp_path / "y").mkdir()
     assert main(["localize", str(sequence), "-o", str(tmp_path / "y")]) == 5
     assert main(["localize", str(tmp_path / "nope"), "-o", str(tmp_path / "z")]) == 3

@@ -12,42 +12,54 @@ import click
 @click.argument("sequence", type=click.Path(path_type=Path))
 @click.option(
     "--method",
+    "methods",
     default="icp",
     show_default=True,
-    help="icp (point-to-line) or icp-p2p (point-to-point, Eq. 4).",
+    help="One method or several, comma-separated: icp (point-to-line), icp-p2p (point-to-point, "
+    "Eq. 4), vo (visual odometry with laser scale), kf (Kalman filter of icp and vo).",
 )
 @click.option(
     "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Output folder."
 )
-@click.option("--kitti", is_flag=True, help="Also write the trajectory in KITTI form.")
+@click.option(
+    "--rig",
+    "rig_file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Rig file to use instead of the sequence's own rig.yaml.",
+)
+@click.option("--kitti", is_flag=True, help="Also write each trajectory in KITTI form.")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
-def localize(sequence: Path, method: str, output: Path, kitti: bool, force: bool, as_json: bool) -> None:
-    """Estimate the laser's trajectory through SEQUENCE (a sequence folder).
+def localize(
+    sequence: Path, methods: str, output: Path, rig_file: Path | None, kitti: bool, force: bool, as_json: bool
+) -> None:
+    """Estimate the laser's trajectory through SEQUENCE (a sequence folder) with one or
+    more methods, run on the same data in the same process.
 
-    Writes trajectory.tum (and trajectory.kitti), summary.yaml/json with the configuration,
-    timings and, when the sequence has ground truth, the paper's Table 1 figures.
+    Writes METHOD/trajectory.tum (and .kitti) per method, summary.yaml/json with the
+    configuration, per-stage timings and, when the sequence has ground truth, the paper's
+    Table 1 figures, and paths.png (estimated paths against the truth, as Fig. 8).
 
     \b
     Examples:
       rigcal simulate world --world corridor-loop -o corridor/
-      rigcal localize corridor/ --method icp -o out/icp
+      rigcal localize corridor/ --method icp,vo,kf -o out/
     """
     from rigcal.errors import OutputError
-    from rigcal.localize.pipeline import run
+    from rigcal.localize.pipeline import parse_methods, run, summary, table
 
+    names = parse_methods(methods)
     if output.exists() and not force:
         raise OutputError(f"{output}: exists; pass --force to replace it")
-    r = run(sequence, method, output, force=force, kitti=kitti)
+    r = run(sequence, names, output, force=force, kitti=kitti, rig_file=rig_file)
     if as_json:
-        click.echo(json.dumps({"metrics": r.metrics, "timings_s": r.timings_s}, indent=1))
-    elif r.metrics is not None:
-        click.echo(_table(method, r.metrics))
-    click.echo(
-        f"wrote {output}/: {len(r.stamps_s)} poses; {r.degenerate_steps} degenerate steps; "
-        f"{1000 * r.timings_s['estimate_s'] / len(r.stamps_s):.1f} ms per scan",
-        err=True,
-    )
+        click.echo(json.dumps(summary(r, sequence), indent=1))
+    elif r.truth is not None:
+        click.echo(table([(m.method, m.metrics) for m in r.methods if m.metrics is not None]))
+    for m in r.methods:
+        ratio = f"{r.duration_s / m.seconds:.1f}x real time" if m.seconds > 0 else ""
+        click.echo(f"{m.method}: {len(m.stamps_s)} poses in {m.seconds:.1f} s ({ratio})", err=True)
+    click.echo(f"wrote {output}/", err=True)
 
 
 @click.command("evaluate")
@@ -64,20 +76,10 @@ def evaluate_cmd(trajectory: Path, gt: Path, as_json: bool) -> None:
     """
     from rigcal.io.trajectory import read_tum
     from rigcal.localize.metrics import evaluate
-    from rigcal.localize.pipeline import planar_at
+    from rigcal.localize.pipeline import planar_at, table
 
     est = read_tum(trajectory)
     truth = read_tum(gt)
     assert est.stamps_s is not None
     m = evaluate(planar_at(est, est.stamps_s), planar_at(truth, est.stamps_s))
-    click.echo(json.dumps(m, indent=1) if as_json else _table(trajectory.name, m))
-
-
-def _table(label: str, m: dict[str, object]) -> str:
-    head = (
-        "| method | loop closure (m) | loop closure (%) | avg position error (m) | ATE RMSE (m) "
-        "| RPE 1 m | RPE 10 m |"
-    )
-    keys = ("loop_closure_error_m", "loop_closure_error_percent", "average_position_error_m", "ate_rmse_m")
-    row = " | ".join(str(m[k]) for k in (*keys, "rpe_1m_rmse_m", "rpe_10m_rmse_m"))
-    return f"{head}\n|---|---|---|---|---|---|---|\n| {label} | {row} |"
+    click.echo(json.dumps(m, indent=1) if as_json else table([(trajectory.name, m)]))

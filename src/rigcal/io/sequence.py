@@ -64,6 +64,8 @@ class Sequence:
     image_files: tuple[str, ...]
     camera_file: str | None
     source: dict[str, Any]
+    rig_file: str | None = None
+    groundtruth_file: str | None = None
 
 
 def write_sequence(
@@ -178,8 +180,19 @@ def read_sequence(folder: str | Path) -> Sequence:
     for f in files:
         if not (folder / str(im["folder"]) / f).is_file():
             raise InputError(f"{index}: image {f} not found in {folder / str(im['folder'])}")
+    for key in ("camera", "rig", "groundtruth"):
+        if key in d and not (folder / str(d[key])).is_file():
+            raise InputError.at(path, key, d[key], f"a file in {folder}")
     return Sequence(
-        folder, str(d["name"]), tuple(scans), stamps, tuple(files), d.get("camera"), d.get("source", {})
+        folder,
+        str(d["name"]),
+        tuple(scans),
+        stamps,
+        tuple(files),
+        d.get("camera"),
+        d.get("source", {}),
+        d.get("rig"),
+        d.get("groundtruth"),
     )
 
 

@@ -1,17 +1,20 @@
-"""The localization pipeline: a sequence folder in, a trajectory and its metrics out.
+"""The localization pipeline: a sequence folder in, trajectories and their metrics out.
 
-``run`` reads like its steps: read the sequence, estimate the laser's trajectory with the
-chosen method, write the trajectory, the effective configuration and, when the sequence
-has ground truth, the metrics of ``rigcal.localize.metrics``. Methods are registered in
-:data:`METHODS` (name -> function from scans to an Odometry), so adding one is local.
+``run`` reads like its steps: open the sequence's streams (scans, images, rig), estimate
+the laser's trajectory with each chosen method, write each trajectory, the effective
+configuration, per-stage timings and, when the sequence has ground truth, the metrics of
+``rigcal.localize.metrics`` (the paper's Table 1) and a picture of the paths (Fig. 8).
+
+Methods are registered in :data:`METHODS` (name -> function from the streams to an
+:class:`Estimate`), so adding one is a local change.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,86 +25,208 @@ from numpy.typing import NDArray
 from rigcal.errors import InputError
 from rigcal.geometry import make_T, rotvec_to_R
 from rigcal.io.files import atomic_folder
-from rigcal.io.sequence import read_sequence
 from rigcal.io.trajectory import Trajectory, kitti_text, read_tum, tum_text
+from rigcal.localize import kalman
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import Odometry, icp_odometry
-from rigcal.scan import Scan
+from rigcal.localize.streams import Streams, open_streams
+from rigcal.localize.vo import VoResult, visual_odometry
 
 FloatArray = NDArray[np.float64]
 
 MIN_SCANS = 2
 
-METHODS: dict[str, Callable[[Sequence[Scan]], Odometry]] = {
-    "icp": lambda scans: icp_odometry(scans, IcpParams(method="point-to-line")),
-    "icp-p2p": lambda scans: icp_odometry(scans, IcpParams(method="point-to-point")),
+
+@dataclass(frozen=True)
+class Estimate:
+    """A method's trajectory: laser poses (x, y, yaw) at stamps, in its own start frame,
+    and the method's counts (degenerate steps, failed steps, fallbacks, ...)."""
+
+    stamps_s: FloatArray
+    poses: FloatArray
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+def _icp_estimate(streams: Streams, od: Odometry) -> Estimate:
+    stats = {"degenerate_steps": int((od.degeneracy < 0.01).sum()), "skipped_steps": od.skipped}
+    return Estimate(streams.scan_stamps_s, od.poses, stats)
+
+
+def _vo_result(streams: Streams) -> VoResult:
+    rig = streams.require_rig("vo")
+    streams.require_images("vo")
+    streams.laser_odometry()  # pairs scans with images (timed on its own)
+    t0 = time.perf_counter()
+    res = visual_odometry(
+        streams.n_images,
+        streams.image,
+        streams.image_stamps_s,
+        rig.camera,
+        rig.T_cam_laser,
+        streams.laser_points_at_image,
+    )
+    streams.timings_s["vo_s"] = time.perf_counter() - t0
+    return res
+
+
+def _vo_estimate(streams: Streams, res: VoResult) -> Estimate:
+    counts: dict[str, int] = {}
+    for s in res.steps:
+        counts[s.status] = counts.get(s.status, 0) + 1
+    stats = {"runs": len(res.steps), "run_status": counts, "frames_used": len(res.frames)}
+    return Estimate(streams.image_stamps_s[res.frames], res.poses, stats)
+
+
+def _kf_estimate(streams: Streams) -> Estimate:
+    icp = _icp_estimate(streams, streams.laser_odometry())
+    vo = _vo_estimate(streams, _vo_result(streams))
+    t0 = time.perf_counter()
+    ms = kalman.increments(icp.stamps_s, icp.poses, kalman.ICP_SIGMAS)
+    ms += kalman.increments(vo.stamps_s, vo.poses, kalman.VO_SIGMAS)
+    stamps, poses = kalman.fuse(ms)
+    streams.timings_s["kf_s"] = time.perf_counter() - t0
+    return Estimate(
+        stamps, poses, {"icp_measurements": len(icp.stamps_s) - 1, "vo_measurements": len(vo.stamps_s) - 1}
+    )
+
+
+METHODS: dict[str, Callable[[Streams], Estimate]] = {
+    "icp": lambda s: _icp_estimate(s, s.laser_odometry()),
+    "icp-p2p": lambda s: _icp_estimate(s, icp_odometry(s.scans, IcpParams(method="point-to-point"))),
+    "vo": lambda s: _vo_estimate(s, _vo_result(s)),
+    "kf": _kf_estimate,
 }
 
 
 @dataclass(frozen=True)
-class Run:
-    """What a run produced."""
+class MethodRun:
+    """One method's output: its estimate in the world frame (anchored to the truth's first
+    pose when there is ground truth), its metrics, and its time."""
 
+    method: str
     stamps_s: FloatArray
     poses: FloatArray
     metrics: dict[str, Any] | None
+    stats: dict[str, Any]
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Run:
+    """What a run produced: one entry per method, the shared stage timings, the truth."""
+
+    methods: list[MethodRun]
     timings_s: dict[str, float]
-    degenerate_steps: int
+    duration_s: float
+    truth: Trajectory | None
+
+
+def parse_methods(text: str) -> list[str]:
+    """A comma-separated method list, validated."""
+    names = [m.strip() for m in text.split(",") if m.strip()]
+    for m in names:
+        if m not in METHODS:
+            raise InputError.at(None, "--method", m, f"one of {sorted(METHODS)} (comma-separated)")
+    if not names or len(set(names)) != len(names):
+        raise InputError.at(None, "--method", text, "one or more distinct methods, comma-separated")
+    return names
 
 
 def run(
-    sequence: str | Path, method: str, output: str | Path, force: bool = False, kitti: bool = False
+    sequence: str | Path,
+    methods: list[str],
+    output: str | Path,
+    force: bool = False,
+    kitti: bool = False,
+    rig_file: str | Path | None = None,
 ) -> Run:
-    """Localize a sequence with one method and write the output folder.
+    """Localize a sequence with each method and write the output folder:
+    ``METHOD/trajectory.tum`` (and ``.kitti``) per method, ``summary.yaml``/``.json`` and,
+    with ground truth, ``paths.png``.
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
     """
-    if method not in METHODS:
-        raise InputError.at(None, "--method", method, f"one of {sorted(METHODS)}")
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    seq = read_sequence(sequence)
-    timings["read_s"] = time.perf_counter() - t0
-    if len(seq.scans) < MIN_SCANS:
+    for m in methods:
+        if m not in METHODS:
+            raise InputError.at(None, "--method", m, f"one of {sorted(METHODS)}")
+    streams = open_streams(sequence, rig_file)
+    if len(streams.scans) < MIN_SCANS:
         raise InputError.at(
-            Path(sequence) / "sequence.yaml", "scans.count", len(seq.scans), f"at least {MIN_SCANS} scans"
+            Path(sequence) / "sequence.yaml", "scans.count", len(streams.scans), f"at least {MIN_SCANS} scans"
         )
-    t0 = time.perf_counter()
-    od = METHODS[method](seq.scans)
-    timings["estimate_s"] = time.perf_counter() - t0
-    stamps = np.array([s.stamp_s for s in seq.scans], dtype=float)
-    gt = _ground_truth(Path(sequence), stamps)
-    metrics = None
-    poses = od.poses
-    if gt is not None:
-        # Express the estimate in the world frame: start it at the true first pose.
-        poses = anchored(od.poses, gt)
-        metrics = evaluate(poses, gt)
-    traj = Trajectory(
-        np.array([make_T(rotvec_to_R([0.0, 0.0, p[2]]), [p[0], p[1], 0.0]) for p in poses]), stamps
-    )
-    degenerate = int((od.degeneracy < 0.01).sum())
-    config = {"method": method, "sequence": str(Path(sequence).resolve()), "scans": len(stamps)}
-    summary = {"config": config, "timings_s": {k: round(v, 3) for k, v in timings.items()},
-               "ms_per_scan": round(1000.0 * timings["estimate_s"] / len(stamps), 2),
-               "degenerate_steps": degenerate, "skipped_steps": od.skipped, "metrics": metrics}  # fmt: skip
+    truth = _ground_truth(Path(sequence), streams.sequence.groundtruth_file)
+    results = []
+    for name in methods:
+        t0 = time.perf_counter()
+        est = METHODS[name](streams)
+        seconds = time.perf_counter() - t0
+        poses, metrics = est.poses, None
+        if truth is not None:
+            gt = planar_at(truth, est.stamps_s)
+            poses = anchored(est.poses, gt)  # the estimate in the world frame
+            metrics = evaluate(poses, gt)
+        results.append(MethodRun(name, est.stamps_s, poses, metrics, est.stats, seconds))
+    stamps = streams.scan_stamps_s
+    duration = float(stamps[-1] - stamps[0])
+    out = Run(results, dict(streams.timings_s), duration, truth)
+    _write(out, Path(sequence), output, force, kitti)
+    return out
+
+
+def summary(r: Run, sequence: Path) -> dict[str, Any]:
+    """The run's summary (written as summary.yaml and summary.json)."""
+    return {
+        "config": {"sequence": str(sequence.resolve()), "methods": [m.method for m in r.methods]},
+        "duration_s": round(r.duration_s, 3),
+        "stage_timings_s": {k: round(v, 3) for k, v in r.timings_s.items()},
+        "methods": {
+            m.method: {
+                "poses": len(m.stamps_s),
+                "seconds": round(m.seconds, 3),
+                "x_real_time": round(r.duration_s / m.seconds, 2) if m.seconds > 0 else None,
+                **m.stats,
+                "metrics": m.metrics,
+            }
+            for m in r.methods
+        },
+    }
+
+
+def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool) -> None:
+    from rigcal.viz.paths_plot import draw_paths
+
+    doc = summary(r, sequence)
     with atomic_folder(output, force) as tmp:
-        (tmp / "trajectory.tum").write_text(tum_text(traj), encoding="utf-8")
-        if kitti:
-            (tmp / "trajectory.kitti").write_text(kitti_text(traj), encoding="utf-8")
-        (tmp / "summary.yaml").write_text(yaml.safe_dump(summary, sort_keys=False), encoding="utf-8")
-        (tmp / "summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-    return Run(stamps, poses, metrics, timings, degenerate)
+        for m in r.methods:
+            traj = Trajectory(
+                np.array([make_T(rotvec_to_R([0.0, 0.0, p[2]]), [p[0], p[1], 0.0]) for p in m.poses]),
+                m.stamps_s,
+            )
+            (tmp / m.method).mkdir()
+            (tmp / m.method / "trajectory.tum").write_text(tum_text(traj), encoding="utf-8")
+            if kitti:
+                (tmp / m.method / "trajectory.kitti").write_text(kitti_text(traj), encoding="utf-8")
+        (tmp / "summary.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+        (tmp / "summary.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        if r.truth is not None:
+            import cv2
+
+            gt = planar_at(r.truth, r.truth.stamps_s)  # type: ignore[arg-type]
+            img = draw_paths(gt, {m.method: m.poses for m in r.methods})
+            ok, buf = cv2.imencode(".png", img)
+            if ok:
+                (tmp / "paths.png").write_bytes(buf.tobytes())
 
 
-def _ground_truth(folder: Path, stamps: FloatArray) -> FloatArray | None:
-    """The sequence's true laser poses (x, y, yaw) at the scan stamps, or None."""
-    f = folder / "groundtruth.tum"
-    if not f.is_file():
+def _ground_truth(folder: Path, name: str | None) -> Trajectory | None:
+    if name is None:
         return None
-    return planar_at(read_tum(f), stamps)
+    traj = read_tum(folder / name)
+    if len(traj) < 2:
+        raise InputError(f"{folder / name}: ground truth has {len(traj)} poses; expected at least 2")
+    return traj
 
 
 def planar_at(traj: Trajectory, stamps: FloatArray) -> FloatArray:
@@ -111,3 +236,21 @@ def planar_at(traj: Trajectory, stamps: FloatArray) -> FloatArray:
     y = np.interp(stamps, traj.stamps_s, traj.poses[:, 1, 3])
     yaw = np.unwrap(np.arctan2(traj.poses[:, 1, 0], traj.poses[:, 0, 0]))
     return np.column_stack([x, y, np.interp(stamps, traj.stamps_s, yaw)])
+
+
+def table(rows: list[tuple[str, dict[str, Any]]]) -> str:
+    """The paper's Table 1 (plus ATE and RPE) as a Markdown table."""
+    keys = (
+        "loop_closure_error_m",
+        "loop_closure_error_percent",
+        "average_position_error_m",
+        "ate_rmse_m",
+        "rpe_1m_rmse_m",
+        "rpe_10m_rmse_m",
+    )
+    head = (
+        "| method | loop closure (m) | loop closure (%) | avg position error (m) | ATE RMSE (m) "
+        "| RPE 1 m (m) | RPE 10 m (m) |\n|---|---|---|---|---|---|---|"
+    )
+    lines = [head] + [f"| {label} | " + " | ".join(str(m[k]) for k in keys) + " |" for label, m in rows]
+    return "\n".join(lines)

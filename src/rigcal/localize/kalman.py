@@ -1,0 +1,120 @@
+"""Kalman filter fusion of laser and visual odometry (paper Section VI, Eq. (11)).
+
+State S = [x, y, yaw, vx, vy, yaw_rate] (Eq. (11)): the laser's planar pose in the world
+and its velocity, world frame. Process model: a constant-velocity particle driven by
+white acceleration noise. Measurements: each odometry increment (dx, dy, dyaw) over
+[t0, t1], expressed in the rig's frame at t0, becomes a velocity measurement at t1,
+
+    v_world = R(yaw_mid) (dx, dy) / (t1 - t0),   yaw_rate = dyaw / (t1 - t0),
+
+with a fixed covariance given in the rig's frame (forward, cross-track, yaw rate) and
+turned into the world frame with the filter's heading. As the paper sets them, ICP's
+forward translation and rotation weigh less than visual odometry's, and visual
+odometry's cross-track translation weighs less than ICP's (:data:`ICP_SIGMAS`,
+:data:`VO_SIGMAS`; documented in docs/localization.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+# 1-sigma velocity measurement noise in the rig's frame: forward (m/s), cross-track (m/s),
+# yaw rate (rad/s).
+ICP_SIGMAS = (0.10, 0.03, 0.05)
+VO_SIGMAS = (0.03, 0.15, 0.02)
+
+
+@dataclass(frozen=True)
+class Increment:
+    """One odometry step: the motion (dx, dy, dyaw) from t0 to t1 in the rig's frame at t0."""
+
+    t0: float
+    t1: float
+    motion: FloatArray
+    sigmas: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class KfParams:
+    """Process noise: white acceleration (m/s^2) and angular acceleration (rad/s^2)."""
+
+    accel_sigma: float = 0.5
+    yaw_accel_sigma: float = 1.0
+
+
+def increments(stamps: FloatArray, poses: FloatArray, sigmas: tuple[float, float, float]) -> list[Increment]:
+    """The steps of an odometry trajectory (poses (N, 3) at stamps (N,))."""
+    out = []
+    for k in range(1, len(stamps)):
+        dt = float(stamps[k] - stamps[k - 1])
+        if dt <= 0:
+            continue
+        c, s = np.cos(poses[k - 1, 2]), np.sin(poses[k - 1, 2])
+        d = poses[k, :2] - poses[k - 1, :2]
+        local = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], _wrap(poses[k, 2] - poses[k - 1, 2])])
+        out.append(Increment(float(stamps[k - 1]), float(stamps[k]), local, sigmas))
+    return out
+
+
+def fuse(measurements: list[Increment], params: KfParams | None = None) -> tuple[FloatArray, FloatArray]:
+    """Run the filter over the increments in time order (by their end stamps).
+
+    Returns:
+        stamps (M,) and poses (M, 3): the filtered pose after each update, starting with
+        the origin at the earliest stamp.
+    """
+    params = params or KfParams()
+    ms = sorted(measurements, key=lambda m: m.t1)
+    if not ms:
+        return np.zeros(0), np.zeros((0, 3))
+    t = min(m.t0 for m in ms)
+    x = np.zeros(6)
+    P = np.diag([1e-9, 1e-9, 1e-9, 1.0, 1.0, 1.0])
+    stamps, poses = [t], [x[:3].copy()]
+    H = np.zeros((3, 6))
+    H[:, 3:] = np.eye(3)
+    for m in ms:
+        dt = m.t1 - t
+        if dt > 0:
+            x, P = _predict(x, P, dt, params)
+            t = m.t1
+        span = m.t1 - m.t0
+        yaw_mid = x[2] - 0.5 * m.motion[2]
+        c, s = np.cos(yaw_mid), np.sin(yaw_mid)
+        R = np.array([[c, -s], [s, c]])
+        z = np.concatenate([R @ m.motion[:2], [m.motion[2]]]) / span
+        Rm = np.zeros((3, 3))
+        Rm[:2, :2] = R @ np.diag(np.square(m.sigmas[:2])) @ R.T
+        Rm[2, 2] = m.sigmas[2] ** 2
+        y = z - H @ x
+        S = H @ P @ H.T + Rm
+        K = P @ H.T @ np.linalg.inv(S)
+        x = x + K @ y
+        P = (np.eye(6) - K @ H) @ P
+        if stamps[-1] == t:
+            poses[-1] = x[:3].copy()
+        else:
+            stamps.append(t)
+            poses.append(x[:3].copy())
+    return np.array(stamps), np.array(poses)
+
+
+def _predict(x: FloatArray, P: FloatArray, dt: float, params: KfParams) -> tuple[FloatArray, FloatArray]:
+    F = np.eye(6)
+    F[:3, 3:] = dt * np.eye(3)
+    q = np.array([params.accel_sigma, params.accel_sigma, params.yaw_accel_sigma]) ** 2
+    # White-acceleration noise integrated over dt, per axis: [[dt^3/3, dt^2/2], [dt^2/2, dt]].
+    Q = np.zeros((6, 6))
+    Q[:3, :3] = np.diag(q * dt**3 / 3.0)
+    Q[:3, 3:] = Q[3:, :3] = np.diag(q * dt**2 / 2.0)
+    Q[3:, 3:] = np.diag(q * dt)
+    return F @ x, F @ P @ F.T + Q
+
+
+def _wrap(a: float) -> float:
+    return float((a + np.pi) % (2.0 * np.pi) - np.pi)

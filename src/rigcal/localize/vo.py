@@ -1,0 +1,445 @@
+"""Visual odometry with the laser's scale (paper Section IV).
+
+The camera's motion between two images, up to scale, from SIFT features:
+
+1. SIFT features are detected in every frame and matched to the first frame of the
+   current *run* (Lowe's ratio test, mutual best match); the run goes on while at least
+   ``min_tracked`` features are still matched, up to ``max_run_frames`` frames, so that
+   the epipolar geometry is computed over enough motion (Section IV).
+2. The essential matrix E between the run's first and last frame by the five-point
+   algorithm inside RANSAC (OpenCV's ``findEssentialMat``), on normalised image
+   coordinates from the camera model (lens distortion removed exactly), Eq. (5):
+   ``p2^T E p1 = 0``.
+3. E is decomposed into the rotation R_c and the unit translation t_c (OpenCV's
+   ``recoverPose``, the cheirality check), then polished by Gauss-Newton on the Sampson
+   distance of the inliers (the "iterative refinement" of Section IV).
+4. The scale s of the translation from the laser, Eq. (6): laser points P seen in the
+   run's first image are found again in its last image by a patch search (sum of absolute
+   differences, as IASM's patches, Section III-A) along their epipolar lines, which is a
+   one-parameter search over s since the point moves to ``R_c P + s t_c``; each match is a
+   triangulation of P with the current pose, and s = |P| / |P_hat|. The median over the
+   laser points is the run's scale.
+
+Conventions: a relative pose ``(R, t)`` maps first-camera coordinates into the second
+camera's, ``x2 = R x1 + t`` (OpenCV's). Laser-frame points are (x, y, 0).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.camera import Camera
+from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
+
+FloatArray = NDArray[np.float64]
+Gray = NDArray[np.uint8]
+
+
+@dataclass(frozen=True)
+class VoParams:
+    """Visual odometry settings.
+
+    Attributes:
+        n_features: SIFT features kept per frame (strongest first).
+        ratio: Lowe's ratio test threshold for descriptor matches.
+        min_tracked: a run ends when fewer features than this stay matched to its first frame.
+        max_run_frames: a run ends after this many frames at the latest.
+        ransac_threshold_px: five-point RANSAC inlier threshold (pixels, via the focal length).
+        min_inliers: fewer essential-matrix inliers than this and the step fails.
+        still_px: median motion of the matches (after removing the rotation) below this
+            means the rig stood still: the translation is zero.
+        patch_radius_px: the scale search compares (2r+1)^2 patches.
+        max_speed_mps: the scale search covers translations up to this speed over the run.
+        scale_steps: samples of the scale search.
+    """
+
+    n_features: int = 1200
+    ratio: float = 0.8
+    min_tracked: int = 120
+    max_run_frames: int = 5
+    ransac_threshold_px: float = 1.0
+    min_inliers: int = 25
+    still_px: float = 0.6
+    patch_radius_px: int = 4
+    max_speed_mps: float = 2.0
+    scale_steps: int = 81
+
+
+@dataclass(frozen=True)
+class Features:
+    """SIFT features of one frame: pixels (N, 2), unit bearings (N, 3), descriptors (N, 128)."""
+
+    pixels: FloatArray
+    bearings: FloatArray
+    descriptors: NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class RelativePose:
+    """The camera's motion between two frames: ``x2 = R x1 + scale * t_unit``."""
+
+    R: FloatArray
+    t_unit: FloatArray
+    inliers: int
+    still: bool
+    bearings1: FloatArray = field(repr=False)
+    bearings2: FloatArray = field(repr=False)
+
+
+class FeatureDetector:
+    """SIFT detection (OpenCV) with bearings from the camera model."""
+
+    def __init__(self, camera: Camera, params: VoParams) -> None:
+        self.camera = camera
+        self.params = params
+        self._sift = cv2.SIFT_create(nfeatures=params.n_features)  # type: ignore[attr-defined]
+        self._matcher = cv2.BFMatcher(cv2.NORM_L2)
+
+    def detect(self, gray: Gray) -> Features:
+        kps, desc = self._sift.detectAndCompute(gray, None)
+        if desc is None or not kps:
+            return Features(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 128), np.float32))
+        px = np.array([k.pt for k in kps], dtype=float)
+        return Features(px, self.camera.bearings(px), desc)
+
+    def match(self, a: Features, b: Features) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """Indices (ia, ib) of matches passing the ratio test both ways (mutual best)."""
+        if len(a.pixels) < 2 or len(b.pixels) < 2:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        ab = self._ratio_matches(a.descriptors, b.descriptors)
+        ba = self._ratio_matches(b.descriptors, a.descriptors)
+        back = dict(ba)
+        pairs = [(i, j) for i, j in ab if back.get(j) == i]
+        if not pairs:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        arr = np.array(pairs, dtype=np.intp)
+        return arr[:, 0], arr[:, 1]
+
+    def _ratio_matches(self, d1: NDArray[np.float32], d2: NDArray[np.float32]) -> list[tuple[int, int]]:
+        out = []
+        for m in self._matcher.knnMatch(d1, d2, k=2):
+            if len(m) == 2 and m[0].distance < self.params.ratio * m[1].distance:
+                out.append((m[0].queryIdx, m[0].trainIdx))
+        return out
+
+
+def _normalised(bearings: FloatArray) -> FloatArray:
+    return bearings[:, :2] / bearings[:, 2:3]
+
+
+def rotation_between(b1: FloatArray, b2: FloatArray) -> FloatArray:
+    """The rotation R minimising sum |b2 - R b1|^2 (Kabsch), for a camera that only turned."""
+    U, _, Vt = np.linalg.svd(b2.T @ b1)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    out: FloatArray = U @ D @ Vt
+    return out
+
+
+def relative_pose(b1: FloatArray, b2: FloatArray, focal_px: float, params: VoParams) -> RelativePose | None:
+    """R_c and unit t_c from matched bearings (Eq. (5)), or None when too few inliers.
+
+    A rig standing still (the matches move less than ``still_px`` once the rotation is
+    removed) gets the rotation alone and a zero translation.
+    """
+    front = (b1[:, 2] > 0.05) & (b2[:, 2] > 0.05)
+    b1, b2 = b1[front], b2[front]
+    if len(b1) < max(params.min_inliers, 5):
+        return None
+    R_rot = rotation_between(b1, b2)
+    moved = np.linalg.norm(b2 - b1 @ R_rot.T, axis=1) * focal_px
+    if float(np.median(moved)) < params.still_px:
+        return RelativePose(R_rot, np.zeros(3), len(b1), True, b1, b2)
+    p1, p2 = _normalised(b1), _normalised(b2)
+    E, mask = cv2.findEssentialMat(
+        p1, p2, np.eye(3), method=cv2.RANSAC, prob=0.999, threshold=params.ransac_threshold_px / focal_px
+    )
+    if E is None or mask is None or int(mask.sum()) < params.min_inliers:
+        return None
+    # Several solutions may come back stacked; recoverPose picks by cheirality.
+    best = None
+    for k in range(E.shape[0] // 3):
+        n, R, t, m = cv2.recoverPose(E[3 * k : 3 * k + 3], p1, p2, np.eye(3), mask=mask.copy())
+        if best is None or n > best[0]:
+            best = (n, R, t.ravel(), m.ravel() > 0)
+    assert best is not None
+    n, R, t, inl = best
+    if n < params.min_inliers:
+        return None
+    R, t = refine_essential(np.asarray(R, float), np.asarray(t, float), b1[inl], b2[inl])
+    return RelativePose(R, t, int(n), False, b1[inl], b2[inl])
+
+
+def refine_essential(
+    R: FloatArray, t: FloatArray, b1: FloatArray, b2: FloatArray, iterations: int = 5
+) -> tuple[FloatArray, FloatArray]:
+    """Gauss-Newton on the Sampson distance of Eq. (5) over (rotation, unit translation).
+
+    Parametrisation: R <- Exp(w) R, t <- normalise(t + a u1 + b u2) with u1, u2 spanning
+    the plane orthogonal to t: five parameters, E's degrees of freedom.
+    """
+    x1 = np.column_stack([_normalised(b1), np.ones(len(b1))])
+    x2 = np.column_stack([_normalised(b2), np.ones(len(b2))])
+
+    def residuals(R_: FloatArray, t_: FloatArray) -> FloatArray:
+        E = _skew(t_) @ R_
+        Ex1 = x1 @ E.T
+        Etx2 = x2 @ E
+        num = np.einsum("ij,ij->i", x2, Ex1)
+        den = np.sqrt(Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2) + 1e-15
+        out: FloatArray = num / den
+        return out
+
+    t = t / np.linalg.norm(t)
+    r = residuals(R, t)
+    cost = float(r @ r)
+    for _ in range(iterations):
+        u1 = np.cross(t, [1.0, 0.0, 0.0] if abs(t[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u1 /= np.linalg.norm(u1)
+        u2 = np.cross(t, u1)
+
+        def apply(
+            p: FloatArray, R0: FloatArray = R, t0: FloatArray = t, u1: FloatArray = u1, u2: FloatArray = u2
+        ) -> tuple[FloatArray, FloatArray]:
+            tn = t0 + p[3] * u1 + p[4] * u2
+            return rotvec_to_R(p[:3]) @ R0, tn / np.linalg.norm(tn)
+
+        eps = 1e-7
+        J = np.empty((len(r), 5))
+        for k in range(5):
+            dp = np.zeros(5)
+            dp[k] = eps
+            J[:, k] = (residuals(*apply(dp)) - r) / eps
+        try:
+            step = -np.linalg.solve(J.T @ J + 1e-9 * np.eye(5), J.T @ r)
+        except np.linalg.LinAlgError:
+            break
+        R_new, t_new = apply(step)
+        r_new = residuals(R_new, t_new)
+        if float(r_new @ r_new) >= cost:
+            break
+        R, t, r, cost = R_new, t_new, r_new, float(r_new @ r_new)
+    return R, t
+
+
+def _skew(v: FloatArray) -> FloatArray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def sample_patches(gray: Gray, centres: FloatArray, radius: int) -> NDArray[np.float32]:
+    """(N, (2r+1)^2) bilinear samples of square patches around sub-pixel centres."""
+    off = np.arange(-radius, radius + 1, dtype=np.float32)
+    dx, dy = np.meshgrid(off, off)
+    c = centres.astype(np.float32)
+    mx = (c[:, 0:1] + dx.ravel()[None, :]).astype(np.float32)
+    my = (c[:, 1:2] + dy.ravel()[None, :]).astype(np.float32)
+    return np.asarray(
+        cv2.remap(
+            gray.astype(np.float32),
+            mx,
+            my,
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=np.nan,
+        ),
+        dtype=np.float32,
+    )
+
+
+@dataclass(frozen=True)
+class ScaleEstimate:
+    """Eq. (6) over the laser points: the median scale and how many points voted."""
+
+    scale: float
+    used: int
+    per_point: FloatArray
+
+
+def laser_scale(
+    gray1: Gray,
+    gray2: Gray,
+    camera: Camera,
+    R: FloatArray,
+    t_unit: FloatArray,
+    P1: FloatArray,
+    max_scale_m: float,
+    params: VoParams,
+) -> ScaleEstimate:
+    """The translation's scale from laser points, Eq. (6).
+
+    Args:
+        gray1, gray2: the run's first and last image.
+        R, t_unit: the relative pose from the essential matrix.
+        P1: (N, 3) laser points in the first camera's frame, metres (seen at the first image's time).
+        max_scale_m: the largest translation searched.
+
+    Each point's patch in the first image is compared (SAD) with patches along its epipolar
+    line in the second image, at ``project(R P + s t_unit)`` for s in [0, max_scale_m];
+    the best s triangulates P to P_hat with |P_hat| = |P| / s, so Eq. (6)'s
+    s = |P| / |P_hat| is read off directly. Points whose image position barely moves over
+    the searched range (far away, or near the epipole), ambiguous matches (a second
+    minimum almost as good, as on a repeating pattern) and texture-less patches do not vote.
+    """
+    r = params.patch_radius_px
+    ok = P1[:, 2] > 0.2
+    P1 = P1[ok]
+    none = ScaleEstimate(float("nan"), 0, np.zeros(0))
+    if len(P1) == 0:
+        return none
+    u1 = camera.project(P1)
+    inside = camera.in_image(u1, margin_px=r + 1)
+    P1, u1 = P1[inside], u1[inside]
+    if len(P1) == 0:
+        return none
+    ref = sample_patches(gray1, u1, r)
+    texture = ref.std(axis=1)
+    keep = texture > 4.0
+    P1, u1, ref = P1[keep], u1[keep], ref[keep]
+    if len(P1) == 0:
+        return none
+    s = np.linspace(0.0, max_scale_m, params.scale_steps)
+    moved = (P1 @ R.T)[:, None, :] + s[None, :, None] * t_unit[None, None, :]  # (N, S, 3)
+    front = moved[..., 2] > 0.05
+    u2 = camera.project(np.where(front[..., None], moved, np.array([0.0, 0.0, 1.0])).reshape(-1, 3))
+    u2 = u2.reshape(len(P1), len(s), 2)
+    cand = sample_patches(gray2, u2.reshape(-1, 2), r).reshape(len(P1), len(s), -1)
+    sad = np.abs(cand - ref[:, None, :]).mean(axis=2)
+    sad = np.where(
+        front & camera.in_image(u2.reshape(-1, 2), margin_px=r + 1).reshape(sad.shape), sad, np.nan
+    )
+    valid = np.isfinite(sad).sum(axis=1) >= 5
+    span = np.linalg.norm(u2[:, -1] - u2[:, 0], axis=1)
+    sad_f = np.where(np.isfinite(sad), sad, np.inf)
+    best = np.argmin(sad_f, axis=1)
+    rows = np.arange(len(P1))
+    best_val = sad_f[rows, best]
+    # A distinct minimum: the best outside +-2 samples of it is clearly worse.
+    far = np.abs(np.arange(len(s))[None, :] - best[:, None]) > 2
+    second = np.where(far, sad_f, np.inf).min(axis=1)
+    distinct = best_val < 0.8 * second
+    # Sub-sample refinement of the minimum by a parabola through its neighbours.
+    lo = np.clip(best - 1, 0, len(s) - 1)
+    hi = np.clip(best + 1, 0, len(s) - 1)
+    a, b, c = sad_f[rows, lo], best_val, sad_f[rows, hi]
+    den = a - 2 * b + c
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where((lo < best) & (hi > best) & np.isfinite(den) & (den > 0), 0.5 * (a - c) / den, 0.0)
+    est = s[best] + np.clip(frac, -0.5, 0.5) * (s[1] - s[0])
+    interior = (best > 0) & (best < len(s) - 1)
+    vote = valid & distinct & (span > 2.0 * (2 * r + 1)) & np.isfinite(best_val) & interior
+    per = est[vote]
+    if len(per) == 0:
+        return ScaleEstimate(float("nan"), 0, per)
+    return ScaleEstimate(float(np.median(per)), len(per), per)
+
+
+@dataclass(frozen=True)
+class VoStep:
+    """One run of the odometry: frames (first, last), inliers, scale, how it ended."""
+
+    first: int
+    last: int
+    inliers: int
+    scale_points: int
+    status: str  # "ok", "still", "no-scale", "failed"
+
+
+@dataclass(frozen=True)
+class VoResult:
+    """Laser poses (x, y, yaw) at the frames where runs ended (frame indices), and the runs."""
+
+    frames: NDArray[np.intp]
+    poses: FloatArray
+    steps: tuple[VoStep, ...]
+
+
+def visual_odometry(
+    n_frames: int,
+    image: Callable[[int], Gray],
+    stamps_s: FloatArray,
+    camera: Camera,
+    T_cam_laser: FloatArray,
+    laser_points: Callable[[int], FloatArray],
+    params: VoParams | None = None,
+) -> VoResult:
+    """Chain the camera's runs into the laser's planar trajectory.
+
+    Args:
+        n_frames: images in the sequence.
+        image: frame index -> grey image.
+        stamps_s: (n_frames,) image stamps.
+        T_cam_laser: the rig's calibration.
+        laser_points: frame index -> (N, 2) laser points in the laser frame at that frame's time.
+
+    A failed run (too few inliers, no laser scale) keeps the previous run's velocity (a
+    constant-velocity guess) and is reported in ``steps``.
+    """
+    params = params or VoParams()
+    det = FeatureDetector(camera, params)
+    focal = float(np.mean(camera.intrinsics[:2]))
+    T_laser_cam = np.linalg.inv(T_cam_laser)
+    T_w_c = T_laser_cam.copy()  # the first laser pose is the origin
+    frames = [0]
+    poses = [_planar(T_w_c @ T_cam_laser)]
+    steps: list[VoStep] = []
+    kf = 0
+    kf_feat = det.detect(image(0))
+    last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
+    j = 1
+    while j < n_frames:
+        feat = det.detect(image(j))
+        ia, ib = det.match(kf_feat, feat)
+        end = len(ia) < params.min_tracked or j - kf >= params.max_run_frames or j == n_frames - 1
+        if not end:
+            j += 1
+            continue
+        dt = float(stamps_s[j] - stamps_s[kf])
+        rel = relative_pose(kf_feat.bearings[ia], feat.bearings[ib], focal, params)
+        status, scale_pts = "ok", 0
+        if rel is None:
+            status = "failed"
+        elif rel.still:
+            status = "still"
+            R, t = rel.R, np.zeros(3)
+        else:
+            P1 = _to_cam(T_cam_laser, laser_points(kf))
+            est = laser_scale(
+                image(kf), image(j), camera, rel.R, rel.t_unit, P1, params.max_speed_mps * dt, params
+            )
+            scale_pts = est.used
+            if est.used < 3 or not np.isfinite(est.scale):
+                status = "no-scale"
+            R, t = rel.R, est.scale * rel.t_unit
+        if status == "failed":
+            # Constant velocity: the previous run's motion rates over this run's time.
+            R = np.eye(3) if last_velocity is None else rotvec_to_R(last_velocity[0] * dt)
+            t = np.zeros(3) if last_velocity is None else last_velocity[1] * dt
+        elif status == "no-scale":
+            assert rel is not None
+            speed = 0.0 if last_velocity is None else float(np.linalg.norm(last_velocity[1]))
+            R, t = rel.R, speed * dt * rel.t_unit
+        else:
+            last_velocity = (R_to_rotvec(R) / max(dt, 1e-6), t / max(dt, 1e-6))
+        T_c2_c1 = make_T(R, t)
+        T_w_c = T_w_c @ np.linalg.inv(T_c2_c1)
+        frames.append(j)
+        poses.append(_planar(T_w_c @ T_cam_laser))
+        steps.append(VoStep(kf, j, 0 if rel is None else rel.inliers, scale_pts, status))
+        kf, kf_feat = j, feat
+        j += 1
+    return VoResult(np.array(frames, dtype=np.intp), np.array(poses), tuple(steps))
+
+
+def _to_cam(T_cam_laser: FloatArray, pts2: FloatArray) -> FloatArray:
+    P = np.column_stack([pts2, np.zeros(len(pts2))])
+    out: FloatArray = P @ T_cam_laser[:3, :3].T + T_cam_laser[:3, 3]
+    return out
+
+
+def _planar(T_w_l: FloatArray) -> FloatArray:
+    """(x, y, yaw) of a 3D laser pose, dropping the third dimension (Section VI)."""
+    return np.array([T_w_l[0, 3], T_w_l[1, 3], np.arctan2(T_w_l[1, 0], T_w_l[0, 0])])
