@@ -325,8 +325,8 @@ def laser_scale(
     lo = np.clip(best - 1, 0, len(s) - 1)
     hi = np.clip(best + 1, 0, len(s) - 1)
     a, b, c = sad_f[rows, lo], best_val, sad_f[rows, hi]
-    den = a - 2 * b + c
     with np.errstate(invalid="ignore", divide="ignore"):
+        den = a - 2 * b + c
         frac = np.where((lo < best) & (hi > best) & np.isfinite(den) & (den > 0), 0.5 * (a - c) / den, 0.0)
     est = s[best] + np.clip(frac, -0.5, 0.5) * (s[1] - s[0])
     interior = (best > 0) & (best < len(s) - 1)

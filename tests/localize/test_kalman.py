@@ -1,0 +1,65 @@
+"""The Kalman filter of Section VI: constant velocity, velocity measurements from increments."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rigcal.localize import kalman
+
+
+def _arc(n=200, dt=0.1, v=1.0, w=0.2):
+    t = np.arange(n) * dt
+    yaw = w * t
+    x = v / w * np.sin(yaw)
+    y = v / w * (1 - np.cos(yaw))
+    return t, np.column_stack([x, y, yaw])
+
+
+def test_exact_increments_reproduce_the_path():
+    t, poses = _arc()
+    st, est = kalman.fuse(kalman.increments(t, poses, kalman.ICP_SIGMAS))
+    assert np.allclose(st, t)
+    # A velocity measured over a step lags half a step at most: centimetres over 20 m.
+    assert np.max(np.linalg.norm(est[:, :2] - poses[:, :2], axis=1)) < 0.1
+    assert np.max(np.abs(est[:, 2] - poses[:, 2])) < 0.01
+
+
+def _scaled(poses, forward, cross):
+    """Odometry whose every step is stretched forward and sideways in the rig's frame."""
+    out = [poses[0]]
+    for k in range(1, len(poses)):
+        c, s = np.cos(poses[k - 1, 2]), np.sin(poses[k - 1, 2])
+        d = poses[k, :2] - poses[k - 1, :2]
+        lx, ly = c * d[0] + s * d[1], -s * d[0] + c * d[1]
+        lx, ly = lx * forward, lx * cross + ly
+        p = out[-1]
+        cc, ss = np.cos(p[2]), np.sin(p[2])
+        out.append(
+            np.array(
+                [p[0] + cc * lx - ss * ly, p[1] + ss * lx + cc * ly, p[2] + poses[k, 2] - poses[k - 1, 2]]
+            )
+        )
+    return np.array(out)
+
+
+def test_forward_speed_follows_vo_and_cross_track_follows_icp():
+    t, poses = _arc(w=1e-6)
+    icp = _scaled(poses, 1.2, 0.0)  # ICP overestimates forward motion by 20 %
+    vo = _scaled(poses, 1.0, 0.1)  # VO drifts sideways by 10 % of the distance
+    ms = kalman.increments(t, icp, kalman.ICP_SIGMAS) + kalman.increments(t, vo, kalman.VO_SIGMAS)
+    _, est = kalman.fuse(ms)
+    travelled = est[-1, 0]
+    assert travelled == pytest.approx(poses[-1, 0], rel=0.05)  # nearer VO's 1.0 than ICP's 1.2
+    assert abs(est[-1, 1]) < 0.3 * abs(vo[-1, 1])  # most of VO's sideways drift rejected
+
+
+def test_no_measurements_give_an_empty_path():
+    st, est = kalman.fuse([])
+    assert st.shape == (0,) and est.shape == (0, 3)
+
+
+def test_repeated_stamps_are_skipped():
+    t = np.array([0.0, 0.1, 0.1, 0.2])
+    p = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0, 0], [0.2, 0, 0]], dtype=float)
+    assert len(kalman.increments(t, p, kalman.ICP_SIGMAS)) == 2

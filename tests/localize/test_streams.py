@@ -1,0 +1,101 @@
+"""Streams of a sequence: pairing the laser to image times, images, and their errors."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from rigcal.errors import InputError
+from rigcal.io.sequence import ImageFrame, write_sequence
+from rigcal.localize.streams import nearest_index, open_streams, pose_at
+from rigcal.rig import Rig
+from rigcal.rigfile import rig_to_text
+from rigcal.scan import Scan
+from rigcal.sim.box_session import default_camera, default_T_cam_laser
+from rigcal.sim.raycast import beam_angles, cast_scan
+from rigcal.sim.render import Room
+
+ROOM = Room((8.0, 6.0))
+
+
+def _scan(pose, t):
+    x, y, yaw = pose
+    _, _, ang = beam_angles(270.0, 0.5)
+    # The room seen from the pose: the room's pose in the laser frame.
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.array([[c, -s], [s, c]])
+    o = -R.T @ [x, y]
+    r = cast_scan(ROOM.wall_segments((o[0], o[1], -yaw)), ang, 30.0)
+    return Scan.from_uniform(float(ang[0]), float(ang[1] - ang[0]), r, 0.1, 30.0, t)
+
+
+def _truth(t):
+    return np.array([-2.0 + 0.8 * t, -0.5 + 0.1 * t, 0.2 * t])
+
+
+@pytest.fixture
+def seq(tmp_path):
+    cam = default_camera()
+    scans = [_scan(_truth(t), t) for t in np.arange(0.0, 2.0, 0.05)]
+    img = np.random.default_rng(0).integers(0, 255, (cam.height_px, cam.width_px), dtype=np.uint8)
+    png = cv2.imencode(".png", img)[1].tobytes()
+    images = [ImageFrame(float(t), f"{k:06d}.png", png) for k, t in enumerate(np.arange(0.013, 2.0, 0.1))]
+    rig = rig_to_text(Rig(default_T_cam_laser(), cam))
+    return write_sequence(tmp_path / "seq", "t", scans, images, None, {}, rig_yaml=rig)
+
+
+def test_nearest_index_and_pose_interpolation():
+    s = np.array([0.0, 1.0, 2.0])
+    assert [nearest_index(s, t) for t in (-1.0, 0.4, 0.6, 1.49, 1.51, 5.0)] == [0, 0, 1, 1, 2, 2]
+    p = np.array([[0, 0, 3.0], [1, 2, -3.0]])  # yaw crosses +-pi: interpolated the short way
+    q = pose_at(np.array([0.0, 1.0]), p, 0.5)
+    assert q[:2] == pytest.approx([0.5, 1.0])
+    assert abs(np.cos(q[2]) + 1.0) < 1e-2
+
+
+def test_laser_points_at_an_image_are_the_scan_moved_to_its_time(seq):
+    st = open_streams(seq)
+    i = 7
+    t = float(st.image_stamps_s[i])
+    pts = st.laser_points_at_image(i)
+    # Points put in the room by the true pose at the image's time lie on the room's walls.
+    off_wall = _off_wall(pts, _truth(t))
+    assert np.median(off_wall) < 0.002
+    # Without the motion compensation, the nearest scan (13 ms away) is a centimetre off.
+    k = nearest_index(st.scan_stamps_s, t)
+    raw = st.scans[k].points[st.scans[k].valid]
+    assert np.median(_off_wall(raw, _truth(t))) > 3 * np.median(off_wall)
+
+
+def _off_wall(pts, pose):
+    x, y, yaw = pose
+    c, s = np.cos(yaw), np.sin(yaw)
+    w = pts @ np.array([[c, -s], [s, c]]).T + [x, y]
+    return np.minimum(np.abs(4.0 - np.abs(w[:, 0])), np.abs(3.0 - np.abs(w[:, 1])))
+
+
+def test_images_are_read_and_checked(seq, tmp_path):
+    st = open_streams(seq)
+    assert st.image(3).shape == (480, 640)
+    st.require_images("vo")
+    (seq / "images" / "000004.png").write_bytes(b"not a png")
+    with pytest.raises(InputError, match="000004.png: not a readable image"):
+        st.image(4)
+
+
+def test_a_method_needing_the_rig_says_so(seq):
+    (seq / "rig.yaml").unlink()
+    with pytest.raises(InputError, match="rig: got 'rig.yaml'; expected a file"):
+        open_streams(seq)
+    text = (seq / "sequence.yaml").read_text().replace("rig: rig.yaml\n", "")
+    (seq / "sequence.yaml").write_text(text)
+    with pytest.raises(InputError, match="needs the calibration"):
+        open_streams(seq).require_rig("vo")
+
+
+def test_images_of_the_wrong_size_are_refused(seq, tmp_path):
+    small = cv2.imencode(".png", np.zeros((240, 320), np.uint8))[1].tobytes()
+    (seq / "images" / "000000.png").write_bytes(small)
+    with pytest.raises(InputError, match="320x240 px; expected 640x480"):
+        open_streams(seq).require_images("vo")

@@ -1,0 +1,112 @@
+"""Visual odometry pieces: the essential-matrix pose (Eq. 5), the laser scale (Eq. 6), the chain."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter, map_coordinates
+
+from rigcal.geometry import rotation_angle_rad, rotvec_to_R
+from rigcal.localize.vo import VoParams, laser_scale, refine_essential, relative_pose
+from rigcal.sim.box_session import default_camera
+
+CAM = default_camera()
+FOCAL = 520.0
+
+
+def _bearings(P):
+    return P / np.linalg.norm(P, axis=1, keepdims=True)
+
+
+def _scene(rng, n=300):
+    return np.column_stack([rng.uniform(-3, 3, n), rng.uniform(-1.5, 1.5, n), rng.uniform(2.0, 8.0, n)])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_relative_pose_recovers_rotation_and_direction(seed):
+    rng = np.random.default_rng(seed)
+    P1 = _scene(rng)
+    R = rotvec_to_R(rng.normal(0, 0.05, 3))
+    t = np.array([0.1, -0.02, 0.3]) + rng.normal(0, 0.02, 3)
+    P2 = P1 @ R.T + t
+    # 0.5 px of noise on each bearing, and 10 % of matches wrong.
+    b1 = _bearings(P1 + rng.normal(0, 0.5 / FOCAL, P1.shape) * P1[:, 2:3])
+    b2 = _bearings(P2 + rng.normal(0, 0.5 / FOCAL, P2.shape) * P2[:, 2:3])
+    bad = rng.choice(len(b2), 30, replace=False)
+    b2[bad] = b2[rng.permutation(bad)]
+    rel = relative_pose(b1, b2, FOCAL, VoParams())
+    assert rel is not None and not rel.still
+    assert np.degrees(rotation_angle_rad(rel.R @ R.T)) < 0.25
+    assert np.degrees(np.arccos(np.clip(rel.t_unit @ t / np.linalg.norm(t), -1, 1))) < 3.0
+
+
+def test_refinement_lowers_the_error_of_a_perturbed_pose():
+    rng = np.random.default_rng(5)
+    P1 = _scene(rng)
+    R = rotvec_to_R([0.01, 0.03, -0.02])
+    t = np.array([0.2, 0.0, 0.5])
+    b1, b2 = _bearings(P1), _bearings(P1 @ R.T + t)
+    R0 = rotvec_to_R([0.004, -0.003, 0.002]) @ R
+    t0 = t / np.linalg.norm(t) + np.array([0.03, -0.02, 0.0])
+    R1, t1 = refine_essential(R0, t0 / np.linalg.norm(t0), b1, b2, iterations=10)
+    assert rotation_angle_rad(R1 @ R.T) < 0.1 * rotation_angle_rad(R0 @ R.T)
+    assert np.linalg.norm(t1 - t / np.linalg.norm(t)) < 1e-3
+
+
+def test_a_rig_standing_still_has_no_translation():
+    rng = np.random.default_rng(3)
+    P1 = _scene(rng)
+    R = rotvec_to_R([0.0, 0.02, 0.0])
+    rel = relative_pose(_bearings(P1), _bearings(P1 @ R.T), FOCAL, VoParams())
+    assert rel is not None and rel.still
+    assert np.allclose(rel.t_unit, 0.0)
+    assert rotation_angle_rad(rel.R @ R.T) < 1e-6
+
+
+def test_too_few_matches_fail():
+    rng = np.random.default_rng(4)
+    P1 = _scene(rng, n=10)
+    assert relative_pose(_bearings(P1), _bearings(P1 + [0.1, 0, 0.2]), FOCAL, VoParams()) is None
+
+
+def _wall_image(R, t, depth, texture):
+    """A camera at x2 = R x1 + t looking at the textured plane z1 = depth (first camera's frame)."""
+    u, v = np.meshgrid(np.arange(CAM.width_px, dtype=float), np.arange(CAM.height_px, dtype=float))
+    b2 = CAM.bearings(np.column_stack([u.ravel(), v.ravel()]))
+    c = -R.T @ t  # second camera centre in the first frame
+    d = b2 @ R  # its rays in the first frame
+    s = (depth - c[2]) / d[:, 2]
+    X = c + s[:, None] * d
+    # Texture: 200 texels per metre over [-4, 4] m.
+    coords = np.vstack([(X[:, 1] + 4.0) * 200.0, (X[:, 0] + 4.0) * 200.0])
+    img = map_coordinates(texture, coords, order=1, mode="nearest")
+    return np.clip(img, 0, 255).astype(np.uint8).reshape(CAM.height_px, CAM.width_px)
+
+
+@pytest.fixture(scope="module")
+def texture():
+    rng = np.random.default_rng(11)
+    tex = gaussian_filter(rng.normal(0, 1, (1600, 1600)), 3.0)
+    return 128 + 60 * tex / tex.std()
+
+
+@pytest.mark.parametrize(("t", "depth"), [((0.05, 0.0, 0.3), 3.0), ((0.2, 0.0, 0.1), 2.5)])
+def test_laser_scale_from_patches_on_a_textured_wall(texture, t, depth):
+    t = np.array(t)
+    R = rotvec_to_R([0.0, 0.03, 0.0])
+    img1 = _wall_image(np.eye(3), np.zeros(3), depth, texture)
+    img2 = _wall_image(R, t, depth, texture)
+    # The laser's line across the wall, 10 cm below the optical axis.
+    x = np.linspace(-2.0, 2.0, 200)
+    P1 = np.column_stack([x, np.full_like(x, 0.1), np.full_like(x, depth)])
+    est = laser_scale(img1, img2, CAM, R, t / np.linalg.norm(t), P1, 1.0, VoParams())
+    assert est.used > 20
+    assert est.scale == pytest.approx(np.linalg.norm(t), rel=0.03)
+
+
+def test_laser_scale_on_a_blank_wall_has_no_votes(texture):
+    blank = np.full((CAM.height_px, CAM.width_px), 128, dtype=np.uint8)
+    x = np.linspace(-2.0, 2.0, 50)
+    P1 = np.column_stack([x, np.full_like(x, 0.1), np.full_like(x, 3.0)])
+    est = laser_scale(blank, blank, CAM, np.eye(3), np.array([0.0, 0.0, 1.0]), P1, 1.0, VoParams())
+    assert est.used == 0 and np.isnan(est.scale)
