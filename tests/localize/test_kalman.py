@@ -56,7 +56,8 @@ def test_forward_speed_follows_vo_and_cross_track_follows_icp():
 
 def test_no_measurements_give_an_empty_path():
     st, est = kalman.fuse([])
-    assert st.shape == (0,) and est.shape == (0, 3)
+    assert st.shape == (0,)
+    assert est.shape == (0, 3)
 
 
 def test_repeated_stamps_are_skipped():

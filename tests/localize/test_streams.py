@@ -80,13 +80,13 @@ def test_images_are_read_and_checked(seq, tmp_path):
     assert st.image(3).shape == (480, 640)
     st.require_images("vo")
     (seq / "images" / "000004.png").write_bytes(b"not a png")
-    with pytest.raises(InputError, match="000004.png: not a readable image"):
+    with pytest.raises(InputError, match=r"000004\.png: not a readable image"):
         st.image(4)
 
 
 def test_a_method_needing_the_rig_says_so(seq):
     (seq / "rig.yaml").unlink()
-    with pytest.raises(InputError, match="rig: got 'rig.yaml'; expected a file"):
+    with pytest.raises(InputError, match=r"rig: got 'rig\.yaml'; expected a file"):
         open_streams(seq)
     text = (seq / "sequence.yaml").read_text().replace("rig: rig.yaml\n", "")
     (seq / "sequence.yaml").write_text(text)

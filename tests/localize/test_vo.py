@@ -35,7 +35,8 @@ def test_relative_pose_recovers_rotation_and_direction(seed):
     bad = rng.choice(len(b2), 30, replace=False)
     b2[bad] = b2[rng.permutation(bad)]
     rel = relative_pose(b1, b2, FOCAL, VoParams())
-    assert rel is not None and not rel.still
+    assert rel is not None
+    assert not rel.still
     assert np.degrees(rotation_angle_rad(rel.R @ R.T)) < 0.25
     assert np.degrees(np.arccos(np.clip(rel.t_unit @ t / np.linalg.norm(t), -1, 1))) < 3.0
 
@@ -58,7 +59,8 @@ def test_a_rig_standing_still_has_no_translation():
     P1 = _scene(rng)
     R = rotvec_to_R([0.0, 0.02, 0.0])
     rel = relative_pose(_bearings(P1), _bearings(P1 @ R.T), FOCAL, VoParams())
-    assert rel is not None and rel.still
+    assert rel is not None
+    assert rel.still
     assert np.allclose(rel.t_unit, 0.0)
     assert rotation_angle_rad(rel.R @ R.T) < 1e-6
 
@@ -66,7 +68,7 @@ def test_a_rig_standing_still_has_no_translation():
 def test_too_few_matches_fail():
     rng = np.random.default_rng(4)
     P1 = _scene(rng, n=10)
-    assert relative_pose(_bearings(P1), _bearings(P1 + [0.1, 0, 0.2]), FOCAL, VoParams()) is None
+    assert relative_pose(_bearings(P1), _bearings(P1 + np.array([0.1, 0, 0.2])), FOCAL, VoParams()) is None
 
 
 def _wall_image(R, t, depth, texture):
@@ -109,4 +111,5 @@ def test_laser_scale_on_a_blank_wall_has_no_votes(texture):
     x = np.linspace(-2.0, 2.0, 50)
     P1 = np.column_stack([x, np.full_like(x, 0.1), np.full_like(x, 3.0)])
     est = laser_scale(blank, blank, CAM, np.eye(3), np.array([0.0, 0.0, 1.0]), P1, 1.0, VoParams())
-    assert est.used == 0 and np.isnan(est.scale)
+    assert est.used == 0
+    assert np.isnan(est.scale)
