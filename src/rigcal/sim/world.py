@@ -166,13 +166,12 @@ def corridor_loop() -> World:
     outer = _rect(0.0, 0.0, 22.5, 11.5)
     inner = _rect(0.0, 0.0, 18.5, 7.5)
     surfaces = _ring(outer, inner, ["posters", "plain", "doors", "repeating"], 2.6)
-    # Pillars along the long stretches give ICP something to hold on to.
+    # Pillars along a long stretch, standing against the outer wall (the corridor's centre
+    # line stays clear), give ICP something to hold on to.
     for x in (-6.0, 0.0, 6.0):
+        pillar = _rect(x, 5.6, 0.3, 0.3)
         surfaces += [
-            Surface(p, q, 2.6, "bricks")
-            for p, q in zip(
-                _rect(x, 4.75, 0.3, 0.3), np.roll(_rect(x, 4.75, 0.3, 0.3), -1, axis=0), strict=True
-            )
+            Surface(p, q, 2.6, "bricks") for p, q in zip(pillar, np.roll(pillar, -1, axis=0), strict=True)
         ]
     path = _rect(0.0, 0.0, 20.5, 9.5)
     return World("corridor-loop", tuple(surfaces), path, 0.4)
