@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import click
@@ -218,30 +219,114 @@ def board_session(
     type=click.FloatRange(min=1.0, max=200.0),
     help="Scan rate.",
 )
+@click.option(
+    "--camera-rate-hz",
+    default=10.0,
+    show_default=True,
+    type=click.FloatRange(min=0.1, max=100.0),
+    help="Camera frame rate (its first frame at a random phase: not synchronised with the laser).",
+)
+@click.option(
+    "--clock-offset-s",
+    default=0.0,
+    show_default=True,
+    type=click.FloatRange(min=-10.0, max=10.0),
+    help="Added to the written image stamps (camera clock = true time + offset).",
+)
+@click.option(
+    "--image-noise",
+    default=2.0,
+    show_default=True,
+    type=click.FloatRange(min=0.0, max=50.0),
+    help="Additive Gaussian image noise, grey levels (1 sigma).",
+)
+@click.option(
+    "--image-blur-px",
+    default=0.0,
+    show_default=True,
+    type=click.FloatRange(min=0.0, max=20.0),
+    help="Gaussian blur of the images, pixels (1 sigma).",
+)
+@click.option(
+    "--exposure-walk",
+    default=0.0,
+    show_default=True,
+    type=click.FloatRange(min=0.0, max=0.2),
+    help="Exposure changes: the log-gain's random-walk step per frame.",
+)
+@click.option(
+    "--duration-s",
+    default=None,
+    type=click.FloatRange(min=0.0, min_open=True),
+    help="Drive only the lap's first seconds.  [default: the whole lap]",
+)
+@click.option(
+    "--rig",
+    "rig_file",
+    default=None,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Rig file (T_cam_laser and camera) to simulate, e.g. a side-looking camera.  "
+    "[default: the simulated forward-looking rig]",
+)
+@click.option("--no-images", is_flag=True, help="Write no camera images (laser and ground truth only).")
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 def world(
-    world_name: str, output: Path, seed: int, range_sigma_m: float, laser_rate_hz: float, force: bool
+    world_name: str,
+    output: Path,
+    seed: int,
+    range_sigma_m: float,
+    laser_rate_hz: float,
+    camera_rate_hz: float,
+    clock_offset_s: float,
+    image_noise: float,
+    image_blur_px: float,
+    exposure_walk: float,
+    duration_s: float | None,
+    rig_file: Path | None,
+    no_images: bool,
+    force: bool,
 ) -> None:
     """Drive one lap of a simulated indoor world and write it as a sequence folder: laser
-    scans, the laser's ground truth (groundtruth.tum) and the rig file. Camera images are
-    not rendered yet. See docs/formats/sequence.md and docs/formats/world.md.
+    scans, camera images rendered at the true poses, the laser's ground truth at every
+    sensor stamp (groundtruth.tum) and the rig file. The same seed writes the same files.
+    See docs/formats/sequence.md and docs/formats/world.md.
 
     \b
     Examples:
       rigcal simulate world --world corridor-loop -o corridor/ --seed 1
-      rigcal simulate world --world my-office.yaml -o office/ --laser-rate-hz 20 --force
+      rigcal simulate world --world cubicle-loop -o cubicles/ --clock-offset-s 0.03 --image-noise 3
+      rigcal simulate world --world my-office.yaml -o office/ --laser-rate-hz 20 --no-images --force
+      rigcal simulate world -o side/ --rig side-looking-rig.yaml --duration-s 20
     """
     from rigcal.errors import OutputError
-    from rigcal.sim.drive import DriveSpec, write_drive
+    from rigcal.rigfile import read_rig
+    from rigcal.sim.drive import DriveSpec, Motion, camera_stamps, write_drive
     from rigcal.sim.world import world_named
 
     if output.exists() and not force:
         raise OutputError(f"{output}: exists; pass --force to replace it")
     w = world_named(world_name)
-    spec = DriveSpec(range_sigma_m=range_sigma_m, laser_rate_hz=laser_rate_hz, seed=seed)
-    figures = write_drive(w, spec, str(output), force=force)
+    rig = read_rig(rig_file) if rig_file is not None else None
+    spec = DriveSpec(
+        range_sigma_m=range_sigma_m,
+        laser_rate_hz=laser_rate_hz,
+        seed=seed,
+        camera_rate_hz=camera_rate_hz,
+        camera_clock_offset_s=clock_offset_s,
+        image_noise_sigma=image_noise,
+        image_blur_sigma_px=image_blur_px,
+        exposure_walk=exposure_walk,
+        images=not no_images,
+        duration_s=duration_s,
+    )
+    n_images = len(camera_stamps(Motion(w, spec), spec)) if spec.images else 0
+    with click.progressbar(length=n_images, label="rendering", file=sys.stderr) as bar:
+        figures = write_drive(w, spec, str(output), force=force, rig=rig, progress=bar.update)
+    ratio = figures["generation_s"] / max(figures["duration_s"], 1e-9)
     click.echo(
-        f"wrote {output}/: {w.name}, a {figures['length_m']:.1f} m lap in {figures['duration_s']:.1f} s, "
-        f"{int(figures['scans'])} scans",
+        f"wrote {output}/: {w.name}, a {figures['length_m']:.1f} m lap, "
+        f"{figures['duration_s']:.1f} s driven, "
+        f"{int(figures['scans'])} scans, {int(figures['images'])} images, "
+        f"generated in {figures['generation_s']:.1f} s ({ratio:.2f} x real time)",
         err=True,
     )

@@ -18,6 +18,7 @@ folder atomically; :func:`read_sequence` validates it.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -72,7 +73,7 @@ def write_sequence(
     folder: str | Path,
     name: str,
     scans: list[Scan],
-    images: list[ImageFrame],
+    images: Iterable[ImageFrame],
     camera_yaml: str | None,
     source: dict[str, Any],
     force: bool = False,
@@ -82,7 +83,8 @@ def write_sequence(
     """Write a sequence folder atomically (refuses an existing folder unless ``force``).
 
     ``groundtruth_tum`` (the laser's poses in the world, TUM text) and ``rig_yaml`` (a rig
-    file's text) are written when given.
+    file's text) are written when given. ``images`` may be a generator: each frame is
+    written as it comes.
     """
     B = max((len(s.ranges_m) for s in scans), default=0)
     ranges = np.full((len(scans), B), np.nan)
@@ -102,7 +104,7 @@ def write_sequence(
         "name": name,
         "source": source,
         "scans": {"file": "scans.npz", "count": len(scans)},
-        "images": {"folder": "images", "index": "images.csv", "count": len(images)},
+        "images": {"folder": "images", "index": "images.csv", "count": 0},
     }
     if camera_yaml is not None:
         doc["camera"] = "camera.yaml"
@@ -117,6 +119,7 @@ def write_sequence(
         for im in images:
             (tmp / "images" / im.name).write_bytes(im.data)
             rows.append(f"{im.stamp_s!r},{im.name}")
+        doc["images"]["count"] = len(rows)
         (tmp / "images.csv").write_text("stamp_s,file\n" + "".join(r + "\n" for r in rows), encoding="utf-8")
         if camera_yaml is not None:
             (tmp / "camera.yaml").write_text(camera_yaml, encoding="utf-8")

@@ -7,27 +7,46 @@ the laser's (x, y, yaw) in the world frame, as a function of time.
 
 Sensors: the laser at its own rate (default 40 Hz, Hokuyo UTM-30LX-like: 270 deg, 0.25
 deg steps, 1 cm noise, 30 m, 1 % dropouts), ray-cast against the world's surfaces cut by
-its scan plane. Camera frames, when the renderer draws them, come at their own rate with
-an optional clock offset; the ground truth is given at every sensor stamp.
+its scan plane. The camera at its own rate (default 10 Hz), not synchronised with the
+laser (its first frame comes at a seeded random phase within its period), rendered by
+:mod:`rigcal.sim.world_render` at the true pose with noise, optional blur and exposure
+changes; its stamps carry an optional clock offset. The ground truth is the laser's true
+pose at every sensor stamp, in true (laser) time.
 """
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.errors import InputError
 from rigcal.scan import Scan
 from rigcal.sim.raycast import beam_angles, cast_scan, noisy_ranges
 from rigcal.sim.world import World
+
+if TYPE_CHECKING:
+    from rigcal.io.sequence import ImageFrame
+    from rigcal.rig import Rig
 
 FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
 class DriveSpec:
-    """How to drive and what the laser is like."""
+    """How to drive and what the laser and the camera are like.
+
+    Camera: ``camera_rate_hz`` frames per second; ``camera_clock_offset_s`` is added to the
+    written image stamps (camera clock = true time + offset); ``image_noise_sigma`` (grey
+    levels), ``image_blur_sigma_px`` and ``exposure_walk`` (the log-gain's random-walk step
+    per frame) as in :class:`rigcal.sim.world_render.CameraEffects`; ``images`` False
+    writes no images. ``duration_s`` drives only the lap's first seconds (None: the lap).
+    """
 
     speed_mps: float = 1.0
     turn_speed_mps: float = 0.5
@@ -41,6 +60,47 @@ class DriveSpec:
     range_max_m: float = 30.0
     dropout_fraction: float = 0.01
     seed: int = 0
+    camera_rate_hz: float = 10.0
+    camera_clock_offset_s: float = 0.0
+    image_noise_sigma: float = 2.0
+    image_blur_sigma_px: float = 0.0
+    exposure_walk: float = 0.0
+    images: bool = True
+    duration_s: float | None = None
+
+    def __post_init__(self) -> None:
+        checks = [
+            ("laser_rate_hz", self.laser_rate_hz, self.laser_rate_hz > 0, "a rate above 0 Hz"),
+            ("camera_rate_hz", self.camera_rate_hz, self.camera_rate_hz > 0, "a rate above 0 Hz"),
+            (
+                "camera_clock_offset_s",
+                self.camera_clock_offset_s,
+                abs(self.camera_clock_offset_s) < 1e6,
+                "a finite offset, seconds",
+            ),
+            (
+                "image_noise_sigma",
+                self.image_noise_sigma,
+                0 <= self.image_noise_sigma <= 100,
+                "0 to 100 grey levels",
+            ),
+            (
+                "image_blur_sigma_px",
+                self.image_blur_sigma_px,
+                0 <= self.image_blur_sigma_px <= 50,
+                "0 to 50 pixels",
+            ),
+            ("exposure_walk", self.exposure_walk, 0 <= self.exposure_walk <= 1, "0 to 1"),
+            (
+                "duration_s",
+                self.duration_s,
+                self.duration_s is None or self.duration_s > 0,
+                "a duration above 0 s",
+            ),
+        ]
+        for key, value, ok, expected in checks:
+            if not ok or (value is not None and not np.isfinite(value)):
+                raise InputError.at(None, key, value, expected)
 
 
 class Motion:
@@ -120,10 +180,35 @@ def _rounded_path(
     return np.vstack(pts), np.concatenate(speeds)
 
 
+def drive_duration(motion: Motion, spec: DriveSpec) -> float:
+    """How long the drive lasts: the lap, or ``spec.duration_s`` when that is shorter."""
+    return motion.duration_s if spec.duration_s is None else min(spec.duration_s, motion.duration_s)
+
+
 def laser_stamps(motion: Motion, spec: DriveSpec) -> FloatArray:
-    """Scan stamps over the lap at the laser's rate."""
-    out: FloatArray = np.arange(0.0, motion.duration_s, 1.0 / spec.laser_rate_hz)
+    """Scan stamps over the drive at the laser's rate (the laser's clock is true time)."""
+    out: FloatArray = np.arange(0.0, drive_duration(motion, spec), 1.0 / spec.laser_rate_hz)
     return out
+
+
+def camera_stamps(motion: Motion, spec: DriveSpec) -> FloatArray:
+    """True times of the camera frames: the camera's rate, starting at a seeded random
+    phase within its period (camera and laser are not synchronised). Without the clock
+    offset."""
+    period = 1.0 / spec.camera_rate_hz
+    phase = float(np.random.default_rng([spec.seed, 2]).uniform(0.0, period))
+    out: FloatArray = np.arange(phase, drive_duration(motion, spec), period)
+    return out
+
+
+def laser_poses_T(world: World, poses: FloatArray) -> FloatArray:
+    """(N, 4, 4) T_world_laser from (N, 3) laser poses (x, y, yaw) at the laser's height."""
+    from rigcal.geometry import make_T, rotvec_to_R
+
+    h = world.laser_height_m
+    return np.array([make_T(rotvec_to_R([0.0, 0.0, yaw]), [x, y, h]) for x, y, yaw in poses]).reshape(
+        -1, 4, 4
+    )
 
 
 def simulate_scans(world: World, poses: FloatArray, stamps: FloatArray, spec: DriveSpec) -> list[Scan]:
@@ -142,37 +227,121 @@ def simulate_scans(world: World, poses: FloatArray, stamps: FloatArray, spec: Dr
     return scans
 
 
-def write_drive(world: World, spec: DriveSpec, folder: str, force: bool = False) -> dict[str, float]:
-    """Simulate one lap of ``world`` and write it as a sequence folder with the rig file
-    and the laser's ground truth (TUM). Camera images are not rendered yet: the image
-    stream is empty.
+def write_drive(
+    world: World,
+    spec: DriveSpec,
+    folder: str,
+    force: bool = False,
+    rig: Rig | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, float]:
+    """Simulate a drive of ``world`` and write it as a sequence folder: scans, camera
+    images (PNG), the rig file and the laser's ground truth (TUM) at every sensor stamp.
+
+    Args:
+        world: the world.
+        spec: motion, laser and camera settings.
+        folder: the sequence folder to create.
+        force: replace an existing folder.
+        rig: T_cam_laser and the camera; the simulated default rig
+            (:func:`rigcal.sim.box_session.default_T_cam_laser`, forward-looking) when None.
+        progress: called with 1 after each rendered image.
 
     Returns:
-        Figures of the drive: lap length (m) and duration (s), scans.
+        Figures of the drive: lap length (m), drive duration (s), scans, images, and the
+        generation time (s, wall clock).
     """
-    from rigcal.geometry import make_T, rotvec_to_R
     from rigcal.io.sequence import write_sequence
     from rigcal.io.trajectory import Trajectory, tum_text
     from rigcal.rig import Rig
     from rigcal.rigfile import rig_to_text
     from rigcal.sim.box_session import default_camera, default_T_cam_laser
 
+    start = time.perf_counter()
+    if rig is None:
+        rig = Rig(default_T_cam_laser(), default_camera(), laser={"name": "simulated 2D scanner"})
     motion = Motion(world, spec)
     stamps = laser_stamps(motion, spec)
-    poses = motion.poses(stamps)
-    scans = simulate_scans(world, poses, stamps, spec)
-    T = np.array([make_T(rotvec_to_R([0.0, 0.0, yaw]), [x, y, world.laser_height_m]) for x, y, yaw in poses])
-    truth = tum_text(Trajectory(T, stamps))
-    rig = rig_to_text(Rig(default_T_cam_laser(), default_camera(), laser={"name": "simulated 2D scanner"}))
+    scans = simulate_scans(world, motion.poses(stamps), stamps, spec)
+    cam_t = camera_stamps(motion, spec) if spec.images else np.zeros(0)
+    truth_t = np.unique(np.concatenate([stamps, cam_t]))
+    truth = tum_text(Trajectory(laser_poses_T(world, motion.poses(truth_t)), truth_t))
+    source = {
+        "simulator": "rigcal.sim.drive",
+        "world": world.name,
+        "seed": spec.seed,
+        "laser_rate_hz": spec.laser_rate_hz,
+        "camera_rate_hz": spec.camera_rate_hz if spec.images else None,
+        "camera_clock_offset_s": spec.camera_clock_offset_s,
+        "image_noise_sigma": spec.image_noise_sigma,
+        "image_blur_sigma_px": spec.image_blur_sigma_px,
+        "exposure_walk": spec.exposure_walk,
+    }
     write_sequence(
         folder,
         world.name,
         scans,
-        [],
+        _images(world, spec, motion, cam_t, rig, progress),
         None,
-        {"simulator": "rigcal.sim.drive", "world": world.name, "seed": spec.seed},
+        source,
         force=force,
         groundtruth_tum=truth,
-        rig_yaml=rig,
+        rig_yaml=rig_to_text(rig),
     )
-    return {"length_m": world.path_length_m, "duration_s": motion.duration_s, "scans": float(len(scans))}
+    return {
+        "length_m": world.path_length_m,
+        "duration_s": drive_duration(motion, spec),
+        "scans": float(len(scans)),
+        "images": float(len(cam_t)),
+        "generation_s": time.perf_counter() - start,
+    }
+
+
+def _images(
+    world: World,
+    spec: DriveSpec,
+    motion: Motion,
+    stamps: FloatArray,
+    rig: Rig,
+    progress: Callable[[int], None] | None,
+) -> Iterator[ImageFrame]:
+    """The camera's frames, rendered at the true poses; PNG encoding runs in a second thread
+    while the next frame renders."""
+    if not len(stamps):
+        return
+    from rigcal.geometry import inv_T
+    from rigcal.io.sequence import ImageFrame
+    from rigcal.sim.textures import world_textures
+    from rigcal.sim.world_render import CameraEffects, apply_effects, render_world
+
+    tex = world_textures(world, spec.seed)
+    effects = CameraEffects(spec.image_noise_sigma, spec.image_blur_sigma_px, spec.exposure_walk)
+    rng = np.random.default_rng([spec.seed, 3])
+    log_gain = np.clip(np.cumsum(rng.normal(0.0, spec.exposure_walk, len(stamps))), -0.7, 0.7)
+    T_laser_cam = inv_T(rig.T_cam_laser)
+    T_world_laser = laser_poses_T(world, motion.poses(stamps))
+    pending: Future[bytes] | None = None
+    stamp, name = 0.0, ""
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        for k, t in enumerate(stamps):
+            frame = render_world(world, rig.camera, T_world_laser[k] @ T_laser_cam, tex)
+            image = apply_effects(frame.image, effects, rng, float(np.exp(log_gain[k])))
+            if pending is not None:
+                yield ImageFrame(stamp, name, pending.result())
+            pending = pool.submit(_png, image)
+            stamp, name = float(t + spec.camera_clock_offset_s), f"{k:06d}.png"
+            if progress is not None:
+                progress(1)
+        if pending is not None:
+            yield ImageFrame(stamp, name, pending.result())
+
+
+def _png(image: NDArray[np.uint8]) -> bytes:
+    """Lossless PNG, fast settings (low compression, Huffman only)."""
+    import cv2
+
+    params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
+    ok, buf = cv2.imencode(".png", image, params)
+    if not ok:  # pragma: no cover - cv2 encodes any uint8 BGR image
+        raise RuntimeError("PNG encoding failed")
+    return bytes(buf.tobytes())
