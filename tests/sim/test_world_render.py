@@ -10,9 +10,16 @@ import numpy as np
 import pytest
 
 from rigcal.camera import Camera
-from rigcal.geometry import inv_T, make_T, rotvec_to_R, transform_points
+from rigcal.geometry import inv_T, make_T, transform_points
 from rigcal.sim.box_session import default_camera, default_T_cam_laser
-from rigcal.sim.drive import DriveSpec, Motion, laser_poses_T, laser_stamps, simulate_scans
+from rigcal.sim.drive import (
+    DriveSpec,
+    Motion,
+    laser_poses_T,
+    laser_stamps,
+    side_T_cam_laser,
+    simulate_scans,
+)
 from rigcal.sim.textures import _GENERATORS, REPEAT_PERIOD_M, TEXELS_PER_M, world_textures
 from rigcal.sim.world import BUILTIN, TEXTURES, Surface, World
 from rigcal.sim.world_render import (
@@ -28,13 +35,6 @@ from rigcal.sim.world_render import (
 def cubicles():
     w = BUILTIN["cubicle-loop"]()
     return w, world_textures(w, seed=0)
-
-
-def side_T_cam_laser():
-    """A camera looking to the laser's left (+y), 10 cm above it, pitched 10 deg down."""
-    R_base = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # columns: cam x, y, z in laser
-    pitch = rotvec_to_R([np.radians(10.0), 0.0, 0.0])  # about laser x: tilts +y down
-    return inv_T(make_T(pitch @ R_base, [0.0, 0.05, 0.10]))
 
 
 def _point_segment(p, a, b):

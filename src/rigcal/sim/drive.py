@@ -201,6 +201,18 @@ def camera_stamps(motion: Motion, spec: DriveSpec) -> FloatArray:
     return out
 
 
+def side_T_cam_laser() -> FloatArray:
+    """A side-looking rig's T_cam_laser (4, 4): the camera looks to the laser's left (+y),
+    10 cm above the laser and 5 cm to its left, pitched 10 deg down."""
+    from rigcal.geometry import inv_T, make_T, rotvec_to_R
+
+    R_base = np.array(
+        [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]
+    )  # columns: camera axes in the laser frame
+    pitch = rotvec_to_R([np.radians(-10.0), 0.0, 0.0])  # about laser x: tilts +y down
+    return inv_T(make_T(pitch @ R_base, [0.0, 0.05, 0.10]))
+
+
 def laser_poses_T(world: World, poses: FloatArray) -> FloatArray:
     """(N, 4, 4) T_world_laser from (N, 3) laser poses (x, y, yaw) at the laser's height."""
     from rigcal.geometry import make_T, rotvec_to_R
@@ -328,7 +340,7 @@ def _images(
             image = apply_effects(frame.image, effects, rng, float(np.exp(log_gain[k])))
             if pending is not None:
                 yield ImageFrame(stamp, name, pending.result())
-            pending = pool.submit(_png, image)
+            pending = pool.submit(encode_png, image)
             stamp, name = float(t + spec.camera_clock_offset_s), f"{k:06d}.png"
             if progress is not None:
                 progress(1)
@@ -336,7 +348,7 @@ def _images(
             yield ImageFrame(stamp, name, pending.result())
 
 
-def _png(image: NDArray[np.uint8]) -> bytes:
+def encode_png(image: NDArray[np.uint8]) -> bytes:
     """Lossless PNG, fast settings (low compression, Huffman only)."""
     import cv2
 
