@@ -83,3 +83,63 @@ def evaluate_cmd(trajectory: Path, gt: Path, as_json: bool) -> None:
     assert est.stamps_s is not None
     m = evaluate(planar_at(est, est.stamps_s), planar_at(truth, est.stamps_s))
     click.echo(json.dumps(m, indent=1) if as_json else table([(trajectory.name, m)]))
+
+
+@click.command("matches")
+@click.argument("sequence", type=click.Path(path_type=Path))
+@click.option("--image", "index", required=True, type=click.IntRange(min=0), help="First image of the pair.")
+@click.option(
+    "--method",
+    default="hiasm",
+    show_default=True,
+    type=click.Choice(["iasm", "hiasm"]),
+    help="Matching method.",
+)
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path, dir_okay=False), help="PNG to write."
+)
+@click.option(
+    "--rig",
+    "rig_file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Rig file to use instead of the sequence's own rig.yaml.",
+)
+@click.option("--force", is_flag=True, help="Replace an existing file.")
+def matches(
+    sequence: Path, index: int, method: str, output: Path, rig_file: Path | None, force: bool
+) -> None:
+    """Draw the scan-return correspondences IASM or H-IASM finds between image INDEX and
+    the next (as the paper's Fig. 5): inliers green, outliers red. Prints the metric
+    chosen, the counts and the step's motion.
+
+    \b
+    Examples:
+      rigcal matches corridor/ --image 120 --method iasm -o iasm.png
+      rigcal matches corridor/ --image 120 --method hiasm -o hiasm.png
+    """
+    import cv2
+    import numpy as np
+
+    from rigcal.errors import InputError, OutputError
+    from rigcal.io.files import atomic_write_bytes
+    from rigcal.localize.image_matching import step_picture
+    from rigcal.localize.streams import open_streams
+
+    if output.exists() and not force:
+        raise OutputError(f"{output}: exists; pass --force to replace it")
+    streams = open_streams(sequence, rig_file)
+    if index + 1 >= streams.n_images:
+        raise InputError.at(None, "--image", index, f"an image index below {streams.n_images - 1}")
+    img, st = step_picture(streams, index, method)
+    atomic_write_bytes(output, cv2.imencode(".png", img)[1].tobytes(), force=True)
+    n = 0 if st.matches is None else len(st.matches.i1)
+    inl = 0 if st.result is None else st.result.inliers
+    metric = "-" if st.result is None else st.result.metric
+    x, y, yaw = st.motion
+    click.echo(
+        f"{st.used}: {n} correspondences, {inl} inliers, {metric} metric; "
+        f"motion x {x:.3f} m, y {y:.3f} m, yaw {np.degrees(yaw):.2f} deg"
+    )
+    if st.why_fallback:
+        click.echo(f"fallback: {st.why_fallback}", err=True)
+    click.echo(f"wrote {output}", err=True)

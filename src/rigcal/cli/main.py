@@ -52,6 +52,7 @@ cli.add_command(intrinsics_cmd.intrinsics)
 cli.add_command(import_bag_cmd.import_bag)
 cli.add_command(localize_cmd.localize)
 cli.add_command(localize_cmd.evaluate_cmd, name="evaluate")
+cli.add_command(localize_cmd.matches)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -28,6 +28,7 @@ from rigcal.io.files import atomic_folder
 from rigcal.io.trajectory import Trajectory, kitti_text, read_tum, tum_text
 from rigcal.localize import kalman
 from rigcal.localize.icp import IcpParams
+from rigcal.localize.image_matching import scan_matching
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import Odometry, icp_odometry
 from rigcal.localize.streams import Streams, open_streams
@@ -91,11 +92,18 @@ def _kf_estimate(streams: Streams) -> Estimate:
     )
 
 
+def _matching_estimate(streams: Streams, method: str) -> Estimate:
+    stamps, poses, stats = scan_matching(streams, method)
+    return Estimate(stamps, poses, stats)
+
+
 METHODS: dict[str, Callable[[Streams], Estimate]] = {
     "icp": lambda s: _icp_estimate(s, s.laser_odometry()),
     "icp-p2p": lambda s: _icp_estimate(s, icp_odometry(s.scans, IcpParams(method="point-to-point"))),
     "vo": lambda s: _vo_estimate(s, _vo_result(s)),
     "kf": _kf_estimate,
+    "iasm": lambda s: _matching_estimate(s, "iasm"),
+    "hiasm": lambda s: _matching_estimate(s, "hiasm"),
 }
 
 

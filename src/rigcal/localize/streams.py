@@ -121,6 +121,11 @@ class Streams:
 
     def laser_points_at_image(self, i: int) -> FloatArray:
         """(N, 2) points of the scan nearest image i's stamp, in the laser frame at that stamp."""
+        return self.laser_at_image(i)[1]
+
+    def laser_at_image(self, i: int) -> tuple[Scan, FloatArray]:
+        """The scan nearest image i's stamp and its valid returns (in beam order) moved into
+        the laser frame at the image's stamp by the interpolated laser odometry."""
         stamps = self.scan_stamps_s
         t = float(self.image_stamps_s[i])
         k = nearest_index(stamps, t)
@@ -128,8 +133,7 @@ class Streams:
         pts = scan.points[scan.valid]
         od = self.laser_odometry().poses
         T_t_k = np.linalg.inv(se2(pose_at(stamps, od, t))) @ se2(od[k])
-        out: FloatArray = pts @ T_t_k[:2, :2].T + T_t_k[:2, 2]
-        return out
+        return scan, pts @ T_t_k[:2, :2].T + T_t_k[:2, 2]
 
     def _yaml(self) -> Path | None:
         return None if self.sequence.folder is None else self.sequence.folder / "sequence.yaml"

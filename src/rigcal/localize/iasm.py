@@ -1,0 +1,428 @@
+"""Image-augmented scan matching: IASM (paper Section III) and H-IASM (Section V, Fig. 7).
+
+Both find which return of one scan is which return of the next from the camera images,
+then the 2D rigid motion between the scans from those pairs by RANSAC.
+
+IASM (Section III):
+
+1. Each scan, paired with its image (moved to the image's time), is projected into the
+   image with the rig's T_cam_laser and the camera model (Section III-A).
+2. Correspondences by bidirectional SAD: every projected return of scan t is compared
+   with the returns of scan t+1 projected within the search area around its own pixel
+   (``search_u_px`` x ``search_v_px``), on (2r+1)^2 grey patches; a pair is kept when
+   each is the other's best match (mutual minimum SAD). The match is refined between
+   neighbouring returns of scan t+1 by a parabola through the SADs (sub-beam).
+3. Lines of scan t (the shared extraction, Section III-B) and their angle histogram in
+   10 deg bins: lines in more than two neighbouring bins select the laser metric (the
+   second scan's alignment to the first, moved by the hypothesis), otherwise the image
+   metric (mean SAD between the first image's patches and the second image's patches at
+   the first scan moved by the hypothesis and projected) (Section III-C).
+4. RANSAC over pairs of correspondences: each pair gives a rigid motion; the hypothesis
+   with the best metric wins; a least-squares fit (Eq. (4)) on its inliers polishes it.
+
+H-IASM (Section V): the same, but each return's search window is centred on where the
+homography of its plane puts it in the next image, H = R_c + (s_{t-1} / d) t_c n^T
+(Eq. (10)), with R_c and the unit t_c from visual odometry between the two images, the
+previous step's scale s_{t-1}, and the plane's normal n and distance d from the scan's
+lines in camera coordinates (Eq. (7)); the window is small (``window_px``), which rejects
+the wrong matches of repeating patterns (Fig. 5). The scale is updated from each result.
+The first pair, a pair without visual odometry, or one without scale falls back to IASM.
+
+Conventions: a step's motion is T_t_t1 (x, y, yaw): the pose of the laser at image t+1
+in its frame at image t, so that points map as a = T b (a in scan t, b in scan t+1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from rigcal.calib.lines import Segment, extract_lines
+from rigcal.camera import Camera
+from rigcal.geometry import make_T, rotvec_to_R
+from rigcal.localize.icp import _point_to_point, pose_of, se2
+from rigcal.localize.vo import sample_patches
+from rigcal.scan import Scan
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
+Gray = NDArray[np.uint8]
+
+
+@dataclass(frozen=True)
+class IasmParams:
+    """Settings of IASM and H-IASM (docs/localization.md).
+
+    Attributes:
+        patch_radius_px: SAD patches are (2r+1)^2 pixels (11 x 11).
+        min_texture: patches whose grey-level standard deviation is below this are not matched.
+        search_u_px, search_v_px: IASM's search area: half-width across and half-height
+            down the image around a return's own pixel.
+        window_px: H-IASM's search radius around the homography's prediction.
+        hypotheses: RANSAC hypotheses per step.
+        inlier_m: a correspondence is an inlier when the motion maps it within this.
+        min_correspondences, min_inliers: below these the step fails (falls back).
+        bin_deg: angle histogram bin (Section III-C).
+        min_line_m: lines shorter than this do not fill a histogram bin.
+        score_points: returns used to score each hypothesis.
+        truncate_m: the laser metric's per-point distance is capped at this.
+    """
+
+    patch_radius_px: int = 5
+    min_texture: float = 3.0
+    search_u_px: float = 80.0
+    search_v_px: float = 30.0
+    window_px: float = 8.0
+    hypotheses: int = 150
+    inlier_m: float = 0.04
+    min_correspondences: int = 8
+    min_inliers: int = 6
+    bin_deg: float = 10.0
+    min_line_m: float = 0.3
+    score_points: int = 200
+    truncate_m: float = 0.1
+
+
+@dataclass
+class Frame:
+    """One image with its scan: the returns at the image's time and where they project.
+
+    Attributes:
+        gray: the image.
+        points: (N, 2) returns in the laser frame at the image's time, beam order.
+        cam: (N, 3) the same in the camera frame.
+        pixels: (N, 2) their projections.
+        visible: (N,) in front of the camera, inside the image, textured enough.
+        patches: (N, K) SAD patches (rows of invisible returns unused).
+        lines: the scan's lines; ``line_of`` (N,) the line index of each return, -1 for none.
+    """
+
+    gray: Gray
+    points: FloatArray
+    cam: FloatArray
+    pixels: FloatArray
+    visible: NDArray[np.bool_]
+    patches: NDArray[np.float32]
+    lines: list[Segment]
+    line_of: IntArray
+
+
+def make_frame(
+    gray: Gray, scan: Scan, points: FloatArray, camera: Camera, T_cam_laser: FloatArray, params: IasmParams
+) -> Frame:
+    """Project a scan's returns (already at the image's time) into its image (Section III-A)."""
+    P = np.column_stack([points, np.zeros(len(points))]) @ T_cam_laser[:3, :3].T + T_cam_laser[:3, 3]
+    front = P[:, 2] > 0.1
+    px = np.full((len(P), 2), np.nan)
+    if front.any():
+        px[front] = camera.project(P[front])
+    r = params.patch_radius_px
+    vis = front & camera.in_image(np.nan_to_num(px, nan=-1e6), margin_px=r + 1)
+    patches = np.full((len(P), (2 * r + 1) ** 2), np.nan, dtype=np.float32)
+    if vis.any():
+        patches[vis] = sample_patches(gray, px[vis], r)
+        flat = np.zeros(len(P), dtype=bool)
+        flat[vis] = patches[vis].std(axis=1) < params.min_texture
+        vis &= ~flat
+    lines = extract_lines(scan)
+    beams = np.flatnonzero(scan.valid)
+    line_of = np.full(len(points), -1, dtype=np.intp)
+    for k, seg in enumerate(lines):
+        line_of[np.searchsorted(beams, seg.indices)] = k
+    return Frame(gray, points, P, px, vis, patches, lines, line_of)
+
+
+@dataclass(frozen=True)
+class Matches:
+    """Correspondences a[k] (return i1[k] of scan t) <-> b[k] (near return i2[k] of scan
+    t+1, refined between its neighbours), and their SAD."""
+
+    i1: IntArray
+    i2: IntArray
+    a: FloatArray
+    b: FloatArray
+    sad: FloatArray
+
+
+def match_returns(f1: Frame, f2: Frame, predicted: FloatArray, half_u: float, half_v: float) -> Matches:
+    """Bidirectional SAD correspondences between the visible returns of two frames.
+
+    Args:
+        predicted: (N1, 2) where each return of f1 is expected in image 2 (IASM: its own
+            pixel; H-IASM: the homography's prediction).
+        half_u, half_v: the search area's half-width and half-height around the prediction.
+    """
+    i1 = np.flatnonzero(f1.visible & np.isfinite(predicted[:, 0]))
+    i2 = np.flatnonzero(f2.visible)
+    empty = Matches(
+        np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
+    )
+    if len(i1) == 0 or len(i2) == 0:
+        return empty
+    du = np.abs(f2.pixels[i2, 0][None, :] - predicted[i1, 0][:, None])
+    dv = np.abs(f2.pixels[i2, 1][None, :] - predicted[i1, 1][:, None])
+    ra, rb = np.nonzero((du <= half_u) & (dv <= half_v))
+    if len(ra) == 0:
+        return empty
+    sad = np.abs(f1.patches[i1[ra]] - f2.patches[i2[rb]]).mean(axis=1)
+    S = np.full((len(i1), len(i2)), np.inf)
+    S[ra, rb] = sad
+    best_b = np.argmin(S, axis=1)
+    best_a = np.argmin(S, axis=0)
+    rows = np.arange(len(i1))
+    mutual = np.isfinite(S[rows, best_b]) & (best_a[best_b] == rows)
+    ka, kb = rows[mutual], best_b[mutual]
+    j = i2[kb]
+    # Sub-beam refinement: a parabola through the SADs of the neighbouring returns of scan
+    # t+1 on the same line moves the match between them.
+    b = f2.points[j].copy()
+    n2 = len(f2.points)
+    for k, (a_i, jj) in enumerate(zip(i1[ka], j, strict=True)):
+        if jj <= 0 or jj >= n2 - 1 or f2.line_of[jj] < 0:
+            continue
+        if not (f2.visible[jj - 1] and f2.visible[jj + 1]) or not (
+            f2.line_of[jj - 1] == f2.line_of[jj] == f2.line_of[jj + 1]
+        ):
+            continue
+        s0 = float(np.abs(f1.patches[a_i] - f2.patches[jj - 1]).mean())
+        s1 = float(S[ka[k], kb[k]])
+        s2 = float(np.abs(f1.patches[a_i] - f2.patches[jj + 1]).mean())
+        den = s0 - 2 * s1 + s2
+        if den > 0:
+            x = float(np.clip(0.5 * (s0 - s2) / den, -0.5, 0.5))
+            other = f2.points[jj + 1] if x > 0 else f2.points[jj - 1]
+            b[k] = f2.points[jj] + abs(x) * (other - f2.points[jj])
+    return Matches(i1[ka], j, f1.points[i1[ka]], b, S[ka, kb])
+
+
+def laser_metric_wanted(lines: list[Segment], params: IasmParams) -> bool:
+    """Section III-C: lines filling more than one or two neighbouring 10 deg bins of the
+    angle histogram select the laser metric; otherwise the image metric."""
+    nb = round(180.0 / params.bin_deg)
+    filled = sorted(
+        {
+            int(np.floor((np.degrees(s.angle_rad) + 90.0) / params.bin_deg)) % nb
+            for s in lines
+            if s.length_m >= params.min_line_m
+        }
+    )
+    if len(filled) == 0:
+        return False
+    if len(filled) == 1:
+        return False
+    if len(filled) == 2:
+        gap = (filled[1] - filled[0]) % nb
+        return not (gap == 1 or gap == nb - 1)
+    return True
+
+
+def hypotheses_from_pairs(a: FloatArray, b: FloatArray, rng: np.random.Generator, n: int) -> FloatArray:
+    """(n, 3) rigid motions (x, y, yaw), each mapping two random correspondences b -> a."""
+    m = len(a)
+    i = rng.integers(0, m, n)
+    j = (i + 1 + rng.integers(0, m - 1, n)) % m
+    da, db = a[j] - a[i], b[j] - b[i]
+    yaw = np.arctan2(da[:, 1], da[:, 0]) - np.arctan2(db[:, 1], db[:, 0])
+    c, s = np.cos(yaw), np.sin(yaw)
+    t = a[i] - np.column_stack([c * b[i, 0] - s * b[i, 1], s * b[i, 0] + c * b[i, 1]])
+    ok = (np.linalg.norm(da, axis=1) > 0.1) & (
+        np.abs(np.linalg.norm(da, axis=1) - np.linalg.norm(db, axis=1)) < 0.1
+    )
+    out: FloatArray = np.column_stack([t, yaw])[ok]
+    return out
+
+
+def _apply(poses: FloatArray, pts: FloatArray) -> FloatArray:
+    """(H, N, 2) points moved by each motion."""
+    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    x = c * pts[None, :, 0] - s * pts[None, :, 1] + poses[:, 0:1]
+    y = s * pts[None, :, 0] + c * pts[None, :, 1] + poses[:, 1:2]
+    return np.stack([x, y], axis=2)
+
+
+def _inverse(poses: FloatArray) -> FloatArray:
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    x = -(c * poses[:, 0] + s * poses[:, 1])
+    y = -(-s * poses[:, 0] + c * poses[:, 1])
+    return np.column_stack([x, y, -poses[:, 2]])
+
+
+def laser_scores(
+    hyp: FloatArray, f1: Frame, f2: Frame, params: IasmParams, rng: np.random.Generator
+) -> FloatArray:
+    """Scan alignment metric: minus the mean (capped) distance of scan t, moved into scan
+    t+1's frame by each hypothesis, to scan t+1's nearest returns."""
+    pts = f1.points[rng.permutation(len(f1.points))[: params.score_points]]
+    moved = _apply(_inverse(hyp), pts)  # (H, n, 2) in frame t+1
+    d, _ = cKDTree(f2.points).query(moved.reshape(-1, 2), distance_upper_bound=params.truncate_m)
+    d = np.minimum(d, params.truncate_m).reshape(len(hyp), -1)
+    out: FloatArray = -d.mean(axis=1)
+    return out
+
+
+def image_scores(
+    hyp: FloatArray,
+    f1: Frame,
+    f2: Frame,
+    camera: Camera,
+    T_cam_laser: FloatArray,
+    params: IasmParams,
+    rng: np.random.Generator,
+) -> FloatArray:
+    """Image metric: minus the mean SAD between scan t's patches in image t and the patches
+    at scan t moved by each hypothesis and projected into image t+1."""
+    vis = np.flatnonzero(f1.visible)
+    idx = vis[rng.permutation(len(vis))[: params.score_points]]
+    moved = _apply(_inverse(hyp), f1.points[idx])  # (H, n, 2)
+    H, n = moved.shape[:2]
+    P = (
+        np.concatenate([moved, np.zeros((H, n, 1))], axis=2).reshape(-1, 3) @ T_cam_laser[:3, :3].T
+        + T_cam_laser[:3, 3]
+    )
+    ok = P[:, 2] > 0.1
+    px = np.full((len(P), 2), -1e6)
+    px[ok] = camera.project(P[ok])
+    r = params.patch_radius_px
+    ok &= camera.in_image(px, margin_px=r + 1)
+    sad = np.full(len(P), np.nan)
+    if ok.any():
+        cand = sample_patches(f2.gray, px[ok], r)
+        ref = np.tile(f1.patches[idx], (H, 1))[ok]
+        sad[ok] = np.abs(cand - ref).mean(axis=1)
+    sad.reshape(H, n)
+    # Hypotheses that move most returns out of the image get the worst score.
+    count = np.isfinite(sad).sum(axis=1)
+    mean = np.where(
+        count >= max(3, n // 4), np.nanmean(np.where(np.isfinite(sad), sad, np.nan), axis=1), np.inf
+    )
+    out: FloatArray = -mean
+    return out
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """A scan-matching step: the motion T_t_t1, which metric scored it, the counts."""
+
+    motion: FloatArray
+    metric: str
+    correspondences: int
+    inliers: int
+    inlier_mask: NDArray[np.bool_]
+
+
+def robust_motion(
+    m: Matches,
+    f1: Frame,
+    f2: Frame,
+    camera: Camera,
+    T_cam_laser: FloatArray,
+    params: IasmParams,
+    rng: np.random.Generator,
+) -> StepResult | None:
+    """RANSAC over pairs of correspondences scored by the metric the scene selects, then
+    a least-squares polish (Eq. (4)) on the winner's inliers (Section III-C)."""
+    if len(m.a) < params.min_correspondences:
+        return None
+    hyp = hypotheses_from_pairs(m.a, m.b, rng, params.hypotheses)
+    if len(hyp) == 0:
+        return None
+    # Hypotheses without enough inliers are not scored (they cannot win the polish).
+    res = np.linalg.norm(_apply(hyp, m.b) - m.a[None], axis=2)
+    n_in = (res < params.inlier_m).sum(axis=1)
+    keep = n_in >= params.min_inliers
+    if not keep.any():
+        return None
+    hyp, res = hyp[keep], res[keep]
+    use_laser = laser_metric_wanted(f1.lines, params)
+    if use_laser:
+        score = laser_scores(hyp, f1, f2, params, rng)
+    else:
+        score = image_scores(hyp, f1, f2, camera, T_cam_laser, params, rng)
+    best = int(np.argmax(score))
+    inl = res[best] < params.inlier_m
+    pose = hyp[best]
+    for _ in range(2):
+        pose = _point_to_point(m.b[inl], m.a[inl])
+        inl = np.linalg.norm(_apply(pose[None], m.b)[0] - m.a, axis=1) < params.inlier_m
+        if inl.sum() < params.min_inliers:
+            return None
+    return StepResult(pose, "laser" if use_laser else "image", len(m.a), int(inl.sum()), inl)
+
+
+def iasm_step(
+    f1: Frame,
+    f2: Frame,
+    camera: Camera,
+    T_cam_laser: FloatArray,
+    params: IasmParams,
+    rng: np.random.Generator,
+) -> tuple[StepResult | None, Matches]:
+    """One IASM step (Section III): search around each return's own pixel."""
+    m = match_returns(f1, f2, f1.pixels, params.search_u_px, params.search_v_px)
+    return robust_motion(m, f1, f2, camera, T_cam_laser, params, rng), m
+
+
+def homography_predictions(
+    f1: Frame, R: FloatArray, t_unit: FloatArray, scale: float, camera: Camera, R_cam_laser: FloatArray
+) -> FloatArray:
+    """Where each return of f1 lands in the next image (N, 2; NaN where unknown).
+
+    For the returns of each line: the line's plane normal n (horizontal, in the camera
+    frame) and distance d = n^T P (Eq. (7)), the homography H = R + (s / d) t n^T
+    (Eq. (10)) and the projection of H P. Returns on no line use their own plane through
+    the point facing the camera (d = |P|), which predicts the same for that point.
+    """
+    out = np.full((len(f1.points), 2), np.nan)
+    P = f1.cam
+    pred3 = np.full((len(P), 3), np.nan)
+    for k, seg in enumerate(f1.lines):
+        idx = np.flatnonzero(f1.line_of == k)
+        n = R_cam_laser @ np.array([seg.normal[0], seg.normal[1], 0.0])
+        d = float(np.mean(P[idx] @ n))  # Eq. (7)
+        if abs(d) < 1e-3:
+            continue
+        H = R + (scale / d) * np.outer(t_unit, n)  # Eq. (10)
+        pred3[idx] = P[idx] @ H.T
+    rest = (f1.line_of < 0) & np.isfinite(P[:, 2])
+    pred3[rest] = P[rest] @ R.T + scale * t_unit
+    ok = f1.visible & np.isfinite(pred3[:, 2]) & (pred3[:, 2] > 0.1)
+    if ok.any():
+        out[ok] = camera.project(pred3[ok])
+    return out
+
+
+def hiasm_step(
+    f1: Frame,
+    f2: Frame,
+    R: FloatArray,
+    t_unit: FloatArray,
+    scale: float,
+    camera: Camera,
+    T_cam_laser: FloatArray,
+    params: IasmParams,
+    rng: np.random.Generator,
+) -> tuple[StepResult | None, Matches]:
+    """One H-IASM step (Section V): search in a small window around each homography prediction."""
+    pred = homography_predictions(f1, R, t_unit, scale, camera, T_cam_laser[:3, :3])
+    m = match_returns(f1, f2, pred, params.window_px, params.window_px)
+    return robust_motion(m, f1, f2, camera, T_cam_laser, params, rng), m
+
+
+def camera_motion(motion: FloatArray, T_cam_laser: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The camera's (R, t) with x2 = R x1 + t for a laser motion T_t_t1 (x, y, yaw)."""
+    T_l1_l2 = make_T(rotvec_to_R([0.0, 0.0, motion[2]]), [motion[0], motion[1], 0.0])
+    T_c2_c1 = T_cam_laser @ np.linalg.inv(T_l1_l2) @ np.linalg.inv(T_cam_laser)
+    return T_c2_c1[:3, :3], T_c2_c1[:3, 3]
+
+
+def chain(motions: list[FloatArray]) -> FloatArray:
+    """(N+1, 3) poses from successive motions, starting at the origin."""
+    T = np.eye(3)
+    out = [pose_of(T)]
+    for m in motions:
+        T = T @ se2(m)
+        out.append(pose_of(T))
+    return np.array(out)

@@ -1,0 +1,187 @@
+"""IASM and H-IASM over a sequence (paper Fig. 7), with the documented fallbacks.
+
+:class:`ScanMatcher` builds each image's frame (its scan moved to the image's time and
+projected) and runs one step between two frames: H-IASM when visual odometry between the
+two images and a previous scale are available, else IASM, else ICP between the two scans
+(H-IASM -> IASM -> ICP). Each fallback is logged (logger ``rigcal.localize``) and counted
+in the run's summary. :func:`scan_matching` chains the steps over a sequence;
+:func:`step_picture` draws one step's correspondences (the paper's Fig. 5).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.localize.iasm import (
+    Frame,
+    IasmParams,
+    Matches,
+    StepResult,
+    camera_motion,
+    chain,
+    hiasm_step,
+    iasm_step,
+    make_frame,
+)
+from rigcal.localize.icp import icp
+from rigcal.localize.streams import Streams
+from rigcal.localize.vo import FeatureDetector, Features, VoParams, relative_pose
+
+FloatArray = NDArray[np.float64]
+
+log = logging.getLogger("rigcal.localize")
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step's outcome: the motion T_t_t1, the method that gave it, its details."""
+
+    motion: FloatArray
+    used: str  # "hiasm", "iasm" or "icp"
+    result: StepResult | None
+    matches: Matches | None
+    why_fallback: str | None
+
+
+class ScanMatcher:
+    """IASM (``hierarchical=False``) or H-IASM (``True``) on one sequence's streams."""
+
+    def __init__(self, streams: Streams, method: str, params: IasmParams | None = None) -> None:
+        rig = streams.require_rig(method)
+        streams.require_images(method)
+        self.streams = streams
+        self.camera = rig.camera
+        self.T_cam_laser = rig.T_cam_laser
+        self.params = params or IasmParams()
+        self.vo_params = VoParams()
+        self.hierarchical = method == "hiasm"
+        self.detector = FeatureDetector(self.camera, self.vo_params) if self.hierarchical else None
+        self.focal = float(np.mean(self.camera.intrinsics[:2]))
+        self.rng = np.random.default_rng(0)
+        self.timings_s = {"frames_s": 0.0, "features_s": 0.0, "matching_s": 0.0}
+
+    def frame(self, i: int) -> tuple[Frame, Features | None]:
+        """Image i's frame and, for H-IASM, its SIFT features."""
+        t0 = time.perf_counter()
+        scan, pts = self.streams.laser_at_image(i)
+        f = make_frame(self.streams.image(i), scan, pts, self.camera, self.T_cam_laser, self.params)
+        t1 = time.perf_counter()
+        self.timings_s["frames_s"] += t1 - t0
+        feats = self.detector.detect(f.gray) if self.detector is not None else None
+        self.timings_s["features_s"] += time.perf_counter() - t1
+        return f, feats
+
+    def step(
+        self,
+        f1: Frame,
+        f2: Frame,
+        feat1: Features | None,
+        feat2: Features | None,
+        scale: float | None,
+        initial: FloatArray,
+    ) -> Step:
+        """The motion between two frames, falling back H-IASM -> IASM -> ICP."""
+        t0 = time.perf_counter()
+        why = None
+        if self.detector is not None and feat1 is not None and feat2 is not None:
+            res, m = None, None
+            why = "no scale yet (first pair)"
+            if scale is not None:
+                ia, ib = self.detector.match(feat1, feat2)
+                rel = relative_pose(feat1.bearings[ia], feat2.bearings[ib], self.focal, self.vo_params)
+                why = "no visual odometry between the images"
+                if rel is not None:
+                    res, m = hiasm_step(
+                        f1, f2, rel.R, rel.t_unit, scale, self.camera, self.T_cam_laser, self.params, self.rng
+                    )
+                    why = "too few correspondences"
+            if res is not None:
+                self.timings_s["matching_s"] += time.perf_counter() - t0
+                return Step(res.motion, "hiasm", res, m, None)
+        res, m = iasm_step(f1, f2, self.camera, self.T_cam_laser, self.params, self.rng)
+        self.timings_s["matching_s"] += time.perf_counter() - t0
+        if res is not None:
+            return Step(res.motion, "iasm", res, m, why)
+        why = "too few correspondences" if why is None else why + "; IASM: too few correspondences"
+        enough = min(len(f1.points), len(f2.points)) >= 3
+        motion = icp(f1.points, f2.points, initial=initial).pose if enough else initial
+        return Step(motion, "icp", None, m, why)
+
+
+def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray, dict[str, Any]]:
+    """Chain IASM or H-IASM steps over successive images.
+
+    Returns:
+        the image stamps, the laser's poses there (first at the origin), and the counts:
+        steps by method, fallbacks, metric chosen, mean inliers.
+    """
+    sm = ScanMatcher(streams, method)
+    streams.laser_odometry()  # pairs scans with images (timed on its own)
+    f1, feat1 = sm.frame(0)
+    used = {"hiasm": 0, "iasm": 0, "icp": 0}
+    metric = {"laser": 0, "image": 0}
+    inliers: list[int] = []
+    motions: list[FloatArray] = []
+    scale: float | None = None
+    last = np.zeros(3)
+    for i in range(1, streams.n_images):
+        f2, feat2 = sm.frame(i)
+        st = sm.step(f1, f2, feat1, feat2, scale, last)
+        used[st.used] += 1
+        if st.why_fallback is not None:
+            log.info(
+                "image %d: %s falls back to %s (%s)", i, method.upper(), st.used.upper(), st.why_fallback
+            )
+        if st.result is not None:
+            metric[st.result.metric] += 1
+            inliers.append(st.result.inliers)
+        scale = float(np.linalg.norm(camera_motion(st.motion, sm.T_cam_laser)[1]))
+        motions.append(st.motion)
+        last = st.motion
+        f1, feat1 = f2, feat2
+    for k, v in sm.timings_s.items():
+        streams.timings_s[f"{method}_{k}"] = v
+    own = used["hiasm"] if sm.hierarchical else used["iasm"]
+    stats = {
+        "steps_by": used,
+        "fallbacks": len(motions) - own,
+        "metric": metric,
+        "mean_inliers": round(float(np.mean(inliers)), 1) if inliers else 0.0,
+    }
+    return streams.image_stamps_s, chain(motions), stats
+
+
+def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint8], Step]:
+    """The correspondences of the step from image i to image i+1 (Fig. 5), and the step.
+
+    H-IASM's scale comes from an IASM step on the images before (i-1, i), as in a run.
+    """
+    from rigcal.viz.matches_plot import draw_matches
+
+    sm = ScanMatcher(streams, method)
+    f1, feat1 = sm.frame(i)
+    f2, feat2 = sm.frame(i + 1)
+    scale = None
+    if sm.hierarchical and i > 0:
+        f0, feat0 = sm.frame(i - 1)
+        prev = sm.step(f0, f1, feat0, feat1, None, np.zeros(3))
+        scale = float(np.linalg.norm(camera_motion(prev.motion, sm.T_cam_laser)[1]))
+    st = sm.step(f1, f2, feat1, feat2, scale, np.zeros(3))
+    m = st.matches
+    if m is None or len(m.i1) == 0:
+        p1 = p2 = np.zeros((0, 2))
+        inl = np.zeros(0, dtype=bool)
+    else:
+        p1, p2 = f1.pixels[m.i1], f2.pixels[m.i2]
+        inl = st.result.inlier_mask if st.result is not None else np.zeros(len(m.i1), dtype=bool)
+    n_in = int(inl.sum())
+    metric = st.result.metric if st.result is not None else "-"
+    title = f"{st.used.upper()} images {i}->{i + 1}: {len(p1)} matches, {n_in} inliers, {metric} metric"
+    img = draw_matches(f1.gray, f2.gray, f1.pixels[f1.visible], f2.pixels[f2.visible], p1, p2, inl, title)
+    return img, st
