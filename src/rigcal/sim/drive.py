@@ -356,4 +356,5 @@ def encode_png(image: NDArray[np.uint8]) -> bytes:
     ok, buf = cv2.imencode(".png", image, params)
     if not ok:  # pragma: no cover - cv2 encodes any uint8 BGR image
         raise RuntimeError("PNG encoding failed")
-    return bytes(buf.tobytes())
+    out: bytes = buf.tobytes()
+    return out

@@ -46,15 +46,27 @@ _LETTERS = np.array(list("ABCDEFGHJKLMNPRSTUVWXYZ0123456789"))
 
 @dataclass(frozen=True)
 class MipImage:
-    """An image and its mip pyramid.
+    """An image and its mip pyramid, stacked in one image (so one cv2.remap reads them all).
 
     Attributes:
-        levels: (H / 2^k, W / 2^k, 3) uint8 BGR for k = 0 .. MIP_LEVELS - 1.
+        packed: uint8 BGR; level k (of size (H / 2^k, W / 2^k)) at ``offsets[k]``.
+        offsets: (MIP_LEVELS, 2) float32 column and row of each level's top-left texel.
+        sizes: (MIP_LEVELS, 2) float32 width and height of each level.
         texels_per_m: texels per metre at level 0.
     """
 
-    levels: tuple[Image, ...]
+    packed: Image
+    offsets: F32
+    sizes: F32
     texels_per_m: float
+
+    @property
+    def levels(self) -> tuple[Image, ...]:
+        """Each level as a view into ``packed``."""
+        out = []
+        for (x, y), (w, h) in zip(self.offsets.astype(int), self.sizes.astype(int), strict=True):
+            out.append(self.packed[y : y + h, x : x + w])
+        return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -123,7 +135,7 @@ def world_textures(world: World, seed: int = 0, ceiling_height_m: float | None =
     )
 
 
-def sample(tex: MipImage, u: F32, v: F32, footprint_m: F32, border: int = cv2.BORDER_REPLICATE) -> F32:
+def sample(tex: MipImage, u: F32, v: F32, footprint_m: F32, clamp: bool = False) -> F32:
     """Bilinear samples of a mip-mapped texture.
 
     Args:
@@ -131,25 +143,29 @@ def sample(tex: MipImage, u: F32, v: F32, footprint_m: F32, border: int = cv2.BO
         u, v: (N,) float32 level-0 texel coordinates (column, row; texel centres at integers).
         footprint_m: (N,) the pixel's size on the surface, metres; the level whose texel is
             closest to it (in log scale) is read.
-        border: OpenCV border mode outside the image.
+        clamp: keep the samples inside each level (edges repeated); the wall atlas needs
+            no clamping (its entries are padded), the floor and ceiling do.
 
     Returns:
         (N, 3) float32 BGR.
     """
-    n = len(u)
-    out = np.empty((n, 3), dtype=np.float32)
     with np.errstate(divide="ignore", invalid="ignore"):
         lvl = np.log2(np.maximum(footprint_m * np.float32(tex.texels_per_m), np.float32(1e-6)))
-    lvl = np.clip(np.rint(lvl), 0, MIP_LEVELS - 1).astype(np.int8)
-    for k in range(MIP_LEVELS):
-        idx = np.flatnonzero(lvl == k)
-        if not len(idx):
-            continue
-        scale = np.float32(0.5**k)
-        uk = (u[idx] + np.float32(0.5)) * scale - np.float32(0.5)
-        vk = (v[idx] + np.float32(0.5)) * scale - np.float32(0.5)
-        out[idx] = _remap(tex.levels[k], uk, vk, border)
-    return out
+    k = np.clip(np.rint(lvl), 0, MIP_LEVELS - 1).astype(np.intp)
+    scale = _SCALES[k]
+    half = np.float32(0.5)
+    uk = (u + half) * scale - half
+    vk = (v + half) * scale - half
+    if clamp:
+        wk, hk = tex.sizes[k, 0], tex.sizes[k, 1]
+        uk = np.clip(uk, 0, wk - 1)
+        vk = np.clip(vk, 0, hk - 1)
+    uk += tex.offsets[k, 0]
+    vk += tex.offsets[k, 1]
+    return _remap(tex.packed, uk, vk, cv2.BORDER_REPLICATE)
+
+
+_SCALES = (0.5 ** np.arange(MIP_LEVELS)).astype(np.float32)
 
 
 def _remap(img: Image, u: F32, v: F32, border: int) -> F32:
@@ -201,6 +217,7 @@ def _pack(images: list[Image]) -> tuple[Image, F32]:
 
 
 def _mips(img: Image, texels_per_m: float) -> MipImage:
+    """The mip pyramid (2x2 averages), level 0 on top and the others side by side below it."""
     levels = [np.ascontiguousarray(img)]
     for _ in range(1, MIP_LEVELS):
         prev = levels[-1]
@@ -211,7 +228,24 @@ def _mips(img: Image, texels_per_m: float) -> MipImage:
             prev = np.hstack([prev, prev[:, -1:]])
         half = cv2.resize(prev, (prev.shape[1] // 2, prev.shape[0] // 2), interpolation=cv2.INTER_AREA)
         levels.append(np.asarray(half, dtype=np.uint8))
-    return MipImage(tuple(levels), float(texels_per_m))
+    gap = 4
+    H0, W0 = levels[0].shape[:2]
+    H = H0 + gap + levels[1].shape[0]
+    W = max(W0, sum(lv.shape[1] + gap for lv in levels[1:]))
+    packed = np.zeros((H, W, 3), dtype=np.uint8)
+    offsets = np.zeros((MIP_LEVELS, 2), dtype=np.float32)
+    sizes = np.zeros((MIP_LEVELS, 2), dtype=np.float32)
+    x, y = 0, 0
+    for k, lv in enumerate(levels):
+        if k == 1:
+            x, y = 0, H0 + gap
+        h, w = lv.shape[:2]
+        packed[y : y + h, x : x + w] = lv
+        offsets[k] = (x, y)
+        sizes[k] = (w, h)
+        if k:
+            x += w + gap
+    return MipImage(packed, offsets, sizes, float(texels_per_m))
 
 
 # --- building blocks --------------------------------------------------------------------------

@@ -280,7 +280,7 @@ def _shade(
         ppm = np.float32(img.texels_per_m)
         uu = (x - np.float32(org[0])) * ppm - np.float32(0.5)
         vv = (y - np.float32(org[1])) * ppm - np.float32(0.5)
-        out[k] = sample(img, uu, vv, foot, cv2.BORDER_REFLECT_101)
+        out[k] = sample(img, uu, vv, foot, clamp=True)
     # Gentle fall-off with distance, as from lights near the rig (as rigcal.sim.render).
     fall = np.clip(np.float32(1.08) - np.float32(0.02) * np.minimum(t, np.float32(1e3)), 0.7, 1.05)
     out *= fall[:, None]
