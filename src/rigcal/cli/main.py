@@ -16,6 +16,7 @@ from rigcal import __version__
 from rigcal.cli import check as check_cmd
 from rigcal.cli import export as export_cmd
 from rigcal.cli import import_bag as import_bag_cmd
+from rigcal.cli import import_carmen as import_carmen_cmd
 from rigcal.cli import intrinsics as intrinsics_cmd
 from rigcal.cli import lines as lines_cmd
 from rigcal.cli import localize as localize_cmd
@@ -50,6 +51,7 @@ cli.add_command(check_cmd.check)
 cli.add_command(export_cmd.export)
 cli.add_command(intrinsics_cmd.intrinsics)
 cli.add_command(import_bag_cmd.import_bag)
+cli.add_command(import_carmen_cmd.import_carmen)
 cli.add_command(localize_cmd.localize)
 cli.add_command(localize_cmd.evaluate_cmd, name="evaluate")
 cli.add_command(localize_cmd.matches)

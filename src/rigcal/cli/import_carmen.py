@@ -1,0 +1,62 @@
+"""``rigcal import-carmen``: a CARMEN log (or a g2o file with its laser lines) into a sequence folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command("import-carmen")
+@click.argument("log", type=click.Path(path_type=Path))
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Sequence folder."
+)
+@click.option(
+    "--flaser-range-max-m",
+    type=float,
+    default=50.0,
+    show_default=True,
+    help="Maximum range of FLASER lines (they carry none); farther returns count as no return.",
+)
+@click.option("--force", is_flag=True, help="Replace an existing folder.")
+def import_carmen(log: Path, output: Path, flaser_range_max_m: float, force: bool) -> None:
+    """Write the laser scans of LOG as a sequence folder (docs/formats/sequence.md).
+
+    Reads FLASER and ROBOTLASER1 lines from a CARMEN log, or from a g2o file that keeps
+    them (the MIT Killian Court log); the logged laser poses (SLAM-corrected in corrected
+    logs) become the folder's groundtruth.tum, so `rigcal localize` and `rigcal evaluate`
+    score laser odometry on real scans. The folder has no images.
+
+    \b
+    Examples:
+      rigcal import-carmen killian.g2o -o killian/
+      rigcal localize killian/ --method icp -o killian-icp/
+    """
+    import numpy as np
+
+    from rigcal.errors import OutputError
+    from rigcal.geometry import make_T, rotvec_to_R
+    from rigcal.io.carmen import read_carmen
+    from rigcal.io.sequence import write_sequence
+    from rigcal.io.trajectory import Trajectory, tum_text
+
+    if output.exists() and not force:
+        raise OutputError(f"{output}: exists; pass --force to replace it")
+    c = read_carmen(log, flaser_range_max_m)
+    T = np.array([make_T(rotvec_to_R([0.0, 0.0, th]), [x, y, 0.0]) for x, y, th in c.laser_poses])
+    stamps = np.array([s.stamp_s for s in c.scans], dtype=float)
+    source = {"carmen_log": str(log), "laser_lines": len(c.scans), "other_lines": c.skipped_lines}
+    write_sequence(
+        output,
+        log.name,
+        c.scans,
+        [],
+        None,
+        source,
+        force=force,
+        groundtruth_tum=tum_text(Trajectory(T, stamps)),
+    )
+    click.echo(
+        f"wrote {output}/: {len(c.scans)} scans, groundtruth.tum; {c.skipped_lines} other lines skipped"
+    )
