@@ -72,7 +72,9 @@ def read_carmen(path: str | Path, flaser_range_max_m: float = FLASER_RANGE_MAX_M
     except OSError as exc:
         raise InputError(f"{p}: cannot read: {exc.strerror or exc}") from exc
     scans: list[Scan] = []
-    laser, odom, lines = [], [], []
+    laser: list[FloatArray] = []
+    odom: list[FloatArray] = []
+    lines: list[int] = []
     skipped = 0
     for no, line in enumerate(text.splitlines(), start=1):
         fields = line.split()
@@ -97,14 +99,15 @@ def read_carmen(path: str | Path, flaser_range_max_m: float = FLASER_RANGE_MAX_M
     return CarmenLog(scans, np.array(laser), np.array(odom), np.array(lines, dtype=np.int64), skipped)
 
 
-def _numbers(fields: list[str], where: str, what: str, names: str) -> list[float]:
-    """The fields as floats; a field that is not a number is an InputError."""
+def _numbers(fields: list[str], start: int, stop: int, where: str, what: str, names: str) -> list[float]:
+    """Fields start..stop-1 as floats; one that is not a number is an InputError (fields
+    are counted from 1 after the message name)."""
     out = []
-    for i, f in enumerate(fields):
+    for i in range(start, stop):
         try:
-            out.append(float(f))
+            out.append(float(fields[i]))
         except ValueError:
-            raise InputError.at(where, f"{what} field {i + 1}", f, f"a number ({names})") from None
+            raise InputError.at(where, f"{what} field {i + 1}", fields[i], f"a number ({names})") from None
     return out
 
 
@@ -124,7 +127,7 @@ def _flaser(fields: list[str], where: str, range_max_m: float) -> tuple[Scan, Fl
     _need(fields, 1, where, "FLASER", layout)
     n = _count(fields[0], where, "FLASER num_readings")
     _need(fields, 1 + n + 7, where, "FLASER", layout)
-    v = _numbers(fields[1 : 1 + n + 7], where, "FLASER", layout)
+    v = _numbers(fields, 1, 1 + n + 7, where, "FLASER", layout)
     # 180 degrees from -90: n even, n steps (1 degree for 180); n odd, both ends (181, 361).
     step = math.pi / (n - 1 if n % 2 else n) if n > 1 else math.pi
     scan = Scan.from_uniform(-math.pi / 2, step, v[:n], 0.0, range_max_m, stamp_s=v[n + 6])
@@ -137,15 +140,15 @@ def _robotlaser1(fields: list[str], where: str, _: float) -> tuple[Scan, FloatAr
         "m, m remissions, laser x y theta, robot x y theta, tv rv forward side turn_axis, ipc_timestamp"
     )
     _need(fields, 8, where, "ROBOTLASER1", layout)
-    head = _numbers(fields[1:6], where, "ROBOTLASER1", layout)
+    head = _numbers(fields, 1, 6, where, "ROBOTLASER1", layout)
     start, _fov, step, range_max = head[0], head[1], head[2], head[3]
     n = _count(fields[7], where, "ROBOTLASER1 num_readings")
     _need(fields, 8 + n + 1, where, "ROBOTLASER1", layout)
-    ranges = _numbers(fields[8 : 8 + n], where, "ROBOTLASER1", layout)
+    ranges = _numbers(fields, 8, 8 + n, where, "ROBOTLASER1", layout)
     m = _count(fields[8 + n], where, "ROBOTLASER1 num_remissions")
     tail = 9 + n + m
     _need(fields, tail + 12, where, "ROBOTLASER1", layout)
-    v = _numbers(fields[tail : tail + 12], where, "ROBOTLASER1", layout)
+    v = _numbers(fields, tail, tail + 12, where, "ROBOTLASER1", layout)
     if not step > 0:
         raise InputError.at(where, "ROBOTLASER1 angular_resolution", fields[3], "a positive angle (rad)")
     if not range_max > 0:
