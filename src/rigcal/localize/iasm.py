@@ -69,6 +69,8 @@ class IasmParams:
         min_line_m: lines shorter than this do not fill a histogram bin.
         score_points: returns used to score each hypothesis.
         truncate_m: the laser metric's per-point distance is capped at this.
+        support_fraction: only hypotheses with at least this fraction of the best
+            hypothesis's inliers are scored by the metric.
     """
 
     patch_radius_px: int = 5
@@ -84,6 +86,7 @@ class IasmParams:
     min_line_m: float = 0.3
     score_points: int = 200
     truncate_m: float = 0.1
+    support_fraction: float = 0.8
 
 
 @dataclass
@@ -329,10 +332,13 @@ def robust_motion(
     hyp = hypotheses_from_pairs(m.a, m.b, rng, params.hypotheses)
     if len(hyp) == 0:
         return None
-    # Hypotheses without enough inliers are not scored (they cannot win the polish).
+    # Each hypothesis is first evaluated on all the correspondences (its inliers); the
+    # metric the scene selects then decides among those with nearly the most support, so
+    # that a metric blind to one direction (the laser's, along a corridor) cannot pick a
+    # motion the correspondences contradict.
     res = np.linalg.norm(_apply(hyp, m.b) - m.a[None], axis=2)
     n_in = (res < params.inlier_m).sum(axis=1)
-    keep = n_in >= params.min_inliers
+    keep = (n_in >= params.min_inliers) & (n_in >= params.support_fraction * n_in.max())
     if not keep.any():
         return None
     hyp, res = hyp[keep], res[keep]

@@ -40,6 +40,7 @@ PAD_TEXELS = 32  # around each surface in the atlas: one texel at the coarsest l
 ATLAS_MAX_PX = 16384  # cv2.remap needs images under 32767 texels a side
 REPEAT_PERIOD_M = 0.5
 SKIRTING_M = 0.1
+DADO_TOP_M = 0.85  # top of the lower-wall panel of posters and signs walls
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 _LETTERS = np.array(list("ABCDEFGHJKLMNPRSTUVWXYZ0123456789"))
 
@@ -299,6 +300,33 @@ def _skirting(img: F32, ppm: float, rng: np.random.Generator) -> None:
     img[h - k : h - k + max(k // 12, 1)] = 30.0
 
 
+def _dado(img: F32, ppm: float, rng: np.random.Generator) -> None:
+    """A protective lower-wall panel from the skirting up to ``DADO_TOP_M``: wood-like
+    grain and knots at several scales, panel seams every 0.6-1.4 m and a chair rail on top.
+    It puts texture where the laser's scan plane meets the wall (the paper's scan points
+    project onto textured surfaces, Fig. 5)."""
+    h, w = img.shape[:2]
+    top = h - round(DADO_TOP_M * ppm)
+    bottom = h - round(SKIRTING_M * ppm)
+    if top >= bottom:
+        return
+    bh = bottom - top
+    col = _colour(rng, 90, 150) * np.array([0.75, 0.95, 1.2], dtype=np.float32)
+    grain = _fbm(rng, bh, w, (1.5, 4.0, 10.0, 0.08 * ppm, 0.25 * ppm))
+    streaks = _fbm(rng, bh, w, (2.0, 0.1 * ppm))  # stretched along the wall below
+    streaks = cv2.resize(streaks[:, : max(w // 6, 1)], (w, bh), interpolation=cv2.INTER_LINEAR)
+    panel = col * (1.0 + 0.28 * grain + 0.18 * streaks)[:, :, None]
+    x = 0.0
+    while x < w:
+        x += rng.uniform(0.6, 1.4) * ppm
+        xi = int(x)
+        panel[:, max(xi - 2, 0) : xi + 2] *= 0.45
+    img[top:bottom] = panel
+    rail = max(round(0.03 * ppm), 2)
+    img[max(top - rail, 0) : top] = np.array([205, 210, 215], dtype=np.float32)
+    img[top : top + 1] = 40.0
+
+
 def _text(
     img: Image, rng: np.random.Generator, x: int, y: int, height_px: int, colour: tuple[int, int, int], n: int
 ) -> None:
@@ -375,6 +403,7 @@ def _posters(rng: np.random.Generator, h: int, w: int, ppm: float) -> Image:
         _poster(img, rng, x0, y0, x1, y1, ppm)
         x += pw + rng.uniform(0.6, 2.0) * ppm
     out = img.astype(np.float32)
+    _dado(out, ppm, rng)
     _skirting(out, ppm, rng)
     return _to_u8(out)
 
@@ -464,7 +493,9 @@ def _doors(rng: np.random.Generator, h: int, w: int, ppm: float) -> Image:
 
 def _signs(rng: np.random.Generator, h: int, w: int, ppm: float) -> Image:
     """Painted wall with signs, notice boards and extinguisher cabinets every 0.8-2.5 m."""
-    img = _to_u8(_paint(rng, h, w, ppm, 0.03, 1.5))
+    base = _paint(rng, h, w, ppm, 0.03, 1.5)
+    _dado(base, ppm, rng)
+    img = _to_u8(base)
     x = rng.uniform(0.2, 1.0) * ppm
     while x < w - 0.5 * ppm:
         kind = rng.integers(0, 3)
@@ -548,6 +579,19 @@ def _repeating(rng: np.random.Generator, h: int, w: int, ppm: float) -> Image:
     cv2.circle(tile, (pw // 2, int(0.45 * h)), max(pw // 4, 1), _saturated(rng), -1, cv2.LINE_AA)
     cv2.line(tile, (0, int(0.6 * h)), (pw, int(0.68 * h)), (30, 30, 30), max(pw // 25, 1), cv2.LINE_AA)
     cv2.rectangle(tile, (pw // 3, int(0.15 * h)), (2 * pw // 3, int(0.22 * h)), (40, 40, 40), -1)
+    # The same motif low on the wall, where the laser's scan plane meets it.
+    lo_top, lo_bottom = h - round(0.75 * ppm), h - round(0.15 * ppm)
+    cv2.rectangle(tile, (m, lo_top), (pw - m, lo_bottom), _saturated(rng), -1)
+    mid = (lo_top + lo_bottom) // 2
+    cv2.circle(tile, (pw // 2, mid), max(pw // 5, 1), _saturated(rng), -1, cv2.LINE_AA)
+    cv2.line(
+        tile,
+        (m, lo_top + (lo_bottom - lo_top) // 5),
+        (pw - m, mid + pw // 8),
+        (30, 30, 30),
+        max(pw // 25, 1),
+        cv2.LINE_AA,
+    )
     out = np.tile(tile, (1, -(-w // pw), 1))[:, :w].astype(np.float32)
     _skirting(out, ppm, np.random.default_rng(0))  # the same skirting in every period
     return _to_u8(out)
