@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 from rigcal.calib.lines import Segment, extract_lines
 from rigcal.camera import Camera
 from rigcal.geometry import make_T, rotvec_to_R
-from rigcal.localize.icp import _point_to_point, pose_of, se2
+from rigcal.localize.icp import _normals, _point_to_point, pose_of, se2
 from rigcal.localize.vo import sample_patches
 from rigcal.scan import Scan
 
@@ -69,6 +69,12 @@ class IasmParams:
         min_line_m: lines shorter than this do not fill a histogram bin.
         score_points: returns used to score each hypothesis.
         truncate_m: the laser metric's per-point distance is capped at this.
+        min_spread_m: the inliers must spread at least this far (1 sigma along their
+            main direction), or the rotation is undetermined and the step fails.
+        joint_polish: finish with :func:`joint_polish` (laser alignment and correspondences
+            together) instead of the correspondences alone.
+        sigma_laser_m, sigma_match_m: the joint polish's weights: range noise of a return
+            and noise of a correspondence.
         support_fraction: only hypotheses with at least this fraction of the best
             hypothesis's inliers are scored by the metric.
     """
@@ -80,13 +86,17 @@ class IasmParams:
     window_px: float = 8.0
     hypotheses: int = 150
     inlier_m: float = 0.04
-    min_correspondences: int = 8
-    min_inliers: int = 6
+    min_correspondences: int = 12
+    min_inliers: int = 10
     bin_deg: float = 10.0
     min_line_m: float = 0.3
     score_points: int = 200
     truncate_m: float = 0.1
     support_fraction: float = 0.8
+    min_spread_m: float = 0.25
+    joint_polish: bool = True
+    sigma_laser_m: float = 0.01
+    sigma_match_m: float = 0.02
 
 
 @dataclass
@@ -355,7 +365,52 @@ def robust_motion(
         inl = np.linalg.norm(_apply(pose[None], m.b)[0] - m.a, axis=1) < params.inlier_m
         if inl.sum() < params.min_inliers:
             return None
+    if params.joint_polish:
+        pose = joint_polish(pose, m.a[inl], m.b[inl], f1.points, f2.points, params)
+    # Inliers bunched in one small patch of the scene (the only textured spot in view)
+    # leave the rotation undetermined: the step fails and falls back.
+    spread = float(np.sqrt(np.linalg.eigvalsh(np.cov(m.a[inl].T))[-1]))
+    if spread < params.min_spread_m:
+        return None
     return StepResult(pose, "laser" if use_laser else "image", len(m.a), int(inl.sum()), inl)
+
+
+def joint_polish(
+    pose: FloatArray, a: FloatArray, b: FloatArray, scan1: FloatArray, scan2: FloatArray, params: IasmParams
+) -> FloatArray:
+    """Gauss-Newton on the scans' point-to-line alignment and the image correspondences
+    together, from the RANSAC winner: the laser makes the motion precise where the scene's
+    geometry constrains it, the correspondences hold it where it does not (along a
+    corridor), each weighted by its noise (``sigma_laser_m``, ``sigma_match_m``).
+    """
+    tree = cKDTree(scan1)
+    normals = _normals(scan1, tree, 5)
+    x = np.asarray(pose, dtype=float).copy()
+    for _ in range(5):
+        c, s = np.cos(x[2]), np.sin(x[2])
+        R = np.array([[c, -s], [s, c]])
+        moved = scan2 @ R.T + x[:2]
+        d, idx = tree.query(moved, distance_upper_bound=params.truncate_m)
+        ok = np.isfinite(d)
+        src, n = moved[ok], normals[idx[ok]]
+        r_l = np.einsum("ij,ij->i", n, src - scan1[idx[ok]]) / params.sigma_laser_m
+        J_l = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * src[:, 0] - n[:, 0] * src[:, 1]])
+        J_l /= params.sigma_laser_m
+        cb = b @ R.T + x[:2]
+        r_c = ((cb - a) / params.sigma_match_m).ravel()
+        J_c = np.zeros((2 * len(b), 3))
+        J_c[0::2, 0] = 1.0
+        J_c[1::2, 1] = 1.0
+        J_c[0::2, 2] = -cb[:, 1]
+        J_c[1::2, 2] = cb[:, 0]
+        J_c /= params.sigma_match_m
+        J = np.vstack([J_l, J_c])
+        r = np.concatenate([r_l, r_c])
+        step = -np.linalg.solve(J.T @ J + 1e-9 * np.eye(3), J.T @ r)
+        x = pose_of(se2(step) @ se2(x))
+        if np.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-6:
+            break
+    return x
 
 
 def iasm_step(

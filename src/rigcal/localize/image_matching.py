@@ -31,7 +31,7 @@ from rigcal.localize.iasm import (
 )
 from rigcal.localize.icp import icp
 from rigcal.localize.streams import Streams
-from rigcal.localize.vo import FeatureDetector, Features, VoParams, relative_pose
+from rigcal.localize.vo import FeatureDetector, Features, VoParams, planar_motion, relative_pose
 
 FloatArray = NDArray[np.float64]
 
@@ -96,6 +96,8 @@ class ScanMatcher:
                 ia, ib = self.detector.match(feat1, feat2)
                 rel = relative_pose(feat1.bearings[ia], feat2.bearings[ib], self.focal, self.vo_params)
                 why = "no visual odometry between the images"
+                if rel is not None and not planar_motion(rel.R, rel.t_unit, self.T_cam_laser[:3, 2]):
+                    rel, why = None, "visual odometry gives a motion a ground rig cannot make"
                 if rel is not None:
                     res, m = hiasm_step(
                         f1, f2, rel.R, rel.t_unit, scale, self.camera, self.T_cam_laser, self.params, self.rng

@@ -7,9 +7,10 @@ The camera's motion between two images, up to scale, from SIFT features:
    ``min_tracked`` features are still matched, up to ``max_run_frames`` frames, so that
    the epipolar geometry is computed over enough motion (Section IV).
 2. The essential matrix E between the run's first and last frame by the five-point
-   algorithm inside RANSAC (OpenCV's ``findEssentialMat``), on normalised image
-   coordinates from the camera model (lens distortion removed exactly), Eq. (5):
-   ``p2^T E p1 = 0``.
+   algorithm inside robust sampling (OpenCV's ``findEssentialMat`` with MAGSAC++, which
+   in turns picks the right one of two near-equal solutions where plain RANSAC does
+   not), on normalised image coordinates from the camera model (lens distortion removed
+   exactly), Eq. (5): ``p2^T E p1 = 0``.
 3. E is decomposed into the rotation R_c and the unit translation t_c (OpenCV's
    ``recoverPose``, the cheirality check), then polished by Gauss-Newton on the Sampson
    distance of the inliers (the "iterative refinement" of Section IV).
@@ -51,6 +52,7 @@ class VoParams:
         max_run_frames: a run ends after this many frames at the latest.
         ransac_threshold_px: five-point RANSAC inlier threshold (pixels, via the focal length).
         min_inliers: fewer essential-matrix inliers than this and the step fails.
+        min_inlier_ratio: so does a smaller fraction of inliers among the matches.
         still_px: median motion of the matches (after removing the rotation) below this
             means the rig stood still: the translation is zero.
         patch_radius_px: the scale search compares (2r+1)^2 patches.
@@ -64,6 +66,7 @@ class VoParams:
     max_run_frames: int = 5
     ransac_threshold_px: float = 1.0
     min_inliers: int = 25
+    min_inlier_ratio: float = 0.4
     still_px: float = 0.6
     patch_radius_px: int = 4
     max_speed_mps: float = 2.0
@@ -156,7 +159,7 @@ def relative_pose(b1: FloatArray, b2: FloatArray, focal_px: float, params: VoPar
         return RelativePose(R_rot, np.zeros(3), len(b1), True, b1, b2)
     p1, p2 = _normalised(b1), _normalised(b2)
     E, mask = cv2.findEssentialMat(
-        p1, p2, np.eye(3), method=cv2.RANSAC, prob=0.999, threshold=params.ransac_threshold_px / focal_px
+        p1, p2, np.eye(3), method=cv2.USAC_MAGSAC, prob=0.999, threshold=params.ransac_threshold_px / focal_px
     )
     if E is None or mask is None or int(mask.sum()) < params.min_inliers:
         return None
@@ -168,10 +171,24 @@ def relative_pose(b1: FloatArray, b2: FloatArray, focal_px: float, params: VoPar
             best = (n, R, t.ravel(), m.ravel() > 0)
     assert best is not None
     n, R, t, inl = best
-    if n < params.min_inliers:
+    # Few inliers among many matches: a repeating pattern or a moving scene fooled the
+    # matching, and E is not to be trusted.
+    if n < params.min_inliers or n < params.min_inlier_ratio * len(b1):
         return None
     R, t = refine_essential(np.asarray(R, float), np.asarray(t, float), b1[inl], b2[inl])
     return RelativePose(R, t, int(n), False, b1[inl], b2[inl])
+
+
+def planar_motion(R: FloatArray, t_unit: FloatArray, up_cam: FloatArray, max_tilt_deg: float = 10.0) -> bool:
+    """Whether a camera motion is one a ground rig can make: turning about the vertical
+    (``up_cam``, the laser's z axis in the camera frame) and moving horizontally."""
+    from rigcal.geometry import R_to_rotvec
+
+    w = R_to_rotvec(R)
+    angle = float(np.linalg.norm(w))
+    if angle > np.radians(1.0) and abs(w @ up_cam) / angle < np.cos(np.radians(max_tilt_deg)):
+        return False
+    return bool(abs(t_unit @ up_cam) < np.sin(np.radians(3.0 * max_tilt_deg)))
 
 
 def refine_essential(

@@ -48,6 +48,7 @@ def draw_matches(
         colour = INLIER_BGR if ok else OUTLIER_BGR
         cv2.line(img, (round(u1), round(v1)), (round(u2) + w, round(v2)), colour, 1, cv2.LINE_AA)
     if title:
-        cv2.putText(img, title, (10, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(img, title, (10, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
+        (tw, th), _ = cv2.getTextSize(title, cv2.FONT_HERSHEY_SIMPLEX, 0.6, 1)
+        cv2.rectangle(img, (4, 4), (16 + tw, 14 + th), (0, 0, 0), -1)
+        cv2.putText(img, title, (10, 9 + th), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
     return img
