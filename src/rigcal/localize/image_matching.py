@@ -3,7 +3,8 @@
 :class:`ScanMatcher` builds each image's frame (its scan moved to the image's time and
 projected) and runs one step between two frames: H-IASM when visual odometry between the
 two images and a previous scale are available, else IASM, else ICP between the two scans
-(H-IASM -> IASM -> ICP). Each fallback is logged (logger ``rigcal.localize``) and counted
+(H-IASM -> IASM -> ICP; ICP's motion is the laser odometry's, point-to-line over every
+scan, between the two images' stamps). Each fallback is logged (logger ``rigcal.localize``) and counted
 in the run's summary. :func:`scan_matching` chains the steps over a sequence;
 :func:`step_picture` draws one step's correspondences (the paper's Fig. 5).
 """
@@ -29,8 +30,8 @@ from rigcal.localize.iasm import (
     iasm_step,
     make_frame,
 )
-from rigcal.localize.icp import icp
-from rigcal.localize.streams import Streams
+from rigcal.localize.icp import pose_of, se2
+from rigcal.localize.streams import Streams, pose_at
 from rigcal.localize.vo import FeatureDetector, Features, VoParams, planar_motion, relative_pose
 
 FloatArray = NDArray[np.float64]
@@ -84,9 +85,10 @@ class ScanMatcher:
         feat1: Features | None,
         feat2: Features | None,
         scale: float | None,
-        initial: FloatArray,
+        i1: int,
+        i2: int,
     ) -> Step:
-        """The motion between two frames, falling back H-IASM -> IASM -> ICP."""
+        """The motion between frames of images i1 and i2, falling back H-IASM -> IASM -> ICP."""
         t0 = time.perf_counter()
         why = None
         if self.detector is not None and feat1 is not None and feat2 is not None:
@@ -111,9 +113,16 @@ class ScanMatcher:
         if res is not None:
             return Step(res.motion, "iasm", res, m, why)
         why = "too few correspondences" if why is None else why + "; IASM: too few correspondences"
-        enough = min(len(f1.points), len(f2.points)) >= 3
-        motion = icp(f1.points, f2.points, initial=initial).pose if enough else initial
-        return Step(motion, "icp", None, m, why)
+        return Step(self.icp_motion(i1, i2), "icp", None, m, why)
+
+    def icp_motion(self, i1: int, i2: int) -> FloatArray:
+        """The laser odometry's motion (point-to-line ICP over every scan) between images
+        i1 and i2, interpolated at their stamps."""
+        stamps = self.streams.scan_stamps_s
+        od = self.streams.laser_odometry().poses
+        t = self.streams.image_stamps_s
+        a, b = pose_at(stamps, od, float(t[i1])), pose_at(stamps, od, float(t[i2]))
+        return pose_of(np.linalg.inv(se2(a)) @ se2(b))
 
 
 def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray, dict[str, Any]]:
@@ -131,10 +140,9 @@ def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray
     inliers: list[int] = []
     motions: list[FloatArray] = []
     scale: float | None = None
-    last = np.zeros(3)
     for i in range(1, streams.n_images):
         f2, feat2 = sm.frame(i)
-        st = sm.step(f1, f2, feat1, feat2, scale, last)
+        st = sm.step(f1, f2, feat1, feat2, scale, i - 1, i)
         used[st.used] += 1
         if st.why_fallback is not None:
             log.info(
@@ -145,7 +153,6 @@ def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray
             inliers.append(st.result.inliers)
         scale = float(np.linalg.norm(camera_motion(st.motion, sm.T_cam_laser)[1]))
         motions.append(st.motion)
-        last = st.motion
         f1, feat1 = f2, feat2
     for k, v in sm.timings_s.items():
         streams.timings_s[f"{method}_{k}"] = v
@@ -172,9 +179,9 @@ def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint
     scale = None
     if sm.hierarchical and i > 0:
         f0, feat0 = sm.frame(i - 1)
-        prev = sm.step(f0, f1, feat0, feat1, None, np.zeros(3))
+        prev = sm.step(f0, f1, feat0, feat1, None, i - 1, i)
         scale = float(np.linalg.norm(camera_motion(prev.motion, sm.T_cam_laser)[1]))
-    st = sm.step(f1, f2, feat1, feat2, scale, np.zeros(3))
+    st = sm.step(f1, f2, feat1, feat2, scale, i, i + 1)
     m = st.matches
     if m is None or len(m.i1) == 0:
         p1 = p2 = np.zeros((0, 2))

@@ -1,0 +1,145 @@
+"""IASM and H-IASM steps on rendered views of a simulated wall (paper Sections III and V)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from rigcal.calib.lines import extract_lines
+from rigcal.geometry import make_T, rotvec_to_R
+from rigcal.localize.iasm import (
+    IasmParams,
+    camera_motion,
+    hiasm_step,
+    homography_predictions,
+    iasm_step,
+    laser_metric_wanted,
+    make_frame,
+)
+from rigcal.scan import Scan
+from rigcal.sim.box_session import default_camera
+from rigcal.sim.drive import side_T_cam_laser
+from rigcal.sim.raycast import beam_angles, cast_scan
+from rigcal.sim.textures import world_textures
+from rigcal.sim.world import Surface, World
+from rigcal.sim.world_render import render_world
+
+CAM = default_camera()
+T_CAM_LASER = side_T_cam_laser()  # looking to the laser's left (+y)
+
+
+def _world(left: str) -> World:
+    """A 3 m wide corridor along x: the wall on the left has texture ``left``."""
+    p = np.array
+    walls = (
+        Surface(p([-12.0, 1.5]), p([12.0, 1.5]), 2.5, left),
+        Surface(p([12.0, -1.5]), p([-12.0, -1.5]), 2.5, "posters"),
+        Surface(p([12.0, 1.5]), p([12.0, -1.5]), 2.5, "bricks"),
+        Surface(p([-12.0, -1.5]), p([-12.0, 1.5]), 2.5, "doors"),
+    )
+    return World("test-corridor", walls, p([[-10.0, 0.0], [10.0, 0.0], [0.0, 0.5]]), 0.4)
+
+
+def _frame(world, tex, pose, params):
+    x, y, yaw = pose
+    T_world_laser = make_T(rotvec_to_R([0.0, 0.0, yaw]), [x, y, world.laser_height_m])
+    img = render_world(world, CAM, T_world_laser @ np.linalg.inv(T_CAM_LASER), tex).image
+    gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    a0, step, ang = beam_angles(270.0, 0.25)
+    c, s = np.cos(yaw), np.sin(yaw)
+    segs = (world.scan_segments() - [x, y]) @ np.array([[c, s], [-s, c]]).T
+    scan = Scan.from_uniform(a0, step, cast_scan(segs, ang, 30.0), 0.1, 30.0, 0.0)
+    return make_frame(gray, scan, scan.points[scan.valid], CAM, T_CAM_LASER, params)
+
+
+def _correct(m, motion):
+    c, s = np.cos(motion[2]), np.sin(motion[2])
+    moved = m.b @ np.array([[c, -s], [s, c]]).T + motion[:2]
+    return np.linalg.norm(m.a - moved, axis=1) < 0.03
+
+
+@pytest.fixture(scope="module")
+def repeating():
+    world = _world("repeating")
+    return world, world_textures(world, 0)
+
+
+def test_repeating_pattern_fools_iasm_but_not_hiasm(repeating):
+    """Fig. 5: a 0.3 m step along a wall with a 0.5 m period. IASM's search around each
+    return's own pixel holds the wrong period's copy, not the true match; H-IASM's window
+    around the homography's prediction holds only the true match."""
+    world, tex = repeating
+    params = IasmParams()
+    motion = np.array([0.3, 0.0, 0.0])
+    f1 = _frame(world, tex, (0.0, 0.0, 0.0), params)
+    f2 = _frame(world, tex, tuple(motion), params)
+    rng = np.random.default_rng(0)
+    _, m_iasm = iasm_step(f1, f2, CAM, T_CAM_LASER, params, rng)
+    R, t = camera_motion(motion, T_CAM_LASER)
+    res, m_h = hiasm_step(
+        f1, f2, R, t / np.linalg.norm(t), float(np.linalg.norm(t)), CAM, T_CAM_LASER, params, rng
+    )
+    assert len(m_iasm.a) > 20
+    assert _correct(m_iasm, motion).mean() < 0.3
+    assert len(m_h.a) > 20
+    assert _correct(m_h, motion).mean() > 0.9
+    assert res is not None
+    assert np.linalg.norm(res.motion[:2] - motion[:2]) < 0.01
+    assert abs(res.motion[2]) < np.radians(0.1)
+
+
+def test_iasm_recovers_a_small_step_on_texture():
+    world = _world("bricks")
+    tex = world_textures(world, 0)
+    params = IasmParams()
+    motion = np.array([0.08, 0.01, np.radians(2.0)])
+    f1 = _frame(world, tex, (0.0, 0.0, 0.0), params)
+    f2 = _frame(world, tex, tuple(motion), params)
+    res, m = iasm_step(f1, f2, CAM, T_CAM_LASER, params, np.random.default_rng(0))
+    assert res is not None
+    assert res.inliers > 30
+    assert np.linalg.norm(res.motion[:2] - motion[:2]) < 0.005
+    assert abs(res.motion[2] - motion[2]) < np.radians(0.05)
+
+
+def test_homography_prediction_is_the_returns_next_pixel(repeating):
+    """Eq. (10): each return of a line lands where the true motion projects it."""
+    world, tex = repeating
+    params = IasmParams()
+    motion = np.array([0.2, 0.05, np.radians(3.0)])
+    f1 = _frame(world, tex, (0.0, 0.0, 0.0), params)
+    R, t = camera_motion(motion, T_CAM_LASER)
+    pred = homography_predictions(
+        f1, R, t / np.linalg.norm(t), float(np.linalg.norm(t)), CAM, T_CAM_LASER[:3, :3]
+    )
+    ok = np.isfinite(pred[:, 0])
+    assert ok.sum() > 50
+    P2 = f1.cam[ok] @ R.T + t
+    assert np.allclose(pred[ok], CAM.project(P2), atol=0.3)
+
+
+def test_flat_walls_give_no_correspondences_and_the_step_fails():
+    world = _world("plain")
+    world = World(
+        world.name, tuple(Surface(s.a, s.b, s.height_m, "plain") for s in world.surfaces), world.path, 0.4
+    )
+    tex = world_textures(world, 0)
+    params = IasmParams()
+    f1 = _frame(world, tex, (0.0, 0.0, 0.0), params)
+    f2 = _frame(world, tex, (0.1, 0.0, 0.0), params)
+    res, m = iasm_step(f1, f2, CAM, T_CAM_LASER, params, np.random.default_rng(0))
+    assert res is None
+    assert len(m.a) < params.min_correspondences
+
+
+def test_metric_choice_from_the_angle_histogram():
+    """Section III-C: one direction of lines (a corridor) -> image metric; a corner -> laser."""
+    a0, step, ang = beam_angles(270.0, 0.25)
+    corridor = np.array([[[-10, 1.5], [10, 1.5]], [[-10, -1.5], [10, -1.5]]], dtype=float)
+    room = np.array(
+        [[[3, -3], [3, 3]], [[3, 3], [-3, 3]], [[-3, 3], [-3, -3]], [[-3, -3], [3, -3]]], dtype=float
+    )
+    for segs, laser in ((corridor, False), (room, True)):
+        scan = Scan.from_uniform(a0, step, cast_scan(segs, ang, 8.0), 0.1, 8.0, 0.0)
+        assert laser_metric_wanted(extract_lines(scan), IasmParams()) is laser
