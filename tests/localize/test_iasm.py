@@ -96,7 +96,7 @@ def test_iasm_recovers_a_small_step_on_texture():
     motion = np.array([0.08, 0.01, np.radians(2.0)])
     f1 = _frame(world, tex, (0.0, 0.0, 0.0), params)
     f2 = _frame(world, tex, tuple(motion), params)
-    res, m = iasm_step(f1, f2, CAM, T_CAM_LASER, params, np.random.default_rng(0))
+    res, _ = iasm_step(f1, f2, CAM, T_CAM_LASER, params, np.random.default_rng(0))
     assert res is not None
     assert res.inliers > 30
     assert np.linalg.norm(res.motion[:2] - motion[:2]) < 0.005

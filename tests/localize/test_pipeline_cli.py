@@ -15,7 +15,20 @@ from rigcal.io.trajectory import read_tum
 def sequence(tmp_path_factory):
     out = tmp_path_factory.mktemp("seq") / "cubicle"
     assert (
-        main(["simulate", "world", "--world", "cubicle-loop", "-o", str(out), "--laser-rate-hz", "10"]) == 0
+        main(
+            [
+                "simulate",
+                "world",
+                "--world",
+                "cubicle-loop",
+                "-o",
+                str(out),
+                "--laser-rate-hz",
+                "10",
+                "--no-images",
+            ]
+        )
+        == 0
     )
     return out
 
@@ -68,3 +81,80 @@ def test_bad_method_and_existing_output(sequence, tmp_path, capsys):
     (tmp_path / "y").mkdir()
     assert main(["localize", str(sequence), "-o", str(tmp_path / "y")]) == 5
     assert main(["localize", str(tmp_path / "nope"), "-o", str(tmp_path / "z")]) == 3
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    """Six seconds of the corridor loop, with images: a straight stretch, then a turn."""
+    out = tmp_path_factory.mktemp("drive") / "corridor"
+    args = [
+        "simulate",
+        "world",
+        "--world",
+        "corridor-loop",
+        "-o",
+        str(out),
+        "--duration-s",
+        "6",
+        "--seed",
+        "1",
+    ]
+    assert main(args) == 0
+    return out
+
+
+def test_all_methods_on_one_sequence(drive, tmp_path, capsys):
+    out = tmp_path / "all"
+    assert main(["localize", str(drive), "--method", "icp,vo,kf,iasm,hiasm", "-o", str(out)]) == 0
+    table = capsys.readouterr().out
+    for m in ("icp", "vo", "kf", "iasm", "hiasm"):
+        assert f"| {m} |" in table
+        assert (out / m / "trajectory.tum").is_file()
+    s = yaml.safe_load((out / "summary.yaml").read_text())
+    methods = s["methods"]
+    n_images = len((drive / "images.csv").read_text().splitlines()) - 1
+    assert methods["iasm"]["poses"] == methods["hiasm"]["poses"] == n_images
+    steps = methods["hiasm"]["steps_by"]
+    assert sum(steps.values()) == n_images - 1
+    assert steps["hiasm"] > 0.5 * (n_images - 1)  # the first pair is IASM's
+    assert methods["hiasm"]["fallbacks"] == steps["iasm"] + steps["icp"]
+    assert methods["kf"]["vo_measurements"] > 0
+    for m in ("vo", "iasm", "hiasm"):
+        # Centimetres over the first 6 m: the images are used, and used right.
+        assert methods[m]["metrics"]["average_position_error_m"] < 0.1
+    assert {"read_s", "icp_s", "vo_s", "hiasm_features_s", "hiasm_matching_s"} <= set(s["stage_timings_s"])
+    assert (out / "paths.png").stat().st_size > 1000
+
+
+def test_matches_picture(drive, tmp_path, capsys):
+    png = tmp_path / "m.png"
+    assert main(["matches", str(drive), "--image", "10", "--method", "hiasm", "-o", str(png)]) == 0
+    assert "correspondences" in capsys.readouterr().out
+    assert png.stat().st_size > 1000
+    assert main(["matches", str(drive), "--image", "10", "-o", str(png)]) == 5  # exists
+    assert main(["matches", str(drive), "--image", "9999", "-o", str(tmp_path / "n.png")]) == 3
+    assert "--image: got 9999" in capsys.readouterr().err
+
+
+def test_image_methods_need_images_and_a_matching_camera(sequence, drive, tmp_path, capsys):
+    # The cubicle sequence has no images.
+    assert main(["localize", str(sequence), "--method", "vo", "-o", str(tmp_path / "a")]) == 3
+    assert "images.count: got 0" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists()
+    # A rig whose camera is not the images' size.
+    rig = (drive / "rig.yaml").read_text().replace("imagersize: [640, 480]", "imagersize: [800, 480]")
+    (tmp_path / "rig.yaml").write_text(rig)
+    code = main(
+        [
+            "localize",
+            str(drive),
+            "--method",
+            "iasm",
+            "--rig",
+            str(tmp_path / "rig.yaml"),
+            "-o",
+            str(tmp_path / "b"),
+        ]
+    )
+    assert code == 3
+    assert "expected 800x480" in capsys.readouterr().err

@@ -78,6 +78,11 @@ def evaluate(est: FloatArray, gt: FloatArray) -> dict[str, Any]:
         "truth_loop_gap_m": round(gt_gap, 4),
         "average_position_error_m": round(float(np.mean(np.linalg.norm(a[:, :2] - gt[:, :2], axis=1))), 4),
         "ate_rmse_m": round(float(np.sqrt(np.mean(np.sum((ali[:, :2] - gt[:, :2]) ** 2, axis=1)))), 4),
-        "rpe_1m_rmse_m": round(rpe_rmse(est, gt, 1.0), 4),
-        "rpe_10m_rmse_m": round(rpe_rmse(est, gt, 10.0), 4),
+        "rpe_1m_rmse_m": _finite(rpe_rmse(est, gt, 1.0)),
+        "rpe_10m_rmse_m": _finite(rpe_rmse(est, gt, 10.0)),
     }
+
+
+def _finite(x: float) -> float | None:
+    """Rounded, or None when undefined (a path shorter than the RPE distance)."""
+    return round(x, 4) if np.isfinite(x) else None
