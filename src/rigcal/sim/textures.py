@@ -313,8 +313,9 @@ def _dado(img: F32, ppm: float, rng: np.random.Generator) -> None:
     bh = bottom - top
     col = _colour(rng, 90, 150) * np.array([0.75, 0.95, 1.2], dtype=np.float32)
     grain = _fbm(rng, bh, w, (1.5, 4.0, 10.0, 0.08 * ppm, 0.25 * ppm))
-    streaks = _fbm(rng, bh, w, (2.0, 0.1 * ppm))  # stretched along the wall below
-    streaks = cv2.resize(streaks[:, : max(w // 6, 1)], (w, bh), interpolation=cv2.INTER_LINEAR)
+    # Streaks along the wall: noise stretched six times horizontally.
+    raw = _fbm(rng, bh, w, (2.0, 0.1 * ppm))[:, : max(w // 6, 1)]
+    streaks = np.asarray(cv2.resize(raw, (w, bh), interpolation=cv2.INTER_LINEAR), dtype=np.float32)
     panel = col * (1.0 + 0.28 * grain + 0.18 * streaks)[:, :, None]
     x = 0.0
     while x < w:
