@@ -113,3 +113,14 @@ def test_laser_scale_on_a_blank_wall_has_no_votes(texture):
     est = laser_scale(blank, blank, CAM, np.eye(3), np.array([0.0, 0.0, 1.0]), P1, 1.0, VoParams())
     assert est.used == 0
     assert np.isnan(est.scale)
+
+
+def test_features_on_a_reduced_image_keep_full_image_pixels(texture):
+    from rigcal.localize.vo import FeatureDetector
+
+    img = _wall_image(np.eye(3), np.zeros(3), 3.0, texture)
+    full = FeatureDetector(CAM, VoParams()).detect(img)
+    half = FeatureDetector(CAM, VoParams(downscale=2)).detect(img)
+    assert len(half.pixels) > 50
+    d = np.linalg.norm(half.pixels[:, None, :] - full.pixels[None, :, :], axis=2).min(axis=1)
+    assert np.median(d) < 0.5

@@ -47,6 +47,8 @@ class VoParams:
 
     Attributes:
         n_features: SIFT features kept per frame (strongest first).
+        downscale: SIFT runs on the image reduced by this integer factor (faster; the
+            features' pixels are mapped back to the full image).
         ratio: Lowe's ratio test threshold for descriptor matches.
         min_tracked: a run ends when fewer features than this stay matched to its first frame.
         max_run_frames: a run ends after this many frames at the latest.
@@ -61,6 +63,7 @@ class VoParams:
     """
 
     n_features: int = 1200
+    downscale: int = 1
     ratio: float = 0.8
     min_tracked: int = 120
     max_run_frames: int = 5
@@ -104,10 +107,13 @@ class FeatureDetector:
         self._matcher = cv2.BFMatcher(cv2.NORM_L2)
 
     def detect(self, gray: Gray) -> Features:
-        kps, desc = self._sift.detectAndCompute(gray, None)
+        f = self.params.downscale
+        img = gray if f == 1 else cv2.resize(gray, None, fx=1.0 / f, fy=1.0 / f, interpolation=cv2.INTER_AREA)
+        kps, desc = self._sift.detectAndCompute(img, None)
         if desc is None or not kps:
             return Features(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 128), np.float32))
-        px = np.array([k.pt for k in kps], dtype=float)
+        # Pixel centres: full-image x = f * reduced x + (f - 1) / 2.
+        px = np.array([k.pt for k in kps], dtype=float) * f + 0.5 * (f - 1)
         return Features(px, self.camera.bearings(px), desc)
 
     def match(self, a: Features, b: Features) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
