@@ -77,6 +77,8 @@ class IasmParams:
             and noise of a correspondence.
         support_fraction: only hypotheses with at least this fraction of the best
             hypothesis's inliers are scored by the metric.
+        min_alignment: with the laser metric, a result whose alignment score (1 minus the
+            mean capped distance over ``truncate_m``) is below this fails.
     """
 
     patch_radius_px: int = 5
@@ -92,7 +94,8 @@ class IasmParams:
     min_line_m: float = 0.3
     score_points: int = 200
     truncate_m: float = 0.1
-    support_fraction: float = 0.8
+    support_fraction: float = 0.3
+    min_alignment: float = 0.7
     min_spread_m: float = 0.25
     joint_polish: bool = True
     sigma_laser_m: float = 0.01
@@ -342,19 +345,23 @@ def robust_motion(
     hyp = hypotheses_from_pairs(m.a, m.b, rng, params.hypotheses)
     if len(hyp) == 0:
         return None
-    # Each hypothesis is first evaluated on all the correspondences (its inliers); the
-    # metric the scene selects then decides among those with nearly the most support, so
-    # that a metric blind to one direction (the laser's, along a corridor) cannot pick a
-    # motion the correspondences contradict.
+    # Each hypothesis is first evaluated on all the correspondences (its inliers); those
+    # with too little support are dropped, and the metric the scene selects decides among
+    # the rest (the laser metric together with the support, see below).
     res = np.linalg.norm(_apply(hyp, m.b) - m.a[None], axis=2)
     n_in = (res < params.inlier_m).sum(axis=1)
     keep = (n_in >= params.min_inliers) & (n_in >= params.support_fraction * n_in.max())
     if not keep.any():
         return None
+    support = n_in[keep] / n_in.max()
     hyp, res = hyp[keep], res[keep]
     use_laser = laser_metric_wanted(f1.lines, params)
     if use_laser:
-        score = laser_scores(hyp, f1, f2, params, rng)
+        # Both in [0, 1]: the correspondences' support and the scans' alignment (1 when
+        # every return lies on the other scan). A motion the correspondences like but the
+        # walls contradict (a repeating pattern's period) loses, and so does one the walls
+        # cannot tell apart from the truth (along a corridor) but the correspondences can.
+        score = support + 1.0 + laser_scores(hyp, f1, f2, params, rng) / params.truncate_m
     else:
         score = image_scores(hyp, f1, f2, camera, T_cam_laser, params, rng)
     best = int(np.argmax(score))
@@ -367,6 +374,13 @@ def robust_motion(
             return None
     if params.joint_polish:
         pose = joint_polish(pose, m.a[inl], m.b[inl], f1.points, f2.points, params)
+    # Where the walls can judge (laser metric), a result they contradict fails: wrong
+    # correspondences all agreeing, as a window centred one pattern period off yields.
+    if (
+        use_laser
+        and 1.0 + laser_scores(pose[None], f1, f2, params, rng)[0] / params.truncate_m < params.min_alignment
+    ):
+        return None
     # Inliers bunched in one small patch of the scene (the only textured spot in view)
     # leave the rotation undetermined: the step fails and falls back.
     spread = float(np.sqrt(np.linalg.eigvalsh(np.cov(m.a[inl].T))[-1]))

@@ -60,9 +60,9 @@ class ScanMatcher:
         self.camera = rig.camera
         self.T_cam_laser = rig.T_cam_laser
         self.params = params or IasmParams()
-        # H-IASM only needs visual odometry good enough to centre an 8 px window: SIFT on
-        # the half-size image is four times cheaper and enough.
-        self.vo_params = VoParams(downscale=2)
+        # Full-size SIFT: on the half-size image (four times cheaper) repeating patterns
+        # fool the rotation by more than the 8 px window forgives (docs/benchmarks.md).
+        self.vo_params = VoParams()
         self.hierarchical = method == "hiasm"
         self.detector = FeatureDetector(self.camera, self.vo_params) if self.hierarchical else None
         self.focal = float(np.mean(self.camera.intrinsics[:2]))
@@ -106,7 +106,7 @@ class ScanMatcher:
                     res, m = hiasm_step(
                         f1, f2, rel.R, rel.t_unit, scale, self.camera, self.T_cam_laser, self.params, self.rng
                     )
-                    why = "too few correspondences"
+                    why = "no motion consistent with the correspondences (and the scans)"
             if res is not None:
                 self.timings_s["matching_s"] += time.perf_counter() - t0
                 return Step(res.motion, "hiasm", res, m, None)
