@@ -55,6 +55,10 @@ def _icp_estimate(streams: Streams, od: Odometry) -> Estimate:
 
 
 def _vo_result(streams: Streams) -> VoResult:
+    """Visual odometry over the sequence (computed once per run, shared by vo and kf)."""
+    if "vo" in streams.results:
+        out: VoResult = streams.results["vo"]
+        return out
     rig = streams.require_rig("vo")
     streams.require_images("vo")
     streams.laser_odometry()  # pairs scans with images (timed on its own)
@@ -68,6 +72,7 @@ def _vo_result(streams: Streams) -> VoResult:
         streams.laser_points_at_image,
     )
     streams.timings_s["vo_s"] = time.perf_counter() - t0
+    streams.results["vo"] = res
     return res
 
 

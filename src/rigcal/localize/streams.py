@@ -16,6 +16,7 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -43,6 +44,7 @@ class Streams:
         sequence: the sequence as read.
         rig: the rig (calibration and camera), or None when the sequence has none.
         timings_s: seconds spent per stage (filled as the stages run).
+        results: stage results shared by methods (visual odometry for ``vo`` and ``kf``).
     """
 
     sequence: Sequence
@@ -50,6 +52,7 @@ class Streams:
     timings_s: dict[str, float] = field(default_factory=dict)
     _images: OrderedDict[int, Gray] = field(default_factory=OrderedDict, repr=False)
     _laser_odometry: Odometry | None = field(default=None, repr=False)
+    results: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
     def scans(self) -> tuple[Scan, ...]:
