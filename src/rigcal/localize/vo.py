@@ -104,7 +104,6 @@ class FeatureDetector:
         self.camera = camera
         self.params = params
         self._sift = cv2.SIFT_create(nfeatures=params.n_features)  # type: ignore[attr-defined]
-        self._matcher = cv2.BFMatcher(cv2.NORM_L2)
 
     def detect(self, gray: Gray) -> Features:
         f = self.params.downscale
@@ -117,24 +116,29 @@ class FeatureDetector:
         return Features(px, self.camera.bearings(px), desc)
 
     def match(self, a: Features, b: Features) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        """Indices (ia, ib) of matches passing the ratio test both ways (mutual best)."""
-        if len(a.pixels) < 2 or len(b.pixels) < 2:
-            return np.zeros(0, np.intp), np.zeros(0, np.intp)
-        ab = self._ratio_matches(a.descriptors, b.descriptors)
-        ba = self._ratio_matches(b.descriptors, a.descriptors)
-        back = dict(ba)
-        pairs = [(i, j) for i, j in ab if back.get(j) == i]
-        if not pairs:
-            return np.zeros(0, np.intp), np.zeros(0, np.intp)
-        arr = np.array(pairs, dtype=np.intp)
-        return arr[:, 0], arr[:, 1]
+        """Indices (ia, ib) of matches passing the ratio test both ways (mutual best).
 
-    def _ratio_matches(self, d1: NDArray[np.float32], d2: NDArray[np.float32]) -> list[tuple[int, int]]:
-        out = []
-        for m in self._matcher.knnMatch(d1, d2, k=2):
-            if len(m) == 2 and m[0].distance < self.params.ratio * m[1].distance:
-                out.append((m[0].queryIdx, m[0].trainIdx))
-        return out
+        One matrix of squared descriptor distances serves both directions (one matrix
+        product instead of two nearest-neighbour searches).
+        """
+        none = np.zeros(0, np.intp), np.zeros(0, np.intp)
+        if len(a.pixels) < 2 or len(b.pixels) < 2:
+            return none
+        da, db = a.descriptors.astype(np.float32), b.descriptors.astype(np.float32)
+        D = (da * da).sum(axis=1)[:, None] + (db * db).sum(axis=1)[None, :] - 2.0 * (da @ db.T)
+        np.maximum(D, 0.0, out=D)
+        r2 = self.params.ratio**2  # the ratio test on distances, squared
+        ia = np.arange(len(da))
+        two = np.partition(D, 1, axis=1)[:, :2]
+        best_b = np.argmin(D, axis=1)
+        ok_ab = two[:, 0] < r2 * two[:, 1]
+        two_t = np.partition(D, 1, axis=0)[:2, :]
+        best_a = np.argmin(D, axis=0)
+        ok_ba = two_t[0] < r2 * two_t[1]
+        mutual = ok_ab & ok_ba[best_b] & (best_a[best_b] == ia)
+        if not mutual.any():
+            return none
+        return ia[mutual].astype(np.intp), best_b[mutual].astype(np.intp)
 
 
 def _normalised(bearings: FloatArray) -> FloatArray:
