@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import pytest
@@ -158,3 +159,15 @@ def test_image_methods_need_images_and_a_matching_camera(sequence, drive, tmp_pa
     )
     assert code == 3
     assert "expected 800x480" in capsys.readouterr().err
+
+
+def test_progress_reaches_every_stages_end(sequence, tmp_path):
+    from rigcal.localize.pipeline import run
+
+    calls: list[tuple[str, int, int]] = []
+    run(sequence, ["icp"], tmp_path / "p", progress=lambda *a: calls.append(a))
+    stages = {c[0] for c in calls}
+    assert stages == {"laser odometry"}
+    last = calls[-1]
+    assert last[1] == last[2] > 100
+    assert all(b[1] >= a[1] for a, b in itertools.pairwise(calls))

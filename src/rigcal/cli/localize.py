@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -51,7 +52,11 @@ def localize(
     names = parse_methods(methods)
     if output.exists() and not force:
         raise OutputError(f"{output}: exists; pass --force to replace it")
-    r = run(sequence, names, output, force=force, kitti=kitti, rig_file=rig_file)
+    bars = _Bars()
+    try:
+        r = run(sequence, names, output, force=force, kitti=kitti, rig_file=rig_file, progress=bars)
+    finally:
+        bars.close()
     if as_json:
         click.echo(json.dumps(summary(r, sequence), indent=1))
     elif r.truth is not None:
@@ -60,6 +65,31 @@ def localize(
         ratio = f"{r.duration_s / m.seconds:.1f}x real time" if m.seconds > 0 else ""
         click.echo(f"{m.method}: {len(m.stamps_s)} poses in {m.seconds:.1f} s ({ratio})", err=True)
     click.echo(f"wrote {output}/", err=True)
+
+
+class _Bars:
+    """One progress bar on stderr per stage, opened when the stage first reports."""
+
+    def __init__(self) -> None:
+        self.stage: str | None = None
+        self.done = 0
+        self.bar: Any = None
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        import sys
+
+        if stage != self.stage:
+            self.close()
+            self.bar = click.progressbar(length=total, label=stage, file=sys.stderr)
+            self.bar.__enter__()
+            self.stage, self.done = stage, 0
+        self.bar.update(done - self.done)
+        self.done = done
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+            self.bar, self.stage = None, None
 
 
 @click.command("evaluate")

@@ -143,6 +143,7 @@ def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray
     motions: list[FloatArray] = []
     scale: float | None = None
     for i in range(1, streams.n_images):
+        streams.report(method.upper(), i + 1, streams.n_images)
         f2, feat2 = sm.frame(i)
         st = sm.step(f1, f2, feat1, feat2, scale, i - 1, i)
         used[st.used] += 1

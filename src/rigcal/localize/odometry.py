@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,9 +25,11 @@ class Odometry:
     skipped: int
 
 
-def icp_odometry(scans: Sequence[Scan], params: IcpParams | None = None) -> Odometry:
+def icp_odometry(
+    scans: Sequence[Scan], params: IcpParams | None = None, progress: Callable[[int], None] | None = None
+) -> Odometry:
     """Chain ICP increments T_prev_cur over the scans, each started from the previous
-    increment (constant velocity)."""
+    increment (constant velocity); ``progress`` is called with the scans done so far."""
     params = params or IcpParams()
     T = np.eye(3)
     poses = [pose_of(T)]
@@ -35,7 +37,9 @@ def icp_odometry(scans: Sequence[Scan], params: IcpParams | None = None) -> Odom
     last = np.zeros(3)
     skipped = 0
     prev = scans[0].points[scans[0].valid]
-    for scan in scans[1:]:
+    for k, scan in enumerate(scans[1:], start=2):
+        if progress is not None:
+            progress(k)
         cur = scan.points[scan.valid]
         if len(cur) < 10 or len(prev) < 10:
             step, d, r = last, 0.0, float("nan")

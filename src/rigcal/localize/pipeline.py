@@ -70,6 +70,7 @@ def _vo_result(streams: Streams) -> VoResult:
         rig.camera,
         rig.T_cam_laser,
         streams.laser_points_at_image,
+        progress=lambda k: streams.report("visual odometry", k, streams.n_images),
     )
     streams.timings_s["vo_s"] = time.perf_counter() - t0
     streams.results["vo"] = res
@@ -153,6 +154,7 @@ def run(
     force: bool = False,
     kitti: bool = False,
     rig_file: str | Path | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
 ) -> Run:
     """Localize a sequence with each method and write the output folder:
     ``METHOD/trajectory.tum`` (and ``.kitti``) per method, ``summary.yaml``/``.json`` and,
@@ -165,6 +167,7 @@ def run(
         if m not in METHODS:
             raise InputError.at(None, "--method", m, f"one of {sorted(METHODS)}")
     streams = open_streams(sequence, rig_file)
+    streams.progress = progress
     if len(streams.scans) < MIN_SCANS:
         raise InputError.at(
             Path(sequence) / "sequence.yaml", "scans.count", len(streams.scans), f"at least {MIN_SCANS} scans"

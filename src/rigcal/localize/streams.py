@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -45,6 +46,7 @@ class Streams:
         rig: the rig (calibration and camera), or None when the sequence has none.
         timings_s: seconds spent per stage (filled as the stages run).
         results: stage results shared by methods (visual odometry for ``vo`` and ``kf``).
+        progress: called with (stage, done, total) as long stages go on (the CLI's bars).
     """
 
     sequence: Sequence
@@ -53,6 +55,7 @@ class Streams:
     _images: OrderedDict[int, Gray] = field(default_factory=OrderedDict, repr=False)
     _laser_odometry: Odometry | None = field(default=None, repr=False)
     results: dict[str, Any] = field(default_factory=dict, repr=False)
+    progress: Callable[[str, int, int], None] | None = field(default=None, repr=False)
 
     @property
     def scans(self) -> tuple[Scan, ...]:
@@ -118,9 +121,17 @@ class Streams:
         """Point-to-line ICP over all scans (computed once; several methods share it)."""
         if self._laser_odometry is None:
             t0 = time.perf_counter()
-            self._laser_odometry = icp_odometry(self.scans, IcpParams(method="point-to-line"))
+            n = len(self.scans)
+            self._laser_odometry = icp_odometry(
+                self.scans, IcpParams(method="point-to-line"), lambda k: self.report("laser odometry", k, n)
+            )
             self.timings_s["icp_s"] = time.perf_counter() - t0
         return self._laser_odometry
+
+    def report(self, stage: str, done: int, total: int) -> None:
+        """Tell the progress callback, if any, how far a stage is."""
+        if self.progress is not None:
+            self.progress(stage, done, total)
 
     def laser_points_at_image(self, i: int) -> FloatArray:
         """(N, 2) points of the scan nearest image i's stamp, in the laser frame at that stamp."""

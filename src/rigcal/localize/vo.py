@@ -392,6 +392,7 @@ def visual_odometry(
     T_cam_laser: FloatArray,
     laser_points: Callable[[int], FloatArray],
     params: VoParams | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> VoResult:
     """Chain the camera's runs into the laser's planar trajectory.
 
@@ -401,6 +402,7 @@ def visual_odometry(
         stamps_s: (n_frames,) image stamps.
         T_cam_laser: the rig's calibration.
         laser_points: frame index -> (N, 2) laser points in the laser frame at that frame's time.
+        progress: called with the frames done so far.
 
     A failed run (too few inliers, no laser scale) keeps the previous run's velocity (a
     constant-velocity guess) and is reported in ``steps``.
@@ -418,6 +420,8 @@ def visual_odometry(
     last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
     j = 1
     while j < n_frames:
+        if progress is not None:
+            progress(j + 1)
         feat = det.detect(image(j))
         ia, ib = det.match(kf_feat, feat)
         end = len(ia) < params.min_tracked or j - kf >= params.max_run_frames or j == n_frames - 1
