@@ -99,3 +99,18 @@ def test_images_of_the_wrong_size_are_refused(seq, tmp_path):
     (seq / "images" / "000000.png").write_bytes(small)
     with pytest.raises(InputError, match="320x240 px; expected 640x480"):
         open_streams(seq).require_images("vo")
+
+
+def test_scan_stamps_out_of_order_or_repeated_are_refused(tmp_path):
+    cam = default_camera()
+    rig = rig_to_text(Rig(default_T_cam_laser(), cam))
+    for stamps, bad in (
+        ([0.0, 0.1, 0.1], "stamps_s\\[2\\]: got 0.1"),
+        ([0.0, 0.2, 0.1], "stamps_s\\[2\\]: got 0.1"),
+    ):
+        scans = [_scan(_truth(t), t) for t in stamps]
+        folder = write_sequence(
+            tmp_path / f"s{len(list(tmp_path.iterdir()))}", "t", scans, [], None, {}, rig_yaml=rig
+        )
+        with pytest.raises(InputError, match=bad):
+            open_streams(folder)

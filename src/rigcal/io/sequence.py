@@ -162,6 +162,14 @@ def read_sequence(folder: str | Path) -> Sequence:
     n = len(arrays["stamps_s"])
     if n != sc["count"]:
         raise InputError.at(path, "scans.count", sc["count"], f"{n}, the number of scans in {npz.name}")
+    st = arrays["stamps_s"]
+    bad = np.flatnonzero(~np.isfinite(st) | np.r_[False, np.diff(st) <= 0])
+    if len(bad):
+        k = int(bad[0])
+        raise InputError(
+            f"{npz}: stamps_s[{k}]: got {float(st[k])!r}; expected a finite stamp after "
+            f"{float(st[k - 1]) if k else '-inf'!r} (scan stamps increase)"
+        )
     scans = []
     for i in range(n):
         nb = int(arrays["n_beams"][i])
