@@ -419,15 +419,22 @@ def visual_odometry(
     kf_feat = det.detect(image(0))
     last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
     j = 1
+    held: tuple[Features, NDArray[np.intp], NDArray[np.intp]] | None = None  # frame j-1 of the run
     while j < n_frames:
         if progress is not None:
             progress(j + 1)
         feat = det.detect(image(j))
         ia, ib = det.match(kf_feat, feat)
-        end = len(ia) < params.min_tracked or j - kf >= params.max_run_frames or j == n_frames - 1
-        if not end:
+        if len(ia) < params.min_tracked and held is not None and j - 1 > kf:
+            # Too few features left: the run ends at the last frame that still had
+            # enough (Section IV), and frame j is matched again from there.
+            j -= 1
+            feat, ia, ib = held
+        elif len(ia) >= params.min_tracked and j - kf < params.max_run_frames and j < n_frames - 1:
+            held = (feat, ia, ib)
             j += 1
             continue
+        held = None
         dt = float(stamps_s[j] - stamps_s[kf])
         rel = relative_pose(kf_feat.bearings[ia], feat.bearings[ib], focal, params)
         status, scale_pts = "ok", 0
