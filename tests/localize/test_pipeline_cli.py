@@ -171,3 +171,13 @@ def test_progress_reaches_every_stages_end(sequence, tmp_path):
     last = calls[-1]
     assert last[1] == last[2] > 100
     assert all(b[1] >= a[1] for a, b in itertools.pairwise(calls))
+
+
+def test_summary_holds_the_effective_settings(sequence, tmp_path):
+    out = tmp_path / "cfg"
+    assert main(["localize", str(sequence), "-o", str(out)]) == 0
+    cfg = yaml.safe_load((out / "summary.yaml").read_text())["config"]["settings"]
+    assert cfg["icp"]["method"] == "point-to-line"
+    assert cfg["iasm"]["patch_radius_px"] == 5
+    assert cfg["kf"]["vo_sigmas_forward_cross_yawrate"][1] > cfg["kf"]["icp_sigmas_forward_cross_yawrate"][1]
+    assert json.loads((out / "summary.json").read_text())["config"]["settings"] == cfg

@@ -194,7 +194,11 @@ def run(
 def summary(r: Run, sequence: Path) -> dict[str, Any]:
     """The run's summary (written as summary.yaml and summary.json)."""
     return {
-        "config": {"sequence": str(sequence.resolve()), "methods": [m.method for m in r.methods]},
+        "config": {
+            "sequence": str(sequence.resolve()),
+            "methods": [m.method for m in r.methods],
+            "settings": settings(),
+        },
         "duration_s": round(r.duration_s, 3),
         "stage_timings_s": {k: round(v, 3) for k, v in r.timings_s.items()},
         "methods": {
@@ -207,6 +211,26 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
             }
             for m in r.methods
         },
+    }
+
+
+def settings() -> dict[str, Any]:
+    """The methods' effective settings (every default, as docs/localization.md describes)."""
+    from dataclasses import asdict
+
+    from rigcal.localize.iasm import IasmParams
+    from rigcal.localize.vo import VoParams
+
+    return {
+        "icp": asdict(IcpParams(method="point-to-line")),
+        "vo": asdict(VoParams()),
+        "kf": {
+            **asdict(kalman.KfParams()),
+            "icp_sigmas_forward_cross_yawrate": list(kalman.ICP_SIGMAS),
+            "vo_sigmas_forward_cross_yawrate": list(kalman.VO_SIGMAS),
+        },
+        "iasm": asdict(IasmParams()),
+        "hiasm_vo": asdict(VoParams()),
     }
 
 
