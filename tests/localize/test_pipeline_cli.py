@@ -119,6 +119,11 @@ def test_all_methods_on_one_sequence(drive, tmp_path, capsys):
     assert sum(steps.values()) == n_images - 1
     assert steps["hiasm"] > 0.5 * (n_images - 1)  # the first pair is IASM's
     assert methods["hiasm"]["fallbacks"] == steps["iasm"] + steps["icp"]
+    rows = (out / "hiasm" / "steps.csv").read_text().splitlines()
+    assert rows[0] == "image,stamp_s,used,metric,correspondences,inliers,fallback"
+    assert len(rows) == n_images
+    assert sum(r.split(",")[2] == "hiasm" for r in rows[1:]) == steps["hiasm"]
+    assert "no scale yet" in rows[1]
     assert methods["kf"]["vo_measurements"] > 0
     for m in ("vo", "iasm", "hiasm"):
         # Centimetres over the first 6 m: the images are used, and used right.

@@ -127,12 +127,14 @@ class ScanMatcher:
         return pose_of(np.linalg.inv(se2(a)) @ se2(b))
 
 
-def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray, dict[str, Any]]:
+def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray, dict[str, Any], str]:
     """Chain IASM or H-IASM steps over successive images.
 
     Returns:
-        the image stamps, the laser's poses there (first at the origin), and the counts:
-        steps by method, fallbacks, metric chosen, mean inliers.
+        the image stamps, the laser's poses there (first at the origin), the counts
+        (steps by method, fallbacks, metric chosen, mean inliers) and a CSV table of
+        every step (image, stamp, method used, metric, correspondences, inliers, why it
+        fell back).
     """
     sm = ScanMatcher(streams, method)
     streams.laser_odometry()  # pairs scans with images (timed on its own)
@@ -142,11 +144,18 @@ def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray
     inliers: list[int] = []
     motions: list[FloatArray] = []
     scale: float | None = None
+    rows = ["image,stamp_s,used,metric,correspondences,inliers,fallback"]
     for i in range(1, streams.n_images):
         streams.report(method.upper(), i + 1, streams.n_images)
         f2, feat2 = sm.frame(i)
         st = sm.step(f1, f2, feat1, feat2, scale, i - 1, i)
         used[st.used] += 1
+        n_corr = 0 if st.matches is None else len(st.matches.i1)
+        res = st.result
+        rows.append(
+            f"{i},{float(streams.image_stamps_s[i])!r},{st.used},{res.metric if res else ''},"
+            f"{n_corr},{res.inliers if res else ''},{(st.why_fallback or '').replace(',', ';')}"
+        )
         if st.why_fallback is not None:
             log.info(
                 "image %d: %s falls back to %s (%s)", i, method.upper(), st.used.upper(), st.why_fallback
@@ -166,7 +175,7 @@ def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray
         "metric": metric,
         "mean_inliers": round(float(np.mean(inliers)), 1) if inliers else 0.0,
     }
-    return streams.image_stamps_s, chain(motions), stats
+    return streams.image_stamps_s, chain(motions), stats, "\n".join(rows) + "\n"
 
 
 def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint8], Step]:

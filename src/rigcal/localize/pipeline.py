@@ -47,6 +47,7 @@ class Estimate:
     stamps_s: FloatArray
     poses: FloatArray
     stats: dict[str, Any] = field(default_factory=dict)
+    steps_csv: str | None = None
 
 
 def _icp_estimate(streams: Streams, od: Odometry) -> Estimate:
@@ -99,8 +100,8 @@ def _kf_estimate(streams: Streams) -> Estimate:
 
 
 def _matching_estimate(streams: Streams, method: str) -> Estimate:
-    stamps, poses, stats = scan_matching(streams, method)
-    return Estimate(stamps, poses, stats)
+    stamps, poses, stats, steps = scan_matching(streams, method)
+    return Estimate(stamps, poses, stats, steps)
 
 
 METHODS: dict[str, Callable[[Streams], Estimate]] = {
@@ -124,6 +125,7 @@ class MethodRun:
     metrics: dict[str, Any] | None
     stats: dict[str, Any]
     seconds: float
+    steps_csv: str | None = None
 
 
 @dataclass(frozen=True)
@@ -183,7 +185,7 @@ def run(
             gt = planar_at(truth, est.stamps_s)
             poses = anchored(est.poses, gt)  # the estimate in the world frame
             metrics = evaluate(poses, gt)
-        results.append(MethodRun(name, est.stamps_s, poses, metrics, est.stats, seconds))
+        results.append(MethodRun(name, est.stamps_s, poses, metrics, est.stats, seconds, est.steps_csv))
     stamps = streams.scan_stamps_s
     duration = float(stamps[-1] - stamps[0])
     out = Run(results, dict(streams.timings_s), duration, truth)
@@ -246,6 +248,8 @@ def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool)
             )
             (tmp / m.method).mkdir()
             (tmp / m.method / "trajectory.tum").write_text(tum_text(traj), encoding="utf-8")
+            if m.steps_csv is not None:
+                (tmp / m.method / "steps.csv").write_text(m.steps_csv, encoding="utf-8")
             if kitti:
                 (tmp / m.method / "trajectory.kitti").write_text(kitti_text(traj), encoding="utf-8")
         (tmp / "summary.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
