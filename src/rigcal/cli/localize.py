@@ -8,6 +8,13 @@ from typing import Any
 
 import click
 
+rig_option = click.option(
+    "--rig",
+    "rig_file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Rig file to use instead of the sequence's own rig.yaml.",
+)
+
 
 @click.command("localize")
 @click.argument("sequence", type=click.Path(path_type=Path))
@@ -22,12 +29,7 @@ import click
 @click.option(
     "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Output folder."
 )
-@click.option(
-    "--rig",
-    "rig_file",
-    type=click.Path(path_type=Path, dir_okay=False),
-    help="Rig file to use instead of the sequence's own rig.yaml.",
-)
+@rig_option
 @click.option("--kitti", is_flag=True, help="Also write each trajectory in KITTI form.")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
@@ -128,12 +130,7 @@ def evaluate_cmd(trajectory: Path, gt: Path, as_json: bool) -> None:
 @click.option(
     "-o", "--output", required=True, type=click.Path(path_type=Path, dir_okay=False), help="PNG to write."
 )
-@click.option(
-    "--rig",
-    "rig_file",
-    type=click.Path(path_type=Path, dir_okay=False),
-    help="Rig file to use instead of the sequence's own rig.yaml.",
-)
+@rig_option
 @click.option("--force", is_flag=True, help="Replace an existing file.")
 def matches(
     sequence: Path, index: int, method: str, output: Path, rig_file: Path | None, force: bool

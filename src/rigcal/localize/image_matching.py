@@ -30,8 +30,7 @@ from rigcal.localize.iasm import (
     iasm_step,
     make_frame,
 )
-from rigcal.localize.icp import pose_of, se2
-from rigcal.localize.streams import Streams, pose_at
+from rigcal.localize.streams import Streams
 from rigcal.localize.vo import FeatureDetector, Features, VoParams, planar_motion, relative_pose
 
 FloatArray = NDArray[np.float64]
@@ -115,16 +114,9 @@ class ScanMatcher:
         if res is not None:
             return Step(res.motion, "iasm", res, m, why)
         why = "too few correspondences" if why is None else why + "; IASM: too few correspondences"
-        return Step(self.icp_motion(i1, i2), "icp", None, m, why)
-
-    def icp_motion(self, i1: int, i2: int) -> FloatArray:
-        """The laser odometry's motion (point-to-line ICP over every scan) between images
-        i1 and i2, interpolated at their stamps."""
-        stamps = self.streams.scan_stamps_s
-        od = self.streams.laser_odometry().poses
+        # ICP: the laser odometry's motion (point-to-line over every scan) between the stamps.
         t = self.streams.image_stamps_s
-        a, b = pose_at(stamps, od, float(t[i1])), pose_at(stamps, od, float(t[i2]))
-        return pose_of(np.linalg.inv(se2(a)) @ se2(b))
+        return Step(self.streams.odometry_motion(float(t[i1]), float(t[i2])), "icp", None, m, why)
 
 
 def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray, dict[str, Any], str]:

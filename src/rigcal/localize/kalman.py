@@ -21,6 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.localize.icp import pose_of, se2
+
 FloatArray = NDArray[np.float64]
 
 # 1-sigma velocity measurement noise in the rig's frame: forward (m/s), cross-track (m/s),
@@ -54,9 +56,7 @@ def increments(stamps: FloatArray, poses: FloatArray, sigmas: tuple[float, float
         dt = float(stamps[k] - stamps[k - 1])
         if dt <= 0:
             continue
-        c, s = np.cos(poses[k - 1, 2]), np.sin(poses[k - 1, 2])
-        d = poses[k, :2] - poses[k - 1, :2]
-        local = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], _wrap(poses[k, 2] - poses[k - 1, 2])])
+        local = pose_of(np.linalg.inv(se2(poses[k - 1])) @ se2(poses[k]))
         out.append(Increment(float(stamps[k - 1]), float(stamps[k]), local, sigmas))
     return out
 
@@ -114,7 +114,3 @@ def _predict(x: FloatArray, P: FloatArray, dt: float, params: KfParams) -> tuple
     Q[:3, 3:] = Q[3:, :3] = np.diag(q * dt**2 / 2.0)
     Q[3:, 3:] = np.diag(q * dt)
     return F @ x, F @ P @ F.T + Q
-
-
-def _wrap(a: float) -> float:
-    return float((a + np.pi) % (2.0 * np.pi) - np.pi)

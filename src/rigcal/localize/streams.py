@@ -16,6 +16,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +62,7 @@ class Streams:
     def scans(self) -> tuple[Scan, ...]:
         return self.sequence.scans
 
-    @property
+    @cached_property
     def scan_stamps_s(self) -> FloatArray:
         return np.array([s.stamp_s for s in self.sequence.scans], dtype=float)
 
@@ -145,9 +146,14 @@ class Streams:
         k = nearest_index(stamps, t)
         scan = self.scans[k]
         pts = scan.points[scan.valid]
-        od = self.laser_odometry().poses
-        T_t_k = np.linalg.inv(se2(pose_at(stamps, od, t))) @ se2(od[k])
+        T_t_k = se2(self.odometry_motion(t, float(stamps[k])))
         return scan, pts @ T_t_k[:2, :2].T + T_t_k[:2, 2]
+
+    def odometry_motion(self, t0: float, t1: float) -> FloatArray:
+        """The laser's pose at t1 in its frame at t0 (x, y, yaw), from the point-to-line
+        laser odometry interpolated at both stamps."""
+        stamps, od = self.scan_stamps_s, self.laser_odometry().poses
+        return pose_of(np.linalg.inv(se2(pose_at(stamps, od, t0))) @ se2(pose_at(stamps, od, t1)))
 
     def _yaml(self) -> Path | None:
         return None if self.sequence.folder is None else self.sequence.folder / "sequence.yaml"
@@ -185,8 +191,3 @@ def pose_at(stamps: FloatArray, poses: FloatArray, t: float) -> FloatArray:
     return np.array(
         [np.interp(t, stamps, poses[:, 0]), np.interp(t, stamps, poses[:, 1]), np.interp(t, stamps, yaw)]
     )
-
-
-def relative(poses: FloatArray, i: int, j: int) -> FloatArray:
-    """Pose j in pose i's frame, (x, y, yaw)."""
-    return pose_of(np.linalg.inv(se2(poses[i])) @ se2(poses[j]))

@@ -420,14 +420,17 @@ def visual_odometry(
     last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
     j = 1
     held: tuple[Features, NDArray[np.intp], NDArray[np.intp]] | None = None  # frame j-1 of the run
+    detected: tuple[int, Features] | None = None  # frame j's features, kept when it is matched again
     while j < n_frames:
         if progress is not None:
             progress(j + 1)
-        feat = det.detect(image(j))
+        feat = detected[1] if detected is not None and detected[0] == j else det.detect(image(j))
+        detected = None
         ia, ib = det.match(kf_feat, feat)
         if len(ia) < params.min_tracked and held is not None and j - 1 > kf:
             # Too few features left: the run ends at the last frame that still had
             # enough (Section IV), and frame j is matched again from there.
+            detected = (j, feat)
             j -= 1
             feat, ia, ib = held
         elif len(ia) >= params.min_tracked and j - kf < params.max_run_frames and j < n_frames - 1:
