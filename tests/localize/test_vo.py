@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.ndimage import gaussian_filter, map_coordinates
 
 from rigcal.geometry import rotation_angle_rad, rotvec_to_R
 from rigcal.localize.vo import VoParams, laser_scale, refine_essential, relative_pose
@@ -71,33 +70,12 @@ def test_too_few_matches_fail():
     assert relative_pose(_bearings(P1), _bearings(P1 + np.array([0.1, 0, 0.2])), FOCAL, VoParams()) is None
 
 
-def _wall_image(R, t, depth, texture):
-    """A camera at x2 = R x1 + t looking at the textured plane z1 = depth (first camera's frame)."""
-    u, v = np.meshgrid(np.arange(CAM.width_px, dtype=float), np.arange(CAM.height_px, dtype=float))
-    b2 = CAM.bearings(np.column_stack([u.ravel(), v.ravel()]))
-    c = -R.T @ t  # second camera centre in the first frame
-    d = b2 @ R  # its rays in the first frame
-    s = (depth - c[2]) / d[:, 2]
-    X = c + s[:, None] * d
-    # Texture: 200 texels per metre over [-4, 4] m.
-    coords = np.vstack([(X[:, 1] + 4.0) * 200.0, (X[:, 0] + 4.0) * 200.0])
-    img = map_coordinates(texture, coords, order=1, mode="nearest")
-    return np.clip(img, 0, 255).astype(np.uint8).reshape(CAM.height_px, CAM.width_px)
-
-
-@pytest.fixture(scope="module")
-def texture():
-    rng = np.random.default_rng(11)
-    tex = gaussian_filter(rng.normal(0, 1, (1600, 1600)), 3.0)
-    return 128 + 60 * tex / tex.std()
-
-
 @pytest.mark.parametrize(("t", "depth"), [((0.05, 0.0, 0.3), 3.0), ((0.2, 0.0, 0.1), 2.5)])
-def test_laser_scale_from_patches_on_a_textured_wall(texture, t, depth):
+def test_laser_scale_from_patches_on_a_textured_wall(texture, wall_image, t, depth):
     t = np.array(t)
     R = rotvec_to_R([0.0, 0.03, 0.0])
-    img1 = _wall_image(np.eye(3), np.zeros(3), depth, texture)
-    img2 = _wall_image(R, t, depth, texture)
+    img1 = wall_image(np.eye(3), np.zeros(3), depth, texture)
+    img2 = wall_image(R, t, depth, texture)
     # The laser's line across the wall, 10 cm below the optical axis.
     x = np.linspace(-2.0, 2.0, 200)
     P1 = np.column_stack([x, np.full_like(x, 0.1), np.full_like(x, depth)])
@@ -113,14 +91,3 @@ def test_laser_scale_on_a_blank_wall_has_no_votes(texture):
     est = laser_scale(blank, blank, CAM, np.eye(3), np.array([0.0, 0.0, 1.0]), P1, 1.0, VoParams())
     assert est.used == 0
     assert np.isnan(est.scale)
-
-
-def test_features_on_a_reduced_image_keep_full_image_pixels(texture):
-    from rigcal.localize.vo import FeatureDetector
-
-    img = _wall_image(np.eye(3), np.zeros(3), 3.0, texture)
-    full = FeatureDetector(CAM, VoParams()).detect(img)
-    half = FeatureDetector(CAM, VoParams(downscale=2)).detect(img)
-    assert len(half.pixels) > 50
-    d = np.linalg.norm(half.pixels[:, None, :] - full.pixels[None, :, :], axis=2).min(axis=1)
-    assert np.median(d) < 0.5

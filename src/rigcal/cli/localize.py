@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import click
 
@@ -24,7 +23,8 @@ rig_option = click.option(
     default="icp",
     show_default=True,
     help="One method or several, comma-separated: icp (point-to-line), icp-p2p (point-to-point, "
-    "Eq. 4), vo (visual odometry with laser scale), kf (Kalman filter of icp and vo).",
+    "Eq. 4), vo (visual odometry with laser scale), kf (Kalman filter of icp and vo), iasm "
+    "(image augmented scan matching), hiasm (homography based IASM).",
 )
 @click.option(
     "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Output folder."
@@ -70,28 +70,47 @@ def localize(
 
 
 class _Bars:
-    """One progress bar on stderr per stage, opened when the stage first reports."""
+    """Progress on stderr. Stages may run side by side (the laser odometry runs beside
+    the feature tracking), so a terminal gets one live line with every running stage's
+    share done; each stage gets a line of its own when it ends."""
 
     def __init__(self) -> None:
-        self.stage: str | None = None
-        self.done = 0
-        self.bar: Any = None
+        import sys
+        import threading
+
+        self.out = sys.stderr
+        self.live = self.out.isatty()
+        self.running: dict[str, tuple[int, int, float]] = {}
+        self.lock = threading.Lock()
+        self.drawn = 0.0
 
     def __call__(self, stage: str, done: int, total: int) -> None:
-        import sys
+        import time
 
-        if stage != self.stage:
-            self.close()
-            self.bar = click.progressbar(length=total, label=stage, file=sys.stderr)
-            self.bar.__enter__()
-            self.stage, self.done = stage, 0
-        self.bar.update(done - self.done)
-        self.done = done
+        with self.lock:
+            now = time.perf_counter()
+            started = self.running.get(stage, (0, 0, now))[2]
+            self.running[stage] = (done, total, started)
+            if done >= total:
+                del self.running[stage]
+                self._clear()
+                self.out.write(f"{stage}: {total}/{total} in {now - started:.1f} s\n")
+                self.drawn = 0.0
+            items = self.running.items()
+            if self.live and self.running and now - self.drawn > 0.2:
+                line = "  ".join(f"{k} {100 * d // max(t, 1)}% ({d}/{t})" for k, (d, t, _) in items)
+                self.out.write("\r" + line[:150] + "\x1b[K")
+                self.drawn = now
+            self.out.flush()
+
+    def _clear(self) -> None:
+        if self.live:
+            self.out.write("\r\x1b[K")
 
     def close(self) -> None:
-        if self.bar is not None:
-            self.bar.__exit__(None, None, None)
-            self.bar, self.stage = None, None
+        with self.lock:
+            self._clear()
+            self.out.flush()
 
 
 @click.command("evaluate")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,7 +32,8 @@ from rigcal.localize.iasm import (
     make_frame,
 )
 from rigcal.localize.streams import Streams
-from rigcal.localize.vo import FeatureDetector, Features, VoParams, planar_motion, relative_pose
+from rigcal.localize.tracks import FrameTracks, Tracker, common
+from rigcal.localize.vo import VoParams, planar_motion, relative_pose
 
 FloatArray = NDArray[np.float64]
 
@@ -52,39 +54,43 @@ class Step:
 class ScanMatcher:
     """IASM (``hierarchical=False``) or H-IASM (``True``) on one sequence's streams."""
 
-    def __init__(self, streams: Streams, method: str, params: IasmParams | None = None) -> None:
+    def __init__(
+        self,
+        streams: Streams,
+        method: str,
+        params: IasmParams | None = None,
+        tracks: Mapping[int, FrameTracks] | Sequence[FrameTracks] | None = None,
+    ) -> None:
         rig = streams.require_rig(method)
         streams.require_images(method)
         self.streams = streams
         self.camera = rig.camera
         self.T_cam_laser = rig.T_cam_laser
         self.params = params or IasmParams()
-        # Full-size SIFT: on the half-size image (four times cheaper) repeating patterns
-        # fool the rotation by more than the 8 px window forgives (docs/benchmarks.md).
         self.vo_params = VoParams()
         self.hierarchical = method == "hiasm"
-        self.detector = FeatureDetector(self.camera, self.vo_params) if self.hierarchical else None
+        # H-IASM's visual odometry between successive images: the shared feature tracks.
+        self.tracks = None
+        if self.hierarchical:
+            self.tracks = streams.feature_tracks() if tracks is None else tracks
         self.focal = float(np.mean(self.camera.intrinsics[:2]))
         self.rng = np.random.default_rng(0)
-        self.timings_s = {"frames_s": 0.0, "features_s": 0.0, "matching_s": 0.0}
+        self.timings_s = {"frames_s": 0.0, "matching_s": 0.0}
 
-    def frame(self, i: int) -> tuple[Frame, Features | None]:
-        """Image i's frame and, for H-IASM, its SIFT features."""
+    def frame(self, i: int) -> tuple[Frame, FrameTracks | None]:
+        """Image i's frame and, for H-IASM, its feature tracks."""
         t0 = time.perf_counter()
         scan, pts = self.streams.laser_at_image(i)
         f = make_frame(self.streams.image(i), scan, pts, self.camera, self.T_cam_laser, self.params)
-        t1 = time.perf_counter()
-        self.timings_s["frames_s"] += t1 - t0
-        feats = self.detector.detect(f.gray) if self.detector is not None else None
-        self.timings_s["features_s"] += time.perf_counter() - t1
-        return f, feats
+        self.timings_s["frames_s"] += time.perf_counter() - t0
+        return f, None if self.tracks is None else self.tracks[i]
 
     def step(
         self,
         f1: Frame,
         f2: Frame,
-        feat1: Features | None,
-        feat2: Features | None,
+        tr1: FrameTracks | None,
+        tr2: FrameTracks | None,
         scale: float | None,
         i1: int,
         i2: int,
@@ -92,12 +98,12 @@ class ScanMatcher:
         """The motion between frames of images i1 and i2, falling back H-IASM -> IASM -> ICP."""
         t0 = time.perf_counter()
         why = None
-        if self.detector is not None and feat1 is not None and feat2 is not None:
+        if tr1 is not None and tr2 is not None:
             res, m = None, None
             why = "no scale yet (first pair)"
             if scale is not None:
-                ia, ib = self.detector.match(feat1, feat2)
-                rel = relative_pose(feat1.bearings[ia], feat2.bearings[ib], self.focal, self.vo_params)
+                ia, ib = common(tr1, tr2)
+                rel = relative_pose(tr1.bearings[ia], tr2.bearings[ib], self.focal, self.vo_params)
                 why = "no visual odometry between the images"
                 if rel is not None and not planar_motion(rel.R, rel.t_unit, self.T_cam_laser[:3, 2]):
                     rel, why = None, "visual odometry gives a motion a ground rig cannot make"
@@ -130,7 +136,7 @@ def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray
     """
     sm = ScanMatcher(streams, method)
     streams.laser_odometry()  # pairs scans with images (timed on its own)
-    f1, feat1 = sm.frame(0)
+    f1, tr1 = sm.frame(0)
     used = {"hiasm": 0, "iasm": 0, "icp": 0}
     metric = {"laser": 0, "image": 0}
     inliers: list[int] = []
@@ -139,8 +145,8 @@ def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray
     rows = ["image,stamp_s,used,metric,correspondences,inliers,fallback"]
     for i in range(1, streams.n_images):
         streams.report(method.upper(), i + 1, streams.n_images)
-        f2, feat2 = sm.frame(i)
-        st = sm.step(f1, f2, feat1, feat2, scale, i - 1, i)
+        f2, tr2 = sm.frame(i)
+        st = sm.step(f1, f2, tr1, tr2, scale, i - 1, i)
         used[st.used] += 1
         n_corr = 0 if st.matches is None else len(st.matches.i1)
         res = st.result
@@ -157,7 +163,7 @@ def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray
             inliers.append(st.result.inliers)
         scale = float(np.linalg.norm(camera_motion(st.motion, sm.T_cam_laser)[1]))
         motions.append(st.motion)
-        f1, feat1 = f2, feat2
+        f1, tr1 = f2, tr2
     for k, v in sm.timings_s.items():
         streams.timings_s[f"{method}_{k}"] = v
     own = used["hiasm"] if sm.hierarchical else used["iasm"]
@@ -177,15 +183,20 @@ def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint
     """
     from rigcal.viz.matches_plot import draw_matches
 
-    sm = ScanMatcher(streams, method)
-    f1, feat1 = sm.frame(i)
-    f2, feat2 = sm.frame(i + 1)
+    tracks = None
+    if method == "hiasm":
+        rig = streams.require_rig(method)
+        tracker = Tracker(rig.camera)
+        tracks = {k: tracker.step(streams.image(k)) for k in range(max(i - 1, 0), i + 2)}
+    sm = ScanMatcher(streams, method, tracks=tracks)
+    f1, tr1 = sm.frame(i)
+    f2, tr2 = sm.frame(i + 1)
     scale = None
     if sm.hierarchical and i > 0:
-        f0, feat0 = sm.frame(i - 1)
-        prev = sm.step(f0, f1, feat0, feat1, None, i - 1, i)
+        f0, tr0 = sm.frame(i - 1)
+        prev = sm.step(f0, f1, tr0, tr1, None, i - 1, i)
         scale = float(np.linalg.norm(camera_motion(prev.motion, sm.T_cam_laser)[1]))
-    st = sm.step(f1, f2, feat1, feat2, scale, i, i + 1)
+    st = sm.step(f1, f2, tr1, tr2, scale, i, i + 1)
     m = st.matches
     if m is None or len(m.i1) == 0:
         p1 = p2 = np.zeros((0, 2))

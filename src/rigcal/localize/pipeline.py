@@ -62,10 +62,11 @@ def _vo_result(streams: Streams) -> VoResult:
         return out
     rig = streams.require_rig("vo")
     streams.require_images("vo")
+    tracks = streams.feature_tracks()  # shared with H-IASM (timed on its own)
     streams.laser_odometry()  # pairs scans with images (timed on its own)
     t0 = time.perf_counter()
     res = visual_odometry(
-        streams.n_images,
+        tracks,
         streams.image,
         streams.image_stamps_s,
         rig.camera,
@@ -87,8 +88,8 @@ def _vo_estimate(streams: Streams, res: VoResult) -> Estimate:
 
 
 def _kf_estimate(streams: Streams) -> Estimate:
-    icp = _icp_estimate(streams, streams.laser_odometry())
     vo = _vo_estimate(streams, _vo_result(streams))
+    icp = _icp_estimate(streams, streams.laser_odometry())
     t0 = time.perf_counter()
     ms = kalman.increments(icp.stamps_s, icp.poses, kalman.ICP_SIGMAS)
     ms += kalman.increments(vo.stamps_s, vo.poses, kalman.VO_SIGMAS)
@@ -114,6 +115,11 @@ METHODS: dict[str, Callable[[Streams], Estimate]] = {
 }
 
 
+# Methods that track image features (and use the laser odometry too): the laser odometry
+# then runs beside the tracking on a second thread.
+TRACKING = ("vo", "kf", "hiasm")
+
+
 @dataclass(frozen=True)
 class MethodRun:
     """One method's output: its estimate in the world frame (anchored to the truth's first
@@ -136,6 +142,21 @@ class Run:
     timings_s: dict[str, float]
     duration_s: float
     truth: Trajectory | None
+    wall_s: float = 0.0
+
+
+def _shared_stages(streams: Streams, methods: list[str]) -> None:
+    """Compute the stages several methods share, before the methods: the feature tracks
+    (when a method tracks images) with the laser odometry beside them on a second thread,
+    then the laser odometry (every method but icp-p2p pairs scans and images with it)."""
+    tracking = [m for m in methods if m in TRACKING]
+    for m in tracking:
+        streams.require_images(m)  # a clear error before any work
+    if tracking:
+        streams.start_laser_odometry()
+        streams.feature_tracks()
+    if any(m != "icp-p2p" for m in methods):
+        streams.laser_odometry()
 
 
 def parse_methods(text: str) -> list[str]:
@@ -175,20 +196,25 @@ def run(
             Path(sequence) / "sequence.yaml", "scans.count", len(streams.scans), f"at least {MIN_SCANS} scans"
         )
     truth = _ground_truth(Path(sequence), streams.sequence.groundtruth_file)
+    t_start = time.perf_counter()
     results = []
-    for name in methods:
-        t0 = time.perf_counter()
-        est = METHODS[name](streams)
-        seconds = time.perf_counter() - t0
-        poses, metrics = est.poses, None
-        if truth is not None:
-            gt = planar_at(truth, est.stamps_s)
-            poses = anchored(est.poses, gt)  # the estimate in the world frame
-            metrics = evaluate(poses, gt)
-        results.append(MethodRun(name, est.stamps_s, poses, metrics, est.stats, seconds, est.steps_csv))
+    try:
+        _shared_stages(streams, methods)
+        for name in methods:
+            t0 = time.perf_counter()
+            est = METHODS[name](streams)
+            seconds = time.perf_counter() - t0
+            poses, metrics = est.poses, None
+            if truth is not None:
+                gt = planar_at(truth, est.stamps_s)
+                poses = anchored(est.poses, gt)  # the estimate in the world frame
+                metrics = evaluate(poses, gt)
+            results.append(MethodRun(name, est.stamps_s, poses, metrics, est.stats, seconds, est.steps_csv))
+    finally:
+        streams.stop_background()
     stamps = streams.scan_stamps_s
     duration = float(stamps[-1] - stamps[0])
-    out = Run(results, dict(streams.timings_s), duration, truth)
+    out = Run(results, dict(streams.timings_s), duration, truth, time.perf_counter() - t_start)
     _write(out, Path(sequence), output, force, kitti)
     return out
 
@@ -202,6 +228,8 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
             "settings": settings(),
         },
         "duration_s": round(r.duration_s, 3),
+        "wall_s": round(r.wall_s, 3),
+        "x_real_time": round(r.duration_s / r.wall_s, 2) if r.wall_s > 0 else None,
         "stage_timings_s": {k: round(v, 3) for k, v in r.timings_s.items()},
         "methods": {
             m.method: {
@@ -221,6 +249,7 @@ def settings() -> dict[str, Any]:
     from dataclasses import asdict
 
     from rigcal.localize.iasm import IasmParams
+    from rigcal.localize.tracks import TrackParams
     from rigcal.localize.vo import VoParams
 
     return {
@@ -233,6 +262,7 @@ def settings() -> dict[str, Any]:
         },
         "iasm": asdict(IasmParams()),
         "hiasm_vo": asdict(VoParams()),
+        "tracks": asdict(TrackParams()),
     }
 
 

@@ -12,9 +12,11 @@ Images are read from disk when asked for (grey, uint8) and the last few are kept
 
 from __future__ import annotations
 
+import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -28,6 +30,7 @@ from rigcal.errors import InputError
 from rigcal.io.sequence import Sequence, read_sequence
 from rigcal.localize.icp import IcpParams, pose_of, se2
 from rigcal.localize.odometry import Odometry, icp_odometry
+from rigcal.localize.tracks import FrameTracks, TrackParams, track_sequence
 from rigcal.rig import Rig
 from rigcal.rigfile import read_rig
 from rigcal.scan import Scan
@@ -36,6 +39,10 @@ FloatArray = NDArray[np.float64]
 Gray = NDArray[np.uint8]
 
 _IMAGE_CACHE = 8
+
+
+class _StoppedError(Exception):
+    """The background laser odometry was told to stop."""
 
 
 @dataclass
@@ -55,6 +62,8 @@ class Streams:
     timings_s: dict[str, float] = field(default_factory=dict)
     _images: OrderedDict[int, Gray] = field(default_factory=OrderedDict, repr=False)
     _laser_odometry: Odometry | None = field(default=None, repr=False)
+    _background: Future[Odometry] | None = field(default=None, repr=False)
+    _stop: threading.Event = field(default_factory=threading.Event, repr=False)
     results: dict[str, Any] = field(default_factory=dict, repr=False)
     progress: Callable[[str, int, int], None] | None = field(default=None, repr=False)
 
@@ -121,13 +130,50 @@ class Streams:
     def laser_odometry(self) -> Odometry:
         """Point-to-line ICP over all scans (computed once; several methods share it)."""
         if self._laser_odometry is None:
-            t0 = time.perf_counter()
-            n = len(self.scans)
-            self._laser_odometry = icp_odometry(
-                self.scans, IcpParams(method="point-to-line"), lambda k: self.report("laser odometry", k, n)
-            )
-            self.timings_s["icp_s"] = time.perf_counter() - t0
+            if self._background is not None:
+                self._laser_odometry = self._background.result()
+            else:
+                self._laser_odometry = self._compute_laser_odometry()
         return self._laser_odometry
+
+    def start_laser_odometry(self) -> None:
+        """Start the laser odometry on a second thread, so that it overlaps the image
+        stages (feature tracking spends its time in OpenCV, which releases the
+        interpreter); :meth:`laser_odometry` waits for it."""
+        if self._laser_odometry is None and self._background is None:
+            pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="laser-odometry")
+            self._background = pool.submit(self._compute_laser_odometry)
+            pool.shutdown(wait=False)
+
+    def stop_background(self) -> None:
+        """Stop the background laser odometry, if any is still running (a failed run)."""
+        self._stop.set()
+
+    def _compute_laser_odometry(self) -> Odometry:
+        t0 = time.perf_counter()
+        n = len(self.scans)
+
+        def progress(k: int) -> None:
+            if self._stop.is_set():
+                raise _StoppedError
+            self.report("laser odometry", k, n)
+
+        od = icp_odometry(self.scans, IcpParams(method="point-to-line"), progress)
+        self.timings_s["icp_s"] = time.perf_counter() - t0
+        return od
+
+    def feature_tracks(self) -> list[FrameTracks]:
+        """SIFT features tracked over all images (computed once; VO and H-IASM share them)."""
+        if "tracks" not in self.results:
+            rig = self.require_rig("feature tracks")
+            t0 = time.perf_counter()
+            n = self.n_images
+            self.results["tracks"] = track_sequence(
+                n, self.image, rig.camera, TrackParams(), lambda k: self.report("feature tracks", k, n)
+            )
+            self.timings_s["tracks_s"] = time.perf_counter() - t0
+        out: list[FrameTracks] = self.results["tracks"]
+        return out
 
     def report(self, stage: str, done: int, total: int) -> None:
         """Tell the progress callback, if any, how far a stage is."""

@@ -2,10 +2,10 @@
 
 The camera's motion between two images, up to scale, from SIFT features:
 
-1. SIFT features are detected in every frame and matched to the first frame of the
-   current *run* (Lowe's ratio test, mutual best match); the run goes on while at least
-   ``min_tracked`` features are still matched, up to ``max_run_frames`` frames, so that
-   the epipolar geometry is computed over enough motion (Section IV).
+1. SIFT features are tracked across frames (:mod:`rigcal.localize.tracks`); a *run*
+   goes on from its first frame while at least ``min_tracked`` of that frame's tracks are
+   still alive, up to ``max_run_frames`` frames, so that the epipolar geometry is
+   computed over enough motion (Section IV).
 2. The essential matrix E between the run's first and last frame by the five-point
    algorithm inside robust sampling (OpenCV's ``findEssentialMat`` with MAGSAC++, which
    in turns picks the right one of two near-equal solutions where plain RANSAC does
@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 from rigcal.camera import Camera
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
+from rigcal.localize.tracks import FrameTracks, common
 
 FloatArray = NDArray[np.float64]
 Gray = NDArray[np.uint8]
@@ -46,11 +47,7 @@ class VoParams:
     """Visual odometry settings.
 
     Attributes:
-        n_features: SIFT features kept per frame (strongest first).
-        downscale: SIFT runs on the image reduced by this integer factor (faster; the
-            features' pixels are mapped back to the full image).
-        ratio: Lowe's ratio test threshold for descriptor matches.
-        min_tracked: a run ends when fewer features than this stay matched to its first frame.
+        min_tracked: a run ends when fewer tracks than this stay alive from its first frame.
         max_run_frames: a run ends after this many frames at the latest.
         ransac_threshold_px: five-point RANSAC inlier threshold (pixels, via the focal length).
         min_inliers: fewer essential-matrix inliers than this and the step fails.
@@ -62,9 +59,6 @@ class VoParams:
         scale_steps: samples of the scale search.
     """
 
-    n_features: int = 1200
-    downscale: int = 1
-    ratio: float = 0.8
     min_tracked: int = 120
     max_run_frames: int = 5
     ransac_threshold_px: float = 1.0
@@ -77,15 +71,6 @@ class VoParams:
 
 
 @dataclass(frozen=True)
-class Features:
-    """SIFT features of one frame: pixels (N, 2), unit bearings (N, 3), descriptors (N, 128)."""
-
-    pixels: FloatArray
-    bearings: FloatArray
-    descriptors: NDArray[np.float32]
-
-
-@dataclass(frozen=True)
 class RelativePose:
     """The camera's motion between two frames: ``x2 = R x1 + scale * t_unit``."""
 
@@ -95,50 +80,6 @@ class RelativePose:
     still: bool
     bearings1: FloatArray = field(repr=False)
     bearings2: FloatArray = field(repr=False)
-
-
-class FeatureDetector:
-    """SIFT detection (OpenCV) with bearings from the camera model."""
-
-    def __init__(self, camera: Camera, params: VoParams) -> None:
-        self.camera = camera
-        self.params = params
-        self._sift = cv2.SIFT_create(nfeatures=params.n_features)  # type: ignore[attr-defined]
-
-    def detect(self, gray: Gray) -> Features:
-        f = self.params.downscale
-        img = gray if f == 1 else cv2.resize(gray, None, fx=1.0 / f, fy=1.0 / f, interpolation=cv2.INTER_AREA)
-        kps, desc = self._sift.detectAndCompute(img, None)
-        if desc is None or not kps:
-            return Features(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 128), np.float32))
-        # Pixel centres: full-image x = f * reduced x + (f - 1) / 2.
-        px = np.array([k.pt for k in kps], dtype=float) * f + 0.5 * (f - 1)
-        return Features(px, self.camera.bearings(px), desc)
-
-    def match(self, a: Features, b: Features) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        """Indices (ia, ib) of matches passing the ratio test both ways (mutual best).
-
-        One matrix of squared descriptor distances serves both directions (one matrix
-        product instead of two nearest-neighbour searches).
-        """
-        none = np.zeros(0, np.intp), np.zeros(0, np.intp)
-        if len(a.pixels) < 2 or len(b.pixels) < 2:
-            return none
-        da, db = a.descriptors.astype(np.float32), b.descriptors.astype(np.float32)
-        D = (da * da).sum(axis=1)[:, None] + (db * db).sum(axis=1)[None, :] - 2.0 * (da @ db.T)
-        np.maximum(D, 0.0, out=D)
-        r2 = self.params.ratio**2  # the ratio test on distances, squared
-        ia = np.arange(len(da))
-        two = np.partition(D, 1, axis=1)[:, :2]
-        best_b = np.argmin(D, axis=1)
-        ok_ab = two[:, 0] < r2 * two[:, 1]
-        two_t = np.partition(D, 1, axis=0)[:2, :]
-        best_a = np.argmin(D, axis=0)
-        ok_ba = two_t[0] < r2 * two_t[1]
-        mutual = ok_ab & ok_ba[best_b] & (best_a[best_b] == ia)
-        if not mutual.any():
-            return none
-        return ia[mutual].astype(np.intp), best_b[mutual].astype(np.intp)
 
 
 def _normalised(bearings: FloatArray) -> FloatArray:
@@ -385,7 +326,7 @@ class VoResult:
 
 
 def visual_odometry(
-    n_frames: int,
+    tracks: list[FrameTracks],
     image: Callable[[int], Gray],
     stamps_s: FloatArray,
     camera: Camera,
@@ -397,49 +338,39 @@ def visual_odometry(
     """Chain the camera's runs into the laser's planar trajectory.
 
     Args:
-        n_frames: images in the sequence.
-        image: frame index -> grey image.
+        tracks: the feature tracks of every frame (:mod:`rigcal.localize.tracks`).
+        image: frame index -> grey image (for the scale's patches).
         stamps_s: (n_frames,) image stamps.
         T_cam_laser: the rig's calibration.
         laser_points: frame index -> (N, 2) laser points in the laser frame at that frame's time.
         progress: called with the frames done so far.
 
+    A run goes from its first frame to the last frame, at most ``max_run_frames`` on, that
+    still shares ``min_tracked`` tracks with it (Section IV); the next run starts there.
     A failed run (too few inliers, no laser scale) keeps the previous run's velocity (a
     constant-velocity guess) and is reported in ``steps``.
     """
     params = params or VoParams()
-    det = FeatureDetector(camera, params)
+    n_frames = len(tracks)
     focal = float(np.mean(camera.intrinsics[:2]))
     T_laser_cam = np.linalg.inv(T_cam_laser)
     T_w_c = T_laser_cam.copy()  # the first laser pose is the origin
     frames = [0]
     poses = [_planar(T_w_c @ T_cam_laser)]
     steps: list[VoStep] = []
-    kf = 0
-    kf_feat = det.detect(image(0))
     last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
-    j = 1
-    held: tuple[Features, NDArray[np.intp], NDArray[np.intp]] | None = None  # frame j-1 of the run
-    detected: tuple[int, Features] | None = None  # frame j's features, kept when it is matched again
-    while j < n_frames:
+    kf = 0
+    while kf < n_frames - 1:
+        j = kf + 1
+        for c in range(kf + 2, min(kf + params.max_run_frames, n_frames - 1) + 1):
+            if len(common(tracks[kf], tracks[c])[0]) < params.min_tracked:
+                break
+            j = c
         if progress is not None:
             progress(j + 1)
-        feat = detected[1] if detected is not None and detected[0] == j else det.detect(image(j))
-        detected = None
-        ia, ib = det.match(kf_feat, feat)
-        if len(ia) < params.min_tracked and held is not None and j - 1 > kf:
-            # Too few features left: the run ends at the last frame that still had
-            # enough (Section IV), and frame j is matched again from there.
-            detected = (j, feat)
-            j -= 1
-            feat, ia, ib = held
-        elif len(ia) >= params.min_tracked and j - kf < params.max_run_frames and j < n_frames - 1:
-            held = (feat, ia, ib)
-            j += 1
-            continue
-        held = None
+        ia, ib = common(tracks[kf], tracks[j])
         dt = float(stamps_s[j] - stamps_s[kf])
-        rel = relative_pose(kf_feat.bearings[ia], feat.bearings[ib], focal, params)
+        rel = relative_pose(tracks[kf].bearings[ia], tracks[j].bearings[ib], focal, params)
         status, scale_pts = "ok", 0
         if rel is None:
             status = "failed"
@@ -470,8 +401,7 @@ def visual_odometry(
         frames.append(j)
         poses.append(_planar(T_w_c @ T_cam_laser))
         steps.append(VoStep(kf, j, 0 if rel is None else rel.inliers, scale_pts, status))
-        kf, kf_feat = j, feat
-        j += 1
+        kf = j
     return VoResult(np.array(frames, dtype=np.intp), np.array(poses), tuple(steps))
 
 

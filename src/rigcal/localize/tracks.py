@@ -1,0 +1,164 @@
+"""Feature tracks across the image sequence (paper Section IV: "SIFT features tracked
+across frames until their count falls below a threshold").
+
+SIFT keypoints (OpenCV) are detected in a frame and followed into each next frame by
+pyramidal Lucas-Kanade optical flow (OpenCV's ``calcOpticalFlowPyrLK``). A track
+survives a step when the flow converges, lands inside the image, its window still looks
+like the previous frame's, and it flows back to within ``max_fb_px`` of where it started
+(forward-backward check: on a repeating pattern a track that jumped a period does not
+come back). When fewer than ``redetect_below`` tracks are left, SIFT runs again and its
+strongest new keypoints, away from the live tracks, start new tracks.
+
+Tracking is what makes the odometry cheap: SIFT (about 70 ms on a 640x480 frame) runs
+only when tracks run out, and Lucas-Kanade follows a thousand points, each to a
+fraction of a pixel, in about ten milliseconds (docs/benchmarks.md). A track's identity
+is an integer; the correspondences between any two frames are the tracks alive in both
+(:func:`common`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.camera import Camera
+
+FloatArray = NDArray[np.float64]
+Gray = NDArray[np.uint8]
+
+
+@dataclass(frozen=True)
+class TrackParams:
+    """Tracking settings.
+
+    Attributes:
+        n_features: tracks wanted per frame (SIFT's strongest keypoints fill up to this).
+        redetect_below: SIFT runs again when fewer tracks than this are alive...
+        redetect_fraction: ... or fewer than this fraction of those alive after the
+            last detection (a texture-poor view offers fewer than ``redetect_below``).
+        window_px: Lucas-Kanade window side (pixels).
+        levels: Lucas-Kanade pyramid levels above the full image.
+        max_fb_px: a track is dropped when tracking it back misses its start by more.
+        max_patch_error: ... or when its window differs from the previous frame's by more
+            (mean absolute difference, grey levels): something else now covers the point.
+        min_distance_px: new keypoints keep at least this far from live tracks.
+    """
+
+    n_features: int = 1000
+    redetect_below: int = 300
+    redetect_fraction: float = 0.7
+    window_px: int = 15
+    levels: int = 3
+    max_fb_px: float = 1.0
+    max_patch_error: float = 12.0
+    min_distance_px: float = 8.0
+
+
+@dataclass(frozen=True)
+class FrameTracks:
+    """The tracks alive in one frame: ids (increasing), pixels (N, 2), unit bearings (N, 3)."""
+
+    ids: NDArray[np.int64]
+    pixels: FloatArray
+    bearings: FloatArray
+
+
+def common(a: FrameTracks, b: FrameTracks) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Indices (ia, ib) of the tracks alive in both frames."""
+    _, ia, ib = np.intersect1d(a.ids, b.ids, assume_unique=True, return_indices=True)
+    return ia.astype(np.intp), ib.astype(np.intp)
+
+
+class Tracker:
+    """Follows SIFT keypoints frame to frame; call :meth:`step` with each frame in order."""
+
+    def __init__(self, camera: Camera, params: TrackParams | None = None) -> None:
+        self.camera = camera
+        self.params = params or TrackParams()
+        self._sift = cv2.SIFT_create()  # type: ignore[attr-defined]
+        self._prev: Gray | None = None
+        self._ids = np.zeros(0, np.int64)
+        self._px = np.zeros((0, 2), np.float32)
+        self._next_id = 0
+        self.detections = 0
+        self._after_detection = 0
+
+    def step(self, gray: Gray) -> FrameTracks:
+        """The tracks of the next frame."""
+        if self._prev is not None and len(self._px):
+            self._follow(self._prev, gray)
+        p = self.params
+        wanted = min(p.redetect_below, p.redetect_fraction * self._after_detection)
+        if len(self._px) < wanted or not len(self._px):
+            self._detect(gray)
+            self._after_detection = len(self._px)
+        self._prev = gray
+        px = self._px.astype(float)
+        return FrameTracks(self._ids.copy(), px, self.camera.bearings(px))
+
+    def _follow(self, a: Gray, b: Gray) -> None:
+        p = self.params
+        lk = {
+            "winSize": (p.window_px, p.window_px),
+            "maxLevel": p.levels,
+            "criteria": (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.03),
+        }
+        p0 = self._px.reshape(-1, 1, 2)
+        p1, st1, err = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **lk)  # type: ignore[call-overload]
+        back, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, None, **lk)  # type: ignore[call-overload]
+        p1 = p1.reshape(-1, 2)
+        fb = np.linalg.norm(back.reshape(-1, 2) - self._px, axis=1)
+        h, w = b.shape
+        ok = (
+            (st1.ravel() == 1)
+            & (st2.ravel() == 1)
+            & (fb < p.max_fb_px)
+            & (err.ravel() < p.max_patch_error)
+            & (p1[:, 0] >= 0)
+            & (p1[:, 1] >= 0)
+            & (p1[:, 0] <= w - 1)
+            & (p1[:, 1] <= h - 1)
+        )
+        self._ids, self._px = self._ids[ok], p1[ok].astype(np.float32)
+
+    def _detect(self, gray: Gray) -> None:
+        p = self.params
+        mask = np.full(gray.shape, 255, np.uint8)
+        r = int(np.ceil(p.min_distance_px))
+        for x, y in np.round(self._px).astype(int):
+            cv2.circle(mask, (int(x), int(y)), r, 0, -1)
+        kps = self._sift.detect(gray, mask)
+        self.detections += 1
+        if not kps:
+            return
+        pts = np.array([k.pt for k in kps], np.float32)
+        resp = np.array([k.response for k in kps])
+        # One point per location (SIFT lists a keypoint once per orientation), strongest first.
+        order = np.argsort(-resp)
+        _, first = np.unique(np.round(pts[order]).astype(np.int64), axis=0, return_index=True)
+        pts = pts[order[np.sort(first)]][: max(p.n_features - len(self._px), 0)]
+        ids = np.arange(self._next_id, self._next_id + len(pts), dtype=np.int64)
+        self._next_id += len(pts)
+        self._ids = np.concatenate([self._ids, ids])
+        self._px = np.concatenate([self._px, pts])
+
+
+def track_sequence(
+    n_frames: int,
+    image: Callable[[int], Gray],
+    camera: Camera,
+    params: TrackParams | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> list[FrameTracks]:
+    """The tracks of every frame of a sequence."""
+    tracker = Tracker(camera, params)
+    out = []
+    for i in range(n_frames):
+        out.append(tracker.step(image(i)))
+        if progress is not None:
+            progress(i + 1)
+    return out
