@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
-from rigcal.localize.icp import IcpParams, icp, pose_of, se2
+from rigcal.localize.icp import IcpParams, _normals, _point_to_line, icp, pose_of, se2
 from rigcal.localize.odometry import icp_odometry
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans
 from rigcal.sim.raycast import cast_scan
@@ -86,3 +87,17 @@ def test_odometry_on_the_cubicle_loop_stays_near_the_truth():
     # 15 s of driving: drift well under 5 % of the distance.
     assert np.hypot(err[0, 2], err[1, 2]) < 0.05 * travelled
     assert od.skipped == 0
+
+
+def test_point_to_line_closed_form_step_matches_the_eigenvector_solve():
+    rng = np.random.default_rng(2)
+    model = scan_points(np.zeros(3), rng)
+    src = model + rng.normal(0, 0.01, model.shape)
+    n = _normals(model, cKDTree(model), 5)
+    lines = np.column_stack([n, np.einsum("ij,ij->i", n, model)])
+    J = np.column_stack([n, n[:, 1] * src[:, 0] - n[:, 0] * src[:, 1]])
+    r = np.einsum("ij,ij->i", n, src - model)
+    w, V = np.linalg.eigh(J.T @ J)
+    assert w[0] > 0.01 * w[-1]  # well-posed: the closed form is used
+    expected = -(V @ ((V.T @ (J.T @ r)) / w))
+    np.testing.assert_allclose(_point_to_line(src, lines), expected, rtol=1e-9, atol=1e-12)

@@ -19,6 +19,7 @@ translation along that direction is a guess (reported per step).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,81 +106,103 @@ def icp(
     model = np.ascontiguousarray(model, dtype=float)
     data = np.ascontiguousarray(data, dtype=float)
     tree = cKDTree(model)
-    pose = np.zeros(3) if initial is None else np.asarray(initial, dtype=float)
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    R, t = np.array([[c, -s], [s, c]]), pose[:2].copy()
+    x, y, yaw = (0.0, 0.0, 0.0) if initial is None else (float(v) for v in np.asarray(initial, dtype=float))
+    T = _Transform(math.cos(yaw), math.sin(yaw), x, y)
     sparse = data[:: params.subsample] if len(data) >= 3 * params.subsample else data
     coarse_tol = (10.0 * params.tolerance_m, 10.0 * params.tolerance_rad)
-    normals = None
+    normals = lines = None
     if params.method == "point-to-line":
-        R, t, _ = _iterate(tree, model, sparse, None, R, t, COARSE_ITERATIONS, (1e-3, 1e-4), params.reject_m)
+        T, _ = _iterate(tree, model, sparse, None, T, COARSE_ITERATIONS, (1e-3, 1e-4), params.reject_m)
         normals = _normals(model, tree, params.normal_neighbours)
-    R, t, _ = _iterate(tree, model, sparse, normals, R, t, params.max_iterations, coarse_tol, params.reject_m)
-    R, t, fit = _iterate(
+        # Per model point: its normal and the normal's offset n . m (the line n . p = n . m).
+        lines = np.column_stack([normals, np.einsum("ij,ij->i", normals, model)])
+    T, _ = _iterate(tree, model, sparse, lines, T, params.max_iterations, coarse_tol, params.reject_m)
+    T, fit = _iterate(
         tree,
         model,
         data,
-        normals,
-        R,
-        t,
+        lines,
+        T,
         params.max_iterations,
         (params.tolerance_m, params.tolerance_rad),
         params.reject_m,
         candidates=CANDIDATES,
     )
-    pose_out = np.array([t[0], t[1], np.arctan2(R[1, 0], R[0, 0])])
-    degeneracy = _degeneracy(fit.src, fit.dst, fit.normals)
+    pose_out = np.array([T.tx, T.ty, math.atan2(T.s, T.c)])
+    dst = model.take(fit.pairs, axis=0)
+    n = normals.take(fit.pairs, axis=0) if normals is not None else None
+    degeneracy = _degeneracy(fit.src, dst, n)
     return IcpResult(pose_out, fit.iterations, fit.rms_m, fit.inlier_fraction, degeneracy)
 
 
 @dataclass(frozen=True)
+class _Transform:
+    """T_model_data as plain floats: rotation (cos, sin) and translation."""
+
+    c: float
+    s: float
+    tx: float
+    ty: float
+
+    def after(self, x: float, y: float, yaw: float) -> _Transform:
+        """The step (x, y, yaw) applied after this transform."""
+        c, s = math.cos(yaw), math.sin(yaw)
+        return _Transform(
+            c * self.c - s * self.s,
+            s * self.c + c * self.s,
+            c * self.tx - s * self.ty + x,
+            s * self.tx + c * self.ty + y,
+        )
+
+
+@dataclass(frozen=True)
 class _Fit:
-    """The last iteration's pairs: moved data points, their model points (and normals)."""
+    """The last iteration's pairs: moved data points and the indices of their model points."""
 
     iterations: int
     rms_m: float
     inlier_fraction: float
     src: FloatArray
-    dst: FloatArray
-    normals: FloatArray | None
+    pairs: NDArray[np.intp]
 
 
 def _iterate(
     tree: cKDTree,
     model: FloatArray,
     data: FloatArray,
-    normals: FloatArray | None,
-    R: FloatArray,
-    t: FloatArray,
+    lines: FloatArray | None,
+    T: _Transform,
     max_iterations: int,
     tolerance: tuple[float, float],
     reject_m: float,
     candidates: int = 1,
-) -> tuple[FloatArray, FloatArray, _Fit]:
-    """ICP iterations from T_model_data = [R, t] until a step moves less than
-    ``tolerance`` (metres, radians); returns the new R, t and the last pairs' figures."""
-    fit = _Fit(0, float("inf"), 0.0, data[:0], data[:0], None)
+) -> tuple[_Transform, _Fit]:
+    """ICP iterations from T_model_data until a step moves less than ``tolerance``
+    (metres, radians): point-to-point without ``lines``, else point-to-line with the
+    model's (normal x, normal y, offset) rows. Returns the new transform and the last
+    pairs' figures."""
+    fit = _Fit(0, float("inf"), 0.0, data[:0], np.zeros(0, dtype=np.intp))
     nearest = _Nearest(tree, model, candidates)
+    half = len(data) // 2
     for k in range(1, max_iterations + 1):
-        moved = data @ R.T + t
+        moved = data @ np.array([[T.c, T.s], [-T.s, T.c]])
+        moved += (T.tx, T.ty)
         dist, idx = nearest(moved)
-        half = len(dist) // 2
         median = float(np.partition(dist, half)[half])
-        inl = dist < max(reject_m, 3.0 * median)
-        n_inl = int(np.count_nonzero(inl))
+        inl = np.flatnonzero(dist < max(reject_m, 3.0 * median))
+        n_inl = len(inl)
         if n_inl < 3:
             break
-        pair = idx[inl]
-        src, dst = moved[inl], model.take(pair, axis=0)
-        n = normals.take(pair, axis=0) if normals is not None else None
-        fit = _Fit(k, float(np.sqrt(np.mean(dist[inl] ** 2))), n_inl / len(data), src, dst, n)
-        step = _point_to_point(src, dst) if n is None else _point_to_line(src, dst, n)
-        c, s = np.cos(step[2]), np.sin(step[2])
-        Rs = np.array([[c, -s], [s, c]])
-        R, t = Rs @ R, Rs @ t + step[:2]
-        if np.hypot(step[0], step[1]) < tolerance[0] and abs(step[2]) < tolerance[1]:
+        d_inl, pair, src = dist.take(inl), idx.take(inl), moved.take(inl, axis=0)
+        fit = _Fit(k, math.sqrt(float(d_inl @ d_inl) / n_inl), n_inl / len(data), src, pair)
+        if lines is None:
+            x, y, yaw = _point_to_point(src, model.take(pair, axis=0)).tolist()
+        else:
+            x, y, yaw = _point_to_line(src, lines.take(pair, axis=0))
+        T = T.after(x, y, yaw)
+        if math.hypot(x, y) < tolerance[0] and abs(yaw) < tolerance[1]:
             break
-    return R, t, fit
+    return T, fit
 
 
 class _Nearest:
@@ -196,7 +219,7 @@ class _Nearest:
         self.tree, self.model = tree, model
         self.k = min(candidates, len(model))
         self.anchor: FloatArray | None = None
-        self.nb = np.zeros((0, 1), dtype=np.intp)
+        self.nb = np.zeros(0, dtype=np.intp)
         self.cx = self.cy = np.zeros((0, 1))
         self.rows = np.zeros(0, dtype=np.intp)
 
@@ -205,51 +228,90 @@ class _Nearest:
             dist, idx = self.tree.query(moved)
             return dist, idx
         if self.anchor is None or float(np.abs(moved - self.anchor).max()) > REQUERY_M:
-            _, self.nb = self.tree.query(moved, k=self.k)
-            self.cx, self.cy = self.model[self.nb, 0], self.model[self.nb, 1]
-            self.rows = np.arange(len(moved))
+            _, nb = self.tree.query(moved, k=self.k)
+            self.cx, self.cy = self.model[nb, 0], self.model[nb, 1]
+            self.nb = nb.ravel()
+            self.rows = np.arange(0, nb.size, self.k)
             self.anchor = moved
-        dx = self.cx - moved[:, 0, None]
+        d2 = self.cx - moved[:, 0, None]
+        d2 *= d2
         dy = self.cy - moved[:, 1, None]
-        d2 = dx * dx
-        d2 += dy * dy
-        j = d2.argmin(axis=1)
-        return np.sqrt(d2[self.rows, j]), self.nb[self.rows, j]
+        dy *= dy
+        d2 += dy
+        pick = d2.argmin(axis=1)
+        pick += self.rows
+        return np.sqrt(d2.ravel().take(pick)), self.nb.take(pick)
 
 
 def _point_to_point(src: FloatArray, dst: FloatArray) -> FloatArray:
     """Closed-form 2D rigid step (Eq. (4)) moving src onto dst, as (x, y, yaw)."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    H = (src - cs).T @ (dst - cd)
-    yaw = float(np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1]))
-    c, s = np.cos(yaw), np.sin(yaw)
-    t = cd - np.array([[c, -s], [s, c]]) @ cs
-    return np.array([t[0], t[1], yaw])
+    X = np.concatenate((src, dst), axis=1)
+    mean = X.sum(axis=0) / len(X)
+    X -= mean
+    (sx, sy, dx, dy), ((_, _, h00, h01), (_, _, h10, h11)) = mean.tolist(), (X.T[:2] @ X).tolist()
+    yaw = math.atan2(h01 - h10, h00 + h11)
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([dx - (c * sx - s * sy), dy - (s * sx + c * sy), yaw])
 
 
-def _point_to_line(src: FloatArray, dst: FloatArray, n: FloatArray) -> FloatArray:
-    """One Gauss-Newton step of the point-to-line error (small-angle linearisation)."""
-    r = np.einsum("ij,ij->i", n, src - dst)
-    J = np.empty((len(src), 3))
-    J[:, :2] = n
-    np.subtract(n[:, 1] * src[:, 0], n[:, 0] * src[:, 1], out=J[:, 2])
-    H = J.T @ J
+def _point_to_line(src: FloatArray, lines: FloatArray) -> tuple[float, float, float]:
+    """One Gauss-Newton step of the point-to-line error (small-angle linearisation):
+    ``lines`` holds each pair's model normal n and offset n . m."""
+    # Rows of A: the Jacobian's columns (n_x, n_y, n x src) and the residual n . src - n . m.
+    nx, ny, sx, sy = lines[:, 0], lines[:, 1], src[:, 0], src[:, 1]
+    A = np.empty((4, len(src)))
+    A[0], A[1] = nx, ny
+    np.multiply(ny, sx, out=A[2])
+    A[2] -= nx * sy
+    np.multiply(nx, sx, out=A[3])
+    A[3] += ny * sy
+    A[3] -= lines[:, 2]
+    (h00, h01, h02, g0), (_, h11, h12, g1), (_, _, h22, g2), _ = (A @ A.T).tolist()
     # Solve only in the directions the scan constrains: along a featureless corridor the
     # information is ~0 and a full solve would slide the scan anywhere; keep the initial
-    # guess (the previous motion) there instead.
+    # guess (the previous motion) there instead. Clearly well-posed systems (the usual
+    # case) are solved in closed form, the others through the eigenvectors.
+    lo, hi = _eigen_range(h00, h01, h02, h11, h12, h22)
+    if lo > 2.0 * DEGENERATE_EIGEN_RATIO * hi:
+        # Cofactors of the symmetric 3x3 H; step = -H^-1 g.
+        c00, c01, c02 = h11 * h22 - h12 * h12, h02 * h12 - h01 * h22, h01 * h12 - h02 * h11
+        c11, c12, c22 = h00 * h22 - h02 * h02, h01 * h02 - h00 * h12, h00 * h11 - h01 * h01
+        det = h00 * c00 + h01 * c01 + h02 * c02
+        return (
+            -(c00 * g0 + c01 * g1 + c02 * g2) / det,
+            -(c01 * g0 + c11 * g1 + c12 * g2) / det,
+            -(c02 * g0 + c12 * g1 + c22 * g2) / det,
+        )
+    H = np.array([[h00, h01, h02], [h01, h11, h12], [h02, h12, h22]])
     w, V = np.linalg.eigh(H)
     keep = w > DEGENERATE_EIGEN_RATIO * w[-1]
-    g = V.T @ (J.T @ r)
-    out: FloatArray = -(V[:, keep] @ (g[keep] / w[keep]))
-    return out
+    g = V.T @ np.array([g0, g1, g2])
+    x, y, yaw = (-(V[:, keep] @ (g[keep] / w[keep]))).tolist()
+    return x, y, yaw
+
+
+def _eigen_range(
+    h00: float, h01: float, h02: float, h11: float, h12: float, h22: float
+) -> tuple[float, float]:
+    """Smallest and largest eigenvalue of a symmetric 3x3 matrix (trigonometric closed
+    form; absolute error of order 1e-15 x the largest)."""
+    q = (h00 + h11 + h22) / 3.0
+    a, b, c = h00 - q, h11 - q, h22 - q
+    off = h01 * h01 + h02 * h02 + h12 * h12
+    p = math.sqrt((a * a + b * b + c * c + 2.0 * off) / 6.0)
+    if p == 0.0:
+        return q, q
+    det = a * (b * c - h12 * h12) - h01 * (h01 * c - h12 * h02) + h02 * (h01 * h12 - b * h02)
+    phi = math.acos(min(1.0, max(-1.0, det / (2.0 * p * p * p)))) / 3.0
+    return q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0), q + 2.0 * p * math.cos(phi)
 
 
 def _normals(model: FloatArray, tree: cKDTree, k: int) -> FloatArray:
     """(M, 2) unit normals from each model point's k nearest neighbours (PCA)."""
     _, nb = tree.query(model, k=min(k, len(model)))
     x, y = model[nb, 0], model[nb, 1]
-    x -= x.mean(axis=1, keepdims=True)
-    y -= y.mean(axis=1, keepdims=True)
+    x -= x.sum(axis=1, keepdims=True) / nb.shape[1]
+    y -= y.sum(axis=1, keepdims=True) / nb.shape[1]
     sxx = np.einsum("nk,nk->n", x, x)
     syy = np.einsum("nk,nk->n", y, y)
     sxy = np.einsum("nk,nk->n", x, y)
