@@ -64,9 +64,14 @@ def localize(
     elif r.truth is not None:
         click.echo(table([(m.method, m.metrics) for m in r.methods if m.metrics is not None]))
     for m in r.methods:
-        ratio = f"{r.duration_s / m.seconds:.1f}x real time" if m.seconds > 0 else ""
-        click.echo(f"{m.method}: {len(m.stamps_s)} poses in {m.seconds:.1f} s ({ratio})", err=True)
-    click.echo(f"wrote {output}/", err=True)
+        click.echo(f"{m.method}: {len(m.stamps_s)} poses, {m.seconds:.1f} s of its own", err=True)
+    shared = ", ".join(f"{k.removesuffix('_s')} {v:.1f} s" for k, v in r.timings_s.items())
+    click.echo(f"stages: {shared}", err=True)
+    ratio = r.duration_s / r.wall_s if r.wall_s > 0 else float("inf")
+    click.echo(
+        f"{r.duration_s:.1f} s of data in {r.wall_s:.1f} s ({ratio:.2f}x real time); wrote {output}/",
+        err=True,
+    )
 
 
 class _Bars:

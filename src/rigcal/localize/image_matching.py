@@ -103,7 +103,9 @@ class ScanMatcher:
             why = "no scale yet (first pair)"
             if scale is not None:
                 ia, ib = common(tr1, tr2)
-                rel = relative_pose(tr1.bearings[ia], tr2.bearings[ib], self.focal, self.vo_params)
+                rel = relative_pose(
+                    tr1.bearings[ia], tr2.bearings[ib], self.focal, self.vo_params, self.T_cam_laser[:3, 0]
+                )
                 why = "no visual odometry between the images"
                 if rel is not None and not planar_motion(rel.R, rel.t_unit, self.T_cam_laser[:3, 2]):
                     rel, why = None, "visual odometry gives a motion a ground rig cannot make"

@@ -235,7 +235,6 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
             m.method: {
                 "poses": len(m.stamps_s),
                 "seconds": round(m.seconds, 3),
-                "x_real_time": round(r.duration_s / m.seconds, 2) if m.seconds > 0 else None,
                 **m.stats,
                 "metrics": m.metrics,
             }

@@ -19,7 +19,8 @@ The camera's motion between two images, up to scale, from SIFT features:
    differences, as IASM's patches, Section III-A) along their epipolar lines, which is a
    one-parameter search over s since the point moves to ``R_c P + s t_c``; each match is a
    triangulation of P with the current pose, and s = |P| / |P_hat|. The median over the
-   laser points is the run's scale.
+   laser points that agree with each other is the run's scale; too few votes, or votes
+   that disagree, leave the run without a scale (it then keeps the last measured speed).
 
 Conventions: a relative pose ``(R, t)`` maps first-camera coordinates into the second
 camera's, ``x2 = R x1 + t`` (OpenCV's). Laser-frame points are (x, y, 0).
@@ -57,6 +58,9 @@ class VoParams:
         patch_radius_px: the scale search compares (2r+1)^2 patches.
         max_speed_mps: the scale search covers translations up to this speed over the run.
         scale_steps: samples of the scale search.
+        min_scale_votes: a scale needs at least this many laser points that agree on it...
+        scale_agreement: ... within this fraction of their median, and at least half of
+            the voting points must agree.
     """
 
     min_tracked: int = 120
@@ -68,6 +72,8 @@ class VoParams:
     patch_radius_px: int = 4
     max_speed_mps: float = 2.0
     scale_steps: int = 81
+    min_scale_votes: int = 8
+    scale_agreement: float = 0.2
 
 
 @dataclass(frozen=True)
@@ -94,11 +100,20 @@ def rotation_between(b1: FloatArray, b2: FloatArray) -> FloatArray:
     return out
 
 
-def relative_pose(b1: FloatArray, b2: FloatArray, focal_px: float, params: VoParams) -> RelativePose | None:
+def relative_pose(
+    b1: FloatArray, b2: FloatArray, focal_px: float, params: VoParams, forward: FloatArray | None = None
+) -> RelativePose | None:
     """R_c and unit t_c from matched bearings (Eq. (5)), or None when too few inliers.
 
     A rig standing still (the matches move less than ``still_px`` once the rotation is
     removed) gets the rotation alone and a zero translation.
+
+    The five-point solutions found by robust sampling, and, when ``forward`` (the rig's
+    direction of travel in the camera frame) is given, the pure-rotation fit with a
+    translation along it, are each refined (Sampson distance); the one with the lowest
+    robust cost over all matches wins. A narrow field of view makes a turn while moving
+    forward look much like a larger turn while moving sideways (the bas-relief
+    ambiguity), and sampling alone picks the wrong one of the two now and then.
     """
     front = (b1[:, 2] > 0.05) & (b2[:, 2] > 0.05)
     b1, b2 = b1[front], b2[front]
@@ -114,20 +129,62 @@ def relative_pose(b1: FloatArray, b2: FloatArray, focal_px: float, params: VoPar
     )
     if E is None or mask is None or int(mask.sum()) < params.min_inliers:
         return None
-    # Several solutions may come back stacked; recoverPose picks by cheirality.
-    best = None
+    sampled = mask.ravel() > 0
+    starts = []
+    # Several solutions may come back stacked; recoverPose decomposes each.
     for k in range(E.shape[0] // 3):
-        n, R, t, m = cv2.recoverPose(E[3 * k : 3 * k + 3], p1, p2, np.eye(3), mask=mask.copy())
-        if best is None or n > best[0]:
-            best = (n, R, t.ravel(), m.ravel() > 0)
+        _, R, t, _ = cv2.recoverPose(E[3 * k : 3 * k + 3], p1, p2, np.eye(3), mask=mask.copy())
+        starts.append((np.asarray(R, float), np.asarray(t, float).ravel()))
+    if forward is not None:
+        starts.append((R_rot, np.asarray(forward, float)))
+    x1, x2 = _homogeneous(b1), _homogeneous(b2)
+    cap = (2.0 * params.ransac_threshold_px / focal_px) ** 2
+    best: tuple[float, FloatArray, FloatArray] | None = None
+    for R0, t0 in starts:
+        R, t = refine_essential(R0, t0, b1[sampled], b2[sampled])
+        cost = float(np.minimum(_sampson(R, t, x1, x2) ** 2, cap).mean())
+        if best is None or cost < best[0]:
+            best = (cost, R, t)
     assert best is not None
-    n, R, t, inl = best
+    _, R, t = best
+    inl = np.abs(_sampson(R, t, x1, x2)) < params.ransac_threshold_px / focal_px
+    # E fixes t up to its sign: the sign that puts the points in front of both cameras.
+    if _in_front(R, t, b1[inl], b2[inl]) < _in_front(R, -t, b1[inl], b2[inl]):
+        t = -t
+    n = int(inl.sum())
     # Few inliers among many matches: a repeating pattern or a moving scene fooled the
     # matching, and E is not to be trusted.
     if n < params.min_inliers or n < params.min_inlier_ratio * len(b1):
         return None
-    R, t = refine_essential(np.asarray(R, float), np.asarray(t, float), b1[inl], b2[inl])
-    return RelativePose(R, t, int(n), False, b1[inl], b2[inl])
+    R, t = refine_essential(R, t, b1[inl], b2[inl])
+    return RelativePose(R, t, n, False, b1[inl], b2[inl])
+
+
+def _homogeneous(b: FloatArray) -> FloatArray:
+    return np.column_stack([_normalised(b), np.ones(len(b))])
+
+
+def _sampson(R: FloatArray, t: FloatArray, x1: FloatArray, x2: FloatArray) -> FloatArray:
+    """Sampson distances of Eq. (5), ``x2^T E x1 = 0`` with E = [t]x R (normalised units)."""
+    E = _skew(t) @ R
+    Ex1 = x1 @ E.T
+    Etx2 = x2 @ E
+    num = np.einsum("ij,ij->i", x2, Ex1)
+    den = np.sqrt(Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2) + 1e-15
+    out: FloatArray = num / den
+    return out
+
+
+def _in_front(R: FloatArray, t: FloatArray, b1: FloatArray, b2: FloatArray) -> int:
+    """How many matches triangulate in front of both cameras (cheirality): depths l1, l2
+    minimising |l2 b2 - (l1 R b1 + t)| both positive (unit bearings)."""
+    Rb = b1 @ R.T
+    m = np.einsum("ij,ij->i", Rb, b2)
+    det = np.maximum(1.0 - m * m, 1e-12)
+    rt, bt = Rb @ t, b2 @ t
+    l1 = (m * bt - rt) / det
+    l2 = (bt - m * rt) / det
+    return int(((l1 > 0) & (l2 > 0)).sum())
 
 
 def planar_motion(R: FloatArray, t_unit: FloatArray, up_cam: FloatArray, max_tilt_deg: float = 10.0) -> bool:
@@ -150,17 +207,10 @@ def refine_essential(
     Parametrisation: R <- Exp(w) R, t <- normalise(t + a u1 + b u2) with u1, u2 spanning
     the plane orthogonal to t: five parameters, E's degrees of freedom.
     """
-    x1 = np.column_stack([_normalised(b1), np.ones(len(b1))])
-    x2 = np.column_stack([_normalised(b2), np.ones(len(b2))])
+    x1, x2 = _homogeneous(b1), _homogeneous(b2)
 
     def residuals(R_: FloatArray, t_: FloatArray) -> FloatArray:
-        E = _skew(t_) @ R_
-        Ex1 = x1 @ E.T
-        Etx2 = x2 @ E
-        num = np.einsum("ij,ij->i", x2, Ex1)
-        den = np.sqrt(Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2) + 1e-15
-        out: FloatArray = num / den
-        return out
+        return _sampson(R_, t_, x1, x2)
 
     t = t / np.linalg.norm(t)
     r = residuals(R, t)
@@ -302,7 +352,11 @@ def laser_scale(
     per = est[vote]
     if len(per) == 0:
         return ScaleEstimate(float("nan"), 0, per)
-    return ScaleEstimate(float(np.median(per)), len(per), per)
+    med = float(np.median(per))
+    agree = per[np.abs(per - med) <= params.scale_agreement * med]
+    if len(agree) < 0.5 * len(per):
+        return ScaleEstimate(float("nan"), 0, per)  # the points disagree: no scale
+    return ScaleEstimate(float(np.median(agree)), len(agree), per)
 
 
 @dataclass(frozen=True)
@@ -355,10 +409,12 @@ def visual_odometry(
     focal = float(np.mean(camera.intrinsics[:2]))
     T_laser_cam = np.linalg.inv(T_cam_laser)
     T_w_c = T_laser_cam.copy()  # the first laser pose is the origin
+    forward = T_cam_laser[:3, 0]  # the laser's x axis (the rig's travel) in the camera frame
     frames = [0]
     poses = [_planar(T_w_c @ T_cam_laser)]
     steps: list[VoStep] = []
     last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
+    speed = 0.0  # m/s, of the last run with a scale
     kf = 0
     while kf < n_frames - 1:
         j = kf + 1
@@ -370,7 +426,7 @@ def visual_odometry(
             progress(j + 1)
         ia, ib = common(tracks[kf], tracks[j])
         dt = float(stamps_s[j] - stamps_s[kf])
-        rel = relative_pose(tracks[kf].bearings[ia], tracks[j].bearings[ib], focal, params)
+        rel = relative_pose(tracks[kf].bearings[ia], tracks[j].bearings[ib], focal, params, forward)
         status, scale_pts = "ok", 0
         if rel is None:
             status = "failed"
@@ -383,7 +439,7 @@ def visual_odometry(
                 image(kf), image(j), camera, rel.R, rel.t_unit, P1, params.max_speed_mps * dt, params
             )
             scale_pts = est.used
-            if est.used < 3 or not np.isfinite(est.scale):
+            if est.used < params.min_scale_votes or not np.isfinite(est.scale):
                 status = "no-scale"
             R, t = rel.R, est.scale * rel.t_unit
         if status == "failed":
@@ -391,11 +447,14 @@ def visual_odometry(
             R = np.eye(3) if last_velocity is None else rotvec_to_R(last_velocity[0] * dt)
             t = np.zeros(3) if last_velocity is None else last_velocity[1] * dt
         elif status == "no-scale":
+            # The direction is known, the length not: the last measured speed (a moving
+            # run's, so that a stop does not leave the rig standing still ever after).
             assert rel is not None
-            speed = 0.0 if last_velocity is None else float(np.linalg.norm(last_velocity[1]))
             R, t = rel.R, speed * dt * rel.t_unit
         else:
             last_velocity = (R_to_rotvec(R) / max(dt, 1e-6), t / max(dt, 1e-6))
+            if status == "ok":
+                speed = float(np.linalg.norm(t)) / max(dt, 1e-6)
         T_c2_c1 = make_T(R, t)
         T_w_c = T_w_c @ np.linalg.inv(T_c2_c1)
         frames.append(j)
