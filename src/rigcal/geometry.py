@@ -7,6 +7,8 @@ rotation vectors (axis times angle, radians; mrcal's ``r``). See docs/convention
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
@@ -50,9 +52,26 @@ def transform_points(T_a_b: ArrayLike, points_b: ArrayLike) -> FloatArray:
 
 
 def rotvec_to_R(rotvec: ArrayLike) -> FloatArray:
-    """(3,) rotation vector (axis * angle, rad) to a (3, 3) rotation matrix."""
-    out: FloatArray = Rotation.from_rotvec(np.asarray(rotvec, dtype=float)).as_matrix()
-    return out
+    """(3,) rotation vector (axis * angle, rad) to a (3, 3) rotation matrix (Rodrigues'
+    formula; (N, 3) vectors give (N, 3, 3))."""
+    w = np.asarray(rotvec, dtype=float)
+    if w.shape != (3,):
+        out: FloatArray = Rotation.from_rotvec(w).as_matrix()
+        return out
+    wx, wy, wz = float(w[0]), float(w[1]), float(w[2])
+    t2 = wx * wx + wy * wy + wz * wz
+    if t2 < 1e-12:  # series: sin(t)/t and (1 - cos(t))/t^2 to second order
+        a, b = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
+    else:
+        t = math.sqrt(t2)
+        a, b = math.sin(t) / t, (1.0 - math.cos(t)) / t2
+    return np.array(
+        [
+            [1.0 - b * (wy * wy + wz * wz), b * wx * wy - a * wz, b * wx * wz + a * wy],
+            [b * wx * wy + a * wz, 1.0 - b * (wx * wx + wz * wz), b * wy * wz - a * wx],
+            [b * wx * wz - a * wy, b * wy * wz + a * wx, 1.0 - b * (wx * wx + wy * wy)],
+        ]
+    )
 
 
 def R_to_rotvec(R: ArrayLike) -> FloatArray:

@@ -29,6 +29,7 @@ localization methods (IASM's line-angle histogram, H-IASM's plane normals).
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -174,15 +175,21 @@ def fit_line(points: ArrayLike) -> tuple[FloatArray, FloatArray, float]:
 def _principal_direction(sxx: float, sxy: float, syy: float) -> tuple[FloatArray, float]:
     """Unit eigenvector of the larger eigenvalue of [[sxx, sxy], [sxy, syy]], and the smaller
     eigenvalue (the sum of squared orthogonal residuals)."""
-    theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-    u = np.array([np.cos(theta), np.sin(theta)])
+    ux, uy = _direction(sxx, sxy, syy)
     half_trace = 0.5 * (sxx + syy)
-    radius = float(np.hypot(0.5 * (sxx - syy), sxy))
-    return u, half_trace - radius
+    radius = math.hypot(0.5 * (sxx - syy), sxy)
+    return np.array([ux, uy]), half_trace - radius
+
+
+def _direction(sxx: float, sxy: float, syy: float) -> tuple[float, float]:
+    """The principal direction of the scatter [[sxx, sxy], [sxy, syy]] (plain floats: the
+    region growing calls it once per return)."""
+    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    return math.cos(theta), math.sin(theta)
 
 
 class _Grower:
-    """Running sums of a growing segment: O(1) least-squares refits."""
+    """Running sums of a growing segment: O(1) least-squares refits, on plain floats."""
 
     def __init__(self, pts: FloatArray) -> None:
         self.n = len(pts)
@@ -191,18 +198,17 @@ class _Grower:
         self.sxy = float(pts[:, 0] @ pts[:, 1])
         self.syy = float(pts[:, 1] @ pts[:, 1])
 
-    def line(self, extra: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
-        """(centroid, direction) of the fit, optionally with one more point."""
-        n, sx, sy, sxx, sxy, syy = self.n, self.sx, self.sy, self.sxx, self.sxy, self.syy
-        if extra is not None:
-            x, y = float(extra[0]), float(extra[1])
-            n, sx, sy, sxx, sxy, syy = n + 1, sx + x, sy + y, sxx + x * x, sxy + x * y, syy + y * y
+    def line(self, x: float, y: float) -> tuple[float, float, float, float]:
+        """(centroid x, y, direction x, y) of the fit with one more point (x, y)."""
+        n = self.n + 1
+        sx, sy = self.sx + x, self.sy + y
         cx, cy = sx / n, sy / n
-        u, _ = _principal_direction(sxx - n * cx * cx, sxy - n * cx * cy, syy - n * cy * cy)
-        return np.array([cx, cy]), u
+        ux, uy = _direction(
+            self.sxx + x * x - n * cx * cx, self.sxy + x * y - n * cx * cy, self.syy + y * y - n * cy * cy
+        )
+        return cx, cy, ux, uy
 
-    def add(self, p: FloatArray) -> None:
-        x, y = float(p[0]), float(p[1])
+    def add(self, x: float, y: float) -> None:
         self.n += 1
         self.sx += x
         self.sy += y
@@ -231,8 +237,9 @@ def extract_lines(scan: Scan, params: LineParams | None = None) -> list[Segment]
     pts = scan.points[beams]
     runs = _runs(pts, params.max_gap_m)
     groups: list[IntArray] = []
+    xy = (pts[:, 0].tolist(), pts[:, 1].tolist())  # plain floats for the growing loop
     for lo, hi in runs:
-        groups += _merge_collinear(pts, _grow_run(pts, lo, hi, params), params)
+        groups += _merge_collinear(pts, _grow_run(pts, xy, lo, hi, params), params)
     segments: list[Segment] = []
     for g in groups:
         g = _trim_ends(pts, g, params)
@@ -251,37 +258,43 @@ def _runs(pts: FloatArray, max_gap_m: float) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in itertools.pairwise(cuts)]
 
 
-def _grow_run(pts: FloatArray, lo: int, hi: int, params: LineParams) -> list[IntArray]:
-    """Region growing over the returns pts[lo:hi] (no gaps inside)."""
+def _grow_run(
+    pts: FloatArray, xy: tuple[list[float], list[float]], lo: int, hi: int, params: LineParams
+) -> list[IntArray]:
+    """Region growing over the returns pts[lo:hi] (no gaps inside); ``xy`` holds the same
+    coordinates as lists of floats."""
     out: list[IntArray] = []
     tol = params.max_point_distance_m
-    cos_turn = np.cos(np.radians(params.max_angle_change_deg))
+    cos_turn = math.cos(math.radians(params.max_angle_change_deg))
+    xs, ys = xy
     i = lo
     while i < hi:
         seed_end = _seed_end(pts, i, hi, params)
         if seed_end is None:
             break
         seed = pts[i:seed_end]
-        centroid, direction, _ = fit_line(seed)
-        if max(_distance(p, centroid, direction) for p in seed) > tol:
+        c, u, _ = fit_line(seed)
+        cx, cy, ux, uy = float(c[0]), float(c[1]), float(u[0]), float(u[1])
+        if max(abs((xs[k] - cx) * uy - (ys[k] - cy) * ux) for k in range(i, seed_end)) > tol:
             i += 1  # not a line here: slide the seed window
             continue
         grower = _Grower(seed)
         members = list(range(i, seed_end))
         j = seed_end
         while j < hi:
-            if _distance(pts[j], centroid, direction) > tol:
+            x, y = xs[j], ys[j]
+            if abs((x - cx) * uy - (y - cy) * ux) > tol:
                 # One noisy return followed by one back on the line: filter it out.
-                if j + 1 < hi and _distance(pts[j + 1], centroid, direction) <= tol:
+                if j + 1 < hi and abs((xs[j + 1] - cx) * uy - (ys[j + 1] - cy) * ux) <= tol:
                     j += 1
                     continue
                 break
-            new_centroid, new_direction = grower.line(pts[j])
-            if abs(float(new_direction @ direction)) < cos_turn:
+            ncx, ncy, nux, nuy = grower.line(x, y)
+            if abs(nux * ux + nuy * uy) < cos_turn:
                 break
-            grower.add(pts[j])
+            grower.add(x, y)
             members.append(j)
-            centroid, direction = new_centroid, new_direction
+            cx, cy, ux, uy = ncx, ncy, nux, nuy
             j += 1
         out.append(np.array(members, dtype=np.int64))
         # A filtered return just before the stop starts the next seed.

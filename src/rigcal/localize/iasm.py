@@ -196,21 +196,27 @@ def match_returns(f1: Frame, f2: Frame, predicted: FloatArray, half_u: float, ha
     # t+1 on the same line moves the match between them.
     b = f2.points[j].copy()
     n2 = len(f2.points)
-    for k, (a_i, jj) in enumerate(zip(i1[ka], j, strict=True)):
-        if jj <= 0 or jj >= n2 - 1 or f2.line_of[jj] < 0:
-            continue
-        if not (f2.visible[jj - 1] and f2.visible[jj + 1]) or not (
-            f2.line_of[jj - 1] == f2.line_of[jj] == f2.line_of[jj + 1]
-        ):
-            continue
-        s0 = float(np.abs(f1.patches[a_i] - f2.patches[jj - 1]).mean())
-        s1 = float(S[ka[k], kb[k]])
-        s2 = float(np.abs(f1.patches[a_i] - f2.patches[jj + 1]).mean())
+    inner = (j > 0) & (j < n2 - 1)
+    jl, jr = np.clip(j - 1, 0, n2 - 1), np.clip(j + 1, 0, n2 - 1)
+    on_line = (
+        inner
+        & (f2.line_of[j] >= 0)
+        & f2.visible[jl]
+        & f2.visible[jr]
+        & (f2.line_of[jl] == f2.line_of[j])
+        & (f2.line_of[jr] == f2.line_of[j])
+    )
+    k = np.flatnonzero(on_line)
+    if len(k):
+        ref = f1.patches[i1[ka[k]]]
+        s0 = np.abs(ref - f2.patches[jl[k]]).mean(axis=1)
+        s1 = S[ka[k], kb[k]]
+        s2 = np.abs(ref - f2.patches[jr[k]]).mean(axis=1)
         den = s0 - 2 * s1 + s2
-        if den > 0:
-            x = float(np.clip(0.5 * (s0 - s2) / den, -0.5, 0.5))
-            other = f2.points[jj + 1] if x > 0 else f2.points[jj - 1]
-            b[k] = f2.points[jj] + abs(x) * (other - f2.points[jj])
+        k, s0, s2, den = k[den > 0], s0[den > 0], s2[den > 0], den[den > 0]
+        x = np.clip(0.5 * (s0 - s2) / den, -0.5, 0.5)
+        other = np.where((x > 0)[:, None], f2.points[jr[k]], f2.points[jl[k]])
+        b[k] = f2.points[j[k]] + np.abs(x)[:, None] * (other - f2.points[j[k]])
     return Matches(i1[ka], j, f1.points[i1[ka]], b, S[ka, kb])
 
 
