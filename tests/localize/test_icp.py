@@ -101,3 +101,11 @@ def test_point_to_line_closed_form_step_matches_the_eigenvector_solve():
     assert w[0] > 0.01 * w[-1]  # well-posed: the closed form is used
     expected = -(V @ ((V.T @ (J.T @ r)) / w))
     np.testing.assert_allclose(_point_to_line(src, lines), expected, rtol=1e-9, atol=1e-12)
+
+
+def test_point_to_line_takes_a_turn_from_a_zero_initial_guess():
+    # One closed-form point-to-point step before point-to-line takes the rotation.
+    b = np.array([0.2, 0.1, np.radians(15.0)])
+    res = icp(scan_points(np.zeros(3)), scan_points(b))
+    assert np.hypot(*(res.pose[:2] - b[:2])) < 0.005
+    assert abs(res.pose[2] - b[2]) < np.radians(0.2)

@@ -29,8 +29,10 @@ from scipy.spatial import cKDTree
 FloatArray = NDArray[np.float64]
 
 
-# Point-to-point iterations before point-to-line (enough to take a turn's rotation).
-COARSE_ITERATIONS = 10
+# Point-to-point steps before point-to-line: one closed-form step takes a turn's rotation;
+# more pull the scan towards point-to-point's bias (and along a corridor away from the
+# initial guess) for point-to-line to undo, at a k-d tree query each.
+COARSE_ITERATIONS = 1
 # Information eigenvalues below this fraction of the largest count as unconstrained.
 DEGENERATE_EIGEN_RATIO = 1e-3
 # Full-resolution iterations pick each point's nearest model point among this many
