@@ -85,6 +85,25 @@ class ScanMatcher:
         self.timings_s["frames_s"] += time.perf_counter() - t0
         return f, None if self.tracks is None else self.tracks[i]
 
+    def try_hiasm(
+        self, f1: Frame, f2: Frame, tr1: FrameTracks, tr2: FrameTracks, scale: float | None
+    ) -> tuple[StepResult | None, Matches | None, str]:
+        """An H-IASM step (the result, its matches), or None and why it could not be made."""
+        if scale is None:
+            return None, None, "no scale yet (first pair)"
+        ia, ib = common(tr1, tr2)
+        rel = relative_pose(
+            tr1.bearings[ia], tr2.bearings[ib], self.focal, self.vo_params, self.T_cam_laser[:3, 0]
+        )
+        if rel is None:
+            return None, None, "no visual odometry between the images"
+        if not planar_motion(rel.R, rel.t_unit, self.T_cam_laser[:3, 2]):
+            return None, None, "visual odometry gives a motion a ground rig cannot make"
+        res, m = hiasm_step(
+            f1, f2, rel.R, rel.t_unit, scale, self.camera, self.T_cam_laser, self.params, self.rng
+        )
+        return res, m, "no motion consistent with the correspondences (and the scans)"
+
     def step(
         self,
         f1: Frame,
@@ -99,21 +118,7 @@ class ScanMatcher:
         t0 = time.perf_counter()
         why = None
         if tr1 is not None and tr2 is not None:
-            res, m = None, None
-            why = "no scale yet (first pair)"
-            if scale is not None:
-                ia, ib = common(tr1, tr2)
-                rel = relative_pose(
-                    tr1.bearings[ia], tr2.bearings[ib], self.focal, self.vo_params, self.T_cam_laser[:3, 0]
-                )
-                why = "no visual odometry between the images"
-                if rel is not None and not planar_motion(rel.R, rel.t_unit, self.T_cam_laser[:3, 2]):
-                    rel, why = None, "visual odometry gives a motion a ground rig cannot make"
-                if rel is not None:
-                    res, m = hiasm_step(
-                        f1, f2, rel.R, rel.t_unit, scale, self.camera, self.T_cam_laser, self.params, self.rng
-                    )
-                    why = "no motion consistent with the correspondences (and the scans)"
+            res, m, why = self.try_hiasm(f1, f2, tr1, tr2, scale)
             if res is not None:
                 self.timings_s["matching_s"] += time.perf_counter() - t0
                 return Step(res.motion, "hiasm", res, m, None)
