@@ -187,3 +187,17 @@ def test_summary_holds_the_effective_settings(sequence, tmp_path):
     assert cfg["iasm"]["patch_radius_px"] == 5
     assert cfg["kf"]["vo_sigmas_forward_cross_yawrate"][1] > cfg["kf"]["icp_sigmas_forward_cross_yawrate"][1]
     assert json.loads((out / "summary.json").read_text())["config"]["settings"] == cfg
+
+
+def test_progress_lines_for_stages_side_by_side(capsys):
+    from rigcal.cli.localize import _Bars
+
+    bars = _Bars()
+    for k in range(1, 5):
+        bars("laser odometry", k, 4)
+        if k <= 2:
+            bars("feature tracks", k, 2)
+    bars.close()
+    err = capsys.readouterr().err.splitlines()
+    assert [line.split(":")[0] for line in err] == ["feature tracks", "laser odometry"]
+    assert err[1].startswith("laser odometry: 4/4 in ")

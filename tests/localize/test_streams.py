@@ -114,3 +114,32 @@ def test_scan_stamps_out_of_order_or_repeated_are_refused(tmp_path):
         )
         with pytest.raises(InputError, match=bad):
             open_streams(folder)
+
+
+def test_laser_odometry_on_a_second_thread_equals_the_direct_one(seq):
+    direct = open_streams(seq).laser_odometry()
+    st = open_streams(seq)
+    st.start_laser_odometry()
+    st.start_laser_odometry()  # a second call starts nothing more
+    tracks = st.feature_tracks()  # the image stage, meanwhile
+    assert len(tracks) == st.n_images
+    assert np.array_equal(st.laser_odometry().poses, direct.poses)
+    assert "icp_s" in st.timings_s
+    assert "tracks_s" in st.timings_s
+
+
+def test_a_failed_run_stops_the_background_laser_odometry(seq):
+    from rigcal.localize.pipeline import run
+
+    bad = seq / "images" / "000003.png"
+    bad.write_bytes(b"not a png")
+    with pytest.raises(InputError, match=r"000003\.png: not a readable image"):
+        run(seq, ["vo"], seq.parent / "out", progress=None)
+    assert not (seq.parent / "out").exists()  # nothing half-written
+    # The laser odometry thread was told to stop (or had finished): none is left running.
+    import threading
+
+    for t in threading.enumerate():
+        if t.name.startswith("laser-odometry"):
+            t.join(timeout=10)
+            assert not t.is_alive()
