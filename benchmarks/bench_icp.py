@@ -8,7 +8,9 @@ period (real time = 1).
 Then the time per scan pair of the simulated Hokuyo (1081 beams over 270 deg, 40 Hz) on
 the first 400 scans of the cubicle loop, each pair started from the previous motion as in
 odometry: the best of three passes (other processes on the machine only slow a pass
-down), as a ratio to the laser's 25 ms period and to the 5 ms target.
+down), as a ratio to the laser's 25 ms period and to the 5 ms target, and, when the
+``bench`` dependency group is installed, KISS-ICP's time per scan on the same scans in the
+same run (its configuration as in ``bench_killian.py``, range up to 30 m).
 
     .venv/bin/python benchmarks/bench_icp.py
 """
@@ -17,6 +19,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -64,20 +67,40 @@ def pair_timing(target_ms: float = 5.0) -> None:
     budget_ms = 1000.0 / spec.laser_rate_hz
     print()
     print(f"| method | beams | ms per scan pair | x real time ({budget_ms:.0f} ms) "
-          f"| x {target_ms:.0f} ms target |")  # fmt: skip
-    print("|---|---|---|---|---|")
+          f"| x {target_ms:.0f} ms target | time / KISS-ICP |")  # fmt: skip
+    print("|---|---|---|---|---|---|")
+    times: dict[str, float] = {}
     for method in ("point-to-line", "point-to-point"):
         params = IcpParams(method=method)
-        passes = []
-        for _ in range(3):
+
+        def odometry(params: IcpParams = params) -> None:
             last = np.zeros(3)
-            t0 = time.perf_counter()
             for model, data in itertools.pairwise(points):
                 last = icp(model, data, last, params).pose
-            passes.append(1000.0 * (time.perf_counter() - t0) / (len(points) - 1))
-        ms = min(passes)
-        beams = len(scans[0].ranges_m)
-        print(f"| {method} | {beams} | {ms:.2f} | {budget_ms / ms:.1f} | {target_ms / ms:.2f} |")
+
+        times[method] = best_ms(odometry, len(points) - 1)
+    try:
+        from bench_killian import kiss_icp_odometry  # the bench group's kiss-icp
+    except ImportError:
+        kiss = None
+    else:
+        kiss = best_ms(lambda: kiss_icp_odometry(scans, max_range_m=30.0), len(points) - 1)
+    beams = len(scans[0].ranges_m)
+    for method, ms in [*times.items(), ("KISS-ICP", kiss)]:
+        if ms is None:
+            continue
+        ratio = f"{ms / kiss:.2f}" if kiss else "-"
+        print(f"| {method} | {beams} | {ms:.2f} | {budget_ms / ms:.1f} | {target_ms / ms:.2f} | {ratio} |")
+
+
+def best_ms(work: Callable[[], None], pairs: int, passes: int = 3) -> float:
+    """Milliseconds per scan pair of the best of several passes of ``work``."""
+    out = []
+    for _ in range(passes):
+        t0 = time.perf_counter()
+        work()
+        out.append(1000.0 * (time.perf_counter() - t0) / pairs)
+    return min(out)
 
 
 if __name__ == "__main__":

@@ -48,9 +48,10 @@ def killian_scans() -> tuple[list[Scan], FloatArray]:
     return log.scans, log.laser_poses
 
 
-def kiss_icp_odometry(scans: list[Scan]) -> FloatArray:
+def kiss_icp_odometry(scans: list[Scan], max_range_m: float = 50.0) -> FloatArray:
+    """KISS-ICP's laser poses (x, y, yaw) over the scans (2D points with z = 0)."""
     config = KISSConfig(
-        data={"deskew": False, "max_range": 50.0, "min_range": 0.1},
+        data={"deskew": False, "max_range": max_range_m, "min_range": 0.1},
         mapping={"voxel_size": 0.1},
         registration={"max_num_threads": 1},
     )

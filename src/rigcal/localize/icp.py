@@ -29,10 +29,13 @@ from scipy.spatial import cKDTree
 FloatArray = NDArray[np.float64]
 
 
-# Point-to-point steps before point-to-line: one closed-form step takes a turn's rotation;
-# more pull the scan towards point-to-point's bias (and along a corridor away from the
-# initial guess) for point-to-line to undo, at a k-d tree query each.
-COARSE_ITERATIONS = 1
+# Point-to-point steps before point-to-line, while they still move the scan by more than
+# COARSE_TOLERANCE (m, rad): from a good initial guess one closed-form step is all (more
+# would pull the scan towards point-to-point's bias, and along a corridor away from the
+# guess, for point-to-line to undo, at a k-d tree query each); a turn far from the guess
+# (scans 0.5 m and tens of degrees apart) takes several.
+COARSE_ITERATIONS = 10
+COARSE_TOLERANCE = (0.01, 0.01)
 # Information eigenvalues below this fraction of the largest count as unconstrained.
 DEGENERATE_EIGEN_RATIO = 1e-3
 # Full-resolution iterations pick each point's nearest model point among this many
@@ -92,8 +95,9 @@ def icp(
     """Align ``data`` (N, 2) to ``model`` (M, 2); returns T_model_data.
 
     Coarse to fine: first every ``params.subsample``-th data point (a quarter of the
-    nearest-neighbour queries), then all of them from there; point-to-line starts with a
-    few point-to-point steps, whose closed form takes a turn's large rotation in one go.
+    nearest-neighbour queries), then all of them from there; point-to-line starts with
+    point-to-point steps while they move the scan by more than ``COARSE_TOLERANCE`` (one
+    from a good guess), whose closed form takes a turn's large rotation in one go.
     ``rms_m``, ``inlier_fraction`` and ``degeneracy`` are those of the last iteration's
     pairs.
 
@@ -114,7 +118,7 @@ def icp(
     coarse_tol = (10.0 * params.tolerance_m, 10.0 * params.tolerance_rad)
     normals = lines = None
     if params.method == "point-to-line":
-        T, _ = _iterate(tree, model, sparse, None, T, COARSE_ITERATIONS, (1e-3, 1e-4), params.reject_m)
+        T, _ = _iterate(tree, model, sparse, None, T, COARSE_ITERATIONS, COARSE_TOLERANCE, params.reject_m)
         normals = _normals(model, tree, params.normal_neighbours)
         # Per model point: its normal and the normal's offset n . m (the line n . p = n . m).
         lines = np.column_stack([normals, np.einsum("ij,ij->i", normals, model)])
