@@ -109,3 +109,26 @@ def test_point_to_line_takes_a_turn_from_a_zero_initial_guess():
     res = icp(scan_points(np.zeros(3)), scan_points(b))
     assert np.hypot(*(res.pose[:2] - b[:2])) < 0.005
     assert abs(res.pose[2] - b[2]) < np.radians(0.2)
+
+
+def test_point_to_line_takes_large_turns_at_the_corners_from_a_zero_guess():
+    """Scans 0.3-0.5 m and 30-60 deg apart (keyframes, as in logged data) at the corridor
+    loop's corners: the point-to-point stage keeps stepping while its steps are large
+    (a single step left twice as many of these unsolved)."""
+    world = BUILTIN["corridor-loop"]()
+    spec = DriveSpec(seed=1)
+    rng = np.random.default_rng(0)
+    failures = total = 0
+    for cx, cy in world.path:
+        for deg in (30, 45, 60):
+            for d in (0.3, 0.5):
+                a = np.array([0.97 * cx, 0.97 * cy, rng.uniform(-np.pi, np.pi)])
+                b = a + np.array([d * np.cos(a[2]), d * np.sin(a[2]), np.radians(deg)])
+                sa, sb = simulate_scans(world, np.array([a, b]), np.array([0.0, 0.025]), spec)
+                res = icp(sa.points[sa.valid], sb.points[sb.valid], params=IcpParams(method="point-to-line"))
+                true = pose_of(np.linalg.inv(se2(a)) @ se2(b))
+                err_m, err_rad = np.hypot(*(res.pose[:2] - true[:2])), abs(res.pose[2] - true[2])
+                failures += not (err_m < 0.02 and err_rad < np.radians(0.5))
+                total += 1
+    assert total == 24
+    assert failures <= 5
