@@ -201,3 +201,34 @@ def test_progress_lines_for_stages_side_by_side(capsys):
     err = capsys.readouterr().err.splitlines()
     assert [line.split(":")[0] for line in err] == ["feature tracks", "laser odometry"]
     assert err[1].startswith("laser odometry: 4/4 in ")
+
+
+def test_icp_steps_flag_a_featureless_corridor(tmp_path):
+    """Half the drive in a featureless corridor (walls only), half in a room: the
+    corridor's steps are flagged degenerate in icp/steps.csv and counted in the summary."""
+    import numpy as np
+
+    from rigcal.io.sequence import write_sequence
+    from rigcal.scan import Scan
+    from rigcal.sim.raycast import beam_angles, cast_scan
+
+    _, _, ang = beam_angles(270.0, 0.5)
+    corridor = np.array([[[-100, -1], [100, -1]], [[-100, 1], [100, 1]]], float)
+    room = np.array([[[-3, -2], [5, -2]], [[5, -2], [5, 3]], [[5, 3], [-3, 3]], [[-3, 3], [-3, -2]]], float)
+    scans = []
+    for k in range(40):
+        x = 0.05 * k
+        walls = corridor if k < 20 else room
+        r = cast_scan(walls - [x, 0.0], ang, 30.0)
+        scans.append(Scan.from_uniform(float(ang[0]), float(ang[1] - ang[0]), r, 0.1, 30.0, 0.1 * k))
+    seq = write_sequence(tmp_path / "seq", "t", scans, [], None, {})
+    out = tmp_path / "out"
+    assert main(["localize", str(seq), "--method", "icp", "-o", str(out)]) == 0
+    rows = (out / "icp" / "steps.csv").read_text().splitlines()
+    assert rows[0] == "scan,stamp_s,degeneracy,degenerate,rms_m,skipped"
+    flags = [int(r.split(",")[3]) for r in rows[1:]]
+    assert len(flags) == 39
+    assert all(flags[:18])
+    assert not any(flags[21:])
+    summary = yaml.safe_load((out / "summary.yaml").read_text())
+    assert summary["methods"]["icp"]["degenerate_steps"] == sum(flags)

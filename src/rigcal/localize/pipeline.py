@@ -50,9 +50,23 @@ class Estimate:
     steps_csv: str | None = None
 
 
+DEGENERATE_BELOW = 0.01  # an ICP step whose degeneracy indicator is below this constrains too little
+
+
 def _icp_estimate(streams: Streams, od: Odometry) -> Estimate:
-    stats = {"degenerate_steps": int((od.degeneracy < 0.01).sum()), "skipped_steps": od.skipped}
-    return Estimate(streams.scan_stamps_s, od.poses, stats)
+    degenerate = od.degeneracy < DEGENERATE_BELOW
+    stats = {"degenerate_steps": int(degenerate[1:].sum()), "skipped_steps": od.skipped}
+    # Per step: the degeneracy indicator (smallest over largest eigenvalue of the
+    # translation information: near 0, a direction the scans do not constrain, as along
+    # a featureless corridor).
+    rows = ["scan,stamp_s,degeneracy,degenerate,rms_m,skipped"]
+    for k in range(1, len(od.poses)):
+        skipped = not np.isfinite(od.rms_m[k])
+        rms = "" if skipped else f"{od.rms_m[k]:.5f}"
+        rows.append(
+            f"{k},{float(streams.scan_stamps_s[k])!r},{od.degeneracy[k]:.5f},{int(degenerate[k])},{rms},{int(skipped)}"
+        )
+    return Estimate(streams.scan_stamps_s, od.poses, stats, "\n".join(rows) + "\n")
 
 
 def _vo_result(streams: Streams) -> VoResult:
