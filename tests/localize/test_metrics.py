@@ -61,3 +61,23 @@ def test_alignment_and_anchoring():
     np.testing.assert_allclose(anchored(est, gt)[:, :2], gt[:, :2], atol=1e-9)
     with pytest.raises(ValueError, match="shape"):
         evaluate(est[:-1], gt)
+
+
+def test_an_open_path_has_no_loop_closure_but_an_end_position_error():
+    gt = square_loop()[:150]  # 15 m of the square: ends far from its start
+    est = gt.copy()
+    est[:, 1] += np.linspace(0.0, 0.3, len(gt))
+    m = evaluate(est, gt)
+    assert m["loop_closure_error_m"] is None
+    assert m["loop_closure_error_percent"] is None
+    assert m["end_position_error_m"] == pytest.approx(0.3, abs=1e-6)
+    assert m["truth_loop_gap_m"] > 5.0
+
+
+def test_a_closed_loop_scores_its_end_position_error_too():
+    gt = square_loop()
+    est = gt.copy()
+    est[:, 0] += np.linspace(0.0, 0.4, len(gt))
+    m = evaluate(est, gt)
+    assert m["loop_closure_error_m"] is not None
+    assert m["end_position_error_m"] == pytest.approx(0.4, abs=1e-6)

@@ -4,6 +4,10 @@ All trajectories are planar poses (x, y, yaw) of the same frame at the same stam
 
 - Loop-closure error (Table 1): for a drive that ends where it started, the distance
   between the estimate's end and start positions, also as a percentage of the path length.
+  Undefined (None) when the truth does not close a loop: its end is more than
+  ``LOOP_GAP_FRACTION`` of the path length (and more than 0.5 m) from its start.
+- End position error: the distance between the estimate's and the truth's last
+  positions (the estimate started at the true first pose), loop or not.
 - Average position error (Table 1): the mean distance between estimated and true
   positions over all stamps, with the estimate started at the true first pose.
 - ATE RMSE: root mean square position error after the rigid SE(2) alignment that
@@ -23,6 +27,9 @@ from numpy.typing import NDArray
 from rigcal.localize.icp import pose_of, se2
 
 FloatArray = NDArray[np.float64]
+
+
+LOOP_GAP_FRACTION = 0.05
 
 
 def path_length_m(poses: FloatArray) -> float:
@@ -70,12 +77,14 @@ def evaluate(est: FloatArray, gt: FloatArray) -> dict[str, Any]:
     length = path_length_m(gt)
     loop = float(np.linalg.norm(a[-1, :2] - a[0, :2]))
     gt_gap = float(np.linalg.norm(gt[-1, :2] - gt[0, :2]))
+    is_loop = length > 0 and gt_gap <= max(0.5, LOOP_GAP_FRACTION * length)
     ali = align_se2(est, gt)
     return {
         "path_length_m": round(length, 3),
-        "loop_closure_error_m": round(loop, 4),
-        "loop_closure_error_percent": round(100.0 * loop / length, 3) if length > 0 else None,
+        "loop_closure_error_m": round(loop, 4) if is_loop else None,
+        "loop_closure_error_percent": round(100.0 * loop / length, 3) if is_loop else None,
         "truth_loop_gap_m": round(gt_gap, 4),
+        "end_position_error_m": round(float(np.linalg.norm(a[-1, :2] - gt[-1, :2])), 4),
         "average_position_error_m": round(float(np.mean(np.linalg.norm(a[:, :2] - gt[:, :2], axis=1))), 4),
         "ate_rmse_m": round(float(np.sqrt(np.mean(np.sum((ali[:, :2] - gt[:, :2]) ** 2, axis=1)))), 4),
         "rpe_1m_rmse_m": _finite(rpe_rmse(est, gt, 1.0)),

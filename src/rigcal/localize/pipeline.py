@@ -339,5 +339,10 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> str:
         "| method | loop closure (m) | loop closure (%) | avg position error (m) | ATE RMSE (m) "
         "| RPE 1 m (m) | RPE 10 m (m) |\n|---|---|---|---|---|---|---|"
     )
-    lines = [head] + [f"| {label} | " + " | ".join(str(m[k]) for k in keys) + " |" for label, m in rows]
+    lines = [head] + [f"| {label} | " + " | ".join(_cell(m[k]) for k in keys) + " |" for label, m in rows]
     return "\n".join(lines)
+
+
+def _cell(v: Any) -> str:
+    """A table cell: "-" where a figure is undefined (no loop; a path shorter than the RPE)."""
+    return "-" if v is None else str(v)
