@@ -9,6 +9,7 @@ runs it (reading, laser odometry, feature tracks, the method); its wall time is 
 with the lap's duration (real time = 1) -- for ``kf`` that is ICP + VO + KF.
 
     .venv/bin/python benchmarks/bench_localize.py [--worlds corridor-loop,cubicle-loop] [--keep DIR]
+        [--seed N] [--methods icp,iasm,...] [--no-speed]
 """
 
 from __future__ import annotations
@@ -41,15 +42,18 @@ def main() -> None:
     ap.add_argument("--worlds", default="corridor-loop,cubicle-loop")
     ap.add_argument("--keep", type=Path, help="Keep the sequences and outputs in this folder.")
     ap.add_argument("--no-speed", action="store_true", help="Skip the runs of each method alone.")
+    ap.add_argument("--seed", type=int, default=1, help="The simulation's seed.")
+    ap.add_argument("--methods", default=",".join(METHODS), help="Methods of the accuracy table.")
     args = ap.parse_args()
+    methods = args.methods.split(",")
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         root.mkdir(parents=True, exist_ok=True)
         for name in args.worlds.split(","):
-            seq = root / name
+            seq = root / (name if args.seed == 1 else f"{name}-seed{args.seed}")
             if not (seq / "sequence.yaml").exists():
-                write_drive(BUILTIN[name](), DriveSpec(seed=1), str(seq))
-            r = run(seq, METHODS, root / f"{name}-out", force=True)
+                write_drive(BUILTIN[name](), DriveSpec(seed=args.seed), str(seq))
+            r = run(seq, methods, root / f"{seq.name}-out", force=True)
             print(f"\n### {name}: {r.methods[0].metrics['path_length_m']} m lap in {r.duration_s:.1f} s\n")  # type: ignore[index]
             print(table([(LABELS[m.method], m.metrics) for m in r.methods if m.metrics is not None]))
             print("\n| method | poses | counts |")
