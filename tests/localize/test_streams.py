@@ -143,3 +143,15 @@ def test_a_failed_run_stops_the_background_laser_odometry(seq):
         if t.name.startswith("laser-odometry"):
             t.join(timeout=10)
             assert not t.is_alive()
+
+
+def test_the_image_cache_keeps_what_its_byte_budget_allows(seq, monkeypatch):
+    import rigcal.localize.streams as streams_module
+
+    st = open_streams(seq)
+    one = st.image(0).nbytes
+    monkeypatch.setattr(streams_module, "_IMAGE_CACHE_BYTES", 2 * one)
+    for i in range(1, 5):
+        st.image(i)
+    assert list(st._images) == [3, 4]  # the least recently used went first
+    assert st.timings_s["read_images_s"] > 0

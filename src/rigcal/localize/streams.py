@@ -7,7 +7,8 @@ frame at the image's stamp with the laser odometry between the two stamps, inter
 (:meth:`Streams.laser_points_at_image`): nothing is dropped, and a 12 ms gap at walking
 speed is not left as a centimetre of error.
 
-Images are read from disk when asked for (grey, uint8) and the last few are kept.
+Images are read from disk when asked for (grey, uint8) and kept, up to 768 MiB (the
+least recently used go first).
 """
 
 from __future__ import annotations
@@ -38,7 +39,10 @@ from rigcal.scan import Scan
 FloatArray = NDArray[np.float64]
 Gray = NDArray[np.uint8]
 
-_IMAGE_CACHE = 8
+# Decoded images kept (least recently used out first): a whole 10 Hz VGA lap of several
+# minutes fits, so methods that pass over the images twice (H-IASM: tracking, then
+# matching) decode each PNG once.
+_IMAGE_CACHE_BYTES = 768 * 2**20
 
 
 class _StoppedError(Exception):
@@ -61,6 +65,7 @@ class Streams:
     rig: Rig | None
     timings_s: dict[str, float] = field(default_factory=dict)
     _images: OrderedDict[int, Gray] = field(default_factory=OrderedDict, repr=False)
+    _cached_bytes: int = field(default=0, repr=False)
     _laser_odometry: Odometry | None = field(default=None, repr=False)
     _background: Future[Odometry] | None = field(default=None, repr=False)
     _stop: threading.Event = field(default_factory=threading.Event, repr=False)
@@ -123,8 +128,9 @@ class Streams:
         g: Gray = np.asarray(raw, dtype=np.uint8)
         self.timings_s["read_images_s"] = self.timings_s.get("read_images_s", 0.0) + time.perf_counter() - t0
         self._images[i] = g
-        if len(self._images) > _IMAGE_CACHE:
-            self._images.popitem(last=False)
+        self._cached_bytes += g.nbytes
+        while self._cached_bytes > _IMAGE_CACHE_BYTES and len(self._images) > 1:
+            self._cached_bytes -= self._images.popitem(last=False)[1].nbytes
         return g
 
     def laser_odometry(self) -> Odometry:
