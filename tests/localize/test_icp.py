@@ -132,3 +132,27 @@ def test_point_to_line_takes_large_turns_at_the_corners_from_a_zero_guess():
                 total += 1
     assert total == 24
     assert failures <= 5
+
+
+def test_odometry_restarts_a_poor_step_from_zero_motion():
+    """Keyframe-like scans at the corridor loop's corners: a step and a 50-80 deg turn,
+    then the turn back in place. The first step's motion is a bad guess for the second;
+    trying again from zero motion when the fit is poor recovers most of them."""
+    world = BUILTIN["corridor-loop"]()
+    spec = DriveSpec(seed=1)
+    ok_with = ok_without = 0
+    for cx, cy in world.path:
+        for turn_deg in (50, 80):
+            for step in (0.3, 0.6):
+                a = np.array([0.97 * cx, 0.97 * cy, 0.3])
+                b = a + np.array([step * np.cos(a[2]), step * np.sin(a[2]), np.radians(turn_deg)])
+                c = b - np.array([0.0, 0.0, np.radians(turn_deg)])
+                scans = simulate_scans(world, np.array([a, b, c]), np.array([0.0, 1.0, 2.0]), spec)
+                true_yaw = pose_of(np.linalg.inv(se2(a)) @ se2(c))[2]
+                with_restarts = icp_odometry(scans, IcpParams())
+                without = icp_odometry(scans, IcpParams(restart_below_inliers=0.0))
+                assert without.restarts == 0
+                ok_with += abs(with_restarts.poses[-1][2] - true_yaw) < np.radians(0.5)
+                ok_without += abs(without.poses[-1][2] - true_yaw) < np.radians(0.5)
+    assert ok_with >= 5
+    assert ok_without <= 2

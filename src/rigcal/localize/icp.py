@@ -55,6 +55,11 @@ class IcpParams:
         reject_m: pairs farther apart than max(this, 3 x median distance) are dropped.
         normal_neighbours: points used to fit each model normal (point-to-line).
         subsample: the coarse stages use every this-many-th data point.
+        restart_below_inliers: laser odometry (:func:`rigcal.localize.odometry.icp_odometry`)
+            tries a step again from zero motion when the fit from the previous motion keeps
+            fewer than this fraction of the points as inliers, and keeps the better fit
+            (scans far apart, as logged keyframes, move unlike the step before; a failed
+            step would otherwise hand its wrong motion on as the next guess).
     """
 
     method: str = "point-to-line"
@@ -64,6 +69,7 @@ class IcpParams:
     reject_m: float = 0.3
     normal_neighbours: int = 5
     subsample: int = 4
+    restart_below_inliers: float = 0.9
 
 
 @dataclass(frozen=True)

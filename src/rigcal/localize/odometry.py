@@ -17,25 +17,29 @@ FloatArray = NDArray[np.float64]
 @dataclass(frozen=True)
 class Odometry:
     """Poses (N, 3) of the laser in the first scan's frame, per-step degeneracy and ICP
-    fit RMS, and how many steps were skipped (too few points) and kept the last motion."""
+    fit RMS, how many steps were skipped (too few points) and kept the last motion, and
+    how many were tried again from zero motion (a poor fit from the previous motion)."""
 
     poses: FloatArray
     degeneracy: FloatArray
     rms_m: FloatArray
     skipped: int
+    restarts: int = 0
 
 
 def icp_odometry(
     scans: Sequence[Scan], params: IcpParams | None = None, progress: Callable[[int], None] | None = None
 ) -> Odometry:
     """Chain ICP increments T_prev_cur over the scans, each started from the previous
-    increment (constant velocity); ``progress`` is called with the scans done so far."""
+    increment (constant velocity) and, when that fit is poor
+    (``params.restart_below_inliers``), from zero motion too, the better fit kept;
+    ``progress`` is called with the scans done so far."""
     params = params or IcpParams()
     T = np.eye(3)
     poses = [pose_of(T)]
     deg, rms = [1.0], [0.0]
     last = np.zeros(3)
-    skipped = 0
+    skipped = restarts = 0
     prev = scans[0].points[scans[0].valid]
     for k, scan in enumerate(scans[1:], start=2):
         if progress is not None:
@@ -46,6 +50,11 @@ def icp_odometry(
             skipped += 1
         else:
             res = icp(prev, cur, initial=last, params=params)
+            if res.inlier_fraction < params.restart_below_inliers:
+                again = icp(prev, cur, initial=np.zeros(3), params=params)
+                if (again.inlier_fraction, -again.rms_m) > (res.inlier_fraction, -res.rms_m):
+                    res = again
+                restarts += 1
             step, d, r = res.pose, res.degeneracy, res.rms_m
         T = T @ se2(step)
         poses.append(pose_of(T))
@@ -54,4 +63,4 @@ def icp_odometry(
         last = step
         if len(cur) >= 10:
             prev = cur
-    return Odometry(np.array(poses), np.array(deg), np.array(rms), skipped)
+    return Odometry(np.array(poses), np.array(deg), np.array(rms), skipped, restarts)

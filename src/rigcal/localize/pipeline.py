@@ -55,7 +55,11 @@ DEGENERATE_BELOW = 0.01  # an ICP step whose degeneracy indicator is below this 
 
 def _icp_estimate(streams: Streams, od: Odometry) -> Estimate:
     degenerate = od.degeneracy < DEGENERATE_BELOW
-    stats = {"degenerate_steps": int(degenerate[1:].sum()), "skipped_steps": od.skipped}
+    stats = {
+        "degenerate_steps": int(degenerate[1:].sum()),
+        "skipped_steps": od.skipped,
+        "restarted_steps": od.restarts,
+    }
     # Per step: the degeneracy indicator (smallest over largest eigenvalue of the
     # translation information: near 0, a direction the scans do not constrain, as along
     # a featureless corridor).
