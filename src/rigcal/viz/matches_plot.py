@@ -1,9 +1,10 @@
-"""Matched scan returns between two images, side by side (the paper's Fig. 5).
+"""Matched scan returns between two images (the paper's Fig. 5).
 
-Both images in grey, the first on the left; every projected return of each scan is a
-small dot, and every correspondence a line from its return in the first image to its
-match in the second: green when the step's final motion agrees with it (an inlier), red
-otherwise.
+Both images in grey, the first above the second (the scan crosses both as a band at
+about the same height, so the correspondences run down the picture and stay apart);
+every projected return of each scan is a small dot, and every correspondence a line from
+its return in the first image to its match in the second: green when the step's final
+motion agrees with it (an inlier), red otherwise.
 """
 
 from __future__ import annotations
@@ -37,16 +38,22 @@ def draw_matches(
     """
     import cv2
 
-    w = gray1.shape[1]
+    gap = 6
+    dy = gray1.shape[0] + gap
     img = np.concatenate(
-        [cv2.cvtColor(gray1, cv2.COLOR_GRAY2BGR), cv2.cvtColor(gray2, cv2.COLOR_GRAY2BGR)], axis=1
+        [
+            cv2.cvtColor(gray1, cv2.COLOR_GRAY2BGR),
+            np.zeros((gap, gray1.shape[1], 3), np.uint8),
+            cv2.cvtColor(gray2, cv2.COLOR_GRAY2BGR),
+        ],
+        axis=0,
     )
-    for pts, dx in ((returns1, 0), (returns2, w)):
-        for u, v in pts:
-            cv2.circle(img, (round(u) + dx, round(v)), 1, RETURN_BGR, -1)
     for (u1, v1), (u2, v2), ok in zip(match1, match2, inlier, strict=True):
         colour = INLIER_BGR if ok else OUTLIER_BGR
-        cv2.line(img, (round(u1), round(v1)), (round(u2) + w, round(v2)), colour, 1, cv2.LINE_AA)
+        cv2.line(img, (round(u1), round(v1)), (round(u2), round(v2) + dy), colour, 1, cv2.LINE_AA)
+    for pts, off in ((returns1, 0), (returns2, dy)):
+        for u, v in pts:
+            cv2.circle(img, (round(u), round(v) + off), 1, RETURN_BGR, -1)
     if title:
         (tw, th), _ = cv2.getTextSize(title, cv2.FONT_HERSHEY_SIMPLEX, 0.6, 1)
         cv2.rectangle(img, (4, 4), (16 + tw, 14 + th), (0, 0, 0), -1)
