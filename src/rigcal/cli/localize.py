@@ -100,13 +100,14 @@ class _Bars:
                 del self.running[stage]
                 self._clear()
                 self.out.write(f"{stage}: {total}/{total} in {now - started:.1f} s\n")
+                self.out.flush()
                 self.drawn = 0.0
             items = self.running.items()
             if self.live and self.running and now - self.drawn > 0.2:
                 line = "  ".join(f"{k} {100 * d // max(t, 1)}% ({d}/{t})" for k, (d, t, _) in items)
                 self.out.write("\r" + line[:150] + "\x1b[K")
+                self.out.flush()
                 self.drawn = now
-            self.out.flush()
 
     def _clear(self) -> None:
         if self.live:

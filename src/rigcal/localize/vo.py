@@ -418,13 +418,14 @@ def visual_odometry(
     kf = 0
     while kf < n_frames - 1:
         j = kf + 1
+        ia, ib = common(tracks[kf], tracks[j])
         for c in range(kf + 2, min(kf + params.max_run_frames, n_frames - 1) + 1):
-            if len(common(tracks[kf], tracks[c])[0]) < params.min_tracked:
+            pairs = common(tracks[kf], tracks[c])
+            if len(pairs[0]) < params.min_tracked:
                 break
-            j = c
+            j, (ia, ib) = c, pairs
         if progress is not None:
             progress(j + 1)
-        ia, ib = common(tracks[kf], tracks[j])
         dt = float(stamps_s[j] - stamps_s[kf])
         rel = relative_pose(tracks[kf].bearings[ia], tracks[j].bearings[ib], focal, params, forward)
         status, scale_pts = "ok", 0
