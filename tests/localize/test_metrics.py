@@ -30,18 +30,26 @@ def test_a_perfect_estimate_scores_zero_even_in_another_frame():
     assert m["path_length_m"] == pytest.approx(39.9, abs=0.2)
 
 
-def test_loop_closure_error_is_the_end_to_start_gap():
+def test_loop_closure_error_is_the_end_to_start_gap_beyond_the_truths():
     gt = square_loop()
     est = gt.copy()
     est[:, 0] += np.linspace(0.0, 0.4, len(gt))  # drifts 0.4 m along x by the end
     m = evaluate(est, gt)
-    assert m["loop_closure_error_m"] == pytest.approx(
-        np.hypot(0.4 + gt[-1, 0] - gt[0, 0], gt[-1, 1] - gt[0, 1]), abs=1e-3
-    )
+    assert m["loop_closure_error_m"] == pytest.approx(0.4, abs=1e-9)
     assert m["loop_closure_error_percent"] == pytest.approx(
         100 * m["loop_closure_error_m"] / m["path_length_m"], rel=1e-3
     )
     assert m["average_position_error_m"] == pytest.approx(0.2, abs=0.01)
+
+
+def test_a_perfect_estimate_of_a_loop_stopping_short_scores_no_loop_closure_error():
+    gt = square_loop()[:-1]  # the last pose 0.2 m before the start, as a last image can be
+    m = evaluate(gt.copy(), gt)
+    assert m["truth_loop_gap_m"] == pytest.approx(0.2, abs=1e-6)
+    assert m["loop_closure_error_m"] == pytest.approx(0.0, abs=1e-12)
+    closed = gt.copy()
+    closed[-1, :2] = gt[0, :2]  # an estimate that closes where the truth does not
+    assert evaluate(closed, gt)["loop_closure_error_m"] == pytest.approx(0.2, abs=1e-6)
 
 
 def test_rpe_of_a_constant_scale_error():
