@@ -249,6 +249,16 @@ def extract_lines(scan: Scan, params: LineParams | None = None) -> list[Segment]
     return segments
 
 
+def return_labels(scan: Scan, segments: list[Segment]) -> IntArray:
+    """(N,) the index in ``segments`` of each valid return's line (beam order), -1 for a
+    return on no line."""
+    beams = np.flatnonzero(scan.valid)
+    out = np.full(len(beams), -1, dtype=np.int64)
+    for k, seg in enumerate(segments):
+        out[np.searchsorted(beams, seg.indices)] = k
+    return out
+
+
 def _runs(pts: FloatArray, max_gap_m: float) -> list[tuple[int, int]]:
     """[lo, hi) index ranges of returns with no gap wider than max_gap_m inside."""
     if len(pts) == 0:

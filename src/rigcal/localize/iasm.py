@@ -40,10 +40,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from rigcal.calib.lines import Segment, extract_lines
+from rigcal.calib.lines import Segment, extract_lines, return_labels
 from rigcal.camera import Camera
 from rigcal.geometry import make_T, rotvec_to_R
-from rigcal.localize.icp import _normals, _point_to_point, pose_of, se2
+from rigcal.localize.icp import MIN_LINE_FRACTION, _normals, _point_to_point, line_normals, pose_of, se2
 from rigcal.localize.vo import sample_patches
 from rigcal.scan import Scan
 
@@ -114,6 +114,7 @@ class Frame:
         visible: (N,) in front of the camera, inside the image, textured enough.
         patches: (N, K) SAD patches (rows of invisible returns unused).
         lines: the scan's lines; ``line_of`` (N,) the line index of each return, -1 for none.
+        normals: (N, 2) each return's line normal (fitted to the moved returns), NaN off a line.
     """
 
     gray: Gray
@@ -124,12 +125,21 @@ class Frame:
     patches: NDArray[np.float32]
     lines: list[Segment]
     line_of: IntArray
+    normals: FloatArray
 
 
 def make_frame(
-    gray: Gray, scan: Scan, points: FloatArray, camera: Camera, T_cam_laser: FloatArray, params: IasmParams
+    gray: Gray,
+    scan: Scan,
+    points: FloatArray,
+    camera: Camera,
+    T_cam_laser: FloatArray,
+    params: IasmParams,
+    lines: list[Segment] | None = None,
 ) -> Frame:
-    """Project a scan's returns (already at the image's time) into its image (Section III-A)."""
+    """Project a scan's returns (already at the image's time) into its image (Section III-A).
+
+    ``lines``: the scan's lines when already extracted (the laser odometry's)."""
     P = np.column_stack([points, np.zeros(len(points))]) @ T_cam_laser[:3, :3].T + T_cam_laser[:3, 3]
     front = P[:, 2] > 0.1
     px = np.full((len(P), 2), np.nan)
@@ -143,12 +153,10 @@ def make_frame(
         flat = np.zeros(len(P), dtype=bool)
         flat[vis] = patches[vis].std(axis=1) < params.min_texture
         vis &= ~flat
-    lines = extract_lines(scan)
-    beams = np.flatnonzero(scan.valid)
-    line_of = np.full(len(points), -1, dtype=np.intp)
-    for k, seg in enumerate(lines):
-        line_of[np.searchsorted(beams, seg.indices)] = k
-    return Frame(gray, points, P, px, vis, patches, lines, line_of)
+    if lines is None:
+        lines = extract_lines(scan)
+    line_of = return_labels(scan, lines)
+    return Frame(gray, points, P, px, vis, patches, lines, line_of, line_normals(points, line_of))
 
 
 @dataclass(frozen=True)
@@ -379,7 +387,7 @@ def robust_motion(
         if inl.sum() < params.min_inliers:
             return None
     if params.joint_polish:
-        pose = joint_polish(pose, m.a[inl], m.b[inl], f1.points, f2.points, params)
+        pose = joint_polish(pose, m.a[inl], m.b[inl], f1.points, f2.points, params, f1.normals)
     # Where the walls can judge (laser metric), a result they contradict fails: wrong
     # correspondences all agreeing, as a window centred one pattern period off yields.
     if (
@@ -396,15 +404,32 @@ def robust_motion(
 
 
 def joint_polish(
-    pose: FloatArray, a: FloatArray, b: FloatArray, scan1: FloatArray, scan2: FloatArray, params: IasmParams
+    pose: FloatArray,
+    a: FloatArray,
+    b: FloatArray,
+    scan1: FloatArray,
+    scan2: FloatArray,
+    params: IasmParams,
+    normals1: FloatArray | None = None,
 ) -> FloatArray:
     """Gauss-Newton on the scans' point-to-line alignment and the image correspondences
     together, from the RANSAC winner: the laser makes the motion precise where the scene's
     geometry constrains it, the correspondences hold it where it does not (along a
     corridor), each weighted by its noise (``sigma_laser_m``, ``sigma_match_m``).
+
+    ``normals1``: scan 1's normals from its lines (NaN off a line: such returns are not
+    paired), as the laser odometry uses them (:mod:`rigcal.localize.icp`); without it, or
+    with too few returns on a line, nearest-neighbour normals.
     """
     tree = cKDTree(scan1)
-    normals = _normals(scan1, tree, 5)
+    usable: NDArray[np.bool_] | None = None
+    normals = _normals(scan1, tree, 5) if normals1 is None else normals1
+    if normals1 is not None:
+        on_line = np.isfinite(normals1[:, 0])
+        if on_line.mean() >= MIN_LINE_FRACTION:
+            normals, usable = np.where(on_line[:, None], normals1, 0.0), on_line
+        else:
+            normals = _normals(scan1, tree, 5)
     x = np.asarray(pose, dtype=float).copy()
     for _ in range(5):
         c, s = np.cos(x[2]), np.sin(x[2])
@@ -412,6 +437,8 @@ def joint_polish(
         moved = scan2 @ R.T + x[:2]
         d, idx = tree.query(moved, distance_upper_bound=params.truncate_m)
         ok = np.isfinite(d)
+        if usable is not None:
+            ok[ok] &= usable[idx[ok]]
         src, n = moved[ok], normals[idx[ok]]
         r_l = np.einsum("ij,ij->i", n, src - scan1[idx[ok]]) / params.sigma_laser_m
         J_l = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * src[:, 0] - n[:, 0] * src[:, 1]])

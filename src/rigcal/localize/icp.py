@@ -11,6 +11,16 @@ by alternating nearest neighbours (a k-d tree of the model) with a closed-form
 ``max(reject_m, 3 x median pair distance)`` are outliers. The result maps current-scan
 points into the previous scan's frame: T_prev_cur.
 
+Point-to-line normals: given the model's lines (the laser odometry passes each scan's
+lines from the shared extraction, paper Section III-B), each return on a line takes the
+line's normal, fitted over the whole wall, and a data point whose nearest model return
+lies on no line (a corner, an edge, clutter) is not paired. Normals fitted to a few
+nearest neighbours instead are noisy where returns are closer together than the range
+noise (a wall at arm's length), and wrong at corners; the pairs there bias every step the
+same way on a loop driven one way round (docs/benchmarks.md: the laser odometry's yaw
+bias per step, 0.8 mdeg -> 0.1 mdeg). Without lines (or when too few returns lie on one)
+the normals come from ``normal_neighbours`` nearest neighbours.
+
 Degeneracy: a long featureless corridor constrains nothing along it. The point-to-line
 Hessian's smallest eigenvalue over its largest (translation block) says how well the
 least-constrained direction is determined; near 0 the step is degenerate and its
@@ -38,6 +48,9 @@ COARSE_ITERATIONS = 10
 COARSE_TOLERANCE = (0.01, 0.01)
 # Information eigenvalues below this fraction of the largest count as unconstrained.
 DEGENERATE_EIGEN_RATIO = 1e-3
+# Line normals are used when at least this fraction of the model's returns lie on a line;
+# otherwise (clutter, outdoors) every return takes a nearest-neighbour normal.
+MIN_LINE_FRACTION = 0.85
 # Full-resolution iterations pick each point's nearest model point among this many
 # candidates from one k-d tree query, repeated once some point has moved this far.
 CANDIDATES = 4
@@ -53,7 +66,10 @@ class IcpParams:
         max_iterations: iteration cap.
         tolerance_m, tolerance_rad: stop when an update moves less than these.
         reject_m: pairs farther apart than max(this, 3 x median distance) are dropped.
-        normal_neighbours: points used to fit each model normal (point-to-line).
+        normals: "lines" (the laser odometry gives point-to-line the model scan's lines:
+            normals fitted along each line, returns on no line left unpaired) or
+            "neighbours" (``normal_neighbours`` nearest neighbours per return).
+        normal_neighbours: points used to fit each model normal (point-to-line) without lines.
         subsample: the coarse stages use every this-many-th data point.
         restart_below_inliers: laser odometry (:func:`rigcal.localize.odometry.icp_odometry`)
             tries a step again from zero motion when the fit from the previous motion keeps
@@ -67,6 +83,7 @@ class IcpParams:
     tolerance_m: float = 1e-4
     tolerance_rad: float = 1e-5
     reject_m: float = 0.3
+    normals: str = "lines"
     normal_neighbours: int = 5
     subsample: int = 4
     restart_below_inliers: float = 0.9
@@ -74,7 +91,10 @@ class IcpParams:
 
 @dataclass(frozen=True)
 class IcpResult:
-    """T_prev_cur as (x, y, yaw), the fit's figures and its degeneracy indicator."""
+    """T_prev_cur as (x, y, yaw), the fit's figures and its degeneracy indicator.
+
+    ``inlier_fraction``: of the data points that could be paired (with line normals: those
+    whose nearest model return lies on a line), the fraction kept as inliers."""
 
     pose: FloatArray
     iterations: int
@@ -96,9 +116,18 @@ def pose_of(M: FloatArray) -> FloatArray:
 
 
 def icp(
-    model: FloatArray, data: FloatArray, initial: FloatArray | None = None, params: IcpParams | None = None
+    model: FloatArray,
+    data: FloatArray,
+    initial: FloatArray | None = None,
+    params: IcpParams | None = None,
+    model_normals: FloatArray | None = None,
 ) -> IcpResult:
     """Align ``data`` (N, 2) to ``model`` (M, 2); returns T_model_data.
+
+    ``model_normals`` (M, 2), point-to-line only: each model return's normal, NaN for a
+    return on no line (see :func:`line_normals`); such returns are never paired. Without
+    it, or when fewer than ``MIN_LINE_FRACTION`` of the returns have one, normals come from
+    ``params.normal_neighbours`` nearest neighbours.
 
     Coarse to fine: first every ``params.subsample``-th data point (a quarter of the
     nearest-neighbour queries), then all of them from there; point-to-line starts with
@@ -122,13 +151,20 @@ def icp(
     T = _Transform(math.cos(yaw), math.sin(yaw), x, y)
     sparse = data[:: params.subsample] if len(data) >= 3 * params.subsample else data
     coarse_tol = (10.0 * params.tolerance_m, 10.0 * params.tolerance_rad)
-    normals = lines = None
+    normals = lines = usable = None
     if params.method == "point-to-line":
         T, _ = _iterate(tree, model, sparse, None, T, COARSE_ITERATIONS, COARSE_TOLERANCE, params.reject_m)
-        normals = _normals(model, tree, params.normal_neighbours)
+        if model_normals is not None:
+            on_line = np.isfinite(model_normals[:, 0])
+            if on_line.mean() >= MIN_LINE_FRACTION:
+                normals, usable = np.where(on_line[:, None], model_normals, 0.0), on_line
+
+        if normals is None:
+            normals = _normals(model, tree, params.normal_neighbours)
         # Per model point: its normal and the normal's offset n . m (the line n . p = n . m).
         lines = np.column_stack([normals, np.einsum("ij,ij->i", normals, model)])
-    T, _ = _iterate(tree, model, sparse, lines, T, params.max_iterations, coarse_tol, params.reject_m)
+
+    T, _ = _iterate(tree, model, sparse, lines, T, params.max_iterations, coarse_tol, params.reject_m, usable)
     T, fit = _iterate(
         tree,
         model,
@@ -138,6 +174,7 @@ def icp(
         params.max_iterations,
         (params.tolerance_m, params.tolerance_rad),
         params.reject_m,
+        usable,
         candidates=CANDIDATES,
     )
     pose_out = np.array([T.tx, T.ty, math.atan2(T.s, T.c)])
@@ -187,12 +224,14 @@ def _iterate(
     max_iterations: int,
     tolerance: tuple[float, float],
     reject_m: float,
+    usable: NDArray[np.bool_] | None = None,
     candidates: int = 1,
 ) -> tuple[_Transform, _Fit]:
     """ICP iterations from T_model_data until a step moves less than ``tolerance``
     (metres, radians): point-to-point without ``lines``, else point-to-line with the
-    model's (normal x, normal y, offset) rows. Returns the new transform and the last
-    pairs' figures."""
+    model's (normal x, normal y, offset) rows; data points whose nearest model point is
+    not ``usable`` are left unpaired. Returns the new transform and the last pairs'
+    figures."""
     fit = _Fit(0, float("inf"), 0.0, data[:0], np.zeros(0, dtype=np.intp))
     nearest = _Nearest(tree, model, candidates)
     half = len(data) // 2
@@ -201,12 +240,18 @@ def _iterate(
         moved += (T.tx, T.ty)
         dist, idx = nearest(moved)
         median = float(np.partition(dist, half)[half])
-        inl = np.flatnonzero(dist < max(reject_m, 3.0 * median))
+        close = dist < max(reject_m, 3.0 * median)
+        eligible = len(data)
+        if usable is not None:
+            on_line = usable.take(idx)
+            close &= on_line
+            eligible = max(int(on_line.sum()), 1)
+        inl = np.flatnonzero(close)
         n_inl = len(inl)
         if n_inl < 3:
             break
         d_inl, pair, src = dist.take(inl), idx.take(inl), moved.take(inl, axis=0)
-        fit = _Fit(k, math.sqrt(float(d_inl @ d_inl) / n_inl), n_inl / len(data), src, pair)
+        fit = _Fit(k, math.sqrt(float(d_inl @ d_inl) / n_inl), n_inl / eligible, src, pair)
         if lines is None:
             x, y, yaw = _point_to_point(src, model.take(pair, axis=0)).tolist()
         else:
@@ -316,6 +361,25 @@ def _eigen_range(
     det = a * (b * c - h12 * h12) - h01 * (h01 * c - h12 * h02) + h02 * (h01 * h12 - b * h02)
     phi = math.acos(min(1.0, max(-1.0, det / (2.0 * p * p * p)))) / 3.0
     return q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0), q + 2.0 * p * math.cos(phi)
+
+
+def line_normals(points: FloatArray, labels: NDArray[np.integer]) -> FloatArray:
+    """(N, 2) unit normals of the lines the points lie on, each fitted over all the
+    points of its line (``labels``: a line number per point, -1 for none: NaN rows)."""
+    out = np.full((len(points), 2), np.nan)
+    on = labels >= 0
+    if not on.any():
+        return out
+    lab, p = labels[on], points[on]
+    n = np.bincount(lab).astype(float)
+    used = n > 0
+    sums = [np.bincount(lab, weights=w, minlength=len(n)) for w in (p[:, 0], p[:, 1])]
+    mx, my = (np.divide(s, n, out=np.zeros_like(s), where=used) for s in sums)
+    dx, dy = p[:, 0] - mx[lab], p[:, 1] - my[lab]
+    sxx, syy, sxy = (np.bincount(lab, weights=w, minlength=len(n)) for w in (dx * dx, dy * dy, dx * dy))
+    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # each line's direction (as in _normals)
+    out[on] = np.column_stack([-np.sin(phi), np.cos(phi)])[lab]
+    return out
 
 
 def _normals(model: FloatArray, tree: cKDTree, k: int) -> FloatArray:

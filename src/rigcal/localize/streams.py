@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.calib.lines import Segment, extract_lines
 from rigcal.errors import InputError
 from rigcal.io.sequence import Sequence, read_sequence
 from rigcal.localize.icp import IcpParams, pose_of, se2
@@ -70,6 +71,7 @@ class Streams:
     _background: Future[Odometry] | None = field(default=None, repr=False)
     _stop: threading.Event = field(default_factory=threading.Event, repr=False)
     results: dict[str, Any] = field(default_factory=dict, repr=False)
+    _lines: dict[int, list[Segment]] = field(default_factory=dict, repr=False)
     progress: Callable[[str, int, int], None] | None = field(default=None, repr=False)
 
     @property
@@ -164,9 +166,17 @@ class Streams:
                 raise _StoppedError
             self.report("laser odometry", k, n)
 
-        od = icp_odometry(self.scans, IcpParams(method="point-to-line"), progress)
+        od = icp_odometry(self.scans, IcpParams(method="point-to-line"), progress, self.lines)
         self.timings_s["icp_s"] = time.perf_counter() - t0
         return od
+
+    def lines(self, k: int) -> list[Segment]:
+        """Scan k's lines (extracted once: the laser odometry's normals and IASM's frames
+        share them)."""
+        segs = self._lines.get(k)
+        if segs is None:
+            segs = self._lines[k] = extract_lines(self.scans[k])
+        return segs
 
     def feature_tracks(self) -> list[FrameTracks]:
         """SIFT features tracked over all images (computed once; VO and H-IASM share them)."""
@@ -195,11 +205,14 @@ class Streams:
         the laser frame at the image's stamp by the interpolated laser odometry."""
         stamps = self.scan_stamps_s
         t = float(self.image_stamps_s[i])
-        k = nearest_index(stamps, t)
-        scan = self.scans[k]
+        scan = self.scans[self.scan_at_image(i)]
         pts = scan.points[scan.valid]
-        T_t_k = se2(self.odometry_motion(t, float(stamps[k])))
+        T_t_k = se2(self.odometry_motion(t, float(stamps[self.scan_at_image(i)])))
         return scan, pts @ T_t_k[:2, :2].T + T_t_k[:2, 2]
+
+    def scan_at_image(self, i: int) -> int:
+        """The index of the scan nearest image i's stamp."""
+        return nearest_index(self.scan_stamps_s, float(self.image_stamps_s[i]))
 
     def odometry_motion(self, t0: float, t1: float) -> FloatArray:
         """The laser's pose at t1 in its frame at t0 (x, y, yaw), from the point-to-line
