@@ -14,9 +14,11 @@ from rigcal.localize.iasm import (
     hiasm_step,
     homography_predictions,
     iasm_step,
+    joint_polish,
     laser_metric_wanted,
     make_frame,
 )
+from rigcal.localize.icp import line_normals
 from rigcal.scan import Scan
 from rigcal.sim.box_session import default_camera
 from rigcal.sim.drive import side_T_cam_laser
@@ -143,3 +145,23 @@ def test_metric_choice_from_the_angle_histogram():
     for segs, laser in ((corridor, False), (room, True)):
         scan = Scan.from_uniform(a0, step, cast_scan(segs, ang, 8.0), 0.1, 8.0, 0.0)
         assert laser_metric_wanted(extract_lines(scan), IasmParams()) is laser
+
+
+def test_joint_polish_takes_the_walls_where_they_constrain_and_the_matches_where_not():
+    # A featureless corridor: the walls fix the cross-corridor offset and the heading, not
+    # the motion along it. Correspondences 1 cm off (biased) along and across: the polish
+    # keeps the walls' answer across and takes the correspondences' along the corridor.
+    u = np.linspace(-8, 8, 800)
+    walls = np.vstack(
+        [np.column_stack([u, np.full_like(u, -1.0)]), np.column_stack([u, np.full_like(u, 1.0)])]
+    )
+    truth = np.array([0.08, 0.02, 0.0])
+    scan2 = walls - truth[:2]  # the same walls seen after the motion
+    b = np.array([[2.0, 1.0], [-3.0, -1.0], [5.0, 1.0], [-6.0, -1.0]])
+    a = b + truth[:2] + [0.01, 0.01]  # the correspondences' bias
+    x = joint_polish(
+        np.zeros(3), a, b, walls, scan2, IasmParams(), line_normals(walls, np.repeat([0, 1], 800))
+    )
+    assert x[0] == pytest.approx(0.09, abs=1e-3)  # along: the correspondences'
+    assert x[1] == pytest.approx(0.02, abs=1e-4)  # across: the walls'
+    assert x[2] == pytest.approx(0.0, abs=1e-5)

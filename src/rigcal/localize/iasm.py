@@ -74,7 +74,11 @@ class IasmParams:
         joint_polish: finish with :func:`joint_polish` (laser alignment and correspondences
             together) instead of the correspondences alone.
         sigma_laser_m, sigma_match_m: the joint polish's weights: range noise of a return
-            and noise of a correspondence.
+            and the weight of a correspondence, as a noise. The correspondences are
+            weighted far below their scatter (2 cm): their residual bias (about 0.15 %
+            of each step's length, forward, on the simulated loops) then stays out of
+            what the walls determine, and they still hold what the walls leave open
+            (the motion along a featureless corridor).
         support_fraction: only hypotheses with at least this fraction of the best
             hypothesis's inliers are scored by the metric.
         min_alignment: with the laser metric, a result whose alignment score (1 minus the
@@ -99,7 +103,7 @@ class IasmParams:
     min_spread_m: float = 0.25
     joint_polish: bool = True
     sigma_laser_m: float = 0.01
-    sigma_match_m: float = 0.02
+    sigma_match_m: float = 0.2
 
 
 @dataclass
