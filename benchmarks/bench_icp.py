@@ -6,24 +6,23 @@ truth (``rigcal.localize.metrics``). Time per scan is also given as a ratio to t
 period (real time = 1).
 
 Then the time per scan pair of the simulated Hokuyo (1081 beams over 270 deg, 40 Hz) on
-the first 400 scans of the cubicle loop, each pair started from the previous motion as in
-odometry: the best of three passes (other processes on the machine only slow a pass
-down), as a ratio to the laser's 25 ms period and to the 5 ms target, and, when the
-``bench`` dependency group is installed, KISS-ICP's time per scan on the same scans in the
-same run (its configuration as in ``bench_killian.py``, range up to 30 m).
+the first 400 scans of the cubicle loop, by the laser odometry as ``rigcal localize`` runs
+it (each scan's lines extracted for the line normals; each pair started from the previous
+motion), and with 5-nearest-neighbour normals as before: the best of three passes
+(other processes on the machine only slow a pass down), as a ratio to the laser's 25 ms
+period and to the 5 ms target, and, when the ``bench`` dependency group is installed,
+KISS-ICP's time per scan on the same scans in the same run (its configuration as in
+``bench_killian.py``, range up to 30 m).
 
     .venv/bin/python benchmarks/bench_icp.py
 """
 
 from __future__ import annotations
 
-import itertools
 import time
 from collections.abc import Callable
 
-import numpy as np
-
-from rigcal.localize.icp import IcpParams, icp
+from rigcal.localize.icp import IcpParams
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import icp_odometry
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans
@@ -63,28 +62,27 @@ def pair_timing(target_ms: float = 5.0) -> None:
     motion = Motion(world, spec)
     stamps = laser_stamps(motion, spec)[:400]
     scans = simulate_scans(world, motion.poses(stamps), stamps, spec)
-    points = [s.points[s.valid] for s in scans]
     budget_ms = 1000.0 / spec.laser_rate_hz
     print()
     print(f"| method | beams | ms per scan pair | x real time ({budget_ms:.0f} ms) "
           f"| x {target_ms:.0f} ms target | time / KISS-ICP |")  # fmt: skip
     print("|---|---|---|---|---|---|")
     times: dict[str, float] = {}
-    for method in ("point-to-line", "point-to-point"):
-        params = IcpParams(method=method)
-
-        def odometry(params: IcpParams = params) -> None:
-            last = np.zeros(3)
-            for model, data in itertools.pairwise(points):
-                last = icp(model, data, last, params).pose
-
-        times[method] = best_ms(odometry, len(points) - 1)
+    variants = {
+        "point-to-line": IcpParams(),
+        "point-to-line, 5-nearest normals": IcpParams(normals="neighbours"),
+        "point-to-point": IcpParams(method="point-to-point"),
+    }
+    for label, params in variants.items():
+        # The odometry as `rigcal localize` runs it: each scan's lines extracted (for the
+        # line normals), restarts from zero motion included.
+        times[label] = best_ms(lambda params=params: icp_odometry(scans, params), len(scans) - 1)
     try:
         from bench_killian import kiss_icp_odometry  # the bench group's kiss-icp
     except ImportError:
         kiss = None
     else:
-        kiss = best_ms(lambda: kiss_icp_odometry(scans, max_range_m=30.0), len(points) - 1)
+        kiss = best_ms(lambda: kiss_icp_odometry(scans, max_range_m=30.0), len(scans) - 1)
     beams = len(scans[0].ranges_m)
     for method, ms in [*times.items(), ("KISS-ICP", kiss)]:
         if ms is None:

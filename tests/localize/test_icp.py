@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 
 from rigcal.calib.lines import extract_lines, return_labels
 from rigcal.localize.icp import IcpParams, _normals, _point_to_line, icp, line_normals, pose_of, se2
-from rigcal.localize.odometry import icp_odometry
+from rigcal.localize.odometry import carry_labels, icp_odometry
 from rigcal.scan import Scan
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans
 from rigcal.sim.raycast import cast_scan
@@ -118,6 +118,25 @@ def test_odometry_uses_the_scans_lines_unless_told_otherwise():
         err[normals] = abs(np.arctan2(e[1, 0], e[0, 0]))
     assert err["lines"] < np.radians(0.002)
     assert err["lines"] < err["neighbours"]
+
+
+def test_carried_lines_agree_with_the_new_scans_own():
+    a, b = np.zeros(3), np.array([0.025, 0.005, 0.01])
+    A, B = room_scan(a), room_scan(b)
+    la = return_labels(A, extract_lines(A))
+    own = return_labels(B, extract_lines(B))
+    pa, pb = A.points[A.valid], B.points[B.valid]
+    carried = carry_labels(pa, la, None, b, pb)
+    on = carried >= 0
+    assert on.mean() > 0.9
+    # The same wall: each carried line holds returns of one line of B's own.
+    for line in np.unique(carried[on]):
+        mine = own[carried == line]
+        assert np.mean(mine == np.bincount(mine[mine >= 0]).argmax()) > 0.97
+    # Carried lines give the same normals as B's own, where both have one.
+    both = on & (own >= 0)
+    nc, no = line_normals(pb, carried)[both], line_normals(pb, own)[both]
+    assert np.abs(np.abs(np.einsum("ij,ij->i", nc, no)) - 1).max() < 1e-6
 
 
 def test_se2_round_trip_and_errors():

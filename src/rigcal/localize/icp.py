@@ -94,13 +94,16 @@ class IcpResult:
     """T_prev_cur as (x, y, yaw), the fit's figures and its degeneracy indicator.
 
     ``inlier_fraction``: of the data points that could be paired (with line normals: those
-    whose nearest model return lies on a line), the fraction kept as inliers."""
+    whose nearest model return lies on a line), the fraction kept as inliers.
+    ``nearest`` (N,): each data point's nearest model point in the last iteration (the
+    laser odometry carries the model's lines over with it)."""
 
     pose: FloatArray
     iterations: int
     rms_m: float
     inlier_fraction: float
     degeneracy: float
+    nearest: NDArray[np.intp] | None = None
 
 
 def se2(pose: FloatArray) -> FloatArray:
@@ -181,7 +184,7 @@ def icp(
     dst = model.take(fit.pairs, axis=0)
     n = normals.take(fit.pairs, axis=0) if normals is not None else None
     degeneracy = _degeneracy(fit.src, dst, n)
-    return IcpResult(pose_out, fit.iterations, fit.rms_m, fit.inlier_fraction, degeneracy)
+    return IcpResult(pose_out, fit.iterations, fit.rms_m, fit.inlier_fraction, degeneracy, fit.nearest)
 
 
 @dataclass(frozen=True)
@@ -213,6 +216,7 @@ class _Fit:
     inlier_fraction: float
     src: FloatArray
     pairs: NDArray[np.intp]
+    nearest: NDArray[np.intp] | None = None
 
 
 def _iterate(
@@ -251,7 +255,7 @@ def _iterate(
         if n_inl < 3:
             break
         d_inl, pair, src = dist.take(inl), idx.take(inl), moved.take(inl, axis=0)
-        fit = _Fit(k, math.sqrt(float(d_inl @ d_inl) / n_inl), n_inl / eligible, src, pair)
+        fit = _Fit(k, math.sqrt(float(d_inl @ d_inl) / n_inl), n_inl / eligible, src, pair, idx)
         if lines is None:
             x, y, yaw = _point_to_point(src, model.take(pair, axis=0)).tolist()
         else:

@@ -1,4 +1,14 @@
-"""Laser odometry: ICP between successive scans of a sequence, chained into a trajectory."""
+"""Laser odometry: ICP between successive scans of a sequence, chained into a trajectory.
+
+Point-to-line ICP takes the model scan's normals from its lines (:mod:`rigcal.localize.icp`).
+Extracting a scan's lines (``rigcal.calib.lines``, a return at a time) costs about as much
+as the ICP step itself, so the lines are extracted on every ``LINES_EVERY``-th scan only;
+the scans between carry them: a return of the new scan, moved by the step just
+estimated into the previous scan's frame, takes the line of its nearest previous return
+when it lies within ``CARRY_M`` of that line (the nearest returns are ICP's own, from the
+step). Returns of walls that come into view are left off until the next extraction (at
+most ``LINES_EVERY`` - 1 scans).
+"""
 
 from __future__ import annotations
 
@@ -7,12 +17,19 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from rigcal.calib.lines import Segment, extract_lines, return_labels
 from rigcal.localize.icp import IcpParams, icp, line_normals, pose_of, se2
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+LINES_EVERY = 4
+# A carried return lies within this of its line (3 sigma of a Hokuyo-class scanner's
+# range noise, as the line extraction's own distance test).
+CARRY_M = 0.03
 
 
 @dataclass(frozen=True)
@@ -43,12 +60,19 @@ def icp_odometry(
     extracted here)."""
     params = params or IcpParams()
     use_lines = params.method == "point-to-line" and params.normals == "lines"
+    labels: IntArray | None = None  # the model scan's line of each return
 
-    def normals_of(k: int) -> FloatArray | None:
+    def normals_of(k: int, pts: FloatArray, step: FloatArray) -> FloatArray | None:
+        """Scan k's line normals: its own lines every LINES_EVERY scans, else the model's
+        carried over by the step (T_model_k)."""
+        nonlocal labels
         if not use_lines:
             return None
-        segs = lines(k) if lines is not None else extract_lines(scans[k])
-        return line_normals(scans[k].points[scans[k].valid], return_labels(scans[k], segs))
+        if labels is None or k % LINES_EVERY == 0:
+            labels = return_labels(scans[k], lines(k) if lines is not None else extract_lines(scans[k]))
+        else:
+            labels = carry_labels(prev, labels, prev_normals, step, pts, nearest)
+        return line_normals(pts, labels)
 
     T = np.eye(3)
     poses = [pose_of(T)]
@@ -56,7 +80,8 @@ def icp_odometry(
     last = np.zeros(3)
     skipped = restarts = 0
     prev = scans[0].points[scans[0].valid]
-    prev_normals = normals_of(0)
+    nearest = None  # the last step's nearest model return of each data return
+    prev_normals = normals_of(0, prev, np.zeros(3))
     for k, scan in enumerate(scans[1:], start=2):
         if progress is not None:
             progress(k)
@@ -71,12 +96,47 @@ def icp_odometry(
                 if (again.inlier_fraction, -again.rms_m) > (res.inlier_fraction, -res.rms_m):
                     res = again
                 restarts += 1
-            step, d, r = res.pose, res.degeneracy, res.rms_m
+            step, d, r, nearest = res.pose, res.degeneracy, res.rms_m, res.nearest
         T = T @ se2(step)
         poses.append(pose_of(T))
         deg.append(d)
         rms.append(r)
         last = step
         if len(cur) >= 10:
-            prev, prev_normals = cur, normals_of(k - 1)
+            prev_normals = normals_of(k - 1, cur, step)  # before prev moves on: carried from it
+            prev = cur
     return Odometry(np.array(poses), np.array(deg), np.array(rms), skipped, restarts)
+
+
+def carry_labels(
+    prev: FloatArray,
+    prev_labels: IntArray,
+    prev_normals: FloatArray | None,
+    step: FloatArray,
+    cur: FloatArray,
+    nearest: NDArray[np.intp] | None = None,
+) -> IntArray:
+    """The line of each return of ``cur`` carried from the previous scan's returns
+    (``prev``, ``prev_labels``, their ``prev_normals`` when known; ``step`` =
+    T_prev_cur): the line of its nearest previous return (``nearest``, as ICP found them;
+    else looked up here) when it lies within CARRY_M of that line (the line refitted to
+    the previous returns on it), else -1."""
+    out = np.full(len(cur), -1, dtype=np.int64)
+    if not (prev_labels >= 0).any() or len(cur) == 0:
+        return out
+    T = se2(step)
+    moved = cur @ T[:2, :2].T + T[:2, 2]
+    if nearest is None or len(nearest) != len(cur):
+        nearest = cKDTree(prev).query(moved)[1]
+    normals = line_normals(prev, prev_labels) if prev_normals is None else prev_normals
+    # Each line's offset n . p (the mean over its returns).
+    on = prev_labels >= 0
+    lab = prev_labels[on]
+    count = np.maximum(np.bincount(lab).astype(float), 1.0)
+    offset = np.bincount(lab, weights=np.einsum("ij,ij->i", normals[on], prev[on])) / count
+    line = prev_labels[nearest]
+    k = np.flatnonzero(line >= 0)
+    line = line[k]
+    close = np.abs(np.einsum("ij,ij->i", normals[nearest[k]], moved[k]) - offset[line]) < CARRY_M
+    out[k[close]] = line[close]
+    return out
