@@ -7,7 +7,16 @@ import pytest
 from scipy.spatial import cKDTree
 
 from rigcal.calib.lines import extract_lines, return_labels
-from rigcal.localize.icp import IcpParams, _normals, _point_to_line, icp, line_normals, pose_of, se2
+from rigcal.localize.icp import (
+    MIN_LINE_FRACTION,
+    IcpParams,
+    _normals,
+    _point_to_line,
+    icp,
+    line_normals,
+    pose_of,
+    se2,
+)
 from rigcal.localize.odometry import carry_labels, icp_odometry
 from rigcal.scan import Scan
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans
@@ -118,6 +127,23 @@ def test_odometry_uses_the_scans_lines_unless_told_otherwise():
         err[normals] = abs(np.arctan2(e[1, 0], e[0, 0]))
     assert err["lines"] < np.radians(0.002)
     assert err["lines"] < err["neighbours"]
+
+
+def test_odometry_in_clutter_keeps_nearest_neighbour_normals():
+    # Scattered posts, no walls: almost no return lies on a line, so the odometry with
+    # line normals is the odometry with nearest-neighbour normals, step for step.
+    rng = np.random.default_rng(4)
+    posts = rng.uniform(-6, 6, (60, 2))
+    segs = np.stack([posts, posts + rng.normal(0, 0.05, (60, 2))], axis=1)
+    scans = []
+    for k in range(5):
+        local = segs - [0.03 * k, 0.0]
+        r = cast_scan(local, ANGLES, 30.0)
+        scans.append(Scan(ANGLES, np.where(np.isfinite(r), r, 0.0), 0.05, 30.0))
+    on_lines = [np.mean(return_labels(sc, extract_lines(sc)) >= 0) for sc in scans]
+    assert max(on_lines) < MIN_LINE_FRACTION
+    lined = icp_odometry(scans, IcpParams(normals="lines")).poses
+    np.testing.assert_array_equal(lined, icp_odometry(scans, IcpParams(normals="neighbours")).poses)
 
 
 def test_carried_lines_agree_with_the_new_scans_own():

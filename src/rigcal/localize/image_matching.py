@@ -133,8 +133,10 @@ class ScanMatcher:
         return Step(self.streams.odometry_motion(float(t[i1]), float(t[i2])), "icp", None, m, why)
 
 
-def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray, dict[str, Any], str]:
-    """Chain IASM or H-IASM steps over successive images.
+def scan_matching(
+    streams: Streams, method: str, params: IasmParams | None = None
+) -> tuple[FloatArray, FloatArray, dict[str, Any], str]:
+    """Chain IASM or H-IASM steps over successive images (``params``: the defaults unless given).
 
     Returns:
         the image stamps, the laser's poses there (first at the origin), the counts
@@ -142,7 +144,7 @@ def scan_matching(streams: Streams, method: str) -> tuple[FloatArray, FloatArray
         every step (image, stamp, method used, metric, correspondences, inliers, why it
         fell back).
     """
-    sm = ScanMatcher(streams, method)
+    sm = ScanMatcher(streams, method, params)
     streams.laser_odometry()  # pairs scans with images (timed on its own)
     f1, tr1 = sm.frame(0)
     used = {"hiasm": 0, "iasm": 0, "icp": 0}

@@ -20,13 +20,13 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from rigcal.calib.lines import Segment, extract_lines, return_labels
-from rigcal.localize.icp import IcpParams, icp, line_normals, pose_of, se2
+from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, icp, line_normals, pose_of, se2
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-LINES_EVERY = 4
+LINES_EVERY = 8
 # A carried return lies within this of its line (3 sigma of a Hokuyo-class scanner's
 # range noise, as the line extraction's own distance test).
 CARRY_M = 0.03
@@ -61,18 +61,23 @@ def icp_odometry(
     params = params or IcpParams()
     use_lines = params.method == "point-to-line" and params.normals == "lines"
     labels: IntArray | None = None  # the model scan's line of each return
+    extracted = -LINES_EVERY  # the scan whose lines were last extracted
 
     def normals_of(k: int, pts: FloatArray, step: FloatArray) -> FloatArray | None:
         """Scan k's line normals: its own lines every LINES_EVERY scans, else the model's
-        carried over by the step (T_model_k)."""
-        nonlocal labels
+        carried over by the step (T_model_k); None (nearest-neighbour normals) until the
+        next extraction when too few returns lay on a line (clutter)."""
+        nonlocal labels, extracted
         if not use_lines:
             return None
-        if labels is None or k % LINES_EVERY == 0:
+        if k - extracted >= LINES_EVERY:
+            extracted = k
             labels = return_labels(scans[k], lines(k) if lines is not None else extract_lines(scans[k]))
-        else:
+            if (labels >= 0).mean() < MIN_LINE_FRACTION:
+                labels = None
+        elif labels is not None:
             labels = carry_labels(prev, labels, prev_normals, step, pts, nearest)
-        return line_normals(pts, labels)
+        return None if labels is None else line_normals(pts, labels)
 
     T = np.eye(3)
     poses = [pose_of(T)]
