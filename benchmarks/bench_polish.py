@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import tempfile
 from pathlib import Path
 
@@ -68,8 +69,8 @@ def main() -> None:
 def own_step_bias(poses: np.ndarray, gt: np.ndarray, own: np.ndarray) -> tuple[float, float]:
     """Mean forward error over the true step length (%) and mean yaw error (mdeg) of the
     steps in ``own`` that moved more than 1 cm."""
-    est = np.array([pose_of(np.linalg.inv(se2(a)) @ se2(b)) for a, b in zip(poses[:-1], poses[1:])])
-    true = np.array([pose_of(np.linalg.inv(se2(a)) @ se2(b)) for a, b in zip(gt[:-1], gt[1:])])
+    est = np.array([pose_of(np.linalg.inv(se2(a)) @ se2(b)) for a, b in itertools.pairwise(poses)])
+    true = np.array([pose_of(np.linalg.inv(se2(a)) @ se2(b)) for a, b in itertools.pairwise(gt)])
     length = np.linalg.norm(true[:, :2], axis=1)
     k = own & (length > 0.01)
     forward = np.einsum("ij,ij->i", est[k, :2] - true[k, :2], true[k, :2]) / length[k] ** 2
