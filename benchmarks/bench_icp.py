@@ -1,8 +1,9 @@
 """Laser odometry by ICP on the simulated loops, in the form of the paper's Table 1.
 
 One lap of each built-in loop (``rigcal.sim``: 1 cm range noise, 1 % dropouts; and the
-cubicle loop without noise or dropouts) at a 10 Hz laser, localized with point-to-line ICP (line normals, as ``rigcal localize`` runs it, and
-5-nearest-neighbour normals) and point-to-point ICP, scored against the ground truth
+cubicle loop without noise or dropouts) at a 10 Hz laser, localized with point-to-line
+ICP (line normals, as ``rigcal localize`` runs it, and 5-nearest-neighbour normals) and
+point-to-point ICP, scored against the ground truth
 (``rigcal.localize.metrics``), with the mean (bias) and RMS of the scan-to-scan yaw
 error. Time per scan is also given as a ratio to the laser's period (real time = 1).
 
