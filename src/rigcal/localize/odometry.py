@@ -26,7 +26,7 @@ from rigcal.scan import Scan
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-LINES_EVERY = 8
+LINES_EVERY = 4
 # A carried return lies within this of its line (3 sigma of a Hokuyo-class scanner's
 # range noise, as the line extraction's own distance test).
 CARRY_M = 0.03
