@@ -18,8 +18,9 @@ lies on no line (a corner, an edge, clutter) is not paired. Normals fitted to a 
 nearest neighbours instead are noisy where returns are closer together than the range
 noise (a wall at arm's length), and wrong at corners; the pairs there bias every step the
 same way on a loop driven one way round (docs/benchmarks.md: the laser odometry's yaw
-bias per 10 Hz step, 1.1 / -2.5 mdeg -> -0.4 / -0.2 mdeg on the simulated loops). Without lines (or when too few returns lie on one)
-the normals come from ``normal_neighbours`` nearest neighbours.
+bias per 10 Hz step, 1.1 / -2.5 mdeg -> -0.4 / -0.2 mdeg on the simulated loops).
+Without lines (or when too few returns lie on one) the normals come from
+``normal_neighbours`` nearest neighbours.
 
 Degeneracy: a long featureless corridor constrains nothing along it. The point-to-line
 Hessian's smallest eigenvalue over its largest (translation block) says how well the
