@@ -155,3 +155,15 @@ def test_the_image_cache_keeps_what_its_byte_budget_allows(seq, monkeypatch):
         st.image(i)
     assert list(st._images) == [3, 4]  # the least recently used went first
     assert st.timings_s["read_images_s"] > 0
+
+
+def test_the_lines_of_the_scans_at_the_images_are_kept_and_others_not(seq):
+    s = open_streams(seq)
+    at_images = {s.scan_at_image(i) for i in range(s.n_images)}
+    k_img = min(at_images)
+    k_other = next(k for k in range(len(s.scans)) if k not in at_images)
+    assert s.lines(k_img) is s.lines(k_img)  # extracted once, shared
+    first = s.lines(k_other)
+    again = s.lines(k_other)
+    assert first is not again  # not kept
+    assert [g.indices.tolist() for g in first] == [g.indices.tolist() for g in again]

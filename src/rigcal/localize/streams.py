@@ -171,12 +171,20 @@ class Streams:
         return od
 
     def lines(self, k: int) -> list[Segment]:
-        """Scan k's lines (extracted once: the laser odometry's normals and IASM's frames
-        share them)."""
+        """Scan k's lines. The lines of the scans nearest the images are kept, so the laser
+        odometry's normals and IASM's frames share them; the others are not (a long log's
+        every 4th scan would add up)."""
         segs = self._lines.get(k)
         if segs is None:
-            segs = self._lines[k] = extract_lines(self.scans[k])
+            segs = extract_lines(self.scans[k])
+            if k in self._image_scans:
+                self._lines[k] = segs
         return segs
+
+    @cached_property
+    def _image_scans(self) -> frozenset[int]:
+        """The scans nearest an image's stamp."""
+        return frozenset(self.scan_at_image(i) for i in range(self.n_images))
 
     def feature_tracks(self) -> list[FrameTracks]:
         """SIFT features tracked over all images (computed once; VO and H-IASM share them)."""
