@@ -22,14 +22,13 @@ KISS-ICP's time per scan on the same scans in the same run (its configuration as
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import time
 from collections.abc import Callable
 
 import numpy as np
 
-from rigcal.localize.icp import IcpParams, pose_of, se2
-from rigcal.localize.metrics import anchored, evaluate
+from rigcal.localize.icp import IcpParams
+from rigcal.localize.metrics import anchored, evaluate, steps
 from rigcal.localize.odometry import icp_odometry
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans
 from rigcal.sim.world import BUILTIN
@@ -113,8 +112,7 @@ def pair_timing(target_ms: float = 5.0) -> None:
 def step_yaw_errors_mdeg(poses: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
     """Mean (bias) and RMS of the scan-to-scan yaw error against the truth, millidegrees:
     a bias adds up round a loop driven one way."""
-    est = np.array([pose_of(np.linalg.inv(se2(a)) @ se2(b))[2] for a, b in itertools.pairwise(poses)])
-    true = np.array([pose_of(np.linalg.inv(se2(a)) @ se2(b))[2] for a, b in itertools.pairwise(gt)])
+    est, true = steps(poses)[:, 2], steps(gt)[:, 2]
     e = np.degrees(np.angle(np.exp(1j * (est - true)))) * 1000.0
     return float(e.mean()), float(np.sqrt(np.mean(e * e)))
 

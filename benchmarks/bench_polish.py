@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import itertools
 import tempfile
 from pathlib import Path
 
@@ -24,8 +23,7 @@ import numpy as np
 from rigcal.io.trajectory import read_tum
 from rigcal.localize import image_matching
 from rigcal.localize.iasm import IasmParams
-from rigcal.localize.icp import pose_of, se2
-from rigcal.localize.metrics import anchored, evaluate
+from rigcal.localize.metrics import anchored, evaluate, steps
 from rigcal.localize.pipeline import planar_at
 from rigcal.localize.streams import open_streams
 from rigcal.sim.drive import DriveSpec, write_drive
@@ -69,8 +67,7 @@ def main() -> None:
 def own_step_bias(poses: np.ndarray, gt: np.ndarray, own: np.ndarray) -> tuple[float, float]:
     """Mean forward error over the true step length (%) and mean yaw error (mdeg) of the
     steps in ``own`` that moved more than 1 cm."""
-    est = np.array([pose_of(np.linalg.inv(se2(a)) @ se2(b)) for a, b in itertools.pairwise(poses)])
-    true = np.array([pose_of(np.linalg.inv(se2(a)) @ se2(b)) for a, b in itertools.pairwise(gt)])
+    est, true = steps(poses), steps(gt)
     length = np.linalg.norm(true[:, :2], axis=1)
     k = own & (length > 0.01)
     forward = np.einsum("ij,ij->i", est[k, :2] - true[k, :2], true[k, :2]) / length[k] ** 2

@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 from rigcal.calib.lines import Segment, extract_lines, return_labels
 from rigcal.camera import Camera
 from rigcal.geometry import make_T, rotvec_to_R
-from rigcal.localize.icp import MIN_LINE_FRACTION, _normals, _point_to_point, line_normals, pose_of, se2
+from rigcal.localize.icp import _point_to_point, line_normals, pairing_normals, pose_of, se2
 from rigcal.localize.vo import sample_patches
 from rigcal.scan import Scan
 
@@ -426,14 +426,7 @@ def joint_polish(
     with too few returns on a line, nearest-neighbour normals.
     """
     tree = cKDTree(scan1)
-    usable: NDArray[np.bool_] | None = None
-    normals = _normals(scan1, tree, 5) if normals1 is None else normals1
-    if normals1 is not None:
-        on_line = np.isfinite(normals1[:, 0])
-        if on_line.mean() >= MIN_LINE_FRACTION:
-            normals, usable = np.where(on_line[:, None], normals1, 0.0), on_line
-        else:
-            normals = _normals(scan1, tree, 5)
+    normals, usable = pairing_normals(scan1, tree, 5, normals1)
     x = np.asarray(pose, dtype=float).copy()
     for _ in range(5):
         c, s = np.cos(x[2]), np.sin(x[2])

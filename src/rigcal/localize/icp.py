@@ -158,16 +158,9 @@ def icp(
     normals = lines = usable = None
     if params.method == "point-to-line":
         T, _ = _iterate(tree, model, sparse, None, T, COARSE_ITERATIONS, COARSE_TOLERANCE, params.reject_m)
-        if model_normals is not None:
-            on_line = np.isfinite(model_normals[:, 0])
-            if on_line.mean() >= MIN_LINE_FRACTION:
-                normals, usable = np.where(on_line[:, None], model_normals, 0.0), on_line
-
-        if normals is None:
-            normals = _normals(model, tree, params.normal_neighbours)
+        normals, usable = pairing_normals(model, tree, params.normal_neighbours, model_normals)
         # Per model point: its normal and the normal's offset n . m (the line n . p = n . m).
         lines = np.column_stack([normals, np.einsum("ij,ij->i", normals, model)])
-
     T, _ = _iterate(tree, model, sparse, lines, T, params.max_iterations, coarse_tol, params.reject_m, usable)
     T, fit = _iterate(
         tree,
@@ -385,6 +378,20 @@ def line_normals(points: FloatArray, labels: NDArray[np.integer]) -> FloatArray:
     phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # each line's direction (as in _normals)
     out[on] = np.column_stack([-np.sin(phi), np.cos(phi)])[lab]
     return out
+
+
+def pairing_normals(
+    model: FloatArray, tree: cKDTree, k: int, model_normals: FloatArray | None
+) -> tuple[FloatArray, NDArray[np.bool_] | None]:
+    """The model's point-to-line normals and which returns may be paired: the line
+    normals (``model_normals``, NaN off a line; those returns unpaired) when at least
+    MIN_LINE_FRACTION of the returns have one, else ``k``-nearest-neighbour normals for
+    every return (None: all may be paired)."""
+    if model_normals is not None:
+        on_line = np.isfinite(model_normals[:, 0])
+        if on_line.mean() >= MIN_LINE_FRACTION:
+            return np.where(on_line[:, None], model_normals, 0.0), on_line
+    return _normals(model, tree, k), None
 
 
 def _normals(model: FloatArray, tree: cKDTree, k: int) -> FloatArray:

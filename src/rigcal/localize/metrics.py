@@ -23,6 +23,7 @@ All trajectories are planar poses (x, y, yaw) of the same frame at the same stam
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 import numpy as np
@@ -34,6 +35,11 @@ FloatArray = NDArray[np.float64]
 
 
 LOOP_GAP_FRACTION = 0.05
+
+
+def steps(poses: FloatArray) -> FloatArray:
+    """(N-1, 3) the motion from each pose to the next, in the first one's frame."""
+    return np.array([pose_of(np.linalg.inv(se2(a)) @ se2(b)) for a, b in itertools.pairwise(poses)])
 
 
 def path_length_m(poses: FloatArray) -> float:
@@ -79,8 +85,9 @@ def evaluate(est: FloatArray, gt: FloatArray) -> dict[str, Any]:
         raise ValueError(f"estimate {est.shape} and truth {gt.shape} differ in shape")
     a = anchored(est, gt)
     length = path_length_m(gt)
-    loop = float(np.linalg.norm((a[-1, :2] - a[0, :2]) - (gt[-1, :2] - gt[0, :2])))
-    gt_gap = float(np.linalg.norm(gt[-1, :2] - gt[0, :2]))
+    gt_offset = gt[-1, :2] - gt[0, :2]
+    loop = float(np.linalg.norm((a[-1, :2] - a[0, :2]) - gt_offset))
+    gt_gap = float(np.linalg.norm(gt_offset))
     is_loop = length > 0 and gt_gap <= max(0.5, LOOP_GAP_FRACTION * length)
     ali = align_se2(est, gt)
     return {

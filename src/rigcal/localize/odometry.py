@@ -63,10 +63,18 @@ def icp_odometry(
     labels: IntArray | None = None  # the model scan's line of each return
     extracted = -LINES_EVERY  # the scan whose lines were last extracted
 
-    def normals_of(k: int, pts: FloatArray, step: FloatArray) -> FloatArray | None:
-        """Scan k's line normals: its own lines every LINES_EVERY scans, else the model's
-        carried over by the step (T_model_k); None (nearest-neighbour normals) until the
-        next extraction when too few returns lay on a line (clutter)."""
+    def normals_of(
+        k: int,
+        pts: FloatArray,
+        model: FloatArray,
+        model_normals: FloatArray | None,
+        step: FloatArray,
+        nearest: NDArray[np.intp] | None,
+    ) -> FloatArray | None:
+        """Scan k's (returns ``pts``) line normals: its own lines every LINES_EVERY scans,
+        else the model's carried over by the step (T_model_k, ICP's ``nearest`` pairs);
+        None (nearest-neighbour normals) until the next extraction when too few returns
+        lay on a line (clutter)."""
         nonlocal labels, extracted
         if not use_lines:
             return None
@@ -76,7 +84,7 @@ def icp_odometry(
             if (labels >= 0).mean() < MIN_LINE_FRACTION:
                 labels = None
         elif labels is not None:
-            labels = carry_labels(prev, labels, prev_normals, step, pts, nearest)
+            labels = carry_labels(model, labels, model_normals, step, pts, nearest)
         return None if labels is None else line_normals(pts, labels)
 
     T = np.eye(3)
@@ -86,7 +94,7 @@ def icp_odometry(
     skipped = restarts = 0
     prev = scans[0].points[scans[0].valid]
     nearest = None  # the last step's nearest model return of each data return
-    prev_normals = normals_of(0, prev, np.zeros(3))
+    prev_normals = normals_of(0, prev, prev, None, np.zeros(3), None)
     for k, scan in enumerate(scans[1:], start=2):
         if progress is not None:
             progress(k)
@@ -108,7 +116,7 @@ def icp_odometry(
         rms.append(r)
         last = step
         if len(cur) >= 10:
-            prev_normals = normals_of(k - 1, cur, step)  # before prev moves on: carried from it
+            prev_normals = normals_of(k - 1, cur, prev, prev_normals, step, nearest)
             prev = cur
     return Odometry(np.array(poses), np.array(deg), np.array(rms), skipped, restarts)
 

@@ -213,9 +213,10 @@ class Streams:
         the laser frame at the image's stamp by the interpolated laser odometry."""
         stamps = self.scan_stamps_s
         t = float(self.image_stamps_s[i])
-        scan = self.scans[self.scan_at_image(i)]
+        k = self.scan_at_image(i)
+        scan = self.scans[k]
         pts = scan.points[scan.valid]
-        T_t_k = se2(self.odometry_motion(t, float(stamps[self.scan_at_image(i)])))
+        T_t_k = se2(self.odometry_motion(t, float(stamps[k])))
         return scan, pts @ T_t_k[:2, :2].T + T_t_k[:2, 2]
 
     def scan_at_image(self, i: int) -> int:
