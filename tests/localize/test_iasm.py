@@ -17,6 +17,9 @@ from rigcal.localize.iasm import (
     joint_polish,
     laser_metric_wanted,
     make_frame,
+    match_returns,
+    snap_to_lines,
+    window_search,
 )
 from rigcal.localize.icp import line_normals
 from rigcal.scan import Scan
@@ -52,7 +55,7 @@ def _frame(world, tex, pose, params):
     c, s = np.cos(yaw), np.sin(yaw)
     segs = (world.scan_segments() - [x, y]) @ np.array([[c, s], [-s, c]]).T
     scan = Scan.from_uniform(a0, step, cast_scan(segs, ang, 30.0), 0.1, 30.0, 0.0)
-    return make_frame(gray, scan, scan.points[scan.valid], CAM, T_CAM_LASER, params)
+    return make_frame(gray, scan, CAM, T_CAM_LASER, params)
 
 
 def _correct(m, motion):
@@ -89,6 +92,113 @@ def test_repeating_pattern_fools_iasm_but_not_hiasm(repeating):
     assert res is not None
     assert np.linalg.norm(res.motion[:2] - motion[:2]) < 0.01
     assert abs(res.motion[2]) < np.radians(0.1)
+
+
+def test_dense_window_search_also_takes_the_right_period(repeating):
+    """Fig. 5 with H-IASM's dense window search: the matches are the true ones."""
+    world, tex = repeating
+    params = IasmParams(dense_window=True)
+    motion = np.array([0.3, 0.0, 0.0])
+    f1 = _frame(world, tex, (0.0, 0.0, 0.0), params)
+    f2 = _frame(world, tex, tuple(motion), params)
+    R, t = camera_motion(motion, T_CAM_LASER)
+    res, m = hiasm_step(
+        f1, f2, R, t / np.linalg.norm(t), float(np.linalg.norm(t)), CAM, T_CAM_LASER, params,
+        np.random.default_rng(0),
+    )  # fmt: skip
+    assert len(m.a) > 20
+    assert _correct(m, motion).mean() > 0.9
+    assert res is not None
+    assert np.linalg.norm(res.motion[:2] - motion[:2]) < 0.01
+
+
+def _true_pixels(f1, motion):
+    """Where the true motion puts each return of f1 in the next image (NaN: not visible)."""
+    c, s = np.cos(motion[2]), np.sin(motion[2])
+    b = (f1.points - motion[:2]) @ np.array([[c, -s], [s, c]])
+    P = np.column_stack([b, np.zeros(len(b))]) @ T_CAM_LASER[:3, :3].T + T_CAM_LASER[:3, 3]
+    out = np.full((len(b), 2), np.nan)
+    out[f1.visible] = CAM.project(P[f1.visible])
+    return out, b
+
+
+def test_dense_window_search_places_matches_between_the_returns():
+    """On noise-free views of a textured wall, a step that puts no return of scan t+1 where
+    a return of scan t was: the dense search finds each point on the wall to well under a
+    millimetre; the best of scan t+1's returns (with the parabola) is a beam spacing's
+    fraction off."""
+    world = _world("posters")
+    tex = world_textures(world, 0)
+    params = IasmParams()
+    motion = np.array([0.1037, 0.0, 0.0])
+    f1 = _frame(world, tex, (0.0, 0.0, 0.0), params)
+    f2 = _frame(world, tex, tuple(motion), params)
+    pred, true_b = _true_pixels(f1, motion)
+    dense = window_search(f1, f2, pred, CAM, T_CAM_LASER, params)
+    beams = match_returns(f1, f2, pred, params.window_px, params.window_px)
+    err_dense = np.linalg.norm(dense.b - true_b[dense.i1], axis=1)
+    err_beams = np.linalg.norm(beams.b - true_b[beams.i1], axis=1)
+    assert len(dense.i1) > 100
+    assert np.median(err_dense) < 0.5e-3
+    assert np.median(err_dense) < 0.5 * np.median(err_beams)
+    # each match lies on scan t+1's wall (y = 1.5 m in the frame after a step along x)
+    left = np.abs(dense.b[:, 1] - 1.5) < 0.05
+    assert left.mean() > 0.9
+    assert np.abs(dense.b[left, 1] - 1.5).max() < 1e-6
+
+
+def test_dense_window_search_without_predictions_or_lines_finds_nothing():
+    world = _world("posters")
+    tex = world_textures(world, 0)
+    params = IasmParams()
+    f1 = _frame(world, tex, (0.0, 0.0, 0.0), params)
+    f2 = _frame(world, tex, (0.1, 0.0, 0.0), params)
+    none = np.full((len(f1.points), 2), np.nan)
+    assert len(window_search(f1, f2, none, CAM, T_CAM_LASER, params).i1) == 0
+    far = np.full((len(f1.points), 2), -500.0)  # every prediction far outside the image
+    assert len(window_search(f1, f2, far, CAM, T_CAM_LASER, params).i1) == 0
+
+
+def test_snapping_moves_returns_along_their_beams_onto_their_line():
+    """A wall y = 1.5 m seen at a slant with 1 cm range noise: the snapped returns lie on
+    the fitted line, each on its own beam; the ends of the line, a return on no line and
+    a return too far off stay where they are."""
+    rng = np.random.default_rng(3)
+    th = np.radians(np.arange(30.0, 80.0, 0.25))
+    r = 1.5 / np.sin(th) + rng.normal(0.0, 0.01, len(th))
+    r[100] += 0.2  # far off the wall
+    pts = np.column_stack([r * np.cos(th), r * np.sin(th)])
+    labels = np.zeros(len(pts), dtype=np.int64)
+    labels[50] = -1
+    out = snap_to_lines(pts, labels, 0.05)
+    moved = np.flatnonzero(np.linalg.norm(out - pts, axis=1) > 0)
+    assert set(moved).isdisjoint({0, 1, len(pts) - 2, len(pts) - 1, 50, 100})
+    assert len(moved) > 0.95 * (len(pts) - 6)
+    assert np.abs(out[moved, 1] - 1.5).max() < 0.01  # on the fitted line (within its error)
+    assert np.abs(out[moved, 1] - 1.5).std() < 1e-3
+    # along its own beam: the same bearing
+    assert np.allclose(np.arctan2(out[moved, 1], out[moved, 0]), th[moved])
+    # along the wall, the snapped points scatter far less than the raw returns
+    along_raw = pts[moved, 0] - 1.5 / np.tan(th[moved])
+    along_snap = out[moved, 0] - 1.5 / np.tan(th[moved])
+    assert along_snap.std() < 0.2 * along_raw.std()
+    assert np.array_equal(snap_to_lines(pts, -np.ones(len(pts), dtype=np.int64), 0.05), pts)
+
+
+def test_frames_are_moved_to_the_image_time_and_snapped_when_asked():
+    world = _world("posters")
+    tex = world_textures(world, 0)
+    f_raw = _frame(world, tex, (0.0, 0.0, 0.0), IasmParams())
+    T = np.array([[1.0, 0.0, 0.02], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    a0, step, ang = beam_angles(270.0, 0.25)
+    segs = world.scan_segments()
+    scan = Scan.from_uniform(a0, step, cast_scan(segs, ang, 30.0) + 0.004, 0.1, 30.0, 0.0)
+    moved = make_frame(f_raw.gray, scan, CAM, T_CAM_LASER, IasmParams(), None, T)
+    assert np.allclose(moved.points, scan.points[scan.valid] + [0.02, 0.0])
+    snapped = make_frame(f_raw.gray, scan, CAM, T_CAM_LASER, IasmParams(snap_max_m=0.03), None, T)
+    on = snapped.line_of >= 0
+    assert np.abs(snapped.centres[on] - moved.centres[on]).max() < 1e-4
+    assert not np.allclose(snapped.points, moved.points)
 
 
 def test_iasm_recovers_a_small_step_on_texture():

@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 from rigcal.calib.lines import Segment, extract_lines, return_labels
 from rigcal.camera import Camera
 from rigcal.geometry import make_T, rotvec_to_R
-from rigcal.localize.icp import _point_to_point, line_normals, pairing_normals, pose_of, se2
+from rigcal.localize.icp import _point_to_point, line_fits, pairing_normals, pose_of, se2
 from rigcal.localize.vo import sample_patches
 from rigcal.scan import Scan
 
@@ -62,6 +62,8 @@ class IasmParams:
         search_u_px, search_v_px: IASM's search area: half-width across and half-height
             down the image around a return's own pixel.
         window_px: H-IASM's search radius around the homography's prediction.
+        window_step_px: H-IASM's dense search tries a point on the wall every this many
+            pixels (:func:`window_search`).
         hypotheses: RANSAC hypotheses per step.
         inlier_m: a correspondence is an inlier when the motion maps it within this.
         min_correspondences, min_inliers: below these the step fails (falls back).
@@ -79,6 +81,12 @@ class IasmParams:
             of each step's length, forward, on the simulated loops) then stays out of
             what the walls determine, and they still hold what the walls leave open
             (the motion along a featureless corridor).
+        snap_max_m: when above 0, each frame's returns are moved onto their lines
+            (:func:`snap_to_lines`) when that moves them at most this far. Off by
+            default: ``benchmarks/bench_matching.py`` measures what it does.
+        dense_window: H-IASM searches its window densely along the wall
+            (:func:`window_search`) instead of among scan t+1's returns. Off by default
+            (``benchmarks/bench_matching.py``).
         support_fraction: only hypotheses with at least this fraction of the best
             hypothesis's inliers are scored by the metric.
         min_alignment: with the laser metric, a result whose alignment score (1 minus the
@@ -90,6 +98,7 @@ class IasmParams:
     search_u_px: float = 80.0
     search_v_px: float = 30.0
     window_px: float = 8.0
+    window_step_px: float = 0.5
     hypotheses: int = 150
     inlier_m: float = 0.04
     min_correspondences: int = 12
@@ -104,6 +113,8 @@ class IasmParams:
     joint_polish: bool = True
     sigma_laser_m: float = 0.01
     sigma_match_m: float = 0.2
+    snap_max_m: float = 0.0
+    dense_window: bool = False
 
 
 @dataclass
@@ -118,7 +129,8 @@ class Frame:
         visible: (N,) in front of the camera, inside the image, textured enough.
         patches: (N, K) SAD patches (rows of invisible returns unused).
         lines: the scan's lines; ``line_of`` (N,) the line index of each return, -1 for none.
-        normals: (N, 2) each return's line normal (fitted to the moved returns), NaN off a line.
+        normals, centres: (N, 2) each return's line (fitted to the moved returns): its
+            unit normal and centroid, NaN off a line.
     """
 
     gray: Gray
@@ -130,20 +142,63 @@ class Frame:
     lines: list[Segment]
     line_of: IntArray
     normals: FloatArray
+    centres: FloatArray
+
+
+def snap_to_lines(points: FloatArray, labels: IntArray, max_move_m: float) -> FloatArray:
+    """Returns on a line moved along their beams (from the laser at the origin) onto the
+    line fitted through all its returns: the range noise taken out.
+
+    Left where they are: returns on no line, the two returns at either end of a line (at
+    a corner they may be the other wall's), and returns their line would move more than
+    ``max_move_m`` (a beam grazing the line, or a return off the wall)."""
+    centres, normals = line_fits(points, labels)
+    out = points.copy()
+    on = np.flatnonzero(labels >= 0)
+    if len(on) == 0:
+        return out
+    # p + (lam - 1) p lies on the line n.(x - c) = 0: lam = n.c / n.p
+    along = np.einsum("ij,ij->i", normals[on], points[on])
+    lam = np.einsum("ij,ij->i", normals[on], centres[on]) / np.where(along == 0.0, np.nan, along)
+    snapped = points[on] * lam[:, None]
+    ok = np.linalg.norm(snapped - points[on], axis=1) <= max_move_m  # False where NaN
+    lab = labels[on]
+    first = np.r_[True, lab[1:] != lab[:-1]]
+    last = np.r_[lab[1:] != lab[:-1], True]
+    ok &= ~(first | last | np.r_[False, first[:-1]] | np.r_[last[1:], False])
+    out[on[ok]] = snapped[ok]
+    return out
 
 
 def make_frame(
     gray: Gray,
     scan: Scan,
-    points: FloatArray,
     camera: Camera,
     T_cam_laser: FloatArray,
     params: IasmParams,
     lines: list[Segment] | None = None,
+    T_image_scan: FloatArray | None = None,
 ) -> Frame:
-    """Project a scan's returns (already at the image's time) into its image (Section III-A).
+    """Project a scan's returns, moved to the image's time, into its image (Section III-A).
 
-    ``lines``: the scan's lines when already extracted (the laser odometry's)."""
+    With ``params.snap_max_m`` > 0, the returns on a line are first moved along their
+    beams onto the line fitted through them (:func:`snap_to_lines`): a match then pairs
+    points on the walls, without each return's range noise (1 cm, much of it along the
+    wall where a beam meets it at a slant).
+
+    Args:
+        lines: the scan's lines when already extracted (the laser odometry's).
+        T_image_scan: (3, 3) SE(2) pose of the laser at the scan's stamp in its frame at
+            the image's stamp (identity when not given).
+    """
+    if lines is None:
+        lines = extract_lines(scan)
+    line_of = return_labels(scan, lines)
+    points = scan.points[scan.valid]
+    if params.snap_max_m > 0:
+        points = snap_to_lines(points, line_of, params.snap_max_m)
+    if T_image_scan is not None:
+        points = points @ T_image_scan[:2, :2].T + T_image_scan[:2, 2]
     P = np.column_stack([points, np.zeros(len(points))]) @ T_cam_laser[:3, :3].T + T_cam_laser[:3, 3]
     front = P[:, 2] > 0.1
     px = np.full((len(P), 2), np.nan)
@@ -157,10 +212,8 @@ def make_frame(
         flat = np.zeros(len(P), dtype=bool)
         flat[vis] = patches[vis].std(axis=1) < params.min_texture
         vis &= ~flat
-    if lines is None:
-        lines = extract_lines(scan)
-    line_of = return_labels(scan, lines)
-    return Frame(gray, points, P, px, vis, patches, lines, line_of, line_normals(points, line_of))
+    centres, normals = line_fits(points, line_of)
+    return Frame(gray, points, P, px, vis, patches, lines, line_of, normals, centres)
 
 
 @dataclass(frozen=True)
@@ -230,6 +283,81 @@ def match_returns(f1: Frame, f2: Frame, predicted: FloatArray, half_u: float, ha
         other = np.where((x > 0)[:, None], f2.points[jr[k]], f2.points[jl[k]])
         b[k] = f2.points[j[k]] + np.abs(x)[:, None] * (other - f2.points[j[k]])
     return Matches(i1[ka], j, f1.points[i1[ka]], b, S[ka, kb])
+
+
+def window_search(
+    f1: Frame,
+    f2: Frame,
+    predicted: FloatArray,
+    camera: Camera,
+    T_cam_laser: FloatArray,
+    params: IasmParams,
+) -> Matches:
+    """H-IASM's correspondences: each return of f1 searched for along the wall of scan
+    t+1 it is predicted to land on, within ``window_px`` of the prediction (Section V).
+
+    The search is dense: candidates every ``window_step_px`` along the wall line of scan
+    t+1 (the line of the return of f2 whose pixel is nearest the prediction), each
+    projected into image t+1 and compared by SAD; a parabola through the SADs around the
+    minimum places the match between candidates. A match is therefore a point on the wall
+    anywhere, not one of scan t+1's returns (IASM's, which a beam's spacing quantises,
+    1-3 cm on the walls here). A minimum at the window's edge is no match.
+
+    Args:
+        predicted: (N1, 2) where each return of f1 is expected in image 2 (NaN: unknown).
+    """
+    empty = Matches(
+        np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
+    )
+    i1 = np.flatnonzero(f1.visible & np.isfinite(predicted[:, 0]))
+    i2 = np.flatnonzero(f2.visible & (f2.line_of >= 0))
+    if len(i1) == 0 or len(i2) == 0:
+        return empty
+    # The return of scan t+1 nearest each prediction, in pixels, within the window.
+    dist, near = cKDTree(f2.pixels[i2]).query(predicted[i1], distance_upper_bound=params.window_px)
+    ok = np.isfinite(dist)
+    i1, j = i1[ok], i2[near[ok]]
+    if len(i1) == 0:
+        return empty
+    n = f2.normals[j]
+    u = np.column_stack([-n[:, 1], n[:, 0]])  # along the wall
+    R, t = T_cam_laser[:3, :3], T_cam_laser[:3, 3]
+
+    def pixels(q: FloatArray) -> FloatArray:
+        return camera.project(np.column_stack([q, np.zeros(len(q))]) @ R.T + t)
+
+    # Pixels per metre along the wall at each return, and the offset along the wall
+    # whose pixel is nearest the prediction: the window's centre.
+    q0 = f2.points[j] - np.einsum("ij,ij->i", f2.points[j] - f2.centres[j], n)[:, None] * n  # on the line
+    g = (pixels(q0 + 0.005 * u) - pixels(q0 - 0.005 * u)) / 0.01
+    gg = np.einsum("ij,ij->i", g, g)
+    keep = gg > 1.0
+    i1, j, q0, u, g, gg = i1[keep], j[keep], q0[keep], u[keep], g[keep], gg[keep]
+    s0 = np.einsum("ij,ij->i", predicted[i1] - f2.pixels[j], g) / gg
+    steps = np.arange(-params.window_px, params.window_px + 1e-9, params.window_step_px)
+    ds = steps[None, :] / np.sqrt(gg)[:, None]  # (M, S) metres along the wall
+    cand = q0[:, None, :] + (s0[:, None] + ds)[:, :, None] * u[:, None, :]
+    M, S = ds.shape
+    px = pixels(cand.reshape(-1, 2))
+    r = params.patch_radius_px
+    inside = camera.in_image(np.nan_to_num(px, nan=-1e6), margin_px=r + 1)
+    patches = np.full((M * S, (2 * r + 1) ** 2), np.nan, dtype=np.float32)
+    patches[inside] = sample_patches(f2.gray, px[inside], r)
+    sad = np.abs(patches.reshape(M, S, -1) - f1.patches[i1][:, None, :]).mean(axis=2)
+    sad = np.where(np.isfinite(sad), sad, np.inf)
+    k = np.argmin(sad, axis=1)
+    rows = np.arange(M)
+    good = (k > 0) & (k < S - 1) & np.isfinite(sad[rows, k])
+    rows, k = rows[good], k[good]
+    s_lo, s_mid, s_hi = sad[rows, k - 1], sad[rows, k], sad[rows, k + 1]
+    fine = np.isfinite(s_lo) & np.isfinite(s_hi)
+    s_lo, s_hi = np.where(fine, s_lo, s_mid), np.where(fine, s_hi, s_mid)  # no parabola there
+    den = s_lo - 2.0 * s_mid + s_hi
+    x = np.where(den > 0, 0.5 * (s_lo - s_hi) / np.where(den > 0, den, 1.0), 0.0)
+    x = np.clip(x, -0.5, 0.5)
+    off = s0[rows] + ds[rows, k] + x * (ds[rows, 1] - ds[rows, 0])
+    b = q0[rows] + off[:, None] * u[rows]
+    return Matches(i1[rows], j[rows], f1.points[i1[rows]], b, s_mid)
 
 
 def laser_metric_wanted(lines: list[Segment], params: IasmParams) -> bool:
@@ -512,7 +640,10 @@ def hiasm_step(
 ) -> tuple[StepResult | None, Matches]:
     """One H-IASM step (Section V): search in a small window around each homography prediction."""
     pred = homography_predictions(f1, R, t_unit, scale, camera, T_cam_laser[:3, :3])
-    m = match_returns(f1, f2, pred, params.window_px, params.window_px)
+    if params.dense_window:
+        m = window_search(f1, f2, pred, camera, T_cam_laser, params)
+    else:
+        m = match_returns(f1, f2, pred, params.window_px, params.window_px)
     return robust_motion(m, f1, f2, camera, T_cam_laser, params, rng), m
 
 

@@ -361,13 +361,15 @@ def _eigen_range(
     return q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0), q + 2.0 * p * math.cos(phi)
 
 
-def line_normals(points: FloatArray, labels: NDArray[np.integer]) -> FloatArray:
-    """(N, 2) unit normals of the lines the points lie on, each fitted over all the
-    points of its line (``labels``: a line number per point, -1 for none: NaN rows)."""
-    out = np.full((len(points), 2), np.nan)
+def line_fits(points: FloatArray, labels: NDArray[np.integer]) -> tuple[FloatArray, FloatArray]:
+    """Each point's line, fitted (total least squares) over all the points of its line
+    (``labels``: a line number per point, -1 for none): (N, 2) the line's centroid and
+    (N, 2) its unit normal; NaN rows for points on no line."""
+    centres = np.full((len(points), 2), np.nan)
+    normals = np.full((len(points), 2), np.nan)
     on = labels >= 0
     if not on.any():
-        return out
+        return centres, normals
     lab, p = labels[on], points[on]
     n = np.bincount(lab).astype(float)
     used = n > 0
@@ -376,8 +378,15 @@ def line_normals(points: FloatArray, labels: NDArray[np.integer]) -> FloatArray:
     dx, dy = p[:, 0] - mx[lab], p[:, 1] - my[lab]
     sxx, syy, sxy = (np.bincount(lab, weights=w, minlength=len(n)) for w in (dx * dx, dy * dy, dx * dy))
     phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # each line's direction (as in _normals)
-    out[on] = np.column_stack([-np.sin(phi), np.cos(phi)])[lab]
-    return out
+    centres[on] = np.column_stack([mx, my])[lab]
+    normals[on] = np.column_stack([-np.sin(phi), np.cos(phi)])[lab]
+    return centres, normals
+
+
+def line_normals(points: FloatArray, labels: NDArray[np.integer]) -> FloatArray:
+    """(N, 2) unit normals of the lines the points lie on, each fitted over all the
+    points of its line (``labels``: a line number per point, -1 for none: NaN rows)."""
+    return line_fits(points, labels)[1]
 
 
 def pairing_normals(

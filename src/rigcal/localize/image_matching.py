@@ -80,9 +80,16 @@ class ScanMatcher:
     def frame(self, i: int) -> tuple[Frame, FrameTracks | None]:
         """Image i's frame and, for H-IASM, its feature tracks."""
         t0 = time.perf_counter()
-        scan, pts = self.streams.laser_at_image(i)
-        lines = self.streams.lines(self.streams.scan_at_image(i))
-        f = make_frame(self.streams.image(i), scan, pts, self.camera, self.T_cam_laser, self.params, lines)
+        k, T_image_scan = self.streams.scan_to_image(i)
+        f = make_frame(
+            self.streams.image(i),
+            self.streams.scans[k],
+            self.camera,
+            self.T_cam_laser,
+            self.params,
+            self.streams.lines(k),
+            T_image_scan,
+        )
         self.timings_s["frames_s"] += time.perf_counter() - t0
         return f, None if self.tracks is None else self.tracks[i]
 

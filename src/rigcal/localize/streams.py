@@ -211,13 +211,17 @@ class Streams:
     def laser_at_image(self, i: int) -> tuple[Scan, FloatArray]:
         """The scan nearest image i's stamp and its valid returns (in beam order) moved into
         the laser frame at the image's stamp by the interpolated laser odometry."""
-        stamps = self.scan_stamps_s
-        t = float(self.image_stamps_s[i])
-        k = self.scan_at_image(i)
+        k, T_t_k = self.scan_to_image(i)
         scan = self.scans[k]
         pts = scan.points[scan.valid]
-        T_t_k = se2(self.odometry_motion(t, float(stamps[k])))
         return scan, pts @ T_t_k[:2, :2].T + T_t_k[:2, 2]
+
+    def scan_to_image(self, i: int) -> tuple[int, FloatArray]:
+        """The index k of the scan nearest image i's stamp and (3, 3) the laser's pose at
+        the scan's stamp in its frame at the image's stamp (interpolated laser odometry)."""
+        k = self.scan_at_image(i)
+        t = float(self.image_stamps_s[i])
+        return k, se2(self.odometry_motion(t, float(self.scan_stamps_s[k])))
 
     def scan_at_image(self, i: int) -> int:
         """The index of the scan nearest image i's stamp."""
