@@ -9,6 +9,10 @@ position error, and, over the steps H-IASM or IASM made (not the ICP fallbacks),
 forward error as a fraction of the true step (a scale bias) and the mean yaw error.
 
     .venv/bin/python benchmarks/bench_polish.py [--keep DIR] [--weights 0.02,0.1,0.2,0.5]
+        [--snap-max-m 0.03] [--dense]
+
+``--snap-max-m`` and ``--dense`` set ``IasmParams.snap_max_m`` and ``dense_window``
+(``bench_matching.py``).
 """
 
 from __future__ import annotations
@@ -34,6 +38,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--keep", type=Path, help="Keep (or reuse) the sequences in this folder.")
     ap.add_argument("--weights", default="0.02,0.1,0.2,0.5")
+    ap.add_argument("--snap-max-m", type=float, default=0.0, help="Snap returns onto their lines.")
+    ap.add_argument("--dense", action="store_true", help="H-IASM's dense window search.")
     args = ap.parse_args()
     weights = [float(w) for w in args.weights.split(",")]
     print("| world | sigma_match_m | end position error (m) | avg position error (m) "
@@ -51,7 +57,9 @@ def main() -> None:
             streams.feature_tracks()
             truth = read_tum(seq / "groundtruth.tum")
             for w in weights:
-                params = dataclasses.replace(IasmParams(), sigma_match_m=w)
+                params = dataclasses.replace(
+                    IasmParams(), sigma_match_m=w, snap_max_m=args.snap_max_m, dense_window=args.dense
+                )
                 stamps, poses, _, steps = image_matching.scan_matching(streams, "hiasm", params)
                 gt = planar_at(truth, stamps)
                 m = evaluate(anchored(poses, gt), gt)

@@ -1,0 +1,201 @@
+"""How good are the image correspondences of IASM and H-IASM, and what do they do to Table 1?
+
+Part 1, the correspondences. On every ``--every``-th image step of one lap of each
+simulated loop (seed 1, as ``bench_localize.py``), each return of image t is matched in
+image t+1 three ways:
+
+- ``IASM``: among scan t+1's returns in IASM's search area around its own pixel, with
+  the sub-beam parabola (:func:`rigcal.localize.iasm.match_returns`);
+- ``window``: the same among the returns within H-IASM's window around where the *true*
+  motion puts it (so that the figures measure the matching, not visual odometry);
+- ``dense``: H-IASM's dense search along the wall in that window
+  (:func:`rigcal.localize.iasm.window_search`);
+
+each on the scans as measured (``raw``) and with the returns moved onto their lines
+(``snapped``, :func:`rigcal.localize.iasm.snap_to_lines`). A match's error is its point
+in scan t+1 minus where the true motion puts the return of scan t; the table gives its
+median along the motion (a bias) and its robust scatter (1.4826 MAD), over matches within
+4 cm of the truth. Then the motion from the correspondences alone (RANSAC and the Eq. (4)
+fit on the inliers, no laser): its mean forward error as a fraction of the step, and its
+yaw error's RMS.
+
+Part 2, Table 1's figures of IASM and H-IASM (real visual odometry) with each setting:
+returns snapped or not, H-IASM's window searched among the returns or densely; for each
+seed of ``--seeds`` (the sequences as ``bench_localize.py --seed N`` makes them), and
+their means.
+
+    .venv/bin/python benchmarks/bench_matching.py [--keep DIR] [--every 10] [--parts 1,2]
+        [--seeds 1,2,3] [--worlds corridor-loop,cubicle-loop]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from rigcal.io.trajectory import read_tum
+from rigcal.localize import image_matching
+from rigcal.localize.iasm import (
+    Frame,
+    IasmParams,
+    Matches,
+    make_frame,
+    match_returns,
+    robust_motion,
+    window_search,
+)
+from rigcal.localize.icp import pose_of, se2
+from rigcal.localize.metrics import anchored, evaluate
+from rigcal.localize.pipeline import planar_at
+from rigcal.localize.streams import Streams, open_streams
+from rigcal.sim.drive import DriveSpec, write_drive
+from rigcal.sim.world import BUILTIN
+
+SNAP_M = 0.03  # snap_max_m when snapping
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--keep", type=Path, help="Keep (or reuse) the sequences in this folder.")
+    ap.add_argument("--every", type=int, default=10, help="Use every n-th image step.")
+    ap.add_argument("--parts", default="1,2", help="Which parts to run.")
+    ap.add_argument("--worlds", default=",".join(WORLDS))
+    ap.add_argument("--seeds", default="1", help="Part 2's seeds (part 1 uses seed 1).")
+    args = ap.parse_args()
+    parts = args.parts.split(",")
+    with tempfile.TemporaryDirectory() as tmp:
+        root = args.keep or Path(tmp)
+        root.mkdir(parents=True, exist_ok=True)
+        if "1" in parts:
+            print("| world | returns | matching | matches per step | median error along the motion (mm) "
+                  "| scatter (mm) | correspondences alone: forward bias (% of step) "
+                  "| yaw RMS (mdeg) |")  # fmt: skip
+            print("|---|---|---|---|---|---|---|---|")
+            for name in args.worlds.split(","):
+                correspondences(sequence(root, name, 1), args.every)
+        if "2" in parts:
+            print("\n| world | seed | returns | H-IASM window | IASM loop / avg / RPE 10 m (m) "
+                  "| H-IASM loop / avg / RPE 10 m (m) |")  # fmt: skip
+            print("|---|---|---|---|---|---|")
+            for name in args.worlds.split(","):
+                table(root, name, [int(x) for x in args.seeds.split(",")])
+
+
+WORLDS = ("corridor-loop", "cubicle-loop")
+SETTINGS = ((False, False), (False, True), (True, False), (True, True))  # (snapped, dense)
+
+
+def sequence(root: Path, name: str, seed: int) -> Path:
+    """The lap of world ``name`` with ``seed`` (simulated once, then reused)."""
+    seq = root / (name if seed == 1 else f"{name}-seed{seed}")
+    if not (seq / "sequence.yaml").exists():
+        write_drive(BUILTIN[name](), DriveSpec(seed=seed), str(seq))
+    return seq
+
+
+def correspondences(seq: Path, every: int) -> None:
+    streams = open_streams(seq)
+    streams.laser_odometry()
+    rig = streams.require_rig("iasm")
+    cam, T_cl = rig.camera, rig.T_cam_laser
+    gt = planar_at(read_tum(seq / "groundtruth.tum"), streams.image_stamps_s)
+    rng = np.random.default_rng(0)
+    for snap in (False, True):
+        params = IasmParams(snap_max_m=SNAP_M if snap else 0.0, joint_polish=False)
+        errors: dict[str, list[np.ndarray]] = {"IASM": [], "window": [], "dense": []}
+        motions: dict[str, list[list[float]]] = {k: [] for k in errors}
+        counts: dict[str, list[int]] = {k: [] for k in errors}
+        for i in range(0, streams.n_images - 1, every):
+            f1, f2 = (frame(streams, k, params) for k in (i, i + 1))
+            T = np.linalg.inv(se2(gt[i])) @ se2(gt[i + 1])  # T_t_t1, true
+            Ti = np.linalg.inv(T)
+            true_b = f1.points @ Ti[:2, :2].T + Ti[:2, 2]
+            P = np.column_stack([true_b, np.zeros(len(true_b))]) @ T_cl[:3, :3].T + T_cl[:3, 3]
+            pred = np.full((len(P), 2), np.nan)
+            front = f1.visible & (P[:, 2] > 0.1)
+            pred[front] = cam.project(P[front])
+            found: dict[str, Matches] = {
+                "IASM": match_returns(f1, f2, f1.pixels, params.search_u_px, params.search_v_px),
+                "window": match_returns(f1, f2, pred, params.window_px, params.window_px),
+                "dense": window_search(f1, f2, pred, cam, T_cl, params),
+            }
+            truth = pose_of(T)
+            length = float(np.hypot(truth[0], truth[1]))
+            d = truth[:2] / max(length, 1e-9)
+            for key, m in found.items():
+                counts[key].append(len(m.i1))
+                e = m.b - true_b[m.i1]
+                near = np.linalg.norm(e, axis=1) < 0.04
+                errors[key].append(e[near] @ d)
+                res = robust_motion(m, f1, f2, cam, T_cl, params, rng)
+                if res is not None and length > 0.01:
+                    err = res.motion - truth
+                    motions[key].append([float(err[:2] @ d) / length, float(err[2])])
+        for key in errors:
+            e = np.concatenate(errors[key])
+            med = float(np.median(e))
+            mad = 1.4826 * float(np.median(np.abs(e - med)))
+            mo = np.array(motions[key])
+            print(
+                f"| {seq.name} | {'snapped' if snap else 'raw'} | {key} | {np.mean(counts[key]):.0f} "
+                f"| {1e3 * med:+.2f} | {1e3 * mad:.2f} | {100 * mo[:, 0].mean():+.2f} "
+                f"| {1e3 * np.degrees(np.sqrt(np.mean(mo[:, 1] ** 2))):.1f} |",
+                flush=True,
+            )
+
+
+def frame(streams: Streams, i: int, params: IasmParams) -> Frame:
+    k, T = streams.scan_to_image(i)
+    rig = streams.require_rig("iasm")
+    return make_frame(
+        streams.image(i), streams.scans[k], rig.camera, rig.T_cam_laser, params, streams.lines(k), T
+    )
+
+
+def table(root: Path, name: str, seeds: list[int]) -> None:
+    figures: dict[tuple[bool, bool, str], list[list[float]]] = {}
+    for seed in seeds:
+        seq = sequence(root, name, seed)
+        streams = open_streams(seq)
+        streams.start_laser_odometry()
+        streams.feature_tracks()
+        truth = read_tum(seq / "groundtruth.tum")
+        for snap, dense in SETTINGS:
+            params = dataclasses.replace(IasmParams(), snap_max_m=SNAP_M if snap else 0.0, dense_window=dense)
+            cells = []
+            for method in ("iasm", "hiasm"):
+                if method == "iasm" and dense:  # IASM has no window
+                    cells.append("as above")
+                    continue
+                stamps, poses, _, _ = image_matching.scan_matching(streams, method, params)
+                gt = planar_at(truth, stamps)
+                m = evaluate(anchored(poses, gt), gt)
+                f = [m["loop_closure_error_m"], m["average_position_error_m"], m["rpe_10m_rmse_m"]]
+                figures.setdefault((snap, dense, method), []).append(f)
+                cells.append(_cell(f))
+            print(f"| {name} | {seed} | {_setting(snap, dense)} | {cells[0]} | {cells[1]} |", flush=True)
+    if len(seeds) > 1:
+        for snap, dense in SETTINGS:
+            cells = [
+                _cell(list(np.mean(figures[(snap, dense, m)], axis=0)))
+                if (snap, dense, m) in figures
+                else "as above"
+                for m in ("iasm", "hiasm")
+            ]
+            print(f"| {name} | mean | {_setting(snap, dense)} | {cells[0]} | {cells[1]} |", flush=True)
+
+
+def _setting(snap: bool, dense: bool) -> str:
+    return f"{'snapped' if snap else 'raw'} | {'dense' if dense else 'returns'}"
+
+
+def _cell(f: list[float]) -> str:
+    return " / ".join(f"{x:.4f}" for x in f)
+
+
+if __name__ == "__main__":
+    main()
