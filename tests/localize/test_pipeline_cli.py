@@ -232,3 +232,49 @@ def test_icp_steps_flag_a_featureless_corridor(tmp_path):
     assert not any(flags[21:])
     summary = yaml.safe_load((out / "summary.yaml").read_text())
     assert summary["methods"]["icp"]["degenerate_steps"] == sum(flags)
+
+
+def test_iasm_settings_from_the_command_line_reach_the_run_and_the_summary(drive, tmp_path):
+    out = tmp_path / "snap"
+    args = ["localize", str(drive), "--method", "iasm", "-o", str(out)]
+    assert main([*args, "--iasm", "snap_max_m=0.03", "--iasm", "hypotheses = 80"]) == 0
+    s = yaml.safe_load((out / "summary.yaml").read_text())
+    cfg = s["config"]["settings"]["iasm"]
+    assert cfg["snap_max_m"] == 0.03
+    assert cfg["hypotheses"] == 80
+    assert cfg["dense_window"] is False
+    assert s["methods"]["iasm"]["metrics"]["average_position_error_m"] < 0.1
+
+
+def test_iasm_settings_parse_each_field_by_its_type():
+    from rigcal.localize.pipeline import parse_iasm_settings
+
+    p = parse_iasm_settings(["dense_window=TRUE", "window_px=6", "hypotheses=40", "joint_polish=0"])
+    assert p.dense_window is True
+    assert p.joint_polish is False
+    assert p.window_px == 6.0
+    assert isinstance(p.window_px, float)
+    assert p.hypotheses == 40
+    assert isinstance(p.hypotheses, int)
+    assert parse_iasm_settings([]) == parse_iasm_settings(()) == type(p)()
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        ("snap=0.03", "--iasm: got 'snap=0.03'; expected KEY=VALUE with KEY one of"),
+        ("snap_max_m", "--iasm: got 'snap_max_m'; expected KEY=VALUE"),
+        ("snap_max_m=abc", "--iasm snap_max_m: got 'abc'; expected a number, 0 or more"),
+        ("snap_max_m=-1", "--iasm snap_max_m: got '-1'; expected a number, 0 or more"),
+        ("window_px=nan", "--iasm window_px: got 'nan'; expected a number, 0 or more"),
+        ("hypotheses=1.5", "--iasm hypotheses: got '1.5'; expected a whole number, 0 or more"),
+        ("dense_window=yes", "--iasm dense_window: got 'yes'; expected true or false"),
+    ],
+)
+def test_bad_iasm_settings_are_refused_before_any_work(sequence, tmp_path, capsys, item, message):
+    out = tmp_path / "bad"
+    assert main(["localize", str(sequence), "--method", "icp", "--iasm", item, "-o", str(out)]) == 3
+    err = capsys.readouterr().err
+    assert message in err
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists()

@@ -33,8 +33,23 @@ rig_option = click.option(
 @click.option("--kitti", is_flag=True, help="Also write each trajectory in KITTI form.")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.option(
+    "--iasm",
+    "iasm_items",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Change one of IASM's and H-IASM's settings (docs/localization.md), e.g. "
+    "snap_max_m=0.03 or dense_window=true; may be repeated. The summary records them.",
+)
 def localize(
-    sequence: Path, methods: str, output: Path, rig_file: Path | None, kitti: bool, force: bool, as_json: bool
+    sequence: Path,
+    methods: str,
+    output: Path,
+    rig_file: Path | None,
+    kitti: bool,
+    force: bool,
+    as_json: bool,
+    iasm_items: tuple[str, ...],
 ) -> None:
     """Estimate the laser's trajectory through SEQUENCE (a sequence folder) with one or
     more methods, run on the same data in the same process.
@@ -47,16 +62,20 @@ def localize(
     Examples:
       rigcal simulate world --world corridor-loop -o corridor/
       rigcal localize corridor/ --method icp,vo,kf -o out/
+      rigcal localize corridor/ --method iasm,hiasm --iasm snap_max_m=0.03 -o out-snap/
     """
     from rigcal.errors import OutputError
-    from rigcal.localize.pipeline import parse_methods, run, summary, table
+    from rigcal.localize.pipeline import parse_iasm_settings, parse_methods, run, summary, table
 
     names = parse_methods(methods)
+    iasm = parse_iasm_settings(iasm_items)
     if output.exists() and not force:
         raise OutputError(f"{output}: exists; pass --force to replace it")
     bars = _Bars()
     try:
-        r = run(sequence, names, output, force=force, kitti=kitti, rig_file=rig_file, progress=bars)
+        r = run(
+            sequence, names, output, force=force, kitti=kitti, rig_file=rig_file, progress=bars, iasm=iasm
+        )
     finally:
         bars.close()
     if as_json:

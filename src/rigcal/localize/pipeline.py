@@ -11,7 +11,9 @@ Methods are registered in :data:`METHODS` (name -> function from the streams to 
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,6 +29,7 @@ from rigcal.geometry import make_T, rotvec_to_R
 from rigcal.io.files import atomic_folder
 from rigcal.io.trajectory import Trajectory, kitti_text, read_tum, tum_text
 from rigcal.localize import kalman
+from rigcal.localize.iasm import IasmParams
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.image_matching import scan_matching
 from rigcal.localize.metrics import anchored, evaluate
@@ -118,8 +121,8 @@ def _kf_estimate(streams: Streams) -> Estimate:
     )
 
 
-def _matching_estimate(streams: Streams, method: str) -> Estimate:
-    stamps, poses, stats, steps = scan_matching(streams, method)
+def _matching_estimate(streams: Streams, method: str, params: IasmParams | None = None) -> Estimate:
+    stamps, poses, stats, steps = scan_matching(streams, method, params)
     return Estimate(stamps, poses, stats, steps)
 
 
@@ -161,6 +164,7 @@ class Run:
     duration_s: float
     truth: Trajectory | None
     wall_s: float = 0.0
+    iasm: IasmParams = field(default_factory=IasmParams)
 
 
 def _shared_stages(streams: Streams, methods: list[str]) -> None:
@@ -188,6 +192,36 @@ def parse_methods(text: str) -> list[str]:
     return names
 
 
+def parse_iasm_settings(items: tuple[str, ...] | list[str]) -> IasmParams:
+    """IASM's and H-IASM's settings from ``KEY=VALUE`` texts (``--iasm``), each KEY a field
+    of :class:`IasmParams` and each VALUE of its type (a number, or true/false)."""
+    fields = {f.name: f for f in dataclasses.fields(IasmParams)}
+    defaults = IasmParams()
+    changes: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or key not in fields:
+            raise InputError.at(None, "--iasm", item, f"KEY=VALUE with KEY one of {sorted(fields)}")
+        kind = type(getattr(defaults, key))
+        text = text.strip()
+        value: Any
+        if kind is bool:
+            if text.lower() not in ("true", "false", "1", "0"):
+                raise InputError.at(None, f"--iasm {key}", text, "true or false")
+            value = text.lower() in ("true", "1")
+        else:
+            try:
+                value = kind(text)
+            except ValueError:
+                value = None
+            if value is None or not math.isfinite(value) or value < 0:
+                what = "a whole number" if kind is int else "a number"
+                raise InputError.at(None, f"--iasm {key}", text, f"{what}, 0 or more")
+        changes[key] = value
+    return dataclasses.replace(defaults, **changes)
+
+
 def run(
     sequence: str | Path,
     methods: list[str],
@@ -196,10 +230,12 @@ def run(
     kitti: bool = False,
     rig_file: str | Path | None = None,
     progress: Callable[[str, int, int], None] | None = None,
+    iasm: IasmParams | None = None,
 ) -> Run:
     """Localize a sequence with each method and write the output folder:
     ``METHOD/trajectory.tum`` (and ``.kitti``) per method, ``summary.yaml``/``.json`` and,
-    with ground truth, ``paths.png``.
+    with ground truth, ``paths.png``. ``iasm``: IASM's and H-IASM's settings (the
+    defaults unless given).
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -220,7 +256,10 @@ def run(
         _shared_stages(streams, methods)
         for name in methods:
             t0 = time.perf_counter()
-            est = METHODS[name](streams)
+            if name in ("iasm", "hiasm"):
+                est = _matching_estimate(streams, name, iasm)
+            else:
+                est = METHODS[name](streams)
             seconds = time.perf_counter() - t0
             poses, metrics = est.poses, None
             if truth is not None:
@@ -232,7 +271,9 @@ def run(
         streams.stop_background()
     stamps = streams.scan_stamps_s
     duration = float(stamps[-1] - stamps[0])
-    out = Run(results, dict(streams.timings_s), duration, truth, time.perf_counter() - t_start)
+    out = Run(
+        results, dict(streams.timings_s), duration, truth, time.perf_counter() - t_start, iasm or IasmParams()
+    )
     _write(out, Path(sequence), output, force, kitti)
     return out
 
@@ -243,7 +284,7 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
         "config": {
             "sequence": str(sequence.resolve()),
             "methods": [m.method for m in r.methods],
-            "settings": settings(),
+            "settings": settings(r.iasm),
         },
         "duration_s": round(r.duration_s, 3),
         "wall_s": round(r.wall_s, 3),
@@ -261,11 +302,11 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
     }
 
 
-def settings() -> dict[str, Any]:
-    """The methods' effective settings (every default, as docs/localization.md describes)."""
+def settings(iasm: IasmParams | None = None) -> dict[str, Any]:
+    """The methods' effective settings (the defaults, as docs/localization.md describes
+    them, with IASM's and H-IASM's ``iasm`` when given)."""
     from dataclasses import asdict
 
-    from rigcal.localize.iasm import IasmParams
     from rigcal.localize.tracks import TrackParams
     from rigcal.localize.vo import VoParams
 
@@ -277,7 +318,7 @@ def settings() -> dict[str, Any]:
             "icp_sigmas_forward_cross_yawrate": list(kalman.ICP_SIGMAS),
             "vo_sigmas_forward_cross_yawrate": list(kalman.VO_SIGMAS),
         },
-        "iasm": asdict(IasmParams()),
+        "iasm": asdict(iasm or IasmParams()),
         "hiasm_vo": asdict(VoParams()),
         "tracks": asdict(TrackParams()),
     }
