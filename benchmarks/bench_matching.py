@@ -37,21 +37,14 @@ from pathlib import Path
 
 import numpy as np
 
+from rigcal.geometry import transform_points
 from rigcal.io.trajectory import read_tum
 from rigcal.localize import image_matching
-from rigcal.localize.iasm import (
-    Frame,
-    IasmParams,
-    Matches,
-    make_frame,
-    match_returns,
-    robust_motion,
-    window_search,
-)
+from rigcal.localize.iasm import IasmParams, Matches, match_returns, robust_motion, window_search
 from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.pipeline import planar_at
-from rigcal.localize.streams import Streams, open_streams
+from rigcal.localize.streams import open_streams
 from rigcal.sim.drive import DriveSpec, write_drive
 from rigcal.sim.world import BUILTIN
 
@@ -106,15 +99,16 @@ def correspondences(seq: Path, every: int) -> None:
     rng = np.random.default_rng(0)
     for snap in (False, True):
         params = IasmParams(snap_max_m=SNAP_M if snap else 0.0, joint_polish=False)
+        matcher = image_matching.ScanMatcher(streams, "iasm", params)
         errors: dict[str, list[np.ndarray]] = {"IASM": [], "window": [], "dense": []}
         motions: dict[str, list[list[float]]] = {k: [] for k in errors}
         counts: dict[str, list[int]] = {k: [] for k in errors}
         for i in range(0, streams.n_images - 1, every):
-            f1, f2 = (frame(streams, k, params) for k in (i, i + 1))
+            f1, f2 = (matcher.frame(k)[0] for k in (i, i + 1))
             T = np.linalg.inv(se2(gt[i])) @ se2(gt[i + 1])  # T_t_t1, true
             Ti = np.linalg.inv(T)
             true_b = f1.points @ Ti[:2, :2].T + Ti[:2, 2]
-            P = np.column_stack([true_b, np.zeros(len(true_b))]) @ T_cl[:3, :3].T + T_cl[:3, 3]
+            P = transform_points(T_cl, true_b)
             pred = np.full((len(P), 2), np.nan)
             front = f1.visible & (P[:, 2] > 0.1)
             pred[front] = cam.project(P[front])
@@ -146,14 +140,6 @@ def correspondences(seq: Path, every: int) -> None:
                 f"| {1e3 * np.degrees(np.sqrt(np.mean(mo[:, 1] ** 2))):.1f} |",
                 flush=True,
             )
-
-
-def frame(streams: Streams, i: int, params: IasmParams) -> Frame:
-    k, T = streams.scan_to_image(i)
-    rig = streams.require_rig("iasm")
-    return make_frame(
-        streams.image(i), streams.scans[k], rig.camera, rig.T_cam_laser, params, streams.lines(k), T
-    )
 
 
 def table(root: Path, name: str, seeds: list[int]) -> None:

@@ -42,7 +42,7 @@ from scipy.spatial import cKDTree
 
 from rigcal.calib.lines import Segment, extract_lines, return_labels
 from rigcal.camera import Camera
-from rigcal.geometry import make_T, rotvec_to_R
+from rigcal.geometry import make_T, rotvec_to_R, transform_points
 from rigcal.localize.icp import _point_to_point, line_fits, pairing_normals, pose_of, se2
 from rigcal.localize.vo import sample_patches
 from rigcal.scan import Scan
@@ -199,7 +199,7 @@ def make_frame(
         points = snap_to_lines(points, line_of, params.snap_max_m)
     if T_image_scan is not None:
         points = points @ T_image_scan[:2, :2].T + T_image_scan[:2, 2]
-    P = np.column_stack([points, np.zeros(len(points))]) @ T_cam_laser[:3, :3].T + T_cam_laser[:3, 3]
+    P = transform_points(T_cam_laser, points)
     front = P[:, 2] > 0.1
     px = np.full((len(P), 2), np.nan)
     if front.any():
@@ -227,6 +227,13 @@ class Matches:
     b: FloatArray
     sad: FloatArray
 
+    @staticmethod
+    def none() -> Matches:
+        """No correspondences."""
+        return Matches(
+            np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
+        )
+
 
 def match_returns(f1: Frame, f2: Frame, predicted: FloatArray, half_u: float, half_v: float) -> Matches:
     """Bidirectional SAD correspondences between the visible returns of two frames.
@@ -238,16 +245,13 @@ def match_returns(f1: Frame, f2: Frame, predicted: FloatArray, half_u: float, ha
     """
     i1 = np.flatnonzero(f1.visible & np.isfinite(predicted[:, 0]))
     i2 = np.flatnonzero(f2.visible)
-    empty = Matches(
-        np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
-    )
     if len(i1) == 0 or len(i2) == 0:
-        return empty
+        return Matches.none()
     du = np.abs(f2.pixels[i2, 0][None, :] - predicted[i1, 0][:, None])
     dv = np.abs(f2.pixels[i2, 1][None, :] - predicted[i1, 1][:, None])
     ra, rb = np.nonzero((du <= half_u) & (dv <= half_v))
     if len(ra) == 0:
-        return empty
+        return Matches.none()
     sad = np.abs(f1.patches[i1[ra]] - f2.patches[i2[rb]]).mean(axis=1)
     S = np.full((len(i1), len(i2)), np.inf)
     S[ra, rb] = sad
@@ -277,12 +281,21 @@ def match_returns(f1: Frame, f2: Frame, predicted: FloatArray, half_u: float, ha
         s0 = np.abs(ref - f2.patches[jl[k]]).mean(axis=1)
         s1 = S[ka[k], kb[k]]
         s2 = np.abs(ref - f2.patches[jr[k]]).mean(axis=1)
-        den = s0 - 2 * s1 + s2
-        k, s0, s2, den = k[den > 0], s0[den > 0], s2[den > 0], den[den > 0]
-        x = np.clip(0.5 * (s0 - s2) / den, -0.5, 0.5)
+        x = parabola_offset(s0, s1, s2)
+        k, x = k[np.isfinite(x)], x[np.isfinite(x)]
         other = np.where((x > 0)[:, None], f2.points[jr[k]], f2.points[jl[k]])
         b[k] = f2.points[j[k]] + np.abs(x)[:, None] * (other - f2.points[j[k]])
     return Matches(i1[ka], j, f1.points[i1[ka]], b, S[ka, kb])
+
+
+def parabola_offset(s_lo: FloatArray, s_mid: FloatArray, s_hi: FloatArray) -> FloatArray:
+    """Where the parabola through three evenly spaced SADs (at -1, 0, 1) has its minimum,
+    within [-0.5, 0.5]; NaN where they make no minimum (or one is not finite)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = s_lo - 2.0 * s_mid + s_hi
+        x = np.where(den > 0, 0.5 * (s_lo - s_hi) / den, np.nan)
+    out: FloatArray = np.clip(x, -0.5, 0.5)
+    return out
 
 
 def window_search(
@@ -306,25 +319,21 @@ def window_search(
     Args:
         predicted: (N1, 2) where each return of f1 is expected in image 2 (NaN: unknown).
     """
-    empty = Matches(
-        np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
-    )
     i1 = np.flatnonzero(f1.visible & np.isfinite(predicted[:, 0]))
     i2 = np.flatnonzero(f2.visible & (f2.line_of >= 0))
     if len(i1) == 0 or len(i2) == 0:
-        return empty
+        return Matches.none()
     # The return of scan t+1 nearest each prediction, in pixels, within the window.
     dist, near = cKDTree(f2.pixels[i2]).query(predicted[i1], distance_upper_bound=params.window_px)
     ok = np.isfinite(dist)
     i1, j = i1[ok], i2[near[ok]]
     if len(i1) == 0:
-        return empty
+        return Matches.none()
     n = f2.normals[j]
     u = np.column_stack([-n[:, 1], n[:, 0]])  # along the wall
-    R, t = T_cam_laser[:3, :3], T_cam_laser[:3, 3]
 
     def pixels(q: FloatArray) -> FloatArray:
-        return camera.project(np.column_stack([q, np.zeros(len(q))]) @ R.T + t)
+        return camera.project(transform_points(T_cam_laser, q))
 
     # Pixels per metre along the wall at each return, and the offset along the wall
     # whose pixel is nearest the prediction: the window's centre.
@@ -350,11 +359,7 @@ def window_search(
     good = (k > 0) & (k < S - 1) & np.isfinite(sad[rows, k])
     rows, k = rows[good], k[good]
     s_lo, s_mid, s_hi = sad[rows, k - 1], sad[rows, k], sad[rows, k + 1]
-    fine = np.isfinite(s_lo) & np.isfinite(s_hi)
-    s_lo, s_hi = np.where(fine, s_lo, s_mid), np.where(fine, s_hi, s_mid)  # no parabola there
-    den = s_lo - 2.0 * s_mid + s_hi
-    x = np.where(den > 0, 0.5 * (s_lo - s_hi) / np.where(den > 0, den, 1.0), 0.0)
-    x = np.clip(x, -0.5, 0.5)
+    x = np.nan_to_num(parabola_offset(s_lo, s_mid, s_hi))  # none where a neighbour is off the image
     off = s0[rows] + ds[rows, k] + x * (ds[rows, 1] - ds[rows, 0])
     b = q0[rows] + off[:, None] * u[rows]
     return Matches(i1[rows], j[rows], f1.points[i1[rows]], b, s_mid)

@@ -5,8 +5,8 @@ the laser's trajectory with each chosen method, write each trajectory, the effec
 configuration, per-stage timings and, when the sequence has ground truth, the metrics of
 ``rigcal.localize.metrics`` (the paper's Table 1) and a picture of the paths (Fig. 8).
 
-Methods are registered in :data:`METHODS` (name -> function from the streams to an
-:class:`Estimate`), so adding one is a local change.
+Methods are registered in :data:`METHODS` (name -> function from the streams and IASM's
+settings to an :class:`Estimate`), so adding one is a local change.
 """
 
 from __future__ import annotations
@@ -121,18 +121,19 @@ def _kf_estimate(streams: Streams) -> Estimate:
     )
 
 
-def _matching_estimate(streams: Streams, method: str, params: IasmParams | None = None) -> Estimate:
+def _matching_estimate(streams: Streams, method: str, params: IasmParams) -> Estimate:
     stamps, poses, stats, steps = scan_matching(streams, method, params)
     return Estimate(stamps, poses, stats, steps)
 
 
-METHODS: dict[str, Callable[[Streams], Estimate]] = {
-    "icp": lambda s: _icp_estimate(s, s.laser_odometry()),
-    "icp-p2p": lambda s: _icp_estimate(s, icp_odometry(s.scans, IcpParams(method="point-to-point"))),
-    "vo": lambda s: _vo_estimate(s, _vo_result(s)),
-    "kf": _kf_estimate,
-    "iasm": lambda s: _matching_estimate(s, "iasm"),
-    "hiasm": lambda s: _matching_estimate(s, "hiasm"),
+# name -> the method's estimate from the streams and IASM's and H-IASM's settings.
+METHODS: dict[str, Callable[[Streams, IasmParams], Estimate]] = {
+    "icp": lambda s, _: _icp_estimate(s, s.laser_odometry()),
+    "icp-p2p": lambda s, _: _icp_estimate(s, icp_odometry(s.scans, IcpParams(method="point-to-point"))),
+    "vo": lambda s, _: _vo_estimate(s, _vo_result(s)),
+    "kf": lambda s, _: _kf_estimate(s),
+    "iasm": lambda s, p: _matching_estimate(s, "iasm", p),
+    "hiasm": lambda s, p: _matching_estimate(s, "hiasm", p),
 }
 
 
@@ -195,14 +196,14 @@ def parse_methods(text: str) -> list[str]:
 def parse_iasm_settings(items: tuple[str, ...] | list[str]) -> IasmParams:
     """IASM's and H-IASM's settings from ``KEY=VALUE`` texts (``--iasm``), each KEY a field
     of :class:`IasmParams` and each VALUE of its type (a number, or true/false)."""
-    fields = {f.name: f for f in dataclasses.fields(IasmParams)}
+    fields = sorted(f.name for f in dataclasses.fields(IasmParams))
     defaults = IasmParams()
     changes: dict[str, Any] = {}
     for item in items:
         key, sep, text = item.partition("=")
         key = key.strip()
         if not sep or key not in fields:
-            raise InputError.at(None, "--iasm", item, f"KEY=VALUE with KEY one of {sorted(fields)}")
+            raise InputError.at(None, "--iasm", item, f"KEY=VALUE with KEY one of {fields}")
         kind = type(getattr(defaults, key))
         text = text.strip()
         value: Any
@@ -243,6 +244,7 @@ def run(
     for m in methods:
         if m not in METHODS:
             raise InputError.at(None, "--method", m, f"one of {sorted(METHODS)}")
+    iasm = iasm or IasmParams()
     streams = open_streams(sequence, rig_file)
     streams.progress = progress
     if len(streams.scans) < MIN_SCANS:
@@ -256,10 +258,7 @@ def run(
         _shared_stages(streams, methods)
         for name in methods:
             t0 = time.perf_counter()
-            if name in ("iasm", "hiasm"):
-                est = _matching_estimate(streams, name, iasm)
-            else:
-                est = METHODS[name](streams)
+            est = METHODS[name](streams, iasm)
             seconds = time.perf_counter() - t0
             poses, metrics = est.poses, None
             if truth is not None:
@@ -271,9 +270,7 @@ def run(
         streams.stop_background()
     stamps = streams.scan_stamps_s
     duration = float(stamps[-1] - stamps[0])
-    out = Run(
-        results, dict(streams.timings_s), duration, truth, time.perf_counter() - t_start, iasm or IasmParams()
-    )
+    out = Run(results, dict(streams.timings_s), duration, truth, time.perf_counter() - t_start, iasm)
     _write(out, Path(sequence), output, force, kitti)
     return out
 

@@ -205,16 +205,12 @@ class Streams:
             self.progress(stage, done, total)
 
     def laser_points_at_image(self, i: int) -> FloatArray:
-        """(N, 2) points of the scan nearest image i's stamp, in the laser frame at that stamp."""
-        return self.laser_at_image(i)[1]
-
-    def laser_at_image(self, i: int) -> tuple[Scan, FloatArray]:
-        """The scan nearest image i's stamp and its valid returns (in beam order) moved into
-        the laser frame at the image's stamp by the interpolated laser odometry."""
+        """(N, 2) the valid returns (in beam order) of the scan nearest image i's stamp,
+        moved into the laser frame at that stamp by the interpolated laser odometry."""
         k, T_t_k = self.scan_to_image(i)
-        scan = self.scans[k]
-        pts = scan.points[scan.valid]
-        return scan, pts @ T_t_k[:2, :2].T + T_t_k[:2, 2]
+        pts = self.scans[k].points[self.scans[k].valid]
+        out: FloatArray = pts @ T_t_k[:2, :2].T + T_t_k[:2, 2]
+        return out
 
     def scan_to_image(self, i: int) -> tuple[int, FloatArray]:
         """The index k of the scan nearest image i's stamp and (3, 3) the laser's pose at
