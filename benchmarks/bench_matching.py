@@ -22,9 +22,14 @@ yaw error's RMS.
 Part 2, Table 1's figures of IASM and H-IASM (real visual odometry) with each setting:
 returns snapped or not, H-IASM's window searched among the returns or densely; for each
 seed of ``--seeds`` (the sequences as ``bench_localize.py --seed N`` makes them), and
-their means.
+their means. Each step's laser term is scan t's (``keyframe_m`` 0), as these settings
+were measured before keyframes.
 
-    .venv/bin/python benchmarks/bench_matching.py [--keep DIR] [--every 10] [--parts 1,2]
+Part 3, keyframes: the same figures (and RPE over 1 m) of IASM with the joint polish's
+laser term against a keyframe ``keyframe_m`` back (0: scan t, every step), and of
+H-IASM without and with the default, per seed and their means.
+
+    .venv/bin/python benchmarks/bench_matching.py [--keep DIR] [--every 10] [--parts 1,2,3]
         [--seeds 1,2,3] [--worlds corridor-loop,cubicle-loop]
 """
 
@@ -38,13 +43,13 @@ from pathlib import Path
 import numpy as np
 
 from rigcal.geometry import transform_points
-from rigcal.io.trajectory import read_tum
+from rigcal.io.trajectory import Trajectory, read_tum
 from rigcal.localize import image_matching
 from rigcal.localize.iasm import IasmParams, Matches, match_returns, robust_motion, window_search
 from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.pipeline import planar_at
-from rigcal.localize.streams import open_streams
+from rigcal.localize.streams import Streams, open_streams
 from rigcal.sim.drive import DriveSpec, write_drive
 from rigcal.sim.world import BUILTIN
 
@@ -76,6 +81,12 @@ def main() -> None:
             print("|---|---|---|---|---|---|")
             for name in args.worlds.split(","):
                 table(root, name, [int(x) for x in args.seeds.split(",")])
+        if "3" in parts:
+            print("\n| world | seed | method | keyframe_m | loop closure (m) | avg position error (m) "
+                  "| RPE 1 m (m) | RPE 10 m (m) |")  # fmt: skip
+            print("|---|---|---|---|---|---|---|---|")
+            for name in args.worlds.split(","):
+                keyframes(root, name, [int(x) for x in args.seeds.split(",")])
 
 
 WORLDS = ("corridor-loop", "cubicle-loop")
@@ -145,22 +156,17 @@ def correspondences(seq: Path, every: int) -> None:
 def table(root: Path, name: str, seeds: list[int]) -> None:
     figures: dict[tuple[bool, bool, str], list[list[float]]] = {}
     for seed in seeds:
-        seq = sequence(root, name, seed)
-        streams = open_streams(seq)
-        streams.start_laser_odometry()
-        streams.feature_tracks()
-        truth = read_tum(seq / "groundtruth.tum")
+        streams, truth = _opened(sequence(root, name, seed))
         for snap, dense in SETTINGS:
-            params = dataclasses.replace(IasmParams(), snap_max_m=SNAP_M if snap else 0.0, dense_window=dense)
+            params = dataclasses.replace(
+                IasmParams(), snap_max_m=SNAP_M if snap else 0.0, dense_window=dense, keyframe_m=0.0
+            )
             cells = []
             for method in ("iasm", "hiasm"):
                 if method == "iasm" and dense:  # IASM has no window
                     cells.append("as above")
                     continue
-                stamps, poses, _, _ = image_matching.scan_matching(streams, method, params)
-                gt = planar_at(truth, stamps)
-                m = evaluate(anchored(poses, gt), gt)
-                f = [m["loop_closure_error_m"], m["average_position_error_m"], m["rpe_10m_rmse_m"]]
+                f = _figures(streams, truth, method, params, ("loop", "avg", "rpe10"))
                 figures.setdefault((snap, dense, method), []).append(f)
                 cells.append(_cell(f))
             print(f"| {name} | {seed} | {_setting(snap, dense)} | {cells[0]} | {cells[1]} |", flush=True)
@@ -173,6 +179,56 @@ def table(root: Path, name: str, seeds: list[int]) -> None:
                 for m in ("iasm", "hiasm")
             ]
             print(f"| {name} | mean | {_setting(snap, dense)} | {cells[0]} | {cells[1]} |", flush=True)
+
+
+KEYFRAMES = (("iasm", 0.0), ("iasm", 1.0), ("iasm", 2.0), ("iasm", 3.0), ("hiasm", 0.0), ("hiasm", 2.0))
+
+
+def keyframes(root: Path, name: str, seeds: list[int]) -> None:
+    figures: dict[tuple[str, float], list[list[float]]] = {}
+    for seed in seeds:
+        streams, truth = _opened(sequence(root, name, seed))
+        for method, kf in KEYFRAMES:
+            params = dataclasses.replace(IasmParams(), keyframe_m=kf)
+            f = _figures(streams, truth, method, params, ("loop", "avg", "rpe1", "rpe10"))
+            figures.setdefault((method, kf), []).append(f)
+            print(
+                f"| {name} | {seed} | {method} | {kf:g} | " + " | ".join(f"{x:.4f}" for x in f) + " |",
+                flush=True,
+            )
+    if len(seeds) > 1:
+        for (method, kf), fs in figures.items():
+            mean = np.mean(fs, axis=0)
+            print(
+                f"| {name} | mean | {method} | {kf:g} | " + " | ".join(f"{x:.4f}" for x in mean) + " |",
+                flush=True,
+            )
+
+
+FIGURES = {
+    "loop": "loop_closure_error_m",
+    "avg": "average_position_error_m",
+    "rpe1": "rpe_1m_rmse_m",
+    "rpe10": "rpe_10m_rmse_m",
+}
+
+
+def _opened(seq: Path) -> tuple[Streams, Trajectory]:
+    """A sequence's streams, its laser odometry and feature tracks under way, and its truth."""
+    streams = open_streams(seq)
+    streams.start_laser_odometry()
+    streams.feature_tracks()
+    return streams, read_tum(seq / "groundtruth.tum")
+
+
+def _figures(
+    streams: Streams, truth: Trajectory, method: str, params: IasmParams, which: tuple[str, ...]
+) -> list[float]:
+    """One method's run on the streams, scored against the truth (``which``: FIGURES keys)."""
+    stamps, poses, _, _ = image_matching.scan_matching(streams, method, params)
+    gt = planar_at(truth, stamps)
+    m = evaluate(anchored(poses, gt), gt)
+    return [float(m[FIGURES[k]]) for k in which]
 
 
 def _setting(snap: bool, dense: bool) -> str:

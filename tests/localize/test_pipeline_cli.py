@@ -124,6 +124,8 @@ def test_all_methods_on_one_sequence(drive, tmp_path, capsys):
     assert len(rows) == n_images
     assert sum(r.split(",")[2] == "hiasm" for r in rows[1:]) == steps["hiasm"]
     assert "no scale yet" in rows[1]
+    # A keyframe every 2 m (or 20 deg) over the first 6 m.
+    assert 3 <= methods["iasm"]["keyframes"] <= n_images // 4
     assert methods["kf"]["vo_measurements"] > 0
     for m in ("vo", "iasm", "hiasm"):
         # Centimetres over the first 6 m: the images are used, and used right.
@@ -237,12 +239,16 @@ def test_icp_steps_flag_a_featureless_corridor(tmp_path):
 def test_iasm_settings_from_the_command_line_reach_the_run_and_the_summary(drive, tmp_path):
     out = tmp_path / "snap"
     args = ["localize", str(drive), "--method", "iasm", "-o", str(out)]
-    assert main([*args, "--iasm", "snap_max_m=0.03", "--iasm", "hypotheses = 80"]) == 0
+    assert (
+        main([*args, "--iasm", "snap_max_m=0.03", "--iasm", "hypotheses = 80", "--iasm", "keyframe_m=0"]) == 0
+    )
     s = yaml.safe_load((out / "summary.yaml").read_text())
     cfg = s["config"]["settings"]["iasm"]
     assert cfg["snap_max_m"] == 0.03
     assert cfg["hypotheses"] == 80
     assert cfg["dense_window"] is False
+    # Without keyframes every step aligns with the scan before it.
+    assert s["methods"]["iasm"]["keyframes"] == s["methods"]["iasm"]["poses"]
     assert s["methods"]["iasm"]["metrics"]["average_position_error_m"] < 0.1
 
 

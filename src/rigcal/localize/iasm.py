@@ -87,6 +87,17 @@ class IasmParams:
         dense_window: H-IASM searches its window densely along the wall
             (:func:`window_search`) instead of among scan t+1's returns. Off by default
             (``benchmarks/bench_matching.py``).
+        keyframe_m, keyframe_deg: the joint polish aligns scan t+1 with a keyframe's scan
+            instead of scan t's; a new keyframe starts once the rig is more than
+            ``keyframe_m`` or ``keyframe_deg`` from the last (each step's motion still
+            comes from the correspondences of the two successive images). Scans far
+            apart in time then fix each other directly, and the laser's heading error no
+            longer adds up step by step: ``benchmarks/bench_matching.py`` (part 3). 0:
+            every step against scan t.
+        fallback_sigma_m, fallback_sigma_deg: when a step falls back to the laser
+            odometry's motion while a keyframe is older than scan t, that motion is aligned
+            with the keyframe's scan too, held to the odometry's within these (what the
+            walls leave open, along a corridor, stays the odometry's).
         support_fraction: only hypotheses with at least this fraction of the best
             hypothesis's inliers are scored by the metric.
         min_alignment: with the laser metric, a result whose alignment score (1 minus the
@@ -115,6 +126,10 @@ class IasmParams:
     sigma_match_m: float = 0.2
     snap_max_m: float = 0.0
     dense_window: bool = False
+    keyframe_m: float = 2.0
+    keyframe_deg: float = 20.0
+    fallback_sigma_m: float = 0.02
+    fallback_sigma_deg: float = 0.5
 
 
 @dataclass
@@ -214,6 +229,23 @@ def make_frame(
         vis &= ~flat
     centres, normals = line_fits(points, line_of)
     return Frame(gray, points, P, px, vis, patches, lines, line_of, normals, centres)
+
+
+@dataclass(frozen=True)
+class LaserReference:
+    """The returns, and their line normals (NaN off a line), that the joint polish aligns
+    scan t+1 with, in the frame of scan t: scan t's own, or a keyframe's
+    (:func:`keyframe_reference`)."""
+
+    points: FloatArray
+    normals: FloatArray
+
+
+def keyframe_reference(key: Frame, T_key_t: FloatArray) -> LaserReference:
+    """A keyframe's returns and line normals in the frame of scan t, from T_key_t (3, 3):
+    the pose of scan t in the keyframe's frame."""
+    T = np.linalg.inv(T_key_t)
+    return LaserReference(key.points @ T[:2, :2].T + T[:2, 2], key.normals @ T[:2, :2].T)
 
 
 @dataclass(frozen=True)
@@ -488,9 +520,14 @@ def robust_motion(
     T_cam_laser: FloatArray,
     params: IasmParams,
     rng: np.random.Generator,
+    reference: LaserReference | None = None,
 ) -> StepResult | None:
     """RANSAC over pairs of correspondences scored by the metric the scene selects, then
-    a least-squares polish (Eq. (4)) on the winner's inliers (Section III-C)."""
+    a least-squares polish (Eq. (4)) on the winner's inliers (Section III-C).
+
+    ``reference``: what the joint polish aligns scan t+1 with (a keyframe's scan); scan
+    t's own by default.
+    """
     if len(m.a) < params.min_correspondences:
         return None
     hyp = hypotheses_from_pairs(m.a, m.b, rng, params.hypotheses)
@@ -524,7 +561,8 @@ def robust_motion(
         if inl.sum() < params.min_inliers:
             return None
     if params.joint_polish:
-        pose = joint_polish(pose, m.a[inl], m.b[inl], f1.points, f2.points, params, f1.normals)
+        ref = LaserReference(f1.points, f1.normals) if reference is None else reference
+        pose = joint_polish(pose, m.a[inl], m.b[inl], ref.points, f2.points, params, ref.normals)
     # Where the walls can judge (laser metric), a result they contradict fails: wrong
     # correspondences all agreeing, as a window centred one pattern period off yields.
     if (
@@ -548,6 +586,7 @@ def joint_polish(
     scan2: FloatArray,
     params: IasmParams,
     normals1: FloatArray | None = None,
+    prior: FloatArray | None = None,
 ) -> FloatArray:
     """Gauss-Newton on the scans' point-to-line alignment and the image correspondences
     together, from the RANSAC winner: the laser makes the motion precise where the scene's
@@ -556,7 +595,9 @@ def joint_polish(
 
     ``normals1``: scan 1's normals from its lines (NaN off a line: such returns are not
     paired), as the laser odometry uses them (:mod:`rigcal.localize.icp`); without it, or
-    with too few returns on a line, nearest-neighbour normals.
+    with too few returns on a line, nearest-neighbour normals. ``prior``: a motion the
+    result is held to within ``fallback_sigma_m`` and ``fallback_sigma_deg`` (the laser
+    odometry's, when a step falls back to it).
     """
     tree = cKDTree(scan1)
     normals, usable = pairing_normals(scan1, tree, 5, normals1)
@@ -583,6 +624,14 @@ def joint_polish(
         J_c /= params.sigma_match_m
         J = np.vstack([J_l, J_c])
         r = np.concatenate([r_l, r_c])
+        if prior is not None:
+            # A weak pull towards the prior motion keeps what the walls leave open.
+            w = np.array(
+                [params.fallback_sigma_m, params.fallback_sigma_m, np.radians(params.fallback_sigma_deg)]
+            )
+            J_p = np.array([[1.0, 0.0, -x[1]], [0.0, 1.0, x[0]], [0.0, 0.0, 1.0]]) / w[:, None]
+            J = np.vstack([J, J_p])
+            r = np.concatenate([r, (x - prior) / w])
         step = -np.linalg.solve(J.T @ J + 1e-9 * np.eye(3), J.T @ r)
         x = pose_of(se2(step) @ se2(x))
         if np.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-6:
@@ -597,10 +646,11 @@ def iasm_step(
     T_cam_laser: FloatArray,
     params: IasmParams,
     rng: np.random.Generator,
+    reference: LaserReference | None = None,
 ) -> tuple[StepResult | None, Matches]:
     """One IASM step (Section III): search around each return's own pixel."""
     m = match_returns(f1, f2, f1.pixels, params.search_u_px, params.search_v_px)
-    return robust_motion(m, f1, f2, camera, T_cam_laser, params, rng), m
+    return robust_motion(m, f1, f2, camera, T_cam_laser, params, rng, reference), m
 
 
 def homography_predictions(
@@ -642,6 +692,7 @@ def hiasm_step(
     T_cam_laser: FloatArray,
     params: IasmParams,
     rng: np.random.Generator,
+    reference: LaserReference | None = None,
 ) -> tuple[StepResult | None, Matches]:
     """One H-IASM step (Section V): search in a small window around each homography prediction."""
     pred = homography_predictions(f1, R, t_unit, scale, camera, T_cam_laser[:3, :3])
@@ -649,7 +700,7 @@ def hiasm_step(
         m = window_search(f1, f2, pred, camera, T_cam_laser, params)
     else:
         m = match_returns(f1, f2, pred, params.window_px, params.window_px)
-    return robust_motion(m, f1, f2, camera, T_cam_laser, params, rng), m
+    return robust_motion(m, f1, f2, camera, T_cam_laser, params, rng, reference), m
 
 
 def camera_motion(motion: FloatArray, T_cam_laser: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -4,9 +4,11 @@
 projected) and runs one step between two frames: H-IASM when visual odometry between the
 two images and a previous scale are available, else IASM, else ICP between the two scans
 (H-IASM -> IASM -> ICP; ICP's motion is the laser odometry's, point-to-line over every
-scan, between the two images' stamps). Each fallback is logged (logger ``rigcal.localize``) and counted
-in the run's summary. :func:`scan_matching` chains the steps over a sequence;
-:func:`step_picture` draws one step's correspondences (the paper's Fig. 5).
+scan, between the two images' stamps). Each step's joint polish aligns scan t+1 with a
+keyframe's scan (``IasmParams.keyframe_m``), and so does a fallback to ICP. Each
+fallback is logged (logger ``rigcal.localize``) and counted in the run's summary.
+:func:`scan_matching` chains the steps over a sequence; :func:`step_picture` draws one
+step's correspondences (the paper's Fig. 5).
 """
 
 from __future__ import annotations
@@ -23,14 +25,18 @@ from numpy.typing import NDArray
 from rigcal.localize.iasm import (
     Frame,
     IasmParams,
+    LaserReference,
     Matches,
     StepResult,
     camera_motion,
     chain,
     hiasm_step,
     iasm_step,
+    joint_polish,
+    keyframe_reference,
     make_frame,
 )
+from rigcal.localize.icp import se2
 from rigcal.localize.streams import Streams
 from rigcal.localize.tracks import FrameTracks, Tracker, common
 from rigcal.localize.vo import VoParams, planar_motion, relative_pose
@@ -94,7 +100,13 @@ class ScanMatcher:
         return f, None if self.tracks is None else self.tracks[i]
 
     def try_hiasm(
-        self, f1: Frame, f2: Frame, tr1: FrameTracks, tr2: FrameTracks, scale: float | None
+        self,
+        f1: Frame,
+        f2: Frame,
+        tr1: FrameTracks,
+        tr2: FrameTracks,
+        scale: float | None,
+        reference: LaserReference | None = None,
     ) -> tuple[StepResult | None, Matches | None, str]:
         """An H-IASM step (the result, its matches), or None and why it could not be made."""
         if scale is None:
@@ -108,7 +120,7 @@ class ScanMatcher:
         if not planar_motion(rel.R, rel.t_unit, self.T_cam_laser[:3, 2]):
             return None, None, "visual odometry gives a motion a ground rig cannot make"
         res, m = hiasm_step(
-            f1, f2, rel.R, rel.t_unit, scale, self.camera, self.T_cam_laser, self.params, self.rng
+            f1, f2, rel.R, rel.t_unit, scale, self.camera, self.T_cam_laser, self.params, self.rng, reference
         )
         return res, m, "no motion consistent with the correspondences (and the scans)"
 
@@ -121,23 +133,31 @@ class ScanMatcher:
         scale: float | None,
         i1: int,
         i2: int,
+        reference: LaserReference | None = None,
     ) -> Step:
         """The motion between frames of images i1 and i2, falling back H-IASM -> IASM -> ICP."""
         t0 = time.perf_counter()
         why = None
         if tr1 is not None and tr2 is not None:
-            res, m, why = self.try_hiasm(f1, f2, tr1, tr2, scale)
+            res, m, why = self.try_hiasm(f1, f2, tr1, tr2, scale, reference)
             if res is not None:
                 self.timings_s["matching_s"] += time.perf_counter() - t0
                 return Step(res.motion, "hiasm", res, m, None)
-        res, m = iasm_step(f1, f2, self.camera, self.T_cam_laser, self.params, self.rng)
+        res, m = iasm_step(f1, f2, self.camera, self.T_cam_laser, self.params, self.rng, reference)
         self.timings_s["matching_s"] += time.perf_counter() - t0
         if res is not None:
             return Step(res.motion, "iasm", res, m, why)
         why = "too few correspondences" if why is None else why + "; IASM: too few correspondences"
         # ICP: the laser odometry's motion (point-to-line over every scan) between the stamps.
         t = self.streams.image_stamps_s
-        return Step(self.streams.odometry_motion(float(t[i1]), float(t[i2])), "icp", None, m, why)
+        motion = self.streams.odometry_motion(float(t[i1]), float(t[i2]))
+        if reference is not None:
+            # Aligned with the keyframe's scan as well, as the image steps are.
+            none = np.zeros((0, 2))
+            motion = joint_polish(
+                motion, none, none, reference.points, f2.points, self.params, reference.normals, motion
+            )
+        return Step(motion, "icp", None, m, why)
 
 
 def scan_matching(
@@ -160,10 +180,15 @@ def scan_matching(
     motions: list[FloatArray] = []
     scale: float | None = None
     rows = ["image,stamp_s,used,metric,correspondences,inliers,fallback"]
+    key, T_key, n_keys = f1, np.eye(3), 1  # the keyframe, frame f1's pose in its frame
     for i in range(1, streams.n_images):
         streams.report(method.upper(), i + 1, streams.n_images)
         f2, tr2 = sm.frame(i)
-        st = sm.step(f1, f2, tr1, tr2, scale, i - 1, i)
+        reference = None if key is f1 else keyframe_reference(key, T_key)
+        st = sm.step(f1, f2, tr1, tr2, scale, i - 1, i, reference)
+        T_key = T_key @ se2(st.motion)
+        if new_keyframe(T_key, sm.params):
+            key, T_key, n_keys = f2, np.eye(3), n_keys + 1
         used[st.used] += 1
         n_corr = 0 if st.matches is None else len(st.matches.i1)
         res = st.result
@@ -189,8 +214,20 @@ def scan_matching(
         "fallbacks": len(motions) - own,
         "metric": metric,
         "mean_inliers": round(float(np.mean(inliers)), 1) if inliers else 0.0,
+        "keyframes": n_keys,
     }
     return streams.image_stamps_s, chain(motions), stats, "\n".join(rows) + "\n"
+
+
+def new_keyframe(T_key_t: FloatArray, params: IasmParams) -> bool:
+    """Whether frame t (pose T_key_t in the keyframe's frame) starts a new keyframe: it
+    is more than ``keyframe_m`` or ``keyframe_deg`` from the keyframe (always, with
+    ``keyframe_m`` 0)."""
+    return bool(
+        params.keyframe_m <= 0
+        or np.hypot(T_key_t[0, 2], T_key_t[1, 2]) > params.keyframe_m
+        or abs(np.degrees(np.arctan2(T_key_t[1, 0], T_key_t[0, 0]))) > params.keyframe_deg
+    )
 
 
 def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint8], Step]:
