@@ -9,10 +9,11 @@ position error, and, over the steps H-IASM or IASM made (not the ICP fallbacks),
 forward error as a fraction of the true step (a scale bias) and the mean yaw error.
 
     .venv/bin/python benchmarks/bench_polish.py [--keep DIR] [--weights 0.02,0.1,0.2,0.5]
-        [--snap-max-m 0.03] [--dense]
+        [--snap-max-m 0.03] [--dense] [--keyframe-m 2]
 
-``--snap-max-m`` and ``--dense`` set ``IasmParams.snap_max_m`` and ``dense_window``
-(``bench_matching.py``).
+``--snap-max-m``, ``--dense`` and ``--keyframe-m`` set ``IasmParams.snap_max_m``,
+``dense_window`` and ``keyframe_m`` (``bench_matching.py``); the keyframe is off (0)
+unless asked for, as these weights were measured before keyframes.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ def main() -> None:
     ap.add_argument("--weights", default="0.02,0.1,0.2,0.5")
     ap.add_argument("--snap-max-m", type=float, default=0.0, help="Snap returns onto their lines.")
     ap.add_argument("--dense", action="store_true", help="H-IASM's dense window search.")
+    ap.add_argument("--keyframe-m", type=float, default=0.0, help="IasmParams.keyframe_m.")
     args = ap.parse_args()
     weights = [float(w) for w in args.weights.split(",")]
     print("| world | sigma_match_m | end position error (m) | avg position error (m) "
@@ -58,7 +60,11 @@ def main() -> None:
             truth = read_tum(seq / "groundtruth.tum")
             for w in weights:
                 params = dataclasses.replace(
-                    IasmParams(), sigma_match_m=w, snap_max_m=args.snap_max_m, dense_window=args.dense
+                    IasmParams(),
+                    sigma_match_m=w,
+                    snap_max_m=args.snap_max_m,
+                    dense_window=args.dense,
+                    keyframe_m=args.keyframe_m,
                 )
                 stamps, poses, _, steps = image_matching.scan_matching(streams, "hiasm", params)
                 gt = planar_at(truth, stamps)
