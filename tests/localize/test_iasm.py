@@ -346,7 +346,7 @@ def test_fallback_keeps_the_odometry_where_the_walls_leave_the_motion_open():
     assert x[1] == pytest.approx(0.02, abs=1e-4)  # across: the walls'
     assert x[2] == pytest.approx(0.0, abs=1e-4)
     # Nothing in common with the keyframe: the odometry's motion, wherever it starts.
-    far = walls + [50.0, 0.0]
+    far = walls + np.array([50.0, 0.0])
     x = joint_polish(np.zeros(3), none, none, walls, far, IasmParams(), normals, odometry)
     np.testing.assert_allclose(x, odometry, atol=1e-9)
 
