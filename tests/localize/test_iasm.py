@@ -357,3 +357,21 @@ def test_a_new_keyframe_past_its_distance_or_turn():
     assert new_keyframe(se2([1.9, 0.7, 0.0]), p)
     assert new_keyframe(se2([0.0, 0.0, np.radians(-21.0)]), p)
     assert new_keyframe(se2([0.0, 0.0, 0.0]), IasmParams(keyframe_m=0.0))
+
+
+def test_joint_polish_leaves_out_returns_paired_across_a_corner():
+    # Returns of scan t+1 on a surface scan t did not see, 8 cm behind one of its walls
+    # near a corner: paired with that wall's line they pull the scan off and round; left
+    # out (laser_reject_m) they do not.
+    walls, labels = _room_walls()
+    step = np.array([0.1, 0.0, 0.0])
+    scan2 = _moved(walls, step)
+    stray = _moved(np.column_stack([np.full(15, 5.08), np.linspace(-1.9, -1.5, 15)]), step)
+    none = np.zeros((0, 2))
+    normals = line_normals(walls, labels)
+    data = np.vstack([scan2, stray])
+    kept = joint_polish(step, none, none, walls, data, IasmParams(laser_reject_m=0.0), normals)
+    left_out = joint_polish(step, none, none, walls, data, IasmParams(), normals)
+    assert np.abs(kept[0] - step[0]) > 5e-4
+    assert np.abs(np.degrees(kept[2] - step[2])) > 5e-3
+    np.testing.assert_allclose(left_out, step, atol=1e-9)

@@ -98,6 +98,10 @@ class IasmParams:
             odometry's motion while a keyframe is older than scan t, that motion is aligned
             with the keyframe's scan too, held to the odometry's within these (what the
             walls leave open, along a corridor, stays the odometry's).
+        laser_reject_m: the joint polish leaves out returns farther than this from the
+            line they are paired with (0: none left out): a handful of returns paired
+            across a corner, 0.1-0.2 m off, turned some steps by tens of mdeg
+            (``benchmarks/bench_matching.py``, part 3).
         support_fraction: only hypotheses with at least this fraction of the best
             hypothesis's inliers are scored by the metric.
         min_alignment: with the laser metric, a result whose alignment score (1 minus the
@@ -130,6 +134,7 @@ class IasmParams:
     keyframe_deg: float = 20.0
     fallback_sigma_m: float = 0.02
     fallback_sigma_deg: float = 0.5
+    laser_reject_m: float = 0.03
 
 
 @dataclass
@@ -611,7 +616,13 @@ def joint_polish(
         if usable is not None:
             ok[ok] &= usable[idx[ok]]
         src, n = moved[ok], normals[idx[ok]]
-        r_l = np.einsum("ij,ij->i", n, src - scan1[idx[ok]]) / params.sigma_laser_m
+        res_l = np.einsum("ij,ij->i", n, src - scan1[idx[ok]])
+        if params.laser_reject_m > 0:
+            # A return paired with the wrong wall (across a corner, an opening) lies
+            # decimetres off that wall's line, and a few of them turn the scan.
+            keep = np.abs(res_l) < params.laser_reject_m
+            src, n, res_l = src[keep], n[keep], res_l[keep]
+        r_l = res_l / params.sigma_laser_m
         J_l = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * src[:, 0] - n[:, 0] * src[:, 1]])
         J_l /= params.sigma_laser_m
         cb = b @ R.T + x[:2]
