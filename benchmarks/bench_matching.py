@@ -26,8 +26,9 @@ their means. Each step's laser term is scan t's (``keyframe_m`` 0), as these set
 were measured before keyframes.
 
 Part 3, keyframes: the same figures (and RPE over 1 m) of IASM with the joint polish's
-laser term against a keyframe ``keyframe_m`` back (0: scan t, every step), and of
-H-IASM without and with the default, per seed and their means.
+laser term against a keyframe ``keyframe_m`` back (0: scan t, every step), with and
+without leaving out returns more than ``laser_reject_m`` off their paired line, and of
+H-IASM without both and with the defaults, per seed and their means.
 
     .venv/bin/python benchmarks/bench_matching.py [--keep DIR] [--every 10] [--parts 1,2,3]
         [--seeds 1,2,3] [--worlds corridor-loop,cubicle-loop]
@@ -82,9 +83,9 @@ def main() -> None:
             for name in args.worlds.split(","):
                 table(root, name, [int(x) for x in args.seeds.split(",")])
         if "3" in parts:
-            print("\n| world | seed | method | keyframe_m | loop closure (m) | avg position error (m) "
-                  "| RPE 1 m (m) | RPE 10 m (m) |")  # fmt: skip
-            print("|---|---|---|---|---|---|---|---|")
+            print("\n| world | seed | method | keyframe_m | laser_reject_m | loop closure (m) "
+                  "| avg position error (m) | RPE 1 m (m) | RPE 10 m (m) |")  # fmt: skip
+            print("|---|---|---|---|---|---|---|---|---|")
             for name in args.worlds.split(","):
                 keyframes(root, name, [int(x) for x in args.seeds.split(",")])
 
@@ -181,26 +182,41 @@ def table(root: Path, name: str, seeds: list[int]) -> None:
             print(f"| {name} | mean | {_setting(snap, dense)} | {cells[0]} | {cells[1]} |", flush=True)
 
 
-KEYFRAMES = (("iasm", 0.0), ("iasm", 1.0), ("iasm", 2.0), ("iasm", 3.0), ("hiasm", 0.0), ("hiasm", 2.0))
+# (method, keyframe_m, laser_reject_m): keyframes with and without leaving out the returns
+# paired across corners, and the defaults (2 m, 0.03 m) against no keyframes.
+KEYFRAMES = (
+    ("iasm", 0.0, 0.0),
+    ("iasm", 0.0, 0.03),
+    ("iasm", 1.0, 0.03),
+    ("iasm", 2.0, 0.0),
+    ("iasm", 2.0, 0.03),
+    ("iasm", 3.0, 0.03),
+    ("hiasm", 0.0, 0.0),
+    ("hiasm", 2.0, 0.03),
+)
 
 
 def keyframes(root: Path, name: str, seeds: list[int]) -> None:
-    figures: dict[tuple[str, float], list[list[float]]] = {}
+    figures: dict[tuple[str, float, float], list[list[float]]] = {}
     for seed in seeds:
         streams, truth = _opened(sequence(root, name, seed))
-        for method, kf in KEYFRAMES:
-            params = dataclasses.replace(IasmParams(), keyframe_m=kf)
+        for method, kf, reject in KEYFRAMES:
+            params = dataclasses.replace(IasmParams(), keyframe_m=kf, laser_reject_m=reject)
             f = _figures(streams, truth, method, params, ("loop", "avg", "rpe1", "rpe10"))
-            figures.setdefault((method, kf), []).append(f)
+            figures.setdefault((method, kf, reject), []).append(f)
             print(
-                f"| {name} | {seed} | {method} | {kf:g} | " + " | ".join(f"{x:.4f}" for x in f) + " |",
+                f"| {name} | {seed} | {method} | {kf:g} | {reject:g} | "
+                + " | ".join(f"{x:.4f}" for x in f)
+                + " |",
                 flush=True,
             )
     if len(seeds) > 1:
-        for (method, kf), fs in figures.items():
+        for (method, kf, reject), fs in figures.items():
             mean = np.mean(fs, axis=0)
             print(
-                f"| {name} | mean | {method} | {kf:g} | " + " | ".join(f"{x:.4f}" for x in mean) + " |",
+                f"| {name} | mean | {method} | {kf:g} | {reject:g} | "
+                + " | ".join(f"{x:.4f}" for x in mean)
+                + " |",
                 flush=True,
             )
 
