@@ -99,9 +99,9 @@ class IasmParams:
             with the keyframe's scan too, held to the odometry's within these (what the
             walls leave open, along a corridor, stays the odometry's).
         laser_reject_m: the joint polish leaves out returns farther than this from the
-            line they are paired with (0: none left out): a handful of returns paired
-            across a corner, 0.1-0.2 m off, turned some steps by tens of mdeg
-            (``benchmarks/bench_matching.py``, part 3).
+            line they are paired with (0: none left out): returns paired with the wrong
+            wall, across a corner (more often against a keyframe), lie 0.1-0.2 m off and
+            a handful of them turn the step (``benchmarks/bench_matching.py``, part 3).
         support_fraction: only hypotheses with at least this fraction of the best
             hypothesis's inliers are scored by the metric.
         min_alignment: with the laser metric, a result whose alignment score (1 minus the
