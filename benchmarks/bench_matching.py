@@ -63,31 +63,58 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=10, help="Use every n-th image step.")
     ap.add_argument("--parts", default="1,2", help="Which parts to run.")
     ap.add_argument("--worlds", default=",".join(WORLDS))
-    ap.add_argument("--seeds", default="1", help="Part 2's seeds (part 1 uses seed 1).")
+    ap.add_argument("--seeds", default="1", help="Parts 2 and 3: the seeds (part 1 uses seed 1).")
     args = ap.parse_args()
     parts = args.parts.split(",")
+    worlds = args.worlds.split(",")
+    seeds = [int(x) for x in args.seeds.split(",")]
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         root.mkdir(parents=True, exist_ok=True)
         if "1" in parts:
-            print("| world | returns | matching | matches per step | median error along the motion (mm) "
-                  "| scatter (mm) | correspondences alone: forward bias (% of step) "
-                  "| yaw RMS (mdeg) |")  # fmt: skip
-            print("|---|---|---|---|---|---|---|---|")
-            for name in args.worlds.split(","):
+            _header(
+                "world",
+                "returns",
+                "matching",
+                "matches per step",
+                "median error along the motion (mm)",
+                "scatter (mm)",
+                "correspondences alone: forward bias (% of step)",
+                "yaw RMS (mdeg)",
+            )
+            for name in worlds:
                 correspondences(sequence(root, name, 1), args.every)
         if "2" in parts:
-            print("\n| world | seed | returns | H-IASM window | IASM loop / avg / RPE 10 m (m) "
-                  "| H-IASM loop / avg / RPE 10 m (m) |")  # fmt: skip
-            print("|---|---|---|---|---|---|")
-            for name in args.worlds.split(","):
-                table(root, name, [int(x) for x in args.seeds.split(",")])
+            _header(
+                "world",
+                "seed",
+                "returns",
+                "H-IASM window",
+                "IASM loop / avg / RPE 10 m (m)",
+                "H-IASM loop / avg / RPE 10 m (m)",
+            )
+            for name in worlds:
+                table(root, name, seeds)
         if "3" in parts:
-            print("\n| world | seed | method | keyframe_m | laser_reject_m | loop closure (m) "
-                  "| avg position error (m) | RPE 1 m (m) | RPE 10 m (m) |")  # fmt: skip
-            print("|---|---|---|---|---|---|---|---|---|")
-            for name in args.worlds.split(","):
-                keyframes(root, name, [int(x) for x in args.seeds.split(",")])
+            _header(
+                "world",
+                "seed",
+                "method",
+                "keyframe_m",
+                "laser_reject_m",
+                "loop closure (m)",
+                "avg position error (m)",
+                "RPE 1 m (m)",
+                "RPE 10 m (m)",
+            )
+            for name in worlds:
+                keyframes(root, name, seeds)
+
+
+def _header(*columns: str) -> None:
+    """A Markdown table's header, after a blank line."""
+    print("\n| " + " | ".join(columns) + " |")
+    print("|" + "---|" * len(columns))
 
 
 WORLDS = ("corridor-loop", "cubicle-loop")
