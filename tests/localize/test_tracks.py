@@ -75,3 +75,47 @@ def test_common_pairs_tracks_by_id():
     ia, ib = common(a, b)
     assert a.ids[ia].tolist() == [4, 9]
     assert b.ids[ib].tolist() == [4, 9]
+
+
+def _periodic_frames(period: int, shifts: list[int]) -> list[np.ndarray]:
+    """A texture repeating every ``period`` pixels across, moved right by each shift
+    (pixels, from the first frame)."""
+    import cv2
+
+    rng = np.random.default_rng(5)
+    tile = cv2.GaussianBlur(rng.uniform(0, 255, (CAM.height_px, period)).astype(np.float32), (0, 0), 2.0)
+    wall = np.tile(tile, (1, CAM.width_px // period + 2))
+    return [np.clip(np.roll(wall, s, axis=1)[:, : CAM.width_px], 0, 255).astype(np.uint8) for s in shifts]
+
+
+def test_prediction_follows_motion_past_a_repeating_patterns_half_period():
+    # The image motion grows by 8 px per frame to 40 px, past half the 64 px period: from
+    # a standing start Lucas-Kanade takes the nearer copy of the pattern (24 px back);
+    # started where each track's last displacement takes it, it follows the true motion.
+    steps = [0, 8, 16, 24, 32, 40]
+    shifts = np.cumsum(steps).tolist()
+    frames = _periodic_frames(64, shifts)
+    right = {}
+    for predict in (True, False):
+        tracker = Tracker(CAM, TrackParams(predict=predict))
+        tracks = [tracker.step(f) for f in frames]
+        ia, ib = common(tracks[-2], tracks[-1])
+        moved = tracks[-1].pixels[ib, 0] - tracks[-2].pixels[ia, 0]
+        right[predict] = np.mean(np.abs(moved - steps[-1]) < 0.5) * len(ia) / len(tracks[0].ids)
+    assert right[True] > 0.8
+    assert right[False] < 0.2
+
+
+def test_a_new_track_starts_from_its_neighbours_displacement():
+    # The first frame's left half is blank, so the tracks found there in the second frame
+    # are new when the motion jumps from 20 to 40 px, past half the 64 px period: they
+    # start from their neighbours' 20 px (a standing start takes the copy 24 px back).
+    frames = _periodic_frames(64, [0, 20, 60])
+    frames[0][:, : CAM.width_px // 2] = 128
+    tracker = Tracker(CAM, TrackParams(redetect_below=10_000, redetect_fraction=2.0))  # SIFT every frame
+    tracks = [tracker.step(f) for f in frames]
+    ia, ib = common(tracks[1], tracks[2])
+    born = ~np.isin(tracks[1].ids[ia], tracks[0].ids)
+    moved = tracks[2].pixels[ib, 0] - tracks[1].pixels[ia, 0]
+    assert born.sum() > 100
+    assert np.mean(np.abs(moved[born] - 40) < 0.5) > 0.9
