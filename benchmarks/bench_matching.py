@@ -30,8 +30,20 @@ laser term against a keyframe ``keyframe_m`` back (0: scan t, every step), with 
 without leaving out returns more than ``laser_reject_m`` off their paired line, and of
 H-IASM without both and with the defaults, per seed and their means.
 
-    .venv/bin/python benchmarks/bench_matching.py [--keep DIR] [--every 10] [--parts 1,2,3]
-        [--seeds 1,2,3] [--worlds corridor-loop,cubicle-loop]
+Part 4, IASM against H-IASM over many seeds: point-to-line ICP (the laser odometry, as
+``rigcal localize --method icp`` runs it), IASM and H-IASM with the defaults, per seed;
+then each method's mean with its standard error, and H-IASM minus IASM paired by seed
+(one lap's loop closure is one draw of how the heading wanders, so a difference means
+something only against its standard error): its mean, standard error and the number of
+seeds where H-IASM is ahead.
+
+Part 5, the camera's rate: the same laps (the same scans) with the camera at 10, 5 and
+2.5 Hz, so that the rig moves 0.1, 0.2 and 0.4 m between images (IASM's search area is
+fixed around each return's own pixel; H-IASM's window follows the homography's
+prediction): IASM's and H-IASM's figures and fallbacks per seed, and their means.
+
+    .venv/bin/python benchmarks/bench_matching.py [--keep DIR] [--every 10] [--parts 1,2,3,4,5]
+        [--seeds 1,2,3] [--worlds corridor-loop,cubicle-loop] [--rates 10,5,2.5]
 """
 
 from __future__ import annotations
@@ -63,7 +75,8 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=10, help="Use every n-th image step.")
     ap.add_argument("--parts", default="1,2", help="Which parts to run.")
     ap.add_argument("--worlds", default=",".join(WORLDS))
-    ap.add_argument("--seeds", default="1", help="Parts 2 and 3: the seeds (part 1 uses seed 1).")
+    ap.add_argument("--seeds", default="1", help="Parts 2-5: the seeds (part 1 uses seed 1).")
+    ap.add_argument("--rates", default="10,5,2.5", help="Part 5: the camera rates (Hz).")
     args = ap.parse_args()
     parts = args.parts.split(",")
     worlds = args.worlds.split(",")
@@ -109,6 +122,14 @@ def main() -> None:
             )
             for name in worlds:
                 keyframes(root, name, seeds)
+        if "4" in parts:
+            _header("world", "seed", *(f"{m} loop / avg (m)" for m in PAIRED))
+            for name in worlds:
+                paired(root, name, seeds)
+        if "5" in parts:
+            _header("world", "camera (Hz)", "seed", *(f"{m} loop / avg (m), fallbacks" for m in PAIRED[1:]))
+            for name in worlds:
+                rates(root, name, seeds, [float(x) for x in args.rates.split(",")])
 
 
 def _header(*columns: str) -> None:
@@ -121,11 +142,14 @@ WORLDS = ("corridor-loop", "cubicle-loop")
 SETTINGS = ((False, False), (False, True), (True, False), (True, True))  # (snapped, dense)
 
 
-def sequence(root: Path, name: str, seed: int) -> Path:
+def sequence(root: Path, name: str, seed: int, camera_rate_hz: float = 10.0) -> Path:
     """The lap of world ``name`` with ``seed`` (simulated once, then reused)."""
-    seq = root / (name if seed == 1 else f"{name}-seed{seed}")
+    folder = name if seed == 1 and camera_rate_hz == 10.0 else f"{name}-seed{seed}"
+    if camera_rate_hz != 10.0:
+        folder += f"-cam{camera_rate_hz:g}"
+    seq = root / folder
     if not (seq / "sequence.yaml").exists():
-        write_drive(BUILTIN[name](), DriveSpec(seed=seed), str(seq))
+        write_drive(BUILTIN[name](), DriveSpec(seed=seed, camera_rate_hz=camera_rate_hz), str(seq))
     return seq
 
 
@@ -246,6 +270,64 @@ def keyframes(root: Path, name: str, seeds: list[int]) -> None:
                 + " |",
                 flush=True,
             )
+
+
+PAIRED = ("icp", "iasm", "hiasm")
+
+
+def paired(root: Path, name: str, seeds: list[int]) -> None:
+    """Part 4: ICP, IASM and H-IASM with the defaults per seed, the means with their
+    standard errors, and H-IASM minus IASM paired by seed."""
+    fig: dict[str, list[list[float]]] = {m: [] for m in PAIRED}
+    for seed in seeds:
+        streams, truth = _opened(sequence(root, name, seed))
+        od = streams.laser_odometry()
+        gt = planar_at(truth, streams.scan_stamps_s)
+        m = evaluate(anchored(od.poses, gt), gt)
+        fig["icp"].append([float(m[FIGURES[k]]) for k in ("loop", "avg")])
+        for method in PAIRED[1:]:
+            fig[method].append(_figures(streams, truth, method, IasmParams(), ("loop", "avg")))
+        print(f"| {name} | {seed} | " + " | ".join(_cell(fig[m][-1]) for m in PAIRED) + " |", flush=True)
+    if len(seeds) < 2:
+        return
+    n = len(seeds)
+    stats = {m: np.array(fig[m]) for m in PAIRED}
+    cells = [
+        " / ".join(f"{mu:.4f} ± {se:.4f}" for mu, se in zip(*_mean_se(v), strict=True))
+        for v in stats.values()
+    ]
+    print(f"| {name} | mean ± s.e. | " + " | ".join(cells) + " |", flush=True)
+    d = 1000.0 * (stats["hiasm"] - stats["iasm"])
+    mu, se = _mean_se(d)
+    _header("world", "figure", "H-IASM - IASM, mean ± s.e. (mm)", "seeds where H-IASM is ahead")
+    for k, label in enumerate(("loop closure", "avg position error")):
+        print(f"| {name} | {label} | {mu[k]:+.2f} ± {se[k]:.2f} | {(d[:, k] < 0).sum()} of {n} |", flush=True)
+
+
+def rates(root: Path, name: str, seeds: list[int], camera_rates: list[float]) -> None:
+    """Part 5: IASM and H-IASM with the defaults at each camera rate, per seed and the means."""
+    for rate in camera_rates:
+        fig: dict[str, list[list[float]]] = {m: [] for m in PAIRED[1:]}
+        for seed in seeds:
+            streams, truth = _opened(sequence(root, name, seed, rate))
+            cells = []
+            for method in PAIRED[1:]:
+                stamps, poses, stats, _ = image_matching.scan_matching(streams, method, IasmParams())
+                gt = planar_at(truth, stamps)
+                m = evaluate(anchored(poses, gt), gt)
+                f = [float(m[FIGURES[k]]) for k in ("loop", "avg")]
+                fig[method].append([*f, stats["fallbacks"]])
+                cells.append(f"{_cell(f)}, {stats['fallbacks']} of {len(stamps) - 1}")
+            print(f"| {name} | {rate:g} | {seed} | " + " | ".join(cells) + " |", flush=True)
+        if len(seeds) > 1:
+            means = [np.mean(fig[m], axis=0) for m in PAIRED[1:]]
+            cells = [f"{_cell(list(v[:2]))}, {v[2]:.1f}" for v in means]
+            print(f"| {name} | {rate:g} | mean | " + " | ".join(cells) + " |", flush=True)
+
+
+def _mean_se(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Column means of ``v`` (one row per seed) and their standard errors."""
+    return v.mean(0), v.std(0, ddof=1) / np.sqrt(len(v))
 
 
 FIGURES = {
