@@ -63,6 +63,13 @@ def _frame(world, tex, pose, params):
     return make_frame(gray, scan, CAM, T_CAM_LASER, params)
 
 
+def _posters_pair(motion, params):
+    """Frames at the origin and at ``motion`` in a corridor with posters on its left wall."""
+    world = _world("posters")
+    tex = world_textures(world, 0)
+    return _frame(world, tex, (0.0, 0.0, 0.0), params), _frame(world, tex, tuple(motion), params)
+
+
 def _correct(m, motion):
     c, s = np.cos(motion[2]), np.sin(motion[2])
     moved = m.b @ np.array([[c, -s], [s, c]]).T + motion[:2]
@@ -99,6 +106,27 @@ def test_repeating_pattern_fools_iasm_but_not_hiasm(repeating):
     assert abs(res.motion[2]) < np.radians(0.1)
 
 
+def test_a_scale_carried_from_a_faster_step_misplaces_hiasms_windows():
+    """The rig slows from 0.4 m to 0.1 m between images: with the previous step's scale
+    (the paper's, carried over) the windows sit 0.3 m ahead of the true matches; with the
+    step's own (the laser odometry's, ``IasmParams.odometry_scale``) they hold them."""
+    params = IasmParams()
+    motion = np.array([0.1, 0.0, 0.0])
+    f1, f2 = _posters_pair(motion, params)
+    R, t = camera_motion(motion, T_CAM_LASER)
+    t_unit = t / np.linalg.norm(t)
+    carried = float(np.linalg.norm(camera_motion(np.array([0.4, 0.0, 0.0]), T_CAM_LASER)[1]))
+    found = {}
+    for name, scale in (("carried", carried), ("own", float(np.linalg.norm(t)))):
+        res, m = hiasm_step(f1, f2, R, t_unit, scale, CAM, T_CAM_LASER, params, np.random.default_rng(0))
+        right = res is not None and np.linalg.norm(res.motion[:2] - motion[:2]) < 0.01
+        found[name] = (_correct(m, motion).mean() if len(m.a) else 0.0, right)
+    assert found["carried"][0] < 0.2
+    assert not found["carried"][1]
+    assert found["own"][0] > 0.9
+    assert found["own"][1]
+
+
 def test_dense_window_search_also_takes_the_right_period(repeating):
     """Fig. 5 with H-IASM's dense window search: the matches are the true ones."""
     world, tex = repeating
@@ -132,12 +160,9 @@ def test_dense_window_search_places_matches_between_the_returns():
     a return of scan t was: the dense search finds each point on the wall to well under a
     millimetre; the best of scan t+1's returns (with the parabola) is a beam spacing's
     fraction off."""
-    world = _world("posters")
-    tex = world_textures(world, 0)
     params = IasmParams()
     motion = np.array([0.1037, 0.0, 0.0])
-    f1 = _frame(world, tex, (0.0, 0.0, 0.0), params)
-    f2 = _frame(world, tex, tuple(motion), params)
+    f1, f2 = _posters_pair(motion, params)
     pred, true_b = _true_pixels(f1, motion)
     dense = window_search(f1, f2, pred, CAM, T_CAM_LASER, params)
     beams = match_returns(f1, f2, pred, params.window_px, params.window_px)

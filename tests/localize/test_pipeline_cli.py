@@ -117,13 +117,14 @@ def test_all_methods_on_one_sequence(drive, tmp_path, capsys):
     assert methods["iasm"]["poses"] == methods["hiasm"]["poses"] == n_images
     steps = methods["hiasm"]["steps_by"]
     assert sum(steps.values()) == n_images - 1
-    assert steps["hiasm"] > 0.5 * (n_images - 1)  # the first pair is IASM's
+    assert steps["hiasm"] > 0.5 * (n_images - 1)
     assert methods["hiasm"]["fallbacks"] == steps["iasm"] + steps["icp"]
     rows = (out / "hiasm" / "steps.csv").read_text().splitlines()
     assert rows[0] == "image,stamp_s,used,metric,correspondences,inliers,fallback"
     assert len(rows) == n_images
     assert sum(r.split(",")[2] == "hiasm" for r in rows[1:]) == steps["hiasm"]
-    assert "no scale yet" in rows[1]
+    # The laser odometry gives the first pair's scale too.
+    assert rows[1].split(",")[2] == "hiasm"
     # A keyframe every 2 m (or 20 deg) over the first 6 m.
     assert 3 <= methods["iasm"]["keyframes"] <= n_images // 4
     assert methods["kf"]["vo_measurements"] > 0
@@ -250,6 +251,20 @@ def test_iasm_settings_from_the_command_line_reach_the_run_and_the_summary(drive
     # Without keyframes every step aligns with the scan before it.
     assert s["methods"]["iasm"]["keyframes"] == s["methods"]["iasm"]["poses"]
     assert s["methods"]["iasm"]["metrics"]["average_position_error_m"] < 0.1
+
+
+def test_hiasm_with_the_papers_carried_scale_starts_with_iasm(drive, tmp_path):
+    out = tmp_path / "carried"
+    args = ["localize", str(drive), "--method", "hiasm", "-o", str(out), "--iasm", "odometry_scale=false"]
+    assert main(args) == 0
+    rows = (out / "hiasm" / "steps.csv").read_text().splitlines()
+    # No scale before the first step: it falls back to IASM; later steps carry the last one.
+    assert rows[1].split(",")[2] == "iasm"
+    assert "no scale yet" in rows[1]
+    assert sum(r.split(",")[2] == "hiasm" for r in rows[2:]) > 0.5 * (len(rows) - 2)
+    s = yaml.safe_load((out / "summary.yaml").read_text())
+    assert s["config"]["settings"]["iasm"]["odometry_scale"] is False
+    assert s["methods"]["hiasm"]["metrics"]["average_position_error_m"] < 0.1
 
 
 def test_iasm_settings_parse_each_field_by_its_type():

@@ -23,10 +23,12 @@ IASM (Section III):
 H-IASM (Section V): the same, but each return's search window is centred on where the
 homography of its plane puts it in the next image, H = R_c + (s_{t-1} / d) t_c n^T
 (Eq. (10)), with R_c and the unit t_c from visual odometry between the two images, the
-previous step's scale s_{t-1}, and the plane's normal n and distance d from the scan's
-lines in camera coordinates (Eq. (7)); the window is small (``window_px``), which rejects
-the wrong matches of repeating patterns (Fig. 5). The scale is updated from each result.
-The first pair, a pair without visual odometry, or one without scale falls back to IASM.
+scale from the laser odometry between them (the paper carries the previous step's,
+s_{t-1}, over: ``IasmParams.odometry_scale`` False), and the plane's normal n and
+distance d from the scan's lines in camera coordinates (Eq. (7)); the window is small
+(``window_px``), which rejects the wrong matches of repeating patterns (Fig. 5). A pair
+without visual odometry, or without a scale (the first, with the carried scale), falls
+back to IASM.
 
 Conventions: a step's motion is T_t_t1 (x, y, yaw): the pose of the laser at image t+1
 in its frame at image t, so that points map as a = T b (a in scan t, b in scan t+1).
@@ -106,6 +108,11 @@ class IasmParams:
             hypothesis's inliers are scored by the metric.
         min_alignment: with the laser metric, a result whose alignment score (1 minus the
             mean capped distance over ``truncate_m``) is below this fails.
+        odometry_scale: H-IASM's homography (Eq. (10)) takes the translation's scale from
+            the laser odometry's motion between the two images; False: the previous
+            step's, carried over as in the paper, which puts every window in the wrong
+            place when the rig stops or starts between two images
+            (``benchmarks/bench_matching.py``, part 5).
     """
 
     patch_radius_px: int = 5
@@ -135,6 +142,7 @@ class IasmParams:
     fallback_sigma_m: float = 0.02
     fallback_sigma_deg: float = 0.5
     laser_reject_m: float = 0.03
+    odometry_scale: bool = True
 
 
 @dataclass

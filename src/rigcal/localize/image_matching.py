@@ -99,6 +99,15 @@ class ScanMatcher:
         self.timings_s["frames_s"] += time.perf_counter() - t0
         return f, None if self.tracks is None else self.tracks[i]
 
+    def scale_of(self, motion: FloatArray) -> float:
+        """The length of the camera's translation for a laser motion (x, y, yaw)."""
+        return float(np.linalg.norm(camera_motion(motion, self.T_cam_laser)[1]))
+
+    def odometry_scale(self, i1: int, i2: int) -> float:
+        """The camera's translation between images i1 and i2 by the laser odometry."""
+        t = self.streams.image_stamps_s
+        return self.scale_of(self.streams.odometry_motion(float(t[i1]), float(t[i2])))
+
     def try_hiasm(
         self,
         f1: Frame,
@@ -185,6 +194,8 @@ def scan_matching(
         streams.report(method.upper(), i + 1, streams.n_images)
         f2, tr2 = sm.frame(i)
         reference = None if key is f1 else keyframe_reference(key, T_key)
+        if sm.hierarchical and sm.params.odometry_scale:
+            scale = sm.odometry_scale(i - 1, i)
         st = sm.step(f1, f2, tr1, tr2, scale, i - 1, i, reference)
         T_key = T_key @ se2(st.motion)
         if new_keyframe(T_key, sm.params):
@@ -203,7 +214,7 @@ def scan_matching(
         if st.result is not None:
             metric[st.result.metric] += 1
             inliers.append(st.result.inliers)
-        scale = float(np.linalg.norm(camera_motion(st.motion, sm.T_cam_laser)[1]))
+        scale = sm.scale_of(st.motion)
         motions.append(st.motion)
         f1, tr1 = f2, tr2
     for k, v in sm.timings_s.items():
@@ -246,10 +257,13 @@ def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint
     f1, tr1 = sm.frame(i)
     f2, tr2 = sm.frame(i + 1)
     scale = None
-    if sm.hierarchical and i > 0:
+    if sm.hierarchical and sm.params.odometry_scale:
+        streams.laser_odometry()
+        scale = sm.odometry_scale(i, i + 1)
+    elif sm.hierarchical and i > 0:
         f0, tr0 = sm.frame(i - 1)
         prev = sm.step(f0, f1, tr0, tr1, None, i - 1, i)
-        scale = float(np.linalg.norm(camera_motion(prev.motion, sm.T_cam_laser)[1]))
+        scale = sm.scale_of(prev.motion)
     st = sm.step(f1, f2, tr1, tr2, scale, i, i + 1)
     m = st.matches
     if m is None or len(m.i1) == 0:
