@@ -124,12 +124,16 @@ def main() -> None:
                 keyframes(root, name, seeds)
         if "4" in parts:
             _header("world", "seed", *(f"{m} loop / avg (m)" for m in PAIRED))
-            for name in worlds:
-                paired(root, name, seeds)
+            diffs = [row for name in worlds for row in paired(root, name, seeds)]
+            _differences(diffs)
         if "5" in parts:
             _header("world", "camera (Hz)", "seed", *(f"{m} loop / avg (m), fallbacks" for m in PAIRED[1:]))
-            for name in worlds:
-                rates(root, name, seeds, [float(x) for x in args.rates.split(",")])
+            diffs = [
+                row
+                for name in worlds
+                for row in rates(root, name, seeds, [float(x) for x in args.rates.split(",")])
+            ]
+            _differences(diffs)
 
 
 def _header(*columns: str) -> None:
@@ -275,7 +279,7 @@ def keyframes(root: Path, name: str, seeds: list[int]) -> None:
 PAIRED = ("icp", "iasm", "hiasm")
 
 
-def paired(root: Path, name: str, seeds: list[int]) -> None:
+def paired(root: Path, name: str, seeds: list[int]) -> list[str]:
     """Part 4: ICP, IASM and H-IASM with the defaults per seed, the means with their
     standard errors, and H-IASM minus IASM paired by seed."""
     fig: dict[str, list[list[float]]] = {m: [] for m in PAIRED}
@@ -289,23 +293,40 @@ def paired(root: Path, name: str, seeds: list[int]) -> None:
             fig[method].append(_figures(streams, truth, method, IasmParams(), ("loop", "avg")))
         print(f"| {name} | {seed} | " + " | ".join(_cell(fig[m][-1]) for m in PAIRED) + " |", flush=True)
     if len(seeds) < 2:
-        return
-    n = len(seeds)
+        return []
     stats = {m: np.array(fig[m]) for m in PAIRED}
     cells = [
         " / ".join(f"{mu:.4f} ± {se:.4f}" for mu, se in zip(*_mean_se(v), strict=True))
         for v in stats.values()
     ]
     print(f"| {name} | mean ± s.e. | " + " | ".join(cells) + " |", flush=True)
-    d = 1000.0 * (stats["hiasm"] - stats["iasm"])
+    return _difference_rows(name, 10.0, stats["iasm"], stats["hiasm"])
+
+
+def _difference_rows(name: str, rate: float, iasm: np.ndarray, hiasm: np.ndarray) -> list[str]:
+    """Rows of H-IASM minus IASM paired by seed (one row per seed in ``iasm``, ``hiasm``:
+    loop closure, average position error in metres)."""
+    d = 1000.0 * (hiasm[:, :2] - iasm[:, :2])
     mu, se = _mean_se(d)
-    _header("world", "figure", "H-IASM - IASM, mean ± s.e. (mm)", "seeds where H-IASM is ahead")
-    for k, label in enumerate(("loop closure", "avg position error")):
-        print(f"| {name} | {label} | {mu[k]:+.2f} ± {se[k]:.2f} | {(d[:, k] < 0).sum()} of {n} |", flush=True)
+    return [
+        f"| {name} | {rate:g} | {label} | {mu[k]:+.2f} ± {se[k]:.2f} | {(d[:, k] < 0).sum()} of {len(d)} |"
+        for k, label in enumerate(("loop closure", "avg position error"))
+    ]
 
 
-def rates(root: Path, name: str, seeds: list[int], camera_rates: list[float]) -> None:
-    """Part 5: IASM and H-IASM with the defaults at each camera rate, per seed and the means."""
+def _differences(rows: list[str]) -> None:
+    """The table of H-IASM minus IASM."""
+    if rows:
+        _header(
+            "world", "camera (Hz)", "figure", "H-IASM - IASM, mean ± s.e. (mm)", "seeds where H-IASM is ahead"
+        )
+        print("\n".join(rows), flush=True)
+
+
+def rates(root: Path, name: str, seeds: list[int], camera_rates: list[float]) -> list[str]:
+    """Part 5: IASM and H-IASM with the defaults at each camera rate, per seed and the
+    means; returns the rows of H-IASM minus IASM."""
+    diffs: list[str] = []
     for rate in camera_rates:
         fig: dict[str, list[list[float]]] = {m: [] for m in PAIRED[1:]}
         for seed in seeds:
@@ -323,6 +344,8 @@ def rates(root: Path, name: str, seeds: list[int], camera_rates: list[float]) ->
             means = [np.mean(fig[m], axis=0) for m in PAIRED[1:]]
             cells = [f"{_cell(list(v[:2]))}, {v[2]:.1f}" for v in means]
             print(f"| {name} | {rate:g} | mean | " + " | ".join(cells) + " |", flush=True)
+            diffs += _difference_rows(name, rate, np.array(fig["iasm"]), np.array(fig["hiasm"]))
+    return diffs
 
 
 def _mean_se(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
