@@ -267,6 +267,34 @@ def test_hiasm_with_the_papers_carried_scale_starts_with_iasm(drive, tmp_path):
     assert s["methods"]["hiasm"]["metrics"]["average_position_error_m"] < 0.1
 
 
+def test_steps_far_from_the_laser_odometry_fall_back(drive, tmp_path):
+    def rows(gate: str) -> list[list[str]]:
+        out = tmp_path / f"gate{gate}"
+        args = [
+            "localize",
+            str(drive),
+            "--method",
+            "iasm,hiasm",
+            "-o",
+            str(out),
+            "--iasm",
+            f"odometry_gate_m={gate}",
+        ]
+        assert main(args) == 0
+        return [
+            r.split(",")
+            for m in ("iasm", "hiasm")
+            for r in (out / m / "steps.csv").read_text().splitlines()[1:]
+        ]
+
+    # The drive's image steps agree with the laser odometry to well under 0.1 m ...
+    assert not any("off the laser odometry" in r[6] for r in rows("0.1"))
+    # ... but not to 0.1 mm: then every step falls back to ICP and says why.
+    strict = rows("0.0001")
+    assert all(r[2] == "icp" for r in strict)
+    assert sum("m off the laser odometry" in r[6] for r in strict) > 0.5 * len(strict)
+
+
 def test_iasm_settings_parse_each_field_by_its_type():
     from rigcal.localize.pipeline import parse_iasm_settings
 

@@ -113,6 +113,13 @@ class IasmParams:
             step's, carried over as in the paper, which puts every window in the wrong
             place when the rig stops or starts between two images
             (``benchmarks/bench_matching.py``, part 5).
+        odometry_gate_m: an IASM or H-IASM step whose translation lies farther than this
+            from the laser odometry's between the same two images fails (falls back),
+            where every scan step between them constrains the odometry (0: no check).
+            The walls cannot tell a repeating pattern's wrong copy from the truth along
+            a corridor, but the laser odometry, with the corridor's ends in view,
+            can: a step matched a period off (0.5 m) lies decimetres from it, a right
+            one millimetres.
     """
 
     patch_radius_px: int = 5
@@ -143,6 +150,7 @@ class IasmParams:
     fallback_sigma_deg: float = 0.5
     laser_reject_m: float = 0.03
     odometry_scale: bool = True
+    odometry_gate_m: float = 0.1
 
 
 @dataclass

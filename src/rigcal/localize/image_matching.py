@@ -2,9 +2,11 @@
 
 :class:`ScanMatcher` builds each image's frame (its scan moved to the image's time and
 projected) and runs one step between two frames: H-IASM when visual odometry between the
-two images and a previous scale are available, else IASM, else ICP between the two scans
+two images and a scale are available, else IASM, else ICP between the two scans
 (H-IASM -> IASM -> ICP; ICP's motion is the laser odometry's, point-to-line over every
-scan, between the two images' stamps). Each step's joint polish aligns scan t+1 with a
+scan, between the two images' stamps; an H-IASM or IASM motion that lies more than
+``IasmParams.odometry_gate_m`` from it, where the odometry is constrained, fails as
+well). Each step's joint polish aligns scan t+1 with a
 keyframe's scan (``IasmParams.keyframe_m``), and so does a fallback to ICP. Each
 fallback is logged (logger ``rigcal.localize``) and counted in the run's summary.
 :func:`scan_matching` chains the steps over a sequence; :func:`step_picture` draws one
@@ -37,6 +39,7 @@ from rigcal.localize.iasm import (
     make_frame,
 )
 from rigcal.localize.icp import se2
+from rigcal.localize.odometry import DEGENERATE_BELOW
 from rigcal.localize.streams import Streams
 from rigcal.localize.tracks import FrameTracks, Tracker, common
 from rigcal.localize.vo import VoParams, planar_motion, relative_pose
@@ -108,6 +111,22 @@ class ScanMatcher:
         t = self.streams.image_stamps_s
         return self.scale_of(self.streams.odometry_motion(float(t[i1]), float(t[i2])))
 
+    def odometry_gap(self, motion: FloatArray, odometry: FloatArray, i1: int, i2: int) -> str | None:
+        """Why an image step's motion cannot be right, or None: it moves more than
+        ``odometry_gate_m`` away from the laser odometry's motion between images i1 and
+        i2 while every scan step between them constrains the odometry (degeneracy
+        indicator at least DEGENERATE_BELOW)."""
+        gate = self.params.odometry_gate_m
+        gap = float(np.hypot(*(motion[:2] - odometry[:2])))
+        if gate <= 0 or gap <= gate:
+            return None
+        t, ts = self.streams.image_stamps_s, self.streams.scan_stamps_s
+        between = (ts > t[i1]) & (ts <= t[i2])
+        degeneracy = self.streams.laser_odometry().degeneracy[between]
+        if len(degeneracy) and float(degeneracy.min()) < DEGENERATE_BELOW:
+            return None
+        return f"{gap:.2f} m off the laser odometry"
+
     def try_hiasm(
         self,
         f1: Frame,
@@ -147,19 +166,25 @@ class ScanMatcher:
         """The motion between frames of images i1 and i2, falling back H-IASM -> IASM -> ICP."""
         t0 = time.perf_counter()
         why = None
+        t = self.streams.image_stamps_s
+        odometry = self.streams.odometry_motion(float(t[i1]), float(t[i2]))
         if tr1 is not None and tr2 is not None:
             res, m, why = self.try_hiasm(f1, f2, tr1, tr2, scale, reference)
             if res is not None:
-                self.timings_s["matching_s"] += time.perf_counter() - t0
-                return Step(res.motion, "hiasm", res, m, None)
+                gap = self.odometry_gap(res.motion, odometry, i1, i2)
+                if gap is None:
+                    self.timings_s["matching_s"] += time.perf_counter() - t0
+                    return Step(res.motion, "hiasm", res, m, None)
+                res, why = None, gap
         res, m = iasm_step(f1, f2, self.camera, self.T_cam_laser, self.params, self.rng, reference)
         self.timings_s["matching_s"] += time.perf_counter() - t0
-        if res is not None:
+        gap = None if res is None else self.odometry_gap(res.motion, odometry, i1, i2)
+        if res is not None and gap is None:
             return Step(res.motion, "iasm", res, m, why)
-        why = "too few correspondences" if why is None else why + "; IASM: too few correspondences"
+        failed = gap or "too few correspondences"
+        why = failed if why is None else f"{why}; IASM: {failed}"
         # ICP: the laser odometry's motion (point-to-line over every scan) between the stamps.
-        t = self.streams.image_stamps_s
-        motion = self.streams.odometry_motion(float(t[i1]), float(t[i2]))
+        motion = odometry
         if reference is not None:
             # Aligned with the keyframe's scan as well, as the image steps are.
             none = np.zeros((0, 2))

@@ -30,6 +30,8 @@ LINES_EVERY = 4
 # A carried return lies within this of its line (3 sigma of a Hokuyo-class scanner's
 # range noise, as the line extraction's own distance test).
 CARRY_M = 0.03
+# An ICP step whose degeneracy indicator is below this constrains too little.
+DEGENERATE_BELOW = 0.01
 
 
 @dataclass(frozen=True)

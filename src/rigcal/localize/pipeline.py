@@ -33,7 +33,7 @@ from rigcal.localize.iasm import IasmParams
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.image_matching import scan_matching
 from rigcal.localize.metrics import anchored, evaluate
-from rigcal.localize.odometry import Odometry, icp_odometry
+from rigcal.localize.odometry import DEGENERATE_BELOW, Odometry, icp_odometry
 from rigcal.localize.streams import Streams, open_streams
 from rigcal.localize.vo import VoResult, visual_odometry
 
@@ -51,9 +51,6 @@ class Estimate:
     poses: FloatArray
     stats: dict[str, Any] = field(default_factory=dict)
     steps_csv: str | None = None
-
-
-DEGENERATE_BELOW = 0.01  # an ICP step whose degeneracy indicator is below this constrains too little
 
 
 def _icp_estimate(streams: Streams, od: Odometry) -> Estimate:
