@@ -106,11 +106,6 @@ class ScanMatcher:
         """The length of the camera's translation for a laser motion (x, y, yaw)."""
         return float(np.linalg.norm(camera_motion(motion, self.T_cam_laser)[1]))
 
-    def odometry_scale(self, i1: int, i2: int) -> float:
-        """The camera's translation between images i1 and i2 by the laser odometry."""
-        t = self.streams.image_stamps_s
-        return self.scale_of(self.streams.odometry_motion(float(t[i1]), float(t[i2])))
-
     def odometry_gap(self, motion: FloatArray, odometry: FloatArray, i1: int, i2: int) -> str | None:
         """Why an image step's motion cannot be right, or None: it moves more than
         ``odometry_gate_m`` away from the laser odometry's motion between images i1 and
@@ -163,11 +158,17 @@ class ScanMatcher:
         i2: int,
         reference: LaserReference | None = None,
     ) -> Step:
-        """The motion between frames of images i1 and i2, falling back H-IASM -> IASM -> ICP."""
+        """The motion between frames of images i1 and i2, falling back H-IASM -> IASM -> ICP.
+
+        ``scale``: the previous step's (the paper's, carried over); H-IASM takes the laser
+        odometry's between the two images instead with ``IasmParams.odometry_scale``.
+        """
         t0 = time.perf_counter()
         why = None
         t = self.streams.image_stamps_s
         odometry = self.streams.odometry_motion(float(t[i1]), float(t[i2]))
+        if self.params.odometry_scale:
+            scale = self.scale_of(odometry)
         if tr1 is not None and tr2 is not None:
             res, m, why = self.try_hiasm(f1, f2, tr1, tr2, scale, reference)
             if res is not None:
@@ -219,8 +220,6 @@ def scan_matching(
         streams.report(method.upper(), i + 1, streams.n_images)
         f2, tr2 = sm.frame(i)
         reference = None if key is f1 else keyframe_reference(key, T_key)
-        if sm.hierarchical and sm.params.odometry_scale:
-            scale = sm.odometry_scale(i - 1, i)
         st = sm.step(f1, f2, tr1, tr2, scale, i - 1, i, reference)
         T_key = T_key @ se2(st.motion)
         if new_keyframe(T_key, sm.params):
@@ -269,7 +268,9 @@ def new_keyframe(T_key_t: FloatArray, params: IasmParams) -> bool:
 def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint8], Step]:
     """The correspondences of the step from image i to image i+1 (Fig. 5), and the step.
 
-    H-IASM's scale comes from an IASM step on the images before (i-1, i), as in a run.
+    H-IASM's scale is the laser odometry's between the two images or, with
+    ``IasmParams.odometry_scale`` False, that of a step on the images before (i-1, i),
+    as in a run.
     """
     from rigcal.viz.matches_plot import draw_matches
 
@@ -282,10 +283,7 @@ def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint
     f1, tr1 = sm.frame(i)
     f2, tr2 = sm.frame(i + 1)
     scale = None
-    if sm.hierarchical and sm.params.odometry_scale:
-        streams.laser_odometry()
-        scale = sm.odometry_scale(i, i + 1)
-    elif sm.hierarchical and i > 0:
+    if sm.hierarchical and not sm.params.odometry_scale and i > 0:
         f0, tr0 = sm.frame(i - 1)
         prev = sm.step(f0, f1, tr0, tr1, None, i - 1, i)
         scale = sm.scale_of(prev.motion)
