@@ -9,7 +9,7 @@ image t+1 three ways:
 - ``window``: the same among the returns within H-IASM's window around where the *true*
   motion puts it (so that the figures measure the matching, not visual odometry);
 - ``dense``: H-IASM's dense search along the wall in that window
-  (:func:`rigcal.localize.iasm.window_search`);
+  (:func:`rigcal.localize.hiasm.window_search`);
 
 each on the scans as measured (``raw``) and with the returns moved onto their lines
 (``snapped``, :func:`rigcal.localize.iasm.snap_to_lines`). A match's error is its point
@@ -58,7 +58,8 @@ import numpy as np
 from rigcal.geometry import transform_points
 from rigcal.io.trajectory import Trajectory, read_tum
 from rigcal.localize import image_matching
-from rigcal.localize.iasm import IasmParams, Matches, match_returns, robust_motion, window_search
+from rigcal.localize.hiasm import window_search
+from rigcal.localize.iasm import IasmParams, Matches, match_returns, robust_motion
 from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.pipeline import planar_at

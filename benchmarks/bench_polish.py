@@ -1,6 +1,6 @@
 """IASM's joint polish: how much to weigh the image correspondences against the walls.
 
-The polish (``rigcal.localize.iasm.joint_polish``) fits each step to the scans'
+The polish (``rigcal.localize.polish.joint_polish``) fits each step to the scans'
 point-to-line alignment (1 cm noise per return) and the image correspondences together;
 ``IasmParams.sigma_match_m`` is the weight of a correspondence, as a noise. For each
 weight, H-IASM runs over one lap of each simulated loop (seed 1, as

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from corridor_views import corridor
 from scipy.ndimage import gaussian_filter, map_coordinates
 
 from rigcal.sim.box_session import default_camera
+from rigcal.sim.textures import world_textures
 
 CAM = default_camera()
 
@@ -37,3 +39,10 @@ def texture():
 def wall_image():
     """``wall_image(R, t, depth, texture)``: the second camera's view of a textured plane."""
     return _wall_image
+
+
+@pytest.fixture(scope="module")
+def repeating():
+    """The corridor with a 0.5 m period pattern on its left wall, and its textures."""
+    world = corridor("repeating")
+    return world, world_textures(world, 0)

@@ -1,4 +1,4 @@
-"""Image-augmented scan matching: IASM (paper Section III) and H-IASM (Section V, Fig. 7).
+"""IASM: image-augmented scan matching (paper Section III).
 
 Both find which return of one scan is which return of the next from the camera images,
 then the 2D rigid motion between the scans from those pairs by RANSAC.
@@ -18,17 +18,13 @@ IASM (Section III):
    metric (mean SAD between the first image's patches and the second image's patches at
    the first scan moved by the hypothesis and projected) (Section III-C).
 4. RANSAC over pairs of correspondences: each pair gives a rigid motion; the hypothesis
-   with the best metric wins; a least-squares fit (Eq. (4)) on its inliers polishes it.
+   with the best metric wins; a least-squares fit (Eq. (4)) on its inliers polishes it,
+   then (``IasmParams.joint_polish``, the default) the joint polish with the scans
+   (:mod:`rigcal.localize.polish`).
 
-H-IASM (Section V): the same, but each return's search window is centred on where the
-homography of its plane puts it in the next image, H = R_c + (s_{t-1} / d) t_c n^T
-(Eq. (10)), with R_c and the unit t_c from visual odometry between the two images, the
-scale from the laser odometry between them (the paper carries the previous step's,
-s_{t-1}, over: ``IasmParams.odometry_scale`` False), and the plane's normal n and
-distance d from the scan's lines in camera coordinates (Eq. (7)); the window is small
-(``window_px``), which rejects the wrong matches of repeating patterns (Fig. 5). A pair
-without visual odometry, or without a scale (the first, with the carried scale), falls
-back to IASM.
+H-IASM (Section V, :mod:`rigcal.localize.hiasm`) is the same with a small search window
+around where the homography of each return's plane puts it; the settings of both are
+:class:`IasmParams`.
 
 Conventions: a step's motion is T_t_t1 (x, y, yaw): the pose of the laser at image t+1
 in its frame at image t, so that points map as a = T b (a in scan t, b in scan t+1).
@@ -44,8 +40,9 @@ from scipy.spatial import cKDTree
 
 from rigcal.calib.lines import Segment, extract_lines, return_labels
 from rigcal.camera import Camera
-from rigcal.geometry import make_T, rotvec_to_R, transform_points
-from rigcal.localize.icp import _point_to_point, line_fits, pairing_normals, pose_of, se2
+from rigcal.geometry import transform_points
+from rigcal.localize.icp import _point_to_point, line_fits
+from rigcal.localize.polish import LaserReference, joint_polish
 from rigcal.localize.vo import sample_patches
 from rigcal.scan import Scan
 
@@ -253,23 +250,6 @@ def make_frame(
 
 
 @dataclass(frozen=True)
-class LaserReference:
-    """The returns, and their line normals (NaN off a line), that the joint polish aligns
-    scan t+1 with, in the frame of scan t: scan t's own, or a keyframe's
-    (:func:`keyframe_reference`)."""
-
-    points: FloatArray
-    normals: FloatArray
-
-
-def keyframe_reference(key: Frame, T_key_t: FloatArray) -> LaserReference:
-    """A keyframe's returns and line normals in the frame of scan t, from T_key_t (3, 3):
-    the pose of scan t in the keyframe's frame."""
-    T = np.linalg.inv(T_key_t)
-    return LaserReference(key.points @ T[:2, :2].T + T[:2, 2], key.normals @ T[:2, :2].T)
-
-
-@dataclass(frozen=True)
 class Matches:
     """Correspondences a[k] (return i1[k] of scan t) <-> b[k] (near return i2[k] of scan
     t+1, refined between its neighbours), and their SAD."""
@@ -349,73 +329,6 @@ def parabola_offset(s_lo: FloatArray, s_mid: FloatArray, s_hi: FloatArray) -> Fl
         x = np.where(den > 0, 0.5 * (s_lo - s_hi) / den, np.nan)
     out: FloatArray = np.clip(x, -0.5, 0.5)
     return out
-
-
-def window_search(
-    f1: Frame,
-    f2: Frame,
-    predicted: FloatArray,
-    camera: Camera,
-    T_cam_laser: FloatArray,
-    params: IasmParams,
-) -> Matches:
-    """H-IASM's correspondences: each return of f1 searched for along the wall of scan
-    t+1 it is predicted to land on, within ``window_px`` of the prediction (Section V).
-
-    The search is dense: candidates every ``window_step_px`` along the wall line of scan
-    t+1 (the line of the return of f2 whose pixel is nearest the prediction), each
-    projected into image t+1 and compared by SAD; a parabola through the SADs around the
-    minimum places the match between candidates. A match is therefore a point on the wall
-    anywhere, not one of scan t+1's returns (IASM's, which a beam's spacing quantises,
-    1-3 cm on the walls here). A minimum at the window's edge is no match.
-
-    Args:
-        predicted: (N1, 2) where each return of f1 is expected in image 2 (NaN: unknown).
-    """
-    i1 = np.flatnonzero(f1.visible & np.isfinite(predicted[:, 0]))
-    i2 = np.flatnonzero(f2.visible & (f2.line_of >= 0))
-    if len(i1) == 0 or len(i2) == 0:
-        return Matches.none()
-    # The return of scan t+1 nearest each prediction, in pixels, within the window.
-    dist, near = cKDTree(f2.pixels[i2]).query(predicted[i1], distance_upper_bound=params.window_px)
-    ok = np.isfinite(dist)
-    i1, j = i1[ok], i2[near[ok]]
-    if len(i1) == 0:
-        return Matches.none()
-    n = f2.normals[j]
-    u = np.column_stack([-n[:, 1], n[:, 0]])  # along the wall
-
-    def pixels(q: FloatArray) -> FloatArray:
-        return camera.project(transform_points(T_cam_laser, q))
-
-    # Pixels per metre along the wall at each return, and the offset along the wall
-    # whose pixel is nearest the prediction: the window's centre.
-    q0 = f2.points[j] - np.einsum("ij,ij->i", f2.points[j] - f2.centres[j], n)[:, None] * n  # on the line
-    g = (pixels(q0 + 0.005 * u) - pixels(q0 - 0.005 * u)) / 0.01
-    gg = np.einsum("ij,ij->i", g, g)
-    keep = gg > 1.0
-    i1, j, q0, u, g, gg = i1[keep], j[keep], q0[keep], u[keep], g[keep], gg[keep]
-    s0 = np.einsum("ij,ij->i", predicted[i1] - f2.pixels[j], g) / gg
-    steps = np.arange(-params.window_px, params.window_px + 1e-9, params.window_step_px)
-    ds = steps[None, :] / np.sqrt(gg)[:, None]  # (M, S) metres along the wall
-    cand = q0[:, None, :] + (s0[:, None] + ds)[:, :, None] * u[:, None, :]
-    M, S = ds.shape
-    px = pixels(cand.reshape(-1, 2))
-    r = params.patch_radius_px
-    inside = camera.in_image(np.nan_to_num(px, nan=-1e6), margin_px=r + 1)
-    patches = np.full((M * S, (2 * r + 1) ** 2), np.nan, dtype=np.float32)
-    patches[inside] = sample_patches(f2.gray, px[inside], r)
-    sad = np.abs(patches.reshape(M, S, -1) - f1.patches[i1][:, None, :]).mean(axis=2)
-    sad = np.where(np.isfinite(sad), sad, np.inf)
-    k = np.argmin(sad, axis=1)
-    rows = np.arange(M)
-    good = (k > 0) & (k < S - 1) & np.isfinite(sad[rows, k])
-    rows, k = rows[good], k[good]
-    s_lo, s_mid, s_hi = sad[rows, k - 1], sad[rows, k], sad[rows, k + 1]
-    x = np.nan_to_num(parabola_offset(s_lo, s_mid, s_hi))  # none where a neighbour is off the image
-    off = s0[rows] + ds[rows, k] + x * (ds[rows, 1] - ds[rows, 0])
-    b = q0[rows] + off[:, None] * u[rows]
-    return Matches(i1[rows], j[rows], f1.points[i1[rows]], b, s_mid)
 
 
 def laser_metric_wanted(lines: list[Segment], params: IasmParams) -> bool:
@@ -599,73 +512,6 @@ def robust_motion(
     return StepResult(pose, "laser" if use_laser else "image", len(m.a), int(inl.sum()), inl)
 
 
-def joint_polish(
-    pose: FloatArray,
-    a: FloatArray,
-    b: FloatArray,
-    scan1: FloatArray,
-    scan2: FloatArray,
-    params: IasmParams,
-    normals1: FloatArray | None = None,
-    prior: FloatArray | None = None,
-) -> FloatArray:
-    """Gauss-Newton on the scans' point-to-line alignment and the image correspondences
-    together, from the RANSAC winner: the laser makes the motion precise where the scene's
-    geometry constrains it, the correspondences hold it where it does not (along a
-    corridor), each weighted by its noise (``sigma_laser_m``, ``sigma_match_m``).
-
-    ``normals1``: scan 1's normals from its lines (NaN off a line: such returns are not
-    paired), as the laser odometry uses them (:mod:`rigcal.localize.icp`); without it, or
-    with too few returns on a line, nearest-neighbour normals. ``prior``: a motion the
-    result is held to within ``fallback_sigma_m`` and ``fallback_sigma_deg`` (the laser
-    odometry's, when a step falls back to it).
-    """
-    tree = cKDTree(scan1)
-    normals, usable = pairing_normals(scan1, tree, 5, normals1)
-    x = np.asarray(pose, dtype=float).copy()
-    for _ in range(5):
-        c, s = np.cos(x[2]), np.sin(x[2])
-        R = np.array([[c, -s], [s, c]])
-        moved = scan2 @ R.T + x[:2]
-        d, idx = tree.query(moved, distance_upper_bound=params.truncate_m)
-        ok = np.isfinite(d)
-        if usable is not None:
-            ok[ok] &= usable[idx[ok]]
-        src, n = moved[ok], normals[idx[ok]]
-        res_l = np.einsum("ij,ij->i", n, src - scan1[idx[ok]])
-        if params.laser_reject_m > 0:
-            # A return paired with the wrong wall (across a corner, an opening) lies
-            # decimetres off that wall's line, and a few of them turn the scan.
-            keep = np.abs(res_l) < params.laser_reject_m
-            src, n, res_l = src[keep], n[keep], res_l[keep]
-        r_l = res_l / params.sigma_laser_m
-        J_l = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * src[:, 0] - n[:, 0] * src[:, 1]])
-        J_l /= params.sigma_laser_m
-        cb = b @ R.T + x[:2]
-        r_c = ((cb - a) / params.sigma_match_m).ravel()
-        J_c = np.zeros((2 * len(b), 3))
-        J_c[0::2, 0] = 1.0
-        J_c[1::2, 1] = 1.0
-        J_c[0::2, 2] = -cb[:, 1]
-        J_c[1::2, 2] = cb[:, 0]
-        J_c /= params.sigma_match_m
-        J = np.vstack([J_l, J_c])
-        r = np.concatenate([r_l, r_c])
-        if prior is not None:
-            # A weak pull towards the prior motion keeps what the walls leave open.
-            w = np.array(
-                [params.fallback_sigma_m, params.fallback_sigma_m, np.radians(params.fallback_sigma_deg)]
-            )
-            J_p = np.array([[1.0, 0.0, -x[1]], [0.0, 1.0, x[0]], [0.0, 0.0, 1.0]]) / w[:, None]
-            J = np.vstack([J, J_p])
-            r = np.concatenate([r, (x - prior) / w])
-        step = -np.linalg.solve(J.T @ J + 1e-9 * np.eye(3), J.T @ r)
-        x = pose_of(se2(step) @ se2(x))
-        if np.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-6:
-            break
-    return x
-
-
 def iasm_step(
     f1: Frame,
     f2: Frame,
@@ -678,70 +524,3 @@ def iasm_step(
     """One IASM step (Section III): search around each return's own pixel."""
     m = match_returns(f1, f2, f1.pixels, params.search_u_px, params.search_v_px)
     return robust_motion(m, f1, f2, camera, T_cam_laser, params, rng, reference), m
-
-
-def homography_predictions(
-    f1: Frame, R: FloatArray, t_unit: FloatArray, scale: float, camera: Camera, R_cam_laser: FloatArray
-) -> FloatArray:
-    """Where each return of f1 lands in the next image (N, 2; NaN where unknown).
-
-    For the returns of each line: the line's plane normal n (horizontal, in the camera
-    frame) and distance d = n^T P (Eq. (7)), the homography H = R + (s / d) t n^T
-    (Eq. (10)) and the projection of H P. Returns on no line use their own plane through
-    the point facing the camera (d = |P|), which predicts the same for that point.
-    """
-    out = np.full((len(f1.points), 2), np.nan)
-    P = f1.cam
-    pred3 = np.full((len(P), 3), np.nan)
-    for k, seg in enumerate(f1.lines):
-        idx = np.flatnonzero(f1.line_of == k)
-        n = R_cam_laser @ np.array([seg.normal[0], seg.normal[1], 0.0])
-        d = float(np.mean(P[idx] @ n))  # Eq. (7)
-        if abs(d) < 1e-3:
-            continue
-        H = R + (scale / d) * np.outer(t_unit, n)  # Eq. (10)
-        pred3[idx] = P[idx] @ H.T
-    rest = (f1.line_of < 0) & np.isfinite(P[:, 2])
-    pred3[rest] = P[rest] @ R.T + scale * t_unit
-    ok = f1.visible & np.isfinite(pred3[:, 2]) & (pred3[:, 2] > 0.1)
-    if ok.any():
-        out[ok] = camera.project(pred3[ok])
-    return out
-
-
-def hiasm_step(
-    f1: Frame,
-    f2: Frame,
-    R: FloatArray,
-    t_unit: FloatArray,
-    scale: float,
-    camera: Camera,
-    T_cam_laser: FloatArray,
-    params: IasmParams,
-    rng: np.random.Generator,
-    reference: LaserReference | None = None,
-) -> tuple[StepResult | None, Matches]:
-    """One H-IASM step (Section V): search in a small window around each homography prediction."""
-    pred = homography_predictions(f1, R, t_unit, scale, camera, T_cam_laser[:3, :3])
-    if params.dense_window:
-        m = window_search(f1, f2, pred, camera, T_cam_laser, params)
-    else:
-        m = match_returns(f1, f2, pred, params.window_px, params.window_px)
-    return robust_motion(m, f1, f2, camera, T_cam_laser, params, rng, reference), m
-
-
-def camera_motion(motion: FloatArray, T_cam_laser: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """The camera's (R, t) with x2 = R x1 + t for a laser motion T_t_t1 (x, y, yaw)."""
-    T_l1_l2 = make_T(rotvec_to_R([0.0, 0.0, motion[2]]), [motion[0], motion[1], 0.0])
-    T_c2_c1 = T_cam_laser @ np.linalg.inv(T_l1_l2) @ np.linalg.inv(T_cam_laser)
-    return T_c2_c1[:3, :3], T_c2_c1[:3, 3]
-
-
-def chain(motions: list[FloatArray]) -> FloatArray:
-    """(N+1, 3) poses from successive motions, starting at the origin."""
-    T = np.eye(3)
-    out = [pose_of(T)]
-    for m in motions:
-        T = T @ se2(m)
-        out.append(pose_of(T))
-    return np.array(out)

@@ -24,22 +24,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.localize.iasm import (
-    Frame,
-    IasmParams,
-    LaserReference,
-    Matches,
-    StepResult,
-    camera_motion,
-    chain,
-    hiasm_step,
-    iasm_step,
-    joint_polish,
-    keyframe_reference,
-    make_frame,
-)
-from rigcal.localize.icp import se2
+from rigcal.localize.hiasm import camera_motion, hiasm_step
+from rigcal.localize.iasm import Frame, IasmParams, Matches, StepResult, iasm_step, make_frame
+from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.odometry import DEGENERATE_BELOW
+from rigcal.localize.polish import LaserReference, joint_polish, keyframe_reference, new_keyframe
 from rigcal.localize.streams import Streams
 from rigcal.localize.tracks import FrameTracks, Tracker, common
 from rigcal.localize.vo import VoParams, planar_motion, relative_pose
@@ -254,17 +243,6 @@ def scan_matching(
     return streams.image_stamps_s, chain(motions), stats, "\n".join(rows) + "\n"
 
 
-def new_keyframe(T_key_t: FloatArray, params: IasmParams) -> bool:
-    """Whether frame t (pose T_key_t in the keyframe's frame) starts a new keyframe: it
-    is more than ``keyframe_m`` or ``keyframe_deg`` from the keyframe (always, with
-    ``keyframe_m`` 0)."""
-    return bool(
-        params.keyframe_m <= 0
-        or np.hypot(T_key_t[0, 2], T_key_t[1, 2]) > params.keyframe_m
-        or abs(np.degrees(np.arctan2(T_key_t[1, 0], T_key_t[0, 0]))) > params.keyframe_deg
-    )
-
-
 def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint8], Step]:
     """The correspondences of the step from image i to image i+1 (Fig. 5), and the step.
 
@@ -300,3 +278,13 @@ def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint
     title = f"{st.used.upper()} images {i}->{i + 1}: {len(p1)} matches, {n_in} inliers, {metric} metric"
     img = draw_matches(f1.gray, f2.gray, f1.pixels[f1.visible], f2.pixels[f2.visible], p1, p2, inl, title)
     return img, st
+
+
+def chain(motions: list[FloatArray]) -> FloatArray:
+    """(N+1, 3) poses from successive motions, starting at the origin."""
+    T = np.eye(3)
+    out = [pose_of(T)]
+    for m in motions:
+        T = T @ se2(m)
+        out.append(pose_of(T))
+    return np.array(out)
