@@ -9,7 +9,9 @@ distance d from the scan's lines in camera coordinates (Eq. (7)). The window is 
 (``IasmParams.window_px``), which rejects the wrong matches of repeating patterns
 (Fig. 5). Within it, the search runs among scan t+1's returns (as IASM's) or, with
 ``IasmParams.dense_window``, densely along the wall (:func:`window_search`). RANSAC and
-the polish are IASM's (:func:`rigcal.localize.iasm.robust_motion`).
+the polish are IASM's (:func:`rigcal.localize.iasm.robust_motion`). A pair without
+visual odometry, or without a scale (the first, with the carried scale), falls back to
+IASM (:mod:`rigcal.localize.image_matching`).
 """
 
 from __future__ import annotations
