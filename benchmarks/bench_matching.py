@@ -42,8 +42,13 @@ Part 5, the camera's rate: the same laps (the same scans) with the camera at 10,
 fixed around each return's own pixel; H-IASM's window follows the homography's
 prediction): IASM's and H-IASM's figures and fallbacks per seed, and their means.
 
+Parts 4 and 5 take ``--iasm KEY=VALUE`` (repeatable) as ``rigcal localize`` does: e.g.
+``--iasm joint_polish=false --iasm keyframe_m=0`` runs both methods as the paper
+describes them (Eq. (4) on the correspondences alone, every step against scan t).
+
     .venv/bin/python benchmarks/bench_matching.py [--keep DIR] [--every 10] [--parts 1,2,3,4,5]
         [--seeds 1,2,3] [--worlds corridor-loop,cubicle-loop] [--rates 10,5,2.5]
+        [--iasm KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -55,6 +60,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rigcal.errors import InputError
 from rigcal.geometry import transform_points
 from rigcal.io.trajectory import Trajectory, read_tum
 from rigcal.localize import image_matching
@@ -62,7 +68,7 @@ from rigcal.localize.hiasm import window_search
 from rigcal.localize.iasm import IasmParams, Matches, match_returns, robust_motion
 from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.metrics import anchored, evaluate
-from rigcal.localize.pipeline import planar_at
+from rigcal.localize.pipeline import parse_iasm_settings, planar_at
 from rigcal.localize.streams import Streams, open_streams
 from rigcal.sim.drive import DriveSpec, write_drive
 from rigcal.sim.world import BUILTIN
@@ -78,7 +84,18 @@ def main() -> None:
     ap.add_argument("--worlds", default=",".join(WORLDS))
     ap.add_argument("--seeds", default="1", help="Parts 2-5: the seeds (part 1 uses seed 1).")
     ap.add_argument("--rates", default="10,5,2.5", help="Part 5: the camera rates (Hz).")
+    ap.add_argument(
+        "--iasm",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="Parts 4 and 5: change one of IASM's and H-IASM's settings, as rigcal localize --iasm.",
+    )
     args = ap.parse_args()
+    try:
+        params = parse_iasm_settings(args.iasm)
+    except InputError as e:
+        ap.error(str(e))
     parts = args.parts.split(",")
     worlds = args.worlds.split(",")
     seeds = [int(x) for x in args.seeds.split(",")]
@@ -125,14 +142,14 @@ def main() -> None:
                 keyframes(root, name, seeds)
         if "4" in parts:
             _header("world", "seed", *(f"{m} loop / avg (m)" for m in PAIRED))
-            diffs = [row for name in worlds for row in paired(root, name, seeds)]
+            diffs = [row for name in worlds for row in paired(root, name, seeds, params)]
             _differences(diffs)
         if "5" in parts:
             _header("world", "camera (Hz)", "seed", *(f"{m} loop / avg (m), fallbacks" for m in PAIRED[1:]))
             diffs = [
                 row
                 for name in worlds
-                for row in rates(root, name, seeds, [float(x) for x in args.rates.split(",")])
+                for row in rates(root, name, seeds, [float(x) for x in args.rates.split(",")], params)
             ]
             _differences(diffs)
 
@@ -280,8 +297,8 @@ def keyframes(root: Path, name: str, seeds: list[int]) -> None:
 PAIRED = ("icp", "iasm", "hiasm")
 
 
-def paired(root: Path, name: str, seeds: list[int]) -> list[str]:
-    """Part 4: ICP, IASM and H-IASM with the defaults per seed, the means with their
+def paired(root: Path, name: str, seeds: list[int], params: IasmParams) -> list[str]:
+    """Part 4: ICP, IASM and H-IASM (with ``params``) per seed, the means with their
     standard errors, and H-IASM minus IASM paired by seed."""
     fig: dict[str, list[list[float]]] = {m: [] for m in PAIRED}
     for seed in seeds:
@@ -291,7 +308,7 @@ def paired(root: Path, name: str, seeds: list[int]) -> list[str]:
         m = evaluate(anchored(od.poses, gt), gt)
         fig["icp"].append([float(m[FIGURES[k]]) for k in ("loop", "avg")])
         for method in PAIRED[1:]:
-            fig[method].append(_figures(streams, truth, method, IasmParams(), ("loop", "avg")))
+            fig[method].append(_figures(streams, truth, method, params, ("loop", "avg")))
         print(f"| {name} | {seed} | " + " | ".join(_cell(fig[m][-1]) for m in PAIRED) + " |", flush=True)
     if len(seeds) < 2:
         return []
@@ -324,8 +341,10 @@ def _differences(rows: list[str]) -> None:
         print("\n".join(rows), flush=True)
 
 
-def rates(root: Path, name: str, seeds: list[int], camera_rates: list[float]) -> list[str]:
-    """Part 5: IASM and H-IASM with the defaults at each camera rate, per seed and the
+def rates(
+    root: Path, name: str, seeds: list[int], camera_rates: list[float], params: IasmParams
+) -> list[str]:
+    """Part 5: IASM and H-IASM (with ``params``) at each camera rate, per seed and the
     means; returns the rows of H-IASM minus IASM."""
     diffs: list[str] = []
     for rate in camera_rates:
@@ -334,7 +353,7 @@ def rates(root: Path, name: str, seeds: list[int], camera_rates: list[float]) ->
             streams, truth = _opened(sequence(root, name, seed, rate))
             cells = []
             for method in PAIRED[1:]:
-                stamps, poses, stats, _ = image_matching.scan_matching(streams, method, IasmParams())
+                stamps, poses, stats, _ = image_matching.scan_matching(streams, method, params)
                 gt = planar_at(truth, stamps)
                 m = evaluate(anchored(poses, gt), gt)
                 f = [float(m[FIGURES[k]]) for k in ("loop", "avg")]
