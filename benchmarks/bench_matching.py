@@ -43,8 +43,8 @@ fixed around each return's own pixel; H-IASM's window follows the homography's
 prediction): IASM's and H-IASM's figures and fallbacks per seed, and their means.
 
 Parts 4 and 5 take ``--iasm KEY=VALUE`` (repeatable) as ``rigcal localize`` does: e.g.
-``--iasm joint_polish=false --iasm keyframe_m=0`` runs both methods as the paper
-describes them (Eq. (4) on the correspondences alone, every step against scan t).
+``--iasm joint_polish=false --iasm keyframe_m=0`` ends each step as the paper does
+(Eq. (4) on the RANSAC winner's inliers alone, every step from scan t).
 
     .venv/bin/python benchmarks/bench_matching.py [--keep DIR] [--every 10] [--parts 1,2,3,4,5]
         [--seeds 1,2,3] [--worlds corridor-loop,cubicle-loop] [--rates 10,5,2.5]
