@@ -42,7 +42,7 @@ Part 5, the camera's rate: the same laps (the same scans) with the camera at 10,
 fixed around each return's own pixel; H-IASM's window follows the homography's
 prediction): IASM's and H-IASM's figures and fallbacks per seed, and their means.
 
-Parts 4 and 5 take ``--iasm KEY=VALUE`` (repeatable) as ``rigcal localize`` does: e.g.
+Parts 3, 4 and 5 take ``--iasm KEY=VALUE`` (repeatable) as ``rigcal localize`` does: e.g.
 ``--iasm joint_polish=false --iasm keyframe_m=0`` ends each step as the paper does
 (Eq. (4) on the RANSAC winner's inliers alone, every step from scan t).
 
@@ -89,7 +89,7 @@ def main() -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="Parts 4 and 5: change one of IASM's and H-IASM's settings, as rigcal localize --iasm.",
+        help="Parts 3-5: change one of IASM's and H-IASM's settings, as rigcal localize --iasm.",
     )
     args = ap.parse_args()
     try:
@@ -139,7 +139,7 @@ def main() -> None:
                 "RPE 10 m (m)",
             )
             for name in worlds:
-                keyframes(root, name, seeds)
+                keyframes(root, name, seeds, params)
         if "4" in parts:
             _header("world", "seed", *(f"{m} loop / avg (m)" for m in PAIRED))
             diffs = [row for name in worlds for row in paired(root, name, seeds, params)]
@@ -269,12 +269,12 @@ KEYFRAMES = (
 )
 
 
-def keyframes(root: Path, name: str, seeds: list[int]) -> None:
+def keyframes(root: Path, name: str, seeds: list[int], base: IasmParams) -> None:
     figures: dict[tuple[str, float, float], list[list[float]]] = {}
     for seed in seeds:
         streams, truth = _opened(sequence(root, name, seed))
         for method, kf, reject in KEYFRAMES:
-            params = dataclasses.replace(IasmParams(), keyframe_m=kf, laser_reject_m=reject)
+            params = dataclasses.replace(base, keyframe_m=kf, laser_reject_m=reject)
             f = _figures(streams, truth, method, params, ("loop", "avg", "rpe1", "rpe10"))
             figures.setdefault((method, kf, reject), []).append(f)
             print(

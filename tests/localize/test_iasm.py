@@ -39,7 +39,7 @@ def test_snapping_moves_returns_along_their_beams_onto_their_line():
     assert np.array_equal(snap_to_lines(pts, -np.ones(len(pts), dtype=np.int64), 0.05), pts)
 
 
-def test_frames_are_moved_to_the_image_time_and_snapped_when_asked():
+def test_frames_are_moved_to_the_image_time_and_snapped_unless_told_not_to():
     world = corridor("posters")
     tex = world_textures(world, 0)
     f_raw = view(world, tex, (0.0, 0.0, 0.0), IasmParams())
@@ -47,9 +47,9 @@ def test_frames_are_moved_to_the_image_time_and_snapped_when_asked():
     a0, step, ang = beam_angles(270.0, 0.25)
     segs = world.scan_segments()
     scan = Scan.from_uniform(a0, step, cast_scan(segs, ang, 30.0) + 0.004, 0.1, 30.0, 0.0)
-    moved = make_frame(f_raw.gray, scan, CAM, T_CAM_LASER, IasmParams(), None, T)
+    moved = make_frame(f_raw.gray, scan, CAM, T_CAM_LASER, IasmParams(snap_max_m=0.0), None, T)
     assert np.allclose(moved.points, scan.points[scan.valid] + [0.02, 0.0])
-    snapped = make_frame(f_raw.gray, scan, CAM, T_CAM_LASER, IasmParams(snap_max_m=0.03), None, T)
+    snapped = make_frame(f_raw.gray, scan, CAM, T_CAM_LASER, IasmParams(), None, T)  # 0.03 m
     on = snapped.line_of >= 0
     assert np.abs(snapped.centres[on] - moved.centres[on]).max() < 1e-4
     assert not np.allclose(snapped.points, moved.points)

@@ -238,14 +238,12 @@ def test_icp_steps_flag_a_featureless_corridor(tmp_path):
 
 
 def test_iasm_settings_from_the_command_line_reach_the_run_and_the_summary(drive, tmp_path):
-    out = tmp_path / "snap"
+    out = tmp_path / "raw"
     args = ["localize", str(drive), "--method", "iasm", "-o", str(out)]
-    assert (
-        main([*args, "--iasm", "snap_max_m=0.03", "--iasm", "hypotheses = 80", "--iasm", "keyframe_m=0"]) == 0
-    )
+    assert main([*args, "--iasm", "snap_max_m=0", "--iasm", "hypotheses = 80", "--iasm", "keyframe_m=0"]) == 0
     s = yaml.safe_load((out / "summary.yaml").read_text())
     cfg = s["config"]["settings"]["iasm"]
-    assert cfg["snap_max_m"] == 0.03
+    assert cfg["snap_max_m"] == 0.0
     assert cfg["hypotheses"] == 80
     assert cfg["dense_window"] is False
     # Without keyframes every step aligns with the scan before it.

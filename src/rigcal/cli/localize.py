@@ -39,7 +39,7 @@ rig_option = click.option(
     multiple=True,
     metavar="KEY=VALUE",
     help="Change one of IASM's and H-IASM's settings (docs/localization.md), e.g. "
-    "snap_max_m=0.03 or dense_window=true; may be repeated. The summary records them.",
+    "snap_max_m=0 or dense_window=true; may be repeated. The summary records them.",
 )
 def localize(
     sequence: Path,
@@ -62,7 +62,7 @@ def localize(
     Examples:
       rigcal simulate world --world corridor-loop -o corridor/
       rigcal localize corridor/ --method icp,vo,kf -o out/
-      rigcal localize corridor/ --method iasm,hiasm --iasm snap_max_m=0.03 -o out-snap/
+      rigcal localize corridor/ --method iasm,hiasm --iasm snap_max_m=0 -o out-raw/
     """
     from rigcal.errors import OutputError
     from rigcal.localize.pipeline import parse_iasm_settings, parse_methods, run, summary, table
