@@ -12,8 +12,9 @@ forward error as a fraction of the true step (a scale bias) and the mean yaw err
         [--snap-max-m 0.03] [--dense] [--keyframe-m 2]
 
 ``--snap-max-m``, ``--dense`` and ``--keyframe-m`` set ``IasmParams.snap_max_m``,
-``dense_window`` and ``keyframe_m`` (``bench_matching.py``); the keyframe is off (0)
-unless asked for, as these weights were measured before keyframes.
+``dense_window`` and ``keyframe_m`` (``bench_matching.py``); snapping and the keyframe
+are off (0) unless asked for, as these weights were measured before either was the
+default.
 """
 
 from __future__ import annotations
