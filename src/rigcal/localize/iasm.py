@@ -118,7 +118,9 @@ class IasmParams:
             The walls cannot tell a repeating pattern's wrong copy from the truth along
             a corridor, but the laser odometry, with the corridor's ends in view,
             can: a step matched a period off (0.5 m) lies decimetres from it, a right
-            one millimetres.
+            one millimetres; a step whose few inliers agree on a wrong motion (IASM
+            with a 5 Hz camera, 76 mm off) centimetres (``benchmarks/bench_matching.py``,
+            part 5).
     """
 
     patch_radius_px: int = 5
@@ -149,7 +151,7 @@ class IasmParams:
     fallback_sigma_deg: float = 0.5
     laser_reject_m: float = 0.03
     odometry_scale: bool = True
-    odometry_gate_m: float = 0.1
+    odometry_gate_m: float = 0.05
 
 
 @dataclass
