@@ -86,10 +86,10 @@ def test_flat_walls_give_no_correspondences_and_the_step_fails():
 def test_metric_choice_from_the_angle_histogram():
     """Section III-C: one direction of lines (a corridor) -> image metric; a corner -> laser."""
     a0, step, ang = beam_angles(270.0, 0.25)
-    corridor = np.array([[[-10, 1.5], [10, 1.5]], [[-10, -1.5], [10, -1.5]]], dtype=float)
+    hallway = np.array([[[-10, 1.5], [10, 1.5]], [[-10, -1.5], [10, -1.5]]], dtype=float)
     room = np.array(
         [[[3, -3], [3, 3]], [[3, 3], [-3, 3]], [[-3, 3], [-3, -3]], [[-3, -3], [3, -3]]], dtype=float
     )
-    for segs, laser in ((corridor, False), (room, True)):
+    for segs, laser in ((hallway, False), (room, True)):
         scan = Scan.from_uniform(a0, step, cast_scan(segs, ang, 8.0), 0.1, 8.0, 0.0)
         assert laser_metric_wanted(extract_lines(scan), IasmParams()) is laser

@@ -227,7 +227,9 @@ def scan_matching(
         if st.result is not None:
             metric[st.result.metric] += 1
             inliers.append(st.result.inliers)
-        scale = sm.scale_of(st.motion)
+        # The paper's scale, carried to the next step (H-IASM takes the laser odometry's
+        # between the two images otherwise).
+        scale = None if sm.params.odometry_scale else sm.scale_of(st.motion)
         motions.append(st.motion)
         f1, tr1 = f2, tr2
     for k, v in sm.timings_s.items():
