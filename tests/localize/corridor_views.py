@@ -32,8 +32,9 @@ def corridor(left: str) -> World:
     return World("test-corridor", walls, p([[-10.0, 0.0], [10.0, 0.0], [0.0, 0.5]]), 0.4)
 
 
-def view(world, tex, pose, params):
-    """The frame (image and scan) of the laser at ``pose`` (x, y, yaw) in ``world``."""
+def view(world, tex, pose, params, range_max_m=30.0):
+    """The frame (image and scan) of the laser at ``pose`` (x, y, yaw) in ``world``, its
+    returns out to ``range_max_m``."""
     x, y, yaw = pose
     T_world_laser = make_T(rotvec_to_R([0.0, 0.0, yaw]), [x, y, world.laser_height_m])
     img = render_world(world, CAM, T_world_laser @ np.linalg.inv(T_CAM_LASER), tex).image
@@ -41,7 +42,7 @@ def view(world, tex, pose, params):
     a0, step, ang = beam_angles(270.0, 0.25)
     c, s = np.cos(yaw), np.sin(yaw)
     segs = (world.scan_segments() - [x, y]) @ np.array([[c, s], [-s, c]]).T
-    scan = Scan.from_uniform(a0, step, cast_scan(segs, ang, 30.0), 0.1, 30.0, 0.0)
+    scan = Scan.from_uniform(a0, step, cast_scan(segs, ang, range_max_m), 0.1, range_max_m, 0.0)
     return make_frame(gray, scan, CAM, T_CAM_LASER, params)
 
 

@@ -6,7 +6,14 @@ import numpy as np
 from corridor_views import CAM, T_CAM_LASER, corridor, view
 
 from rigcal.calib.lines import extract_lines
-from rigcal.localize.iasm import IasmParams, iasm_step, laser_metric_wanted, make_frame, snap_to_lines
+from rigcal.localize.iasm import (
+    IasmParams,
+    iasm_step,
+    image_scores,
+    laser_metric_wanted,
+    make_frame,
+    snap_to_lines,
+)
 from rigcal.scan import Scan
 from rigcal.sim.raycast import beam_angles, cast_scan
 from rigcal.sim.textures import world_textures
@@ -93,3 +100,28 @@ def test_metric_choice_from_the_angle_histogram():
     for segs, laser in ((hallway, False), (room, True)):
         scan = Scan.from_uniform(a0, step, cast_scan(segs, ang, 8.0), 0.1, 8.0, 0.0)
         assert laser_metric_wanted(extract_lines(scan), IasmParams()) is laser
+
+
+def test_out_of_range_corridor_ends_select_the_image_metric_and_it_scores_the_truth_best():
+    """Section III-C on a textured corridor whose ends are beyond an 8 m laser: the walls
+    leave the motion along the corridor open, and the image metric decides it."""
+    world = corridor("bricks")
+    tex = world_textures(world, 0)
+    params = IasmParams()
+    motion = np.array([0.12, 0.0, 0.0])
+    f1 = view(world, tex, (0.0, 0.0, 0.0), params, range_max_m=8.0)
+    f2 = view(world, tex, tuple(motion), params, range_max_m=8.0)
+    assert not laser_metric_wanted(f1.lines, params)
+    along = np.array([motion + [dx, 0.0, 0.0] for dx in (-0.1, -0.03, 0.0, 0.03, 0.1)])
+    scores = image_scores(along, f1, f2, CAM, T_CAM_LASER, params, np.random.default_rng(0))
+    assert scores.shape == (5,)
+    assert int(np.argmax(scores)) == 2
+    # A hypothesis that moves the returns out of the image scores worst.
+    away = image_scores(
+        np.array([[0.0, 0.0, np.pi]]), f1, f2, CAM, T_CAM_LASER, params, np.random.default_rng(0)
+    )
+    assert away[0] == -np.inf
+    res, _ = iasm_step(f1, f2, CAM, T_CAM_LASER, params, np.random.default_rng(0))
+    assert res is not None
+    assert res.metric == "image"
+    assert np.linalg.norm(res.motion[:2] - motion[:2]) < 0.005
