@@ -112,7 +112,7 @@ def test_out_of_range_corridor_ends_select_the_image_metric_and_it_scores_the_tr
     f1 = view(world, tex, (0.0, 0.0, 0.0), params, range_max_m=8.0)
     f2 = view(world, tex, tuple(motion), params, range_max_m=8.0)
     assert not laser_metric_wanted(f1.lines, params)
-    along = np.array([motion + [dx, 0.0, 0.0] for dx in (-0.1, -0.03, 0.0, 0.03, 0.1)])
+    along = np.array([motion + np.array([dx, 0.0, 0.0]) for dx in (-0.1, -0.03, 0.0, 0.03, 0.1)])
     scores = image_scores(along, f1, f2, CAM, T_CAM_LASER, params, np.random.default_rng(0))
     assert scores.shape == (5,)
     assert int(np.argmax(scores)) == 2
