@@ -7,6 +7,7 @@ import pytest
 from corridor_views import corridor
 from scipy.ndimage import gaussian_filter, map_coordinates
 
+from rigcal.cli.main import main
 from rigcal.sim.box_session import default_camera
 from rigcal.sim.textures import world_textures
 
@@ -46,3 +47,13 @@ def repeating():
     """The corridor with a 0.5 m period pattern on its left wall, and its textures."""
     world = corridor("repeating")
     return world, world_textures(world, 0)
+
+
+@pytest.fixture(scope="session")
+def drive(tmp_path_factory):
+    """Six seconds of the corridor loop, with images: a straight stretch, then a turn."""
+    out = tmp_path_factory.mktemp("drive") / "corridor"
+    args = ["simulate", "world", "--world", "corridor-loop", "-o", str(out)]
+    args += ["--duration-s", "6", "--seed", "1"]
+    assert main(args) == 0
+    return out

@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 from corridor_views import CAM, T_CAM_LASER, correct, corridor, posters_pair, view
 
-from rigcal.localize.hiasm import camera_motion, hiasm_step, homography_predictions, window_search
+from rigcal.localize.hiasm import (
+    camera_motion,
+    hiasm_step,
+    homography_predictions,
+    laser_motion,
+    visual_fallback,
+    window_search,
+)
 from rigcal.localize.iasm import IasmParams, iasm_step, match_returns
 from rigcal.sim.textures import world_textures
 
@@ -131,3 +138,28 @@ def test_dense_window_search_without_predictions_or_lines_finds_nothing():
     assert len(window_search(f1, f2, none, CAM, T_CAM_LASER, params).i1) == 0
     far = np.full((len(f1.points), 2), -500.0)  # every prediction far outside the image
     assert len(window_search(f1, f2, far, CAM, T_CAM_LASER, params).i1) == 0
+
+
+def test_laser_motion_inverts_camera_motion():
+    motion = np.array([0.3, -0.05, np.radians(7.0)])
+    R, t = camera_motion(motion, T_CAM_LASER)
+    assert np.allclose(laser_motion(R, t, T_CAM_LASER), motion)
+
+
+def test_visual_fallback_takes_the_motion_along_the_corridor_from_vo_and_the_rest_from_the_walls():
+    """A corridor whose ends are out of an 8 m laser's range: visual odometry with 1 deg
+    of rotation error and its direction 3 deg off, scaled by the true step's length; the
+    walls take out the heading and cross-corridor errors, the length along stays VO's."""
+    world = corridor("plain")
+    tex = world_textures(world, 0)
+    params = IasmParams()
+    motion = np.array([0.1, 0.004, np.radians(0.5)])
+    f1 = view(world, tex, (0.0, 0.0, 0.0), params, range_max_m=8.0)
+    f2 = view(world, tex, tuple(motion), params, range_max_m=8.0)
+    wrong = motion + np.array([0.0, 0.1 * np.sin(np.radians(3.0)), np.radians(1.0)])
+    R, t = camera_motion(wrong, T_CAM_LASER)
+    scale = float(np.linalg.norm(camera_motion(motion, T_CAM_LASER)[1]))
+    out = visual_fallback(f1, f2, R, t / np.linalg.norm(t), scale, T_CAM_LASER, params)
+    assert abs(out[0] - motion[0]) < 0.002
+    assert abs(out[1] - motion[1]) < 0.002
+    assert abs(out[2] - motion[2]) < np.radians(0.05)

@@ -31,7 +31,7 @@ from rigcal.localize.iasm import (
     parabola_offset,
     robust_motion,
 )
-from rigcal.localize.polish import LaserReference
+from rigcal.localize.polish import LaserReference, joint_polish
 from rigcal.localize.vo import sample_patches
 
 FloatArray = NDArray[np.float64]
@@ -92,6 +92,36 @@ def camera_motion(motion: FloatArray, T_cam_laser: FloatArray) -> tuple[FloatArr
     T_l1_l2 = make_T(rotvec_to_R([0.0, 0.0, motion[2]]), [motion[0], motion[1], 0.0])
     T_c2_c1 = T_cam_laser @ np.linalg.inv(T_l1_l2) @ np.linalg.inv(T_cam_laser)
     return T_c2_c1[:3, :3], T_c2_c1[:3, 3]
+
+
+def laser_motion(R: FloatArray, t: FloatArray, T_cam_laser: FloatArray) -> FloatArray:
+    """The laser motion T_t_t1 (x, y, yaw) of a camera motion (R, t), x2 = R x1 + t: the
+    inverse of :func:`camera_motion`, on the ground plane."""
+    T_c2_c1 = make_T(R, t)
+    T_l1_l2 = np.linalg.inv(T_cam_laser) @ np.linalg.inv(T_c2_c1) @ T_cam_laser
+    return np.array([T_l1_l2[0, 3], T_l1_l2[1, 3], np.arctan2(T_l1_l2[1, 0], T_l1_l2[0, 0])])
+
+
+def visual_fallback(
+    f1: Frame,
+    f2: Frame,
+    R: FloatArray,
+    t_unit: FloatArray,
+    scale: float,
+    T_cam_laser: FloatArray,
+    params: IasmParams,
+    reference: LaserReference | None = None,
+) -> FloatArray:
+    """H-IASM's step where the image correspondences fail and the laser odometry is
+    degenerate (along a corridor whose ends are out of the laser's range, its step is
+    short): visual odometry's motion (R, t_unit) with the carried scale, aligned with the
+    walls (scan t's, or the keyframe's ``reference``), which fix the heading and the
+    motion across the corridor, held to visual odometry's within ``fallback_sigma_m`` and
+    ``fallback_sigma_deg`` where they do not (beyond the paper)."""
+    vo = laser_motion(R, scale * t_unit, T_cam_laser)
+    ref = reference or LaserReference(f1.points, f1.normals)
+    none = np.zeros((0, 2))
+    return joint_polish(vo, none, none, ref.points, f2.points, params, ref.normals, vo)
 
 
 def window_search(

@@ -429,11 +429,11 @@ def image_scores(
         cand = sample_patches(f2.gray, px[ok], r)
         ref = np.tile(f1.patches[idx], (H, 1))[ok]
         sad[ok] = np.abs(cand - ref).mean(axis=1)
-    sad = sad.reshape(H, n)
+    per = sad.reshape(H, n)  # one row per hypothesis
     # Hypotheses that move most returns out of the image get the worst score.
-    finite = np.isfinite(sad)
+    finite = np.isfinite(per)
     count = finite.sum(axis=1)
-    total = np.where(finite, sad, 0.0).sum(axis=1)
+    total = np.where(finite, per, 0.0).sum(axis=1)
     mean = np.where(count >= max(3, n // 4), total / np.maximum(count, 1), np.inf)
     out: FloatArray = -mean
     return out

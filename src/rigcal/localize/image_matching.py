@@ -24,14 +24,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.localize.hiasm import camera_motion, hiasm_step
+from rigcal.localize.hiasm import camera_motion, hiasm_step, visual_fallback
 from rigcal.localize.iasm import Frame, IasmParams, Matches, StepResult, iasm_step, make_frame
 from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.odometry import DEGENERATE_BELOW
 from rigcal.localize.polish import LaserReference, joint_polish, keyframe_reference, new_keyframe
 from rigcal.localize.streams import Streams
 from rigcal.localize.tracks import FrameTracks, Tracker, common
-from rigcal.localize.vo import VoParams, planar_motion, relative_pose
+from rigcal.localize.vo import RelativePose, VoParams, planar_motion, relative_pose
 
 FloatArray = NDArray[np.float64]
 
@@ -43,7 +43,7 @@ class Step:
     """One step's outcome: the motion T_t_t1, the method that gave it, its details."""
 
     motion: FloatArray
-    used: str  # "hiasm", "iasm" or "icp"
+    used: str  # "hiasm", "iasm", "vo" or "icp"
     result: StepResult | None
     matches: Matches | None
     why_fallback: str | None
@@ -102,14 +102,31 @@ class ScanMatcher:
         indicator at least DEGENERATE_BELOW)."""
         gate = self.params.odometry_gate_m
         gap = float(np.hypot(*(motion[:2] - odometry[:2])))
-        if gate <= 0 or gap <= gate:
+        if gate <= 0 or gap <= gate or not self.odometry_constrained(i1, i2):
             return None
+        return f"{gap:.2f} m off the laser odometry"
+
+    def odometry_constrained(self, i1: int, i2: int) -> bool:
+        """Whether the walls constrain every scan step of the laser odometry between images
+        i1 and i2 (degeneracy indicator at least DEGENERATE_BELOW): not along a corridor
+        whose ends are out of the laser's range."""
         t, ts = self.streams.image_stamps_s, self.streams.scan_stamps_s
         between = (ts > t[i1]) & (ts <= t[i2])
         degeneracy = self.streams.laser_odometry().degeneracy[between]
-        if len(degeneracy) and float(degeneracy.min()) < DEGENERATE_BELOW:
-            return None
-        return f"{gap:.2f} m off the laser odometry"
+        return not (len(degeneracy) and float(degeneracy.min()) < DEGENERATE_BELOW)
+
+    def visual_odometry(self, tr1: FrameTracks, tr2: FrameTracks) -> tuple[RelativePose | None, str]:
+        """Visual odometry between two images (rotation, unit translation) from the shared
+        feature tracks, or None and why it cannot be trusted."""
+        ia, ib = common(tr1, tr2)
+        rel = relative_pose(
+            tr1.bearings[ia], tr2.bearings[ib], self.focal, self.vo_params, self.T_cam_laser[:3, 0]
+        )
+        if rel is None:
+            return None, "no visual odometry between the images"
+        if not planar_motion(rel.R, rel.t_unit, self.T_cam_laser[:3, 2]):
+            return None, "visual odometry gives a motion a ground rig cannot make"
+        return rel, ""
 
     def try_hiasm(
         self,
@@ -123,14 +140,9 @@ class ScanMatcher:
         """An H-IASM step (the result, its matches), or None and why it could not be made."""
         if scale is None:
             return None, None, "no scale yet (first pair)"
-        ia, ib = common(tr1, tr2)
-        rel = relative_pose(
-            tr1.bearings[ia], tr2.bearings[ib], self.focal, self.vo_params, self.T_cam_laser[:3, 0]
-        )
+        rel, why = self.visual_odometry(tr1, tr2)
         if rel is None:
-            return None, None, "no visual odometry between the images"
-        if not planar_motion(rel.R, rel.t_unit, self.T_cam_laser[:3, 2]):
-            return None, None, "visual odometry gives a motion a ground rig cannot make"
+            return None, None, why
         res, m = hiasm_step(
             f1, f2, rel.R, rel.t_unit, scale, self.camera, self.T_cam_laser, self.params, self.rng, reference
         )
@@ -147,16 +159,19 @@ class ScanMatcher:
         i2: int,
         reference: LaserReference | None = None,
     ) -> Step:
-        """The motion between frames of images i1 and i2, falling back H-IASM -> IASM -> ICP.
+        """The motion between frames of images i1 and i2, falling back H-IASM -> IASM -> VO
+        (H-IASM only, where the laser odometry is degenerate) -> ICP.
 
         ``scale``: the previous step's (the paper's, carried over); H-IASM takes the laser
-        odometry's between the two images instead with ``IasmParams.odometry_scale``.
+        odometry's between the two images instead with ``IasmParams.odometry_scale``,
+        where the walls constrain the odometry (:meth:`odometry_constrained`; along a
+        corridor they do not, and the odometry's step is short).
         """
         t0 = time.perf_counter()
         why = None
         t = self.streams.image_stamps_s
         odometry = self.streams.odometry_motion(float(t[i1]), float(t[i2]))
-        if self.params.odometry_scale:
+        if self.params.odometry_scale and (scale is None or self.odometry_constrained(i1, i2)):
             scale = self.scale_of(odometry)
         if tr1 is not None and tr2 is not None:
             res, m, why = self.try_hiasm(f1, f2, tr1, tr2, scale, reference)
@@ -173,6 +188,13 @@ class ScanMatcher:
             return Step(res.motion, "iasm", res, m, why)
         failed = gap or "too few correspondences"
         why = failed if why is None else f"{why}; IASM: {failed}"
+        degenerate = not self.odometry_constrained(i1, i2)
+        if tr1 is not None and tr2 is not None and scale is not None and degenerate:
+            rel, _ = self.visual_odometry(tr1, tr2)
+            if rel is not None:
+                R_c, t_c = rel.R, rel.t_unit
+                motion = visual_fallback(f1, f2, R_c, t_c, scale, self.T_cam_laser, self.params, reference)
+                return Step(motion, "vo", None, m, why)
         # ICP: the laser odometry's motion (point-to-line over every scan) between the stamps.
         motion = odometry
         if reference is not None:
@@ -198,7 +220,7 @@ def scan_matching(
     sm = ScanMatcher(streams, method, params)
     streams.laser_odometry()  # pairs scans with images (timed on its own)
     f1, tr1 = sm.frame(0)
-    used = {"hiasm": 0, "iasm": 0, "icp": 0}
+    used = {"hiasm": 0, "iasm": 0, "vo": 0, "icp": 0}
     metric = {"laser": 0, "image": 0}
     inliers: list[int] = []
     motions: list[FloatArray] = []
@@ -228,8 +250,8 @@ def scan_matching(
             metric[st.result.metric] += 1
             inliers.append(st.result.inliers)
         # The paper's scale, carried to the next step (H-IASM takes the laser odometry's
-        # between the two images otherwise).
-        scale = None if sm.params.odometry_scale else sm.scale_of(st.motion)
+        # between the two images instead where the walls constrain it).
+        scale = sm.scale_of(st.motion)
         motions.append(st.motion)
         f1, tr1 = f2, tr2
     for k, v in sm.timings_s.items():
