@@ -90,3 +90,19 @@ def test_bad_inputs_name_the_option_or_key(tmp_path, capsys):
         DriveSpec(camera_rate_hz=-1.0)
     with pytest.raises(InputError, match=r"image_noise_sigma: got nan"):
         DriveSpec(image_noise_sigma=float("nan"))
+
+
+def test_a_short_range_laser_sees_no_wall_beyond_its_range(tmp_path, capsys):
+    out = tmp_path / "seq"
+    assert main([*ARGS, "--duration-s", "0.5", "--no-images", "--range-max-m", "3", "-o", str(out)]) == 0
+    seq = read_sequence(out)
+    r = np.concatenate([s.ranges_m[s.valid] for s in seq.scans])
+    assert r.max() <= 3.0
+    assert (r > 2.5).any()  # the cubicle loop's walls reach past 3 m
+    assert all(s.range_max_m == 3.0 for s in seq.scans)
+    assert yaml.safe_load((out / "sequence.yaml").read_text())["source"]["range_max_m"] == 3.0
+    assert main([*ARGS, "--range-max-m", "0.1", "-o", str(tmp_path / "x")]) == 2
+    assert "--range-max-m" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+    with pytest.raises(InputError, match=r"range_max_m: got 0\.2; expected 0\.5 to 100 m"):
+        DriveSpec(range_max_m=0.2)

@@ -220,6 +220,13 @@ def board_session(
     help="Scan rate.",
 )
 @click.option(
+    "--range-max-m",
+    default=30.0,
+    show_default=True,
+    type=click.FloatRange(min=0.5, max=100.0),
+    help="The laser's range: farther walls give no return (a Hokuyo URG-04LX's is 5.6 m, a UTM-30LX's 30 m).",
+)
+@click.option(
     "--camera-rate-hz",
     default=10.0,
     show_default=True,
@@ -276,6 +283,7 @@ def world(
     seed: int,
     range_sigma_m: float,
     laser_rate_hz: float,
+    range_max_m: float,
     camera_rate_hz: float,
     clock_offset_s: float,
     image_noise: float,
@@ -310,6 +318,7 @@ def world(
     spec = DriveSpec(
         range_sigma_m=range_sigma_m,
         laser_rate_hz=laser_rate_hz,
+        range_max_m=range_max_m,
         seed=seed,
         camera_rate_hz=camera_rate_hz,
         camera_clock_offset_s=clock_offset_s,

@@ -71,6 +71,7 @@ class DriveSpec:
     def __post_init__(self) -> None:
         checks = [
             ("laser_rate_hz", self.laser_rate_hz, self.laser_rate_hz > 0, "a rate above 0 Hz"),
+            ("range_max_m", self.range_max_m, 0.5 <= self.range_max_m <= 100, "0.5 to 100 m"),
             ("camera_rate_hz", self.camera_rate_hz, self.camera_rate_hz > 0, "a rate above 0 Hz"),
             (
                 "camera_clock_offset_s",
@@ -283,6 +284,7 @@ def write_drive(
         "world": world.name,
         "seed": spec.seed,
         "laser_rate_hz": spec.laser_rate_hz,
+        "range_max_m": spec.range_max_m,
         "camera_rate_hz": spec.camera_rate_hz if spec.images else None,
         "camera_clock_offset_s": spec.camera_clock_offset_s,
         "image_noise_sigma": spec.image_noise_sigma,
