@@ -42,12 +42,21 @@ Part 5, the camera's rate: the same laps (the same scans) with the camera at 10,
 fixed around each return's own pixel; H-IASM's window follows the homography's
 prediction): IASM's and H-IASM's figures and fallbacks per seed, and their means.
 
-Parts 3, 4 and 5 take ``--iasm KEY=VALUE`` (repeatable) as ``rigcal localize`` does: e.g.
+Part 6, a laser that cannot see the corridors' ends: the laps simulated with each laser
+range of ``--ranges`` (metres; at 8 m the corridor lap's long sides are corridors whose
+ends are out of range, the case the paper's image methods are for), per seed: ICP (the
+laser odometry), the laser alone through the same chain as the image methods (every
+image step refused, ``min_correspondences`` out of reach: each step is the laser
+odometry's motion aligned with the keyframe's walls, so that what the images add shows),
+IASM and H-IASM, with H-IASM's steps by method; then the means with their standard
+errors and H-IASM minus IASM paired by seed.
+
+Parts 3 to 6 take ``--iasm KEY=VALUE`` (repeatable) as ``rigcal localize`` does: e.g.
 ``--iasm joint_polish=false --iasm keyframe_m=0`` ends each step as the paper does
 (Eq. (4) on the RANSAC winner's inliers alone, every step from scan t).
 
-    .venv/bin/python benchmarks/bench_matching.py [--keep DIR] [--every 10] [--parts 1,2,3,4,5]
-        [--seeds 1,2,3] [--worlds corridor-loop,cubicle-loop] [--rates 10,5,2.5]
+    .venv/bin/python benchmarks/bench_matching.py [--keep DIR] [--every 10] [--parts 1,2,3,4,5,6]
+        [--seeds 1,2,3] [--worlds corridor-loop,cubicle-loop] [--rates 10,5,2.5] [--ranges 30,8]
         [--iasm KEY=VALUE ...]
 """
 
@@ -84,12 +93,13 @@ def main() -> None:
     ap.add_argument("--worlds", default=",".join(WORLDS))
     ap.add_argument("--seeds", default="1", help="Parts 2-5: the seeds (part 1 uses seed 1).")
     ap.add_argument("--rates", default="10,5,2.5", help="Part 5: the camera rates (Hz).")
+    ap.add_argument("--ranges", default="30,8", help="Part 6: the laser's ranges (m).")
     ap.add_argument(
         "--iasm",
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="Parts 3-5: change one of IASM's and H-IASM's settings, as rigcal localize --iasm.",
+        help="Parts 3-6: change one of IASM's and H-IASM's settings, as rigcal localize --iasm.",
     )
     args = ap.parse_args()
     try:
@@ -152,6 +162,20 @@ def main() -> None:
                 for row in rates(root, name, seeds, [float(x) for x in args.rates.split(",")], params)
             ]
             _differences(diffs)
+        if "6" in parts:
+            _header(
+                "world",
+                "laser range (m)",
+                "seed",
+                *(f"{LABELS6[m]} loop / avg (m)" for m in RANGE_METHODS),
+                "H-IASM steps by",
+            )
+            diffs = [
+                row
+                for name in worlds
+                for row in ranges(root, name, seeds, [float(x) for x in args.ranges.split(",")], params)
+            ]
+            _differences(diffs, "laser range (m)")
 
 
 def _header(*columns: str) -> None:
@@ -164,14 +188,19 @@ WORLDS = ("corridor-loop", "cubicle-loop")
 SETTINGS = ((False, False), (False, True), (True, False), (True, True))  # (snapped, dense)
 
 
-def sequence(root: Path, name: str, seed: int, camera_rate_hz: float = 10.0) -> Path:
+def sequence(
+    root: Path, name: str, seed: int, camera_rate_hz: float = 10.0, range_max_m: float = 30.0
+) -> Path:
     """The lap of world ``name`` with ``seed`` (simulated once, then reused)."""
     folder = name if seed == 1 and camera_rate_hz == 10.0 else f"{name}-seed{seed}"
     if camera_rate_hz != 10.0:
         folder += f"-cam{camera_rate_hz:g}"
+    if range_max_m != 30.0:
+        folder += f"-range{range_max_m:g}"
     seq = root / folder
     if not (seq / "sequence.yaml").exists():
-        write_drive(BUILTIN[name](), DriveSpec(seed=seed, camera_rate_hz=camera_rate_hz), str(seq))
+        spec = DriveSpec(seed=seed, camera_rate_hz=camera_rate_hz, range_max_m=range_max_m)
+        write_drive(BUILTIN[name](), spec, str(seq))
     return seq
 
 
@@ -303,21 +332,14 @@ def paired(root: Path, name: str, seeds: list[int], params: IasmParams) -> list[
     fig: dict[str, list[list[float]]] = {m: [] for m in PAIRED}
     for seed in seeds:
         streams, truth = _opened(sequence(root, name, seed))
-        od = streams.laser_odometry()
-        gt = planar_at(truth, streams.scan_stamps_s)
-        m = evaluate(anchored(od.poses, gt), gt)
-        fig["icp"].append([float(m[FIGURES[k]]) for k in ("loop", "avg")])
+        fig["icp"].append(_odometry_figures(streams, truth))
         for method in PAIRED[1:]:
             fig[method].append(_figures(streams, truth, method, params, ("loop", "avg")))
         print(f"| {name} | {seed} | " + " | ".join(_cell(fig[m][-1]) for m in PAIRED) + " |", flush=True)
     if len(seeds) < 2:
         return []
     stats = {m: np.array(fig[m]) for m in PAIRED}
-    cells = [
-        " / ".join(f"{mu:.4f} ± {se:.4f}" for mu, se in zip(*_mean_se(v), strict=True))
-        for v in stats.values()
-    ]
-    print(f"| {name} | mean ± s.e. | " + " | ".join(cells) + " |", flush=True)
+    print(f"| {name} | mean ± s.e. | " + _means(stats) + " |", flush=True)
     return _difference_rows(name, 10.0, stats["iasm"], stats["hiasm"])
 
 
@@ -332,12 +354,10 @@ def _difference_rows(name: str, rate: float, iasm: np.ndarray, hiasm: np.ndarray
     ]
 
 
-def _differences(rows: list[str]) -> None:
+def _differences(rows: list[str], setting: str = "camera (Hz)") -> None:
     """The table of H-IASM minus IASM."""
     if rows:
-        _header(
-            "world", "camera (Hz)", "figure", "H-IASM - IASM, mean ± s.e. (mm)", "seeds where H-IASM is ahead"
-        )
+        _header("world", setting, "figure", "H-IASM - IASM, mean ± s.e. (mm)", "seeds where H-IASM is ahead")
         print("\n".join(rows), flush=True)
 
 
@@ -366,6 +386,54 @@ def rates(
             print(f"| {name} | {rate:g} | mean | " + " | ".join(cells) + " |", flush=True)
             diffs += _difference_rows(name, rate, np.array(fig["iasm"]), np.array(fig["hiasm"]))
     return diffs
+
+
+RANGE_METHODS = ("icp", "laser", "iasm", "hiasm")
+LABELS6 = {"icp": "ICP", "laser": "laser alone, keyframes", "iasm": "IASM", "hiasm": "H-IASM"}
+
+
+def ranges(
+    root: Path, name: str, seeds: list[int], laser_ranges: list[float], params: IasmParams
+) -> list[str]:
+    """Part 6: ICP, the laser alone through the image methods' chain, IASM and H-IASM
+    (with ``params``) with each laser range, per seed and the means; returns the rows of
+    H-IASM minus IASM."""
+    alone = dataclasses.replace(params, min_correspondences=10**9)  # every image step refused
+    diffs: list[str] = []
+    for range_m in laser_ranges:
+        fig: dict[str, list[list[float]]] = {m: [] for m in RANGE_METHODS}
+        for seed in seeds:
+            streams, truth = _opened(sequence(root, name, seed, range_max_m=range_m))
+            fig["icp"].append(_odometry_figures(streams, truth))
+            fig["laser"].append(_figures(streams, truth, "iasm", alone, ("loop", "avg")))
+            fig["iasm"].append(_figures(streams, truth, "iasm", params, ("loop", "avg")))
+            stamps, poses, stats, _ = image_matching.scan_matching(streams, "hiasm", params)
+            gt = planar_at(truth, stamps)
+            m = evaluate(anchored(poses, gt), gt)
+            fig["hiasm"].append([float(m[FIGURES[k]]) for k in ("loop", "avg")])
+            by = ", ".join(f"{k} {v}" for k, v in stats["steps_by"].items())
+            cells = " | ".join(_cell(fig[k][-1]) for k in RANGE_METHODS)
+            print(f"| {name} | {range_m:g} | {seed} | {cells} | {by} |", flush=True)
+        if len(seeds) > 1:
+            stat = {k: np.array(fig[k]) for k in RANGE_METHODS}
+            print(f"| {name} | {range_m:g} | mean ± s.e. | {_means(stat)} | |", flush=True)
+            diffs += _difference_rows(name, range_m, stat["iasm"], stat["hiasm"])
+    return diffs
+
+
+def _means(stats: dict[str, np.ndarray]) -> str:
+    """Table cells: each method's mean loop closure / average error ± standard errors."""
+    cells = []
+    for v in stats.values():
+        cells.append(" / ".join(f"{mu:.4f} ± {se:.4f}" for mu, se in zip(*_mean_se(v), strict=True)))
+    return " | ".join(cells)
+
+
+def _odometry_figures(streams: Streams, truth: Trajectory) -> list[float]:
+    """The laser odometry's (ICP's) loop closure and average error at every scan."""
+    gt = planar_at(truth, streams.scan_stamps_s)
+    m = evaluate(anchored(streams.laser_odometry().poses, gt), gt)
+    return [float(m[FIGURES[k]]) for k in ("loop", "avg")]
 
 
 def _mean_se(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
