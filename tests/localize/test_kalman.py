@@ -64,3 +64,16 @@ def test_repeated_stamps_are_skipped():
     t = np.array([0.0, 0.1, 0.1, 0.2])
     p = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0, 0], [0.2, 0, 0]], dtype=float)
     assert len(kalman.increments(t, p, kalman.ICP_SIGMAS)) == 2
+
+
+def test_icp_steps_the_walls_do_not_constrain_leave_the_forward_speed_to_vo():
+    """Along a corridor whose ends the laser cannot see, ICP's forward step is only the
+    motion it started from (here 50 % too long): flagged, it does not pull the path."""
+    t, poses = _arc(w=1e-6)
+    icp = _scaled(poses, 1.5, 0.0)
+    vo = _scaled(poses, 1.0, 0.0)
+    open_forward = np.ones(len(t), dtype=bool)
+    for flag, near_vo in ((None, False), (open_forward, True)):
+        ms = kalman.increments(t, icp, kalman.ICP_SIGMAS, flag) + kalman.increments(t, vo, kalman.VO_SIGMAS)
+        _, est = kalman.fuse(ms)
+        assert bool(est[-1, 0] == pytest.approx(poses[-1, 0], rel=0.01)) is near_vo

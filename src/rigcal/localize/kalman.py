@@ -11,7 +11,11 @@ with a fixed covariance given in the rig's frame (forward, cross-track, yaw rate
 turned into the world frame with the filter's heading. As the paper sets them, ICP's
 forward translation and rotation weigh less than visual odometry's, and visual
 odometry's cross-track translation weighs less than ICP's (:data:`ICP_SIGMAS`,
-:data:`VO_SIGMAS`; documented in docs/localization.md).
+:data:`VO_SIGMAS`; documented in docs/localization.md). Beyond the paper, an ICP step
+the walls do not constrain (its degeneracy indicator below
+:data:`rigcal.localize.odometry.DEGENERATE_BELOW`: along a corridor whose ends are out of
+the laser's range) measures no forward speed (:data:`OPEN_FORWARD_SIGMA`): its step
+along the corridor is only the motion ICP started from.
 """
 
 from __future__ import annotations
@@ -29,6 +33,8 @@ FloatArray = NDArray[np.float64]
 # yaw rate (rad/s).
 ICP_SIGMAS = (0.10, 0.03, 0.05)
 VO_SIGMAS = (0.03, 0.15, 0.02)
+# Forward speed noise (m/s) of an ICP step the walls do not constrain: in effect none.
+OPEN_FORWARD_SIGMA = 10.0
 
 
 @dataclass(frozen=True)
@@ -49,15 +55,25 @@ class KfParams:
     yaw_accel_sigma: float = 1.0
 
 
-def increments(stamps: FloatArray, poses: FloatArray, sigmas: tuple[float, float, float]) -> list[Increment]:
-    """The steps of an odometry trajectory (poses (N, 3) at stamps (N,))."""
+def increments(
+    stamps: FloatArray,
+    poses: FloatArray,
+    sigmas: tuple[float, float, float],
+    open_forward: NDArray[np.bool_] | None = None,
+) -> list[Increment]:
+    """The steps of an odometry trajectory (poses (N, 3) at stamps (N,)); where
+    ``open_forward`` (N,) is True, the step ending there measures no forward speed
+    (:data:`OPEN_FORWARD_SIGMA`)."""
     out = []
     for k in range(1, len(stamps)):
         dt = float(stamps[k] - stamps[k - 1])
         if dt <= 0:
             continue
         local = pose_of(np.linalg.inv(se2(poses[k - 1])) @ se2(poses[k]))
-        out.append(Increment(float(stamps[k - 1]), float(stamps[k]), local, sigmas))
+        sig = sigmas
+        if open_forward is not None and open_forward[k]:
+            sig = (OPEN_FORWARD_SIGMA, sigmas[1], sigmas[2])
+        out.append(Increment(float(stamps[k - 1]), float(stamps[k]), local, sig))
     return out
 
 

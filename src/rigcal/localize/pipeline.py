@@ -107,9 +107,10 @@ def _vo_estimate(streams: Streams, res: VoResult) -> Estimate:
 
 def _kf_estimate(streams: Streams) -> Estimate:
     vo = _vo_estimate(streams, _vo_result(streams))
-    icp = _icp_estimate(streams, streams.laser_odometry())
+    od = streams.laser_odometry()
+    icp = _icp_estimate(streams, od)
     t0 = time.perf_counter()
-    ms = kalman.increments(icp.stamps_s, icp.poses, kalman.ICP_SIGMAS)
+    ms = kalman.increments(icp.stamps_s, icp.poses, kalman.ICP_SIGMAS, od.degeneracy < DEGENERATE_BELOW)
     ms += kalman.increments(vo.stamps_s, vo.poses, kalman.VO_SIGMAS)
     stamps, poses = kalman.fuse(ms)
     streams.timings_s["kf_s"] = time.perf_counter() - t0
