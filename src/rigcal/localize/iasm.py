@@ -80,6 +80,9 @@ class IasmParams:
             of each step's length, forward, on the simulated loops) then stays out of
             what the walls determine, and they still hold what the walls leave open
             (the motion along a featureless corridor).
+        match_cauchy: the joint polish weighs each correspondence by the Cauchy weight of
+            its residual, with this many robust scatters as the scale (0: all alike)
+            (:func:`rigcal.localize.polish.match_weights`).
         snap_max_m: when above 0, each frame's returns are moved onto their lines
             (:func:`snap_to_lines`) when that moves them at most this far (0: as
             measured). The walls' lines are then free of the returns' range noise: over
@@ -143,6 +146,7 @@ class IasmParams:
     joint_polish: bool = True
     sigma_laser_m: float = 0.01
     sigma_match_m: float = 0.2
+    match_cauchy: float = 2.385
     snap_max_m: float = 0.03
     dense_window: bool = False
     keyframe_m: float = 2.0

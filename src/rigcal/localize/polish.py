@@ -88,13 +88,14 @@ def joint_polish(
         J_l = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * src[:, 0] - n[:, 0] * src[:, 1]])
         J_l /= params.sigma_laser_m
         cb = b @ R.T + x[:2]
-        r_c = ((cb - a) / params.sigma_match_m).ravel()
+        w = np.repeat(match_weights(cb - a, params.match_cauchy), 2) / params.sigma_match_m
+        r_c = (cb - a).ravel() * w
         J_c = np.zeros((2 * len(b), 3))
         J_c[0::2, 0] = 1.0
         J_c[1::2, 1] = 1.0
         J_c[0::2, 2] = -cb[:, 1]
         J_c[1::2, 2] = cb[:, 0]
-        J_c /= params.sigma_match_m
+        J_c *= w[:, None]
         J = np.vstack([J_l, J_c])
         r = np.concatenate([r_l, r_c])
         if prior is not None:
@@ -110,6 +111,19 @@ def joint_polish(
         if np.hypot(step[0], step[1]) < 1e-5 and abs(step[2]) < 1e-6:
             break
     return x
+
+
+def match_weights(e: FloatArray, c: float) -> FloatArray:
+    """Square roots of the Cauchy weights of correspondence residuals e (N, 2), 1 / (1 +
+    (|e| / (c s))^2) with s their robust scatter (1.4826 x the median |e|, over at least 8;
+    ones with ``c`` 0 or fewer): the inliers' tails (far returns on walls seen at a
+    slant) lean to one side and would shift the motion along a corridor."""
+    n = np.linalg.norm(e, axis=1)
+    if c <= 0 or len(n) < 8:
+        return np.ones(len(n))
+    s = max(1.4826 * float(np.median(n)), 1e-4)
+    out: FloatArray = 1.0 / np.sqrt(1.0 + (n / (c * s)) ** 2)
+    return out
 
 
 def new_keyframe(T_key_t: FloatArray, params: IasmParams) -> bool:
