@@ -2,13 +2,15 @@
 
 :class:`ScanMatcher` builds each image's frame (its scan moved to the image's time and
 projected) and runs one step between two frames: H-IASM when visual odometry between the
-two images and a scale are available, else IASM, else ICP between the two scans
-(H-IASM -> IASM -> ICP; ICP's motion is the laser odometry's, point-to-line over every
-scan, between the two images' stamps; an H-IASM or IASM motion that lies more than
-``IasmParams.odometry_gate_m`` from it, where the odometry is constrained, fails as
-well). Each step's joint polish aligns scan t+1 with a
-keyframe's scan (``IasmParams.keyframe_m``), and so does a fallback to ICP. Each
-fallback is logged (logger ``rigcal.localize``) and counted in the run's summary.
+two images and a scale are available, else IASM, else -- H-IASM only, where the laser
+odometry is degenerate between the two images -- visual odometry with the carried scale
+aligned with the walls (:func:`rigcal.localize.hiasm.visual_fallback`), else ICP between
+the two scans (H-IASM -> IASM -> VO -> ICP). ICP's motion is the laser odometry's
+(point-to-line over every scan) between the two images' stamps; an H-IASM or IASM motion
+that lies more than ``IasmParams.odometry_gate_m`` from it, where the odometry is
+constrained, fails as well. Each step's joint polish aligns scan t+1 with a keyframe's
+scan (``IasmParams.keyframe_m``), and so does a fallback to ICP. Each fallback is logged
+(logger ``rigcal.localize``) and counted in the run's summary.
 :func:`scan_matching` chains the steps over a sequence; :func:`step_picture` draws one
 step's correspondences (the paper's Fig. 5).
 """
