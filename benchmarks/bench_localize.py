@@ -74,13 +74,14 @@ def main() -> None:
             n_images = len((seq / "images.csv").read_text().splitlines()) - 1
             print("\n| method alone | wall (s) | x real time | stages (s) |")
             print("|---|---|---|---|")
+            per = float("nan")
             for m in ALONE:
                 a = run(seq, [m], root / f"{seq.name}-{m}-alone", force=True)
                 stages = ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in a.timings_s.items())
                 print(f"| {m} | {a.wall_s:.1f} | {a.duration_s / a.wall_s:.2f} | {stages} |", flush=True)
                 if m == "vo":
                     per = (a.timings_s["tracks_s"] + a.timings_s["vo_s"]) / n_images * 1000
-                    print(f"\nVO per frame (tracks + runs, the laser odometry beside it): {per:.1f} ms\n")
+            print(f"\nVO per frame (tracks + runs, the laser odometry beside it): {per:.1f} ms")
 
 
 def sequence_name(world: str, seed: int, range_max_m: float) -> str:
