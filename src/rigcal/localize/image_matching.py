@@ -272,9 +272,9 @@ def scan_matching(
 def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint8], Step]:
     """The correspondences of the step from image i to image i+1 (Fig. 5), and the step.
 
-    H-IASM's scale is the laser odometry's between the two images or, with
-    ``IasmParams.odometry_scale`` False, that of a step on the images before (i-1, i),
-    as in a run.
+    H-IASM's scale is, as in a run, the laser odometry's between the two images where
+    the walls constrain it, else (and with ``IasmParams.odometry_scale`` False) that of
+    a step on the images before (i-1, i).
     """
     from rigcal.viz.matches_plot import draw_matches
 
@@ -287,7 +287,7 @@ def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint
     f1, tr1 = sm.frame(i)
     f2, tr2 = sm.frame(i + 1)
     scale = None
-    if sm.hierarchical and not sm.params.odometry_scale and i > 0:
+    if sm.hierarchical and i > 0:
         f0, tr0 = sm.frame(i - 1)
         prev = sm.step(f0, f1, tr0, tr1, None, i - 1, i)
         scale = sm.scale_of(prev.motion)
