@@ -70,6 +70,8 @@ def test_world_file_round_trip_and_errors(tmp_path):
         ({"walls": [{"from": [0, 0], "to": [1, "a"]}]}, r"walls\[0\]\.to: got \[1, 'a'\]"),
         ({"walls": [{"from": [0, 0], "to": [1, 0], "texture": "gold"}]}, r"walls\[0\]\.texture: got 'gold'"),
         ({"path": [[0, 0]]}, r"path: got .*at least 3 points"),
+        ({"path": [[0.5, 0.5], [0.5, 0.5], [3.5, 2.5]]}, r"path\[1\]: got .*; expected a point at"),
+        ({"path": [[0.5, 0.5], [3.5, 0.5], [0.5, 0.7]]}, r"path\[1\]: got .*less than 150 deg"),
         ({"roof": 1}, r"roof: got 1; expected no such key"),
         ({"schema_version": 2}, r"schema_version: got 2"),
     ]

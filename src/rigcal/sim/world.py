@@ -111,9 +111,31 @@ def read_world(path: str | Path) -> World:
     if not isinstance(route, list) or len(route) < 3:
         raise InputError.at(path, "path", route, "a closed path of at least 3 points [[x, y], ...]")
     waypoints = np.array([_point(p, path, f"path[{j}]") for j, p in enumerate(route)])
+    _check_path(waypoints, route, path)
     if not isinstance(d["name"], str) or not d["name"]:
         raise InputError.at(path, "name", d["name"], "a non-empty string")
     return World(d["name"], tuple(surfaces), waypoints, laser_h)
+
+
+MAX_CORNER_DEG = 150.0  # the rig drives a corner as an arc; a U-turn would spin it on the spot
+
+
+def _check_path(P: FloatArray, route: list[Any], path: Path) -> None:
+    """Each waypoint at least 0.1 m from the one before, each corner turning less than
+    MAX_CORNER_DEG (the drive rounds corners into arcs; a sharper one spins the rig on
+    the spot)."""
+    n = len(P)
+    for j in range(n):
+        d_in = P[j] - P[j - 1]
+        if np.hypot(*d_in) < 0.1:
+            raise InputError.at(path, f"path[{j}]", route[j], "a point at least 0.1 m from the one before")
+    for j in range(n):
+        d_in, d_out = P[j] - P[j - 1], P[(j + 1) % n] - P[j]
+        cross = float(d_in[0] * d_out[1] - d_in[1] * d_out[0])
+        turn = abs(np.degrees(np.arctan2(cross, float(d_in @ d_out))))
+        if turn >= MAX_CORNER_DEG:
+            expected = f"a corner turning less than {MAX_CORNER_DEG:g} deg (it turns {turn:.0f} deg)"
+            raise InputError.at(path, f"path[{j}]", route[j], expected)
 
 
 def _point(v: Any, path: Path, key: str) -> FloatArray:
