@@ -5,7 +5,8 @@ squares (Eq. (4)) to the winner's inlier correspondences
 (:func:`rigcal.localize.iasm.robust_motion`) and then, by default, :func:`joint_polish`
 fits the laser's point-to-line alignment and the correspondences together: the walls
 make the motion precise where the scene's geometry constrains it, the correspondences
-hold it where it does not (along a corridor). It aligns scan t+1 with a keyframe's scan
+hold it where it does not (along a corridor), each weighted by the Cauchy weight of its
+residual (:func:`match_weights`). It aligns scan t+1 with a keyframe's scan
 (:func:`keyframe_reference`, a new keyframe by :func:`new_keyframe`) rather than scan
 t's, so that the laser's heading error does not add up step by step
 (``benchmarks/bench_matching.py``, part 3).
