@@ -305,3 +305,21 @@ def test_bad_iasm_settings_are_refused_before_any_work(sequence, tmp_path, capsy
     assert message in err
     assert len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_a_laser_that_cannot_see_the_corridors_end(tmp_path):
+    """Eight seconds of the corridor loop with a 4 m laser: the laser odometry is degenerate
+    along the straight, the image methods choose the image metric there (Section III-C)
+    and carry the motion along it, and the KF leaves ICP's degenerate steps to VO."""
+    seq, out = tmp_path / "short", tmp_path / "out"
+    args = ["simulate", "world", "-o", str(seq), "--duration-s", "8", "--seed", "1", "--range-max-m", "4"]
+    assert main(args) == 0
+    assert main(["localize", str(seq), "--method", "icp,kf,iasm,hiasm", "-o", str(out)]) == 0
+    methods = json.loads((out / "summary.json").read_text())["methods"]
+    assert methods["icp"]["degenerate_steps"] > 50
+    icp_error = methods["icp"]["metrics"]["average_position_error_m"]
+    assert icp_error > 0.3
+    for m in ("iasm", "hiasm"):
+        assert methods[m]["metric"]["image"] > 10
+        assert methods[m]["metrics"]["average_position_error_m"] < 0.05 * icp_error
+    assert methods["kf"]["metrics"]["average_position_error_m"] < 0.1 * icp_error
