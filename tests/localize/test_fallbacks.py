@@ -53,3 +53,19 @@ def test_iasm_never_falls_back_to_vo(failing, monkeypatch):
     f2, tr2 = sm.frame(11)
     st = sm.step(f1, f2, tr1, tr2, sm.scale_of(true), 10, 11)
     assert st.used == "icp"
+
+
+def test_after_a_stop_the_vo_fallback_takes_the_last_moving_steps_scale(failing, monkeypatch):
+    """The step before stood still (its scale, carried, is 0): visual odometry's fallback
+    scales its direction by the last step that moved, or it would stand still too."""
+    streams, true = failing
+    monkeypatch.setattr(ScanMatcher, "odometry_constrained", lambda self, i1, i2: False)
+    sm = ScanMatcher(streams, "hiasm")
+    f1, tr1 = sm.frame(10)
+    f2, tr2 = sm.frame(11)
+    assert sm.carry(true) == pytest.approx(sm.scale_of(true))  # a moving step
+    assert sm.carry(np.zeros(3)) == pytest.approx(0.0, abs=1e-12)  # a still one
+    assert sm.moving_scale == pytest.approx(sm.scale_of(true))
+    st = sm.step(f1, f2, tr1, tr2, 0.0, 10, 11)
+    assert st.used == "vo"
+    assert np.linalg.norm(st.motion[:2] - true[:2]) < 0.005

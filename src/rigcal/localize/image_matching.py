@@ -39,6 +39,9 @@ FloatArray = NDArray[np.float64]
 
 log = logging.getLogger("rigcal.localize")
 
+# A step whose camera moved less than this (m) stood still.
+STILL_SCALE_M = 0.005
+
 
 @dataclass(frozen=True)
 class Step:
@@ -75,6 +78,9 @@ class ScanMatcher:
             self.tracks = streams.feature_tracks() if tracks is None else tracks
         self.focal = float(np.mean(self.camera.intrinsics[:2]))
         self.rng = np.random.default_rng(0)
+        # The scale of the last step that moved: visual odometry's fallback takes it after
+        # a stop (a still step's scale is 0; visual odometry itself sees a stop).
+        self.moving_scale: float | None = None
         self.timings_s = {"frames_s": 0.0, "matching_s": 0.0}
 
     def frame(self, i: int) -> tuple[Frame, FrameTracks | None]:
@@ -92,6 +98,14 @@ class ScanMatcher:
         )
         self.timings_s["frames_s"] += time.perf_counter() - t0
         return f, None if self.tracks is None else self.tracks[i]
+
+    def carry(self, motion: FloatArray) -> float:
+        """A step's scale, carried to the next step (the paper's s_{t-1}); the last moving
+        step's is kept as well (:attr:`moving_scale`)."""
+        scale = self.scale_of(motion)
+        if scale > STILL_SCALE_M:
+            self.moving_scale = scale
+        return scale
 
     def scale_of(self, motion: FloatArray) -> float:
         """The length of the camera's translation for a laser motion (x, y, yaw)."""
@@ -195,7 +209,8 @@ class ScanMatcher:
             rel, _ = self.visual_odometry(tr1, tr2)
             if rel is not None:
                 R_c, t_c = rel.R, rel.t_unit
-                motion = visual_fallback(f1, f2, R_c, t_c, scale, self.T_cam_laser, self.params, reference)
+                vo_scale = scale if self.moving_scale is None else self.moving_scale
+                motion = visual_fallback(f1, f2, R_c, t_c, vo_scale, self.T_cam_laser, self.params, reference)
                 return Step(motion, "vo", None, m, why)
         # ICP: the laser odometry's motion (point-to-line over every scan) between the stamps.
         motion = odometry
@@ -253,7 +268,7 @@ def scan_matching(
             inliers.append(st.result.inliers)
         # The paper's scale, carried to the next step (H-IASM takes the laser odometry's
         # between the two images instead where the walls constrain it).
-        scale = sm.scale_of(st.motion)
+        scale = sm.carry(st.motion)
         motions.append(st.motion)
         f1, tr1 = f2, tr2
     for k, v in sm.timings_s.items():
@@ -290,7 +305,7 @@ def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint
     if sm.hierarchical and i > 0:
         f0, tr0 = sm.frame(i - 1)
         prev = sm.step(f0, f1, tr0, tr1, None, i - 1, i)
-        scale = sm.scale_of(prev.motion)
+        scale = sm.carry(prev.motion)
     st = sm.step(f1, f2, tr1, tr2, scale, i, i + 1)
     m = st.matches
     if m is None or len(m.i1) == 0:
