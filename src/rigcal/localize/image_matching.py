@@ -111,14 +111,14 @@ class ScanMatcher:
         """The length of the camera's translation for a laser motion (x, y, yaw)."""
         return float(np.linalg.norm(camera_motion(motion, self.T_cam_laser)[1]))
 
-    def odometry_gap(self, motion: FloatArray, odometry: FloatArray, i1: int, i2: int) -> str | None:
+    def odometry_gap(self, motion: FloatArray, odometry: FloatArray, constrained: bool) -> str | None:
         """Why an image step's motion cannot be right, or None: it moves more than
-        ``odometry_gate_m`` away from the laser odometry's motion between images i1 and
-        i2 while every scan step between them constrains the odometry (degeneracy
-        indicator at least DEGENERATE_BELOW)."""
+        ``odometry_gate_m`` away from the laser odometry's motion between the two images
+        while every scan step between them constrains the odometry (``constrained``,
+        :meth:`odometry_constrained`)."""
         gate = self.params.odometry_gate_m
         gap = float(np.hypot(*(motion[:2] - odometry[:2])))
-        if gate <= 0 or gap <= gate or not self.odometry_constrained(i1, i2):
+        if gate <= 0 or gap <= gate or not constrained:
             return None
         return f"{gap:.2f} m off the laser odometry"
 
@@ -148,17 +148,17 @@ class ScanMatcher:
         self,
         f1: Frame,
         f2: Frame,
-        tr1: FrameTracks,
-        tr2: FrameTracks,
+        rel: RelativePose | None,
+        vo_why: str,
         scale: float | None,
         reference: LaserReference | None = None,
     ) -> tuple[StepResult | None, Matches | None, str]:
-        """An H-IASM step (the result, its matches), or None and why it could not be made."""
+        """An H-IASM step (the result, its matches), or None and why it could not be made;
+        ``rel``: visual odometry between the two images (None: ``vo_why``)."""
         if scale is None:
             return None, None, "no scale yet (first pair)"
-        rel, why = self.visual_odometry(tr1, tr2)
         if rel is None:
-            return None, None, why
+            return None, None, vo_why
         res, m = hiasm_step(
             f1, f2, rel.R, rel.t_unit, scale, self.camera, self.T_cam_laser, self.params, self.rng, reference
         )
@@ -187,31 +187,33 @@ class ScanMatcher:
         why = None
         t = self.streams.image_stamps_s
         odometry = self.streams.odometry_motion(float(t[i1]), float(t[i2]))
-        if self.params.odometry_scale and (scale is None or self.odometry_constrained(i1, i2)):
+        constrained = self.odometry_constrained(i1, i2)
+        if self.params.odometry_scale and (scale is None or constrained):
             scale = self.scale_of(odometry)
+        rel = None
         if tr1 is not None and tr2 is not None:
-            res, m, why = self.try_hiasm(f1, f2, tr1, tr2, scale, reference)
+            rel, vo_why = self.visual_odometry(tr1, tr2)
+            res, m, why = self.try_hiasm(f1, f2, rel, vo_why, scale, reference)
             if res is not None:
-                gap = self.odometry_gap(res.motion, odometry, i1, i2)
+                gap = self.odometry_gap(res.motion, odometry, constrained)
                 if gap is None:
                     self.timings_s["matching_s"] += time.perf_counter() - t0
                     return Step(res.motion, "hiasm", res, m, None)
                 res, why = None, gap
         res, m = iasm_step(f1, f2, self.camera, self.T_cam_laser, self.params, self.rng, reference)
         self.timings_s["matching_s"] += time.perf_counter() - t0
-        gap = None if res is None else self.odometry_gap(res.motion, odometry, i1, i2)
+        gap = None if res is None else self.odometry_gap(res.motion, odometry, constrained)
         if res is not None and gap is None:
             return Step(res.motion, "iasm", res, m, why)
         failed = gap or "too few correspondences"
         why = failed if why is None else f"{why}; IASM: {failed}"
-        degenerate = not self.odometry_constrained(i1, i2)
-        if tr1 is not None and tr2 is not None and scale is not None and degenerate:
-            rel, _ = self.visual_odometry(tr1, tr2)
-            if rel is not None:
-                R_c, t_c = rel.R, rel.t_unit
-                vo_scale = scale if self.moving_scale is None else self.moving_scale
-                motion = visual_fallback(f1, f2, R_c, t_c, vo_scale, self.T_cam_laser, self.params, reference)
-                return Step(motion, "vo", None, m, why)
+        if rel is not None and scale is not None and not constrained:
+            # H-IASM along a corridor whose ends the laser cannot see: visual odometry.
+            vo_scale = scale if self.moving_scale is None else self.moving_scale
+            motion = visual_fallback(
+                f1, f2, rel.R, rel.t_unit, vo_scale, self.T_cam_laser, self.params, reference
+            )
+            return Step(motion, "vo", None, m, why)
         # ICP: the laser odometry's motion (point-to-line over every scan) between the stamps.
         motion = odometry
         if reference is not None:
