@@ -66,6 +66,7 @@ import argparse
 import dataclasses
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -373,12 +374,9 @@ def rates(
             streams, truth = _opened(sequence(root, name, seed, rate))
             cells = []
             for method in PAIRED[1:]:
-                stamps, poses, stats, _ = image_matching.scan_matching(streams, method, params)
-                gt = planar_at(truth, stamps)
-                m = evaluate(anchored(poses, gt), gt)
-                f = [float(m[FIGURES[k]]) for k in ("loop", "avg")]
+                f, stats, steps = _scored(streams, truth, method, params, ("loop", "avg"))
                 fig[method].append([*f, stats["fallbacks"]])
-                cells.append(f"{_cell(f)}, {stats['fallbacks']} of {len(stamps) - 1}")
+                cells.append(f"{_cell(f)}, {stats['fallbacks']} of {steps}")
             print(f"| {name} | {rate:g} | {seed} | " + " | ".join(cells) + " |", flush=True)
         if len(seeds) > 1:
             means = [np.mean(fig[m], axis=0) for m in PAIRED[1:]]
@@ -407,10 +405,8 @@ def ranges(
             fig["icp"].append(_odometry_figures(streams, truth))
             fig["laser"].append(_figures(streams, truth, "iasm", alone, ("loop", "avg")))
             fig["iasm"].append(_figures(streams, truth, "iasm", params, ("loop", "avg")))
-            stamps, poses, stats, _ = image_matching.scan_matching(streams, "hiasm", params)
-            gt = planar_at(truth, stamps)
-            m = evaluate(anchored(poses, gt), gt)
-            fig["hiasm"].append([float(m[FIGURES[k]]) for k in ("loop", "avg")])
+            f, stats, _ = _scored(streams, truth, "hiasm", params, ("loop", "avg"))
+            fig["hiasm"].append(f)
             by = ", ".join(f"{k} {v}" for k, v in stats["steps_by"].items())
             cells = " | ".join(_cell(fig[k][-1]) for k in RANGE_METHODS)
             print(f"| {name} | {range_m:g} | {seed} | {cells} | {by} |", flush=True)
@@ -461,10 +457,17 @@ def _figures(
     streams: Streams, truth: Trajectory, method: str, params: IasmParams, which: tuple[str, ...]
 ) -> list[float]:
     """One method's run on the streams, scored against the truth (``which``: FIGURES keys)."""
-    stamps, poses, _, _ = image_matching.scan_matching(streams, method, params)
+    return _scored(streams, truth, method, params, which)[0]
+
+
+def _scored(
+    streams: Streams, truth: Trajectory, method: str, params: IasmParams, which: tuple[str, ...]
+) -> tuple[list[float], dict[str, Any], int]:
+    """One method's run: its figures (``which``: FIGURES keys), its counts and its steps."""
+    stamps, poses, stats, _ = image_matching.scan_matching(streams, method, params)
     gt = planar_at(truth, stamps)
     m = evaluate(anchored(poses, gt), gt)
-    return [float(m[FIGURES[k]]) for k in which]
+    return [float(m[FIGURES[k]]) for k in which], stats, len(stamps) - 1
 
 
 def _setting(snap: bool, dense: bool) -> str:
