@@ -9,7 +9,7 @@ from rigcal.calib.refine import (
     EndpointSet,
     NoiseModel,
     RefineParams,
-    _loss_weights,
+    loss_weights,
     _whitened_residuals_and_jacobian,
     refine_pose,
     whitening,
@@ -131,10 +131,10 @@ def test_robust_loss_resists_an_outlier():
 
 def test_loss_weights():
     r = np.array([0.0, 1.0, 4.0])
-    np.testing.assert_allclose(_loss_weights(r, RefineParams(loss="linear")), 1.0)
-    np.testing.assert_allclose(_loss_weights(r, RefineParams(loss="huber", loss_scale=2.0)), [1, 1, 0.5])
+    np.testing.assert_allclose(loss_weights(r, "linear", 2.0), 1.0)
+    np.testing.assert_allclose(loss_weights(r, "huber", 2.0), [1, 1, 0.5])
     np.testing.assert_allclose(
-        _loss_weights(r, RefineParams(loss="cauchy", loss_scale=1.0)), [1, 0.5, 1 / 17]
+        loss_weights(r, "cauchy", 1.0), [1, 0.5, 1 / 17]
     )
 
 

@@ -29,12 +29,29 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
+from scipy.optimize import brentq, least_squares
 
+from rigcal.calib.noise import (
+    CHI2_2DOF_MEDIAN,
+    LineFit,
+    RangeNoise,
+    fit_line_robust,
+    line_offset_covariance,
+    range_noise_from_lines,
+)
+from rigcal.calib.refine import loss_weights
+from rigcal.calib.spread import (
+    Sensitivity,
+    Spread,
+    expected_jackknife,
+    honest_covariance,
+    leave_one_out,
+    sensitivity,
+)
 from rigcal.errors import CalibrationError
 from rigcal.geometry import make_T, rotvec_to_R
 
@@ -72,25 +89,6 @@ class PlaneObservation:
     distance_sigma_m: float = 0.001
     board_origin_cam: FloatArray | None = None
     board_pose_cov: FloatArray | None = None
-
-
-@dataclass(frozen=True)
-class PlaneResult:
-    """Outcome of a plane-based solve.
-
-    Attributes:
-        T_cam_laser: (4, 4) the pose.
-        covariance: (6, 6) over [dtheta (rad), t (m)] in the camera frame, as the box method.
-        residuals_m: per capture, (M,) signed point-to-plane distances, metres.
-        residual_scale: sqrt(chi^2 / dof) of the whitened residuals.
-        inlier_captures: (C,) bool, captures RANSAC kept.
-    """
-
-    T_cam_laser: FloatArray
-    covariance: FloatArray
-    residuals_m: tuple[FloatArray, ...]
-    residual_scale: float
-    inlier_captures: NDArray[np.bool_]
 
 
 def closed_form(observations: Sequence[PlaneObservation]) -> FloatArray:
@@ -223,142 +221,406 @@ def ransac_closed_form(
     return closed_form(inliers), best_mask
 
 
+# The robust loss on the whitened residuals of the capture lines (scipy's Cauchy loss,
+# bending at LOSS_SCALE sigmas): a capture far off its plane pulls the pose with a weight
+# that falls as the square of its distance instead of rising with it.
+LOSS = "cauchy"
+LOSS_SCALE = 3.0
+# A capture is an outlier when its chi-square (2 dof) exceeds the 99.9 % point times the
+# robust scale of all captures' chi-squares (median over the chi-square median, at least 1).
+OUTLIER_GATE_CHI2 = 13.815510557964274
+# Captures whose boards are this close in pose (normal, distance, laser cut) were taken at
+# one pose and share one verdict.
+SAME_POSE_NORMAL_DEG = 1.5
+SAME_POSE_DISTANCE_M = 0.015
+SAME_POSE_CUT_M = 0.03
+
+
+@dataclass(frozen=True)
+class PlaneNoise:
+    """The noise model of a plane solve (1 sigma).
+
+    Attributes:
+        range_sigma_m: range noise of one return.
+        capture_sigma_m: an error every capture's cut carries on its own beyond the range
+            noise and the board pose's (a range bias by incidence, a warped board): added to
+            the point-to-plane distance of each end of the cut. Estimated from the data.
+        pose_cov_scale: factor on every board pose covariance (a corner noise other than
+            the one the poses were computed with, squared).
+    """
+
+    range_sigma_m: float
+    capture_sigma_m: float = 0.0
+    pose_cov_scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class CaptureLine:
+    """A capture's returns reduced to the line of the board's cut.
+
+    Under range noise the least-squares line carries all the returns say about the pose
+    (each return only says where the line is), so the solve works on the line's two ends
+    (the outermost kept returns projected on it) with the covariance of the line's offset
+    there; returns the robust fit trimmed (mixed pixels at the board's edges, strays) drop
+    out.
+
+    Attributes:
+        fit: the robust line fit (:func:`rigcal.calib.noise.fit_line_robust`).
+        ends: (2, 2) the cut's two ends on the line, laser frame.
+        offset_cov: (2, 2) covariance of the line's offset across itself at the ends, per
+            unit range variance (times range_sigma_m^2 gives metres^2).
+    """
+
+    fit: LineFit
+    ends: FloatArray
+    offset_cov: FloatArray
+
+
+def capture_line(points_laser: FloatArray) -> CaptureLine:
+    """Reduce a capture's returns on the board to its :class:`CaptureLine`."""
+    fit = fit_line_robust(points_laser)
+    k = fit.kept
+    sigma_across = float(np.sqrt(np.mean(fit.cos_incidence[k] ** 2)))
+    at = fit.along_m[k][[0, -1]]
+    return CaptureLine(fit, fit.ends, line_offset_covariance(fit.along_m[k], sigma_across, at))
+
+
+@dataclass(frozen=True)
+class PlaneResult:
+    """Outcome of a plane-based solve.
+
+    Attributes:
+        T_cam_laser: (4, 4) the pose.
+        covariance: (6, 6) over [dtheta (rad), t (m)] in the camera frame, as the box
+            method: the model's, scaled up to cover the spread over captures when that is
+            larger (:mod:`rigcal.calib.spread`).
+        residuals_m: per capture, (M,) signed point-to-plane distances, metres.
+        residual_scale: sqrt(chi^2 / dof) of the whitened residuals of the used captures.
+        inlier_captures: (C,) bool, the captures' verdicts (grouped by pose).
+        covariance_model: (6, 6) the noise model's covariance.
+        chi2: (C,) each capture's chi-square (2 dof) under the final pose and noise.
+        weights: (C,) each capture's robust weight in the final fit (0 for outliers).
+        lines: per capture, its returns reduced to a line.
+        noise: the noise model used.
+        range_noise: the range noise estimated from the captures' lines.
+        pose_group: (C,) index of each capture's same-pose group.
+        spread: leave-one-capture-out spread (None with too few captures).
+        sensitivity: moves of the answer when a noise setting is halved or doubled.
+    """
+
+    T_cam_laser: FloatArray
+    covariance: FloatArray
+    residuals_m: tuple[FloatArray, ...]
+    residual_scale: float
+    inlier_captures: NDArray[np.bool_]
+    covariance_model: FloatArray | None = None
+    chi2: FloatArray | None = None
+    weights: FloatArray | None = None
+    lines: tuple[CaptureLine, ...] = ()
+    noise: PlaneNoise | None = None
+    range_noise: RangeNoise | None = None
+    pose_group: NDArray[np.int64] | None = None
+    spread: Spread | None = None
+    sensitivity: tuple[Sensitivity, ...] = ()
+
+
 def solve_plane(
     observations: Sequence[PlaneObservation],
-    range_sigma_m: float = 0.01,
+    range_sigma_m: float | None = None,
     use_ransac: bool = True,
     seed: int = 0,
+    corner_sigma_px: float | None = None,
+    uncertainty_checks: bool = True,
 ) -> PlaneResult:
     """Calibrate T_cam_laser from board planes and laser returns (steps 1-3).
+
+    Args:
+        observations: one per capture.
+        range_sigma_m: the range noise to assume; None estimates it from the captures'
+            lines (:func:`rigcal.calib.noise.range_noise_from_lines`).
+        use_ransac: also start from RANSAC's best closed form.
+        seed: RANSAC seed.
+        corner_sigma_px: the corner noise the board pose covariances were computed with,
+            for the sensitivity to it (None: no such check).
+        uncertainty_checks: run the leave-one-capture-out spread and the sensitivity.
 
     Raises:
         CalibrationError: too few captures, planes too alike, or no consensus.
     """
-    # Start from the closed form on every capture and, when asked, from RANSAC's best
-    # sample; refine and re-classify each, and keep the one that explains most captures
-    # (then the lowest chi-square). A 5-capture closed form is often poorly conditioned,
-    # so RANSAC alone can settle on a wrong pose that a few captures fit.
     _check_observable(observations)
-    starts = [(closed_form(observations), np.ones(len(observations), dtype=bool))]
+    lines = tuple(capture_line(o.points_laser) for o in observations)
+    try:
+        estimated = range_noise_from_lines([ln.fit for ln in lines])
+    except ValueError:
+        estimated = None
+    if range_sigma_m is None:
+        if estimated is None:
+            raise CalibrationError(
+                "no capture has 3 or more returns on its board to estimate the range noise"
+            )
+        range_sigma_m = estimated.sigma_m
+    noise = PlaneNoise(max(range_sigma_m, 1e-4))
+    reduced = [replace(o, points_laser=ln.ends) for o, ln in zip(observations, lines, strict=True)]
+    # Start from the closed form on every capture and, when asked, from RANSAC's best
+    # sample; keep the robust fit that explains most captures (then the lowest cost). A
+    # 5-capture closed form is often poorly conditioned, so RANSAC alone can settle on a
+    # wrong pose that a few captures fit.
+    starts = [closed_form(reduced)]
     if use_ransac:
+        threshold = max(0.03, 6.0 * noise.range_sigma_m)
         with contextlib.suppress(CalibrationError):
-            starts.append(ransac_closed_form(observations, seed=seed))
-    fits = []
-    for T0, mask0 in starts:
-        try:
-            fits.append(_fit_and_classify(T0, mask0, observations, range_sigma_m))
-        except CalibrationError as exc:
-            failure = exc
-    if not fits:
-        raise failure
-    T, mask, _ = max(fits, key=lambda f: (int(f[1].sum()), -f[2]))
-    used = [o for o, keep in zip(observations, mask, strict=True) if keep]
-    W = [_whitener(T, o, range_sigma_m) for o in used]
-    r, J = _whitened_and_jacobian(T, used, W)
-    dof = len(r) - 6
-    info = J.T @ J
-    evals = np.linalg.eigvalsh(info)
-    if evals[0] <= 1e-12 * max(evals[-1], 1e-300):
+            starts.append(ransac_closed_form(reduced, threshold_m=threshold, seed=seed)[0])
+    groups = same_pose_groups(observations, lines)
+    fits = [_robust_fit(T0, observations, lines, noise, groups) for T0 in starts]
+    T, noise, mask, _ = max(fits, key=lambda f: (int(f[2].sum()), -f[3]))
+    if mask.sum() < MIN_CAPTURES:
         raise CalibrationError(
-            "the calibration is unobservable from these board poses (singular normal equations)"
+            f"only {int(mask.sum())} captures agree with the calibration; the plane method needs "
+            f"{MIN_CAPTURES} (check the segment ids and corners of the others)"
         )
-    scale2 = max(1.0, float(r @ r) / dof) if dof > 0 else 1.0
-    cov = scale2 * np.linalg.inv(info)
+    used = np.flatnonzero(mask)
+    cov_model, r_used, weights_used, blocks = _covariance(T, observations, lines, noise, used)
+    chi2 = _chi2(T, observations, lines, noise)
+    weights = np.zeros(len(observations))
+    weights[used] = weights_used
+    spread = None
+    sens: list[Sensitivity] = []
+    cov = cov_model
+    if uncertainty_checks:
+        names = [observations[int(i)].name for i in used]
+
+        def without(k: int) -> FloatArray:
+            return _fit(T, observations, lines, noise, np.delete(used, k))
+
+        scale2 = float(cov_model[0, 0] / np.linalg.inv(sum(b.T @ b for b in blocks))[0, 0])
+        spread = leave_one_out(without, T, names, cov_model, scale2 * expected_jackknife(blocks))
+        cov = honest_covariance(cov_model, spread)
+        settings = {"range_sigma_m": noise.range_sigma_m}
+        if corner_sigma_px is not None and observations[0].board_pose_cov is not None:
+            settings["corner_sigma_px"] = corner_sigma_px
+
+        def changed(name: str, value: float) -> FloatArray:
+            if name == "range_sigma_m":
+                return _fit(T, observations, lines, replace(noise, range_sigma_m=value), used)
+            assert corner_sigma_px is not None
+            scale = noise.pose_cov_scale * (value / corner_sigma_px) ** 2
+            return _fit(T, observations, lines, replace(noise, pose_cov_scale=scale), used)
+
+        sens = sensitivity(changed, settings, T, cov)
+    dof = len(r_used) - 6
     return PlaneResult(
         T,
-        0.5 * (cov + cov.T),
+        cov,
         tuple(point_to_plane(T, o) for o in observations),
-        float(np.sqrt(float(r @ r) / dof)) if dof > 0 else 1.0,
+        float(np.sqrt(float(r_used @ r_used) / dof)) if dof > 0 else 1.0,
         mask,
+        cov_model,
+        chi2,
+        weights,
+        lines,
+        noise,
+        estimated,
+        groups,
+        spread,
+        tuple(sens),
     )
 
 
-def _fit_and_classify(
-    T0: FloatArray, mask: NDArray[np.bool_], observations: Sequence[PlaneObservation], range_sigma_m: float
-) -> tuple[FloatArray, NDArray[np.bool_], float]:
-    """Refine on the captures in ``mask``, re-classify every capture under the refined
-    pose, and repeat until stable. Returns (pose, inlier mask, chi-square per dof)."""
+def same_pose_groups(
+    observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine]
+) -> NDArray[np.int64]:
+    """(C,) a group index per capture: captures whose boards have the same pose (normal
+    within SAME_POSE_NORMAL_DEG, distance within SAME_POSE_DISTANCE_M, cut ends within
+    SAME_POSE_CUT_M) share one, so that they get one verdict."""
+    C = len(observations)
+    parent = list(range(C))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    cos_max = np.cos(np.radians(SAME_POSE_NORMAL_DEG))
+    for i in range(C):
+        for j in range(i + 1, C):
+            a, b = observations[i], observations[j]
+            ends_i, ends_j = lines[i].ends, lines[j].ends
+            cut = min(np.abs(ends_i - ends_j).max(), np.abs(ends_i - ends_j[::-1]).max())
+            if (
+                float(np.dot(a.normal_cam, b.normal_cam)) >= cos_max
+                and abs(a.distance_m - b.distance_m) <= SAME_POSE_DISTANCE_M
+                and cut <= SAME_POSE_CUT_M
+            ):
+                parent[root(i)] = root(j)
+    roots = [root(i) for i in range(C)]
+    _, index = np.unique(roots, return_inverse=True)
+    return index.astype(np.int64)
+
+
+def _robust_fit(
+    T0: FloatArray,
+    observations: Sequence[PlaneObservation],
+    lines: Sequence[CaptureLine],
+    noise: PlaneNoise,
+    groups: NDArray[np.int64],
+) -> tuple[FloatArray, PlaneNoise, NDArray[np.bool_], float]:
+    """From T0: a robust fit on every capture, the per-capture error estimated from the
+    captures' chi-squares, the verdicts, and a robust fit on the inliers; twice over, as
+    the verdicts and the estimate settle. Returns (pose, noise, inliers, robust cost)."""
+    C = len(observations)
+    mask = np.ones(C, dtype=bool)
     T = T0
-    for _ in range(5):
-        used = [o for o, keep in zip(observations, mask, strict=True) if keep]
-        if len(used) < MIN_CAPTURES:
-            raise CalibrationError(
-                f"only {len(used)} captures agree with the calibration; the plane method needs "
-                f"{MIN_CAPTURES} (check the segment ids and corners of the others)"
-            )
-        T = _refine(T, used, range_sigma_m)
-        # Every capture's whitened residuals must be plausible for its number of returns
-        # (chi-square 99.9 %).
-        new = np.array([_capture_chi2_ok(T, o, range_sigma_m) for o in observations])
+    for _ in range(3):
+        T = _fit(T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None)
+        noise = replace(noise, capture_sigma_m=_capture_sigma(T, observations, lines, noise, mask))
+        chi2 = _chi2(T, observations, lines, noise)
+        scale = max(1.0, float(np.median(chi2[mask])) / CHI2_2DOF_MEDIAN)
+        # One verdict per same-pose group, from the group's median chi-square.
+        group_chi2 = np.array([np.median(chi2[groups == g]) for g in range(groups.max() + 1)])
+        new = group_chi2[groups] < OUTLIER_GATE_CHI2 * scale
         if np.array_equal(new, mask):
             break
         mask = new
-    used = [o for o, keep in zip(observations, mask, strict=True) if keep]
-    z = np.concatenate([_whitener(T, o, range_sigma_m) @ point_to_plane(T, o) for o in used])
-    return T, mask, float(z @ z) / max(len(z) - 6, 1)
+    chi2 = _chi2(T, observations, lines, noise)
+    z = np.sqrt(chi2[mask])
+    cost = float(np.sum(LOSS_SCALE**2 * np.log1p((z / LOSS_SCALE) ** 2)))
+    return T, noise, mask, cost
 
 
-def _refine(T0: FloatArray, used: Sequence[PlaneObservation], range_sigma_m: float) -> FloatArray:
-    """Levenberg-Marquardt on the whitened point-to-plane distances from T0 (step 3)."""
+def _capture_cov(T: FloatArray, o: PlaneObservation, line: CaptureLine, noise: PlaneNoise) -> FloatArray:
+    """(2, 2) covariance of the point-to-plane distances of a capture's two cut ends: the
+    line's offset through the range noise, the board plane's own error (through the board's
+    pose when its covariance is known, else an independent distance error) and the
+    per-capture error."""
+    n = np.asarray(o.normal_cam, dtype=float)
+    # A shift d of the line across itself (along its normal in the laser plane) moves each
+    # end's distance from the plane by d (R n_line) . n.
+    a = float(T[:3, :2] @ line.fit.normal @ n)
+    cov = (a * noise.range_sigma_m) ** 2 * line.offset_cov
+    if o.board_pose_cov is not None and o.board_origin_cam is not None:
+        # res = n . (p - b); d res = w . (n x (p - b)) - n . db for a board pose change (w, db).
+        pc = np.column_stack([line.ends, np.zeros(2)]) @ T[:3, :3].T + T[:3, 3]
+        G = np.column_stack([np.cross(n, pc - o.board_origin_cam), np.broadcast_to(-n, pc.shape)])
+        cov = cov + noise.pose_cov_scale * G @ o.board_pose_cov @ G.T
+    else:
+        cov = cov + o.distance_sigma_m**2
+    out: FloatArray = cov + (noise.capture_sigma_m**2 + 1e-18) * np.eye(2)
+    return out
+
+
+def _whiteners(
+    T: FloatArray, observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine], noise: PlaneNoise
+) -> list[FloatArray]:
+    return [
+        np.linalg.inv(np.linalg.cholesky(_capture_cov(T, o, ln, noise)))
+        for o, ln in zip(observations, lines, strict=True)
+    ]
+
+
+def _end_residuals(T: FloatArray, o: PlaneObservation, line: CaptureLine) -> FloatArray:
+    out: FloatArray = (line.ends @ T[:3, :2].T + T[:3, 3]) @ np.asarray(
+        o.normal_cam, dtype=float
+    ) - o.distance_m
+    return out
+
+
+def _chi2(
+    T: FloatArray, observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine], noise: PlaneNoise
+) -> FloatArray:
+    """(C,) each capture's squared whitened distance of its cut from its plane (2 dof)."""
+    W = _whiteners(T, observations, lines, noise)
+    return np.array(
+        [
+            float(np.sum((w @ _end_residuals(T, o, ln)) ** 2))
+            for w, o, ln in zip(W, observations, lines, strict=True)
+        ]
+    )
+
+
+def _capture_sigma(
+    T: FloatArray,
+    observations: Sequence[PlaneObservation],
+    lines: Sequence[CaptureLine],
+    noise: PlaneNoise,
+    mask: NDArray[np.bool_],
+) -> float:
+    """The per-capture error that makes the median chi-square of the captures in ``mask``
+    what 2 dof predict (0 when the range noise and the board poses already explain them)."""
+    obs = [o for o, k in zip(observations, mask, strict=True) if k]
+    lns = [ln for ln, k in zip(lines, mask, strict=True) if k]
+
+    def excess(s: float) -> float:
+        return float(np.median(_chi2(T, obs, lns, replace(noise, capture_sigma_m=s)))) - CHI2_2DOF_MEDIAN
+
+    if excess(0.0) <= 0.0:
+        return 0.0
+    if excess(1.0) > 0.0:
+        return 1.0
+    return float(brentq(excess, 0.0, 1.0, xtol=1e-5))
+
+
+def _fit(
+    T0: FloatArray,
+    observations: Sequence[PlaneObservation],
+    lines: Sequence[CaptureLine],
+    noise: PlaneNoise,
+    used: NDArray[np.int64] | None,
+) -> FloatArray:
+    """Levenberg-Marquardt-style robust fit (scipy trust region, Cauchy loss) of the
+    whitened cut-end distances of the captures ``used`` (all when None) from T0 (step 3)."""
+    idx = np.arange(len(observations)) if used is None else used
+    obs = [observations[i] for i in idx]
+    lns = [lines[i] for i in idx]
+    W = _whiteners(T0, obs, lns, noise)
     R0 = T0[:3, :3]
 
     def pose(x: FloatArray) -> FloatArray:
         return make_T(rotvec_to_R(x[:3]) @ R0, x[3:])
 
-    W = [_whitener(T0, o, range_sigma_m) for o in used]
-
     def residuals(x: FloatArray) -> FloatArray:
         T = pose(x)
-        return np.concatenate([w @ point_to_plane(T, o) for w, o in zip(W, used, strict=True)])
+        return np.concatenate([w @ _end_residuals(T, o, ln) for w, o, ln in zip(W, obs, lns, strict=True)])
 
     x0 = np.concatenate([np.zeros(3), T0[:3, 3]])
-    sol = least_squares(residuals, x0, method="lm", x_scale="jac")
+    sol = least_squares(residuals, x0, method="trf", loss=LOSS, f_scale=LOSS_SCALE, x_scale="jac")
     return pose(sol.x)
 
 
-def _capture_chi2_ok(T: FloatArray, o: PlaneObservation, range_sigma_m: float) -> bool:
-    """Whether a capture's whitened residuals fit its noise (chi-square 99.9 %, M dof)."""
-    from scipy.stats import chi2
-
-    z = _whitener(T, o, range_sigma_m) @ point_to_plane(T, o)
-    return bool(float(z @ z) < chi2.ppf(0.999, len(z)))
-
-
-def _whitener(T: FloatArray, o: PlaneObservation, range_sigma_m: float) -> FloatArray:
-    """(M, M) W with W^T W the inverse covariance of a capture's point-to-plane distances:
-    each return's range noise along its beam, projected on the plane's normal, plus the
-    plane's own error, shared by all returns of the capture (through the board's pose when
-    its covariance is known, else through an independent distance error)."""
-    p = o.points_laser
-    n = np.asarray(o.normal_cam, dtype=float)
-    rays = np.column_stack([p, np.zeros(len(p))]) / np.linalg.norm(p, axis=1, keepdims=True)
-    along_normal = rays @ T[:3, :3].T @ n
-    cov = np.diag((range_sigma_m * along_normal) ** 2)
-    if o.board_pose_cov is not None and o.board_origin_cam is not None:
-        # res = n . (p - b); d res = w . (n x (p - b)) - n . db for a board pose change (w, db).
-        pc = np.column_stack([p, np.zeros(len(p))]) @ T[:3, :3].T + T[:3, 3]
-        G = np.column_stack([np.cross(n, pc - o.board_origin_cam), np.broadcast_to(-n, pc.shape)])
-        cov = cov + G @ o.board_pose_cov @ G.T
-    else:
-        cov = cov + o.distance_sigma_m**2
-    cov += 1e-18 * np.eye(len(p))
-    out: FloatArray = np.linalg.inv(np.linalg.cholesky(cov))
-    return out
-
-
-def _whitened_and_jacobian(
-    T: FloatArray, observations: Sequence[PlaneObservation], whiteners: Sequence[FloatArray]
-) -> tuple[FloatArray, FloatArray]:
-    """Whitened residuals and their Jacobian over [dtheta, t] at dtheta = 0 (left
-    perturbation in the camera frame: d(Exp(w) R p)/dw = -[R p]x)."""
+def _covariance(
+    T: FloatArray,
+    observations: Sequence[PlaneObservation],
+    lines: Sequence[CaptureLine],
+    noise: PlaneNoise,
+    used: NDArray[np.int64],
+) -> tuple[FloatArray, FloatArray, FloatArray, list[FloatArray]]:
+    """The model covariance at T from the robust fit's information (IRLS weights), inflated
+    by the weighted residual scale when above 1; also the used captures' whitened residuals,
+    each capture's robust weight (the mean of its two ends') and its weighted whitened
+    Jacobian rows."""
+    obs = [observations[i] for i in used]
+    lns = [lines[i] for i in used]
+    W = _whiteners(T, obs, lns, noise)
     rs, Js = [], []
-    for o, W in zip(observations, whiteners, strict=True):
+    for w, o, ln in zip(W, obs, lns, strict=True):
         n = np.asarray(o.normal_cam, dtype=float)
-        rp = np.column_stack([o.points_laser, np.zeros(len(o.points_laser))]) @ T[:3, :3].T
-        rs.append(W @ (rp @ n + T[:3, 3] @ n - o.distance_m))
+        rp = np.column_stack([ln.ends, np.zeros(2)]) @ T[:3, :3].T
+        rs.append(w @ _end_residuals(T, o, ln))
         # d(n . (Exp(w) R p))/dw = n . (w x Rp) = w . (Rp x n)
-        Js.append(W @ np.column_stack([np.cross(rp, n), np.broadcast_to(n, rp.shape)]))
-    return np.concatenate(rs), np.concatenate(Js)
+        Js.append(w @ np.column_stack([np.cross(rp, n), np.broadcast_to(n, rp.shape)]))
+    r, J = np.concatenate(rs), np.concatenate(Js)
+    wts = loss_weights(r, LOSS, LOSS_SCALE)
+    blocks = [b * np.sqrt(w)[:, None] for b, w in zip(Js, wts.reshape(-1, 2), strict=True)]
+    info = (J * wts[:, None]).T @ J
+    evals = np.linalg.eigvalsh(info)
+    if evals[0] <= 1e-12 * max(evals[-1], 1e-300):
+        raise CalibrationError(
+            "the calibration is unobservable from these board poses (singular normal equations)"
+        )
+    dof = len(r) - 6
+    scale2 = max(1.0, float(np.sum(wts * r**2)) / dof) if dof > 0 else 1.0
+    cov = scale2 * np.linalg.inv(info)
+    return 0.5 * (cov + cov.T), r, wts.reshape(-1, 2).mean(axis=1), blocks
 
 
 def _check_observable(observations: Sequence[PlaneObservation]) -> None:

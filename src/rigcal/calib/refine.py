@@ -316,7 +316,7 @@ def refine_pose(
     # Re-whiten at the solution (the projection Jacobians moved a little) and linearise there.
     W = whitening_matrix(camera, T, meas, noise)
     r, J = _whitened_residuals_and_jacobian(camera, T, meas, W)
-    weights = _loss_weights(r, params)
+    weights = loss_weights(r, params.loss, params.loss_scale)
     Jw = J * np.sqrt(weights)[:, None]
     info = Jw.T @ Jw
     dof = len(r) - 6
@@ -368,13 +368,13 @@ def _block_diagonal(blocks: FloatArray) -> FloatArray:
     return out
 
 
-def _loss_weights(r: FloatArray, params: RefineParams) -> FloatArray:
-    """IRLS weights rho'(z) of the robust loss at the solution (1 for the linear loss)."""
-    z = (r / params.loss_scale) ** 2
-    if params.loss == "huber":
+def loss_weights(r: FloatArray, loss: str, scale: float) -> FloatArray:
+    """IRLS weights rho'(z) of scipy's robust ``loss`` bending at ``scale`` (1 for linear)."""
+    z = (r / scale) ** 2
+    if loss == "huber":
         return np.where(z <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(z, 1e-300)))
-    if params.loss == "soft_l1":
+    if loss == "soft_l1":
         return 1.0 / np.sqrt(1.0 + z)
-    if params.loss == "cauchy":
+    if loss == "cauchy":
         return 1.0 / (1.0 + z)
     return np.ones_like(r)

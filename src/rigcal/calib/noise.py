@@ -1,0 +1,230 @@
+"""Noise estimated from the session itself, not assumed.
+
+A scanner's data sheet gives one range noise; a real scan of a real target is noisier
+(14-20 mm on a Hokuyo URG against a board, heavy-tailed, with mixed pixels at edges), and
+a solve whose weights assume 10 mm both mis-weights its captures and states an
+uncertainty that is too small. Two estimates come from the data alone, before any
+calibration exists:
+
+- **range noise** from the returns on the target: in each capture they lie on one straight
+  line (the box side, the board's cut with the scan plane). A robust total least-squares
+  line (:func:`fit_line_robust`: trimmed at 3.5 robust sigmas, so mixed pixels and stray
+  returns do not count) leaves residuals across the line; a return's range error e moves
+  it across the line by e |cos(incidence)|, so each residual divided by |cos(incidence)|
+  is a sample of the range noise (:func:`range_noise_from_lines`);
+- **pixel noise** from reprojection residuals, once a pose exists: the box ends'
+  (:func:`pick_sigma_from_residuals`) and the board corners' under their PnP pose
+  (:func:`corner_sigma_from_rms`).
+
+The covariance of a fitted line's offset at any point along it (:func:`line_offset_covariance`)
+is shared by the box method (the box ends) and the board method (the two ends of the
+board's cut).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import brentq
+
+FloatArray = NDArray[np.float64]
+
+# 1.4826 * MAD is the standard deviation of a normal sample.
+MAD_TO_SIGMA = 1.482602218505602
+# Returns farther than this many robust sigmas from the fitted line are not the target's
+# (mixed pixels at edges, stray returns); 3.5 keeps 99.95 % of normal noise.
+TRIM_SIGMAS = 3.5
+# The cosine of incidence is floored here: a grazing beam's residual across the line says
+# little about its range noise.
+MIN_COS_INCIDENCE = 0.2
+# Median of the chi-square distribution with 2 degrees of freedom.
+CHI2_2DOF_MEDIAN = 1.3862943611198906
+
+
+def robust_scale(x: FloatArray) -> float:
+    """1.4826 times the median absolute deviation from the median (0 for fewer than 2)."""
+    x = np.asarray(x, dtype=float)
+    if len(x) < 2:
+        return 0.0
+    return float(MAD_TO_SIGMA * np.median(np.abs(x - np.median(x))))
+
+
+@dataclass(frozen=True)
+class LineFit:
+    """A robust total least-squares line through a target's returns.
+
+    Attributes:
+        centroid: (2,) mean of the kept returns.
+        direction: (2,) unit vector along the line.
+        normal: (2,) unit normal of the line.
+        residuals_m: (M,) signed distance of every return from the line.
+        kept: (M,) bool, returns within TRIM_SIGMAS robust sigmas of the line.
+        cos_incidence: (M,) |cos| of the angle between each return's beam and the normal
+            (floored at MIN_COS_INCIDENCE).
+        along_m: (M,) position of every return along the line, from the centroid.
+    """
+
+    centroid: FloatArray
+    direction: FloatArray
+    normal: FloatArray
+    residuals_m: FloatArray
+    kept: NDArray[np.bool_]
+    cos_incidence: FloatArray
+    along_m: FloatArray
+
+    @property
+    def range_residuals_m(self) -> FloatArray:
+        """(K,) the kept returns' residuals as range errors (divided by |cos incidence|)."""
+        out: FloatArray = self.residuals_m[self.kept] / self.cos_incidence[self.kept]
+        return out
+
+    @property
+    def ends(self) -> FloatArray:
+        """(2, 2) the outermost kept returns projected on the line, in scan order."""
+        s = self.along_m[self.kept]
+        return self.centroid + np.array([s[0], s[-1]])[:, None] * self.direction
+
+
+def _tls(points: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    c = points.mean(axis=0)
+    _, _, Vt = np.linalg.svd(points - c, full_matrices=False)
+    return c, Vt[0], np.array([-Vt[0][1], Vt[0][0]])
+
+
+def fit_line_robust(points: FloatArray, iterations: int = 4) -> LineFit:
+    """Fit a line to a target's returns, trimming returns that are not on it.
+
+    Args:
+        points: (M, 2) returns in the laser frame (M >= 2), in scan order.
+        iterations: fit-and-trim rounds.
+    """
+    p = np.asarray(points, dtype=float)
+    kept = np.ones(len(p), dtype=bool)
+    rays = p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-12)
+    for _ in range(iterations):
+        c, u, n = _tls(p[kept])
+        r = (p - c) @ n
+        cos = np.maximum(np.abs(rays @ n), MIN_COS_INCIDENCE)
+        scale = robust_scale((r / cos)[kept])
+        if scale <= 0 or kept.sum() <= 3:
+            break
+        new = np.abs(r / cos) <= TRIM_SIGMAS * scale
+        if new.sum() < max(2, kept.sum() // 2) or np.array_equal(new, kept):
+            break
+        kept = new
+    c, u, n = _tls(p[kept])
+    # Orient the direction along the scan order so that ``ends`` keeps it.
+    if len(p) >= 2 and (p[-1] - p[0]) @ u < 0:
+        u = -u
+        n = -n
+    r = (p - c) @ n
+    cos = np.maximum(np.abs(rays @ n), MIN_COS_INCIDENCE)
+    return LineFit(c, u, n, r, kept, cos, (p - c) @ u)
+
+
+@dataclass(frozen=True)
+class RangeNoise:
+    """Range noise of a session's target returns, estimated from their line fits.
+
+    Attributes:
+        sigma_m: the pooled estimate (1 sigma, metres): the RMS of every capture's kept
+            residuals as range errors, with the line fits' 2 dof per capture taken out.
+        robust_sigma_m: 1.4826 MAD of the same residuals (the core of a heavy-tailed
+            distribution; well below ``sigma_m`` when the tails are heavy).
+        per_capture_m: (C,) each capture's own estimate (nan where fewer than 4 returns).
+        returns: kept returns in all.
+        trimmed: returns trimmed as not on the target (mixed pixels, strays).
+    """
+
+    sigma_m: float
+    robust_sigma_m: float
+    per_capture_m: FloatArray
+    returns: int
+    trimmed: int
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain form for reports."""
+        return {
+            "sigma_m": round(self.sigma_m, 6),
+            "robust_sigma_m": round(self.robust_sigma_m, 6),
+            "returns": self.returns,
+            "trimmed": self.trimmed,
+        }
+
+
+def range_noise_from_lines(fits: Sequence[LineFit]) -> RangeNoise:
+    """Pool the range residuals of every capture's target line (see the module docstring).
+
+    Raises:
+        ValueError: no capture has 3 or more kept returns (nothing to estimate from).
+    """
+    per, pooled = [], []
+    dof = 0
+    ss = 0.0
+    trimmed = 0
+    for f in fits:
+        e = f.range_residuals_m
+        trimmed += int((~f.kept).sum())
+        if len(e) < 3:
+            per.append(np.nan)
+            continue
+        # A TLS line takes 2 dof from its returns.
+        ss += float(e @ e)
+        dof += len(e) - 2
+        per.append(float(np.sqrt(float(e @ e) / (len(e) - 2))) if len(e) >= 4 else np.nan)
+        pooled.append(e)
+    if dof <= 0:
+        raise ValueError("no capture has 3 or more returns on its target")
+    allr = np.concatenate(pooled)
+    return RangeNoise(float(np.sqrt(ss / dof)), robust_scale(allr), np.array(per), len(allr), trimmed)
+
+
+def line_offset_covariance(along_m: FloatArray, sigma_across_m: float, at_m: FloatArray) -> FloatArray:
+    """(K, K) covariance of a least-squares line's offset across itself at positions
+    ``at_m`` along it, fitted to returns at ``along_m`` (measured from their centroid) with
+    noise ``sigma_across_m`` across the line each.
+
+    Offset at the centroid and slope are independent: var d(s) = sigma^2 (1/M + s^2/S),
+    cov(d(s0), d(s1)) = sigma^2 (1/M + s0 s1 / S), S the sum of squared positions.
+    """
+    a = np.asarray(along_m, dtype=float)
+    s = np.asarray(at_m, dtype=float)
+    S = max(float(a @ a), 1e-12)
+    out: FloatArray = sigma_across_m**2 * (1.0 / len(a) + np.outer(s, s) / S)
+    return out
+
+
+def corner_sigma_from_rms(rms_px: FloatArray, corners: int) -> float:
+    """Pixel noise of board corners (1 sigma per axis) from each capture's RMS
+    reprojection error under its PnP pose: sum of squares over 2N - 6 dof per capture."""
+    rms = np.asarray(rms_px, dtype=float)
+    ss = float(np.sum(rms**2) * corners)  # RMS is over corners of the 2-vector error
+    dof = len(rms) * (2 * corners - 6)
+    return float(np.sqrt(ss / max(dof, 1)))
+
+
+def pick_sigma_from_residuals(
+    chi2_at: Callable[[float], FloatArray], lo_px: float = 0.05, hi_px: float = 50.0
+) -> float:
+    """The per-axis pick noise that makes the median squared whitened reprojection error
+    of the box ends (2 dof each) what the noise model predicts (the chi-square median).
+
+    Args:
+        chi2_at: (sigma_px) -> (P,) squared whitened errors of the inlier ends under a pick
+            noise sigma_px (the laser ends' own noise through the projection stays in).
+        lo_px, hi_px: the search interval. Where even ``lo_px`` over-explains the
+            residuals (the laser ends' noise alone accounts for them), ``lo_px`` is
+            returned.
+    """
+
+    def f(s: float) -> float:
+        return float(np.median(chi2_at(s))) - CHI2_2DOF_MEDIAN
+
+    if f(lo_px) <= 0:
+        return lo_px
+    if f(hi_px) > 0:
+        return hi_px
+    return float(brentq(f, lo_px, hi_px, xtol=1e-4))
