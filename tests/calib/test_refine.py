@@ -9,8 +9,8 @@ from rigcal.calib.refine import (
     EndpointSet,
     NoiseModel,
     RefineParams,
-    loss_weights,
     _whitened_residuals_and_jacobian,
+    loss_weights,
     refine_pose,
     whitening,
 )
@@ -133,9 +133,7 @@ def test_loss_weights():
     r = np.array([0.0, 1.0, 4.0])
     np.testing.assert_allclose(loss_weights(r, "linear", 2.0), 1.0)
     np.testing.assert_allclose(loss_weights(r, "huber", 2.0), [1, 1, 0.5])
-    np.testing.assert_allclose(
-        loss_weights(r, "cauchy", 1.0), [1, 0.5, 1 / 17]
-    )
+    np.testing.assert_allclose(loss_weights(r, "cauchy", 1.0), [1, 0.5, 1 / 17])
 
 
 def test_too_few_ends_and_unknown_loss():
