@@ -147,7 +147,7 @@ def test_solved_example_rig_round_trips(tmp_path):
 def test_file_states_laser_to_cam(rig_path):
     text = rig_path.read_text()
     assert "maps: laser -> cam" in text
-    assert text.startswith("# rigcal rig file, schema 1")
+    assert text.startswith("# rigcal rig file, schema 2")
     assert "p_cam = R p_laser + t" in text
     assert load(rig_path)["T_cam_laser"]["maps"] == "laser -> cam"
 
@@ -209,7 +209,7 @@ def test_missing_required_key(rig_path, keypath):
 
 
 @pytest.mark.parametrize(
-    ("version", "shown"), [(2, "2"), (0, "0"), ("1", "'1'"), (True, "True"), (None, "None")]
+    ("version", "shown"), [(3, "3"), (0, "0"), ("1", "'1'"), (True, "True"), (None, "None")]
 )
 def test_wrong_schema_version(rig_path, version, shown):
     doc = load(rig_path)

@@ -30,6 +30,9 @@ class Rig:
         laser: description of the scanner (name, field of view, step, max range).
         residuals: residual summary of the solve that made it (rms_px, ...), or empty.
         provenance: how it was made (version, time, command, input hashes, settings).
+        uncertainty: the covariance's checks (docs/formats/rig.md): the noise model
+            (assumed, estimated, used), the model's own covariance, the spread over
+            captures and the sensitivity to the noise settings; empty when not made.
     """
 
     T_cam_laser: FloatArray
@@ -38,6 +41,7 @@ class Rig:
     laser: dict[str, Any] = field(default_factory=dict)
     residuals: dict[str, Any] = field(default_factory=dict)
     provenance: dict[str, Any] = field(default_factory=dict)
+    uncertainty: dict[str, Any] = field(default_factory=dict)
 
     @property
     def T_laser_cam(self) -> FloatArray:

@@ -1,14 +1,18 @@
 """The rig file: a versioned YAML file holding a calibrated rig (docs/formats/rig.md).
 
-Schema version 1::
+Schema version 2 (version 1 files, without the covariance's checks, are read as well)::
 
-    schema_version: 1
+    schema_version: 2
     T_cam_laser: {maps: laser -> cam, rotation_vector_rad: [...], translation_m: [...]}
     uncertainty:                       # optional
       parameters: <text: order and meaning of the covariance's parameters>
-      covariance: 6 rows of 6
+      covariance: 6 rows of 6          # the honest one: the model's, scaled to the spread
       sigma_rotation_deg: [x, y, z]
       sigma_translation_mm: [x, y, z]
+      noise: {name: {assumed, estimated, used}}          # version 2, optional
+      model_covariance: 6 rows of 6                      # version 2, optional
+      spread: {method, captures, scale, ..., covariance}  # version 2, optional
+      sensitivity: [{setting, factor, value, rotation_deg, translation_mm, sigmas}]
     camera: {lensmodel: ..., intrinsics: [...], imagersize: [w, h]}   # mrcal's names
     laser: {...}                       # free-form description of the scanner
     residuals: {...}                   # summary of the solve
@@ -19,6 +23,7 @@ Reading validates every field and rejects unknown keys.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -28,14 +33,15 @@ import yaml
 from rigcal import __version__
 from rigcal.camera import camera_from_dict
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_write_text, check_keys, check_schema_version, load_yaml
+from rigcal.io.files import atomic_write_text, check_keys, load_yaml
 from rigcal.io.transform import float_matrix, float_vector, transform_from_dict, transform_to_dict
 from rigcal.rig import COVARIANCE_PARAMETERS, Rig
 
-RIG_SCHEMA_VERSION = 1
+RIG_SCHEMA_VERSION = 2
+RIG_SCHEMA_VERSIONS = (1, 2)
 
 _HEADER = (
-    "# rigcal rig file, schema 1 (docs/formats/rig.md).\n"
+    "# rigcal rig file, schema 2 (docs/formats/rig.md).\n"
     "# T_cam_laser maps laser-frame points into the camera frame: p_cam = R p_laser + t,\n"
     "# R given as a rotation vector (axis * angle, rad), t in metres.\n"
 )
@@ -54,7 +60,7 @@ def rig_to_dict(rig: Rig) -> dict[str, Any]:
             "covariance": [[float(f"{x:.6e}") for x in row] for row in rig.covariance],
             "sigma_rotation_deg": [round(float(x), 6) for x in sig[0]],
             "sigma_translation_mm": [round(float(x), 4) for x in sig[1]],
-        }
+        } | _plain(rig.uncertainty)
     doc["camera"] = rig.camera.to_dict()
     doc["laser"] = _plain(rig.laser)
     doc["residuals"] = _plain(rig.residuals)
@@ -86,41 +92,93 @@ def read_rig(path: str | Path) -> Rig:
         ["schema_version", "T_cam_laser", "camera"],
         ["uncertainty", "laser", "residuals", "provenance"],
     )
-    check_schema_version(d, path, RIG_SCHEMA_VERSION)
+    version = d["schema_version"]
+    if type(version) is not int or version not in RIG_SCHEMA_VERSIONS:
+        raise InputError.at(path, "schema_version", version, "1 or 2 (the versions this rigcal reads)")
     T = transform_from_dict(d["T_cam_laser"], path, "T_cam_laser", "cam", "laser")
     camera = camera_from_dict(d["camera"], path, "camera")
     cov = None
+    extra: dict[str, Any] = {}
     if "uncertainty" in d:
+        checks = list(_UNCERTAINTY_CHECKS) if version >= 2 else []
         u = check_keys(
             d["uncertainty"],
             path,
             "uncertainty",
             ["parameters", "covariance"],
-            ["sigma_rotation_deg", "sigma_translation_mm"],
+            ["sigma_rotation_deg", "sigma_translation_mm", *checks],
         )
         if u["parameters"] != COVARIANCE_PARAMETERS:
             raise InputError.at(path, "uncertainty.parameters", u["parameters"], repr(COVARIANCE_PARAMETERS))
-        cov = float_matrix(u["covariance"], path, "uncertainty.covariance", 6, 6)
-        # Tolerances relative to the matrix's scale: the writer keeps 7 significant digits,
-        # which can push a (near-)zero eigenvalue slightly below 0.
-        scale = float(np.abs(cov).max())
-        if (
-            not np.allclose(cov, cov.T, rtol=1e-4, atol=1e-9 * scale)
-            or np.linalg.eigvalsh(cov).min() < -1e-5 * scale
-        ):
-            raise InputError.at(
-                path, "uncertainty.covariance", "...", "a symmetric positive semi-definite matrix"
-            )
+        cov = _covariance(u["covariance"], path, "uncertainty.covariance")
         for key in ("sigma_rotation_deg", "sigma_translation_mm"):
             if key in u:
                 float_vector(u[key], path, f"uncertainty.{key}", 3)
+        extra = _uncertainty_checks(u, path)
     sections = {}
     for key in ("laser", "residuals", "provenance"):
         value = d.get(key, {})
         if not isinstance(value, dict):
             raise InputError.at(path, key, value, "a mapping")
         sections[key] = value
-    return Rig(T, camera, cov, sections["laser"], sections["residuals"], sections["provenance"])
+    return Rig(T, camera, cov, sections["laser"], sections["residuals"], sections["provenance"], extra)
+
+
+_UNCERTAINTY_CHECKS = ("noise", "model_covariance", "spread", "sensitivity")
+
+
+def _covariance(value: Any, path: Path, key: str) -> Any:
+    cov = float_matrix(value, path, key, 6, 6)
+    # Tolerances relative to the matrix's scale: the writer keeps 7 significant digits,
+    # which can push a (near-)zero eigenvalue slightly below 0.
+    scale = float(np.abs(cov).max())
+    if (
+        not np.allclose(cov, cov.T, rtol=1e-4, atol=1e-9 * scale)
+        or np.linalg.eigvalsh(cov).min() < -1e-5 * scale
+    ):
+        raise InputError.at(path, key, "...", "a symmetric positive semi-definite matrix")
+    return cov
+
+
+def _number(value: Any, path: Path, key: str) -> float:
+    """A finite number >= 0 (booleans rejected)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+        raise InputError.at(path, key, value, "a finite number >= 0")
+    return float(value)
+
+
+def _uncertainty_checks(u: Mapping[str, Any], path: Path) -> dict[str, Any]:
+    """The covariance's checks of a version 2 rig file, validated (docs/formats/rig.md)."""
+    out: dict[str, Any] = {}
+    if "noise" in u:
+        noise = u["noise"]
+        if not isinstance(noise, dict):
+            raise InputError.at(
+                path, "uncertainty.noise", noise, "a mapping of noise name to assumed/estimated/used"
+            )
+        for name, v in noise.items():
+            key = f"uncertainty.noise.{name}"
+            v = check_keys(v, path, key, ["assumed", "estimated", "used"], [])
+            for k in ("assumed", "used", "estimated"):
+                if k != "estimated" or v[k] is not None:
+                    _number(v[k], path, f"{key}.{k}")
+        out["noise"] = noise
+    if "model_covariance" in u:
+        _covariance(u["model_covariance"], path, "uncertainty.model_covariance")
+        out["model_covariance"] = u["model_covariance"]
+    if "spread" in u:
+        sp = u["spread"]
+        if not isinstance(sp, dict) or "scale" not in sp or "covariance" not in sp:
+            raise InputError.at(path, "uncertainty.spread", sp, "a mapping with scale and covariance")
+        _number(sp["scale"], path, "uncertainty.spread.scale")
+        _covariance(sp["covariance"], path, "uncertainty.spread.covariance")
+        out["spread"] = sp
+    if "sensitivity" in u:
+        sens = u["sensitivity"]
+        if not isinstance(sens, list) or not all(isinstance(x, dict) for x in sens):
+            raise InputError.at(path, "uncertainty.sensitivity", sens, "a list of mappings")
+        out["sensitivity"] = sens
+    return out
 
 
 def provenance(

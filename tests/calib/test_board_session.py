@@ -301,7 +301,12 @@ def test_calibrate_board_rig_carries_the_solve(calibrated):
     np.testing.assert_array_equal(cal.rig.covariance, cal.result.covariance)
     assert cal.rig.camera.width_px == 640
     assert "board" in cal.rig.provenance["method"]
-    assert cal.rig.provenance["noise"] == {"range_sigma_m": 0.01}
+    # Noise estimated from the session: the simulator's 1 cm range and 0.3 px corner noise.
+    noise = cal.rig.provenance["noise"]
+    assert noise["mode"] == "auto"
+    assert noise["range_sigma_m"] == pytest.approx(0.01, rel=0.1)
+    assert noise["corner_sigma_px"] == pytest.approx(0.3, rel=0.1)
+    assert cal.rig.uncertainty["noise"]["range_sigma_m"]["assumed"] == 0.01
     assert len(cal.rig.provenance["inputs"]) == 2 + 20
 
 

@@ -96,11 +96,18 @@ def test_solve_board_session_json(session_dir, tmp_path, capsys):
 
 def test_range_sigma_option_overrides_the_sessions(session_dir, tmp_path, capsys):
     rig = tmp_path / "r.yaml"
-    code, _, _ = run(
-        capsys, "solve", session_dir / "board_session.yaml", "-o", rig, "--range-sigma-m", "0.02"
-    )
+    args = ["solve", session_dir / "board_session.yaml", "-o", rig, "--range-sigma-m", "0.02"]
+    code, _, _ = run(capsys, *args, "--noise", "assumed")
     assert code == 0
-    assert read_rig(rig).provenance["noise"] == {"range_sigma_m": 0.02}
+    noise = read_rig(rig).provenance["noise"]
+    assert noise["mode"] == "assumed"
+    assert noise["range_sigma_m"] == 0.02
+    # With the default (auto) the data's estimate is used and 0.02 is reported as assumed.
+    code, _, _ = run(capsys, *args, "--force")
+    assert code == 0
+    u = read_rig(rig).uncertainty["noise"]["range_sigma_m"]
+    assert u["assumed"] == 0.02
+    assert u["used"] == u["estimated"] == pytest.approx(0.01, rel=0.15)
 
 
 def test_four_captures_exit_4(copy, tmp_path, capsys):

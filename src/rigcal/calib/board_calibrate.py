@@ -8,20 +8,33 @@ warnings, truth) with point-to-plane residuals in millimetres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from rigcal.calib.board_session import BoardSession, read_board_session
+from rigcal.calib.noise import corner_sigma_from_rms
 from rigcal.calib.plane import PlaneResult, solve_plane
-from rigcal.calib.report import MAX_SIGMA_ROTATION_DEG, MAX_SIGMA_TRANSLATION_MM, truth_comparison
+from rigcal.calib.report import (
+    MAX_SIGMA_ROTATION_DEG,
+    MAX_SIGMA_TRANSLATION_MM,
+    noise_lines,
+    noise_section,
+    noise_warnings,
+    rig_uncertainty,
+    truth_comparison,
+    uncertainty_lines,
+    uncertainty_section,
+)
+from rigcal.calib.spread import uncertainty_warnings
 from rigcal.calib.truth import read_truth
 from rigcal.rig import Rig
 from rigcal.rigfile import provenance
 
 DEFAULT_RANGE_SIGMA_M = 0.01
+NOISE_MODES = ("auto", "assumed")
 
 
 @dataclass(frozen=True)
@@ -40,27 +53,57 @@ def calibrate_board(
     truth_path: str | Path | None = None,
     command: str = "",
     seed: int = 0,
+    noise: str = "auto",
 ) -> BoardCalibration:
     """Read a board session, solve, build the report and the rig.
 
     Args:
         path: the board session file.
-        range_sigma_m: the scanner's range noise (default: the session's
+        range_sigma_m: the scanner's range noise to assume (default: the session's
             ``laser.range_sigma_m``, else 1 cm).
         truth_path: a truth file to compare with.
         command: the command line, for provenance.
         seed: RANSAC seed.
+        noise: "auto" estimates the range noise from the board returns' line fits and the
+            corner noise from the corners' reprojection residuals, and uses the estimates
+            (the assumed values are reported beside them); "assumed" uses the assumed ones.
 
     Raises:
         InputError: a bad session or truth file.
         CalibrationError: too few captures, parallel boards, or no consensus.
     """
+    if noise not in NOISE_MODES:
+        raise ValueError(f"noise must be one of {NOISE_MODES}")
     T_truth = read_truth(truth_path) if truth_path is not None else None
     session = read_board_session(path)
     # A noise-free (simulated) scanner still gets a floor, so the whitening stays finite.
-    sigma = max(range_sigma_m or float(session.laser.get("range_sigma_m", DEFAULT_RANGE_SIGMA_M)), 1e-4)
-    result = solve_plane(session.observations, range_sigma_m=sigma, seed=seed)
-    report = board_report(session, result, T_truth)
+    assumed = max(range_sigma_m or float(session.laser.get("range_sigma_m", DEFAULT_RANGE_SIGMA_M)), 1e-4)
+    n_corners = session.board.width_n * session.board.height_n
+    corner_est = corner_sigma_from_rms(session.corner_rms_px, n_corners)
+    corner_used = session.corner_sigma_px
+    observations = list(session.observations)
+    if noise == "auto":
+        # The board poses' covariances scale with the corner noise squared.
+        corner_used = max(corner_est, 0.01)
+        k = (corner_used / session.corner_sigma_px) ** 2
+        observations = [
+            replace(o, board_pose_cov=None if o.board_pose_cov is None else k * o.board_pose_cov)
+            for o in observations
+        ]
+    result = solve_plane(
+        observations,
+        range_sigma_m=assumed if noise == "assumed" else None,
+        seed=seed,
+        corner_sigma_px=corner_used,
+    )
+    estimated = result.range_noise.sigma_m if result.range_noise is not None else None
+    noise_doc = noise_section(
+        {
+            "range_sigma_m": (assumed, estimated, result.noise.range_sigma_m),
+            "corner_sigma_px": (session.corner_sigma_px, corner_est, corner_used),
+        }
+    )
+    report = board_report(session, result, T_truth, noise_doc)
     s = report["summary"]
     rig = Rig(
         T_cam_laser=result.T_cam_laser,
@@ -74,30 +117,49 @@ def calibrate_board(
             {
                 "method": "board planes (Zhang and Pless)",
                 "camera_source": str(session.camera_path.resolve()),
-                "noise": {"range_sigma_m": sigma},
+                "noise": {"mode": noise} | {k: v["used"] for k, v in noise_doc.items()},
                 "ransac": {"seed": seed},
             },
             base=Path(path).resolve().parent,
         ),
+        uncertainty=rig_uncertainty(result.covariance_model, noise_doc, report["uncertainty"]),
     )
     return BoardCalibration(session, result, report, rig)
 
 
-def board_report(session: BoardSession, result: PlaneResult, T_truth: Any = None) -> dict[str, Any]:
+def board_report(
+    session: BoardSession,
+    result: PlaneResult,
+    T_truth: Any = None,
+    noise: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     """The report of a board solve (docs/formats/report.md, board variant)."""
     per = []
     used = []
-    for o, res, keep, rms_px in zip(
-        session.observations, result.residuals_m, result.inlier_captures, session.corner_rms_px, strict=True
+    for k, (o, res, keep, rms_px) in enumerate(
+        zip(
+            session.observations,
+            result.residuals_m,
+            result.inlier_captures,
+            session.corner_rms_px,
+            strict=True,
+        )
     ):
+        fit = result.lines[k].fit
+        own = fit.range_residuals_m
         per.append(
             {
                 "capture": o.name,
                 "distance_m": round(float(o.distance_m), 3),
                 "returns": len(res),
+                "returns_trimmed": int((~fit.kept).sum()),
+                "range_sigma_mm": round(1000.0 * float(np.sqrt(np.mean(own**2))), 3),
                 "rms_mm": round(1000.0 * float(np.sqrt(np.mean(res**2))), 3),
                 "max_mm": round(1000.0 * float(np.abs(res).max()), 3),
                 "corner_rms_px": round(float(rms_px), 3),
+                "chi2": round(float(result.chi2[k]), 3),
+                "weight": round(float(result.weights[k]), 3),
+                "pose_group": int(result.pose_group[k]),
                 "inlier": bool(keep),
             }
         )
@@ -113,19 +175,24 @@ def board_report(session: BoardSession, result: PlaneResult, T_truth: Any = None
         "rms_mm": round(1000.0 * float(np.sqrt(np.mean(allr**2))), 3),
         "max_mm": round(1000.0 * float(np.abs(allr).max()), 3),
         "residual_scale": round(result.residual_scale, 4),
+        "capture_sigma_mm": round(1000.0 * result.noise.capture_sigma_m, 3),
         "sigma_rotation_deg": [round(float(x), 5) for x in np.degrees(sig[:3])],
         "sigma_translation_mm": [round(float(x), 3) for x in 1000.0 * sig[3:]],
     }
-    warnings = []
+    cov_model = result.covariance_model
+    uncertainty = uncertainty_section(cov_model, result.covariance, result.spread, result.sensitivity)
+    warnings = noise_warnings(noise or {})
     if np.degrees(sig[:3]).max() > MAX_SIGMA_ROTATION_DEG or 1000 * sig[3:].max() > MAX_SIGMA_TRANSLATION_MM:
         warnings.append("large uncertainty: add captures with the board turned and tilted more")
+    warnings += uncertainty_warnings(result.spread, result.sensitivity, cov_model, "range and corner noise")
     for c in per:
         if not c["inlier"]:
             warnings.append(
-                f"capture {c['capture']}: rejected ({c['rms_mm']:.1f} mm RMS off its board plane); "
-                "check its segment id and corners"
+                f"capture {c['capture']}: rejected ({c['rms_mm']:.1f} mm RMS off its board plane, "
+                f"chi-square {c['chi2']:.1f} on 2 dof); check its segment id and corners"
             )
-    report: dict[str, Any] = {"summary": summary, "per_capture": per, "warnings": warnings}
+    report: dict[str, Any] = {"summary": summary, "noise": noise or {}, "uncertainty": uncertainty}
+    report |= {"per_capture": per, "warnings": warnings}
     if T_truth is not None:
         report["truth"] = truth_comparison(result.T_cam_laser, result.covariance, T_truth)
     return report
@@ -145,7 +212,7 @@ def board_report_table(report: dict[str, Any]) -> str:
         "",
         f"captures {s['captures_used']}/{s['captures']} used; {s['returns']} laser returns",
         f"point-to-plane error: rms {s['rms_mm']:.2f} mm, max {s['max_mm']:.2f} mm; "
-        f"residual scale {s['residual_scale']:.2f}",
+        f"residual scale {s['residual_scale']:.2f}; per-capture error {s['capture_sigma_mm']:.2f} mm",
         "1-sigma rotation (deg, about cam x/y/z): " + ", ".join(f"{x:.4f}" for x in s["sigma_rotation_deg"]),
         "1-sigma translation (mm, along cam x/y/z): "
         + ", ".join(f"{x:.2f}" for x in s["sigma_translation_mm"]),
@@ -156,5 +223,8 @@ def board_report_table(report: dict[str, Any]) -> str:
             f"error against truth: rotation {t['rotation_error_deg']:.4f} deg, translation "
             f"{t['translation_error_mm']:.2f} mm (NEES {t['nees']:.2f}, expected about 6)"
         )
+    lines += noise_lines(report.get("noise", {}))
+    if "uncertainty" in report:
+        lines += uncertainty_lines(report["uncertainty"])
     lines += [f"warning: {w}" for w in report["warnings"]]
     return "\n".join(lines) + "\n"

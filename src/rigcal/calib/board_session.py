@@ -56,6 +56,7 @@ class BoardSession:
         T_cam_board: (C, 4, 4) the boards' poses from PnP.
         corner_rms_px: (C,) RMS reprojection error of each board's corners under its pose.
         files: every file read (for provenance).
+        corner_sigma_px: the corner noise the poses' covariances were computed with.
     """
 
     path: Path
@@ -67,6 +68,7 @@ class BoardSession:
     T_cam_board: FloatArray
     corner_rms_px: FloatArray
     files: tuple[Path, ...]
+    corner_sigma_px: float = 0.5
 
 
 def is_board_session(data: Any) -> bool:
@@ -187,6 +189,7 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         np.array(poses),
         np.array(rms),
         tuple(files),
+        corner_sigma_px=corner_sigma_px,
     )
 
 

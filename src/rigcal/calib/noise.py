@@ -13,7 +13,7 @@ calibration exists:
   it across the line by e |cos(incidence)|, so each residual divided by |cos(incidence)|
   is a sample of the range noise (:func:`range_noise_from_lines`);
 - **pixel noise** from reprojection residuals, once a pose exists: the box ends'
-  (:func:`pick_sigma_from_residuals`) and the board corners' under their PnP pose
+  (:func:`matching_noise` over the pick noise) and the board corners' under their PnP pose
   (:func:`corner_sigma_from_rms`).
 
 The covariance of a fitted line's offset at any point along it (:func:`line_offset_covariance`)
@@ -206,25 +206,48 @@ def corner_sigma_from_rms(rms_px: FloatArray, corners: int) -> float:
     return float(np.sqrt(ss / max(dof, 1)))
 
 
-def pick_sigma_from_residuals(
-    chi2_at: Callable[[float], FloatArray], lo_px: float = 0.05, hi_px: float = 50.0
+# Squared whitened 2-vectors are clipped here (the chi-square 99.9 % point for 2 dof) when
+# a noise is matched to them, so that gross outliers count as no more than a bad inlier.
+CLIP_CHI2 = 13.815510557964274
+
+
+def clipped_chi2_target(dof_fraction: float = 1.0) -> float:
+    """E[min(X, CLIP_CHI2)] for X chi-square with 2 dof (exponential, mean 2), times the
+    fraction of the residuals' dof the fit leaves (1 - parameters / residuals)."""
+    return float(2.0 * (1.0 - np.exp(-CLIP_CHI2 / 2.0)) * dof_fraction)
+
+
+def matching_noise(
+    chi2_at: Callable[[float], FloatArray], dof_fraction: float, lo: float, hi: float
 ) -> float:
-    """The per-axis pick noise that makes the median squared whitened reprojection error
-    of the box ends (2 dof each) what the noise model predicts (the chi-square median).
+    """The noise value s in [lo, hi] at which the clipped mean of the squared whitened
+    errors (2 dof each) ``chi2_at(s)`` is what the noise model predicts. The clipped mean is
+    nearly as efficient as the mean on clean data and as robust as a median to a few gross
+    outliers. Where even ``lo`` over-explains the errors, ``lo``; where ``hi`` cannot
+    explain them, ``hi``.
 
     Args:
-        chi2_at: (sigma_px) -> (P,) squared whitened errors of the inlier ends under a pick
-            noise sigma_px (the laser ends' own noise through the projection stays in).
-        lo_px, hi_px: the search interval. Where even ``lo_px`` over-explains the
-            residuals (the laser ends' noise alone accounts for them), ``lo_px`` is
-            returned.
+        chi2_at: s -> (K,) squared whitened errors under noise s (decreasing in s).
+        dof_fraction: 1 - (fitted parameters) / (residuals), the part of the errors' dof the
+            fit leaves.
     """
+    target = clipped_chi2_target(dof_fraction)
 
     def f(s: float) -> float:
-        return float(np.median(chi2_at(s))) - CHI2_2DOF_MEDIAN
+        return float(np.mean(np.minimum(chi2_at(s), CLIP_CHI2))) - target
 
-    if f(lo_px) <= 0:
-        return lo_px
-    if f(hi_px) > 0:
-        return hi_px
-    return float(brentq(f, lo_px, hi_px, xtol=1e-4))
+    if f(lo) <= 0:
+        return lo
+    if f(hi) > 0:
+        return hi
+    return float(brentq(f, lo, hi, xtol=1e-5 * max(hi, 1e-12)))
+
+
+def connected_groups(adjacent: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """(n,) a group index per item from an (n, n) "taken at one pose" relation, closed
+    transitively (captures repeated at one pose get one verdict)."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    _, labels = connected_components(csr_matrix(np.asarray(adjacent, dtype=bool)), directed=False)
+    return np.asarray(labels, dtype=np.int64)

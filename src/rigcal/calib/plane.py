@@ -13,16 +13,26 @@ Every such return, mapped into the camera frame, must lie on the plane (Zhang an
    linear in H's 9 entries. A capture's returns lie on one line and so give 2 independent
    equations: 5 captures with planes of different orientations determine H. R is the
    rotation nearest [h1, h2, h1 x h2], t = h3.
-2. **RANSAC over captures** (optional): closed forms from random 5-capture samples,
+2. **Each capture reduced to its line.** Under range noise the least-squares line through
+   a capture's returns carries all they say about the pose, so every capture becomes the
+   two ends of its cut on a robust line fit (:func:`rigcal.calib.noise.fit_line_robust`:
+   mixed pixels at the board's edges and stray returns are trimmed), with the covariance
+   of the line's offset there. The range noise itself is estimated from the lines'
+   residuals unless it is given.
+3. **RANSAC over captures** (optional): closed forms from random 5-capture samples,
    scored by the point-to-plane residuals of all captures, so a capture with a wrong
    plane or wrong returns cannot spoil the start. Both starts (all captures, and RANSAC's)
-   are refined, every capture re-classified under the refined pose (chi-square 99.9 %),
-   and the fit that explains most captures is kept.
-3. **Levenberg-Marquardt** of the 6-DoF pose on point-to-plane distances, whitened per
-   capture by their covariance (the range noise along each beam projected on the plane's
-   normal, plus the plane's own error, which all returns of a capture share through the
-   board's pose from PnP), with the same covariance as the box method
-   (``rigcal.calib.refine``'s tangent space) inflated by the residual scale when above 1.
+   are refined and the fit that explains most captures is kept.
+4. **Robust refinement** of the 6-DoF pose on the cut ends' point-to-plane distances,
+   whitened per capture by their covariance: the line's offset through the range noise,
+   the plane's own error (shared through the board's pose from PnP) and a per-capture
+   error estimated from the data where the captures disagree beyond chance (a range bias
+   by incidence, a warped board). A Cauchy loss bends at 3 sigmas, so no capture is
+   thrown out by a hard threshold while it pulls; the explicit verdict is a chi-square
+   gate (99.99 %, 2 dof, times the captures' robust scale) on each same-pose group's
+   median, so captures taken at one pose share it. The covariance is the box method's
+   (``rigcal.calib.refine``'s tangent space), checked against the spread over captures
+   and the sensitivity to the noise settings (:mod:`rigcal.calib.spread`).
 """
 
 from __future__ import annotations
@@ -33,14 +43,17 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import brentq, least_squares
+from scipy.optimize import least_squares
 
 from rigcal.calib.noise import (
     CHI2_2DOF_MEDIAN,
+    CLIP_CHI2,
     LineFit,
     RangeNoise,
+    connected_groups,
     fit_line_robust,
     line_offset_covariance,
+    matching_noise,
     range_noise_from_lines,
 )
 from rigcal.calib.refine import loss_weights
@@ -226,9 +239,9 @@ def ransac_closed_form(
 # that falls as the square of its distance instead of rising with it.
 LOSS = "cauchy"
 LOSS_SCALE = 3.0
-# A capture is an outlier when its chi-square (2 dof) exceeds the 99.9 % point times the
+# A capture is an outlier when its chi-square (2 dof) exceeds the 99.99 % point times the
 # robust scale of all captures' chi-squares (median over the chi-square median, at least 1).
-OUTLIER_GATE_CHI2 = 13.815510557964274
+OUTLIER_GATE_CHI2 = 18.420680743952367
 # Captures whose boards are this close in pose (normal, distance, laser cut) were taken at
 # one pose and share one verdict.
 SAME_POSE_NORMAL_DEG = 1.5
@@ -313,15 +326,15 @@ class PlaneResult:
     residuals_m: tuple[FloatArray, ...]
     residual_scale: float
     inlier_captures: NDArray[np.bool_]
-    covariance_model: FloatArray | None = None
-    chi2: FloatArray | None = None
-    weights: FloatArray | None = None
-    lines: tuple[CaptureLine, ...] = ()
-    noise: PlaneNoise | None = None
-    range_noise: RangeNoise | None = None
-    pose_group: NDArray[np.int64] | None = None
-    spread: Spread | None = None
-    sensitivity: tuple[Sensitivity, ...] = ()
+    covariance_model: FloatArray
+    chi2: FloatArray
+    weights: FloatArray
+    lines: tuple[CaptureLine, ...]
+    noise: PlaneNoise
+    range_noise: RangeNoise | None
+    pose_group: NDArray[np.int64]
+    spread: Spread | None
+    sensitivity: tuple[Sensitivity, ...]
 
 
 def solve_plane(
@@ -433,29 +446,19 @@ def same_pose_groups(
     within SAME_POSE_NORMAL_DEG, distance within SAME_POSE_DISTANCE_M, cut ends within
     SAME_POSE_CUT_M) share one, so that they get one verdict."""
     C = len(observations)
-    parent = list(range(C))
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
+    same = np.eye(C, dtype=bool)
     cos_max = np.cos(np.radians(SAME_POSE_NORMAL_DEG))
     for i in range(C):
         for j in range(i + 1, C):
             a, b = observations[i], observations[j]
             ends_i, ends_j = lines[i].ends, lines[j].ends
             cut = min(np.abs(ends_i - ends_j).max(), np.abs(ends_i - ends_j[::-1]).max())
-            if (
+            same[i, j] = same[j, i] = (
                 float(np.dot(a.normal_cam, b.normal_cam)) >= cos_max
                 and abs(a.distance_m - b.distance_m) <= SAME_POSE_DISTANCE_M
                 and cut <= SAME_POSE_CUT_M
-            ):
-                parent[root(i)] = root(j)
-    roots = [root(i) for i in range(C)]
-    _, index = np.unique(roots, return_inverse=True)
-    return index.astype(np.int64)
+            )
+    return connected_groups(same)
 
 
 def _robust_fit(
@@ -482,6 +485,11 @@ def _robust_fit(
         if np.array_equal(new, mask):
             break
         mask = new
+    # The pose and the per-capture error on the settled verdicts.
+    for _ in range(2):
+        T = _fit(T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None)
+        noise = replace(noise, capture_sigma_m=_capture_sigma(T, observations, lines, noise, mask))
+    T = _fit(T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None)
     chi2 = _chi2(T, observations, lines, noise)
     z = np.sqrt(chi2[mask])
     cost = float(np.sum(LOSS_SCALE**2 * np.log1p((z / LOSS_SCALE) ** 2)))
@@ -545,19 +553,24 @@ def _capture_sigma(
     noise: PlaneNoise,
     mask: NDArray[np.bool_],
 ) -> float:
-    """The per-capture error that makes the median chi-square of the captures in ``mask``
-    what 2 dof predict (0 when the range noise and the board poses already explain them)."""
+    """The per-capture error that makes the captures in ``mask`` as far off their planes
+    as the noise model predicts (:func:`rigcal.calib.noise.matching_noise`; 0 when the range
+    noise and the board poses already explain them)."""
+    from scipy.stats import chi2
+
     obs = [o for o, k in zip(observations, mask, strict=True) if k]
     lns = [ln for ln, k in zip(lines, mask, strict=True) if k]
-
-    def excess(s: float) -> float:
-        return float(np.median(_chi2(T, obs, lns, replace(noise, capture_sigma_m=s)))) - CHI2_2DOF_MEDIAN
-
-    if excess(0.0) <= 0.0:
+    dof = 2 * len(obs) - 6
+    # No per-capture error unless the captures disagree beyond chance (90 %): an estimate
+    # from chance alone would only widen the covariance.
+    if dof <= 0 or float(np.sum(np.minimum(_chi2(T, obs, lns, noise), CLIP_CHI2))) < chi2.ppf(0.9, dof):
         return 0.0
-    if excess(1.0) > 0.0:
-        return 1.0
-    return float(brentq(excess, 0.0, 1.0, xtol=1e-5))
+    return matching_noise(
+        lambda s: _chi2(T, obs, lns, replace(noise, capture_sigma_m=s)),
+        max(1.0 - 6.0 / (2 * len(obs)), 0.1),
+        0.0,
+        1.0,
+    )
 
 
 def _fit(

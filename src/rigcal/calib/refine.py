@@ -60,8 +60,8 @@ class RefineParams:
     """
 
     use_side_points: bool = True
-    loss: str = "linear"
-    loss_scale: float = 2.0
+    loss: str = "cauchy"
+    loss_scale: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -333,6 +333,19 @@ def refine_pose(
         )
     cov = scale2 * np.linalg.inv(info)
     return RefineResult(T, 0.5 * (cov + cov.T), float(np.sqrt(scale2)), chi2, dof, (evals, evecs), sol.nfev)
+
+
+def capture_jacobian_blocks(
+    camera: Camera, T: FloatArray, meas: EndpointSet, noise: NoiseModel, params: RefineParams
+) -> list[FloatArray]:
+    """Each capture's rows of the whitened Jacobian at T, weighted by the robust loss's
+    IRLS weights (for the spread's expected jackknife, :mod:`rigcal.calib.spread`). The
+    whitening couples only the two ends of one capture, so the rows split by capture."""
+    W = whitening_matrix(camera, T, meas, noise)
+    r, J = _whitened_residuals_and_jacobian(camera, T, meas, W)
+    Jw = J * np.sqrt(loss_weights(r, params.loss, params.loss_scale))[:, None]
+    rows = np.repeat(meas.capture, 2)
+    return [Jw[rows == c] for c in np.unique(meas.capture)]
 
 
 def _whitened_residuals_and_jacobian(

@@ -8,6 +8,7 @@ captures, little spread in distance or angle, large uncertainty, strongly correl
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -15,6 +16,7 @@ from numpy.typing import NDArray
 
 from rigcal.calib.ransac import reprojection_errors
 from rigcal.calib.solve import CalibResult
+from rigcal.calib.spread import Sensitivity, Spread, uncertainty_warnings
 from rigcal.geometry import R_to_rotvec
 
 FloatArray = NDArray[np.float64]
@@ -28,6 +30,18 @@ MAX_SIGMA_TRANSLATION_MM = 10.0
 MAX_CORRELATION = 0.98
 
 PARAMETER_NAMES = ("rot_x", "rot_y", "rot_z", "t_x", "t_y", "t_z")
+
+
+def box_noise_section(result: CalibResult) -> dict[str, Any]:
+    """The box solve's noise model: assumed, estimated from the data, used."""
+    assumed = result.problem.settings.noise
+    est_range = result.range_noise.sigma_m if result.range_noise is not None else None
+    return noise_section(
+        {
+            "range_sigma_m": (assumed.range_sigma_m, est_range, result.noise.range_sigma_m),
+            "pick_sigma_px": (assumed.pick_sigma_px, result.pick_sigma_estimated, result.noise.pick_sigma_px),
+        }
+    )
 
 
 def build_report(result: CalibResult, T_truth: FloatArray | None = None) -> dict[str, Any]:
@@ -82,8 +96,14 @@ def build_report(result: CalibResult, T_truth: FloatArray | None = None) -> dict
         "ransac_triples": result.ransac.triples_drawn,
         "ransac_hypotheses": result.ransac.hypotheses,
     }
+    noise = box_noise_section(result)
+    uncertainty = uncertainty_section(
+        result.covariance_model, result.covariance, result.spread, result.sensitivity
+    )
     report: dict[str, Any] = {
         "summary": summary,
+        "noise": noise,
+        "uncertainty": uncertainty,
         "rejected": [
             {
                 "capture": e["capture"],
@@ -94,7 +114,11 @@ def build_report(result: CalibResult, T_truth: FloatArray | None = None) -> dict
             for e in ends
             if not e["inlier"]
         ],
-        "warnings": _warnings(result, sig_rot, sig_t),
+        "warnings": noise_warnings(noise)
+        + _warnings(result, sig_rot, sig_t)
+        + uncertainty_warnings(
+            result.spread, result.sensitivity, result.covariance_model, "range and pick noise"
+        ),
         "per_capture": per_capture,
         "ends": ends,
     }
@@ -119,6 +143,99 @@ def truth_comparison(T_est: FloatArray, cov: FloatArray, T_truth: FloatArray) ->
         "translation_error_mm": _r(1000.0 * np.linalg.norm(e), 3),
         "nees": _r(nees, 3),
     }
+
+
+# An estimated noise this many times off the assumed one is warned about.
+NOISE_MISMATCH_RATIO = 2.0
+
+
+def noise_section(entries: dict[str, tuple[float, float | None, float]]) -> dict[str, Any]:
+    """The noise model, each noise assumed (options, files), estimated from the data and
+    used, by name: ``{name: (assumed, estimated or None, used)}``."""
+    out: dict[str, Any] = {}
+    for name, (assumed, estimated, used) in entries.items():
+        out[name] = {
+            "assumed": float(f"{assumed:.6g}"),
+            "estimated": None if estimated is None else float(f"{estimated:.6g}"),
+            "used": float(f"{used:.6g}"),
+        }
+    return out
+
+
+def noise_warnings(noise: dict[str, Any]) -> list[str]:
+    """Warn where a noise estimated from the data is far from the one assumed and the
+    assumed one was used."""
+    out = []
+    for name, v in noise.items():
+        est = v.get("estimated")
+        if est is None or not v["assumed"] > 0 or v["used"] != v["assumed"]:
+            continue
+        ratio = est / v["assumed"]
+        if ratio > NOISE_MISMATCH_RATIO or ratio < 1.0 / NOISE_MISMATCH_RATIO:
+            out.append(
+                f"{name}: the data say {est:.4g}, {ratio:.1f}x the {v['assumed']:.4g} assumed; "
+                "solve with --noise auto to use the data's"
+            )
+    return out
+
+
+def uncertainty_section(
+    cov_model: FloatArray, cov: FloatArray, spread: Spread | None, sens: Sequence[Sensitivity]
+) -> dict[str, Any]:
+    """The covariance's checks: the model's own 1-sigma, the spread over captures and the
+    sensitivity to the noise settings (:mod:`rigcal.calib.spread`)."""
+    sig = np.sqrt(np.clip(np.diag(cov_model), 0.0, None))
+    out: dict[str, Any] = {
+        "model_sigma_rotation_deg": [_r(x, 5) for x in np.degrees(sig[:3])],
+        "model_sigma_translation_mm": [_r(x, 3) for x in 1000.0 * sig[3:]],
+        "scaled_to_spread": bool(not np.allclose(cov, cov_model)),
+    }
+    if spread is not None:
+        out["spread"] = spread.to_dict(cov_model)
+    out["sensitivity"] = [s.to_dict() for s in sens]
+    return out
+
+
+def rig_uncertainty(
+    cov_model: FloatArray, noise: dict[str, Any], uncertainty: dict[str, Any]
+) -> dict[str, Any]:
+    """What a rig file records beside its covariance (docs/formats/rig.md): the noise
+    model, the model's own covariance, the spread over captures and the sensitivity."""
+    out: dict[str, Any] = {
+        "noise": noise,
+        "model_covariance": [[float(f"{x:.6e}") for x in row] for row in cov_model],
+    }
+    if "spread" in uncertainty:
+        out["spread"] = uncertainty["spread"]
+    out["sensitivity"] = uncertainty["sensitivity"]
+    return out
+
+
+def uncertainty_lines(u: dict[str, Any]) -> list[str]:
+    """The uncertainty section as lines of the readable table."""
+    lines = []
+    if "spread" in u:
+        sp = u["spread"]
+        lines.append(
+            f"spread over captures (leave one out, {sp['captures']}): "
+            f"{sp['scale']:.2f}x the noise model's 1-sigma (worst direction {sp['ratio_max']:.2f}x)"
+            + ("; covariance scaled up to it" if u["scaled_to_spread"] else "")
+        )
+    for s in u["sensitivity"]:
+        lines.append(
+            f"sensitivity: {s['setting']} x{s['factor']:g} moves the answer {s['rotation_deg']:.4f} deg, "
+            f"{s['translation_mm']:.2f} mm ({s['sigmas']:.2f} sigma)"
+        )
+    return lines
+
+
+def noise_lines(noise: dict[str, Any]) -> list[str]:
+    """The noise section as lines of the readable table."""
+    lines = []
+    for name, v in noise.items():
+        est = "-" if v["estimated"] is None else f"{v['estimated']:.4g}"
+        lines.append(f"noise {name}: assumed {v['assumed']:.4g}, estimated {est}, used {v['used']:.4g}")
+    return lines
 
 
 def _warnings(result: CalibResult, sig_rot: FloatArray, sig_t: FloatArray) -> list[str]:
@@ -215,6 +332,9 @@ def report_table(report: dict[str, Any]) -> str:
             f"error against truth: rotation {t['rotation_error_deg']:.4f} deg, translation "
             f"{t['translation_error_mm']:.2f} mm (NEES {t['nees']:.2f}, expected about 6)"
         )
+    lines += noise_lines(report.get("noise", {}))
+    if "uncertainty" in report:
+        lines += uncertainty_lines(report["uncertainty"])
     for r in report["rejected"]:
         lines.append(
             f"rejected: capture {r['capture']} end {r['end']} "

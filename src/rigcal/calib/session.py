@@ -15,7 +15,7 @@ import numpy as np
 import yaml
 
 from rigcal.calib.picks import PickSession, read_picks
-from rigcal.calib.report import build_report, report_table
+from rigcal.calib.report import build_report, report_table, rig_uncertainty
 from rigcal.calib.solve import CalibProblem, CalibResult, SolveSettings, solve
 from rigcal.calib.truth import read_truth
 from rigcal.io.files import atomic_folder, check_folder_writable
@@ -71,6 +71,7 @@ def calibrate(
             },
             base=Path(picks_path).resolve().parent,
         ),
+        uncertainty=rig_uncertainty(result.covariance_model, report["noise"], report["uncertainty"]),
     )
     return Calibration(session, result, report, rig)
 

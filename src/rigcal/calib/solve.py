@@ -9,11 +9,19 @@ solve can be re-run and explained.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.calib.noise import (
+    CHI2_2DOF_MEDIAN,
+    RangeNoise,
+    connected_groups,
+    fit_line_robust,
+    matching_noise,
+    range_noise_from_lines,
+)
 from rigcal.calib.picks import BoxObservation
 from rigcal.calib.ransac import RansacParams, RansacResult, ransac_pose, reprojection_errors
 from rigcal.calib.refine import (
@@ -21,9 +29,18 @@ from rigcal.calib.refine import (
     NoiseModel,
     RefineParams,
     RefineResult,
+    capture_jacobian_blocks,
     endpoint_set,
     refine_pose,
     whitening,
+)
+from rigcal.calib.spread import (
+    Sensitivity,
+    Spread,
+    expected_jackknife,
+    honest_covariance,
+    leave_one_out,
+    sensitivity,
 )
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError
@@ -32,25 +49,45 @@ FloatArray = NDArray[np.float64]
 
 MIN_CAPTURES = 3
 # After refinement a box end is an inlier when its squared whitened reprojection error
-# (Mahalanobis distance under its own pixel covariance) is under the chi-square 99.9%
+# (Mahalanobis distance under its own pixel covariance) is under the chi-square 99.99%
 # point for 2 dof, times the robust noise scale of the inliers (at least 1).
-INLIER_GATE_CHI2 = 13.815510557964274
-_CHI2_2DOF_MEDIAN = 1.3862943611198906
+INLIER_GATE_CHI2 = 18.420680743952367
+
+
+NOISE_MODES = ("auto", "assumed")
+# Box ends of captures this close (laser ends, picked pixels) were taken at one pose and
+# share one verdict.
+SAME_POSE_LASER_M = 0.03
+SAME_POSE_PIXELS = 5.0
 
 
 @dataclass(frozen=True)
 class SolveSettings:
-    """Every tunable of a solve (recorded in the rig file)."""
+    """Every tunable of a solve (recorded in the rig file).
+
+    Attributes:
+        noise_mode: "auto" estimates the range noise from the box sides' line fits and
+            the pick noise from the reprojection residuals and uses them (``noise`` is
+            then what was assumed, reported beside them); "assumed" uses ``noise``.
+        uncertainty_checks: run the leave-one-capture-out spread and the sensitivity to
+            the noise settings.
+    """
 
     ransac: RansacParams = field(default_factory=RansacParams)
     refine: RefineParams = field(default_factory=RefineParams)
     noise: NoiseModel = field(default_factory=NoiseModel)
+    noise_mode: str = "auto"
+    uncertainty_checks: bool = True
 
     def to_dict(self) -> dict[str, object]:
         """Plain form for provenance records."""
         from dataclasses import asdict
 
-        return {"ransac": asdict(self.ransac), "refine": asdict(self.refine), "noise": asdict(self.noise)}
+        return {
+            "ransac": asdict(self.ransac),
+            "refine": asdict(self.refine),
+            "noise": {"mode": self.noise_mode} | asdict(self.noise),
+        }
 
 
 @dataclass(frozen=True)
@@ -77,6 +114,15 @@ class CalibResult:
             distance, in sigmas).
         ransac: the RANSAC stage's result.
         refine: the refinement's result.
+        noise: the noise model used (estimated from the data with noise_mode "auto").
+        range_noise: the range noise estimated from the box sides' line fits (None when
+            no side has 3 or more returns).
+        pick_sigma_estimated: the pick noise estimated from the reprojection residuals.
+        covariance_model: (6, 6) the noise model's covariance (``covariance`` is it scaled
+            up to the spread over captures where that is clearly larger).
+        spread: leave-one-capture-out spread (None with too few captures or when not run).
+        sensitivity: moves of the answer when a noise setting is halved or doubled.
+        end_group: (P,) same-pose group of every box end (one verdict per group).
     """
 
     problem: CalibProblem
@@ -88,22 +134,129 @@ class CalibResult:
     ransac: RansacResult
     refine: RefineResult
     errors_sigma: FloatArray
+    noise: NoiseModel
+    range_noise: RangeNoise | None
+    pick_sigma_estimated: float
+    covariance_model: FloatArray
+    spread: Spread | None
+    sensitivity: tuple[Sensitivity, ...]
+    end_group: NDArray[np.int64]
 
 
 def solve(problem: CalibProblem) -> CalibResult:
     """Run Algorithm 1 on a problem.
 
+    With ``noise_mode`` "auto" the range noise comes from the box sides' line fits before
+    anything else, and the pick noise from the reprojection residuals of a first solve, which
+    is then solved again with it.
+
     Raises:
         CalibrationError: too few captures, degenerate geometry, or no consensus.
     """
     _check_enough(problem.observations)
-    meas = endpoint_set(problem.observations, problem.settings.noise, problem.settings.refine.use_side_points)
+    settings = problem.settings
+    if settings.noise_mode not in NOISE_MODES:
+        raise ValueError(f"noise_mode must be one of {NOISE_MODES}")
+    fits = [fit_line_robust(o.side_points) for o in problem.observations if len(o.side_points) >= 3]
+    try:
+        range_noise: RangeNoise | None = range_noise_from_lines(fits)
+    except ValueError:
+        range_noise = None
+    noise = settings.noise
+    if settings.noise_mode == "auto" and range_noise is not None:
+        noise = replace(noise, range_sigma_m=max(range_noise.sigma_m, 1e-4))
+    meas = endpoint_set(problem.observations, noise, settings.refine.use_side_points)
     _check_not_collinear(meas)
-    ransac = ransac_pose(problem.camera, meas.points_laser, meas.pixels, problem.settings.ransac)
-    refined, inliers, errors, sigmas = _refine_with_reclassification(problem, meas, ransac)
-    return CalibResult(
-        problem, refined.T_cam_laser, refined.covariance, meas, inliers, errors, ransac, refined, sigmas
+    groups = same_pose_groups(meas)
+    ransac = ransac_pose(problem.camera, meas.points_laser, meas.pixels, settings.ransac)
+    refined, inliers = _refine_with_reclassification(
+        problem, meas, ransac.inliers, ransac.T_cam_laser, noise, groups
     )
+    inl = meas.subset(inliers)
+    pick_est = matching_noise(
+        lambda s: _whitened_sq_errors(
+            problem.camera, refined.T_cam_laser, inl, replace(noise, pick_sigma_px=s)
+        ),
+        1.0 - 6.0 / (2 * len(inl.pixels)),
+        0.05,
+        50.0,
+    )
+    if settings.noise_mode == "auto":
+        noise = replace(noise, pick_sigma_px=pick_est)
+        refined, inliers = _refine_with_reclassification(
+            problem, meas, inliers, refined.T_cam_laser, noise, groups
+        )
+    T = refined.T_cam_laser
+    errors = reprojection_errors(problem.camera, T[:3, :3], T[:3, 3], meas.points_laser, meas.pixels)
+    sigmas = np.sqrt(_whitened_sq_errors(problem.camera, T, meas, noise))
+    spread: Spread | None = None
+    sens: list[Sensitivity] = []
+    cov = refined.covariance
+    if settings.uncertainty_checks:
+        spread, sens, cov = _uncertainty(problem, meas, inliers, refined, noise)
+    return CalibResult(
+        problem,
+        T,
+        cov,
+        meas,
+        inliers,
+        errors,
+        ransac,
+        refined,
+        sigmas,
+        noise,
+        range_noise,
+        pick_est,
+        refined.covariance,
+        spread,
+        tuple(sens),
+        groups,
+    )
+
+
+def same_pose_groups(meas: EndpointSet) -> NDArray[np.int64]:
+    """(P,) a group index per box end: the same end of captures whose box ends agree in the
+    laser (SAME_POSE_LASER_M) and the image (SAME_POSE_PIXELS) share one, so that ends taken
+    at one pose get one verdict."""
+    laser = np.linalg.norm(meas.points_laser[:, None] - meas.points_laser[None], axis=2)
+    pixels = np.linalg.norm(meas.pixels[:, None] - meas.pixels[None], axis=2)
+    same = (meas.end[:, None] == meas.end[None]) & (laser <= SAME_POSE_LASER_M) & (pixels <= SAME_POSE_PIXELS)
+    return connected_groups(same)
+
+
+def _uncertainty(
+    problem: CalibProblem,
+    meas: EndpointSet,
+    inliers: NDArray[np.bool_],
+    refined: RefineResult,
+    noise: NoiseModel,
+) -> tuple[Spread | None, list[Sensitivity], FloatArray]:
+    """The spread over captures and the sensitivity to the noise settings
+    (:mod:`rigcal.calib.spread`), and the covariance scaled to the spread."""
+    camera, T, params = problem.camera, refined.T_cam_laser, problem.settings.refine
+    used = np.unique(meas.capture[inliers])
+    names = {o.capture: o.name for o in problem.observations}
+    blocks = capture_jacobian_blocks(camera, T, meas.subset(inliers), noise, params)
+    scale2 = refined.residual_scale**2
+
+    def without(i: int) -> FloatArray:
+        keep = inliers & (meas.capture != used[i])
+        return refine_pose(camera, T, meas.subset(keep), noise, params).T_cam_laser
+
+    spread = leave_one_out(
+        without, T, [names[int(c)] for c in used], refined.covariance, scale2 * expected_jackknife(blocks)
+    )
+    cov = honest_covariance(refined.covariance, spread)
+
+    def changed(name: str, value: float) -> FloatArray:
+        n = replace(noise, **{name: value})
+        m = endpoint_set(problem.observations, n, params.use_side_points)
+        return refine_pose(camera, T, m.subset(inliers), n, params).T_cam_laser
+
+    sens = sensitivity(
+        changed, {"pick_sigma_px": noise.pick_sigma_px, "range_sigma_m": noise.range_sigma_m}, T, cov
+    )
+    return spread, sens, cov
 
 
 def _check_enough(observations: Sequence[BoxObservation]) -> None:
@@ -126,13 +279,16 @@ def _check_not_collinear(meas: EndpointSet) -> None:
 
 
 def _refine_with_reclassification(
-    problem: CalibProblem, meas: EndpointSet, ransac: RansacResult
-) -> tuple[RefineResult, NDArray[np.bool_], FloatArray, FloatArray]:
-    """Refine on RANSAC's inliers; re-classify every end under the refined pose by its
-    Mahalanobis distance (:data:`INLIER_GATE_CHI2`) and refine again until stable."""
-    noise = problem.settings.noise
-    inliers = ransac.inliers
-    T = ransac.T_cam_laser
+    problem: CalibProblem,
+    meas: EndpointSet,
+    inliers: NDArray[np.bool_],
+    T: FloatArray,
+    noise: NoiseModel,
+    groups: NDArray[np.int64],
+) -> tuple[RefineResult, NDArray[np.bool_]]:
+    """Refine on the given inliers from T; re-classify every end under the refined pose by
+    its Mahalanobis distance (:data:`INLIER_GATE_CHI2`, one verdict per same-pose group, from
+    the group's median) and refine again until stable."""
     refined: RefineResult | None = None
     for _ in range(4):
         if int(inliers.sum()) < 4 or len(np.unique(meas.capture[inliers])) < 2:
@@ -143,15 +299,14 @@ def _refine_with_reclassification(
         refined = refine_pose(problem.camera, T, meas.subset(inliers), noise, problem.settings.refine)
         T = refined.T_cam_laser
         z2 = _whitened_sq_errors(problem.camera, T, meas, noise)
-        scale2 = max(1.0, float(np.median(z2[inliers])) / _CHI2_2DOF_MEDIAN)
-        new = z2 < INLIER_GATE_CHI2 * scale2
+        scale2 = max(1.0, float(np.median(z2[inliers])) / CHI2_2DOF_MEDIAN)
+        group_z2 = np.array([np.median(z2[groups == g]) for g in range(groups.max() + 1)])
+        new = group_z2[groups] < INLIER_GATE_CHI2 * scale2
         if np.array_equal(new, inliers):
             break
         inliers = new
     assert refined is not None
-    errors = reprojection_errors(problem.camera, T[:3, :3], T[:3, 3], meas.points_laser, meas.pixels)
-    sigmas = np.sqrt(_whitened_sq_errors(problem.camera, T, meas, noise))
-    return refined, inliers, errors, sigmas
+    return refined, inliers
 
 
 def _whitened_sq_errors(camera: Camera, T: FloatArray, meas: EndpointSet, noise: NoiseModel) -> FloatArray:

@@ -44,8 +44,18 @@ import click
     help="Range noise (1 sigma).",
 )
 @click.option(
+    "--noise",
+    "noise_mode",
+    default="auto",
+    show_default=True,
+    type=click.Choice(["auto", "assumed"]),
+    help="auto: estimate the range and pick/corner noise from the session and use them (the "
+    "assumed values are reported beside them); assumed: use --range-sigma-m, --pick-sigma-px "
+    "and the session file's values.",
+)
+@click.option(
     "--loss",
-    default="linear",
+    default="cauchy",
     show_default=True,
     type=click.Choice(["linear", "huber", "soft_l1", "cauchy"]),
     help="Robust loss of the refinement.",
@@ -66,6 +76,7 @@ def solve(
     threshold_px: float,
     pick_sigma_px: float,
     range_sigma_m: float,
+    noise_mode: str,
     loss: str,
     paper_endpoints: bool,
     force: bool,
@@ -102,13 +113,16 @@ def solve(
         ransac=RansacParams(threshold_px=threshold_px, seed=seed),
         refine=RefineParams(use_side_points=not paper_endpoints, loss=loss),
         noise=NoiseModel(pick_sigma_px=pick_sigma_px, range_sigma_m=range_sigma_m),
+        noise_mode=noise_mode,
     )
     command = "rigcal " + shlex.join(sys.argv[1:]) if sys.argv else "rigcal solve"
     from rigcal.calib.board_session import is_board_session
     from rigcal.io.files import load_yaml
 
     if is_board_session(load_yaml(picks, "picking file")):
-        _solve_board(picks, output, report_dir, truth, seed, range_sigma_m, command, force, as_json)
+        _solve_board(
+            picks, output, report_dir, truth, seed, range_sigma_m, noise_mode, command, force, as_json
+        )
         return
     cal = calibrate(picks, settings, truth, command=command)
     if report_dir is not None:
@@ -132,6 +146,7 @@ def _solve_board(
     truth: Path | None,
     seed: int,
     range_sigma_m: float,
+    noise_mode: str,
     command: str,
     force: bool,
     as_json: bool,
@@ -146,7 +161,7 @@ def _solve_board(
     # The session's laser.range_sigma_m applies unless --range-sigma-m was given.
     source = click.get_current_context().get_parameter_source("range_sigma_m")
     sigma = range_sigma_m if source is not None and source.name != "DEFAULT" else None
-    cal = calibrate_board(session, sigma, truth, command=command, seed=seed)
+    cal = calibrate_board(session, sigma, truth, command=command, seed=seed, noise=noise_mode)
     if report_dir is not None:
         with atomic_folder(report_dir, force) as tmp:
             (tmp / "report.yaml").write_text(
