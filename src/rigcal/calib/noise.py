@@ -251,3 +251,16 @@ def connected_groups(adjacent: NDArray[np.bool_]) -> NDArray[np.int64]:
 
     _, labels = connected_components(csr_matrix(np.asarray(adjacent, dtype=bool)), directed=False)
     return np.asarray(labels, dtype=np.int64)
+
+
+def grouped_verdicts(
+    chi2: FloatArray, groups: NDArray[np.int64], used: NDArray[np.bool_], gate: float
+) -> NDArray[np.bool_]:
+    """Inlier verdicts, one per same-pose group: a group is in when the median of its
+    members' squared whitened errors (2 dof) is under ``gate`` times the robust scale of
+    the ``used`` ones (their median over the chi-square median, at least 1). Captures
+    repeated at one pose cannot get different verdicts from their noise alone."""
+    scale = max(1.0, float(np.median(chi2[used])) / CHI2_2DOF_MEDIAN) if used.any() else 1.0
+    group_chi2 = np.array([np.median(chi2[groups == g]) for g in range(int(groups.max()) + 1)])
+    out: NDArray[np.bool_] = group_chi2[groups] < gate * scale
+    return out

@@ -46,12 +46,12 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from rigcal.calib.noise import (
-    CHI2_2DOF_MEDIAN,
     CLIP_CHI2,
     LineFit,
     RangeNoise,
     connected_groups,
     fit_line_robust,
+    grouped_verdicts,
     line_offset_covariance,
     matching_noise,
     range_noise_from_lines,
@@ -477,11 +477,7 @@ def _robust_fit(
     for _ in range(3):
         T = _fit(T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None)
         noise = replace(noise, capture_sigma_m=_capture_sigma(T, observations, lines, noise, mask))
-        chi2 = _chi2(T, observations, lines, noise)
-        scale = max(1.0, float(np.median(chi2[mask])) / CHI2_2DOF_MEDIAN)
-        # One verdict per same-pose group, from the group's median chi-square.
-        group_chi2 = np.array([np.median(chi2[groups == g]) for g in range(groups.max() + 1)])
-        new = group_chi2[groups] < OUTLIER_GATE_CHI2 * scale
+        new = grouped_verdicts(_chi2(T, observations, lines, noise), groups, mask, OUTLIER_GATE_CHI2)
         if np.array_equal(new, mask):
             break
         mask = new

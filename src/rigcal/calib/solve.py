@@ -15,10 +15,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.calib.noise import (
-    CHI2_2DOF_MEDIAN,
     RangeNoise,
     connected_groups,
     fit_line_robust,
+    grouped_verdicts,
     matching_noise,
     range_noise_from_lines,
 )
@@ -298,10 +298,9 @@ def _refine_with_reclassification(
             )
         refined = refine_pose(problem.camera, T, meas.subset(inliers), noise, problem.settings.refine)
         T = refined.T_cam_laser
-        z2 = _whitened_sq_errors(problem.camera, T, meas, noise)
-        scale2 = max(1.0, float(np.median(z2[inliers])) / CHI2_2DOF_MEDIAN)
-        group_z2 = np.array([np.median(z2[groups == g]) for g in range(groups.max() + 1)])
-        new = group_z2[groups] < INLIER_GATE_CHI2 * scale2
+        new = grouped_verdicts(
+            _whitened_sq_errors(problem.camera, T, meas, noise), groups, inliers, INLIER_GATE_CHI2
+        )
         if np.array_equal(new, inliers):
             break
         inliers = new
