@@ -25,10 +25,8 @@ def wall_returns(rng, sigma_m, n=120, dist=2.0, turn=0.6, noise="normal"):
     u = np.array([np.sin(turn), np.cos(turn)])
     pts = np.array([dist, 0.0]) + s[:, None] * u
     r = np.linalg.norm(pts, axis=1)
-    if noise == "normal":
-        e = rng.normal(0.0, sigma_m, n)
-    else:  # Student-t with 3 dof scaled to the same standard deviation
-        e = rng.standard_t(3, n) * sigma_m / np.sqrt(3.0)
+    # Normal, or Student-t with 3 dof scaled to the same standard deviation.
+    e = rng.normal(0.0, sigma_m, n) if noise == "normal" else rng.standard_t(3, n) * sigma_m / np.sqrt(3.0)
     return pts * ((r + e) / r)[:, None]
 
 
