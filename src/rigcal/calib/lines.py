@@ -6,8 +6,9 @@ neighbours), cut at its widest gap so that a line behind the scanner, over the s
 between angles +-180 deg, comes out whole. Following the paper, a seed line is formed at
 the start of a run and grown one return at a time: a return farther than
 ``max_point_distance_m`` from the current line ends the segment; otherwise the line is
-refitted by least squares with the return included, and if the refitted line turns by more than ``max_angle_change_deg`` (the
-paper's "similar slope-intercept form" test) the segment ends too.
+refitted by least squares with the return included, and if the refitted line turns by
+more than ``max_angle_change_deg`` (the paper's "similar slope-intercept form" test)
+the segment ends too.
 
 Two changes make this work on real scanners, whose range noise (about 1 cm) is of the
 order of the spacing of neighbouring returns at short range:
