@@ -483,24 +483,9 @@ def _box_in_image(spec: SessionSpec, camera: Camera, T: FloatArray, pose: tuple[
 def _room_pose(
     spec: SessionSpec, rng: np.random.Generator, footprint: FloatArray
 ) -> tuple[float, float, float] | None:
-    """A room pose (laser frame) that holds the laser and the box with clearance, or None.
-
-    As if the rig stood at a random place and heading in the room: the room's yaw is
-    uniform, and the laser's position in the room is uniform over where everything fits.
-    """
-    hx, hy = 0.5 * spec.room.size_m[0], 0.5 * spec.room.size_m[1]
-    c = spec.wall_clearance_m
-    for _ in range(20):
-        yaw = rng.uniform(-np.pi, np.pi)
-        Rt = _rot2(yaw).T
-        q = footprint @ Rt.T  # box corners relative to the laser, in room axes
-        lo = np.maximum(-np.array([hx, hy]) + c - q.min(axis=0), -np.array([hx, hy]) + c)
-        hi = np.minimum(np.array([hx, hy]) - c - q.max(axis=0), np.array([hx, hy]) - c)
-        if np.all(hi > lo):
-            p = lo + rng.uniform(size=2) * (hi - lo)  # laser position in the room frame
-            xy = -_rot2(yaw) @ p
-            return float(xy[0]), float(xy[1]), float(yaw)
-    return None
+    """A room pose (laser frame) that holds the laser and the box with clearance, or None
+    (:meth:`Room.pose_holding`: a random place and heading of the rig in the room)."""
+    return spec.room.pose_holding(rng, footprint, spec.wall_clearance_m)
 
 
 def _picks(
@@ -754,8 +739,3 @@ def describe_session(session: BoxSession) -> str:
 
 def _pose3(p: Sequence[float] | FloatArray) -> tuple[float, float, float]:
     return float(p[0]), float(p[1]), float(p[2])
-
-
-def _rot2(yaw: float) -> FloatArray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s], [s, c]])
