@@ -43,7 +43,7 @@ from rigcal.sim.box_session import (
     default_T_cam_laser,
     find_face_segment,
 )
-from rigcal.sim.noise import RealisticNoise, clutter_segments, realistic_ranges
+from rigcal.sim.noise import RealisticNoise, realistic_ranges, static_scene
 from rigcal.sim.raycast import beam_angles, cast_scan_hits, noisy_ranges
 from rigcal.sim.render import Room
 
@@ -158,35 +158,24 @@ def generate_board_session(
     return SimBoardSession(spec, camera, T, tuple(captures), scene)
 
 
-# The realistic room: boards stand within this bearing of the laser's +x (radians) ...
+# Boards stand within this bearing of the laser's +x (radians).
 _BOARD_BEARING = 0.45
-# ... and clutter keeps this far out of their region (metres, radians).
-_KEEP_OUT_M, _KEEP_OUT_RAD = 0.6, 0.25
 
 
 def _static_scene(spec: BoardSpec, rng: np.random.Generator) -> tuple[tuple[float, float, float], FloatArray]:
     """The still rig's room pose and its static segments (walls, then clutter)."""
     assert spec.noise is not None
-    far = spec.distance_m[1] + _KEEP_OUT_M
-    b = np.linspace(-_BOARD_BEARING - _KEEP_OUT_RAD, _BOARD_BEARING + _KEEP_OUT_RAD, 9)
-    region = np.vstack([[0.0, 0.0], far * np.column_stack([np.cos(b), np.sin(b)])])
-    room_pose = spec.room.pose_holding(rng, region, spec.wall_clearance_m, tries=200)
-    if room_pose is None:
-        raise InputError(f"cannot simulate: boards up to {far:g} m away do not fit in the room")
-
-    def keep_out(pts: FloatArray) -> bool:
-        r = np.linalg.norm(pts, axis=1)
-        a = np.abs(np.arctan2(pts[:, 1], pts[:, 0]))
-        return bool(np.any(r < _KEEP_OUT_M) or np.any((r < far) & (a < _BOARD_BEARING + _KEEP_OUT_RAD)))
-
-    clutter = clutter_segments(
-        rng,
-        spec.noise.n_clutter,
-        lambda pts: spec.room.contains(room_pose, pts, 0.05),
-        keep_out,
-        (0.8, 0.5 * min(spec.room.size_m) + far),
-    )
-    return room_pose, np.concatenate([spec.room.wall_segments(room_pose), clutter])
+    try:
+        return static_scene(
+            rng,
+            spec.room,
+            spec.wall_clearance_m,
+            (-_BOARD_BEARING, _BOARD_BEARING),
+            spec.distance_m[1],
+            spec.noise.n_clutter,
+        )
+    except ValueError as exc:
+        raise InputError(f"cannot simulate: {exc}") from None
 
 
 def _capture(

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rigcal.sim.raycast import cast_scan_hits
+from rigcal.sim.render import Room
 
 FloatArray = NDArray[np.float64]
 
@@ -184,3 +185,52 @@ def clutter_segments(
             out.append(np.stack([corners, np.roll(corners, -1, axis=0)], axis=1))
             break
     return np.concatenate(out) if out else np.zeros((0, 2, 2))
+
+
+# Clutter keeps this far out of the targets' region (metres, radians).
+_KEEP_OUT_M, _KEEP_OUT_RAD = 0.6, 0.25
+
+
+def static_scene(
+    rng: np.random.Generator,
+    room: Room,
+    clearance_m: float,
+    bearings_rad: tuple[float, float],
+    far_m: float,
+    n_clutter: int,
+) -> tuple[tuple[float, float, float], FloatArray]:
+    """The room of a rig that stays put while its target moves, and its static segments.
+
+    The room holds the laser and the targets' region (bearings within ``bearings_rad``,
+    up to ``far_m`` away, with a margin); its pose is drawn once (a random place and
+    heading, :meth:`Room.pose_holding`); ``n_clutter`` objects (:func:`clutter_segments`)
+    stand anywhere else in it.
+
+    Returns:
+        (the room's pose in the laser frame (x, y, yaw), (S, 2, 2) its walls then the
+        clutter, laser frame).
+
+    Raises:
+        ValueError: the targets' region does not fit in the room.
+    """
+    lo, hi = bearings_rad[0] - _KEEP_OUT_RAD, bearings_rad[1] + _KEEP_OUT_RAD
+    far = far_m + _KEEP_OUT_M
+    b = np.linspace(lo, hi, 9)
+    region = np.vstack([[0.0, 0.0], far * np.column_stack([np.cos(b), np.sin(b)])])
+    room_pose = room.pose_holding(rng, region, clearance_m, tries=200)
+    if room_pose is None:
+        raise ValueError(f"targets up to {far_m:g} m away do not fit in the room")
+
+    def keep_out(pts: FloatArray) -> bool:
+        r = np.linalg.norm(pts, axis=1)
+        a = np.arctan2(pts[:, 1], pts[:, 0])
+        return bool(np.any(r < _KEEP_OUT_M) or np.any((r < far) & (a > lo) & (a < hi)))
+
+    clutter = clutter_segments(
+        rng,
+        n_clutter,
+        lambda pts: room.contains(room_pose, pts, 0.05),
+        keep_out,
+        (0.8, 0.5 * min(room.size_m) + far),
+    )
+    return room_pose, np.concatenate([room.wall_segments(room_pose), clutter])
