@@ -105,7 +105,7 @@ def main() -> None:
                     n_captures=args.captures, seed=seed, noise=noise, fov_deg=fov, angle_increment_deg=step
                 )
                 sim = generate_board_session(spec)
-                folder = write_board_session(sim, Path(tmp) / f"s{n_clutter}_{seed}")
+                folder = write_board_session(sim, Path(tmp) / f"s{fov:g}_{n_clutter}_{seed}")
                 given = folder / "board_session.yaml"
                 auto = folder / "auto.yaml"
                 auto.write_text(
