@@ -265,10 +265,12 @@ def test_missing_required_key(tmp_path, key):
         read_scan(path)
 
 
-@pytest.mark.parametrize(("text", "shown"), [("2", "2"), ("'1'", "'1'"), ("true", "True"), ("0", "0")])
+@pytest.mark.parametrize(("text", "shown"), [("3", "3"), ("'1'", "'1'"), ("true", "True"), ("0", "0")])
 def test_wrong_schema_version(tmp_path, text, shown):
     path = scan_file(tmp_path, schema_version=text)
-    with pytest.raises(InputError, match=re.escape(f"{path}: schema_version: got {shown}; expected 1")):
+    with pytest.raises(
+        InputError, match=re.escape(f"{path}: schema_version: got {shown}; expected one of 1, 2")
+    ):
         read_scan(path)
 
 
@@ -395,3 +397,61 @@ def test_angles_rad_empty(tmp_path):
     msg = f"{path}: angles_rad: got []; expected a non-empty list of numbers"
     with pytest.raises(InputError, match=re.escape(msg)):
         read_scan(path)
+
+
+# --- laser.clockwise (schema 2) ----------------------------------------------------------------
+def test_clockwise_uniform_scan_gives_the_points_of_the_unmirrored_one(tmp_path):
+    ranges = [1.0, 2.0, 0.0, 3.5, 4.0]
+    ccw = Scan.from_uniform(-0.5, 0.25, ranges, 0.1, 10.0)
+    # The same sweep from a scanner counting clockwise: beam i at +0.5 - ... read clockwise.
+    path = scan_file(
+        tmp_path,
+        schema_version="2",
+        angle_min_rad="-0.5",
+        ranges_m=str(ranges[::-1]),
+        laser="{clockwise: true}",
+    )
+    scan = read_scan(path)
+    np.testing.assert_allclose(scan.angles_rad, ccw.angles_rad, atol=1e-15)
+    np.testing.assert_array_equal(scan.valid, ccw.valid)
+    np.testing.assert_allclose(scan.points[scan.valid], ccw.points[ccw.valid], atol=1e-15)
+    assert scan.angle_increment_rad == 0.25
+
+
+def test_clockwise_listed_angles(tmp_path):
+    ccw = Scan(np.array([-2.0, 0.1, 3.0]), np.array([1.0, 2.0, 3.0]), 0.1, 10.0)
+    path = tmp_path / "scan.yaml"
+    path.write_text(
+        "schema_version: 2\nlaser: {clockwise: true}\nangles_rad: [-3.0, -0.1, 2.0]\n"
+        "range_min_m: 0.1\nrange_max_m: 10.0\nranges_m: [3.0, 2.0, 1.0]\n"
+    )
+    scan = read_scan(path)
+    np.testing.assert_allclose(scan.points, ccw.points, atol=1e-15)
+
+
+def test_clockwise_false_reads_as_before(tmp_path):
+    a = read_scan(scan_file(tmp_path, schema_version="2", laser="{clockwise: false}"))
+    np.testing.assert_array_equal(a.angles_rad, [-0.5, -0.25, 0.0])
+
+
+@pytest.mark.parametrize(
+    ("values", "message"),
+    [
+        (
+            {"laser": "{clockwise: true}"},
+            "laser: got {'clockwise': True}; expected no laser key in schema_version 1",
+        ),
+        (
+            {"schema_version": "2", "laser": "{clockwise: yes please}"},
+            "laser.clockwise: got 'yes please'; expected true",
+        ),
+        (
+            {"schema_version": "2", "laser": "{clockwize: true}"},
+            "laser.clockwize: got True; expected no such key",
+        ),
+        ({"schema_version": "2", "laser": "[1]"}, "laser: got [1]; expected a mapping"),
+    ],
+)
+def test_bad_laser_key(tmp_path, values, message):
+    path = scan_file(tmp_path, **values)
+    assert read_error(path).startswith(f"{path}: {message}")

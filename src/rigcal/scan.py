@@ -18,11 +18,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_write_text, check_keys, check_schema_version, get_float, load_yaml
+from rigcal.io.files import atomic_write_text, check_keys, get_float, load_yaml
 
 FloatArray = NDArray[np.float64]
 
 SCAN_SCHEMA_VERSION = 1
+# Versions read: 2 adds the optional ``laser: {clockwise: BOOL}`` mapping.
+SCAN_SCHEMA_VERSIONS = (1, 2)
 
 
 @dataclass(frozen=True, eq=False)
@@ -116,9 +118,9 @@ def read_scan(path: str | Path) -> Scan:
         path,
         "",
         ["schema_version", "range_min_m", "range_max_m", "ranges_m"],
-        ["stamp_s", "frame", "angle_min_rad", "angle_increment_rad", "angles_rad"],
+        ["stamp_s", "frame", "angle_min_rad", "angle_increment_rad", "angles_rad", "laser"],
     )
-    check_schema_version(d, path, SCAN_SCHEMA_VERSION)
+    clockwise = laser_clockwise(d, path, SCAN_SCHEMA_VERSIONS)
     if "frame" in d and d["frame"] != "laser":
         raise InputError.at(path, "frame", d["frame"], "'laser'")
     range_min = get_float(d, "range_min_m", path)
@@ -138,7 +140,8 @@ def read_scan(path: str | Path) -> Scan:
                 raise InputError(f"{path}: {key}: missing; angle_min_rad needs angle_increment_rad")
         a0 = get_float(d, "angle_min_rad", path)
         step = get_float(d, "angle_increment_rad", path, positive=True)
-        return Scan.from_uniform(a0, step, ranges, range_min, range_max, stamp)
+        scan = Scan.from_uniform(a0, step, ranges, range_min, range_max, stamp)
+        return counter_clockwise(scan) if clockwise else scan
     angles = _finite_list(d["angles_rad"], path, "angles_rad")
     if len(angles) != len(ranges):
         raise InputError.at(
@@ -148,7 +151,45 @@ def read_scan(path: str | Path) -> Scan:
     if len(bad):
         i = int(bad[0]) + 1
         raise InputError.at(path, f"angles_rad[{i}]", float(angles[i]), f"an angle > angles_rad[{i - 1}]")
-    return Scan(angles, ranges, range_min, range_max, stamp)
+    scan = Scan(angles, ranges, range_min, range_max, stamp)
+    return counter_clockwise(scan) if clockwise else scan
+
+
+def laser_clockwise(d: Any, path: Path, versions: tuple[int, ...]) -> bool:
+    """Check ``schema_version`` (one of ``versions``; the last adds ``laser``) and return
+    the file's ``laser.clockwise`` (False when absent).
+
+    Raises:
+        InputError: a version not read, ``laser`` in a version that does not define it, or
+            ``laser`` not a mapping ``{clockwise: true|false}``.
+    """
+    v = d["schema_version"]
+    if type(v) is not int or v not in versions:
+        expected = ", ".join(str(x) for x in versions)
+        raise InputError.at(path, "schema_version", v, f"one of {expected} (the versions this rigcal reads)")
+    if "laser" not in d:
+        return False
+    if v < versions[-1]:
+        raise InputError.at(
+            path, "laser", d["laser"], f"no laser key in schema_version {v} (laser needs {versions[-1]})"
+        )
+    laser = check_keys(d["laser"], path, "laser", [], ["clockwise"])
+    cw = laser.get("clockwise", False)
+    if not isinstance(cw, bool):
+        raise InputError.at(path, "laser.clockwise", cw, "true (angles grow clockwise) or false")
+    return cw
+
+
+def counter_clockwise(scan: Scan) -> Scan:
+    """A scan whose angles were measured clockwise (looking down on the scanner), as the
+    counter-clockwise scan of the same returns: angles negated and the beams reversed, so
+    that angles still increase. Beam i of the result is beam N - 1 - i of the input."""
+    ranges = scan.ranges_m[::-1]
+    step = scan.angle_increment_rad
+    if step is not None:
+        first = -(float(scan.angles_rad[0]) + step * (len(ranges) - 1))
+        return Scan.from_uniform(first, step, ranges, scan.range_min_m, scan.range_max_m, scan.stamp_s)
+    return Scan(-scan.angles_rad[::-1], ranges, scan.range_min_m, scan.range_max_m, scan.stamp_s)
 
 
 def _ranges(value: Any, path: Path) -> FloatArray:

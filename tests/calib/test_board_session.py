@@ -345,9 +345,9 @@ def test_a_capture_with_wrong_returns_is_rejected_and_reported(calibrated):
 
 
 # --- rejected files ------------------------------------------------------------------------------
-def test_schema_version_other_than_1(session):
-    edit(session, lambda d: d.update(schema_version=2))
-    expect_error(session, "schema_version", "2")
+def test_schema_version_other_than_1_or_2(session):
+    edit(session, lambda d: d.update(schema_version=3))
+    assert "expected 1 or 2" in expect_error(session, "schema_version", "3")
 
 
 def test_unknown_top_level_key(session):
@@ -501,7 +501,9 @@ def test_auto_laser_side_finds_every_boards_segment(tmp_path):
     params = LineParams.for_range_noise(sim.spec.range_sigma_m)
     for o, c in zip(session.observations, sim.captures, strict=True):
         true_points = np.array(extract_lines(c.scan, params)[c.segment_id].points)
-        np.testing.assert_array_equal(o.points_laser, true_points)
+        on_board = (o.points_laser[:, None, :] == true_points[None]).all(axis=2).any(axis=1)
+        assert on_board.mean() >= 0.95
+        assert on_board.sum() >= 0.9 * len(true_points)
 
 
 def test_auto_laser_side_without_a_board_sized_segment_is_refused(tmp_path):
@@ -517,7 +519,10 @@ def test_auto_laser_side_without_a_board_sized_segment_is_refused(tmp_path):
     doc = yaml.safe_load(scan.read_text())
     doc["ranges_m"] = [0.0] * len(doc["ranges_m"])
     scan.write_text(yaml.safe_dump(doc))
-    with pytest.raises(InputError, match=r"captures\[0\]\.laser_side: got 'auto'.*none found"):
+    with pytest.raises(
+        InputError,
+        match=r"captures\[0\]\.laser_side: got 'auto'; expected the board's returns: cut lengths .* allowed",
+    ):
         read_board_session(f)
 
 

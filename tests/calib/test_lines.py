@@ -435,3 +435,44 @@ def test_thresholds_scale_with_the_range_noise_never_below_the_defaults():
     assert p.seed_length_m == pytest.approx(3 * d.seed_length_m)
     assert p.max_gap_m == pytest.approx(0.3)
     assert p.min_points == d.min_points
+
+
+# --- 360-degree scans: the seam at +-180 deg -------------------------------------------------
+def _ring_scan(angle_min_rad: float) -> Scan:
+    """A 360-degree scan (0.5 deg steps) in a 4 m x 3 m room, laser at (2.5, 1.5) from
+    its corner: the wall 2.5 m behind the laser crosses the seam at +-180 deg."""
+    from rigcal.sim.raycast import cast_scan
+
+    walls = np.array(
+        [
+            [[-2.5, -1.5], [1.5, -1.5]],
+            [[1.5, -1.5], [1.5, 1.5]],
+            [[1.5, 1.5], [-2.5, 1.5]],
+            [[-2.5, 1.5], [-2.5, -1.5]],
+        ]
+    )
+    step = np.radians(0.5)
+    angles = angle_min_rad + step * np.arange(720)
+    return Scan.from_uniform(angle_min_rad, step, cast_scan(walls, angles, 30.0), 0.1, 30.0)
+
+
+@pytest.mark.parametrize("angle_min_rad", [-np.pi, -np.pi + np.radians(0.2), 0.0, -3.0])
+def test_a_wall_over_the_seam_comes_out_whole(angle_min_rad):
+    scan = _ring_scan(angle_min_rad)
+    segments = extract_lines(scan)
+    assert len(segments) == 4
+    back = [g for g in segments if abs(g.centroid[0] + 2.5) < 0.01]
+    assert len(back) == 1
+    assert back[0].length_m > 2.9
+    assert [g.id for g in segments] == list(range(4))
+    firsts = [int(g.indices[0]) for g in segments]
+    assert firsts == sorted(firsts)
+
+
+def test_a_scan_short_of_the_full_circle_is_not_a_ring():
+    step = np.radians(0.5)
+    scan = Scan.from_uniform(-np.pi, step, np.ones(700), 0.1, 30.0)
+    from rigcal.calib.lines import is_full_circle
+
+    assert not is_full_circle(scan)
+    assert is_full_circle(Scan.from_uniform(-np.pi, step, np.ones(720), 0.1, 30.0))

@@ -86,3 +86,21 @@ def test_help_has_examples():
         assert "Examples:" in res.output
     res = CliRunner().invoke(cli, ["simulate", "calib-session", "--help"])
     assert "rigcal simulate calib-session -o examples/box-session --seed 1" in res.output
+
+
+@pytest.mark.parametrize(
+    ("command", "session_file", "extra"),
+    [
+        ("calib-session", "picks.yaml", ["--captures", "5", "--no-images"]),
+        ("board-session", "board_session.yaml", ["--captures", "6"]),
+    ],
+)
+def test_noise_realistic(tmp_path, command, session_file, extra):
+    out = tmp_path / "s"
+    res = CliRunner().invoke(cli, ["simulate", command, "-o", str(out), "--noise", "realistic", *extra])
+    assert res.exit_code == 0, res.output
+    doc = yaml.safe_load((out / session_file).read_text())
+    assert "range_sigma_m" not in doc["laser"]  # a user does not know the true noise
+    assert yaml.safe_load((out / "truth.yaml").read_text())["generator"]["noise"]["model"] == "realistic"
+    bad = CliRunner().invoke(cli, ["simulate", command, "-o", str(tmp_path / "t"), "--noise", "rough"])
+    assert bad.exit_code == 2

@@ -179,3 +179,22 @@ def test_cli(tmp_path, capsys):
     assert main([*argv, "--force", "--camera-info-topic", "/cam/info"]) == 0
     assert main([*argv[:-2], "-o", str(tmp_path / "t"), "--scan-topic", "/nope"]) == 3
     assert "Examples" in (main(["import-bag", "--help"]) == 0 and capsys.readouterr().out)
+
+
+def test_a_negative_angle_increment_gives_the_same_points_in_increasing_order():
+    from types import SimpleNamespace
+
+    from rigcal.io.bag import _scan
+
+    ranges = [1.0, 2.0, 3.0, 4.0]
+    up = _scan(
+        SimpleNamespace(angle_min=-0.3, angle_increment=0.2, ranges=ranges, range_min=0.1, range_max=9.0), 1.0
+    )
+    down = _scan(
+        SimpleNamespace(
+            angle_min=0.3, angle_increment=-0.2, ranges=ranges[::-1], range_min=0.1, range_max=9.0
+        ),
+        1.0,
+    )
+    np.testing.assert_allclose(down.angles_rad, up.angles_rad, atol=1e-15)
+    np.testing.assert_allclose(down.points, up.points, atol=1e-15)

@@ -3,8 +3,9 @@
 A board session file (docs/formats/board-session.md) is a picking file with
 ``method: board``: the camera, the board (inner corners and square size), and per capture
 a scan, the board's corners in the image (listed, or detected in an image), and the
-board's returns in the scan (a segment id as ``rigcal lines`` prints it, or two laser
-points). :func:`read_board_session` validates it and turns each capture into a
+board's returns in the scan (a segment id as ``rigcal lines`` prints it, several ids for
+a cut that line extraction split, two laser points, or ``auto``: found by
+:mod:`rigcal.calib.board_detect`). :func:`read_board_session` validates it and turns each capture into a
 :class:`~rigcal.calib.plane.PlaneObservation`: the board's pose by PnP from its corners
 (through the full lens model: bearings, then PnP on normalised coordinates), its plane in
 the camera frame, and the pose's covariance from the corners' reprojection Jacobian.
@@ -19,8 +20,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.calib.board_detect import BoardNotFoundError, BoardShape, board_shape, detect_board_returns
 from rigcal.calib.intrinsics import Board, detect_corners, read_corners_vnl
-from rigcal.calib.lines import extract_lines
+from rigcal.calib.lines import LineParams
 from rigcal.calib.picks import (
     _beams_near,
     _check_image,
@@ -35,12 +37,14 @@ from rigcal.calib.plane import PlaneObservation
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import make_T, rotvec_to_R
-from rigcal.io.files import check_keys, check_schema_version, get_float, load_yaml
-from rigcal.scan import read_scan
+from rigcal.io.files import check_keys, get_float, load_yaml
+from rigcal.scan import Scan, read_scan
 
 FloatArray = NDArray[np.float64]
 
 BOARD_SESSION_SCHEMA_VERSION = 1
+# Versions read: 2 adds board.size_m and laser_side: {segments: [...]}.
+BOARD_SESSION_SCHEMA_VERSIONS = (1, 2)
 
 
 @dataclass(frozen=True)
@@ -95,14 +99,18 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         ["schema_version", "method", "camera", "board", "captures"],
         ["laser", "name", "corners_vnl"],
     )
-    check_schema_version(d, path, BOARD_SESSION_SCHEMA_VERSION)
+    version = d["schema_version"]
+    if type(version) is not int or version not in BOARD_SESSION_SCHEMA_VERSIONS:
+        raise InputError.at(path, "schema_version", version, "1 or 2 (the versions this rigcal reads)")
     if d["method"] != "board":
         raise InputError.at(
             path, "method", d["method"], "'board' (a box-target picking file has no method key)"
         )
     camera_path = _file(path, "camera", d["camera"])
     camera = read_camera(camera_path)
-    b = check_keys(d["board"], path, "board", ["corners_x", "corners_y", "spacing_m"], ["corner_sigma_px"])
+    b = check_keys(
+        d["board"], path, "board", ["corners_x", "corners_y", "spacing_m"], ["corner_sigma_px", "size_m"]
+    )
     if "corner_sigma_px" in b:
         corner_sigma_px = get_float(b, "corner_sigma_px", path, "board", positive=True)
     for key in ("corners_x", "corners_y"):
@@ -110,6 +118,8 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         if isinstance(v, bool) or not isinstance(v, int) or v < 2:
             raise InputError.at(path, f"board.{key}", v, "an integer >= 2 (inner corners)")
     board = Board(b["corners_x"], b["corners_y"], get_float(b, "spacing_m", path, "board", positive=True))
+    size_m = _size_m(path, b, board, version) if "size_m" in b else None
+    shape = board_shape(board, size_m)
     laser = d.get("laser", {})
     if not isinstance(laser, dict):
         raise InputError.at(path, "laser", laser, "a mapping describing the scanner")
@@ -127,7 +137,8 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         files.append(vnl_path)
         det = read_corners_vnl(vnl_path, board, (camera.width_px, camera.height_px))
         vnl = {Path(p).name: g for p, g in zip(det.paths, det.corners, strict=True)}
-    auto: dict[int, list[FloatArray]] = {}
+    auto: list[int] = []
+    scans = []
     for i, c in enumerate(captures):
         kp = f"captures[{i}]"
         c = check_keys(c, path, kp, ["scan", "laser_side"], ["name", "corners_px", "image"])
@@ -137,47 +148,18 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         corners = _corners(path, kp, c, board, camera, files, vnl)
         T, cov, err = board_pose(camera, board, corners, corner_sigma_px)
         scan = read_scan(scan_path)
+        scans.append(scan)
         side = c["laser_side"]
-        key = f"{kp}.laser_side"
         if side == "auto":
-            candidates = [
-                np.array(g.points) for g in extract_lines(scan, params) if _board_sized(g.length_m, board)
-            ]
-            if not candidates:
-                raise InputError.at(
-                    path,
-                    key,
-                    side,
-                    "a scan with a segment as long as the board's cut (none found; give the segment)",
-                )
-            auto[len(obs)] = candidates
-            pts = candidates[0]
-        elif not isinstance(side, dict) or len(side) != 1 or next(iter(side)) not in ("segment", "points"):
-            raise InputError.at(path, key, side, "auto, {segment: ID} or {points: [[x1, y1], [x2, y2]]}")
-        elif "segment" in side:
-            pts = np.array(
-                segment_by_id(path, f"{key}.segment", side["segment"], scan, scan_path, params).points
-            )
+            auto.append(i)
+            pts = np.zeros((0, 2))
         else:
-            ends = _pairs(side["points"], path, f"{key}.points", "laser point")
-            if np.linalg.norm(ends[0] - ends[1]) < 0.05:
-                raise InputError.at(
-                    path, f"{key}.points", ends.tolist(), "two distinct ends at least 5 cm apart"
-                )
-            beams = _beams_near(scan, ends)
-            if len(beams) < 2:
-                raise InputError.at(
-                    path,
-                    f"{key}.points",
-                    ends.tolist(),
-                    "two points on the board in the scan (no returns near)",
-                )
-            pts = scan.points[beams]
+            pts = _given_returns(path, f"{kp}.laser_side", side, scan, scan_path, params, version)
         obs.append(plane_observation(i, name, T, cov, pts))
         poses.append(T)
         rms.append(err)
     if auto:
-        obs = _choose_board_returns(path, obs, auto)
+        obs = _detect(path, obs, auto, scans, poses, shape, params)
     check_unique_names(path, [o.name for o in obs])
     return BoardSession(
         path,
@@ -193,31 +175,83 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
     )
 
 
-def _board_sized(length_m: float, board: Board) -> bool:
-    """Whether a segment could be the board's cut with the scan plane: at least a fifth
-    of the board's width, at most its diagonal with a square's margin all round."""
-    w = (board.width_n + 1) * board.spacing_m
-    h = (board.height_n + 1) * board.spacing_m
-    return 0.2 * w <= length_m <= float(np.hypot(w, h))
+def _size_m(path: Path, b: Any, board: Board, version: int) -> tuple[float, float]:
+    """board.size_m: [width, height] of the sheet, metres, at least the printed pattern's
+    (inner corners plus one square all round)."""
+    v = b["size_m"]
+    if version < 2:
+        raise InputError.at(path, "board.size_m", v, "no size_m in schema_version 1 (size_m needs 2)")
+    ok = isinstance(v, list) and len(v) == 2
+    ok = ok and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)
+    pattern = ((board.width_n + 1) * board.spacing_m, (board.height_n + 1) * board.spacing_m)
+    if not ok or not all(x >= p - 1e-9 for x, p in zip(v, pattern, strict=True)):
+        raise InputError.at(
+            path,
+            "board.size_m",
+            v,
+            f"[width, height] of the board's sheet in metres, at least the printed pattern's "
+            f"[{pattern[0]:g}, {pattern[1]:g}] (width along the rows of corners_x)",
+        )
+    return float(v[0]), float(v[1])
 
 
-def _choose_board_returns(
-    path: Path, obs: list[PlaneObservation], auto: dict[int, list[FloatArray]]
+def _given_returns(
+    path: Path, key: str, side: Any, scan: Scan, scan_path: Path, params: LineParams, version: int
+) -> FloatArray:
+    """The board's returns a capture names: one segment, several, or two laser points."""
+    forms = ("segment", "segments", "points")
+    if not isinstance(side, dict) or len(side) != 1 or next(iter(side)) not in forms:
+        raise InputError.at(
+            path, key, side, "auto, {segment: ID}, {segments: [ID, ...]} or {points: [[x1, y1], [x2, y2]]}"
+        )
+    if "segment" in side:
+        return np.array(
+            segment_by_id(path, f"{key}.segment", side["segment"], scan, scan_path, params).points
+        )
+    if "segments" in side:
+        ids = side["segments"]
+        if version < 2:
+            raise InputError.at(path, f"{key}.segments", ids, "no segments in schema_version 1 (needs 2)")
+        if not isinstance(ids, list) or not ids or len(set(map(repr, ids))) != len(ids):
+            raise InputError.at(path, f"{key}.segments", ids, "a non-empty list of distinct segment ids")
+        pieces = [
+            segment_by_id(path, f"{key}.segments[{j}]", sid, scan, scan_path, params)
+            for j, sid in enumerate(ids)
+        ]
+        pieces.sort(key=lambda g: int(g.indices[0]))
+        return np.concatenate([np.array(g.points) for g in pieces])
+    ends = _pairs(side["points"], path, f"{key}.points", "laser point")
+    if np.linalg.norm(ends[0] - ends[1]) < 0.05:
+        raise InputError.at(path, f"{key}.points", ends.tolist(), "two distinct ends at least 5 cm apart")
+    beams = _beams_near(scan, ends)
+    if len(beams) < 2:
+        raise InputError.at(
+            path, f"{key}.points", ends.tolist(), "two points on the board in the scan (no returns near)"
+        )
+    return np.array(scan.points[beams])
+
+
+def _detect(
+    path: Path,
+    obs: list[PlaneObservation],
+    auto: list[int],
+    scans: list[Scan],
+    poses: list[FloatArray],
+    shape: BoardShape,
+    params: LineParams,
 ) -> list[PlaneObservation]:
-    """Replace the returns of ``laser_side: auto`` captures by the candidate segment that
-    lies on the capture's board plane under a consensus calibration."""
+    """Fill in the returns of the ``laser_side: auto`` captures (board_detect)."""
     from dataclasses import replace
 
-    from rigcal.calib.plane import choose_candidates
-
-    candidates = [auto.get(i, [o.points_laser]) for i, o in enumerate(obs)]
+    given = {i: o.points_laser for i, o in enumerate(obs) if i not in auto}
+    planes = [(o.normal_cam, o.distance_m) for o in obs]
     try:
-        chosen = choose_candidates([(o.normal_cam, o.distance_m) for o in obs], candidates)
+        found = detect_board_returns(scans, poses, planes, shape, given, params)
+    except BoardNotFoundError as exc:
+        raise InputError.at(path, f"captures[{exc.capture}].laser_side", "auto", exc.detail) from None
     except CalibrationError as exc:
         raise CalibrationError(f"{path}: laser_side auto: {exc}") from None
-    return [
-        replace(o, points_laser=candidates[i][k]) for i, (o, k) in enumerate(zip(obs, chosen, strict=True))
-    ]
+    return [replace(o, points_laser=found[i]) if i in auto else o for i, o in enumerate(obs)]
 
 
 def _corners(

@@ -1,11 +1,14 @@
 """Line extraction from 2D scans: combined least-squares region growing (paper Section III-B).
 
 The scan's returns are sorted by beam angle, so a line is a run of consecutive valid
-returns. Following the paper, a seed line is formed at the start of a run and grown one
-return at a time: a return farther than ``max_point_distance_m`` from the current line
-ends the segment; otherwise the line is refitted by least squares with the return
-included, and if the refitted line turns by more than ``max_angle_change_deg`` (the
-paper's "similar slope-intercept form" test) the segment ends too.
+returns; a scan that covers the full circle is a ring (its last and first beams are
+neighbours), cut at its widest gap so that a line behind the scanner, over the seam
+between angles +-180 deg, comes out whole. Following the paper, a seed line is formed at
+the start of a run and grown one return at a time: a return farther than
+``max_point_distance_m`` from the current line ends the segment; otherwise the line is
+refitted by least squares with the return included, and if the refitted line turns by
+more than ``max_angle_change_deg`` (the paper's "similar slope-intercept form" test)
+the segment ends too.
 
 Two changes make this work on real scanners, whose range noise (about 1 cm) is of the
 order of the spacing of neighbouring returns at short range:
@@ -107,7 +110,8 @@ class Segment:
 
     Attributes:
         id: number of the segment in its scan (beam order).
-        indices: (M,) beam indices of its returns, increasing.
+        indices: (M,) beam indices of its returns, in beam order (increasing, except on a
+            360-degree scan where a segment over the seam runs from the last beams to the first).
         points: (M, 2) its returns, metres, laser frame.
         centroid: (2,) mean of the returns.
         direction: (2,) unit vector along the line, from ``start`` towards ``end``.
@@ -235,18 +239,31 @@ def extract_lines(scan: Scan, params: LineParams | None = None) -> list[Segment]
     params = params or LineParams()
     beams = np.flatnonzero(scan.valid).astype(np.int64)
     pts = scan.points[beams]
+    if is_full_circle(scan) and len(beams) > 1:
+        # A 360-degree scan is a ring: start it after its widest gap between neighbouring
+        # returns (across the seam too), so that a line over the seam comes out whole.
+        gaps = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
+        k = (int(np.argmax(gaps)) + 1) % len(beams)
+        beams, pts = np.roll(beams, -k), np.roll(pts, -k, axis=0)
     runs = _runs(pts, params.max_gap_m)
     groups: list[IntArray] = []
     xy = (pts[:, 0].tolist(), pts[:, 1].tolist())  # plain floats for the growing loop
     for lo, hi in runs:
         groups += _merge_collinear(pts, _grow_run(pts, xy, lo, hi, params), params)
-    segments: list[Segment] = []
+    kept: list[IntArray] = []
     for g in groups:
         g = _trim_ends(pts, g, params)
-        seg = _segment(len(segments), beams[g], pts[g])
-        if len(g) >= params.min_points and seg.length_m >= params.min_length_m:
-            segments.append(seg)
-    return segments
+        if len(g) >= params.min_points and _segment(0, beams[g], pts[g]).length_m >= params.min_length_m:
+            kept.append(g)
+    kept.sort(key=lambda g: int(beams[g[0]]))  # numbered by first beam, as without a ring
+    return [_segment(k, beams[g], pts[g]) for k, g in enumerate(kept)]
+
+
+def is_full_circle(scan: Scan) -> bool:
+    """Whether the scan's beams go all the way round (last beam one step short of the
+    first, or closer): its first and last beams are then neighbours."""
+    a = scan.angles_rad
+    return len(a) > 2 and float(a[-1] - a[0]) + 1.5 * scan.step_rad >= 2.0 * np.pi
 
 
 def return_labels(scan: Scan, segments: list[Segment]) -> IntArray:

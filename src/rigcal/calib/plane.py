@@ -138,17 +138,37 @@ def choose_candidates(
     iterations: int = 20000,
     seed: int = 0,
 ) -> list[int]:
-    """For each capture, which of its candidate laser segments lies on its board plane.
+    """For each capture, which of its candidate laser segments lies on its board plane
+    (:func:`candidate_consensus`'s choice)."""
+    return candidate_consensus(planes, candidates, threshold_m, iterations, seed)[1]
 
-    RANSAC over captures and candidates: draw MIN_CAPTURES captures and one candidate of
+
+def candidate_consensus(
+    planes: Sequence[tuple[FloatArray, float]],
+    candidates: Sequence[Sequence[FloatArray]],
+    threshold_m: float = 0.03,
+    iterations: int = 20000,
+    seed: int = 0,
+    confidence: float = 0.999,
+) -> tuple[FloatArray, list[int], NDArray[np.bool_]]:
+    """RANSAC over captures and candidates: draw MIN_CAPTURES captures and one candidate of
     each, solve the closed form, and count the captures that have a candidate within
     ``threshold_m`` RMS of their plane; the hypothesis with most such captures (then the
     lowest summed RMS) picks each capture's closest candidate. Captures with one candidate
     (given segments) take part as they are.
 
+    Sampling stops once, with probability ``confidence``, a sample of agreeing captures
+    and their right candidates would have been drawn (the usual adaptive RANSAC bound,
+    with the chance of the right candidate 1 / the capture's candidates), or after
+    ``iterations`` draws.
+
     Args:
         planes: per capture, (unit normal (3,), distance m) of its board in the camera frame.
-        candidates: per capture, a list of (M, 2) laser point sets.
+        candidates: per capture, a non-empty list of (M, 2) laser point sets.
+
+    Returns:
+        (the hypothesis' T_cam_laser, per capture the index of the chosen candidate,
+        (C,) bool: the captures whose chosen candidate is within ``threshold_m`` RMS).
 
     Raises:
         CalibrationError: fewer than MIN_CAPTURES captures agree on any hypothesis.
@@ -164,22 +184,48 @@ def choose_candidates(
         ]
         for i, cands in enumerate(candidates)
     ]
+    # Every candidate's points in one array, for scoring a hypothesis in one pass.
+    owner = [(i, k) for i, cands in enumerate(candidates) for k in range(len(cands))]
+    pts = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 2) for cands in candidates for p in cands])
+    which = np.repeat(np.arange(len(owner)), [len(candidates[i][k]) for i, k in owner])
+    counts = np.bincount(which, minlength=len(owner))
+    normals = np.array([planes[i][0] for i, _ in owner], dtype=float)[which]
+    dists = np.array([planes[i][1] for i, _ in owner], dtype=float)[which]
+    cap_of = np.array([i for i, _ in owner])
+    n_cands = np.array([len(c) for c in candidates], dtype=float)
+
+    def rms_per_candidate(T: FloatArray) -> FloatArray:
+        p = pts @ T[:3, :2].T + T[:3, 3]
+        r = np.einsum("ij,ij->i", p, normals) - dists
+        out: FloatArray = np.sqrt(np.bincount(which, r * r, minlength=len(owner)) / counts)
+        return out
+
+    def best_per_capture(rms: FloatArray) -> FloatArray:
+        out = np.full(C, np.inf)
+        np.minimum.at(out, cap_of, rms)
+        return out
+
     best: tuple[int, float] = (-1, np.inf)
     best_T: FloatArray | None = None
-    for _ in range(iterations):
+    needed = float(iterations)
+    done = 0
+    while done < min(iterations, needed):
+        done += 1
         idx = rng.choice(C, size=MIN_CAPTURES, replace=False)
         sample = [obs_all[i][int(rng.integers(len(obs_all[i])))] for i in idx]
-        normals = np.array([o.normal_cam for o in sample])
-        s = np.linalg.svd(normals, compute_uv=False)
+        s = np.linalg.svd(np.array([o.normal_cam for o in sample]), compute_uv=False)
         if s[2] < MIN_NORMAL_SPREAD * s[0]:
             continue
         T = closed_form(sample)
-        rms = np.array(
-            [min(float(np.sqrt(np.mean(point_to_plane(T, o) ** 2))) for o in obs_all[i]) for i in range(C)]
-        )
-        score = (int((rms < threshold_m).sum()), -float(np.minimum(rms, threshold_m).sum()))
-        if (score[0], score[1]) > (best[0], -best[1]):
-            best, best_T = (score[0], -score[1]), T
+        rms = best_per_capture(rms_per_candidate(T))
+        score = (int((rms < threshold_m).sum()), float(np.minimum(rms, threshold_m).sum()))
+        if score[0] > best[0] or (score[0] == best[0] and score[1] < best[1]):
+            best, best_T = score, T
+            agree = rms < threshold_m
+            # Chance that one draw is all agreeing captures with their right candidates.
+            if agree.any():
+                good = (best[0] / C) ** MIN_CAPTURES * float(np.mean(1.0 / n_cands[agree])) ** MIN_CAPTURES
+                needed = np.log(1.0 - confidence) / np.log1p(-min(good, 1.0 - 1e-12))
         if best[0] == C:
             break
     if best_T is None or best[0] < MIN_CAPTURES:
@@ -187,10 +233,13 @@ def choose_candidates(
             f"no calibration puts the returns of {MIN_CAPTURES} or more captures on their boards; "
             "give the board's segment ids (`rigcal lines`)"
         )
-    T = best_T
-    return [
-        int(np.argmin([np.sqrt(np.mean(point_to_plane(T, o) ** 2)) for o in obs_all[i]])) for i in range(C)
-    ]
+    rms_all = rms_per_candidate(best_T)
+    chosen = []
+    for i in range(C):
+        mine = np.flatnonzero(cap_of == i)
+        chosen.append(int(np.argmin(rms_all[mine])))
+    agree = best_per_capture(rms_all) < threshold_m
+    return best_T, chosen, agree
 
 
 def point_to_plane(T: FloatArray, o: PlaneObservation) -> FloatArray:

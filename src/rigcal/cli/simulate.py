@@ -18,6 +18,18 @@ def simulate() -> None:
     """
 
 
+_noise_option = click.option(
+    "--noise",
+    "noise_model",
+    default="clean",
+    show_default=True,
+    type=click.Choice(["clean", "realistic"]),
+    help="Scanner and room model: clean (Gaussian range noise, empty room) or realistic "
+    "(heavy-tailed noise, mixed pixels, grazing bias, dropouts, static clutter; "
+    "rigcal.sim.noise.RealisticNoise; --range-sigma-m is then ignored).",
+)
+
+
 @simulate.command("calib-session")
 @click.option(
     "-o",
@@ -70,6 +82,7 @@ def simulate() -> None:
     type=click.FloatRange(min=0.0, max=500.0),
     help="Shift the camera on the rig by this much (random direction) before simulating.",
 )
+@_noise_option
 @click.option("--no-images", is_flag=True, help="Write flat grey placeholder images instead of renders.")
 @click.option("--force", is_flag=True, help="Replace an existing session folder.")
 def calib_session(
@@ -81,6 +94,7 @@ def calib_session(
     wrong_picks: float,
     move_deg: float,
     move_mm: float,
+    noise_model: str,
     no_images: bool,
     force: bool,
 ) -> None:
@@ -100,6 +114,7 @@ def calib_session(
       rigcal solve /tmp/s/picks.yaml -o rig.yaml --truth /tmp/s/truth.yaml
       rigcal simulate calib-session -o /tmp/moved --captures 8 --seed 2 --move-deg 0.5 --no-images
       rigcal check rig.yaml --picks /tmp/moved/picks.yaml
+      rigcal simulate calib-session -o /tmp/real --noise realistic --no-images
     """
     from rigcal.errors import OutputError
     from rigcal.sim.box_session import (
@@ -110,6 +125,7 @@ def calib_session(
         moved_T_cam_laser,
         write_session,
     )
+    from rigcal.sim.noise import RealisticNoise
 
     # Refuse before working: generating and rendering take a few seconds.
     if output.exists() and not force:
@@ -120,6 +136,7 @@ def calib_session(
         range_sigma_m=range_sigma_m,
         wrong_pick_fraction=wrong_picks,
         seed=seed,
+        noise=RealisticNoise() if noise_model == "realistic" else None,
     )
     T = default_T_cam_laser()
     if move_deg or move_mm:
@@ -160,9 +177,16 @@ def calib_session(
     type=click.FloatRange(min=0.0, max=0.05),
     help="Range noise.",
 )
+@_noise_option
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 def board_session(
-    output: Path, captures: int, seed: int, corner_sigma_px: float, range_sigma_m: float, force: bool
+    output: Path,
+    captures: int,
+    seed: int,
+    corner_sigma_px: float,
+    range_sigma_m: float,
+    noise_model: str,
+    force: bool,
 ) -> None:
     """Write a synthetic checkerboard session (board corners listed, scans, truth) for the
     plane method of `rigcal solve`. See docs/formats/board-session.md.
@@ -171,14 +195,20 @@ def board_session(
     Examples:
       rigcal simulate board-session -o /tmp/board --seed 1
       rigcal solve /tmp/board/board_session.yaml -o rig.yaml --truth /tmp/board/truth.yaml
+      rigcal simulate board-session -o /tmp/real --captures 28 --noise realistic
     """
     from rigcal.errors import OutputError
     from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
+    from rigcal.sim.noise import RealisticNoise
 
     if output.exists() and not force:
         raise OutputError(f"{output}: exists; pass --force to replace it")
     spec = BoardSpec(
-        n_captures=captures, corner_sigma_px=corner_sigma_px, range_sigma_m=range_sigma_m, seed=seed
+        n_captures=captures,
+        corner_sigma_px=corner_sigma_px,
+        range_sigma_m=range_sigma_m,
+        seed=seed,
+        noise=RealisticNoise() if noise_model == "realistic" else None,
     )
     write_board_session(generate_board_session(spec), output, force=force)
     click.echo(

@@ -137,10 +137,14 @@ def _ordered(items: list[Any]) -> tuple[list[Any], int, int]:
 
 
 def _scan(msg: Any, stamp: float) -> Scan:
+    """A LaserScan message as a scan. A negative ``angle_increment`` (a scanner sweeping
+    clockwise, angle_max < angle_min) gives the same beams in reverse order, so that the
+    angles increase (docs/formats/scan.md)."""
     r = np.asarray(msg.ranges, dtype=float)
-    return Scan.from_uniform(
-        float(msg.angle_min), float(msg.angle_increment), r, float(msg.range_min), float(msg.range_max), stamp
-    )
+    a0, step = float(msg.angle_min), float(msg.angle_increment)
+    if step < 0:
+        a0, step, r = a0 + step * (len(r) - 1), -step, r[::-1]
+    return Scan.from_uniform(a0, step, r, float(msg.range_min), float(msg.range_max), stamp)
 
 
 def _image_bytes(msg: Any, msgtype: str, bag: Path, topic: str) -> tuple[bytes, str]:

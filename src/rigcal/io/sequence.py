@@ -28,12 +28,14 @@ import yaml
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_folder, check_keys, check_schema_version, load_yaml, read_text
-from rigcal.scan import Scan
+from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text
+from rigcal.scan import Scan, counter_clockwise, laser_clockwise
 
 FloatArray = NDArray[np.float64]
 
 SEQUENCE_SCHEMA_VERSION = 1
+# Versions read: 2 adds the optional ``laser: {clockwise: BOOL}`` mapping.
+SEQUENCE_SCHEMA_VERSIONS = (1, 2)
 SCAN_KEYS = (
     "stamps_s",
     "ranges_m",
@@ -147,9 +149,9 @@ def read_sequence(folder: str | Path) -> Sequence:
         path,
         "",
         ["schema_version", "name", "scans", "images"],
-        ["source", "camera", "rig", "groundtruth"],
+        ["source", "camera", "rig", "groundtruth", "laser"],
     )
-    check_schema_version(d, path, SEQUENCE_SCHEMA_VERSION)
+    clockwise = laser_clockwise(d, path, SEQUENCE_SCHEMA_VERSIONS)
     sc = check_keys(d["scans"], path, "scans", ["file", "count"])
     npz = folder / str(sc["file"])
     try:
@@ -173,16 +175,15 @@ def read_sequence(folder: str | Path) -> Sequence:
     scans = []
     for i in range(n):
         nb = int(arrays["n_beams"][i])
-        scans.append(
-            Scan.from_uniform(
-                float(arrays["angle_min_rad"][i]),
-                float(arrays["angle_increment_rad"][i]),
-                arrays["ranges_m"][i, :nb],
-                float(arrays["range_min_m"][i]),
-                float(arrays["range_max_m"][i]),
-                stamp_s=float(arrays["stamps_s"][i]),
-            )
+        scan = Scan.from_uniform(
+            float(arrays["angle_min_rad"][i]),
+            float(arrays["angle_increment_rad"][i]),
+            arrays["ranges_m"][i, :nb],
+            float(arrays["range_min_m"][i]),
+            float(arrays["range_max_m"][i]),
+            stamp_s=float(arrays["stamps_s"][i]),
         )
+        scans.append(counter_clockwise(scan) if clockwise else scan)
     im = check_keys(d["images"], path, "images", ["folder", "index", "count"])
     index = folder / str(im["index"])
     stamps, files = _read_index(index)

@@ -7,6 +7,14 @@ the scan plane and the room's walls, with range noise and dropouts; the board's 
 id is found as a user would pick it (``find_face_segment``). The session folder holds
 ``camera.yaml``, ``scans/``, ``board_session.yaml`` (corners listed, no images) and
 ``truth.yaml``. One seeded generator drives everything.
+
+With ``BoardSpec(noise=RealisticNoise())`` (``--noise realistic``) the scanner and room
+are those of :mod:`rigcal.sim.noise`: heavy-tailed range noise, mixed pixels, grazing
+bias and dropouts; the rig stands still in one room with static clutter while the board
+moves; the board's sheet is larger than its pattern (written as ``board.size_m``). The
+board's cut may then come out of line extraction in pieces: the session lists every
+segment that lies on it (``laser_side: {segments: [...]}``). The session file does not
+state the true noise (a user does not know it); truth.yaml's generator block does.
 """
 
 from __future__ import annotations
@@ -17,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rigcal.calib.board_detect import plane_cut
 from rigcal.calib.board_session import board_points
 from rigcal.calib.intrinsics import Board
 from rigcal.calib.lines import LineParams
@@ -34,6 +43,7 @@ from rigcal.sim.box_session import (
     default_T_cam_laser,
     find_face_segment,
 )
+from rigcal.sim.noise import RealisticNoise, realistic_ranges, static_scene
 from rigcal.sim.raycast import beam_angles, cast_scan_hits, noisy_ranges
 from rigcal.sim.render import Room
 
@@ -54,8 +64,12 @@ class BoardSpec:
         distance_m: (min, max) distance of the board's centre from the laser.
         max_turn_deg, max_tilt_deg: the board is turned about the vertical and tilted about
             its horizontal axis by up to these.
-        board: the checkerboard (inner corners, square size); margin_m: its border.
+        board: the checkerboard (inner corners, square size); margin_m: its border
+            beyond the inner corners (one square: the printed pattern's edge).
         seed: seed of the generator.
+        noise: None for the clean model, or the realistic scanner, room and board
+            (:class:`rigcal.sim.noise.RealisticNoise`; its ``board_border_m`` is added to
+            ``margin_m``).
     """
 
     n_captures: int = 12
@@ -74,25 +88,49 @@ class BoardSpec:
     range_max_m: float = 30.0
     wall_clearance_m: float = 0.5
     room: Room = field(default_factory=Room)
+    noise: RealisticNoise | None = None
+
+    @property
+    def sheet_margin_m(self) -> float:
+        """The board sheet's border beyond its inner corners, metres."""
+        return self.margin_m + (self.noise.board_border_m if self.noise else 0.0)
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        """The board sheet's (width, height), metres."""
+        b = self.board
+        m = 2.0 * self.sheet_margin_m
+        return (b.width_n - 1) * b.spacing_m + m, (b.height_n - 1) * b.spacing_m + m
 
 
 @dataclass(frozen=True, eq=False)
 class BoardCapture:
-    """One simulated capture: the board's pose, its corners, the scan and the segment id."""
+    """One simulated capture: the board's pose, its corners, the scan, the ids of the
+    segments on the board (one in the clean model) and the beams whose true ray hits it."""
 
     name: str
     T_laser_board: FloatArray
     corners_px: FloatArray
     scan: Scan
-    segment_id: int
+    segment_ids: tuple[int, ...]
+    board_beams: NDArray[np.int64]
+
+    @property
+    def segment_id(self) -> int:
+        """The first (in the clean model the only) segment on the board."""
+        return self.segment_ids[0]
 
 
 @dataclass(frozen=True, eq=False)
 class SimBoardSession:
+    """A simulated session; ``clutter`` (S, 2, 2) is the static scene in the laser frame
+    (the room's walls and the clutter) when the rig stands still, else empty."""
+
     spec: BoardSpec
     camera: Camera
     T_cam_laser: FloatArray
     captures: tuple[BoardCapture, ...]
+    static_scene: FloatArray = field(default_factory=lambda: np.zeros((0, 2, 2)))
 
 
 def generate_board_session(
@@ -107,11 +145,37 @@ def generate_board_session(
     T = default_T_cam_laser() if T_cam_laser is None else np.asarray(T_cam_laser, dtype=float)
     rng = np.random.default_rng(spec.seed)
     angle_min, step, angles = beam_angles(spec.fov_deg, spec.angle_increment_deg)
-    params = LineParams.for_range_noise(spec.range_sigma_m)
+    static = _static_scene(spec, rng) if spec.noise else None
+    # The ids a reader of the written session gets: the clean session states its range
+    # noise, the realistic one does not (defaults).
+    params = LineParams() if spec.noise else LineParams.for_range_noise(spec.range_sigma_m)
     captures = []
     for i in range(spec.n_captures):
-        captures.append(_capture(spec, camera, T, rng, angles, angle_min, step, params, f"cap{i:02d}"))
-    return SimBoardSession(spec, camera, T, tuple(captures))
+        captures.append(
+            _capture(spec, camera, T, rng, angles, angle_min, step, params, f"cap{i:02d}", static)
+        )
+    scene = np.zeros((0, 2, 2)) if static is None else static[1]
+    return SimBoardSession(spec, camera, T, tuple(captures), scene)
+
+
+# Boards stand within this bearing of the laser's +x (radians).
+_BOARD_BEARING = 0.45
+
+
+def _static_scene(spec: BoardSpec, rng: np.random.Generator) -> tuple[tuple[float, float, float], FloatArray]:
+    """The still rig's room pose and its static segments (walls, then clutter)."""
+    assert spec.noise is not None
+    try:
+        return static_scene(
+            rng,
+            spec.room,
+            spec.wall_clearance_m,
+            (-_BOARD_BEARING, _BOARD_BEARING),
+            spec.distance_m[1],
+            spec.noise.n_clutter,
+        )
+    except ValueError as exc:
+        raise InputError(f"cannot simulate: {exc}") from None
 
 
 def _capture(
@@ -124,17 +188,18 @@ def _capture(
     step: float,
     params: LineParams,
     name: str,
+    static: tuple[tuple[float, float, float], FloatArray] | None,
 ) -> BoardCapture:
     b = spec.board
     P = board_points(b)
     w = (b.width_n - 1) * b.spacing_m
     h = (b.height_n - 1) * b.spacing_m
-    outline = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * spec.margin_m + np.array(
+    outline = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * spec.sheet_margin_m + np.array(
         [[0, 0], [w, 0], [w, h], [0, h]]
     )
     for _ in range(_MAX_ATTEMPTS):
         dist = rng.uniform(*spec.distance_m)
-        bearing = rng.uniform(-0.45, 0.45)
+        bearing = rng.uniform(-_BOARD_BEARING, _BOARD_BEARING)
         radial = np.array([np.cos(bearing), np.sin(bearing), 0.0])
         centre = dist * radial + np.array([0.0, 0.0, rng.uniform(-0.08, 0.08)])
         # Board axes before turning: x along the rows (to the scanner's right as seen from
@@ -147,76 +212,109 @@ def _capture(
         R = roll @ tilt @ turn @ R_base
         origin = centre - R @ np.array([0.5 * w, 0.5 * h, 0.0])
         T_laser_board = make_T(R, origin)
-        cut = _scan_plane_cut(T_laser_board, outline)
+        cut = plane_cut(T_laser_board, outline)
         if cut is None or np.linalg.norm(cut[1] - cut[0]) < 0.25:
             continue
         px = camera.project(transform_points(T @ T_laser_board, P))
         if not camera.in_image(px, 15.0).all():
             continue
-        room_pose = _room_pose(spec, rng, cut)  # type: ignore[arg-type]
-        if room_pose is None:
+        if static is None:
+            room_pose = _room_pose(spec, rng, cut)  # type: ignore[arg-type]
+            if room_pose is None:
+                continue
+            scene = spec.room.wall_segments(room_pose)
+        elif spec.room.contains(static[0], cut, spec.wall_clearance_m):
+            scene = static[1]
+        else:
             continue
-        walls = spec.room.wall_segments(room_pose)
-        ranges, hit = cast_scan_hits(np.concatenate([walls, cut[None]]), angles, spec.range_max_m)
-        board_beams = np.flatnonzero(hit == len(walls))
-        ranges = noisy_ranges(rng, ranges, spec.range_sigma_m, spec.dropout_fraction)
+        segments = np.concatenate([scene, cut[None]])
+        if spec.noise is None:
+            ranges, hit = cast_scan_hits(segments, angles, spec.range_max_m)
+            ranges = noisy_ranges(rng, ranges, spec.range_sigma_m, spec.dropout_fraction)
+        else:
+            ranges, hit = realistic_ranges(rng, segments, angles, spec.range_max_m, spec.noise)
+        board_beams = np.flatnonzero(hit == len(scene))
         scan = Scan.from_uniform(angle_min, step, ranges, spec.range_min_m, spec.range_max_m)
         order = np.argsort(np.arctan2(cut[:, 1], cut[:, 0]))
-        found = find_face_segment(
-            scan,
-            cut[order],
-            board_beams,
-            line_params=params,
-            tolerance_m=max(FACE_TOLERANCE_M, FACE_TOLERANCE_SIGMAS * spec.range_sigma_m),
-        )
-        if found is None:
+        if spec.noise is None:
+            found = find_face_segment(
+                scan,
+                cut[order],
+                board_beams,
+                line_params=params,
+                tolerance_m=max(FACE_TOLERANCE_M, FACE_TOLERANCE_SIGMAS * spec.range_sigma_m),
+            )
+            ids: tuple[int, ...] | None = None if found is None else (found[0],)
+        else:
+            ids = _segments_on(scan, cut, board_beams, params, spec.noise.range_sigma_m)
+        if ids is None:
             continue
         noisy = px + rng.normal(0.0, spec.corner_sigma_px, px.shape)
-        return BoardCapture(name, T_laser_board, np.round(noisy, 2), scan, found[0])
+        return BoardCapture(name, T_laser_board, np.round(noisy, 2), scan, ids, board_beams)
     raise InputError(f"cannot simulate {name}: no board placement was visible and crossed the scan plane")
 
 
-def _scan_plane_cut(T_laser_board: FloatArray, outline: FloatArray) -> FloatArray | None:
-    """(2, 2) the segment where the board's outline polygon crosses the laser's z = 0
-    plane, laser frame, or None."""
-    corners = transform_points(T_laser_board, outline)  # (4, 3)
-    pts = []
-    for k in range(4):
-        a, b = corners[k], corners[(k + 1) % 4]
-        if (a[2] > 0) != (b[2] > 0):
-            s = a[2] / (a[2] - b[2])
-            pts.append((a + s * (b - a))[:2])
-    if len(pts) != 2:
+# A segment is on the board when this share of its returns is (the rest: mixed pixels).
+_ON_BOARD_SHARE = 0.8
+# The segments on the board must hold this share of the board's returns.
+_BOARD_COVERED = 0.6
+
+
+def _segments_on(
+    scan: Scan, cut: FloatArray, board_beams: NDArray[np.int64], params: LineParams, sigma_m: float
+) -> tuple[int, ...] | None:
+    """The ids of the segments a user would list for the board (most of their returns
+    within 3 sigma of the true cut), if they hold most of the board's returns; else None."""
+    from rigcal.calib.lines import extract_lines
+    from rigcal.sim.box_session import _distance_to_segment
+
+    board = board_beams[scan.valid[board_beams]]
+    if len(board) < params.min_points:
         return None
-    return np.array(pts)
+    ids, covered = [], 0
+    for seg in extract_lines(scan, params):
+        on = _distance_to_segment(np.asarray(seg.points), cut) < max(FACE_TOLERANCE_M, 3.0 * sigma_m)
+        if on.mean() >= _ON_BOARD_SHARE:
+            ids.append(seg.id)
+            covered += int(np.isin(seg.indices, board).sum())
+    return tuple(ids) if ids and covered >= _BOARD_COVERED * len(board) else None
 
 
 def board_session_text(session: SimBoardSession, camera_file: str = "camera.yaml") -> str:
     """Text of the session's board session file (docs/formats/board-session.md)."""
     spec = session.spec
     b = spec.board
+    noise = spec.noise
+    size = f", size_m: [{spec.size_m[0]:g}, {spec.size_m[1]:g}]" if noise else ""
     lines = [
         "# rigcal board session (docs/formats/board-session.md)",
         f"# Synthetic (rigcal.sim.board_session), seed {spec.seed}: "
-        f"corner noise {spec.corner_sigma_px:g} px, range noise {spec.range_sigma_m:g} m.",
-        "schema_version: 1",
+        + (
+            f"corner noise {spec.corner_sigma_px:g} px, range noise {spec.range_sigma_m:g} m."
+            if noise is None
+            else "realistic scanner and cluttered room (the true noise is in truth.yaml)."
+        ),
+        f"schema_version: {2 if noise else 1}",
         "method: board",
         f"name: simulated board session, seed {spec.seed}",
         f"camera: {camera_file}",
         f"board: {{corners_x: {b.width_n}, corners_y: {b.height_n}, spacing_m: {b.spacing_m:g}, "
-        f"corner_sigma_px: {max(spec.corner_sigma_px, 0.01):g}}}",
+        f"corner_sigma_px: {max(spec.corner_sigma_px, 0.01):g}{size}}}",
         "laser:",
         "  name: simulated 2D scanner (Hokuyo UTM-30LX-like)",
         f"  angle_increment_deg: {spec.angle_increment_deg:g}",
-        f"  range_sigma_m: {spec.range_sigma_m:g}",
-        "captures:",
     ]
+    if noise is None:
+        lines.append(f"  range_sigma_m: {spec.range_sigma_m:g}")
+    lines.append("captures:")
     for c in session.captures:
         corners = ", ".join(f"[{u:.2f}, {v:.2f}]" for u, v in c.corners_px)
         lines += [
             f"  - name: {c.name}",
             f"    scan: scans/{c.name}.yaml",
-            f"    laser_side: {{segment: {c.segment_id}}}",
+            f"    laser_side: {{segment: {c.segment_id}}}"
+            if len(c.segment_ids) == 1
+            else f"    laser_side: {{segments: {list(c.segment_ids)}}}",
             f"    corners_px: [{corners}]",
         ]
     return "\n".join(lines) + "\n"
@@ -238,8 +336,11 @@ def write_board_session(session: SimBoardSession, folder: str | Path, force: boo
             "seed": spec.seed,
             "captures": len(session.captures),
             "corner_sigma_px": spec.corner_sigma_px,
-            "range_sigma_m": spec.range_sigma_m,
+            "range_sigma_m": spec.noise.range_sigma_m if spec.noise else spec.range_sigma_m,
         }
+        if spec.noise:
+            generator["noise"] = {"model": "realistic", **spec.noise.as_dict()}
+            generator["board_size_m"] = [float(x) for x in spec.size_m]
         (tmp / "truth.yaml").write_text(
             truth_to_text(np.array(session.T_cam_laser), generator), encoding="utf-8"
         )

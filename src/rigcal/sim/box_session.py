@@ -37,6 +37,7 @@ from rigcal.errors import InputError, OutputError
 from rigcal.geometry import inv_T, make_T, transform_points
 from rigcal.io.files import atomic_folder
 from rigcal.scan import Scan
+from rigcal.sim.noise import RealisticNoise, realistic_ranges, static_scene
 from rigcal.sim.raycast import beam_angles, cast_scan_hits, noisy_ranges
 from rigcal.sim.render import Room, Scene
 from rigcal.targets.box import FRONT_FACE_SEGMENT, BoxTarget
@@ -86,8 +87,14 @@ class SessionSpec:
         image_margin_px: every corner of the box projects at least this far inside the image.
         wall_clearance_m: the box stays at least this far from the room's walls.
         room: the room around the rig (a fresh room pose is drawn per capture, as if the
-            rig had moved).
+            rig had moved; with ``noise`` one room pose for the whole session).
         box: the box target.
+        noise: None for the clean model (Gaussian range noise, ``range_sigma_m``), or the
+            realistic scanner and room of :class:`rigcal.sim.noise.RealisticNoise`: its
+            range noise and dropouts replace ``range_sigma_m`` and ``dropout_fraction``,
+            the rig stands still in one room with static clutter (in the scans; the
+            rendered images show the room and the box), and the picking file does not
+            state the range noise.
     """
 
     n_captures: int = 20
@@ -106,6 +113,7 @@ class SessionSpec:
     wall_clearance_m: float = 0.5
     room: Room = field(default_factory=Room)
     box: BoxTarget = field(default_factory=BoxTarget)
+    noise: RealisticNoise | None = None
 
     def __post_init__(self) -> None:
         checks = [
@@ -122,6 +130,17 @@ class SessionSpec:
         for ok, message in checks:
             if not ok:
                 raise ValueError(f"SessionSpec: {message}")
+
+    @property
+    def true_range_sigma_m(self) -> float:
+        """The range noise the scans were made with (1 sigma, metres)."""
+        return self.noise.range_sigma_m if self.noise else self.range_sigma_m
+
+    @property
+    def line_params(self) -> LineParams:
+        """The line extraction a reader of the written picking file uses: scaled to the
+        stated range noise; the realistic session states none (defaults)."""
+        return LineParams() if self.noise else LineParams.for_range_noise(self.range_sigma_m)
 
     @property
     def n_beams(self) -> int:
@@ -276,6 +295,15 @@ def generate_session(
     bear_u = (rng.permutation(n) + rng.uniform(size=n)) / n
     wrong = set(rng.choice(n, size=spec.n_wrong_picks, replace=False).tolist())
     bearing_lo, bearing_hi = _bearing_limits(camera, T)
+    static = None
+    if spec.noise is not None:
+        far = spec.distance_m[1] + float(np.hypot(spec.box.width_m, spec.box.depth_m))
+        try:
+            static = static_scene(
+                rng, spec.room, spec.wall_clearance_m, (bearing_lo, bearing_hi), far, spec.noise.n_clutter
+            )
+        except ValueError as exc:
+            raise InputError(f"cannot simulate: {exc}") from None
     width = max(2, len(str(n - 1)))
     captures = []
     for i in range(n):
@@ -296,6 +324,7 @@ def generate_session(
                 (bearing_lo, bearing_hi),
                 i in wrong,
                 stamp_s=float(i),
+                static=static,
             )
         )
     return BoxSession(spec, camera, T, tuple(captures))
@@ -314,6 +343,7 @@ def _capture(
     bearing_limits: tuple[float, float],
     wrong: bool,
     stamp_s: float,
+    static: tuple[tuple[float, float, float], FloatArray] | None = None,
 ) -> SimCapture:
     """Draw placements until one gives a visible box whose face is a clean scan segment."""
     box = spec.box
@@ -331,14 +361,24 @@ def _capture(
             # Too wide a bearing for this distance: pull the box towards the image centre.
             u = 0.5 + 0.93 * (u - 0.5)
             continue
-        room_pose = _room_pose(spec, rng, box.footprint(*pose))
-        if room_pose is None:
+        if static is None:
+            room_pose = _room_pose(spec, rng, box.footprint(*pose))
+            if room_pose is None:
+                continue
+            walls = spec.room.wall_segments(room_pose)
+        elif spec.room.contains(static[0], box.footprint(*pose), spec.wall_clearance_m):
+            room_pose, walls = static
+        else:
             continue
-        walls = spec.room.wall_segments(room_pose)
         segments = np.concatenate([walls, box.footprint_segments(*pose)])
-        ranges, hit = cast_scan_hits(segments, angles, spec.range_max_m)
+        if spec.noise is None:
+            ranges, hit = cast_scan_hits(segments, angles, spec.range_max_m)
+            ranges = noisy_ranges(rng, ranges, spec.range_sigma_m, spec.dropout_fraction, RANGE_DECIMALS)
+        else:
+            ranges, hit = realistic_ranges(
+                rng, segments, angles, spec.range_max_m, spec.noise, RANGE_DECIMALS
+            )
         face_beams = np.flatnonzero(hit == len(walls) + FRONT_FACE_SEGMENT)
-        ranges = noisy_ranges(rng, ranges, spec.range_sigma_m, spec.dropout_fraction, RANGE_DECIMALS)
         scan = Scan.from_uniform(
             spec.angle_min_rad,
             float(np.radians(spec.angle_increment_deg)),
@@ -352,8 +392,8 @@ def _capture(
             scan,
             ends,
             face_beams,
-            line_params=LineParams.for_range_noise(spec.range_sigma_m),
-            tolerance_m=max(FACE_TOLERANCE_M, FACE_TOLERANCE_SIGMAS * spec.range_sigma_m),
+            line_params=spec.line_params,
+            tolerance_m=max(FACE_TOLERANCE_M, FACE_TOLERANCE_SIGMAS * spec.true_range_sigma_m),
         )
         if found is None:
             # At steep incidence the box's side shows next to its face and the two may not
@@ -483,24 +523,9 @@ def _box_in_image(spec: SessionSpec, camera: Camera, T: FloatArray, pose: tuple[
 def _room_pose(
     spec: SessionSpec, rng: np.random.Generator, footprint: FloatArray
 ) -> tuple[float, float, float] | None:
-    """A room pose (laser frame) that holds the laser and the box with clearance, or None.
-
-    As if the rig stood at a random place and heading in the room: the room's yaw is
-    uniform, and the laser's position in the room is uniform over where everything fits.
-    """
-    hx, hy = 0.5 * spec.room.size_m[0], 0.5 * spec.room.size_m[1]
-    c = spec.wall_clearance_m
-    for _ in range(20):
-        yaw = rng.uniform(-np.pi, np.pi)
-        Rt = _rot2(yaw).T
-        q = footprint @ Rt.T  # box corners relative to the laser, in room axes
-        lo = np.maximum(-np.array([hx, hy]) + c - q.min(axis=0), -np.array([hx, hy]) + c)
-        hi = np.minimum(np.array([hx, hy]) - c - q.max(axis=0), np.array([hx, hy]) - c)
-        if np.all(hi > lo):
-            p = lo + rng.uniform(size=2) * (hi - lo)  # laser position in the room frame
-            xy = -_rot2(yaw) @ p
-            return float(xy[0]), float(xy[1]), float(yaw)
-    return None
+    """A room pose (laser frame) that holds the laser and the box with clearance, or None
+    (:meth:`Room.pose_holding`: a random place and heading of the rig in the room)."""
+    return spec.room.pose_holding(rng, footprint, spec.wall_clearance_m)
 
 
 def _picks(
@@ -559,9 +584,7 @@ def session_observations(
     base = Path(folder).resolve() if folder is not None else None
     out = []
     for i, c in enumerate(session.captures):
-        segments = extract_lines(
-            c.scan, line_params or LineParams.for_range_noise(session.spec.range_sigma_m)
-        )
+        segments = extract_lines(c.scan, line_params or session.spec.line_params)
         if not 0 <= c.segment_id < len(segments):
             raise InputError.at(
                 None, f"captures[{i}].laser_side.segment", c.segment_id, f"a segment id below {len(segments)}"
@@ -647,7 +670,7 @@ def _png(session: BoxSession, capture: SimCapture, render: bool) -> bytes:
 def regenerate_command(spec: SessionSpec, images: bool = True) -> str | None:
     """The ``rigcal simulate calib-session`` command that makes this spec, or None when the
     spec uses settings the command does not expose."""
-    exposed = ("n_captures", "pick_sigma_px", "range_sigma_m", "wrong_pick_fraction", "seed")
+    exposed = ("n_captures", "pick_sigma_px", "range_sigma_m", "wrong_pick_fraction", "seed", "noise")
     default = SessionSpec()
     for name in SessionSpec.__dataclass_fields__:
         if name not in exposed and getattr(spec, name) != getattr(default, name):
@@ -661,6 +684,10 @@ def regenerate_command(spec: SessionSpec, images: bool = True) -> str | None:
         cmd += f" --range-sigma-m {spec.range_sigma_m:g}"
     if spec.wrong_pick_fraction != default.wrong_pick_fraction:
         cmd += f" --wrong-picks {spec.wrong_pick_fraction:g}"
+    if spec.noise is not None:
+        if spec.noise != RealisticNoise():
+            return None
+        cmd += " --noise realistic"
     if not images:
         cmd += " --no-images"
     return cmd
@@ -677,7 +704,11 @@ def picks_text(session: BoxSession, camera_file: str = "camera.yaml") -> str:
         f"{len(session.captures)} captures,",
         f"# box face at {spec.distance_m[0]:g}-{spec.distance_m[1]:g} m, "
         f"pick noise {spec.pick_sigma_px:g} px, "
-        f"range noise {spec.range_sigma_m:g} m, dropouts {spec.dropout_fraction:g},",
+        + (
+            f"range noise {spec.range_sigma_m:g} m, dropouts {spec.dropout_fraction:g},"
+            if spec.noise is None
+            else "realistic scanner and cluttered room (noise in truth.yaml),"
+        ),
         f"# {n_wrong} captures with deliberately wrong picks (named in truth.yaml).",
         "# The true T_cam_laser is in truth.yaml:",
         "#   rigcal solve picks.yaml -o rig.yaml --truth truth.yaml",
@@ -694,7 +725,10 @@ def picks_text(session: BoxSession, camera_file: str = "camera.yaml") -> str:
         f"  angle_increment_deg: {spec.angle_increment_deg:g}",
         f"  range_min_m: {spec.range_min_m:g}",
         f"  range_max_m: {spec.range_max_m:g}",
-        f"  range_sigma_m: {spec.range_sigma_m:g}",
+    ]
+    if spec.noise is None:
+        lines.append(f"  range_sigma_m: {spec.range_sigma_m:g}")
+    lines += [
         "captures:",
     ]
     for c in session.captures:
@@ -727,6 +761,10 @@ def truth_text(session: BoxSession) -> str:
         "distance_m": [float(x) for x in spec.distance_m],
         "box_m": {"width": spec.box.width_m, "depth": spec.box.depth_m, "height": spec.box.height_m},
     }
+    if spec.noise is not None:
+        generator["range_sigma_m"] = spec.noise.range_sigma_m
+        generator["dropout_fraction"] = spec.noise.dropout_fraction
+        generator["noise"] = {"model": "realistic", **spec.noise.as_dict()}
     return truth_to_text(np.array(session.T_cam_laser), generator=generator)
 
 
@@ -745,8 +783,13 @@ def describe_session(session: BoxSession) -> str:
     return (
         f"{len(session.captures)} captures of a {spec.box.width_m:g} m box: face at "
         f"{dist.min():.2f}-{dist.max():.2f} m, bearings {bearing.min():+.1f} to {bearing.max():+.1f} deg, "
-        f"incidence up to {inc.max():.0f} deg; pick noise {spec.pick_sigma_px:g} px, range noise "
-        f"{1000 * spec.range_sigma_m:g} mm, {100 * spec.dropout_fraction:g}% dropouts; "
+        f"incidence up to {inc.max():.0f} deg; pick noise {spec.pick_sigma_px:g} px, "
+        + (
+            f"range noise {1000 * spec.range_sigma_m:g} mm, {100 * spec.dropout_fraction:g}% dropouts; "
+            if spec.noise is None
+            else f"realistic range noise ({1000 * spec.noise.range_sigma_m:.1f} mm sd, heavy-tailed), "
+            f"mixed pixels, clutter; "
+        )
         + (f"wrong picks in {', '.join(wrong)}" if wrong else "no wrong picks")
         + f"; seed {spec.seed}."
     )
@@ -754,8 +797,3 @@ def describe_session(session: BoxSession) -> str:
 
 def _pose3(p: Sequence[float] | FloatArray) -> tuple[float, float, float]:
     return float(p[0]), float(p[1]), float(p[2])
-
-
-def _rot2(yaw: float) -> FloatArray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s], [s, c]])

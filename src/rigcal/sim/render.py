@@ -76,6 +76,28 @@ class Room:
         c = c @ R.T + np.array([x, y])
         return np.stack([c, np.roll(c, -1, axis=0)], axis=1)
 
+    def pose_holding(
+        self, rng: np.random.Generator, region: FloatArray, clearance_m: float, tries: int = 20
+    ) -> tuple[float, float, float] | None:
+        """A room pose (laser frame: x, y, yaw) that holds the laser and the laser-frame
+        points ``region`` (K, 2) at least ``clearance_m`` from the walls, or None.
+
+        As if the rig stood at a random place and heading in the room: the room's yaw is
+        uniform, and the laser's position in the room is uniform over where everything fits.
+        """
+        hx, hy = 0.5 * self.size_m[0], 0.5 * self.size_m[1]
+        half = np.array([hx, hy])
+        for _ in range(tries):
+            yaw = rng.uniform(-np.pi, np.pi)
+            q = region @ _rot2(yaw)  # the region relative to the laser, in room axes
+            lo = np.maximum(-half + clearance_m - q.min(axis=0), -half + clearance_m)
+            hi = np.minimum(half - clearance_m - q.max(axis=0), half - clearance_m)
+            if np.all(hi > lo):
+                p = lo + rng.uniform(size=2) * (hi - lo)  # laser position in the room frame
+                xy = -_rot2(yaw) @ p
+                return float(xy[0]), float(xy[1]), float(yaw)
+        return None
+
     def contains(self, room_pose: ArrayLike, points_xy: ArrayLike, margin_m: float = 0.0) -> bool:
         """Whether laser-frame points (N, 2) lie inside the room, at least margin_m from its walls."""
         x, y, yaw = np.asarray(room_pose, dtype=float)
