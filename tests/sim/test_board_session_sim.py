@@ -73,7 +73,7 @@ def test_board_segment_returns_lie_on_the_true_board_plane(sim):
 
 def test_board_segment_returns_lie_within_the_board(sim):
     b = sim.spec.board
-    w, h, m = (b.width_n - 1) * b.spacing_m, (b.height_n - 1) * b.spacing_m, sim.spec.margin_m
+    w, h, m = (b.width_n - 1) * b.spacing_m, (b.height_n - 1) * b.spacing_m, sim.spec.sheet_margin_m
     for c in sim.captures:
         xy = transform_points(np.linalg.inv(c.T_laser_board), segment_points(sim, c))[:, :2]
         # The board's outline is the corner grid plus its margin; 5 cm for range noise along

@@ -291,8 +291,9 @@ LOSS_SCALE = 3.0
 # A capture is an outlier when its chi-square (2 dof) exceeds the 99.99 % point times the
 # robust scale of all captures' chi-squares (median over the chi-square median, at least 1).
 OUTLIER_GATE_CHI2 = 18.420680743952367
-# Captures whose boards are this close in pose (normal, distance, laser cut) were taken at
-# one pose and share one verdict.
+# Captures whose boards are this close in pose (normal, distance, laser cut; or within 4
+# sigma of their poses' noise where that is larger) were taken at one pose and share one
+# verdict.
 SAME_POSE_NORMAL_DEG = 1.5
 SAME_POSE_DISTANCE_M = 0.015
 SAME_POSE_CUT_M = 0.03
@@ -491,20 +492,36 @@ def solve_plane(
 def same_pose_groups(
     observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine]
 ) -> NDArray[np.int64]:
-    """(C,) a group index per capture: captures whose boards have the same pose (normal
-    within SAME_POSE_NORMAL_DEG, distance within SAME_POSE_DISTANCE_M, cut ends within
-    SAME_POSE_CUT_M) share one, so that they get one verdict."""
+    """(C,) a group index per capture: captures whose boards have the same pose share one,
+    so that they get one verdict. Two boards have the same pose when their planes and
+    their cuts agree within their own noise or the fixed floors, whichever is larger:
+    normals within max(SAME_POSE_NORMAL_DEG, 4 sigma), distances within
+    max(SAME_POSE_DISTANCE_M, 4 sigma) (sigmas from the board poses' covariances) and cut
+    ends within SAME_POSE_CUT_M."""
     C = len(observations)
+    sig_angle = np.zeros(C)
+    sig_dist = np.zeros(C)
+    for i, o in enumerate(observations):
+        if o.board_pose_cov is not None:
+            n = np.asarray(o.normal_cam, dtype=float)
+            # A rotation w turns the normal by |w x n|; the distance n . origin moves only
+            # with the translation (a rotation about the camera keeps it).
+            P = np.eye(3) - np.outer(n, n)
+            sig_angle[i] = float(np.sqrt(np.linalg.eigvalsh(P @ o.board_pose_cov[:3, :3] @ P)[-1]))
+            sig_dist[i] = float(np.sqrt(n @ o.board_pose_cov[3:, 3:] @ n))
+        else:
+            sig_dist[i] = o.distance_sigma_m
     same = np.eye(C, dtype=bool)
-    cos_max = np.cos(np.radians(SAME_POSE_NORMAL_DEG))
     for i in range(C):
         for j in range(i + 1, C):
             a, b = observations[i], observations[j]
+            angle_max = max(np.radians(SAME_POSE_NORMAL_DEG), 4.0 * np.hypot(sig_angle[i], sig_angle[j]))
+            dist_max = max(SAME_POSE_DISTANCE_M, 4.0 * np.hypot(sig_dist[i], sig_dist[j]))
             ends_i, ends_j = lines[i].ends, lines[j].ends
             cut = min(np.abs(ends_i - ends_j).max(), np.abs(ends_i - ends_j[::-1]).max())
             same[i, j] = same[j, i] = (
-                float(np.dot(a.normal_cam, b.normal_cam)) >= cos_max
-                and abs(a.distance_m - b.distance_m) <= SAME_POSE_DISTANCE_M
+                float(np.dot(a.normal_cam, b.normal_cam)) >= np.cos(angle_max)
+                and abs(a.distance_m - b.distance_m) <= dist_max
                 and cut <= SAME_POSE_CUT_M
             )
     return connected_groups(same)

@@ -65,11 +65,14 @@ class BoardSpec:
         max_turn_deg, max_tilt_deg: the board is turned about the vertical and tilted about
             its horizontal axis by up to these.
         board: the checkerboard (inner corners, square size); margin_m: its border
-            beyond the inner corners (one square: the printed pattern's edge).
+            beyond the inner corners (None: one square, the printed pattern's edge).
         seed: seed of the generator.
         noise: None for the clean model, or the realistic scanner, room and board
             (:class:`rigcal.sim.noise.RealisticNoise`; its ``board_border_m`` is added to
             ``margin_m``).
+        repeats: captures taken at each board pose, each with fresh scan and corner noise
+            (a session has n_captures x repeats captures); a solve should give captures
+            at one pose one verdict.
     """
 
     n_captures: int = 12
@@ -80,7 +83,7 @@ class BoardSpec:
     max_turn_deg: float = 45.0
     max_tilt_deg: float = 35.0
     board: Board = field(default_factory=lambda: Board(8, 6, 0.06))
-    margin_m: float = 0.06
+    margin_m: float | None = None
     seed: int = 0
     fov_deg: float = 270.0
     angle_increment_deg: float = 0.25
@@ -89,11 +92,13 @@ class BoardSpec:
     wall_clearance_m: float = 0.5
     room: Room = field(default_factory=Room)
     noise: RealisticNoise | None = None
+    repeats: int = 1
 
     @property
     def sheet_margin_m(self) -> float:
         """The board sheet's border beyond its inner corners, metres."""
-        return self.margin_m + (self.noise.board_border_m if self.noise else 0.0)
+        margin = self.board.spacing_m if self.margin_m is None else self.margin_m
+        return margin + (self.noise.board_border_m if self.noise else 0.0)
 
     @property
     def size_m(self) -> tuple[float, float]:
@@ -144,16 +149,14 @@ def generate_board_session(
     camera = camera or default_camera()
     T = default_T_cam_laser() if T_cam_laser is None else np.asarray(T_cam_laser, dtype=float)
     rng = np.random.default_rng(spec.seed)
-    angle_min, step, angles = beam_angles(spec.fov_deg, spec.angle_increment_deg)
     static = _static_scene(spec, rng) if spec.noise else None
     # The ids a reader of the written session gets: the clean session states its range
     # noise, the realistic one does not (defaults).
     params = LineParams() if spec.noise else LineParams.for_range_noise(spec.range_sigma_m)
-    captures = []
+    captures: list[BoardCapture] = []
     for i in range(spec.n_captures):
-        captures.append(
-            _capture(spec, camera, T, rng, angles, angle_min, step, params, f"cap{i:02d}", static)
-        )
+        names = [f"cap{spec.repeats * i + j:02d}" for j in range(spec.repeats)]
+        captures += _capture(spec, camera, T, rng, params, names, static)
     scene = np.zeros((0, 2, 2)) if static is None else static[1]
     return SimBoardSession(spec, camera, T, tuple(captures), scene)
 
@@ -183,13 +186,11 @@ def _capture(
     camera: Camera,
     T: FloatArray,
     rng: np.random.Generator,
-    angles: FloatArray,
-    angle_min: float,
-    step: float,
     params: LineParams,
-    name: str,
+    names: list[str],
     static: tuple[tuple[float, float, float], FloatArray] | None,
-) -> BoardCapture:
+) -> list[BoardCapture]:
+    """One board pose and its captures (one per name), each with fresh noise."""
     b = spec.board
     P = board_points(b)
     w = (b.width_n - 1) * b.spacing_m
@@ -228,30 +229,54 @@ def _capture(
         else:
             continue
         segments = np.concatenate([scene, cut[None]])
-        if spec.noise is None:
-            ranges, hit = cast_scan_hits(segments, angles, spec.range_max_m)
-            ranges = noisy_ranges(rng, ranges, spec.range_sigma_m, spec.dropout_fraction)
-        else:
-            ranges, hit = realistic_ranges(rng, segments, angles, spec.range_max_m, spec.noise)
-        board_beams = np.flatnonzero(hit == len(scene))
-        scan = Scan.from_uniform(angle_min, step, ranges, spec.range_min_m, spec.range_max_m)
-        order = np.argsort(np.arctan2(cut[:, 1], cut[:, 0]))
-        if spec.noise is None:
-            found = find_face_segment(
-                scan,
-                cut[order],
-                board_beams,
-                line_params=params,
-                tolerance_m=max(FACE_TOLERANCE_M, FACE_TOLERANCE_SIGMAS * spec.range_sigma_m),
-            )
-            ids: tuple[int, ...] | None = None if found is None else (found[0],)
-        else:
-            ids = _segments_on(scan, cut, board_beams, params, spec.noise.range_sigma_m)
-        if ids is None:
-            continue
-        noisy = px + rng.normal(0.0, spec.corner_sigma_px, px.shape)
-        return BoardCapture(name, T_laser_board, np.round(noisy, 2), scan, ids, board_beams)
-    raise InputError(f"cannot simulate {name}: no board placement was visible and crossed the scan plane")
+        out = []
+        for name in names:
+            capture = _noisy_capture(spec, rng, segments, len(scene), cut, px, T_laser_board, params, name)
+            if capture is None:
+                break
+            out.append(capture)
+        if len(out) == len(names):
+            return out
+    raise InputError(f"cannot simulate {names[0]}: no board placement was visible and crossed the scan plane")
+
+
+def _noisy_capture(
+    spec: BoardSpec,
+    rng: np.random.Generator,
+    segments: FloatArray,
+    n_scene: int,
+    cut: FloatArray,
+    px: FloatArray,
+    T_laser_board: FloatArray,
+    params: LineParams,
+    name: str,
+) -> BoardCapture | None:
+    """A capture of a placed board: its scan and corners with noise, or None when the
+    board's returns do not make a segment a user could pick."""
+    angle_min, step, angles = beam_angles(spec.fov_deg, spec.angle_increment_deg)
+    if spec.noise is None:
+        ranges, hit = cast_scan_hits(segments, angles, spec.range_max_m)
+        ranges = noisy_ranges(rng, ranges, spec.range_sigma_m, spec.dropout_fraction)
+    else:
+        ranges, hit = realistic_ranges(rng, segments, angles, spec.range_max_m, spec.noise)
+    board_beams = np.flatnonzero(hit == n_scene)
+    scan = Scan.from_uniform(angle_min, step, ranges, spec.range_min_m, spec.range_max_m)
+    order = np.argsort(np.arctan2(cut[:, 1], cut[:, 0]))
+    if spec.noise is None:
+        found = find_face_segment(
+            scan,
+            cut[order],
+            board_beams,
+            line_params=params,
+            tolerance_m=max(FACE_TOLERANCE_M, FACE_TOLERANCE_SIGMAS * spec.range_sigma_m),
+        )
+        ids: tuple[int, ...] | None = None if found is None else (found[0],)
+    else:
+        ids = _segments_on(scan, cut, board_beams, params, spec.noise.range_sigma_m)
+    if ids is None:
+        return None
+    noisy = px + rng.normal(0.0, spec.corner_sigma_px, px.shape)
+    return BoardCapture(name, T_laser_board, np.round(noisy, 2), scan, ids, board_beams)
 
 
 # A segment is on the board when this share of its returns is (the rest: mixed pixels).
