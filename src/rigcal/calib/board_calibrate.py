@@ -54,6 +54,7 @@ def calibrate_board(
     command: str = "",
     seed: int = 0,
     noise: str = "auto",
+    range_bias: bool = True,
 ) -> BoardCalibration:
     """Read a board session, solve, build the report and the rig.
 
@@ -67,6 +68,8 @@ def calibrate_board(
         noise: "auto" estimates the range noise from the board returns' line fits and the
             corner noise from the corners' reprojection residuals, and uses the estimates
             (the assumed values are reported beside them); "assumed" uses the assumed ones.
+        range_bias: estimate the scanner's range bias by incidence with the pose
+            (:class:`rigcal.calib.plane.PlaneNoise`).
 
     Raises:
         InputError: a bad session or truth file.
@@ -95,6 +98,7 @@ def calibrate_board(
         range_sigma_m=assumed if noise == "assumed" else None,
         seed=seed,
         corner_sigma_px=corner_used,
+        fit_range_bias=range_bias,
     )
     estimated = result.range_noise.sigma_m if result.range_noise is not None else None
     noise_doc = noise_section(
@@ -110,14 +114,26 @@ def calibrate_board(
         camera=session.camera,
         covariance=result.covariance,
         laser=dict(session.laser),
-        residuals={k: s[k] for k in ("captures", "captures_used", "rms_mm", "max_mm", "residual_scale")},
+        residuals={
+            k: s[k]
+            for k in (
+                "captures",
+                "captures_used",
+                "rms_mm",
+                "max_mm",
+                "residual_scale",
+                "range_bias_mm",
+                "range_bias_sigma_mm",
+            )
+        },
         provenance=provenance(
             command,
             list(session.files),
             {
                 "method": "board planes (Zhang and Pless)",
                 "camera_source": str(session.camera_path.resolve()),
-                "noise": {"mode": noise} | {k: v["used"] for k, v in noise_doc.items()},
+                "noise": {"mode": noise, "fit_range_bias": range_bias}
+                | {k: v["used"] for k, v in noise_doc.items()},
                 "ransac": {"seed": seed},
             },
             base=Path(path).resolve().parent,
@@ -176,6 +192,10 @@ def board_report(
         "max_mm": round(1000.0 * float(np.abs(allr).max()), 3),
         "residual_scale": round(result.residual_scale, 4),
         "capture_sigma_mm": round(1000.0 * result.noise.capture_sigma_m, 3),
+        "range_bias_mm": round(1000.0 * result.noise.range_bias_m, 3),
+        "range_bias_sigma_mm": None
+        if result.range_bias_sigma_m is None
+        else round(1000.0 * result.range_bias_sigma_m, 3),
         "sigma_rotation_deg": [round(float(x), 5) for x in np.degrees(sig[:3])],
         "sigma_translation_mm": [round(float(x), 3) for x in 1000.0 * sig[3:]],
     }
@@ -222,6 +242,11 @@ def board_report_table(report: dict[str, Any]) -> str:
         lines.append(
             f"error against truth: rotation {t['rotation_error_deg']:.4f} deg, translation "
             f"{t['translation_error_mm']:.2f} mm (NEES {t['nees']:.2f}, expected about 6)"
+        )
+    if s.get("range_bias_sigma_mm") is not None:
+        lines.append(
+            f"range bias by incidence (reads long by b (1/cos(i) - 1)): b = {s['range_bias_mm']:.1f} "
+            f"+- {s['range_bias_sigma_mm']:.1f} mm"
         )
     lines += noise_lines(report.get("noise", {}))
     if "uncertainty" in report:

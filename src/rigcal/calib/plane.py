@@ -47,6 +47,7 @@ from scipy.optimize import least_squares
 
 from rigcal.calib.noise import (
     CLIP_CHI2,
+    MIN_COS_INCIDENCE,
     LineFit,
     RangeNoise,
     connected_groups,
@@ -310,11 +311,19 @@ class PlaneNoise:
             the point-to-plane distance of each end of the cut. Estimated from the data.
         pose_cov_scale: factor on every board pose covariance (a corner noise other than
             the one the poses were computed with, squared).
+        fit_range_bias: estimate ``range_bias_m`` with the pose.
+        range_bias_m: the scanner's range bias by incidence: a return at incidence i
+            (between its beam and the board's normal) reads long by
+            range_bias_m * (1 / cos(i) - 1) (the footprint smears along a slanted board);
+            estimated with the pose when ``fit_range_bias``, its uncertainty then entering
+            the pose's covariance.
     """
 
     range_sigma_m: float
     capture_sigma_m: float = 0.0
     pose_cov_scale: float = 1.0
+    fit_range_bias: bool = False
+    range_bias_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -332,11 +341,20 @@ class CaptureLine:
         ends: (2, 2) the cut's two ends on the line, laser frame.
         offset_cov: (2, 2) covariance of the line's offset across itself at the ends, per
             unit range variance (times range_sigma_m^2 gives metres^2).
+        bias_shift: (2,) how far a unit range bias by incidence (every return reading
+            long by 1 / cos(i) - 1 metres) moves the fitted line across itself at the ends,
+            along its normal.
     """
 
     fit: LineFit
     ends: FloatArray
     offset_cov: FloatArray
+    bias_shift: FloatArray
+
+    def ends_corrected(self, range_bias_m: float) -> FloatArray:
+        """(2, 2) the ends with a range bias by incidence taken out."""
+        out: FloatArray = self.ends - range_bias_m * self.bias_shift[:, None] * self.fit.normal
+        return out
 
 
 def capture_line(points_laser: FloatArray) -> CaptureLine:
@@ -345,7 +363,16 @@ def capture_line(points_laser: FloatArray) -> CaptureLine:
     k = fit.kept
     sigma_across = float(np.sqrt(np.mean(fit.cos_incidence[k] ** 2)))
     at = fit.along_m[k][[0, -1]]
-    return CaptureLine(fit, fit.ends, line_offset_covariance(fit.along_m[k], sigma_across, at))
+    # A bias b_j along each return's ray u_j moves it across the line by b_j (u_j . n); the
+    # least-squares line through those moves is the line's own.
+    p = np.asarray(points_laser, dtype=float)[k]
+    u = p / np.linalg.norm(p, axis=1, keepdims=True)
+    across = u @ fit.normal
+    g = 1.0 / np.maximum(np.abs(across), MIN_COS_INCIDENCE) - 1.0
+    slope, offset = np.polyfit(fit.along_m[k], g * across, 1) if k.sum() >= 2 else (0.0, 0.0)
+    return CaptureLine(
+        fit, fit.ends, line_offset_covariance(fit.along_m[k], sigma_across, at), offset + slope * at
+    )
 
 
 @dataclass(frozen=True)
@@ -369,6 +396,8 @@ class PlaneResult:
         pose_group: (C,) index of each capture's same-pose group.
         spread: leave-one-capture-out spread (None with too few captures).
         sensitivity: moves of the answer when a noise setting is halved or doubled.
+        range_bias_sigma_m: 1-sigma of the fitted range bias by incidence
+            (``noise.range_bias_m``), None when it was not fitted.
     """
 
     T_cam_laser: FloatArray
@@ -385,6 +414,7 @@ class PlaneResult:
     pose_group: NDArray[np.int64]
     spread: Spread | None
     sensitivity: tuple[Sensitivity, ...]
+    range_bias_sigma_m: float | None
 
 
 def solve_plane(
@@ -394,8 +424,9 @@ def solve_plane(
     seed: int = 0,
     corner_sigma_px: float | None = None,
     uncertainty_checks: bool = True,
+    fit_range_bias: bool = False,
 ) -> PlaneResult:
-    """Calibrate T_cam_laser from board planes and laser returns (steps 1-3).
+    """Calibrate T_cam_laser from board planes and laser returns (steps 1-4).
 
     Args:
         observations: one per capture.
@@ -406,6 +437,8 @@ def solve_plane(
         corner_sigma_px: the corner noise the board pose covariances were computed with,
             for the sensitivity to it (None: no such check).
         uncertainty_checks: run the leave-one-capture-out spread and the sensitivity.
+        fit_range_bias: estimate the scanner's range bias by incidence with the pose
+            (:class:`PlaneNoise`), its uncertainty entering the pose's covariance.
 
     Raises:
         CalibrationError: too few captures, planes too alike, or no consensus.
@@ -422,7 +455,7 @@ def solve_plane(
                 "no capture has 3 or more returns on its board to estimate the range noise"
             )
         range_sigma_m = estimated.sigma_m
-    noise = PlaneNoise(max(range_sigma_m, 1e-4))
+    noise = PlaneNoise(max(range_sigma_m, 1e-4), fit_range_bias=fit_range_bias)
     reduced = [replace(o, points_laser=ln.ends) for o, ln in zip(observations, lines, strict=True)]
     # Start from the closed form on every capture and, when asked, from RANSAC's best
     # sample; keep the robust fit that explains most captures (then the lowest cost). A
@@ -442,7 +475,9 @@ def solve_plane(
             f"{MIN_CAPTURES} (check the segment ids and corners of the others)"
         )
     used = np.flatnonzero(mask)
-    cov_model, r_used, weights_used, blocks = _covariance(T, observations, lines, noise, used)
+    cov_full, r_used, weights_used, blocks = _covariance(T, observations, lines, noise, used)
+    cov_model = cov_full[:6, :6]
+    bias_sigma = float(np.sqrt(cov_full[6, 6])) if noise.fit_range_bias else None
     chi2 = _chi2(T, observations, lines, noise)
     weights = np.zeros(len(observations))
     weights[used] = weights_used
@@ -453,10 +488,10 @@ def solve_plane(
         names = [observations[int(i)].name for i in used]
 
         def without(k: int) -> FloatArray:
-            return _fit(T, observations, lines, noise, np.delete(used, k))
+            return _fit(T, observations, lines, noise, np.delete(used, k))[0]
 
-        scale2 = float(cov_model[0, 0] / np.linalg.inv(sum(b.T @ b for b in blocks))[0, 0])
-        spread = leave_one_out(without, T, names, cov_model, scale2 * expected_jackknife(blocks))
+        scale2 = float(cov_full[0, 0] / np.linalg.inv(sum(b.T @ b for b in blocks))[0, 0])
+        spread = leave_one_out(without, T, names, cov_model, scale2 * expected_jackknife(blocks)[:6, :6])
         cov = honest_covariance(cov_model, spread)
         settings = {"range_sigma_m": noise.range_sigma_m}
         if corner_sigma_px is not None and observations[0].board_pose_cov is not None:
@@ -464,10 +499,10 @@ def solve_plane(
 
         def changed(name: str, value: float) -> FloatArray:
             if name == "range_sigma_m":
-                return _fit(T, observations, lines, replace(noise, range_sigma_m=value), used)
+                return _fit(T, observations, lines, replace(noise, range_sigma_m=value), used)[0]
             assert corner_sigma_px is not None
             scale = noise.pose_cov_scale * (value / corner_sigma_px) ** 2
-            return _fit(T, observations, lines, replace(noise, pose_cov_scale=scale), used)
+            return _fit(T, observations, lines, replace(noise, pose_cov_scale=scale), used)[0]
 
         sens = sensitivity(changed, settings, T, cov)
     dof = len(r_used) - 6
@@ -486,6 +521,7 @@ def solve_plane(
         groups,
         spread,
         tuple(sens),
+        bias_sigma,
     )
 
 
@@ -541,7 +577,10 @@ def _robust_fit(
     mask = np.ones(C, dtype=bool)
     T = T0
     for _ in range(3):
-        T = _fit(T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None)
+        T, bias = _fit(
+            T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None
+        )
+        noise = replace(noise, range_bias_m=bias)
         noise = replace(noise, capture_sigma_m=_capture_sigma(T, observations, lines, noise, mask))
         new = grouped_verdicts(_chi2(T, observations, lines, noise), groups, mask, OUTLIER_GATE_CHI2)
         if np.array_equal(new, mask):
@@ -549,9 +588,15 @@ def _robust_fit(
         mask = new
     # The pose and the per-capture error on the settled verdicts.
     for _ in range(2):
-        T = _fit(T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None)
+        T, bias = _fit(
+            T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None
+        )
+        noise = replace(noise, range_bias_m=bias)
         noise = replace(noise, capture_sigma_m=_capture_sigma(T, observations, lines, noise, mask))
-    T = _fit(T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None)
+    T, bias = _fit(
+        T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None
+    )
+    noise = replace(noise, range_bias_m=bias)
     chi2 = _chi2(T, observations, lines, noise)
     z = np.sqrt(chi2[mask])
     cost = float(np.sum(LOSS_SCALE**2 * np.log1p((z / LOSS_SCALE) ** 2)))
@@ -588,10 +633,10 @@ def _whiteners(
     ]
 
 
-def _end_residuals(T: FloatArray, o: PlaneObservation, line: CaptureLine) -> FloatArray:
-    out: FloatArray = (line.ends @ T[:3, :2].T + T[:3, 3]) @ np.asarray(
-        o.normal_cam, dtype=float
-    ) - o.distance_m
+def _end_residuals(T: FloatArray, o: PlaneObservation, line: CaptureLine, range_bias_m: float) -> FloatArray:
+    """(2,) the point-to-plane distances of a capture's cut ends, range bias taken out."""
+    n = np.asarray(o.normal_cam, dtype=float)
+    out: FloatArray = (line.ends_corrected(range_bias_m) @ T[:3, :2].T + T[:3, 3]) @ n - o.distance_m
     return out
 
 
@@ -602,7 +647,7 @@ def _chi2(
     W = _whiteners(T, observations, lines, noise)
     return np.array(
         [
-            float(np.sum((w @ _end_residuals(T, o, ln)) ** 2))
+            float(np.sum((w @ _end_residuals(T, o, ln, noise.range_bias_m)) ** 2))
             for w, o, ln in zip(W, observations, lines, strict=True)
         ]
     )
@@ -641,9 +686,10 @@ def _fit(
     lines: Sequence[CaptureLine],
     noise: PlaneNoise,
     used: NDArray[np.int64] | None,
-) -> FloatArray:
-    """Levenberg-Marquardt-style robust fit (scipy trust region, Cauchy loss) of the
-    whitened cut-end distances of the captures ``used`` (all when None) from T0 (step 3)."""
+) -> tuple[FloatArray, float]:
+    """Robust fit (scipy trust region, Cauchy loss) of the whitened cut-end distances of the
+    captures ``used`` (all when None) from T0 (step 4); with ``noise.fit_range_bias`` the
+    range bias by incidence is fitted too. Returns (pose, range bias)."""
     idx = np.arange(len(observations)) if used is None else used
     obs = [observations[i] for i in idx]
     lns = [lines[i] for i in idx]
@@ -651,15 +697,18 @@ def _fit(
     R0 = T0[:3, :3]
 
     def pose(x: FloatArray) -> FloatArray:
-        return make_T(rotvec_to_R(x[:3]) @ R0, x[3:])
+        return make_T(rotvec_to_R(x[:3]) @ R0, x[3:6])
 
     def residuals(x: FloatArray) -> FloatArray:
         T = pose(x)
-        return np.concatenate([w @ _end_residuals(T, o, ln) for w, o, ln in zip(W, obs, lns, strict=True)])
+        bias = float(x[6]) if noise.fit_range_bias else noise.range_bias_m
+        return np.concatenate(
+            [w @ _end_residuals(T, o, ln, bias) for w, o, ln in zip(W, obs, lns, strict=True)]
+        )
 
-    x0 = np.concatenate([np.zeros(3), T0[:3, 3]])
+    x0 = np.concatenate([np.zeros(3), T0[:3, 3], [noise.range_bias_m] if noise.fit_range_bias else []])
     sol = least_squares(residuals, x0, method="trf", loss=LOSS, f_scale=LOSS_SCALE, x_scale="jac")
-    return pose(sol.x)
+    return pose(sol.x), float(sol.x[6]) if noise.fit_range_bias else noise.range_bias_m
 
 
 def _covariance(
@@ -679,10 +728,14 @@ def _covariance(
     rs, Js = [], []
     for w, o, ln in zip(W, obs, lns, strict=True):
         n = np.asarray(o.normal_cam, dtype=float)
-        rp = np.column_stack([ln.ends, np.zeros(2)]) @ T[:3, :3].T
-        rs.append(w @ _end_residuals(T, o, ln))
+        rp = np.column_stack([ln.ends_corrected(noise.range_bias_m), np.zeros(2)]) @ T[:3, :3].T
+        rs.append(w @ _end_residuals(T, o, ln, noise.range_bias_m))
         # d(n . (Exp(w) R p))/dw = n . (w x Rp) = w . (Rp x n)
-        Js.append(w @ np.column_stack([np.cross(rp, n), np.broadcast_to(n, rp.shape)]))
+        cols = [np.cross(rp, n), np.broadcast_to(n, rp.shape)]
+        if noise.fit_range_bias:
+            # d/db of n . (R (e - b s n_line)) = -s (R n_line) . n
+            cols.append((-ln.bias_shift * float(T[:3, :2] @ ln.fit.normal @ n))[:, None])
+        Js.append(w @ np.column_stack(cols))
     r, J = np.concatenate(rs), np.concatenate(Js)
     wts = loss_weights(r, LOSS, LOSS_SCALE)
     blocks = [b * np.sqrt(w)[:, None] for b, w in zip(Js, wts.reshape(-1, 2), strict=True)]
@@ -692,8 +745,9 @@ def _covariance(
         raise CalibrationError(
             "the calibration is unobservable from these board poses (singular normal equations)"
         )
-    dof = len(r) - 6
+    dof = len(r) - J.shape[1]
     scale2 = max(1.0, float(np.sum(wts * r**2)) / dof) if dof > 0 else 1.0
+    # The pose's covariance with the range bias (when fitted) marginalised out.
     cov = scale2 * np.linalg.inv(info)
     return 0.5 * (cov + cov.T), r, wts.reshape(-1, 2).mean(axis=1), blocks
 

@@ -54,6 +54,13 @@ import click
     "and the session file's values.",
 )
 @click.option(
+    "--range-bias/--no-range-bias",
+    default=True,
+    show_default=True,
+    help="Board method: estimate the scanner's range bias by incidence (slanted boards read "
+    "long) with the pose; its uncertainty enters the covariance.",
+)
+@click.option(
     "--loss",
     default="cauchy",
     show_default=True,
@@ -77,6 +84,7 @@ def solve(
     pick_sigma_px: float,
     range_sigma_m: float,
     noise_mode: str,
+    range_bias: bool,
     loss: str,
     paper_endpoints: bool,
     force: bool,
@@ -121,7 +129,17 @@ def solve(
 
     if is_board_session(load_yaml(picks, "picking file")):
         _solve_board(
-            picks, output, report_dir, truth, seed, range_sigma_m, noise_mode, command, force, as_json
+            picks,
+            output,
+            report_dir,
+            truth,
+            seed,
+            range_sigma_m,
+            noise_mode,
+            range_bias,
+            command,
+            force,
+            as_json,
         )
         return
     cal = calibrate(picks, settings, truth, command=command)
@@ -147,6 +165,7 @@ def _solve_board(
     seed: int,
     range_sigma_m: float,
     noise_mode: str,
+    range_bias: bool,
     command: str,
     force: bool,
     as_json: bool,
@@ -161,7 +180,9 @@ def _solve_board(
     # The session's laser.range_sigma_m applies unless --range-sigma-m was given.
     source = click.get_current_context().get_parameter_source("range_sigma_m")
     sigma = range_sigma_m if source is not None and source.name != "DEFAULT" else None
-    cal = calibrate_board(session, sigma, truth, command=command, seed=seed, noise=noise_mode)
+    cal = calibrate_board(
+        session, sigma, truth, command=command, seed=seed, noise=noise_mode, range_bias=range_bias
+    )
     if report_dir is not None:
         with atomic_folder(report_dir, force) as tmp:
             (tmp / "report.yaml").write_text(
