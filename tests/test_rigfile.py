@@ -453,3 +453,75 @@ def test_hand_written_rig_file_rewrites_to_the_same_values(tmp_path):
     np.testing.assert_array_equal(again.covariance, rig.covariance)
     assert load(tmp_path / "again.yaml")["T_cam_laser"] == load(path)["T_cam_laser"]
     assert again.provenance == rig.provenance
+
+
+# --- schema 2: the covariance's checks ------------------------------------------------------------
+def checks() -> dict[str, Any]:
+    return {
+        "noise": {"range_sigma_m": {"assumed": 0.01, "estimated": 0.0142, "used": 0.0142}},
+        "model_covariance": covariance().tolist(),
+        "spread": {
+            "method": "leave-one-capture-out (jackknife)",
+            "scale": 1.3,
+            "covariance": covariance().tolist(),
+        },
+        "sensitivity": [{"setting": "range_sigma_m", "factor": 2.0, "sigmas": 0.4}],
+    }
+
+
+def test_schema_2_round_trips_the_uncertainty_checks(tmp_path, rig):
+    from dataclasses import replace
+
+    path = write_rig(tmp_path / "r2.yaml", replace(rig, uncertainty=checks()))
+    back = read_rig(path)
+    assert load(path)["schema_version"] == 2
+    assert back.uncertainty["noise"] == checks()["noise"]
+    assert back.uncertainty["spread"]["scale"] == 1.3
+    np.testing.assert_allclose(back.uncertainty["model_covariance"], covariance(), rtol=1e-6)
+    assert back.uncertainty["sensitivity"][0]["setting"] == "range_sigma_m"
+
+
+def test_schema_1_files_are_read_without_the_checks(rig_path):
+    doc = load(rig_path)
+    doc["schema_version"] = 1
+    rig = read_rig(save(rig_path, doc))
+    assert rig.uncertainty == {}
+    assert rig.covariance is not None
+
+
+def test_schema_1_files_may_not_carry_schema_2_keys(rig_path):
+    doc = load(rig_path)
+    doc["schema_version"] = 1
+    doc["uncertainty"]["spread"] = checks()["spread"]
+    expect_error(save(rig_path, doc), "uncertainty.spread")
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "where"),
+    [
+        ("noise", [1, 2], "uncertainty.noise"),
+        (
+            "noise",
+            {"range_sigma_m": {"assumed": 0.01, "used": 0.01}},
+            "uncertainty.noise.range_sigma_m.estimated",
+        ),
+        (
+            "noise",
+            {"range_sigma_m": {"assumed": -1, "estimated": None, "used": 0.01}},
+            "uncertainty.noise.range_sigma_m.assumed",
+        ),
+        (
+            "noise",
+            {"range_sigma_m": {"assumed": 0.01, "estimated": ".nan", "used": 0.01}},
+            "uncertainty.noise.range_sigma_m.estimated",
+        ),
+        ("model_covariance", [[1.0, 2.0]], "uncertainty.model_covariance"),
+        ("spread", {"scale": 1.0}, "uncertainty.spread"),
+        ("spread", {"scale": True, "covariance": covariance().tolist()}, "uncertainty.spread.scale"),
+        ("sensitivity", {"a": 1}, "uncertainty.sensitivity"),
+    ],
+)
+def test_bad_uncertainty_checks_are_named(rig_path, key, value, where):
+    doc = load(rig_path)
+    doc["uncertainty"][key] = value
+    expect_error(save(rig_path, doc), where)
