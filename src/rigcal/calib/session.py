@@ -7,7 +7,7 @@ Data flow: picking file -> :func:`rigcal.calib.picks.read_picks` -> :class:`Cali
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -38,8 +38,13 @@ def calibrate(
     settings: SolveSettings | None = None,
     truth_path: str | Path | None = None,
     command: str = "",
+    range_sigma_m: float | None = None,
 ) -> Calibration:
     """Read a picking file, solve, and build the report and the rig.
+
+    The laser's range noise is ``range_sigma_m`` when given, else the picking file's
+    ``laser.range_sigma_m`` when it has one, else ``settings.noise.range_sigma_m`` (the
+    board method's rule, :func:`rigcal.calib.board_calibrate.calibrate_board`).
 
     Raises:
         InputError: bad picking file or any file it names, or a bad truth file.
@@ -48,6 +53,10 @@ def calibrate(
     settings = settings or SolveSettings()
     T_truth = read_truth(truth_path) if truth_path is not None else None
     session = read_picks(picks_path)
+    if range_sigma_m is None and "range_sigma_m" in session.laser:
+        range_sigma_m = float(session.laser["range_sigma_m"])  # validated by read_picks
+    if range_sigma_m is not None:
+        settings = replace(settings, noise=replace(settings.noise, range_sigma_m=max(range_sigma_m, 1e-5)))
     result = solve(CalibProblem(session.camera, session.observations, settings))
     report = build_report(result, T_truth)
     s = report["summary"]

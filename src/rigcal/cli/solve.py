@@ -38,10 +38,8 @@ import click
 )
 @click.option(
     "--range-sigma-m",
-    default=0.01,
-    show_default=True,
     type=click.FloatRange(min=1e-5),
-    help="Range noise (1 sigma).",
+    help="Range noise (1 sigma) [default: the picking file's laser.range_sigma_m, else 0.01].",
 )
 @click.option(
     "--loss",
@@ -65,7 +63,7 @@ def solve(
     seed: int,
     threshold_px: float,
     pick_sigma_px: float,
-    range_sigma_m: float,
+    range_sigma_m: float | None,
     loss: str,
     paper_endpoints: bool,
     force: bool,
@@ -101,7 +99,7 @@ def solve(
     settings = SolveSettings(
         ransac=RansacParams(threshold_px=threshold_px, seed=seed),
         refine=RefineParams(use_side_points=not paper_endpoints, loss=loss),
-        noise=NoiseModel(pick_sigma_px=pick_sigma_px, range_sigma_m=range_sigma_m),
+        noise=NoiseModel(pick_sigma_px=pick_sigma_px),
     )
     command = "rigcal " + shlex.join(sys.argv[1:]) if sys.argv else "rigcal solve"
     from rigcal.calib.board_session import is_board_session
@@ -110,13 +108,15 @@ def solve(
     if is_board_session(load_yaml(picks, "picking file")):
         _solve_board(picks, output, report_dir, truth, seed, range_sigma_m, command, force, as_json)
         return
-    cal = calibrate(picks, settings, truth, command=command)
+    # One rule for both methods: --range-sigma-m, else the file's laser.range_sigma_m.
+    cal = calibrate(picks, settings, truth, command=command, range_sigma_m=range_sigma_m)
     if report_dir is not None:
         write_report_dir(report_dir, cal, force=force)
     write_rig(output, cal.rig, force=force)
     if as_json:
         doc = {k: cal.report[k] for k in ("summary", "rejected", "warnings")}
         doc["rig_file"] = str(output)
+        doc["rig"] = cal.rig.to_json()
         if "truth" in cal.report:
             doc["truth"] = cal.report["truth"]
         click.echo(json.dumps(doc, indent=1))
@@ -131,7 +131,7 @@ def _solve_board(
     report_dir: Path | None,
     truth: Path | None,
     seed: int,
-    range_sigma_m: float,
+    range_sigma_m: float | None,
     command: str,
     force: bool,
     as_json: bool,
@@ -143,10 +143,7 @@ def _solve_board(
     from rigcal.io.files import atomic_folder
     from rigcal.rigfile import write_rig
 
-    # The session's laser.range_sigma_m applies unless --range-sigma-m was given.
-    source = click.get_current_context().get_parameter_source("range_sigma_m")
-    sigma = range_sigma_m if source is not None and source.name != "DEFAULT" else None
-    cal = calibrate_board(session, sigma, truth, command=command, seed=seed)
+    cal = calibrate_board(session, range_sigma_m, truth, command=command, seed=seed)
     if report_dir is not None:
         with atomic_folder(report_dir, force) as tmp:
             (tmp / "report.yaml").write_text(
@@ -159,6 +156,7 @@ def _solve_board(
     if as_json:
         doc = dict(cal.report)
         doc["rig_file"] = str(output)
+        doc["rig"] = cal.rig.to_json()
         click.echo(json.dumps(doc, indent=1))
     else:
         click.echo(board_report_table(cal.report), nl=False)
