@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -179,3 +180,9 @@ def test_cli(tmp_path, capsys):
     assert main([*argv, "--force", "--camera-info-topic", "/cam/info"]) == 0
     assert main([*argv[:-2], "-o", str(tmp_path / "t"), "--scan-topic", "/nope"]) == 3
     assert "Examples" in (main(["import-bag", "--help"]) == 0 and capsys.readouterr().out)
+    assert main(["-q", *argv[:-2], "-o", str(tmp_path / "j"), "--json"]) == 0
+    out, err = capsys.readouterr()
+    doc = json.loads(out)
+    assert (doc["scans"], doc["images"], doc["camera_yaml"]) == (2, 1, False)
+    assert doc["output"] == str(tmp_path / "j")
+    assert err == ""  # -q: no progress lines

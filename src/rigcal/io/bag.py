@@ -43,9 +43,10 @@ def import_bag(
     image_topic: str,
     camera_info_topic: str | None = None,
     force: bool = False,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> ImportSummary:
-    """Write a sequence folder from a bag.
+    """Write a sequence folder from a bag. ``progress`` is called with (messages read,
+    messages on the wanted topics).
 
     Raises:
         InputError: unreadable bag, a missing topic (the bag's topics are listed), a topic
@@ -81,6 +82,7 @@ def import_bag(
         images: list[tuple[float, bytes, str]] = []
         info: Any = None
         conns = [c for c in reader.connections if c.topic in {t for t, _ in wanted.values()}]
+        total = sum(int(c.msgcount) for c in conns)
         for k, (con, _, raw) in enumerate(reader.messages(connections=conns)):
             msg: Any = reader.deserialize(raw, con.msgtype)
             stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
@@ -92,7 +94,7 @@ def import_bag(
             elif info is None:
                 info = msg
             if progress is not None:
-                progress(k)
+                progress(k + 1, total)
     finally:
         reader.close()
     summary = ImportSummary()

@@ -325,8 +325,13 @@ def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool)
     doc = summary(r, sequence)
     with atomic_folder(output, force) as tmp:
         for m in r.methods:
+            # The estimate is anchored at the truth's first pose, so it runs at the truth's
+            # height (the laser's, e.g. 0.4 m above the floor); 0 without truth.
+            z = 0.0
+            if r.truth is not None and r.truth.stamps_s is not None:
+                z = float(np.interp(m.stamps_s[0], r.truth.stamps_s, r.truth.poses[:, 2, 3]))
             traj = Trajectory(
-                np.array([make_T(rotvec_to_R([0.0, 0.0, p[2]]), [p[0], p[1], 0.0]) for p in m.poses]),
+                np.array([make_T(rotvec_to_R([0.0, 0.0, p[2]]), [p[0], p[1], z]) for p in m.poses]),
                 m.stamps_s,
             )
             (tmp / m.method).mkdir()
