@@ -7,6 +7,7 @@ Data flow: picking file -> :func:`rigcal.calib.picks.read_picks` -> :class:`Cali
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from rigcal.calib.picks import PickSession, read_picks
+from rigcal.calib.picks import BoxObservation, PickSession, read_picks
 from rigcal.calib.report import build_report, report_table
 from rigcal.calib.solve import CalibProblem, CalibResult, SolveSettings, solve
 from rigcal.calib.truth import read_truth
@@ -59,33 +60,39 @@ def calibrate(
         settings = replace(settings, noise=replace(settings.noise, range_sigma_m=max(range_sigma_m, 1e-5)))
     result = solve(CalibProblem(session.camera, session.observations, settings))
     report = build_report(result, T_truth)
+    prov = provenance(
+        command,
+        session.input_files(),
+        {
+            "method": "box-target (Algorithm 1)",
+            "camera_source": str(session.camera_path.resolve()),
+            **settings.to_dict(),
+        },
+        base=Path(picks_path).resolve().parent,
+    )
+    laser = {**session.laser, **scanner_description(session.observations)}
+    rig = box_rig(result, report, laser, prov)
+    return Calibration(session, result, report, rig)
+
+
+def box_rig(result: CalibResult, report: dict[str, Any], laser: dict[str, Any], prov: dict[str, Any]) -> Rig:
+    """The rig of a box-target solve: its pose, covariance and residual summary."""
     s = report["summary"]
-    laser = {**session.laser, **_scanner_description(session)}
-    rig = Rig(
+    return Rig(
         T_cam_laser=result.T_cam_laser,
-        camera=session.camera,
+        camera=result.problem.camera,
         covariance=result.covariance,
         laser=laser,
         residuals={
             k: s[k] for k in ("captures", "captures_used", "box_ends", "inlier_ends", "rms_px", "median_px")
         }
         | {"max_px": s["max_px"], "residual_scale": s["residual_scale"]},
-        provenance=provenance(
-            command,
-            session.input_files(),
-            {
-                "method": "box-target (Algorithm 1)",
-                "camera_source": str(session.camera_path.resolve()),
-                **settings.to_dict(),
-            },
-            base=Path(picks_path).resolve().parent,
-        ),
+        provenance=prov,
     )
-    return Calibration(session, result, report, rig)
 
 
-def _scanner_description(session: PickSession) -> dict[str, Any]:
-    steps = [o.beam_step_rad for o in session.observations if o.beam_step_rad > 0]
+def scanner_description(observations: Sequence[BoxObservation]) -> dict[str, Any]:
+    steps = [o.beam_step_rad for o in observations if o.beam_step_rad > 0]
     return {"angle_increment_deg": round(float(np.degrees(np.median(steps))), 6)} if steps else {}
 
 
