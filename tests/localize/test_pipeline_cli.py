@@ -45,6 +45,7 @@ def test_localize_writes_trajectory_summary_and_table(sequence, tmp_path, capsys
     assert (out / "icp" / "trajectory.kitti").read_text().count("\n") == len(traj)
     assert summary["config"]["methods"] == ["icp"]
     assert (out / "paths.png").stat().st_size > 1000
+    assert (out / "errors.svg").read_bytes()[:5] == b"<?xml"
     m = summary["methods"]["icp"]["metrics"]
     # A clean simulated office: point-to-line ICP closes the 35 m loop within a metre.
     assert m["loop_closure_error_m"] < 1.0
@@ -114,6 +115,7 @@ def test_all_methods_on_one_sequence(drive, tmp_path, capsys):
     assert {"read_s", "icp_s", "tracks_s", "vo_s", "hiasm_matching_s"} <= set(s["stage_timings_s"])
     assert s["wall_s"] > 0
     assert (out / "paths.png").stat().st_size > 1000
+    assert (out / "errors.svg").read_bytes()[:5] == b"<?xml"
 
 
 def test_matches_picture(drive, tmp_path, capsys):

@@ -56,7 +56,8 @@ def localize(
 
     Writes METHOD/trajectory.tum (and .kitti) per method, summary.yaml/json with the
     configuration, per-stage timings and, when the sequence has ground truth, the paper's
-    Table 1 figures, and paths.png (estimated paths against the truth, as Fig. 8).
+    Table 1 figures, paths.png/.svg (estimated paths against the truth, as Fig. 8)
+    and errors.png/.svg (each method's position error over time).
 
     \b
     Examples:

@@ -233,8 +233,8 @@ def run(
 ) -> Run:
     """Localize a sequence with each method and write the output folder:
     ``METHOD/trajectory.tum`` (and ``.kitti``) per method, ``summary.yaml``/``.json`` and,
-    with ground truth, ``paths.png``. ``iasm``: IASM's and H-IASM's settings (the
-    defaults unless given).
+    with ground truth, ``paths.png``/``.svg`` and ``errors.png``/``.svg`` (charts).
+    ``iasm``: IASM's and H-IASM's settings (the defaults unless given).
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -320,7 +320,8 @@ def settings(iasm: IasmParams | None = None) -> dict[str, Any]:
 
 
 def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool) -> None:
-    from rigcal.viz.paths_plot import draw_paths
+    from rigcal.viz.charts import figure_bytes
+    from rigcal.viz.paths_plot import errors_figure, paths_figure
 
     doc = summary(r, sequence)
     with atomic_folder(output, force) as tmp:
@@ -343,13 +344,13 @@ def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool)
         (tmp / "summary.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
         (tmp / "summary.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
         if r.truth is not None:
-            import cv2
-
             gt = planar_at(r.truth, r.truth.stamps_s)  # type: ignore[arg-type]
-            img = draw_paths(gt, {m.method: m.poses for m in r.methods})
-            ok, buf = cv2.imencode(".png", img)
-            if ok:
-                (tmp / "paths.png").write_bytes(buf.tobytes())
+            poses = {m.method: m.poses for m in r.methods}
+            truth_at = {m.method: planar_at(r.truth, m.stamps_s) for m in r.methods}
+            stamps = {m.method: m.stamps_s for m in r.methods}
+            for fmt in (".png", ".svg"):
+                (tmp / f"paths{fmt}").write_bytes(figure_bytes(paths_figure(gt, poses), fmt))
+                (tmp / f"errors{fmt}").write_bytes(figure_bytes(errors_figure(truth_at, poses, stamps), fmt))
 
 
 def _ground_truth(folder: Path, name: str | None) -> Trajectory | None:
