@@ -53,6 +53,8 @@ def test_solve_writes_rig_and_report(session_dir, tmp_path, capsys):
         "report.json",
         "report.txt",
         "overlay_cap00.png",
+        "residuals.png",
+        "residuals.svg",
     }
     assert yaml.safe_load((rep / "report.yaml").read_text().split("\n", 1)[1])["summary"]["captures"] == 8
 

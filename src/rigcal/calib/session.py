@@ -102,13 +102,16 @@ def check_report_dir(folder: str | Path, force: bool) -> Path:
 
 
 def write_report_dir(folder: str | Path, cal: Calibration, force: bool = False) -> Path:
-    """Write report.yaml, report.json, report.txt and one overlay PNG per capture.
+    """Write report.yaml, report.json, report.txt, the residual summary chart
+    (residuals.png/.svg) and one overlay PNG per capture.
 
     Everything goes into a temporary sibling folder first, then replaces ``folder`` in one
     rename, so a failure leaves no half-written report.
     """
     from rigcal.scan import read_scan
+    from rigcal.viz.charts import figure_bytes
     from rigcal.viz.overlay import draw_overlay, read_image, write_png
+    from rigcal.viz.residual_plot import residuals_figure
 
     with atomic_folder(check_report_dir(folder, force), force) as tmp:
         (tmp / "report.yaml").write_text(
@@ -119,6 +122,16 @@ def write_report_dir(folder: str | Path, cal: Calibration, force: bool = False) 
         (tmp / "report.txt").write_text(report_table(cal.report))
         res = cal.result
         T = res.T_cam_laser
+        pts = res.measurements.points_laser
+        projected_all = cal.session.camera.project(
+            np.column_stack([pts, np.zeros(len(pts))]) @ T[:3, :3].T + T[:3, 3]
+        )
+        cam = cal.session.camera
+        fig = residuals_figure(
+            cal.report, res.measurements.pixels, projected_all, res.inliers, (cam.width_px, cam.height_px)
+        )
+        for fmt in (".png", ".svg"):
+            (tmp / f"residuals{fmt}").write_bytes(figure_bytes(fig, fmt))
         for obs in cal.session.observations:
             m = res.measurements.capture == obs.capture
             ends3 = np.column_stack([res.measurements.points_laser[m], np.zeros(int(m.sum()))])
