@@ -186,3 +186,8 @@ def test_cli(tmp_path, capsys):
     assert (doc["scans"], doc["images"], doc["camera_yaml"]) == (2, 1, False)
     assert doc["output"] == str(tmp_path / "j")
     assert err == ""  # -q: no progress lines
+    assert main(["-v", *argv[:-2], "-o", str(tmp_path / "v")]) == 0
+    err = capsys.readouterr().err
+    assert "INFO: rigcal.io.bag: " in err
+    assert "2 scans, 1 images read from 3 messages" in err
+    assert "reading: 3/3 in " in err  # stderr is not a terminal: one line when a stage ends

@@ -22,12 +22,22 @@ def configure(verbose: int, quiet: bool) -> None:
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
     log = logging.getLogger("rigcal")
     log.setLevel(level)
-    if not any(getattr(h, "_rigcal", False) for h in log.handlers):
-        handler = logging.StreamHandler(sys.stderr)
+    if not any(isinstance(h, _StderrHandler) for h in log.handlers):
+        handler = _StderrHandler()
         handler.setFormatter(logging.Formatter("%(levelname)s: %(name)s: %(message)s"))
-        handler._rigcal = True  # type: ignore[attr-defined]
         log.addHandler(handler)
         log.propagate = False
+
+
+class _StderrHandler(logging.Handler):
+    """Log lines to whatever ``sys.stderr`` is when they are written (not when the
+    handler was made), so a redirected or replaced stderr gets them."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            sys.stderr.write(self.format(record) + "\n")
+        except Exception:  # pragma: no cover - logging's own policy for a failed write
+            self.handleError(record)
 
 
 def quiet() -> bool:

@@ -9,6 +9,7 @@ nothing is silently changed.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +20,8 @@ import numpy as np
 from rigcal.errors import InputError
 from rigcal.io.sequence import ImageFrame, write_sequence
 from rigcal.scan import Scan
+
+log = logging.getLogger(__name__)
 
 SCAN_TYPES = ("sensor_msgs/msg/LaserScan",)
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -97,6 +100,7 @@ def import_bag(
                 progress(k + 1, total)
     finally:
         reader.close()
+    log.info("%s: %d scans, %d images read from %d messages", bag, len(scans), len(images), total)
     summary = ImportSummary()
     for what, items, topic in (("scans", scans, scan_topic), ("images", images, image_topic)):
         if not items:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -36,6 +37,8 @@ from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import DEGENERATE_BELOW, Odometry, icp_odometry
 from rigcal.localize.streams import Streams, open_streams
 from rigcal.localize.vo import VoResult, visual_odometry
+
+log = logging.getLogger(__name__)
 
 FloatArray = NDArray[np.float64]
 
@@ -264,6 +267,7 @@ def run(
                 poses = anchored(est.poses, gt)  # the estimate in the world frame
                 metrics = evaluate(poses, gt)
             results.append(MethodRun(name, est.stamps_s, poses, metrics, est.stats, seconds, est.steps_csv))
+            log.info("%s: %d poses in %.1f s", name, len(est.stamps_s), seconds)
     finally:
         streams.stop_background()
     stamps = streams.scan_stamps_s
