@@ -64,3 +64,18 @@ def test_overlay_has_a_legend_naming_what_is_drawn():
 
     assert rows(full) > rows(plain) + 50
     assert np.all(full[40:44, 5:8] < 120)
+
+
+def test_board_chart_bars_and_every_returns_distance(tmp_path):
+    from rigcal.calib.board_calibrate import calibrate_board
+    from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
+    from rigcal.viz.residual_plot import board_residuals_figure
+
+    write_board_session(generate_board_session(BoardSpec(n_captures=6, seed=1)), tmp_path / "b")
+    c = calibrate_board(tmp_path / "b" / "board_session.yaml")
+    bars, spread = board_residuals_figure(c.report, c.result.residuals_m).axes
+    assert [p.get_height() for p in bars.patches] == pytest.approx(
+        [r["rms_mm"] for r in c.report["per_capture"]]
+    )
+    ys = np.concatenate([line.get_ydata() for line in spread.get_lines() if line.get_marker() == "."])
+    np.testing.assert_allclose(np.sort(ys), np.sort(1000 * np.concatenate(c.result.residuals_m)))

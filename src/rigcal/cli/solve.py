@@ -142,6 +142,8 @@ def _solve_board(
     from rigcal.calib.board_calibrate import board_report_table, calibrate_board
     from rigcal.io.files import atomic_folder
     from rigcal.rigfile import write_rig
+    from rigcal.viz.charts import figure_bytes
+    from rigcal.viz.residual_plot import board_residuals_figure
 
     cal = calibrate_board(session, range_sigma_m, truth, command=command, seed=seed)
     if report_dir is not None:
@@ -152,6 +154,9 @@ def _solve_board(
             )
             (tmp / "report.json").write_text(json.dumps(cal.report, indent=1) + "\n")
             (tmp / "report.txt").write_text(board_report_table(cal.report))
+            fig = board_residuals_figure(cal.report, cal.result.residuals_m)
+            for fmt in (".png", ".svg"):
+                (tmp / f"residuals{fmt}").write_bytes(figure_bytes(fig, fmt))
     write_rig(output, cal.rig, force=force)
     if as_json:
         doc = dict(cal.report)
