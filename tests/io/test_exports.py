@@ -618,11 +618,15 @@ def test_cli_json_states_the_transform_written(fmt, rig_file, tmp_path, capsys):
     assert doc["parent_frame"] == ("laser" if fmt == "urdf" else "camera_optical_frame")
 
 
-def test_cli_json_needs_output(rig_file, capsys):
-    code, out, err = run(capsys, "export", str(rig_file), "--format", "ros", "--json")
-    assert code == 3
-    assert "--json" in err
-    assert out == ""
+def test_cli_json_without_output_carries_the_text(rig_file, capsys):
+    code, out, _ = run(capsys, "export", str(rig_file), "--format", "ros", "--camera-link", "--json")
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["output"] is None
+    assert (doc["parent_frame"], doc["child_frame"]) == ("laser", "camera_link")
+    T, parent, child = T_from_ros_args(ros1_args(doc["text"]))
+    assert (parent, child) == ("laser", "camera_link")
+    np.testing.assert_allclose(np.array(doc["T_parent_child"]), T, atol=ATOL)
 
 
 def test_cli_kalibr_error_names_the_rig_file(tmp_path, capsys):

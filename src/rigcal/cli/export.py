@@ -50,7 +50,7 @@ import click
     "--json",
     "as_json",
     is_flag=True,
-    help="Print the transform written (and the output file) as JSON on stdout; needs -o.",
+    help="Print the transform written, the output file (or, without -o, the export's text) as JSON.",
 )
 def export(
     rig: Path,
@@ -79,22 +79,17 @@ def export(
       rigcal export rig.yaml --format kalibr --rostopic /cam0/image_raw -o camchain.yaml
       rigcal export rig.yaml --format mrcal -o camera.cameramodel --force
     """
-    from rigcal.errors import InputError
     from rigcal.io.exports import Frames, export_rig, transform_between
     from rigcal.io.files import atomic_write_text, check_writable
     from rigcal.rigfile import read_rig
 
-    if as_json and output is None:
-        raise InputError.at(None, "--json", True, "-o FILE too (the export itself goes to the file)")
     if output is not None:
         check_writable(output, force)
     frames = Frames(parent, camera_link, parent_frame, child_frame)
     the_rig = read_rig(rig)
     text = export_rig(the_rig, fmt, frames, rostopic, source=rig)
-    if output is None:
-        click.echo(text, nl=False)
-        return
-    atomic_write_text(output, text, force=force)
+    if output is not None:
+        atomic_write_text(output, text, force=force)
     if as_json:
         if fmt in ("ros", "urdf", "xacro"):
             T, _, _ = transform_between(the_rig, parent, camera_link)
@@ -102,12 +97,16 @@ def export(
         else:  # kalibr and mrcal hold T_cam_laser
             T, pf, cf = the_rig.T_cam_laser, "camera_optical_frame", "laser"
         doc = {
-            "output": str(output),
+            "output": None if output is None else str(output),
             "format": fmt,
             "parent_frame": pf,
             "child_frame": cf,
             "T_parent_child": [[float(x) for x in row] for row in T],
         }
+        if output is None:
+            doc["text"] = text
         click.echo(json.dumps(doc, indent=1))
+    elif output is None:
+        click.echo(text, nl=False)
     else:
         click.echo(f"wrote {output}", err=True)
