@@ -5,8 +5,9 @@ generate a whole drive against the drive's own duration.
    default camera (textures generated once beforehand, not timed): frames per second, and
    the same with the sensor effects and the PNG encoding of ``rigcal simulate world``.
 2. ``write_drive``: one lap of the corridor loop at a 10 Hz camera and a 40 Hz laser, written
-   to a temporary folder: generation time (textures, scans, images, files) as a ratio to the
-   lap's duration (real time = 1).
+   to a temporary folder: the lap's duration over the generation time (textures, scans,
+   images, files): seconds of data per second of work, as every "x real time" in rigcal
+   (above 1: faster than real time).
 
     .venv/bin/python benchmarks/bench_simulate.py
 """
@@ -58,7 +59,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         figures = write_drive(world, DriveSpec(seed=1), str(Path(tmp) / "seq"))
         size_mb = sum(p.stat().st_size for p in (Path(tmp) / "seq").rglob("*") if p.is_file()) / 1e6
-    ratio = figures["generation_s"] / figures["duration_s"]
+    ratio = figures["duration_s"] / figures["generation_s"]
     print()
     print("| drive | duration (s) | scans | images | generation (s) | x real time | folder (MB) |")
     print("|---|---|---|---|---|---|---|")

@@ -56,3 +56,23 @@ class Rig:
             return None
         d = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
         return np.degrees(d[:3]), 1000.0 * d[3:]
+
+    def to_json(self) -> dict[str, Any]:
+        """The calibration for ``--json`` output and scripts: T_cam_laser as a 4x4 matrix
+        and as rotation vector (rad) plus translation (m), and its covariance (or None)
+        with the parameters' order and the 1-sigma values."""
+        from rigcal.geometry import rt_from_T
+
+        rt = rt_from_T(self.T_cam_laser)
+        sig = self.sigmas()
+        return {
+            "T_cam_laser": [[float(x) for x in row] for row in self.T_cam_laser],
+            "rotation_vector_rad": [float(x) for x in rt[:3]],
+            "translation_m": [float(x) for x in rt[3:]],
+            "covariance": None
+            if self.covariance is None
+            else [[float(x) for x in r] for r in self.covariance],
+            "covariance_parameters": COVARIANCE_PARAMETERS,
+            "sigma_rotation_deg": None if sig is None else [float(x) for x in sig[0]],
+            "sigma_translation_mm": None if sig is None else [float(x) for x in sig[1]],
+        }

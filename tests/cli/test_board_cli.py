@@ -75,7 +75,13 @@ def test_solve_board_session_writes_rig_and_report(session_dir, tmp_path, capsys
     assert r.covariance is not None
     assert r.covariance.shape == (6, 6)
     assert "board" in r.provenance["method"]
-    assert {p.name for p in rep.iterdir()} == {"report.yaml", "report.json", "report.txt"}
+    assert {p.name for p in rep.iterdir()} == {
+        "report.yaml",
+        "report.json",
+        "report.txt",
+        "residuals.png",
+        "residuals.svg",
+    }
     assert (rep / "report.txt").read_text() == out
     doc = json.loads((rep / "report.json").read_text())
     assert doc["summary"]["captures"] == 8

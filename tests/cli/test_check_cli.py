@@ -22,7 +22,7 @@ from rigcal.sim.box_session import (
     moved_T_cam_laser,
     write_session,
 )
-from rigcal.viz.drift_plot import DRIFT_BGR, OK_BGR
+from rigcal.viz.charts import DRIFTED, OK
 
 
 def simulated(folder: Path, n_captures: int, seed: int, rotation_deg: float = 0.0) -> Path:
@@ -163,7 +163,7 @@ def test_plot_writes_a_png_of_the_history(rig, data, tmp_path, capsys):
     assert f"drew {png}" in err
     img = cv2.imread(str(png))
     assert img is not None
-    assert img.shape == (700, 900, 3)
+    assert img.shape == (750, 900, 3)
 
 
 def test_plot_refuses_an_existing_file_without_force(rig, data, tmp_path, capsys):
@@ -179,12 +179,14 @@ def test_plot_refuses_an_existing_file_without_force(rig, data, tmp_path, capsys
     assert not log.exists()
     code, _, _ = run(capsys, "check", rig, "--picks", data["same"], "--plot", png, "--force")
     assert code == 0
-    assert cv2.imread(str(png)).shape == (700, 900, 3)
+    assert cv2.imread(str(png)).shape == (750, 900, 3)
     assert len(read_log(log)) == 1
 
 
-def count_colour(png: Path, bgr: tuple[int, int, int]) -> int:
+def count_colour(png: Path, colour: str) -> int:
+    """Pixels of exactly this "#rrggbb" colour (the inside of the check's markers)."""
     img = cv2.imread(str(png))
+    bgr = [int(colour[i : i + 2], 16) for i in (5, 3, 1)]
     return int((img == np.array(bgr, dtype=np.uint8)).all(axis=2).sum())
 
 
@@ -192,8 +194,8 @@ def test_plot_shows_ok_and_drifted_checks(rig, data, tmp_path, capsys):
     png = tmp_path / "drift.png"
     assert run(capsys, "check", rig, "--picks", data["same"])[0] == 0
     assert run(capsys, "check", rig, "--picks", data["turned"], "--plot", png)[0] == 1
-    assert count_colour(png, OK_BGR) > 0
-    assert count_colour(png, DRIFT_BGR) > 0
+    assert count_colour(png, OK) > 0
+    assert count_colour(png, DRIFTED) > 0
 
 
 def test_plot_without_logging_shows_the_history_and_this_check(rig, data, tmp_path, capsys):
@@ -203,8 +205,8 @@ def test_plot_without_logging_shows_the_history_and_this_check(rig, data, tmp_pa
     png = tmp_path / "drift.png"
     assert run(capsys, "check", rig, "--picks", data["turned"], "--no-log", "--plot", png)[0] == 1
     assert log.read_text() == before
-    assert count_colour(png, OK_BGR) > 0  # the logged check
-    assert count_colour(png, DRIFT_BGR) > 0  # this one
+    assert count_colour(png, OK) > 0  # the logged check
+    assert count_colour(png, DRIFTED) > 0  # this one
 
 
 @pytest.mark.parametrize("which", ["rig", "picks"])

@@ -104,3 +104,27 @@ def test_noise_realistic(tmp_path, command, session_file, extra):
     assert yaml.safe_load((out / "truth.yaml").read_text())["generator"]["noise"]["model"] == "realistic"
     bad = CliRunner().invoke(cli, ["simulate", command, "-o", str(tmp_path / "t"), "--noise", "rough"])
     assert bad.exit_code == 2
+
+
+@pytest.mark.parametrize(
+    ("command", "entry"),
+    [
+        (["calib-session", "--captures", "3", "--no-images"], "picks.yaml"),
+        (["board-session", "--captures", "3"], "board_session.yaml"),
+        (["world", "--world", "cubicle-loop", "--no-images", "--duration-s", "2"], "sequence.yaml"),
+    ],
+)
+def test_json_names_what_was_written_and_the_true_transform(command, entry, tmp_path, capsys):
+    import json
+
+    import numpy as np
+
+    out = tmp_path / "s"
+    assert main(["simulate", *command, "-o", str(out), "--seed", "3", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["entry"] == str(out / entry)
+    assert (out / entry).is_file()
+    T = np.array(doc["T_cam_laser_true"])
+    np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
+    if command[0] == "world":
+        assert doc["x_real_time"] == pytest.approx(doc["duration_s"] / doc["wall_s"], rel=1e-9)

@@ -6,6 +6,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -52,6 +53,8 @@ def test_solve_writes_rig_and_report(session_dir, tmp_path, capsys):
         "report.json",
         "report.txt",
         "overlay_cap00.png",
+        "residuals.png",
+        "residuals.svg",
     }
     assert yaml.safe_load((rep / "report.yaml").read_text().split("\n", 1)[1])["summary"]["captures"] == 8
 
@@ -64,6 +67,26 @@ def test_solve_json(session_dir, tmp_path, capsys):
     doc = json.loads(out)
     assert doc["summary"]["box_ends"] == 16
     assert doc["rig_file"].endswith("r.yaml")
+    r = read_rig(tmp_path / "r.yaml")
+    np.testing.assert_allclose(np.array(doc["rig"]["T_cam_laser"]), r.T_cam_laser, atol=1e-9)
+    assert r.covariance is not None
+    np.testing.assert_allclose(np.array(doc["rig"]["covariance"]), r.covariance, rtol=1e-5)
+    assert len(doc["rig"]["sigma_translation_mm"]) == 3
+
+
+@pytest.mark.parametrize(("given", "expected"), [(None, 0.004), ("0.02", 0.02)])
+def test_solve_range_noise_is_the_picking_files_unless_given(given, expected, session_dir, tmp_path, capsys):
+    # The box method takes laser.range_sigma_m from the picking file, as the board method does.
+    picks = yaml.safe_load((session_dir / "picks.yaml").read_text())
+    picks["laser"]["range_sigma_m"] = 0.004
+    picks["camera"] = str(session_dir / picks["camera"])
+    for c in picks["captures"]:
+        c["scan"], c["image"] = str(session_dir / c["scan"]), str(session_dir / c["image"])
+    (tmp_path / "picks.yaml").write_text(yaml.safe_dump(picks))
+    extra = ["--range-sigma-m", given] if given else []
+    code, _, _ = run(capsys, "solve", str(tmp_path / "picks.yaml"), "-o", str(tmp_path / "r.yaml"), *extra)
+    assert code == 0
+    assert read_rig(tmp_path / "r.yaml").provenance["noise"]["range_sigma_m"] == expected
 
 
 def test_solve_refuses_to_overwrite(session_dir, tmp_path, capsys):

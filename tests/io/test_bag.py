@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -179,6 +180,18 @@ def test_cli(tmp_path, capsys):
     assert main([*argv, "--force", "--camera-info-topic", "/cam/info"]) == 0
     assert main([*argv[:-2], "-o", str(tmp_path / "t"), "--scan-topic", "/nope"]) == 3
     assert "Examples" in (main(["import-bag", "--help"]) == 0 and capsys.readouterr().out)
+
+    assert main(["-q", *argv[:-2], "-o", str(tmp_path / "j"), "--json"]) == 0
+    out, err = capsys.readouterr()
+    doc = json.loads(out)
+    assert (doc["scans"], doc["images"], doc["camera_yaml"]) == (2, 1, False)
+    assert doc["output"] == str(tmp_path / "j")
+    assert err == ""  # -q: no progress lines
+    assert main(["-v", *argv[:-2], "-o", str(tmp_path / "v")]) == 0
+    err = capsys.readouterr().err
+    assert "INFO: rigcal.io.bag: " in err
+    assert "2 scans, 1 images read from 3 messages" in err
+    assert "reading: 3/3 in " in err  # stderr is not a terminal: one line when a stage ends
 
 
 def test_a_negative_angle_increment_gives_the_same_points_in_increasing_order():

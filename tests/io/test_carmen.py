@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -125,6 +127,10 @@ def test_import_carmen_writes_a_sequence_with_ground_truth(tmp_path):
     res = CliRunner().invoke(cli, ["import-carmen", str(p), "-o", str(out)])
     assert res.exit_code == 0, res.output
     assert "2 scans" in res.output
+    res = CliRunner().invoke(cli, ["import-carmen", str(p), "-o", str(tmp_path / "j"), "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    assert (doc["scans"], doc["duration_s"], doc["output"]) == (2, 1.0, str(tmp_path / "j"))
     seq = read_sequence(out)
     assert len(seq.scans) == 2
     np.testing.assert_allclose(seq.scans[1].ranges_m, ranges)

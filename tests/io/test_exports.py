@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import logging
 import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -10,6 +12,8 @@ import mrcal
 import numpy as np
 import pytest
 import yaml
+import yourdfpy
+from kalibr_reader import KalibrCameraChain
 from scipy.spatial.transform import Rotation
 
 from rigcal.camera import Camera
@@ -17,13 +21,16 @@ from rigcal.cli.main import main
 from rigcal.errors import InputError
 from rigcal.geometry import inv_T, make_T, random_rotation, rt_from_T, transform_points
 from rigcal.io.exports import (
+    R_LINK_OPTICAL,
+    Frames,
     T_from_ros_args,
     T_from_urdf_origin,
     export_rig,
     kalibr_yaml,
     mrcal_cameramodel_text,
     ros_static_transform,
-    urdf_joint,
+    urdf_robot,
+    urdf_xacro,
 )
 from rigcal.rig import Rig
 from rigcal.rigfile import read_rig, write_rig
@@ -75,7 +82,10 @@ def T_from_ros2(opts: dict[str, str]) -> np.ndarray:
 
 
 def urdf_origin(text: str) -> tuple[np.ndarray, str, str]:
-    joint = ET.fromstring(text)
+    robot = ET.fromstring(text)
+    assert robot.tag == "robot"
+    joint = robot.find("joint")
+    assert joint is not None
     assert joint.tag == "joint"
     assert joint.get("type") == "fixed"
     origin = joint.find("origin")
@@ -94,7 +104,7 @@ def urdf_origin(text: str) -> tuple[np.ndarray, str, str]:
 @pytest.mark.parametrize("seed", SEEDS)
 def test_ros1_args_parent_laser_give_T_laser_cam(seed):
     rig = random_rig(seed)
-    T, parent, child = T_from_ros_args(ros1_args(ros_static_transform(rig, "laser")))
+    T, parent, child = T_from_ros_args(ros1_args(ros_static_transform(rig, Frames("laser"))))
     assert (parent, child) == ("laser", "camera_optical_frame")
     np.testing.assert_allclose(T, inv_T(rig.T_cam_laser), atol=ATOL)
 
@@ -102,14 +112,14 @@ def test_ros1_args_parent_laser_give_T_laser_cam(seed):
 @pytest.mark.parametrize("seed", SEEDS)
 def test_ros1_args_parent_camera_give_T_cam_laser(seed):
     rig = random_rig(seed)
-    T, parent, child = T_from_ros_args(ros1_args(ros_static_transform(rig, "camera")))
+    T, parent, child = T_from_ros_args(ros1_args(ros_static_transform(rig, Frames("camera"))))
     assert (parent, child) == ("camera_optical_frame", "laser")
     np.testing.assert_allclose(T, rig.T_cam_laser, atol=ATOL)
 
 
 @pytest.mark.parametrize("parent", ["laser", "camera"])
 def test_ros1_launch_line_has_the_command_args(parent):
-    text = ros_static_transform(random_rig(7), parent)
+    text = ros_static_transform(random_rig(7), Frames(parent))
     node = ET.fromstring(line_starting(text, '<node pkg="tf2_ros" type='))
     assert node.get("type") == "static_transform_publisher"
     assert node.get("args", "").split() == ros1_args(text)
@@ -119,7 +129,7 @@ def test_ros1_launch_line_has_the_command_args(parent):
 @pytest.mark.parametrize("parent", ["laser", "camera"])
 def test_ros2_line_carries_the_same_numbers(seed, parent):
     rig = random_rig(seed)
-    text = ros_static_transform(rig, parent)
+    text = ros_static_transform(rig, Frames(parent))
     T1, p1, c1 = T_from_ros_args(ros1_args(text))
     opts = ros2_options(line_starting(text, "ros2 run tf2_ros static_transform_publisher ").split()[4:])
     assert set(opts) == {
@@ -140,7 +150,7 @@ def test_ros2_line_carries_the_same_numbers(seed, parent):
 
 
 def test_ros2_launch_line_has_the_command_args():
-    text = ros_static_transform(random_rig(8), "laser")
+    text = ros_static_transform(random_rig(8), Frames("laser"))
     node = ET.fromstring(line_starting(text, '<node pkg="tf2_ros" exec='))
     command = line_starting(text, "ros2 run tf2_ros static_transform_publisher ")
     assert node.get("args", "").split() == command.split()[4:]
@@ -155,7 +165,7 @@ def test_ros_quaternion_is_unit_with_nonnegative_w(seed):
 
 def test_ros_level_camera_is_the_standard_optical_frame_transform():
     # ROS's usual camera_link -> camera_optical_frame rotation is q = (-0.5, 0.5, -0.5, 0.5).
-    args = ros1_args(ros_static_transform(level_rig(), "laser"))
+    args = ros1_args(ros_static_transform(level_rig(), Frames("laser")))
     assert [float(a) for a in args[:7]] == pytest.approx([0, 0, 0.1, -0.5, 0.5, -0.5, 0.5], abs=1e-9)
 
 
@@ -167,7 +177,7 @@ def test_laser_origin_in_camera_frame_is_T_cam_laser_translation(seed):
     rig = random_rig(seed)
     origin_in_cam = transform_points(rig.T_cam_laser, [[0.0, 0.0, 0.0]])[0]
     np.testing.assert_allclose(origin_in_cam, rig.T_cam_laser[:3, 3], atol=1e-15)
-    xyz = [float(a) for a in ros1_args(ros_static_transform(rig, "camera"))[:3]]
+    xyz = [float(a) for a in ros1_args(ros_static_transform(rig, Frames("camera")))[:3]]
     np.testing.assert_allclose(xyz, origin_in_cam, atol=ATOL)
 
 
@@ -176,14 +186,14 @@ def test_camera_centre_in_laser_frame_is_ros_translation_for_parent_laser(seed):
     rig = random_rig(seed)
     R, t = rig.T_cam_laser[:3, :3], rig.T_cam_laser[:3, 3]
     centre_in_laser = np.linalg.solve(R, -t)  # the laser point that maps to the camera's origin
-    xyz = [float(a) for a in ros1_args(ros_static_transform(rig, "laser"))[:3]]
+    xyz = [float(a) for a in ros1_args(ros_static_transform(rig, Frames("laser")))[:3]]
     np.testing.assert_allclose(xyz, centre_in_laser, atol=ATOL)
     assert not np.allclose(centre_in_laser, t, atol=1e-3)  # the two directions differ here
 
 
 def test_level_camera_sees_a_point_ahead_of_the_laser_below_the_image_centre():
     rig = level_rig(dist=[])
-    T, _, _ = T_from_ros_args(ros1_args(ros_static_transform(rig, "camera")))
+    T, _, _ = T_from_ros_args(ros1_args(ros_static_transform(rig, Frames("camera"))))
     p_cam = transform_points(T, [[2.0, 0.0, 0.0]])[0]
     np.testing.assert_allclose(p_cam, [0.0, 0.1, 2.0], atol=ATOL)
     u, v = rig.camera.project(p_cam[None])[0]
@@ -198,7 +208,7 @@ def test_level_camera_sees_a_point_ahead_of_the_laser_below_the_image_centre():
 @pytest.mark.parametrize("parent", ["laser", "camera"])
 def test_urdf_origin_round_trips(seed, parent):
     rig = random_rig(seed)
-    T, parent_link, child_link = urdf_origin(urdf_joint(rig, parent))
+    T, parent_link, child_link = urdf_origin(urdf_robot(rig, Frames(parent)))
     if parent == "laser":
         assert (parent_link, child_link) == ("laser", "camera_optical_frame")
         np.testing.assert_allclose(T, rig.T_laser_cam, atol=ATOL)
@@ -210,13 +220,14 @@ def test_urdf_origin_round_trips(seed, parent):
 @pytest.mark.parametrize("seed", SEEDS)
 def test_urdf_and_ros_agree(seed):
     rig = random_rig(seed)
-    T_urdf, _, _ = urdf_origin(urdf_joint(rig, "laser"))
-    T_ros, _, _ = T_from_ros_args(ros1_args(ros_static_transform(rig, "laser")))
+    T_urdf, _, _ = urdf_origin(urdf_robot(rig, Frames("laser")))
+    T_ros, _, _ = T_from_ros_args(ros1_args(ros_static_transform(rig, Frames("laser"))))
     np.testing.assert_allclose(T_urdf, T_ros, atol=2 * ATOL)
 
 
 def test_urdf_level_camera_rpy_is_the_standard_optical_frame_rotation():
-    joint = ET.fromstring(urdf_joint(level_rig(), "laser"))
+    joint = ET.fromstring(urdf_robot(level_rig(), Frames("laser"))).find("joint")
+    assert joint is not None
     origin = joint.find("origin")
     assert origin is not None
     rpy = [float(v) for v in origin.get("rpy", "").split()]
@@ -228,7 +239,7 @@ def test_urdf_at_gimbal_lock_round_trips_without_warning():
     rig = level_rig()  # parent camera: pitch is -pi/2
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        text = urdf_joint(rig, "camera")
+        text = urdf_robot(rig, Frames("camera"))
     T, _, _ = urdf_origin(text)
     np.testing.assert_allclose(T, rig.T_cam_laser, atol=ATOL)
 
@@ -252,14 +263,15 @@ DIRECTION_PHRASES = {
         "T_laser_cam",
     ],
     ("urdf", "camera"): ["pose of laser in camera_optical_frame", "maps points in laser", "T_cam_laser"],
-    ("kalibr", "laser"): ["T_cam_laser (4x4, row-major) maps laser-frame points", "into the camera frame"],
+    ("kalibr", "laser"): ["T_cam_imu is T_cam_laser", "maps laser-frame points into the camera"],
+    ("xacro", "laser"): ["pose of camera_optical_frame in laser", "T_laser_cam"],
     ("mrcal", "laser"): ["reference frame is the laser", "map laser points into the camera"],
 }
 
 
 @pytest.mark.parametrize(("fmt", "parent"), list(DIRECTION_PHRASES))
 def test_every_export_states_its_direction(fmt, parent):
-    text = export_rig(random_rig(5), fmt, parent)
+    text = export_rig(random_rig(5), fmt, Frames(parent))
     for phrase in DIRECTION_PHRASES[(fmt, parent)]:
         assert phrase in text
 
@@ -268,43 +280,176 @@ def test_export_rig_rejects_unknown_format_and_parent():
     with pytest.raises(ValueError, match="format"):
         export_rig(random_rig(0), "tf")
     with pytest.raises(ValueError, match="parent"):
-        export_rig(random_rig(0), "ros", "imu")
+        export_rig(random_rig(0), "ros", Frames("imu"))
 
 
 # --- Kalibr ---------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("seed", SEEDS)
-def test_kalibr_yaml_matches_rig(seed):
+def test_kalibr_camchain_passes_kalibrs_reader_and_matches_rig(seed):
     rig = random_rig(seed)
-    cam0 = yaml.safe_load(kalibr_yaml(rig))["cam0"]
-    np.testing.assert_array_equal(np.array(cam0["T_cam_laser"]), rig.T_cam_laser)
-    assert cam0["camera_model"] == "pinhole"
-    assert cam0["intrinsics"] == [520.0, 510.0, 319.5, 241.25]
-    assert cam0["distortion_model"] == "radtan"
-    assert cam0["distortion_coeffs"] == DIST5[:4]
+    (cam0,) = KalibrCameraChain(kalibr_yaml(rig, "/cam0/image_raw")).load_all()
+    assert cam0["rostopic"] == "/cam0/image_raw"
+    np.testing.assert_array_equal(cam0["T_cam_imu"], rig.T_cam_laser)
+    assert cam0["intrinsics"] == ("pinhole", [520.0, 510.0, 319.5, 241.25])
+    assert cam0["distortion"] == ("radtan", DIST5[:4])
     assert cam0["resolution"] == [640, 480]
+    assert cam0["cam_overlaps"] == []
 
 
 @pytest.mark.parametrize(
     ("dist", "expected"),
-    [([], [0.0, 0.0, 0.0, 0.0]), ([0.1, -0.02, 0.001, 0.002], [0.1, -0.02, 0.001, 0.002])],
+    [
+        ([], [0.0, 0.0, 0.0, 0.0]),
+        ([0.1, -0.02, 0.001, 0.002], [0.1, -0.02, 0.001, 0.002]),
+        ([0.1, -0.02, 0.001, 0.002, 0.0, 0.0, 0.0, 0.0], [0.1, -0.02, 0.001, 0.002]),
+    ],
+    ids=["pinhole", "opencv4", "opencv8-k3-k6-zero"],
 )
-def test_kalibr_pinhole_and_opencv4(dist, expected):
-    cam0 = yaml.safe_load(kalibr_yaml(random_rig(1, dist)))["cam0"]
-    assert cam0["distortion_coeffs"] == expected
+def test_kalibr_pinhole_opencv4_and_opencv8_with_zero_k3_to_k6(dist, expected):
+    (cam0,) = KalibrCameraChain(kalibr_yaml(random_rig(1, dist))).load_all()
+    assert cam0["distortion"] == ("radtan", expected)
 
 
-def test_kalibr_refuses_opencv8():
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        ("rostopic", None, "rostopic field not found"),
+        ("T_cam_imu", None, "invalid camera baseline"),
+        ("cam_overlaps", None, "cam_overlaps not found"),
+        ("intrinsics", [1.0, 2.0, 3.0], "invalid intrinsics for pinhole"),
+        ("distortion_coeffs", [0.1, 0.2, 0.3, 0.4, 0.5], "requires 4 coefficients"),
+        ("distortion_model", "plumb_bob", "Invalid distortion model"),
+        ("resolution", [640, 0], "Invalid resolution"),
+        ("T_cam_imu", np.diag([1.0, 1.0, 2.0, 1.0]).tolist(), "not a rotation"),
+    ],
+)
+def test_kalibr_reader_port_rejects_what_kalibr_rejects(key, value, message):
+    # The port must be able to fail: each broken variant of a good camchain is refused.
+    doc = yaml.safe_load(kalibr_yaml(random_rig(3)))
+    if value is None:
+        del doc["cam0"][key]
+    else:
+        doc["cam0"][key] = value
+    with pytest.raises(RuntimeError, match=message):
+        KalibrCameraChain(yaml.safe_dump(doc)).load_all()
+
+
+def test_kalibr_refuses_opencv8_with_nonzero_k4_naming_file_and_fix():
     rig = random_rig(0, DIST8)
-    with pytest.raises(InputError, match="LENSMODEL_OPENCV8"):
-        kalibr_yaml(rig)
+    with pytest.raises(InputError, match=r"^rig8\.yaml: camera\.intrinsics: got \{'k3': 0\.003.*mrcal"):
+        kalibr_yaml(rig, source="rig8.yaml")
 
 
 def test_kalibr_refuses_opencv5_with_k3():
     rig = random_rig(0, [0.1, 0.01, 0.001, 0.002, 0.003])
-    with pytest.raises(InputError, match=r"LENSMODEL_OPENCV5 with k3 = 0\.003"):
+    with pytest.raises(InputError, match=r"camera\.intrinsics: got \{'k3': 0\.003\}.*LENSMODEL_OPENCV5"):
         kalibr_yaml(rig)
+
+
+def test_kalibr_refuses_a_fisheye_lens_model():
+    cam = Camera(
+        "LENSMODEL_CAHVOR", np.array([500.0, 500.0, 320.0, 240.0, 0.0, 0.0, 0.0, 0.0, 0.0]), 640, 480
+    )
+    with pytest.raises(InputError, match=r"camera\.lensmodel: got 'LENSMODEL_CAHVOR'.*--format mrcal"):
+        kalibr_yaml(Rig(np.eye(4), cam))
+
+
+def test_kalibr_refuses_a_relative_topic():
+    with pytest.raises(InputError, match="--rostopic: got 'image'"):
+        kalibr_yaml(random_rig(0), "image")
+
+
+# --- URDF loaded by a URDF parser (yourdfpy) ---------------------------------------------------
+
+
+def load_urdf(text: str, tmp_path: Path, caplog) -> yourdfpy.URDF:
+    path = tmp_path / "rig.urdf"
+    path.write_text(text)
+    with caplog.at_level(logging.WARNING), warnings.catch_warnings():
+        warnings.simplefilter("error")
+        robot = yourdfpy.URDF.load(str(path))
+    assert [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING] == []
+    return robot
+
+
+@pytest.mark.parametrize("seed", SEEDS[:3])
+@pytest.mark.parametrize("parent", ["laser", "camera"])
+@pytest.mark.parametrize("camera_link", [False, True])
+def test_urdf_robot_loads_in_yourdfpy_with_the_rig_transform(seed, parent, camera_link, tmp_path, caplog):
+    rig = random_rig(seed)
+    frames = Frames(parent, camera_link)
+    robot = load_urdf(urdf_robot(rig, frames), tmp_path, caplog)
+    pf, cf = frames.names()
+    assert robot.base_link == pf
+    assert set(robot.link_map) == {pf, cf}
+    T_laser_cam = rig.T_laser_cam @ (make_T(R_LINK_OPTICAL, [0, 0, 0]).T if camera_link else np.eye(4))
+    expected = T_laser_cam if parent == "laser" else inv_T(T_laser_cam)
+    np.testing.assert_allclose(robot.get_transform(cf, pf), expected, atol=ATOL)
+
+
+def test_urdf_frame_names_are_chosen(tmp_path, caplog):
+    rig = random_rig(4)
+    text = urdf_robot(rig, Frames("laser", parent_frame="base_scan", child_frame="front_cam_optical"))
+    robot = load_urdf(text, tmp_path, caplog)
+    np.testing.assert_allclose(
+        robot.get_transform("front_cam_optical", "base_scan"), rig.T_laser_cam, atol=ATOL
+    )
+
+
+def expand_xacro(text: str, parent: str) -> str:
+    """The xacro macro called in a robot that has ``parent``: the macro's body with its
+    default parameters substituted (what ``xacro`` does for ``<xacro:rigcal_rig/>``)."""
+    ns = {"xacro": "http://www.ros.org/wiki/xacro"}
+    macro = ET.fromstring(text).find("xacro:macro", ns)
+    assert macro is not None
+    assert macro.get("name") == "rigcal_rig"
+    params = dict(p.split(":=") for p in macro.get("params", "").split())
+    params["parent"] = parent
+    body = "".join(ET.tostring(child, encoding="unicode") for child in macro)
+    for k, v in params.items():
+        body = body.replace("${" + k + "}", v)
+    return f'<robot name="r"><link name="{parent}"/>{body}</robot>'
+
+
+@pytest.mark.parametrize("parent", ["laser", "camera"])
+def test_xacro_macro_expands_into_a_loadable_robot(parent, tmp_path, caplog):
+    rig = random_rig(6)
+    frames = Frames(parent)
+    pf, cf = frames.names()
+    robot = load_urdf(expand_xacro(urdf_xacro(rig, frames), pf), tmp_path, caplog)
+    expected = rig.T_laser_cam if parent == "laser" else rig.T_cam_laser
+    np.testing.assert_allclose(robot.get_transform(cf, pf), expected, atol=ATOL)
+
+
+# --- camera_link and frame names ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_camera_link_composes_with_the_drivers_optical_transform(seed):
+    # laser -> camera_link (ours) then camera_link -> camera_optical_frame (the driver's,
+    # q = (-0.5, 0.5, -0.5, 0.5)) must give the calibrated T_laser_cam.
+    rig = random_rig(seed)
+    T_laser_link, parent, child = T_from_ros_args(
+        ros1_args(ros_static_transform(rig, Frames(camera_link=True)))
+    )
+    assert (parent, child) == ("laser", "camera_link")
+    T_link_optical = make_T(Rotation.from_quat([-0.5, 0.5, -0.5, 0.5]).as_matrix(), [0, 0, 0])
+    np.testing.assert_allclose(T_laser_link @ T_link_optical, rig.T_laser_cam, atol=ATOL)
+
+
+def test_level_camera_link_is_a_pure_translation():
+    args = ros1_args(ros_static_transform(level_rig(), Frames(camera_link=True)))
+    assert [float(a) for a in args[:7]] == pytest.approx([0, 0, 0.1, 0, 0, 0, 1], abs=1e-9)
+
+
+def test_frame_names_replace_the_defaults_everywhere():
+    text = ros_static_transform(random_rig(2), Frames("camera", True, "cam_base", "scanner"))
+    _, parent, child = T_from_ros_args(ros1_args(text))
+    assert (parent, child) == ("cam_base", "scanner")
+    assert "--frame-id cam_base --child-frame-id scanner" in text
+    assert "cam_base is the camera's body frame" in text
 
 
 # --- mrcal ----------------------------------------------------------------------------------
@@ -361,7 +506,7 @@ def run(capsys, *args: str) -> tuple[int, str, str]:
 def test_cli_each_format_to_stdout(fmt, rig_file, capsys):
     code, out, _ = run(capsys, "export", str(rig_file), "--format", fmt)
     assert code == 0
-    assert out == export_rig(read_rig(rig_file), fmt, "laser")
+    assert out == export_rig(read_rig(rig_file), fmt, Frames("laser"))
 
 
 def test_cli_ros_default_parent_is_laser(rig_file, capsys):
@@ -440,3 +585,53 @@ def test_cli_help_has_examples(capsys):
     assert "Examples:" in out
     assert "rigcal export rig.yaml --format ros" in out
     assert "--parent" in out
+
+
+def test_cli_camera_link_and_frame_names(rig_file, capsys):
+    code, out, _ = run(
+        capsys, "export", str(rig_file), "--format", "ros", "--camera-link", "--parent-frame", "base_scan"
+    )
+    assert code == 0
+    T, parent, child = T_from_ros_args(ros1_args(out))
+    assert (parent, child) == ("base_scan", "camera_link")
+    np.testing.assert_allclose(
+        T @ make_T(R_LINK_OPTICAL, [0, 0, 0]), read_rig(rig_file).T_laser_cam, atol=ATOL
+    )
+
+
+def test_cli_kalibr_rostopic(rig_file, capsys):
+    code, out, _ = run(capsys, "export", str(rig_file), "--format", "kalibr", "--rostopic", "/cam/image")
+    assert code == 0
+    assert KalibrCameraChain(out).camera(0).rostopic() == "/cam/image"
+
+
+@pytest.mark.parametrize("fmt", ["urdf", "kalibr"])
+def test_cli_json_states_the_transform_written(fmt, rig_file, tmp_path, capsys):
+    out_path = tmp_path / f"rig.{fmt}"
+    code, out, _ = run(capsys, "export", str(rig_file), "--format", fmt, "-o", str(out_path), "--json")
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["output"] == str(out_path)
+    rig = read_rig(rig_file)
+    expected = rig.T_laser_cam if fmt == "urdf" else rig.T_cam_laser
+    np.testing.assert_allclose(np.array(doc["T_parent_child"]), expected, atol=1e-12)
+    assert doc["parent_frame"] == ("laser" if fmt == "urdf" else "camera_optical_frame")
+
+
+def test_cli_json_without_output_carries_the_text(rig_file, capsys):
+    code, out, _ = run(capsys, "export", str(rig_file), "--format", "ros", "--camera-link", "--json")
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["output"] is None
+    assert (doc["parent_frame"], doc["child_frame"]) == ("laser", "camera_link")
+    T, parent, child = T_from_ros_args(ros1_args(doc["text"]))
+    assert (parent, child) == ("laser", "camera_link")
+    np.testing.assert_allclose(np.array(doc["T_parent_child"]), T, atol=ATOL)
+
+
+def test_cli_kalibr_error_names_the_rig_file(tmp_path, capsys):
+    rig_path = write_rig(tmp_path / "rig8.yaml", random_rig(2, DIST8))
+    code, _, err = run(capsys, "export", str(rig_path), "--format", "kalibr")
+    assert code == 3
+    assert err.startswith(f"Error: {rig_path}: camera.intrinsics: got {{'k3'")
+    assert "--format mrcal" in err

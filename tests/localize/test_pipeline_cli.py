@@ -45,6 +45,7 @@ def test_localize_writes_trajectory_summary_and_table(sequence, tmp_path, capsys
     assert (out / "icp" / "trajectory.kitti").read_text().count("\n") == len(traj)
     assert summary["config"]["methods"] == ["icp"]
     assert (out / "paths.png").stat().st_size > 1000
+    assert (out / "errors.svg").read_bytes()[:5] == b"<?xml"
     m = summary["methods"]["icp"]["metrics"]
     # A clean simulated office: point-to-line ICP closes the 35 m loop within a metre.
     assert m["loop_closure_error_m"] < 1.0
@@ -114,6 +115,7 @@ def test_all_methods_on_one_sequence(drive, tmp_path, capsys):
     assert {"read_s", "icp_s", "tracks_s", "vo_s", "hiasm_matching_s"} <= set(s["stage_timings_s"])
     assert s["wall_s"] > 0
     assert (out / "paths.png").stat().st_size > 1000
+    assert (out / "errors.svg").read_bytes()[:5] == b"<?xml"
 
 
 def test_matches_picture(drive, tmp_path, capsys):
@@ -124,6 +126,12 @@ def test_matches_picture(drive, tmp_path, capsys):
     assert main(["matches", str(drive), "--image", "10", "-o", str(png)]) == 5  # exists
     assert main(["matches", str(drive), "--image", "9999", "-o", str(tmp_path / "n.png")]) == 3
     assert "--image: got 9999" in capsys.readouterr().err
+    png2 = tmp_path / "m2.png"
+    assert main(["matches", str(drive), "--image", "10", "--method", "iasm", "-o", str(png2), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["output"] == str(png2)
+    assert doc["correspondences"] >= doc["inliers"] > 0
+    assert set(doc["motion"]) == {"x_m", "y_m", "yaw_rad"}
 
 
 def test_image_methods_need_images_and_a_matching_camera(sequence, drive, tmp_path, capsys):
@@ -173,17 +181,28 @@ def test_summary_holds_the_effective_settings(sequence, tmp_path):
 
 
 def test_progress_lines_for_stages_side_by_side(capsys):
-    from rigcal.cli.localize import _Bars
+    # stderr is not a terminal here: no bars, one line per stage as it ends.
+    from rigcal.cli.progress import Progress
 
-    bars = _Bars()
-    for k in range(1, 5):
-        bars("laser odometry", k, 4)
-        if k <= 2:
-            bars("feature tracks", k, 2)
-    bars.close()
+    with Progress("scan", disable=False) as bars:
+        for k in range(1, 5):
+            bars("laser odometry", k, 4)
+            if k <= 2:
+                bars("feature tracks", k, 2)
+        bars("laser odometry", 4, 4)  # reported again after it ended: ignored
     err = capsys.readouterr().err.splitlines()
     assert [line.split(":")[0] for line in err] == ["feature tracks", "laser odometry"]
     assert err[1].startswith("laser odometry: 4/4 in ")
+
+
+def test_quiet_progress_prints_nothing(capsys):
+    from rigcal.cli.progress import Progress
+
+    with Progress(disable=True) as bars:
+        count = bars.counter("reading")
+        for k in range(1, 4):
+            count(k)
+    assert capsys.readouterr().err == ""
 
 
 def test_icp_steps_flag_a_featureless_corridor(tmp_path):

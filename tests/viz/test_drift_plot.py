@@ -1,4 +1,5 @@
-"""The drift history picture: three panels, ok checks green and drifted ones red."""
+"""The drift history chart: three panels, ok checks green and drifted ones red, noise
+bands, real ticks and a legend; PNG, SVG and PDF."""
 
 from __future__ import annotations
 
@@ -6,11 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
-from rigcal.errors import OutputError
-from rigcal.viz.drift_plot import BAND_BGR, DRIFT_BGR, OK_BGR, draw_drift, write_drift_png
-
-PANEL_PX = 220
-WIDTH_PX = 900
+from rigcal.errors import InputError, OutputError
+from rigcal.viz.charts import DRIFTED, OK
+from rigcal.viz.drift_plot import drift_figure, write_drift_plot
 
 
 def record(
@@ -40,96 +39,88 @@ RECORDS = [
     record("ok", 2.1),
     record("drifted", 3.5),
 ]
-XS = np.linspace(90, WIDTH_PX - 40, len(RECORDS))  # the checks' columns (left 70, right 880, 20 in)
 
 
-def count(img: np.ndarray, bgr: tuple[int, int, int]) -> int:
-    return int(np.all(img == np.array(bgr, dtype=np.uint8), axis=2).sum())
+def points(ax, colour: str) -> dict[float, float]:
+    """check number -> value of the markers of one colour in a panel."""
+    out = {}
+    for line in ax.get_lines():
+        if line.get_color() == colour and line.get_marker() == "o" and len(line.get_xdata()):
+            out.update(zip(map(float, line.get_xdata()), map(float, line.get_ydata()), strict=True))
+    return out
 
 
-def cell(img: np.ndarray, panel: int, check: int) -> np.ndarray:
-    """The part of the picture where a check's point in a panel can be."""
-    top = 20 + panel * PANEL_PX
-    x = round(XS[check])
-    return img[top - 6 : top + PANEL_PX - 34, x - 8 : x + 9]
+def bands(ax) -> dict[float, float]:
+    return {round(p.get_x() + p.get_width() / 2, 6): p.get_height() for p in ax.patches}
 
 
 @pytest.fixture(scope="module")
-def img() -> np.ndarray:
-    return draw_drift(RECORDS)
+def axes():
+    return drift_figure(RECORDS).axes
 
 
-def test_picture_has_the_expected_size(img):
-    assert img.shape == (3 * PANEL_PX + 40, WIDTH_PX, 3)
-    assert img.dtype == np.uint8
-    assert draw_drift(RECORDS, width_px=600, panel_px=150).shape == (3 * 150 + 40, 600, 3)
+def test_three_labelled_panels_with_real_ticks_and_a_legend(axes):
+    assert [ax.get_title() for ax in axes] == [
+        "rotation change",
+        "translation change",
+        "RMS reprojection under the stored rig",
+    ]
+    assert [ax.get_ylabel() for ax in axes] == ["deg", "mm", "px"]
+    for ax in axes:
+        assert len(ax.get_yticks()) >= 3  # more than 0 and the maximum
+    assert [t.get_text() for t in axes[0].get_legend().get_texts()] == [
+        "ok",
+        "drifted",
+        "2 sigma (noise alone)",
+    ]
+    assert axes[-1].get_xticklabels()[0].get_text() == "#1 2026-11-23"
 
 
-def test_ok_checks_are_green_and_drifted_ones_red(img):
-    assert count(img, OK_BGR) > 0
-    assert count(img, DRIFT_BGR) > 0
-    for panel in range(3):
-        assert count(cell(img, panel, 0), OK_BGR) > 0
-        assert count(cell(img, panel, 0), DRIFT_BGR) == 0
-        assert count(cell(img, panel, 1), DRIFT_BGR) > 0
-        assert count(cell(img, panel, 1), OK_BGR) == 0
+def test_ok_checks_are_green_and_drifted_ones_red_at_their_values(axes):
+    assert points(axes[0], OK) == {1.0: 0.1}
+    assert points(axes[0], DRIFTED) == {2.0: 0.6}
+    assert points(axes[1], DRIFTED) == {2.0: 15.0}
+    assert points(axes[2], OK) == {1.0: 1.8, 3.0: 2.1}
+    assert points(axes[2], DRIFTED) == {2.0: 4.2, 4.0: 3.5}
 
 
-def test_checks_without_a_pose_have_only_their_residual_point(img):
-    for check, colour in ((2, OK_BGR), (3, DRIFT_BGR)):
-        assert count(cell(img, 0, check), colour) == 0
-        assert count(cell(img, 1, check), colour) == 0
-        assert count(cell(img, 2, check), colour) > 0
-        # Nor a noise band in the pose panels.
-        assert count(cell(img, 0, check), BAND_BGR) == 0
-
-
-def test_checks_with_a_pose_have_a_noise_band(img):
-    for check in (0, 1):
-        assert count(cell(img, 0, check), BAND_BGR) > 0
-        assert count(cell(img, 1, check), BAND_BGR) > 0
-
-
-def test_larger_change_is_drawn_higher(img):
-    def point_row(panel: int, check: int, colour) -> float:
-        rows, _ = np.nonzero(np.all(cell(img, panel, check) == np.array(colour, dtype=np.uint8), axis=2))
-        return float(rows.mean())
-
-    for panel in range(3):
-        assert point_row(panel, 1, DRIFT_BGR) < point_row(panel, 0, OK_BGR)
+def test_noise_bands_only_where_there_is_a_pose(axes):
+    b = bands(axes[0])
+    assert set(b) == {1.0, 2.0}
+    assert b[1.0] == pytest.approx(2 * np.linalg.norm([0.05, 0.07, 0.05]))
+    assert bands(axes[2]) == {}
 
 
 def test_check_without_rms_has_no_residual_point():
-    img = draw_drift([record("ok", 1.5, rotation_deg=0.1), record("drifted", None, rotation_deg=1.2)])
-    x = round(WIDTH_PX - 40)
-    third = img[20 + 2 * PANEL_PX - 6 : 20 + 3 * PANEL_PX - 34, x - 8 : x + 9]
-    assert count(third, DRIFT_BGR) == 0
-    assert count(img, DRIFT_BGR) > 0  # its pose points are drawn
+    ax = drift_figure([record("ok", 1.5, rotation_deg=0.1), record("drifted", None, rotation_deg=1.2)]).axes
+    assert points(ax[2], DRIFTED) == {}
+    assert points(ax[0], DRIFTED) == {2.0: 1.2}
 
 
-def test_one_check_and_no_checks_draw(img):
-    one = draw_drift(RECORDS[:1])
-    assert one.shape == img.shape
-    assert count(one, OK_BGR) > 0
-    assert count(one, DRIFT_BGR) == 0
-    none = draw_drift([])
-    assert none.shape == img.shape
-    assert count(none, OK_BGR) == count(none, DRIFT_BGR) == 0
+def test_one_check_and_no_checks_draw():
+    assert points(drift_figure(RECORDS[:1]).axes[0], OK) == {1.0: 0.1}
+    assert len(drift_figure([]).axes) == 3
 
 
-def test_png_is_the_drawn_picture(tmp_path, img):
-    path = write_drift_png(tmp_path / "drift.png", RECORDS)
-    assert path == tmp_path / "drift.png"
-    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    np.testing.assert_array_equal(cv2.imread(str(path)), img)
+@pytest.mark.parametrize(("suffix", "magic"), [(".png", b"\x89PNG"), (".svg", b"<?xml"), (".pdf", b"%PDF")])
+def test_written_as_png_svg_or_pdf(suffix, magic, tmp_path):
+    path = write_drift_plot(tmp_path / f"drift{suffix}", RECORDS)
+    assert path.read_bytes()[:5].startswith(magic)
+    if suffix == ".png":
+        assert cv2.imread(str(path)).shape == (750, 900, 3)
+    # The same records give the same bytes.
+    again = write_drift_plot(tmp_path / f"again{suffix}", RECORDS)
+    assert again.read_bytes() == path.read_bytes()
 
 
-def test_png_refuses_to_overwrite_without_force(tmp_path, img):
+def test_refuses_to_overwrite_without_force_and_unknown_formats(tmp_path):
     path = tmp_path / "drift.png"
     path.write_bytes(b"keep me")
     with pytest.raises(OutputError, match="exists"):
-        write_drift_png(path, RECORDS)
+        write_drift_plot(path, RECORDS)
     assert path.read_bytes() == b"keep me"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["drift.png"]
-    write_drift_png(path, RECORDS, force=True)
-    np.testing.assert_array_equal(cv2.imread(str(path)), img)
+    write_drift_plot(path, RECORDS, force=True)
+    assert path.read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(InputError, match=r"chart file: got '.*drift\.jpg'; expected a name ending in \.png"):
+        write_drift_plot(tmp_path / "drift.jpg", RECORDS)

@@ -7,14 +7,15 @@ Data flow: picking file -> :func:`rigcal.calib.picks.read_picks` -> :class:`Cali
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
-from rigcal.calib.picks import PickSession, read_picks
+from rigcal.calib.picks import BoxObservation, PickSession, read_picks
 from rigcal.calib.report import build_report, report_table, rig_uncertainty
 from rigcal.calib.solve import CalibProblem, CalibResult, SolveSettings, solve
 from rigcal.calib.truth import read_truth
@@ -38,8 +39,13 @@ def calibrate(
     settings: SolveSettings | None = None,
     truth_path: str | Path | None = None,
     command: str = "",
+    range_sigma_m: float | None = None,
 ) -> Calibration:
     """Read a picking file, solve, and build the report and the rig.
+
+    The laser's range noise is ``range_sigma_m`` when given, else the picking file's
+    ``laser.range_sigma_m`` when it has one, else ``settings.noise.range_sigma_m`` (the
+    board method's rule, :func:`rigcal.calib.board_calibrate.calibrate_board`).
 
     Raises:
         InputError: bad picking file or any file it names, or a bad truth file.
@@ -48,36 +54,46 @@ def calibrate(
     settings = settings or SolveSettings()
     T_truth = read_truth(truth_path) if truth_path is not None else None
     session = read_picks(picks_path)
+    if range_sigma_m is None and "range_sigma_m" in session.laser:
+        range_sigma_m = float(session.laser["range_sigma_m"])  # validated by read_picks
+    if range_sigma_m is not None:
+        settings = replace(settings, noise=replace(settings.noise, range_sigma_m=max(range_sigma_m, 1e-5)))
     result = solve(CalibProblem(session.camera, session.observations, settings))
     report = build_report(result, T_truth)
+    prov = provenance(
+        command,
+        session.input_files(),
+        {
+            "method": "box-target (Algorithm 1)",
+            "camera_source": str(session.camera_path.resolve()),
+            **settings.to_dict(),
+        },
+        base=Path(picks_path).resolve().parent,
+    )
+    laser = {**session.laser, **scanner_description(session.observations)}
+    rig = box_rig(result, report, laser, prov)
+    return Calibration(session, result, report, rig)
+
+
+def box_rig(result: CalibResult, report: dict[str, Any], laser: dict[str, Any], prov: dict[str, Any]) -> Rig:
+    """The rig of a box-target solve: its pose, covariance and residual summary."""
     s = report["summary"]
-    laser = {**session.laser, **_scanner_description(session)}
-    rig = Rig(
+    return Rig(
         T_cam_laser=result.T_cam_laser,
-        camera=session.camera,
+        camera=result.problem.camera,
         covariance=result.covariance,
         laser=laser,
         residuals={
             k: s[k] for k in ("captures", "captures_used", "box_ends", "inlier_ends", "rms_px", "median_px")
         }
         | {"max_px": s["max_px"], "residual_scale": s["residual_scale"]},
-        provenance=provenance(
-            command,
-            session.input_files(),
-            {
-                "method": "box-target (Algorithm 1)",
-                "camera_source": str(session.camera_path.resolve()),
-                **settings.to_dict(),
-            },
-            base=Path(picks_path).resolve().parent,
-        ),
+        provenance=prov,
         uncertainty=rig_uncertainty(result.covariance_model, report["noise"], report["uncertainty"]),
     )
-    return Calibration(session, result, report, rig)
 
 
-def _scanner_description(session: PickSession) -> dict[str, Any]:
-    steps = [o.beam_step_rad for o in session.observations if o.beam_step_rad > 0]
+def scanner_description(observations: Sequence[BoxObservation]) -> dict[str, Any]:
+    steps = [o.beam_step_rad for o in observations if o.beam_step_rad > 0]
     return {"angle_increment_deg": round(float(np.degrees(np.median(steps))), 6)} if steps else {}
 
 
@@ -87,13 +103,16 @@ def check_report_dir(folder: str | Path, force: bool) -> Path:
 
 
 def write_report_dir(folder: str | Path, cal: Calibration, force: bool = False) -> Path:
-    """Write report.yaml, report.json, report.txt and one overlay PNG per capture.
+    """Write report.yaml, report.json, report.txt, the residual summary chart
+    (residuals.png/.svg) and one overlay PNG per capture.
 
     Everything goes into a temporary sibling folder first, then replaces ``folder`` in one
     rename, so a failure leaves no half-written report.
     """
     from rigcal.scan import read_scan
+    from rigcal.viz.charts import figure_bytes
     from rigcal.viz.overlay import draw_overlay, read_image, write_png
+    from rigcal.viz.residual_plot import residuals_figure
 
     with atomic_folder(check_report_dir(folder, force), force) as tmp:
         (tmp / "report.yaml").write_text(
@@ -104,6 +123,16 @@ def write_report_dir(folder: str | Path, cal: Calibration, force: bool = False) 
         (tmp / "report.txt").write_text(report_table(cal.report))
         res = cal.result
         T = res.T_cam_laser
+        pts = res.measurements.points_laser
+        projected_all = cal.session.camera.project(
+            np.column_stack([pts, np.zeros(len(pts))]) @ T[:3, :3].T + T[:3, 3]
+        )
+        cam = cal.session.camera
+        fig = residuals_figure(
+            cal.report, res.measurements.pixels, projected_all, res.inliers, (cam.width_px, cam.height_px)
+        )
+        for fmt in (".png", ".svg"):
+            (tmp / f"residuals{fmt}").write_bytes(figure_bytes(fig, fmt))
         for obs in cal.session.observations:
             m = res.measurements.capture == obs.capture
             ends3 = np.column_stack([res.measurements.points_laser[m], np.zeros(int(m.sum()))])

@@ -38,7 +38,9 @@ import click
 )
 @click.option("--no-log", is_flag=True, help="Do not append this check to the drift log.")
 @click.option(
-    "--plot", type=click.Path(path_type=Path), help="Also draw the drift history (the log) as a PNG."
+    "--plot",
+    type=click.Path(path_type=Path),
+    help="Also draw the drift history (the log) as a chart: .png, .svg or .pdf.",
 )
 @click.option("--force", is_flag=True, help="Overwrite an existing plot.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
@@ -75,9 +77,12 @@ def check(
     from rigcal.errors import InputError
     from rigcal.io.files import check_writable
     from rigcal.rigfile import read_rig
-    from rigcal.viz.drift_plot import write_drift_png
+    from rigcal.viz.drift_plot import write_drift_plot
 
     if plot is not None:
+        from rigcal.viz.charts import check_chart_name
+
+        check_chart_name(plot)
         check_writable(plot, force)
     stored = read_rig(rig)
     if stored.covariance is None:
@@ -95,7 +100,7 @@ def check(
         records = read_log(log) if log.exists() else []
         if no_log:  # this check is not in the log: draw it after the history
             records.append(record)
-        write_drift_png(plot, records, force=force)
+        write_drift_plot(plot, records, force=force)
     if as_json:
         click.echo(json.dumps(record, indent=1))
     else:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
@@ -16,8 +17,15 @@ import click
     "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Sequence folder."
 )
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
+@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
 def import_bag(
-    bag: Path, scan_topic: str, image_topic: str, camera_info_topic: str | None, output: Path, force: bool
+    bag: Path,
+    scan_topic: str,
+    image_topic: str,
+    camera_info_topic: str | None,
+    output: Path,
+    force: bool,
+    as_json: bool,
 ) -> None:
     """Write the scans, images (and camera) of BAG as a sequence folder (docs/formats/sequence.md).
 
@@ -35,15 +43,29 @@ def import_bag(
 
     if output.exists() and not force:
         raise OutputError(f"{output}: exists; pass --force to replace it")
-    counter = {"n": 0}
+    from rigcal.cli.progress import Progress
 
-    def tick(k: int) -> None:
-        if k % 500 == 0:
-            click.echo(f"\r{k} messages", err=True, nl=False)
-        counter["n"] = k + 1
-
-    s = run(bag, output, scan_topic, image_topic, camera_info_topic, force=force, progress=tick)
-    click.echo(f"\r{counter['n']} messages", err=True)
+    with Progress("msg") as bars:
+        s = run(
+            bag,
+            output,
+            scan_topic,
+            image_topic,
+            camera_info_topic,
+            force=force,
+            progress=lambda done, total: bars("reading", done, total),
+        )
+    if as_json:
+        doc = {
+            "output": str(output),
+            "scans": s.scans,
+            "images": s.images,
+            "camera_yaml": s.camera,
+            "reordered": dict(s.reordered),
+            "duplicates_dropped": dict(s.duplicates),
+        }
+        click.echo(json.dumps(doc, indent=1))
+        return
     notes = []
     for what in ("scans", "images"):
         if s.reordered.get(what):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
@@ -20,7 +21,8 @@ import click
     help="Maximum range of FLASER lines (they carry none); farther returns count as no return.",
 )
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
-def import_carmen(log: Path, output: Path, flaser_range_max_m: float, force: bool) -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
+def import_carmen(log: Path, output: Path, flaser_range_max_m: float, force: bool, as_json: bool) -> None:
     """Write the laser scans of LOG as a sequence folder (docs/formats/sequence.md).
 
     Reads FLASER and ROBOTLASER1 lines from a CARMEN log, or from a g2o file that keeps
@@ -57,6 +59,16 @@ def import_carmen(log: Path, output: Path, flaser_range_max_m: float, force: boo
         force=force,
         groundtruth_tum=tum_text(Trajectory(T, stamps)),
     )
+    if as_json:
+        doc = {
+            "output": str(output),
+            "scans": len(c.scans),
+            "groundtruth": "groundtruth.tum",
+            "other_lines_skipped": c.skipped_lines,
+            "duration_s": float(stamps[-1] - stamps[0]) if len(stamps) else 0.0,
+        }
+        click.echo(json.dumps(doc, indent=1))
+        return
     click.echo(
         f"wrote {output}/: {len(c.scans)} scans, groundtruth.tum; {c.skipped_lines} other lines skipped"
     )

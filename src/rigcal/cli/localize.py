@@ -56,7 +56,8 @@ def localize(
 
     Writes METHOD/trajectory.tum (and .kitti) per method, summary.yaml/json with the
     configuration, per-stage timings and, when the sequence has ground truth, the paper's
-    Table 1 figures, and paths.png (estimated paths against the truth, as Fig. 8).
+    Table 1 figures, paths.png/.svg (estimated paths against the truth, as Fig. 8)
+    and errors.png/.svg (each method's position error over time).
 
     \b
     Examples:
@@ -71,13 +72,12 @@ def localize(
     iasm = parse_iasm_settings(iasm_items)
     if output.exists() and not force:
         raise OutputError(f"{output}: exists; pass --force to replace it")
-    bars = _Bars()
-    try:
+    from rigcal.cli.progress import Progress
+
+    with Progress("step") as bars:
         r = run(
             sequence, names, output, force=force, kitti=kitti, rig_file=rig_file, progress=bars, iasm=iasm
         )
-    finally:
-        bars.close()
     if as_json:
         click.echo(json.dumps(summary(r, sequence), indent=1))
     elif r.truth is not None:
@@ -93,72 +93,67 @@ def localize(
     )
 
 
-class _Bars:
-    """Progress on stderr. Stages may run side by side (the laser odometry runs beside
-    the feature tracking), so a terminal gets one live line with every running stage's
-    share done; each stage gets a line of its own when it ends."""
-
-    def __init__(self) -> None:
-        import sys
-        import threading
-
-        self.out = sys.stderr
-        self.live = self.out.isatty()
-        self.running: dict[str, tuple[int, int, float]] = {}
-        self.lock = threading.Lock()
-        self.drawn = 0.0
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        import time
-
-        with self.lock:
-            now = time.perf_counter()
-            started = self.running.get(stage, (0, 0, now))[2]
-            self.running[stage] = (done, total, started)
-            if done >= total:
-                del self.running[stage]
-                self._clear()
-                self.out.write(f"{stage}: {total}/{total} in {now - started:.1f} s\n")
-                self.out.flush()
-                self.drawn = 0.0
-            items = self.running.items()
-            if self.live and self.running and now - self.drawn > 0.2:
-                line = "  ".join(f"{k} {100 * d // max(t, 1)}% ({d}/{t})" for k, (d, t, _) in items)
-                self.out.write("\r" + line[:150] + "\x1b[K")
-                self.out.flush()
-                self.drawn = now
-
-    def _clear(self) -> None:
-        if self.live:
-            self.out.write("\r\x1b[K")
-
-    def close(self) -> None:
-        with self.lock:
-            self._clear()
-            self.out.flush()
-
-
 @click.command("evaluate")
-@click.argument("trajectory", type=click.Path(path_type=Path))
+@click.argument("trajectories", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--gt", required=True, type=click.Path(path_type=Path), help="Ground truth (TUM).")
+@click.option(
+    "--max-diff-s",
+    default=0.01,
+    show_default=True,
+    type=click.FloatRange(min=0.0),
+    help="Stamps of estimate and truth closer than this are matched (evo's --t_max_diff).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
-def evaluate_cmd(trajectory: Path, gt: Path, as_json: bool) -> None:
-    """Score a TUM TRAJECTORY against ground truth the way the paper's Table 1 does, plus
-    ATE (SE(2)-aligned) and RPE over 1 m and 10 m as evo computes them.
+def evaluate_cmd(trajectories: tuple[Path, ...], gt: Path, max_diff_s: float, as_json: bool) -> None:
+    """Score TUM TRAJECTORIES against ground truth the way the paper's Table 1 does, plus
+    ATE and RPE over 1 m and 10 m exactly as evo computes them (evo_ape --align,
+    evo_rpe --delta D --delta_unit m). Poses are matched to the truth by stamp as evo does.
+    Each row is labelled by its method folder (out/icp/trajectory.tum -> icp; longer
+    paths where two would be the same). With --json, one trajectory gives one object of
+    figures, several give one object per label.
 
     \b
     Examples:
       rigcal evaluate out/icp/trajectory.tum --gt corridor/groundtruth.tum
+      rigcal evaluate out/*/trajectory.tum --gt corridor/groundtruth.tum --json
     """
+    from rigcal.errors import InputError
     from rigcal.io.trajectory import read_tum
-    from rigcal.localize.metrics import evaluate
+    from rigcal.localize.metrics import associate, evaluate
     from rigcal.localize.pipeline import planar_at, table
 
-    est = read_tum(trajectory)
     truth = read_tum(gt)
-    assert est.stamps_s is not None
-    m = evaluate(planar_at(est, est.stamps_s), planar_at(truth, est.stamps_s))
-    click.echo(json.dumps(m, indent=1) if as_json else table([(trajectory.name, m)]))
+    assert truth.stamps_s is not None
+    rows = []
+    for path, label in zip(trajectories, labels(trajectories), strict=True):
+        est = read_tum(path)
+        assert est.stamps_s is not None
+        i_est, i_gt = associate(est.stamps_s, truth.stamps_s, max_diff_s)
+        if len(i_est) < 2:
+            raise InputError.at(
+                path,
+                "timestamps",
+                f"{len(i_est)} within {max_diff_s} s of {gt}",
+                "at least 2 matching stamps",
+            )
+        poses_est = planar_at(est, est.stamps_s)[i_est]
+        poses_gt = planar_at(truth, truth.stamps_s)[i_gt]
+        rows.append((label, {**evaluate(poses_est, poses_gt), "matched_poses": len(i_est)}))
+    if as_json:
+        click.echo(json.dumps(rows[0][1] if len(rows) == 1 else dict(rows), indent=1))
+    else:
+        click.echo(table(rows))
+
+
+def labels(paths: tuple[Path, ...]) -> list[str]:
+    """Row labels: the method folder of METHOD/trajectory.tum, else the file's stem, with
+    more of each path's folders while two labels would be the same."""
+    parts = [(p.parent if p.stem == "trajectory" else p.with_suffix("")).resolve().parts for p in paths]
+    for n in range(1, max(len(x) for x in parts) + 1):
+        out = ["/".join(x[-n:]) for x in parts]
+        if len(set(out)) == len(out):
+            return out
+    return [str(p) for p in paths]
 
 
 @click.command("matches")
@@ -176,8 +171,9 @@ def evaluate_cmd(trajectory: Path, gt: Path, as_json: bool) -> None:
 )
 @rig_option
 @click.option("--force", is_flag=True, help="Replace an existing file.")
+@click.option("--json", "as_json", is_flag=True, help="Print the counts and the step's motion as JSON.")
 def matches(
-    sequence: Path, index: int, method: str, output: Path, rig_file: Path | None, force: bool
+    sequence: Path, index: int, method: str, output: Path, rig_file: Path | None, force: bool, as_json: bool
 ) -> None:
     """Draw the scan-return correspondences IASM or H-IASM finds between image INDEX and
     the next (as the paper's Fig. 5): inliers green, outliers red. Prints the metric
@@ -207,6 +203,19 @@ def matches(
     inl = 0 if st.result is None else st.result.inliers
     metric = "-" if st.result is None else st.result.metric
     x, y, yaw = st.motion
+    if as_json:
+        doc = {
+            "output": str(output),
+            "image": index,
+            "method": st.used,
+            "correspondences": n,
+            "inliers": int(inl),
+            "metric": None if st.result is None else st.result.metric,
+            "motion": {"x_m": float(x), "y_m": float(y), "yaw_rad": float(yaw)},
+            "fallback": st.why_fallback or None,
+        }
+        click.echo(json.dumps(doc, indent=1))
+        return
     click.echo(
         f"{st.used}: {n} correspondences, {inl} inliers, {metric} metric; "
         f"motion x {x:.3f} m, y {y:.3f} m, yaw {np.degrees(yaw):.2f} deg"

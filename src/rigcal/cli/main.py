@@ -28,7 +28,10 @@ from rigcal.errors import RigcalError
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="rigcal")
-def cli() -> None:
+@click.option("-v", "--verbose", count=True, help="More log output on stderr (-v info, -vv debug).")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bars or log output below errors.")
+@click.pass_context
+def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
     """Laser-camera extrinsic calibration and image-augmented laser scan matching.
 
     \b
@@ -40,7 +43,12 @@ def cli() -> None:
       rigcal export rig.yaml --format ros
       rigcal intrinsics calib/*.jpg --board 9x6 --square-m 0.025 -o camera.cameramodel
       rigcal simulate calib-session -o session/ --seed 1
+      rigcal -q localize corridor/ --method icp -o out/ --json
     """
+    from rigcal.cli.progress import configure
+
+    ctx.obj = {"verbose": verbose, "quiet": quiet}
+    configure(verbose, quiet)
 
 
 cli.add_command(solve_cmd.solve)

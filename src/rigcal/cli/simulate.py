@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
@@ -85,6 +84,12 @@ _noise_option = click.option(
 @_noise_option
 @click.option("--no-images", is_flag=True, help="Write flat grey placeholder images instead of renders.")
 @click.option("--force", is_flag=True, help="Replace an existing session folder.")
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print what was written (and the true T_cam_laser) as JSON on stdout.",
+)
 def calib_session(
     output: Path,
     captures: int,
@@ -97,6 +102,7 @@ def calib_session(
     noise_model: str,
     no_images: bool,
     force: bool,
+    as_json: bool,
 ) -> None:
     """Write a synthetic box-target session with its truth file.
 
@@ -143,6 +149,10 @@ def calib_session(
         T = moved_T_cam_laser(T, move_deg, move_mm, seed=seed)
     session = generate_session(spec, T_cam_laser=T)
     write_session(session, output, force=force, render_images=not no_images)
+    if as_json:
+        wrong = [c.name for c in session.captures if c.is_wrong_pick]
+        _echo_json(output, "picks.yaml", session.T_cam_laser, captures=captures, seed=seed, wrong_picks=wrong)
+        return
     click.echo(
         f"wrote {output}/: {describe_session(session)} "
         f"Solve it with: rigcal solve {output}/picks.yaml -o rig.yaml --truth {output}/truth.yaml",
@@ -179,6 +189,12 @@ def calib_session(
 )
 @_noise_option
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print what was written (and the true T_cam_laser) as JSON on stdout.",
+)
 def board_session(
     output: Path,
     captures: int,
@@ -187,6 +203,7 @@ def board_session(
     range_sigma_m: float,
     noise_model: str,
     force: bool,
+    as_json: bool,
 ) -> None:
     """Write a synthetic checkerboard session (board corners listed, scans, truth) for the
     plane method of `rigcal solve`. See docs/formats/board-session.md.
@@ -210,7 +227,11 @@ def board_session(
         seed=seed,
         noise=RealisticNoise() if noise_model == "realistic" else None,
     )
-    write_board_session(generate_board_session(spec), output, force=force)
+    session = generate_board_session(spec)
+    write_board_session(session, output, force=force)
+    if as_json:
+        _echo_json(output, "board_session.yaml", session.T_cam_laser, captures=captures, seed=seed)
+        return
     click.echo(
         f"wrote {output}/: {captures} board captures, seed {seed}. Solve it with: rigcal solve "
         f"{output}/board_session.yaml -o rig.yaml --truth {output}/truth.yaml",
@@ -307,6 +328,12 @@ def board_session(
 )
 @click.option("--no-images", is_flag=True, help="Write no camera images (laser and ground truth only).")
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print what was written (and the true T_cam_laser) as JSON on stdout.",
+)
 def world(
     world_name: str,
     output: Path,
@@ -323,6 +350,7 @@ def world(
     rig_file: Path | None,
     no_images: bool,
     force: bool,
+    as_json: bool,
 ) -> None:
     """Drive one lap of a simulated indoor world and write it as a sequence folder: laser
     scans, camera images rendered at the true poses, the laser's ground truth at every
@@ -359,13 +387,57 @@ def world(
         duration_s=duration_s,
     )
     n_images = len(camera_stamps(Motion(w, spec), spec)) if spec.images else 0
-    with click.progressbar(length=n_images, label="rendering", file=sys.stderr) as bar:
-        figures = write_drive(w, spec, str(output), force=force, rig=rig, progress=bar.update)
-    ratio = figures["generation_s"] / max(figures["duration_s"], 1e-9)
+    from rigcal.cli.progress import Progress
+
+    done = [0]
+
+    with Progress("image") as bars:
+
+        def rendered(n: int) -> None:
+            done[0] += n
+            bars("rendering", done[0], n_images)
+
+        figures = write_drive(w, spec, str(output), force=force, rig=rig, progress=rendered)
+    ratio = x_real_time(figures["duration_s"], figures["generation_s"])
+    if as_json:
+        from rigcal.sim.box_session import default_T_cam_laser
+
+        _echo_json(
+            output,
+            "sequence.yaml",
+            rig.T_cam_laser if rig is not None else default_T_cam_laser(),
+            world=w.name,
+            seed=seed,
+            length_m=figures["length_m"],
+            duration_s=figures["duration_s"],
+            scans=int(figures["scans"]),
+            images=int(figures["images"]),
+            wall_s=figures["generation_s"],
+            x_real_time=ratio,
+        )
+        return
     click.echo(
         f"wrote {output}/: {w.name}, a {figures['length_m']:.1f} m lap, "
         f"{figures['duration_s']:.1f} s driven, "
         f"{int(figures['scans'])} scans, {int(figures['images'])} images, "
-        f"generated in {figures['generation_s']:.1f} s ({ratio:.2f} x real time)",
+        f"generated in {figures['generation_s']:.1f} s ({ratio:.2f}x real time)",
         err=True,
     )
+
+
+def x_real_time(duration_s: float, wall_s: float) -> float:
+    """Seconds of data per second of wall time (above 1: faster than real time); the one
+    meaning of "x real time" in every command's output."""
+    return duration_s / wall_s if wall_s > 0 else float("inf")
+
+
+def _echo_json(output: Path, entry: str, T_cam_laser: object, **figures: object) -> None:
+    """What a simulate command wrote, and the true T_cam_laser, as JSON on stdout."""
+    import json
+
+    import numpy as np
+
+    T = np.asarray(T_cam_laser, dtype=float)
+    doc = {"output": str(output), "entry": str(output / entry), **figures}
+    doc["T_cam_laser_true"] = [[float(x) for x in row] for row in T]
+    click.echo(json.dumps(doc, indent=1))

@@ -38,10 +38,8 @@ import click
 )
 @click.option(
     "--range-sigma-m",
-    default=0.01,
-    show_default=True,
     type=click.FloatRange(min=1e-5),
-    help="Range noise (1 sigma).",
+    help="Range noise (1 sigma) [default: the picking file's laser.range_sigma_m, else 0.01].",
 )
 @click.option(
     "--noise",
@@ -82,7 +80,7 @@ def solve(
     seed: int,
     threshold_px: float,
     pick_sigma_px: float,
-    range_sigma_m: float,
+    range_sigma_m: float | None,
     noise_mode: str,
     range_bias: bool,
     loss: str,
@@ -120,7 +118,7 @@ def solve(
     settings = SolveSettings(
         ransac=RansacParams(threshold_px=threshold_px, seed=seed),
         refine=RefineParams(use_side_points=not paper_endpoints, loss=loss),
-        noise=NoiseModel(pick_sigma_px=pick_sigma_px, range_sigma_m=range_sigma_m),
+        noise=NoiseModel(pick_sigma_px=pick_sigma_px),
         noise_mode=noise_mode,
     )
     command = "rigcal " + shlex.join(sys.argv[1:]) if sys.argv else "rigcal solve"
@@ -142,13 +140,15 @@ def solve(
             as_json,
         )
         return
-    cal = calibrate(picks, settings, truth, command=command)
+    # One rule for both methods: --range-sigma-m, else the file's laser.range_sigma_m.
+    cal = calibrate(picks, settings, truth, command=command, range_sigma_m=range_sigma_m)
     if report_dir is not None:
         write_report_dir(report_dir, cal, force=force)
     write_rig(output, cal.rig, force=force)
     if as_json:
         doc = {k: cal.report[k] for k in ("summary", "rejected", "warnings")}
         doc["rig_file"] = str(output)
+        doc["rig"] = cal.rig.to_json()
         if "truth" in cal.report:
             doc["truth"] = cal.report["truth"]
         click.echo(json.dumps(doc, indent=1))
@@ -163,7 +163,7 @@ def _solve_board(
     report_dir: Path | None,
     truth: Path | None,
     seed: int,
-    range_sigma_m: float,
+    range_sigma_m: float | None,
     noise_mode: str,
     range_bias: bool,
     command: str,
@@ -176,12 +176,11 @@ def _solve_board(
     from rigcal.calib.board_calibrate import board_report_table, calibrate_board
     from rigcal.io.files import atomic_folder
     from rigcal.rigfile import write_rig
+    from rigcal.viz.charts import figure_bytes
+    from rigcal.viz.residual_plot import board_residuals_figure
 
-    # The session's laser.range_sigma_m applies unless --range-sigma-m was given.
-    source = click.get_current_context().get_parameter_source("range_sigma_m")
-    sigma = range_sigma_m if source is not None and source.name != "DEFAULT" else None
     cal = calibrate_board(
-        session, sigma, truth, command=command, seed=seed, noise=noise_mode, range_bias=range_bias
+        session, range_sigma_m, truth, command=command, seed=seed, noise=noise_mode, range_bias=range_bias
     )
     if report_dir is not None:
         with atomic_folder(report_dir, force) as tmp:
@@ -191,10 +190,14 @@ def _solve_board(
             )
             (tmp / "report.json").write_text(json.dumps(cal.report, indent=1) + "\n")
             (tmp / "report.txt").write_text(board_report_table(cal.report))
+            fig = board_residuals_figure(cal.report, cal.result.residuals_m)
+            for fmt in (".png", ".svg"):
+                (tmp / f"residuals{fmt}").write_bytes(figure_bytes(fig, fmt))
     write_rig(output, cal.rig, force=force)
     if as_json:
         doc = dict(cal.report)
         doc["rig_file"] = str(output)
+        doc["rig"] = cal.rig.to_json()
         click.echo(json.dumps(doc, indent=1))
     else:
         click.echo(board_report_table(cal.report), nl=False)

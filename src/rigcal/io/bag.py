@@ -9,6 +9,7 @@ nothing is silently changed.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +20,8 @@ import numpy as np
 from rigcal.errors import InputError
 from rigcal.io.sequence import ImageFrame, write_sequence
 from rigcal.scan import Scan
+
+log = logging.getLogger(__name__)
 
 SCAN_TYPES = ("sensor_msgs/msg/LaserScan",)
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -43,9 +46,10 @@ def import_bag(
     image_topic: str,
     camera_info_topic: str | None = None,
     force: bool = False,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> ImportSummary:
-    """Write a sequence folder from a bag.
+    """Write a sequence folder from a bag. ``progress`` is called with (messages read,
+    messages on the wanted topics).
 
     Raises:
         InputError: unreadable bag, a missing topic (the bag's topics are listed), a topic
@@ -81,6 +85,7 @@ def import_bag(
         images: list[tuple[float, bytes, str]] = []
         info: Any = None
         conns = [c for c in reader.connections if c.topic in {t for t, _ in wanted.values()}]
+        total = sum(int(c.msgcount) for c in conns)
         for k, (con, _, raw) in enumerate(reader.messages(connections=conns)):
             msg: Any = reader.deserialize(raw, con.msgtype)
             stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
@@ -92,9 +97,10 @@ def import_bag(
             elif info is None:
                 info = msg
             if progress is not None:
-                progress(k)
+                progress(k + 1, total)
     finally:
         reader.close()
+    log.info("%s: %d scans, %d images read from %d messages", bag, len(scans), len(images), total)
     summary = ImportSummary()
     for what, items, topic in (("scans", scans, scan_topic), ("images", images, image_topic)):
         if not items:

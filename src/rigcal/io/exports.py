@@ -1,4 +1,4 @@
-"""A rig in the formats other tools read: ROS tf, URDF, Kalibr-style YAML, mrcal.
+"""A rig in the formats other tools read: ROS tf, URDF (and xacro), Kalibr camchain, mrcal.
 
 Every export says which way its transform goes, in the text itself. The frames are
 rigcal's (docs/conventions.md): the camera frame is an optical frame (x right, y down,
@@ -7,12 +7,17 @@ z forward; ROS calls it e.g. ``camera_optical_frame``) and the laser frame is RO
 child's pose in the parent: it maps child-frame points into the parent frame, so parent
 ``laser`` and child ``camera`` is T_laser_cam, and parent ``camera`` is T_cam_laser.
 
+With :class:`Frames` ``camera_link`` the camera end is instead the camera's body frame
+(REP 103 axes), the frame a camera driver hangs its optical frame from.
+
 All functions are pure (text in, text out); :func:`export_rig` picks one by name.
 """
 
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,24 +26,61 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from rigcal.errors import InputError
-from rigcal.geometry import rt_from_T
+from rigcal.geometry import inv_T, make_T, rt_from_T
 from rigcal.rig import Rig
 
 FloatArray = NDArray[np.float64]
 
-FORMATS = ("ros", "urdf", "kalibr", "mrcal")
+FORMATS = ("ros", "urdf", "xacro", "kalibr", "mrcal")
 
-# Kalibr's pinhole-radtan camera has OpenCV's first four coefficients (k1, k2, p1, p2).
-_KALIBR_LENSMODELS = ("LENSMODEL_PINHOLE", "LENSMODEL_OPENCV4", "LENSMODEL_OPENCV5")
+# The camera's body frame (REP 103: x forward, y left, z up) from its optical frame
+# (x right, y down, z forward): R_link_optical, the rotation a camera driver publishes
+# from ``camera_link`` to ``camera_optical_frame`` (q = (-0.5, 0.5, -0.5, 0.5)).
+R_LINK_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
-def transform_between(rig: Rig, parent: str) -> tuple[FloatArray, str, str]:
-    """(T_parent_child, parent name, child name) for parent "laser" or "camera"."""
+@dataclass(frozen=True)
+class Frames:
+    """Which frames an export joins, and their names.
+
+    Attributes:
+        parent: "laser" or "camera": which sensor is the transform's parent.
+        camera_link: attach to the camera's body frame (``camera_link``, REP 103 axes)
+            instead of its optical frame, so that the camera driver's own
+            ``camera_link -> camera_optical_frame`` transform stays the only parent of the
+            optical frame.
+        parent_frame, child_frame: names to use instead of the defaults (``laser``,
+            ``camera_optical_frame`` or ``camera_link``).
+    """
+
+    parent: str = "laser"
+    camera_link: bool = False
+    parent_frame: str | None = None
+    child_frame: str | None = None
+
+    def camera_name(self) -> str:
+        return "camera_link" if self.camera_link else "camera_optical_frame"
+
+    def names(self) -> tuple[str, str]:
+        """(parent frame name, child frame name)."""
+        p, c = ("laser", self.camera_name()) if self.parent == "laser" else (self.camera_name(), "laser")
+        return self.parent_frame or p, self.child_frame or c
+
+
+def transform_between(rig: Rig, parent: str, camera_link: bool = False) -> tuple[FloatArray, str, str]:
+    """(T_parent_child, parent sensor, child sensor) for parent "laser" or "camera".
+
+    With ``camera_link`` the camera end is the camera's body frame:
+    T_laser_link = T_laser_cam @ T_optical_link.
+    """
+    if parent not in ("laser", "camera"):
+        raise ValueError(f"parent must be 'laser' or 'camera', not {parent!r}")
+    T_laser_cam = np.asarray(rig.T_laser_cam, dtype=float)
+    if camera_link:
+        T_laser_cam = T_laser_cam @ make_T(R_LINK_OPTICAL.T, np.zeros(3))
     if parent == "laser":
-        return rig.T_laser_cam, "laser", "camera"
-    if parent == "camera":
-        return np.asarray(rig.T_cam_laser, dtype=float), "camera", "laser"
-    raise ValueError(f"parent must be 'laser' or 'camera', not {parent!r}")
+        return T_laser_cam, "laser", "camera"
+    return inv_T(T_laser_cam), "camera", "laser"
 
 
 def _xyz_quat(T: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -49,21 +91,36 @@ def _xyz_quat(T: FloatArray) -> tuple[FloatArray, FloatArray]:
     return T[:3, 3], q
 
 
-def _short(frame: str) -> str:
-    return "cam" if frame == "camera" else frame
+def _short(frame: str, camera_link: bool) -> str:
+    return ("link" if camera_link else "cam") if frame == "camera" else frame
 
 
 def _f(x: float) -> str:
     return f"{float(x):.9g}"
 
 
-def ros_static_transform(
-    rig: Rig, parent: str = "laser", parent_frame: str | None = None, child_frame: str | None = None
-) -> str:
+def _direction(rig: Rig, frames: Frames) -> tuple[FloatArray, str, str, list[str]]:
+    """(T_parent_child, parent name, child name, comment lines stating the direction)."""
+    T, p, c = transform_between(rig, frames.parent, frames.camera_link)
+    pf, cf = frames.names()
+    cam = cf if c == "camera" else pf
+    axes = (
+        f"{cam} is the camera's body frame (x forward, y left, z up; REP 103); its optical "
+        "frame (x right, y down, z forward) is camera_link rotated by q = (-0.5, 0.5, -0.5, 0.5)"
+        if frames.camera_link
+        else f"{cam} is an optical frame (x right, y down, z forward)"
+    )
+    lines = [
+        f"the pose of {cf} in {pf}: it maps points in {cf} into {pf}",
+        f"(T_{_short(p, frames.camera_link)}_{_short(c, frames.camera_link)} in rigcal's notation).",
+        axes,
+    ]
+    return T, pf, cf, lines
+
+
+def ros_static_transform(rig: Rig, frames: Frames | None = None) -> str:
     """ROS 1 and ROS 2 ``static_transform_publisher`` commands and launch-file lines."""
-    T, p, c = transform_between(rig, parent)
-    pf = parent_frame or ("laser" if p == "laser" else "camera_optical_frame")
-    cf = child_frame or ("camera_optical_frame" if c == "camera" else "laser")
+    T, pf, cf, what = _direction(rig, frames or Frames())
     xyz, q = _xyz_quat(T)
     args1 = " ".join(_f(v) for v in (*xyz, *q)) + f" {pf} {cf}"
     args2 = (
@@ -73,11 +130,9 @@ def ros_static_transform(
     return "\n".join(
         [
             f"# rigcal rig as a ROS static transform: parent {pf}, child {cf}.",
-            f"# It is the pose of {cf} in {pf}: it maps points in {cf} into {pf}",
-            f"# (T_{_short(p)}_{_short(c)} in rigcal's notation). Quaternion in ROS order (x, y, z, w).",
-            f"# {cf} is an optical frame (x right, y down, z forward)"
-            if c == "camera"
-            else f"# {pf} is an optical frame (x right, y down, z forward)",
+            f"# It is {what[0]}",
+            f"# {what[1]} Quaternion in ROS order (x, y, z, w).",
+            f"# {what[2]}.",
             "",
             "# ROS 1:",
             f"rosrun tf2_ros static_transform_publisher {args1}",
@@ -91,65 +146,135 @@ def ros_static_transform(
     )
 
 
-def urdf_joint(
-    rig: Rig, parent: str = "laser", parent_link: str | None = None, child_link: str | None = None
-) -> str:
-    """A fixed URDF joint placing the child link in the parent link."""
-    T, p, c = transform_between(rig, parent)
-    pl = parent_link or ("laser" if p == "laser" else "camera_optical_frame")
-    cl = child_link or ("camera_optical_frame" if c == "camera" else "laser")
+def _origin(T: FloatArray) -> str:
     # URDF rpy: fixed-axis roll about x, then pitch about y, then yaw about z: R = Rz Ry Rx.
     # At pitch +-pi/2 (e.g. parent camera, optical axis along the laser's x) scipy warns of
     # gimbal lock; the angles it returns still give the same rotation, so the warning is noise.
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Gimbal lock detected", category=UserWarning)
         rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz")
-    xyz = T[:3, 3]
+    return f'<origin xyz="{" ".join(_f(v) for v in T[:3, 3])}" rpy="{" ".join(_f(v) for v in rpy)}"/>'
+
+
+def _xml_head(title: str, what: list[str], usage: tuple[str, ...] = ()) -> list[str]:
+    return [
+        '<?xml version="1.0"?>',
+        f"<!-- rigcal rig as {title} places {what[0]}",
+        f"     {what[1]}",
+        f"     {what[2]}.",
+        *usage,
+        "     rpy: fixed-axis roll, pitch, yaw (rad). -->",
+    ]
+
+
+def _joint(parent: str, child: str, T: FloatArray, indent: str) -> list[str]:
+    return [
+        f'{indent}<joint name="{parent}_to_{child}" type="fixed">',
+        f'{indent}  <parent link="{parent}"/>',
+        f'{indent}  <child link="{child}"/>',
+        f"{indent}  {_origin(T)}",
+        f"{indent}</joint>",
+    ]
+
+
+def urdf_robot(rig: Rig, frames: Frames | None = None, robot_name: str = "rigcal_rig") -> str:
+    """A loadable URDF ``<robot>``: both sensor links and the fixed joint between them."""
+    T, pf, cf, what = _direction(rig, frames or Frames())
     return "\n".join(
         [
-            f"<!-- rigcal rig as a URDF joint: the pose of {cl} in {pl} (maps points in {cl}",
-            f"     into {pl}; T_{_short(p)}_{_short(c)} in rigcal's notation).",
-            "     rpy: fixed-axis roll, pitch, yaw (rad). -->",
-            f'<joint name="{pl}_to_{cl}" type="fixed">',
-            f'  <parent link="{pl}"/>',
-            f'  <child link="{cl}"/>',
-            f'  <origin xyz="{" ".join(_f(v) for v in xyz)}" rpy="{" ".join(_f(v) for v in rpy)}"/>',
-            "</joint>",
+            *_xml_head(f"a URDF robot: the joint {pf}_to_{cf}", what),
+            f'<robot name="{robot_name}">',
+            f'  <link name="{pf}"/>',
+            f'  <link name="{cf}"/>',
+            *_joint(pf, cf, T, "  "),
+            "</robot>",
             "",
         ]
     )
 
 
-def kalibr_yaml(rig: Rig) -> str:
-    """A Kalibr-style camera chain entry with the laser in place of the IMU.
+def urdf_xacro(rig: Rig, frames: Frames | None = None) -> str:
+    """A xacro file with one macro, ``rigcal_rig``, to include in a robot description.
+
+    The macro adds the child link and the fixed joint; the parent link (by default the
+    parent frame's name, ``parent:=...`` to attach elsewhere) is the including robot's.
+    """
+    T, pf, cf, what = _direction(rig, frames or Frames())
+    usage = (
+        '     Use: <xacro:include filename="rig.xacro"/> <xacro:rigcal_rig/>',
+        f"     (parent:=LINK if your robot calls {pf} otherwise).",
+    )
+    return "\n".join(
+        [
+            *_xml_head("a xacro macro: the joint", what, usage),
+            '<robot xmlns:xacro="http://www.ros.org/wiki/xacro">',
+            f'  <xacro:macro name="rigcal_rig" params="parent:={pf} child:={cf}">',
+            '    <link name="${child}"/>',
+            *_joint("${parent}", "${child}", T, "    "),
+            "  </xacro:macro>",
+            "</robot>",
+            "",
+        ]
+    )
+
+
+# Kalibr's pinhole camera with its radtan distortion has OpenCV's first four coefficients
+# (k1, k2, p1, p2); OpenCV's k3..k6 must be zero for the same lens to be written.
+_KALIBR_LENSMODELS = ("LENSMODEL_PINHOLE", "LENSMODEL_OPENCV4", "LENSMODEL_OPENCV5", "LENSMODEL_OPENCV8")
+
+
+def kalibr_yaml(rig: Rig, rostopic: str = "/camera/image_raw", source: str | Path | None = None) -> str:
+    """A Kalibr camchain (``camchain-imucam.yaml``) with the laser in the IMU's place.
+
+    Kalibr reads the extrinsics of a camera-IMU chain from ``T_cam_imu`` (it maps IMU-frame
+    points into the camera frame); here the "IMU" frame is the laser, so it holds
+    T_cam_laser. ``source`` names the rig file in error messages.
 
     Raises:
-        InputError: the lens model has no Kalibr equivalent (only pinhole with up to the
-            four radtan coefficients k1, k2, p1, p2 can be written).
+        InputError: the lens model has no Kalibr equivalent (pinhole with radtan
+            distortion holds k1, k2, p1, p2 only; OpenCV's k3..k6 must be 0).
     """
     cam = rig.camera
     intr = np.asarray(cam.intrinsics, dtype=float)
-    if cam.lensmodel not in _KALIBR_LENSMODELS or (cam.lensmodel == "LENSMODEL_OPENCV5" and intr[8] != 0.0):
-        raise InputError(
-            f"camera: lens model {cam.lensmodel}"
-            + (f" with k3 = {intr[8]:g}" if cam.lensmodel == "LENSMODEL_OPENCV5" else "")
-            + " has no Kalibr equivalent; expected pinhole with at most k1, k2, p1, p2 (radtan)"
+    extra = intr[8:]
+    if cam.lensmodel not in _KALIBR_LENSMODELS:
+        raise InputError.at(
+            source,
+            "camera.lensmodel",
+            cam.lensmodel,
+            "a pinhole lens model Kalibr can hold (LENSMODEL_PINHOLE, or LENSMODEL_OPENCV4/5/8 "
+            "with k3..k6 = 0); "
+            "use --format mrcal for this lens",
         )
+    if np.any(extra != 0.0):
+        names = ("k3", "k4", "k5", "k6")
+        raise InputError.at(
+            source,
+            "camera.intrinsics",
+            {n: float(v) for n, v in zip(names, extra, strict=False) if v != 0.0},
+            f"k3..k6 = 0 for Kalibr's radtan distortion (k1, k2, p1, p2; {cam.lensmodel}); "
+            "recalibrate with LENSMODEL_OPENCV4 or use --format mrcal",
+        )
+    if not rostopic.startswith("/"):
+        raise InputError.at(None, "--rostopic", rostopic, "a ROS topic name starting with '/'")
     dist = [float(x) for x in intr[4:8]] if len(intr) > 4 else [0.0, 0.0, 0.0, 0.0]
     T = np.asarray(rig.T_cam_laser, dtype=float)
     doc: dict[str, Any] = {
         "cam0": {
-            "T_cam_laser": [[float(x) for x in row] for row in T],
+            "T_cam_imu": [[float(x) for x in row] for row in T],
+            "cam_overlaps": [],
             "camera_model": "pinhole",
-            "intrinsics": [float(x) for x in intr[:4]],
-            "distortion_model": "radtan",
             "distortion_coeffs": dist,
+            "distortion_model": "radtan",
+            "intrinsics": [float(x) for x in intr[:4]],
             "resolution": [int(cam.width_px), int(cam.height_px)],
+            "rostopic": rostopic,
         }
     }
     head = (
-        "# rigcal rig, Kalibr camchain style. T_cam_laser (4x4, row-major) maps laser-frame points\n"
-        "# into the camera frame, as Kalibr's T_cam_imu maps IMU-frame points. intrinsics: fu, fv, pu, pv.\n"
+        "# rigcal rig as a Kalibr camchain (camchain-imucam.yaml), the laser in the IMU's place:\n"
+        "# T_cam_imu is T_cam_laser (4x4, row-major); it maps laser-frame points into the camera\n"
+        "# (optical) frame, as Kalibr's T_cam_imu maps IMU-frame points. intrinsics: fu, fv, pu, pv.\n"
     )
     return head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=110)
 
@@ -174,14 +299,23 @@ def mrcal_cameramodel_text(rig: Rig) -> str:
     return buf.getvalue()
 
 
-def export_rig(rig: Rig, fmt: str, parent: str = "laser") -> str:
-    """The rig as text in format ``fmt`` (one of :data:`FORMATS`)."""
+def export_rig(
+    rig: Rig,
+    fmt: str,
+    frames: Frames | None = None,
+    rostopic: str = "/camera/image_raw",
+    source: str | Path | None = None,
+) -> str:
+    """The rig as text in format ``fmt`` (one of :data:`FORMATS`); ``frames`` applies to
+    ros, urdf and xacro, ``rostopic`` to kalibr; ``source`` names the rig file in errors."""
     if fmt == "ros":
-        return ros_static_transform(rig, parent)
+        return ros_static_transform(rig, frames)
     if fmt == "urdf":
-        return urdf_joint(rig, parent)
+        return urdf_robot(rig, frames)
+    if fmt == "xacro":
+        return urdf_xacro(rig, frames)
     if fmt == "kalibr":
-        return kalibr_yaml(rig)
+        return kalibr_yaml(rig, rostopic, source)
     if fmt == "mrcal":
         return mrcal_cameramodel_text(rig)
     raise ValueError(f"format must be one of {FORMATS}, not {fmt!r}")

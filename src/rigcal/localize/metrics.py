@@ -14,11 +14,17 @@ All trajectories are planar poses (x, y, yaw) of the same frame at the same stam
   positions (the estimate started at the true first pose), loop or not.
 - Average position error (Table 1): the mean distance between estimated and true
   positions over all stamps, with the estimate started at the true first pose.
-- ATE RMSE: root mean square position error after the rigid SE(2) alignment that
-  minimises it (Umeyama without scale; evo's ``evo_ape --align``).
-- RPE over a distance d: for every pose i and the first pose j whose true path length
-  from i reaches d, the translation error of the relative motion, RMSE over all pairs
-  (evo's ``evo_rpe --delta d --delta_unit m``).
+- ATE RMSE: root mean square position error after the rigid alignment that minimises
+  it (Umeyama without scale), exactly evo's ``evo_ape REF EST --align`` (for planar
+  poses at one height evo's SE(3) alignment is this SE(2) one).
+- RPE over a distance d: exactly evo's ``evo_rpe REF EST --delta d --delta_unit m`` with
+  its defaults (translation part, consecutive pairs, pairs chosen along the estimate's
+  path): pose 0, then each pose where the estimate's path since the previous chosen pose
+  reaches d; for each consecutive pair (i, j) the translation of
+  E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j) (Q the truth, P the estimate); RMSE over the pairs.
+
+:func:`associate` pairs two trajectories' stamps as evo does (nearest stamp within
+0.01 s). The tests check every figure against evo's own functions.
 """
 
 from __future__ import annotations
@@ -64,19 +70,66 @@ def align_se2(est: FloatArray, gt: FloatArray) -> FloatArray:
     return np.column_stack([a @ R.T + t, est[:, 2] + yaw])
 
 
+def ate_rmse(est: FloatArray, gt: FloatArray) -> float:
+    """Position RMSE after the best rigid alignment (evo's ``evo_ape --align``)."""
+    ali = align_se2(est, gt)
+    return float(np.sqrt(np.mean(np.sum((ali[:, :2] - gt[:, :2]) ** 2, axis=1))))
+
+
+def rpe_pairs(poses: FloatArray, delta_m: float) -> list[tuple[int, int]]:
+    """evo's consecutive pairs by path length (``filters.filter_pairs_by_path`` with
+    ``all_pairs=False``): pose 0, then every pose at which the path travelled since the
+    last chosen one reaches ``delta_m``; each chosen pose paired with the next."""
+    ids = [0]
+    travelled = 0.0
+    step = np.linalg.norm(np.diff(poses[:, :2], axis=0), axis=1)
+    for i in range(1, len(poses)):
+        travelled += float(step[i - 1])
+        if travelled >= delta_m:
+            ids.append(i)
+            travelled = 0.0
+    return list(itertools.pairwise(ids))
+
+
 def rpe_rmse(est: FloatArray, gt: FloatArray, delta_m: float) -> float:
-    """RMSE of the relative translation error over true path-length steps of delta_m."""
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(gt[:, :2], axis=0), axis=1))])
+    """RMSE of the relative translation error over evo's pairs ``delta_m`` apart along
+    the estimate's path (evo's default); NaN when the path is shorter than ``delta_m``."""
     errs = []
-    for i in range(len(gt)):
-        j = int(np.searchsorted(s, s[i] + delta_m))
-        if j >= len(gt):
-            break
+    for i, j in rpe_pairs(est, delta_m):
         rel_gt = np.linalg.inv(se2(gt[i])) @ se2(gt[j])
         rel_est = np.linalg.inv(se2(est[i])) @ se2(est[j])
         e = np.linalg.inv(rel_gt) @ rel_est
         errs.append(np.hypot(e[0, 2], e[1, 2]))
     return float(np.sqrt(np.mean(np.square(errs)))) if errs else float("nan")
+
+
+def associate(
+    stamps_1: FloatArray, stamps_2: FloatArray, max_diff_s: float = 0.01
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Indices of matching stamps of two trajectories, as evo's
+    ``sync.associate_trajectories`` (nearest time, ``max_diff`` 0.01 s): each stamp of
+    the trajectory with fewer poses is matched to the nearest stamp of the other within
+    ``max_diff_s`` (a tie goes to the earlier one), unmatched stamps are dropped. Both
+    stamp arrays must be increasing. Returns (indices into stamps_1, into stamps_2)."""
+    swap = len(stamps_2) <= len(stamps_1)
+    short, long_ = (stamps_2, stamps_1) if swap else (stamps_1, stamps_2)
+    i_short, i_long = [], []
+    for k, t in enumerate(short):
+        if t < long_[0] - max_diff_s or t > long_[-1] + max_diff_s:
+            continue
+        j = min(int(np.searchsorted(long_, t, side="right")), len(long_) - 1)
+        up = long_[j] - t
+        down = t - long_[j - 1] if j > 0 else np.inf
+        if up <= max_diff_s and up < down:
+            best = j
+        elif down <= max_diff_s and down <= up:
+            best = j - 1
+        else:
+            continue
+        i_short.append(k)
+        i_long.append(best)
+    a, b = np.array(i_short, dtype=np.intp), np.array(i_long, dtype=np.intp)
+    return (b, a) if swap else (a, b)
 
 
 def evaluate(est: FloatArray, gt: FloatArray) -> dict[str, Any]:
@@ -89,7 +142,6 @@ def evaluate(est: FloatArray, gt: FloatArray) -> dict[str, Any]:
     loop = float(np.linalg.norm((a[-1, :2] - a[0, :2]) - gt_offset))
     gt_gap = float(np.linalg.norm(gt_offset))
     is_loop = length > 0 and gt_gap <= max(0.5, LOOP_GAP_FRACTION * length)
-    ali = align_se2(est, gt)
     return {
         "path_length_m": round(length, 3),
         "loop_closure_error_m": round(loop, 4) if is_loop else None,
@@ -97,7 +149,7 @@ def evaluate(est: FloatArray, gt: FloatArray) -> dict[str, Any]:
         "truth_loop_gap_m": round(gt_gap, 4),
         "end_position_error_m": round(float(np.linalg.norm(a[-1, :2] - gt[-1, :2])), 4),
         "average_position_error_m": round(float(np.mean(np.linalg.norm(a[:, :2] - gt[:, :2], axis=1))), 4),
-        "ate_rmse_m": round(float(np.sqrt(np.mean(np.sum((ali[:, :2] - gt[:, :2]) ** 2, axis=1)))), 4),
+        "ate_rmse_m": round(ate_rmse(est, gt), 4),
         "rpe_1m_rmse_m": _finite(rpe_rmse(est, gt, 1.0)),
         "rpe_10m_rmse_m": _finite(rpe_rmse(est, gt, 10.0)),
     }

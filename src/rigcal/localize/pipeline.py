@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -36,6 +37,8 @@ from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import DEGENERATE_BELOW, Odometry, icp_odometry
 from rigcal.localize.streams import Streams, open_streams
 from rigcal.localize.vo import VoResult, visual_odometry
+
+log = logging.getLogger(__name__)
 
 FloatArray = NDArray[np.float64]
 
@@ -233,8 +236,8 @@ def run(
 ) -> Run:
     """Localize a sequence with each method and write the output folder:
     ``METHOD/trajectory.tum`` (and ``.kitti``) per method, ``summary.yaml``/``.json`` and,
-    with ground truth, ``paths.png``. ``iasm``: IASM's and H-IASM's settings (the
-    defaults unless given).
+    with ground truth, ``paths.png``/``.svg`` and ``errors.png``/``.svg`` (charts).
+    ``iasm``: IASM's and H-IASM's settings (the defaults unless given).
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -264,6 +267,7 @@ def run(
                 poses = anchored(est.poses, gt)  # the estimate in the world frame
                 metrics = evaluate(poses, gt)
             results.append(MethodRun(name, est.stamps_s, poses, metrics, est.stats, seconds, est.steps_csv))
+            log.info("%s: %d poses in %.1f s", name, len(est.stamps_s), seconds)
     finally:
         streams.stop_background()
     stamps = streams.scan_stamps_s
@@ -320,13 +324,19 @@ def settings(iasm: IasmParams | None = None) -> dict[str, Any]:
 
 
 def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool) -> None:
-    from rigcal.viz.paths_plot import draw_paths
+    from rigcal.viz.charts import figure_bytes
+    from rigcal.viz.paths_plot import errors_figure, paths_figure
 
     doc = summary(r, sequence)
     with atomic_folder(output, force) as tmp:
         for m in r.methods:
+            # The estimate is anchored at the truth's first pose, so it runs at the truth's
+            # height (the laser's, e.g. 0.4 m above the floor); 0 without truth.
+            z = 0.0
+            if r.truth is not None and r.truth.stamps_s is not None:
+                z = float(np.interp(m.stamps_s[0], r.truth.stamps_s, r.truth.poses[:, 2, 3]))
             traj = Trajectory(
-                np.array([make_T(rotvec_to_R([0.0, 0.0, p[2]]), [p[0], p[1], 0.0]) for p in m.poses]),
+                np.array([make_T(rotvec_to_R([0.0, 0.0, p[2]]), [p[0], p[1], z]) for p in m.poses]),
                 m.stamps_s,
             )
             (tmp / m.method).mkdir()
@@ -338,13 +348,13 @@ def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool)
         (tmp / "summary.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
         (tmp / "summary.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
         if r.truth is not None:
-            import cv2
-
             gt = planar_at(r.truth, r.truth.stamps_s)  # type: ignore[arg-type]
-            img = draw_paths(gt, {m.method: m.poses for m in r.methods})
-            ok, buf = cv2.imencode(".png", img)
-            if ok:
-                (tmp / "paths.png").write_bytes(buf.tobytes())
+            poses = {m.method: m.poses for m in r.methods}
+            truth_at = {m.method: planar_at(r.truth, m.stamps_s) for m in r.methods}
+            stamps = {m.method: m.stamps_s for m in r.methods}
+            for fmt in (".png", ".svg"):
+                (tmp / f"paths{fmt}").write_bytes(figure_bytes(paths_figure(gt, poses), fmt))
+                (tmp / f"errors{fmt}").write_bytes(figure_bytes(errors_figure(truth_at, poses, stamps), fmt))
 
 
 def _ground_truth(folder: Path, name: str | None) -> Trajectory | None:
