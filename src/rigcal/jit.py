@@ -15,12 +15,10 @@ Division by zero and the square root of a negative number give inf/NaN as in num
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, TypeVar
-
-F = TypeVar("F", bound=Callable[..., Any])
+from typing import Any, cast
 
 
-def njit(fn: F) -> F:
+def njit[F: Callable[..., Any]](fn: F) -> F:
     """Compile ``fn`` with numba in nopython mode, cached on disk when possible."""
     import numba
 
@@ -28,4 +26,4 @@ def njit(fn: F) -> F:
         out = numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
     except RuntimeError:  # no writable cache location: compile in each process
         out = numba.njit(cache=False, nogil=True, error_model="numpy")(fn)
-    return out  # type: ignore[no-any-return]
+    return cast(F, out)

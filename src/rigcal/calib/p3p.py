@@ -521,7 +521,10 @@ def _p3p_kernel(y: FloatArray, x: FloatArray, out_idx: NDArray[np.int64], out_la
 
 @njit
 def _k_sqdist(x: FloatArray, k: int, i: int, j: int) -> float:
-    return float((x[k, i, 0] - x[k, j, 0]) ** 2 + (x[k, i, 1] - x[k, j, 1]) ** 2 + (x[k, i, 2] - x[k, j, 2]) ** 2)
+    d0 = x[k, i, 0] - x[k, j, 0]
+    d1 = x[k, i, 1] - x[k, j, 1]
+    d2 = x[k, i, 2] - x[k, j, 2]
+    return float(d0 * d0 + d1 * d1 + d2 * d2)
 
 
 @njit
@@ -558,7 +561,9 @@ def _k_adj_dot(a: FloatArray, b: FloatArray) -> float:
 
 
 @njit
-def _k_degenerate_member(D1: FloatArray, D2: FloatArray, D0: FloatArray, D: FloatArray) -> tuple[float, float]:
+def _k_degenerate_member(
+    D1: FloatArray, D2: FloatArray, D0: FloatArray, D: FloatArray
+) -> tuple[float, float]:
     """:func:`_degenerate_member` for one triple: fills D0, returns (s1, s2) (NaN: none)."""
     c0 = _k_det(D1)
     c3 = _k_det(D2)
