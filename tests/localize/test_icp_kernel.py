@@ -88,3 +88,21 @@ def test_compiled_icp_in_a_degenerate_corridor_matches():
     ref = icp(m, d, None, IcpParams(), normals, kernel=False)
     np.testing.assert_allclose(got.pose, ref.pose, rtol=0, atol=1e-10)
     assert got.degeneracy < 1e-3
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_iasm_laser_scores_from_the_grid_match_the_k_d_trees(seed):
+    from types import SimpleNamespace
+
+    from rigcal.localize.iasm import IasmParams, laser_scores
+
+    rng = np.random.default_rng(seed)
+    s1, s2 = room_scan(np.zeros(3), rng), room_scan(np.array([0.1, 0.05, 0.03]), rng)
+    f1 = SimpleNamespace(points=s1.points[s1.valid])
+    f2 = SimpleNamespace(points=s2.points[s2.valid])
+    hyp = np.concatenate([[[0.1, 0.05, 0.03]], rng.normal(scale=[0.3, 0.3, 0.2], size=(60, 3))])
+    params = IasmParams()
+    got = laser_scores(hyp, f1, f2, params, np.random.default_rng(7))
+    ref = laser_scores(hyp, f1, f2, params, np.random.default_rng(7), kernel=False)
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=0)
+    assert got.argmax() == 0

@@ -42,6 +42,7 @@ from rigcal.calib.lines import Segment, extract_lines, return_labels
 from rigcal.camera import Camera
 from rigcal.geometry import transform_points
 from rigcal.localize.icp import _point_to_point, line_fits
+from rigcal.localize.nearest import Grid
 from rigcal.localize.polish import LaserReference, joint_polish
 from rigcal.localize.vo import sample_patches
 from rigcal.scan import Scan
@@ -392,13 +393,24 @@ def _inverse(poses: FloatArray) -> FloatArray:
 
 
 def laser_scores(
-    hyp: FloatArray, f1: Frame, f2: Frame, params: IasmParams, rng: np.random.Generator
+    hyp: FloatArray,
+    f1: Frame,
+    f2: Frame,
+    params: IasmParams,
+    rng: np.random.Generator,
+    *,
+    kernel: bool = True,
 ) -> FloatArray:
     """Scan alignment metric: minus the mean (capped) distance of scan t, moved into scan
-    t+1's frame by each hypothesis, to scan t+1's nearest returns."""
+    t+1's frame by each hypothesis, to scan t+1's nearest returns. The distances come from
+    the compiled grid search (:mod:`rigcal.localize.nearest`); ``kernel=False``: from a
+    k-d tree (the reference)."""
     pts = f1.points[rng.permutation(len(f1.points))[: params.score_points]]
-    moved = _apply(_inverse(hyp), pts)  # (H, n, 2) in frame t+1
-    d, _ = cKDTree(f2.points).query(moved.reshape(-1, 2), distance_upper_bound=params.truncate_m)
+    moved = _apply(_inverse(hyp), pts).reshape(-1, 2)  # (H n, 2) in frame t+1
+    if kernel:
+        d = Grid(f2.points).distances(moved, params.truncate_m)
+    else:
+        d = cKDTree(f2.points).query(moved, distance_upper_bound=params.truncate_m)[0]
     d = np.minimum(d, params.truncate_m).reshape(len(hyp), -1)
     out: FloatArray = -d.mean(axis=1)
     return out

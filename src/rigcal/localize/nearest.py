@@ -55,6 +55,14 @@ class Grid:
         knn(self.args(), q, dist, idx)
         return (dist[:, 0], idx[:, 0]) if k == 1 else (dist, idx)
 
+    def distances(self, queries: FloatArray, upper_m: float) -> FloatArray:
+        """(Q,) each query's distance to its nearest point, ``upper_m`` where that is
+        farther (the search stops there)."""
+        q = np.ascontiguousarray(queries, dtype=float)
+        out = np.empty(len(q))
+        _distances(self.args(), q, upper_m, out)
+        return out
+
     def args(self) -> tuple[FloatArray, float, float, float, int, int, IntArray, IntArray]:
         """The grid as the tuple the compiled functions take."""
         return (
@@ -104,14 +112,30 @@ def knn(
 
 
 @njit
+def _distances(
+    grid: tuple[FloatArray, float, float, float, int, int, IntArray, IntArray],
+    queries: FloatArray,
+    upper_m: float,
+    out: FloatArray,
+) -> None:
+    dist = np.empty(1)
+    idx = np.empty(1, dtype=np.int64)
+    for j in range(queries.shape[0]):
+        knn_one(grid, queries[j, 0], queries[j, 1], dist, idx, upper_m)
+        out[j] = min(dist[0], upper_m)
+
+
+@njit
 def knn_one(
     grid: tuple[FloatArray, float, float, float, int, int, IntArray, IntArray],
     qx: float,
     qy: float,
     dist: FloatArray,
     idx: IntArray,
+    upper_m: float = np.inf,
 ) -> None:
-    """The k = len(dist) nearest grid points of (qx, qy), nearest first."""
+    """The k = len(dist) nearest grid points of (qx, qy), nearest first; the search
+    stops once every point left is farther than ``upper_m`` (their slots: inf, -1)."""
     points, x0, y0, cell, nx, ny, starts, order = grid
     k = dist.shape[0]
     for m in range(k):
@@ -155,7 +179,9 @@ def knn_one(
             bound = min(bound, qy - (y0 + (cy - r) * cell))
         if cy + r < ny - 1:
             bound = min(bound, y0 + (cy + r + 1) * cell - qy)
-        if bound == np.inf or (idx[k - 1] >= 0 and dist[k - 1] <= bound * bound and bound > 0):
+        if bound == np.inf or bound >= upper_m:
+            break
+        if idx[k - 1] >= 0 and dist[k - 1] <= bound * bound and bound > 0:
             break
         r += 1
     for m in range(k):
