@@ -20,6 +20,11 @@ KERNELS = {
         "import numpy as np; from rigcal.calib.p3p import p3p",
         "p3p(np.eye(3)[None] + 0.1, np.eye(3)[None] * 2.0)",
     ),
+    "ICP iterations and grid neighbours (rigcal.localize.icp, nearest)": (
+        "import numpy as np; from rigcal.localize.icp import icp; "
+        "t = np.linspace(0, 6, 200); m = np.vstack([np.c_[t, 0 * t + 1], np.c_[0 * t + 2, t - 3]])",
+        "icp(m, m + 0.01, model_normals=np.tile([0.0, 1.0], (len(m), 1)))",
+    ),
 }
 
 _TIMED = """
