@@ -226,6 +226,30 @@ def test_cli_errors(fleet, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+def test_an_output_that_is_a_file_is_refused_before_any_item_runs(tmp_path):
+    from rigcal.errors import OutputError
+
+    (tmp_path / "out").write_text("x")
+    t = tum(tmp_path / "a.tum", np.linspace(0, 1, 5))
+    with pytest.raises(OutputError, match=r"out: exists and is not a folder"):
+        run_batch([Item("a", "evaluate", {"trajectory": t, "gt": t})], tmp_path / "out")
+
+
+def test_ray_missing_is_one_line(tmp_path, monkeypatch):
+    import sys
+
+    from rigcal.errors import InputError
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
+    t = tum(tmp_path / "a.tum", np.linspace(0, 1, 5))
+    with pytest.raises(InputError, match=r"--ray: got 'ray'; expected Ray installed"):
+        run_batch(
+            [Item("a", "evaluate", {"trajectory": t, "gt": t})],
+            tmp_path / "o",
+            BatchSettings(ray_address="auto"),
+        )
+
+
 def test_a_glob_of_trajectories_on_the_cli(tmp_path, capsys):
     gt = tum(tmp_path / "gt.tum", np.linspace(0, 5, 40))
     (tmp_path / "runs").mkdir()

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from rigcal.batch.manifest import COMMANDS, Item
-from rigcal.errors import InputError
+from rigcal.errors import InputError, OutputError
 from rigcal.io.files import atomic_write_text
 
 ITEM_SCHEMA_VERSION = 1
@@ -177,6 +177,8 @@ def run_batch(
     """
     settings = settings or BatchSettings()
     out = Path(output)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder; expected the batch's output folder")
     outcomes: dict[str, Outcome] = {}
     todo: list[tuple[Item, list[str]]] = []
     for item in items:
