@@ -106,3 +106,50 @@ def test_iasm_laser_scores_from_the_grid_match_the_k_d_trees(seed):
     ref = laser_scores(hyp, f1, f2, params, np.random.default_rng(7), kernel=False)
     np.testing.assert_allclose(got, ref, rtol=1e-12, atol=0)
     assert got.argmax() == 0
+
+
+def test_sad_kernel_matches_numpy_and_carries_nan():
+    from rigcal.localize.iasm import sad_rows
+
+    rng = np.random.default_rng(3)
+    a = rng.uniform(0, 255, (50, 121)).astype(np.float32)
+    b = rng.uniform(0, 255, (60, 121)).astype(np.float32)
+    b[7, 5] = np.nan
+    ia, ib = rng.integers(0, 50, 400), rng.integers(0, 60, 400)
+    got, ref = sad_rows(a, ia, b, ib), sad_rows(a, ia, b, ib, kernel=False)
+    np.testing.assert_allclose(got, ref, rtol=1e-12)
+    assert np.array_equal(np.isnan(got), ib == 7)
+    assert np.isnan(got).any()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_iasm_matching_with_compiled_sad_matches_numpy(seed):
+    """Bidirectional SAD matching of two frames whose patches are shifted copies with
+    noise: the same correspondences and refined points with the kernel as with numpy."""
+    from types import SimpleNamespace
+
+    from rigcal.localize.iasm import match_returns
+
+    rng = np.random.default_rng(seed)
+    n = 300
+    base = rng.uniform(0, 255, (n + 5, 121)).astype(np.float32)
+    u = np.linspace(20, 620, n)
+
+    def frame(shift: int) -> SimpleNamespace:
+        patches = base[shift : shift + n] + rng.normal(0, 2, (n, 121)).astype(np.float32)
+        return SimpleNamespace(
+            patches=patches,
+            pixels=np.column_stack([u, np.full(n, 240.0)]),
+            visible=rng.uniform(size=n) > 0.1,
+            points=np.column_stack([np.linspace(1, 4, n), np.linspace(-2, 2, n)]),
+            line_of=np.repeat(np.arange(n // 50), 50),
+        )
+
+    f1, f2 = frame(0), frame(2)
+    got = match_returns(f1, f2, f1.pixels, 20.0, 5.0)
+    ref = match_returns(f1, f2, f1.pixels, 20.0, 5.0, kernel=False)
+    assert len(ref.i1) > n // 2
+    np.testing.assert_array_equal(got.i1, ref.i1)
+    np.testing.assert_array_equal(got.i2, ref.i2)
+    np.testing.assert_allclose(got.b, ref.b, rtol=1e-9)
+    np.testing.assert_allclose(got.sad, ref.sad, rtol=1e-12)
