@@ -7,7 +7,7 @@ process (``rigcal localize --method icp-p2p,icp,vo,kf,iasm,hiasm``), scored agai
 ground truth. Speed: each method is then run alone, end to end, as ``rigcal localize``
 runs it (reading, laser odometry, feature tracks, the method); its wall time is compared
 with the lap's duration (real time = 1) -- for ``kf`` that is ICP + VO + KF. Each is run
-with rigcal's compiled kernels (ICP's iterations, IASM's laser metric) and again with
+with rigcal's compiled kernels (ICP's iterations, IASM's laser metric and SAD) and again with
 their numpy references in the same run (``--no-reference`` skips those), after a first
 run that compiles the kernels (or loads them from numba's cache; ``jit_cost.py``).
 
@@ -103,11 +103,11 @@ def main() -> None:
 
 @contextlib.contextmanager
 def kernels(compiled: bool) -> Iterator[None]:
-    """Within: ICP and IASM's laser metric use their compiled kernels or, when not
-    ``compiled``, their numpy references (the ``kernel`` keyword's default)."""
+    """Within: ICP, IASM's laser metric and its SAD matching use their compiled kernels
+    or, when not ``compiled``, their numpy references (the ``kernel`` keyword's default)."""
     from rigcal.localize import iasm, icp
 
-    functions = (icp.icp, iasm.laser_scores)
+    functions = (icp.icp, iasm.laser_scores, iasm.match_returns, iasm.image_scores)
     saved = [dict(f.__kwdefaults__ or {}) for f in functions]
     for f in functions:
         f.__kwdefaults__ = {**(f.__kwdefaults__ or {}), "kernel": compiled}
