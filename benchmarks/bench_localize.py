@@ -6,7 +6,10 @@ camera with 2 grey levels of noise, seed 1) and localized by every method in the
 process (``rigcal localize --method icp-p2p,icp,vo,kf,iasm,hiasm``), scored against the
 ground truth. Speed: each method is then run alone, end to end, as ``rigcal localize``
 runs it (reading, laser odometry, feature tracks, the method); its wall time is compared
-with the lap's duration (real time = 1) -- for ``kf`` that is ICP + VO + KF.
+with the lap's duration (real time = 1) -- for ``kf`` that is ICP + VO + KF. Each is run
+with rigcal's compiled kernels (ICP's iterations, IASM's laser metric and SAD) and again with
+their numpy references in the same run (``--no-reference`` skips those), after a first
+run that compiles the kernels (or loads them from numba's cache; ``jit_cost.py``).
 
 ``--range-max-m`` shortens the laser's range (30 m by default): at 8 m the corridor lap's
 long sides are corridors whose ends the laser cannot see, the case the paper's image
@@ -19,7 +22,10 @@ methods are for.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 from rigcal.localize.pipeline import run, table
@@ -49,6 +55,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1, help="The simulation's seed.")
     ap.add_argument("--range-max-m", type=float, default=30.0, help="The simulated laser's range.")
     ap.add_argument("--methods", default=",".join(METHODS), help="Methods of the accuracy table.")
+    ap.add_argument("--alone", default=",".join(ALONE), help="Methods of the speed table.")
+    ap.add_argument("--no-reference", action="store_true", help="Skip the runs with the numpy references.")
     args = ap.parse_args()
     methods = args.methods.split(",")
     with tempfile.TemporaryDirectory() as tmp:
@@ -72,16 +80,42 @@ def main() -> None:
             if args.no_speed:
                 continue
             n_images = len((seq / "images.csv").read_text().splitlines()) - 1
-            print("\n| method alone | wall (s) | x real time | stages (s) |")
-            print("|---|---|---|---|")
+            print(f"\n(load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
+            print("\n| method alone | kernels | wall (s) | x real time | stages (s) |")
+            print("|---|---|---|---|---|")
             per = float("nan")
-            for m in ALONE:
-                a = run(seq, [m], root / f"{seq.name}-{m}-alone", force=True)
-                stages = ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in a.timings_s.items())
-                print(f"| {m} | {a.wall_s:.1f} | {a.duration_s / a.wall_s:.2f} | {stages} |", flush=True)
-                if m == "vo":
-                    per = (a.timings_s["tracks_s"] + a.timings_s["vo_s"]) / n_images * 1000
+            alone = args.alone.split(",")
+            run(seq, alone[:1], root / "compile-alone", force=True)  # compile / load the kernels
+            for m in alone:
+                for compiled in (True, False) if not args.no_reference else (True,):
+                    with kernels(compiled):
+                        a = run(seq, [m], root / f"{seq.name}-{m}-alone", force=True)
+                    stages = ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in a.timings_s.items())
+                    label = "compiled" if compiled else "numpy reference"
+                    print(
+                        f"| {m} | {label} | {a.wall_s:.1f} | {a.duration_s / a.wall_s:.2f} | {stages} |",
+                        flush=True,
+                    )
+                    if m == "vo" and compiled:
+                        per = (a.timings_s["tracks_s"] + a.timings_s["vo_s"]) / n_images * 1000
             print(f"\nVO per frame (tracks + runs, the laser odometry beside it): {per:.1f} ms")
+
+
+@contextlib.contextmanager
+def kernels(compiled: bool) -> Iterator[None]:
+    """Within: ICP, IASM's laser metric and its SAD matching use their compiled kernels
+    or, when not ``compiled``, their numpy references (the ``kernel`` keyword's default)."""
+    from rigcal.localize import iasm, icp
+
+    functions = (icp.icp, iasm.laser_scores, iasm.match_returns, iasm.image_scores)
+    saved = [dict(f.__kwdefaults__ or {}) for f in functions]
+    for f in functions:
+        f.__kwdefaults__ = {**(f.__kwdefaults__ or {}), "kernel": compiled}
+    try:
+        yield
+    finally:
+        for f, d in zip(functions, saved, strict=True):
+            f.__kwdefaults__ = d
 
 
 def sequence_name(world: str, seed: int, range_max_m: float) -> str:

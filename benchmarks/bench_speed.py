@@ -1,12 +1,15 @@
 """Speed of the box-target calibration: P3P in a batch against OpenCV, and whole solves.
 
 1. P3P: the same random triples (points in front of a camera, uniformly random poses)
-   solved by ``rigcal.calib.p3p.p3p`` in one vectorised batch, and by ``cv2.solveP3P``
+   solved by ``rigcal.calib.p3p.p3p`` (the compiled kernel) and ``p3p_numpy`` (its
+   numpy reference, vectorised over the batch) in one batch, and by ``cv2.solveP3P``
    called once per triple from Python, as RANSAC would call it. Both give every real
    solution; the figures are solutions per second and the ratio between the two, measured
    in the same process (best of several repeats, so that a busy machine affects both).
    rigcal's P3P gives the depths along the bearings (the paper's step 5); with Horn's
    method for each solution (``horn_batch``, step 6) both sides end with full poses.
+   The kernel's compile time (first call in a fresh process) is measured apart
+   (``jit_cost.py``); the kernel is called once before timing.
 2. End-to-end: a simulated 40-capture session written to disk (placeholder images), then
    ``rigcal solve``'s library path on it: reading the picking file and every scan, camera
    and image, line extraction, RANSAC, refinement and the report, with and without the
@@ -27,7 +30,7 @@ import cv2
 import numpy as np
 
 from rigcal.calib.horn import horn_batch
-from rigcal.calib.p3p import p3p
+from rigcal.calib.p3p import p3p, p3p_numpy
 from rigcal.calib.picks import read_picks
 from rigcal.calib.session import calibrate, write_report_dir
 from rigcal.geometry import random_rotation
@@ -61,6 +64,9 @@ def bench_p3p(n: int, repeats: int) -> None:
     def ours_depths() -> int:
         return len(p3p(y, X).triple)
 
+    def numpy_depths() -> int:
+        return len(p3p_numpy(y, X).triple)
+
     def ours() -> int:
         sol = p3p(y, X)
         cam = sol.depths[:, :, None] * y[sol.triple]
@@ -74,15 +80,18 @@ def bench_p3p(n: int, repeats: int) -> None:
             count += cv2.solveP3P(X[k], image[k], K, None, cv2.SOLVEPNP_P3P)[0]
         return count
 
+    p3p(y[:1], X[:1])  # compile (or load from numba's cache) before timing
     t_depths, s_depths = best_of(repeats, ours_depths)
+    t_numpy, s_numpy = best_of(repeats, numpy_depths)
     t_ours, s_ours = best_of(repeats, ours)
     t_cv, s_cv = best_of(repeats, opencv)
     print(f"## P3P, {n} random triples (best of {repeats})\n")
     print("| solver | solutions | solutions/s | us/triple | ratio |\n|---|---|---|---|---|")
     print(f"| cv2.solveP3P per triple | {s_cv} | {s_cv / t_cv:,.0f} | {1e6 * t_cv / n:.1f} | 1.0 |")
     for label, t, s in (
-        ("rigcal p3p (depths), one batch", t_depths, s_depths),
-        ("rigcal p3p + Horn (poses), one batch", t_ours, s_ours),
+        ("rigcal p3p (depths), compiled kernel", t_depths, s_depths),
+        ("rigcal p3p_numpy (depths), numpy reference, one batch", t_numpy, s_numpy),
+        ("rigcal p3p + Horn (poses), compiled P3P, batched Horn", t_ours, s_ours),
     ):
         print(f"| {label} | {s} | {s / t:,.0f} | {1e6 * t / n:.1f} | {(s / t) / (s_cv / t_cv):.1f} |")
 
@@ -115,6 +124,10 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
     bench_p3p(args.triples, args.repeats)
+    from jit_cost import KERNELS, compile_table
+
+    print("\n### First call of the kernel in a fresh process\n")
+    print(compile_table({k: v for k, v in KERNELS.items() if k.startswith("P3P")}))
     bench_solve(args.captures, args.repeats)
 
 

@@ -21,6 +21,10 @@ coefficient; the cubic's real roots come from batched companion-matrix eigenvalu
 of them the one whose plane pair is best conditioned is used. The pose follows from the
 camera-frame points lambda_i y_i by Horn's method (:mod:`rigcal.calib.horn`), as the
 paper's step 6 does.
+
+:func:`p3p` runs a compiled kernel (:mod:`rigcal.jit`) that solves one triple at a time
+in scalar arithmetic, with no temporary arrays; :func:`p3p_numpy`, the same steps
+vectorised over the batch in numpy, is its reference in the tests.
 """
 
 from __future__ import annotations
@@ -29,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from rigcal.jit import njit
 
 FloatArray = NDArray[np.float64]
 
@@ -53,7 +59,30 @@ class P3PSolutions:
 
 
 def p3p(bearings: ArrayLike, points: ArrayLike) -> P3PSolutions:
-    """Solve P3P for every triple of a batch.
+    """Solve P3P for every triple of a batch (compiled kernel).
+
+    Args:
+        bearings: (n, 3, 3) unit bearings, camera frame: ``bearings[k, i]`` sees point i.
+        points: (n, 3, 3) the points, metres, in any frame.
+
+    Returns:
+        Every real solution with positive depths, as :func:`p3p_numpy` finds them.
+    """
+    y = np.asarray(bearings, dtype=float)
+    x = np.asarray(points, dtype=float)
+    if y.ndim == 2:
+        y, x = y[None], x[None]
+    if y.shape != x.shape or y.shape[1:] != (3, 3):
+        raise ValueError(f"bearings {y.shape} and points {x.shape}: expected (n, 3, 3) each")
+    n = len(y)
+    idx = np.empty(4 * n, dtype=np.int64)
+    lam = np.empty((4 * n, 3))
+    count = _p3p_kernel(np.ascontiguousarray(y), np.ascontiguousarray(x), idx, lam)
+    return P3PSolutions(idx[:count].copy(), lam[:count].copy())
+
+
+def p3p_numpy(bearings: ArrayLike, points: ArrayLike) -> P3PSolutions:
+    """Solve P3P for every triple of a batch, vectorised in numpy (the kernel's reference).
 
     Args:
         bearings: (n, 3, 3) unit bearings, camera frame: ``bearings[k, i]`` sees point i.
@@ -373,3 +402,341 @@ def _unique(idx: NDArray[np.int64], lam: FloatArray) -> tuple[NDArray[np.int64],
         )
         dup[shift:] |= same & ~dup[:-shift]
     return idx[~dup], lam[~dup]
+
+
+# The compiled kernel: the steps of p3p_numpy for one triple at a time.
+
+
+@njit
+def _p3p_kernel(y: FloatArray, x: FloatArray, out_idx: NDArray[np.int64], out_lam: FloatArray) -> int:
+    """Solve each triple; write its solutions to ``out_idx``/``out_lam`` (room for 4 per
+    triple) and return how many there are."""
+    Y = np.empty((3, 3))
+    M12 = np.zeros((3, 3))
+    M13 = np.zeros((3, 3))
+    M23 = np.zeros((3, 3))
+    D1 = np.empty((3, 3))
+    D2 = np.empty((3, 3))
+    D0 = np.empty((3, 3))
+    T = np.empty((3, 3))
+    Msum = np.empty((3, 3))
+    J = np.zeros((3, 3))
+    e1 = np.empty(3)
+    e2 = np.empty(3)
+    normal = np.empty(3)
+    p = np.empty(3)
+    q = np.empty(3)
+    lam = np.empty(3)
+    found = np.empty((4, 3))
+    count = 0
+    for k in range(y.shape[0]):
+        for i in range(3):
+            nr = np.sqrt(y[k, i, 0] ** 2 + y[k, i, 1] ** 2 + y[k, i, 2] ** 2)
+            for j in range(3):
+                Y[i, j] = y[k, i, j] / nr
+        a12 = _k_sqdist(x, k, 0, 1)
+        a13 = _k_sqdist(x, k, 0, 2)
+        a23 = _k_sqdist(x, k, 1, 2)
+        b12 = Y[0, 0] * Y[1, 0] + Y[0, 1] * Y[1, 1] + Y[0, 2] * Y[1, 2]
+        b13 = Y[0, 0] * Y[2, 0] + Y[0, 1] * Y[2, 1] + Y[0, 2] * Y[2, 2]
+        b23 = Y[1, 0] * Y[2, 0] + Y[1, 1] * Y[2, 1] + Y[1, 2] * Y[2, 2]
+        _k_form(M12, 0, 1, b12)
+        _k_form(M13, 0, 2, b13)
+        _k_form(M23, 1, 2, b23)
+        for i in range(3):
+            for j in range(3):
+                D1[i, j] = a23 * M12[i, j] - a12 * M23[i, j]
+                D2[i, j] = a23 * M13[i, j] - a13 * M23[i, j]
+                Msum[i, j] = M12[i, j] + M13[i, j] + M23[i, j]
+        s1, s2 = _k_degenerate_member(D1, D2, D0, T)
+        if not s1 * s2 < 0:  # NaN too: no usable pair of planes
+            continue
+        for i in range(3):
+            for j in range(3):
+                T[i, j] = D0[i, j] - (s1 if i == j else 0.0)
+        _k_null_vector(T, e1)
+        for i in range(3):
+            T[i, i] = D0[i, i] - s2
+        _k_null_vector(T, e2)
+        ratio = np.sqrt(-s2 / s1)
+        asum = a12 + a13 + a23
+        scale = max(asum, 2.2250738585072014e-308)
+        n_found = 0
+        for sign in (1.0, -1.0):
+            for i in range(3):
+                normal[i] = e1[i] + sign * ratio * e2[i]
+            _k_plane_basis(normal, p, q)
+            A1, B1, C1 = _k_restrict(D1, p, q)
+            A2, B2, C2 = _k_restrict(D2, p, q)
+            if A1 * A1 + 2 * B1 * B1 + C1 * C1 >= A2 * A2 + 2 * B2 * B2 + C2 * C2:
+                A, B, C = A1, B1, C1
+            else:
+                A, B, C = A2, B2, C2
+            R = np.hypot(0.5 * (A - C), B)
+            phi = np.arctan2(B, 0.5 * (A - C))
+            arg = -0.5 * (A + C) / R
+            if not abs(arg) <= 1.0 + 1e-9:
+                continue
+            arg = min(max(arg, -1.0), 1.0)
+            for branch in (1.0, -1.0):
+                t = 0.5 * (phi + branch * np.arccos(arg))
+                c, sn = np.cos(t), np.sin(t)
+                for i in range(3):
+                    lam[i] = c * p[i] + sn * q[i]
+                quad = 0.0
+                for i in range(3):
+                    quad += lam[i] * (Msum[i, 0] * lam[0] + Msum[i, 1] * lam[1] + Msum[i, 2] * lam[2])
+                kk = np.sqrt(asum / quad)
+                if lam[0] + lam[1] + lam[2] < 0:
+                    kk = -kk
+                good = True
+                for i in range(3):
+                    lam[i] *= kk
+                    good = good and np.isfinite(lam[i]) and lam[i] > 0
+                if not good:
+                    continue
+                for _ in range(_GAUSS_NEWTON_STEPS):
+                    _k_gauss_newton_step(lam, b12, b13, b23, a12, a13, a23, J, T)
+                r12, r13, r23 = _k_residuals(lam, b12, b13, b23)
+                res = max(abs(r12 - a12), abs(r13 - a13), abs(r23 - a23)) / scale
+                if not (np.isfinite(res) and res < _RELATIVE_TOLERANCE):
+                    continue
+                if not (lam[0] > 0 and lam[1] > 0 and lam[2] > 0):
+                    continue
+                tol = 1e-7 * max(lam[0], lam[1], lam[2], 1.0)
+                dup = False
+                for m in range(n_found):
+                    d = max(abs(lam[0] - found[m, 0]), abs(lam[1] - found[m, 1]), abs(lam[2] - found[m, 2]))
+                    dup = dup or d <= tol
+                if dup:
+                    continue
+                for i in range(3):
+                    found[n_found, i] = lam[i]
+                    out_lam[count, i] = lam[i]
+                out_idx[count] = k
+                n_found += 1
+                count += 1
+    return count
+
+
+@njit
+def _k_sqdist(x: FloatArray, k: int, i: int, j: int) -> float:
+    d0 = x[k, i, 0] - x[k, j, 0]
+    d1 = x[k, i, 1] - x[k, j, 1]
+    d2 = x[k, i, 2] - x[k, j, 2]
+    return float(d0 * d0 + d1 * d1 + d2 * d2)
+
+
+@njit
+def _k_form(M: FloatArray, i: int, j: int, b: float) -> None:
+    M[i, i] = 1.0
+    M[j, j] = 1.0
+    M[i, j] = -b
+    M[j, i] = -b
+
+
+@njit
+def _k_det(M: FloatArray) -> float:
+    return float(
+        M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
+        - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+        + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0])
+    )
+
+
+@njit
+def _k_adj_dot(a: FloatArray, b: FloatArray) -> float:
+    """Sum of the entries of adj(a) * b (elementwise)."""
+    return float(
+        (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) * b[0, 0]
+        + (a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]) * b[0, 1]
+        + (a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]) * b[0, 2]
+        + (a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]) * b[1, 0]
+        + (a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]) * b[1, 1]
+        + (a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]) * b[1, 2]
+        + (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]) * b[2, 0]
+        + (a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]) * b[2, 1]
+        + (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]) * b[2, 2]
+    )
+
+
+@njit
+def _k_degenerate_member(
+    D1: FloatArray, D2: FloatArray, D0: FloatArray, D: FloatArray
+) -> tuple[float, float]:
+    """:func:`_degenerate_member` for one triple: fills D0, returns (s1, s2) (NaN: none)."""
+    c0 = _k_det(D1)
+    c3 = _k_det(D2)
+    c1 = _k_adj_dot(D1, D2)
+    c2 = _k_adj_dot(D2, D1)
+    lead = abs(c3) > 1e-12 * (abs(c0) + abs(c1) + abs(c2) + 1e-300)
+    best_quality = -1.0
+    s1 = np.nan
+    s2 = np.nan
+    roots = _k_cubic_real_roots(c2 / c3, c1 / c3, c0 / c3) if lead else (np.nan, np.nan, np.nan)
+    for r in range(4):
+        if r == 0:
+            if lead:
+                continue
+            for i in range(3):
+                for j in range(3):
+                    D[i, j] = D2[i, j]
+        else:
+            g = roots[r - 1]
+            if not np.isfinite(g):
+                continue
+            for _ in range(2):  # Newton steps on the cubic, as _polish_root
+                f = ((c3 * g + c2) * g + c1) * g + c0
+                df = (3.0 * c3 * g + 2.0 * c2) * g + c1
+                if abs(df) > 0:
+                    g = g - f / df
+            if not np.isfinite(g):
+                continue
+            for i in range(3):
+                for j in range(3):
+                    D[i, j] = D1[i, j] + g * D2[i, j]
+        tr = D[0, 0] + D[1, 1] + D[2, 2]
+        m = (
+            D[0, 0] * D[1, 1]
+            - D[0, 1] ** 2
+            + D[0, 0] * D[2, 2]
+            - D[0, 2] ** 2
+            + D[1, 1] * D[2, 2]
+            - D[1, 2] ** 2
+        )
+        if not m < 0:
+            continue
+        root = np.sqrt(max(tr * tr - 4.0 * m, 0.0))
+        big = 0.5 * (tr + (root if tr >= 0 else -root))
+        small = m / big if big != 0 else 0.0
+        quality = abs(small) / abs(big)
+        if quality > best_quality:
+            best_quality = quality
+            s1, s2 = big, small
+            for i in range(3):
+                for j in range(3):
+                    D0[i, j] = D[i, j]
+    return s1, s2
+
+
+@njit
+def _k_cubic_real_roots(a: float, b: float, c: float) -> tuple[float, float, float]:
+    """:func:`_cubic_real_roots` for one cubic."""
+    p = b - a * a / 3.0
+    q = 2.0 * a**3 / 27.0 - a * b / 3.0 + c
+    shift = -a / 3.0
+    disc = (q / 2.0) ** 2 + (p / 3.0) ** 3
+    if disc < 0:
+        rho = 2.0 * np.sqrt(max(-p / 3.0, 0.0))
+        phi = np.arccos(min(max(3.0 * q / (p * rho), -1.0), 1.0)) / 3.0
+        return (
+            rho * np.cos(phi) + shift,
+            rho * np.cos(phi - 2.0 * np.pi / 3.0) + shift,
+            rho * np.cos(phi - 4.0 * np.pi / 3.0) + shift,
+        )
+    sq = np.sqrt(max(disc, 0.0))
+    return np.cbrt(-q / 2.0 + sq) + np.cbrt(-q / 2.0 - sq) + shift, np.nan, np.nan
+
+
+@njit
+def _k_null_vector(A: FloatArray, out: FloatArray) -> None:
+    """:func:`_null_vector` for one matrix."""
+    best = -1.0
+    for r1, r2 in ((0, 1), (0, 2), (1, 2)):
+        c0 = A[r1, 1] * A[r2, 2] - A[r1, 2] * A[r2, 1]
+        c1 = A[r1, 2] * A[r2, 0] - A[r1, 0] * A[r2, 2]
+        c2 = A[r1, 0] * A[r2, 1] - A[r1, 1] * A[r2, 0]
+        nn = c0 * c0 + c1 * c1 + c2 * c2
+        if nn > best or best < 0:
+            best = nn
+            out[0], out[1], out[2] = c0, c1, c2
+    nr = np.sqrt(best)
+    for i in range(3):
+        out[i] /= nr
+
+
+@njit
+def _k_plane_basis(normal: FloatArray, p: FloatArray, q: FloatArray) -> None:
+    """:func:`_plane_basis` for one plane."""
+    nr = np.sqrt(normal[0] ** 2 + normal[1] ** 2 + normal[2] ** 2)
+    n0, n1, n2 = normal[0] / nr, normal[1] / nr, normal[2] / nr
+    a = 0
+    if abs(n1) < abs(n0):
+        a = 1
+    if abs(n2) < min(abs(n0), abs(n1)):
+        a = 2
+    # p = n x e_a
+    if a == 0:
+        p0, p1, p2 = 0.0, n2, -n1
+    elif a == 1:
+        p0, p1, p2 = -n2, 0.0, n0
+    else:
+        p0, p1, p2 = n1, -n0, 0.0
+    pn = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+    p[0], p[1], p[2] = p0 / pn, p1 / pn, p2 / pn
+    q[0] = n1 * p[2] - n2 * p[1]
+    q[1] = n2 * p[0] - n0 * p[2]
+    q[2] = n0 * p[1] - n1 * p[0]
+
+
+@njit
+def _k_restrict(D: FloatArray, p: FloatArray, q: FloatArray) -> tuple[float, float, float]:
+    A = 0.0
+    B = 0.0
+    C = 0.0
+    for i in range(3):
+        Dp = D[i, 0] * p[0] + D[i, 1] * p[1] + D[i, 2] * p[2]
+        Dq = D[i, 0] * q[0] + D[i, 1] * q[1] + D[i, 2] * q[2]
+        A += p[i] * Dp
+        B += q[i] * Dp
+        C += q[i] * Dq
+    return A, B, C
+
+
+@njit
+def _k_residuals(lam: FloatArray, b12: float, b13: float, b23: float) -> tuple[float, float, float]:
+    l1, l2, l3 = lam[0], lam[1], lam[2]
+    return (
+        l1 * l1 + l2 * l2 - 2.0 * b12 * l1 * l2,
+        l1 * l1 + l3 * l3 - 2.0 * b13 * l1 * l3,
+        l2 * l2 + l3 * l3 - 2.0 * b23 * l2 * l3,
+    )
+
+
+@njit
+def _k_gauss_newton_step(
+    lam: FloatArray,
+    b12: float,
+    b13: float,
+    b23: float,
+    a12: float,
+    a13: float,
+    a23: float,
+    J: FloatArray,
+    adj: FloatArray,
+) -> None:
+    """:func:`_gauss_newton_step` for one solution, in place."""
+    l1, l2, l3 = lam[0], lam[1], lam[2]
+    J[0, 0] = 2.0 * l1 - 2.0 * b12 * l2
+    J[0, 1] = 2.0 * l2 - 2.0 * b12 * l1
+    J[1, 0] = 2.0 * l1 - 2.0 * b13 * l3
+    J[1, 2] = 2.0 * l3 - 2.0 * b13 * l1
+    J[2, 1] = 2.0 * l2 - 2.0 * b23 * l3
+    J[2, 2] = 2.0 * l3 - 2.0 * b23 * l2
+    r12, r13, r23 = _k_residuals(lam, b12, b13, b23)
+    r0, r1, r2 = r12 - a12, r13 - a13, r23 - a23
+    det = _k_det(J)
+    if not abs(det) > 1e-12 * max(abs(l1), abs(l2), abs(l3), 1.0) ** 3:
+        return
+    a = J
+    adj[0, 0] = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    adj[0, 1] = a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]
+    adj[0, 2] = a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]
+    adj[1, 0] = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    adj[1, 1] = a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
+    adj[1, 2] = a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]
+    adj[2, 0] = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    adj[2, 1] = a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]
+    adj[2, 2] = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    for i in range(3):
+        lam[i] -= (adj[i, 0] * r0 + adj[i, 1] * r1 + adj[i, 2] * r2) / det

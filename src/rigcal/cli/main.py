@@ -13,6 +13,7 @@ import sys
 import click
 
 from rigcal import __version__
+from rigcal.cli import batch as batch_cmd
 from rigcal.cli import check as check_cmd
 from rigcal.cli import export as export_cmd
 from rigcal.cli import import_bag as import_bag_cmd
@@ -44,6 +45,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
       rigcal intrinsics calib/*.jpg --board 9x6 --square-m 0.025 -o camera.cameramodel
       rigcal simulate calib-session -o session/ --seed 1
       rigcal -q localize corridor/ --method icp -o out/ --json
+      rigcal batch fleet.yaml -o nightly/ --ray auto
     """
     from rigcal.cli.progress import configure
 
@@ -63,6 +65,7 @@ cli.add_command(import_carmen_cmd.import_carmen)
 cli.add_command(localize_cmd.localize)
 cli.add_command(localize_cmd.evaluate_cmd, name="evaluate")
 cli.add_command(localize_cmd.matches)
+cli.add_command(batch_cmd.batch)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -41,7 +41,9 @@ from scipy.spatial import cKDTree
 from rigcal.calib.lines import Segment, extract_lines, return_labels
 from rigcal.camera import Camera
 from rigcal.geometry import transform_points
+from rigcal.jit import njit
 from rigcal.localize.icp import _point_to_point, line_fits
+from rigcal.localize.nearest import Grid
 from rigcal.localize.polish import LaserReference, joint_polish
 from rigcal.localize.vo import sample_patches
 from rigcal.scan import Scan
@@ -276,13 +278,48 @@ class Matches:
         )
 
 
-def match_returns(f1: Frame, f2: Frame, predicted: FloatArray, half_u: float, half_v: float) -> Matches:
+def sad_rows(
+    a: NDArray[np.float32], ia: IntArray, b: NDArray[np.float32], ib: IntArray, *, kernel: bool = True
+) -> FloatArray:
+    """(P,) SAD (mean absolute difference) between patches ``a[ia[p]]`` and ``b[ib[p]]``;
+    NaN where a patch has NaN samples (off the image). Compiled kernel, or with
+    ``kernel=False`` its numpy reference."""
+    if not kernel:
+        out: FloatArray = np.abs(a[ia] - b[ib]).mean(axis=1, dtype=np.float64)
+        return out
+    res = np.empty(len(ia))
+    _sad_kernel(a, np.asarray(ia, dtype=np.int64), b, np.asarray(ib, dtype=np.int64), res)
+    return res
+
+
+@njit
+def _sad_kernel(
+    a: NDArray[np.float32], ia: IntArray, b: NDArray[np.float32], ib: IntArray, out: FloatArray
+) -> None:
+    k = a.shape[1]
+    for p in range(ia.shape[0]):
+        acc = 0.0
+        for j in range(k):
+            acc += abs(a[ia[p], j] - b[ib[p], j])  # float32 differences, as numpy
+        out[p] = acc / k
+
+
+def match_returns(
+    f1: Frame,
+    f2: Frame,
+    predicted: FloatArray,
+    half_u: float,
+    half_v: float,
+    *,
+    kernel: bool = True,
+) -> Matches:
     """Bidirectional SAD correspondences between the visible returns of two frames.
 
     Args:
         predicted: (N1, 2) where each return of f1 is expected in image 2 (IASM: its own
             pixel; H-IASM: the homography's prediction).
         half_u, half_v: the search area's half-width and half-height around the prediction.
+        kernel: SADs by the compiled kernel (False: by numpy, the reference).
     """
     i1 = np.flatnonzero(f1.visible & np.isfinite(predicted[:, 0]))
     i2 = np.flatnonzero(f2.visible)
@@ -293,7 +330,7 @@ def match_returns(f1: Frame, f2: Frame, predicted: FloatArray, half_u: float, ha
     ra, rb = np.nonzero((du <= half_u) & (dv <= half_v))
     if len(ra) == 0:
         return Matches.none()
-    sad = np.abs(f1.patches[i1[ra]] - f2.patches[i2[rb]]).mean(axis=1)
+    sad = sad_rows(f1.patches, i1[ra], f2.patches, i2[rb], kernel=kernel)
     S = np.full((len(i1), len(i2)), np.inf)
     S[ra, rb] = sad
     best_b = np.argmin(S, axis=1)
@@ -318,10 +355,9 @@ def match_returns(f1: Frame, f2: Frame, predicted: FloatArray, half_u: float, ha
     )
     k = np.flatnonzero(on_line)
     if len(k):
-        ref = f1.patches[i1[ka[k]]]
-        s0 = np.abs(ref - f2.patches[jl[k]]).mean(axis=1)
+        s0 = sad_rows(f1.patches, i1[ka[k]], f2.patches, jl[k], kernel=kernel)
         s1 = S[ka[k], kb[k]]
-        s2 = np.abs(ref - f2.patches[jr[k]]).mean(axis=1)
+        s2 = sad_rows(f1.patches, i1[ka[k]], f2.patches, jr[k], kernel=kernel)
         x = parabola_offset(s0, s1, s2)
         k, x = k[np.isfinite(x)], x[np.isfinite(x)]
         other = np.where((x > 0)[:, None], f2.points[jr[k]], f2.points[jl[k]])
@@ -392,13 +428,24 @@ def _inverse(poses: FloatArray) -> FloatArray:
 
 
 def laser_scores(
-    hyp: FloatArray, f1: Frame, f2: Frame, params: IasmParams, rng: np.random.Generator
+    hyp: FloatArray,
+    f1: Frame,
+    f2: Frame,
+    params: IasmParams,
+    rng: np.random.Generator,
+    *,
+    kernel: bool = True,
 ) -> FloatArray:
     """Scan alignment metric: minus the mean (capped) distance of scan t, moved into scan
-    t+1's frame by each hypothesis, to scan t+1's nearest returns."""
+    t+1's frame by each hypothesis, to scan t+1's nearest returns. The distances come from
+    the compiled grid search (:mod:`rigcal.localize.nearest`); ``kernel=False``: from a
+    k-d tree (the reference)."""
     pts = f1.points[rng.permutation(len(f1.points))[: params.score_points]]
-    moved = _apply(_inverse(hyp), pts)  # (H, n, 2) in frame t+1
-    d, _ = cKDTree(f2.points).query(moved.reshape(-1, 2), distance_upper_bound=params.truncate_m)
+    moved = _apply(_inverse(hyp), pts).reshape(-1, 2)  # (H n, 2) in frame t+1
+    if kernel:
+        d = Grid(f2.points).distances(moved, params.truncate_m)
+    else:
+        d = cKDTree(f2.points).query(moved, distance_upper_bound=params.truncate_m)[0]
     d = np.minimum(d, params.truncate_m).reshape(len(hyp), -1)
     out: FloatArray = -d.mean(axis=1)
     return out
@@ -412,9 +459,12 @@ def image_scores(
     T_cam_laser: FloatArray,
     params: IasmParams,
     rng: np.random.Generator,
+    *,
+    kernel: bool = True,
 ) -> FloatArray:
     """Image metric: minus the mean SAD between scan t's patches in image t and the patches
-    at scan t moved by each hypothesis and projected into image t+1."""
+    at scan t moved by each hypothesis and projected into image t+1 (``kernel``: as in
+    :func:`match_returns`)."""
     vis = np.flatnonzero(f1.visible)
     idx = vis[rng.permutation(len(vis))[: params.score_points]]
     moved = _apply(_inverse(hyp), f1.points[idx])  # (H, n, 2)
@@ -431,8 +481,7 @@ def image_scores(
     sad = np.full(len(P), np.nan)
     if ok.any():
         cand = sample_patches(f2.gray, px[ok], r)
-        ref = np.tile(f1.patches[idx], (H, 1))[ok]
-        sad[ok] = np.abs(cand - ref).mean(axis=1)
+        sad[ok] = sad_rows(cand, np.arange(len(cand)), f1.patches, np.tile(idx, H)[ok], kernel=kernel)
     per = sad.reshape(H, n)  # one row per hypothesis
     # Hypotheses that move most returns out of the image get the worst score.
     finite = np.isfinite(per)

@@ -26,6 +26,11 @@ Degeneracy: a long featureless corridor constrains nothing along it. The point-t
 Hessian's smallest eigenvalue over its largest (translation block) says how well the
 least-constrained direction is determined; near 0 the step is degenerate and its
 translation along that direction is a guess (reported per step).
+
+The iterations run in a compiled kernel (:mod:`rigcal.jit`): nearest neighbours from a
+grid of the model (:mod:`rigcal.localize.nearest`, exact as the k-d tree), pairing,
+rejection and the update, in one loop with no temporary arrays. The numpy iterations
+(``icp(..., kernel=False)``) are its reference in the tests.
 """
 
 from __future__ import annotations
@@ -36,6 +41,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
+
+from rigcal.jit import njit
+from rigcal.localize.nearest import Grid, knn_one
 
 FloatArray = NDArray[np.float64]
 
@@ -125,6 +133,8 @@ def icp(
     initial: FloatArray | None = None,
     params: IcpParams | None = None,
     model_normals: FloatArray | None = None,
+    *,
+    kernel: bool = True,
 ) -> IcpResult:
     """Align ``data`` (N, 2) to ``model`` (M, 2); returns T_model_data.
 
@@ -138,7 +148,7 @@ def icp(
     point-to-point steps while they move the scan by more than ``COARSE_TOLERANCE`` (one
     from a good guess), whose closed form takes a turn's large rotation in one go.
     ``rms_m``, ``inlier_fraction`` and ``degeneracy`` are those of the last iteration's
-    pairs.
+    pairs. ``kernel=False`` runs the numpy iterations (the compiled kernel's reference).
 
     Raises:
         ValueError: fewer than 3 points in either scan.
@@ -150,19 +160,20 @@ def icp(
         raise ValueError("method must be 'point-to-point' or 'point-to-line'")
     model = np.ascontiguousarray(model, dtype=float)
     data = np.ascontiguousarray(data, dtype=float)
-    tree = cKDTree(model)
+    tree: cKDTree | Grid = Grid(model) if kernel else cKDTree(model)
+    iterate = _iterate_compiled if kernel else _iterate
     x, y, yaw = (0.0, 0.0, 0.0) if initial is None else (float(v) for v in np.asarray(initial, dtype=float))
     T = _Transform(math.cos(yaw), math.sin(yaw), x, y)
     sparse = data[:: params.subsample] if len(data) >= 3 * params.subsample else data
     coarse_tol = (10.0 * params.tolerance_m, 10.0 * params.tolerance_rad)
     normals = lines = usable = None
     if params.method == "point-to-line":
-        T, _ = _iterate(tree, model, sparse, None, T, COARSE_ITERATIONS, COARSE_TOLERANCE, params.reject_m)
+        T, _ = iterate(tree, model, sparse, None, T, COARSE_ITERATIONS, COARSE_TOLERANCE, params.reject_m)
         normals, usable = pairing_normals(model, tree, params.normal_neighbours, model_normals)
         # Per model point: its normal and the normal's offset n . m (the line n . p = n . m).
         lines = np.column_stack([normals, np.einsum("ij,ij->i", normals, model)])
-    T, _ = _iterate(tree, model, sparse, lines, T, params.max_iterations, coarse_tol, params.reject_m, usable)
-    T, fit = _iterate(
+    T, _ = iterate(tree, model, sparse, lines, T, params.max_iterations, coarse_tol, params.reject_m, usable)
+    T, fit = iterate(
         tree,
         model,
         data,
@@ -328,21 +339,27 @@ def _point_to_line(src: FloatArray, lines: FloatArray) -> tuple[float, float, fl
     # case) are solved in closed form, the others through the eigenvectors.
     lo, hi = _eigen_range(h00, h01, h02, h11, h12, h22)
     if lo > 2.0 * DEGENERATE_EIGEN_RATIO * hi:
-        # Cofactors of the symmetric 3x3 H; step = -H^-1 g.
-        c00, c01, c02 = h11 * h22 - h12 * h12, h02 * h12 - h01 * h22, h01 * h12 - h02 * h11
-        c11, c12, c22 = h00 * h22 - h02 * h02, h01 * h02 - h00 * h12, h00 * h11 - h01 * h01
-        det = h00 * c00 + h01 * c01 + h02 * c02
-        return (
-            -(c00 * g0 + c01 * g1 + c02 * g2) / det,
-            -(c01 * g0 + c11 * g1 + c12 * g2) / det,
-            -(c02 * g0 + c12 * g1 + c22 * g2) / det,
-        )
+        return _newton_step(h00, h01, h02, h11, h12, h22, g0, g1, g2)
     H = np.array([[h00, h01, h02], [h01, h11, h12], [h02, h12, h22]])
     w, V = np.linalg.eigh(H)
     keep = w > DEGENERATE_EIGEN_RATIO * w[-1]
     g = V.T @ np.array([g0, g1, g2])
     x, y, yaw = (-(V[:, keep] @ (g[keep] / w[keep]))).tolist()
     return x, y, yaw
+
+
+def _newton_step(
+    h00: float, h01: float, h02: float, h11: float, h12: float, h22: float, g0: float, g1: float, g2: float
+) -> tuple[float, float, float]:
+    """step = -H^-1 g for a well-posed symmetric 3x3 H, by its cofactors."""
+    c00, c01, c02 = h11 * h22 - h12 * h12, h02 * h12 - h01 * h22, h01 * h12 - h02 * h11
+    c11, c12, c22 = h00 * h22 - h02 * h02, h01 * h02 - h00 * h12, h00 * h11 - h01 * h01
+    det = h00 * c00 + h01 * c01 + h02 * c02
+    return (
+        -(c00 * g0 + c01 * g1 + c02 * g2) / det,
+        -(c01 * g0 + c11 * g1 + c12 * g2) / det,
+        -(c02 * g0 + c12 * g1 + c22 * g2) / det,
+    )
 
 
 def _eigen_range(
@@ -390,7 +407,7 @@ def line_normals(points: FloatArray, labels: NDArray[np.integer]) -> FloatArray:
 
 
 def pairing_normals(
-    model: FloatArray, tree: cKDTree, k: int, model_normals: FloatArray | None
+    model: FloatArray, tree: cKDTree | Grid, k: int, model_normals: FloatArray | None
 ) -> tuple[FloatArray, NDArray[np.bool_] | None]:
     """The model's point-to-line normals and which returns may be paired: the line
     normals (``model_normals``, NaN off a line; those returns unpaired) when at least
@@ -403,7 +420,7 @@ def pairing_normals(
     return _normals(model, tree, k), None
 
 
-def _normals(model: FloatArray, tree: cKDTree, k: int) -> FloatArray:
+def _normals(model: FloatArray, tree: cKDTree | Grid, k: int) -> FloatArray:
     """(M, 2) unit normals from each model point's k nearest neighbours (PCA)."""
     _, nb = tree.query(model, k=min(k, len(model)))
     x, y = model[nb, 0], model[nb, 1]
@@ -431,3 +448,219 @@ def _degeneracy(src: FloatArray, dst: FloatArray, n: FloatArray | None) -> float
     else:
         w = np.linalg.eigvalsh(n.T @ n)
     return float(w[0] / w[-1]) if w[-1] > 0 else 0.0
+
+
+# The compiled iterations: _iterate and _Nearest's steps in one loop.
+
+
+def _iterate_compiled(
+    tree: cKDTree | Grid,
+    model: FloatArray,
+    data: FloatArray,
+    lines: FloatArray | None,
+    T: _Transform,
+    max_iterations: int,
+    tolerance: tuple[float, float],
+    reject_m: float,
+    usable: NDArray[np.bool_] | None = None,
+    candidates: int = 1,
+) -> tuple[_Transform, _Fit]:
+    """:func:`_iterate` in the compiled kernel (``tree``: the model's :class:`Grid`)."""
+    assert isinstance(tree, Grid)
+    n = len(data)
+    pose = np.array([T.c, T.s, T.tx, T.ty])
+    src = np.empty((n, 2))
+    pairs = np.empty(n, dtype=np.int64)
+    nearest = np.empty(n, dtype=np.int64)
+    no_lines = np.zeros((0, 3))
+    no_usable = np.zeros(0, dtype=np.bool_)
+    k, rms, frac, n_inl = _iterate_kernel(
+        tree.args(),
+        data,
+        no_lines if lines is None else np.ascontiguousarray(lines),
+        lines is not None,
+        no_usable if usable is None else usable,
+        usable is not None,
+        pose,
+        max_iterations,
+        tolerance[0],
+        tolerance[1],
+        reject_m,
+        min(candidates, len(model)),
+        REQUERY_M,
+        DEGENERATE_EIGEN_RATIO,
+        src,
+        pairs,
+        nearest,
+    )
+    fit = _Fit(
+        k, rms, frac, src[:n_inl], pairs[:n_inl].astype(np.intp), nearest.astype(np.intp) if k else None
+    )
+    return _Transform(*pose.tolist()), fit
+
+
+@njit
+def _iterate_kernel(
+    grid: tuple[FloatArray, float, float, float, int, int, NDArray[np.int64], NDArray[np.int64]],
+    data: FloatArray,
+    lines: FloatArray,
+    use_lines: bool,
+    usable: NDArray[np.bool_],
+    use_usable: bool,
+    pose: FloatArray,
+    max_iterations: int,
+    tol_m: float,
+    tol_rad: float,
+    reject_m: float,
+    k: int,
+    requery_m: float,
+    degenerate_ratio: float,
+    out_src: FloatArray,
+    out_pairs: NDArray[np.int64],
+    out_nearest: NDArray[np.int64],
+) -> tuple[int, float, float, int]:
+    """ICP iterations from ``pose`` = (cos, sin, tx, ty) of T_model_data, updated in place.
+
+    Returns (iterations of the last fit, its RMS, inlier fraction, inlier count); the
+    fit's moved inliers, their model points and every point's nearest model point go to
+    ``out_src``, ``out_pairs`` and ``out_nearest``.
+    """
+    model = grid[0]
+    n = data.shape[0]
+    half = n // 2
+    c, s, tx, ty = pose[0], pose[1], pose[2], pose[3]
+    moved = np.empty((n, 2))
+    dist = np.empty(n)
+    idx = np.empty(n, dtype=np.int64)
+    nb = np.empty((n, k), dtype=np.int64)
+    nbd = np.empty((n, k))
+    anchor = np.empty((n, 2))
+    have_anchor = False
+    fit_k, fit_rms, fit_frac, fit_n = 0, np.inf, 0.0, 0
+    for it in range(1, max_iterations + 1):
+        for i in range(n):
+            moved[i, 0] = data[i, 0] * c - data[i, 1] * s + tx
+            moved[i, 1] = data[i, 0] * s + data[i, 1] * c + ty
+        # Nearest model point (the _Nearest rules: k candidates re-queried after a move).
+        if k > 1 and have_anchor:
+            far = 0.0
+            for i in range(n):
+                far = max(far, abs(moved[i, 0] - anchor[i, 0]), abs(moved[i, 1] - anchor[i, 1]))
+            requery = far > requery_m
+        else:
+            requery = True
+        if requery:
+            for i in range(n):
+                knn_one(grid, moved[i, 0], moved[i, 1], nbd[i], nb[i])
+            if k > 1:
+                anchor[:, :] = moved
+                have_anchor = True
+        for i in range(n):
+            best = np.inf
+            pick = 0
+            for m in range(k):
+                dx = model[nb[i, m], 0] - moved[i, 0]
+                dy = model[nb[i, m], 1] - moved[i, 1]
+                d2 = dx * dx + dy * dy
+                if d2 < best:
+                    best, pick = d2, m
+            dist[i] = np.sqrt(best)
+            idx[i] = nb[i, pick]
+        median = np.partition(dist, half)[half]
+        thr = max(reject_m, 3.0 * median)
+        eligible = n
+        if use_usable:
+            eligible = 0
+            for i in range(n):
+                eligible += usable[idx[i]]
+            eligible = max(eligible, 1)
+        n_inl = 0
+        sq = 0.0
+        for i in range(n):
+            if dist[i] < thr and (not use_usable or usable[idx[i]]):
+                n_inl += 1
+        if n_inl < 3:
+            break
+        m_in = 0
+        for i in range(n):
+            if dist[i] < thr and (not use_usable or usable[idx[i]]):
+                out_src[m_in, 0] = moved[i, 0]
+                out_src[m_in, 1] = moved[i, 1]
+                out_pairs[m_in] = idx[i]
+                sq += dist[i] * dist[i]
+                m_in += 1
+            out_nearest[i] = idx[i]
+        fit_k, fit_rms, fit_frac, fit_n = it, np.sqrt(sq / n_inl), n_inl / eligible, n_inl
+        if use_lines:
+            x, y, yaw = _k_point_to_line(out_src, out_pairs, lines, n_inl, degenerate_ratio)
+        else:
+            x, y, yaw = _k_point_to_point(out_src, out_pairs, model, n_inl)
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        c, s, tx, ty = cy * c - sy * s, sy * c + cy * s, cy * tx - sy * ty + x, sy * tx + cy * ty + y
+        if np.hypot(x, y) < tol_m and abs(yaw) < tol_rad:
+            break
+    pose[0], pose[1], pose[2], pose[3] = c, s, tx, ty
+    return fit_k, fit_rms, fit_frac, fit_n
+
+
+@njit
+def _k_point_to_point(
+    src: FloatArray, pairs: NDArray[np.int64], model: FloatArray, n: int
+) -> tuple[float, float, float]:
+    """:func:`_point_to_point` over the first n pairs (Eq. (4))."""
+    msx = msy = mdx = mdy = 0.0
+    for i in range(n):
+        msx += src[i, 0]
+        msy += src[i, 1]
+        mdx += model[pairs[i], 0]
+        mdy += model[pairs[i], 1]
+    msx, msy, mdx, mdy = msx / n, msy / n, mdx / n, mdy / n
+    h00 = h01 = h10 = h11 = 0.0
+    for i in range(n):
+        ax, ay = src[i, 0] - msx, src[i, 1] - msy
+        bx, by = model[pairs[i], 0] - mdx, model[pairs[i], 1] - mdy
+        h00 += ax * bx
+        h01 += ax * by
+        h10 += ay * bx
+        h11 += ay * by
+    yaw = np.arctan2(h01 - h10, h00 + h11)
+    c, s = np.cos(yaw), np.sin(yaw)
+    return mdx - (c * msx - s * msy), mdy - (s * msx + c * msy), yaw
+
+
+@njit
+def _k_point_to_line(
+    src: FloatArray, pairs: NDArray[np.int64], lines: FloatArray, n: int, degenerate_ratio: float
+) -> tuple[float, float, float]:
+    """:func:`_point_to_line` over the first n pairs."""
+    h00 = h01 = h02 = h11 = h12 = h22 = g0 = g1 = g2 = 0.0
+    for i in range(n):
+        nx, ny, off = lines[pairs[i], 0], lines[pairs[i], 1], lines[pairs[i], 2]
+        sx, sy = src[i, 0], src[i, 1]
+        a2 = ny * sx - nx * sy
+        a3 = nx * sx + ny * sy - off
+        h00 += nx * nx
+        h01 += nx * ny
+        h02 += nx * a2
+        h11 += ny * ny
+        h12 += ny * a2
+        h22 += a2 * a2
+        g0 += nx * a3
+        g1 += ny * a3
+        g2 += a2 * a3
+    lo, hi = _k_eigen_range(h00, h01, h02, h11, h12, h22)
+    if lo > 2.0 * degenerate_ratio * hi:
+        return _k_newton_step(h00, h01, h02, h11, h12, h22, g0, g1, g2)
+    H = np.array([[h00, h01, h02], [h01, h11, h12], [h02, h12, h22]])
+    w, V = np.linalg.eigh(H)
+    g = V.T @ np.array([g0, g1, g2])
+    step = np.zeros(3)
+    for j in range(3):
+        if w[j] > degenerate_ratio * w[2]:
+            for i in range(3):
+                step[i] -= V[i, j] * g[j] / w[j]
+    return step[0], step[1], step[2]
+
+
+_k_eigen_range = njit(_eigen_range)
+_k_newton_step = njit(_newton_step)

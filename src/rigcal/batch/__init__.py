@@ -1,0 +1,1 @@
+"""Batch runs: one command over many sessions or sequences, on a process pool or Ray."""

@@ -1,0 +1,262 @@
+"""Run a batch's items, each in a worker process, on a local process pool or a Ray cluster.
+
+Every item runs the single command itself (:func:`rigcal.cli.main.main` with the item's
+command line), so its outputs are written exactly as ``rigcal check|solve|localize|evaluate``
+writes them; the command's JSON on stdout is the item's result. A rigcal error, a usage
+error or a bug in one item is recorded for that item and the others go on. When an item
+ends, ``OUT/NAME/item.json`` records it (docs/formats/batch.md); a re-run skips items whose
+record says they finished with the same command line and whose outputs are all there.
+
+The local pool and Ray share one code path: both hand out
+:class:`concurrent.futures.Future` objects for :func:`run_item` (Ray through
+``ObjectRef.future()``), and one loop collects them.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import datetime
+import io
+import json
+import multiprocessing
+import os
+import sys
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from rigcal.batch.manifest import COMMANDS, Item
+from rigcal.errors import InputError, OutputError
+from rigcal.io.files import atomic_write_text
+
+ITEM_SCHEMA_VERSION = 1
+ITEM_FILE = "item.json"
+
+# Exit codes of the single commands that mean "ran to the end" (check: 1 = drifted).
+FINISHED = {"check": (0, 1), "solve": (0,), "localize": (0,), "evaluate": (0,)}
+
+
+@dataclass(frozen=True)
+class BatchSettings:
+    """How to run: ``workers`` local processes, or Ray at ``ray_address`` when given
+    (``local`` starts a Ray instance on this machine; ``auto`` joins the running cluster;
+    ``ray://HOST:10001`` a remote one). ``rerun`` re-runs finished items too."""
+
+    workers: int = 0  # 0: one per CPU
+    ray_address: str | None = None
+    rerun: bool = False
+
+
+def run_item(argv: list[str]) -> dict[str, Any]:
+    """Run one single command in this process; never raises.
+
+    Args:
+        argv: the command line without ``rigcal`` (``Item.argv``).
+
+    Returns:
+        ``exit_code``; ``stdout``/``stderr`` as the command printed them; ``error``: the
+        command's one-line message (``Error: ...`` without the prefix), or the traceback's
+        last line of a bug; ``seconds`` of wall time; ``host`` and ``pid`` that ran it.
+    """
+    from rigcal.cli.main import main
+
+    out, err = io.StringIO(), io.StringIO()
+    saved = sys.argv
+    sys.argv = ["rigcal", *argv]  # the command line that provenance records
+    t0 = time.perf_counter()
+    error: str | None = None
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main(argv)
+    except Exception as exc:  # a bug in the command: keep its traceback in the record
+        code = 70
+        err.write(traceback.format_exc())
+        error = f"internal error: {type(exc).__name__}: {exc}"
+    finally:
+        sys.argv = saved
+    if error is None and code not in FINISHED[argv[0]]:
+        error = _error_line(err.getvalue()) or f"exit code {code}"
+    return {
+        "exit_code": code,
+        "stdout": out.getvalue(),
+        "stderr": err.getvalue(),
+        "error": error,
+        "seconds": round(time.perf_counter() - t0, 3),
+        "host": os.uname().nodename,
+        "pid": os.getpid(),
+    }
+
+
+def _error_line(stderr: str) -> str | None:
+    """The ``Error: ...`` line the command's boundary printed, without the prefix."""
+    for line in reversed(stderr.splitlines()):
+        if line.startswith("Error: "):
+            return line.removeprefix("Error: ")
+    return None
+
+
+def item_record(item: Item, argv: list[str], ran: dict[str, Any]) -> dict[str, Any]:
+    """The ``item.json`` record of a finished or failed item."""
+    code = ran["exit_code"]
+    ok = code in FINISHED[item.command] and ran["error"] is None
+    result: Any = None
+    if ok:
+        try:
+            result = json.loads(ran["stdout"])
+        except json.JSONDecodeError:
+            ok, ran["error"] = False, "the command's output is not JSON"
+    status = "failed"
+    if ok:
+        status = "drifted" if item.command == "check" and code == 1 else "ok"
+    return {
+        "schema_version": ITEM_SCHEMA_VERSION,
+        "name": item.name,
+        "command": item.command,
+        "argv": argv,
+        "status": status,
+        "exit_code": code,
+        "error": ran["error"],
+        "seconds": ran["seconds"],
+        "host": ran["host"],
+        "finished_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "result": result,
+        "stderr": ran["stderr"][-4000:],
+    }
+
+
+def finished_record(item: Item, folder: Path) -> dict[str, Any] | None:
+    """The earlier record of ``item`` if it finished with the same command line and its
+    outputs are all there (then a re-run skips it), else None."""
+    path = folder / ITEM_FILE
+    try:
+        rec = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    if not isinstance(rec, dict) or rec.get("schema_version") != ITEM_SCHEMA_VERSION:
+        return None
+    if rec.get("status") not in ("ok", "drifted") or rec.get("argv") != item.argv(folder):
+        return None
+    if not all((folder / o).exists() for o in COMMANDS[item.command].outputs):
+        return None
+    return rec
+
+
+@dataclass
+class Outcome:
+    """One item's record and whether it was taken from an earlier run."""
+
+    item: Item
+    record: dict[str, Any]
+    resumed: bool
+
+
+def run_batch(
+    items: list[Item],
+    output: str | Path,
+    settings: BatchSettings | None = None,
+    progress: Callable[[Outcome, int, int], None] | None = None,
+) -> list[Outcome]:
+    """Run every item not finished yet, writing ``OUT/NAME/`` per item.
+
+    Args:
+        items: from :func:`~rigcal.batch.manifest.read_manifest` or ``glob_items``.
+        output: the batch's output folder (created; kept between runs for resuming).
+        settings: workers, Ray address, re-run.
+        progress: called after each item with its outcome, the count done and the total.
+
+    Returns:
+        The outcomes in the items' order.
+
+    Raises:
+        InputError: Ray was asked for and cannot be imported or reached.
+        OutputError: an item's record cannot be written.
+    """
+    settings = settings or BatchSettings()
+    out = Path(output)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder; expected the batch's output folder")
+    outcomes: dict[str, Outcome] = {}
+    todo: list[tuple[Item, list[str]]] = []
+    for item in items:
+        folder = (out / item.name).resolve()
+        rec = None if settings.rerun else finished_record(item, folder)
+        if rec is not None:
+            outcomes[item.name] = Outcome(item, rec, resumed=True)
+        else:
+            todo.append((item, item.argv(folder)))
+    done = len(outcomes)
+    if progress is not None:
+        for o in outcomes.values():
+            progress(o, done, len(items))
+    if todo:
+        with _executor(settings, len(todo)) as submit:
+            futures = {submit(argv): (item, argv) for item, argv in todo}
+            for fut in cf.as_completed(futures):
+                item, argv = futures[fut]
+                rec = item_record(item, argv, _result(fut))
+                atomic_write_text(out / item.name / ITEM_FILE, json.dumps(rec, indent=1) + "\n", force=True)
+                outcomes[item.name] = Outcome(item, rec, resumed=False)
+                done += 1
+                if progress is not None:
+                    progress(outcomes[item.name], done, len(items))
+    return [outcomes[i.name] for i in items]
+
+
+def _result(fut: cf.Future[dict[str, Any]]) -> dict[str, Any]:
+    """A worker's answer, or a failed item's when the worker itself died."""
+    try:
+        return fut.result()
+    except Exception as exc:  # a crashed worker process or a lost Ray node
+        return {
+            "exit_code": 70,
+            "stdout": "",
+            "stderr": "",
+            "error": f"worker failed: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}",
+            "seconds": 0.0,
+            "host": "",
+        }
+
+
+Submit = Callable[[list[str]], "cf.Future[dict[str, Any]]"]
+
+
+@contextlib.contextmanager
+def _executor(settings: BatchSettings, n_items: int) -> Iterator[Submit]:
+    """A submit function for :func:`run_item`: a local process pool or Ray tasks."""
+    if settings.ray_address is None:
+        workers = min(settings.workers or os.cpu_count() or 1, n_items)
+        # spawn: fresh interpreters, no copied threads or locks (cv2, numba) from this one
+        ctx = multiprocessing.get_context("spawn")
+        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            yield lambda argv: pool.submit(run_item, argv)
+        return
+    ray = _ray()
+    started = not ray.is_initialized()
+    if started:
+        try:
+            if settings.ray_address == "local":
+                ray.init(num_cpus=settings.workers or None, include_dashboard=False)
+            else:
+                ray.init(address=settings.ray_address)
+        except Exception as exc:  # ConnectionError and Ray's own errors
+            raise InputError.at(
+                None, "--ray", settings.ray_address, f"a reachable Ray cluster ({exc})"
+            ) from None
+    remote = ray.remote(num_cpus=1, max_retries=0)(run_item)
+    try:
+        yield lambda argv: remote.remote(argv).future()
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise InputError.at(None, "--ray", "ray", "Ray installed (pip install 'rigcal[ray]')") from None
+    return ray

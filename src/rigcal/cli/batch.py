@@ -1,0 +1,126 @@
+"""``rigcal batch``: one command over many sessions or sequences, locally or on Ray."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+
+
+@click.command("batch")
+@click.argument("source")
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Batch folder."
+)
+@click.option(
+    "--command",
+    "command",
+    type=click.Choice(["check", "solve", "localize", "evaluate"]),
+    help="The command to run over a glob (a manifest names its own).",
+)
+@click.option(
+    "--set",
+    "set_items",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="An option of every item of a glob, as a manifest key (e.g. rig=rig.yaml, method=icp,kf); "
+    "may be repeated.",
+)
+@click.option(
+    "-j",
+    "--workers",
+    default=0,
+    type=click.IntRange(min=0),
+    help="Local worker processes [default: one per CPU]; with --ray local, the CPUs Ray may use.",
+)
+@click.option(
+    "--ray",
+    "ray_address",
+    metavar="ADDRESS",
+    help="Run the items as Ray tasks: 'auto' (the cluster this machine belongs to), "
+    "'ray://HOST:10001' (a remote cluster), or 'local' (start Ray here). Needs rigcal[ray].",
+)
+@click.option("--rerun", is_flag=True, help="Run finished items again instead of skipping them.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+def batch(
+    source: str,
+    output: Path,
+    command: str | None,
+    set_items: tuple[str, ...],
+    workers: int,
+    ray_address: str | None,
+    rerun: bool,
+    as_json: bool,
+) -> int:
+    """Run check, solve, localize or evaluate over every item of SOURCE: a manifest (a YAML
+    file, docs/formats/batch.md) or a quoted glob over the command's main input (picking
+    files of check and solve, sequence folders of localize, trajectories of evaluate).
+
+    Each item runs in a worker process, on a local process pool or on a Ray cluster
+    (--ray), and writes into OUTPUT/NAME/ exactly what the single command writes, plus
+    item.json. A failed item is reported and the others go on. Re-running the same batch
+    skips finished items (resume). Writes OUTPUT/summary.csv and summary.json, and for
+    drift checks OUTPUT/fleet_drift.png. Exit 0 when every item succeeded, 1 when an item
+    failed or a check found drift, 3 for a bad manifest.
+
+    \b
+    Examples:
+      rigcal batch fleet.yaml -o nightly/
+      rigcal batch 'runs/*/' --command localize --set method=icp,kf -o sweep/ -j 2
+      rigcal batch 'sessions/*/picks.yaml' --command solve -o solves/
+      rigcal batch fleet.yaml -o nightly/ --ray auto
+    """
+    import json
+
+    from rigcal.batch.manifest import glob_items, read_manifest
+    from rigcal.batch.runner import BatchSettings, Outcome, run_batch
+    from rigcal.batch.summary import rows, write_summary
+    from rigcal.errors import InputError
+    from rigcal.viz.fleet_plot import write_fleet_png
+
+    if Path(source).suffix in (".yaml", ".yml") and not any(c in source for c in "*?["):
+        if command is not None or set_items:
+            raise click.UsageError("--command and --set go with a glob; a manifest names its own")
+        items = read_manifest(source)
+    else:
+        if command is None:
+            raise click.UsageError("a glob needs --command (check, solve, localize or evaluate)")
+        options: dict[str, Any] = {}
+        for text in set_items:
+            key, sep, value = text.partition("=")
+            if not sep or not key:
+                raise InputError.at(None, "--set", text, "KEY=VALUE")
+            if key == "iasm":
+                options.setdefault(key, []).append(value)
+            else:
+                options[key] = value
+        items = glob_items(source, command, options)
+
+    def report(o: Outcome, done: int, total: int) -> None:
+        rec = o.record
+        what = "skipped, finished before" if o.resumed else f"{rec['seconds']:.1f} s"
+        line = f"[{done}/{total}] {o.item.name}: {rec['status']} ({what})"
+        if rec["error"]:
+            line += f": {rec['error']}"
+        click.echo(line, err=True)
+
+    outcomes = run_batch(items, output, BatchSettings(workers, ray_address, rerun), report)
+    json_path, csv_path = write_summary(output, outcomes)
+    wrote = [str(csv_path), str(json_path)]
+    if items[0].command == "check":
+        plot = [(o.item.name, o.record["status"], o.record["result"]) for o in outcomes]
+        wrote.append(str(write_fleet_png(output / "fleet_drift.png", plot)))
+    table = rows(outcomes)
+    if as_json:
+        click.echo(json.dumps(table, indent=1))
+    else:
+        for r in table:
+            click.echo(f"{r['name']}\t{r['status']}" + (f"\t{r['error']}" if r["error"] else ""))
+    counts = {s: sum(r["status"] == s for r in table) for s in ("ok", "drifted", "failed")}
+    click.echo(
+        f"{len(table)} items: {counts['ok']} ok, {counts['drifted']} drifted, {counts['failed']} failed; "
+        f"wrote {', '.join(wrote)}",
+        err=True,
+    )
+    return 1 if counts["failed"] or counts["drifted"] else 0
