@@ -20,6 +20,7 @@ from rigcal.cli import import_carmen as import_carmen_cmd
 from rigcal.cli import intrinsics as intrinsics_cmd
 from rigcal.cli import lines as lines_cmd
 from rigcal.cli import localize as localize_cmd
+from rigcal.cli import pick as pick_cmd
 from rigcal.cli import project as project_cmd
 from rigcal.cli import simulate as simulate_cmd
 from rigcal.cli import solve as solve_cmd
@@ -55,6 +56,7 @@ cli.add_command(import_carmen_cmd.import_carmen)
 cli.add_command(localize_cmd.localize)
 cli.add_command(localize_cmd.evaluate_cmd, name="evaluate")
 cli.add_command(localize_cmd.matches)
+cli.add_command(pick_cmd.pick)
 
 
 def main(argv: list[str] | None = None) -> int:
