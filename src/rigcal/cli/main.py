@@ -13,6 +13,7 @@ import sys
 import click
 
 from rigcal import __version__
+from rigcal.cli import capture as capture_cmd
 from rigcal.cli import check as check_cmd
 from rigcal.cli import export as export_cmd
 from rigcal.cli import import_bag as import_bag_cmd
@@ -57,6 +58,7 @@ cli.add_command(localize_cmd.localize)
 cli.add_command(localize_cmd.evaluate_cmd, name="evaluate")
 cli.add_command(localize_cmd.matches)
 cli.add_command(pick_cmd.pick)
+cli.add_command(capture_cmd.capture)
 
 
 def main(argv: list[str] | None = None) -> int:
