@@ -115,7 +115,6 @@ def write_still_bag(path: Path, scans, images, camera, still_s=1.0, move_s=0.6, 
             for ts, con, msg in sorted(events, key=lambda e: e[0]):
                 w.write(con, int(ts * 1e9), TS.serialize_cdr(msg, con.msgtype))
     return starts
-    # fmt: skip
 
 
 @pytest.fixture(scope="module")
