@@ -59,6 +59,13 @@ MIN_CONTRAST = 12.0
 DARK_BAND_PX = 2.5
 DARK_BAND_LUMINANCE = 0.6
 DARK_BAND_CHROMA = 0.05
+# The box's top and bottom edges are searched up to this far along its end edge, this far
+# inside the face (px).
+MAX_EXTENT_PX = 80.0
+INSIDE_PX = 3.0
+# The seeds' fractions of the laser's height on the box face must agree within this (MAD)
+# for the height cue to be used.
+HEIGHT_FRACTION_MAD = 0.06
 # Inside/outside levels are read this far from a candidate edge (px).
 LEVEL_NEAR_PX, LEVEL_FAR_PX = 1.0, 3.0
 
@@ -101,6 +108,8 @@ class EdgeFit:
         found: whether an edge was found.
         confidence: 0-1 (see the module's docstring).
         contrast: the edge's step in colour distance.
+        along: (2,) unit image direction of the laser line at the end, outward.
+        up: (2,) unit image direction of the box's vertical edge (laser frame +z).
     """
 
     pixel: FloatArray
@@ -108,6 +117,8 @@ class EdgeFit:
     found: bool
     confidence: float
     contrast: float
+    along: FloatArray = field(default_factory=lambda: np.full(2, np.nan))
+    up: FloatArray = field(default_factory=lambda: np.full(2, np.nan))
 
 
 @dataclass(frozen=True)
@@ -146,6 +157,9 @@ class PickRun:
         T_cam_laser: (4, 4) the pose of the last prediction round.
         seeded_from: ``"rig"`` or ``"N manual picks"``.
         final: the solve over every pick (None when it failed).
+        height_fraction: where the laser cuts the box face (fraction of its height from
+            the bottom) as the manual picks show it, used for the automatic picks' height;
+            None when not used (see :func:`height_fraction`).
     """
 
     draft: PickDraft
@@ -153,6 +167,7 @@ class PickRun:
     T_cam_laser: FloatArray
     seeded_from: str
     final: CalibResult | None
+    height_fraction: float | None = None
 
 
 # --- the pipeline ------------------------------------------------------------------------
@@ -191,11 +206,12 @@ def auto_pick(
             )
         T = _solve(draft.camera, seed_obs, settings).T_cam_laser
         seeded_from = f"{len(seeds)} manual picks"
-    images = {c.index: _read_float_image(c) for c in draft.captures if not _is_manual(c)}
+    images = {c.index: _read_float_image(c) for c in draft.captures}
+    fraction = height_fraction(draft, T, images, sides, settings)
     fits: dict[int, tuple[EdgeFit, EdgeFit] | None] = {}
     for round_ in range(max(1, settings.rounds)):
         fits = {
-            c.index: _propose(draft.camera, T, images[c.index], sides[c.index], settings)
+            c.index: _propose(draft.camera, T, images[c.index], sides[c.index], settings, fraction)
             for c in draft.captures
             if not _is_manual(c)
         }
@@ -215,7 +231,7 @@ def auto_pick(
     final = _final_solve(draft, picks, sides, seed_obs, settings)
     if final is not None:
         picks = _mark_rejected(picks, final)
-    return PickRun(draft, tuple(picks), T, seeded_from, final)
+    return PickRun(draft, tuple(picks), T, seeded_from, final, fraction)
 
 
 def _is_manual(c: CaptureDraft) -> bool:
@@ -280,8 +296,16 @@ def _solve(camera: Camera, obs: list[BoxObservation], settings: PickSettings) ->
 
 
 def _propose(
-    camera: Camera, T: FloatArray, image: NDArray[np.float32], side: _Side, settings: PickSettings
+    camera: Camera,
+    T: FloatArray,
+    image: NDArray[np.float32],
+    side: _Side,
+    settings: PickSettings,
+    height_fraction: float | None,
 ) -> tuple[EdgeFit, EdgeFit] | None:
+    """Both ends of a capture: along the laser line by the edge search; across it (the
+    laser's height on the box) by the seeds' height fraction when there is one, else by
+    the pose."""
     if side.ends is None:
         return None
     ends = side.ends
@@ -289,10 +313,65 @@ def _propose(
     if face is None:
         return None
     u = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
-    return (
-        refine_end(camera, T, image, ends[0], -u, face, settings),
-        refine_end(camera, T, image, ends[1], u, face, settings),
-    )
+    fits = []
+    for end, outward in ((ends[0], -u), (ends[1], u)):
+        fit = refine_end(camera, T, image, end, outward, face, settings)
+        if height_fraction is not None and fit.found:
+            extent = edge_extent(image, fit, face)
+            if extent is None:  # the box's top or bottom not seen: the pose's height, less sure
+                fit = replace(fit, confidence=0.5 * fit.confidence)
+            else:
+                lo, hi = extent
+                fit = replace(fit, pixel=fit.pixel + (lo + height_fraction * (hi - lo)) * fit.up)
+        fits.append(fit)
+    return fits[0], fits[1]
+
+
+def height_fraction(
+    draft: PickDraft,
+    T: FloatArray,
+    images: dict[int, NDArray[np.float32]],
+    sides: dict[int, _Side],
+    settings: PickSettings,
+) -> float | None:
+    """Where the laser cuts the box face, as a fraction of the face's height from its bottom,
+    measured at the manual picks' ends; the median when at least 3 ends give it and they
+    agree (MAD under HEIGHT_FRACTION_MAD): their mean within 3 MADs weighted by the face's
+    image height squared; else None. A box that stays on one stand while
+    the rig rolls on a flat floor keeps this fraction in every capture."""
+    fractions: list[float] = []
+    heights: list[float] = []
+    for c in draft.captures:
+        side = sides[c.index]
+        if not _is_manual(c) or side.ends is None or c.image_endpoints_px is None:
+            continue
+        ends = side.ends
+        face = _face_colour(draft.camera, T, images[c.index], ends, settings.edge_span_m)
+        if face is None:
+            continue
+        u = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
+        for j, outward in ((0, -u), (1, u)):
+            dirs = _end_directions(draft.camera, T, ends[j], outward, settings.edge_span_m)
+            if dirs is None:
+                continue
+            pred, along, d = dirs
+            fit = EdgeFit(c.image_endpoints_px[j], pred, True, 1.0, 0.0, along, d / np.linalg.norm(d))
+            extent = edge_extent(images[c.index], fit, face)
+            if extent is not None and extent[1] - extent[0] > 2.0:
+                fractions.append(-extent[0] / (extent[1] - extent[0]))
+                heights.append(extent[1] - extent[0])
+    if len(fractions) < 3:
+        return None
+    f = np.array(fractions)
+    med = float(np.median(f))
+    mad = float(np.median(np.abs(f - med)))
+    if mad > HEIGHT_FRACTION_MAD:
+        return None
+    # Each end's fraction carries its pick's noise divided by the face's height in the
+    # image: the inverse-variance (height squared) weighted mean of the ends within 3 MADs.
+    keep = np.abs(f - med) <= max(3.0 * 1.4826 * mad, 0.02)
+    w = np.array(heights)[keep] ** 2
+    return float(np.sum(w * f[keep]) / np.sum(w))
 
 
 def _capture_pick(
@@ -391,6 +470,22 @@ def _edge_points(camera: Camera, T: FloatArray, P: FloatArray, span_m: float, n:
     return _project(camera, T, pts)
 
 
+def _end_directions(
+    camera: Camera, T: FloatArray, P: FloatArray, outward: FloatArray, span_m: float
+) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """A laser end's predicted pixel (2,), the unit image direction of the laser line
+    outward (2,), and the image vector (2,) of the vertical edge over ``span_m`` (from
+    -span/2 to +span/2 in laser z); None when behind the camera."""
+    q = _project(
+        camera, T, np.array([[P[0], P[1], 0.0], [P[0] + 0.01 * outward[0], P[1] + 0.01 * outward[1], 0.0]])
+    )
+    edge = _edge_points(camera, T, P, span_m, 2)
+    if q is None or edge is None:
+        return None
+    along = (q[1] - q[0]) / np.linalg.norm(q[1] - q[0])
+    return q[0], along, edge[1] - edge[0]
+
+
 def _face_colour(
     camera: Camera, T: FloatArray, image: NDArray[np.float32], ends: FloatArray, span_m: float
 ) -> FloatArray | None:
@@ -428,20 +523,13 @@ def refine_end(
     from scipy.ndimage import gaussian_filter1d
 
     P = np.asarray(end_laser, dtype=float)
-    q = _project(
-        camera,
-        T,
-        np.array([[P[0], P[1], 0.0], [P[0] + 0.01 * outward_laser[0], P[1] + 0.01 * outward_laser[1], 0.0]]),
-    )
-    if q is None or not camera.in_image(q[:1]).all():
-        pred = q[0] if q is not None else np.full(2, np.nan)
+    dirs = _end_directions(camera, T, P, outward_laser, settings.edge_span_m)
+    if dirs is None:
+        nan = np.full(2, np.nan)
+        return EdgeFit(nan, nan, False, 0.0, 0.0)
+    pred, along, d = dirs
+    if not camera.in_image(pred[None, :]).all():
         return EdgeFit(pred, pred, False, 0.0, 0.0)
-    pred = q[0]
-    along = q[1] - q[0]
-    along /= np.linalg.norm(along)
-    edge = _edge_points(camera, T, P, settings.edge_span_m, 2)
-    assert edge is not None
-    d = edge[1] - edge[0]
     n_v = max(3, int(np.ceil(np.linalg.norm(d))) + 1)
     v = np.linspace(-0.5, 0.5, n_v)[:, None] * d  # (V, 2) offsets along the edge
     t = np.arange(-settings.search_px, settings.search_px + 0.5 * STEP_PX, STEP_PX)
@@ -471,7 +559,50 @@ def refine_end(
     t_edge = _past_dark_band(t, profile, face_colour, t_edge)
     step = d_out - d_in
     confidence = (1.0 - second / score) * min(1.0, step / CONTRAST_REF)
-    return EdgeFit(pred + t_edge * along, pred, True, float(confidence), float(step))
+    return EdgeFit(
+        pred + t_edge * along, pred, True, float(confidence), float(step), along, d / np.linalg.norm(d)
+    )
+
+
+def edge_extent(
+    image: NDArray[np.float32], fit: EdgeFit, face_colour: FloatArray, at: FloatArray | None = None
+) -> tuple[float, float] | None:
+    """Where the box face ends below and above a point on its end edge, along the edge
+    (px from ``at``, default the fit's pixel; negative below): the face's bottom and top
+    edges seen just inside its end, each at its 50 % colour step (dark outline included).
+    None when either is not found within MAX_EXTENT_PX."""
+    p = fit.pixel if at is None else np.asarray(at, dtype=float)
+    if not (fit.found and np.all(np.isfinite(fit.up))):
+        return None
+    s = np.arange(-MAX_EXTENT_PX, MAX_EXTENT_PX + 0.5 * STEP_PX, STEP_PX)
+    inward = -fit.along * np.array([INSIDE_PX, INSIDE_PX + 1.0, INSIDE_PX + 2.0])[:, None]  # (3, 2)
+    grid = p + s[:, None, None] * fit.up + inward[None, :, :]
+    profile = _sample(image, grid).mean(axis=1).astype(float)
+    D = np.linalg.norm(profile - face_colour[None, :], axis=1)
+    zero = int(np.argmin(np.abs(s)))
+    out = []
+    for direction in (-1, 1):
+        order = np.arange(zero, -1, -1) if direction < 0 else np.arange(zero, len(s))
+        edge = _first_step(direction * s[order], profile[order], D[order], face_colour)
+        if edge is None:
+            return None
+        out.append(direction * edge)
+    return out[0], out[1]
+
+
+def _first_step(t: FloatArray, profile: FloatArray, D: FloatArray, face: FloatArray) -> float | None:
+    """The first face-to-other colour step along an increasing t (from inside the face),
+    at its 50 % crossing, past a dark outline; None when there is none."""
+    outside = np.flatnonzero(max(MIN_CONTRAST, 0.5 * CONTRAST_REF) < D)
+    if not len(outside) or outside[0] == 0:
+        return None
+    k = int(outside[0])
+    beyond = D[(t >= t[k]) & (t <= t[k] + LEVEL_FAR_PX)]
+    inside = D[(t >= t[k] - LEVEL_FAR_PX) & (t < t[k] - LEVEL_NEAR_PX)]
+    d_in = float(np.median(inside)) if len(inside) else float(D[0])
+    level = 0.5 * (d_in + float(np.median(beyond)))
+    t_edge = _half_crossing(t, D, k, level)
+    return _past_dark_band(t, profile, face, t_edge)
 
 
 def _past_dark_band(t: FloatArray, profile: FloatArray, face: FloatArray, t_edge: float) -> float:
