@@ -161,7 +161,7 @@ def test_schema_2_errors(rendered, change, key, expected):
 
 
 def test_schema_1_has_no_box_and_needs_every_pick(rendered):
-    sim, folder = rendered
+    _sim, folder = rendered
     doc = yaml.safe_load((folder / "picks.yaml").read_text())
     doc["box"] = {"width_m": 0.6}
     path = folder / "v1.yaml"
