@@ -207,7 +207,8 @@ def auto_pick(
         T = _solve(draft.camera, seed_obs, settings).T_cam_laser
         seeded_from = f"{len(seeds)} manual picks"
     images = {c.index: _read_float_image(c) for c in draft.captures}
-    fraction = height_fraction(draft, T, images, sides, settings)
+    manual_px = {c.index: c.image_endpoints_px for c in seeds if c.image_endpoints_px is not None}
+    fraction = height_fraction(draft, T, images, sides, settings, manual_px)
     fits: dict[int, tuple[EdgeFit, EdgeFit] | None] = {}
     for round_ in range(max(1, settings.rounds)):
         fits = {
@@ -215,6 +216,21 @@ def auto_pick(
             for c in draft.captures
             if not _is_manual(c)
         }
+        if fraction is None and round_ == 0:
+            # No manual picks to measure it at: the fraction the pose predicts, over every
+            # capture (the pose's height error stays in it, its tilt errors average out).
+            at = {
+                i: np.array([f[0].pixel, f[1].pixel])
+                for i, f in fits.items()
+                if f and f[0].found and f[1].found
+            }
+            fraction = height_fraction(draft, T, images, sides, settings, at)
+            if fraction is not None:
+                fits = {
+                    c.index: _propose(draft.camera, T, images[c.index], sides[c.index], settings, fraction)
+                    for c in draft.captures
+                    if not _is_manual(c)
+                }
         if round_ == settings.rounds - 1:
             break
         confident = [
@@ -333,17 +349,20 @@ def height_fraction(
     images: dict[int, NDArray[np.float32]],
     sides: dict[int, _Side],
     settings: PickSettings,
+    at_px: dict[int, FloatArray],
 ) -> float | None:
     """Where the laser cuts the box face, as a fraction of the face's height from its bottom,
-    measured at the manual picks' ends; the median when at least 3 ends give it and they
-    agree (MAD under HEIGHT_FRACTION_MAD): their mean within 3 MADs weighted by the face's
-    image height squared; else None. A box that stays on one stand while
-    the rig rolls on a flat floor keeps this fraction in every capture."""
+    measured at the given image ends (``at_px``: capture index -> (2, 2) pixels on the
+    box's end edges, e.g. the manual picks). When at least 3 ends give it and they agree
+    (MAD under HEIGHT_FRACTION_MAD): their mean within 3 MADs weighted by the face's image
+    height squared; else None. A box that stays on one stand while the rig rolls on a flat
+    floor keeps this fraction in every capture."""
     fractions: list[float] = []
     heights: list[float] = []
     for c in draft.captures:
         side = sides[c.index]
-        if not _is_manual(c) or side.ends is None or c.image_endpoints_px is None:
+        px = at_px.get(c.index)
+        if px is None or side.ends is None:
             continue
         ends = side.ends
         face = _face_colour(draft.camera, T, images[c.index], ends, settings.edge_span_m)
@@ -355,7 +374,7 @@ def height_fraction(
             if dirs is None:
                 continue
             pred, along, d = dirs
-            fit = EdgeFit(c.image_endpoints_px[j], pred, True, 1.0, 0.0, along, d / np.linalg.norm(d))
+            fit = EdgeFit(px[j], pred, True, 1.0, 0.0, along, d / np.linalg.norm(d))
             extent = edge_extent(images[c.index], fit, face)
             if extent is not None and extent[1] - extent[0] > 2.0:
                 fractions.append(-extent[0] / (extent[1] - extent[0]))
