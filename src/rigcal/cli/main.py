@@ -18,6 +18,7 @@ from rigcal.cli import check as check_cmd
 from rigcal.cli import export as export_cmd
 from rigcal.cli import import_bag as import_bag_cmd
 from rigcal.cli import import_carmen as import_carmen_cmd
+from rigcal.cli import import_laser as import_laser_cmd
 from rigcal.cli import intrinsics as intrinsics_cmd
 from rigcal.cli import lines as lines_cmd
 from rigcal.cli import localize as localize_cmd
@@ -59,6 +60,7 @@ cli.add_command(localize_cmd.evaluate_cmd, name="evaluate")
 cli.add_command(localize_cmd.matches)
 cli.add_command(pick_cmd.pick)
 cli.add_command(capture_cmd.capture)
+cli.add_command(import_laser_cmd.import_laser)
 
 
 def main(argv: list[str] | None = None) -> int:
