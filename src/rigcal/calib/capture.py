@@ -236,6 +236,15 @@ def write_capture_session(
             f"{seq.folder}: still periods: got none; expected moments where the scans and images stay "
             "still for the given number of frames (see rigcal capture --help for the thresholds)"
         )
+    for k, c in enumerate(captures):
+        r = seq.scans[c.scan_index].ranges_m
+        if np.any(r < 0):
+            raise InputError.at(
+                seq.folder,
+                f"scans[{c.scan_index}].ranges_m",
+                float(r[r < 0][0]),
+                f"ranges >= 0 (0, NaN or inf for no return) in the scan of capture {k}",
+            )
     with atomic_folder(output, force) as tmp:
         (tmp / "scans").mkdir()
         (tmp / "images").mkdir()
