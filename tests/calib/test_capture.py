@@ -205,3 +205,23 @@ def test_capture_errors(recorded, tmp_path, capsys):
     assert main([*argv, "--camera-info-topic", "/cam/info", "--still-frames", "500"]) == 3
     assert "still periods: got none" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
+
+
+def test_negative_range_stops_before_writing(recorded, tmp_path):
+    import dataclasses
+
+    from rigcal.calib.capture import write_capture_session
+
+    bag, _ = recorded
+    import_bag(bag, tmp_path / "seq", "/scan", "/cam/image", "/cam/info")
+    seq = read_sequence(tmp_path / "seq")
+    found = find_still_periods(seq)
+    k = found[1].scan_index
+    bad = seq.scans[k].ranges_m.copy()
+    bad[5] = -1.0
+    scans = list(seq.scans)
+    scans[k] = dataclasses.replace(seq.scans[k], ranges_m=bad)
+    seq = dataclasses.replace(seq, scans=tuple(scans))
+    with pytest.raises(InputError, match=rf"scans\[{k}\]\.ranges_m: got -1\.0; expected ranges >= 0"):
+        write_capture_session(seq, found, tmp_path / "session", tmp_path / "seq" / "camera.yaml")
+    assert not (tmp_path / "session").exists()
