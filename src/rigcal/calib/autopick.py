@@ -54,6 +54,9 @@ SMOOTH_PX = 0.6
 CONTRAST_REF = 40.0
 # Below this step no edge is considered at all.
 MIN_CONTRAST = 12.0
+# An edge of the face has the face's colour inside it: within this distance (BGR levels;
+# another face of the box in other light, e.g. its side, differs by more).
+FACE_TOLERANCE = 30.0
 # A dark line of the face's hue along its edge (outline, bevel shadow), up to this wide,
 # belongs to the box: darker than this fraction of the face, chromaticity within this.
 DARK_BAND_PX = 2.5
@@ -63,9 +66,9 @@ DARK_BAND_CHROMA = 0.05
 # inside the face (px).
 MAX_EXTENT_PX = 80.0
 INSIDE_PX = 3.0
-# The seeds' fractions of the laser's height on the box face must agree within this (MAD)
-# for the height cue to be used.
-HEIGHT_FRACTION_MAD = 0.06
+# The ends' fractions of the laser's height on the box face must agree within this (median
+# distance in pixels from their mean) for the height cue to be used.
+HEIGHT_AGREEMENT_PX = 1.5
 # Inside/outside levels are read this far from a candidate edge (px).
 LEVEL_NEAR_PX, LEVEL_FAR_PX = 1.0, 3.0
 
@@ -354,9 +357,10 @@ def height_fraction(
     """Where the laser cuts the box face, as a fraction of the face's height from its bottom,
     measured at the given image ends (``at_px``: capture index -> (2, 2) pixels on the
     box's end edges, e.g. the manual picks). When at least 3 ends give it and they agree
-    (MAD under HEIGHT_FRACTION_MAD): their mean within 3 MADs weighted by the face's image
-    height squared; else None. A box that stays on one stand while the rig rolls on a flat
-    floor keeps this fraction in every capture."""
+    (the median end within HEIGHT_AGREEMENT_PX of the mean): their mean weighted by the
+    face's image height squared, without the ends beyond 3 robust sigmas; else None. A box
+    that stays on one stand while the rig rolls on a flat floor keeps this fraction in
+    every capture."""
     fractions: list[float] = []
     heights: list[float] = []
     for c in draft.captures:
@@ -381,16 +385,21 @@ def height_fraction(
                 heights.append(extent[1] - extent[0])
     if len(fractions) < 3:
         return None
-    f = np.array(fractions)
-    med = float(np.median(f))
-    mad = float(np.median(np.abs(f - med)))
-    if mad > HEIGHT_FRACTION_MAD:
-        return None
+    f, h = np.array(fractions), np.array(heights)
+
     # Each end's fraction carries its pick's noise divided by the face's height in the
-    # image: the inverse-variance (height squared) weighted mean of the ends within 3 MADs.
-    keep = np.abs(f - med) <= max(3.0 * 1.4826 * mad, 0.02)
-    w = np.array(heights)[keep] ** 2
-    return float(np.sum(w * f[keep]) / np.sum(w))
+    # image: the inverse-variance (height squared) weighted mean. The ends agree when they
+    # put the laser within HEIGHT_AGREEMENT_PX of that mean in pixels (robustly: the
+    # median); ends beyond 3 robust sigmas of it are left out of the mean.
+    def weighted(sel: NDArray[np.bool_]) -> float:
+        return float(np.sum(h[sel] ** 2 * f[sel]) / np.sum(h[sel] ** 2))
+
+    mean = weighted(np.ones(len(f), bool))
+    off = np.abs(f - mean) * h
+    if float(np.median(off)) > HEIGHT_AGREEMENT_PX:
+        return None
+    keep = off <= max(3.0 * 1.4826 * float(np.median(off)), HEIGHT_AGREEMENT_PX)
+    return weighted(keep)
 
 
 def _capture_pick(
@@ -565,7 +574,7 @@ def refine_end(
             continue
         d_in, d_out = float(np.median(inside)), float(np.median(outside))
         step = d_out - d_in
-        if step < MIN_CONTRAST or d_in > max(step, MIN_CONTRAST):
+        if step < MIN_CONTRAST or d_in > FACE_TOLERANCE:
             continue
         score = step * float(np.exp(-0.5 * (t[k] / settings.prior_sigma_px) ** 2))
         candidates.append((score, int(k), d_in, d_out))
