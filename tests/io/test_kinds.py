@@ -82,3 +82,16 @@ def test_signatures():
     assert kind_of_mapping({"scans": {}, "images": {}}) == "sequence file"
     assert kind_of_mapping({"anything": 1}) is None
     assert kind_of_mapping([1, 2]) is None
+
+
+def test_a_broken_file_of_the_expected_kind_is_not_called_another(session, tmp_path):
+    import yaml
+
+    from rigcal.io.kinds import wrong_kind
+
+    # A rig file without its camera looks like a truth file, but is a broken rig file.
+    doc = {"schema_version": 1, "T_cam_laser": {}, "uncertainty": {}}
+    assert wrong_kind(tmp_path / "r.yaml", doc, "rig file") is None
+    assert "got a rig file" in wrong_kind(tmp_path / "r.yaml", {**doc, "camera": {}}, "picking file")
+    picks = yaml.safe_load((session / "picks.yaml").read_text())
+    assert wrong_kind(tmp_path / "p.yaml", picks, "picking file") is None

@@ -26,6 +26,25 @@ DOCS = {
 }
 # Readers that also accept another kind (``rigcal solve`` takes either session).
 ACCEPTS = {"picking file": {"board session file"}}
+# Keys only files of that kind have: a file with any of the expected kind's is a broken
+# file of that kind (its reader says what is wrong), never "another kind".
+DISTINCT = {
+    "picking file": {"captures"},
+    "board session file": {"method", "board", "corners_vnl"},
+    "rig file": {"T_cam_laser", "uncertainty", "residuals", "provenance"},
+    "truth file": {"T_cam_laser", "generator"},
+    "scan file": {"ranges_m", "range_min_m", "range_max_m", "angles_rad", "angle_min_rad"},
+    "sequence file": {"scans", "images", "groundtruth"},
+    "camera file": {
+        "K",
+        "image_width_px",
+        "image_height_px",
+        "camera_matrix",
+        "distortion_model",
+        "lensmodel",
+    },
+    "world file": {"walls", "obstacles", "laser_height_m"},
+}
 
 _MAGIC = (
     (b"PK\x03\x04", "a zip archive such as NumPy's .npz (a sequence folder's scans.npz?)"),
@@ -73,7 +92,7 @@ def kind_of_mapping(data: Any) -> str | None:
 def wrong_kind(path: Path, data: Any, expected: str) -> str | None:
     """The one-line message when ``data`` (read from ``path``) is another known kind than
     ``expected``; None when it is not (or unknown)."""
-    if expected not in DOCS:
+    if expected not in DOCS or not isinstance(data, Mapping) or DISTINCT[expected] & set(data):
         return None
     found = kind_of_mapping(data)
     if found is None or found == expected or found in ACCEPTS.get(expected, set()):
