@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -66,7 +65,6 @@ def main() -> None:
     ends: dict[str, list[np.ndarray]] = {v: [] for v in variants}
     review: dict[str, list[np.ndarray]] = {v: [] for v in variants}
     calib: dict[str, list[tuple[float, float]]] = {v: [] for v in (*variants, "user's picks", "exact pixels")}
-    times: list[float] = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.sessions):
             sim = generate_session(SessionSpec(n_captures=20, seed=seed))
@@ -78,9 +76,7 @@ def main() -> None:
             rough = moved_T_cam_laser(T_true, 0.5, 20.0, seed=seed)
             for v, manual, T in zip(variants, (3, 5, 0, 0), (None, None, rough, T_true), strict=True):
                 d = read_pick_draft(draft(folder, manual))
-                t0 = time.perf_counter()
                 run = auto_pick(d, PickSettings(), T)
-                times.append(time.perf_counter() - t0)
                 auto = [p for p in run.picks if p.source == "auto" and p.image_endpoints_px is not None]
                 e = np.array([np.linalg.norm(p.image_endpoints_px - truth[p.index], axis=1) for p in auto])
                 ends[v].append(e)
@@ -109,7 +105,6 @@ def main() -> None:
             f"| {label} | {np.median(a[:, 0]):.3f} | {np.median(a[:, 1]):.2f} | {a[:, 0].max():.3f} | "
             f"{a[:, 1].max():.2f} |"
         )
-    print(f"\nauto_pick time per session (20 captures): median {np.median(times):.2f} s")
 
 
 if __name__ == "__main__":
