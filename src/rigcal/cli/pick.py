@@ -107,6 +107,12 @@ def pick(
         s = run.final
         summary += f"; solve over all picks: {int(s.inliers.sum())}/{len(s.inliers)} ends inliers"
     click.echo(summary)
+    if run.seeded_from == "rig" and not any(p.source == "manual" for p in run.picks):
+        click.echo(
+            "note: with no capture picked by hand, the picks' height on the box is the rig's own "
+            "(the images cannot show the laser plane); pick 3 or more by hand to measure it",
+            err=True,
+        )
     if unpicked:
         click.echo(f"not picked (pick by hand or remove): {', '.join(unpicked)}")
     click.echo(f"wrote {output}" + (f" and {sheet}" if sheet else ""), err=True)
