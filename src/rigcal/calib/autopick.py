@@ -220,8 +220,9 @@ def auto_pick(
             if not _is_manual(c)
         }
         if fraction is None and round_ == 0:
-            # No manual picks to measure it at: the fraction the pose predicts, over every
-            # capture (the pose's height error stays in it, its tilt errors average out).
+            # The manual picks did not give it (none, too few, or they disagree): the
+            # fraction the pose predicts, over every capture (the pose's height error stays
+            # in it, its tilt errors average out); None again when those disagree too.
             at = {
                 i: np.array([f[0].pixel, f[1].pixel])
                 for i, f in fits.items()
