@@ -64,7 +64,7 @@ def capture(
     """Find the still moments of SOURCE and write one capture (scan + image) per moment.
 
     SOURCE is a ROS 1 / ROS 2 bag (give --scan-topic and --image-topic) or a sequence
-    folder (rigcal import-bag, import-radlocc). A moment is still when the scans and the
+    folder (rigcal import-bag, import-laser). A moment is still when the scans and the
     images both stay unchanged for --still-frames frames; its scan and image are the pair
     nearest in time (the offset is printed). Writes a session folder with a picking file
     skeleton (docs/formats/session.md) for rigcal pick and rigcal solve.
