@@ -183,3 +183,22 @@ def test_box_size_must_be_positive(rendered):
     path.write_text(yaml.safe_dump(doc))
     with pytest.raises(InputError, match=r"box\.width_m: got -1; expected a number > 0"):
         read_pick_draft(path)
+
+
+def test_a_side_that_is_not_found_leaves_the_capture_unpicked(rendered, tmp_path, capsys):
+    sim, folder = rendered
+    path = draft_file(folder, sim, 3, drop_sides=True)
+    run = auto_pick(read_pick_draft(path), PickSettings(box_width_m=2.0))  # no 2 m segment
+    unpicked = [p for p in run.picks if p.image_endpoints_px is None]
+    assert len(unpicked) == 5
+    assert all(p.review and "no segment of the box's width 2 m" in p.reasons[0] for p in unpicked)
+    out = tmp_path / "auto.yaml"
+    out.write_text(pick_file_text(run, out))
+    assert read_pick_draft(out).captures[3].image_endpoints_px is None
+    with pytest.raises(InputError, match=r"captures\[3\]\.laser_side: missing; .*rigcal pick"):
+        read_picks(out)
+    sheet = tmp_path / "sheet.png"
+    argv = ["pick", str(path), "--box-width-m", "2", "-o", str(tmp_path / "a2.yaml"), "--sheet", str(sheet)]
+    assert main(argv) == 0
+    assert "not picked (pick by hand or remove): cap03" in capsys.readouterr().out
+    assert cv2.imread(str(sheet)) is not None
