@@ -83,6 +83,30 @@ def test_radlocc_to_sequence_to_session(radlocc, tmp_path, capsys):
     assert (session / "images" / "cap01.png").is_file()
 
 
+def test_radlocc_collect_form_and_stamps_only_image_list(tmp_path):
+    """laser.txt with range unit type 3 and the beam count, image_stamps.txt with stamps
+    only and image_001.png, ... beside it, as radlocc_collect writes them."""
+    a0, step = -0.5, 0.25
+    rows = [f"{t} {a0} {step} 0.5 3 5 2.0 2.1 nan 2.3 inf" for t in (1.0, 1.1)]
+    (tmp_path / "laser.txt").write_text("\n".join(rows) + "\n")
+    scans = read_radlocc_laser(tmp_path / "laser.txt")
+    assert [len(s.ranges_m) for s in scans] == [5, 5]
+    assert scans[0].ranges_m[1] == 2.1
+    assert not scans[0].valid[2]
+    (tmp_path / "laser.txt").write_text(f"1.0 {a0} {step} 0.5 1 5 2000 2100 2200 2300 2400\n")
+    with pytest.raises(InputError, match=r"line 1: range unit type 1\.0; expected 3 \(metres\)"):
+        read_radlocc_laser(tmp_path / "laser.txt")
+    for k in (1, 2):
+        cv2.imwrite(str(tmp_path / f"image_{k:03d}.png"), np.zeros((4, 4), np.uint8))
+    (tmp_path / "image_stamps.txt").write_text("1.02 1.02\n1.12 1.12\n")
+    stamps, files = read_image_list(tmp_path / "image_stamps.txt")
+    assert stamps.tolist() == [1.02, 1.12]
+    assert files == [tmp_path / "image_001.png", tmp_path / "image_002.png"]
+    (tmp_path / "image_stamps.txt").write_text("1.02 1.02\n1.12 1.12\n1.22 1.22\n")
+    with pytest.raises(InputError, match=r"line 3: image_003\.png \(or \.jpg, \.\.\.\) not found"):
+        read_image_list(tmp_path / "image_stamps.txt")
+
+
 def test_csv_laser(tmp_path):
     rows = ["stamp_s,angle_deg,range_m,intensity"]
     for t in (1.0, 1.1):
@@ -135,7 +159,7 @@ def test_image_list(tmp_path):
     stamps, files = read_image_list(tmp_path / "l.txt")
     assert stamps.tolist() == [3.5]
     assert files == [tmp_path / "a.png"]
-    for text, match in (("1.0 b.png\n", "image b.png not found"), ("1.0\n", "expected a stamp"),
+    for text, match in (("1.0 b.png\n", "image b.png not found"), ("1.0 a.png b.png\n", "expected a stamp"),
                         ("1.0 a.png\n0.5 a.png\n", "stamp 0.5 not after 1.0")):  # fmt: skip
         (tmp_path / "l.txt").write_text(text)
         with pytest.raises(InputError, match=match):

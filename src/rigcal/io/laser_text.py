@@ -1,14 +1,19 @@
 """Laser logs written as text by other tools, and their image lists, into sequence folders.
 
 - **RADLOCC** ``laser.txt`` (the laser-camera calibration toolbox's log): one scan per line,
-  ``stamp angle_min angle_increment angle_max r_0 ... r_{N-1}`` (seconds, radians, metres;
-  whitespace or commas), with ``N = round((angle_max - angle_min) / angle_increment) + 1``.
-  ``nan`` / ``inf`` ranges (and those outside the valid interval) are no return.
+  ``stamp angle_min angle_increment angle_max range_unit_type N r_0 ... r_{N-1}`` as
+  ``radlocc_collect`` writes it (unit type 3: metres, the only one read), or without the
+  unit type and count, ``stamp angle_min angle_increment angle_max r_0 ...`` (seconds,
+  radians, metres; whitespace or commas); ``N = round((angle_max - angle_min) /
+  angle_increment) + 1``. ``nan`` / ``inf`` ranges (and those outside the valid interval)
+  are no return.
 - **Generic CSV**: a header naming ``stamp_s``, ``angle_rad`` (or ``angle_deg``) and
   ``range_m`` (other columns are ignored), then one row per beam; consecutive rows with the
   same stamp form a scan, their angles increasing.
 - **Image list**: one image per line, its stamp (seconds) and its file (relative to the
-  list's folder), in either order; lines starting with ``#`` are comments.
+  list's folder), in either order; or RADLOCC's ``image_stamps.txt``: stamps only (one or
+  two equal numbers per line), the k-th line for ``image_00k.png`` (k from 1, 3 digits or
+  more, any image extension) beside it. Lines starting with ``#`` are comments.
 
 Every malformed line stops the import with the file, the line number and what was
 expected (docs/formats/sequence.md).
@@ -30,6 +35,9 @@ from rigcal.io.sequence import ImageFrame, write_sequence
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
+
+# RADLOCC's range unit type for metres (what radlocc_collect writes for ROS scans).
+RADLOCC_METRES = 3.0
 
 
 @dataclass(frozen=True)
@@ -95,6 +103,13 @@ def read_radlocc_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: 
         if max(abs(a0), abs(a1)) > 2 * math.pi + 1e-6:
             raise InputError(f"{where}: got angles {a0!r} to {a1!r}; expected radians (within +/- 2 pi)")
         count = round((a1 - a0) / step) + 1
+        if len(values) == count + 6 and values[5] == count:
+            # radlocc_collect's form: range unit type and beam count before the ranges.
+            if values[4] != RADLOCC_METRES:
+                raise InputError(
+                    f"{where}: range unit type {values[4]!r}; expected {RADLOCC_METRES:g} (metres)"
+                )
+            ranges = ranges[2:]
         if count != len(ranges):
             raise InputError(
                 f"{where}: got {len(ranges)} ranges; expected {count} for angles {a0!r} to {a1!r} by {step!r}"
@@ -157,33 +172,59 @@ def read_image_list(path: str | Path) -> tuple[FloatArray, list[Path]]:
     """Stamps (N,) and files of an image list, in time order.
 
     Raises:
-        InputError: a line without one number and one existing file, or stamps not increasing.
+        InputError: a line without one stamp and one existing file (or, for a stamps-only
+            RADLOCC list, a missing ``image_00k`` file), or stamps not increasing.
     """
     path = Path(path)
+    lines = _content_lines(path, "image list")
+    stamps_only = all(_numbers_only(_fields(line)) for _, line in lines)
     stamps: list[float] = []
     files: list[Path] = []
-    for n, line in _content_lines(path, "image list"):
+    for k, (n, line) in enumerate(lines, start=1):
         f = _fields(line)
-        numbers = []
-        names = []
-        for x in f:
-            try:
-                numbers.append(float(x))
-            except ValueError:
-                names.append(x)
-        if len(f) != 2 or len(numbers) != 1 or not math.isfinite(numbers[0]):
-            raise InputError(f"{path}: line {n}: got {line[:60]!r}; expected a stamp (s) and an image file")
-        # A numeric file name (e.g. 000123.png parses as text, 000123 as a number): the
-        # field that names an existing file is the file.
-        name = names[0] if names else f[1]
-        file = path.parent / name
-        if not file.is_file():
-            raise InputError(f"{path}: line {n}: image {name} not found in {path.parent}")
-        if stamps and not numbers[0] > stamps[-1]:
-            raise InputError(f"{path}: line {n}: stamp {numbers[0]!r} not after {stamps[-1]!r}")
-        stamps.append(numbers[0])
+        if stamps_only:  # RADLOCC image_stamps.txt: image_00k.* beside it
+            stamp = float(f[0])
+            file = _radlocc_image(path.parent, k)
+            if file is None:
+                raise InputError(
+                    f"{path}: line {n}: image_{k:03d}.png (or .jpg, ...) not found in {path.parent}"
+                )
+        else:
+            numbers: list[str] = []
+            names: list[str] = []
+            for x in f:
+                (numbers if _numbers_only([x]) else names).append(x)
+            if len(f) != 2 or len(numbers) != 1 or not math.isfinite(float(numbers[0])):
+                raise InputError(
+                    f"{path}: line {n}: got {line[:60]!r}; expected a stamp (s) and an image file"
+                )
+            stamp = float(numbers[0])
+            file = path.parent / names[0]
+            if not file.is_file():
+                raise InputError(f"{path}: line {n}: image {names[0]} not found in {path.parent}")
+        if stamps and not stamp > stamps[-1]:
+            raise InputError(f"{path}: line {n}: stamp {stamp!r} not after {stamps[-1]!r}")
+        stamps.append(stamp)
         files.append(file)
     return np.array(stamps), files
+
+
+def _numbers_only(fields: list[str]) -> bool:
+    try:
+        [float(x) for x in fields]
+    except ValueError:
+        return False
+    return bool(fields)
+
+
+def _radlocc_image(folder: Path, k: int) -> Path | None:
+    """RADLOCC's k-th image (from 1): image_001.png, image_0001.jpg, ..."""
+    for digits in (3, 4, 5, 6, 1):
+        for ext in (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"):
+            p = folder / f"image_{k:0{digits}d}{ext}"
+            if p.is_file():
+                return p
+    return None
 
 
 def import_laser_text(
