@@ -270,3 +270,42 @@ def test_charuco_cli_and_bad_options(charuco_images, tmp_path, capsys):
         main([*base, "--force", "--charuco", "8x6", "--marker-m", "0.03", "--dictionary", "DICT_NOPE"]) == 3
     )
     assert "dictionary" in capsys.readouterr().err
+
+
+# --- honesty: both RMS figures, degenerate sets, another board size -----------------------------
+def test_rms_over_all_corners_and_over_inliers(detections):
+    res = solve_intrinsics(detections, BOARD, "LENSMODEL_OPENCV5")
+    assert res.rms_all_px >= res.rms_px
+    assert res.worst_all_px >= res.worst_px
+    if res.outliers == 0:
+        assert res.rms_all_px == pytest.approx(res.rms_px, abs=1e-4)
+    # A well-spread set of 14 real images raises no degeneracy warning.
+    assert res.warnings == ()
+
+
+def test_repeated_views_and_one_tilt_are_warned(detections):
+    from rigcal.calib.intrinsics import Detections
+
+    # The same three images four times over: one set of views, few tilts.
+    idx = [0, 1, 2] * 4
+    det = Detections(
+        tuple(f"copy{i}_{detections.paths[j].split('/')[-1]}" for i, j in enumerate(idx)),
+        detections.corners[idx],
+        (),
+        detections.imagersize,
+    )
+    res = solve_intrinsics(det, BOARD, "LENSMODEL_OPENCV5")
+    assert any("nearly the same view" in w for w in res.warnings)
+
+
+def test_other_board_size_is_suggested(tmp_path, capsys):
+    from rigcal.calib.intrinsics import other_board_sizes
+
+    wrong = Board(8, 6, 0.025)
+    found = other_board_sizes(IMAGES[:1], wrong)
+    assert found == {IMAGES[0].name: (9, 6)}
+    argv = ["intrinsics", *map(str, IMAGES[:2]), "--board", "8x6", "--square-m", "0.025"]
+    assert main([*argv, "-o", str(tmp_path / "c.cameramodel")]) == 4
+    err = capsys.readouterr().err
+    assert "a 9x6 chessboard is detected in left01.jpg" in err
+    assert not (tmp_path / "c.cameramodel").exists()

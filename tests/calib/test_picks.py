@@ -237,7 +237,7 @@ def test_missing_capture_key(session, key):
         read_picks(save(session, doc))
 
 
-@pytest.mark.parametrize(("version", "shown"), [(2, "2"), ("1", "'1'"), (None, "None"), (True, "True")])
+@pytest.mark.parametrize(("version", "shown"), [(3, "3"), ("1", "'1'"), (None, "None"), (True, "True")])
 def test_wrong_schema_version(session, version, shown):
     doc = load(session)
     doc["schema_version"] = version

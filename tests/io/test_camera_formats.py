@@ -252,6 +252,18 @@ def test_opencv_storage_round_trip(suffix, k_key, d_key, tmp_path):
 
 
 @pytest.mark.parametrize("suffix", [".xml", ".yaml"])
+@pytest.mark.parametrize(
+    ("w_key", "h_key", "k_key"),
+    [("image_Width", "image_Height", "Camera_Matrix"), ("IMAGE_WIDTH", "Image_height", "CAMERA_MATRIX")],
+)
+def test_opencv_storage_keys_match_in_any_case(suffix, w_key, h_key, k_key, tmp_path):
+    entries = {w_key: 800, h_key: 600, k_key: K, "Distortion_Coefficients": np.array([DIST5])}
+    cam = read_camera(write_storage(tmp_path / f"old{suffix}", entries))
+    assert (cam.width_px, cam.height_px) == (800, 600)
+    np.testing.assert_array_equal(cam.intrinsics, [612.5, 608.25, 321.75, 238.5, *DIST5])
+
+
+@pytest.mark.parametrize("suffix", [".xml", ".yaml"])
 def test_opencv_storage_one_dimensional_arrays(suffix, tmp_path):
     entries = storage_entries(distortion_coefficients=np.array(DIST5))
     cam = read_camera(write_storage(tmp_path / f"calib{suffix}", entries))

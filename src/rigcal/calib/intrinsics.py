@@ -13,15 +13,18 @@
    optimised by ``mrcal.optimize`` with outlier rejection and regularisation; the result is
    a mrcal camera model that keeps its optimisation inputs, so mrcal's projection
    uncertainty is available from it.
-4. **Report.** RMS and worst reprojection errors, per image, outliers, and mrcal's
-   projection uncertainty (1-sigma, worst direction) at the image centre and corners.
+4. **Report.** RMS and worst reprojection errors over the inliers and over every detected
+   corner (outliers included), per image, outliers, and mrcal's projection uncertainty
+   (1-sigma, worst direction) at the image centre and corners; warnings for a degenerate
+   set (:func:`degeneracy_warnings`). When a board is not found, other common board sizes
+   are tried (:func:`other_board_sizes`).
 """
 
 from __future__ import annotations
 
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +39,17 @@ FloatArray = NDArray[np.float64]
 MIN_IMAGES = 3
 # An image whose board has fewer non-outlier corners than this is reported as unusable.
 MIN_CORNERS_PER_BOARD = 10
+# Degenerate sets: every board normal within this of the mean (deg); two views this close
+# in rotation (deg) and position (fraction of the distance) count as the same view;
+# fx / fy this far from 1; uncertainty at the image centre above this (px).
+MIN_TILT_SPREAD_DEG = 10.0
+SAME_VIEW_DEG, SAME_VIEW_FRACTION = 1.0, 0.01
+MAX_ASPECT_DEVIATION = 0.05
+MAX_CENTRE_UNCERTAINTY_PX = 1.0
+# Inner-corner grids of common chessboards (OpenCV's samples, calib.io, printed A4/A3 ones),
+# tried when the given board is not found.
+COMMON_BOARDS = ((9, 6), (8, 6), (7, 5), (7, 6), (8, 5), (6, 4), (5, 4), (10, 7), (11, 8), (9, 7),
+                 (11, 7), (12, 9), (13, 9), (7, 7), (8, 8), (6, 5), (5, 3), (4, 3))  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -121,6 +135,9 @@ class IntrinsicsResult:
     corners: int
     uncertainty_px: dict[str, float]
     images_used: int
+    rms_all_px: float = float("nan")
+    worst_all_px: float = float("nan")
+    warnings: tuple[str, ...] = ()
 
 
 def detect_corners(images: list[Path], board: Board) -> Detections:
@@ -413,7 +430,9 @@ def _result(model: Any, inputs: dict[str, Any], stats: dict[str, Any], det: Dete
         v = mrcal.unproject(np.array(q, dtype=float), *model.intrinsics())
         s = mrcal.projection_uncertainty(v * 10.0, model, what="worstdirection-stdev")
         unc[name] = round(float(s), 4)
-    return IntrinsicsResult(
+    # "All": every corner the detector reported (outliers mrcal rejected included).
+    detected = np.asarray(det.corners)[..., 2].reshape(obs.shape[0], -1) > 0
+    result = IntrinsicsResult(
         model=model,
         rms_px=round(float(np.sqrt(np.mean(err[inlier] ** 2))), 4),
         worst_px=round(float(err[inlier].max()), 4),
@@ -422,4 +441,81 @@ def _result(model: Any, inputs: dict[str, Any], stats: dict[str, Any], det: Dete
         corners=int(inlier.size),
         uncertainty_px=unc,
         images_used=len(det.paths),
+        rms_all_px=round(float(np.sqrt(np.mean(err[detected] ** 2))), 4),
+        worst_all_px=round(float(err[detected].max()), 4),
     )
+    return replace(result, warnings=degeneracy_warnings(result, inputs["rt_ref_frame"], det))
+
+
+def degeneracy_warnings(
+    result: IntrinsicsResult, rt_ref_frame: FloatArray, det: Detections
+) -> tuple[str, ...]:
+    """Why a solve may be weaker than its residuals say: boards all at one tilt, repeated
+    views, fx / fy far from 1, a large uncertainty at the image centre.
+
+    Args:
+        result: the solve's figures.
+        rt_ref_frame: (N, 6) the boards' poses in the camera (mrcal rt: rotation vector,
+            translation).
+        det: the detections (image names).
+    """
+    from scipy.spatial.transform import Rotation
+
+    out = []
+    R = Rotation.from_rotvec(np.asarray(rt_ref_frame)[:, :3])
+    t = np.asarray(rt_ref_frame)[:, 3:]
+    normals = R.apply(np.array([0.0, 0.0, 1.0]))
+    mean = normals.mean(axis=0)
+    mean /= np.linalg.norm(mean)
+    spread = float(np.degrees(np.arccos(np.clip(np.abs(normals @ mean), -1.0, 1.0))).max())
+    if spread < MIN_TILT_SPREAD_DEG:
+        out.append(
+            f"every board is seen within {spread:.1f} deg of one tilt: focal length and distortion are "
+            "poorly separated; tilt the board (up to 45 deg) in some images"
+        )
+    same = []
+    for i in range(len(t)):
+        for j in range(i + 1, len(t)):
+            dR = float(np.degrees((R[i].inv() * R[j]).magnitude()))
+            dt = float(np.linalg.norm(t[i] - t[j]) / max(np.linalg.norm(t[i]), 1e-9))
+            if dR < SAME_VIEW_DEG and dt < SAME_VIEW_FRACTION:
+                same.append((Path(det.paths[i]).name, Path(det.paths[j]).name))
+    if same:
+        pairs = ", ".join(f"{a} = {b}" for a, b in same[:3]) + (" ..." if len(same) > 3 else "")
+        out.append(f"{len(same)} pairs of images show nearly the same view ({pairs}): they add little")
+    fx, fy = (float(x) for x in result.model.intrinsics()[1][:2])
+    if abs(fx / fy - 1.0) > MAX_ASPECT_DEVIATION:
+        out.append(f"fx / fy = {fx / fy:.3f}, far from 1 (square pixels): check the board size and the set")
+    centre = result.uncertainty_px.get("centre", 0.0)
+    if centre > MAX_CENTRE_UNCERTAINTY_PX:
+        out.append(
+            f"projection uncertainty at the image centre {centre:.2f} px "
+            f"(over {MAX_CENTRE_UNCERTAINTY_PX:g}): take more images, nearer and covering the whole image"
+        )
+    return tuple(out)
+
+
+def other_board_sizes(images: list[Path], board: Board, max_images: int = 3) -> dict[str, tuple[int, int]]:
+    """For up to ``max_images`` images in which ``board`` was not found: the first common
+    chessboard size (COMMON_BOARDS, either orientation) found in it instead.
+
+    Returns:
+        image name -> (width_n, height_n) of the board found, for the images where one was.
+    """
+    import cv2
+
+    # Larger grids first: a detector may take part of a large board for a smaller one.
+    given = {(board.width_n, board.height_n), (board.height_n, board.width_n)}
+    sizes = sorted((s for s in COMMON_BOARDS if s not in given), key=lambda s: -s[0] * s[1])
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+    out: dict[str, tuple[int, int]] = {}
+    for path in images[:max_images]:
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            continue
+        for w, h in sizes:
+            ok, _ = cv2.findChessboardCorners(img, (w, h), flags=flags)
+            if ok:
+                out[Path(path).name] = (w, h)
+                break
+    return out

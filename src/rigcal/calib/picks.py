@@ -19,12 +19,14 @@ from numpy.typing import NDArray
 from rigcal.calib.lines import LineParams, Segment, extract_lines, fit_line
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import InputError
-from rigcal.io.files import check_keys, check_schema_version, load_yaml
+from rigcal.io.files import check_keys, get_float, load_yaml
 from rigcal.scan import Scan, read_scan
 
 FloatArray = NDArray[np.float64]
 
-PICKS_SCHEMA_VERSION = 1
+PICKS_SCHEMA_VERSION = 2
+# Schema 1 files are read as they are (docs/formats/session.md).
+READABLE_PICKS_VERSIONS = (1, 2)
 
 # Laser points within this distance of the line through two given laser points count as
 # points of the box side (for the `points:` form of laser_side).
@@ -90,25 +92,212 @@ class PickSession:
 def read_picks(path: str | Path, line_params: LineParams | None = None) -> PickSession:
     """Read and validate a picking file and every file it names.
 
+    Every capture must be picked (``laser_side`` and ``image_endpoints_px``).
+
+    Raises:
+        InputError: anything missing, unreadable or invalid, naming the file, key and value.
+    """
+    draft = read_pick_draft(path, line_params)
+    obs = tuple(resolve_capture(draft, c) for c in draft.captures)
+    return PickSession(draft.path, draft.camera, draft.camera_path, dict(draft.laser), obs)
+
+
+@dataclass(frozen=True)
+class PickMeta:
+    """How a capture's image ends were picked (schema 2's ``pick`` mapping).
+
+    Attributes:
+        source: ``"manual"`` (a person) or ``"auto"`` (``rigcal pick``).
+        confidence: 0-1, for automatic picks.
+        review: the pick should be checked by eye before it is trusted.
+    """
+
+    source: str = "manual"
+    confidence: float = 1.0
+    review: bool = False
+
+
+@dataclass(frozen=True)
+class CaptureDraft:
+    """One capture as written, validated but possibly not picked yet.
+
+    Attributes:
+        index, name: position in the file and name.
+        scan_path, image_path: absolute paths (both files exist; the image has the
+            camera's size).
+        scan: the scan.
+        laser_side: the raw ``laser_side`` mapping, or None when missing.
+        image_endpoints_px: (2, 2) pixels, or None when missing.
+        pick: how the ends were picked (schema 2), None when unknown.
+    """
+
+    index: int
+    name: str
+    scan_path: Path
+    image_path: Path
+    scan: Scan
+    laser_side: dict[str, Any] | None
+    image_endpoints_px: FloatArray | None
+    pick: PickMeta | None
+
+
+@dataclass(frozen=True)
+class PickDraft:
+    """A picking file, validated, whose captures may not all be picked yet (the input and
+    output of ``rigcal pick``)."""
+
+    path: Path
+    schema_version: int
+    name: str | None
+    camera: Camera
+    camera_path: Path
+    camera_ref: str
+    laser: dict[str, Any]
+    box: dict[str, float]
+    captures: tuple[CaptureDraft, ...]
+    line_params: LineParams
+
+
+def read_pick_draft(path: str | Path, line_params: LineParams | None = None) -> PickDraft:
+    """Read a picking file whose captures need not all be picked (schema 2 allows a capture
+    without ``laser_side`` or ``image_endpoints_px``; schema 1 requires both).
+
     Raises:
         InputError: anything missing, unreadable or invalid, naming the file, key and value.
     """
     path = Path(path)
     data = load_yaml(path, "picking file")
-    d = check_keys(data, path, "", ["schema_version", "camera", "captures"], ["laser", "name"])
-    check_schema_version(d, path, PICKS_SCHEMA_VERSION)
+    d = check_keys(data, path, "", ["schema_version", "camera", "captures"], ["laser", "name", "box"])
+    version = d["schema_version"]
+    if type(version) is not int or version not in READABLE_PICKS_VERSIONS:
+        raise InputError.at(
+            path,
+            "schema_version",
+            version,
+            f"one of {list(READABLE_PICKS_VERSIONS)} (the versions this rigcal reads)",
+        )
+    if version == 1 and "box" in d:
+        raise InputError.at(path, "box", d["box"], "no such key in schema 1 (schema_version: 2 has it)")
+    name = d.get("name")
+    if name is not None and not isinstance(name, str):
+        raise InputError.at(path, "name", name, "a string")
     camera_path = _file(path, "camera", d["camera"])
     camera = read_camera(camera_path)
     laser = d.get("laser", {})
     if not isinstance(laser, dict) or not all(isinstance(k, str) for k in laser):
         raise InputError.at(path, "laser", laser, "a mapping describing the scanner (e.g. name: ...)")
+    box = _box(path, d.get("box", {}))
     captures = d["captures"]
     if not isinstance(captures, list) or not captures:
         raise InputError.at(path, "captures", captures, "a non-empty list of captures")
     params = line_params or line_params_for(path, laser)
-    obs = tuple(_read_capture(path, i, c, camera, params) for i, c in enumerate(captures))
-    check_unique_names(path, [o.name for o in obs])
-    return PickSession(path, camera, camera_path, dict(laser), obs)
+    drafts = tuple(_read_draft(path, version, i, c, camera) for i, c in enumerate(captures))
+    check_unique_names(path, [c.name for c in drafts])
+    return PickDraft(
+        path, version, name, camera, camera_path, str(d["camera"]), dict(laser), box, drafts, params
+    )
+
+
+def resolve_capture(draft: PickDraft, c: CaptureDraft) -> BoxObservation:
+    """A picked capture's :class:`BoxObservation` (paper Algorithm 1, step 2).
+
+    Raises:
+        InputError: the capture is not picked yet, or its laser side is invalid.
+    """
+    kp = f"captures[{c.index}]"
+    for key, value in (("laser_side", c.laser_side), ("image_endpoints_px", c.image_endpoints_px)):
+        if value is None:
+            raise InputError(
+                f"{draft.path}: {kp}.{key}: missing; this key is required to solve "
+                f"(`rigcal pick {draft.path.name}` proposes it)"
+            )
+    assert c.laser_side is not None
+    assert c.image_endpoints_px is not None
+    side = _laser_side(draft.path, kp, c.laser_side, c.scan, c.scan_path, draft.line_params)
+    if isinstance(side, tuple):  # two laser points given: no returns to fit
+        ends, pts, beams = side
+        return BoxObservation(
+            c.index,
+            c.name,
+            c.scan_path,
+            c.image_path,
+            ends,
+            pts,
+            beams,
+            c.scan.step_rad,
+            c.image_endpoints_px,
+        )
+    return side_observation(c.index, c.name, c.scan_path, c.image_path, c.scan, side, c.image_endpoints_px)
+
+
+def side_ends(draft: PickDraft, c: CaptureDraft, laser_side: dict[str, Any]) -> FloatArray:
+    """The box ends (2, 2), metres, laser frame, end 0 at the smaller beam angle, of a
+    capture's ``laser_side`` mapping (as :func:`resolve_capture` takes them).
+
+    Raises:
+        InputError: an invalid segment id or points.
+    """
+    side = _laser_side(draft.path, f"captures[{c.index}]", laser_side, c.scan, c.scan_path, draft.line_params)
+    if isinstance(side, tuple):
+        return side[0]
+    return extended_ends(np.array(c.scan.points[side]), side, c.scan)[0]
+
+
+def _box(path: Path, value: Any) -> dict[str, float]:
+    b = check_keys(value, path, "box", [], ["width_m", "height_m"])
+    out = {}
+    for key in b:
+        out[key] = get_float(b, key, path, "box", positive=True)
+    return out
+
+
+def _read_draft(path: Path, version: int, i: int, c: Any, camera: Camera) -> CaptureDraft:
+    kp = f"captures[{i}]"
+    if version == 1:
+        c = check_keys(c, path, kp, ["scan", "image", "laser_side", "image_endpoints_px"], ["name"])
+    else:
+        c = check_keys(c, path, kp, ["scan", "image"], ["name", "laser_side", "image_endpoints_px", "pick"])
+    name = capture_name(path, kp, c, i)
+    scan_path = _file(path, f"{kp}.scan", c["scan"])
+    image_path = _file(path, f"{kp}.image", c["image"])
+    _check_image(path, f"{kp}.image", c["image"], image_path, camera)
+    scan = read_scan(scan_path)
+    px = None
+    if "image_endpoints_px" in c:
+        px = _pairs(c["image_endpoints_px"], path, f"{kp}.image_endpoints_px", "pixel")
+        inside = camera.in_image(px)
+        for j in range(2):
+            if not inside[j]:
+                raise InputError.at(
+                    path,
+                    f"{kp}.image_endpoints_px[{j}]",
+                    px[j].tolist(),
+                    f"a pixel inside the {camera.width_px}x{camera.height_px} image",
+                )
+        if np.linalg.norm(px[0] - px[1]) < 2.0:
+            raise InputError.at(path, f"{kp}.image_endpoints_px", px.tolist(), "two distinct box ends")
+    side = c.get("laser_side")
+    if "laser_side" in c and not (
+        isinstance(side, dict) and len(side) == 1 and next(iter(side)) in ("segment", "points")
+    ):
+        raise InputError.at(
+            path, f"{kp}.laser_side", side, "either {segment: ID} or {points: [[x1, y1], [x2, y2]]}"
+        )
+    meta = _pick_meta(path, f"{kp}.pick", c["pick"]) if "pick" in c else None
+    return CaptureDraft(i, name, scan_path, image_path, scan, side, px, meta)
+
+
+def _pick_meta(path: Path, kp: str, value: Any) -> PickMeta:
+    m = check_keys(value, path, kp, ["source"], ["confidence", "review"])
+    if m["source"] not in ("manual", "auto"):
+        raise InputError.at(path, f"{kp}.source", m["source"], "'manual' or 'auto'")
+    conf = get_float(m, "confidence", path, kp) if "confidence" in m else 1.0
+    if not 0.0 <= conf <= 1.0:
+        raise InputError.at(path, f"{kp}.confidence", m["confidence"], "a number from 0 to 1")
+    review = m.get("review", False)
+    if not isinstance(review, bool):
+        raise InputError.at(path, f"{kp}.review", review, "true or false")
+    return PickMeta(str(m["source"]), conf, review)
 
 
 def line_params_for(path: Path | None, laser: dict[str, Any]) -> LineParams:
@@ -145,33 +334,6 @@ def _file(base: Path, key: str, value: Any) -> Path:
     if not p.is_file():
         raise InputError.at(base, key, value, f"an existing file (looked for {p})")
     return p
-
-
-def _read_capture(path: Path, i: int, c: Any, camera: Camera, line_params: LineParams) -> BoxObservation:
-    kp = f"captures[{i}]"
-    c = check_keys(c, path, kp, ["scan", "image", "laser_side", "image_endpoints_px"], ["name"])
-    name = capture_name(path, kp, c, i)
-    scan_path = _file(path, f"{kp}.scan", c["scan"])
-    image_path = _file(path, f"{kp}.image", c["image"])
-    _check_image(path, f"{kp}.image", c["image"], image_path, camera)
-    scan = read_scan(scan_path)
-    px = _pairs(c["image_endpoints_px"], path, f"{kp}.image_endpoints_px", "pixel")
-    inside = camera.in_image(px)
-    for j in range(2):
-        if not inside[j]:
-            raise InputError.at(
-                path,
-                f"{kp}.image_endpoints_px[{j}]",
-                px[j].tolist(),
-                f"a pixel inside the {camera.width_px}x{camera.height_px} image",
-            )
-    if np.linalg.norm(px[0] - px[1]) < 2.0:
-        raise InputError.at(path, f"{kp}.image_endpoints_px", px.tolist(), "two distinct box ends")
-    side = _laser_side(path, kp, c["laser_side"], scan, scan_path, line_params)
-    if isinstance(side, tuple):  # two laser points given: no returns to fit
-        ends, pts, beams = side
-        return BoxObservation(i, name, scan_path, image_path, ends, pts, beams, scan.step_rad, px)
-    return side_observation(i, name, scan_path, image_path, scan, side, px)
 
 
 def side_observation(

@@ -97,6 +97,7 @@ def intrinsics(
         CharucoBoard,
         detect_charuco,
         detect_corners,
+        other_board_sizes,
         read_corners_vnl,
         solve_intrinsics,
         write_corners_vnl,
@@ -147,6 +148,22 @@ def intrinsics(
         )
     for name in det.missing:
         click.echo(f"board not found in {name}", err=True)
+    hint = ""
+    if det.missing and charuco_board is None and corners_file is None:
+        found = other_board_sizes([Path(p) for p in det.missing], spec)
+        if found:
+            name, (w, h) = next(iter(found.items()))
+            hint = (
+                f"a {w}x{h} chessboard is detected in {name} (--board counts inner corners per row x column)"
+            )
+            click.echo(f"board {board} not found in {len(det.missing)} images; {hint}", err=True)
+    from rigcal.calib.intrinsics import MIN_IMAGES
+    from rigcal.errors import CalibrationError
+
+    if len(det.paths) < MIN_IMAGES and hint:
+        raise CalibrationError(
+            f"the {board} board was found in {len(det.paths)} image(s), {MIN_IMAGES} are needed; {hint}"
+        )
     result = solve_intrinsics(det, spec, lensmodel, focal_px)
     what = f"board {board}" if board else f"ChArUco {charuco} ({dictionary})"
     text = _model_text(result.model, f"rigcal intrinsics: {len(det.paths)} images, {what}, {square_m:g} m")
@@ -163,6 +180,9 @@ def intrinsics(
         "boards_not_found": list(det.missing),
         "rms_px": result.rms_px,
         "worst_px": result.worst_px,
+        "rms_all_corners_px": result.rms_all_px,
+        "worst_all_corners_px": result.worst_all_px,
+        "warnings": list(result.warnings),
         "outliers": result.outliers,
         "corners": result.corners,
         "per_image_rms_px": result.per_image_rms_px,
@@ -178,13 +198,18 @@ def intrinsics(
                 f"{lens}: fx {intr[0]:.3f}, fy {intr[1]:.3f}, cx {intr[2]:.3f}, cy {intr[3]:.3f} px",
                 f"images used {result.images_used} (board not found in {len(det.missing)}); "
                 f"outliers {result.outliers} of {result.corners} corners",
-                f"reprojection: RMS {result.rms_px:.3f} px, worst {result.worst_px:.3f} px",
+                f"reprojection over the inliers ({result.corners - result.outliers} corners): "
+                f"RMS {result.rms_px:.3f} px, worst {result.worst_px:.3f} px",
+                f"reprojection over all detected corners (outliers included): "
+                f"RMS {result.rms_all_px:.3f} px, worst {result.worst_all_px:.3f} px",
                 "worst images (RMS px): " + ", ".join(f"{k} {v:.3f}" for k, v in worst),
                 "projection uncertainty (1-sigma, worst direction, px): "
                 + ", ".join(f"{k.replace('_', ' ')} {v:.3f}" for k, v in result.uncertainty_px.items()),
             ]
         )
     )
+    for message in result.warnings:
+        click.echo(f"warning: {message}", err=True)
     click.echo(f"wrote {output}", err=True)
 
 

@@ -14,13 +14,16 @@ import click
 
 from rigcal import __version__
 from rigcal.cli import batch as batch_cmd
+from rigcal.cli import capture as capture_cmd
 from rigcal.cli import check as check_cmd
 from rigcal.cli import export as export_cmd
 from rigcal.cli import import_bag as import_bag_cmd
 from rigcal.cli import import_carmen as import_carmen_cmd
+from rigcal.cli import import_laser as import_laser_cmd
 from rigcal.cli import intrinsics as intrinsics_cmd
 from rigcal.cli import lines as lines_cmd
 from rigcal.cli import localize as localize_cmd
+from rigcal.cli import pick as pick_cmd
 from rigcal.cli import project as project_cmd
 from rigcal.cli import simulate as simulate_cmd
 from rigcal.cli import solve as solve_cmd
@@ -66,6 +69,9 @@ cli.add_command(localize_cmd.localize)
 cli.add_command(localize_cmd.evaluate_cmd, name="evaluate")
 cli.add_command(localize_cmd.matches)
 cli.add_command(batch_cmd.batch)
+cli.add_command(pick_cmd.pick)
+cli.add_command(capture_cmd.capture)
+cli.add_command(import_laser_cmd.import_laser)
 
 
 def main(argv: list[str] | None = None) -> int:

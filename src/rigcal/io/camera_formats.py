@@ -7,7 +7,8 @@
   ``distortion_coefficients``; ``plumb_bob`` or ``rational_polynomial``);
 - an OpenCV FileStorage file (``.xml``, or YAML with ``!!opencv-matrix`` nodes), as OpenCV's
   calibration sample writes it (``camera_matrix`` / ``distortion_coefficients`` /
-  ``image_width`` / ``image_height``, or the aliases in :data:`OPENCV_KEYS`).
+  ``image_width`` / ``image_height``, or the aliases in :data:`OPENCV_KEYS`, in any case:
+  older programs write ``image_Width`` / ``image_Height``).
 
 Both become OpenCV K plus distortion, i.e. mrcal's ``LENSMODEL_OPENCVn``.
 """
@@ -136,8 +137,13 @@ def _found_key(names: tuple[str, ...]) -> str:
 
 
 def _node(fs: Any, path: Path, what: str) -> Any:
+    """The first of the top-level nodes named as OPENCV_KEYS[what] lists them, the names
+    matched without regard to case (programs write ``image_width``, ``image_Width``,
+    ``Image_Width``...)."""
+    root = fs.root()
+    keys = {str(k).lower(): str(k) for k in reversed(root.keys())} if root is not None else {}
     for name in OPENCV_KEYS[what]:
-        node = fs.getNode(name)
+        node = fs.getNode(keys.get(name.lower(), name))
         if not node.empty():
             return node
     raise InputError(

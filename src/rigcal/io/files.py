@@ -22,6 +22,7 @@ from typing import Any
 import yaml
 
 from rigcal.errors import InputError, OutputError
+from rigcal.io.kinds import binary_message, wrong_kind
 
 try:  # the C loader is ~10x faster on long float lists (scan files)
     _SafeLoader: type[yaml.SafeLoader] = yaml.CSafeLoader  # type: ignore[assignment]
@@ -40,7 +41,12 @@ def read_text(path: str | Path, what: str = "file") -> str:
         return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(f"{path}: {what} not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except IsADirectoryError:
+        inside = " (a sequence folder)" if (path / "sequence.yaml").is_file() else ""
+        raise InputError(f"{path}: got a folder{inside}; expected a {what}") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(binary_message(path, what) or f"{path}: cannot read {what}: {exc}") from None
+    except OSError as exc:
         raise InputError(f"{path}: cannot read {what}: {exc}") from None
 
 
@@ -48,17 +54,22 @@ def load_yaml(path: str | Path, what: str = "file") -> Any:
     """Read a YAML file with ``safe_load`` semantics.
 
     Raises:
-        InputError: the file is missing, unreadable, or not valid YAML.
+        InputError: the file is missing, unreadable, not valid YAML, or another kind of
+            rigcal file than ``what`` (:mod:`rigcal.io.kinds`).
     """
     path = Path(path)
     text = read_text(path, what)
     try:
-        return yaml.load(text, Loader=_SafeLoader)
+        data = yaml.load(text, Loader=_SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or "syntax error"
         raise InputError(f"{path}: not valid YAML{where}: {problem}") from None
+    message = wrong_kind(path, data, what)
+    if message is not None:
+        raise InputError(message)
+    return data
 
 
 def check_keys(

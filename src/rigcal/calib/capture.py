@@ -1,0 +1,289 @@
+"""From a recording to a box-target session: one scan + image pair per still moment.
+
+A lab records the rig while the box (or the rig) is moved between placements. The moments
+to calibrate from are those where nothing moves: there the scan and the image see the
+same scene even though their stamps differ. :func:`find_still_periods`:
+
+1. scan-to-scan change: the fraction of beams (valid in both scans) whose range changed by
+   more than ``scan_threshold_m``; a pair of scans is still when it is under
+   ``max_changed_fraction``;
+2. image-to-image change: the fraction of pixels (grey, downscaled to at most 160 px wide)
+   whose level changed by more than ``image_threshold``; still under the same fraction;
+3. a still run is a maximal run of consecutive still pairs spanning at least
+   ``min_frames`` frames; a still period is where a scan run and an image run overlap in
+   time;
+4. per period, the image nearest the overlap's middle and the scan nearest that image's
+   stamp make the capture; their stamp difference is reported. A period whose pair looks
+   like the previous capture's (the same still test between them) is the same placement
+   and is skipped.
+
+:func:`write_capture_session` writes the session folder (docs/formats/session.md) with a
+picking file skeleton (schema 2) for ``rigcal pick`` / ``rigcal solve``.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Sequence as Seq
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.errors import InputError
+from rigcal.io.sequence import Sequence
+from rigcal.scan import Scan
+
+FloatArray = NDArray[np.float64]
+
+THUMB_WIDTH_PX = 160
+
+
+@dataclass(frozen=True)
+class CaptureSettings:
+    """Thresholds of the still-moment search.
+
+    Attributes:
+        scan_threshold_m: a beam changed when its range moved more than this.
+        image_threshold: a pixel changed when its grey level moved more than this (0-255).
+        max_changed_fraction: two frames are still when under this fraction changed.
+        min_frames: least number of consecutive still frames (each stream) of a period.
+        max_offset_s: a pair whose stamps differ by more is not made.
+    """
+
+    scan_threshold_m: float = 0.05
+    image_threshold: float = 15.0
+    max_changed_fraction: float = 0.01
+    min_frames: int = 5
+    max_offset_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not (self.scan_threshold_m > 0 and self.image_threshold > 0 and 0 < self.max_changed_fraction < 1):
+            raise ValueError("CaptureSettings: thresholds must be > 0 and the fraction in (0, 1)")
+        if self.min_frames < 2 or not self.max_offset_s > 0:
+            raise ValueError("CaptureSettings: min_frames must be >= 2 and max_offset_s > 0")
+
+
+@dataclass(frozen=True)
+class StillCapture:
+    """One still period and the pair taken from it.
+
+    Attributes:
+        start_s, end_s: the period (overlap of a still scan run and a still image run).
+        scan_index, image_index: the pair, indices into the sequence.
+        offset_s: image stamp minus scan stamp.
+        still_scans, still_images: frames of each stream in the period.
+    """
+
+    start_s: float
+    end_s: float
+    scan_index: int
+    image_index: int
+    offset_s: float
+    still_scans: int
+    still_images: int
+
+
+def scan_change(a: Scan, b: Scan, threshold_m: float) -> float:
+    """Fraction of beams valid in both scans whose range moved by more than ``threshold_m``
+    (1.0 when the scans have different beams)."""
+    if len(a.ranges_m) != len(b.ranges_m) or not np.allclose(a.angles_rad, b.angles_rad):
+        return 1.0
+    both = a.valid & b.valid
+    if not both.any():
+        return 1.0
+    return float(np.mean(np.abs(a.ranges_m[both] - b.ranges_m[both]) > threshold_m))
+
+
+def image_change(a: NDArray[np.float32], b: NDArray[np.float32], threshold: float) -> float:
+    """Fraction of pixels of two thumbnails whose level moved by more than ``threshold``."""
+    if a.shape != b.shape:
+        return 1.0
+    return float(np.mean(np.abs(a - b) > threshold))
+
+
+def thumbnail(path: Path) -> NDArray[np.float32]:
+    """An image as grey float32, area-downscaled to at most THUMB_WIDTH_PX wide."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise InputError(f"{path}: cannot decode image (expected PNG, JPEG or another format OpenCV reads)")
+    if img.dtype != np.uint8:  # mono16: to 8 bits, as the threshold is in 8-bit levels
+        img = (img.astype(np.float32) / 257.0).astype(np.uint8)
+    h, w = img.shape
+    if w > THUMB_WIDTH_PX:
+        img = cv2.resize(
+            img, (THUMB_WIDTH_PX, max(1, round(h * THUMB_WIDTH_PX / w))), interpolation=cv2.INTER_AREA
+        )
+    return np.asarray(img, dtype=np.float32)
+
+
+def still_runs(changes: FloatArray, max_fraction: float, min_frames: int) -> list[tuple[int, int]]:
+    """Maximal runs [a, b] of frames where every consecutive pair changed under
+    ``max_fraction`` (changes[k] compares frame k with frame k+1), at least ``min_frames``
+    frames long."""
+    runs = []
+    start = 0
+    n = len(changes) + 1
+    for k in range(n):
+        end_of_run = k == n - 1 or changes[k] >= max_fraction
+        if end_of_run:
+            if k - start + 1 >= min_frames:
+                runs.append((start, k))
+            start = k + 1
+    return runs
+
+
+def find_still_periods(seq: Sequence, settings: CaptureSettings | None = None) -> list[StillCapture]:
+    """The still periods of a sequence and one scan + image pair from each.
+
+    Raises:
+        InputError: the sequence has no images or an image cannot be decoded.
+    """
+    settings = settings or CaptureSettings()
+    if seq.folder is None or not seq.image_files:
+        raise InputError(f"{seq.folder}: images: got none; expected a sequence with camera images")
+    scans = seq.scans
+    scan_t = np.array([s.stamp_s for s in scans], dtype=float)
+    scan_d = np.array(
+        [scan_change(scans[k], scans[k + 1], settings.scan_threshold_m) for k in range(len(scans) - 1)]
+    )
+    images_dir = _images_dir(seq)
+    thumbs = [thumbnail(images_dir / f) for f in seq.image_files]
+    image_d = np.array(
+        [image_change(thumbs[k], thumbs[k + 1], settings.image_threshold) for k in range(len(thumbs) - 1)]
+    )
+    image_t = np.asarray(seq.image_stamps_s, dtype=float)
+    scan_runs = still_runs(scan_d, settings.max_changed_fraction, settings.min_frames)
+    image_runs = still_runs(image_d, settings.max_changed_fraction, settings.min_frames)
+    out: list[StillCapture] = []
+    for sa, sb in scan_runs:
+        for ia, ib in image_runs:
+            lo = max(scan_t[sa], image_t[ia])
+            hi = min(scan_t[sb], image_t[ib])
+            if hi < lo:
+                continue
+            in_overlap = np.flatnonzero((image_t >= lo) & (image_t <= hi))
+            if not len(in_overlap):
+                continue
+            i = int(in_overlap[np.argmin(np.abs(image_t[in_overlap] - 0.5 * (lo + hi)))])
+            cand = np.arange(sa, sb + 1)
+            s = int(cand[np.argmin(np.abs(scan_t[cand] - image_t[i]))])
+            offset = float(image_t[i] - scan_t[s])
+            if abs(offset) > settings.max_offset_s:
+                continue
+            if out and _same_placement(seq, thumbs, out[-1], s, i, settings):
+                continue
+            out.append(
+                StillCapture(
+                    float(lo),
+                    float(hi),
+                    s,
+                    i,
+                    offset,
+                    int(np.sum((scan_t >= lo) & (scan_t <= hi))),
+                    len(in_overlap),
+                )
+            )
+    return out
+
+
+def _images_dir(seq: Sequence) -> Path:
+    assert seq.folder is not None
+    return seq.folder / "images"
+
+
+def _same_placement(
+    seq: Sequence,
+    thumbs: list[NDArray[np.float32]],
+    prev: StillCapture,
+    s: int,
+    i: int,
+    settings: CaptureSettings,
+) -> bool:
+    return (
+        scan_change(seq.scans[prev.scan_index], seq.scans[s], settings.scan_threshold_m)
+        < settings.max_changed_fraction
+        and image_change(thumbs[prev.image_index], thumbs[i], settings.image_threshold)
+        < settings.max_changed_fraction
+    )
+
+
+def write_capture_session(
+    seq: Sequence,
+    captures: Seq[StillCapture],
+    output: str | Path,
+    camera_file: Path,
+    box_width_m: float | None = None,
+    force: bool = False,
+) -> Path:
+    """Write the session folder: ``camera.*``, ``scans/capNN.yaml``, ``images/capNN.*``
+    and ``picks.yaml`` (schema 2, captures not picked yet), atomically.
+
+    Raises:
+        InputError: no still period was found.
+        OutputError: the folder exists and ``force`` is false, or a write failed.
+    """
+    import yaml
+
+    from rigcal.io.files import atomic_folder
+    from rigcal.scan import scan_to_text
+
+    if not captures:
+        raise InputError(
+            f"{seq.folder}: still periods: got none; expected moments where the scans and images stay "
+            "still for the given number of frames (see rigcal capture --help for the thresholds)"
+        )
+    for k, c in enumerate(captures):
+        r = seq.scans[c.scan_index].ranges_m
+        if np.any(r < 0):
+            raise InputError.at(
+                seq.folder,
+                f"scans[{c.scan_index}].ranges_m",
+                float(r[r < 0][0]),
+                f"ranges >= 0 (0, NaN or inf for no return) in the scan of capture {k}",
+            )
+    with atomic_folder(output, force) as tmp:
+        (tmp / "scans").mkdir()
+        (tmp / "images").mkdir()
+        camera_name = "camera" + "".join(camera_file.suffixes[-1:]) if camera_file.suffix else "camera.yaml"
+        shutil.copyfile(camera_file, tmp / camera_name)
+        entries = []
+        for k, c in enumerate(captures):
+            name = f"cap{k:02d}"
+            (tmp / "scans" / f"{name}.yaml").write_text(
+                scan_to_text(seq.scans[c.scan_index]), encoding="utf-8"
+            )
+            src = _images_dir(seq) / seq.image_files[c.image_index]
+            image_rel = f"images/{name}{src.suffix.lower()}"
+            shutil.copyfile(src, tmp / image_rel)
+            entries.append({"name": name, "scan": f"scans/{name}.yaml", "image": image_rel})
+        doc: dict[str, object] = {
+            "schema_version": 2,
+            "name": f"captured from {seq.name}",
+            "camera": camera_name,
+        }
+        if box_width_m is not None:
+            doc["box"] = {"width_m": float(box_width_m)}
+        doc["captures"] = entries
+        head = [
+            "# rigcal picking file (docs/formats/session.md), written by rigcal capture.",
+            f"# {len(captures)} still moments of {seq.name}; each capture's scan and image stamps:",
+        ]
+        for k, c in enumerate(captures):
+            head.append(
+                f"#   cap{k:02d}: scan {seq.scans[c.scan_index].stamp_s:.3f} s, image "
+                f"{float(seq.image_stamps_s[c.image_index]):.3f} s (offset {1000 * c.offset_s:+.1f} ms), "
+                f"still {c.end_s - c.start_s:.2f} s"
+            )
+        head += [
+            "# Not picked yet: pick the image ends of 3+ captures (image_endpoints_px, laser_side),",
+            "# then `rigcal pick picks.yaml -o picks-auto.yaml --sheet sheet.png` proposes the rest.",
+        ]
+        (tmp / "picks.yaml").write_text(
+            "\n".join(head) + "\n" + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=110),
+            encoding="utf-8",
+        )
+    return Path(output)

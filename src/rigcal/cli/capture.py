@@ -1,0 +1,136 @@
+"""``rigcal capture``: a recording (bag or sequence folder) into a box-target session."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+
+@click.command("capture")
+@click.argument("source", type=click.Path(path_type=Path))
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Session folder."
+)
+@click.option("--scan-topic", help="Bags: the sensor_msgs/LaserScan topic.")
+@click.option("--image-topic", help="Bags: the sensor_msgs/Image or CompressedImage topic.")
+@click.option("--camera-info-topic", help="Bags: a sensor_msgs/CameraInfo topic for the camera.")
+@click.option(
+    "--camera", "camera_file", type=click.Path(path_type=Path), help="Camera file (else the recording's)."
+)
+@click.option(
+    "--box-width-m", type=click.FloatRange(min=0.05), help="The box side's length (written for rigcal pick)."
+)
+@click.option(
+    "--still-frames", default=5, show_default=True, type=click.IntRange(min=2),
+    help="Least number of consecutive still frames of each stream.",
+)  # fmt: skip
+@click.option(
+    "--scan-threshold-m", default=0.05, show_default=True, type=click.FloatRange(min=0.0, min_open=True),
+    help="A beam moved when its range changed by more.",
+)  # fmt: skip
+@click.option(
+    "--image-threshold", default=15.0, show_default=True, type=click.FloatRange(min=0.0, min_open=True),
+    help="A pixel moved when its grey level changed by more.",
+)  # fmt: skip
+@click.option(
+    "--changed-fraction", default=0.01, show_default=True,
+    type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True),
+    help="Two frames are still when under this fraction of beams / pixels moved.",
+)  # fmt: skip
+@click.option(
+    "--max-offset-s", default=0.5, show_default=True, type=click.FloatRange(min=0.0, min_open=True),
+    help="Largest stamp difference of a scan + image pair.",
+)  # fmt: skip
+@click.option("--force", is_flag=True, help="Replace an existing session folder.")
+@click.option("--json", "as_json", is_flag=True, help="Print the captures as JSON on stdout.")
+def capture(
+    source: Path,
+    output: Path,
+    scan_topic: str | None,
+    image_topic: str | None,
+    camera_info_topic: str | None,
+    camera_file: Path | None,
+    box_width_m: float | None,
+    still_frames: int,
+    scan_threshold_m: float,
+    image_threshold: float,
+    changed_fraction: float,
+    max_offset_s: float,
+    force: bool,
+    as_json: bool,
+) -> None:
+    """Find the still moments of SOURCE and write one capture (scan + image) per moment.
+
+    SOURCE is a ROS 1 / ROS 2 bag (give --scan-topic and --image-topic) or a sequence
+    folder (rigcal import-bag, import-laser). A moment is still when the scans and the
+    images both stay unchanged for --still-frames frames; its scan and image are the pair
+    nearest in time (the offset is printed). Writes a session folder with a picking file
+    skeleton (docs/formats/session.md) for rigcal pick and rigcal solve.
+
+    \b
+    Examples:
+      rigcal capture lab.bag --scan-topic /scan --image-topic /cam/image_raw \\
+          --camera-info-topic /cam/camera_info --box-width-m 0.6 -o session/
+      rigcal capture run1/ --camera camera.yaml -o session/ --still-frames 10 --force
+    """
+    import tempfile
+
+    from rigcal.calib.capture import CaptureSettings, find_still_periods, write_capture_session
+    from rigcal.camera import read_camera
+    from rigcal.errors import InputError
+    from rigcal.io.files import check_folder_writable
+    from rigcal.io.sequence import read_sequence
+
+    check_folder_writable(output, force)
+    settings = CaptureSettings(
+        scan_threshold_m, image_threshold, changed_fraction, still_frames, max_offset_s
+    )
+    with tempfile.TemporaryDirectory(prefix="rigcal-capture-") as tmp:
+        if (source / "sequence.yaml").is_file():
+            folder = source
+        else:
+            from rigcal.io.bag import import_bag
+
+            if scan_topic is None or image_topic is None:
+                raise InputError.at(
+                    source, "--scan-topic/--image-topic", None, "both topics for a bag (or a sequence folder)"
+                )
+            folder = Path(tmp) / "sequence"
+            import_bag(source, folder, scan_topic, image_topic, camera_info_topic)
+        seq = read_sequence(folder)
+        cam = camera_file
+        if cam is None and seq.camera_file is not None:
+            cam = folder / seq.camera_file
+        if cam is None:
+            raise InputError.at(
+                source, "camera", None, "a camera: give --camera FILE (or --camera-info-topic for a bag)"
+            )
+        read_camera(cam)  # a bad camera file stops here, before anything is written
+        captures = find_still_periods(seq, settings)
+        write_capture_session(seq, captures, output, cam, box_width_m, force=force)
+    rows = [
+        {
+            "name": f"cap{k:02d}",
+            "scan_stamp_s": seq.scans[c.scan_index].stamp_s,
+            "image_stamp_s": float(seq.image_stamps_s[c.image_index]),
+            "offset_ms": round(1000 * c.offset_s, 3),
+            "still_s": round(c.end_s - c.start_s, 3),
+            "still_scans": c.still_scans,
+            "still_images": c.still_images,
+        }
+        for k, c in enumerate(captures)
+    ]
+    if as_json:
+        click.echo(json.dumps({"session": str(output), "captures": rows}, indent=1))
+    else:
+        click.echo("capture  scan stamp (s)  image stamp (s)  offset (ms)  still (s)")
+        for r in rows:
+            click.echo(
+                f"{r['name']:7s}  {r['scan_stamp_s']:14.3f}  {r['image_stamp_s']:15.3f}  "
+                f"{r['offset_ms']:+11.1f}  {r['still_s']:9.2f}"
+            )
+        worst = max(abs(1000 * c.offset_s) for c in captures)
+        click.echo(f"{len(rows)} captures; largest stamp offset {worst:.1f} ms")
+    click.echo(f"wrote {output}/ (pick 3+ captures in picks.yaml, then rigcal pick)", err=True)

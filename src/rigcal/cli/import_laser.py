@@ -1,0 +1,70 @@
+"""``rigcal import-laser``: a RADLOCC or CSV laser log (and image list) into a sequence folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command("import-laser")
+@click.argument("log", type=click.Path(path_type=Path))
+@click.option("--images", type=click.Path(path_type=Path), help="Image list: a stamp and a file per line.")
+@click.option(
+    "--camera", type=click.Path(path_type=Path), help="Camera file to include (any form rigcal reads)."
+)
+@click.option(
+    "--format", "fmt", type=click.Choice(["radlocc", "csv"]),
+    help="The log's format [default: csv when it starts with a header naming stamp_s, else radlocc].",
+)  # fmt: skip
+@click.option(
+    "--range-min-m",
+    default=0.0,
+    show_default=True,
+    type=click.FloatRange(min=0.0),
+    help="Shorter: no return.",
+)
+@click.option(
+    "--range-max-m", default=80.0, show_default=True, type=click.FloatRange(min=0.0, min_open=True),
+    help="Longer: no return.",
+)  # fmt: skip
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Sequence folder."
+)
+@click.option("--force", is_flag=True, help="Replace an existing folder.")
+def import_laser(
+    log: Path,
+    images: Path | None,
+    camera: Path | None,
+    fmt: str | None,
+    range_min_m: float,
+    range_max_m: float,
+    output: Path,
+    force: bool,
+) -> None:
+    """Write the scans of LOG (and the images of --images) as a sequence folder.
+
+    LOG is a RADLOCC laser.txt (stamp, angle_min, increment, angle_max, ranges per line;
+    nan/inf: no return) or a CSV with columns stamp_s, angle_rad (or angle_deg), range_m,
+    one row per beam (docs/formats/sequence.md). The folder feeds rigcal capture.
+
+    \b
+    Examples:
+      rigcal import-laser data/laser.txt --images data/images.txt --camera cam.xml -o seq/
+      rigcal import-laser scans.csv -o seq/ --force
+      rigcal capture seq/ -o session/ --box-width-m 0.6
+    """
+    from rigcal.errors import InputError, OutputError
+    from rigcal.io.laser_text import import_laser_text
+
+    if output.exists() and not force:
+        raise OutputError(f"{output}: exists; pass --force to replace it")
+    if not range_min_m < range_max_m:
+        raise InputError.at(
+            None, "--range-min-m", range_min_m, f"a range below --range-max-m {range_max_m:g}"
+        )
+    s = import_laser_text(log, output, images, camera, fmt, range_min_m, range_max_m, force=force)
+    click.echo(
+        f"wrote {output}/: {s.scans} scans ({s.format}), {s.images} images"
+        + (", camera.yaml" if s.camera else "")
+    )

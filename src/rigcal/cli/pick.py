@@ -1,0 +1,118 @@
+"""``rigcal pick``: propose the image box ends of a box-target session."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+
+@click.command("pick")
+@click.argument("picks", type=click.Path(path_type=Path))
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Picking file to write.",
+)
+@click.option("--rig", type=click.Path(path_type=Path), help="A rough rig file to predict the ends with.")
+@click.option(
+    "--sheet",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Contact sheet PNG: every capture's picks.",
+)
+@click.option(
+    "--box-width-m",
+    type=click.FloatRange(min=0.05),
+    help="The box side's length, to find it in scans without laser_side [default: the file's box.width_m].",
+)
+@click.option(
+    "--search-px", default=12.0, show_default=True, type=click.FloatRange(min=2.0, max=200.0),
+    help="Half-width of the edge search around each predicted end.",
+)  # fmt: skip
+@click.option(
+    "--edge-span-m", default=0.03, show_default=True, type=click.FloatRange(min=0.002, max=1.0),
+    help="Length of the box's vertical edge averaged, centred on the laser plane (within the box's height).",
+)  # fmt: skip
+@click.option(
+    "--review-below", default=0.5, show_default=True, type=click.FloatRange(min=0.0, max=1.0),
+    help="Mark picks with a lower confidence for review.",
+)  # fmt: skip
+@click.option("--force", is_flag=True, help="Overwrite the output files.")
+def pick(
+    picks: Path,
+    output: Path,
+    rig: Path | None,
+    sheet: Path | None,
+    box_width_m: float | None,
+    search_px: float,
+    edge_span_m: float,
+    review_below: float,
+    force: bool,
+) -> None:
+    """Propose the box ends in every image of the picking file PICKS.
+
+    Captures with image_endpoints_px picked by hand are kept. With at least 3 of them (or a
+    rough --rig), every other capture's box ends are predicted through the solve and
+    refined to the box's vertical edges; each pick gets a confidence, and doubtful ones
+    are marked `review: true` (docs/calibration.md). Check the --sheet by eye, then solve.
+
+    \b
+    Examples:
+      rigcal pick session/picks.yaml -o session/picks-auto.yaml --sheet sheet.png
+      rigcal pick session/picks.yaml --rig rough-rig.yaml --box-width-m 0.6 -o picks2.yaml --force
+      rigcal solve session/picks-auto.yaml -o rig.yaml
+    """
+    from rigcal.calib.autopick import PickSettings, auto_pick, pick_file_text
+    from rigcal.calib.picks import read_pick_draft
+    from rigcal.io.files import atomic_write_text, check_writable
+    from rigcal.rigfile import read_rig
+    from rigcal.viz.contact_sheet import SheetEntry, write_contact_sheet
+
+    check_writable(output, force)
+    if sheet is not None:
+        check_writable(sheet, force)
+    draft = read_pick_draft(picks)
+    T = read_rig(rig).T_cam_laser if rig is not None else None
+    settings = PickSettings(
+        search_px=search_px, edge_span_m=edge_span_m, review_below=review_below, box_width_m=box_width_m
+    )
+    run = auto_pick(draft, settings, T)
+    text = pick_file_text(run, output)
+    if sheet is not None:
+        entries = [
+            SheetEntry(
+                p.name,
+                c.image_path,
+                p.image_endpoints_px,
+                p.predicted_px,
+                "manual" if p.source == "manual" else f"auto, confidence {p.confidence:.2f}",
+                p.review,
+                p.source == "manual",
+            )
+            for p, c in zip(run.picks, draft.captures, strict=True)
+        ]
+        write_contact_sheet(sheet, entries, force=force)
+    atomic_write_text(output, text, force=force)
+    auto = [p for p in run.picks if p.source == "auto"]
+    review = [p for p in run.picks if p.review]
+    for p in review:
+        click.echo(f"review {p.name}: {'; '.join(p.reasons)}", err=True)
+    unpicked = [p.name for p in run.picks if p.image_endpoints_px is None]
+    summary = (
+        f"{len(auto)} captures picked automatically (pose from {run.seeded_from}), {len(review)} to review"
+    )
+    if run.final is not None:
+        s = run.final
+        summary += f"; solve over all picks: {int(s.inliers.sum())}/{len(s.inliers)} ends inliers"
+    click.echo(summary)
+    if run.seeded_from == "rig" and not any(p.source == "manual" for p in run.picks):
+        click.echo(
+            "note: with no capture picked by hand, the picks' height on the box is the rig's own "
+            "(the images cannot show the laser plane); pick 3 or more by hand to measure it",
+            err=True,
+        )
+    if unpicked:
+        click.echo(f"not picked (pick by hand or remove): {', '.join(unpicked)}")
+    click.echo(f"wrote {output}" + (f" and {sheet}" if sheet else ""), err=True)

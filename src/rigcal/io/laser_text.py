@@ -1,0 +1,268 @@
+"""Laser logs written as text by other tools, and their image lists, into sequence folders.
+
+- **RADLOCC** ``laser.txt`` (the laser-camera calibration toolbox's log): one scan per line,
+  ``stamp angle_min angle_increment angle_max range_unit_type N r_0 ... r_{N-1}`` as
+  ``radlocc_collect`` writes it (unit type 3: metres, the only one read), or without the
+  unit type and count, ``stamp angle_min angle_increment angle_max r_0 ...`` (seconds,
+  radians, metres; whitespace or commas); ``N = round((angle_max - angle_min) /
+  angle_increment) + 1``. ``nan`` / ``inf`` ranges (and those outside the valid interval)
+  are no return.
+- **Generic CSV**: a header naming ``stamp_s``, ``angle_rad`` (or ``angle_deg``) and
+  ``range_m`` (other columns are ignored), then one row per beam; consecutive rows with the
+  same stamp form a scan, their angles increasing.
+- **Image list**: one image per line, its stamp (seconds) and its file (relative to the
+  list's folder), in either order; or RADLOCC's ``image_stamps.txt``: stamps only (one or
+  two equal numbers per line), the k-th line for ``image_00k.png`` (k from 1, 3 digits or
+  more, any image extension) beside it. Lines starting with ``#`` are comments.
+
+Every malformed line stops the import with the file, the line number and what was
+expected (docs/formats/sequence.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.errors import InputError
+from rigcal.io.files import read_text
+from rigcal.io.sequence import ImageFrame, write_sequence
+from rigcal.scan import Scan
+
+FloatArray = NDArray[np.float64]
+
+# RADLOCC's range unit type for metres (what radlocc_collect writes for ROS scans).
+RADLOCC_METRES = 3.0
+
+
+@dataclass(frozen=True)
+class LaserTextSummary:
+    """What an import did: the log's format, scans and images written, and whether a
+    camera was written."""
+
+    format: str
+    scans: int
+    images: int
+    camera: bool
+
+
+def _fields(line: str) -> list[str]:
+    return line.replace(",", " ").split()
+
+
+def _content_lines(path: Path, what: str) -> list[tuple[int, str]]:
+    out = []
+    for n, line in enumerate(read_text(path, what).splitlines(), start=1):
+        s = line.strip()
+        if s and not s.startswith(("#", "%")):
+            out.append((n, s))
+    if not out:
+        raise InputError(f"{path}: got an empty file; expected a {what}")
+    return out
+
+
+def detect_format(path: Path) -> str:
+    """``"csv"`` when the first content line is a header naming ``stamp_s``, else ``"radlocc"``."""
+    first = _content_lines(path, "laser log")[0][1]
+    return "csv" if "stamp_s" in [f.strip().lower() for f in first.split(",")] else "radlocc"
+
+
+def read_radlocc_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: float = 80.0) -> list[Scan]:
+    """Scans of a RADLOCC ``laser.txt`` (see the module docstring).
+
+    Raises:
+        InputError: a line with too few or non-numeric fields, a non-positive increment, a
+            range count that disagrees with the angles, a stamp not after the previous.
+    """
+    path = Path(path)
+    scans: list[Scan] = []
+    for n, line in _content_lines(path, "RADLOCC laser log"):
+        f = _fields(line)
+        where = f"{path}: line {n}"
+        try:
+            values = [float(x) for x in f]
+        except ValueError:
+            raise InputError(
+                f"{where}: got {line[:60]!r}; expected numbers: stamp angle_min increment angle_max ranges..."
+            ) from None
+        if len(values) < 6:
+            raise InputError(
+                f"{where}: got {len(values)} fields; expected stamp, angle_min, increment, max, ranges"
+            )
+        stamp, a0, step, a1 = values[:4]
+        ranges = np.array(values[4:])
+        if not all(math.isfinite(x) for x in (stamp, a0, step, a1)) or not step > 0:
+            raise InputError(
+                f"{where}: got stamp {stamp!r}, increment {step!r}; expected finite, increment > 0"
+            )
+        if max(abs(a0), abs(a1)) > 2 * math.pi + 1e-6:
+            raise InputError(f"{where}: got angles {a0!r} to {a1!r}; expected radians (within +/- 2 pi)")
+        count = round((a1 - a0) / step) + 1
+        if len(values) == count + 6 and values[5] == count:
+            # radlocc_collect's form: range unit type and beam count before the ranges.
+            if values[4] != RADLOCC_METRES:
+                raise InputError(
+                    f"{where}: range unit type {values[4]!r}; expected {RADLOCC_METRES:g} (metres)"
+                )
+            ranges = ranges[2:]
+        if count != len(ranges):
+            raise InputError(
+                f"{where}: got {len(ranges)} ranges; expected {count} for angles {a0!r} to {a1!r} by {step!r}"
+            )
+        if scans and not stamp > (scans[-1].stamp_s or -math.inf):
+            raise InputError(f"{where}: stamp {stamp!r} not after {scans[-1].stamp_s!r}")
+        ranges = np.where(np.isfinite(ranges) & (ranges >= 0), ranges, np.nan)
+        scans.append(Scan.from_uniform(a0, step, ranges, range_min_m, range_max_m, stamp))
+    return scans
+
+
+def read_csv_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: float = 80.0) -> list[Scan]:
+    """Scans of a generic CSV log (see the module docstring).
+
+    Raises:
+        InputError: a missing column, a non-numeric value, angles not increasing within a
+            scan, a stamp not after the previous scan's.
+    """
+    path = Path(path)
+    lines = _content_lines(path, "CSV laser log")
+    header = [h.strip().lower() for h in lines[0][1].split(",")]
+    angle_key = "angle_rad" if "angle_rad" in header else "angle_deg"
+    for key in ("stamp_s", angle_key, "range_m"):
+        if key not in header:
+            raise InputError(
+                f"{path}: line {lines[0][0]}: header {header}; expected columns stamp_s, angle_rad, range_m"
+            )
+    cols = [header.index(k) for k in ("stamp_s", angle_key, "range_m")]
+    scale = math.pi / 180.0 if angle_key == "angle_deg" else 1.0
+    groups: list[tuple[float, list[float], list[float]]] = []
+    for n, line in lines[1:]:
+        parts = line.split(",")
+        try:
+            stamp, angle, rng = (float(parts[c]) for c in cols)
+        except (ValueError, IndexError):
+            raise InputError(
+                f"{path}: line {n}: got {line[:60]!r}; expected numbers in the columns {header}"
+            ) from None
+        if not (math.isfinite(stamp) and math.isfinite(angle)):
+            raise InputError(
+                f"{path}: line {n}: got stamp {stamp!r}, angle {angle!r}; expected finite numbers"
+            )
+        if not groups or stamp != groups[-1][0]:
+            if groups and not stamp > groups[-1][0]:
+                raise InputError(f"{path}: line {n}: stamp {stamp!r} not after {groups[-1][0]!r}")
+            groups.append((stamp, [], []))
+        g = groups[-1]
+        if g[1] and not angle * scale > g[1][-1]:
+            raise InputError(
+                f"{path}: line {n}: angle {angle!r} not after the previous beam's (angles increase)"
+            )
+        g[1].append(angle * scale)
+        g[2].append(rng if math.isfinite(rng) and rng >= 0 else math.nan)
+    if not groups:
+        raise InputError(f"{path}: got a header only; expected rows stamp_s, angle, range_m")
+    return [Scan(np.array(a), np.array(r), range_min_m, range_max_m, stamp) for stamp, a, r in groups]
+
+
+def read_image_list(path: str | Path) -> tuple[FloatArray, list[Path]]:
+    """Stamps (N,) and files of an image list, in time order.
+
+    Raises:
+        InputError: a line without one stamp and one existing file (or, for a stamps-only
+            RADLOCC list, a missing ``image_00k`` file), or stamps not increasing.
+    """
+    path = Path(path)
+    lines = _content_lines(path, "image list")
+    stamps_only = all(_numbers_only(_fields(line)) for _, line in lines)
+    stamps: list[float] = []
+    files: list[Path] = []
+    for k, (n, line) in enumerate(lines, start=1):
+        f = _fields(line)
+        if stamps_only:  # RADLOCC image_stamps.txt: image_00k.* beside it
+            stamp = float(f[0])
+            file = _radlocc_image(path.parent, k)
+            if file is None:
+                raise InputError(
+                    f"{path}: line {n}: image_{k:03d}.png (or .jpg, ...) not found in {path.parent}"
+                )
+        else:
+            numbers: list[str] = []
+            names: list[str] = []
+            for x in f:
+                (numbers if _numbers_only([x]) else names).append(x)
+            if len(f) != 2 or len(numbers) != 1 or not math.isfinite(float(numbers[0])):
+                raise InputError(
+                    f"{path}: line {n}: got {line[:60]!r}; expected a stamp (s) and an image file"
+                )
+            stamp = float(numbers[0])
+            file = path.parent / names[0]
+            if not file.is_file():
+                raise InputError(f"{path}: line {n}: image {names[0]} not found in {path.parent}")
+        if stamps and not stamp > stamps[-1]:
+            raise InputError(f"{path}: line {n}: stamp {stamp!r} not after {stamps[-1]!r}")
+        stamps.append(stamp)
+        files.append(file)
+    return np.array(stamps), files
+
+
+def _numbers_only(fields: list[str]) -> bool:
+    try:
+        [float(x) for x in fields]
+    except ValueError:
+        return False
+    return bool(fields)
+
+
+def _radlocc_image(folder: Path, k: int) -> Path | None:
+    """RADLOCC's k-th image (from 1): image_001.png, image_0001.jpg, ..."""
+    for digits in (3, 4, 5, 6, 1):
+        for ext in (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm"):
+            p = folder / f"image_{k:0{digits}d}{ext}"
+            if p.is_file():
+                return p
+    return None
+
+
+def import_laser_text(
+    log: str | Path,
+    output: str | Path,
+    images: str | Path | None = None,
+    camera: str | Path | None = None,
+    fmt: str | None = None,
+    range_min_m: float = 0.0,
+    range_max_m: float = 80.0,
+    force: bool = False,
+) -> LaserTextSummary:
+    """Write a sequence folder from a RADLOCC or CSV laser log, its image list and camera.
+
+    Raises:
+        InputError: a malformed log, image list or camera file.
+        OutputError: the folder exists and ``force`` is false.
+    """
+    from rigcal.camera import camera_to_opencv_yaml, read_camera
+
+    log = Path(log)
+    fmt = fmt or detect_format(log)
+    readers: dict[str, Callable[..., list[Scan]]] = {"radlocc": read_radlocc_laser, "csv": read_csv_laser}
+    if fmt not in readers:
+        raise InputError.at(log, "--format", fmt, f"one of {sorted(readers)}")
+    scans = readers[fmt](log, range_min_m, range_max_m)
+    frames: list[ImageFrame] = []
+    if images is not None:
+        stamps, files = read_image_list(images)
+        frames = [
+            ImageFrame(float(t), f"{i:06d}{f.suffix.lower()}", f.read_bytes())
+            for i, (t, f) in enumerate(zip(stamps, files, strict=True))
+        ]
+    camera_yaml = camera_to_opencv_yaml(read_camera(camera)) if camera is not None else None
+    source = {
+        "log": str(log.resolve()),
+        "format": fmt,
+        "images": str(Path(images).resolve()) if images else None,
+    }
+    write_sequence(output, log.name, scans, frames, camera_yaml, source, force=force)
+    return LaserTextSummary(fmt, len(scans), len(frames), camera_yaml is not None)
