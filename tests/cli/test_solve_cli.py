@@ -72,6 +72,11 @@ def test_solve_json(session_dir, tmp_path, capsys):
     assert r.covariance is not None
     np.testing.assert_allclose(np.array(doc["rig"]["covariance"]), r.covariance, rtol=1e-5)
     assert len(doc["rig"]["sigma_translation_mm"]) == 3
+    # The noise model and the covariance's checks, as in the report.
+    assert set(doc["noise"]) == {"range_sigma_m", "pick_sigma_px"}
+    assert doc["noise"]["pick_sigma_px"]["used"] == doc["noise"]["pick_sigma_px"]["estimated"]
+    assert {"sensitivity", "model_sigma_rotation_deg"} <= set(doc["uncertainty"])
+    assert r.uncertainty["noise"] == doc["noise"]
 
 
 @pytest.mark.parametrize(("given", "expected"), [(None, 0.004), ("0.02", 0.02)])

@@ -146,7 +146,7 @@ def solve(
         write_report_dir(report_dir, cal, force=force)
     write_rig(output, cal.rig, force=force)
     if as_json:
-        doc = {k: cal.report[k] for k in ("summary", "rejected", "warnings")}
+        doc = {k: cal.report[k] for k in ("summary", "noise", "uncertainty", "rejected", "warnings")}
         doc["rig_file"] = str(output)
         doc["rig"] = cal.rig.to_json()
         if "truth" in cal.report:
