@@ -328,14 +328,14 @@ def test_segment_id_one_past_the_last(session):
             "{'segment': 2, 'points': [[1.0, 0.0], [1.0, 1.0]]}",
         ),
         ({}, "{}"),
-        ({"segments": 2}, "{'segments': 2}"),
+        ({"lines": [2]}, "{'lines': [2]}"),
         (2, "2"),
         ([[1.0, 0.0], [1.0, 1.0]], "[[1.0, 0.0], [1.0, 1.0]]"),
     ],
 )
 def test_laser_side_needs_exactly_one_form(session, side, shown):
     message = expect_error(edit_capture(session, 1, laser_side=side), "captures[1].laser_side", shown)
-    assert "either {segment: ID} or {points:" in message
+    assert "{segment: ID}, {segments: [ID, ...]} or {points:" in message
 
 
 def test_laser_points_too_close(session):
@@ -426,3 +426,63 @@ def test_laser_range_noise_sets_the_line_thresholds(session):
     doc["laser"]["range_sigma_m"] = "1 cm"
     save(session, doc)
     expect_error(session, "laser.range_sigma_m", "'1 cm'")
+
+
+# --- a box side split into pieces: laser_side {segments: [...]} (schema 2) ---------------------
+def split_side(session: Path) -> tuple[list[int], np.ndarray]:
+    """Push four returns in the middle of cap00's box side 20 cm back (a gap in the side, as
+    a sticker or a handle makes), so line extraction splits it; returns the ids of the two
+    pieces and the side's beams before the split."""
+    from rigcal.scan import Scan, write_scan
+
+    scan_path = session.parent / "scans" / "cap00.yaml"
+    scan = read_scan(scan_path)
+    beams = np.array(extract_lines(scan)[2].indices)
+    mid = beams[len(beams) // 2 - 2 : len(beams) // 2 + 2]
+    ranges = scan.ranges_m.copy()
+    ranges[mid] += 0.2
+    step = scan.angle_increment_rad
+    assert step is not None
+    write_scan(
+        scan_path,
+        Scan.from_uniform(scan.angles_rad[0], step, ranges, scan.range_min_m, scan.range_max_m),
+        force=True,
+    )
+    # The pushed-back returns make a piece of their own, off the side: not one of the side's.
+    pieces = [
+        s.id
+        for s in extract_lines(read_scan(scan_path))
+        if np.isin(s.indices, beams).all() and not np.isin(s.indices, mid).any()
+    ]
+    assert len(pieces) == 2
+    return pieces, beams
+
+
+def test_segments_join_a_split_box_side(session):
+    whole = read_picks(session).observations[0]
+    pieces, beams = split_side(session)
+    doc = load(session)
+    doc["schema_version"] = 2
+    doc["captures"][0]["laser_side"] = {"segments": pieces[::-1]}
+    o = read_picks(save(session, doc)).observations[0]
+    assert set(o.side_beams) <= set(beams)
+    assert len(o.side_beams) >= 0.85 * len(beams)
+    assert np.all(np.diff(o.side_beams) > 0)
+    np.testing.assert_allclose(o.laser_endpoints, whole.laser_endpoints, atol=0.01)
+
+
+@pytest.mark.parametrize(
+    ("version", "segments", "key", "shown"),
+    [
+        (1, [2], "captures[0].laser_side.segments", "[2]"),
+        (2, [], "captures[0].laser_side.segments", "[]"),
+        (2, [2, 2], "captures[0].laser_side.segments", "[2, 2]"),
+        (2, 3, "captures[0].laser_side.segments", "3"),
+        (2, [2, 99], "captures[0].laser_side.segments[1]", "99"),
+    ],
+)
+def test_bad_segments_are_named(session, version, segments, key, shown):
+    doc = load(session)
+    doc["schema_version"] = version
+    doc["captures"][0]["laser_side"] = {"segments": segments}
+    expect_error(save(session, doc), key, shown)

@@ -32,6 +32,7 @@ from rigcal.calib.picks import (
     check_unique_names,
     line_params_for,
     segment_by_id,
+    segments_by_ids,
 )
 from rigcal.calib.plane import PlaneObservation
 from rigcal.camera import Camera, read_camera
@@ -209,16 +210,7 @@ def _given_returns(
             segment_by_id(path, f"{key}.segment", side["segment"], scan, scan_path, params).points
         )
     if "segments" in side:
-        ids = side["segments"]
-        if version < 2:
-            raise InputError.at(path, f"{key}.segments", ids, "no segments in schema_version 1 (needs 2)")
-        if not isinstance(ids, list) or not ids or len(set(map(repr, ids))) != len(ids):
-            raise InputError.at(path, f"{key}.segments", ids, "a non-empty list of distinct segment ids")
-        pieces = [
-            segment_by_id(path, f"{key}.segments[{j}]", sid, scan, scan_path, params)
-            for j, sid in enumerate(ids)
-        ]
-        pieces.sort(key=lambda g: int(g.indices[0]))
+        pieces = segments_by_ids(path, f"{key}.segments", side["segments"], scan, scan_path, params, version)
         return np.concatenate([np.array(g.points) for g in pieces])
     ends = _pairs(side["points"], path, f"{key}.points", "laser point")
     if np.linalg.norm(ends[0] - ends[1]) < 0.05:

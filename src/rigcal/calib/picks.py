@@ -25,6 +25,9 @@ from rigcal.scan import Scan, read_scan
 FloatArray = NDArray[np.float64]
 
 PICKS_SCHEMA_VERSION = 2
+# The forms of a capture's laser_side (segments: a side line extraction split, schema 2).
+LASER_SIDE_FORMS = ("segment", "segments", "points")
+LASER_SIDE_EXPECTED = "{segment: ID}, {segments: [ID, ...]} or {points: [[x1, y1], [x2, y2]]}"
 # Schema 1 files are read as they are (docs/formats/session.md).
 READABLE_PICKS_VERSIONS = (1, 2)
 
@@ -213,7 +216,9 @@ def resolve_capture(draft: PickDraft, c: CaptureDraft) -> BoxObservation:
             )
     assert c.laser_side is not None
     assert c.image_endpoints_px is not None
-    side = _laser_side(draft.path, kp, c.laser_side, c.scan, c.scan_path, draft.line_params)
+    side = _laser_side(
+        draft.path, kp, c.laser_side, c.scan, c.scan_path, draft.line_params, draft.schema_version
+    )
     if isinstance(side, tuple):  # two laser points given: no returns to fit
         ends, pts, beams = side
         return BoxObservation(
@@ -237,7 +242,15 @@ def side_ends(draft: PickDraft, c: CaptureDraft, laser_side: dict[str, Any]) -> 
     Raises:
         InputError: an invalid segment id or points.
     """
-    side = _laser_side(draft.path, f"captures[{c.index}]", laser_side, c.scan, c.scan_path, draft.line_params)
+    side = _laser_side(
+        draft.path,
+        f"captures[{c.index}]",
+        laser_side,
+        c.scan,
+        c.scan_path,
+        draft.line_params,
+        draft.schema_version,
+    )
     if isinstance(side, tuple):
         return side[0]
     return extended_ends(np.array(c.scan.points[side]), side, c.scan)[0]
@@ -278,11 +291,9 @@ def _read_draft(path: Path, version: int, i: int, c: Any, camera: Camera) -> Cap
             raise InputError.at(path, f"{kp}.image_endpoints_px", px.tolist(), "two distinct box ends")
     side = c.get("laser_side")
     if "laser_side" in c and not (
-        isinstance(side, dict) and len(side) == 1 and next(iter(side)) in ("segment", "points")
+        isinstance(side, dict) and len(side) == 1 and next(iter(side)) in LASER_SIDE_FORMS
     ):
-        raise InputError.at(
-            path, f"{kp}.laser_side", side, "either {segment: ID} or {points: [[x1, y1], [x2, y2]]}"
-        )
+        raise InputError.at(path, f"{kp}.laser_side", side, LASER_SIDE_EXPECTED)
     meta = _pick_meta(path, f"{kp}.pick", c["pick"]) if "pick" in c else None
     return CaptureDraft(i, name, scan_path, image_path, scan, side, px, meta)
 
@@ -401,16 +412,28 @@ def _pairs(value: Any, path: Path, key: str, what: str) -> FloatArray:
 
 
 def _laser_side(
-    path: Path, kp: str, side: Any, scan: Scan, scan_path: Path, line_params: LineParams
+    path: Path,
+    kp: str,
+    side: Any,
+    scan: Scan,
+    scan_path: Path,
+    line_params: LineParams,
+    version: int = PICKS_SCHEMA_VERSION,
 ) -> NDArray[np.int64] | tuple[FloatArray, FloatArray, NDArray[np.int64]]:
-    """Resolve `laser_side`: the beam indices of a segment, or for two given laser points
-    (ends (2,2), side points (M,2), beam indices (M,))."""
+    """Resolve `laser_side`: the beam indices of a segment (or of several: a side that
+    line extraction split), or for two given laser points (ends (2,2), side points (M,2),
+    beam indices (M,))."""
     key = f"{kp}.laser_side"
-    if not isinstance(side, dict) or len(side) != 1 or next(iter(side)) not in ("segment", "points"):
-        raise InputError.at(path, key, side, "either {segment: ID} or {points: [[x1, y1], [x2, y2]]}")
+    if not isinstance(side, dict) or len(side) != 1 or next(iter(side)) not in LASER_SIDE_FORMS:
+        raise InputError.at(path, key, side, LASER_SIDE_EXPECTED)
     if "segment" in side:
         seg = segment_by_id(path, f"{key}.segment", side["segment"], scan, scan_path, line_params)
         return np.array(seg.indices, dtype=np.int64)
+    if "segments" in side:
+        pieces = segments_by_ids(
+            path, f"{key}.segments", side["segments"], scan, scan_path, line_params, version
+        )
+        return np.concatenate([np.asarray(g.indices, dtype=np.int64) for g in pieces])
     ends = _pairs(side["points"], path, f"{key}.points", "laser point")
     if np.linalg.norm(ends[0] - ends[1]) < 0.05:
         raise InputError.at(path, f"{key}.points", ends.tolist(), "two distinct ends at least 5 cm apart")
@@ -430,6 +453,26 @@ def _laser_side(
             f"{100 * SIDE_POINT_TOLERANCE_M:g} cm of the line between them",
         )
     return ends, pts, beams
+
+
+def segments_by_ids(
+    path: Path, key: str, ids: Any, scan: Scan, scan_path: Path, line_params: LineParams, version: int
+) -> list[Segment]:
+    """The scan's segments ``ids`` (a target that line extraction split into pieces), in
+    beam order; a picking or board session file needs schema_version 2 for them.
+
+    Raises:
+        InputError: an old file, not a non-empty list of distinct ids, or an id that is not
+            a segment of this scan, naming the file, key and value.
+    """
+    if version < 2:
+        raise InputError.at(path, key, ids, "no segments in schema_version 1 (needs 2)")
+    if not isinstance(ids, list) or not ids or len(set(map(repr, ids))) != len(ids):
+        raise InputError.at(path, key, ids, "a non-empty list of distinct segment ids")
+    pieces = [
+        segment_by_id(path, f"{key}[{j}]", sid, scan, scan_path, line_params) for j, sid in enumerate(ids)
+    ]
+    return sorted(pieces, key=lambda g: int(g.indices[0]))
 
 
 def segment_by_id(
