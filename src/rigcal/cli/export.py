@@ -45,7 +45,7 @@ def export(rig: Path, fmt: str, parent: str, output: Path | None, force: bool) -
     from rigcal.rigfile import read_rig
 
     if output is not None:
-        check_writable(output, force)
+        check_writable(output, force, [rig])
     text = export_rig(read_rig(rig), fmt, parent)
     if output is None:
         click.echo(text, nl=False)

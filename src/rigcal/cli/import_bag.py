@@ -13,7 +13,7 @@ import click
 @click.option("--image-topic", required=True, help="sensor_msgs/Image or CompressedImage topic.")
 @click.option("--camera-info-topic", help="sensor_msgs/CameraInfo topic: also write camera.yaml.")
 @click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Sequence folder."
+    "-o", "--output", required=True, type=click.Path(path_type=Path), help="Sequence folder."
 )
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 def import_bag(
@@ -30,11 +30,10 @@ def import_bag(
       rigcal import-bag run2/ --scan-topic /scan --image-topic /cam/image/compressed \\
           --camera-info-topic /cam/camera_info -o run2-seq/ --force
     """
-    from rigcal.errors import OutputError
     from rigcal.io.bag import import_bag as run
+    from rigcal.io.files import check_folder_writable
 
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    check_folder_writable(output, force, [bag])
     counter = {"n": 0}
 
     def tick(k: int) -> None:

@@ -121,9 +121,10 @@ def intrinsics(
         assert board is not None
         w_n, h_n = _board(board)
         spec = Board(w_n, h_n, square_m)
-    check_writable(output, force)
+    sources = [*images, *([corners_file] if corners_file else [])]
+    check_writable(output, force, sources)
     if save_corners is not None:
-        check_writable(save_corners, force)
+        check_writable(save_corners, force, [*sources, output])
     if corners_file is not None:
         if imagersize is not None:
             size = _board(imagersize)

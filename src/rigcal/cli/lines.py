@@ -33,7 +33,7 @@ def lines(scan: Path, png: Path | None, force: bool, as_json: bool, range_sigma_
     from rigcal.scan import read_scan
 
     if png is not None:
-        check_writable(png, force)
+        check_writable(png, force, [scan])
     s = read_scan(scan)
     segments = extract_lines(s, LineParams.for_range_noise(range_sigma_m) if range_sigma_m else None)
     if png is not None:

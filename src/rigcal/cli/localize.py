@@ -27,7 +27,7 @@ rig_option = click.option(
     "(image augmented scan matching), hiasm (homography based IASM).",
 )
 @click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Output folder."
+    "-o", "--output", required=True, type=click.Path(path_type=Path), help="Output folder."
 )
 @rig_option
 @click.option("--kitti", is_flag=True, help="Also write each trajectory in KITTI form.")
@@ -64,13 +64,12 @@ def localize(
       rigcal localize corridor/ --method icp,vo,kf -o out/
       rigcal localize corridor/ --method iasm,hiasm --iasm snap_max_m=0 -o out-raw/
     """
-    from rigcal.errors import OutputError
+    from rigcal.io.files import check_folder_writable
     from rigcal.localize.pipeline import parse_iasm_settings, parse_methods, run, summary, table
 
     names = parse_methods(methods)
     iasm = parse_iasm_settings(iasm_items)
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    check_folder_writable(output, force, [sequence, *([rig_file] if rig_file else [])])
     bars = _Bars()
     try:
         r = run(
@@ -191,13 +190,12 @@ def matches(
     import cv2
     import numpy as np
 
-    from rigcal.errors import InputError, OutputError
-    from rigcal.io.files import atomic_write_bytes
+    from rigcal.errors import InputError
+    from rigcal.io.files import atomic_write_bytes, check_writable
     from rigcal.localize.image_matching import step_picture
     from rigcal.localize.streams import open_streams
 
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    check_writable(output, force, [sequence, *([rig_file] if rig_file else [])])
     streams = open_streams(sequence, rig_file)
     if index + 1 >= streams.n_images:
         raise InputError.at(None, "--image", index, f"an image index below {streams.n_images - 1}")

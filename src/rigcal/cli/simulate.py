@@ -24,7 +24,7 @@ def simulate() -> None:
     "--output",
     "output",
     required=True,
-    type=click.Path(path_type=Path, file_okay=False),
+    type=click.Path(path_type=Path),
     help="Session folder to create.",
 )
 @click.option(
@@ -101,7 +101,7 @@ def calib_session(
       rigcal simulate calib-session -o /tmp/moved --captures 8 --seed 2 --move-deg 0.5 --no-images
       rigcal check rig.yaml --picks /tmp/moved/picks.yaml
     """
-    from rigcal.errors import OutputError
+    from rigcal.io.files import check_folder_writable
     from rigcal.sim.box_session import (
         SessionSpec,
         default_T_cam_laser,
@@ -112,8 +112,7 @@ def calib_session(
     )
 
     # Refuse before working: generating and rendering take a few seconds.
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    check_folder_writable(output, force)
     spec = SessionSpec(
         n_captures=captures,
         pick_sigma_px=pick_sigma_px,
@@ -139,7 +138,7 @@ def calib_session(
     "--output",
     "output",
     required=True,
-    type=click.Path(path_type=Path, file_okay=False),
+    type=click.Path(path_type=Path),
     help="Folder to create.",
 )
 @click.option(
@@ -172,11 +171,10 @@ def board_session(
       rigcal simulate board-session -o /tmp/board --seed 1
       rigcal solve /tmp/board/board_session.yaml -o rig.yaml --truth /tmp/board/truth.yaml
     """
-    from rigcal.errors import OutputError
+    from rigcal.io.files import check_folder_writable
     from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
 
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    check_folder_writable(output, force)
     spec = BoardSpec(
         n_captures=captures, corner_sigma_px=corner_sigma_px, range_sigma_m=range_sigma_m, seed=seed
     )
@@ -201,7 +199,7 @@ def board_session(
     "--output",
     "output",
     required=True,
-    type=click.Path(path_type=Path, file_okay=False),
+    type=click.Path(path_type=Path),
     help="Sequence folder.",
 )
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
@@ -306,13 +304,13 @@ def world(
       rigcal simulate world --world my-office.yaml -o office/ --laser-rate-hz 20 --no-images --force
       rigcal simulate world -o side/ --rig side-looking-rig.yaml --duration-s 20
     """
-    from rigcal.errors import OutputError
+    from rigcal.io.files import check_folder_writable
     from rigcal.rigfile import read_rig
     from rigcal.sim.drive import DriveSpec, Motion, camera_stamps, write_drive
     from rigcal.sim.world import world_named
 
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    world_file = [Path(world_name)] if world_name.endswith((".yaml", ".yml")) else []
+    check_folder_writable(output, force, [*world_file, *([rig_file] if rig_file else [])])
     w = world_named(world_name)
     rig = read_rig(rig_file) if rig_file is not None else None
     spec = DriveSpec(

@@ -89,15 +89,16 @@ def solve(
     from rigcal.calib.ransac import RansacParams
     from rigcal.calib.refine import NoiseModel, RefineParams
     from rigcal.calib.report import report_table
-    from rigcal.calib.session import calibrate, check_report_dir, write_report_dir
+    from rigcal.calib.session import calibrate, write_report_dir
     from rigcal.calib.solve import SolveSettings
-    from rigcal.io.files import check_writable
+    from rigcal.io.files import check_folder_writable, check_writable
     from rigcal.rigfile import write_rig
 
     # Refuse before working: nothing is written unless everything can be.
-    check_writable(output, force)
+    inputs = [picks, *([truth] if truth else [])]
+    check_writable(output, force, inputs)
     if report_dir is not None:
-        check_report_dir(report_dir, force)
+        check_folder_writable(report_dir, force, [*inputs, output])
     settings = SolveSettings(
         ransac=RansacParams(threshold_px=threshold_px, seed=seed),
         refine=RefineParams(use_side_points=not paper_endpoints, loss=loss),

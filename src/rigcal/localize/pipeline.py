@@ -323,7 +323,7 @@ def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool)
     from rigcal.viz.paths_plot import draw_paths
 
     doc = summary(r, sequence)
-    with atomic_folder(output, force) as tmp:
+    with atomic_folder(output, force, inputs=[sequence]) as tmp:
         for m in r.methods:
             traj = Trajectory(
                 np.array([make_T(rotvec_to_R([0.0, 0.0, p[2]]), [p[0], p[1], 0.0]) for p in m.poses]),
