@@ -101,4 +101,4 @@ def test_cli_writes_a_sequence_with_truth_and_rig(tmp_path, capsys):
     np.testing.assert_allclose([s.stamp_s for s in seq.scans], truth.stamps_s)
     assert (out / "rig.yaml").is_file()
     assert main(["simulate", "world", "-o", str(out)]) == 5
-    assert main(["simulate", "world", "--world", "moon", "-o", str(tmp_path / "x")]) == 3
+    assert main(["simulate", "world", "--world", "moon", "-o", str(tmp_path / "x")]) == 2

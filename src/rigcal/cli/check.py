@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("check")
 @click.argument("rig", type=click.Path(path_type=Path))
@@ -20,7 +22,7 @@ import click
     "--level",
     default=0.01,
     show_default=True,
-    type=click.FloatRange(min=1e-6, max=0.5),
+    type=Real(min=1e-6, max=0.5),
     help="Chance of a false alarm when nothing moved.",
 )
 @click.option(

@@ -12,9 +12,7 @@ import click
 @click.option("--scan-topic", required=True, help="sensor_msgs/LaserScan topic.")
 @click.option("--image-topic", required=True, help="sensor_msgs/Image or CompressedImage topic.")
 @click.option("--camera-info-topic", help="sensor_msgs/CameraInfo topic: also write camera.yaml.")
-@click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path), help="Sequence folder."
-)
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Sequence folder.")
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 def import_bag(
     bag: Path, scan_topic: str, image_topic: str, camera_info_topic: str | None, output: Path, force: bool

@@ -6,15 +6,15 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("import-carmen")
 @click.argument("log", type=click.Path(path_type=Path))
-@click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path), help="Sequence folder."
-)
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Sequence folder.")
 @click.option(
     "--flaser-range-max-m",
-    type=float,
+    type=Real(min=0.0, min_open=True),
     default=50.0,
     show_default=True,
     help="Maximum range of FLASER lines (they carry none); farther returns count as no return.",

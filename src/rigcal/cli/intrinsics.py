@@ -8,11 +8,13 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 def _board(value: str) -> tuple[int, int]:
-    m = re.fullmatch(r"(\d+)x(\d+)", value)
-    if not m:
-        raise click.BadParameter(f"{value!r}: expected inner corners as WxH, e.g. 9x6")
+    m = re.fullmatch(r"([0-9]{1,5})x([0-9]{1,5})", value)
+    if not m or int(m[1]) < 2 or int(m[2]) < 2:
+        raise click.BadParameter(f"{value!r}: expected WxH with whole numbers from 2 to 99999, e.g. 9x6")
     return int(m[1]), int(m[2])
 
 
@@ -20,18 +22,14 @@ def _board(value: str) -> tuple[int, int]:
 @click.argument("images", nargs=-1, type=click.Path(path_type=Path))
 @click.option("--board", help="Chessboard: inner corners per row x per column, e.g. 9x6.")
 @click.option("--charuco", help="ChArUco board instead: squares per row x per column, e.g. 8x6.")
-@click.option(
-    "--marker-m", type=click.FloatRange(min=0.0, min_open=True), help="ChArUco marker size, metres."
-)
+@click.option("--marker-m", type=Real(min=0.0, min_open=True), help="ChArUco marker size, metres.")
 @click.option(
     "--dictionary",
     default="DICT_5X5_100",
     show_default=True,
     help="ChArUco's ArUco dictionary (cv2.aruco name).",
 )
-@click.option(
-    "--square-m", required=True, type=click.FloatRange(min=0.0, min_open=True), help="Square size, metres."
-)
+@click.option("--square-m", required=True, type=Real(min=0.0, min_open=True), help="Square size, metres.")
 @click.option(
     "--corners",
     "corners_file",
@@ -49,9 +47,7 @@ def _board(value: str) -> tuple[int, int]:
     help="mrcal lens model, e.g. LENSMODEL_OPENCV5, LENSMODEL_OPENCV8, "
     "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg=100.",
 )
-@click.option(
-    "--focal-px", type=click.FloatRange(min=1.0), help="Rough focal length for the seed [image width]."
-)
+@click.option("--focal-px", type=Real(min=1.0), help="Rough focal length for the seed [image width].")
 @click.option(
     "-o", "--output", required=True, type=click.Path(path_type=Path), help="The .cameramodel to write."
 )

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("lines")
 @click.argument("scan", type=click.Path(path_type=Path))
@@ -15,7 +17,7 @@ import click
 @click.option("--json", "as_json", is_flag=True, help="Print the segments as JSON on stdout.")
 @click.option(
     "--range-sigma-m",
-    type=click.FloatRange(min=0.0, min_open=True, max=1.0, max_open=True),
+    type=Real(min=0.0, min_open=True, max=1.0, max_open=True),
     help="The scanner's range noise, as in the picking file's laser.range_sigma_m "
     "(thresholds scale with it; the same value gives the same segment ids) [default: 0.01].",
 )

@@ -26,9 +26,7 @@ rig_option = click.option(
     "Eq. 4), vo (visual odometry with laser scale), kf (Kalman filter of icp and vo), iasm "
     "(image augmented scan matching), hiasm (homography based IASM).",
 )
-@click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path), help="Output folder."
-)
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @rig_option
 @click.option("--kitti", is_flag=True, help="Also write each trajectory in KITTI form.")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
@@ -64,11 +62,15 @@ def localize(
       rigcal localize corridor/ --method icp,vo,kf -o out/
       rigcal localize corridor/ --method iasm,hiasm --iasm snap_max_m=0 -o out-raw/
     """
+    from rigcal.errors import InputError
     from rigcal.io.files import check_folder_writable
     from rigcal.localize.pipeline import parse_iasm_settings, parse_methods, run, summary, table
 
-    names = parse_methods(methods)
-    iasm = parse_iasm_settings(iasm_items)
+    try:  # bad option values are usage errors (exit code 2)
+        names = parse_methods(methods)
+        iasm = parse_iasm_settings(iasm_items)
+    except InputError as exc:
+        raise click.UsageError(str(exc)) from None
     check_folder_writable(output, force, [sequence, *([rig_file] if rig_file else [])])
     bars = _Bars()
     try:

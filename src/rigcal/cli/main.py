@@ -64,6 +64,10 @@ def main(argv: list[str] | None = None) -> int:
     except RigcalError as exc:
         click.echo(f"Error: {exc}", err=True)
         return exc.exit_code
+    except click.UsageError as exc:  # one line, like every other error
+        cmd = exc.ctx.command_path if exc.ctx is not None else "rigcal"
+        click.echo(f"Error: {exc.format_message()} (see '{cmd} --help')", err=True)
+        return exc.exit_code
     except click.exceptions.Abort:
         click.echo("Aborted.", err=True)
         return 130

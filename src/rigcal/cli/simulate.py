@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.group("simulate")
 def simulate() -> None:
@@ -39,35 +41,35 @@ def simulate() -> None:
     "--pick-sigma-px",
     default=1.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=20.0),
+    type=Real(min=0.0, max=20.0),
     help="Noise of the picked pixels (1 sigma).",
 )
 @click.option(
     "--range-sigma-m",
     default=0.01,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=0.05),
+    type=Real(min=0.0, max=0.05),
     help="Noise of the laser ranges (1 sigma).",
 )
 @click.option(
     "--wrong-picks",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=1.0),
+    type=Real(min=0.0, max=1.0),
     help="Fraction of captures whose image picks are grossly wrong (moved 15-60 px or swapped).",
 )
 @click.option(
     "--move-deg",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=30.0),
+    type=Real(min=0.0, max=30.0),
     help="Turn the camera on the rig by this much (random axis) before simulating, to try drift checks.",
 )
 @click.option(
     "--move-mm",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=500.0),
+    type=Real(min=0.0, max=500.0),
     help="Shift the camera on the rig by this much (random direction) before simulating.",
 )
 @click.option("--no-images", is_flag=True, help="Write flat grey placeholder images instead of renders.")
@@ -149,14 +151,14 @@ def calib_session(
     "--corner-sigma-px",
     default=0.3,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=5.0),
+    type=Real(min=0.0, max=5.0),
     help="Corner noise.",
 )
 @click.option(
     "--range-sigma-m",
     default=0.01,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=0.05),
+    type=Real(min=0.0, max=0.05),
     help="Range noise.",
 )
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
@@ -207,62 +209,62 @@ def board_session(
     "--range-sigma-m",
     default=0.01,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=0.1),
+    type=Real(min=0.0, max=0.1),
     help="Range noise.",
 )
 @click.option(
     "--laser-rate-hz",
     default=40.0,
     show_default=True,
-    type=click.FloatRange(min=1.0, max=200.0),
+    type=Real(min=1.0, max=200.0),
     help="Scan rate.",
 )
 @click.option(
     "--range-max-m",
     default=30.0,
     show_default=True,
-    type=click.FloatRange(min=0.5, max=100.0),
+    type=Real(min=0.5, max=100.0),
     help="The laser's range: farther walls give no return (a Hokuyo URG-04LX's is 5.6 m, a UTM-30LX's 30 m).",
 )
 @click.option(
     "--camera-rate-hz",
     default=10.0,
     show_default=True,
-    type=click.FloatRange(min=0.1, max=100.0),
+    type=Real(min=0.1, max=100.0),
     help="Camera frame rate (its first frame at a random phase: not synchronised with the laser).",
 )
 @click.option(
     "--clock-offset-s",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=-10.0, max=10.0),
+    type=Real(min=-10.0, max=10.0),
     help="Added to the written image stamps (camera clock = true time + offset).",
 )
 @click.option(
     "--image-noise",
     default=2.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=50.0),
+    type=Real(min=0.0, max=50.0),
     help="Additive Gaussian image noise, grey levels (1 sigma).",
 )
 @click.option(
     "--image-blur-px",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=20.0),
+    type=Real(min=0.0, max=20.0),
     help="Gaussian blur of the images, pixels (1 sigma).",
 )
 @click.option(
     "--exposure-walk",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=0.2),
+    type=Real(min=0.0, max=0.2),
     help="Exposure changes: the log-gain's random-walk step per frame.",
 )
 @click.option(
     "--duration-s",
     default=None,
-    type=click.FloatRange(min=0.0, min_open=True),
+    type=Real(min=0.0, min_open=True),
     help="Drive only the lap's first seconds.  [default: the whole lap]",
 )
 @click.option(
@@ -307,9 +309,13 @@ def world(
     from rigcal.io.files import check_folder_writable
     from rigcal.rigfile import read_rig
     from rigcal.sim.drive import DriveSpec, Motion, camera_stamps, write_drive
-    from rigcal.sim.world import world_named
+    from rigcal.sim.world import BUILTIN, world_named
 
-    world_file = [Path(world_name)] if world_name.endswith((".yaml", ".yml")) else []
+    world_file = [Path(world_name)] if Path(world_name).suffix in (".yaml", ".yml") else []
+    if world_name not in BUILTIN and not world_file:
+        raise click.BadParameter(
+            f"{world_name!r}: expected one of {sorted(BUILTIN)} or a world file (.yaml)", param_hint="--world"
+        )
     check_folder_writable(output, force, [*world_file, *([rig_file] if rig_file else [])])
     w = world_named(world_name)
     rig = read_rig(rig_file) if rig_file is not None else None

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("solve")
 @click.argument("picks", type=click.Path(path_type=Path))
@@ -26,21 +28,21 @@ import click
     "--threshold-px",
     default=6.0,
     show_default=True,
-    type=click.FloatRange(min=0.1),
+    type=Real(min=0.1),
     help="RANSAC inlier threshold.",
 )
 @click.option(
     "--pick-sigma-px",
     default=1.0,
     show_default=True,
-    type=click.FloatRange(min=1e-3),
+    type=Real(min=1e-3),
     help="Pick noise (1 sigma).",
 )
 @click.option(
     "--range-sigma-m",
     default=0.01,
     show_default=True,
-    type=click.FloatRange(min=1e-5),
+    type=Real(min=1e-5),
     help="Range noise (1 sigma).",
 )
 @click.option(

@@ -214,9 +214,9 @@ def parse_iasm_settings(items: tuple[str, ...] | list[str]) -> IasmParams:
                 value = kind(text)
             except ValueError:
                 value = None
-            if value is None or not math.isfinite(value) or value < 0:
+            if value is None or not math.isfinite(value) or not 0 <= value <= 1e9:
                 what = "a whole number" if kind is int else "a number"
-                raise InputError.at(None, f"--iasm {key}", text, f"{what}, 0 or more")
+                raise InputError.at(None, f"--iasm {key}", text, f"{what}, 0 or more (at most 1e9)")
         changes[key] = value
     return dataclasses.replace(defaults, **changes)
 
