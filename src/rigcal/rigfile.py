@@ -30,6 +30,7 @@ from rigcal.camera import camera_from_dict
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_write_text, check_keys, check_schema_version, load_yaml
 from rigcal.io.transform import float_matrix, float_vector, transform_from_dict, transform_to_dict
+from rigcal.io.validate import finite_array
 from rigcal.rig import COVARIANCE_PARAMETERS, Rig
 
 RIG_SCHEMA_VERSION = 1
@@ -39,6 +40,10 @@ _HEADER = (
     "# T_cam_laser maps laser-frame points into the camera frame: p_cam = R p_laser + t,\n"
     "# R given as a rotation vector (axis * angle, rad), t in metres.\n"
 )
+
+
+# A rig's sensors are metres apart; a translation beyond this is a broken file.
+MAX_OFFSET_M = 1000.0
 
 
 def rig_to_dict(rig: Rig) -> dict[str, Any]:
@@ -88,6 +93,7 @@ def read_rig(path: str | Path) -> Rig:
     )
     check_schema_version(d, path, RIG_SCHEMA_VERSION)
     T = transform_from_dict(d["T_cam_laser"], path, "T_cam_laser", "cam", "laser")
+    finite_array(T[:3, 3], path, "T_cam_laser.translation_m", lo=-MAX_OFFSET_M, hi=MAX_OFFSET_M)
     camera = camera_from_dict(d["camera"], path, "camera")
     cov = None
     if "uncertainty" in d:
@@ -111,9 +117,20 @@ def read_rig(path: str | Path) -> Rig:
             raise InputError.at(
                 path, "uncertainty.covariance", "...", "a symmetric positive semi-definite matrix"
             )
+        # The sigmas repeat the covariance's diagonal (rounded): they must agree with it.
+        d_sqrt = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        implied = {"sigma_rotation_deg": np.degrees(d_sqrt[:3]), "sigma_translation_mm": 1000.0 * d_sqrt[3:]}
         for key in ("sigma_rotation_deg", "sigma_translation_mm"):
             if key in u:
-                float_vector(u[key], path, f"uncertainty.{key}", 3)
+                given = float_vector(u[key], path, f"uncertainty.{key}", 3)
+                if not np.allclose(given, implied[key], rtol=1e-3, atol=1e-4):
+                    shown = [round(float(x), 6) for x in implied[key]]
+                    raise InputError.at(
+                        path,
+                        f"uncertainty.{key}",
+                        u[key],
+                        f"{shown}, the square roots of the covariance's diagonal",
+                    )
     sections = {}
     for key in ("laser", "residuals", "provenance"):
         value = d.get(key, {})

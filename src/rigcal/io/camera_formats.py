@@ -23,6 +23,7 @@ import numpy as np
 from rigcal.camera import Camera
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys
+from rigcal.io.validate import is_real
 
 ROS_REQUIRED = ("image_width", "image_height", "camera_matrix", "distortion_model", "distortion_coefficients")
 ROS_OPTIONAL = ("camera_name", "rectification_matrix", "projection_matrix")
@@ -95,7 +96,7 @@ def _ros_matrix(value: Any, path: Path, key: str, rows: int, cols: int | None) -
         and (cols is None or c == cols)
         and isinstance(data, list)
         and len(data) == r * c
-        and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in data)
+        and all(is_real(x) for x in data)
     )
     if not ok:
         shape = f"{rows}x{cols}" if cols is not None else f"{rows}xN"

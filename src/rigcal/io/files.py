@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import math
 import os
 import secrets
 import shutil
@@ -29,6 +30,12 @@ except AttributeError:  # pragma: no cover - depends on how PyYAML was built
     _SafeLoader = yaml.SafeLoader
 
 
+# A text file rigcal reads (YAML, logs, trajectories) is at most this large, and a YAML
+# file has at most this many aliases: a few lines of aliases can stand for gigabytes.
+MAX_TEXT_BYTES = 1 << 30
+MAX_YAML_ALIASES = 1000
+
+
 def read_text(path: str | Path, what: str = "file") -> str:
     """A UTF-8 text file's contents.
 
@@ -36,7 +43,11 @@ def read_text(path: str | Path, what: str = "file") -> str:
         InputError: the file is missing or unreadable, naming it as ``what``.
     """
     path = Path(path)
+    if "\0" in str(path):
+        raise InputError.at(None, what, str(path), "a path without NUL bytes")
     try:
+        if path.stat().st_size > MAX_TEXT_BYTES:
+            raise InputError(f"{path}: {what} larger than {MAX_TEXT_BYTES >> 20} MiB; refusing to read it")
         return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(f"{path}: {what} not found") from None
@@ -53,6 +64,10 @@ def load_yaml(path: str | Path, what: str = "file") -> Any:
     path = Path(path)
     text = read_text(path, what)
     try:
+        if "*" in text and "&" in text:  # only then can there be aliases to count
+            aliases = sum(isinstance(e, yaml.AliasEvent) for e in yaml.parse(text, Loader=_SafeLoader))
+            if aliases > MAX_YAML_ALIASES:
+                raise InputError(f"{path}: {aliases} YAML aliases; expected at most {MAX_YAML_ALIASES}")
         return yaml.load(text, Loader=_SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
@@ -113,16 +128,13 @@ def get_float(
     finite: bool = True,
 ) -> float:
     """Read a real number from a mapping, rejecting booleans, strings and NaN."""
+    from rigcal.io.validate import real
+
     value = mapping[key]
     full = _join(keypath, key)
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError.at(path, full, value, "a number")
-    out = float(value)
-    if finite and not (out == out and abs(out) != float("inf")):
-        raise InputError.at(path, full, value, "a finite number")
-    if positive and not out > 0:
-        raise InputError.at(path, full, value, "a number > 0")
-    return out
+    if not finite and isinstance(value, float) and not math.isfinite(value) and not (positive and value < 0):
+        return value
+    return real(value, path, full, positive=positive)
 
 
 def sha256_file(path: str | Path) -> str:

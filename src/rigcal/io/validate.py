@@ -33,6 +33,8 @@ def _expected(positive: bool, nonneg: bool, lo: float | None, hi: float | None) 
         what = "a finite number >= 0"
     else:
         what = "a finite number"
+    if positive and hi is not None:
+        return f"{what[:-4]} in (0, {hi:g}]"
     if lo is not None and hi is not None:
         return f"{what} in [{lo:g}, {hi:g}]"
     if lo is not None:
@@ -78,6 +80,16 @@ def real(
     return out
 
 
+def is_real(value: Any) -> bool:
+    """True for an int or float (not a boolean) that is a finite float."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an integer beyond the float range
+        return False
+
+
 def parse_real(text: str, where: Where, key: str, **limits: Any) -> float:
     """A number written as text (a log's field), checked as :func:`real`."""
     try:
@@ -121,6 +133,8 @@ def finite_array(
     nonneg: bool = False,
     positive: bool = False,
     allow_nan: bool = False,
+    lo: float | None = None,
+    hi: float | None = None,
 ) -> NDArray[np.float64]:
     """``values`` as a float64 array of the given shape (None: any length), every entry
     finite (NaN allowed where ``allow_nan``: "no value"), optionally >= 0 or > 0.
@@ -145,10 +159,16 @@ def finite_array(
             bad |= a < 0
         if positive:
             bad |= a <= 0
+        if lo is not None:
+            bad |= a < lo
+        if hi is not None:
+            bad |= a > hi
     if bad.any():
         i = tuple(int(k) for k in np.argwhere(bad)[0])
         index = "".join(f"[{k}]" for k in i)
         what = "finite numbers" + (" > 0" if positive else " >= 0" if nonneg else "")
+        if lo is not None or hi is not None:
+            what += f" in [{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]"
         raise InputError.at(
             where, f"{key}{index}", float(a[i]), what + (" (or NaN: none)" if allow_nan else "")
         )

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, check_schema_version, get_float, load_yaml
+from rigcal.io.validate import is_real
 
 FloatArray = NDArray[np.float64]
 
@@ -139,11 +140,7 @@ def _check_path(P: FloatArray, route: list[Any], path: Path) -> None:
 
 
 def _point(v: Any, path: Path, key: str) -> FloatArray:
-    ok = (
-        isinstance(v, list)
-        and len(v) == 2
-        and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)
-    )
+    ok = isinstance(v, list) and len(v) == 2 and all(is_real(x) for x in v)
     if not ok:
         raise InputError.at(path, key, v, "a point [x, y] in metres")
     return np.array(v, dtype=float)
