@@ -11,10 +11,13 @@ import click
 from rigcal.io.validate import Real
 
 
-def _board(value: str) -> tuple[int, int]:
+def _board(value: str, option: str) -> tuple[int, int]:
     m = re.fullmatch(r"([0-9]{1,5})x([0-9]{1,5})", value)
     if not m or int(m[1]) < 2 or int(m[2]) < 2:
-        raise click.BadParameter(f"{value!r}: expected WxH with whole numbers from 2 to 99999, e.g. 9x6")
+        shown = value if len(value) < 40 else value[:37] + "..."
+        raise click.BadParameter(
+            f"{shown!r}: expected WxH with whole numbers from 2 to 99999, e.g. 9x6", param_hint=option
+        )
     return int(m[1]), int(m[2])
 
 
@@ -106,7 +109,7 @@ def intrinsics(
     if charuco is not None:
         if marker_m is None:
             raise click.UsageError("--charuco needs --marker-m")
-        sx, sy = _board(charuco)
+        sx, sy = _board(charuco, "--charuco")
         try:
             charuco_board = CharucoBoard(sx, sy, square_m, marker_m, dictionary)
         except ValueError as exc:
@@ -115,7 +118,7 @@ def intrinsics(
         spec = charuco_board.grid
     else:
         assert board is not None
-        w_n, h_n = _board(board)
+        w_n, h_n = _board(board, "--board")
         spec = Board(w_n, h_n, square_m)
     sources = [*images, *([corners_file] if corners_file else [])]
     check_writable(output, force, sources)
@@ -123,7 +126,7 @@ def intrinsics(
         check_writable(save_corners, force, [*sources, output])
     if corners_file is not None:
         if imagersize is not None:
-            size = _board(imagersize)
+            size = _board(imagersize, "--imagersize")
         elif images:
             import cv2
 

@@ -151,6 +151,7 @@ def evaluate_cmd(trajectory: Path, gt: Path, as_json: bool) -> None:
     Examples:
       rigcal evaluate out/icp/trajectory.tum --gt corridor/groundtruth.tum
     """
+    from rigcal.errors import InputError
     from rigcal.io.trajectory import read_tum
     from rigcal.localize.metrics import evaluate
     from rigcal.localize.pipeline import planar_at, table
@@ -158,7 +159,20 @@ def evaluate_cmd(trajectory: Path, gt: Path, as_json: bool) -> None:
     est = read_tum(trajectory)
     truth = read_tum(gt)
     assert est.stamps_s is not None
-    m = evaluate(planar_at(est, est.stamps_s), planar_at(truth, est.stamps_s))
+    assert truth.stamps_s is not None
+    # Score only where the truth is known: interpolation would clamp outside its span.
+    stamps = est.stamps_s[(est.stamps_s >= truth.stamps_s[0]) & (est.stamps_s <= truth.stamps_s[-1])]
+    if len(stamps) < 2:
+        span = f"{truth.stamps_s[0]:.3f}..{truth.stamps_s[-1]:.3f} s"
+        raise InputError(
+            f"{trajectory}: {len(stamps)} of {len(est.stamps_s)} poses within the truth's time span "
+            f"({gt}: {span}); expected at least 2 (no time overlap to score)"
+        )
+    if len(stamps) < len(est.stamps_s):
+        click.echo(
+            f"scored {len(stamps)} of {len(est.stamps_s)} poses (the rest outside {gt}'s span)", err=True
+        )
+    m = evaluate(planar_at(est, stamps), planar_at(truth, stamps))
     click.echo(json.dumps(m, indent=1) if as_json else table([(trajectory.name, m)]))
 
 

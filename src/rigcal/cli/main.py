@@ -59,8 +59,13 @@ cli.add_command(localize_cmd.matches)
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the process exit code."""
+    args = sys.argv[1:] if argv is None else argv
+    for a in args:  # no file system accepts a NUL byte; say so before any command runs
+        if "\0" in str(a):
+            click.echo(f"Error: {str(a)!r}: an argument with a NUL byte; expected none", err=True)
+            return 2
     try:
-        rv = cli.main(args=argv, prog_name="rigcal", standalone_mode=False)
+        rv = cli.main(args=args, prog_name="rigcal", standalone_mode=False)
     except RigcalError as exc:
         click.echo(f"Error: {exc}", err=True)
         return exc.exit_code

@@ -212,7 +212,8 @@ def parse_iasm_settings(items: tuple[str, ...] | list[str]) -> IasmParams:
         else:
             try:
                 value = kind(text)
-            except ValueError:
+                value = value if -1e18 < value < 1e18 else None
+            except (ValueError, OverflowError):
                 value = None
             if value is None or not math.isfinite(value) or not 0 <= value <= 1e9:
                 what = "a whole number" if kind is int else "a number"
