@@ -8,6 +8,7 @@ exit code of its class (docs/cli.md); anything else is a bug and keeps its trace
 
 from __future__ import annotations
 
+import os
 import sys
 
 import click
@@ -59,6 +60,9 @@ cli.add_command(localize_cmd.matches)
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the process exit code."""
+    # OpenCV's own log lines (e.g. about a broken PNG) would come before rigcal's one error
+    # line; it reads this when first imported, which the commands do in their bodies.
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT")
     args = sys.argv[1:] if argv is None else argv
     for a in args:  # no file system accepts a NUL byte; say so before any command runs
         if "\0" in str(a):
