@@ -608,7 +608,7 @@ def option_cases() -> list[Case]:
     out = []
     for base, opt, values in OPTIONS:
         for v in values:
-            args = [a for a in base]
+            args = list(base)
             if opt in args:  # replace the base's own value
                 args[args.index(opt) + 1] = v
             else:
