@@ -115,6 +115,17 @@ def build_template(root: Path) -> Path:
         "path: [[2, 2], [6, 2], [6, 4], [2, 4]]\n",
         encoding="utf-8",
     )
+    (root / "cv.yaml").write_text(
+        "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\ncamera_matrix: !!opencv-matrix\n"
+        "   rows: 3\n   cols: 3\n   dt: d\n   data: [ 520., 0., 319.5, 0., 520., 239.5, 0., 0., 1. ]\n"
+        "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n"
+        "   data: [ -0.15, 0.05, 0.0005, -0.0003, 0. ]\n",
+        encoding="utf-8",
+    )
+    corners = "".join(
+        f"img{i}.png {x:.1f} {y:.1f}\n" for i in range(3) for y in (100, 200) for x in (100, 200, 300)
+    )
+    (root / "corners.vnl").write_text(corners, encoding="utf-8")
     return root
 
 
@@ -718,6 +729,65 @@ def output_cases() -> list[Case]:
     return out
 
 
+def camera_format_cases() -> list[Case]:
+    """The session's camera as an OpenCV FileStorage file, spoiled; and corner files."""
+    out = []
+    use = set_yaml("sess/picks.yaml", "camera", "../cv.yaml")
+    good = "   data: [ -0.15, 0.05, 0.0005, -0.0003, 0. ]"
+    for name, new in [
+        ("scalar", "distortion_coefficients: 5"),
+        ("string", 'distortion_coefficients: "abc"'),
+        ("list", "distortion_coefficients: [1, 2]"),
+    ]:
+
+        def mutate(p: Path, new: str = new) -> None:
+            use(p)
+            text = (p / "cv.yaml").read_text().split("distortion_coefficients:")[0]
+            (p / "cv.yaml").write_text(text + new + "\n")
+
+        out.append(Case(f"solve-opencv-distortion-{name}", SOLVE, mutate, 3, "distortion_coefficients"))
+    for v in ["nan", "inf", "-inf", "1e400"]:
+
+        def spoil(p: Path, v: str = v) -> None:
+            use(p)
+            edit_text("cv.yaml", good, good.replace("0.05", v))(p)
+
+        out.append(Case(f"solve-opencv-distortion-value={v}", SOLVE, spoil, 3, "distortion_coefficients"))
+    intr = [
+        "intrinsics",
+        "--corners",
+        "{in}/corners.vnl",
+        "--board",
+        "3x2",
+        "--square-m",
+        "0.02",
+        "--imagersize",
+        "640x480",
+        "-o",
+        "{out}/c.cameramodel",
+    ]
+    for v in ["nan", "inf", "-inf", "x"]:
+        out.append(
+            Case(
+                f"intrinsics-corner={v}",
+                intr,
+                edit_text("corners.vnl", "img1.png 200.0 100.0", f"img1.png {v} 100.0"),
+                3,
+                "corners.vnl",
+            )
+        )
+        out.append(
+            Case(
+                f"intrinsics-level={v}",
+                intr,
+                edit_text("corners.vnl", "img1.png 200.0 100.0", f"img1.png 200.0 100.0 {v}"),
+                3,
+                "corners.vnl",
+            )
+        )
+    return out
+
+
 def all_cases() -> list[Case]:
     cases = [
         *scan_cases("lines", LINES, "scan.yaml"),
@@ -730,6 +800,7 @@ def all_cases() -> list[Case]:
         *tum_cases(),
         *world_cases(),
         *option_cases(),
+        *camera_format_cases(),
         *output_cases(),
         Case("lines-nul-path", ["lines", "{in}/sc\0an.yaml"], code=2, message="NUL"),
         Case("lines-missing", ["lines", "{in}/nope.yaml"], code=3, message="nope.yaml"),

@@ -147,7 +147,13 @@ def _node(fs: Any, path: Path, what: str) -> Any:
 
 
 def _node_matrix(fs: Any, path: Path, what: str) -> np.ndarray:
-    m = _node(fs, path, what).mat()
+    import cv2
+
+    node = _node(fs, path, what)
+    try:  # a scalar, string or list is no opencv-matrix; .nan in its data cannot be read
+        m = node.mat() if node.isMap() else None
+    except cv2.error:
+        m = None
     if m is None or not np.all(np.isfinite(m)):
         raise InputError(f"{path}: {OPENCV_KEYS[what][0]}: expected an opencv-matrix of finite numbers")
     return np.asarray(m, dtype=float)
