@@ -126,6 +126,7 @@ def build_template(root: Path) -> Path:
         f"img{i}.png {x:.1f} {y:.1f}\n" for i in range(3) for y in (100, 200) for x in (100, 200, 300)
     )
     (root / "corners.vnl").write_text(corners, encoding="utf-8")
+    write_bag(root / "run.bag")
     return root
 
 
@@ -729,6 +730,101 @@ def output_cases() -> list[Case]:
     return out
 
 
+def write_bag(path: Path, **scan: Any) -> None:
+    """A ROS 1 bag with three scans and two images; ``scan`` overrides LaserScan fields."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    T = ts.types
+
+    def header(t: float) -> Any:
+        stamp = T["builtin_interfaces/msg/Time"](sec=int(t), nanosec=round((t % 1) * 1e9))
+        return T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id="f")
+
+    fields = {
+        "angle_min": -0.5, "angle_max": 0.5, "angle_increment": 0.1, "time_increment": 0.0,
+        "scan_time": 0.025, "range_min": 0.1, "range_max": 30.0,
+        "ranges": np.full(11, 2.0, np.float32), "intensities": np.zeros(0, np.float32),
+    }  # fmt: skip
+    fields.update(scan)
+    with Writer(path) as w:
+        cs = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
+        ci = w.add_connection("/image", "sensor_msgs/msg/Image", typestore=ts)
+        for k in range(3):
+            msg = T["sensor_msgs/msg/LaserScan"](header=header(1.0 + 0.1 * k), **fields)
+            w.write(cs, int(1e9 * (1 + k)), ts.serialize_ros1(msg, "sensor_msgs/msg/LaserScan"))
+        for k in range(2):
+            img = T["sensor_msgs/msg/Image"](
+                header=header(1.0 + 0.2 * k), height=4, width=6, encoding="mono8", is_bigendian=0, step=6,
+                data=np.full(24, 50, np.uint8),
+            )  # fmt: skip
+            w.write(ci, int(1e9 * (1 + k)) + 1, ts.serialize_ros1(img, "sensor_msgs/msg/Image"))
+
+
+INTR = [
+    "intrinsics",
+    "--corners",
+    "{in}/corners.vnl",
+    "--board",
+    "3x2",
+    "--square-m",
+    "0.02",
+    "--imagersize",
+    "640x480",
+    "-o",
+    "{out}/c.cameramodel",
+]
+BAG = ["import-bag", "{in}/run.bag", "--scan-topic", "/scan", "--image-topic", "/image", "-o", "{out}/seq"]
+
+
+# Each command's unspoiled inputs: they must run clean, so that every case's error comes
+# from what the case spoiled.
+BASES = {
+    "lines": LINES,
+    "solve": SOLVE,
+    "export": EXPORT,
+    "check": CHECK,
+    "project": PROJECT,
+    "import-carmen": CARMEN,
+    "localize": LOCALIZE,
+    "evaluate": EVALUATE,
+    "simulate-world": WORLD,
+    "simulate-calib-session": CALIB,
+    "import-bag": BAG,
+    "intrinsics": INTR,
+}
+
+
+def bag_cases() -> list[Case]:
+    out = []
+
+    def bag(**scan: Any) -> Callable[[Path], None]:
+        def mutate(p: Path) -> None:
+            (p / "run.bag").unlink()
+            write_bag(p / "run.bag", **scan)
+
+        return mutate
+
+    for key, vals in [
+        ("angle_increment", [NAN, 0.0, -0.1, INF]),
+        ("angle_min", [NAN, -INF, 1e30]),
+        ("range_min", [NAN, -1.0, 50.0]),
+        ("range_max", [NAN, 0.0, INF]),
+    ]:
+        for v in vals:
+            out.append(Case(f"bag-{key}={v}", BAG, bag(**{key: v}), 3, key))
+    neg = np.full(11, 2.0, np.float32)
+    neg[2] = -1.0
+    out.append(Case("bag-negative-range", BAG, bag(ranges=neg), 3, "ranges[2]"))
+    out.append(Case("bag-no-ranges", BAG, bag(ranges=np.zeros(0, np.float32)), 3, "ranges"))
+    out.append(Case("bag-garbage", BAG, write("run.bag", b"#ROSBAG V2.0\ngarbage"), 3, "run.bag"))
+    out.append(Case("bag-missing-topic", [*BAG[:3], "/nope", *BAG[4:]], code=3, message="/nope"))
+    out.append(Case("bag-wrong-type", [*BAG[:3], "/image", *BAG[4:]], code=3, message="/image"))
+    out.append(Case("bag-onto-bag", [*BAG[:-1], "{in}/run.bag", "--force"], code=5, message="is the input"))
+    return out
+
+
 def camera_format_cases() -> list[Case]:
     """The session's camera as an OpenCV FileStorage file, spoiled; and corner files."""
     out = []
@@ -753,24 +849,11 @@ def camera_format_cases() -> list[Case]:
             edit_text("cv.yaml", good, good.replace("0.05", v))(p)
 
         out.append(Case(f"solve-opencv-distortion-value={v}", SOLVE, spoil, 3, "distortion_coefficients"))
-    intr = [
-        "intrinsics",
-        "--corners",
-        "{in}/corners.vnl",
-        "--board",
-        "3x2",
-        "--square-m",
-        "0.02",
-        "--imagersize",
-        "640x480",
-        "-o",
-        "{out}/c.cameramodel",
-    ]
     for v in ["nan", "inf", "-inf", "x"]:
         out.append(
             Case(
                 f"intrinsics-corner={v}",
-                intr,
+                INTR,
                 edit_text("corners.vnl", "img1.png 200.0 100.0", f"img1.png {v} 100.0"),
                 3,
                 "corners.vnl",
@@ -779,7 +862,7 @@ def camera_format_cases() -> list[Case]:
         out.append(
             Case(
                 f"intrinsics-level={v}",
-                intr,
+                INTR,
                 edit_text("corners.vnl", "img1.png 200.0 100.0", f"img1.png 200.0 100.0 {v}"),
                 3,
                 "corners.vnl",
@@ -801,6 +884,7 @@ def all_cases() -> list[Case]:
         *world_cases(),
         *option_cases(),
         *camera_format_cases(),
+        *bag_cases(),
         *output_cases(),
         Case("lines-nul-path", ["lines", "{in}/sc\0an.yaml"], code=2, message="NUL"),
         Case("lines-missing", ["lines", "{in}/nope.yaml"], code=3, message="nope.yaml"),

@@ -8,7 +8,7 @@ the output folder) and leave every input byte for byte and mode for mode as it w
 from __future__ import annotations
 
 import pytest
-from corpus import all_cases, build_template, run_case
+from corpus import BASES, Case, all_cases, build_template, run_case
 
 CASES = all_cases()
 
@@ -16,6 +16,12 @@ CASES = all_cases()
 @pytest.fixture(scope="module")
 def template(tmp_path_factory):
     return build_template(tmp_path_factory.mktemp("fuzz") / "template")
+
+
+@pytest.mark.parametrize("command", sorted(BASES))
+def test_the_unspoiled_inputs_run_clean(command, template, tmp_path):
+    outcome = run_case(Case(f"ok-{command}", BASES[command]), template, tmp_path)
+    assert outcome.code == 0, outcome.err + outcome.traceback
 
 
 def test_the_corpus_is_large():
