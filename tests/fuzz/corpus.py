@@ -906,6 +906,19 @@ def all_cases() -> list[Case]:
             3,
             "log.jsonl",
         ),
+        Case(
+            "check-plot-fails-log-untouched",
+            [*CHECK[:-1], "{in}/log.jsonl", "--plot", "{in}/a.tum/p.png"],
+            write("log.jsonl", ""),
+            5,
+            "p.png",
+        ),
+        Case(
+            "solve-rig-onto-report",
+            [*SOLVE[:3], "{out}/same", "--report", "{out}/same"],
+            code=5,
+            message="same",
+        ),
         Case("check-unwritable-plot", [*CHECK, "--plot", "{out}/nodir/\0.png"], code=2, message="NUL"),
     ]
     ids = [c.id for c in cases]

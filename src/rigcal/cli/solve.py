@@ -93,14 +93,16 @@ def solve(
     from rigcal.calib.report import report_table
     from rigcal.calib.session import calibrate, write_report_dir
     from rigcal.calib.solve import SolveSettings
-    from rigcal.io.files import check_folder_writable, check_writable
+    from rigcal.io.files import check_apart, check_folder_writable, check_writable
     from rigcal.rigfile import write_rig
 
     # Refuse before working: nothing is written unless everything can be.
     inputs = [picks, *([truth] if truth else [])]
     check_writable(output, force, inputs)
     if report_dir is not None:
-        check_folder_writable(report_dir, force, [*inputs, output])
+        # The rig may go inside the report folder (it is written after it), not onto it.
+        check_folder_writable(report_dir, force, inputs)
+        check_apart(output, [report_dir])
     settings = SolveSettings(
         ransac=RansacParams(threshold_px=threshold_px, seed=seed),
         refine=RefineParams(use_side_points=not paper_endpoints, loss=loss),
