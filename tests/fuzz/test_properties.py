@@ -280,3 +280,29 @@ def test_names_never_leave_their_folder(tmp_path_factory, name):
         assert target.is_relative_to(base.resolve())
         if check is path_component:  # one component: a file or folder in base, never base
             assert target != base.resolve()
+
+
+def commands(group: click.Group, prefix: str = "") -> list[tuple[str, click.Command]]:
+    out: list[tuple[str, click.Command]] = []
+    for name, cmd in group.commands.items():
+        if isinstance(cmd, click.Group):
+            out += commands(cmd, f"{prefix}{name} ")
+        else:
+            out.append((prefix + name, cmd))
+    return out
+
+
+def test_every_float_option_is_finite():
+    """Every float option of every command refuses nan and inf (the Real type)."""
+    from rigcal.cli.main import cli
+
+    floats = []
+    for name, cmd in commands(cli):
+        for p in cmd.params:
+            if isinstance(p.type, (click.types.FloatParamType, click.FloatRange)):
+                floats.append(f"{name} {p.name}")
+                assert isinstance(p.type, Real), f"rigcal {name} {p.opts}: a float option that is not Real"
+                for bad in ("nan", "inf", "-inf"):
+                    with pytest.raises(click.BadParameter):
+                        p.type.convert(bad, p, None)
+    assert len(floats) >= 20
