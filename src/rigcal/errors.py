@@ -18,8 +18,13 @@ Exit codes (documented in docs/cli.md):
 
 from __future__ import annotations
 
+import reprlib
 from pathlib import Path
 from typing import Any
+
+_short = reprlib.Repr(
+    maxlevel=3, maxlist=8, maxdict=8, maxtuple=8, maxset=8, maxstring=80, maxother=80, maxlong=60
+)
 
 
 class RigcalError(Exception):
@@ -43,7 +48,7 @@ class InputError(RigcalError):
             value: the offending value; long values are shortened.
             expected: what would have been accepted.
         """
-        shown = repr(value)
+        shown = _short.repr(value)  # bounded work even for a huge or deeply nested value
         if len(shown) > 80:
             shown = shown[:77] + "..."
         where = f"{path}: " if path is not None else ""

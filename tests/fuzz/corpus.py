@@ -471,6 +471,26 @@ def sequence_cases() -> list[Case]:
     return out
 
 
+def bomb_under(key: str) -> str:
+    """A billion laughs as the value of ``key``: 10 lines, 9^10 values once expanded."""
+    lines = [f"{key}:", '  - &a ["x","x","x","x","x","x","x","x","x"]']
+    for i, k in enumerate("bcdefghij"):
+        p = "abcdefghij"[i]
+        lines.append(f"  - &{k} [*{p},*{p},*{p},*{p},*{p},*{p},*{p},*{p},*{p}]")
+    return "\n".join(lines) + "\n"
+
+
+def with_bomb(rel: str, key: str) -> Callable[[Path], None]:
+    """Replace ``key`` of the YAML file ``rel`` by a billion laughs."""
+
+    def mutate(p: Path) -> None:
+        doc = yaml.safe_load((p / rel).read_text())
+        doc.pop(key, None)
+        (p / rel).write_text(yaml.safe_dump(doc, sort_keys=False) + bomb_under(key))
+
+    return mutate
+
+
 def _alias_bomb() -> str:
     lines = ['a: &a ["x","x","x","x","x","x","x","x","x"]']
     for i, k in enumerate("bcdefghij"):
@@ -918,6 +938,18 @@ def all_cases() -> list[Case]:
             [*SOLVE[:3], "{out}/same", "--report", "{out}/same"],
             code=5,
             message="same",
+        ),
+        Case("bomb-scan-frame", LINES, with_bomb("scan.yaml", "frame"), 3, "scan.yaml"),
+        Case("bomb-sequence-source", LOCALIZE, with_bomb("seq/sequence.yaml", "source"), 3, "sequence.yaml"),
+        Case("bomb-rig-provenance", EXPORT, with_bomb("rig.yaml", "provenance"), 3, "rig.yaml"),
+        Case("bomb-picks-laser", SOLVE, with_bomb("sess/picks.yaml", "laser"), 3, "picks.yaml"),
+        Case("bomb-world-name", WORLD, with_bomb("world.yaml", "name"), 3, "world.yaml"),
+        Case(
+            "yaml-self-reference",
+            LINES,
+            lambda p: (p / "scan.yaml").write_text((p / "scan.yaml").read_text() + "frame: &loop [*loop]\n"),
+            3,
+            "scan.yaml",
         ),
         Case("check-unwritable-plot", [*CHECK, "--plot", "{out}/nodir/\0.png"], code=2, message="NUL"),
     ]

@@ -31,9 +31,10 @@ except AttributeError:  # pragma: no cover - depends on how PyYAML was built
 
 
 # A text file rigcal reads (YAML, logs, trajectories) is at most this large, and a YAML
-# file has at most this many aliases: a few lines of aliases can stand for gigabytes.
+# file stands for at most this many values once its aliases are expanded: a few lines of
+# nested aliases can stand for gigabytes (a "billion laughs").
 MAX_TEXT_BYTES = 1 << 30
-MAX_YAML_ALIASES = 1000
+MAX_YAML_VALUES = 10_000_000
 
 
 def read_text(path: str | Path, what: str = "file") -> str:
@@ -64,16 +65,46 @@ def load_yaml(path: str | Path, what: str = "file") -> Any:
     path = Path(path)
     text = read_text(path, what)
     try:
-        if "*" in text and "&" in text:  # only then can there be aliases to count
-            aliases = sum(isinstance(e, yaml.AliasEvent) for e in yaml.parse(text, Loader=_SafeLoader))
-            if aliases > MAX_YAML_ALIASES:
-                raise InputError(f"{path}: {aliases} YAML aliases; expected at most {MAX_YAML_ALIASES}")
+        if "*" in text and "&" in text:  # only then can aliases expand or loop
+            _check_expansion(yaml.compose(text, Loader=_SafeLoader), path)
         return yaml.load(text, Loader=_SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or "syntax error"
         raise InputError(f"{path}: not valid YAML{where}: {problem}") from None
+
+
+def _check_expansion(root: yaml.Node | None, path: Path) -> None:
+    """Refuse a YAML document whose aliases expand to more than MAX_YAML_VALUES values, or
+    refer to themselves (a value that contains itself has no end)."""
+    if root is None:
+        return
+    size: dict[int, int] = {}
+    open_: set[int] = set()
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        children: list[yaml.Node] = []
+        if isinstance(node, yaml.SequenceNode):
+            children = list(node.value)
+        elif isinstance(node, yaml.MappingNode):
+            children = [x for pair in node.value for x in pair]
+        if done:
+            open_.discard(key)
+            size[key] = 1 + sum(size[id(c)] for c in children)
+            if size[key] > MAX_YAML_VALUES:
+                raise InputError(f"{path}: its YAML aliases expand to over {MAX_YAML_VALUES} values")
+            continue
+        if key in size:
+            continue
+        if key in open_:
+            raise InputError(f"{path}: a YAML alias refers to a value that contains it (no end)")
+        open_.add(key)
+        stack.append((node, True))
+        stack.extend((c, False) for c in children if id(c) not in size)
+    return
 
 
 def check_keys(
