@@ -27,6 +27,22 @@ _short = reprlib.Repr(
 )
 
 
+def _small(value: Any, budget: int = 1000) -> bool:
+    """True if ``value`` holds at most ``budget`` items, nested ones counted (stops early)."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, dict):
+            budget -= len(v)
+            stack.extend(v.values())
+        elif isinstance(v, (list, tuple, set)):
+            budget -= len(v)
+            stack.extend(v)
+        if budget < 0:
+            return False
+    return True
+
+
 class RigcalError(Exception):
     """Base of every error rigcal raises on purpose."""
 
@@ -48,7 +64,8 @@ class InputError(RigcalError):
             value: the offending value; long values are shortened.
             expected: what would have been accepted.
         """
-        shown = _short.repr(value)  # bounded work even for a huge or deeply nested value
+        # A huge or deeply nested value (a YAML alias bomb) gets a bounded repr.
+        shown = repr(value) if _small(value) else _short.repr(value)
         if len(shown) > 80:
             shown = shown[:77] + "..."
         where = f"{path}: " if path is not None else ""
