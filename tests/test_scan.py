@@ -291,10 +291,10 @@ def test_range_min_not_below_range_max(tmp_path, rmin, rmax):
 @pytest.mark.parametrize(
     ("key", "text", "shown", "expected"),
     [
-        ("range_max_m", "0", "0", "a number > 0"),
-        ("range_max_m", "far", "'far'", "a number"),
+        ("range_max_m", "0", "0", "a finite number > 0"),
+        ("range_max_m", "far", "'far'", "a finite number > 0"),
         ("range_min_m", ".nan", "nan", "a finite number"),
-        ("stamp_s", "yes", "True", "a number"),
+        ("stamp_s", "yes", "True", "a finite number"),
         ("stamp_s", ".inf", "inf", "a finite number"),
     ],
 )
@@ -348,7 +348,7 @@ def test_half_of_the_uniform_angle_form(tmp_path, drop, missing):
 @pytest.mark.parametrize(("text", "shown"), [("0", "0"), ("-0.25", "-0.25")])
 def test_increment_not_positive(tmp_path, text, shown):
     path = scan_file(tmp_path, angle_increment_rad=text)
-    msg = f"{path}: angle_increment_rad: got {shown}; expected a number > 0"
+    msg = f"{path}: angle_increment_rad: got {shown}; expected a finite number in (0, 6.28319]"
     with pytest.raises(InputError, match=re.escape(msg)):
         read_scan(path)
 

@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, check_schema_version, load_yaml
+from rigcal.io.validate import is_real
 
 FloatArray = NDArray[np.float64]
 
@@ -197,6 +198,8 @@ def camera_from_dict(d: Any, path: str | Path | None, keypath: str) -> Camera:
     except Exception:
         raise InputError.at(path, f"{keypath}.lensmodel", lensmodel, "a mrcal lens model name") from None
     intr = _float_list(d["intrinsics"], path, f"{keypath}.intrinsics", n)
+    if not (intr[0] > 0 and intr[1] > 0):  # every mrcal lens model starts with fx, fy, cx, cy
+        raise InputError.at(path, f"{keypath}.intrinsics", intr[:4], "fx, fy, cx, cy, ... with fx, fy > 0")
     size = d["imagersize"]
     if not (isinstance(size, list) and len(size) == 2 and all(_is_pos_int(x) for x in size)):
         raise InputError.at(path, f"{keypath}.imagersize", size, "[width, height], positive integers")
@@ -294,7 +297,8 @@ def _fmt(x: float) -> str:
 
 
 def _is_pos_int(x: Any) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool) and x > 0
+    """A positive integer that can be an image side (at most 10**6 pixels)."""
+    return isinstance(x, int) and not isinstance(x, bool) and 0 < x <= 10**6
 
 
 def _float_list(value: Any, path: str | Path | None, key: str, n: int) -> list[float]:
@@ -304,6 +308,6 @@ def _float_list(value: Any, path: str | Path | None, key: str, n: int) -> list[f
 
 
 def _one_float(v: Any, path: str | Path | None, key: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+    if not is_real(v):
         raise InputError.at(path, key, v, "a finite number")
     return float(v)

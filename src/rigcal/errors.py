@@ -18,8 +18,29 @@ Exit codes (documented in docs/cli.md):
 
 from __future__ import annotations
 
+import reprlib
 from pathlib import Path
 from typing import Any
+
+_short = reprlib.Repr(
+    maxlevel=3, maxlist=8, maxdict=8, maxtuple=8, maxset=8, maxstring=80, maxother=80, maxlong=60
+)
+
+
+def _small(value: Any, budget: int = 1000) -> bool:
+    """True if ``value`` holds at most ``budget`` items, nested ones counted (stops early)."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, dict):
+            budget -= len(v)
+            stack.extend(v.values())
+        elif isinstance(v, (list, tuple, set)):
+            budget -= len(v)
+            stack.extend(v)
+        if budget < 0:
+            return False
+    return True
 
 
 class RigcalError(Exception):
@@ -43,7 +64,8 @@ class InputError(RigcalError):
             value: the offending value; long values are shortened.
             expected: what would have been accepted.
         """
-        shown = repr(value)
+        # A huge or deeply nested value (a YAML alias bomb) gets a bounded repr.
+        shown = repr(value) if _small(value) else _short.repr(value)
         if len(shown) > 80:
             shown = shown[:77] + "..."
         where = f"{path}: " if path is not None else ""

@@ -35,6 +35,7 @@ from rigcal.camera import camera_from_dict
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_write_text, check_keys, load_yaml
 from rigcal.io.transform import float_matrix, float_vector, transform_from_dict, transform_to_dict
+from rigcal.io.validate import finite_array
 from rigcal.rig import COVARIANCE_PARAMETERS, Rig
 
 RIG_SCHEMA_VERSION = 2
@@ -45,6 +46,10 @@ _HEADER = (
     "# T_cam_laser maps laser-frame points into the camera frame: p_cam = R p_laser + t,\n"
     "# R given as a rotation vector (axis * angle, rad), t in metres.\n"
 )
+
+
+# A rig's sensors are metres apart; a translation beyond this is a broken file.
+MAX_OFFSET_M = 1000.0
 
 
 def rig_to_dict(rig: Rig) -> dict[str, Any]:
@@ -96,6 +101,7 @@ def read_rig(path: str | Path) -> Rig:
     if type(version) is not int or version not in RIG_SCHEMA_VERSIONS:
         raise InputError.at(path, "schema_version", version, "1 or 2 (the versions this rigcal reads)")
     T = transform_from_dict(d["T_cam_laser"], path, "T_cam_laser", "cam", "laser")
+    finite_array(T[:3, 3], path, "T_cam_laser.translation_m", lo=-MAX_OFFSET_M, hi=MAX_OFFSET_M)
     camera = camera_from_dict(d["camera"], path, "camera")
     cov = None
     extra: dict[str, Any] = {}
@@ -111,9 +117,20 @@ def read_rig(path: str | Path) -> Rig:
         if u["parameters"] != COVARIANCE_PARAMETERS:
             raise InputError.at(path, "uncertainty.parameters", u["parameters"], repr(COVARIANCE_PARAMETERS))
         cov = _covariance(u["covariance"], path, "uncertainty.covariance")
+        # The sigmas repeat the covariance's diagonal (rounded): they must agree with it.
+        d_sqrt = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        implied = {"sigma_rotation_deg": np.degrees(d_sqrt[:3]), "sigma_translation_mm": 1000.0 * d_sqrt[3:]}
         for key in ("sigma_rotation_deg", "sigma_translation_mm"):
             if key in u:
-                float_vector(u[key], path, f"uncertainty.{key}", 3)
+                given = float_vector(u[key], path, f"uncertainty.{key}", 3)
+                if not np.allclose(given, implied[key], rtol=1e-3, atol=1e-4):
+                    shown = [round(float(x), 6) for x in implied[key]]
+                    raise InputError.at(
+                        path,
+                        f"uncertainty.{key}",
+                        u[key],
+                        f"{shown}, the square roots of the covariance's diagonal",
+                    )
         extra = _uncertainty_checks(u, path)
     sections = {}
     for key in ("laser", "residuals", "provenance"):

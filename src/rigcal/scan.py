@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_write_text, check_keys, get_float, load_yaml
+from rigcal.io.validate import is_real, real
 
 FloatArray = NDArray[np.float64]
 
@@ -138,8 +139,8 @@ def read_scan(path: str | Path) -> Scan:
         for key in ("angle_min_rad", "angle_increment_rad"):
             if key not in d:
                 raise InputError(f"{path}: {key}: missing; angle_min_rad needs angle_increment_rad")
-        a0 = get_float(d, "angle_min_rad", path)
-        step = get_float(d, "angle_increment_rad", path, positive=True)
+        a0 = real(d["angle_min_rad"], path, "angle_min_rad", lo=-2 * math.pi, hi=2 * math.pi)
+        step = real(d["angle_increment_rad"], path, "angle_increment_rad", positive=True, hi=2 * math.pi)
         scan = Scan.from_uniform(a0, step, ranges, range_min, range_max, stamp)
         return counter_clockwise(scan) if clockwise else scan
     angles = _finite_list(d["angles_rad"], path, "angles_rad")
@@ -197,7 +198,7 @@ def _ranges(value: Any, path: Path) -> FloatArray:
     if not isinstance(value, list) or not value:
         raise InputError.at(path, "ranges_m", value, "a non-empty list of ranges in metres")
     for i, x in enumerate(value):
-        if isinstance(x, bool) or not isinstance(x, (int, float)):
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or (isinstance(x, int) and not is_real(x)):
             raise InputError.at(path, f"ranges_m[{i}]", x, "a number (0, .nan or .inf for no return)")
         if x < 0:
             raise InputError.at(path, f"ranges_m[{i}]", x, "a range >= 0")
@@ -208,7 +209,7 @@ def _finite_list(value: Any, path: Path, key: str) -> FloatArray:
     if not isinstance(value, list) or not value:
         raise InputError.at(path, key, value, "a non-empty list of numbers")
     for i, x in enumerate(value):
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+        if not is_real(x):
             raise InputError.at(path, f"{key}[{i}]", x, "a finite number")
     return np.array(value, dtype=float)
 

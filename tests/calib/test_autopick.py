@@ -147,7 +147,7 @@ def test_cli(rendered, tmp_path, capsys):
         ({"pick": {"source": "auto", "confidence": 1.5}}, "captures[0].pick.confidence", "from 0 to 1"),
         ({"pick": {"source": "auto", "review": "yes"}}, "captures[0].pick.review", "true or false"),
         ({"pick": {"source": "auto", "colour": 1}}, "captures[0].pick.colour", "no such key"),
-        ({"laser_side": None}, "captures[0].laser_side", "either {segment: ID}"),
+        ({"laser_side": None}, "captures[0].laser_side", "{segment: ID}, {segments: [ID, ...]}"),
     ],
 )
 def test_schema_2_errors(rendered, change, key, expected):
@@ -181,7 +181,7 @@ def test_box_size_must_be_positive(rendered):
     doc = yaml.safe_load(path.read_text())
     doc["box"] = {"width_m": -1}
     path.write_text(yaml.safe_dump(doc))
-    with pytest.raises(InputError, match=r"box\.width_m: got -1; expected a number > 0"):
+    with pytest.raises(InputError, match=r"box\.width_m: got -1; expected a finite number > 0"):
         read_pick_draft(path)
 
 

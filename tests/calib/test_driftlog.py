@@ -169,3 +169,11 @@ def test_read_log_refuses_a_bad_verdict(picks, tmp_path, verdict):
 def test_default_log_path_is_beside_the_rig(rig, log):
     assert default_log_path(rig) == Path(log)
     assert default_log_path(Path(rig)) == Path(log)
+
+
+def test_append_after_a_last_line_without_newline_keeps_both_records(picks, tmp_path):
+    log = tmp_path / "rig.checks.jsonl"
+    append_record(log, drift_record(result(), picks))
+    log.write_text(log.read_text().rstrip("\n"))  # an editor dropped the final newline
+    append_record(log, drift_record(result(drifted=True), picks))
+    assert [r["verdict"] for r in read_log(log)] == ["ok", "drifted"]

@@ -42,7 +42,7 @@ def edit(path: Path, change) -> Path:
 
 
 def test_simulate_writes_a_board_session(session_dir):
-    assert {p.name for p in session_dir.iterdir()} == {
+    assert {p.name for p in session_dir.iterdir()} - {".rigcal-output"} == {
         "camera.yaml",
         "scans",
         "board_session.yaml",
@@ -76,6 +76,7 @@ def test_solve_board_session_writes_rig_and_report(session_dir, tmp_path, capsys
     assert r.covariance.shape == (6, 6)
     assert "board" in r.provenance["method"]
     assert {p.name for p in rep.iterdir()} == {
+        ".rigcal-output",
         "report.yaml",
         "report.json",
         "report.txt",
@@ -163,6 +164,10 @@ def test_simulate_refuses_an_existing_folder_without_force(tmp_path, capsys):
     assert code == 5
     assert "--force" in err
     assert [p.name for p in folder.iterdir()] == ["keep.txt"]
+    code, _, err = run(capsys, *args, "--force")
+    assert code == 5
+    assert "not written by rigcal" in err
+    (folder / "keep.txt").unlink()
     code, _, _ = run(capsys, *args, "--force")
     assert code == 0
     assert (folder / "board_session.yaml").is_file()

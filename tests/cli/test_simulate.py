@@ -73,8 +73,11 @@ def test_existing_folder_needs_force(tmp_path, capsys):
     assert "exists" in err
     assert "--force" in err
     assert (out / "mine.txt").read_text() == "keep"
+    assert main([*args, "--force"]) == 5
+    assert "not written by rigcal" in capsys.readouterr().err
+    (out / "mine.txt").unlink()
     assert main([*args, "--force"]) == 0
-    assert not (out / "mine.txt").exists()
+    assert main([*args, "--force"]) == 0
     assert (out / "picks.yaml").is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sess"]
 

@@ -201,13 +201,16 @@ def test_a_negative_angle_increment_gives_the_same_points_in_increasing_order():
 
     ranges = [1.0, 2.0, 3.0, 4.0]
     up = _scan(
-        SimpleNamespace(angle_min=-0.3, angle_increment=0.2, ranges=ranges, range_min=0.1, range_max=9.0), 1.0
+        SimpleNamespace(angle_min=-0.3, angle_increment=0.2, ranges=ranges, range_min=0.1, range_max=9.0),
+        1.0,
+        "bag: /scan",
     )
     down = _scan(
         SimpleNamespace(
             angle_min=0.3, angle_increment=-0.2, ranges=ranges[::-1], range_min=0.1, range_max=9.0
         ),
         1.0,
+        "bag: /scan",
     )
     np.testing.assert_allclose(down.angles_rad, up.angles_rad, atol=1e-15)
     np.testing.assert_allclose(down.points, up.points, atol=1e-15)

@@ -79,13 +79,16 @@ def test_flaser_spans_180_degrees_from_minus_90(tmp_path, n, step_deg):
     ("line", "match"),
     [
         ("FLASER", r"run.log:2: FLASER: got '0 fields'; expected at least 1"),
-        ("FLASER x 1 2", r"run.log:2: FLASER num_readings: got 'x'; expected a non-negative integer"),
+        ("FLASER x 1 2", r"run.log:2: FLASER num_readings: got 'x'; expected an integer in \[1, 100000\]"),
         ("FLASER 3 1 2 3 0 0 0", r"run.log:2: FLASER: got '7 fields'; expected at least 11"),
-        ("FLASER 1 1.0 0 0 zero 0 0 0 5 h 1", r"run.log:2: FLASER field 5: got 'zero'; expected a number"),
+        (
+            "FLASER 1 1.0 0 0 zero 0 0 0 5 h 1",
+            r"run.log:2: FLASER field 5 \(n, .*\): got 'zero'; expected a finite number",
+        ),
         ("ROBOTLASER1 0 -1.5 3.1 0.01 50", r"run.log:2: ROBOTLASER1: got '5 fields'; expected at least 8"),
         (
             "ROBOTLASER1 0 -1.5 3.1 0.01 50 0.1 0 -2",
-            r"ROBOTLASER1 num_readings: got '-2'; expected a non-negative integer",
+            r"ROBOTLASER1 num_readings: got '-2'; expected an integer in \[1, 100000\]",
         ),
         ("ROBOTLASER1 0 -1.5 3.1 0.01 50 0.1 0 2 1 1", r"ROBOTLASER1: got '10 fields'; expected at least 11"),
         ("ROBOTLASER1 0 -1.5 3.1 0.01 50 0.1 0 1 1 x", r"ROBOTLASER1 num_remissions: got 'x'"),
@@ -95,7 +98,7 @@ def test_flaser_spans_180_degrees_from_minus_90(tmp_path, n, step_deg):
         ),
         (
             robotlaser1([1.0, 2.0], step=0.0),
-            r"ROBOTLASER1 angular_resolution: got '0.0'; expected a positive angle",
+            r"ROBOTLASER1 angular_resolution: got '0.0'; expected an angle in \(0, 2 pi\] rad",
         ),
         (
             robotlaser1([1.0]).replace(" 50.0 ", " -1 "),

@@ -102,7 +102,13 @@ def test_t_cam_board_is_the_laser_pose_composed(sim):
 
 # --- writing -------------------------------------------------------------------------------------
 def test_written_folder_holds_the_session(written):
-    assert {p.name for p in written.iterdir()} == {"camera.yaml", "scans", "board_session.yaml", "truth.yaml"}
+    assert {p.name for p in written.iterdir()} == {
+        ".rigcal-output",
+        "camera.yaml",
+        "scans",
+        "board_session.yaml",
+        "truth.yaml",
+    }
     assert sorted(p.name for p in (written / "scans").iterdir()) == [f"cap{i:02d}.yaml" for i in range(8)]
 
 
@@ -139,6 +145,8 @@ def test_write_refuses_an_existing_folder_without_force(sim, tmp_path):
     with pytest.raises(OutputError, match="exists"):
         write_board_session(sim, folder)
     assert [p.name for p in folder.iterdir()] == ["keep.txt"]
+    with pytest.raises(OutputError, match="not written by rigcal"):
+        write_board_session(sim, folder, force=True)
+    (folder / "keep.txt").unlink()
     write_board_session(sim, folder, force=True)
-    assert not (folder / "keep.txt").exists()
     assert (folder / "board_session.yaml").is_file()

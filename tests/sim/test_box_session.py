@@ -219,7 +219,7 @@ def test_written_session_reads_back_identically(session, written):
     files = sorted(p.relative_to(written).as_posix() for p in written.rglob("*") if p.is_file())
     names = [c.name for c in session.captures]
     assert files == sorted(
-        ["camera.yaml", "picks.yaml", "truth.yaml"]
+        [".rigcal-output", "camera.yaml", "picks.yaml", "truth.yaml"]
         + [f"scans/{n}.yaml" for n in names]
         + [f"images/{n}.png" for n in names]
     )
@@ -273,8 +273,14 @@ def test_refuses_existing_folder_unless_forced(session, tmp_path):
         write_session(session, folder, render_images=False)
     assert os.listdir(tmp_path) == ["s"]
     assert (folder / "keep.txt").read_text() == "mine"
-    write_session(session, folder, force=True, render_images=False)
-    assert not (folder / "keep.txt").exists()
+    with pytest.raises(OutputError, match="not written by rigcal"):
+        write_session(session, folder, force=True, render_images=False)
+    assert (folder / "keep.txt").read_text() == "mine"
+    (folder / "keep.txt").unlink()
+    write_session(session, folder, render_images=False, force=True)  # empty: nothing to lose
+    (folder / "extra.txt").write_text("written after")
+    write_session(session, folder, force=True, render_images=False)  # rigcal's: replaced whole
+    assert not (folder / "extra.txt").exists()
     assert (folder / "picks.yaml").is_file()
     assert os.listdir(tmp_path) == ["s"]  # no temporary or old folder left behind
     (tmp_path / "f").write_text("a file")

@@ -56,7 +56,7 @@ def test_world_file_round_trip_and_errors(tmp_path):
         "name": "box room",
         "laser_height_m": 0.3,
         "walls": [{"from": [0, 0], "to": [4, 0], "texture": "bricks"}, {"from": [4, 0], "to": [4, 3]}],
-        "obstacles": [{"polygon": [[1, 1], [2, 1], [2, 2]], "height_m": 1.0}],
+        "obstacles": [{"polygon": [[2.5, 1.5], [3, 1.5], [3, 2]], "height_m": 1.0}],
         "path": [[0.5, 0.5], [3.5, 0.5], [3.5, 2.5]],
     }
     f = tmp_path / "w.yaml"
@@ -72,6 +72,8 @@ def test_world_file_round_trip_and_errors(tmp_path):
         ({"path": [[0, 0]]}, r"path: got .*at least 3 points"),
         ({"path": [[0.5, 0.5], [0.5, 0.5], [3.5, 2.5]]}, r"path\[1\]: got .*; expected a point at"),
         ({"path": [[0.5, 0.5], [3.5, 0.5], [0.5, 0.7]]}, r"path\[1\]: got .*less than 150 deg"),
+        ({"path": [[0.5, 0.5], [4.5, 0.5], [3.5, 2.5]]}, r"path\[1\]: got .*clear of walls and obstacles"),
+        ({"path": [[0.5, 0.5], [3.5, 0.5], [1e300, 2.5]]}, r"path\[2\]: got .*within 100 km"),
         ({"roof": 1}, r"roof: got 1; expected no such key"),
         ({"schema_version": 2}, r"schema_version: got 2"),
     ]
@@ -101,4 +103,4 @@ def test_cli_writes_a_sequence_with_truth_and_rig(tmp_path, capsys):
     np.testing.assert_allclose([s.stamp_s for s in seq.scans], truth.stamps_s)
     assert (out / "rig.yaml").is_file()
     assert main(["simulate", "world", "-o", str(out)]) == 5
-    assert main(["simulate", "world", "--world", "moon", "-o", str(tmp_path / "x")]) == 3
+    assert main(["simulate", "world", "--world", "moon", "-o", str(tmp_path / "x")]) == 2

@@ -67,8 +67,11 @@ def append_record(path: str | Path, record: dict[str, Any]) -> Path:
     line = json.dumps(record, separators=(",", ":")) + "\n"
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_CREAT, 0o666)
         try:
+            size = os.fstat(fd).st_size
+            if size and os.pread(fd, 1, size - 1) != b"\n":
+                line = "\n" + line  # a last line without its newline stays a line of its own
             os.write(fd, line.encode("utf-8"))
             os.fsync(fd)
         finally:

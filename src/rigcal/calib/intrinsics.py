@@ -22,6 +22,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -265,7 +266,10 @@ def read_corners_vnl(path: Path, board: Board, imagersize: tuple[int, int]) -> D
         try:
             x, y = float(f[1]), float(f[2])
             level = f[3] if len(f) == 4 else "0"
-            weight = -1.0 if level == "-" or float(level) < 0 else 0.5 ** float(level)
+            lv = -1.0 if level == "-" else float(level)
+            weight = -1.0 if lv < 0 else 0.5**lv
+            if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(lv)):
+                raise ValueError("not finite")
         except ValueError:
             raise InputError(
                 f"{path}: line {n}: got {body[:60]!r}; expected 'filename x y [level]' numbers"

@@ -20,6 +20,7 @@ from rigcal.calib.lines import LineParams, Segment, extract_lines, fit_line
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, get_float, load_yaml
+from rigcal.io.validate import is_real, path_component
 from rigcal.scan import Scan, read_scan
 
 FloatArray = NDArray[np.float64]
@@ -318,17 +319,15 @@ def line_params_for(path: Path | None, laser: dict[str, Any]) -> LineParams:
     if "range_sigma_m" not in laser:
         return LineParams()
     sigma = laser["range_sigma_m"]
-    if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not 0 <= sigma < 1:
+    if not is_real(sigma) or not 0 <= sigma < 1:
         raise InputError.at(path, "laser.range_sigma_m", sigma, "a range noise in metres, 0 <= sigma < 1")
     return LineParams.for_range_noise(float(sigma))
 
 
 def capture_name(path: Path, kp: str, capture: Any, i: int) -> str:
     """A capture's ``name`` (default capture00, capture01, ...), a non-empty string."""
-    name = capture.get("name", f"capture{i:02d}")
-    if not isinstance(name, str) or not name:
-        raise InputError.at(path, f"{kp}.name", name, "a non-empty string")
-    return name
+    # Reports name files after captures: a name must stay one file-name component.
+    return path_component(capture.get("name", f"capture{i:02d}"), path, f"{kp}.name")
 
 
 def check_unique_names(path: Path, names: list[str]) -> None:
@@ -339,7 +338,7 @@ def check_unique_names(path: Path, names: list[str]) -> None:
 
 
 def _file(base: Path, key: str, value: Any) -> Path:
-    if not isinstance(value, str) or not value:
+    if not isinstance(value, str) or not value or "\0" in value:
         raise InputError.at(base, key, value, "a file path (relative to the picking file)")
     p = (base.parent / value).resolve()
     if not p.is_file():
@@ -399,12 +398,7 @@ def _pairs(value: Any, path: Path, key: str, what: str) -> FloatArray:
     ok = (
         isinstance(value, list)
         and len(value) == 2
-        and all(
-            isinstance(v, list)
-            and len(v) == 2
-            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)
-            for v in value
-        )
+        and all(isinstance(v, list) and len(v) == 2 and all(is_real(x) for x in v) for v in value)
     )
     if not ok:
         raise InputError.at(path, key, value, f"two {what} pairs [[a, b], [c, d]] of finite numbers")

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("capture")
 @click.argument("source", type=click.Path(path_type=Path))
@@ -19,28 +21,26 @@ import click
 @click.option(
     "--camera", "camera_file", type=click.Path(path_type=Path), help="Camera file (else the recording's)."
 )
-@click.option(
-    "--box-width-m", type=click.FloatRange(min=0.05), help="The box side's length (written for rigcal pick)."
-)
+@click.option("--box-width-m", type=Real(min=0.05), help="The box side's length (written for rigcal pick).")
 @click.option(
     "--still-frames", default=5, show_default=True, type=click.IntRange(min=2),
     help="Least number of consecutive still frames of each stream.",
 )  # fmt: skip
 @click.option(
-    "--scan-threshold-m", default=0.05, show_default=True, type=click.FloatRange(min=0.0, min_open=True),
+    "--scan-threshold-m", default=0.05, show_default=True, type=Real(min=0.0, min_open=True),
     help="A beam moved when its range changed by more.",
 )  # fmt: skip
 @click.option(
-    "--image-threshold", default=15.0, show_default=True, type=click.FloatRange(min=0.0, min_open=True),
+    "--image-threshold", default=15.0, show_default=True, type=Real(min=0.0, min_open=True),
     help="A pixel moved when its grey level changed by more.",
 )  # fmt: skip
 @click.option(
     "--changed-fraction", default=0.01, show_default=True,
-    type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True),
+    type=Real(0.0, 1.0, min_open=True, max_open=True),
     help="Two frames are still when under this fraction of beams / pixels moved.",
 )  # fmt: skip
 @click.option(
-    "--max-offset-s", default=0.5, show_default=True, type=click.FloatRange(min=0.0, min_open=True),
+    "--max-offset-s", default=0.5, show_default=True, type=Real(min=0.0, min_open=True),
     help="Largest stamp difference of a scan + image pair.",
 )  # fmt: skip
 @click.option("--force", is_flag=True, help="Replace an existing session folder.")

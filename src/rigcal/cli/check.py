@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("check")
 @click.argument("rig", type=click.Path(path_type=Path))
@@ -20,7 +22,7 @@ import click
     "--level",
     default=0.01,
     show_default=True,
-    type=click.FloatRange(min=1e-6, max=0.5),
+    type=Real(min=1e-6, max=0.5),
     help="Chance of a false alarm when nothing moved.",
 )
 @click.option(
@@ -75,15 +77,17 @@ def check(
     from rigcal.calib.driftlog import append_record, default_log_path, drift_record, read_log
     from rigcal.calib.picks import read_picks
     from rigcal.errors import InputError
-    from rigcal.io.files import check_writable
+    from rigcal.io.files import check_apart, check_writable
     from rigcal.rigfile import read_rig
     from rigcal.viz.drift_plot import write_drift_plot
 
+    log = log_path or default_log_path(rig)
+    check_apart(log, [rig, picks])
     if plot is not None:
         from rigcal.viz.charts import check_chart_name
 
+        check_writable(plot, force, [rig, picks, log])
         check_chart_name(plot)
-        check_writable(plot, force)
     stored = read_rig(rig)
     if stored.covariance is None:
         raise InputError(
@@ -93,14 +97,12 @@ def check(
     session = read_picks(picks)
     result = check_drift(stored, session, DriftSettings(level=level, min_captures_for_solve=min_captures))
     record = drift_record(result, picks)
-    log = log_path or default_log_path(rig)
+    # The plot (the history and this check) first: a failure there leaves the log as it was.
+    history = read_log(log) if (plot is not None or not no_log) and log.exists() else []
+    if plot is not None:
+        write_drift_plot(plot, [*history, record], force=force)
     if not no_log:
         append_record(log, record)
-    if plot is not None:
-        records = read_log(log) if log.exists() else []
-        if no_log:  # this check is not in the log: draw it after the history
-            records.append(record)
-        write_drift_plot(plot, records, force=force)
     if as_json:
         click.echo(json.dumps(record, indent=1))
     else:

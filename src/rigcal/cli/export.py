@@ -84,7 +84,7 @@ def export(
     from rigcal.rigfile import read_rig
 
     if output is not None:
-        check_writable(output, force)
+        check_writable(output, force, [rig])
     frames = Frames(parent, camera_link, parent_frame, child_frame)
     the_rig = read_rig(rig)
     text = export_rig(the_rig, fmt, frames, rostopic, source=rig)

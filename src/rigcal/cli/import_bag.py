@@ -13,9 +13,7 @@ import click
 @click.option("--scan-topic", required=True, help="sensor_msgs/LaserScan topic.")
 @click.option("--image-topic", required=True, help="sensor_msgs/Image or CompressedImage topic.")
 @click.option("--camera-info-topic", help="sensor_msgs/CameraInfo topic: also write camera.yaml.")
-@click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Sequence folder."
-)
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Sequence folder.")
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
 def import_bag(
@@ -38,11 +36,10 @@ def import_bag(
       rigcal import-bag run2/ --scan-topic /scan --image-topic /cam/image/compressed \\
           --camera-info-topic /cam/camera_info -o run2-seq/ --force
     """
-    from rigcal.errors import OutputError
     from rigcal.io.bag import import_bag as run
+    from rigcal.io.files import check_folder_writable
 
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    check_folder_writable(output, force, [bag])
     from rigcal.cli.progress import Progress
 
     with Progress("msg") as bars:

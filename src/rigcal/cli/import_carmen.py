@@ -7,15 +7,15 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("import-carmen")
 @click.argument("log", type=click.Path(path_type=Path))
-@click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Sequence folder."
-)
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Sequence folder.")
 @click.option(
     "--flaser-range-max-m",
-    type=float,
+    type=Real(min=0.0, min_open=True),
     default=50.0,
     show_default=True,
     help="Maximum range of FLASER lines (they carry none); farther returns count as no return.",
@@ -37,14 +37,13 @@ def import_carmen(log: Path, output: Path, flaser_range_max_m: float, force: boo
     """
     import numpy as np
 
-    from rigcal.errors import OutputError
     from rigcal.geometry import make_T, rotvec_to_R
     from rigcal.io.carmen import read_carmen
+    from rigcal.io.files import check_folder_writable
     from rigcal.io.sequence import write_sequence
     from rigcal.io.trajectory import Trajectory, tum_text
 
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    check_folder_writable(output, force, [log])
     c = read_carmen(log, flaser_range_max_m)
     T = np.array([make_T(rotvec_to_R([0.0, 0.0, th]), [x, y, 0.0]) for x, y, th in c.laser_poses])
     stamps = np.array([s.stamp_s for s in c.scans], dtype=float)

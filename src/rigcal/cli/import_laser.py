@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("import-laser")
 @click.argument("log", type=click.Path(path_type=Path))
@@ -21,11 +23,11 @@ import click
     "--range-min-m",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=0.0),
+    type=Real(min=0.0),
     help="Shorter: no return.",
 )
 @click.option(
-    "--range-max-m", default=80.0, show_default=True, type=click.FloatRange(min=0.0, min_open=True),
+    "--range-max-m", default=80.0, show_default=True, type=Real(min=0.0, min_open=True),
     help="Longer: no return.",
 )  # fmt: skip
 @click.option(

@@ -8,11 +8,16 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
 
-def _board(value: str) -> tuple[int, int]:
-    m = re.fullmatch(r"(\d+)x(\d+)", value)
-    if not m:
-        raise click.BadParameter(f"{value!r}: expected inner corners as WxH, e.g. 9x6")
+
+def _board(value: str, option: str) -> tuple[int, int]:
+    m = re.fullmatch(r"([0-9]{1,5})x([0-9]{1,5})", value)
+    if not m or int(m[1]) < 2 or int(m[2]) < 2:
+        shown = value if len(value) < 40 else value[:37] + "..."
+        raise click.BadParameter(
+            f"{shown!r}: expected WxH with whole numbers from 2 to 99999, e.g. 9x6", param_hint=option
+        )
     return int(m[1]), int(m[2])
 
 
@@ -20,18 +25,14 @@ def _board(value: str) -> tuple[int, int]:
 @click.argument("images", nargs=-1, type=click.Path(path_type=Path))
 @click.option("--board", help="Chessboard: inner corners per row x per column, e.g. 9x6.")
 @click.option("--charuco", help="ChArUco board instead: squares per row x per column, e.g. 8x6.")
-@click.option(
-    "--marker-m", type=click.FloatRange(min=0.0, min_open=True), help="ChArUco marker size, metres."
-)
+@click.option("--marker-m", type=Real(min=0.0, min_open=True), help="ChArUco marker size, metres.")
 @click.option(
     "--dictionary",
     default="DICT_5X5_100",
     show_default=True,
     help="ChArUco's ArUco dictionary (cv2.aruco name).",
 )
-@click.option(
-    "--square-m", required=True, type=click.FloatRange(min=0.0, min_open=True), help="Square size, metres."
-)
+@click.option("--square-m", required=True, type=Real(min=0.0, min_open=True), help="Square size, metres.")
 @click.option(
     "--corners",
     "corners_file",
@@ -49,9 +50,7 @@ def _board(value: str) -> tuple[int, int]:
     help="mrcal lens model, e.g. LENSMODEL_OPENCV5, LENSMODEL_OPENCV8, "
     "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg=100.",
 )
-@click.option(
-    "--focal-px", type=click.FloatRange(min=1.0), help="Rough focal length for the seed [image width]."
-)
+@click.option("--focal-px", type=Real(min=1.0), help="Rough focal length for the seed [image width].")
 @click.option(
     "-o", "--output", required=True, type=click.Path(path_type=Path), help="The .cameramodel to write."
 )
@@ -111,7 +110,7 @@ def intrinsics(
     if charuco is not None:
         if marker_m is None:
             raise click.UsageError("--charuco needs --marker-m")
-        sx, sy = _board(charuco)
+        sx, sy = _board(charuco, "--charuco")
         try:
             charuco_board = CharucoBoard(sx, sy, square_m, marker_m, dictionary)
         except ValueError as exc:
@@ -120,14 +119,15 @@ def intrinsics(
         spec = charuco_board.grid
     else:
         assert board is not None
-        w_n, h_n = _board(board)
+        w_n, h_n = _board(board, "--board")
         spec = Board(w_n, h_n, square_m)
-    check_writable(output, force)
+    sources = [*images, *([corners_file] if corners_file else [])]
+    check_writable(output, force, sources)
     if save_corners is not None:
-        check_writable(save_corners, force)
+        check_writable(save_corners, force, [*sources, output])
     if corners_file is not None:
         if imagersize is not None:
-            size = _board(imagersize)
+            size = _board(imagersize, "--imagersize")
         elif images:
             import cv2
 

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("lines")
 @click.argument("scan", type=click.Path(path_type=Path))
@@ -15,7 +17,7 @@ import click
 @click.option("--json", "as_json", is_flag=True, help="Print the segments as JSON on stdout.")
 @click.option(
     "--range-sigma-m",
-    type=click.FloatRange(min=0.0, min_open=True, max=1.0, max_open=True),
+    type=Real(min=0.0, min_open=True, max=1.0, max_open=True),
     help="The scanner's range noise, as in the picking file's laser.range_sigma_m "
     "(thresholds scale with it; the same value gives the same segment ids) [default: 0.01].",
 )
@@ -33,7 +35,7 @@ def lines(scan: Path, png: Path | None, force: bool, as_json: bool, range_sigma_
     from rigcal.scan import read_scan
 
     if png is not None:
-        check_writable(png, force)
+        check_writable(png, force, [scan])
     s = read_scan(scan)
     segments = extract_lines(s, LineParams.for_range_noise(range_sigma_m) if range_sigma_m else None)
     if png is not None:

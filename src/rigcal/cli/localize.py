@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 rig_option = click.option(
     "--rig",
     "rig_file",
@@ -26,9 +28,7 @@ rig_option = click.option(
     "Eq. 4), vo (visual odometry with laser scale), kf (Kalman filter of icp and vo), iasm "
     "(image augmented scan matching), hiasm (homography based IASM).",
 )
-@click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Output folder."
-)
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @rig_option
 @click.option("--kitti", is_flag=True, help="Also write each trajectory in KITTI form.")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
@@ -65,13 +65,16 @@ def localize(
       rigcal localize corridor/ --method icp,vo,kf -o out/
       rigcal localize corridor/ --method iasm,hiasm --iasm snap_max_m=0 -o out-raw/
     """
-    from rigcal.errors import OutputError
+    from rigcal.errors import InputError
+    from rigcal.io.files import check_folder_writable
     from rigcal.localize.pipeline import parse_iasm_settings, parse_methods, run, summary, table
 
-    names = parse_methods(methods)
-    iasm = parse_iasm_settings(iasm_items)
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    try:  # bad option values are usage errors (exit code 2)
+        names = parse_methods(methods)
+        iasm = parse_iasm_settings(iasm_items)
+    except InputError as exc:
+        raise click.UsageError(str(exc)) from None
+    check_folder_writable(output, force, [sequence, *([rig_file] if rig_file else [])])
     from rigcal.cli.progress import Progress
 
     with Progress("step") as bars:
@@ -100,7 +103,7 @@ def localize(
     "--max-diff-s",
     default=0.01,
     show_default=True,
-    type=click.FloatRange(min=0.0),
+    type=Real(min=0.0),
     help="Stamps of estimate and truth closer than this are matched (evo's --t_max_diff).",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
@@ -134,7 +137,7 @@ def evaluate_cmd(trajectories: tuple[Path, ...], gt: Path, max_diff_s: float, as
                 path,
                 "timestamps",
                 f"{len(i_est)} within {max_diff_s} s of {gt}",
-                "at least 2 matching stamps",
+                "at least 2 stamps matching the truth's (no time overlap to score)",
             )
         poses_est = planar_at(est, est.stamps_s)[i_est]
         poses_gt = planar_at(truth, truth.stamps_s)[i_gt]
@@ -187,13 +190,12 @@ def matches(
     import cv2
     import numpy as np
 
-    from rigcal.errors import InputError, OutputError
-    from rigcal.io.files import atomic_write_bytes
+    from rigcal.errors import InputError
+    from rigcal.io.files import atomic_write_bytes, check_writable
     from rigcal.localize.image_matching import step_picture
     from rigcal.localize.streams import open_streams
 
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    check_writable(output, force, [sequence, *([rig_file] if rig_file else [])])
     streams = open_streams(sequence, rig_file)
     if index + 1 >= streams.n_images:
         raise InputError.at(None, "--image", index, f"an image index below {streams.n_images - 1}")

@@ -8,6 +8,7 @@ exit code of its class (docs/cli.md); anything else is a bug and keeps its trace
 
 from __future__ import annotations
 
+import os
 import sys
 
 import click
@@ -76,10 +77,22 @@ cli.add_command(import_laser_cmd.import_laser)
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the process exit code."""
+    # OpenCV's own log lines (e.g. about a broken PNG) would come before rigcal's one error
+    # line; it reads this when first imported, which the commands do in their bodies.
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT")
+    args = sys.argv[1:] if argv is None else argv
+    for a in args:  # no file system accepts a NUL byte; say so before any command runs
+        if "\0" in str(a):
+            click.echo(f"Error: {str(a)!r}: an argument with a NUL byte; expected none", err=True)
+            return 2
     try:
-        rv = cli.main(args=argv, prog_name="rigcal", standalone_mode=False)
+        rv = cli.main(args=args, prog_name="rigcal", standalone_mode=False)
     except RigcalError as exc:
         click.echo(f"Error: {exc}", err=True)
+        return exc.exit_code
+    except click.UsageError as exc:  # one line, like every other error
+        cmd = exc.ctx.command_path if exc.ctx is not None else "rigcal"
+        click.echo(f"Error: {exc.format_message()} (see '{cmd} --help')", err=True)
         return exc.exit_code
     except click.exceptions.Abort:
         click.echo("Aborted.", err=True)

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("pick")
 @click.argument("picks", type=click.Path(path_type=Path))
@@ -24,19 +26,19 @@ import click
 )
 @click.option(
     "--box-width-m",
-    type=click.FloatRange(min=0.05),
+    type=Real(min=0.05),
     help="The box side's length, to find it in scans without laser_side [default: the file's box.width_m].",
 )
 @click.option(
-    "--search-px", default=12.0, show_default=True, type=click.FloatRange(min=2.0, max=200.0),
+    "--search-px", default=12.0, show_default=True, type=Real(min=2.0, max=200.0),
     help="Half-width of the edge search around each predicted end.",
 )  # fmt: skip
 @click.option(
-    "--edge-span-m", default=0.03, show_default=True, type=click.FloatRange(min=0.002, max=1.0),
+    "--edge-span-m", default=0.03, show_default=True, type=Real(min=0.002, max=1.0),
     help="Length of the box's vertical edge averaged, centred on the laser plane (within the box's height).",
 )  # fmt: skip
 @click.option(
-    "--review-below", default=0.5, show_default=True, type=click.FloatRange(min=0.0, max=1.0),
+    "--review-below", default=0.5, show_default=True, type=Real(min=0.0, max=1.0),
     help="Mark picks with a lower confidence for review.",
 )  # fmt: skip
 @click.option("--force", is_flag=True, help="Overwrite the output files.")

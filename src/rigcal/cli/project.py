@@ -33,7 +33,7 @@ def project(rig: Path, scan: Path, image: Path, output: Path, force: bool, as_js
     from rigcal.scan import read_scan
     from rigcal.viz.overlay import draw_overlay, project_scan, read_image, write_png
 
-    check_writable(output, force)
+    check_writable(output, force, [rig, scan, image])
     r = read_rig(rig)
     s = read_scan(scan)
     img = read_image(image)

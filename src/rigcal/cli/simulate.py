@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.group("simulate")
 def simulate() -> None:
@@ -35,7 +37,7 @@ _noise_option = click.option(
     "--output",
     "output",
     required=True,
-    type=click.Path(path_type=Path, file_okay=False),
+    type=click.Path(path_type=Path),
     help="Session folder to create.",
 )
 @click.option(
@@ -50,35 +52,35 @@ _noise_option = click.option(
     "--pick-sigma-px",
     default=1.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=20.0),
+    type=Real(min=0.0, max=20.0),
     help="Noise of the picked pixels (1 sigma).",
 )
 @click.option(
     "--range-sigma-m",
     default=0.01,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=0.05),
+    type=Real(min=0.0, max=0.05),
     help="Noise of the laser ranges (1 sigma).",
 )
 @click.option(
     "--wrong-picks",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=1.0),
+    type=Real(min=0.0, max=1.0),
     help="Fraction of captures whose image picks are grossly wrong (moved 15-60 px or swapped).",
 )
 @click.option(
     "--move-deg",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=30.0),
+    type=Real(min=0.0, max=30.0),
     help="Turn the camera on the rig by this much (random axis) before simulating, to try drift checks.",
 )
 @click.option(
     "--move-mm",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=500.0),
+    type=Real(min=0.0, max=500.0),
     help="Shift the camera on the rig by this much (random direction) before simulating.",
 )
 @_noise_option
@@ -122,7 +124,7 @@ def calib_session(
       rigcal check rig.yaml --picks /tmp/moved/picks.yaml
       rigcal simulate calib-session -o /tmp/real --noise realistic --no-images
     """
-    from rigcal.errors import OutputError
+    from rigcal.io.files import check_folder_writable
     from rigcal.sim.box_session import (
         SessionSpec,
         default_T_cam_laser,
@@ -134,8 +136,7 @@ def calib_session(
     from rigcal.sim.noise import RealisticNoise
 
     # Refuse before working: generating and rendering take a few seconds.
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    check_folder_writable(output, force)
     spec = SessionSpec(
         n_captures=captures,
         pick_sigma_px=pick_sigma_px,
@@ -166,7 +167,7 @@ def calib_session(
     "--output",
     "output",
     required=True,
-    type=click.Path(path_type=Path, file_okay=False),
+    type=click.Path(path_type=Path),
     help="Folder to create.",
 )
 @click.option(
@@ -177,14 +178,14 @@ def calib_session(
     "--corner-sigma-px",
     default=0.3,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=5.0),
+    type=Real(min=0.0, max=5.0),
     help="Corner noise.",
 )
 @click.option(
     "--range-sigma-m",
     default=0.01,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=0.05),
+    type=Real(min=0.0, max=0.05),
     help="Range noise.",
 )
 @_noise_option
@@ -214,12 +215,11 @@ def board_session(
       rigcal solve /tmp/board/board_session.yaml -o rig.yaml --truth /tmp/board/truth.yaml
       rigcal simulate board-session -o /tmp/real --captures 28 --noise realistic
     """
-    from rigcal.errors import OutputError
+    from rigcal.io.files import check_folder_writable
     from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
     from rigcal.sim.noise import RealisticNoise
 
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    check_folder_writable(output, force)
     spec = BoardSpec(
         n_captures=captures,
         corner_sigma_px=corner_sigma_px,
@@ -252,7 +252,7 @@ def board_session(
     "--output",
     "output",
     required=True,
-    type=click.Path(path_type=Path, file_okay=False),
+    type=click.Path(path_type=Path),
     help="Sequence folder.",
 )
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
@@ -260,62 +260,62 @@ def board_session(
     "--range-sigma-m",
     default=0.01,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=0.1),
+    type=Real(min=0.0, max=0.1),
     help="Range noise.",
 )
 @click.option(
     "--laser-rate-hz",
     default=40.0,
     show_default=True,
-    type=click.FloatRange(min=1.0, max=200.0),
+    type=Real(min=1.0, max=200.0),
     help="Scan rate.",
 )
 @click.option(
     "--range-max-m",
     default=30.0,
     show_default=True,
-    type=click.FloatRange(min=0.5, max=100.0),
+    type=Real(min=0.5, max=100.0),
     help="The laser's range: farther walls give no return (a Hokuyo URG-04LX's is 5.6 m, a UTM-30LX's 30 m).",
 )
 @click.option(
     "--camera-rate-hz",
     default=10.0,
     show_default=True,
-    type=click.FloatRange(min=0.1, max=100.0),
+    type=Real(min=0.1, max=100.0),
     help="Camera frame rate (its first frame at a random phase: not synchronised with the laser).",
 )
 @click.option(
     "--clock-offset-s",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=-10.0, max=10.0),
+    type=Real(min=-10.0, max=10.0),
     help="Added to the written image stamps (camera clock = true time + offset).",
 )
 @click.option(
     "--image-noise",
     default=2.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=50.0),
+    type=Real(min=0.0, max=50.0),
     help="Additive Gaussian image noise, grey levels (1 sigma).",
 )
 @click.option(
     "--image-blur-px",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=20.0),
+    type=Real(min=0.0, max=20.0),
     help="Gaussian blur of the images, pixels (1 sigma).",
 )
 @click.option(
     "--exposure-walk",
     default=0.0,
     show_default=True,
-    type=click.FloatRange(min=0.0, max=0.2),
+    type=Real(min=0.0, max=0.2),
     help="Exposure changes: the log-gain's random-walk step per frame.",
 )
 @click.option(
     "--duration-s",
     default=None,
-    type=click.FloatRange(min=0.0, min_open=True),
+    type=Real(min=0.0, min_open=True),
     help="Drive only the lap's first seconds.  [default: the whole lap]",
 )
 @click.option(
@@ -364,13 +364,17 @@ def world(
       rigcal simulate world --world my-office.yaml -o office/ --laser-rate-hz 20 --no-images --force
       rigcal simulate world -o side/ --rig side-looking-rig.yaml --duration-s 20
     """
-    from rigcal.errors import OutputError
+    from rigcal.io.files import check_folder_writable
     from rigcal.rigfile import read_rig
     from rigcal.sim.drive import DriveSpec, Motion, camera_stamps, write_drive
-    from rigcal.sim.world import world_named
+    from rigcal.sim.world import BUILTIN, world_named
 
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    world_file = [Path(world_name)] if Path(world_name).suffix in (".yaml", ".yml") else []
+    if world_name not in BUILTIN and not world_file:
+        raise click.BadParameter(
+            f"{world_name!r}: expected one of {sorted(BUILTIN)} or a world file (.yaml)", param_hint="--world"
+        )
+    check_folder_writable(output, force, [*world_file, *([rig_file] if rig_file else [])])
     w = world_named(world_name)
     rig = read_rig(rig_file) if rig_file is not None else None
     spec = DriveSpec(

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("solve")
 @click.argument("picks", type=click.Path(path_type=Path))
@@ -26,19 +28,19 @@ import click
     "--threshold-px",
     default=6.0,
     show_default=True,
-    type=click.FloatRange(min=0.1),
+    type=Real(min=0.1),
     help="RANSAC inlier threshold.",
 )
 @click.option(
     "--pick-sigma-px",
     default=1.0,
     show_default=True,
-    type=click.FloatRange(min=1e-3),
+    type=Real(min=1e-3),
     help="Pick noise (1 sigma).",
 )
 @click.option(
     "--range-sigma-m",
-    type=click.FloatRange(min=1e-5),
+    type=Real(min=1e-5),
     help="Range noise (1 sigma) [default: the picking file's laser.range_sigma_m, else 0.01].",
 )
 @click.option(
@@ -106,15 +108,18 @@ def solve(
     from rigcal.calib.ransac import RansacParams
     from rigcal.calib.refine import NoiseModel, RefineParams
     from rigcal.calib.report import report_table
-    from rigcal.calib.session import calibrate, check_report_dir, write_report_dir
+    from rigcal.calib.session import calibrate, write_report_dir
     from rigcal.calib.solve import SolveSettings
-    from rigcal.io.files import check_writable
+    from rigcal.io.files import check_apart, check_folder_writable, check_writable
     from rigcal.rigfile import write_rig
 
     # Refuse before working: nothing is written unless everything can be.
-    check_writable(output, force)
+    inputs = [picks, *([truth] if truth else [])]
+    check_writable(output, force, inputs)
     if report_dir is not None:
-        check_report_dir(report_dir, force)
+        # The rig may go inside the report folder (it is written after it), not onto it.
+        check_folder_writable(report_dir, force, inputs)
+        check_apart(output, [report_dir])
     settings = SolveSettings(
         ransac=RansacParams(threshold_px=threshold_px, seed=seed),
         refine=RefineParams(use_side_points=not paper_endpoints, loss=loss),

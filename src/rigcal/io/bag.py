@@ -19,6 +19,7 @@ import numpy as np
 
 from rigcal.errors import InputError
 from rigcal.io.sequence import ImageFrame, write_sequence
+from rigcal.io.validate import real
 from rigcal.scan import Scan
 
 log = logging.getLogger(__name__)
@@ -90,7 +91,7 @@ def import_bag(
             msg: Any = reader.deserialize(raw, con.msgtype)
             stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
             if con.topic == scan_topic:
-                scans.append((stamp, _scan(msg, stamp)))
+                scans.append((stamp, _scan(msg, stamp, f"{bag}: {scan_topic} at {stamp:.9f} s")))
             elif con.topic == image_topic:
                 data, ext = _image_bytes(msg, con.msgtype, bag, image_topic)
                 images.append((stamp, data, ext))
@@ -142,15 +143,33 @@ def _ordered(items: list[Any]) -> tuple[list[Any], int, int]:
     return out, reordered, dup
 
 
-def _scan(msg: Any, stamp: float) -> Scan:
-    """A LaserScan message as a scan. A negative ``angle_increment`` (a scanner sweeping
+def _scan(msg: Any, stamp: float, where: str) -> Scan:
+    """A LaserScan message as a scan; its geometry checked (finite, angles within 2 pi,
+    0 <= range_min < range_max), -inf ranges ("too close", REP 117) as 0 (no return) and
+    other negative ranges refused. A negative ``angle_increment`` (a scanner sweeping
     clockwise, angle_max < angle_min) gives the same beams in reverse order, so that the
     angles increase (docs/formats/scan.md)."""
+    two_pi = 2 * np.pi
+    a0 = real(float(msg.angle_min), where, "angle_min", lo=-two_pi, hi=two_pi)
     r = np.asarray(msg.ranges, dtype=float)
-    a0, step = float(msg.angle_min), float(msg.angle_increment)
+    r = np.where(r == -np.inf, 0.0, r)
+    if len(r) == 0:
+        raise InputError.at(where, "ranges", [], "at least one range")
+    step = real(float(msg.angle_increment), where, "angle_increment", lo=-two_pi, hi=two_pi)
+    if len(r) > 1 and step == 0:
+        raise InputError.at(where, "angle_increment", step, "a non-zero step (rad)")
+    lo = real(float(msg.range_min), where, "range_min", nonneg=True)
+    hi = real(float(msg.range_max), where, "range_max", positive=True)
+    if lo >= hi:
+        raise InputError.at(where, "range_min", lo, f"less than range_max = {hi:g}")
+    with np.errstate(invalid="ignore"):
+        negative = np.flatnonzero(r < 0)
+    if len(negative):
+        k = int(negative[0])
+        raise InputError.at(where, f"ranges[{k}]", float(r[k]), "a range >= 0 (NaN, inf, -inf: no return)")
     if step < 0:
         a0, step, r = a0 + step * (len(r) - 1), -step, r[::-1]
-    return Scan.from_uniform(a0, step, r, float(msg.range_min), float(msg.range_max), stamp)
+    return Scan.from_uniform(a0, step, r, lo, hi, stamp)
 
 
 def _image_bytes(msg: Any, msgtype: str, bag: Path, topic: str) -> tuple[bytes, str]:

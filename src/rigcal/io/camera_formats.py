@@ -24,6 +24,7 @@ import numpy as np
 from rigcal.camera import Camera
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys
+from rigcal.io.validate import is_real
 
 ROS_REQUIRED = ("image_width", "image_height", "camera_matrix", "distortion_model", "distortion_coefficients")
 ROS_OPTIONAL = ("camera_name", "rectification_matrix", "projection_matrix")
@@ -96,7 +97,7 @@ def _ros_matrix(value: Any, path: Path, key: str, rows: int, cols: int | None) -
         and (cols is None or c == cols)
         and isinstance(data, list)
         and len(data) == r * c
-        and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in data)
+        and all(is_real(x) for x in data)
     )
     if not ok:
         shape = f"{rows}x{cols}" if cols is not None else f"{rows}xN"
@@ -152,7 +153,13 @@ def _node(fs: Any, path: Path, what: str) -> Any:
 
 
 def _node_matrix(fs: Any, path: Path, what: str) -> np.ndarray:
-    m = _node(fs, path, what).mat()
+    import cv2
+
+    node = _node(fs, path, what)
+    try:  # a scalar, string or list is no opencv-matrix; .nan in its data cannot be read
+        m = node.mat() if node.isMap() else None
+    except cv2.error:
+        m = None
     if m is None or not np.all(np.isfinite(m)):
         raise InputError(f"{path}: {OPENCV_KEYS[what][0]}: expected an opencv-matrix of finite numbers")
     return np.asarray(m, dtype=float)

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
+from rigcal.io.validate import parse_real, parse_whole
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
@@ -37,6 +38,8 @@ FloatArray = NDArray[np.float64]
 LASER_MESSAGES = ("FLASER", "ROBOTLASER1")
 # Returns at or beyond this are "no return" in FLASER lines (they carry no maximum range).
 FLASER_RANGE_MAX_M = 50.0
+# More beams than any scanner has: a larger count is a broken line.
+MAX_BEAMS = 100_000
 
 
 @dataclass(frozen=True)
@@ -84,7 +87,8 @@ def read_carmen(path: str | Path, flaser_range_max_m: float = FLASER_RANGE_MAX_M
         where = f"{p}:{no}"
         parse = _flaser if fields[0] == "FLASER" else _robotlaser1
         scan, pose, odo = parse(fields[1:], where, flaser_range_max_m)
-        if scans and scan.stamp_s is not None and scan.stamp_s <= (scans[-1].stamp_s or -math.inf):
+        last = scans[-1].stamp_s if scans else None
+        if last is not None and scan.stamp_s is not None and scan.stamp_s <= last:
             raise InputError.at(
                 where, f"{fields[0]} ipc_timestamp", scan.stamp_s, f"a stamp after line {lines[-1]}'s"
             )
@@ -102,19 +106,17 @@ def read_carmen(path: str | Path, flaser_range_max_m: float = FLASER_RANGE_MAX_M
 def _numbers(fields: list[str], start: int, stop: int, where: str, what: str, names: str) -> list[float]:
     """Fields start..stop-1 as floats; one that is not a number is an InputError (fields
     are counted from 1 after the message name)."""
-    out = []
-    for i in range(start, stop):
-        try:
-            out.append(float(fields[i]))
-        except ValueError:
-            raise InputError.at(where, f"{what} field {i + 1}", fields[i], f"a number ({names})") from None
-    return out
+    return [parse_real(fields[i], where, f"{what} field {i + 1} ({names})") for i in range(start, stop)]
 
 
-def _count(value: str, where: str, key: str) -> int:
-    if not value.isdigit():
-        raise InputError.at(where, key, value, "a non-negative integer")
-    return int(value)
+def _count(value: str, where: str, key: str, lo: int = 0) -> int:
+    return parse_whole(value, where, key, lo=lo, hi=MAX_BEAMS)
+
+
+def _ranges(ranges: list[float], where: str, what: str) -> None:
+    for i, r in enumerate(ranges):
+        if r < 0:
+            raise InputError.at(where, f"{what} range {i + 1}", r, "a range >= 0 (m)")
 
 
 def _need(fields: list[str], n: int, where: str, what: str, layout: str) -> None:
@@ -125,11 +127,12 @@ def _need(fields: list[str], n: int, where: str, what: str, layout: str) -> None
 def _flaser(fields: list[str], where: str, range_max_m: float) -> tuple[Scan, FloatArray, FloatArray]:
     layout = "n, n ranges, x y theta, odom_x odom_y odom_theta, ipc_timestamp"
     _need(fields, 1, where, "FLASER", layout)
-    n = _count(fields[0], where, "FLASER num_readings")
+    n = _count(fields[0], where, "FLASER num_readings", lo=1)
     _need(fields, 1 + n + 7, where, "FLASER", layout)
     v = _numbers(fields, 1, 1 + n + 7, where, "FLASER", layout)
     # 180 degrees from -90: n even, n steps (1 degree for 180); n odd, both ends (181, 361).
     step = math.pi / (n - 1 if n % 2 else n) if n > 1 else math.pi
+    _ranges(v[:n], where, "FLASER")
     scan = Scan.from_uniform(-math.pi / 2, step, v[:n], 0.0, range_max_m, stamp_s=v[n + 6])
     return scan, np.array(v[n : n + 3]), np.array(v[n + 3 : n + 6])
 
@@ -142,15 +145,18 @@ def _robotlaser1(fields: list[str], where: str, _: float) -> tuple[Scan, FloatAr
     _need(fields, 8, where, "ROBOTLASER1", layout)
     head = _numbers(fields, 1, 6, where, "ROBOTLASER1", layout)
     start, _fov, step, range_max = head[0], head[1], head[2], head[3]
-    n = _count(fields[7], where, "ROBOTLASER1 num_readings")
+    n = _count(fields[7], where, "ROBOTLASER1 num_readings", lo=1)
     _need(fields, 8 + n + 1, where, "ROBOTLASER1", layout)
     ranges = _numbers(fields, 8, 8 + n, where, "ROBOTLASER1", layout)
     m = _count(fields[8 + n], where, "ROBOTLASER1 num_remissions")
     tail = 9 + n + m
     _need(fields, tail + 12, where, "ROBOTLASER1", layout)
     v = _numbers(fields, tail, tail + 12, where, "ROBOTLASER1", layout)
-    if not step > 0:
-        raise InputError.at(where, "ROBOTLASER1 angular_resolution", fields[3], "a positive angle (rad)")
+    if not 0 < step <= 2 * math.pi:
+        raise InputError.at(where, "ROBOTLASER1 angular_resolution", fields[3], "an angle in (0, 2 pi] rad")
+    if not -2 * math.pi <= start <= 2 * math.pi:
+        raise InputError.at(where, "ROBOTLASER1 start_angle", fields[1], "an angle in [-2 pi, 2 pi] rad")
+    _ranges(ranges, where, "ROBOTLASER1")
     if not range_max > 0:
         raise InputError.at(where, "ROBOTLASER1 max_range", fields[4], "a positive range (m)")
     scan = Scan.from_uniform(start, step, ranges, 0.0, range_max, stamp_s=v[11])

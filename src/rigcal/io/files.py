@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import math
 import os
 import secrets
 import shutil
@@ -30,6 +31,13 @@ except AttributeError:  # pragma: no cover - depends on how PyYAML was built
     _SafeLoader = yaml.SafeLoader
 
 
+# A text file rigcal reads (YAML, logs, trajectories) is at most this large, and a YAML
+# file stands for at most this many values once its aliases are expanded: a few lines of
+# nested aliases can stand for gigabytes (a "billion laughs").
+MAX_TEXT_BYTES = 1 << 30
+MAX_YAML_VALUES = 10_000_000
+
+
 def read_text(path: str | Path, what: str = "file") -> str:
     """A UTF-8 text file's contents.
 
@@ -37,7 +45,11 @@ def read_text(path: str | Path, what: str = "file") -> str:
         InputError: the file is missing or unreadable, naming it as ``what``.
     """
     path = Path(path)
+    if "\0" in str(path):
+        raise InputError.at(None, what, str(path), "a path without NUL bytes")
     try:
+        if path.stat().st_size > MAX_TEXT_BYTES:
+            raise InputError(f"{path}: {what} larger than {MAX_TEXT_BYTES >> 20} MiB; refusing to read it")
         return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(f"{path}: {what} not found") from None
@@ -60,6 +72,8 @@ def load_yaml(path: str | Path, what: str = "file") -> Any:
     path = Path(path)
     text = read_text(path, what)
     try:
+        if "*" in text and "&" in text:  # only then can aliases expand or loop
+            _check_expansion(yaml.compose(text, Loader=_SafeLoader), path)
         data = yaml.load(text, Loader=_SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
@@ -70,6 +84,38 @@ def load_yaml(path: str | Path, what: str = "file") -> Any:
     if message is not None:
         raise InputError(message)
     return data
+
+
+def _check_expansion(root: yaml.Node | None, path: Path) -> None:
+    """Refuse a YAML document whose aliases expand to more than MAX_YAML_VALUES values, or
+    refer to themselves (a value that contains itself has no end)."""
+    if root is None:
+        return
+    size: dict[int, int] = {}
+    open_: set[int] = set()
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        children: list[yaml.Node] = []
+        if isinstance(node, yaml.SequenceNode):
+            children = list(node.value)
+        elif isinstance(node, yaml.MappingNode):
+            children = [x for pair in node.value for x in pair]
+        if done:
+            open_.discard(key)
+            size[key] = 1 + sum(size[id(c)] for c in children)
+            if size[key] > MAX_YAML_VALUES:
+                raise InputError(f"{path}: its YAML aliases expand to over {MAX_YAML_VALUES} values")
+            continue
+        if key in size:
+            continue
+        if key in open_:
+            raise InputError(f"{path}: a YAML alias refers to a value that contains it (no end)")
+        open_.add(key)
+        stack.append((node, True))
+        stack.extend((c, False) for c in children if id(c) not in size)
+    return
 
 
 def check_keys(
@@ -124,16 +170,13 @@ def get_float(
     finite: bool = True,
 ) -> float:
     """Read a real number from a mapping, rejecting booleans, strings and NaN."""
+    from rigcal.io.validate import real
+
     value = mapping[key]
     full = _join(keypath, key)
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError.at(path, full, value, "a number")
-    out = float(value)
-    if finite and not (out == out and abs(out) != float("inf")):
-        raise InputError.at(path, full, value, "a finite number")
-    if positive and not out > 0:
-        raise InputError.at(path, full, value, "a number > 0")
-    return out
+    if not finite and isinstance(value, float) and not math.isfinite(value) and not (positive and value < 0):
+        return value
+    return real(value, path, full, positive=positive)
 
 
 def sha256_file(path: str | Path) -> str:
@@ -145,20 +188,63 @@ def sha256_file(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def check_writable(path: str | Path, force: bool) -> Path:
-    """Refuse to overwrite an existing file unless ``force``; check the folder exists."""
+def check_writable(path: str | Path, force: bool, inputs: Iterable[str | Path] = ()) -> Path:
+    """Refuse to overwrite an existing file (or symlink, even a dangling one) unless
+    ``force``, a folder in its place, and a path that is one of ``inputs``."""
     path = Path(path)
-    if path.exists() and not force:
+    check_apart(path, inputs)
+    if (path.exists() or path.is_symlink()) and not force:
         raise OutputError(f"{path}: exists; pass --force to overwrite it")
     if path.is_dir():
         raise OutputError(f"{path}: is a folder; expected a file path")
     return path
 
 
+def check_apart(output: str | Path, inputs: Iterable[str | Path]) -> None:
+    """An output must not be, contain or sit inside any input (compared after resolving
+    symlinks and ``..``), so that no write or ``--force`` can touch what is being read.
+
+    Raises:
+        OutputError: naming the output and the input it collides with.
+    """
+    out = _resolved(output)
+    for given in inputs:
+        inp = _resolved(given)
+        if out == inp:
+            raise OutputError(f"{output}: is the input {given}; choose another output")
+        if inp.is_relative_to(out):
+            raise OutputError(f"{output}: contains the input {given}; choose another output")
+        if out.is_relative_to(inp) and Path(given).is_dir():
+            raise OutputError(f"{output}: is inside the input {given}; choose another output")
+
+
+def _resolved(path: str | Path) -> Path:
+    try:
+        return Path(path).resolve()
+    except (OSError, RuntimeError, ValueError):
+        return Path(os.path.abspath(path))
+
+
+def current_umask() -> int:
+    """The process's umask, read without changing it where the system allows."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)  # pragma: no cover - systems without /proc
+    os.umask(mask)  # pragma: no cover
+    return mask  # pragma: no cover
+
+
 def atomic_write_bytes(path: str | Path, data: bytes, force: bool = False) -> Path:
     """Write ``data`` to ``path`` atomically (temporary file in the same folder + rename).
 
-    Creates the parent folder if needed. Refuses to overwrite unless ``force``.
+    Creates the parent folder if needed. Refuses to overwrite unless ``force``. The file
+    gets the mode any new file gets (0666 less the umask). Temporary files of killed runs
+    (``.NAME.PID.*.tmp`` of a process that is gone) are removed.
 
     Raises:
         OutputError: the file exists and ``force`` is false, or the write failed.
@@ -166,8 +252,10 @@ def atomic_write_bytes(path: str | Path, data: bytes, force: bool = False) -> Pa
     path = check_writable(path, force)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        remove_stale_temporaries(path)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp")
         try:
+            os.fchmod(fd, 0o666 & ~current_umask())
             with os.fdopen(fd, "wb") as f:
                 f.write(data)
             os.replace(tmp, path)
@@ -176,7 +264,54 @@ def atomic_write_bytes(path: str | Path, data: bytes, force: bool = False) -> Pa
             raise
     except OSError as exc:
         raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    except ValueError as exc:  # e.g. a NUL byte in the path
+        raise OutputError(f"{path!r}: cannot write: {exc}") from None
     return path
+
+
+def remove_stale_temporaries(target: Path) -> None:
+    """Remove the temporary siblings of ``target`` (``.NAME.PID.*.tmp`` files and folders,
+    ``.NAME.PID.*.old`` folders) left by rigcal processes that no longer run.
+
+    An ``.old`` folder is the previous output moved aside just before the new one took its
+    place; if the process died between the two renames and ``target`` is missing, the old
+    folder is put back.
+    """
+    parent = target.absolute().parent
+    try:
+        names = os.listdir(parent)
+    except OSError:
+        return
+    prefix = f".{target.name}."
+    for name in names:
+        if not name.startswith(prefix):
+            continue
+        pid_text, _, rest = name[len(prefix) :].partition(".")
+        tag = rest.rpartition(".")[2]
+        if tag not in ("tmp", "old") or not pid_text.isdigit() or _alive(int(pid_text)):
+            continue
+        p = parent / name
+        if tag == "old" and not (target.exists() or target.is_symlink()):
+            with contextlib.suppress(OSError):
+                os.rename(p, target)
+            continue
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            with contextlib.suppress(OSError):
+                p.unlink()
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True
+    return True
 
 
 def atomic_write_text(path: str | Path, text: str, force: bool = False) -> Path:
@@ -191,35 +326,61 @@ def check_schema_version(mapping: Mapping[str, Any], path: str | Path | None, ex
         raise InputError.at(path, "schema_version", value, f"{expected} (the version this rigcal reads)")
 
 
-def check_folder_writable(folder: str | Path, force: bool) -> Path:
-    """Refuse an existing folder unless ``force``, and anything there that is not a folder."""
+MARKER = ".rigcal-output"
+"""The file rigcal puts in every folder it writes; ``--force`` replaces only such folders."""
+
+
+def check_folder_writable(folder: str | Path, force: bool, inputs: Iterable[str | Path] = ()) -> Path:
+    """Refuse an output folder that is, contains or sits inside one of ``inputs``; an
+    existing one unless ``force``; anything there that is not a folder; and, even with
+    ``force``, a non-empty folder rigcal did not write (no :data:`MARKER` file in it)."""
     folder = Path(folder)
+    check_apart(folder, inputs)
     if folder.exists() or folder.is_symlink():
+        if folder.is_symlink() or not folder.is_dir():
+            raise OutputError(f"{folder}: exists and is not a folder; refusing to replace it")
         if not force:
             raise OutputError(f"{folder}: exists; pass --force to replace it")
-        if not folder.is_dir() or folder.is_symlink():
-            raise OutputError(f"{folder}: exists and is not a folder; refusing to replace it")
+        try:
+            foreign = not (folder / MARKER).is_file() and any(folder.iterdir())
+        except OSError as exc:
+            raise OutputError(f"{folder}: cannot read: {exc.strerror or exc}") from None
+        if foreign:
+            raise OutputError(
+                f"{folder}: exists and was not written by rigcal (no {MARKER} file); "
+                "--force replaces only rigcal's output folders: remove it or choose another"
+            )
     return folder
 
 
 @contextlib.contextmanager
-def atomic_folder(folder: str | Path, force: bool = False) -> Iterator[Path]:
+def atomic_folder(
+    folder: str | Path, force: bool = False, inputs: Iterable[str | Path] = ()
+) -> Iterator[Path]:
     """Write a whole folder atomically: yields a fresh hidden sibling to fill, which then
     replaces ``folder`` by rename (an existing folder is moved aside first and removed
     after, or put back if the rename fails). On any error the sibling is removed and
-    ``folder`` is left as it was.
+    ``folder`` is left as it was. The folder gets a :data:`MARKER` file, so that a later
+    ``--force`` knows it may replace it; temporary siblings of killed runs are removed.
 
     Raises:
-        OutputError: the folder exists and ``force`` is false, or a write failed.
+        OutputError: the folder exists and ``force`` is false, it was not written by
+            rigcal, it is, holds or sits inside one of ``inputs``, or a write failed.
     """
-    folder = check_folder_writable(folder, force)
+    folder = check_folder_writable(folder, force, inputs)
     try:
         folder.absolute().parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(folder)
         tmp = _fresh_sibling(folder, "tmp")
         tmp.mkdir()
     except OSError as exc:
         raise OutputError(f"{folder}: cannot write: {exc.strerror or exc}") from None
+    except ValueError as exc:  # e.g. a NUL byte in the path
+        raise OutputError(f"{folder!r}: cannot write: {exc}") from None
     try:
+        (tmp / MARKER).write_text(
+            "This folder was written by rigcal; `--force` may replace it as a whole.\n", encoding="utf-8"
+        )
         yield tmp
         _swap_into_place(tmp, folder)
     except OSError as exc:
@@ -231,9 +392,9 @@ def atomic_folder(folder: str | Path, force: bool = False) -> Iterator[Path]:
 
 
 def _fresh_sibling(folder: Path, tag: str) -> Path:
-    """A name next to ``folder`` that does not exist yet (hidden, random)."""
+    """A name next to ``folder`` that does not exist yet (hidden, with this process's id)."""
     while True:
-        p = folder.absolute().parent / f".{folder.name}.{secrets.token_hex(4)}.{tag}"
+        p = folder.absolute().parent / f".{folder.name}.{os.getpid()}.{secrets.token_hex(4)}.{tag}"
         if not p.exists():
             return p
 

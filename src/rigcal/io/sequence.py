@@ -18,6 +18,7 @@ folder atomically; :func:`read_sequence` validates it.
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +30,7 @@ from numpy.typing import NDArray
 
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text
+from rigcal.io.validate import finite_array, parse_real, relative_inside, whole
 from rigcal.scan import Scan, counter_clockwise, laser_clockwise
 
 FloatArray = NDArray[np.float64]
@@ -153,16 +155,17 @@ def read_sequence(folder: str | Path) -> Sequence:
     )
     clockwise = laser_clockwise(d, path, SEQUENCE_SCHEMA_VERSIONS)
     sc = check_keys(d["scans"], path, "scans", ["file", "count"])
-    npz = folder / str(sc["file"])
+    npz = folder / relative_inside(sc["file"], path, "scans.file")
+    count = whole(sc["count"], path, "scans.count")
     try:
         with np.load(npz) as z:
             arrays = {k: np.array(z[k]) for k in SCAN_KEYS}
     except FileNotFoundError:
         raise InputError(f"{npz}: scans file not found") from None
-    except (KeyError, ValueError, OSError) as exc:
+    except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise InputError(f"{npz}: not a scans file with arrays {list(SCAN_KEYS)}: {exc}") from None
-    n = len(arrays["stamps_s"])
-    if n != sc["count"]:
+    n = _check_scan_arrays(arrays, npz)
+    if n != count:
         raise InputError.at(path, "scans.count", sc["count"], f"{n}, the number of scans in {npz.name}")
     st = arrays["stamps_s"]
     bad = np.flatnonzero(~np.isfinite(st) | np.r_[False, np.diff(st) <= 0])
@@ -185,15 +188,16 @@ def read_sequence(folder: str | Path) -> Sequence:
         )
         scans.append(counter_clockwise(scan) if clockwise else scan)
     im = check_keys(d["images"], path, "images", ["folder", "index", "count"])
-    index = folder / str(im["index"])
+    index = folder / relative_inside(im["index"], path, "images.index")
+    images = folder / relative_inside(im["folder"], path, "images.folder")
     stamps, files = _read_index(index)
-    if len(files) != im["count"]:
+    if len(files) != whole(im["count"], path, "images.count"):
         raise InputError.at(path, "images.count", im["count"], f"{len(files)}, the rows of {index.name}")
     for f in files:
-        if not (folder / str(im["folder"]) / f).is_file():
-            raise InputError(f"{index}: image {f} not found in {folder / str(im['folder'])}")
+        if not (images / f).is_file():
+            raise InputError(f"{index}: image {f} not found in {images}")
     for key in ("camera", "rig", "groundtruth"):
-        if key in d and not (folder / str(d[key])).is_file():
+        if key in d and not (folder / relative_inside(d[key], path, key)).is_file():
             raise InputError.at(path, key, d[key], f"a file in {folder}")
     return Sequence(
         folder,
@@ -208,6 +212,42 @@ def read_sequence(folder: str | Path) -> Sequence:
     )
 
 
+def _check_scan_arrays(a: dict[str, Any], npz: Path) -> int:
+    """The arrays of scans.npz: shapes that agree, beam counts within the ranges' width,
+    finite geometry (0 < range_min < range_max, angles within 2 pi), ranges >= 0 or NaN /
+    inf (no return). Returns the number of scans."""
+    r = a["ranges_m"]
+    if r.ndim != 2 or r.dtype.kind not in "fiu":
+        raise InputError.at(npz, "ranges_m", f"{r.dtype} array of shape {r.shape}", "numbers of shape (N, B)")
+    n, width = r.shape
+    for key in SCAN_KEYS[:1] + SCAN_KEYS[2:]:
+        if a[key].shape != (n,) or a[key].dtype.kind not in "fiu":
+            raise InputError.at(npz, key, f"{a[key].dtype} array of shape {a[key].shape}", f"{n} numbers")
+    nb = a["n_beams"]
+    if nb.dtype.kind not in "iu" or (len(nb) and not (nb.min() >= 1 and nb.max() <= width)):
+        raise InputError.at(
+            npz, "n_beams", nb[:5].tolist(), f"whole numbers from 1 to {width} (the ranges' width)"
+        )
+    finite_array(a["angle_min_rad"], npz, "angle_min_rad", lo=-2 * np.pi, hi=2 * np.pi)
+    step = finite_array(a["angle_increment_rad"], npz, "angle_increment_rad", nonneg=True, hi=2 * np.pi)
+    if ((step <= 0) & (nb > 1)).any():
+        k = int(np.flatnonzero((step <= 0) & (nb > 1))[0])
+        raise InputError.at(npz, f"angle_increment_rad[{k}]", float(step[k]), "a step > 0 (rad)")
+    lo = finite_array(a["range_min_m"], npz, "range_min_m", nonneg=True)
+    hi = finite_array(a["range_max_m"], npz, "range_max_m", positive=True)
+    if (lo >= hi).any():
+        k = int(np.flatnonzero(lo >= hi)[0])
+        raise InputError.at(npz, f"range_min_m[{k}]", float(lo[k]), f"less than range_max_m = {hi[k]:g}")
+    with np.errstate(invalid="ignore"):
+        neg = r < 0
+    if neg.any():
+        i, j = (int(x) for x in np.argwhere(neg)[0])
+        raise InputError.at(
+            npz, f"ranges_m[{i}][{j}]", float(r[i, j]), "a range >= 0 (NaN or inf: no return)"
+        )
+    return int(n)
+
+
 def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
     lines = read_text(index, "image index").splitlines()
     if not lines or lines[0].strip() != "stamp_s,file":
@@ -215,11 +255,10 @@ def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
     stamps, files = [], []
     for n, line in enumerate(lines[1:], start=2):
         parts = line.split(",")
-        try:
-            stamps.append(float(parts[0]))
-            files.append(parts[1].strip())
-        except (ValueError, IndexError):
-            raise InputError(f"{index}: line {n}: got {line[:60]!r}; expected 'stamp_s,file'") from None
+        if len(parts) != 2:
+            raise InputError(f"{index}: line {n}: got {line[:60]!r}; expected 'stamp_s,file'")
+        stamps.append(parse_real(parts[0], index, f"line {n}: stamp_s"))
+        files.append(relative_inside(parts[1].strip(), index, f"line {n}: file"))
         if len(stamps) > 1 and stamps[-1] <= stamps[-2]:
             raise InputError(f"{index}: line {n}: stamp {stamps[-1]!r} not after {stamps[-2]!r}")
     return np.array(stamps), files

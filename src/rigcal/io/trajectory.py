@@ -61,7 +61,14 @@ def _numbers(path: Path, n: int, fields: list[str], count: int, what: str) -> Fl
         ) from None
     if not np.all(np.isfinite(v)):
         raise InputError(f"{path}: line {n}: got a non-finite number; expected {count} finite numbers")
+    if np.abs(v).max() > MAX_ABS:
+        raise InputError(f"{path}: line {n}: got {np.abs(v).max():g}; expected numbers within +-{MAX_ABS:g}")
     return v
+
+
+# Stamps (Unix seconds ~2e9) and coordinates (metres) are far below this; beyond it a
+# trajectory's squared distances would lose all precision or overflow.
+MAX_ABS = 1e12
 
 
 def read_tum(path: str | Path) -> Trajectory:

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
 from rigcal.io.files import check_keys
+from rigcal.io.validate import is_real
 
 
 def transform_to_dict(T: NDArray[np.float64], to_frame: str, from_frame: str) -> dict[str, Any]:
@@ -54,7 +55,7 @@ def float_vector(value: Any, path: str | Path | None, keypath: str, n: int) -> N
     if not isinstance(value, list) or len(value) != n:
         raise InputError.at(path, keypath, value, f"a list of {n} numbers")
     for i, x in enumerate(value):
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x):
+        if not is_real(x):
             raise InputError.at(path, f"{keypath}[{i}]", x, "a finite number")
     return np.array(value, dtype=float)
 

@@ -215,11 +215,12 @@ def parse_iasm_settings(items: tuple[str, ...] | list[str]) -> IasmParams:
         else:
             try:
                 value = kind(text)
-            except ValueError:
+                value = value if -1e18 < value < 1e18 else None
+            except (ValueError, OverflowError):
                 value = None
-            if value is None or not math.isfinite(value) or value < 0:
+            if value is None or not math.isfinite(value) or not 0 <= value <= 1e9:
                 what = "a whole number" if kind is int else "a number"
-                raise InputError.at(None, f"--iasm {key}", text, f"{what}, 0 or more")
+                raise InputError.at(None, f"--iasm {key}", text, f"{what}, 0 or more (at most 1e9)")
         changes[key] = value
     return dataclasses.replace(defaults, **changes)
 
@@ -328,7 +329,7 @@ def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool)
     from rigcal.viz.paths_plot import errors_figure, paths_figure
 
     doc = summary(r, sequence)
-    with atomic_folder(output, force) as tmp:
+    with atomic_folder(output, force, inputs=[sequence]) as tmp:
         for m in r.methods:
             # The estimate is anchored at the truth's first pose, so it runs at the truth's
             # height (the laser's, e.g. 0.4 m above the floor); 0 without truth.

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, check_schema_version, get_float, load_yaml
+from rigcal.io.validate import is_real
 
 FloatArray = NDArray[np.float64]
 
@@ -112,6 +113,7 @@ def read_world(path: str | Path) -> World:
         raise InputError.at(path, "path", route, "a closed path of at least 3 points [[x, y], ...]")
     waypoints = np.array([_point(p, path, f"path[{j}]") for j, p in enumerate(route)])
     _check_path(waypoints, route, path)
+    _check_path_clear(waypoints, route, surfaces, path)
     if not isinstance(d["name"], str) or not d["name"]:
         raise InputError.at(path, "name", d["name"], "a non-empty string")
     return World(d["name"], tuple(surfaces), waypoints, laser_h)
@@ -138,14 +140,30 @@ def _check_path(P: FloatArray, route: list[Any], path: Path) -> None:
             raise InputError.at(path, f"path[{j}]", route[j], expected)
 
 
+def _check_path_clear(P: FloatArray, route: list[Any], surfaces: list[Surface], path: Path) -> None:
+    """No leg of the closed path (waypoint to waypoint) crosses a wall or an obstacle's edge."""
+    if not surfaces:
+        return
+    a = np.array([s.a for s in surfaces])
+    b = np.array([s.b for s in surfaces])
+
+    def side(o: Any, u: Any, v: Any) -> Any:
+        d, e = np.asarray(u) - o, np.asarray(v) - o
+        return np.sign(d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0])
+
+    for j in range(len(P)):
+        p, q = P[j - 1], P[j]
+        crosses = (side(p, q, a) * side(p, q, b) <= 0) & (side(a, b, p) * side(a, b, q) <= 0)
+        if crosses.any():
+            k = int(np.flatnonzero(crosses)[0])
+            what = f"a leg from path[{(j - 1) % len(P)}] clear of walls and obstacles (it meets the surface "
+            raise InputError.at(path, f"path[{j}]", route[j], what + f"{a[k].tolist()}-{b[k].tolist()})")
+
+
 def _point(v: Any, path: Path, key: str) -> FloatArray:
-    ok = (
-        isinstance(v, list)
-        and len(v) == 2
-        and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)
-    )
+    ok = isinstance(v, list) and len(v) == 2 and all(is_real(x) and abs(x) <= 1e5 for x in v)
     if not ok:
-        raise InputError.at(path, key, v, "a point [x, y] in metres")
+        raise InputError.at(path, key, v, "a point [x, y] in metres, within 100 km of the origin")
     return np.array(v, dtype=float)
 
 

@@ -1,0 +1,225 @@
+"""One place for the checks every number and name from outside goes through.
+
+Readers of files call :func:`real`, :func:`whole`, :func:`finite_array` and
+:func:`path_component` / :func:`relative_inside`; every float option of the command line
+has the type :class:`Real`. Each failure is one :class:`~rigcal.errors.InputError` line
+naming the file, the key, the value and what was expected (or, for options, click's usage
+error, exit code 2), so NaN, infinities, 400-digit integers, negative sizes and names
+that would lead outside a folder stop at the boundary instead of deep inside a solver.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path, PurePosixPath, PureWindowsPath
+from typing import TYPE_CHECKING, Any
+
+import click
+
+from rigcal.errors import InputError
+
+if TYPE_CHECKING:  # numpy is imported where used: the command line's --help stays instant
+    import numpy as np
+    from numpy.typing import NDArray
+
+Where = str | Path | None
+
+
+def _expected(positive: bool, nonneg: bool, lo: float | None, hi: float | None) -> str:
+    if positive:
+        what = "a finite number > 0"
+    elif nonneg:
+        what = "a finite number >= 0"
+    else:
+        what = "a finite number"
+    if positive and hi is not None:
+        return f"{what[:-4]} in (0, {hi:g}]"
+    if lo is not None and hi is not None:
+        return f"{what} in [{lo:g}, {hi:g}]"
+    if lo is not None:
+        return f"{what} >= {lo:g}"
+    if hi is not None:
+        return f"{what} <= {hi:g}"
+    return what
+
+
+def real(
+    value: Any,
+    where: Where,
+    key: str,
+    *,
+    positive: bool = False,
+    nonneg: bool = False,
+    lo: float | None = None,
+    hi: float | None = None,
+) -> float:
+    """``value`` as a finite float, rejecting booleans, strings, NaN, infinities and
+    integers too large for a float; optionally > 0, >= 0 or within [lo, hi].
+
+    Raises:
+        InputError: ``WHERE: KEY: got VALUE; expected ...``.
+    """
+    import numpy as np
+
+    expected = _expected(positive, nonneg, lo, hi)
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InputError.at(where, key, value, expected)
+    try:
+        out = float(value)
+    except OverflowError:
+        raise InputError.at(where, key, value, expected) from None
+    if (
+        not math.isfinite(out)
+        or (positive and not out > 0)
+        or (nonneg and not out >= 0)
+        or (lo is not None and out < lo)
+        or (hi is not None and out > hi)
+    ):
+        raise InputError.at(where, key, value, expected)
+    return out
+
+
+def is_real(value: Any) -> bool:
+    """True for an int or float (not a boolean) that is a finite float."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an integer beyond the float range
+        return False
+
+
+def parse_real(text: str, where: Where, key: str, **limits: Any) -> float:
+    """A number written as text (a log's field), checked as :func:`real`."""
+    try:
+        value = float(text)
+    except (ValueError, OverflowError):
+        raise InputError.at(where, key, text, _expected(**_limits(limits))) from None
+    return real(value, where, key, **limits)
+
+
+def _limits(limits: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "positive": limits.get("positive", False),
+        "nonneg": limits.get("nonneg", False),
+        "lo": limits.get("lo"),
+        "hi": limits.get("hi"),
+    }
+
+
+def whole(value: Any, where: Where, key: str, *, lo: int = 0, hi: int = 10**9) -> int:
+    """``value`` as an integer in [lo, hi] (booleans, floats and digit strings rejected)."""
+    import numpy as np
+
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
+        raise InputError.at(where, key, value, f"an integer in [{lo}, {hi}]")
+    return int(value)
+
+
+def parse_whole(text: str, where: Where, key: str, *, lo: int = 0, hi: int = 10**9) -> int:
+    """An integer written as text in ASCII digits (no sign, no superscripts), in [lo, hi]."""
+    if not (text.isascii() and text.isdigit()) or len(text) > len(str(hi)) or not lo <= int(text) <= hi:
+        raise InputError.at(where, key, text, f"an integer in [{lo}, {hi}]")
+    return int(text)
+
+
+def finite_array(
+    values: Any,
+    where: Where,
+    key: str,
+    *,
+    shape: tuple[int | None, ...] | None = None,
+    nonneg: bool = False,
+    positive: bool = False,
+    allow_nan: bool = False,
+    lo: float | None = None,
+    hi: float | None = None,
+) -> NDArray[np.float64]:
+    """``values`` as a float64 array of the given shape (None: any length), every entry
+    finite (NaN allowed where ``allow_nan``: "no value"), optionally >= 0 or > 0.
+
+    Raises:
+        InputError: naming the first bad entry by its index.
+    """
+    import numpy as np
+
+    try:
+        a = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError.at(where, key, values, "an array of numbers") from None
+    if shape is not None and (
+        a.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, a.shape, strict=True))
+    ):
+        want = "x".join("N" if s is None else str(s) for s in shape)
+        raise InputError.at(where, key, f"an array of shape {a.shape}", f"shape ({want})")
+    bad = np.isinf(a) if allow_nan else ~np.isfinite(a)
+    with np.errstate(invalid="ignore"):
+        if nonneg:
+            bad |= a < 0
+        if positive:
+            bad |= a <= 0
+        if lo is not None:
+            bad |= a < lo
+        if hi is not None:
+            bad |= a > hi
+    if bad.any():
+        i = tuple(int(k) for k in np.argwhere(bad)[0])
+        index = "".join(f"[{k}]" for k in i)
+        what = "finite numbers" + (" > 0" if positive else " >= 0" if nonneg else "")
+        if lo is not None or hi is not None:
+            what += f" in [{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]"
+        raise InputError.at(
+            where, f"{key}{index}", float(a[i]), what + (" (or NaN: none)" if allow_nan else "")
+        )
+    return a
+
+
+def path_component(name: Any, where: Where, key: str) -> str:
+    """``name`` as one file-name component: non-empty text without a slash, a backslash, a
+    NUL byte or control characters, and not ``.`` or ``..``, so that it can never name a
+    file outside the folder it is joined to."""
+    expected = "a name without '/', '\\', '..', NUL or control characters"
+    if (
+        not isinstance(name, str)
+        or name in ("", ".", "..")
+        or any(c in name for c in "/\\")
+        or any(ord(c) < 32 or ord(c) == 127 for c in name)
+        or len(name.encode("utf-8", "surrogatepass")) > 200
+    ):
+        raise InputError.at(where, key, name, expected)
+    return name
+
+
+def relative_inside(rel: Any, where: Where, key: str) -> str:
+    """``rel`` as a relative path that stays inside the folder it is joined to: no absolute
+    path, no drive, no ``..`` component, no NUL or control characters."""
+    expected = "a relative path inside the folder (no '..', no leading '/', no NUL)"
+    if not isinstance(rel, str) or not rel.strip() or any(ord(c) < 32 or ord(c) == 127 for c in rel):
+        raise InputError.at(where, key, rel, expected)
+    posix, win = PurePosixPath(rel), PureWindowsPath(rel)
+    if posix.is_absolute() or win.is_absolute() or win.drive or ".." in posix.parts or ".." in win.parts:
+        raise InputError.at(where, key, rel, expected)
+    return rel
+
+
+def no_nul(path: str | os.PathLike[str], what: str) -> Path:
+    """A path given on the command line, refused when it holds a NUL byte (which no file
+    system accepts)."""
+    p = Path(path)
+    if "\0" in str(p):
+        raise InputError.at(None, what, str(p), "a path without NUL bytes")
+    return p
+
+
+class Real(click.FloatRange):
+    """A float option: finite (no ``nan``, ``inf``), optionally within a range; a bad
+    value is a usage error (exit code 2) like any other."""
+
+    name = "float"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        out = super().convert(value, param, ctx)
+        if not math.isfinite(out):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return out

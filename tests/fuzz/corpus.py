@@ -1,0 +1,1052 @@
+"""A corpus of bad inputs over every command, and the one check each case must pass.
+
+Each :class:`Case` starts from small valid inputs (built once, copied into the case's own
+folder), spoils one thing (a number in a file, a name, an option, the output path), runs
+the command in-process and records the outcome. A case passes when the command exits with
+the documented code, prints one ``Error: ...`` line naming what was wrong, raises no
+exception (no traceback), writes nothing anywhere, and leaves every input as it was.
+
+Run as a script to count the outcomes (``python tests/fuzz/corpus.py``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import math
+import os
+import shutil
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+NAN, INF = math.nan, math.inf
+HUGE = 10**400
+# Values no number field accepts.
+NOT_A_NUMBER: list[Any] = [NAN, INF, -INF, HUGE, "x", True, None, [1.0]]
+NOT_POSITIVE: list[Any] = [*NOT_A_NUMBER, 0, -1.5]
+NOT_NONNEG: list[Any] = [*NOT_A_NUMBER, -1.5]
+NOT_AN_INDEX: list[Any] = [-1, HUGE, 1.5, "1", True, None, NAN]
+BAD_NAMES: list[Any] = ["../escaped", "a/b", "..", "", "a\0b", None, 7, "/abs"]
+
+
+@dataclass
+class Case:
+    """One bad input.
+
+    Attributes:
+        id: unique, readable test id.
+        args: the command line; ``{in}`` and ``{out}`` stand for the input and output folders.
+        mutate: spoils the copied inputs (gets the input folder).
+        code: the exit code expected.
+        message: text the one ``Error:`` line must contain (``{in}`` expanded).
+    """
+
+    id: str
+    args: list[str]
+    mutate: Callable[[Path], None] = lambda _: None
+    code: int = 3
+    message: str = ""
+    setup_out: Callable[[Path, Path], None] | None = None
+
+
+@dataclass
+class Outcome:
+    code: int | None
+    err: str
+    traceback: str = ""
+    problems: list[str] = field(default_factory=list)
+
+
+# --- the valid inputs ------------------------------------------------------------------------
+def build_template(root: Path) -> Path:
+    """Small valid inputs for every command, in ``root`` (a few seconds, once)."""
+    from rigcal.cli.main import main
+    from rigcal.io.sequence import ImageFrame, write_sequence
+    from rigcal.scan import Scan, write_scan
+    from rigcal.sim.box_session import SessionSpec, generate_session, write_session
+
+    root.mkdir(parents=True, exist_ok=True)
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
+    write_scan(
+        root / "scan.yaml",
+        Scan.from_uniform(-np.pi / 2, np.pi / 180, 2.0 / np.maximum(np.cos(angles), 0.3), 0.05, 30.0, 1.0),
+    )
+    write_session(generate_session(SessionSpec(n_captures=5, seed=3)), root / "sess", render_images=False)
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert main(["solve", str(root / "sess" / "picks.yaml"), "-o", str(root / "rig.yaml")]) == 0
+    # A sequence: a robot moving 5 cm per scan along a 4 m x 3 m room; three small images.
+    scans = []
+    for k in range(8):
+        x = -1.0 + 0.05 * k
+        a = np.linspace(-np.pi / 2, np.pi / 2, 91)
+        c, s = np.cos(a), np.sin(a)
+        with np.errstate(divide="ignore"):
+            tx = np.where(c > 1e-9, (2.0 - x) / np.where(c > 1e-9, c, 1), np.inf)
+            ty = np.where(np.abs(s) > 1e-9, 1.5 / np.where(np.abs(s) > 1e-9, np.abs(s), 1), np.inf)
+        scans.append(Scan.from_uniform(a[0], a[1] - a[0], np.minimum(tx, ty), 0.05, 30.0, 10.0 + 0.1 * k))
+    import cv2
+
+    png = cv2.imencode(".png", np.full((24, 32), 128, np.uint8))[1].tobytes()
+    frames = [ImageFrame(10.05 + 0.2 * i, f"f{i:03d}.png", png) for i in range(3)]
+    tum = "".join(f"{10.0 + 0.1 * k!r} {-1.0 + 0.05 * k!r} 0 0 0 0 0 1\n" for k in range(8))
+    write_sequence(root / "seq", "room", scans, frames, None, {"made": "corpus"}, groundtruth_tum=tum)
+    (root / "a.tum").write_text(tum, encoding="utf-8")
+    (root / "gt.tum").write_text(tum, encoding="utf-8")
+    flaser = [
+        "FLASER 5 2.0 2.1 2.2 2.1 2.0 {x} 0.0 0.0 {x} 0.0 0.0 {t} host {t}".format(x=0.1 * k, t=100.0 + k)
+        for k in range(4)
+    ]
+    robot = (
+        "ROBOTLASER1 0 -1.5708 3.1416 0.7854 30.0 0.01 0 5 2.0 2.1 2.2 2.1 2.0 0 "
+        "0.5 0.0 0.0 0.5 0.0 0.0 0 0 0 0 0 110.0 host 110.0"
+    )
+    (root / "log.carmen").write_text("# a log\n" + "\n".join([*flaser, robot]) + "\n", encoding="utf-8")
+    (root / "world.yaml").write_text(
+        "schema_version: 1\nname: box room\nwalls:\n"
+        "  - {from: [0, 0], to: [8, 0]}\n  - {from: [8, 0], to: [8, 6]}\n"
+        "  - {from: [8, 6], to: [0, 6]}\n  - {from: [0, 6], to: [0, 0]}\n"
+        "path: [[2, 2], [6, 2], [6, 4], [2, 4]]\n",
+        encoding="utf-8",
+    )
+    (root / "cv.yaml").write_text(
+        "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\ncamera_matrix: !!opencv-matrix\n"
+        "   rows: 3\n   cols: 3\n   dt: d\n   data: [ 520., 0., 319.5, 0., 520., 239.5, 0., 0., 1. ]\n"
+        "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n"
+        "   data: [ -0.15, 0.05, 0.0005, -0.0003, 0. ]\n",
+        encoding="utf-8",
+    )
+    corners = "".join(
+        f"img{i}.png {x:.1f} {y:.1f}\n" for i in range(3) for y in (100, 200) for x in (100, 200, 300)
+    )
+    (root / "corners.vnl").write_text(corners, encoding="utf-8")
+    write_bag(root / "run.bag")
+    return root
+
+
+# --- spoiling --------------------------------------------------------------------------------
+def _set(doc: Any, keys: list[str], value: Any) -> None:
+    for k in keys[:-1]:
+        doc = doc[int(k)] if isinstance(doc, list) else doc[k]
+    last = keys[-1]
+    if isinstance(doc, list):
+        doc[int(last)] = value
+    else:
+        doc[last] = value
+
+
+def set_yaml(rel: str, key: str, value: Any) -> Callable[[Path], None]:
+    """Set ``key`` (dotted, list indices as numbers) of the YAML file ``rel`` to ``value``."""
+
+    def mutate(inp: Path) -> None:
+        p = inp / rel
+        doc = yaml.safe_load(p.read_text(encoding="utf-8"))
+        _set(doc, key.split("."), value)
+        p.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+
+    return mutate
+
+
+def drop_yaml(rel: str, key: str) -> Callable[[Path], None]:
+    def mutate(inp: Path) -> None:
+        p = inp / rel
+        doc = yaml.safe_load(p.read_text(encoding="utf-8"))
+        keys = key.split(".")
+        d = doc
+        for k in keys[:-1]:
+            d = d[int(k)] if isinstance(d, list) else d[k]
+        del d[keys[-1]]
+        p.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+
+    return mutate
+
+
+def write(rel: str, text: str | bytes) -> Callable[[Path], None]:
+    def mutate(inp: Path) -> None:
+        p = inp / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        if isinstance(text, bytes):
+            p.write_bytes(text)
+        else:
+            p.write_text(text, encoding="utf-8")
+
+    return mutate
+
+
+def edit_text(rel: str, old: str, new: str) -> Callable[[Path], None]:
+    def mutate(inp: Path) -> None:
+        p = inp / rel
+        s = p.read_text(encoding="utf-8")
+        assert old in s, (rel, old)
+        p.write_text(s.replace(old, new, 1), encoding="utf-8")
+
+    return mutate
+
+
+def npz_edit(change: Callable[[dict[str, Any]], None]) -> Callable[[Path], None]:
+    def mutate(inp: Path) -> None:
+        p = inp / "seq" / "scans.npz"
+        with np.load(p) as z:
+            arrays = {k: np.array(z[k]) for k in z.files}
+        change(arrays)
+        with open(p, "wb") as f:
+            np.savez(f, **arrays)
+
+    return mutate
+
+
+def _show(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) < 20 else text[:12] + "~"
+
+
+# --- the cases -------------------------------------------------------------------------------
+def number_cases(
+    cmd: str, args: list[str], rel: str, key: str, values: list[Any], message: str | None = None
+) -> list[Case]:
+    leaf = message if message is not None else key.split(".")[-1]
+    return [Case(f"{cmd}-{rel}-{key}={_show(v)}", args, set_yaml(rel, key, v), 3, leaf) for v in values]
+
+
+LINES = ["lines", "{in}/scan.yaml", "--png", "{out}/l.png"]
+SOLVE = ["solve", "{in}/sess/picks.yaml", "-o", "{out}/rig.yaml", "--report", "{out}/report"]
+EXPORT = ["export", "{in}/rig.yaml", "--format", "kalibr", "-o", "{out}/k.yaml"]
+CHECK = ["check", "{in}/rig.yaml", "--picks", "{in}/sess/picks.yaml", "--log", "{out}/log.jsonl"]
+PROJECT = ["project", "{in}/rig.yaml", "{in}/scan.yaml", "{in}/sess/images/cap00.png", "-o", "{out}/o.png"]
+CARMEN = ["import-carmen", "{in}/log.carmen", "-o", "{out}/seq"]
+LOCALIZE = ["localize", "{in}/seq", "--method", "icp", "-o", "{out}/loc"]
+EVALUATE = ["evaluate", "{in}/a.tum", "--gt", "{in}/gt.tum"]
+WORLD = [
+    "simulate",
+    "world",
+    "--world",
+    "{in}/world.yaml",
+    "--no-images",
+    "--duration-s",
+    "1",
+    "-o",
+    "{out}/w",
+]
+CALIB = ["simulate", "calib-session", "--captures", "3", "--no-images", "-o", "{out}/s"]
+
+
+def scan_cases(cmd: str, args: list[str], rel: str) -> list[Case]:
+    out = []
+    out += number_cases(cmd, args, rel, "range_min_m", NOT_NONNEG)
+    out += number_cases(cmd, args, rel, "range_max_m", NOT_POSITIVE)
+    out += number_cases(cmd, args, rel, "angle_min_rad", NOT_A_NUMBER)
+    out += number_cases(cmd, args, rel, "angle_increment_rad", NOT_POSITIVE)
+    out += number_cases(cmd, args, rel, "stamp_s", NOT_A_NUMBER)
+    out += number_cases(cmd, args, rel, "ranges_m.3", [-1.0, HUGE, "x", True, None, [1]], "ranges_m[3]")
+    out += number_cases(cmd, args, rel, "schema_version", [3, "1", 1.0, True, None], "schema_version")
+    out.append(
+        Case(
+            f"{cmd}-{rel}-step-overflows",
+            args,
+            set_yaml(rel, "angle_increment_rad", 1e306),
+            3,
+            "angle_increment_rad",
+        )
+    )
+    return out
+
+
+def picks_cases() -> list[Case]:
+    rel = "sess/picks.yaml"
+    out = []
+    out += number_cases(
+        "solve", SOLVE, rel, "captures.0.image_endpoints_px.0.0", NOT_A_NUMBER, "image_endpoints_px"
+    )
+    out += number_cases("solve", SOLVE, rel, "captures.0.laser_side.segment", NOT_AN_INDEX, "segment")
+    out += number_cases("solve", SOLVE, rel, "captures.0.name", BAD_NAMES, "name")
+    out += number_cases("solve", SOLVE, rel, "laser.range_sigma_m", [*NOT_NONNEG, 1.0], "range_sigma_m")
+    out += number_cases(
+        "solve", SOLVE, rel, "captures.0.scan", ["../../../../../nope.yaml", "a\0b.yaml", None, 3], "scan"
+    )
+    out += number_cases("solve", SOLVE, rel, "camera", ["nope.yaml", None, "a\0b"], "camera")
+    out += number_cases("solve", SOLVE, rel, "schema_version", [0, "1", None], "schema_version")
+    out += number_cases("solve", SOLVE, rel, "captures", [None, [], "x", {}], "captures")
+    cam = "sess/camera.yaml"
+    out += number_cases("solve", SOLVE, cam, "K.0.0", NOT_POSITIVE, "K")
+    out += number_cases("solve", SOLVE, cam, "K.1.2", NOT_A_NUMBER, "K")
+    out += number_cases("solve", SOLVE, cam, "distortion.0", NOT_A_NUMBER, "distortion")
+    out += number_cases(
+        "solve", SOLVE, cam, "image_width_px", [0, -640, HUGE, 640.5, NAN, "640", True], "image_width_px"
+    )
+    out += number_cases("solve", SOLVE, cam, "distortion", [{"rows": 1}, "x", [1, 2, 3]], "distortion")
+    out += scan_cases("solve", SOLVE, "sess/scans/cap00.yaml")[::3]
+    return out
+
+
+def rig_cases(cmd: str, args: list[str]) -> list[Case]:
+    rel = "rig.yaml"
+    out = []
+    out += number_cases(
+        cmd, args, rel, "T_cam_laser.rotation_vector_rad.0", NOT_A_NUMBER, "rotation_vector_rad"
+    )
+    out += number_cases(
+        cmd, args, rel, "T_cam_laser.translation_m.1", [*NOT_A_NUMBER, 1e308, -1e9], "translation_m"
+    )
+    out += number_cases(cmd, args, rel, "camera.intrinsics.0", NOT_POSITIVE, "intrinsics")
+    out += number_cases(cmd, args, rel, "camera.intrinsics.2", NOT_A_NUMBER, "intrinsics")
+    out += number_cases(cmd, args, rel, "camera.imagersize.0", [0, -1, HUGE, 1.5, NAN, "640"], "imagersize")
+    out += number_cases(
+        cmd, args, rel, "uncertainty.covariance.0.0", [NAN, INF, -1.0, "x", None], "covariance"
+    )
+    out += number_cases(
+        cmd, args, rel, "uncertainty.sigma_rotation_deg.0", [NAN, -1.0, 99.0], "sigma_rotation_deg"
+    )
+    out += number_cases(
+        cmd, args, rel, "uncertainty.sigma_translation_mm.2", [INF, 0.0, 1e6], "sigma_translation_mm"
+    )
+    return out
+
+
+def carmen_cases() -> list[Case]:
+    rel = "log.carmen"
+    first = "FLASER 5 2.0 2.1 2.2 2.1 2.0 0.0 0.0 0.0 0.0 0.0 0.0 100.0 host 100.0"
+    assert first.startswith("FLASER 5 ")
+
+    def line(new: str) -> Callable[[Path], None]:
+        return edit_text(rel, first, new)
+
+    out = []
+    for n in ["²", "0", "-1", "5.0", "9" * 400, "99999", "x"]:
+        out.append(
+            Case(f"carmen-n={n[:8]}", CARMEN, line(first.replace("FLASER 5 ", f"FLASER {n} ")), 3, "FLASER")
+        )
+    for v in ["nan", "inf", "-inf", "1e400", "x"]:
+        out.append(Case(f"carmen-range={v}", CARMEN, line(first.replace(" 2.2 ", f" {v} ")), 3, "FLASER"))
+        out.append(
+            Case(
+                f"carmen-x={v}",
+                CARMEN,
+                line(first.replace(" 2.0 0.0 0.0 0.0 ", f" 2.0 {v} 0.0 0.0 ")),
+                3,
+                "FLASER",
+            )
+        )
+        out.append(
+            Case(f"carmen-stamp={v}", CARMEN, line(first.replace(" 100.0 host", f" {v} host")), 3, "FLASER")
+        )
+    out.append(
+        Case(
+            "carmen-stamp-zero-then-back",
+            CARMEN,
+            lambda p: (
+                line(first.replace(" 100.0 host", " 0.0 host"))(p),
+                edit_text(rel, " 101.0 host", " -5.0 host")(p),
+            ),
+            3,
+            "ipc_timestamp",
+        )
+    )
+    out.append(
+        Case(
+            "carmen-stamp-repeated", CARMEN, edit_text(rel, " 101.0 host", " 100.0 host"), 3, "ipc_timestamp"
+        )
+    )
+    robot = "ROBOTLASER1 0 -1.5708 3.1416 0.7854 30.0 0.01"
+    for name, new in [
+        ("start-nan", "ROBOTLASER1 0 nan 3.1416 0.7854 30.0 0.01"),
+        ("step-zero", "ROBOTLASER1 0 -1.5708 3.1416 0 30.0 0.01"),
+        ("step-neg", "ROBOTLASER1 0 -1.5708 3.1416 -0.1 30.0 0.01"),
+        ("step-nan", "ROBOTLASER1 0 -1.5708 3.1416 nan 30.0 0.01"),
+        ("step-inf", "ROBOTLASER1 0 -1.5708 3.1416 inf 30.0 0.01"),
+        ("max-inf", "ROBOTLASER1 0 -1.5708 3.1416 0.7854 inf 0.01"),
+        ("max-zero", "ROBOTLASER1 0 -1.5708 3.1416 0.7854 0 0.01"),
+        ("max-nan", "ROBOTLASER1 0 -1.5708 3.1416 0.7854 nan 0.01"),
+        ("start-huge", "ROBOTLASER1 0 1e300 3.1416 0.7854 30.0 0.01"),
+    ]:
+        out.append(Case(f"carmen-robotlaser-{name}", CARMEN, edit_text(rel, robot, new), 3, "ROBOTLASER1"))
+    out.append(
+        Case(
+            "carmen-robotlaser-n-huge",
+            CARMEN,
+            edit_text(rel, "0.01 0 5 2.0", "0.01 0 " + "9" * 400 + " 2.0"),
+            3,
+            "ROBOTLASER1",
+        )
+    )
+    out.append(Case("carmen-empty", CARMEN, write(rel, ""), 3, "no FLASER"))
+    out.append(Case("carmen-binary", CARMEN, write(rel, b"\xff\xfe\x00FLASER\x00"), 3, "log.carmen"))
+    out.append(
+        Case(
+            "carmen-missing",
+            ["import-carmen", "{in}/nope.carmen", "-o", "{out}/seq"],
+            code=3,
+            message="nope.carmen",
+        )
+    )
+    for v in ["nan", "inf", "-1", "0"]:
+        out.append(
+            Case(
+                f"carmen-option-range-max={v}",
+                [*CARMEN, "--flaser-range-max-m", v],
+                code=2,
+                message="--flaser-range-max-m",
+            )
+        )
+    return out
+
+
+def sequence_cases() -> list[Case]:
+    out = []
+
+    def seq(name: str, mutate: Callable[[Path], None], message: str, code: int = 3) -> None:
+        out.append(Case(f"localize-{name}", LOCALIZE, mutate, code, message))
+
+    seq("npz-garbage", write("seq/scans.npz", b"PK\x03\x04garbage"), "scans.npz")
+    seq("npz-empty", write("seq/scans.npz", b""), "scans.npz")
+    seq("npz-text", write("seq/scans.npz", "hello"), "scans.npz")
+    seq("npz-missing", lambda p: (p / "seq" / "scans.npz").unlink(), "scans.npz")
+
+    def arr(key: str, value: Any) -> Callable[[dict[str, Any]], None]:
+        def change(a: dict[str, Any]) -> None:
+            if callable(value):
+                a[key] = value(a[key])
+            else:
+                a[key] = value
+
+        return change
+
+    def at0(v: float) -> Callable[[Any], Any]:
+        def f(x: Any) -> Any:
+            x = np.array(x, dtype=float)
+            x.flat[0] = v
+            return x
+
+        return f
+
+    seq("npz-no-key", npz_edit(lambda a: a.pop("n_beams")), "n_beams")
+    seq("npz-ranges-1d", npz_edit(arr("ranges_m", np.zeros(8))), "ranges_m")
+    seq("npz-ranges-3d", npz_edit(arr("ranges_m", np.zeros((8, 2, 2)))), "ranges_m")
+    seq("npz-ranges-strings", npz_edit(arr("ranges_m", np.array([["a"] * 91] * 8))), "ranges_m")
+    seq("npz-short-column", npz_edit(arr("angle_min_rad", np.zeros(3))), "angle_min_rad")
+    seq("npz-n-beams-big", npz_edit(arr("n_beams", np.full(8, 500))), "n_beams")
+    seq("npz-n-beams-neg", npz_edit(arr("n_beams", np.full(8, -3))), "n_beams")
+    seq("npz-n-beams-float", npz_edit(arr("n_beams", np.full(8, 2.5))), "n_beams")
+    for v in (-1.0, -INF, -1e-9):
+        seq(f"npz-range={v}", npz_edit(arr("ranges_m", at0(v))), "ranges_m")
+    for key, vals in [
+        ("stamps_s", [NAN, INF]),
+        ("angle_min_rad", [NAN, INF, 1e300]),
+        ("angle_increment_rad", [NAN, 0.0, -0.01, INF]),
+        ("range_min_m", [NAN, -1.0]),
+        ("range_max_m", [NAN, 0.0, -5.0]),
+    ]:
+        for v in vals:
+            seq(f"npz-{key}={v}", npz_edit(arr(key, at0(v))), key)
+    rel = "seq/images.csv"
+    seq("csv-dotdot", edit_text(rel, "f001.png", "../../../x.png"), "images.csv")
+    seq("csv-abs", edit_text(rel, "f001.png", "/etc/passwd"), "images.csv")
+    seq("csv-nul", edit_text(rel, "f001.png", "f\0.png"), "images.csv")
+    seq("csv-nan", edit_text(rel, "10.25,", "nan,"), "images.csv")
+    seq("csv-inf", edit_text(rel, "10.25,", "inf,"), "images.csv")
+    seq("csv-order", edit_text(rel, "10.25,", "1.0,"), "images.csv")
+    seq("csv-header", edit_text(rel, "stamp_s,file", "time,name"), "images.csv")
+    seq("csv-short", edit_text(rel, "10.25,f001.png", "10.25"), "images.csv")
+    seq("csv-missing-image", lambda p: (p / "seq/images/f001.png").unlink(), "f001.png")
+    y = "seq/sequence.yaml"
+    for key, vals in [
+        ("scans.file", ["../../x.npz", "/etc/passwd", None, "a\0b"]),
+        ("scans.count", [-1, HUGE, 9, "8", NAN]),
+        ("images.count", [-1, 99, None]),
+        ("images.index", ["../../../etc/passwd", None]),
+        ("images.folder", ["../..", "/", None]),
+        ("groundtruth", ["../../../nope", "/etc/passwd", 5]),
+        ("schema_version", [3, None, "1"]),
+    ]:
+        for v in vals:
+            seq(f"yaml-{key}={_show(v)}", set_yaml(y, key, v), key.split(".")[0])
+    seq("yaml-alias-bomb", write(y, _alias_bomb()), "sequence.yaml")
+    seq("gt-nan", edit_text("seq/groundtruth.tum", "10.2 ", "nan "), "groundtruth.tum")
+    seq("gt-inf-pose", edit_text("seq/groundtruth.tum", " -0.9 0 0", " inf 0 0"), "groundtruth.tum")
+    return out
+
+
+def bomb_under(key: str) -> str:
+    """A billion laughs as the value of ``key``: 10 lines, 9^10 values once expanded."""
+    lines = [f"{key}:", '  - &a ["x","x","x","x","x","x","x","x","x"]']
+    for i, k in enumerate("bcdefghij"):
+        p = "abcdefghij"[i]
+        lines.append(f"  - &{k} [*{p},*{p},*{p},*{p},*{p},*{p},*{p},*{p},*{p}]")
+    return "\n".join(lines) + "\n"
+
+
+def with_bomb(rel: str, key: str) -> Callable[[Path], None]:
+    """Replace ``key`` of the YAML file ``rel`` by a billion laughs."""
+
+    def mutate(p: Path) -> None:
+        doc = yaml.safe_load((p / rel).read_text())
+        doc.pop(key, None)
+        (p / rel).write_text(yaml.safe_dump(doc, sort_keys=False) + bomb_under(key))
+
+    return mutate
+
+
+def _alias_bomb() -> str:
+    lines = ['a: &a ["x","x","x","x","x","x","x","x","x"]']
+    for i, k in enumerate("bcdefghij"):
+        prev = "abcdefghij"[i]
+        lines.append(f"{k}: &{k} [*{prev},*{prev},*{prev},*{prev},*{prev},*{prev},*{prev},*{prev},*{prev}]")
+    return "\n".join(lines) + "\n"
+
+
+def tum_cases() -> list[Case]:
+    out = []
+    for v in ["nan", "inf", "1e300", "-1e400", "x"]:
+        out.append(
+            Case(f"evaluate-x={v}", EVALUATE, edit_text("a.tum", "10.2 -0.9 0", f"10.2 {v} 0"), 3, "a.tum")
+        )
+        out.append(
+            Case(
+                f"evaluate-stamp={v}",
+                EVALUATE,
+                edit_text("gt.tum", "10.2 -0.9 0", f"{v} -0.9 0"),
+                3,
+                "gt.tum",
+            )
+        )
+    out.append(
+        Case(
+            "evaluate-no-overlap",
+            EVALUATE,
+            lambda p: (p / "gt.tum").write_text("".join(f"{500.0 + k} {k} 0 0 0 0 0 1\n" for k in range(8))),
+            3,
+            "overlap",
+        )
+    )
+    out.append(
+        Case(
+            "evaluate-zero-quaternion",
+            EVALUATE,
+            edit_text("a.tum", "0 0 0 0 1\n", "0 0 0 0 0\n"),
+            3,
+            "quaternion",
+        )
+    )
+    out.append(
+        Case(
+            "evaluate-short-line",
+            EVALUATE,
+            edit_text("a.tum", "10.2 -0.9 0 0 0 0 0 1", "10.2 -0.9"),
+            3,
+            "a.tum",
+        )
+    )
+    out.append(Case("evaluate-empty", EVALUATE, write("a.tum", ""), 3, "a.tum"))
+    out.append(Case("evaluate-one-pose", EVALUATE, write("a.tum", "10.0 0 0 0 0 0 0 1\n"), 3, "a.tum"))
+    return out
+
+
+def world_cases() -> list[Case]:
+    rel = "world.yaml"
+    out = []
+    out += number_cases("world", WORLD, rel, "walls.0.from.0", NOT_A_NUMBER, "walls[0].from")
+    out += number_cases("world", WORLD, rel, "path.1.0", [*NOT_A_NUMBER, 1e300], "path")
+    out += number_cases("world", WORLD, rel, "laser_height_m", NOT_POSITIVE, "laser_height_m")
+    out.append(
+        Case(
+            "world-path-through-wall",
+            WORLD,
+            set_yaml(rel, "path", [[2, 2], [9, 2], [6, 4], [2, 4]]),
+            3,
+            "path",
+        )
+    )
+    out.append(
+        Case(
+            "world-path-through-obstacle",
+            WORLD,
+            set_yaml(rel, "obstacles", [{"polygon": [[3, 1.5], [4, 1.5], [4, 2.5]]}]),
+            3,
+            "path",
+        )
+    )
+    out.append(Case("world-alias-bomb", WORLD, write(rel, _alias_bomb()), 3, "world.yaml"))
+    out.append(
+        Case("world-huge-yaml", WORLD, write(rel, "name: [" + "1," * 3_000_000 + "1]\n"), 3, "world.yaml")
+    )
+    out.append(
+        Case(
+            "world-unknown",
+            ["simulate", "world", "--world", "moon", "-o", "{out}/w"],
+            code=2,
+            message="--world",
+        )
+    )
+    return out
+
+
+OPTIONS: list[tuple[list[str], str, list[str]]] = [
+    (CALIB, "--pick-sigma-px", ["nan", "inf", "-1"]),
+    (CALIB, "--range-sigma-m", ["nan", "-inf", "1e400"]),
+    (CALIB, "--wrong-picks", ["nan"]),
+    (CALIB, "--move-deg", ["nan", "inf"]),
+    (CALIB, "--move-mm", ["nan"]),
+    (CALIB, "--captures", ["0", "9" * 400, "1.5", "nan"]),
+    (CALIB, "--seed", ["-1", "x"]),
+    (WORLD, "--range-sigma-m", ["nan"]),
+    (WORLD, "--laser-rate-hz", ["nan", "inf", "0"]),
+    (WORLD, "--camera-rate-hz", ["nan"]),
+    (WORLD, "--clock-offset-s", ["nan", "inf"]),
+    (WORLD, "--duration-s", ["nan", "inf", "0", "-1"]),
+    (WORLD, "--range-max-m", ["nan"]),
+    (WORLD, "--image-noise", ["nan"]),
+    (SOLVE, "--threshold-px", ["nan", "inf", "0"]),
+    (SOLVE, "--pick-sigma-px", ["nan", "-1"]),
+    (SOLVE, "--range-sigma-m", ["nan", "inf"]),
+    (SOLVE, "--loss", ["foo"]),
+    (SOLVE, "--seed", ["x", "1.5"]),
+    (CHECK, "--level", ["nan", "inf", "0", "1"]),
+    (CHECK, "--min-captures", ["2", "x"]),
+    (LINES, "--range-sigma-m", ["nan", "inf", "-1", "0"]),
+    (LOCALIZE, "--method", ["foo", "icp,icp", ","]),
+    (
+        LOCALIZE,
+        "--iasm",
+        [
+            "x=1",
+            "snap_max_m=nan",
+            "snap_max_m=inf",
+            "hypotheses=" + "9" * 400,
+            "window_px=-1",
+            "dense_window=maybe",
+        ],
+    ),
+    (EXPORT, "--format", ["foo"]),
+    (
+        ["intrinsics", "{in}/sess/images/cap00.png", "--board", "9x6", "-o", "{out}/c.cameramodel"],
+        "--square-m",
+        ["nan", "inf", "0", "-1"],
+    ),
+    (
+        ["intrinsics", "{in}/sess/images/cap00.png", "--square-m", "0.02", "-o", "{out}/c.cameramodel"],
+        "--board",
+        ["0x0", "1x6", "9" * 400 + "x6", "²x6", "9x"],
+    ),
+    (["matches", "{in}/seq", "--image", "0", "-o", "{out}/m.png"], "--method", ["sift"]),
+]
+
+
+def option_cases() -> list[Case]:
+    out = []
+    for base, opt, values in OPTIONS:
+        for v in values:
+            args = list(base)
+            if opt in args:  # replace the base's own value
+                args[args.index(opt) + 1] = v
+            else:
+                args += [opt, v]
+            out.append(
+                Case(
+                    f"{base[0]}-{base[1] if base[0] == 'simulate' else ''}-{opt}={v[:16]}",
+                    args,
+                    code=2,
+                    message=opt,
+                )
+            )
+    return out
+
+
+def output_cases() -> list[Case]:
+    """Outputs that would destroy, or write into, what is being read."""
+    out = []
+
+    def case(
+        name: str,
+        args: list[str],
+        message: str,
+        code: int = 5,
+        mutate: Callable[[Path], None] = lambda _: None,
+    ) -> None:
+        out.append(Case(f"output-{name}", args, mutate, code, message))
+
+    loc = ["localize", "{in}/seq", "--method", "icp"]
+    case("localize-into-seq", [*loc, "-o", "{in}/seq", "--force"], "is the input")
+    case("localize-into-parent", [*loc, "-o", "{in}", "--force"], "contains the input")
+    case("localize-into-parent-noforce", [*loc, "-o", "{in}"], "contains the input")
+    case("localize-inside-seq", [*loc, "-o", "{in}/seq/out", "--force"], "inside the input")
+    case("localize-onto-file", [*loc, "-o", "{in}/a.tum"], "exists")
+    case("localize-onto-file-force", [*loc, "-o", "{in}/a.tum", "--force"], "not a folder")
+    case("localize-foreign-folder", [*loc, "-o", "{in}/sess/scans", "--force"], "not written by rigcal")
+    case("localize-dotdot", [*loc, "-o", "{in}/seq/../seq", "--force"], "is the input")
+    case(
+        "carmen-onto-log",
+        ["import-carmen", "{in}/log.carmen", "-o", "{in}/log.carmen", "--force"],
+        "is the input",
+    )
+    case(
+        "carmen-into-parent",
+        ["import-carmen", "{in}/log.carmen", "-o", "{in}", "--force"],
+        "contains the input",
+    )
+    case(
+        "carmen-foreign",
+        ["import-carmen", "{in}/log.carmen", "-o", "{in}/sess/scans", "--force"],
+        "not written by rigcal",
+    )
+    case(
+        "solve-onto-picks",
+        ["solve", "{in}/sess/picks.yaml", "-o", "{in}/sess/picks.yaml", "--force"],
+        "is the input",
+    )
+    case("solve-report-over-session", [*SOLVE[:4], "--report", "{in}/sess", "--force"], "contains the input")
+    case(
+        "solve-report-foreign",
+        [*SOLVE[:4], "--report", "{in}/sess/scans", "--force"],
+        "not written by rigcal",
+    )
+    case(
+        "export-onto-rig",
+        ["export", "{in}/rig.yaml", "--format", "ros", "-o", "{in}/rig.yaml", "--force"],
+        "is the input",
+    )
+    case("export-exists", ["export", "{in}/rig.yaml", "--format", "ros", "-o", "{in}/a.tum"], "exists")
+    case(
+        "export-onto-folder",
+        ["export", "{in}/rig.yaml", "--format", "ros", "-o", "{in}/seq", "--force"],
+        "is a folder",
+    )
+    case("lines-onto-scan", ["lines", "{in}/scan.yaml", "--png", "{in}/scan.yaml", "--force"], "is the input")
+    case("project-onto-image", [*PROJECT[:4], "-o", "{in}/sess/images/cap00.png", "--force"], "is the input")
+    case(
+        "check-log-onto-rig",
+        ["check", "{in}/rig.yaml", "--picks", "{in}/sess/picks.yaml", "--log", "{in}/rig.yaml"],
+        "is the input",
+    )
+    case("check-plot-onto-picks", [*CHECK, "--plot", "{in}/sess/picks.yaml", "--force"], "is the input")
+    case("simulate-foreign", [*CALIB[:-1], "{in}/sess/scans", "--force"], "not written by rigcal")
+    case("simulate-onto-file", [*CALIB[:-1], "{in}/a.tum"], "exists")
+    case("world-onto-world-file", [*WORLD[:-1], "{in}/world.yaml", "--force"], "is the input")
+
+    def dangling(rel: str) -> Callable[[Path], None]:
+        def mutate(inp: Path) -> None:
+            (inp / rel).symlink_to(inp / "nowhere")
+
+        return mutate
+
+    case(
+        "export-dangling-symlink",
+        ["export", "{in}/rig.yaml", "--format", "ros", "-o", "{in}/link"],
+        "exists",
+        mutate=dangling("link"),
+    )
+    case("localize-dangling-symlink", [*loc, "-o", "{in}/link"], "not a folder", mutate=dangling("link"))
+    case(
+        "solve-escaping-name",
+        SOLVE,
+        "name",
+        3,
+        mutate=set_yaml("sess/picks.yaml", "captures.1.name", "../../../escaped"),
+    )
+    return out
+
+
+def write_bag(path: Path, **scan: Any) -> None:
+    """A ROS 1 bag with three scans and two images; ``scan`` overrides LaserScan fields."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    T = ts.types
+
+    def header(t: float) -> Any:
+        stamp = T["builtin_interfaces/msg/Time"](sec=int(t), nanosec=round((t % 1) * 1e9))
+        return T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id="f")
+
+    fields = {
+        "angle_min": -0.5, "angle_max": 0.5, "angle_increment": 0.1, "time_increment": 0.0,
+        "scan_time": 0.025, "range_min": 0.1, "range_max": 30.0,
+        "ranges": np.full(11, 2.0, np.float32), "intensities": np.zeros(0, np.float32),
+    }  # fmt: skip
+    fields.update(scan)
+    with Writer(path) as w:
+        cs = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
+        ci = w.add_connection("/image", "sensor_msgs/msg/Image", typestore=ts)
+        for k in range(3):
+            msg = T["sensor_msgs/msg/LaserScan"](header=header(1.0 + 0.1 * k), **fields)
+            w.write(cs, int(1e9 * (1 + k)), ts.serialize_ros1(msg, "sensor_msgs/msg/LaserScan"))
+        for k in range(2):
+            img = T["sensor_msgs/msg/Image"](
+                header=header(1.0 + 0.2 * k), height=4, width=6, encoding="mono8", is_bigendian=0, step=6,
+                data=np.full(24, 50, np.uint8),
+            )  # fmt: skip
+            w.write(ci, int(1e9 * (1 + k)) + 1, ts.serialize_ros1(img, "sensor_msgs/msg/Image"))
+
+
+INTR = [
+    "intrinsics",
+    "--corners",
+    "{in}/corners.vnl",
+    "--board",
+    "3x2",
+    "--square-m",
+    "0.02",
+    "--imagersize",
+    "640x480",
+    "-o",
+    "{out}/c.cameramodel",
+]
+BAG = ["import-bag", "{in}/run.bag", "--scan-topic", "/scan", "--image-topic", "/image", "-o", "{out}/seq"]
+
+
+# Each command's unspoiled inputs: they must run clean, so that every case's error comes
+# from what the case spoiled.
+BASES = {
+    "lines": LINES,
+    "solve": SOLVE,
+    "export": EXPORT,
+    "check": CHECK,
+    "project": PROJECT,
+    "import-carmen": CARMEN,
+    "localize": LOCALIZE,
+    "evaluate": EVALUATE,
+    "simulate-world": WORLD,
+    "simulate-calib-session": CALIB,
+    "import-bag": BAG,
+    "intrinsics": INTR,
+}
+
+
+def bag_cases() -> list[Case]:
+    out = []
+
+    def bag(**scan: Any) -> Callable[[Path], None]:
+        def mutate(p: Path) -> None:
+            (p / "run.bag").unlink()
+            write_bag(p / "run.bag", **scan)
+
+        return mutate
+
+    for key, vals in [
+        ("angle_increment", [NAN, 0.0, 7.0, INF]),
+        ("angle_min", [NAN, -INF, 1e30]),
+        ("range_min", [NAN, -1.0, 50.0]),
+        ("range_max", [NAN, 0.0, INF]),
+    ]:
+        for v in vals:
+            out.append(Case(f"bag-{key}={v}", BAG, bag(**{key: v}), 3, key))
+    neg = np.full(11, 2.0, np.float32)
+    neg[2] = -1.0
+    out.append(Case("bag-negative-range", BAG, bag(ranges=neg), 3, "ranges[2]"))
+    out.append(Case("bag-no-ranges", BAG, bag(ranges=np.zeros(0, np.float32)), 3, "ranges"))
+    out.append(Case("bag-garbage", BAG, write("run.bag", b"#ROSBAG V2.0\ngarbage"), 3, "run.bag"))
+    out.append(Case("bag-missing-topic", [*BAG[:3], "/nope", *BAG[4:]], code=3, message="/nope"))
+    out.append(Case("bag-wrong-type", [*BAG[:3], "/image", *BAG[4:]], code=3, message="/image"))
+    out.append(Case("bag-onto-bag", [*BAG[:-1], "{in}/run.bag", "--force"], code=5, message="is the input"))
+    return out
+
+
+def camera_format_cases() -> list[Case]:
+    """The session's camera as an OpenCV FileStorage file, spoiled; and corner files."""
+    out = []
+    use = set_yaml("sess/picks.yaml", "camera", "../cv.yaml")
+    good = "   data: [ -0.15, 0.05, 0.0005, -0.0003, 0. ]"
+    for name, new in [
+        ("scalar", "distortion_coefficients: 5"),
+        ("string", 'distortion_coefficients: "abc"'),
+        ("list", "distortion_coefficients: [1, 2]"),
+    ]:
+
+        def mutate(p: Path, new: str = new) -> None:
+            use(p)
+            text = (p / "cv.yaml").read_text().split("distortion_coefficients:")[0]
+            (p / "cv.yaml").write_text(text + new + "\n")
+
+        out.append(Case(f"solve-opencv-distortion-{name}", SOLVE, mutate, 3, "distortion_coefficients"))
+    for v in ["nan", "inf", "-inf", "1e400"]:
+
+        def spoil(p: Path, v: str = v) -> None:
+            use(p)
+            edit_text("cv.yaml", good, good.replace("0.05", v))(p)
+
+        out.append(Case(f"solve-opencv-distortion-value={v}", SOLVE, spoil, 3, "distortion_coefficients"))
+    for v in ["nan", "inf", "-inf", "x"]:
+        out.append(
+            Case(
+                f"intrinsics-corner={v}",
+                INTR,
+                edit_text("corners.vnl", "img1.png 200.0 100.0", f"img1.png {v} 100.0"),
+                3,
+                "corners.vnl",
+            )
+        )
+        out.append(
+            Case(
+                f"intrinsics-level={v}",
+                INTR,
+                edit_text("corners.vnl", "img1.png 200.0 100.0", f"img1.png 200.0 100.0 {v}"),
+                3,
+                "corners.vnl",
+            )
+        )
+    return out
+
+
+def all_cases() -> list[Case]:
+    cases = [
+        *scan_cases("lines", LINES, "scan.yaml"),
+        *picks_cases(),
+        *rig_cases("export", EXPORT),
+        *rig_cases("check", CHECK)[::4],
+        *rig_cases("project", PROJECT)[::5],
+        *carmen_cases(),
+        *sequence_cases(),
+        *tum_cases(),
+        *world_cases(),
+        *option_cases(),
+        *camera_format_cases(),
+        *bag_cases(),
+        *output_cases(),
+        Case("lines-nul-path", ["lines", "{in}/sc\0an.yaml"], code=2, message="NUL"),
+        Case("lines-missing", ["lines", "{in}/nope.yaml"], code=3, message="nope.yaml"),
+        Case("lines-folder", ["lines", "{in}/seq"], code=3, message="seq"),
+        Case("lines-alias-bomb", LINES, write("scan.yaml", _alias_bomb()), 3, "scan.yaml"),
+        Case("lines-not-utf8", LINES, write("scan.yaml", b"\xff\xfe\xfa"), 3, "scan.yaml"),
+        Case(
+            "project-corrupt-image",
+            PROJECT,
+            write("sess/images/cap00.png", b"\x89PNG\r\n\x1a\nbroken"),
+            3,
+            "cap00.png",
+        ),
+        Case("project-empty-image", PROJECT, write("sess/images/cap00.png", b""), 3, "cap00.png"),
+        Case(
+            "check-corrupt-log",
+            [*CHECK[:-1], "{in}/log.jsonl"],
+            write("log.jsonl", "{not json\n"),
+            3,
+            "log.jsonl",
+        ),
+        Case(
+            "check-plot-fails-log-untouched",
+            [*CHECK[:-1], "{in}/log.jsonl", "--plot", "{in}/a.tum/p.png"],
+            write("log.jsonl", ""),
+            5,
+            "p.png",
+        ),
+        Case(
+            "solve-rig-onto-report",
+            [*SOLVE[:3], "{out}/same", "--report", "{out}/same"],
+            code=5,
+            message="same",
+        ),
+        Case("bomb-scan-frame", LINES, with_bomb("scan.yaml", "frame"), 3, "scan.yaml"),
+        Case("bomb-sequence-source", LOCALIZE, with_bomb("seq/sequence.yaml", "source"), 3, "sequence.yaml"),
+        Case("bomb-rig-provenance", EXPORT, with_bomb("rig.yaml", "provenance"), 3, "rig.yaml"),
+        Case("bomb-picks-laser", SOLVE, with_bomb("sess/picks.yaml", "laser"), 3, "picks.yaml"),
+        Case("bomb-world-name", WORLD, with_bomb("world.yaml", "name"), 3, "world.yaml"),
+        Case(
+            "yaml-self-reference",
+            LINES,
+            lambda p: (p / "scan.yaml").write_text((p / "scan.yaml").read_text() + "frame: &loop [*loop]\n"),
+            3,
+            "scan.yaml",
+        ),
+        Case("check-unwritable-plot", [*CHECK, "--plot", "{out}/nodir/\0.png"], code=2, message="NUL"),
+    ]
+    ids = [c.id for c in cases]
+    dup = {i for i in ids if ids.count(i) > 1}
+    assert not dup, dup
+    return cases
+
+
+# --- running ---------------------------------------------------------------------------------
+def snapshot(root: Path) -> dict[str, tuple[Any, ...]]:
+    """Every entry under ``root``: kind, mode and content hash (or link target)."""
+    out: dict[str, tuple[Any, ...]] = {}
+    for dirpath, dirnames, filenames in os.walk(root):
+        for name in dirnames + filenames:
+            p = Path(dirpath) / name
+            st = p.lstat()
+            rel = p.relative_to(root).as_posix()
+            if p.is_symlink():
+                out[rel] = ("link", os.readlink(p))
+            elif p.is_dir():
+                out[rel] = ("dir", st.st_mode)
+            else:
+                out[rel] = ("file", st.st_mode, hashlib.sha256(p.read_bytes()).hexdigest())
+    return out
+
+
+def prepare(case: Case, template: Path, tmp: Path) -> tuple[Path, Path, list[str]]:
+    """Copy the inputs under tmp/a/b/in (escapes land in tmp/a), spoil them; the args."""
+    inp = tmp / "a" / "b" / "in"
+    out = tmp / "a" / "b" / "out"
+    shutil.copytree(template, inp, symlinks=True)
+    out.mkdir()
+    case.mutate(inp)
+    args = [a.replace("{in}", str(inp)).replace("{out}", str(out)) for a in case.args]
+    return inp, out, args
+
+
+def run_case(case: Case, template: Path, tmp: Path) -> Outcome:
+    """Run one case and list what is wrong with its outcome (empty: it passed)."""
+    from rigcal.cli.main import main
+
+    _, _, args = prepare(case, template, tmp)
+    before = snapshot(tmp)
+    err = io.StringIO()
+    code: int | None = None
+    tb = ""
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        try:
+            code = main(args)
+        except BaseException as exc:  # a traceback: the bug this corpus hunts
+            import traceback
+
+            tb = "".join(traceback.format_exception(exc))
+    after = snapshot(tmp)
+    o = Outcome(code, err.getvalue(), tb)
+    if tb:
+        o.problems.append("traceback: " + tb.strip().splitlines()[-1][:200])
+    elif code == 0:
+        o.problems.append("exit 0 on bad input")
+    elif code != case.code:
+        o.problems.append(f"exit {code}, expected {case.code}")
+    lost = [k for k in before if after.get(k) != before[k]]
+    if lost:
+        o.problems.append(f"data loss: {lost[:3]}")
+    new = [k for k in after if k not in before]
+    if new:
+        outside = [k for k in new if not k.startswith("a/b/out/")]
+        o.problems.append(("escaped: " if outside else "written on failure: ") + str((outside or new)[:3]))
+    if not tb:
+        lines = [x for x in o.err.splitlines() if x.strip()]
+        errors = [x for x in lines if x.startswith("Error: ")]
+        if len(errors) != 1 or lines[-1] != errors[0]:
+            o.problems.append(f"not one final Error line: {o.err[-300:]!r}")
+        elif case.message and case.message not in errors[0]:
+            o.problems.append(f"message lacks {case.message!r}: {errors[0][:300]!r}")
+    return o
+
+
+def classify(o: Outcome) -> str:
+    for tag in ("traceback", "exit 0", "data loss", "escaped"):
+        if any(p.startswith(tag) for p in o.problems):
+            return tag
+    return "problem" if o.problems else "clean"
+
+
+if __name__ == "__main__":  # count the outcomes over the whole corpus
+    import tempfile
+    from collections import Counter
+
+    with tempfile.TemporaryDirectory() as d:
+        template = build_template(Path(d) / "template")
+        counts: Counter[str] = Counter()
+        for i, c in enumerate(all_cases()):
+            o = run_case(c, template, Path(d) / f"c{i}")
+            shutil.rmtree(Path(d) / f"c{i}", ignore_errors=True)
+            counts[classify(o)] += 1
+            if o.problems and "-v" in sys.argv:
+                print(c.id, "|", "; ".join(o.problems)[:300])
+        print(dict(counts), "of", sum(counts.values()))
