@@ -204,6 +204,76 @@ def test_segments_need_schema_2(session):
 def test_unknown_laser_side_form_lists_the_forms(session):
     edit(session, lambda d: d["captures"][0].update(laser_side={"segmnts": [1]}))
     with pytest.raises(
-        InputError, match=re.escape("expected auto, {segment: ID}, {segments: [ID, ...]} or {points")
+        InputError,
+        match=re.escape("expected auto, {segment: ID}, {segments: [ID, ...]}, {points: [[x1, y1],")
+        + ".* or {returns_file",
     ):
         read_board_session(session)
+
+
+# --- the board's returns listed by another toolbox (laser_side: {returns_file: FILE}) ----------
+def test_returns_listed_in_a_file_replace_the_scan(session):
+    """A MATLAB toolbox's "points on the board" list (x y z per line, comments with %) gives
+    the same observation as the segments it was taken from, with no scan needed."""
+    given = read_board_session(session)
+
+    def listed(d):
+        for i, c in enumerate(d["captures"]):
+            pts = given.observations[i].points_laser
+            text = "% laser points on the board\n" + "".join(f"{x:.6f}, {y:.6f}, 0\n" for x, y in pts)
+            (session.parent / f"target{i:02d}.txt").write_text(text)
+            c["laser_side"] = {"returns_file": f"target{i:02d}.txt"}
+            del c["scan"]
+
+    listed_session = read_board_session(edit(session, listed))
+    for a, b in zip(given.observations, listed_session.observations, strict=True):
+        np.testing.assert_allclose(b.points_laser, a.points_laser, atol=1e-6)
+    assert any(p.name == "target03.txt" for p in listed_session.files)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("1.0 2.0\n1.1 2.1 0.5\n", "line 2: got z = 0.5; expected 0"),
+        ("1.0 2.0\nx 2.1\n", "line 2: got 'x 2.1'; expected x y [z]"),
+        ("1.0 nan\n1.1 2.1\n", "line 1: got '1.0 nan'"),
+        ("% only a comment\n1.0 2.0\n", "got 1 point(s); expected at least 2"),
+        ("", "got an empty file"),
+    ],
+)
+def test_bad_returns_files_name_the_line(session, text, message):
+    (session.parent / "t.txt").write_text(text)
+    edit(session, lambda d: d["captures"][0].update(laser_side={"returns_file": "t.txt"}))
+    with pytest.raises(InputError, match=re.escape(message)):
+        read_board_session(session)
+
+
+def test_a_capture_without_scan_or_returns_file_is_refused(session):
+    edit(session, lambda d: d["captures"][2].pop("scan"))
+    with pytest.raises(InputError, match=re.escape("captures[2].scan: missing")):
+        read_board_session(session)
+
+
+def test_auto_needs_every_scan(session):
+    given = read_board_session(session)
+
+    def change(d):
+        (session.parent / "t.txt").write_text(
+            "".join(f"{x} {y}\n" for x, y in given.observations[0].points_laser)
+        )
+        d["captures"][0]["laser_side"] = {"returns_file": "t.txt"}
+        del d["captures"][0]["scan"]
+        d["captures"][1]["laser_side"] = "auto"
+
+    with pytest.raises(InputError, match=re.escape("captures[0].scan: missing; laser_side auto")):
+        read_board_session(edit(session, change))
+
+
+def test_returns_file_needs_schema_2(session):
+    def change(d):
+        d["schema_version"] = 1
+        d["board"].pop("size_m", None)
+        d["captures"][0]["laser_side"] = {"returns_file": "t.txt"}
+
+    with pytest.raises(InputError, match=re.escape("returns_file: got 't.txt'; expected no returns_file")):
+        read_board_session(edit(session, change))

@@ -139,28 +139,45 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         det = read_corners_vnl(vnl_path, board, (camera.width_px, camera.height_px))
         vnl = {Path(p).name: g for p, g in zip(det.paths, det.corners, strict=True)}
     auto: list[int] = []
-    scans = []
+    scans: list[Scan | None] = []
     for i, c in enumerate(captures):
         kp = f"captures[{i}]"
-        c = check_keys(c, path, kp, ["scan", "laser_side"], ["name", "corners_px", "image"])
+        c = check_keys(c, path, kp, ["laser_side"], ["scan", "name", "corners_px", "image"])
         name = capture_name(path, kp, c, i)
-        scan_path = _file(path, f"{kp}.scan", c["scan"])
-        files.append(scan_path)
+        side = c["laser_side"]
+        listed = isinstance(side, dict) and "returns_file" in side
+        if "scan" not in c and not listed:
+            raise InputError(
+                f"{path}: {kp}.scan: missing; this key is required (unless laser_side lists "
+                "the board's returns in a returns_file)"
+            )
         corners = _corners(path, kp, c, board, camera, files, vnl)
         T, cov, err = board_pose(camera, board, corners, corner_sigma_px)
-        scan = read_scan(scan_path)
+        scan = None
+        if "scan" in c:
+            scan_path = _file(path, f"{kp}.scan", c["scan"])
+            files.append(scan_path)
+            scan = read_scan(scan_path)
         scans.append(scan)
-        side = c["laser_side"]
         if side == "auto":
             auto.append(i)
             pts = np.zeros((0, 2))
+        elif listed:
+            pts = _listed_returns(path, f"{kp}.laser_side", side, files, version)
         else:
+            assert scan is not None
             pts = _given_returns(path, f"{kp}.laser_side", side, scan, scan_path, params, version)
         obs.append(plane_observation(i, name, T, cov, pts))
         poses.append(T)
         rms.append(err)
     if auto:
-        obs = _detect(path, obs, auto, scans, poses, shape, params)
+        missing = [i for i, sc in enumerate(scans) if sc is None]
+        if missing:
+            raise InputError(
+                f"{path}: captures[{missing[0]}].scan: missing; laser_side auto compares every "
+                "capture's scan, so each capture needs its scan"
+            )
+        obs = _detect(path, obs, auto, [sc for sc in scans if sc is not None], poses, shape, params)
     check_unique_names(path, [o.name for o in obs])
     return BoardSession(
         path,
@@ -196,6 +213,22 @@ def _size_m(path: Path, b: Any, board: Board, version: int) -> tuple[float, floa
     return float(v[0]), float(v[1])
 
 
+def _listed_returns(path: Path, key: str, side: Any, files: list[Path], version: int) -> FloatArray:
+    """The board's returns listed in a text file (``laser_side: {returns_file: FILE}``), as
+    MATLAB laser-camera toolboxes save a capture's points on the board."""
+    from rigcal.io.laser_text import read_board_points
+
+    if len(side) != 1:
+        raise InputError.at(path, key, side, "{returns_file: FILE} alone")
+    if version < 2:
+        raise InputError.at(
+            path, f"{key}.returns_file", side["returns_file"], "no returns_file in schema_version 1 (needs 2)"
+        )
+    points_path = _file(path, f"{key}.returns_file", side["returns_file"])
+    files.append(points_path)
+    return read_board_points(points_path)
+
+
 def _given_returns(
     path: Path, key: str, side: Any, scan: Scan, scan_path: Path, params: LineParams, version: int
 ) -> FloatArray:
@@ -203,7 +236,11 @@ def _given_returns(
     forms = ("segment", "segments", "points")
     if not isinstance(side, dict) or len(side) != 1 or next(iter(side)) not in forms:
         raise InputError.at(
-            path, key, side, "auto, {segment: ID}, {segments: [ID, ...]} or {points: [[x1, y1], [x2, y2]]}"
+            path,
+            key,
+            side,
+            "auto, {segment: ID}, {segments: [ID, ...]}, {points: [[x1, y1], [x2, y2]]} "
+            "or {returns_file: FILE}",
         )
     if "segment" in side:
         return np.array(

@@ -15,6 +15,11 @@
   two equal numbers per line), the k-th line for ``image_00k.png`` (k from 1, 3 digits or
   more, any image extension) beside it. Lines starting with ``#`` are comments.
 
+- **Points on the board**, as MATLAB laser-camera toolboxes save a capture's selection:
+  one laser return per line, ``x y`` or ``x y z`` (metres, laser frame; z, when given, is
+  0: the scan plane), whitespace, comma or semicolon separated, ``%`` and ``#`` comments
+  (:func:`read_board_points`; a board session's ``laser_side: {returns_file: FILE}``).
+
 Every malformed line stops the import with the file, the line number and what was
 expected (docs/formats/sequence.md).
 """
@@ -52,7 +57,7 @@ class LaserTextSummary:
 
 
 def _fields(line: str) -> list[str]:
-    return line.replace(",", " ").split()
+    return line.replace(",", " ").replace(";", " ").split()
 
 
 def _content_lines(path: Path, what: str) -> list[tuple[int, str]]:
@@ -64,6 +69,41 @@ def _content_lines(path: Path, what: str) -> list[tuple[int, str]]:
     if not out:
         raise InputError(f"{path}: got an empty file; expected a {what}")
     return out
+
+
+# A listed point's z (the scan plane is z = 0) may be off by this much (rounding).
+BOARD_POINTS_MAX_Z_M = 1e-3
+
+
+def read_board_points(path: str | Path) -> FloatArray:
+    """(M, 2) the laser returns on a board, one ``x y [z]`` per line (metres, laser frame).
+
+    Raises:
+        InputError: missing or unreadable, a line that is not 2 or 3 finite numbers, a z off
+            the scan plane, or fewer than 2 points, naming the file and line.
+    """
+    path = Path(path)
+    what = "list of laser points on the board (x y [z] per line, metres)"
+    pts = []
+    for n, line in _content_lines(path, what):
+        f = _fields(line)
+        try:
+            v = [float(x) for x in f]
+        except ValueError:
+            v = []
+        if len(v) not in (2, 3) or not all(math.isfinite(x) for x in v):
+            raise InputError(
+                f"{path}: line {n}: got {line!r}; expected x y [z]: 2 or 3 finite numbers (metres)"
+            )
+        if len(v) == 3 and abs(v[2]) > BOARD_POINTS_MAX_Z_M:
+            raise InputError(
+                f"{path}: line {n}: got z = {v[2]:g}; expected 0 "
+                "(a 2D scanner's returns lie in its z = 0 plane)"
+            )
+        pts.append(v[:2])
+    if len(pts) < 2:
+        raise InputError(f"{path}: got {len(pts)} point(s); expected at least 2 laser points on the board")
+    return np.array(pts, dtype=float)
 
 
 def detect_format(path: Path) -> str:
