@@ -348,7 +348,7 @@ def test_half_of_the_uniform_angle_form(tmp_path, drop, missing):
 @pytest.mark.parametrize(("text", "shown"), [("0", "0"), ("-0.25", "-0.25")])
 def test_increment_not_positive(tmp_path, text, shown):
     path = scan_file(tmp_path, angle_increment_rad=text)
-    msg = f"{path}: angle_increment_rad: got {shown}; expected a finite number in (0, 6.28319]"
+    msg = f"{path}: angle_increment_rad: got {shown}; expected a finite number in [1e-06, 6.28319]"
     with pytest.raises(InputError, match=re.escape(msg)):
         read_scan(path)
 

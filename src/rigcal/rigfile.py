@@ -35,7 +35,7 @@ from rigcal.camera import camera_from_dict
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_write_text, check_keys, load_yaml
 from rigcal.io.transform import float_matrix, float_vector, transform_from_dict, transform_to_dict
-from rigcal.io.validate import finite_array
+from rigcal.io.validate import finite_array, real
 from rigcal.rig import COVARIANCE_PARAMETERS, Rig
 
 RIG_SCHEMA_VERSION = 2
@@ -157,13 +157,6 @@ def _covariance(value: Any, path: Path, key: str) -> Any:
     return cov
 
 
-def _number(value: Any, path: Path, key: str) -> float:
-    """A finite number >= 0 (booleans rejected)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-        raise InputError.at(path, key, value, "a finite number >= 0")
-    return float(value)
-
-
 def _uncertainty_checks(u: Mapping[str, Any], path: Path) -> dict[str, Any]:
     """The covariance's checks of a version 2 rig file, validated (docs/formats/rig.md)."""
     out: dict[str, Any] = {}
@@ -178,7 +171,7 @@ def _uncertainty_checks(u: Mapping[str, Any], path: Path) -> dict[str, Any]:
             v = check_keys(v, path, key, ["assumed", "estimated", "used"], [])
             for k in ("assumed", "used", "estimated"):
                 if k != "estimated" or v[k] is not None:
-                    _number(v[k], path, f"{key}.{k}")
+                    real(v[k], path, f"{key}.{k}", nonneg=True)
         out["noise"] = noise
     if "model_covariance" in u:
         _covariance(u["model_covariance"], path, "uncertainty.model_covariance")
@@ -187,7 +180,7 @@ def _uncertainty_checks(u: Mapping[str, Any], path: Path) -> dict[str, Any]:
         sp = u["spread"]
         if not isinstance(sp, dict) or "scale" not in sp or "covariance" not in sp:
             raise InputError.at(path, "uncertainty.spread", sp, "a mapping with scale and covariance")
-        _number(sp["scale"], path, "uncertainty.spread.scale")
+        real(sp["scale"], path, "uncertainty.spread.scale", nonneg=True)
         _covariance(sp["covariance"], path, "uncertainty.spread.covariance")
         out["spread"] = sp
     if "sensitivity" in u:

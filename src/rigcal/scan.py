@@ -23,6 +23,10 @@ from rigcal.io.validate import is_real, real
 
 FloatArray = NDArray[np.float64]
 
+# No scanner steps finer than this (a microradian); a smaller step is a broken file, and
+# its beams' angles would not increase in floating point.
+MIN_ANGLE_INCREMENT_RAD = 1e-6
+
 SCAN_SCHEMA_VERSION = 1
 # Versions read: 2 adds the optional ``laser: {clockwise: BOOL}`` mapping.
 SCAN_SCHEMA_VERSIONS = (1, 2)
@@ -140,7 +144,9 @@ def read_scan(path: str | Path) -> Scan:
             if key not in d:
                 raise InputError(f"{path}: {key}: missing; angle_min_rad needs angle_increment_rad")
         a0 = real(d["angle_min_rad"], path, "angle_min_rad", lo=-2 * math.pi, hi=2 * math.pi)
-        step = real(d["angle_increment_rad"], path, "angle_increment_rad", positive=True, hi=2 * math.pi)
+        step = real(
+            d["angle_increment_rad"], path, "angle_increment_rad", lo=MIN_ANGLE_INCREMENT_RAD, hi=2 * math.pi
+        )
         scan = Scan.from_uniform(a0, step, ranges, range_min, range_max, stamp)
         return counter_clockwise(scan) if clockwise else scan
     angles = _finite_list(d["angles_rad"], path, "angles_rad")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,15 @@ from hypothesis import strategies as st
 from rigcal.errors import InputError
 from rigcal.io.validate import Real, path_component, relative_inside, whole
 
-SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
+# A fixed set of 40 examples per test (derandomized: the same in every CI run). Set
+# RIGCAL_HYPOTHESIS_EXAMPLES=N to explore N random examples instead.
+_EXPLORE = os.environ.get("RIGCAL_HYPOTHESIS_EXAMPLES")
+SETTINGS = settings(
+    max_examples=int(_EXPLORE) if _EXPLORE else 40,
+    derandomize=not _EXPLORE,
+    deadline=None,
+    suppress_health_check=list(HealthCheck),
+)
 
 # Anything a YAML file can hold where a reader expects something else.
 scalars = st.one_of(
