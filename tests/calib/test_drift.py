@@ -216,6 +216,22 @@ def test_rig_noise_model_reads_the_provenance(rig):
     assert rig_noise_model(noisy) == NoiseModel(pick_sigma_px=2.5, range_sigma_m=0.02)
 
 
+def test_rig_noise_model_prefers_the_noise_the_rig_used(rig, tmp_path):
+    """A rig solved with --noise auto records the assumed noise in its provenance and the
+    estimated one it used in uncertainty.noise: the check uses the latter."""
+    used = {
+        "pick_sigma_px": {"assumed": 1.0, "estimated": 1.7, "used": 1.7},
+        "range_sigma_m": {"assumed": 0.01, "estimated": 0.018, "used": 0.018},
+    }
+    stored = replace(
+        rig,
+        provenance={"noise": {"mode": "auto", "pick_sigma_px": 1.0, "range_sigma_m": 0.01}},
+        uncertainty={"noise": used},
+    )
+    back = read_rig(write_rig(tmp_path / "rig.yaml", stored))
+    assert rig_noise_model(back) == NoiseModel(pick_sigma_px=1.7, range_sigma_m=0.018)
+
+
 @pytest.mark.parametrize(
     "provenance",
     [

@@ -165,7 +165,18 @@ def check_drift(rig: Rig, session: PickSession, settings: DriftSettings | None =
 
 
 def rig_noise_model(rig: Rig) -> NoiseModel:
-    """The noise model the rig was solved with (its provenance), else the default."""
+    """The noise model the rig was solved with: the noise it used (estimated from its
+    session, rig file schema 2's ``uncertainty.noise``), else its provenance's settings,
+    else the default."""
+    used = rig.uncertainty.get("noise")
+    if isinstance(used, dict):
+        try:
+            return NoiseModel(
+                pick_sigma_px=float(used["pick_sigma_px"]["used"]),
+                range_sigma_m=float(used["range_sigma_m"]["used"]),
+            )
+        except (KeyError, TypeError, ValueError):
+            pass
     recorded = rig.provenance.get("noise")
     if isinstance(recorded, dict):
         try:
