@@ -127,7 +127,43 @@ def build_template(root: Path) -> Path:
     )
     (root / "corners.vnl").write_text(corners, encoding="utf-8")
     write_bag(root / "run.bag")
+    build_new_inputs(root, png)
     return root
+
+
+def build_new_inputs(root: Path, png: bytes) -> None:
+    """Inputs of import-laser, batch and a board session whose first board is a returns file."""
+    from rigcal.calib.board_session import read_board_session
+    from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
+
+    (root / "laser.txt").write_text(
+        "".join(f"{1.0 + 0.1 * k:.1f} -0.5 0.25 0.5 3 5 2.0 2.0 2.0 2.0 2.0\n" for k in range(4)),
+        encoding="utf-8",
+    )
+    (root / "laser.csv").write_text(
+        "stamp_s,angle_rad,range_m\n"
+        + "".join(f"{1.0 + 0.1 * k:.1f},{a},2.0\n" for k in range(3) for a in ("-0.2", "0.0", "0.2")),
+        encoding="utf-8",
+    )
+    for i in range(3):
+        (root / f"im{i}.png").write_bytes(png)
+    (root / "images.txt").write_text("".join(f"{1.0 + 0.1 * i:.1f} im{i}.png\n" for i in range(3)))
+    (root / "batch.yaml").write_text(
+        "schema_version: 1\ncommand: evaluate\nitems:\n  - name: one\n    trajectory: a.tum\n"
+        "    gt: gt.tum\n",
+        encoding="utf-8",
+    )
+    bs = write_board_session(generate_board_session(BoardSpec(n_captures=6, seed=4)), root / "board")
+    bs = bs / "board_session.yaml"
+    pts = read_board_session(bs).observations[0].points_laser
+    (root / "board" / "ret00.txt").write_text(
+        "% laser points on the board\n" + "".join(f"{x:.6f} {y:.6f} 0\n" for x, y in pts), encoding="utf-8"
+    )
+    doc = yaml.safe_load(bs.read_text(encoding="utf-8"))
+    doc["schema_version"] = 2
+    doc["captures"][0]["laser_side"] = {"returns_file": "ret00.txt"}
+    del doc["captures"][0]["scan"]
+    bs.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
 
 
 # --- spoiling --------------------------------------------------------------------------------
@@ -795,6 +831,25 @@ INTR = [
     "-o",
     "{out}/c.cameramodel",
 ]
+CAPTURE = [
+    "capture",
+    "{in}/run.bag",
+    "--scan-topic",
+    "/scan",
+    "--image-topic",
+    "/image",
+    "--camera",
+    "{in}/sess/camera.yaml",
+    "--still-frames",
+    "2",
+    "-o",
+    "{out}/cap",
+]
+PICK = ["pick", "{in}/sess/picks.yaml", "-o", "{out}/p.yaml"]
+LASER = ["import-laser", "{in}/laser.txt", "--images", "{in}/images.txt", "-o", "{out}/seq"]
+LASER_CSV = ["import-laser", "{in}/laser.csv", "-o", "{out}/seq"]
+BATCH = ["batch", "{in}/batch.yaml", "-o", "{out}/b", "-j", "1"]
+BOARD = ["solve", "{in}/board/board_session.yaml", "-o", "{out}/rig.yaml"]
 BAG = ["import-bag", "{in}/run.bag", "--scan-topic", "/scan", "--image-topic", "/image", "-o", "{out}/seq"]
 
 
@@ -813,6 +868,12 @@ BASES = {
     "simulate-calib-session": CALIB,
     "import-bag": BAG,
     "intrinsics": INTR,
+    "capture": CAPTURE,
+    "pick": PICK,
+    "import-laser": LASER,
+    "import-laser-csv": LASER_CSV,
+    "batch": BATCH,
+    "solve-board": BOARD,
 }
 
 
@@ -842,6 +903,481 @@ def bag_cases() -> list[Case]:
     out.append(Case("bag-missing-topic", [*BAG[:3], "/nope", *BAG[4:]], code=3, message="/nope"))
     out.append(Case("bag-wrong-type", [*BAG[:3], "/image", *BAG[4:]], code=3, message="/image"))
     out.append(Case("bag-onto-bag", [*BAG[:-1], "{in}/run.bag", "--force"], code=5, message="is the input"))
+    return out
+
+
+def opt_cases(cmd: str, args: list[str], option: str, values: list[str]) -> list[Case]:
+    """``option`` given each of ``values`` (exit 2, the option named)."""
+    return [Case(f"{cmd}-option{option}={v}", [*args, option, v], code=2, message=option) for v in values]
+
+
+BAD_FLOATS = ["nan", "inf", "-inf", "x", "1e400"]
+
+
+def capture_cases() -> list[Case]:
+    out: list[Case] = []
+    out += opt_cases("capture", CAPTURE, "--still-frames", ["1", "0", "x", "1e400"])
+    out += opt_cases("capture", CAPTURE, "--scan-threshold-m", [*BAD_FLOATS, "0", "-1"])
+    out += opt_cases("capture", CAPTURE, "--image-threshold", [*BAD_FLOATS, "0"])
+    out += opt_cases("capture", CAPTURE, "--changed-fraction", [*BAD_FLOATS, "0", "1"])
+    out += opt_cases("capture", CAPTURE, "--max-offset-s", [*BAD_FLOATS, "0"])
+    out += opt_cases("capture", CAPTURE, "--box-width-m", [*BAD_FLOATS, "0.01"])
+    src = CAPTURE.index("{in}/run.bag")
+    cam = CAPTURE.index("{in}/sess/camera.yaml")
+
+    def arg(i: int, value: str) -> list[str]:
+        return [*CAPTURE[:i], value, *CAPTURE[i + 1 :]]
+
+    out.append(Case("capture-missing-source", arg(src, "{in}/nope.bag"), code=3, message="nope.bag"))
+    out.append(Case("capture-nul-source", arg(src, "{in}/ru\0n.bag"), code=2, message="NUL"))
+    out.append(Case("capture-garbage-bag", CAPTURE, write("run.bag", b"#ROSBAG V2.0\ngarbage"), 3, "run.bag"))
+    out.append(Case("capture-empty-bag", CAPTURE, write("run.bag", b""), 3, "run.bag"))
+    out.append(Case("capture-missing-topic", arg(CAPTURE.index("/scan"), "/nope"), code=3, message="/nope"))
+    out.append(Case("capture-wrong-type", arg(CAPTURE.index("/scan"), "/image"), code=3, message="/image"))
+    out.append(Case("capture-missing-camera", arg(cam, "{in}/nope.yaml"), code=3, message="nope.yaml"))
+    out.append(Case("capture-camera-folder", arg(cam, "{in}/seq"), code=3, message="seq"))
+    out += [
+        Case(f"capture-camera-K={_show(v)}", CAPTURE, set_yaml("sess/camera.yaml", "K.0.0", v), 3, "K")
+        for v in NOT_POSITIVE[::2]
+    ]
+    out.append(Case("capture-camera-not-utf8", CAPTURE, write("sess/camera.yaml", b"\xff\xfe"), 3, "camera"))
+    out.append(
+        Case(
+            "capture-sequence-garbage-npz",
+            arg(src, "{in}/seq"),
+            write("seq/scans.npz", b"PK"),
+            3,
+            "scans.npz",
+        )
+    )
+    out.append(
+        Case(
+            "capture-sequence-dotdot-image",
+            arg(src, "{in}/seq"),
+            edit_text("seq/images.csv", "f001.png", "../../../x.png"),
+            3,
+            "images.csv",
+        )
+    )
+    o = CAPTURE.index("{out}/cap")
+    out.append(Case("capture-onto-input-folder", [*arg(o, "{in}"), "--force"], code=5, message="input"))
+    out.append(Case("capture-onto-bag", [*arg(o, "{in}/run.bag"), "--force"], code=2, message="run.bag"))
+    out.append(Case("capture-onto-camera", [*arg(o, "{in}/sess"), "--force"], code=5, message="sess"))
+    out.append(Case("capture-into-sequence", [*arg(src, "{in}/seq")[:-1], "{in}/seq/sub", "--force"], code=5))
+    out.append(Case("capture-exists", arg(o, "{in}/seq"), code=5, message="exists"))
+    out.append(Case("capture-onto-file", arg(o, "{in}/a.tum"), code=2, message="a.tum"))
+    out.append(Case("capture-nul-output", arg(o, "{out}/c\0ap"), code=2, message="NUL"))
+    return out
+
+
+def pick_cases() -> list[Case]:
+    out: list[Case] = []
+    out += opt_cases("pick", PICK, "--search-px", [*BAD_FLOATS, "1", "500"])
+    out += opt_cases("pick", PICK, "--edge-span-m", [*BAD_FLOATS, "0"])
+    out += opt_cases("pick", PICK, "--review-below", [*BAD_FLOATS, "2"])
+    out += opt_cases("pick", PICK, "--box-width-m", [*BAD_FLOATS, "0"])
+    rel = "sess/picks.yaml"
+    out += number_cases(
+        "pick", PICK, rel, "captures.0.image_endpoints_px.0.0", NOT_A_NUMBER, "image_endpoints_px"
+    )
+    out += number_cases("pick", PICK, rel, "captures.0.name", BAD_NAMES, "name")
+    out += number_cases(
+        "pick", PICK, rel, "captures.0.scan", ["../../../../../nope.yaml", "a\0b.yaml", None], "scan"
+    )
+    out += number_cases(
+        "pick", PICK, rel, "captures.0.image", ["../../../../../nope.png", "a\0b.png", 3], "image"
+    )
+    out += number_cases("pick", PICK, rel, "camera", ["nope.yaml", None], "camera")
+    out += [
+        Case(
+            f"pick-box-width={_show(v)}",
+            PICK,
+            lambda p, v=v: (set_yaml(rel, "schema_version", 2)(p), set_yaml(rel, "box", {"width_m": v})(p)),
+            3,
+            "width_m",
+        )
+        for v in NOT_POSITIVE
+    ]
+    out += number_cases("pick", PICK, rel, "captures", [None, [], "x"], "captures")
+    out += number_cases("pick", PICK, "sess/camera.yaml", "K.0.0", NOT_POSITIVE[::2], "K")
+    out += rig_cases("pick", [*PICK, "--rig", "{in}/rig.yaml"])[::4]
+    out.append(
+        Case("pick-missing", ["pick", "{in}/nope.yaml", "-o", "{out}/p.yaml"], code=3, message="nope.yaml")
+    )
+    out.append(Case("pick-missing-rig", [*PICK, "--rig", "{in}/nope.yaml"], code=3, message="nope.yaml"))
+    out.append(Case("pick-alias-bomb", PICK, write(rel, _alias_bomb()), 3, "picks.yaml"))
+    out.append(Case("pick-not-utf8", PICK, write(rel, b"\xff\xfe\xfa"), 3, "picks.yaml"))
+    out.append(
+        Case("pick-corrupt-image", PICK, write("sess/images/cap00.png", b"\x89PNGbroken"), 3, "cap00.png")
+    )
+    out.append(
+        Case(
+            "pick-onto-picks",
+            ["pick", "{in}/" + rel, "-o", "{in}/" + rel, "--force"],
+            code=5,
+            message="is the input",
+        )
+    )
+    out.append(Case("pick-exists", ["pick", "{in}/" + rel, "-o", "{in}/a.tum"], code=5, message="exists"))
+    out.append(
+        Case(
+            "pick-onto-folder",
+            ["pick", "{in}/" + rel, "-o", "{in}/seq", "--force"],
+            code=2,
+            message="directory",
+        )
+    )
+    out.append(
+        Case(
+            "pick-sheet-onto-image",
+            [*PICK, "--sheet", "{in}/sess/images/cap00.png", "--force"],
+            code=5,
+            message="is the input",
+        )
+    )
+    out.append(
+        Case(
+            "pick-sheet-onto-rig",
+            [*PICK, "--rig", "{in}/rig.yaml", "--sheet", "{in}/rig.yaml", "--force"],
+            code=5,
+            message="is the input",
+        )
+    )
+    out.append(Case("pick-sheet-is-output", [*PICK, "--sheet", "{out}/p.yaml"], code=5, message="p.yaml"))
+    out.append(Case("pick-sheet-exists", [*PICK, "--sheet", "{in}/a.tum"], code=5, message="exists"))
+    out.append(
+        Case("pick-nul-output", ["pick", "{in}/" + rel, "-o", "{out}/p\0.yaml"], code=2, message="NUL")
+    )
+    return out
+
+
+def laser_cases() -> list[Case]:
+    out: list[Case] = []
+    rel = "laser.txt"
+    first = "1.0 -0.5 0.25 0.5 3 5 2.0 2.0 2.0 2.0 2.0"
+
+    def radlocc(name: str, new: str, message: str = "laser.txt") -> None:
+        out.append(Case(f"import-laser-radlocc-{name}", LASER, edit_text(rel, first, new), 3, message))
+
+    for v in ["nan", "inf", "-inf", "1e400", "x"]:
+        radlocc(f"stamp={v}", first.replace("1.0 ", f"{v} ", 1))
+        radlocc(f"angle-min={v}", first.replace(" -0.5 ", f" {v} "))
+        radlocc(f"increment={v}", first.replace(" 0.25 ", f" {v} "))
+        radlocc(f"angle-max={v}", first.replace(" 0.5 3 ", f" {v} 3 "))
+    for v in ["0", "-0.25", "1e-300"]:
+        radlocc(f"increment={v}", first.replace(" 0.25 ", f" {v} "))
+    radlocc("range=x", first.replace(" 2.0 2.0 ", " x 2.0 ", 1))
+    radlocc("unit-type", first.replace(" 3 5 ", " 2 5 "))
+    for n in ["4", "6", "0", "-5", "5.5", "9" * 400]:
+        radlocc(f"count={n[:8]}", first.replace(" 3 5 ", f" 3 {n} "))
+    radlocc("angles-beyond-2pi", "1.0 -50 25 50 3 5 2.0 2.0 2.0 2.0 2.0")
+    radlocc("too-few", "1.0 -0.5 0.25")
+    radlocc("short-ranges", "1.0 -0.5 0.25 0.5 3 5 2.0 2.0")
+    out.append(
+        Case(
+            "import-laser-radlocc-stamp-repeated",
+            LASER,
+            edit_text(rel, "1.1 -0.5", "1.0 -0.5"),
+            3,
+            "laser.txt",
+        )
+    )
+    out.append(
+        Case("import-laser-radlocc-stamp-back", LASER, edit_text(rel, "1.2 -0.5", "0.5 -0.5"), 3, "laser.txt")
+    )
+    out.append(Case("import-laser-radlocc-empty", LASER, write(rel, ""), 3, "laser.txt"))
+    out.append(Case("import-laser-radlocc-comments", LASER, write(rel, "# nothing\n"), 3, "laser.txt"))
+    out.append(Case("import-laser-radlocc-binary", LASER, write(rel, b"\xff\xfe\x00\x01"), 3, "laser.txt"))
+    out.append(Case("import-laser-radlocc-as-csv", [*LASER, "--format", "csv"], code=3, message="laser.txt"))
+    csv = "laser.csv"
+
+    def csvcase(name: str, old: str, new: str) -> None:
+        out.append(Case(f"import-laser-csv-{name}", LASER_CSV, edit_text(csv, old, new), 3, "laser.csv"))
+
+    for v in ["nan", "inf", "x", "1e400"]:
+        csvcase(f"stamp={v}", "1.1,0.0,2.0", f"{v},0.0,2.0")
+        csvcase(f"angle={v}", "1.1,0.0,2.0", f"1.1,{v},2.0")
+    csvcase("range=x", "1.1,0.0,2.0", "1.1,0.0,x")
+    csvcase("angle-degrees-as-rad", "1.1,0.2,2.0", "1.1,90,2.0")
+    csvcase("angles-decrease", "1.1,0.2,2.0", "1.1,-0.1,2.0")
+    csvcase("angle-repeated", "1.1,0.2,2.0", "1.1,0.0,2.0")
+    csvcase("stamp-back", "1.2,-0.2,2.0\n1.2,0.0,2.0\n1.2,0.2,2.0", "0.5,-0.2,2.0\n0.5,0.0,2.0\n0.5,0.2,2.0")
+    csvcase("short-row", "1.1,0.0,2.0", "1.1,0.0")
+    csvcase("no-range-column", "stamp_s,angle_rad,range_m", "stamp_s,angle_rad,dist")
+    csvcase("no-angle-column", "stamp_s,angle_rad,range_m", "stamp_s,bearing,range_m")
+    out.append(
+        Case(
+            "import-laser-csv-header-only",
+            LASER_CSV,
+            write(csv, "stamp_s,angle_rad,range_m\n"),
+            3,
+            "laser.csv",
+        )
+    )
+    out.append(
+        Case("import-laser-csv-as-radlocc", [*LASER_CSV, "--format", "radlocc"], code=3, message="laser.csv")
+    )
+    il = "images.txt"
+
+    def images(name: str, old: str, new: str, message: str = "images.txt") -> None:
+        out.append(Case(f"import-laser-images-{name}", LASER, edit_text(il, old, new), 3, message))
+
+    images("dotdot", "im1.png", "../../../x.png")
+    images("abs", "im1.png", "/etc/passwd")
+    images("nul", "im1.png", "i\0m.png")
+    images("folder", "im1.png", ".")
+    images("missing", "im1.png", "nope.png", "nope.png")
+    for v in ["nan", "inf", "-inf", "1e400"]:
+        images(f"stamp={v}", "1.1 im1.png", f"{v} im1.png")
+    images("stamp-back", "1.1 im1.png", "0.5 im1.png")
+    images("stamp-repeated", "1.1 im1.png", "1.0 im1.png")
+    images("three-fields", "1.1 im1.png", "1.1 im1.png extra")
+    images("no-stamp", "1.1 im1.png", "im1.png im1.png")
+    out.append(Case("import-laser-images-empty", LASER, write(il, ""), 3, "images.txt"))
+    out.append(Case("import-laser-images-binary", LASER, write(il, b"\xff\xfe\x00"), 3, "images.txt"))
+    out.append(
+        Case("import-laser-images-stamps-only-missing", LASER, write(il, "1.0\n1.1\n"), 3, "image_001")
+    )
+    out.append(Case("import-laser-images-stamps-only-nan", LASER, write(il, "nan\n"), 3, "images.txt"))
+    out += opt_cases("import-laser", LASER, "--range-min-m", ["nan", "inf", "-1", "x"])
+    out += opt_cases("import-laser", LASER, "--range-max-m", ["nan", "inf", "0", "-1"])
+    out += opt_cases("import-laser", LASER, "--format", ["carmen", ""])
+    out.append(
+        Case(
+            "import-laser-range-min-over-max",
+            [*LASER, "--range-min-m", "50", "--range-max-m", "10"],
+            code=3,
+            message="--range-min-m",
+        )
+    )
+    out.append(
+        Case(
+            "import-laser-missing",
+            ["import-laser", "{in}/nope.txt", "-o", "{out}/seq"],
+            code=3,
+            message="nope.txt",
+        )
+    )
+    out.append(
+        Case("import-laser-folder", ["import-laser", "{in}/seq", "-o", "{out}/seq"], code=3, message="seq")
+    )
+    out.append(
+        Case(
+            "import-laser-nul", ["import-laser", "{in}/la\0ser.txt", "-o", "{out}/seq"], code=2, message="NUL"
+        )
+    )
+    out.append(
+        Case(
+            "import-laser-missing-images",
+            [*LASER[:3], "{in}/nope.txt", *LASER[4:]],
+            code=3,
+            message="nope.txt",
+        )
+    )
+    out.append(
+        Case(
+            "import-laser-missing-camera", [*LASER, "--camera", "{in}/nope.yaml"], code=3, message="nope.yaml"
+        )
+    )
+    out.append(
+        Case(
+            "import-laser-camera-K=nan",
+            [*LASER, "--camera", "{in}/sess/camera.yaml"],
+            set_yaml("sess/camera.yaml", "K.0.0", NAN),
+            3,
+            "K",
+        )
+    )
+    out.append(
+        Case(
+            "import-laser-camera-garbage", [*LASER, "--camera", "{in}/laser.txt"], code=3, message="laser.txt"
+        )
+    )
+    out.append(
+        Case("import-laser-onto-input-folder", [*LASER[:-1], "{in}", "--force"], code=5, message="input")
+    )
+    out.append(
+        Case("import-laser-onto-log", [*LASER[:-1], "{in}/laser.txt", "--force"], code=2, message="laser.txt")
+    )
+    out.append(Case("import-laser-exists", [*LASER[:-1], "{in}/seq"], code=5, message="exists"))
+    out.append(
+        Case(
+            "import-laser-foreign",
+            [*LASER[:-1], "{in}/sess/scans", "--force"],
+            code=5,
+            message="not written by rigcal",
+        )
+    )
+    out.append(Case("import-laser-nul-output", [*LASER[:-1], "{out}/s\0eq"], code=2, message="NUL"))
+    return out
+
+
+def batch_cases() -> list[Case]:
+    out: list[Case] = []
+    rel = "batch.yaml"
+    for key, vals in [
+        ("schema_version", [2, None, "1", 1.5]),
+        ("command", ["bogus", None, 3, ["check"]]),
+        ("items", [None, [], "x", {}, [None], ["a.tum"]]),
+        ("items.0.name", ["../x", "a/b", "", "a\0b", 7, ".."]),
+        ("items.0.trajectory", [None, 5, "a\0b.tum", ["a.tum"]]),
+        ("items.0.gt", [None, 3.5]),
+        ("items.0.level", [0.01]),
+        ("defaults", ["x", [1]]),
+    ]:
+        for v in vals:
+            out.append(
+                Case(
+                    f"batch-{key}={_show(v)}",
+                    BATCH,
+                    set_yaml(rel, key, v),
+                    3,
+                    key.split(".")[-1].replace("0", ""),
+                )
+            )
+    out.append(Case("batch-no-items-key", BATCH, drop_yaml(rel, "items"), 3, "items"))
+    out.append(Case("batch-no-command", BATCH, drop_yaml(rel, "command"), 3, "command"))
+    out.append(Case("batch-no-gt", BATCH, drop_yaml(rel, "items.0.gt"), 3, "gt"))
+    out.append(Case("batch-unknown-top-key", BATCH, set_yaml(rel, "workers", 4), 3, "workers"))
+    out.append(
+        Case(
+            "batch-duplicate-names",
+            BATCH,
+            set_yaml(rel, "items", [{"name": "one", "trajectory": "a.tum", "gt": "gt.tum"}] * 2),
+            3,
+            "one",
+        )
+    )
+    out.append(Case("batch-alias-bomb", BATCH, write(rel, _alias_bomb()), 3, "batch.yaml"))
+    out.append(Case("batch-items-bomb", BATCH, with_bomb(rel, "items"), 3, "batch.yaml"))
+    out.append(Case("batch-not-utf8", BATCH, write(rel, b"\xff\xfe\xfa"), 3, "batch.yaml"))
+    out.append(Case("batch-not-yaml", BATCH, write(rel, "items: [\n"), 3, "batch.yaml"))
+    out.append(Case("batch-empty", BATCH, write(rel, ""), 3, "batch.yaml"))
+    out.append(
+        Case("batch-missing", ["batch", "{in}/nope.yaml", "-o", "{out}/b"], code=3, message="nope.yaml")
+    )
+    out.append(
+        Case("batch-glob-no-command", ["batch", "{in}/*.tum", "-o", "{out}/b"], code=2, message="--command")
+    )
+    out.append(
+        Case(
+            "batch-glob-no-match",
+            ["batch", "{in}/*.nope", "--command", "evaluate", "--set", "gt=gt.tum", "-o", "{out}/b"],
+            code=3,
+            message="nope",
+        )
+    )
+    out.append(
+        Case(
+            "batch-glob-bad-set",
+            ["batch", "{in}/*.tum", "--command", "evaluate", "--set", "noequals", "-o", "{out}/b"],
+            code=3,
+            message="--set",
+        )
+    )
+    out.append(
+        Case(
+            "batch-glob-unknown-set",
+            [
+                "batch",
+                "{in}/*.tum",
+                "--command",
+                "evaluate",
+                "--set",
+                "gt=gt.tum",
+                "--set",
+                "bogus=1",
+                "-o",
+                "{out}/b",
+            ],
+            code=3,
+            message="bogus",
+        )
+    )
+    out.append(
+        Case(
+            "batch-glob-nul",
+            ["batch", "{in}/*\0.tum", "--command", "evaluate", "-o", "{out}/b"],
+            code=2,
+            message="NUL",
+        )
+    )
+    out += opt_cases("batch", BATCH[:-2], "-j", ["-1", "x", "nan"])
+    out.append(Case("batch-onto-manifest", [*BATCH[:3], "{in}/batch.yaml"], code=2, message="batch.yaml"))
+    out.append(Case("batch-onto-input-folder", [*BATCH[:3], "{in}"], code=5, message="input"))
+    out.append(Case("batch-onto-file", [*BATCH[:3], "{in}/a.tum"], code=2, message="a.tum"))
+    out.append(
+        Case("batch-foreign", [*BATCH[:3], "{in}/sess/scans"], code=5, message="not written by rigcal")
+    )
+    out.append(Case("batch-nul-output", [*BATCH[:3], "{out}/b\0"], code=2, message="NUL"))
+    return out
+
+
+def returns_file_cases() -> list[Case]:
+    out: list[Case] = []
+    rel = "board/board_session.yaml"
+    for v in [
+        "../../../../../nope.txt",
+        "a\0b.txt",
+        None,
+        5,
+        "",
+        "nope.txt",
+        ".",
+        ["ret00.txt"],
+    ]:
+        out.append(
+            Case(
+                f"board-returns-file={_show(v)}",
+                BOARD,
+                set_yaml(rel, "captures.0.laser_side.returns_file", v),
+                3,
+                "returns_file",
+            )
+        )
+    out.append(
+        Case(
+            "board-returns-file-outside",
+            BOARD,
+            set_yaml(rel, "captures.0.laser_side.returns_file", "/etc/passwd"),
+            3,
+            "passwd",
+        )
+    )
+    out.append(
+        Case(
+            "board-returns-file-needs-schema-2",
+            BOARD,
+            set_yaml(rel, "schema_version", 1),
+            3,
+            "schema_version",
+        )
+    )
+    ret = "board/ret00.txt"
+
+    def spoil(name: str, text: str | bytes, message: str = "ret00.txt") -> None:
+        out.append(Case(f"board-returns-{name}", BOARD, write(ret, text), 3, message))
+
+    for v in ["nan", "inf", "-inf", "1e400", "x"]:
+        spoil(f"x={v}", f"{v} 1.0\n1.0 1.0\n")
+        spoil(f"z={v}", f"1.0 1.0 {v}\n1.1 1.0 0\n")
+    spoil("z-off-plane", "1.0 1.0 0.5\n1.1 1.0 0\n")
+    spoil("one-field", "1.0\n1.1 1.0\n")
+    spoil("four-fields", "1.0 1.0 0 0\n1.1 1.0 0\n")
+    spoil("one-point", "1.0 1.0\n")
+    spoil("repeated-point", "1.0 1.0\n1.0 1.0\n")
+    spoil("empty", "")
+    spoil("comments-only", "% nothing\n# still nothing\n")
+    spoil("binary", b"\xff\xfe\x00\x01")
+    out.append(Case("board-returns-missing", BOARD, lambda p: (p / ret).unlink(), 3, "ret00.txt"))
+    out.append(
+        Case("board-returns-folder", BOARD, lambda p: (p / ret).unlink() or (p / ret).mkdir(), 3, "ret00.txt")
+    )
+    out.append(
+        Case(
+            "board-rig-onto-returns", [*BOARD[:-1], "{in}/" + ret, "--force"], code=5, message="is the input"
+        )
+    )
     return out
 
 
@@ -906,6 +1442,11 @@ def all_cases() -> list[Case]:
         *camera_format_cases(),
         *bag_cases(),
         *output_cases(),
+        *capture_cases(),
+        *pick_cases(),
+        *laser_cases(),
+        *batch_cases(),
+        *returns_file_cases(),
         Case("lines-nul-path", ["lines", "{in}/sc\0an.yaml"], code=2, message="NUL"),
         Case("lines-missing", ["lines", "{in}/nope.yaml"], code=3, message="nope.yaml"),
         Case("lines-folder", ["lines", "{in}/seq"], code=3, message="seq"),

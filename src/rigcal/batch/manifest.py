@@ -197,7 +197,7 @@ def glob_items(pattern: str, command: str, options: Mapping[str, Any]) -> list[I
 
 
 def _command(value: Any, path: Path | None, key: str) -> str:
-    if value not in COMMANDS:
+    if not isinstance(value, str) or value not in COMMANDS:
         raise InputError.at(path, key, value, f"one of {sorted(COMMANDS)}")
     return str(value)
 
@@ -227,8 +227,8 @@ def _convert(value: Any, kind: str, path: Path | None, key: str, base: Path, fro
     if from_text and kind != "list":
         value = _from_text(value, kind, key)
     if kind == "path":
-        if not isinstance(value, str) or not value:
-            raise InputError.at(path, key, value, "a path (a non-empty string)")
+        if not isinstance(value, str) or not value or "\0" in value:
+            raise InputError.at(path, key, value, "a path (a non-empty string without NUL bytes)")
         return (base / Path(value).expanduser()).resolve()
     if kind == "str":
         if not isinstance(value, str):

@@ -31,7 +31,7 @@ from typing import Any
 
 from rigcal.batch.manifest import COMMANDS, Item
 from rigcal.errors import InputError, OutputError
-from rigcal.io.files import atomic_write_text
+from rigcal.io.files import MARKER, atomic_write_text, check_apart
 
 ITEM_SCHEMA_VERSION = 1
 ITEM_FILE = "item.json"
@@ -179,6 +179,17 @@ def run_batch(
     out = Path(output)
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder; expected the batch's output folder")
+    # The items' inputs stay apart from the output (a drift log is one of the check's outputs).
+    check_apart(out, [Path(v) for i in items for k, v in i.options.items() if k != "log" and _is_path(v)])
+    try:
+        foreign = out.is_dir() and not (out / MARKER).is_file() and any(out.iterdir())
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot read: {exc.strerror or exc}") from None
+    if foreign:
+        raise OutputError(
+            f"{out}: exists and was not written by rigcal (no {MARKER} file); "
+            "expected a new, empty or earlier batch output folder"
+        )
     outcomes: dict[str, Outcome] = {}
     todo: list[tuple[Item, list[str]]] = []
     for item in items:
@@ -192,6 +203,8 @@ def run_batch(
     if progress is not None:
         for o in outcomes.values():
             progress(o, done, len(items))
+    if todo and not (out / MARKER).is_file():
+        atomic_write_text(out / MARKER, "This folder was written by rigcal batch.\n")
     if todo:
         with _executor(settings, len(todo)) as submit:
             futures = {submit(argv): (item, argv) for item, argv in todo}
@@ -204,6 +217,10 @@ def run_batch(
                 if progress is not None:
                     progress(outcomes[item.name], done, len(items))
     return [outcomes[i.name] for i in items]
+
+
+def _is_path(value: Any) -> bool:
+    return isinstance(value, (str, Path)) and Path(value).is_absolute()
 
 
 def _result(fut: cf.Future[dict[str, Any]]) -> dict[str, Any]:

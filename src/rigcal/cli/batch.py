@@ -83,6 +83,9 @@ def batch(
         if command is not None or set_items:
             raise click.UsageError("--command and --set go with a glob; a manifest names its own")
         items = read_manifest(source)
+        from rigcal.io.files import check_apart
+
+        check_apart(output, [source])
     else:
         if command is None:
             raise click.UsageError("a glob needs --command (check, solve, localize or evaluate)")

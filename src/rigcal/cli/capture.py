@@ -83,7 +83,7 @@ def capture(
     from rigcal.io.files import check_folder_writable
     from rigcal.io.sequence import read_sequence
 
-    check_folder_writable(output, force)
+    check_folder_writable(output, force, [source, *([camera_file] if camera_file is not None else [])])
     settings = CaptureSettings(
         scan_threshold_m, image_threshold, changed_fraction, still_frames, max_offset_s
     )

@@ -56,11 +56,11 @@ def import_laser(
       rigcal import-laser scans.csv -o seq/ --force
       rigcal capture seq/ -o session/ --box-width-m 0.6
     """
-    from rigcal.errors import InputError, OutputError
+    from rigcal.errors import InputError
+    from rigcal.io.files import check_folder_writable
     from rigcal.io.laser_text import import_laser_text
 
-    if output.exists() and not force:
-        raise OutputError(f"{output}: exists; pass --force to replace it")
+    check_folder_writable(output, force, [p for p in (log, images, camera) if p is not None])
     if not range_min_m < range_max_m:
         raise InputError.at(
             None, "--range-min-m", range_min_m, f"a range below --range-max-m {range_max_m:g}"

@@ -68,14 +68,19 @@ def pick(
     """
     from rigcal.calib.autopick import PickSettings, auto_pick, pick_file_text
     from rigcal.calib.picks import read_pick_draft
-    from rigcal.io.files import atomic_write_text, check_writable
+    from rigcal.io.files import atomic_write_text, check_apart, check_writable
     from rigcal.rigfile import read_rig
     from rigcal.viz.contact_sheet import SheetEntry, write_contact_sheet
 
-    check_writable(output, force)
+    inputs = [picks, *([rig] if rig is not None else [])]
+    check_writable(output, force, inputs)
     if sheet is not None:
-        check_writable(sheet, force)
+        check_writable(sheet, force, [*inputs, output])
     draft = read_pick_draft(picks)
+    files = [draft.path, draft.camera_path, *(p for c in draft.captures for p in (c.scan_path, c.image_path))]
+    check_apart(output, files)
+    if sheet is not None:
+        check_apart(sheet, files)
     T = read_rig(rig).T_cam_laser if rig is not None else None
     settings = PickSettings(
         search_px=search_px, edge_span_m=edge_span_m, review_below=review_below, box_width_m=box_width_m

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shlex
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 
 import click
@@ -147,6 +148,7 @@ def solve(
         return
     # One rule for both methods: --range-sigma-m, else the file's laser.range_sigma_m.
     cal = calibrate(picks, settings, truth, command=command, range_sigma_m=range_sigma_m)
+    _check_apart_from(output, report_dir, cal.session.input_files())
     if report_dir is not None:
         write_report_dir(report_dir, cal, force=force)
     write_rig(output, cal.rig, force=force)
@@ -160,6 +162,16 @@ def solve(
     else:
         click.echo(report_table(cal.report), nl=False)
         click.echo(f"wrote {output}" + (f" and {report_dir}/" if report_dir else ""), err=True)
+
+
+def _check_apart_from(output: Path, report_dir: Path | None, files: Iterable[Path]) -> None:
+    """The outputs against every file the session read (its scans, images, camera, lists)."""
+    from rigcal.io.files import check_apart
+
+    files = list(files)
+    check_apart(output, files)
+    if report_dir is not None:
+        check_apart(report_dir, files)
 
 
 def _solve_board(
@@ -187,6 +199,7 @@ def _solve_board(
     cal = calibrate_board(
         session, range_sigma_m, truth, command=command, seed=seed, noise=noise_mode, range_bias=range_bias
     )
+    _check_apart_from(output, report_dir, cal.session.files)
     if report_dir is not None:
         with atomic_folder(report_dir, force) as tmp:
             (tmp / "report.yaml").write_text(

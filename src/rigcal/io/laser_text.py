@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from rigcal.errors import InputError
 from rigcal.io.files import read_text
 from rigcal.io.sequence import ImageFrame, write_sequence
+from rigcal.io.validate import relative_inside
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
@@ -80,7 +81,7 @@ def read_board_points(path: str | Path) -> FloatArray:
 
     Raises:
         InputError: missing or unreadable, a line that is not 2 or 3 finite numbers, a z off
-            the scan plane, or fewer than 2 points, naming the file and line.
+            the scan plane, or fewer than 2 distinct points, naming the file and line.
     """
     path = Path(path)
     what = "list of laser points on the board (x y [z] per line, metres)"
@@ -103,7 +104,13 @@ def read_board_points(path: str | Path) -> FloatArray:
         pts.append(v[:2])
     if len(pts) < 2:
         raise InputError(f"{path}: got {len(pts)} point(s); expected at least 2 laser points on the board")
-    return np.array(pts, dtype=float)
+    out = np.array(pts, dtype=float)
+    if len(np.unique(out, axis=0)) < 2:
+        raise InputError(
+            f"{path}: got {len(pts)} points all at ({out[0, 0]:g}, {out[0, 1]:g}); "
+            "expected at least 2 distinct laser points on the board"
+        )
+    return out
 
 
 def detect_format(path: Path) -> str:
@@ -196,6 +203,8 @@ def read_csv_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: floa
             if groups and not stamp > groups[-1][0]:
                 raise InputError(f"{path}: line {n}: stamp {stamp!r} not after {groups[-1][0]!r}")
             groups.append((stamp, [], []))
+        if abs(angle * scale) > 2 * math.pi + 1e-6:
+            raise InputError(f"{path}: line {n}: got angle {angle!r}; expected within +/- 2 pi radians")
         g = groups[-1]
         if g[1] and not angle * scale > g[1][-1]:
             raise InputError(
@@ -239,7 +248,7 @@ def read_image_list(path: str | Path) -> tuple[FloatArray, list[Path]]:
                     f"{path}: line {n}: got {line[:60]!r}; expected a stamp (s) and an image file"
                 )
             stamp = float(numbers[0])
-            file = path.parent / names[0]
+            file = path.parent / relative_inside(names[0], path, f"line {n}")
             if not file.is_file():
                 raise InputError(f"{path}: line {n}: image {names[0]} not found in {path.parent}")
         if stamps and not stamp > stamps[-1]:
