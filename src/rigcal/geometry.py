@@ -102,6 +102,14 @@ def rotation_angle_rad(R: ArrayLike) -> float:
     return float(np.arctan2(s, c))
 
 
+def tangent_delta(T: ArrayLike, T_ref: ArrayLike) -> FloatArray:
+    """(6,) [d (rad), e (m)] with R = Exp(d) R_ref, t = t_ref + e: the difference of two
+    transforms in the tangent space of rigcal's covariances (docs/conventions.md)."""
+    T = np.asarray(T, dtype=float)
+    T_ref = np.asarray(T_ref, dtype=float)
+    return np.concatenate([R_to_rotvec(T[:3, :3] @ T_ref[:3, :3].T), T[:3, 3] - T_ref[:3, 3]])
+
+
 def pose_error(T_est: ArrayLike, T_ref: ArrayLike) -> tuple[float, float]:
     """Rotation (deg) and translation (m) difference between two transforms of the same frames."""
     T_est = np.asarray(T_est, dtype=float)

@@ -14,10 +14,9 @@ from rigcal.calib.spread import (
     honest_covariance,
     leave_one_out,
     sensitivity,
-    tangent_delta,
     uncertainty_warnings,
 )
-from rigcal.geometry import make_T, rotvec_to_R
+from rigcal.geometry import make_T, rotvec_to_R, tangent_delta
 
 
 def linear_problem(rng, C=15, rows=2):

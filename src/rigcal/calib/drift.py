@@ -41,7 +41,7 @@ from rigcal.calib.refine import (
 )
 from rigcal.calib.solve import INLIER_GATE_CHI2, CalibProblem, CalibResult, SolveSettings, solve
 from rigcal.errors import CalibrationError, InputError
-from rigcal.geometry import R_to_rotvec
+from rigcal.geometry import tangent_delta
 from rigcal.rig import Rig
 
 FloatArray = NDArray[np.float64]
@@ -260,9 +260,8 @@ def _end_chi2(e: FloatArray, W: FloatArray, pose_block: FloatArray) -> float:
 def _pose_test(rig: Rig, fresh: CalibResult) -> dict[str, Any]:
     assert rig.covariance is not None
     T0, T1 = rig.T_cam_laser, fresh.T_cam_laser
-    d_rot = R_to_rotvec(T1[:3, :3] @ T0[:3, :3].T)
-    d_t = T1[:3, 3] - T0[:3, 3]
-    d = np.concatenate([d_rot, d_t])
+    d = tangent_delta(T1, T0)
+    d_rot, d_t = d[:3], d[3:]
     C = rig.covariance + fresh.covariance
     m2 = float(d @ np.linalg.solve(C, d))
     sig = np.sqrt(np.diag(C))

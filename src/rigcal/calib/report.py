@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from rigcal.calib.ransac import reprojection_errors
 from rigcal.calib.solve import CalibResult
 from rigcal.calib.spread import Sensitivity, Spread, uncertainty_warnings
-from rigcal.geometry import R_to_rotvec
+from rigcal.geometry import tangent_delta
 
 FloatArray = NDArray[np.float64]
 
@@ -134,9 +134,8 @@ def truth_comparison(T_est: FloatArray, cov: FloatArray, T_truth: FloatArray) ->
     t_truth = t_est + e; NEES = [d, e]^T C^-1 [d, e], chi-square with 6 dof if the
     covariance is honest.
     """
-    d = R_to_rotvec(T_truth[:3, :3] @ T_est[:3, :3].T)
-    e = T_truth[:3, 3] - T_est[:3, 3]
-    x = np.concatenate([d, e])
+    x = tangent_delta(T_truth, T_est)
+    d, e = x[:3], x[3:]
     nees = float(x @ np.linalg.solve(cov, x))
     return {
         "rotation_error_deg": _r(np.degrees(np.linalg.norm(d)), 5),

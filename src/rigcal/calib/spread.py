@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.geometry import R_to_rotvec
+from rigcal.geometry import tangent_delta
 
 FloatArray = NDArray[np.float64]
 
@@ -46,11 +46,6 @@ SPREAD_INFLATE_RATIO = 1.5
 SENSITIVITY_WARN_SIGMAS = 1.0
 # Fewer captures than this give no jackknife (too few re-solves to estimate a 6x6 spread).
 MIN_JACKKNIFE_CAPTURES = 6
-
-
-def tangent_delta(T: FloatArray, T_ref: FloatArray) -> FloatArray:
-    """(6,) [d (rad), e (m)] with R = Exp(d) R_ref, t = t_ref + e."""
-    return np.concatenate([R_to_rotvec(T[:3, :3] @ T_ref[:3, :3].T), T[:3, 3] - T_ref[:3, 3]])
 
 
 @dataclass(frozen=True)
