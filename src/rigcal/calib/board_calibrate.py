@@ -20,12 +20,11 @@ from rigcal.calib.plane import PlaneResult, solve_plane
 from rigcal.calib.report import (
     MAX_SIGMA_ROTATION_DEG,
     MAX_SIGMA_TRANSLATION_MM,
-    noise_lines,
+    checks_lines,
     noise_section,
     noise_warnings,
     rig_uncertainty,
     truth_comparison,
-    uncertainty_lines,
     uncertainty_section,
 )
 from rigcal.calib.spread import uncertainty_warnings
@@ -248,8 +247,6 @@ def board_report_table(report: dict[str, Any]) -> str:
             f"range bias by incidence (reads long by b (1/cos(i) - 1)): b = {s['range_bias_mm']:.1f} "
             f"+- {s['range_bias_sigma_mm']:.1f} mm"
         )
-    lines += noise_lines(report.get("noise", {}))
-    if "uncertainty" in report:
-        lines += uncertainty_lines(report["uncertainty"])
+    lines += checks_lines(report)
     lines += [f"warning: {w}" for w in report["warnings"]]
     return "\n".join(lines) + "\n"

@@ -475,7 +475,7 @@ def solve_plane(
             f"{MIN_CAPTURES} (check the segment ids and corners of the others)"
         )
     used = np.flatnonzero(mask)
-    cov_full, r_used, weights_used, blocks = _covariance(T, observations, lines, noise, used)
+    cov_full, r_used, weights_used, blocks, scale2 = _covariance(T, observations, lines, noise, used)
     cov_model = cov_full[:6, :6]
     bias_sigma = float(np.sqrt(cov_full[6, 6])) if noise.fit_range_bias else None
     chi2 = _chi2(T, observations, lines, noise)
@@ -490,7 +490,6 @@ def solve_plane(
         def without(k: int) -> FloatArray:
             return _fit(T, observations, lines, noise, np.delete(used, k))[0]
 
-        scale2 = float(cov_full[0, 0] / np.linalg.inv(sum(b.T @ b for b in blocks))[0, 0])
         spread = leave_one_out(without, T, names, cov_model, scale2 * expected_jackknife(blocks)[:6, :6])
         cov = honest_covariance(cov_model, spread)
         settings = {"range_sigma_m": noise.range_sigma_m}
@@ -573,30 +572,30 @@ def _robust_fit(
     """From T0: a robust fit on every capture, the per-capture error estimated from the
     captures' chi-squares, the verdicts, and a robust fit on the inliers; twice over, as
     the verdicts and the estimate settle. Returns (pose, noise, inliers, robust cost)."""
-    C = len(observations)
-    mask = np.ones(C, dtype=bool)
-    T = T0
-    for _ in range(3):
+    mask = np.ones(len(observations), dtype=bool)
+
+    def refit(T: FloatArray, noise: PlaneNoise, estimate: bool) -> tuple[FloatArray, PlaneNoise]:
+        """The pose (and range bias) on the captures in ``mask``; with ``estimate``, the
+        per-capture error re-estimated under it."""
         T, bias = _fit(
             T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None
         )
         noise = replace(noise, range_bias_m=bias)
-        noise = replace(noise, capture_sigma_m=_capture_sigma(T, observations, lines, noise, mask))
+        if estimate:
+            noise = replace(noise, capture_sigma_m=_capture_sigma(T, observations, lines, noise, mask))
+        return T, noise
+
+    T = T0
+    for _ in range(3):
+        T, noise = refit(T, noise, True)
         new = grouped_verdicts(_chi2(T, observations, lines, noise), groups, mask, OUTLIER_GATE_CHI2)
         if np.array_equal(new, mask):
             break
         mask = new
     # The pose and the per-capture error on the settled verdicts.
     for _ in range(2):
-        T, bias = _fit(
-            T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None
-        )
-        noise = replace(noise, range_bias_m=bias)
-        noise = replace(noise, capture_sigma_m=_capture_sigma(T, observations, lines, noise, mask))
-    T, bias = _fit(
-        T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None
-    )
-    noise = replace(noise, range_bias_m=bias)
+        T, noise = refit(T, noise, True)
+    T, noise = refit(T, noise, False)
     chi2 = _chi2(T, observations, lines, noise)
     z = np.sqrt(chi2[mask])
     cost = float(np.sum(LOSS_SCALE**2 * np.log1p((z / LOSS_SCALE) ** 2)))
@@ -717,11 +716,11 @@ def _covariance(
     lines: Sequence[CaptureLine],
     noise: PlaneNoise,
     used: NDArray[np.int64],
-) -> tuple[FloatArray, FloatArray, FloatArray, list[FloatArray]]:
+) -> tuple[FloatArray, FloatArray, FloatArray, list[FloatArray], float]:
     """The model covariance at T from the robust fit's information (IRLS weights), inflated
     by the weighted residual scale when above 1; also the used captures' whitened residuals,
-    each capture's robust weight (the mean of its two ends') and its weighted whitened
-    Jacobian rows."""
+    each capture's robust weight (the mean of its two ends'), its weighted whitened
+    Jacobian rows and the inflation factor (squared residual scale, at least 1)."""
     obs = [observations[i] for i in used]
     lns = [lines[i] for i in used]
     W = _whiteners(T, obs, lns, noise)
@@ -749,7 +748,7 @@ def _covariance(
     scale2 = max(1.0, float(np.sum(wts * r**2)) / dof) if dof > 0 else 1.0
     # The pose's covariance with the range bias (when fitted) marginalised out.
     cov = scale2 * np.linalg.inv(info)
-    return 0.5 * (cov + cov.T), r, wts.reshape(-1, 2).mean(axis=1), blocks
+    return 0.5 * (cov + cov.T), r, wts.reshape(-1, 2).mean(axis=1), blocks, scale2
 
 
 def _check_observable(observations: Sequence[PlaneObservation]) -> None:

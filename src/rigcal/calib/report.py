@@ -210,7 +210,16 @@ def rig_uncertainty(
     return out
 
 
-def uncertainty_lines(u: dict[str, Any]) -> list[str]:
+def checks_lines(report: dict[str, Any]) -> list[str]:
+    """A report's noise and uncertainty sections as lines of the readable table (both
+    methods)."""
+    lines = _noise_lines(report.get("noise", {}))
+    if "uncertainty" in report:
+        lines += _uncertainty_lines(report["uncertainty"])
+    return lines
+
+
+def _uncertainty_lines(u: dict[str, Any]) -> list[str]:
     """The uncertainty section as lines of the readable table."""
     lines = []
     if "spread" in u:
@@ -228,7 +237,7 @@ def uncertainty_lines(u: dict[str, Any]) -> list[str]:
     return lines
 
 
-def noise_lines(noise: dict[str, Any]) -> list[str]:
+def _noise_lines(noise: dict[str, Any]) -> list[str]:
     """The noise section as lines of the readable table."""
     lines = []
     for name, v in noise.items():
@@ -331,9 +340,7 @@ def report_table(report: dict[str, Any]) -> str:
             f"error against truth: rotation {t['rotation_error_deg']:.4f} deg, translation "
             f"{t['translation_error_mm']:.2f} mm (NEES {t['nees']:.2f}, expected about 6)"
         )
-    lines += noise_lines(report.get("noise", {}))
-    if "uncertainty" in report:
-        lines += uncertainty_lines(report["uncertainty"])
+    lines += checks_lines(report)
     for r in report["rejected"]:
         lines.append(
             f"rejected: capture {r['capture']} end {r['end']} "

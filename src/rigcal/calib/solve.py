@@ -250,7 +250,8 @@ def _uncertainty(
 
     def changed(name: str, value: float) -> FloatArray:
         n = replace(noise, **{name: value})
-        m = endpoint_set(problem.observations, n, params.use_side_points)
+        # The laser ends' covariances depend on the range noise only.
+        m = endpoint_set(problem.observations, n, params.use_side_points) if name == "range_sigma_m" else meas
         return refine_pose(camera, T, m.subset(inliers), n, params).T_cam_laser
 
     sens = sensitivity(
