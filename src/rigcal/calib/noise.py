@@ -30,6 +30,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import brentq
 
+from rigcal.calib.lines import fit_line
+
 FloatArray = NDArray[np.float64]
 
 # 1.4826 * MAD is the standard deviation of a normal sample.
@@ -89,9 +91,9 @@ class LineFit:
 
 
 def _tls(points: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    c = points.mean(axis=0)
-    _, _, Vt = np.linalg.svd(points - c, full_matrices=False)
-    return c, Vt[0], np.array([-Vt[0][1], Vt[0][0]])
+    """Centroid, direction (first to last point) and normal of the total least-squares line."""
+    c, u, _ = fit_line(points)
+    return c, u, np.array([-u[1], u[0]])
 
 
 def fit_line_robust(points: FloatArray, iterations: int = 4) -> LineFit:
@@ -115,11 +117,8 @@ def fit_line_robust(points: FloatArray, iterations: int = 4) -> LineFit:
         if new.sum() < max(2, kept.sum() // 2) or np.array_equal(new, kept):
             break
         kept = new
+    # The direction runs along the scan order (first to last kept return), as ``ends`` do.
     c, u, n = _tls(p[kept])
-    # Orient the direction along the scan order so that ``ends`` keeps it.
-    if len(p) >= 2 and (p[-1] - p[0]) @ u < 0:
-        u = -u
-        n = -n
     r = (p - c) @ n
     cos = np.maximum(np.abs(rays @ n), MIN_COS_INCIDENCE)
     return LineFit(c, u, n, r, kept, cos, (p - c) @ u)
