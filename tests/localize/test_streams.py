@@ -157,6 +157,48 @@ def test_the_image_cache_keeps_what_its_byte_budget_allows(seq, monkeypatch):
     assert st.timings_s["read_images_s"] > 0
 
 
+def _distinct_images(seq):
+    """Give each image of the sequence its own content (image k is filled with k)."""
+    for k, name in enumerate(sorted((seq / "images").iterdir())):
+        name.write_bytes(cv2.imencode(".png", np.full((480, 640), k, np.uint8))[1].tobytes())
+
+
+def test_images_in_order_are_each_frame_decoded_ahead_once(seq, monkeypatch):
+    _distinct_images(seq)
+    st = open_streams(seq)
+    st.image(2)  # already kept: not decoded again
+    decoded = []
+    real = st._decode
+    monkeypatch.setattr(st, "_decode", lambda i: decoded.append(i) or real(i))
+    frames = list(st.images_in_order(ahead=3))
+    assert [int(f[0, 0]) for f in frames] == list(range(st.n_images))
+    assert sorted(decoded) == [i for i in range(st.n_images) if i != 2]
+    assert all(st.image(i) is frames[i] for i in range(st.n_images))  # kept for a second pass
+
+
+def test_a_broken_image_ahead_stops_the_ordered_reading_with_its_name(seq):
+    _distinct_images(seq)
+    (seq / "images" / "000005.png").write_bytes(b"not a png")
+    st = open_streams(seq)
+    frames = st.images_in_order(ahead=4)
+    assert [int(next(frames)[0, 0]) for _ in range(5)] == [0, 1, 2, 3, 4]
+    with pytest.raises(InputError, match=r"000005\.png: not a readable image"):
+        next(frames)
+
+
+def test_feature_tracks_read_the_frames_in_order_ahead(seq):
+    from rigcal.localize.tracks import track_sequence
+
+    st = open_streams(seq)
+    assert st.rig is not None
+    direct = track_sequence([st.image(i) for i in range(st.n_images)], st.rig.camera)
+    ahead = open_streams(seq).feature_tracks()
+    assert len(ahead) == len(direct)
+    for a, b in zip(ahead, direct, strict=True):
+        assert np.array_equal(a.ids, b.ids)
+        assert np.array_equal(a.pixels, b.pixels)
+
+
 def test_the_lines_of_the_scans_at_the_images_are_kept_and_others_not(seq):
     s = open_streams(seq)
     at_images = {s.scan_at_image(i) for i in range(s.n_images)}

@@ -22,7 +22,7 @@ def _truth(px: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
 def test_tracks_follow_the_true_image_motion_to_a_fifth_of_a_pixel(texture, wall_image):
     motions = [(rotvec_to_R([0.0, 0.01 * k, 0.0]), np.array([0.04 * k, 0.0, 0.08 * k])) for k in range(4)]
     images = [wall_image(R, t, DEPTH, texture) for R, t in motions]
-    tracks = track_sequence(len(images), lambda i: images[i], CAM)
+    tracks = track_sequence(images, CAM)
     assert len(tracks[0].ids) > 500
     for (R, t), tr in zip(motions[1:], tracks[1:], strict=True):
         ia, ib = common(tracks[0], tr)

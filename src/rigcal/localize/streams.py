@@ -8,15 +8,17 @@ frame at the image's stamp with the laser odometry between the two stamps, inter
 speed is not left as a centimetre of error.
 
 Images are read from disk when asked for (grey, uint8) and kept, up to 768 MiB (the
-least recently used go first).
+least recently used go first). The feature tracks read them in order, decoded a few
+frames ahead on a second thread (:meth:`Streams.images_in_order`), so that decoding
+overlaps the tracking.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections import OrderedDict
-from collections.abc import Callable
+from collections import OrderedDict, deque
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -70,6 +72,7 @@ class Streams:
     _laser_odometry: Odometry | None = field(default=None, repr=False)
     _background: Future[Odometry] | None = field(default=None, repr=False)
     _stop: threading.Event = field(default_factory=threading.Event, repr=False)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     results: dict[str, Any] = field(default_factory=dict, repr=False)
     _lines: dict[int, list[Segment]] = field(default_factory=dict, repr=False)
     progress: Callable[[str, int, int], None] | None = field(default=None, repr=False)
@@ -122,17 +125,44 @@ class Streams:
         if hit is not None:
             self._images.move_to_end(i)
             return hit
+        return self._keep(i, self._decode(i))
+
+    def images_in_order(self, ahead: int = 8) -> Iterator[Gray]:
+        """Every frame in order, decoded ``ahead`` frames in advance on a second thread
+        (OpenCV's PNG/JPEG decoding releases the interpreter, so it overlaps the work
+        done on each frame). Frames already kept are not decoded again."""
+        n = self.n_images
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="image-decode")
+        pending: deque[Future[Gray] | None] = deque()
+        try:
+            for i in range(n):
+                while len(pending) < ahead and i + len(pending) < n:
+                    j = i + len(pending)
+                    pending.append(None if j in self._images else pool.submit(self._decode, j))
+                f = pending.popleft()
+                yield self.image(i) if f is None else self._keep(i, f.result())
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+    def _decode(self, i: int) -> Gray:
         t0 = time.perf_counter()
         path = self._image_path(i)
         raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if raw is None:
             raise InputError(f"{path}: not a readable image")
         g: Gray = np.asarray(raw, dtype=np.uint8)
-        self.timings_s["read_images_s"] = self.timings_s.get("read_images_s", 0.0) + time.perf_counter() - t0
-        self._images[i] = g
-        self._cached_bytes += g.nbytes
-        while self._cached_bytes > _IMAGE_CACHE_BYTES and len(self._images) > 1:
-            self._cached_bytes -= self._images.popitem(last=False)[1].nbytes
+        seconds = time.perf_counter() - t0
+        with self._lock:
+            self.timings_s["read_images_s"] = self.timings_s.get("read_images_s", 0.0) + seconds
+        return g
+
+    def _keep(self, i: int, g: Gray) -> Gray:
+        """Keep frame i (the least recently used frames go when over the budget)."""
+        if i not in self._images:
+            self._images[i] = g
+            self._cached_bytes += g.nbytes
+            while self._cached_bytes > _IMAGE_CACHE_BYTES and len(self._images) > 1:
+                self._cached_bytes -= self._images.popitem(last=False)[1].nbytes
         return g
 
     def laser_odometry(self) -> Odometry:
@@ -192,9 +222,11 @@ class Streams:
             rig = self.require_rig("feature tracks")
             t0 = time.perf_counter()
             n = self.n_images
-            self.results["tracks"] = track_sequence(
-                n, self.image, rig.camera, TrackParams(), lambda k: self.report("feature tracks", k, n)
-            )
+
+            def tell(k: int) -> None:
+                self.report("feature tracks", k, n)
+
+            self.results["tracks"] = track_sequence(self.images_in_order(), rig.camera, TrackParams(), tell)
             self.timings_s["tracks_s"] = time.perf_counter() - t0
         out: list[FrameTracks] = self.results["tracks"]
         return out

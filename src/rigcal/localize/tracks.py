@@ -27,7 +27,7 @@ is an integer; the correspondences between any two frames are the tracks alive i
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import cv2
@@ -190,17 +190,16 @@ class Tracker:
 
 
 def track_sequence(
-    n_frames: int,
-    image: Callable[[int], Gray],
+    frames: Iterable[Gray],
     camera: Camera,
     params: TrackParams | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> list[FrameTracks]:
-    """The tracks of every frame of a sequence."""
+    """The tracks of every frame of a sequence, the frames given in order."""
     tracker = Tracker(camera, params)
     out = []
-    for i in range(n_frames):
-        out.append(tracker.step(image(i)))
+    for i, frame in enumerate(frames):
+        out.append(tracker.step(frame))
         if progress is not None:
             progress(i + 1)
     return out
