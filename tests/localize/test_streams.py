@@ -186,6 +186,24 @@ def test_a_broken_image_ahead_stops_the_ordered_reading_with_its_name(seq):
         next(frames)
 
 
+def test_computed_ahead_keeps_the_order_and_raises_where_the_item_would_be():
+    from rigcal.localize.streams import computed_ahead
+
+    started = []
+
+    def square(i):
+        started.append(i)
+        if i == 6:
+            raise ValueError("item 6")
+        return i * i
+
+    items = computed_ahead(square, 10, ahead=3)
+    assert [next(items) for _ in range(6)] == [(i, i * i) for i in range(6)]
+    with pytest.raises(ValueError, match="item 6"):
+        next(items)
+    assert max(started) <= 8  # never more than `ahead` items beyond the one asked for
+
+
 def test_feature_tracks_read_the_frames_in_order_ahead(seq):
     from rigcal.localize.tracks import track_sequence
 

@@ -31,7 +31,7 @@ from rigcal.localize.iasm import Frame, IasmParams, Matches, StepResult, iasm_st
 from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.odometry import DEGENERATE_BELOW
 from rigcal.localize.polish import LaserReference, joint_polish, keyframe_reference, new_keyframe
-from rigcal.localize.streams import Streams
+from rigcal.localize.streams import Streams, computed_ahead
 from rigcal.localize.tracks import FrameTracks, Tracker, common
 from rigcal.localize.vo import RelativePose, VoParams, planar_motion, relative_pose
 
@@ -41,6 +41,8 @@ log = logging.getLogger("rigcal.localize")
 
 # A step whose camera moved less than this (m) stood still.
 STILL_SCALE_M = 0.005
+# Frames built in advance of the steps.
+FRAMES_AHEAD = 4
 
 
 @dataclass(frozen=True)
@@ -238,7 +240,10 @@ def scan_matching(
     """
     sm = ScanMatcher(streams, method, params)
     streams.laser_odometry()  # pairs scans with images (timed on its own)
-    f1, tr1 = sm.frame(0)
+    # Each image's frame depends on the streams alone: built ahead on a second thread
+    # while the steps run (their kernels release the interpreter).
+    frames = computed_ahead(sm.frame, streams.n_images, FRAMES_AHEAD)
+    _, (f1, tr1) = next(frames)
     used = {"hiasm": 0, "iasm": 0, "vo": 0, "icp": 0}
     metric = {"laser": 0, "image": 0}
     inliers: list[int] = []
@@ -246,9 +251,8 @@ def scan_matching(
     scale: float | None = None
     rows = ["image,stamp_s,used,metric,correspondences,inliers,fallback"]
     key, T_key, n_keys = f1, np.eye(3), 1  # the keyframe, frame f1's pose in its frame
-    for i in range(1, streams.n_images):
+    for i, (f2, tr2) in frames:
         streams.report(method.upper(), i + 1, streams.n_images)
-        f2, tr2 = sm.frame(i)
         reference = None if key is f1 else keyframe_reference(key, T_key)
         st = sm.step(f1, f2, tr1, tr2, scale, i - 1, i, reference)
         T_key = T_key @ se2(st.motion)

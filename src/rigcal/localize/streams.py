@@ -121,28 +121,21 @@ class Streams:
 
     def image(self, i: int) -> Gray:
         """Frame i as a grey image."""
-        hit = self._images.get(i)
-        if hit is not None:
-            self._images.move_to_end(i)
-            return hit
-        return self._keep(i, self._decode(i))
+        with self._lock:
+            hit = self._images.get(i)
+        return self._keep(i, self._decode(i) if hit is None else hit)
 
     def images_in_order(self, ahead: int = 8) -> Iterator[Gray]:
         """Every frame in order, decoded ``ahead`` frames in advance on a second thread
         (OpenCV's PNG/JPEG decoding releases the interpreter, so it overlaps the work
         done on each frame). Frames already kept are not decoded again."""
-        n = self.n_images
-        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="image-decode")
-        pending: deque[Future[Gray] | None] = deque()
-        try:
-            for i in range(n):
-                while len(pending) < ahead and i + len(pending) < n:
-                    j = i + len(pending)
-                    pending.append(None if j in self._images else pool.submit(self._decode, j))
-                f = pending.popleft()
-                yield self.image(i) if f is None else self._keep(i, f.result())
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+        for i, g in computed_ahead(self._kept_or_decoded, self.n_images, ahead):
+            yield self._keep(i, g)
+
+    def _kept_or_decoded(self, i: int) -> Gray:
+        with self._lock:
+            hit = self._images.get(i)
+        return self._decode(i) if hit is None else hit
 
     def _decode(self, i: int) -> Gray:
         t0 = time.perf_counter()
@@ -158,11 +151,14 @@ class Streams:
 
     def _keep(self, i: int, g: Gray) -> Gray:
         """Keep frame i (the least recently used frames go when over the budget)."""
-        if i not in self._images:
-            self._images[i] = g
-            self._cached_bytes += g.nbytes
-            while self._cached_bytes > _IMAGE_CACHE_BYTES and len(self._images) > 1:
-                self._cached_bytes -= self._images.popitem(last=False)[1].nbytes
+        with self._lock:
+            if i in self._images:
+                self._images.move_to_end(i)
+            else:
+                self._images[i] = g
+                self._cached_bytes += g.nbytes
+                while self._cached_bytes > _IMAGE_CACHE_BYTES and len(self._images) > 1:
+                    self._cached_bytes -= self._images.popitem(last=False)[1].nbytes
         return g
 
     def laser_odometry(self) -> Odometry:
@@ -279,6 +275,23 @@ def open_streams(folder: str | Path, rig_file: str | Path | None = None) -> Stre
     elif seq.rig_file is not None:
         rig = read_rig(Path(folder) / seq.rig_file)
     return Streams(seq, rig, {"read_s": time.perf_counter() - t0})
+
+
+def computed_ahead[T](compute: Callable[[int], T], n: int, ahead: int) -> Iterator[tuple[int, T]]:
+    """``(i, compute(i))`` for i = 0 .. n-1 in order, each computed up to ``ahead`` items in
+    advance on a second thread, so the work overlaps what the caller does with the items
+    before (for work that releases the interpreter: OpenCV, numpy, compiled kernels).
+    An error raised by ``compute`` comes out where its item would have; the items not yet
+    started are then dropped."""
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ahead")
+    pending: deque[Future[T]] = deque()
+    try:
+        for i in range(n):
+            while len(pending) < max(ahead, 1) and i + len(pending) < n:
+                pending.append(pool.submit(compute, i + len(pending)))
+            yield i, pending.popleft().result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def nearest_index(stamps: FloatArray, t: float) -> int:
