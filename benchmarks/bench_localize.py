@@ -6,7 +6,9 @@ camera with 2 grey levels of noise, seed 1) and localized by every method in the
 process (``rigcal localize --method icp-p2p,icp,vo,kf,iasm,hiasm``), scored against the
 ground truth. Speed: each method is then run alone, end to end, as ``rigcal localize``
 runs it (reading, laser odometry, feature tracks, the method); its wall time is compared
-with the lap's duration (real time = 1) -- for ``kf`` that is ICP + VO + KF. Each is run
+with the lap's duration (real time = 1) -- for ``kf`` that is ICP + VO + KF. The CPU
+seconds of the run (all its threads) are given too: wall time near CPU / 2 means both
+cores were kept busy, and CPU / 2 is the least wall time 2 free cores could reach. Each is run
 with rigcal's compiled kernels (ICP's iterations, IASM's laser metric and SAD) and again with
 their numpy references in the same run (``--no-reference`` skips those), after a first
 run that compiles the kernels (or loads them from numba's cache; ``jit_cost.py``).
@@ -24,6 +26,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import resource
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -81,19 +84,22 @@ def main() -> None:
                 continue
             n_images = len((seq / "images.csv").read_text().splitlines()) - 1
             print(f"\n(load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs)")
-            print("\n| method alone | kernels | wall (s) | x real time | stages (s) |")
-            print("|---|---|---|---|---|")
+            print("\n| method alone | kernels | wall (s) | CPU (s) | x real time | stages (s) |")
+            print("|---|---|---|---|---|---|")
             per = float("nan")
             alone = args.alone.split(",")
             run(seq, alone[:1], root / "compile-alone", force=True)  # compile / load the kernels
             for m in alone:
                 for compiled in (True, False) if not args.no_reference else (True,):
+                    cpu0 = cpu_s()
                     with kernels(compiled):
                         a = run(seq, [m], root / f"{seq.name}-{m}-alone", force=True)
+                    cpu = cpu_s() - cpu0
                     stages = ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in a.timings_s.items())
                     label = "compiled" if compiled else "numpy reference"
                     print(
-                        f"| {m} | {label} | {a.wall_s:.1f} | {a.duration_s / a.wall_s:.2f} | {stages} |",
+                        f"| {m} | {label} | {a.wall_s:.1f} | {cpu:.1f} "
+                        f"| {a.duration_s / a.wall_s:.2f} | {stages} |",
                         flush=True,
                     )
                     if m == "vo" and compiled:
@@ -116,6 +122,12 @@ def kernels(compiled: bool) -> Iterator[None]:
     finally:
         for f, d in zip(functions, saved, strict=True):
             f.__kwdefaults__ = d
+
+
+def cpu_s() -> float:
+    """CPU seconds this process has used so far, over all its threads."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 
 
 def sequence_name(world: str, seed: int, range_max_m: float) -> str:
