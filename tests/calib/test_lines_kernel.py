@@ -1,15 +1,14 @@
 """The compiled line extraction against its Python reference: the same segments (same
 beams, fits equal to 1e-12) on simulated, noisy, gappy, 360-degree, clockwise and tiny
-scans, and on random rooms (hypothesis)."""
+scans, and on random rooms (hypothesis, the suite's profile in tests/conftest.py)."""
 
 from __future__ import annotations
 
 import dataclasses
-import os
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from rigcal.calib.lines import LineParams, Segment, extract_lines, is_full_circle, line_labels, return_labels
@@ -17,16 +16,6 @@ from rigcal.scan import Scan, counter_clockwise
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans
 from rigcal.sim.raycast import cast_scan
 from rigcal.sim.world import BUILTIN
-
-# A fixed set of examples (derandomized: the same in every run); RIGCAL_HYPOTHESIS_EXAMPLES=N
-# explores N random ones instead.
-_EXPLORE = os.environ.get("RIGCAL_HYPOTHESIS_EXAMPLES")
-SETTINGS = settings(
-    max_examples=int(_EXPLORE) if _EXPLORE else 40,
-    derandomize=not _EXPLORE,
-    deadline=None,
-    suppress_health_check=list(HealthCheck),
-)
 
 
 def assert_same_segments(got: list[Segment], ref: list[Segment]) -> None:
@@ -120,7 +109,6 @@ def test_compiled_matches_on_tiny_scans(n):
         assert_compiled_matches(scan)
 
 
-@SETTINGS
 @given(
     seed=st.integers(0, 2**32 - 1),
     n_walls=st.integers(1, 12),
