@@ -134,3 +134,18 @@ def test_compiled_matches_on_random_rooms(
         LineParams.for_range_noise(sigma), max_angle_change_deg=turn_deg, seed_points=seed_points
     )
     assert_compiled_matches(counter_clockwise(scan) if clockwise else scan, params)
+
+
+@pytest.mark.parametrize("n", [360, 721, 1440])
+@pytest.mark.parametrize("extra_rad", [-1e-3, -1e-7, -1e-12, 0.0, 1e-12, 1e-7, 1e-3, -1.0])
+def test_full_circle_of_a_uniform_scan_is_decided_as_by_the_median_step(n, extra_rad):
+    """is_full_circle takes a uniform scan's increment for its median step: the same
+    answer as the median of the angles' differences, at the boundary too (the step here
+    makes the span plus 1.5 steps 2 pi + extra_rad)."""
+    step = (2.0 * np.pi + extra_rad) / (n + 0.5)
+    uniform = Scan.from_uniform(-np.pi + 0.1 * step, step, np.ones(n), 0.1, 30.0)
+    listed = Scan(uniform.angles_rad, np.ones(n), 0.1, 30.0)  # no increment: the median
+    assert listed.angle_increment_rad is None
+    assert is_full_circle(uniform) == is_full_circle(listed)
+    if abs(extra_rad) > 1e-6:
+        assert is_full_circle(uniform) == (extra_rad > 0)

@@ -294,7 +294,14 @@ def is_full_circle(scan: Scan) -> bool:
     """Whether the scan's beams go all the way round (last beam one step short of the
     first, or closer): its first and last beams are then neighbours."""
     a = scan.angles_rad
-    return len(a) > 2 and float(a[-1] - a[0]) + 1.5 * scan.step_rad >= 2.0 * np.pi
+    if len(a) <= 2:
+        return False
+    span, step = float(a[-1] - a[0]), scan.angle_increment_rad
+    # A uniform scan's median step is its increment to within rounding (~1e-15 rad): away
+    # from the boundary that decides it without the median (the odometry asks every scan).
+    if step is not None and abs(span + 1.5 * step - 2.0 * np.pi) > 1e-6:
+        return span + 1.5 * step >= 2.0 * np.pi
+    return span + 1.5 * scan.step_rad >= 2.0 * np.pi
 
 
 def return_labels(scan: Scan, segments: list[Segment]) -> IntArray:

@@ -153,14 +153,15 @@ def carry_labels(
     if not (prev_labels >= 0).any() or len(cur) == 0:
         return out
     T = se2(step)
-    moved = cur @ T[:2, :2].T + T[:2, 2]
     if nearest is None or len(nearest) != len(cur):
-        nearest = cKDTree(prev).query(moved)[1]
+        nearest = cKDTree(prev).query(cur @ T[:2, :2].T + T[:2, 2])[1]
     normals = line_normals(prev, prev_labels, kernel=kernel) if prev_normals is None else prev_normals
     if kernel:
-        nearest_ = np.asarray(nearest, dtype=np.int64)
-        _carry_kernel(prev, np.asarray(prev_labels, dtype=np.int64), normals, moved, nearest_, CARRY_M, out)
+        pose = np.array([T[0, 0], T[1, 0], T[0, 2], T[1, 2]])
+        labels = np.asarray(prev_labels, dtype=np.int64)
+        _carry_kernel(prev, labels, normals, pose, cur, np.asarray(nearest, dtype=np.int64), CARRY_M, out)
         return out
+    moved = cur @ T[:2, :2].T + T[:2, 2]
     # Each line's offset n . p (the mean over its returns).
     on = prev_labels >= 0
     lab = prev_labels[on]
@@ -179,14 +180,17 @@ def _carry_kernel(
     prev: FloatArray,
     prev_labels: IntArray,
     normals: FloatArray,
-    moved: FloatArray,
+    pose: FloatArray,
+    cur: FloatArray,
     nearest: IntArray,
     carry_m: float,
     out: IntArray,
 ) -> None:
     """:func:`carry_labels`' test in one pass: each line's offset n . p (the mean over its
-    previous returns), then each moved return takes its nearest previous return's line
-    when its own n . p is within ``carry_m`` of that offset (``out``, left -1 otherwise)."""
+    previous returns), then each return of ``cur`` moved by ``pose`` = (cos, sin, x, y)
+    of T_prev_cur takes its nearest previous return's line when its own n . p is within
+    ``carry_m`` of that offset (``out``, left -1 otherwise)."""
+    c, s, tx, ty = pose[0], pose[1], pose[2], pose[3]
     n_lines = 0
     for i in range(len(prev_labels)):
         n_lines = max(n_lines, prev_labels[i] + 1)
@@ -199,8 +203,12 @@ def _carry_kernel(
             offset[k] += normals[i, 0] * prev[i, 0] + normals[i, 1] * prev[i, 1]
     for k in range(n_lines):
         offset[k] /= max(count[k], 1.0)
-    for i in range(len(moved)):
+    for i in range(len(cur)):
         j = nearest[i]
         k = prev_labels[j]
-        if k >= 0 and abs(normals[j, 0] * moved[i, 0] + normals[j, 1] * moved[i, 1] - offset[k]) < carry_m:
+        if k < 0:
+            continue
+        mx = c * cur[i, 0] - s * cur[i, 1] + tx
+        my = s * cur[i, 0] + c * cur[i, 1] + ty
+        if abs(normals[j, 0] * mx + normals[j, 1] * my - offset[k]) < carry_m:
             out[i] = k
