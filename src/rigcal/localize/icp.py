@@ -30,7 +30,8 @@ translation along that direction is a guess (reported per step).
 The iterations run in a compiled kernel (:mod:`rigcal.jit`): nearest neighbours from a
 grid of the model (:mod:`rigcal.localize.nearest`, exact as the k-d tree), pairing,
 rejection and the update, in one loop with no temporary arrays. The numpy iterations
-(``icp(..., kernel=False)``) are its reference in the tests.
+(``icp(..., kernel=False)``) are its reference in the tests. The lines' fits behind the
+normals (:func:`line_fits`) run in a kernel too, with their numpy reference kept alike.
 """
 
 from __future__ import annotations

@@ -1,13 +1,17 @@
 """Laser odometry: ICP between successive scans of a sequence, chained into a trajectory.
 
 Point-to-line ICP takes the model scan's normals from its lines (:mod:`rigcal.localize.icp`).
-Extracting a scan's lines (``rigcal.calib.lines``, a return at a time) costs about as much
-as the ICP step itself, so the lines are extracted on every ``LINES_EVERY``-th scan only;
-the scans between carry them: a return of the new scan, moved by the step just
-estimated into the previous scan's frame, takes the line of its nearest previous return
-when it lies within ``CARRY_M`` of that line (the nearest returns are ICP's own, from the
-step). Returns of walls that come into view are left off until the next extraction (at
-most ``LINES_EVERY`` - 1 scans).
+The lines are extracted (``rigcal.calib.lines``) on every ``LINES_EVERY``-th scan only (in
+Python, a return at a time, the extraction cost about as much as the ICP step itself;
+compiled it costs about a tenth of one); the scans between carry them: a return of the
+new scan, moved by the step just estimated into the previous scan's frame, takes the line
+of its nearest previous return when it lies within ``CARRY_M`` of that line (the nearest
+returns are ICP's own, from the step). Returns of walls that come into view are left off
+until the next extraction (at most ``LINES_EVERY`` - 1 scans).
+
+The extraction, the carrying and the lines' fits run in compiled kernels
+(:mod:`rigcal.jit`); ``icp_odometry(..., kernel=False)`` runs their Python / numpy
+references (and ICP's numpy iterations), which the tests hold them to.
 """
 
 from __future__ import annotations
