@@ -36,6 +36,7 @@ import numpy as np
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.metrics import anchored, evaluate, steps
 from rigcal.localize.odometry import icp_odometry
+from rigcal.scan import Scan
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans
 from rigcal.sim.world import BUILTIN
 
@@ -82,10 +83,7 @@ def main() -> None:
 def pair_timing(target_ms: float = 5.0) -> None:
     """Time per 1081-point scan pair at 40 Hz (best of three passes)."""
     spec = DriveSpec(laser_rate_hz=40.0, seed=1)
-    world = BUILTIN["cubicle-loop"]()
-    motion = Motion(world, spec)
-    stamps = laser_stamps(motion, spec)[:400]
-    scans = simulate_scans(world, motion.poses(stamps), stamps, spec)
+    scans = hokuyo_loop_scans(spec)
     budget_ms = 1000.0 / spec.laser_rate_hz
     print()
     print(f"| method | beams | ms per scan pair | x real time ({budget_ms:.0f} ms) "
@@ -126,6 +124,14 @@ def pair_timing(target_ms: float = 5.0) -> None:
         ratio = f"{ms / kiss:.2f}" if kiss else "-"
         print(f"| {method} | {beams} | {ms:.2f} | {budget_ms / ms:.1f} | {target_ms / ms:.2f} | {ratio} |")
     print(f"\nLargest pose difference, compiled kernels against their references, 400 scans: {diff:.1e}")
+
+
+def hokuyo_loop_scans(spec: DriveSpec, count: int = 400) -> list[Scan]:
+    """The first ``count`` scans of the simulated cubicle loop (a Hokuyo: 1081 beams)."""
+    world = BUILTIN["cubicle-loop"]()
+    motion = Motion(world, spec)
+    stamps = laser_stamps(motion, spec)[:count]
+    return simulate_scans(world, motion.poses(stamps), stamps, spec)
 
 
 @contextlib.contextmanager

@@ -7,7 +7,10 @@ Speed: time per scan of ``extract_lines`` (its compiled kernel) on the 10 mm wal
 against the time numpy takes to compute the scan's points (``Scan`` construction) and
 against the Python region growing (``extract_lines(..., kernel=False)``, the kernel's
 reference) on the same scans in the same run, as ratios; the two give the same segments
-(checked here on every scan timed).
+(checked here on every scan timed). The same comparison on the first 400 scans of the
+simulated cubicle loop (a Hokuyo at 40 Hz, the scans ``bench_icp.py`` times the laser
+odometry on), best of three
+passes.
 
     .venv/bin/python benchmarks/bench_lines.py
 """
@@ -19,8 +22,10 @@ import time
 
 import numpy as np
 
+from bench_icp import hokuyo_loop_scans
 from rigcal.calib.lines import LineParams, extract_lines
 from rigcal.scan import Scan
+from rigcal.sim.drive import DriveSpec
 from rigcal.sim.raycast import cast_scan
 
 ANGLES = np.radians(np.arange(-135.0, 135.001, 0.25))
@@ -71,6 +76,29 @@ def main() -> None:
         f"({t_extract / t_scan:.1f}x the time to ray-cast and build the scan, same run); "
         f"Python reference: {1000 * t_reference / n:.2f} ms "
         f"({t_reference / t_extract:.1f}x the compiled kernel, same scans)"
+    )
+
+    loop_timing()
+
+
+def loop_timing() -> None:
+    """Compiled against reference extraction on the cubicle loop's scans (best of 3)."""
+    scans = hokuyo_loop_scans(DriveSpec(laser_rate_hz=40.0, seed=1))
+    ms, beams = {}, {}
+    for kernel in (True, False):
+        passes = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            segs = [extract_lines(s, kernel=kernel) for s in scans]
+            passes.append(1000.0 * (time.perf_counter() - t0) / len(scans))
+        ms[kernel] = min(passes)
+        beams[kernel] = [[g.indices.tolist() for g in scan_segs] for scan_segs in segs]
+    if beams[True] != beams[False]:
+        raise AssertionError("compiled and reference segments differ on the cubicle loop")
+    per_scan = np.mean([len(b) for b in beams[True]])
+    print(
+        f"cubicle loop, {len(scans)} scans ({per_scan:.0f} segments a scan): compiled {ms[True]:.3f} ms, "
+        f"Python reference {ms[False]:.2f} ms per scan ({ms[False] / ms[True]:.1f}x, same segments)"
     )
 
 
