@@ -5,6 +5,8 @@ scans, and on random rooms (hypothesis, the suite's profile in tests/conftest.py
 from __future__ import annotations
 
 import dataclasses
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -149,3 +151,16 @@ def test_full_circle_of_a_uniform_scan_is_decided_as_by_the_median_step(n, extra
     assert is_full_circle(uniform) == is_full_circle(listed)
     if abs(extra_rad) > 1e-6:
         assert is_full_circle(uniform) == (extra_rad > 0)
+
+
+def test_importing_lines_leaves_numba_for_the_first_compiled_call():
+    """Calibration and plots import the module without paying for numba."""
+    code = (
+        "import sys, numpy as np; from rigcal.calib.lines import extract_lines; "
+        "from rigcal.scan import Scan; print('numba' in sys.modules); "
+        "a = np.linspace(-1, 1, 200); s = Scan(a, 2 / np.cos(a), 0.1, 30.0); "
+        "extract_lines(s, kernel=False); print('numba' in sys.modules); "
+        "print(len(extract_lines(s))); print('numba' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", "False", "1", "True"]
