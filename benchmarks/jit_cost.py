@@ -25,6 +25,13 @@ KERNELS = {
         "t = np.linspace(0, 6, 200); m = np.vstack([np.c_[t, 0 * t + 1], np.c_[0 * t + 2, t - 3]])",
         "icp(m, m + 0.01, model_normals=np.tile([0.0, 1.0], (len(m), 1)))",
     ),
+    "Line extraction, carrying lines, line fits (rigcal.calib.lines, localize.odometry)": (
+        "import numpy as np; import rigcal.calib.lines_kernel; from rigcal.calib.lines import extract_lines; "
+        "from rigcal.scan import Scan; "
+        "from rigcal.localize.odometry import carry_labels; a = np.linspace(-1, 1, 400); "
+        "s = Scan(a, 2 / np.cos(a), 0.1, 30.0); p = s.points; k = np.arange(400)",
+        "extract_lines(s); carry_labels(p, 0 * k, None, np.zeros(3), p, k)",
+    ),
 }
 
 _TIMED = """

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import os
 from pathlib import Path
 from typing import Any
 
@@ -18,21 +17,15 @@ import click
 import numpy as np
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rigcal.errors import InputError
 from rigcal.io.validate import Real, path_component, relative_inside, whole
 
-# A fixed set of 40 examples per test (derandomized: the same in every CI run). Set
-# RIGCAL_HYPOTHESIS_EXAMPLES=N to explore N random examples instead.
-_EXPLORE = os.environ.get("RIGCAL_HYPOTHESIS_EXAMPLES")
-SETTINGS = settings(
-    max_examples=int(_EXPLORE) if _EXPLORE else 40,
-    derandomize=not _EXPLORE,
-    deadline=None,
-    suppress_health_check=list(HealthCheck),
-)
+# The suite's hypothesis profile (tests/conftest.py): a fixed 40 examples per test,
+# RIGCAL_HYPOTHESIS_EXAMPLES=N explores N random ones.
+SETTINGS = settings()
 
 # Anything a YAML file can hold where a reader expects something else.
 scalars = st.one_of(

@@ -27,6 +27,11 @@ Segments shorter than ``min_length_m`` or with fewer than ``min_points`` returns
 dropped; the others are numbered 0, 1, ... in beam order: these are the ids that
 ``rigcal lines`` prints and picking files use. This module is shared with the
 localization methods (IASM's line-angle histogram, H-IASM's plane normals).
+
+The steps run in one compiled kernel (:mod:`rigcal.calib.lines_kernel`), a loop per
+return on index ranges; the Python functions below (``extract_lines(...,
+kernel=False)``) are its reference, which the tests hold it to (the same segments, fits
+to 1e-12).
 """
 
 from __future__ import annotations
@@ -226,29 +231,30 @@ def _distance(p: FloatArray, centroid: FloatArray, direction: FloatArray) -> flo
     return abs(float(d[0] * direction[1] - d[1] * direction[0]))
 
 
-def extract_lines(scan: Scan, params: LineParams | None = None) -> list[Segment]:
+def extract_lines(scan: Scan, params: LineParams | None = None, *, kernel: bool = True) -> list[Segment]:
     """Line segments of a scan by least-squares region growing (paper Section III-B).
 
     Args:
         scan: the scan; invalid returns are skipped.
         params: thresholds (defaults: :class:`LineParams`).
+        kernel: run the compiled kernel (:mod:`rigcal.calib.lines_kernel`); False runs the Python
+            region growing, its reference in the tests.
 
     Returns:
         The segments in beam order, numbered from 0.
     """
     params = params or LineParams()
-    beams = np.flatnonzero(scan.valid).astype(np.int64)
-    pts = scan.points[beams]
-    if is_full_circle(scan) and len(beams) > 1:
-        # A 360-degree scan is a ring: start it after its widest gap between neighbouring
-        # returns (across the seam too), so that a line over the seam comes out whole.
-        gaps = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
-        k = (int(np.argmax(gaps)) + 1) % len(beams)
-        beams, pts = np.roll(beams, -k), np.roll(pts, -k, axis=0)
-    runs = _runs(pts, params.max_gap_m)
+    beams, pts, _ = _ring_order(scan)
+    if kernel:
+        members, bounds, fits = _extract_compiled(pts, params)
+        out = []
+        for k, i in enumerate(np.argsort(beams[members[bounds[:-1]]], kind="stable").tolist()):
+            g, f = members[bounds[i] : bounds[i + 1]], fits[i]
+            out.append(Segment(k, beams[g], pts[g], f[0:2], f[2:4], f[4:6], f[6:8], float(f[8])))
+        return out
     groups: list[IntArray] = []
     xy = (pts[:, 0].tolist(), pts[:, 1].tolist())  # plain floats for the growing loop
-    for lo, hi in runs:
+    for lo, hi in _runs(pts, params.max_gap_m):
         groups += _merge_collinear(pts, _grow_run(pts, xy, lo, hi, params), params)
     kept: list[IntArray] = []
     for g in groups:
@@ -259,11 +265,47 @@ def extract_lines(scan: Scan, params: LineParams | None = None) -> list[Segment]
     return [_segment(k, beams[g], pts[g]) for k, g in enumerate(kept)]
 
 
+def line_labels(scan: Scan, params: LineParams | None = None) -> IntArray:
+    """``return_labels(scan, extract_lines(scan, params))`` straight from the compiled
+    kernel, without building the segments (the laser odometry wants only the labels)."""
+    params = params or LineParams()
+    beams, pts, shift = _ring_order(scan)
+    members, bounds, _ = _extract_compiled(pts, params)
+    rank = np.empty(len(bounds) - 1, dtype=np.int64)
+    rank[np.argsort(beams[members[bounds[:-1]]], kind="stable")] = np.arange(len(rank))
+    out = np.full(len(beams), -1, dtype=np.int64)
+    # pts[i] is the valid return (i + shift) mod N in beam order.
+    out[(members + shift) % max(len(beams), 1)] = np.repeat(rank, np.diff(bounds))
+    return out
+
+
+def _ring_order(scan: Scan) -> tuple[IntArray, FloatArray, int]:
+    """The scan's valid returns (beam indices, (N, 2) points) in the order the growing
+    runs over them, and by how many returns that order is rotated from the beam order.
+
+    A 360-degree scan is a ring: it starts after its widest gap between neighbouring
+    returns (across the seam too), so that a line over the seam comes out whole."""
+    beams = np.flatnonzero(scan.valid).astype(np.int64)
+    pts = scan.points[beams]
+    if not (is_full_circle(scan) and len(beams) > 1):
+        return beams, pts, 0
+    gaps = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
+    k = (int(np.argmax(gaps)) + 1) % len(beams)
+    return np.roll(beams, -k), np.roll(pts, -k, axis=0), k
+
+
 def is_full_circle(scan: Scan) -> bool:
     """Whether the scan's beams go all the way round (last beam one step short of the
     first, or closer): its first and last beams are then neighbours."""
     a = scan.angles_rad
-    return len(a) > 2 and float(a[-1] - a[0]) + 1.5 * scan.step_rad >= 2.0 * np.pi
+    if len(a) <= 2:
+        return False
+    span, step = float(a[-1] - a[0]), scan.angle_increment_rad
+    # A uniform scan's median step is its increment to within rounding (~1e-15 rad): away
+    # from the boundary that decides it without the median (the odometry asks every scan).
+    if step is not None and abs(span + 1.5 * step - 2.0 * np.pi) > 1e-6:
+        return span + 1.5 * step >= 2.0 * np.pi
+    return span + 1.5 * scan.step_rad >= 2.0 * np.pi
 
 
 def return_labels(scan: Scan, segments: list[Segment]) -> IntArray:
@@ -419,3 +461,33 @@ def segments_table(segments: list[Segment]) -> str:
             f"{g.length_m:>8.3f} {np.degrees(g.angle_rad):>9.2f} {1000 * g.rms_residual_m:>6.1f}"
         )
     return "\n".join(rows) + "\n"
+
+
+def _extract_compiled(pts: FloatArray, params: LineParams) -> tuple[IntArray, IntArray, FloatArray]:
+    """The kept segments of the returns ``pts`` (N, 2), in the order the growing finds them:
+    (members, bounds, fits): segment k's returns are ``members[bounds[k]:bounds[k + 1]]``
+    (indices into pts), ``fits[k]`` its centroid, direction, start, end (2 each) and RMS
+    residual, as :func:`_segment` computes them (:mod:`rigcal.calib.lines_kernel`)."""
+    from rigcal.calib.lines_kernel import extract_kernel  # imports numba: on first use
+
+    n = len(pts)
+    members = np.empty(n, dtype=np.int64)
+    bounds = np.empty(n + 1, dtype=np.int64)
+    fits = np.empty((n // max(params.min_points, 1) + 1, 9))
+    k = extract_kernel(
+        np.ascontiguousarray(pts, dtype=np.float64),
+        params.max_gap_m,
+        params.max_point_distance_m,
+        math.cos(math.radians(params.max_angle_change_deg)),
+        params.seed_points,
+        params.seed_length_m,
+        params.min_points,
+        params.min_length_m,
+        MERGE_ANGLE_TEST_M,
+        END_TRIM_SIGMAS,
+        END_TRIM_FLOOR_M,
+        members,
+        bounds,
+        fits,
+    )
+    return members[: bounds[k]], bounds[: k + 1], fits[:k]

@@ -30,7 +30,8 @@ translation along that direction is a guess (reported per step).
 The iterations run in a compiled kernel (:mod:`rigcal.jit`): nearest neighbours from a
 grid of the model (:mod:`rigcal.localize.nearest`, exact as the k-d tree), pairing,
 rejection and the update, in one loop with no temporary arrays. The numpy iterations
-(``icp(..., kernel=False)``) are its reference in the tests.
+(``icp(..., kernel=False)``) are its reference in the tests. The lines' fits behind the
+normals (:func:`line_fits`) run in a kernel too, with their numpy reference kept alike.
 """
 
 from __future__ import annotations
@@ -378,10 +379,23 @@ def _eigen_range(
     return q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0), q + 2.0 * p * math.cos(phi)
 
 
-def line_fits(points: FloatArray, labels: NDArray[np.integer]) -> tuple[FloatArray, FloatArray]:
+def line_fits(
+    points: FloatArray, labels: NDArray[np.integer], *, kernel: bool = True
+) -> tuple[FloatArray, FloatArray]:
     """Each point's line, fitted (total least squares) over all the points of its line
     (``labels``: a line number per point, -1 for none): (N, 2) the line's centroid and
-    (N, 2) its unit normal; NaN rows for points on no line."""
+    (N, 2) its unit normal; NaN rows for points on no line. ``kernel=False`` runs the
+    numpy version (the compiled kernel's reference)."""
+    if kernel:
+        centres = np.empty((len(points), 2))
+        normals = np.empty((len(points), 2))
+        _line_fits_kernel(
+            np.ascontiguousarray(points, dtype=np.float64),
+            np.asarray(labels, dtype=np.int64),
+            centres,
+            normals,
+        )
+        return centres, normals
     centres = np.full((len(points), 2), np.nan)
     normals = np.full((len(points), 2), np.nan)
     on = labels >= 0
@@ -400,10 +414,55 @@ def line_fits(points: FloatArray, labels: NDArray[np.integer]) -> tuple[FloatArr
     return centres, normals
 
 
-def line_normals(points: FloatArray, labels: NDArray[np.integer]) -> FloatArray:
+@njit
+def _line_fits_kernel(
+    points: FloatArray, labels: NDArray[np.int64], centres: FloatArray, normals: FloatArray
+) -> None:
+    """:func:`line_fits` into ``centres`` and ``normals`` (N, 2): each line's centroid, then
+    its scatter about it and the normal of the scatter's major axis (as :func:`_normals`),
+    summed over the points in order as ``np.bincount`` does."""
+    n_lines = 0
+    for i in range(len(labels)):
+        n_lines = max(n_lines, labels[i] + 1)
+    count = np.zeros(n_lines)
+    mx = np.zeros(n_lines)
+    my = np.zeros(n_lines)
+    for i in range(len(labels)):
+        if labels[i] >= 0:
+            count[labels[i]] += 1.0
+            mx[labels[i]] += points[i, 0]
+            my[labels[i]] += points[i, 1]
+    for k in range(n_lines):
+        if count[k] > 0:
+            mx[k] /= count[k]
+            my[k] /= count[k]
+    sxx = np.zeros(n_lines)
+    syy = np.zeros(n_lines)
+    sxy = np.zeros(n_lines)
+    for i in range(len(labels)):
+        k = labels[i]
+        if k >= 0:
+            dx, dy = points[i, 0] - mx[k], points[i, 1] - my[k]
+            sxx[k] += dx * dx
+            syy[k] += dy * dy
+            sxy[k] += dx * dy
+    nx = np.empty(n_lines)
+    ny = np.empty(n_lines)
+    for k in range(n_lines):
+        phi = 0.5 * np.arctan2(2.0 * sxy[k], sxx[k] - syy[k])
+        nx[k], ny[k] = -np.sin(phi), np.cos(phi)
+    for i in range(len(labels)):
+        k = labels[i]
+        if k >= 0:
+            centres[i, 0], centres[i, 1], normals[i, 0], normals[i, 1] = mx[k], my[k], nx[k], ny[k]
+        else:
+            centres[i, 0] = centres[i, 1] = normals[i, 0] = normals[i, 1] = np.nan
+
+
+def line_normals(points: FloatArray, labels: NDArray[np.integer], *, kernel: bool = True) -> FloatArray:
     """(N, 2) unit normals of the lines the points lie on, each fitted over all the
     points of its line (``labels``: a line number per point, -1 for none: NaN rows)."""
-    return line_fits(points, labels)[1]
+    return line_fits(points, labels, kernel=kernel)[1]
 
 
 def pairing_normals(

@@ -1,13 +1,17 @@
 """Laser odometry: ICP between successive scans of a sequence, chained into a trajectory.
 
 Point-to-line ICP takes the model scan's normals from its lines (:mod:`rigcal.localize.icp`).
-Extracting a scan's lines (``rigcal.calib.lines``, a return at a time) costs about as much
-as the ICP step itself, so the lines are extracted on every ``LINES_EVERY``-th scan only;
-the scans between carry them: a return of the new scan, moved by the step just
-estimated into the previous scan's frame, takes the line of its nearest previous return
-when it lies within ``CARRY_M`` of that line (the nearest returns are ICP's own, from the
-step). Returns of walls that come into view are left off until the next extraction (at
-most ``LINES_EVERY`` - 1 scans).
+The lines are extracted (``rigcal.calib.lines``) on every ``LINES_EVERY``-th scan only (in
+Python, a return at a time, the extraction cost about as much as the ICP step itself;
+compiled it costs about a tenth of one); the scans between carry them: a return of the
+new scan, moved by the step just estimated into the previous scan's frame, takes the line
+of its nearest previous return when it lies within ``CARRY_M`` of that line (the nearest
+returns are ICP's own, from the step). Returns of walls that come into view are left off
+until the next extraction (at most ``LINES_EVERY`` - 1 scans).
+
+The extraction, the carrying and the lines' fits run in compiled kernels
+(:mod:`rigcal.jit`); ``icp_odometry(..., kernel=False)`` runs their Python / numpy
+references (and ICP's numpy iterations), which the tests hold them to.
 """
 
 from __future__ import annotations
@@ -19,7 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from rigcal.calib.lines import Segment, extract_lines, return_labels
+from rigcal.calib.lines import Segment, extract_lines, line_labels, return_labels
+from rigcal.jit import njit
 from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, icp, line_normals, pose_of, se2
 from rigcal.scan import Scan
 
@@ -52,6 +57,8 @@ def icp_odometry(
     params: IcpParams | None = None,
     progress: Callable[[int], None] | None = None,
     lines: Callable[[int], list[Segment]] | None = None,
+    *,
+    kernel: bool = True,
 ) -> Odometry:
     """Chain ICP increments T_prev_cur over the scans, each started from the previous
     increment (constant velocity) and, when that fit is poor
@@ -59,7 +66,8 @@ def icp_odometry(
     ``progress`` is called with the scans done so far. Point-to-line with
     ``params.normals == "lines"`` takes each model scan's normals from its lines
     (``lines(k)``: scan k's segments, to share them with other stages; by default
-    extracted here)."""
+    extracted here). ``kernel=False`` runs the line extraction, the carrying of the lines
+    and ICP in their Python/numpy references instead of the compiled kernels."""
     params = params or IcpParams()
     use_lines = params.method == "point-to-line" and params.normals == "lines"
     labels: IntArray | None = None  # the model scan's line of each return
@@ -82,12 +90,17 @@ def icp_odometry(
             return None
         if k - extracted >= LINES_EVERY:
             extracted = k
-            labels = return_labels(scans[k], lines(k) if lines is not None else extract_lines(scans[k]))
+            if lines is not None:
+                labels = return_labels(scans[k], lines(k))
+            elif kernel:
+                labels = line_labels(scans[k])
+            else:
+                labels = return_labels(scans[k], extract_lines(scans[k], kernel=False))
             if (labels >= 0).mean() < MIN_LINE_FRACTION:
                 labels = None
         elif labels is not None:
-            labels = carry_labels(model, labels, model_normals, step, pts, nearest)
-        return None if labels is None else line_normals(pts, labels)
+            labels = carry_labels(model, labels, model_normals, step, pts, nearest, kernel=kernel)
+        return None if labels is None else line_normals(pts, labels, kernel=kernel)
 
     T = np.eye(3)
     poses = [pose_of(T)]
@@ -105,9 +118,10 @@ def icp_odometry(
             step, d, r = last, 0.0, float("nan")
             skipped += 1
         else:
-            res = icp(prev, cur, initial=last, params=params, model_normals=prev_normals)
+            res = icp(prev, cur, initial=last, params=params, model_normals=prev_normals, kernel=kernel)
             if res.inlier_fraction < params.restart_below_inliers:
-                again = icp(prev, cur, initial=np.zeros(3), params=params, model_normals=prev_normals)
+                zero = np.zeros(3)
+                again = icp(prev, cur, initial=zero, params=params, model_normals=prev_normals, kernel=kernel)
                 if (again.inlier_fraction, -again.rms_m) > (res.inlier_fraction, -res.rms_m):
                     res = again
                 restarts += 1
@@ -130,20 +144,28 @@ def carry_labels(
     step: FloatArray,
     cur: FloatArray,
     nearest: NDArray[np.intp] | None = None,
+    *,
+    kernel: bool = True,
 ) -> IntArray:
     """The line of each return of ``cur`` carried from the previous scan's returns
     (``prev``, ``prev_labels``, their ``prev_normals`` when known; ``step`` =
     T_prev_cur): the line of its nearest previous return (``nearest``, as ICP found them;
     else looked up here) when it lies within CARRY_M of that line (the line refitted to
-    the previous returns on it), else -1."""
+    the previous returns on it), else -1. ``kernel=False`` runs the numpy version (the
+    compiled kernel's reference)."""
     out = np.full(len(cur), -1, dtype=np.int64)
     if not (prev_labels >= 0).any() or len(cur) == 0:
         return out
     T = se2(step)
-    moved = cur @ T[:2, :2].T + T[:2, 2]
     if nearest is None or len(nearest) != len(cur):
-        nearest = cKDTree(prev).query(moved)[1]
-    normals = line_normals(prev, prev_labels) if prev_normals is None else prev_normals
+        nearest = cKDTree(prev).query(cur @ T[:2, :2].T + T[:2, 2])[1]
+    normals = line_normals(prev, prev_labels, kernel=kernel) if prev_normals is None else prev_normals
+    if kernel:
+        pose = np.array([T[0, 0], T[1, 0], T[0, 2], T[1, 2]])
+        labels = np.asarray(prev_labels, dtype=np.int64)
+        _carry_kernel(prev, labels, normals, pose, cur, np.asarray(nearest, dtype=np.int64), CARRY_M, out)
+        return out
+    moved = cur @ T[:2, :2].T + T[:2, 2]
     # Each line's offset n . p (the mean over its returns).
     on = prev_labels >= 0
     lab = prev_labels[on]
@@ -155,3 +177,42 @@ def carry_labels(
     close = np.abs(np.einsum("ij,ij->i", normals[nearest[k]], moved[k]) - offset[line]) < CARRY_M
     out[k[close]] = line[close]
     return out
+
+
+@njit
+def _carry_kernel(
+    prev: FloatArray,
+    prev_labels: IntArray,
+    normals: FloatArray,
+    pose: FloatArray,
+    cur: FloatArray,
+    nearest: IntArray,
+    carry_m: float,
+    out: IntArray,
+) -> None:
+    """:func:`carry_labels`' test in one pass: each line's offset n . p (the mean over its
+    previous returns), then each return of ``cur`` moved by ``pose`` = (cos, sin, x, y)
+    of T_prev_cur takes its nearest previous return's line when its own n . p is within
+    ``carry_m`` of that offset (``out``, left -1 otherwise)."""
+    c, s, tx, ty = pose[0], pose[1], pose[2], pose[3]
+    n_lines = 0
+    for i in range(len(prev_labels)):
+        n_lines = max(n_lines, prev_labels[i] + 1)
+    count = np.zeros(n_lines)
+    offset = np.zeros(n_lines)
+    for i in range(len(prev_labels)):
+        k = prev_labels[i]
+        if k >= 0:
+            count[k] += 1.0
+            offset[k] += normals[i, 0] * prev[i, 0] + normals[i, 1] * prev[i, 1]
+    for k in range(n_lines):
+        offset[k] /= max(count[k], 1.0)
+    for i in range(len(cur)):
+        j = nearest[i]
+        k = prev_labels[j]
+        if k < 0:
+            continue
+        mx = c * cur[i, 0] - s * cur[i, 1] + tx
+        my = s * cur[i, 0] + c * cur[i, 1] + ty
+        if abs(normals[j, 0] * mx + normals[j, 1] * my - offset[k]) < carry_m:
+            out[i] = k
