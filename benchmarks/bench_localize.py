@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
-import resource
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -91,10 +90,9 @@ def main() -> None:
             run(seq, alone[:1], root / "compile-alone", force=True)  # compile / load the kernels
             for m in alone:
                 for compiled in (True, False) if not args.no_reference else (True,):
-                    cpu0 = cpu_s()
                     with kernels(compiled):
                         a = run(seq, [m], root / f"{seq.name}-{m}-alone", force=True)
-                    cpu = cpu_s() - cpu0
+                    cpu = a.cpu_s
                     stages = ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in a.timings_s.items())
                     label = "compiled" if compiled else "numpy reference"
                     print(
@@ -122,12 +120,6 @@ def kernels(compiled: bool) -> Iterator[None]:
     finally:
         for f, d in zip(functions, saved, strict=True):
             f.__kwdefaults__ = d
-
-
-def cpu_s() -> float:
-    """CPU seconds this process has used so far, over all its threads."""
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
 
 
 def sequence_name(world: str, seed: int, range_max_m: float) -> str:

@@ -167,6 +167,7 @@ class Run:
     truth: Trajectory | None
     wall_s: float = 0.0
     iasm: IasmParams = field(default_factory=IasmParams)
+    cpu_s: float = 0.0  # CPU seconds over the same span as wall_s, all threads
 
 
 def _shared_stages(streams: Streams, methods: list[str]) -> None:
@@ -254,7 +255,7 @@ def run(
             Path(sequence) / "sequence.yaml", "scans.count", len(streams.scans), f"at least {MIN_SCANS} scans"
         )
     truth = _ground_truth(Path(sequence), streams.sequence.groundtruth_file)
-    t_start = time.perf_counter()
+    t_start, cpu_start = time.perf_counter(), time.process_time()
     results = []
     try:
         _shared_stages(streams, methods)
@@ -273,7 +274,8 @@ def run(
         streams.stop_background()
     stamps = streams.scan_stamps_s
     duration = float(stamps[-1] - stamps[0])
-    out = Run(results, dict(streams.timings_s), duration, truth, time.perf_counter() - t_start, iasm)
+    wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
+    out = Run(results, dict(streams.timings_s), duration, truth, wall, iasm, cpu)
     _write(out, Path(sequence), output, force, kitti)
     return out
 
