@@ -48,6 +48,9 @@ MIN_SPREAD_RATIO = 1e-3
 # entry, relative to lambda^3): its relative error is then at most ~1e-16 / this. Below,
 # Jacobi rotations.
 _ADJUGATE_MIN = 1e-5
+# Above this (gaps comparable to lambda) the first eigenvector is already accurate to
+# rounding and the Rayleigh-quotient refinement below is skipped.
+_ADJUGATE_GOOD = 0.25
 _NEWTON_STEPS = 40
 _JACOBI_SWEEPS = 30
 
@@ -383,8 +386,8 @@ def _k_horn(
     c0 = _k_sym4_det(nn)
     bound = 0.5 * (pxx + pyy + pzz + qxx + qyy + qzz)  # sum (|a_i|^2 + |b_i|^2) / 2 >= l_max
     lam = _k_largest_root(c2, c1, c0, bound)
-    w, x, y, z, found = _k_adjugate_column(nn, lam)
-    if found:
+    w, x, y, z, conditioning = _k_adjugate_column(nn, lam)
+    if _ADJUGATE_MIN <= conditioning < _ADJUGATE_GOOD:
         # The root carries the quartic's rounding (~1e-16 l^4 over the product of the
         # gaps), which the eigenvector would inherit divided by the gap once more; its
         # Rayleigh quotient is exact to rounding plus the square of the eigenvector's
@@ -396,8 +399,8 @@ def _k_horn(
             + n33 * z * z
             + 2.0 * (n01 * w * x + n02 * w * y + n03 * w * z + n12 * x * y + n13 * x * z + n23 * y * z)
         )
-        w, x, y, z, found = _k_adjugate_column(nn, rq)
-    if not found:
+        w, x, y, z, conditioning = _k_adjugate_column(nn, rq)
+    if not conditioning >= _ADJUGATE_MIN:
         # The two largest eigenvalues (nearly) coincide: Jacobi rotations instead.
         W = work[0]
         W[0, 0], W[0, 1], W[0, 2], W[0, 3] = n00, n01, n02, n03
@@ -434,13 +437,15 @@ def _k_largest_root(c2: float, c1: float, c0: float, bound: float) -> float:
 
 
 @njit
-def _k_adjugate_column(m: tuple[float, ...], lam: float) -> tuple[float, float, float, float, bool]:
+def _k_adjugate_column(m: tuple[float, ...], lam: float) -> tuple[float, float, float, float, float]:
     """The unit largest column of adj(M - lam I) for a symmetric 4x4 M given by its upper
     triangle m (row-major: 00, 01, 02, 03, 11, 12, 13, 22, 23, 33): the eigenvector of the
     eigenvalue lam. adj(M - lam I) = sum_i prod_{j != i} (l_j - lam) v_i v_i^T, so at an
     eigenvalue every column is a multiple of its eigenvector v, and the column of the
-    largest diagonal entry (~ v_i^2) is the longest. False when that column is too short
-    to trust: a (near-)repeated eigenvalue, or no root (lam NaN)."""
+    largest diagonal entry (~ v_i^2) is the longest. Also returns that column's length
+    over |lam|^3, about the product of the gaps relative to lam: small (below
+    ``_ADJUGATE_MIN`` it is not trusted) for a (near-)repeated eigenvalue, NaN for no
+    root (lam NaN)."""
     m00, m01, m02, m03, m11, m12, m13, m22, m23, m33 = m
     s0, s1, s2, s3, s4, s5, _c0, c1, c2, c3, c4, c5 = _k_sym4_minors(m, lam)
     m00 -= lam
@@ -482,9 +487,7 @@ def _k_adjugate_column(m: tuple[float, ...], lam: float) -> tuple[float, float, 
             d3,
         )
     norm = np.sqrt(w * w + x * x + y * y + z * z)
-    if not norm >= _ADJUGATE_MIN * abs(lam) ** 3:
-        return 0.0, 0.0, 0.0, 0.0, False
-    return w / norm, x / norm, y / norm, z / norm, True
+    return w / norm, x / norm, y / norm, z / norm, norm / abs(lam) ** 3
 
 
 @njit
