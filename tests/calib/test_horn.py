@@ -235,7 +235,7 @@ def eigengap_ratio(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def assert_same_as_reference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The compiled kernel gives horn_batch's flags, and its poses to rounding: both
     eigenvectors are backward stable, so they differ by ~1e-16 times N's eigengap ratio
-    (observed below 2.2e-15 times it; allowed 1e-14)."""
+    (observed up to 2.5e-15 times it; allowed 1e-14)."""
     R_ref, t_ref, ok_ref = horn_batch(a, b)
     R, t, ok = horn_batch_compiled(a, b)
     np.testing.assert_array_equal(ok, ok_ref)

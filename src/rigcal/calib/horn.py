@@ -18,18 +18,21 @@ are flagged ``ok = False`` rather than given an arbitrary rotation.
 :func:`horn_batch` is vectorised over a batch with ``numpy.linalg.eigh`` and is the
 reference; :func:`horn_batch_compiled` runs the same steps one set at a time in a compiled
 kernel (:mod:`rigcal.jit`), and :func:`horn_bearings` runs that kernel on P3P's solutions
-as they come (depths along bearings), so :func:`rigcal.calib.p3p.p3p_poses` gives RANSAC
-full poses without a Python step per hypothesis. The
-kernel finds N's largest eigenvalue as Horn does in his section 4, as the largest root of
-the characteristic quartic lambda^4 + c2 lambda^2 + c1 lambda + c0 (c2 = -2 tr(S^T S),
-c1 = -8 det S, c0 = det N; N is traceless), by Newton's method from the upper bound
-(|a|^2 + |b|^2) / 2 (from above, Newton converges monotonically to the largest root of a
-polynomial whose roots are all real), and the eigenvector as the largest column of the
-adjugate of N - lambda I (every column of which is a multiple of it when lambda is a
-simple eigenvalue; the quaternion-characteristic-polynomial method of Theobald, Acta
-Cryst. A61, 2005, uses the same two steps). Where the two largest eigenvalues (nearly)
-coincide that column vanishes and the eigenvector is ill-conditioned; there the kernel
-falls back to cyclic Jacobi rotations on N, which like ``eigh`` are backward stable.
+as they come (depths along bearings), so :func:`rigcal.calib.p3p.p3p_poses` gives the
+RANSAC full poses without a Python step per hypothesis. The kernel takes step 3 as Horn's
+section 4 describes it: N's largest eigenvalue is the largest root of the characteristic
+quartic lambda^4 + c2 lambda^2 + c1 lambda + c0 (c2 = -2 tr(S^T S), c1 = -8 det S,
+c0 = det N; N is traceless), found by Newton's method from the upper bound
+sum (|a_i|^2 + |b_i|^2) / 2 (from above, Newton decreases monotonically to the largest
+root of a polynomial whose roots are all real), and its eigenvector is the largest
+column of the adjugate of N - lambda I (every column is a multiple of it at a simple
+eigenvalue; Theobald's quaternion-characteristic-polynomial method, Acta Cryst. A61,
+2005, takes the same two steps). The root carries the quartic's rounding, which the
+eigenvector would inherit divided by the eigenvalue gap; where the gap is small against
+lambda one more adjugate at the first vector's Rayleigh quotient makes it as accurate as
+``eigh``'s. Where the two largest eigenvalues (nearly) coincide the adjugate vanishes;
+there the kernel falls back to cyclic Jacobi rotations on N, backward stable like
+``eigh``. The two differ by rounding over N's eigengap (~1e-15 on well-spread sets).
 """
 
 from __future__ import annotations
