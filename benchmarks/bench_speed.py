@@ -7,9 +7,11 @@
    solution; the figures are solutions per second and the ratio between the two, measured
    in the same process (best of several repeats, so that a busy machine affects both).
    rigcal's P3P gives the depths along the bearings (the paper's step 5); with Horn's
-   method for each solution (``horn_batch``, step 6) both sides end with full poses.
-   The kernel's compile time (first call in a fresh process) is measured apart
-   (``jit_cost.py``); the kernel is called once before timing.
+   method for each solution (step 6) both sides end with full poses: Horn's method as
+   ``horn_batch`` (numpy, batched ``eigh``, the reference) and compiled in ``p3p_poses``
+   (the RANSAC's path), whose poses are checked against the reference's before timing.
+   The kernels' compile time (first call in a fresh process) is measured apart
+   (``jit_cost.py``); the kernels are called once before timing.
 2. End-to-end: a simulated 40-capture session written to disk (placeholder images), then
    ``rigcal solve``'s library path on it: reading the picking file and every scan, camera
    and image, line extraction, RANSAC, refinement and the report, with and without the
@@ -30,7 +32,7 @@ import cv2
 import numpy as np
 
 from rigcal.calib.horn import horn_batch
-from rigcal.calib.p3p import p3p, p3p_numpy
+from rigcal.calib.p3p import p3p, p3p_numpy, p3p_poses
 from rigcal.calib.picks import read_picks
 from rigcal.calib.session import calibrate, write_report_dir
 from rigcal.geometry import random_rotation
@@ -73,6 +75,9 @@ def bench_p3p(n: int, repeats: int) -> None:
         _, _, ok = horn_batch(cam, X[sol.triple])
         return int(ok.sum())
 
+    def ours_compiled() -> int:
+        return int(p3p_poses(y, X).ok.sum())
+
     def opencv() -> int:
         count = 0
         K = np.eye(3)
@@ -80,20 +85,32 @@ def bench_p3p(n: int, repeats: int) -> None:
             count += cv2.solveP3P(X[k], image[k], K, None, cv2.SOLVEPNP_P3P)[0]
         return count
 
-    p3p(y[:1], X[:1])  # compile (or load from numba's cache) before timing
+    poses = p3p_poses(y, X)  # compile (or load from numba's cache) before timing
+    sol = p3p(y, X)
+    R_ref, t_ref, ok_ref = horn_batch(sol.depths[:, :, None] * y[sol.triple], X[sol.triple])
+    same = bool((poses.ok == ok_ref).all())
+    pose_diff = max(
+        float(np.abs(poses.R - R_ref).max(initial=0.0)), float(np.abs(poses.t - t_ref).max(initial=0.0))
+    )
     t_depths, s_depths = best_of(repeats, ours_depths)
     t_numpy, s_numpy = best_of(repeats, numpy_depths)
     t_ours, s_ours = best_of(repeats, ours)
+    t_compiled, s_compiled = best_of(repeats, ours_compiled)
     t_cv, s_cv = best_of(repeats, opencv)
     print(f"## P3P, {n} random triples (best of {repeats})\n")
     print("| solver | solutions | solutions/s | us/triple | ratio |\n|---|---|---|---|---|")
-    print(f"| cv2.solveP3P per triple | {s_cv} | {s_cv / t_cv:,.0f} | {1e6 * t_cv / n:.1f} | 1.0 |")
+    print(f"| cv2.solveP3P per triple | {s_cv} | {s_cv / t_cv:,.0f} | {1e6 * t_cv / n:.2f} | 1.0 |")
     for label, t, s in (
         ("rigcal p3p (depths), compiled kernel", t_depths, s_depths),
         ("rigcal p3p_numpy (depths), numpy reference, one batch", t_numpy, s_numpy),
         ("rigcal p3p + Horn (poses), compiled P3P, batched Horn", t_ours, s_ours),
+        ("rigcal p3p_poses (poses), compiled P3P + compiled Horn", t_compiled, s_compiled),
     ):
-        print(f"| {label} | {s} | {s / t:,.0f} | {1e6 * t / n:.1f} | {(s / t) / (s_cv / t_cv):.1f} |")
+        print(f"| {label} | {s} | {s / t:,.0f} | {1e6 * t / n:.2f} | {(s / t) / (s_cv / t_cv):.1f} |")
+    print(
+        f"\nCompiled against batched Horn: the same {'flags' if same else 'FLAGS DIFFER'}, "
+        f"poses within {pose_diff:.1e}."
+    )
 
 
 def bench_solve(captures: int, repeats: int) -> None:

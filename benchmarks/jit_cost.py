@@ -20,6 +20,10 @@ KERNELS = {
         "import numpy as np; from rigcal.calib.p3p import p3p",
         "p3p(np.eye(3)[None] + 0.1, np.eye(3)[None] * 2.0)",
     ),
+    "P3P + Horn poses (rigcal.calib.p3p.p3p_poses, rigcal.calib.horn)": (
+        "import numpy as np; from rigcal.calib.p3p import p3p_poses",
+        "p3p_poses(np.eye(3)[None] + 0.1, np.eye(3)[None] * 2.0)",
+    ),
     "ICP iterations and grid neighbours (rigcal.localize.icp, nearest)": (
         "import numpy as np; from rigcal.localize.icp import icp; "
         "t = np.linspace(0, 6, 200); m = np.vstack([np.c_[t, 0 * t + 1], np.c_[0 * t + 2, t - 3]])",

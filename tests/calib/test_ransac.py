@@ -5,6 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import rigcal.calib.ransac as ransac_module
+from rigcal.calib.horn import horn_batch
+from rigcal.calib.p3p import P3PPoses, p3p
 from rigcal.calib.ransac import RansacParams, _iterations_needed, ransac_pose, reprojection_errors
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError
@@ -102,3 +105,47 @@ def test_iteration_bound():
     assert _iterations_needed(1.0, 0.99) == 0
     assert _iterations_needed(0.5, 0.99) == int(np.ceil(np.log(0.01) / np.log(1 - 0.125)))
     assert _iterations_needed(0.0, 0.99) > 10**8
+
+
+def reference_poses(bearings: np.ndarray, points: np.ndarray) -> P3PPoses:
+    """P3P then Horn's method in numpy (horn_batch), the compiled p3p_poses' reference."""
+    sol = p3p(bearings, points)
+    R, t, ok = horn_batch(sol.depths[:, :, None] * bearings[sol.triple], points[sol.triple])
+    return P3PPoses(sol.triple, sol.depths, R, t, ok)
+
+
+@pytest.mark.parametrize(("seed", "sigma_px", "outliers"), [(3, 0.5, 0.2), (4, 0.0, 0.0), (10, 2.0, 0.4)])
+def test_compiled_poses_leave_ransac_unchanged(monkeypatch, seed, sigma_px, outliers):
+    rng = np.random.default_rng(seed)
+    c, pts, px, _ = correspondences(rng, 40, sigma_px, outliers)
+    params = RansacParams(threshold_px=4.0, seed=seed)
+    got = ransac_pose(c, pts, px, params)
+    monkeypatch.setattr(ransac_module, "p3p_poses", reference_poses)
+    ref = ransac_pose(c, pts, px, params)
+    assert (got.triples_drawn, got.hypotheses) == (ref.triples_drawn, ref.hypotheses)
+    np.testing.assert_array_equal(got.inliers, ref.inliers)
+    np.testing.assert_allclose(got.T_cam_laser, ref.T_cam_laser, atol=1e-12, rtol=0)
+    np.testing.assert_allclose(got.errors_px, ref.errors_px, atol=1e-9, rtol=0)
+
+
+def test_compiled_poses_leave_the_box_calibration_unchanged(monkeypatch):
+    from rigcal.calib.solve import CalibProblem, SolveSettings, solve
+    from rigcal.sim.box_session import SessionSpec, generate_session, session_observations
+
+    sess = generate_session(SessionSpec(n_captures=20, wrong_pick_fraction=0.2, seed=5))
+    problem = CalibProblem(
+        sess.camera, tuple(session_observations(sess)), SolveSettings(uncertainty_checks=False)
+    )
+    got = solve(problem)
+    monkeypatch.setattr(ransac_module, "p3p_poses", reference_poses)
+    ref = solve(problem)
+    assert (got.ransac.triples_drawn, got.ransac.hypotheses) == (
+        ref.ransac.triples_drawn,
+        ref.ransac.hypotheses,
+    )
+    np.testing.assert_array_equal(got.ransac.inliers, ref.ransac.inliers)
+    np.testing.assert_allclose(got.ransac.T_cam_laser, ref.ransac.T_cam_laser, atol=1e-12, rtol=0)
+    # The refinement stops at its own tolerance, so the last digits of its start move its
+    # answer by up to that tolerance (observed 1.5e-10): far below the pose's uncertainty.
+    np.testing.assert_array_equal(got.inliers, ref.inliers)
+    np.testing.assert_allclose(got.T_cam_laser, ref.T_cam_laser, atol=1e-8, rtol=0)

@@ -24,7 +24,10 @@ paper's step 6 does.
 
 :func:`p3p` runs a compiled kernel (:mod:`rigcal.jit`) that solves one triple at a time
 in scalar arithmetic, with no temporary arrays; :func:`p3p_numpy`, the same steps
-vectorised over the batch in numpy, is its reference in the tests.
+vectorised over the batch in numpy, is its reference in the tests. :func:`p3p_poses`
+follows the kernel with Horn's method compiled (:func:`rigcal.calib.horn.horn_bearings`)
+on each solution, so a batch of triples gives full poses without a Python step per solution; its
+reference is :func:`p3p` followed by :func:`rigcal.calib.horn.horn_batch`.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rigcal.calib.horn import MIN_SPREAD_RATIO, horn_bearings
 from rigcal.jit import njit
 
 FloatArray = NDArray[np.float64]
@@ -56,6 +60,52 @@ class P3PSolutions:
 
     triple: NDArray[np.int64]
     depths: FloatArray
+
+
+@dataclass(frozen=True)
+class P3PPoses:
+    """All real P3P solutions of a batch of triples, with their poses.
+
+    Attributes:
+        triple: (K,) index of the triple (in the batch) each solution belongs to.
+        depths: (K, 3) metres along the bearings, as in :class:`P3PSolutions`.
+        R: (K, 3, 3) rotations and
+        t: (K, 3) translations, metres, with camera point = R point + t (the identity and
+            zero where ``ok`` is False).
+        ok: (K,) False where Horn's method flags the solution's camera-frame points or
+            the triple's points as (nearly) collinear.
+    """
+
+    triple: NDArray[np.int64]
+    depths: FloatArray
+    R: FloatArray
+    t: FloatArray
+    ok: NDArray[np.bool_]
+
+
+def p3p_poses(bearings: ArrayLike, points: ArrayLike, min_spread_ratio: float = MIN_SPREAD_RATIO) -> P3PPoses:
+    """Full poses from three bearings and points per triple (paper Algorithm 1, steps 5-6):
+    :func:`p3p`'s depths, then Horn's absolute orientation (Horn 1987) aligning the
+    camera-frame points ``depths[k, i] * bearings[triple[k], i]`` with the points, both in
+    compiled kernels.
+
+    Args:
+        bearings: (n, 3, 3) unit bearings, camera frame: ``bearings[k, i]`` sees point i.
+        points: (n, 3, 3) the points, metres, in any frame.
+        min_spread_ratio: Horn's collinearity flag, as in
+            :func:`rigcal.calib.horn.horn_batch`.
+
+    Returns:
+        Every real solution with positive depths and its pose: the same as :func:`p3p`
+        followed by :func:`rigcal.calib.horn.horn_batch` (to ~1e-15 on well-spread sets).
+    """
+    y = np.ascontiguousarray(bearings, dtype=float)
+    x = np.ascontiguousarray(points, dtype=float)
+    if y.ndim == 2:
+        y, x = y[None], x[None]
+    sol = p3p(y, x)
+    R, t, ok = horn_bearings(y, sol.triple, sol.depths, x, min_spread_ratio)
+    return P3PPoses(sol.triple, sol.depths, R, t, ok)
 
 
 def p3p(bearings: ArrayLike, points: ArrayLike) -> P3PSolutions:

@@ -16,8 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.horn import horn_batch
-from rigcal.calib.p3p import p3p
+from rigcal.calib.p3p import p3p_poses
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError
 from rigcal.geometry import make_T
@@ -140,14 +139,10 @@ def ransac_pose(
         idx = idx[good]
         if len(idx) == 0:
             continue
-        # Step 5: depths along the bearings from the 3-point algorithm.
-        sol = p3p(bearings[idx], pts3[idx])
-        if len(sol.triple) == 0:
-            continue
-        cam_pts = sol.depths[:, :, None] * bearings[idx][sol.triple]
-        # Step 6: Horn's method aligns the camera-frame points with the laser points.
-        R, t, ok = horn_batch(cam_pts, pts3[idx][sol.triple])
-        R, t = R[ok], t[ok]
+        # Step 5: depths along the bearings from the 3-point algorithm; step 6: Horn's
+        # method aligns the camera-frame points with the laser points (both compiled).
+        sol = p3p_poses(bearings[idx], pts3[idx])
+        R, t = sol.R[sol.ok], sol.t[sol.ok]
         if len(R) == 0:
             continue
         # Step 7: reproject every laser point and score (MSAC: truncated squared error).
