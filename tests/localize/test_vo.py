@@ -125,6 +125,7 @@ def test_every_run_through_the_first_corner_turns_by_the_true_angle(tmp_path):
     from rigcal.io.trajectory import read_tum
     from rigcal.localize.pipeline import _vo_result, planar_at
     from rigcal.localize.streams import open_streams
+    from rigcal.localize.vo import visual_odometry
     from rigcal.sim.drive import DriveSpec, write_drive
     from rigcal.sim.world import corridor_loop
 
@@ -136,3 +137,17 @@ def test_every_run_through_the_first_corner_turns_by_the_true_angle(tmp_path):
     true_turn = np.diff(truth[:, 2])
     assert np.abs(true_turn).max() > np.radians(15)  # the corner is in there
     assert np.degrees(np.abs(turned - true_turn)).max() < 0.5
+    # The runs measured on one thread give the same odometry as on two (the default).
+    rig = streams.rig
+    assert rig is not None
+    one = visual_odometry(
+        streams.feature_tracks(),
+        streams.image,
+        streams.image_stamps_s,
+        rig.camera,
+        rig.T_cam_laser,
+        streams.laser_points_at_image,
+        workers=1,
+    )
+    assert one.steps == res.steps
+    assert np.array_equal(one.poses, res.poses)

@@ -29,6 +29,7 @@ camera's, ``x2 = R x1 + t`` (OpenCV's). Laser-frame points are (x, y, 0).
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -388,6 +389,7 @@ def visual_odometry(
     laser_points: Callable[[int], FloatArray],
     params: VoParams | None = None,
     progress: Callable[[int], None] | None = None,
+    workers: int = 2,
 ) -> VoResult:
     """Chain the camera's runs into the laser's planar trajectory.
 
@@ -398,6 +400,7 @@ def visual_odometry(
         T_cam_laser: the rig's calibration.
         laser_points: frame index -> (N, 2) laser points in the laser frame at that frame's time.
         progress: called with the frames done so far.
+        workers: threads measuring the runs (the result does not depend on it).
 
     A run goes from its first frame to the last frame, at most ``max_run_frames`` on, that
     still shares ``min_tracked`` tracks with it (Section IV); the next run starts there.
@@ -405,16 +408,89 @@ def visual_odometry(
     constant-velocity guess) and is reported in ``steps``.
     """
     params = params or VoParams()
-    n_frames = len(tracks)
     focal = float(np.mean(camera.intrinsics[:2]))
+    forward = T_cam_laser[:3, 0]  # the laser's x axis (the rig's travel) in the camera frame
+    runs = _runs(tracks, params)
+
+    def measure(run: tuple[int, int, NDArray[np.intp], NDArray[np.intp]]) -> _Measured:
+        kf, j, ia, ib = run
+        dt = float(stamps_s[j] - stamps_s[kf])
+        rel = relative_pose(tracks[kf].bearings[ia], tracks[j].bearings[ib], focal, params, forward)
+        if rel is None or rel.still:
+            return _Measured(kf, j, dt, rel, None)
+        P1 = _to_cam(T_cam_laser, laser_points(kf))
+        est = laser_scale(
+            image(kf), image(j), camera, rel.R, rel.t_unit, P1, params.max_speed_mps * dt, params
+        )
+        return _Measured(kf, j, dt, rel, est)
+
     T_laser_cam = np.linalg.inv(T_cam_laser)
     T_w_c = T_laser_cam.copy()  # the first laser pose is the origin
-    forward = T_cam_laser[:3, 0]  # the laser's x axis (the rig's travel) in the camera frame
     frames = [0]
     poses = [_planar(T_w_c @ T_cam_laser)]
     steps: list[VoStep] = []
     last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
     speed = 0.0  # m/s, of the last run with a scale
+    # The runs are measured independently (OpenCV and numpy release the interpreter), on
+    # ``workers`` threads, in order; chaining them is sequential.
+    with ThreadPoolExecutor(max_workers=max(workers, 1), thread_name_prefix="vo-run") as pool:
+        for m in pool.map(measure, runs):
+            kf, j, dt, rel = m.first, m.last, m.dt, m.rel
+            if progress is not None:
+                progress(j + 1)
+            status, scale_pts = "ok", 0
+            if rel is None:
+                status = "failed"
+            elif rel.still:
+                status = "still"
+                R, t = rel.R, np.zeros(3)
+            else:
+                assert m.scale is not None
+                scale_pts = m.scale.used
+                if m.scale.used < params.min_scale_votes or not np.isfinite(m.scale.scale):
+                    status = "no-scale"
+                R, t = rel.R, m.scale.scale * rel.t_unit
+            if status == "failed":
+                # Constant velocity: the previous run's motion rates over this run's time.
+                R = np.eye(3) if last_velocity is None else rotvec_to_R(last_velocity[0] * dt)
+                t = np.zeros(3) if last_velocity is None else last_velocity[1] * dt
+            elif status == "no-scale":
+                # The direction is known, the length not: the last measured speed (a moving
+                # run's, so that a stop does not leave the rig standing still ever after).
+                assert rel is not None
+                R, t = rel.R, speed * dt * rel.t_unit
+            else:
+                last_velocity = (R_to_rotvec(R) / max(dt, 1e-6), t / max(dt, 1e-6))
+                if status == "ok":
+                    speed = float(np.linalg.norm(t)) / max(dt, 1e-6)
+            T_c2_c1 = make_T(R, t)
+            T_w_c = T_w_c @ np.linalg.inv(T_c2_c1)
+            frames.append(j)
+            poses.append(_planar(T_w_c @ T_cam_laser))
+            steps.append(VoStep(kf, j, 0 if rel is None else rel.inliers, scale_pts, status))
+    return VoResult(np.array(frames, dtype=np.intp), np.array(poses), tuple(steps))
+
+
+@dataclass(frozen=True)
+class _Measured:
+    """One run measured: frames (first, last), its duration, the relative pose (None:
+    failed) and, when it moved, the laser scale's estimate."""
+
+    first: int
+    last: int
+    dt: float
+    rel: RelativePose | None
+    scale: ScaleEstimate | None
+
+
+def _runs(
+    tracks: list[FrameTracks], params: VoParams
+) -> list[tuple[int, int, NDArray[np.intp], NDArray[np.intp]]]:
+    """The runs (first frame, last frame, the common tracks' indices in each): from its
+    first frame to the last frame, at most ``max_run_frames`` on, that still shares
+    ``min_tracked`` tracks with it; the next run starts there."""
+    n_frames = len(tracks)
+    out = []
     kf = 0
     while kf < n_frames - 1:
         j = kf + 1
@@ -424,45 +500,9 @@ def visual_odometry(
             if len(pairs[0]) < params.min_tracked:
                 break
             j, (ia, ib) = c, pairs
-        if progress is not None:
-            progress(j + 1)
-        dt = float(stamps_s[j] - stamps_s[kf])
-        rel = relative_pose(tracks[kf].bearings[ia], tracks[j].bearings[ib], focal, params, forward)
-        status, scale_pts = "ok", 0
-        if rel is None:
-            status = "failed"
-        elif rel.still:
-            status = "still"
-            R, t = rel.R, np.zeros(3)
-        else:
-            P1 = _to_cam(T_cam_laser, laser_points(kf))
-            est = laser_scale(
-                image(kf), image(j), camera, rel.R, rel.t_unit, P1, params.max_speed_mps * dt, params
-            )
-            scale_pts = est.used
-            if est.used < params.min_scale_votes or not np.isfinite(est.scale):
-                status = "no-scale"
-            R, t = rel.R, est.scale * rel.t_unit
-        if status == "failed":
-            # Constant velocity: the previous run's motion rates over this run's time.
-            R = np.eye(3) if last_velocity is None else rotvec_to_R(last_velocity[0] * dt)
-            t = np.zeros(3) if last_velocity is None else last_velocity[1] * dt
-        elif status == "no-scale":
-            # The direction is known, the length not: the last measured speed (a moving
-            # run's, so that a stop does not leave the rig standing still ever after).
-            assert rel is not None
-            R, t = rel.R, speed * dt * rel.t_unit
-        else:
-            last_velocity = (R_to_rotvec(R) / max(dt, 1e-6), t / max(dt, 1e-6))
-            if status == "ok":
-                speed = float(np.linalg.norm(t)) / max(dt, 1e-6)
-        T_c2_c1 = make_T(R, t)
-        T_w_c = T_w_c @ np.linalg.inv(T_c2_c1)
-        frames.append(j)
-        poses.append(_planar(T_w_c @ T_cam_laser))
-        steps.append(VoStep(kf, j, 0 if rel is None else rel.inliers, scale_pts, status))
+        out.append((kf, j, ia, ib))
         kf = j
-    return VoResult(np.array(frames, dtype=np.intp), np.array(poses), tuple(steps))
+    return out
 
 
 def _to_cam(T_cam_laser: FloatArray, pts2: FloatArray) -> FloatArray:
