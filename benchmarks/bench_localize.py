@@ -9,7 +9,8 @@ runs it (reading, laser odometry, feature tracks, the method); its wall time is 
 with the lap's duration (real time = 1) -- for ``kf`` that is ICP + VO + KF. The CPU
 seconds of the run (all its threads) are given too: wall time near CPU / 2 means both
 cores were kept busy, and CPU / 2 is the least wall time 2 free cores could reach. Each is run
-with rigcal's compiled kernels (ICP's iterations, IASM's laser metric and SAD) and again with
+with rigcal's compiled kernels (the laser odometry's ICP iterations and line work, IASM's
+laser metric and SAD) and again with
 their numpy references in the same run (``--no-reference`` skips those), after a first
 run that compiles the kernels (or loads them from numba's cache; ``jit_cost.py``).
 
@@ -107,13 +108,26 @@ def main() -> None:
 
 @contextlib.contextmanager
 def kernels(compiled: bool) -> Iterator[None]:
-    """Within: ICP, IASM's laser metric and its SAD matching use their compiled kernels
-    or, when not ``compiled``, their numpy references (the ``kernel`` keyword's default)."""
-    from rigcal.localize import iasm, icp
+    """Within: the laser odometry (ICP's iterations, line extraction, carrying and fits),
+    IASM's laser metric and its SAD matching use their compiled kernels or, when not
+    ``compiled``, their numpy / Python references (the ``kernel`` keyword's default)."""
+    from rigcal.calib import lines
+    from rigcal.localize import iasm, icp, odometry
 
-    functions = (icp.icp, iasm.laser_scores, iasm.match_returns, iasm.image_scores)
+    functions = (
+        icp.icp,
+        icp.line_fits,
+        icp.line_normals,
+        odometry.icp_odometry,
+        odometry.carry_labels,
+        lines.extract_lines,
+        iasm.laser_scores,
+        iasm.match_returns,
+        iasm.image_scores,
+    )
     saved = [dict(f.__kwdefaults__ or {}) for f in functions]
     for f in functions:
+        assert "kernel" in (f.__kwdefaults__ or {}), f"{f.__qualname__} has no kernel keyword"
         f.__kwdefaults__ = {**(f.__kwdefaults__ or {}), "kernel": compiled}
     try:
         yield
