@@ -277,3 +277,32 @@ def test_a_glob_of_trajectories_on_the_cli(tmp_path, capsys):
     assert table[0]["ate_rmse_m"] == 0.0
     assert table[1]["ate_rmse_m"] > 0.0
     assert not (out / "fleet_drift.png").exists()
+
+
+def test_pool_workers_share_the_cores_out_unless_the_user_set_the_threads(monkeypatch):
+    """Workers start with each library's threads limited to their share of the cores
+    (a variable the user set is kept), and the parent's environment is restored after."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    from rigcal.batch.runner import THREAD_VARIABLES, _start_worker, _thread_limits
+
+    for v in THREAD_VARIABLES:
+        monkeypatch.delenv(v, raising=False)
+    monkeypatch.setenv("MKL_NUM_THREADS", "7")
+    with _thread_limits(3), ProcessPoolExecutor(1, get_context("spawn"), _start_worker, (3,)) as pool:
+        seen = pool.submit(_worker_threads, THREAD_VARIABLES).result()
+    assert seen == {
+        "OMP_NUM_THREADS": "3",
+        "OPENBLAS_NUM_THREADS": "3",
+        "MKL_NUM_THREADS": "7",
+        "NUMBA_NUM_THREADS": "3",
+        "cv2": 3,
+    }
+    assert os.environ["MKL_NUM_THREADS"] == "7"
+    assert not any(v in os.environ for v in THREAD_VARIABLES if v != "MKL_NUM_THREADS")
+
+
+def _worker_threads(names):
+    """In a worker: the thread variables it started with and OpenCV's thread count."""
+    return {**{v: os.environ.get(v) for v in names}, "cv2": cv2.getNumThreads()}

@@ -248,7 +248,11 @@ def _executor(settings: BatchSettings, n_items: int) -> Iterator[Submit]:
         workers = min(settings.workers or os.cpu_count() or 1, n_items)
         # spawn: fresh interpreters, no copied threads or locks (cv2, numba) from this one
         ctx = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        threads = max(1, (os.cpu_count() or 1) // workers)
+        with (
+            _thread_limits(threads),
+            cf.ProcessPoolExecutor(workers, ctx, _start_worker, (threads,)) as pool,
+        ):
             yield lambda argv: pool.submit(run_item, argv)
         return
     ray = _ray()
@@ -269,6 +273,33 @@ def _executor(settings: BatchSettings, n_items: int) -> Iterator[Submit]:
     finally:
         if started:
             ray.shutdown()
+
+
+# Thread pools of the libraries under a worker: BLAS (OpenMP, OpenBLAS, MKL) and numba.
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _thread_limits(threads: int) -> Iterator[None]:
+    """While the pool runs, the environment its workers start with gives each library
+    ``threads`` threads (the cores shared out among the workers, as Ray does for its
+    tasks), unless the user set a variable already: workers that each start a thread per
+    core would oversubscribe the machine."""
+    unset = [v for v in THREAD_VARIABLES if v not in os.environ]
+    for v in unset:
+        os.environ[v] = str(threads)
+    try:
+        yield
+    finally:
+        for v in unset:
+            os.environ.pop(v, None)
+
+
+def _start_worker(threads: int) -> None:
+    """A pool worker's start: OpenCV's own thread pool to ``threads`` threads."""
+    import cv2
+
+    cv2.setNumThreads(threads)
 
 
 def _ray() -> Any:
