@@ -151,3 +151,41 @@ def test_every_run_through_the_first_corner_turns_by_the_true_angle(tmp_path):
     )
     assert one.steps == res.steps
     assert np.array_equal(one.poses, res.poses)
+
+
+def test_runs_are_given_as_soon_as_their_frames_are_in():
+    """Visual odometry's runs from tracks still being computed: each run comes out once
+    the frames deciding it are in, the same runs as from the whole list, and the tracks
+    are consumed to the end."""
+    from rigcal.localize.tracks import FrameTracks
+    from rigcal.localize.vo import VoParams, _runs
+
+    rng = np.random.default_rng(3)
+    frames = []
+    alive = np.arange(300)
+    for _ in range(40):  # tracks die off, and new ones start when few are left
+        alive = alive[rng.random(len(alive)) > 0.15]
+        if len(alive) < 150:
+            alive = np.concatenate([alive, np.arange(alive.max() + 1, alive.max() + 151)])
+        frames.append(FrameTracks(alive.copy(), np.zeros((len(alive), 2)), np.zeros((len(alive), 3))))
+    params = VoParams()
+    whole = list(_runs(frames, len(frames), params, []))
+    pulled = []
+
+    def tracking():
+        for f in frames:
+            pulled.append(f)
+            yield f
+
+    seen: list[FrameTracks] = []
+    lazy = []
+    for run in _runs(tracking(), len(frames), params, seen):
+        assert len(pulled) <= min(run[1] + 2, len(frames))  # at most one frame past the run
+        lazy.append(run)
+    assert [(a, b) for a, b, _, _ in lazy] == [(a, b) for a, b, _, _ in whole]
+    assert all(
+        np.array_equal(x[2], y[2]) and np.array_equal(x[3], y[3]) for x, y in zip(lazy, whole, strict=True)
+    )
+    assert len(seen) == len(frames)
+    assert whole[-1][1] == len(frames) - 1
+    assert 1 < max(b - a for a, b, _, _ in whole) <= params.max_run_frames
