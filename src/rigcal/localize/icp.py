@@ -27,9 +27,10 @@ Hessian's smallest eigenvalue over its largest (translation block) says how well
 least-constrained direction is determined; near 0 the step is degenerate and its
 translation along that direction is a guess (reported per step).
 
-The iterations run in a compiled kernel (:mod:`rigcal.jit`): nearest neighbours from a
-grid of the model (:mod:`rigcal.localize.nearest`, exact as the k-d tree), pairing,
-rejection and the update, in one loop with no temporary arrays. The numpy iterations
+A scan pair's ICP runs in one call of a compiled kernel (:mod:`rigcal.jit`): the grid of
+the model (:mod:`rigcal.localize.nearest`, nearest neighbours exact as the k-d tree), the
+stages' iterations (pairing, rejection and the update in one loop on work arrays
+allocated once), the pairing normals and the degeneracy. The numpy iterations
 (``icp(..., kernel=False)``) are its reference in the tests. The lines' fits behind the
 normals (:func:`line_fits`) run in a kernel too, with their numpy reference kept alike.
 """
@@ -44,7 +45,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from rigcal.jit import njit
-from rigcal.localize.nearest import Grid, knn_one
+from rigcal.localize.nearest import GridArgs, build, knn_one, knn_within
 
 FloatArray = NDArray[np.float64]
 
@@ -65,6 +66,9 @@ MIN_LINE_FRACTION = 0.85
 # candidates from one k-d tree query, repeated once some point has moved this far.
 CANDIDATES = 4
 REQUERY_M = 0.005
+# The compiled queries search the cells within a known radius (a neighbouring beam's or
+# the last answer's) when it spans at most this many cells, else the grid's rings.
+SEED_CELLS = 2.0
 
 
 @dataclass(frozen=True)
@@ -161,9 +165,11 @@ def icp(
         raise ValueError("method must be 'point-to-point' or 'point-to-line'")
     model = np.ascontiguousarray(model, dtype=float)
     data = np.ascontiguousarray(data, dtype=float)
-    tree: cKDTree | Grid = Grid(model) if kernel else cKDTree(model)
-    iterate = _iterate_compiled if kernel else _iterate
     x, y, yaw = (0.0, 0.0, 0.0) if initial is None else (float(v) for v in np.asarray(initial, dtype=float))
+    if kernel:
+        return _icp_compiled(model, data, x, y, yaw, params, model_normals)
+    tree = cKDTree(model)
+    iterate = _iterate
     T = _Transform(math.cos(yaw), math.sin(yaw), x, y)
     sparse = data[:: params.subsample] if len(data) >= 3 * params.subsample else data
     coarse_tol = (10.0 * params.tolerance_m, 10.0 * params.tolerance_rad)
@@ -466,7 +472,7 @@ def line_normals(points: FloatArray, labels: NDArray[np.integer], *, kernel: boo
 
 
 def pairing_normals(
-    model: FloatArray, tree: cKDTree | Grid, k: int, model_normals: FloatArray | None
+    model: FloatArray, tree: cKDTree, k: int, model_normals: FloatArray | None
 ) -> tuple[FloatArray, NDArray[np.bool_] | None]:
     """The model's point-to-line normals and which returns may be paired: the line
     normals (``model_normals``, NaN off a line; those returns unpaired) when at least
@@ -479,7 +485,7 @@ def pairing_normals(
     return _normals(model, tree, k), None
 
 
-def _normals(model: FloatArray, tree: cKDTree | Grid, k: int) -> FloatArray:
+def _normals(model: FloatArray, tree: cKDTree, k: int) -> FloatArray:
     """(M, 2) unit normals from each model point's k nearest neighbours (PCA)."""
     _, nb = tree.query(model, k=min(k, len(model)))
     x, y = model[nb, 0], model[nb, 1]
@@ -509,58 +515,270 @@ def _degeneracy(src: FloatArray, dst: FloatArray, n: FloatArray | None) -> float
     return float(w[0] / w[-1]) if w[-1] > 0 else 0.0
 
 
-# The compiled iterations: _iterate and _Nearest's steps in one loop.
+# The compiled ICP: icp()'s steps for one scan pair in one call.
 
 
-def _iterate_compiled(
-    tree: cKDTree | Grid,
+def _icp_compiled(
     model: FloatArray,
     data: FloatArray,
-    lines: FloatArray | None,
-    T: _Transform,
-    max_iterations: int,
-    tolerance: tuple[float, float],
-    reject_m: float,
-    usable: NDArray[np.bool_] | None = None,
-    candidates: int = 1,
-) -> tuple[_Transform, _Fit]:
-    """:func:`_iterate` in the compiled kernel (``tree``: the model's :class:`Grid`)."""
-    assert isinstance(tree, Grid)
-    n = len(data)
-    pose = np.array([T.c, T.s, T.tx, T.ty])
-    src = np.empty((n, 2))
-    pairs = np.empty(n, dtype=np.int64)
-    nearest = np.empty(n, dtype=np.int64)
-    no_lines = np.zeros((0, 3))
-    no_usable = np.zeros(0, dtype=np.bool_)
-    k, rms, frac, n_inl = _iterate_kernel(
-        tree.args(),
+    x: float,
+    y: float,
+    yaw: float,
+    params: IcpParams,
+    model_normals: FloatArray | None,
+) -> IcpResult:
+    """:func:`icp` in the compiled kernel :func:`_icp_kernel` (the grid of the model, the
+    three stages, the pairing normals and the degeneracy)."""
+    if params.method == "point-to-line" and model_normals is not None and model_normals.shape != model.shape:
+        raise ValueError(f"model_normals must be {model.shape}, got {np.shape(model_normals)}")
+    pose = np.array([math.cos(yaw), math.sin(yaw), x, y])
+    nearest = np.empty(len(data), dtype=np.int64)
+    iterations, rms, frac, degeneracy = _icp_kernel(
+        model,
         data,
-        no_lines if lines is None else np.ascontiguousarray(lines),
-        lines is not None,
-        no_usable if usable is None else usable,
-        usable is not None,
+        _NO_NORMALS if model_normals is None else np.ascontiguousarray(model_normals, dtype=float),
+        model_normals is not None,
+        params.method == "point-to-line",
+        params.normal_neighbours,
+        params.subsample,
         pose,
-        max_iterations,
-        tolerance[0],
-        tolerance[1],
-        reject_m,
-        min(candidates, len(model)),
+        params.max_iterations,
+        params.tolerance_m,
+        params.tolerance_rad,
+        params.reject_m,
+        COARSE_ITERATIONS,
+        COARSE_TOLERANCE[0],
+        COARSE_TOLERANCE[1],
+        MIN_LINE_FRACTION,
+        CANDIDATES,
         REQUERY_M,
         DEGENERATE_EIGEN_RATIO,
-        src,
-        pairs,
         nearest,
     )
-    fit = _Fit(
-        k, rms, frac, src[:n_inl], pairs[:n_inl].astype(np.intp), nearest.astype(np.intp) if k else None
-    )
-    return _Transform(*pose.tolist()), fit
+    pose_out = np.array([pose[2], pose[3], math.atan2(pose[1], pose[0])])
+    return IcpResult(pose_out, iterations, rms, frac, degeneracy, nearest if iterations else None)
+
+
+_NO_NORMALS = np.zeros((0, 2))
+
+
+@njit
+def _icp_kernel(
+    model: FloatArray,
+    data: FloatArray,
+    model_normals: FloatArray,
+    have_normals: bool,
+    point_to_line: bool,
+    normal_neighbours: int,
+    subsample: int,
+    pose: FloatArray,
+    max_iterations: int,
+    tol_m: float,
+    tol_rad: float,
+    reject_m: float,
+    coarse_iterations: int,
+    coarse_tol_m: float,
+    coarse_tol_rad: float,
+    min_line_fraction: float,
+    candidates: int,
+    requery_m: float,
+    degenerate_ratio: float,
+    out_nearest: NDArray[np.int64],
+) -> tuple[int, float, float, float]:
+    """:func:`icp` from ``pose`` = (cos, sin, tx, ty) of T_model_data, updated in place:
+    the model's grid, point-to-point steps on the sparse points (point-to-line only), the
+    pairing normals, then the sparse and the full stage. Returns the last stage's
+    iterations, RMS, inlier fraction and degeneracy; every data point's nearest model
+    point in its last fit goes to ``out_nearest``."""
+    grid = build(model)
+    m, n = model.shape[0], data.shape[0]
+    step = subsample if n >= 3 * subsample else 1
+    sparse = data[::step].copy()
+    n_sp = sparse.shape[0]
+    k = min(candidates, m)
+    # Work arrays, shared by the stages (each stage sizes its own views).
+    moved = np.empty((n, 2))
+    dist = np.empty(n)
+    idx = np.empty(n, dtype=np.int64)
+    select = np.empty(n)
+    anchor = np.empty((n, 2))
+    out_src = np.empty((n, 2))
+    out_pairs = np.empty(n, dtype=np.int64)
+    nb_sp = np.empty((n_sp, 1), dtype=np.int64)
+    nbd_sp = np.empty((n_sp, 1))
+    lines = np.empty((m, 3))
+    usable = np.ones(m, dtype=np.bool_)
+    use_usable = False
+    seeded = False
+    if point_to_line:
+        _iterate_kernel(
+            grid, sparse, lines, False, usable, False, pose, coarse_iterations, coarse_tol_m, coarse_tol_rad,
+            reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp, False,
+            moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
+        )  # fmt: skip
+        seeded = True  # the sparse stage's queries start from these answers
+        use_usable = _k_pairing_normals(
+            grid, normal_neighbours, model_normals, have_normals, min_line_fraction, lines, usable
+        )
+        for i in range(m):
+            lines[i, 2] = lines[i, 0] * model[i, 0] + lines[i, 1] * model[i, 1]
+    _iterate_kernel(
+        grid, sparse, lines, point_to_line, usable, use_usable, pose, max_iterations,
+        10.0 * tol_m, 10.0 * tol_rad, reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp, seeded,
+        moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
+    )  # fmt: skip
+    nb = np.empty((n, k), dtype=np.int64)
+    nbd = np.empty((n, k))
+    fit_k, rms, frac, n_inl = _iterate_kernel(
+        grid, data, lines, point_to_line, usable, use_usable, pose, max_iterations,
+        tol_m, tol_rad, reject_m, requery_m, degenerate_ratio, nb, nbd, False,
+        moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
+    )  # fmt: skip
+    return fit_k, rms, frac, _k_degeneracy(model, lines, point_to_line, out_pairs, n_inl)
+
+
+@njit
+def _k_pairing_normals(
+    grid: GridArgs,
+    k: int,
+    model_normals: FloatArray,
+    have_normals: bool,
+    min_line_fraction: float,
+    lines: FloatArray,
+    usable: NDArray[np.bool_],
+) -> bool:
+    """:func:`pairing_normals` into ``lines[:, :2]`` and ``usable``; returns whether
+    ``usable`` applies (line normals) or every return may be paired."""
+    model = grid[0]
+    m = model.shape[0]
+    if have_normals:
+        on = 0
+        for i in range(m):
+            on += int(np.isfinite(model_normals[i, 0]))
+        if on / m >= min_line_fraction:
+            for i in range(m):
+                usable[i] = np.isfinite(model_normals[i, 0])
+                lines[i, 0] = model_normals[i, 0] if usable[i] else 0.0
+                lines[i, 1] = model_normals[i, 1] if usable[i] else 0.0
+            return True
+    # :func:`_normals`: each return's k nearest neighbours' scatter, its minor axis.
+    k = min(k, m)
+    nb = np.empty((m, k), dtype=np.int64)
+    nbd = np.empty((m, k))
+    _query(grid, model, nb, nbd, False)
+    for i in range(m):
+        mx = my = 0.0
+        for j in range(k):
+            mx += model[nb[i, j], 0]
+            my += model[nb[i, j], 1]
+        mx /= k
+        my /= k
+        sxx = syy = sxy = 0.0
+        for j in range(k):
+            dx, dy = model[nb[i, j], 0] - mx, model[nb[i, j], 1] - my
+            sxx += dx * dx
+            syy += dy * dy
+            sxy += dx * dy
+        phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+        lines[i, 0], lines[i, 1] = -np.sin(phi), np.cos(phi)
+    return False
+
+
+@njit
+def _k_degeneracy(
+    model: FloatArray, lines: FloatArray, point_to_line: bool, pairs: NDArray[np.int64], n: int
+) -> float:
+    """:func:`_degeneracy` of the first n pairs: the 2x2 scatter of the paired normals
+    (point-to-line) or of the paired model points about their mean, its smaller
+    eigenvalue over its larger (closed form)."""
+    if n < 3:
+        return 0.0
+    mx = my = 0.0
+    if not point_to_line:
+        for i in range(n):
+            mx += model[pairs[i], 0]
+            my += model[pairs[i], 1]
+        mx /= n
+        my /= n
+    sxx = syy = sxy = 0.0
+    for i in range(n):
+        if point_to_line:
+            dx, dy = lines[pairs[i], 0], lines[pairs[i], 1]
+        else:
+            dx, dy = model[pairs[i], 0] - mx, model[pairs[i], 1] - my
+        sxx += dx * dx
+        syy += dy * dy
+        sxy += dx * dy
+    mean = 0.5 * (sxx + syy)
+    r = np.hypot(0.5 * (sxx - syy), sxy)
+    hi = mean + r
+    return (mean - r) / hi if hi > 0 else 0.0
+
+
+@njit
+def _query(grid: GridArgs, points: FloatArray, nb: NDArray[np.int64], nbd: FloatArray, seeded: bool) -> None:
+    """Each point's k = nb.shape[1] nearest grid points into ``nb`` and ``nbd``, exact.
+    The previous point's answer (the scans are ordered: a neighbouring beam) and, when
+    ``seeded``, the point's own earlier answer in ``nb`` are k points within a known
+    radius; the smaller radius bounds the search (:func:`knn_within`) unless it spans
+    more than SEED_CELLS cells, when the rings search instead."""
+    model, cell = grid[0], grid[3]
+    for i in range(points.shape[0]):
+        qx, qy = points[i, 0], points[i, 1]
+        radius = _reach(model, nb[i], qx, qy) if seeded else np.inf
+        if i > 0:
+            radius = min(radius, _reach(model, nb[i - 1], qx, qy))
+        if radius <= SEED_CELLS * cell:
+            knn_within(grid, qx, qy, radius, nbd[i], nb[i])
+        else:
+            knn_one(grid, qx, qy, nbd[i], nb[i])
+
+
+@njit
+def _reach(model: FloatArray, nb: NDArray[np.int64], qx: float, qy: float) -> float:
+    """Distance from (qx, qy) to the farthest of the distinct model points ``nb``."""
+    far = 0.0
+    for j in range(nb.shape[0]):
+        dx, dy = model[nb[j], 0] - qx, model[nb[j], 1] - qy
+        far = max(far, dx * dx + dy * dy)
+    return np.sqrt(far)
+
+
+@njit
+def _median(values: FloatArray, n: int, work: FloatArray) -> float:
+    """The (n // 2)-th smallest of ``values[:n]`` (``np.partition``'s), by quickselect on
+    ``work``."""
+    for i in range(n):
+        work[i] = values[i]
+    want = n // 2
+    lo, hi = 0, n - 1
+    while hi > lo:
+        # Median of three as the pivot, then Hoare's partition.
+        mid = (lo + hi) // 2
+        a, b, c = work[lo], work[mid], work[hi]
+        pivot = max(min(a, b), min(max(a, b), c))
+        i, j = lo, hi
+        while i <= j:
+            while work[i] < pivot:
+                i += 1
+            while work[j] > pivot:
+                j -= 1
+            if i <= j:
+                work[i], work[j] = work[j], work[i]
+                i += 1
+                j -= 1
+        if want <= j:
+            hi = j
+        elif want >= i:
+            lo = i
+        else:
+            break
+    return work[want]
 
 
 @njit
 def _iterate_kernel(
-    grid: tuple[FloatArray, float, float, float, int, int, NDArray[np.int64], NDArray[np.int64]],
+    grid: GridArgs,
     data: FloatArray,
     lines: FloatArray,
     use_lines: bool,
@@ -571,14 +789,24 @@ def _iterate_kernel(
     tol_m: float,
     tol_rad: float,
     reject_m: float,
-    k: int,
     requery_m: float,
     degenerate_ratio: float,
+    nb: NDArray[np.int64],
+    nbd: FloatArray,
+    seeded: bool,
+    moved: FloatArray,
+    dist: FloatArray,
+    idx: NDArray[np.int64],
+    select: FloatArray,
+    anchor: FloatArray,
     out_src: FloatArray,
     out_pairs: NDArray[np.int64],
     out_nearest: NDArray[np.int64],
 ) -> tuple[int, float, float, int]:
-    """ICP iterations from ``pose`` = (cos, sin, tx, ty) of T_model_data, updated in place.
+    """:func:`_iterate` and :class:`_Nearest`'s steps in one loop, from ``pose`` = (cos,
+    sin, tx, ty) of T_model_data, updated in place; k = nb.shape[1] candidates (``nb``
+    holds each point's earlier answer when ``seeded``). The work arrays (``moved`` to
+    ``anchor``) hold at least len(data) rows.
 
     Returns (iterations of the last fit, its RMS, inlier fraction, inlier count); the
     fit's moved inliers, their model points and every point's nearest model point go to
@@ -586,14 +814,9 @@ def _iterate_kernel(
     """
     model = grid[0]
     n = data.shape[0]
+    k = nb.shape[1]
     half = n // 2
     c, s, tx, ty = pose[0], pose[1], pose[2], pose[3]
-    moved = np.empty((n, 2))
-    dist = np.empty(n)
-    idx = np.empty(n, dtype=np.int64)
-    nb = np.empty((n, k), dtype=np.int64)
-    nbd = np.empty((n, k))
-    anchor = np.empty((n, 2))
     have_anchor = False
     fit_k, fit_rms, fit_frac, fit_n = 0, np.inf, 0.0, 0
     for it in range(1, max_iterations + 1):
@@ -609,38 +832,43 @@ def _iterate_kernel(
         else:
             requery = True
         if requery:
-            for i in range(n):
-                knn_one(grid, moved[i, 0], moved[i, 1], nbd[i], nb[i])
+            _query(grid, moved[:n], nb, nbd, seeded)
+            seeded = True
             if k > 1:
-                anchor[:, :] = moved
+                anchor[:n] = moved[:n]
                 have_anchor = True
+        # Each point's nearest candidate, and how many lie within reject_m / 3: when more
+        # than half do, the median's 3 x is below reject_m and the threshold is reject_m.
+        below = 0
         for i in range(n):
             best = np.inf
             pick = 0
-            for m in range(k):
-                dx = model[nb[i, m], 0] - moved[i, 0]
-                dy = model[nb[i, m], 1] - moved[i, 1]
+            for j in range(k):
+                dx = model[nb[i, j], 0] - moved[i, 0]
+                dy = model[nb[i, j], 1] - moved[i, 1]
                 d2 = dx * dx + dy * dy
                 if d2 < best:
-                    best, pick = d2, m
+                    best, pick = d2, j
             dist[i] = np.sqrt(best)
             idx[i] = nb[i, pick]
-        median = np.partition(dist, half)[half]
-        thr = max(reject_m, 3.0 * median)
+            below += int(3.0 * dist[i] <= reject_m)
+        thr = reject_m if below > half else max(reject_m, 3.0 * _median(dist, n, select))
         eligible = n
+        n_inl = 0
         if use_usable:
             eligible = 0
             for i in range(n):
-                eligible += usable[idx[i]]
+                ok = usable[idx[i]]
+                eligible += int(ok)
+                n_inl += int(ok and dist[i] < thr)
             eligible = max(eligible, 1)
-        n_inl = 0
-        sq = 0.0
-        for i in range(n):
-            if dist[i] < thr and (not use_usable or usable[idx[i]]):
-                n_inl += 1
+        else:
+            for i in range(n):
+                n_inl += int(dist[i] < thr)
         if n_inl < 3:
             break
         m_in = 0
+        sq = 0.0
         for i in range(n):
             if dist[i] < thr and (not use_usable or usable[idx[i]]):
                 out_src[m_in, 0] = moved[i, 0]

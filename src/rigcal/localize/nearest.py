@@ -5,7 +5,9 @@ from Python one batch at a time; inside a compiled ICP loop a grid serves instea
 model's points are bucketed by square cells (a counting sort), and a query searches rings
 of cells outward from its own until the k-th best distance is below the distance to any
 cell not searched yet, so the answer is exact (the same neighbours as
-``scipy.spatial.cKDTree.query``, up to ties).
+``scipy.spatial.cKDTree.query``, up to ties). Given a radius known to hold at least k
+points (:func:`knn_within`: ICP knows one from a neighbouring beam's or the last
+iteration's answer), a query searches only the cells that square overlaps instead.
 """
 
 from __future__ import annotations
@@ -21,6 +23,10 @@ IntArray = NDArray[np.int64]
 # Cells are at least this large (m), and the grid has at most MAX_CELLS_PER_SIDE cells a side.
 MIN_CELL_M = 0.1
 MAX_CELLS_PER_SIDE = 400
+# Slack (m) on the squares and bounds of knn_within, far above the rounding of coordinates.
+SLACK_M = 1e-9
+
+GridArgs = tuple[FloatArray, float, float, float, int, int, IntArray, IntArray]
 
 
 class Grid:
@@ -35,15 +41,13 @@ class Grid:
 
     def __init__(self, points: FloatArray) -> None:
         self.points = np.ascontiguousarray(points, dtype=float)
-        lo = self.points.min(axis=0)
-        hi = self.points.max(axis=0)
-        extent = float(max(hi[0] - lo[0], hi[1] - lo[1]))
-        self.cell = max(MIN_CELL_M, extent / (MAX_CELLS_PER_SIDE - 1))
-        self.origin = lo
-        nx = int((hi[0] - lo[0]) / self.cell) + 1
-        ny = int((hi[1] - lo[1]) / self.cell) + 1
-        self.shape = (nx, ny)
-        self.starts, self.order = _bucket(self.points, lo[0], lo[1], self.cell, nx, ny)
+        if len(self.points) == 0:
+            raise ValueError("Grid needs at least one point")
+        args = build(self.points)
+        self.origin = np.array(args[1:3])
+        self.cell = args[3]
+        self.shape = (args[4], args[5])
+        self.starts, self.order = args[6], args[7]
 
     def query(self, queries: FloatArray, k: int = 1) -> tuple[FloatArray, IntArray]:
         """(Q, k) distances and indices of each query's k nearest points, nearest first
@@ -63,7 +67,7 @@ class Grid:
         _distances(self.args(), q, upper_m, out)
         return out
 
-    def args(self) -> tuple[FloatArray, float, float, float, int, int, IntArray, IntArray]:
+    def args(self) -> GridArgs:
         """The grid as the tuple the compiled functions take."""
         return (
             self.points,
@@ -75,6 +79,23 @@ class Grid:
             self.starts,
             self.order,
         )
+
+
+@njit
+def build(points: FloatArray) -> GridArgs:
+    """The grid of (M, 2) ``points`` (M >= 1) as the tuple the compiled functions take:
+    cells at least MIN_CELL_M, at most MAX_CELLS_PER_SIDE a side over the points' bounds."""
+    lo_x = hi_x = points[0, 0]
+    lo_y = hi_y = points[0, 1]
+    for i in range(1, points.shape[0]):
+        lo_x, hi_x = min(lo_x, points[i, 0]), max(hi_x, points[i, 0])
+        lo_y, hi_y = min(lo_y, points[i, 1]), max(hi_y, points[i, 1])
+    extent = max(hi_x - lo_x, hi_y - lo_y)
+    cell = max(MIN_CELL_M, extent / (MAX_CELLS_PER_SIDE - 1))
+    nx = int((hi_x - lo_x) / cell) + 1
+    ny = int((hi_y - lo_y) / cell) + 1
+    starts, order = _bucket(points, lo_x, lo_y, cell, nx, ny)
+    return points, lo_x, lo_y, cell, nx, ny, starts, order
 
 
 @njit
@@ -101,7 +122,7 @@ def _bucket(
 
 @njit
 def knn(
-    grid: tuple[FloatArray, float, float, float, int, int, IntArray, IntArray],
+    grid: GridArgs,
     queries: FloatArray,
     dist: FloatArray,
     idx: IntArray,
@@ -113,7 +134,7 @@ def knn(
 
 @njit
 def _distances(
-    grid: tuple[FloatArray, float, float, float, int, int, IntArray, IntArray],
+    grid: GridArgs,
     queries: FloatArray,
     upper_m: float,
     out: FloatArray,
@@ -127,7 +148,7 @@ def _distances(
 
 @njit
 def knn_one(
-    grid: tuple[FloatArray, float, float, float, int, int, IntArray, IntArray],
+    grid: GridArgs,
     qx: float,
     qy: float,
     dist: FloatArray,
@@ -153,20 +174,7 @@ def knn_one(
             iy = cy - r
             while iy <= cy + r:
                 if 0 <= iy < ny:
-                    c = ix * ny + iy
-                    for t in range(starts[c], starts[c + 1]):
-                        p = order[t]
-                        dx = points[p, 0] - qx
-                        dy = points[p, 1] - qy
-                        d2 = dx * dx + dy * dy
-                        if d2 < dist[k - 1]:
-                            m = k - 1
-                            while m > 0 and dist[m - 1] > d2:
-                                dist[m] = dist[m - 1]
-                                idx[m] = idx[m - 1]
-                                m -= 1
-                            dist[m] = d2
-                            idx[m] = p
+                    _scan_cell(points, starts, order, ix * ny + iy, qx, qy, dist, idx)
                 iy += step if step > 0 else 1
         # The nearest point not searched yet is beyond one of the sides that still has
         # cells outside the searched square.
@@ -186,3 +194,64 @@ def knn_one(
         r += 1
     for m in range(k):
         dist[m] = np.sqrt(dist[m])
+
+
+@njit
+def knn_within(grid: GridArgs, qx: float, qy: float, radius: float, dist: FloatArray, idx: IntArray) -> None:
+    """:func:`knn_one` (k = len(dist)) when at least k grid points are known to lie within
+    ``radius`` of (qx, qy): only the cells overlapping the square of that half-width
+    around the query are searched, nearest-possible cells skipped once k points are
+    closer. The same neighbours as :func:`knn_one` (up to ties)."""
+    points, x0, y0, cell, nx, ny, starts, order = grid
+    k = dist.shape[0]
+    for m in range(k):
+        dist[m] = np.inf
+        idx[m] = -1
+    r = radius + SLACK_M
+    # Cells are clamped as _bucket clamps the points; fl((q +- r - x0) / cell) is monotone,
+    # so every point within r of the query falls in [ix0, ix1] x [iy0, iy1].
+    ix0 = min(max(int(np.floor((qx - r - x0) / cell)), 0), nx - 1)
+    ix1 = min(max(int(np.floor((qx + r - x0) / cell)), 0), nx - 1)
+    iy0 = min(max(int(np.floor((qy - r - y0) / cell)), 0), ny - 1)
+    iy1 = min(max(int(np.floor((qy + r - y0) / cell)), 0), ny - 1)
+    for ix in range(ix0, ix1 + 1):
+        # The query's distance to the column of cells (0 inside), less the slack.
+        gx = max(x0 + ix * cell - qx, qx - (x0 + (ix + 1) * cell), 0.0)
+        gx = max(gx - SLACK_M, 0.0)
+        for iy in range(iy0, iy1 + 1):
+            gy = max(y0 + iy * cell - qy, qy - (y0 + (iy + 1) * cell), 0.0)
+            gy = max(gy - SLACK_M, 0.0)
+            if gx * gx + gy * gy > dist[k - 1]:
+                continue  # every point of the cell is farther than the k-th found
+            _scan_cell(points, starts, order, ix * ny + iy, qx, qy, dist, idx)
+    for m in range(k):
+        dist[m] = np.sqrt(dist[m])
+
+
+@njit
+def _scan_cell(
+    points: FloatArray,
+    starts: IntArray,
+    order: IntArray,
+    c: int,
+    qx: float,
+    qy: float,
+    dist: FloatArray,
+    idx: IntArray,
+) -> None:
+    """Merge the points of cell ``c`` closer to (qx, qy) than the k-th so far into the
+    sorted squared distances ``dist`` and their indices ``idx``."""
+    k = dist.shape[0]
+    for t in range(starts[c], starts[c + 1]):
+        p = order[t]
+        dx = points[p, 0] - qx
+        dy = points[p, 1] - qy
+        d2 = dx * dx + dy * dy
+        if d2 < dist[k - 1]:
+            m = k - 1
+            while m > 0 and dist[m - 1] > d2:
+                dist[m] = dist[m - 1]
+                idx[m] = idx[m - 1]
+                m -= 1
+            dist[m] = d2
+            idx[m] = p
