@@ -45,7 +45,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from rigcal.jit import njit
-from rigcal.localize.nearest import GridArgs, build, knn_one, knn_within
+from rigcal.localize.nearest import GridArgs, build, knn
 
 FloatArray = NDArray[np.float64]
 
@@ -66,9 +66,6 @@ MIN_LINE_FRACTION = 0.85
 # candidates from one k-d tree query, repeated once some point has moved this far.
 CANDIDATES = 4
 REQUERY_M = 0.005
-# The compiled queries search the cells within a known radius (a neighbouring beam's or
-# the last answer's) when it spans at most this many cells, else the grid's rings.
-SEED_CELLS = 2.0
 
 
 @dataclass(frozen=True)
@@ -609,14 +606,12 @@ def _icp_kernel(
     lines = np.empty((m, 3))
     usable = np.ones(m, dtype=np.bool_)
     use_usable = False
-    seeded = False
     if point_to_line:
         _iterate_kernel(
             grid, sparse, lines, False, usable, False, pose, coarse_iterations, coarse_tol_m, coarse_tol_rad,
-            reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp, False,
+            reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp,
             moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
         )  # fmt: skip
-        seeded = True  # the sparse stage's queries start from these answers
         use_usable = _k_pairing_normals(
             grid, normal_neighbours, model_normals, have_normals, min_line_fraction, lines, usable
         )
@@ -624,14 +619,14 @@ def _icp_kernel(
             lines[i, 2] = lines[i, 0] * model[i, 0] + lines[i, 1] * model[i, 1]
     _iterate_kernel(
         grid, sparse, lines, point_to_line, usable, use_usable, pose, max_iterations,
-        10.0 * tol_m, 10.0 * tol_rad, reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp, seeded,
+        10.0 * tol_m, 10.0 * tol_rad, reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp,
         moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
     )  # fmt: skip
     nb = np.empty((n, k), dtype=np.int64)
     nbd = np.empty((n, k))
     fit_k, rms, frac, n_inl = _iterate_kernel(
         grid, data, lines, point_to_line, usable, use_usable, pose, max_iterations,
-        tol_m, tol_rad, reject_m, requery_m, degenerate_ratio, nb, nbd, False,
+        tol_m, tol_rad, reject_m, requery_m, degenerate_ratio, nb, nbd,
         moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
     )  # fmt: skip
     return fit_k, rms, frac, _k_degeneracy(model, lines, point_to_line, out_pairs, n_inl)
@@ -665,7 +660,7 @@ def _k_pairing_normals(
     k = min(k, m)
     nb = np.empty((m, k), dtype=np.int64)
     nbd = np.empty((m, k))
-    _query(grid, model, nb, nbd, False)
+    knn(grid, model, nbd, nb)
     for i in range(m):
         mx = my = 0.0
         for j in range(k):
@@ -713,35 +708,6 @@ def _k_degeneracy(
     r = np.hypot(0.5 * (sxx - syy), sxy)
     hi = mean + r
     return (mean - r) / hi if hi > 0 else 0.0
-
-
-@njit
-def _query(grid: GridArgs, points: FloatArray, nb: NDArray[np.int64], nbd: FloatArray, seeded: bool) -> None:
-    """Each point's k = nb.shape[1] nearest grid points into ``nb`` and ``nbd``, exact.
-    The previous point's answer (the scans are ordered: a neighbouring beam) and, when
-    ``seeded``, the point's own earlier answer in ``nb`` are k points within a known
-    radius; the smaller radius bounds the search (:func:`knn_within`) unless it spans
-    more than SEED_CELLS cells, when the rings search instead."""
-    model, cell = grid[0], grid[3]
-    for i in range(points.shape[0]):
-        qx, qy = points[i, 0], points[i, 1]
-        radius = _reach(model, nb[i], qx, qy) if seeded else np.inf
-        if i > 0:
-            radius = min(radius, _reach(model, nb[i - 1], qx, qy))
-        if radius <= SEED_CELLS * cell:
-            knn_within(grid, qx, qy, radius, nbd[i], nb[i])
-        else:
-            knn_one(grid, qx, qy, nbd[i], nb[i])
-
-
-@njit
-def _reach(model: FloatArray, nb: NDArray[np.int64], qx: float, qy: float) -> float:
-    """Distance from (qx, qy) to the farthest of the distinct model points ``nb``."""
-    far = 0.0
-    for j in range(nb.shape[0]):
-        dx, dy = model[nb[j], 0] - qx, model[nb[j], 1] - qy
-        far = max(far, dx * dx + dy * dy)
-    return np.sqrt(far)
 
 
 @njit
@@ -793,7 +759,6 @@ def _iterate_kernel(
     degenerate_ratio: float,
     nb: NDArray[np.int64],
     nbd: FloatArray,
-    seeded: bool,
     moved: FloatArray,
     dist: FloatArray,
     idx: NDArray[np.int64],
@@ -804,8 +769,7 @@ def _iterate_kernel(
     out_nearest: NDArray[np.int64],
 ) -> tuple[int, float, float, int]:
     """:func:`_iterate` and :class:`_Nearest`'s steps in one loop, from ``pose`` = (cos,
-    sin, tx, ty) of T_model_data, updated in place; k = nb.shape[1] candidates (``nb``
-    holds each point's earlier answer when ``seeded``). The work arrays (``moved`` to
+    sin, tx, ty) of T_model_data, updated in place; k = nb.shape[1] candidates. The work arrays (``moved`` to
     ``anchor``) hold at least len(data) rows.
 
     Returns (iterations of the last fit, its RMS, inlier fraction, inlier count); the
@@ -832,8 +796,7 @@ def _iterate_kernel(
         else:
             requery = True
         if requery:
-            _query(grid, moved[:n], nb, nbd, seeded)
-            seeded = True
+            knn(grid, moved[:n], nbd, nb)
             if k > 1:
                 anchor[:n] = moved[:n]
                 have_anchor = True
