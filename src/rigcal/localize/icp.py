@@ -430,11 +430,21 @@ def _line_fits_kernel(
     count = np.zeros(n_lines)
     mx = np.zeros(n_lines)
     my = np.zeros(n_lines)
-    for i in range(len(labels)):
-        if labels[i] >= 0:
-            count[labels[i]] += 1.0
-            mx[labels[i]] += points[i, 0]
-            my[labels[i]] += points[i, 1]
+    # The sums run in point order per line as np.bincount's; a line's returns come in runs,
+    # so each run's sums are carried in registers and stored at its end.
+    i = 0
+    while i < len(labels):
+        k = labels[i]
+        if k < 0:
+            i += 1
+            continue
+        c, sx, sy = count[k], mx[k], my[k]
+        while i < len(labels) and labels[i] == k:
+            c += 1.0
+            sx += points[i, 0]
+            sy += points[i, 1]
+            i += 1
+        count[k], mx[k], my[k] = c, sx, sy
     for k in range(n_lines):
         if count[k] > 0:
             mx[k] /= count[k]
@@ -442,13 +452,20 @@ def _line_fits_kernel(
     sxx = np.zeros(n_lines)
     syy = np.zeros(n_lines)
     sxy = np.zeros(n_lines)
-    for i in range(len(labels)):
+    i = 0
+    while i < len(labels):
         k = labels[i]
-        if k >= 0:
+        if k < 0:
+            i += 1
+            continue
+        axx, ayy, axy = sxx[k], syy[k], sxy[k]
+        while i < len(labels) and labels[i] == k:
             dx, dy = points[i, 0] - mx[k], points[i, 1] - my[k]
-            sxx[k] += dx * dx
-            syy[k] += dy * dy
-            sxy[k] += dx * dy
+            axx += dx * dx
+            ayy += dy * dy
+            axy += dx * dy
+            i += 1
+        sxx[k], syy[k], sxy[k] = axx, ayy, axy
     nx = np.empty(n_lines)
     ny = np.empty(n_lines)
     for k in range(n_lines):

@@ -200,11 +200,18 @@ def _carry_kernel(
         n_lines = max(n_lines, prev_labels[i] + 1)
     count = np.zeros(n_lines)
     offset = np.zeros(n_lines)
-    for i in range(len(prev_labels)):
+    i = 0
+    while i < len(prev_labels):  # a line's returns come in runs: its sums in registers
         k = prev_labels[i]
-        if k >= 0:
-            count[k] += 1.0
-            offset[k] += normals[i, 0] * prev[i, 0] + normals[i, 1] * prev[i, 1]
+        if k < 0:
+            i += 1
+            continue
+        n, o = count[k], offset[k]
+        while i < len(prev_labels) and prev_labels[i] == k:
+            n += 1.0
+            o += normals[i, 0] * prev[i, 0] + normals[i, 1] * prev[i, 1]
+            i += 1
+        count[k], offset[k] = n, o
     for k in range(n_lines):
         offset[k] /= max(count[k], 1.0)
     for i in range(len(cur)):
