@@ -418,6 +418,22 @@ def line_fits(
 
 
 @njit
+def label_runs(labels: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Bounds of the runs of equal labels: run r is ``labels[bounds[r]:bounds[r + 1]]``."""
+    bounds = np.empty(len(labels) + 1, dtype=np.int64)
+    bounds[0] = 0
+    n = 1
+    for i in range(1, len(labels)):
+        if labels[i] != labels[i - 1]:
+            bounds[n] = i
+            n += 1
+    if len(labels) > 0:
+        bounds[n] = len(labels)
+        n += 1
+    return bounds[:n]
+
+
+@njit
 def _line_fits_kernel(
     points: FloatArray, labels: NDArray[np.int64], centres: FloatArray, normals: FloatArray
 ) -> None:
@@ -432,18 +448,16 @@ def _line_fits_kernel(
     my = np.zeros(n_lines)
     # The sums run in point order per line as np.bincount's; a line's returns come in runs,
     # so each run's sums are carried in registers and stored at its end.
-    i = 0
-    while i < len(labels):
-        k = labels[i]
+    bounds = label_runs(labels)
+    for r in range(len(bounds) - 1):
+        k = labels[bounds[r]]
         if k < 0:
-            i += 1
             continue
         c, sx, sy = count[k], mx[k], my[k]
-        while i < len(labels) and labels[i] == k:
+        for i in range(bounds[r], bounds[r + 1]):
             c += 1.0
             sx += points[i, 0]
             sy += points[i, 1]
-            i += 1
         count[k], mx[k], my[k] = c, sx, sy
     for k in range(n_lines):
         if count[k] > 0:
@@ -452,19 +466,16 @@ def _line_fits_kernel(
     sxx = np.zeros(n_lines)
     syy = np.zeros(n_lines)
     sxy = np.zeros(n_lines)
-    i = 0
-    while i < len(labels):
-        k = labels[i]
+    for r in range(len(bounds) - 1):
+        k = labels[bounds[r]]
         if k < 0:
-            i += 1
             continue
         axx, ayy, axy = sxx[k], syy[k], sxy[k]
-        while i < len(labels) and labels[i] == k:
+        for i in range(bounds[r], bounds[r + 1]):
             dx, dy = points[i, 0] - mx[k], points[i, 1] - my[k]
             axx += dx * dx
             ayy += dy * dy
             axy += dx * dy
-            i += 1
         sxx[k], syy[k], sxy[k] = axx, ayy, axy
     nx = np.empty(n_lines)
     ny = np.empty(n_lines)
