@@ -5,8 +5,7 @@ from Python one batch at a time; inside a compiled ICP loop a grid serves instea
 model's points are bucketed by square cells (a counting sort), and a query searches rings
 of cells outward from its own until the k-th best distance is below the distance to any
 cell not searched yet, so the answer is exact (the same neighbours as
-``scipy.spatial.cKDTree.query``, up to ties).
-Within a cell the points are sorted along the cell's longer side, so a query walks them
+``scipy.spatial.cKDTree.query``, up to ties). Within a cell the points are sorted along the cell's longer side, so a query walks them
 outwards from its own coordinate and stops where that coordinate's gap alone exceeds the
 k-th distance found (returns lie along walls: a few of a cell's points are looked at).
 """
@@ -38,8 +37,8 @@ class Grid:
             cell ``ix * ny + iy`` are ``order[starts[c]:starts[c + 1]]``, sorted along the
             cell's axis (0: x, 1: y; the longer side of the cell's points' bounds).
         sorted: (M, 4) the points in that order, each as (coordinate along its cell's
-            axis, x, y, axis): a query walks a cell outwards from its own coordinate and stops
-            where the gap along the axis alone exceeds the k-th distance found.
+            axis, x, y, axis): a query walks a cell outwards from its own coordinate and
+            stops where the gap along the axis alone exceeds the k-th distance found.
     """
 
     def __init__(self, points: FloatArray) -> None:
