@@ -45,7 +45,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from rigcal.jit import njit
-from rigcal.localize.nearest import GridArgs, build, knn
+from rigcal.localize.nearest import GridArgs, build, knn, knn_one
 
 FloatArray = NDArray[np.float64]
 
@@ -66,6 +66,10 @@ MIN_LINE_FRACTION = 0.85
 # candidates from one k-d tree query, repeated once some point has moved this far.
 CANDIDATES = 4
 REQUERY_M = 0.005
+# The sparse stages' exact nearest neighbours (a k-d tree query each iteration in the
+# numpy reference) come from this many candidates per point, queried again for a point
+# only when it has moved too far for its nearest to be sure to be among them.
+SPARSE_CANDIDATES = 3
 
 
 @dataclass(frozen=True)
@@ -629,15 +633,16 @@ def _icp_kernel(
     anchor = np.empty((n, 2))
     out_src = np.empty((n, 2))
     out_pairs = np.empty(n, dtype=np.int64)
-    nb_sp = np.empty((n_sp, 1), dtype=np.int64)
-    nbd_sp = np.empty((n_sp, 1))
+    k_sp = min(SPARSE_CANDIDATES, m)
+    nb_sp = np.empty((n_sp, k_sp), dtype=np.int64)
+    nbd_sp = np.empty((n_sp, k_sp))
     lines = np.empty((m, 3))
     usable = np.ones(m, dtype=np.bool_)
     use_usable = False
     if point_to_line:
         _iterate_kernel(
             grid, sparse, lines, False, usable, False, pose, coarse_iterations, coarse_tol_m, coarse_tol_rad,
-            reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp,
+            reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp, True, False,
             moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
         )  # fmt: skip
         use_usable = _k_pairing_normals(
@@ -647,14 +652,15 @@ def _icp_kernel(
             lines[i, 2] = lines[i, 0] * model[i, 0] + lines[i, 1] * model[i, 1]
     _iterate_kernel(
         grid, sparse, lines, point_to_line, usable, use_usable, pose, max_iterations,
-        10.0 * tol_m, 10.0 * tol_rad, reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp,
+        10.0 * tol_m, 10.0 * tol_rad, reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp, True,
+        point_to_line and coarse_iterations > 0,
         moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
     )  # fmt: skip
     nb = np.empty((n, k), dtype=np.int64)
     nbd = np.empty((n, k))
     fit_k, rms, frac, n_inl = _iterate_kernel(
         grid, data, lines, point_to_line, usable, use_usable, pose, max_iterations,
-        tol_m, tol_rad, reject_m, requery_m, degenerate_ratio, nb, nbd,
+        tol_m, tol_rad, reject_m, requery_m, degenerate_ratio, nb, nbd, False, False,
         moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
     )  # fmt: skip
     return fit_k, rms, frac, _k_degeneracy(model, lines, point_to_line, out_pairs, n_inl)
@@ -787,6 +793,8 @@ def _iterate_kernel(
     degenerate_ratio: float,
     nb: NDArray[np.int64],
     nbd: FloatArray,
+    exact: bool,
+    anchored: bool,
     moved: FloatArray,
     dist: FloatArray,
     idx: NDArray[np.int64],
@@ -809,14 +817,18 @@ def _iterate_kernel(
     k = nb.shape[1]
     half = n // 2
     c, s, tx, ty = pose[0], pose[1], pose[2], pose[3]
-    have_anchor = False
+    have_anchor = anchored
     fit_k, fit_rms, fit_frac, fit_n = 0, np.inf, 0.0, 0
+    m_model = model.shape[0]
     for it in range(1, max_iterations + 1):
         for i in range(n):
             moved[i, 0] = data[i, 0] * c - data[i, 1] * s + tx
             moved[i, 1] = data[i, 0] * s + data[i, 1] * c + ty
-        # Nearest model point (the _Nearest rules: k candidates re-queried after a move).
-        if k > 1 and have_anchor:
+        # Nearest model point (the _Nearest rules: k candidates re-queried after a move;
+        # exact: each point's own when its nearest may have left them).
+        if exact:
+            requery = not have_anchor
+        elif k > 1 and have_anchor:
             far = 0.0
             for i in range(n):
                 far = max(far, abs(moved[i, 0] - anchor[i, 0]), abs(moved[i, 1] - anchor[i, 1]))
@@ -832,14 +844,26 @@ def _iterate_kernel(
         # than half do, the median's 3 x is below reject_m and the threshold is reject_m.
         below = 0
         for i in range(n):
-            best = np.inf
-            pick = 0
-            for j in range(k):
-                dx = model[nb[i, j], 0] - moved[i, 0]
-                dy = model[nb[i, j], 1] - moved[i, 1]
-                d2 = dx * dx + dy * dy
-                if d2 < best:
-                    best, pick = d2, j
+            qx, qy = moved[i, 0], moved[i, 1]
+            for attempt in range(2):
+                best = np.inf
+                pick = 0
+                for j in range(k):
+                    dx = model[nb[i, j], 0] - qx
+                    dy = model[nb[i, j], 1] - qy
+                    d2 = dx * dx + dy * dy
+                    if d2 < best:
+                        best, pick = d2, j
+                if not exact or requery or attempt == 1 or k >= m_model:
+                    break
+                # Every other model point was at least the k-th candidate's distance from
+                # where the point was queried, so at least that less the distance moved
+                # since from where it is: the best candidate is the nearest when closer.
+                ax, ay = qx - anchor[i, 0], qy - anchor[i, 1]
+                if np.sqrt(best) + np.sqrt(ax * ax + ay * ay) + 1e-9 < nbd[i, k - 1]:
+                    break
+                knn_one(grid, qx, qy, nbd[i], nb[i])
+                anchor[i, 0], anchor[i, 1] = qx, qy
             dist[i] = np.sqrt(best)
             idx[i] = nb[i, pick]
             below += int(3.0 * dist[i] <= reject_m)

@@ -5,9 +5,10 @@ from Python one batch at a time; inside a compiled ICP loop a grid serves instea
 model's points are bucketed by square cells (a counting sort), and a query searches rings
 of cells outward from its own until the k-th best distance is below the distance to any
 cell not searched yet, so the answer is exact (the same neighbours as
-``scipy.spatial.cKDTree.query``, up to ties). Within a cell the points are sorted along the cell's longer side, so a query walks them
-outwards from its own coordinate and stops where that coordinate's gap alone exceeds the
-k-th distance found (returns lie along walls: a few of a cell's points are looked at).
+``scipy.spatial.cKDTree.query``, up to ties). Within a cell the points are sorted along
+the cell's longer side, so a query walks them outwards from its own coordinate and stops
+where that coordinate's gap alone exceeds the k-th distance found (returns lie along
+walls: a few of a cell's points are looked at).
 """
 
 from __future__ import annotations
