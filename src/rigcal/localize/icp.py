@@ -805,8 +805,12 @@ def _iterate_kernel(
     out_nearest: NDArray[np.int64],
 ) -> tuple[int, float, float, int]:
     """:func:`_iterate` and :class:`_Nearest`'s steps in one loop, from ``pose`` = (cos,
-    sin, tx, ty) of T_model_data, updated in place; k = nb.shape[1] candidates. The work arrays (``moved`` to
-    ``anchor``) hold at least len(data) rows.
+    sin, tx, ty) of T_model_data, updated in place. k = nb.shape[1] candidates per point
+    (``nb``, their distances ``nbd`` where queried, at ``anchor``): all queried again
+    after a move of ``requery_m`` (the full stage's rule), or, ``exact``, a point's own
+    when its nearest model point may have left them (the sparse stages: the exact nearest,
+    as the reference's k-d tree). ``anchored``: the candidates of an earlier stage are in
+    place. The work arrays (``moved`` to ``anchor``) hold at least len(data) rows.
 
     Returns (iterations of the last fit, its RMS, inlier fraction, inlier count); the
     fit's moved inliers, their model points and every point's nearest model point go to
