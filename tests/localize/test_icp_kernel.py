@@ -39,6 +39,38 @@ def test_grid_neighbours_are_the_k_d_trees(k, seed):
     np.testing.assert_allclose(d, d_ref, rtol=1e-12, atol=0)
 
 
+@pytest.mark.parametrize("angle_deg", [0.0, 90.0, 30.0, 135.0])
+def test_grid_neighbours_along_walls_at_any_angle(angle_deg):
+    """Returns along walls (a room scan's, turned): each cell's points sorted along its
+    longer side, x or y, and the walk outwards from the query's coordinate stays exact."""
+    rng = np.random.default_rng(int(angle_deg))
+    s = room_scan(np.array([0.3, -0.2, np.radians(angle_deg)]), rng)
+    pts = s.points[s.valid]
+    q = np.concatenate([pts + rng.normal(scale=0.02, size=pts.shape), rng.uniform(-6, 6, (200, 2))])
+    for k in (1, 4):
+        d_ref, i_ref = cKDTree(pts).query(q, k=k)
+        d, i = Grid(pts).query(q, k)
+        np.testing.assert_array_equal(i, i_ref)
+        np.testing.assert_allclose(d, d_ref, rtol=1e-12, atol=0)
+
+
+def test_grid_needs_a_point():
+    with pytest.raises(ValueError, match="at least one point"):
+        Grid(np.zeros((0, 2)))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_kernel_median_is_numpys_partition(seed):
+    from rigcal.localize.icp import _median
+
+    rng = np.random.default_rng(seed)
+    for n in (1, 2, 3, 10, 101, 1064):
+        v = rng.exponential(size=n)
+        v[rng.integers(0, n, n // 3)] = v[0]  # repeated values
+        work = np.empty(n + 5)
+        assert _median(v, n, work) == np.partition(v, n // 2)[n // 2]
+
+
 def test_grid_with_fewer_points_than_k_and_coincident_points():
     pts = np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 0.0]])
     d, i = Grid(pts).query(np.array([[0.9, 0.0]]), 5)
@@ -49,8 +81,14 @@ def test_grid_with_fewer_points_than_k_and_coincident_points():
 
 @pytest.mark.parametrize(
     "params",
-    [IcpParams(), IcpParams(normals="neighbours"), IcpParams(method="point-to-point")],
-    ids=["point-to-line", "neighbour-normals", "point-to-point"],
+    [
+        IcpParams(),
+        IcpParams(normals="neighbours"),
+        IcpParams(method="point-to-point"),
+        IcpParams(reject_m=0.005),
+        IcpParams(method="point-to-point", reject_m=0.005, subsample=1),
+    ],
+    ids=["point-to-line", "neighbour-normals", "point-to-point", "median-threshold", "point-to-point-median"],
 )
 @pytest.mark.parametrize("seed", range(4))
 def test_compiled_icp_matches_the_numpy_iterations(params, seed):
@@ -73,6 +111,14 @@ def test_compiled_icp_matches_the_numpy_iterations(params, seed):
     assert got.inlier_fraction == ref.inlier_fraction
     assert got.degeneracy == pytest.approx(ref.degeneracy, rel=1e-9)
     np.testing.assert_array_equal(got.nearest, ref.nearest)
+
+
+def test_compiled_icp_rejects_normals_of_another_shape():
+    rng = np.random.default_rng(0)
+    s = room_scan(np.zeros(3), rng)
+    m = s.points[s.valid]
+    with pytest.raises(ValueError, match="model_normals"):
+        icp(m, m, None, IcpParams(), np.zeros((len(m) - 1, 2)))
 
 
 def test_compiled_icp_in_a_degenerate_corridor_matches():

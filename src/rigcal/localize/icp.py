@@ -27,9 +27,10 @@ Hessian's smallest eigenvalue over its largest (translation block) says how well
 least-constrained direction is determined; near 0 the step is degenerate and its
 translation along that direction is a guess (reported per step).
 
-The iterations run in a compiled kernel (:mod:`rigcal.jit`): nearest neighbours from a
-grid of the model (:mod:`rigcal.localize.nearest`, exact as the k-d tree), pairing,
-rejection and the update, in one loop with no temporary arrays. The numpy iterations
+A scan pair's ICP runs in one call of a compiled kernel (:mod:`rigcal.jit`): the grid of
+the model (:mod:`rigcal.localize.nearest`, nearest neighbours exact as the k-d tree), the
+stages' iterations (pairing, rejection and the update in one loop on work arrays
+allocated once), the pairing normals and the degeneracy. The numpy iterations
 (``icp(..., kernel=False)``) are its reference in the tests. The lines' fits behind the
 normals (:func:`line_fits`) run in a kernel too, with their numpy reference kept alike.
 """
@@ -44,7 +45,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from rigcal.jit import njit
-from rigcal.localize.nearest import Grid, knn_one
+from rigcal.localize.nearest import GridArgs, build, knn, knn_one
 
 FloatArray = NDArray[np.float64]
 
@@ -65,6 +66,10 @@ MIN_LINE_FRACTION = 0.85
 # candidates from one k-d tree query, repeated once some point has moved this far.
 CANDIDATES = 4
 REQUERY_M = 0.005
+# The sparse stages' exact nearest neighbours (a k-d tree query each iteration in the
+# numpy reference) come from this many candidates per point, queried again for a point
+# only when it has moved too far for its nearest to be sure to be among them.
+SPARSE_CANDIDATES = 3
 
 
 @dataclass(frozen=True)
@@ -161,9 +166,11 @@ def icp(
         raise ValueError("method must be 'point-to-point' or 'point-to-line'")
     model = np.ascontiguousarray(model, dtype=float)
     data = np.ascontiguousarray(data, dtype=float)
-    tree: cKDTree | Grid = Grid(model) if kernel else cKDTree(model)
-    iterate = _iterate_compiled if kernel else _iterate
     x, y, yaw = (0.0, 0.0, 0.0) if initial is None else (float(v) for v in np.asarray(initial, dtype=float))
+    if kernel:
+        return _icp_compiled(model, data, x, y, yaw, params, model_normals)
+    tree = cKDTree(model)
+    iterate = _iterate
     T = _Transform(math.cos(yaw), math.sin(yaw), x, y)
     sparse = data[:: params.subsample] if len(data) >= 3 * params.subsample else data
     coarse_tol = (10.0 * params.tolerance_m, 10.0 * params.tolerance_rad)
@@ -415,6 +422,22 @@ def line_fits(
 
 
 @njit
+def label_runs(labels: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Bounds of the runs of equal labels: run r is ``labels[bounds[r]:bounds[r + 1]]``."""
+    bounds = np.empty(len(labels) + 1, dtype=np.int64)
+    bounds[0] = 0
+    n = 1
+    for i in range(1, len(labels)):
+        if labels[i] != labels[i - 1]:
+            bounds[n] = i
+            n += 1
+    if len(labels) > 0:
+        bounds[n] = len(labels)
+        n += 1
+    return bounds[:n]
+
+
+@njit
 def _line_fits_kernel(
     points: FloatArray, labels: NDArray[np.int64], centres: FloatArray, normals: FloatArray
 ) -> None:
@@ -427,11 +450,19 @@ def _line_fits_kernel(
     count = np.zeros(n_lines)
     mx = np.zeros(n_lines)
     my = np.zeros(n_lines)
-    for i in range(len(labels)):
-        if labels[i] >= 0:
-            count[labels[i]] += 1.0
-            mx[labels[i]] += points[i, 0]
-            my[labels[i]] += points[i, 1]
+    # The sums run in point order per line as np.bincount's; a line's returns come in runs,
+    # so each run's sums are carried in registers and stored at its end.
+    bounds = label_runs(labels)
+    for r in range(len(bounds) - 1):
+        k = labels[bounds[r]]
+        if k < 0:
+            continue
+        c, sx, sy = count[k], mx[k], my[k]
+        for i in range(bounds[r], bounds[r + 1]):
+            c += 1.0
+            sx += points[i, 0]
+            sy += points[i, 1]
+        count[k], mx[k], my[k] = c, sx, sy
     for k in range(n_lines):
         if count[k] > 0:
             mx[k] /= count[k]
@@ -439,13 +470,17 @@ def _line_fits_kernel(
     sxx = np.zeros(n_lines)
     syy = np.zeros(n_lines)
     sxy = np.zeros(n_lines)
-    for i in range(len(labels)):
-        k = labels[i]
-        if k >= 0:
+    for r in range(len(bounds) - 1):
+        k = labels[bounds[r]]
+        if k < 0:
+            continue
+        axx, ayy, axy = sxx[k], syy[k], sxy[k]
+        for i in range(bounds[r], bounds[r + 1]):
             dx, dy = points[i, 0] - mx[k], points[i, 1] - my[k]
-            sxx[k] += dx * dx
-            syy[k] += dy * dy
-            sxy[k] += dx * dy
+            axx += dx * dx
+            ayy += dy * dy
+            axy += dx * dy
+        sxx[k], syy[k], sxy[k] = axx, ayy, axy
     nx = np.empty(n_lines)
     ny = np.empty(n_lines)
     for k in range(n_lines):
@@ -466,7 +501,7 @@ def line_normals(points: FloatArray, labels: NDArray[np.integer], *, kernel: boo
 
 
 def pairing_normals(
-    model: FloatArray, tree: cKDTree | Grid, k: int, model_normals: FloatArray | None
+    model: FloatArray, tree: cKDTree, k: int, model_normals: FloatArray | None
 ) -> tuple[FloatArray, NDArray[np.bool_] | None]:
     """The model's point-to-line normals and which returns may be paired: the line
     normals (``model_normals``, NaN off a line; those returns unpaired) when at least
@@ -479,7 +514,7 @@ def pairing_normals(
     return _normals(model, tree, k), None
 
 
-def _normals(model: FloatArray, tree: cKDTree | Grid, k: int) -> FloatArray:
+def _normals(model: FloatArray, tree: cKDTree, k: int) -> FloatArray:
     """(M, 2) unit normals from each model point's k nearest neighbours (PCA)."""
     _, nb = tree.query(model, k=min(k, len(model)))
     x, y = model[nb, 0], model[nb, 1]
@@ -509,58 +544,241 @@ def _degeneracy(src: FloatArray, dst: FloatArray, n: FloatArray | None) -> float
     return float(w[0] / w[-1]) if w[-1] > 0 else 0.0
 
 
-# The compiled iterations: _iterate and _Nearest's steps in one loop.
+# The compiled ICP: icp()'s steps for one scan pair in one call.
 
 
-def _iterate_compiled(
-    tree: cKDTree | Grid,
+def _icp_compiled(
     model: FloatArray,
     data: FloatArray,
-    lines: FloatArray | None,
-    T: _Transform,
-    max_iterations: int,
-    tolerance: tuple[float, float],
-    reject_m: float,
-    usable: NDArray[np.bool_] | None = None,
-    candidates: int = 1,
-) -> tuple[_Transform, _Fit]:
-    """:func:`_iterate` in the compiled kernel (``tree``: the model's :class:`Grid`)."""
-    assert isinstance(tree, Grid)
-    n = len(data)
-    pose = np.array([T.c, T.s, T.tx, T.ty])
-    src = np.empty((n, 2))
-    pairs = np.empty(n, dtype=np.int64)
-    nearest = np.empty(n, dtype=np.int64)
-    no_lines = np.zeros((0, 3))
-    no_usable = np.zeros(0, dtype=np.bool_)
-    k, rms, frac, n_inl = _iterate_kernel(
-        tree.args(),
+    x: float,
+    y: float,
+    yaw: float,
+    params: IcpParams,
+    model_normals: FloatArray | None,
+) -> IcpResult:
+    """:func:`icp` in the compiled kernel :func:`_icp_kernel` (the grid of the model, the
+    three stages, the pairing normals and the degeneracy)."""
+    if params.method == "point-to-line" and model_normals is not None and model_normals.shape != model.shape:
+        raise ValueError(f"model_normals must be {model.shape}, got {np.shape(model_normals)}")
+    pose = np.array([math.cos(yaw), math.sin(yaw), x, y])
+    nearest = np.empty(len(data), dtype=np.int64)
+    iterations, rms, frac, degeneracy = _icp_kernel(
+        model,
         data,
-        no_lines if lines is None else np.ascontiguousarray(lines),
-        lines is not None,
-        no_usable if usable is None else usable,
-        usable is not None,
+        _NO_NORMALS if model_normals is None else np.ascontiguousarray(model_normals, dtype=float),
+        model_normals is not None,
+        params.method == "point-to-line",
+        params.normal_neighbours,
+        params.subsample,
         pose,
-        max_iterations,
-        tolerance[0],
-        tolerance[1],
-        reject_m,
-        min(candidates, len(model)),
+        params.max_iterations,
+        params.tolerance_m,
+        params.tolerance_rad,
+        params.reject_m,
+        COARSE_ITERATIONS,
+        COARSE_TOLERANCE[0],
+        COARSE_TOLERANCE[1],
+        MIN_LINE_FRACTION,
+        CANDIDATES,
         REQUERY_M,
         DEGENERATE_EIGEN_RATIO,
-        src,
-        pairs,
         nearest,
     )
-    fit = _Fit(
-        k, rms, frac, src[:n_inl], pairs[:n_inl].astype(np.intp), nearest.astype(np.intp) if k else None
-    )
-    return _Transform(*pose.tolist()), fit
+    pose_out = np.array([pose[2], pose[3], math.atan2(pose[1], pose[0])])
+    return IcpResult(pose_out, iterations, rms, frac, degeneracy, nearest if iterations else None)
+
+
+_NO_NORMALS = np.zeros((0, 2))
+
+
+@njit
+def _icp_kernel(
+    model: FloatArray,
+    data: FloatArray,
+    model_normals: FloatArray,
+    have_normals: bool,
+    point_to_line: bool,
+    normal_neighbours: int,
+    subsample: int,
+    pose: FloatArray,
+    max_iterations: int,
+    tol_m: float,
+    tol_rad: float,
+    reject_m: float,
+    coarse_iterations: int,
+    coarse_tol_m: float,
+    coarse_tol_rad: float,
+    min_line_fraction: float,
+    candidates: int,
+    requery_m: float,
+    degenerate_ratio: float,
+    out_nearest: NDArray[np.int64],
+) -> tuple[int, float, float, float]:
+    """:func:`icp` from ``pose`` = (cos, sin, tx, ty) of T_model_data, updated in place:
+    the model's grid, point-to-point steps on the sparse points (point-to-line only), the
+    pairing normals, then the sparse and the full stage. Returns the last stage's
+    iterations, RMS, inlier fraction and degeneracy; every data point's nearest model
+    point in its last fit goes to ``out_nearest``."""
+    grid = build(model)
+    m, n = model.shape[0], data.shape[0]
+    step = subsample if n >= 3 * subsample else 1
+    sparse = data[::step].copy()
+    n_sp = sparse.shape[0]
+    k = min(candidates, m)
+    # Work arrays, shared by the stages (each stage sizes its own views).
+    moved = np.empty((n, 2))
+    dist = np.empty(n)
+    idx = np.empty(n, dtype=np.int64)
+    select = np.empty(n)
+    anchor = np.empty((n, 2))
+    out_src = np.empty((n, 2))
+    out_pairs = np.empty(n, dtype=np.int64)
+    k_sp = min(SPARSE_CANDIDATES, m)
+    nb_sp = np.empty((n_sp, k_sp), dtype=np.int64)
+    nbd_sp = np.empty((n_sp, k_sp))
+    lines = np.empty((m, 3))
+    usable = np.ones(m, dtype=np.bool_)
+    use_usable = False
+    if point_to_line:
+        _iterate_kernel(
+            grid, sparse, lines, False, usable, False, pose, coarse_iterations, coarse_tol_m, coarse_tol_rad,
+            reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp, True, False,
+            moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
+        )  # fmt: skip
+        use_usable = _k_pairing_normals(
+            grid, normal_neighbours, model_normals, have_normals, min_line_fraction, lines, usable
+        )
+        for i in range(m):
+            lines[i, 2] = lines[i, 0] * model[i, 0] + lines[i, 1] * model[i, 1]
+    _iterate_kernel(
+        grid, sparse, lines, point_to_line, usable, use_usable, pose, max_iterations,
+        10.0 * tol_m, 10.0 * tol_rad, reject_m, requery_m, degenerate_ratio, nb_sp, nbd_sp, True,
+        point_to_line and coarse_iterations > 0,
+        moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
+    )  # fmt: skip
+    nb = np.empty((n, k), dtype=np.int64)
+    nbd = np.empty((n, k))
+    fit_k, rms, frac, n_inl = _iterate_kernel(
+        grid, data, lines, point_to_line, usable, use_usable, pose, max_iterations,
+        tol_m, tol_rad, reject_m, requery_m, degenerate_ratio, nb, nbd, False, False,
+        moved, dist, idx, select, anchor, out_src, out_pairs, out_nearest,
+    )  # fmt: skip
+    return fit_k, rms, frac, _k_degeneracy(model, lines, point_to_line, out_pairs, n_inl)
+
+
+@njit
+def _k_pairing_normals(
+    grid: GridArgs,
+    k: int,
+    model_normals: FloatArray,
+    have_normals: bool,
+    min_line_fraction: float,
+    lines: FloatArray,
+    usable: NDArray[np.bool_],
+) -> bool:
+    """:func:`pairing_normals` into ``lines[:, :2]`` and ``usable``; returns whether
+    ``usable`` applies (line normals) or every return may be paired."""
+    model = grid[0]
+    m = model.shape[0]
+    if have_normals:
+        on = 0
+        for i in range(m):
+            on += int(np.isfinite(model_normals[i, 0]))
+        if on / m >= min_line_fraction:
+            for i in range(m):
+                usable[i] = np.isfinite(model_normals[i, 0])
+                lines[i, 0] = model_normals[i, 0] if usable[i] else 0.0
+                lines[i, 1] = model_normals[i, 1] if usable[i] else 0.0
+            return True
+    # :func:`_normals`: each return's k nearest neighbours' scatter, its minor axis.
+    k = min(k, m)
+    nb = np.empty((m, k), dtype=np.int64)
+    nbd = np.empty((m, k))
+    knn(grid, model, nbd, nb)
+    for i in range(m):
+        mx = my = 0.0
+        for j in range(k):
+            mx += model[nb[i, j], 0]
+            my += model[nb[i, j], 1]
+        mx /= k
+        my /= k
+        sxx = syy = sxy = 0.0
+        for j in range(k):
+            dx, dy = model[nb[i, j], 0] - mx, model[nb[i, j], 1] - my
+            sxx += dx * dx
+            syy += dy * dy
+            sxy += dx * dy
+        phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+        lines[i, 0], lines[i, 1] = -np.sin(phi), np.cos(phi)
+    return False
+
+
+@njit
+def _k_degeneracy(
+    model: FloatArray, lines: FloatArray, point_to_line: bool, pairs: NDArray[np.int64], n: int
+) -> float:
+    """:func:`_degeneracy` of the first n pairs: the 2x2 scatter of the paired normals
+    (point-to-line) or of the paired model points about their mean, its smaller
+    eigenvalue over its larger (closed form)."""
+    if n < 3:
+        return 0.0
+    mx = my = 0.0
+    if not point_to_line:
+        for i in range(n):
+            mx += model[pairs[i], 0]
+            my += model[pairs[i], 1]
+        mx /= n
+        my /= n
+    sxx = syy = sxy = 0.0
+    for i in range(n):
+        if point_to_line:
+            dx, dy = lines[pairs[i], 0], lines[pairs[i], 1]
+        else:
+            dx, dy = model[pairs[i], 0] - mx, model[pairs[i], 1] - my
+        sxx += dx * dx
+        syy += dy * dy
+        sxy += dx * dy
+    mean = 0.5 * (sxx + syy)
+    r = np.hypot(0.5 * (sxx - syy), sxy)
+    hi = mean + r
+    return (mean - r) / hi if hi > 0 else 0.0
+
+
+@njit
+def _median(values: FloatArray, n: int, work: FloatArray) -> float:
+    """The (n // 2)-th smallest of ``values[:n]`` (``np.partition``'s), by quickselect on
+    ``work``."""
+    for i in range(n):
+        work[i] = values[i]
+    want = n // 2
+    lo, hi = 0, n - 1
+    while hi > lo:
+        # Median of three as the pivot, then Hoare's partition.
+        mid = (lo + hi) // 2
+        a, b, c = work[lo], work[mid], work[hi]
+        pivot = max(min(a, b), min(max(a, b), c))
+        i, j = lo, hi
+        while i <= j:
+            while work[i] < pivot:
+                i += 1
+            while work[j] > pivot:
+                j -= 1
+            if i <= j:
+                work[i], work[j] = work[j], work[i]
+                i += 1
+                j -= 1
+        if want <= j:
+            hi = j
+        elif want >= i:
+            lo = i
+        else:
+            break
+    return work[want]
 
 
 @njit
 def _iterate_kernel(
-    grid: tuple[FloatArray, float, float, float, int, int, NDArray[np.int64], NDArray[np.int64]],
+    grid: GridArgs,
     data: FloatArray,
     lines: FloatArray,
     use_lines: bool,
@@ -571,14 +789,28 @@ def _iterate_kernel(
     tol_m: float,
     tol_rad: float,
     reject_m: float,
-    k: int,
     requery_m: float,
     degenerate_ratio: float,
+    nb: NDArray[np.int64],
+    nbd: FloatArray,
+    exact: bool,
+    anchored: bool,
+    moved: FloatArray,
+    dist: FloatArray,
+    idx: NDArray[np.int64],
+    select: FloatArray,
+    anchor: FloatArray,
     out_src: FloatArray,
     out_pairs: NDArray[np.int64],
     out_nearest: NDArray[np.int64],
 ) -> tuple[int, float, float, int]:
-    """ICP iterations from ``pose`` = (cos, sin, tx, ty) of T_model_data, updated in place.
+    """:func:`_iterate` and :class:`_Nearest`'s steps in one loop, from ``pose`` = (cos,
+    sin, tx, ty) of T_model_data, updated in place. k = nb.shape[1] candidates per point
+    (``nb``, their distances ``nbd`` where queried, at ``anchor``): all queried again
+    after a move of ``requery_m`` (the full stage's rule), or, ``exact``, a point's own
+    when its nearest model point may have left them (the sparse stages: the exact nearest,
+    as the reference's k-d tree). ``anchored``: the candidates of an earlier stage are in
+    place. The work arrays (``moved`` to ``anchor``) hold at least len(data) rows.
 
     Returns (iterations of the last fit, its RMS, inlier fraction, inlier count); the
     fit's moved inliers, their model points and every point's nearest model point go to
@@ -586,22 +818,21 @@ def _iterate_kernel(
     """
     model = grid[0]
     n = data.shape[0]
+    k = nb.shape[1]
     half = n // 2
     c, s, tx, ty = pose[0], pose[1], pose[2], pose[3]
-    moved = np.empty((n, 2))
-    dist = np.empty(n)
-    idx = np.empty(n, dtype=np.int64)
-    nb = np.empty((n, k), dtype=np.int64)
-    nbd = np.empty((n, k))
-    anchor = np.empty((n, 2))
-    have_anchor = False
+    have_anchor = anchored
     fit_k, fit_rms, fit_frac, fit_n = 0, np.inf, 0.0, 0
+    m_model = model.shape[0]
     for it in range(1, max_iterations + 1):
         for i in range(n):
             moved[i, 0] = data[i, 0] * c - data[i, 1] * s + tx
             moved[i, 1] = data[i, 0] * s + data[i, 1] * c + ty
-        # Nearest model point (the _Nearest rules: k candidates re-queried after a move).
-        if k > 1 and have_anchor:
+        # Nearest model point (the _Nearest rules: k candidates re-queried after a move;
+        # exact: each point's own when its nearest may have left them).
+        if exact:
+            requery = not have_anchor
+        elif k > 1 and have_anchor:
             far = 0.0
             for i in range(n):
                 far = max(far, abs(moved[i, 0] - anchor[i, 0]), abs(moved[i, 1] - anchor[i, 1]))
@@ -609,38 +840,54 @@ def _iterate_kernel(
         else:
             requery = True
         if requery:
-            for i in range(n):
-                knn_one(grid, moved[i, 0], moved[i, 1], nbd[i], nb[i])
+            knn(grid, moved[:n], nbd, nb)
             if k > 1:
-                anchor[:, :] = moved
+                anchor[:n] = moved[:n]
                 have_anchor = True
+        # Each point's nearest candidate, and how many lie within reject_m / 3: when more
+        # than half do, the median's 3 x is below reject_m and the threshold is reject_m.
+        below = 0
         for i in range(n):
-            best = np.inf
-            pick = 0
-            for m in range(k):
-                dx = model[nb[i, m], 0] - moved[i, 0]
-                dy = model[nb[i, m], 1] - moved[i, 1]
-                d2 = dx * dx + dy * dy
-                if d2 < best:
-                    best, pick = d2, m
+            qx, qy = moved[i, 0], moved[i, 1]
+            for attempt in range(2):
+                best = np.inf
+                pick = 0
+                for j in range(k):
+                    dx = model[nb[i, j], 0] - qx
+                    dy = model[nb[i, j], 1] - qy
+                    d2 = dx * dx + dy * dy
+                    if d2 < best:
+                        best, pick = d2, j
+                if not exact or requery or attempt == 1 or k >= m_model:
+                    break
+                # Every other model point was at least the k-th candidate's distance from
+                # where the point was queried, so at least that less the distance moved
+                # since from where it is: the best candidate is the nearest when closer.
+                ax, ay = qx - anchor[i, 0], qy - anchor[i, 1]
+                if np.sqrt(best) + np.sqrt(ax * ax + ay * ay) + 1e-9 < nbd[i, k - 1]:
+                    break
+                knn_one(grid, qx, qy, nbd[i], nb[i])
+                anchor[i, 0], anchor[i, 1] = qx, qy
             dist[i] = np.sqrt(best)
             idx[i] = nb[i, pick]
-        median = np.partition(dist, half)[half]
-        thr = max(reject_m, 3.0 * median)
+            below += int(3.0 * dist[i] <= reject_m)
+        thr = reject_m if below > half else max(reject_m, 3.0 * _median(dist, n, select))
         eligible = n
+        n_inl = 0
         if use_usable:
             eligible = 0
             for i in range(n):
-                eligible += usable[idx[i]]
+                ok = usable[idx[i]]
+                eligible += int(ok)
+                n_inl += int(ok and dist[i] < thr)
             eligible = max(eligible, 1)
-        n_inl = 0
-        sq = 0.0
-        for i in range(n):
-            if dist[i] < thr and (not use_usable or usable[idx[i]]):
-                n_inl += 1
+        else:
+            for i in range(n):
+                n_inl += int(dist[i] < thr)
         if n_inl < 3:
             break
         m_in = 0
+        sq = 0.0
         for i in range(n):
             if dist[i] < thr and (not use_usable or usable[idx[i]]):
                 out_src[m_in, 0] = moved[i, 0]

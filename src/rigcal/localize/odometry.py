@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 
 from rigcal.calib.lines import Segment, extract_lines, line_labels, return_labels
 from rigcal.jit import njit
-from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, icp, line_normals, pose_of, se2
+from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, icp, label_runs, line_normals, pose_of, se2
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
@@ -200,11 +200,16 @@ def _carry_kernel(
         n_lines = max(n_lines, prev_labels[i] + 1)
     count = np.zeros(n_lines)
     offset = np.zeros(n_lines)
-    for i in range(len(prev_labels)):
-        k = prev_labels[i]
-        if k >= 0:
-            count[k] += 1.0
-            offset[k] += normals[i, 0] * prev[i, 0] + normals[i, 1] * prev[i, 1]
+    bounds = label_runs(prev_labels)  # a line's returns come in runs: its sums in registers
+    for r in range(len(bounds) - 1):
+        k = prev_labels[bounds[r]]
+        if k < 0:
+            continue
+        n, o = count[k], offset[k]
+        for i in range(bounds[r], bounds[r + 1]):
+            n += 1.0
+            o += normals[i, 0] * prev[i, 0] + normals[i, 1] * prev[i, 1]
+        count[k], offset[k] = n, o
     for k in range(n_lines):
         offset[k] /= max(count[k], 1.0)
     for i in range(len(cur)):
