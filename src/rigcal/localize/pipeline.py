@@ -83,13 +83,11 @@ def _vo_result(streams: Streams) -> VoResult:
         return out
     rig = streams.require_rig("vo")
     streams.require_images("vo")
-    streams.start_laser_odometry()  # pairs scans with images (timed on its own)
-    tracked = "tracks" in streams.results
+    tracks = streams.feature_tracks()  # shared with H-IASM (timed on its own)
+    streams.laser_odometry()  # pairs scans with images (timed on its own)
     t0 = time.perf_counter()
-    # The runs are measured while the features are tracked (shared with H-IASM, timed
-    # on their own): vo_s is the visual odometry's time beyond the tracking.
     res = visual_odometry(
-        streams.track_frames(),
+        tracks,
         streams.image,
         streams.image_stamps_s,
         rig.camera,
@@ -97,8 +95,7 @@ def _vo_result(streams: Streams) -> VoResult:
         streams.laser_points_at_image,
         progress=lambda k: streams.report("visual odometry", k, streams.n_images),
     )
-    tracking = 0.0 if tracked else streams.timings_s["tracks_s"]
-    streams.timings_s["vo_s"] = time.perf_counter() - t0 - tracking
+    streams.timings_s["vo_s"] = time.perf_counter() - t0
     streams.results["vo"] = res
     return res
 
@@ -175,16 +172,13 @@ class Run:
 
 def _shared_stages(streams: Streams, methods: list[str]) -> None:
     """Compute the stages several methods share, before the methods: the feature tracks
-    (when a method tracks images) with the laser odometry beside them on a second thread
-    and, for vo and kf, visual odometry's runs measured as the tracks come in; then the
-    laser odometry (every method but icp-p2p pairs scans and images with it)."""
+    (when a method tracks images) with the laser odometry beside them on a second thread,
+    then the laser odometry (every method but icp-p2p pairs scans and images with it)."""
     tracking = [m for m in methods if m in TRACKING]
     for m in tracking:
         streams.require_images(m)  # a clear error before any work
     if tracking:
         streams.start_laser_odometry()
-        if "vo" in methods or "kf" in methods:
-            _vo_result(streams)  # measures its runs while the features are tracked
         streams.feature_tracks()
     if any(m != "icp-p2p" for m in methods):
         streams.laser_odometry()

@@ -34,7 +34,7 @@ from rigcal.errors import InputError
 from rigcal.io.sequence import Sequence, read_sequence
 from rigcal.localize.icp import IcpParams, pose_of, se2
 from rigcal.localize.odometry import Odometry, icp_odometry
-from rigcal.localize.tracks import FrameTracks, TrackParams, tracks_of
+from rigcal.localize.tracks import FrameTracks, TrackParams, track_sequence
 from rigcal.rig import Rig
 from rigcal.rigfile import read_rig
 from rigcal.scan import Scan
@@ -215,28 +215,17 @@ class Streams:
     def feature_tracks(self) -> list[FrameTracks]:
         """SIFT features tracked over all images (computed once; VO and H-IASM share them)."""
         if "tracks" not in self.results:
-            for _ in self.track_frames():
-                pass
+            rig = self.require_rig("feature tracks")
+            t0 = time.perf_counter()
+            n = self.n_images
+
+            def tell(k: int) -> None:
+                self.report("feature tracks", k, n)
+
+            self.results["tracks"] = track_sequence(self.images_in_order(), rig.camera, TrackParams(), tell)
+            self.timings_s["tracks_s"] = time.perf_counter() - t0
         out: list[FrameTracks] = self.results["tracks"]
         return out
-
-    def track_frames(self) -> Iterator[FrameTracks]:
-        """The feature tracks frame by frame, as they are computed (the first time: a
-        consumer such as visual odometry works on the frames so far while the tracking
-        goes on), or as kept; once all are through they are kept (:meth:`feature_tracks`)."""
-        if "tracks" in self.results:
-            yield from self.results["tracks"]
-            return
-        rig = self.require_rig("feature tracks")
-        t0 = time.perf_counter()
-        n = self.n_images
-        out: list[FrameTracks] = []
-        for tracks in tracks_of(self.images_in_order(), rig.camera, TrackParams()):
-            out.append(tracks)
-            self.report("feature tracks", len(out), n)
-            yield tracks
-        self.results["tracks"] = out
-        self.timings_s["tracks_s"] = time.perf_counter() - t0
 
     def report(self, stage: str, done: int, total: int) -> None:
         """Tell the progress callback, if any, how far a stage is."""

@@ -27,7 +27,7 @@ is an integer; the correspondences between any two frames are the tracks alive i
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import cv2
@@ -189,15 +189,6 @@ class Tracker:
         self._vel = np.concatenate([self._vel, np.full((len(pts), 2), np.nan, np.float32)])
 
 
-def tracks_of(
-    frames: Iterable[Gray], camera: Camera, params: TrackParams | None = None
-) -> Iterator[FrameTracks]:
-    """The tracks of each frame of a sequence as it comes, the frames given in order."""
-    tracker = Tracker(camera, params)
-    for frame in frames:
-        yield tracker.step(frame)
-
-
 def track_sequence(
     frames: Iterable[Gray],
     camera: Camera,
@@ -205,9 +196,10 @@ def track_sequence(
     progress: Callable[[int], None] | None = None,
 ) -> list[FrameTracks]:
     """The tracks of every frame of a sequence, the frames given in order."""
+    tracker = Tracker(camera, params)
     out = []
-    for tracks in tracks_of(frames, camera, params):
-        out.append(tracks)
+    for i, frame in enumerate(frames):
+        out.append(tracker.step(frame))
         if progress is not None:
-            progress(len(out))
+            progress(i + 1)
     return out

@@ -28,7 +28,7 @@ camera's, ``x2 = R x1 + t`` (OpenCV's). Laser-frame points are (x, y, 0).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -381,7 +381,7 @@ class VoResult:
 
 
 def visual_odometry(
-    tracks: Iterable[FrameTracks],
+    tracks: list[FrameTracks],
     image: Callable[[int], Gray],
     stamps_s: FloatArray,
     camera: Camera,
@@ -394,11 +394,9 @@ def visual_odometry(
     """Chain the camera's runs into the laser's planar trajectory.
 
     Args:
-        tracks: the feature tracks of every frame (:mod:`rigcal.localize.tracks`), in
-            order; an iterator may still be computing them: each run is measured as soon
-            as its frames are in, while the tracking goes on.
+        tracks: the feature tracks of every frame (:mod:`rigcal.localize.tracks`).
         image: frame index -> grey image (for the scale's patches).
-        stamps_s: (n_frames,) image stamps (one per frame of ``tracks``).
+        stamps_s: (n_frames,) image stamps.
         T_cam_laser: the rig's calibration.
         laser_points: frame index -> (N, 2) laser points in the laser frame at that frame's time.
         progress: called with the frames done so far.
@@ -412,12 +410,12 @@ def visual_odometry(
     params = params or VoParams()
     focal = float(np.mean(camera.intrinsics[:2]))
     forward = T_cam_laser[:3, 0]  # the laser's x axis (the rig's travel) in the camera frame
-    seen: list[FrameTracks] = []  # the frames' tracks so far
+    runs = _runs(tracks, params)
 
     def measure(run: tuple[int, int, NDArray[np.intp], NDArray[np.intp]]) -> _Measured:
         kf, j, ia, ib = run
         dt = float(stamps_s[j] - stamps_s[kf])
-        rel = relative_pose(seen[kf].bearings[ia], seen[j].bearings[ib], focal, params, forward)
+        rel = relative_pose(tracks[kf].bearings[ia], tracks[j].bearings[ib], focal, params, forward)
         if rel is None or rel.still:
             return _Measured(kf, j, dt, rel, None)
         P1 = _to_cam(T_cam_laser, laser_points(kf))
@@ -434,11 +432,9 @@ def visual_odometry(
     last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
     speed = 0.0  # m/s, of the last run with a scale
     # The runs are measured independently (OpenCV and numpy release the interpreter), on
-    # ``workers`` threads, each as soon as its frames are in; chaining them is sequential.
+    # ``workers`` threads, in order; chaining them is sequential.
     with ThreadPoolExecutor(max_workers=max(workers, 1), thread_name_prefix="vo-run") as pool:
-        measured = [pool.submit(measure, run) for run in _runs(tracks, len(stamps_s), params, seen)]
-        for future in measured:
-            m = future.result()
+        for m in pool.map(measure, runs):
             kf, j, dt, rel = m.first, m.last, m.dt, m.rel
             if progress is not None:
                 progress(j + 1)
@@ -488,36 +484,25 @@ class _Measured:
 
 
 def _runs(
-    tracks: Iterable[FrameTracks], n_frames: int, params: VoParams, seen: list[FrameTracks]
-) -> Iterator[tuple[int, int, NDArray[np.intp], NDArray[np.intp]]]:
-    """The runs (first frame, last frame, the common tracks' indices in each), each given
-    as soon as the frames that decide it are in (taken from ``tracks`` into ``seen``):
-    from its first frame to the last frame, at most ``max_run_frames`` on, that still
-    shares ``min_tracked`` tracks with it; the next run starts there."""
-    more = iter(tracks)
-
-    def have(i: int) -> bool:
-        while len(seen) <= i:
-            nxt = next(more, None)
-            if nxt is None:
-                return False
-            seen.append(nxt)
-        return True
-
+    tracks: list[FrameTracks], params: VoParams
+) -> list[tuple[int, int, NDArray[np.intp], NDArray[np.intp]]]:
+    """The runs (first frame, last frame, the common tracks' indices in each): from its
+    first frame to the last frame, at most ``max_run_frames`` on, that still shares
+    ``min_tracked`` tracks with it; the next run starts there."""
+    n_frames = len(tracks)
+    out = []
     kf = 0
-    while kf < n_frames - 1 and have(kf + 1):
+    while kf < n_frames - 1:
         j = kf + 1
-        ia, ib = common(seen[kf], seen[j])
+        ia, ib = common(tracks[kf], tracks[j])
         for c in range(kf + 2, min(kf + params.max_run_frames, n_frames - 1) + 1):
-            if not have(c):
-                break
-            pairs = common(seen[kf], seen[c])
+            pairs = common(tracks[kf], tracks[c])
             if len(pairs[0]) < params.min_tracked:
                 break
             j, (ia, ib) = c, pairs
-        yield kf, j, ia, ib
+        out.append((kf, j, ia, ib))
         kf = j
-    seen.extend(more)  # the tracking runs to its end
+    return out
 
 
 def _to_cam(T_cam_laser: FloatArray, pts2: FloatArray) -> FloatArray:
