@@ -342,3 +342,18 @@ def test_a_laser_that_cannot_see_the_corridors_end(tmp_path):
         assert methods[m]["metric"]["image"] > 10
         assert methods[m]["metrics"]["average_position_error_m"] < 0.05 * icp_error
     assert methods["kf"]["metrics"]["average_position_error_m"] < 0.1 * icp_error
+
+
+def test_the_tracks_detector_reaches_the_run_and_the_summary(drive, tmp_path):
+    from rigcal.localize.pipeline import run
+    from rigcal.localize.tracks import TrackParams
+
+    out = tmp_path / "shi"
+    r = run(drive, ["vo"], out, tracks=TrackParams(detector="shi-tomasi"))
+    assert r.tracks.detector == "shi-tomasi"
+    assert (
+        yaml.safe_load((out / "summary.yaml").read_text())["config"]["settings"]["tracks"]["detector"]
+        == "shi-tomasi"
+    )
+    assert r.methods[0].metrics is not None
+    assert r.methods[0].metrics["average_position_error_m"] < 0.5

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from rigcal.geometry import rotvec_to_R
 from rigcal.localize.tracks import FrameTracks, Tracker, TrackParams, common, track_sequence
@@ -19,10 +20,11 @@ def _truth(px: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return CAM.project(P @ R.T + t)
 
 
-def test_tracks_follow_the_true_image_motion_to_a_fifth_of_a_pixel(texture, wall_image):
+@pytest.mark.parametrize("detector", ["sift", "shi-tomasi"])
+def test_tracks_follow_the_true_image_motion_to_a_fifth_of_a_pixel(texture, wall_image, detector):
     motions = [(rotvec_to_R([0.0, 0.01 * k, 0.0]), np.array([0.04 * k, 0.0, 0.08 * k])) for k in range(4)]
     images = [wall_image(R, t, DEPTH, texture) for R, t in motions]
-    tracks = track_sequence(images, CAM)
+    tracks = track_sequence(images, CAM, TrackParams(detector=detector))
     assert len(tracks[0].ids) > 500
     for (R, t), tr in zip(motions[1:], tracks[1:], strict=True):
         ia, ib = common(tracks[0], tr)
@@ -119,3 +121,8 @@ def test_a_new_track_starts_from_its_neighbours_displacement():
     moved = tracks[2].pixels[ib, 0] - tracks[1].pixels[ia, 0]
     assert born.sum() > 100
     assert np.mean(np.abs(moved[born] - 40) < 0.5) > 0.9
+
+
+def test_an_unknown_detector_is_refused():
+    with pytest.raises(ValueError, match=r"detector must be one of \('sift', 'shi-tomasi'\), not 'orb'"):
+        TrackParams(detector="orb")

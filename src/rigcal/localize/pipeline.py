@@ -36,6 +36,7 @@ from rigcal.localize.image_matching import scan_matching
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import DEGENERATE_BELOW, Odometry, icp_odometry
 from rigcal.localize.streams import Streams, open_streams
+from rigcal.localize.tracks import TrackParams
 from rigcal.localize.vo import VoResult, visual_odometry
 
 log = logging.getLogger(__name__)
@@ -168,6 +169,7 @@ class Run:
     wall_s: float = 0.0
     iasm: IasmParams = field(default_factory=IasmParams)
     cpu_s: float = 0.0  # CPU seconds over the same span as wall_s, all threads
+    tracks: TrackParams = field(default_factory=TrackParams)
 
 
 def _shared_stages(streams: Streams, methods: list[str]) -> None:
@@ -235,11 +237,13 @@ def run(
     rig_file: str | Path | None = None,
     progress: Callable[[str, int, int], None] | None = None,
     iasm: IasmParams | None = None,
+    tracks: TrackParams | None = None,
 ) -> Run:
     """Localize a sequence with each method and write the output folder:
     ``METHOD/trajectory.tum`` (and ``.kitti``) per method, ``summary.yaml``/``.json`` and,
     with ground truth, ``paths.png``/``.svg`` and ``errors.png``/``.svg`` (charts).
-    ``iasm``: IASM's and H-IASM's settings (the defaults unless given).
+    ``iasm``: IASM's and H-IASM's settings, ``tracks`` the feature tracks' (the defaults
+    unless given).
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -250,6 +254,7 @@ def run(
     iasm = iasm or IasmParams()
     streams = open_streams(sequence, rig_file)
     streams.progress = progress
+    streams.track_params = tracks or TrackParams()
     if len(streams.scans) < MIN_SCANS:
         raise InputError.at(
             Path(sequence) / "sequence.yaml", "scans.count", len(streams.scans), f"at least {MIN_SCANS} scans"
@@ -275,7 +280,7 @@ def run(
     stamps = streams.scan_stamps_s
     duration = float(stamps[-1] - stamps[0])
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
-    out = Run(results, dict(streams.timings_s), duration, truth, wall, iasm, cpu)
+    out = Run(results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params)
     _write(out, Path(sequence), output, force, kitti)
     return out
 
@@ -286,7 +291,7 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
         "config": {
             "sequence": str(sequence.resolve()),
             "methods": [m.method for m in r.methods],
-            "settings": settings(r.iasm),
+            "settings": settings(r.iasm, r.tracks),
         },
         "duration_s": round(r.duration_s, 3),
         "wall_s": round(r.wall_s, 3),
@@ -304,12 +309,11 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
     }
 
 
-def settings(iasm: IasmParams | None = None) -> dict[str, Any]:
+def settings(iasm: IasmParams | None = None, tracks: TrackParams | None = None) -> dict[str, Any]:
     """The methods' effective settings (the defaults, as docs/localization.md describes
-    them, with IASM's and H-IASM's ``iasm`` when given)."""
+    them, with IASM's and H-IASM's ``iasm`` and the feature tracks' ``tracks`` when given)."""
     from dataclasses import asdict
 
-    from rigcal.localize.tracks import TrackParams
     from rigcal.localize.vo import VoParams
 
     return {
@@ -322,7 +326,7 @@ def settings(iasm: IasmParams | None = None) -> dict[str, Any]:
         },
         "iasm": asdict(iasm or IasmParams()),
         "hiasm_vo": asdict(VoParams()),
-        "tracks": asdict(TrackParams()),
+        "tracks": asdict(tracks or TrackParams()),
     }
 
 

@@ -62,6 +62,7 @@ class Streams:
         timings_s: seconds spent per stage (filled as the stages run).
         results: stage results shared by methods (visual odometry for ``vo`` and ``kf``).
         progress: called with (stage, done, total) as long stages go on (the CLI's bars).
+        track_params: the feature tracks' settings.
     """
 
     sequence: Sequence
@@ -76,6 +77,7 @@ class Streams:
     results: dict[str, Any] = field(default_factory=dict, repr=False)
     _lines: dict[int, list[Segment]] = field(default_factory=dict, repr=False)
     progress: Callable[[str, int, int], None] | None = field(default=None, repr=False)
+    track_params: TrackParams = field(default_factory=TrackParams)
 
     @property
     def scans(self) -> tuple[Scan, ...]:
@@ -222,7 +224,9 @@ class Streams:
             def tell(k: int) -> None:
                 self.report("feature tracks", k, n)
 
-            self.results["tracks"] = track_sequence(self.images_in_order(), rig.camera, TrackParams(), tell)
+            self.results["tracks"] = track_sequence(
+                self.images_in_order(), rig.camera, self.track_params, tell
+            )
             self.timings_s["tracks_s"] = time.perf_counter() - t0
         out: list[FrameTracks] = self.results["tracks"]
         return out
