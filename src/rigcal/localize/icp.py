@@ -170,18 +170,17 @@ def icp(
     if kernel:
         return _icp_compiled(model, data, x, y, yaw, params, model_normals)
     tree = cKDTree(model)
-    iterate = _iterate
     T = _Transform(math.cos(yaw), math.sin(yaw), x, y)
     sparse = data[:: params.subsample] if len(data) >= 3 * params.subsample else data
     coarse_tol = (10.0 * params.tolerance_m, 10.0 * params.tolerance_rad)
     normals = lines = usable = None
     if params.method == "point-to-line":
-        T, _ = iterate(tree, model, sparse, None, T, COARSE_ITERATIONS, COARSE_TOLERANCE, params.reject_m)
+        T, _ = _iterate(tree, model, sparse, None, T, COARSE_ITERATIONS, COARSE_TOLERANCE, params.reject_m)
         normals, usable = pairing_normals(model, tree, params.normal_neighbours, model_normals)
         # Per model point: its normal and the normal's offset n . m (the line n . p = n . m).
         lines = np.column_stack([normals, np.einsum("ij,ij->i", normals, model)])
-    T, _ = iterate(tree, model, sparse, lines, T, params.max_iterations, coarse_tol, params.reject_m, usable)
-    T, fit = iterate(
+    T, _ = _iterate(tree, model, sparse, lines, T, params.max_iterations, coarse_tol, params.reject_m, usable)
+    T, fit = _iterate(
         tree,
         model,
         data,
@@ -438,6 +437,13 @@ def label_runs(labels: NDArray[np.int64]) -> NDArray[np.int64]:
 
 
 @njit
+def _k_scatter_normal(sxx: float, syy: float, sxy: float) -> tuple[float, float]:
+    """The unit normal of a 2-D scatter's major axis (as :func:`_normals`)."""
+    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    return -np.sin(phi), np.cos(phi)
+
+
+@njit
 def _line_fits_kernel(
     points: FloatArray, labels: NDArray[np.int64], centres: FloatArray, normals: FloatArray
 ) -> None:
@@ -484,8 +490,7 @@ def _line_fits_kernel(
     nx = np.empty(n_lines)
     ny = np.empty(n_lines)
     for k in range(n_lines):
-        phi = 0.5 * np.arctan2(2.0 * sxy[k], sxx[k] - syy[k])
-        nx[k], ny[k] = -np.sin(phi), np.cos(phi)
+        nx[k], ny[k] = _k_scatter_normal(sxx[k], syy[k], sxy[k])
     for i in range(len(labels)):
         k = labels[i]
         if k >= 0:
@@ -708,8 +713,7 @@ def _k_pairing_normals(
             sxx += dx * dx
             syy += dy * dy
             sxy += dx * dy
-        phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-        lines[i, 0], lines[i, 1] = -np.sin(phi), np.cos(phi)
+        lines[i, 0], lines[i, 1] = _k_scatter_normal(sxx, syy, sxy)
     return False
 
 

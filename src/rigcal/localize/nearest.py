@@ -33,24 +33,21 @@ class Grid:
 
     Attributes:
         points: (M, 2) float64, metres.
-        origin: (2,) the grid's lower-left corner; ``cell``: its cell size (m).
-        shape: (nx, ny) cells; ``starts`` (nx * ny + 1,) and ``order`` (M,): the points of
-            cell ``ix * ny + iy`` are ``order[starts[c]:starts[c + 1]]``, sorted along the
-            cell's axis (0: x, 1: y; the longer side of the cell's points' bounds).
-        sorted: (M, 4) the points in that order, each as (coordinate along its cell's
-            axis, x, y, axis): a query walks a cell outwards from its own coordinate and
-            stops where the gap along the axis alone exceeds the k-th distance found.
+
+    The grid itself is the tuple :func:`build` makes (:meth:`args`): the lower-left corner,
+    the cell size (m), (nx, ny) cells, ``starts`` (nx * ny + 1,) and ``order`` (M,) -- the
+    points of cell ``ix * ny + iy`` are ``order[starts[c]:starts[c + 1]]``, sorted along
+    the cell's axis (0: x, 1: y; the longer side of the cell's points' bounds) -- and
+    (M, 4) the points in that order, each as (coordinate along its cell's axis, x, y,
+    axis): a query walks a cell outwards from its own coordinate and stops where the gap
+    along the axis alone exceeds the k-th distance found.
     """
 
     def __init__(self, points: FloatArray) -> None:
         self.points = np.ascontiguousarray(points, dtype=float)
         if len(self.points) == 0:
             raise ValueError("Grid needs at least one point")
-        args = build(self.points)
-        self.origin = np.array(args[1:3])
-        self.cell = args[3]
-        self.shape = (args[4], args[5])
-        self.starts, self.order, self.sorted = args[6], args[7], args[8]
+        self._args = build(self.points)
 
     def query(self, queries: FloatArray, k: int = 1) -> tuple[FloatArray, IntArray]:
         """(Q, k) distances and indices of each query's k nearest points, nearest first
@@ -72,17 +69,7 @@ class Grid:
 
     def args(self) -> GridArgs:
         """The grid as the tuple the compiled functions take."""
-        return (
-            self.points,
-            float(self.origin[0]),
-            float(self.origin[1]),
-            self.cell,
-            self.shape[0],
-            self.shape[1],
-            self.starts,
-            self.order,
-            self.sorted,
-        )
+        return self._args
 
 
 @njit

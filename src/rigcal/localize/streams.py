@@ -123,9 +123,7 @@ class Streams:
 
     def image(self, i: int) -> Gray:
         """Frame i as a grey image."""
-        with self._lock:
-            hit = self._images.get(i)
-        return self._keep(i, self._decode(i) if hit is None else hit)
+        return self._keep(i, self._kept_or_decoded(i))
 
     def images_in_order(self, ahead: int = 8) -> Iterator[Gray]:
         """Every frame in order, decoded ``ahead`` frames in advance on a second thread

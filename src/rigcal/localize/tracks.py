@@ -187,8 +187,10 @@ class Tracker:
         self.detections += 1
         want = max(p.n_features - len(self._px), 0)
         if p.detector == "shi-tomasi":
+            if want == 0:  # (OpenCV reads 0 corners as no limit)
+                return
             found = cv2.goodFeaturesToTrack(gray, want, 0.01, p.min_distance_px, mask=mask, blockSize=5)
-            if found is None or want == 0:
+            if found is None:
                 return
             pts = np.asarray(found, np.float32).reshape(-1, 2)
         else:
