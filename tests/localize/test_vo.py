@@ -64,6 +64,25 @@ def test_a_rig_standing_still_has_no_translation():
     assert rotation_angle_rad(rel.R @ R.T) < 1e-6
 
 
+def test_a_creeping_rig_is_not_turned_half_a_circle():
+    # 7 mm between frames with the nearest points 0.6 m away: enough parallax to measure a
+    # translation, too little for cheirality to tell R from its twisted pair reliably
+    # (without the turn-only fit's check, 3 of these 24 noise draws came out 180 deg off).
+    R = rotvec_to_R([0.0, 0.003, 0.0])
+    t = np.array([0.006, 0.0, 0.003])
+    for seed in range(24):
+        rng = np.random.default_rng(seed)
+        P1 = np.column_stack([rng.uniform(-2, 2, 400), rng.uniform(-1, 1, 400), rng.uniform(0.6, 2.0, 400)])
+        P2 = P1 @ R.T + t
+        b1 = _bearings(P1 + rng.normal(0, 0.3 / FOCAL, P1.shape) * P1[:, 2:3])
+        b2 = _bearings(P2 + rng.normal(0, 0.3 / FOCAL, P2.shape) * P2[:, 2:3])
+        rel = relative_pose(b1, b2, FOCAL, VoParams(), forward=np.array([0.0, 0.0, 1.0]))
+        assert rel is not None
+        assert not rel.still
+        assert np.degrees(rotation_angle_rad(rel.R @ R.T)) < 0.5, seed
+        assert rel.t_unit @ t / np.linalg.norm(t) > 0.5, seed  # not reversed (direction is loose here)
+
+
 def test_too_few_matches_fail():
     rng = np.random.default_rng(4)
     P1 = _scene(rng, n=10)

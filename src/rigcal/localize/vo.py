@@ -148,6 +148,7 @@ def relative_pose(
             best = (cost, R, t)
     assert best is not None
     _, R, t = best
+    R = _nearer_of_twisted_pair(R, t, R_rot)
     inl = np.abs(_sampson(R, t, x1, x2)) < params.ransac_threshold_px / focal_px
     # E fixes t up to its sign: the sign that puts the points in front of both cameras.
     if _in_front(R, t, b1[inl], b2[inl]) < _in_front(R, -t, b1[inl], b2[inl]):
@@ -159,6 +160,28 @@ def relative_pose(
         return None
     R, t = refine_essential(R, t, b1[inl], b2[inl])
     return RelativePose(R, t, n, False, b1[inl], b2[inl])
+
+
+def _nearer_of_twisted_pair(R: FloatArray, t: FloatArray, R_rot: FloatArray) -> FloatArray:
+    """R or its twin ``Rot(t, 180 deg) R``, whichever is nearer the turn-only fit R_rot.
+
+    The two give the same essential matrix up to sign, ``[t]x Rot(t, pi) = -[t]x`` (Eq.
+    (5) cannot tell them apart), and only cheirality separates them: the twin puts the
+    points behind one camera. Over a short baseline (a rig that barely moved, or far
+    points) a few noisy bearings decide that vote, and the camera comes out turned half
+    a circle. The twins are 180 degrees apart, so the one nearer the rotation fitted as
+    if the camera had only turned, which errs by the parallax (a few degrees), is right.
+    """
+    axis = t / np.linalg.norm(t)
+    twin: FloatArray = (2.0 * np.outer(axis, axis) - np.eye(3)) @ R
+    if _angle(twin @ R_rot.T) < _angle(R @ R_rot.T):
+        return twin
+    return R
+
+
+def _angle(R: FloatArray) -> float:
+    """A rotation's angle (radians)."""
+    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
 
 
 def _homogeneous(b: FloatArray) -> FloatArray:
