@@ -32,6 +32,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from rigcal.localize.pipeline import run, table
+from rigcal.localize.tracks import DETECTORS, TrackParams
 from rigcal.sim.drive import DriveSpec, write_drive
 from rigcal.sim.world import BUILTIN
 
@@ -60,8 +61,10 @@ def main() -> None:
     ap.add_argument("--methods", default=",".join(METHODS), help="Methods of the accuracy table.")
     ap.add_argument("--alone", default=",".join(ALONE), help="Methods of the speed table.")
     ap.add_argument("--no-reference", action="store_true", help="Skip the runs with the numpy references.")
+    ap.add_argument("--detector", choices=DETECTORS, help="What starts the feature tracks.")
     args = ap.parse_args()
     methods = args.methods.split(",")
+    tracks = TrackParams() if args.detector is None else TrackParams(detector=args.detector)
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         root.mkdir(parents=True, exist_ok=True)
@@ -70,10 +73,10 @@ def main() -> None:
             if not (seq / "sequence.yaml").exists():
                 spec = DriveSpec(seed=args.seed, range_max_m=args.range_max_m)
                 write_drive(BUILTIN[name](), spec, str(seq))
-            r = run(seq, methods, root / f"{seq.name}-out", force=True)
+            r = run(seq, methods, root / f"{seq.name}-out", force=True, tracks=tracks)
             laser = f", {args.range_max_m:g} m laser" if args.range_max_m != 30.0 else ""
             length = r.methods[0].metrics["path_length_m"]  # type: ignore[index]
-            print(f"\n### {name}: {length} m lap in {r.duration_s:.1f} s{laser}\n")
+            print(f"\n### {name}: {length} m lap in {r.duration_s:.1f} s{laser}, {tracks.detector} tracks\n")
             print(table([(LABELS[m.method], m.metrics) for m in r.methods if m.metrics is not None]))
             print("\n| method | poses | counts |")
             print("|---|---|---|")
@@ -88,11 +91,12 @@ def main() -> None:
             print("|---|---|---|---|---|---|")
             per = float("nan")
             alone = args.alone.split(",")
-            run(seq, alone[:1], root / "compile-alone", force=True)  # compile / load the kernels
+            # Compile / load the kernels.
+            run(seq, alone[:1], root / "compile-alone", force=True, tracks=tracks)
             for m in alone:
                 for compiled in (True, False) if not args.no_reference else (True,):
                     with kernels(compiled):
-                        a = run(seq, [m], root / f"{seq.name}-{m}-alone", force=True)
+                        a = run(seq, [m], root / f"{seq.name}-{m}-alone", force=True, tracks=tracks)
                     cpu = a.cpu_s
                     stages = ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in a.timings_s.items())
                     label = "compiled" if compiled else "numpy reference"

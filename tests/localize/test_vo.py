@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from rigcal.geometry import rotation_angle_rad, rotvec_to_R
-from rigcal.localize.vo import VoParams, laser_scale, refine_essential, relative_pose
+from rigcal.localize.tracks import FrameTracks
+from rigcal.localize.vo import VoParams, carried_scale, laser_scale, refine_essential, relative_pose
 from rigcal.sim.box_session import default_camera
 
 CAM = default_camera()
@@ -81,6 +82,66 @@ def test_a_creeping_rig_is_not_turned_half_a_circle():
         assert not rel.still
         assert np.degrees(rotation_angle_rad(rel.R @ R.T)) < 0.5, seed
         assert rel.t_unit @ t / np.linalg.norm(t) > 0.5, seed  # not reversed (direction is loose here)
+
+
+def _frames(P0, poses, rng, noise_px=0.3, ids=None):
+    """FrameTracks of the points P0 (first camera) seen from cameras whose poses map the
+    first camera's coordinates into theirs, with pixel noise."""
+    ids = np.arange(len(P0)) if ids is None else ids
+    out = []
+    for R, t in poses:
+        P = P0 @ R.T + t
+        out.append(
+            FrameTracks(
+                ids,
+                np.zeros((len(P), 2)),
+                _bearings(P + rng.normal(0, noise_px / FOCAL, P.shape) * P[:, 2:3]),
+            )
+        )
+    return out
+
+
+def _carry_case(rng, ids=None, step=0.25):
+    """Three frames: 0.3 m sideways and forward, then ``step`` m on while turning."""
+    P0 = np.column_stack([rng.uniform(-2, 2, 300), rng.uniform(-1, 1, 300), rng.uniform(1.0, 4.0, 300)])
+    R1, t1 = rotvec_to_R([0.0, 0.05, 0.0]), np.array([0.2, 0.0, 0.22])
+    R2 = rotvec_to_R([0.0, 0.12, 0.0])
+    t2 = step * np.array([0.6, 0.0, 0.8])
+    # Frame 2's pose in frame 0's coordinates: x2 = R2 (R1 x0 + t1) + t2.
+    frames = _frames(P0, [(np.eye(3), np.zeros(3)), (R1, t1), (R2 @ R1, R2 @ t1 + t2)], rng, ids=ids)
+    return frames, (R1, t1), (R2, t2)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_tracks_carry_the_scale_of_the_run_before(seed):
+    rng = np.random.default_rng(seed)
+    (f0, f1, f2), before, (R2, t2) = _carry_case(rng)
+    unit = t2 / np.linalg.norm(t2)
+    est = carried_scale(f0, f1, f2, before, (R2, unit), FOCAL, VoParams())
+    assert est.used >= 0.8 * 300
+    assert est.scale == pytest.approx(0.25, rel=0.01)
+    # The run before's scale is what it carries: twice the length before, twice this one.
+    R1, t1 = before
+    twice = carried_scale(f0, f1, f2, (R1, 2.0 * t1), (R2, unit), FOCAL, VoParams())
+    assert twice.scale == pytest.approx(2 * est.scale, rel=0.01)
+
+
+def test_a_turn_on_the_spot_carries_no_scale():
+    # Without translation the rays of this run do not meet: no track votes.
+    rng = np.random.default_rng(7)
+    (f0, f1, f2), before, (R2, _) = _carry_case(rng, step=0.0)
+    est = carried_scale(f0, f1, f2, before, (R2, np.array([0.6, 0.0, 0.8])), FOCAL, VoParams())
+    assert est.used == 0
+    assert np.isnan(est.scale)
+
+
+def test_tracks_lost_between_the_runs_carry_no_scale():
+    rng = np.random.default_rng(8)
+    (f0, f1, f2), before, (R2, t2) = _carry_case(rng)
+    # Only 5 of the first frame's tracks are still alive at the run's end.
+    f2 = FrameTracks(f2.ids[:5], f2.pixels[:5], f2.bearings[:5])
+    est = carried_scale(f0, f1, f2, before, (R2, t2 / np.linalg.norm(t2)), FOCAL, VoParams())
+    assert est.used == 0
 
 
 def test_too_few_matches_fail():
@@ -170,3 +231,41 @@ def test_every_run_through_the_first_corner_turns_by_the_true_angle(tmp_path):
     )
     assert one.steps == res.steps
     assert np.array_equal(one.poses, res.poses)
+
+
+def test_the_tracks_carry_the_scale_where_the_laser_gives_none(tmp_path):
+    """The corridor loop's first seconds (simulated, seed 1) with the laser's points taken
+    away after the first frames: the runs after them take their scale from the tracks and
+    the path keeps its length."""
+    from rigcal.io.trajectory import read_tum
+    from rigcal.localize.pipeline import planar_at
+    from rigcal.localize.streams import open_streams
+    from rigcal.localize.vo import visual_odometry
+    from rigcal.sim.drive import DriveSpec, write_drive
+    from rigcal.sim.world import corridor_loop
+
+    write_drive(corridor_loop(), DriveSpec(seed=1, duration_s=2.4), str(tmp_path / "seq"))
+    streams = open_streams(tmp_path / "seq")
+    streams.laser_odometry()
+    rig = streams.rig
+    assert rig is not None
+
+    def first_frames_only(i: int):
+        return streams.laser_points_at_image(i) if i < 3 else np.zeros((0, 2))
+
+    res = visual_odometry(
+        streams.feature_tracks(),
+        streams.image,
+        streams.image_stamps_s,
+        rig.camera,
+        rig.T_cam_laser,
+        first_frames_only,
+    )
+    status = [s.status for s in res.steps]
+    assert status[0] == "ok"
+    assert status.count("carried") >= len(status) - 3
+    assert "no-scale" not in status
+    truth = planar_at(read_tum(tmp_path / "seq" / "groundtruth.tum"), streams.image_stamps_s[res.frames])
+    length = np.linalg.norm(np.diff(res.poses[:, :2], axis=0), axis=1).sum()
+    true_length = np.linalg.norm(np.diff(truth[:, :2], axis=0), axis=1).sum()
+    assert length == pytest.approx(true_length, rel=0.03)

@@ -62,6 +62,9 @@ class VoParams:
         min_scale_votes: a scale needs at least this many laser points that agree on it...
         scale_agreement: ... within this fraction of their median, and at least half of
             the voting points must agree.
+        min_parallax_deg: a track carries the scale from the run before
+            (:func:`carried_scale`) only when its two rays meet at least at this angle
+            in both runs.
     """
 
     min_tracked: int = 120
@@ -75,6 +78,7 @@ class VoParams:
     scale_steps: int = 81
     min_scale_votes: int = 8
     scale_agreement: float = 0.2
+    min_parallax_deg: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -200,15 +204,24 @@ def _sampson(R: FloatArray, t: FloatArray, x1: FloatArray, x2: FloatArray) -> Fl
 
 
 def _in_front(R: FloatArray, t: FloatArray, b1: FloatArray, b2: FloatArray) -> int:
-    """How many matches triangulate in front of both cameras (cheirality): depths l1, l2
-    minimising |l2 b2 - (l1 R b1 + t)| both positive (unit bearings)."""
+    """How many matches triangulate in front of both cameras (cheirality)."""
+    l1, l2, _ = _ray_depths(R, t, b1, b2)
+    return int(((l1 > 0) & (l2 > 0)).sum())
+
+
+def _ray_depths(
+    R: FloatArray, t: FloatArray, b1: FloatArray, b2: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Triangulation of unit bearings under ``x2 = R x1 + t``: the distances l1, l2 along
+    b1 (first camera) and b2 (second) minimising |l2 b2 - (l1 R b1 + t)|, and the cosine
+    of the angle between the two rays (the parallax; near 1: the depth is ill-posed)."""
     Rb = b1 @ R.T
     m = np.einsum("ij,ij->i", Rb, b2)
     det = np.maximum(1.0 - m * m, 1e-12)
     rt, bt = Rb @ t, b2 @ t
     l1 = (m * bt - rt) / det
     l2 = (bt - m * rt) / det
-    return int(((l1 > 0) & (l2 > 0)).sum())
+    return l1, l2, m
 
 
 def planar_motion(R: FloatArray, t_unit: FloatArray, up_cam: FloatArray, max_tilt_deg: float = 10.0) -> bool:
@@ -373,7 +386,62 @@ def laser_scale(
     est = s[best] + np.clip(frac, -0.5, 0.5) * (s[1] - s[0])
     interior = (best > 0) & (best < len(s) - 1)
     vote = valid & distinct & (span > 2.0 * (2 * r + 1)) & np.isfinite(best_val) & interior
-    per = est[vote]
+    return _agreed(est[vote], params)
+
+
+def carried_scale(
+    before: FrameTracks,
+    first: FrameTracks,
+    last: FrameTracks,
+    T_before: tuple[FloatArray, FloatArray],
+    run: tuple[FloatArray, FloatArray],
+    focal_px: float,
+    params: VoParams,
+) -> ScaleEstimate:
+    """A run's scale carried by the tracks from the run before it (relative scale).
+
+    Args:
+        before, first, last: the tracks of the run before's first frame, and of this
+            run's first and last frames (the run before ends where this one starts).
+        T_before: (R, t) of the run before, metric: ``x_first = R x_before + t``.
+        run: (R, t_unit) of this run, the unit translation: ``x_last = R x_first + t_unit``.
+
+    Each track alive in the three frames is triangulated twice in the first camera: by
+    the run before, at the distance d (metres), and by this run, at d1 (in units of the
+    run's translation), so that s = d / d1: the length whose Eq. (6) the laser could not
+    measure (a texture-less wall under the scan line) follows from the scene that the
+    tracks see. Only tracks consistent with both poses (Sampson distance under the
+    RANSAC threshold), in front of the cameras, and seen with at least
+    ``min_parallax_deg`` between the two rays in both runs vote; the votes are agreed on
+    as the laser's are (:func:`laser_scale`).
+    """
+    ids = np.intersect1d(before.ids, first.ids, assume_unique=True)
+    ids = np.intersect1d(ids, last.ids, assume_unique=True)
+    none = ScaleEstimate(float("nan"), 0, np.zeros(0))
+    if len(ids) < params.min_scale_votes:
+        return none
+    b0, b1, b2 = (f.bearings[np.searchsorted(f.ids, ids)] for f in (before, first, last))
+    (R0, t0), (R1, t1) = T_before, run
+    tol = params.ransac_threshold_px / focal_px
+    _, d, cos0 = _ray_depths(R0, t0, b0, b1)
+    d1, l2, cos1 = _ray_depths(R1, t1, b1, b2)
+    steep = np.cos(np.radians(params.min_parallax_deg))
+    x0, x1, x2 = _homogeneous(b0), _homogeneous(b1), _homogeneous(b2)
+    ok = (
+        (np.abs(_sampson(R0, t0 / max(float(np.linalg.norm(t0)), 1e-12), x0, x1)) < tol)
+        & (np.abs(_sampson(R1, t1, x1, x2)) < tol)
+        & (d > 0)
+        & (d1 > 0)
+        & (l2 > 0)
+        & (cos0 < steep)
+        & (cos1 < steep)
+    )
+    return _agreed(d[ok] / d1[ok], params)
+
+
+def _agreed(per: FloatArray, params: VoParams) -> ScaleEstimate:
+    """The scale the votes agree on: the median of those within ``scale_agreement`` of
+    their median, when they are at least half of the votes (else no scale)."""
     if len(per) == 0:
         return ScaleEstimate(float("nan"), 0, per)
     med = float(np.median(per))
@@ -391,7 +459,7 @@ class VoStep:
     last: int
     inliers: int
     scale_points: int
-    status: str  # "ok", "still", "no-scale", "failed"
+    status: str  # "ok", "carried", "still", "no-scale", "failed"
 
 
 @dataclass(frozen=True)
@@ -427,8 +495,12 @@ def visual_odometry(
 
     A run goes from its first frame to the last frame, at most ``max_run_frames`` on, that
     still shares ``min_tracked`` tracks with it (Section IV); the next run starts there.
-    A failed run (too few inliers, no laser scale) keeps the previous run's velocity (a
-    constant-velocity guess) and is reported in ``steps``.
+    A run whose laser points give no scale takes the one its tracks carry from the run
+    before (:func:`carried_scale`, status "carried") when that run had a scale (or
+    stood still after one that had), else
+    moves along its own direction at the last measured speed ("no-scale"). A failed run
+    (too few inliers) keeps the previous run's velocity (a constant-velocity guess). Each
+    run's status is reported in ``steps``.
     """
     params = params or VoParams()
     focal = float(np.mean(camera.intrinsics[:2]))
@@ -454,6 +526,8 @@ def visual_odometry(
     steps: list[VoStep] = []
     last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
     speed = 0.0  # m/s, of the last run with a scale
+    # The last run with a scale, (first frame, R, t) up to this run's first frame.
+    scaled: tuple[int, FloatArray, FloatArray] | None = None
     # The runs are measured independently (OpenCV and numpy release the interpreter), on
     # ``workers`` threads, in order; chaining them is sequential.
     with ThreadPoolExecutor(max_workers=max(workers, 1), thread_name_prefix="vo-run") as pool:
@@ -469,10 +543,17 @@ def visual_odometry(
                 R, t = rel.R, np.zeros(3)
             else:
                 assert m.scale is not None
-                scale_pts = m.scale.used
-                if m.scale.used < params.min_scale_votes or not np.isfinite(m.scale.scale):
+                est = m.scale
+                if est.used < params.min_scale_votes or not np.isfinite(est.scale):
                     status = "no-scale"
-                R, t = rel.R, m.scale.scale * rel.t_unit
+                    if scaled is not None:
+                        b0, b1, b2 = tracks[scaled[0]], tracks[kf], tracks[j]
+                        carried = carried_scale(b0, b1, b2, scaled[1:], (rel.R, rel.t_unit), focal, params)
+                        reach = params.max_speed_mps * dt  # as far as the laser's search goes
+                        if carried.used >= params.min_scale_votes and 0.0 < carried.scale <= reach:
+                            status, est = "carried", carried
+                scale_pts = est.used
+                R, t = rel.R, est.scale * rel.t_unit
             if status == "failed":
                 # Constant velocity: the previous run's motion rates over this run's time.
                 R = np.eye(3) if last_velocity is None else rotvec_to_R(last_velocity[0] * dt)
@@ -486,6 +567,14 @@ def visual_odometry(
                 last_velocity = (R_to_rotvec(R) / max(dt, 1e-6), t / max(dt, 1e-6))
                 if status == "ok":
                     speed = float(np.linalg.norm(t)) / max(dt, 1e-6)
+            if status in ("ok", "carried"):
+                scaled = (kf, R, t)
+            elif status == "still" and scaled is not None:
+                # A turn on the spot keeps each point's distance: the run before still
+                # carries its scale, through this run's rotation.
+                scaled = (scaled[0], R @ scaled[1], R @ scaled[2])
+            else:
+                scaled = None
             T_c2_c1 = make_T(R, t)
             T_w_c = T_w_c @ np.linalg.inv(T_c2_c1)
             frames.append(j)
