@@ -2,20 +2,27 @@
 
 New tracks start at SIFT keypoints (paper Section IV) or, with ``TrackParams(detector=
 "shi-tomasi")``, at OpenCV's ``goodFeaturesToTrack`` corners, which are several times
-cheaper to find. For each built-in loop (one lap, ``rigcal simulate world``, seed 1, as
+cheaper to find. For each built-in loop and seed (one lap, ``rigcal simulate world``, as
 ``bench_localize.py`` simulates it), both detectors are run through VO and ICP + VO + KF
-in one ``rigcal localize`` run each, in the same process: the methods' accuracy (loop
+(``--methods``; H-IASM too, whose visual odometry comes from the same tracks) in one
+``rigcal localize`` run each, in the same process: the methods' accuracy (loop
 closure, average position error, ATE) and VO's runs, the tracking stage's time and the
-run's wall time (real time = the lap's duration).
+run's wall time (real time = the lap's duration). With more than one seed a second table
+gives, per loop, detector and method, the mean and the worst loop closure and ATE over
+the seeds, and the tracking time against SIFT's on the same laps.
 
-    .venv/bin/python benchmarks/bench_tracks.py [--worlds corridor-loop,cubicle-loop] [--keep DIR]
+    .venv/bin/python benchmarks/bench_tracks.py [--worlds corridor-loop,cubicle-loop]
+        [--seeds 1] [--range-max-m 30] [--methods vo,kf] [--keep DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import tempfile
+from collections import defaultdict
 from pathlib import Path
+
+import numpy as np
 
 from bench_localize import sequence_name
 from rigcal.localize.pipeline import run
@@ -24,41 +31,82 @@ from rigcal.sim.drive import DriveSpec, write_drive
 from rigcal.sim.world import BUILTIN
 
 
+def seeds_of(text: str) -> list[int]:
+    """``"1"``, ``"1,3,5"`` or ``"1-10"``."""
+    if "-" in text:
+        a, b = (int(v) for v in text.split("-"))
+        return list(range(a, b + 1))
+    return [int(v) for v in text.split(",")]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--worlds", default="corridor-loop,cubicle-loop")
+    ap.add_argument("--seeds", default="1", help='The simulation seeds: "1", "1,2,3" or "1-10".')
+    ap.add_argument("--range-max-m", type=float, default=30.0, help="The simulated laser's range.")
+    ap.add_argument("--methods", default="vo,kf", help="The methods run on each lap (vo, kf, hiasm).")
     ap.add_argument("--keep", type=Path, help="Keep the sequences and outputs in this folder.")
     args = ap.parse_args()
+    seeds = seeds_of(args.seeds)
+    # (world, detector, method) -> [(loop closure, ATE)]; (world, detector) -> [tracks_s]
+    scores: dict[tuple[str, str, str], list[tuple[float, float]]] = defaultdict(list)
+    tracking: dict[tuple[str, str], list[float]] = defaultdict(list)
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         root.mkdir(parents=True, exist_ok=True)
+        laser = f", {args.range_max_m:g} m laser" if args.range_max_m != 30.0 else ""
+        print(f"\n### Each lap{laser}\n")
         print(
-            "| world | detector | method | loop closure (m) | avg position error (m) | ATE RMSE (m) "
+            "| world | seed | detector | method | loop closure (m) | avg position error (m) | ATE RMSE (m) "
             "| VO runs | tracks (s) | wall (s) | x real time |"
         )
-        print("|---|---|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        warm = False
         for name in args.worlds.split(","):
-            seq = root / sequence_name(name, 1, 30.0)
-            if not (seq / "sequence.yaml").exists():
-                write_drive(BUILTIN[name](), DriveSpec(seed=1), str(seq))
-            run(seq, ["icp"], root / "warm", force=True)  # load the kernels
-            for detector in DETECTORS:
-                r = run(
-                    seq,
-                    ["vo", "kf"],
-                    root / f"{seq.name}-{detector}",
-                    force=True,
-                    tracks=TrackParams(detector=detector),
-                )
-                for m in r.methods:
-                    assert m.metrics is not None
-                    runs = m.stats.get("run_status", "")
-                    print(
-                        f"| {name} | {detector} | {m.method} | {m.metrics['loop_closure_error_m']} "
-                        f"| {m.metrics['average_position_error_m']} | {m.metrics['ate_rmse_m']} | {runs} "
-                        f"| {r.timings_s['tracks_s']:.1f} | {r.wall_s:.1f} | {r.duration_s / r.wall_s:.2f} |",
-                        flush=True,
+            for seed in seeds:
+                seq = root / sequence_name(name, seed, args.range_max_m)
+                if not (seq / "sequence.yaml").exists():
+                    write_drive(BUILTIN[name](), DriveSpec(seed=seed, range_max_m=args.range_max_m), str(seq))
+                if not warm:
+                    run(seq, ["icp"], root / "warm", force=True)  # load the kernels
+                    warm = True
+                for detector in DETECTORS:
+                    r = run(
+                        seq,
+                        args.methods.split(","),
+                        root / f"{seq.name}-{detector}",
+                        force=True,
+                        tracks=TrackParams(detector=detector),
                     )
+                    tracking[name, detector].append(r.timings_s["tracks_s"])
+                    speed = (
+                        f"| {r.timings_s['tracks_s']:.1f} | {r.wall_s:.1f} | {r.duration_s / r.wall_s:.2f} |"
+                    )
+                    for m in r.methods:
+                        assert m.metrics is not None
+                        runs = ", ".join(f"{k} {v}" for k, v in m.stats.get("run_status", {}).items())
+                        lc, ate = m.metrics["loop_closure_error_m"], m.metrics["ate_rmse_m"]
+                        scores[name, detector, m.method].append((float(lc), float(ate)))
+                        print(
+                            f"| {name} | {seed} | {detector} | {m.method} | {lc} "
+                            f"| {m.metrics['average_position_error_m']} | {ate} | {runs} " + speed,
+                            flush=True,
+                        )
+    if len(seeds) < 2:
+        return
+    print(f"\n### Over seeds {args.seeds}{laser}\n")
+    print(
+        "| world | detector | method | loop closure mean (m) | loop closure worst (m) "
+        "| ATE mean (m) | ATE worst (m) | tracking time / SIFT's |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for (name, detector, method), v in scores.items():
+        a = np.array(v)
+        ratio = np.sum(tracking[name, detector]) / np.sum(tracking[name, "sift"])
+        print(
+            f"| {name} | {detector} | {method} | {a[:, 0].mean():.3f} | {a[:, 0].max():.3f} "
+            f"| {a[:, 1].mean():.3f} | {a[:, 1].max():.3f} | {ratio:.2f} |"
+        )
 
 
 if __name__ == "__main__":

@@ -77,3 +77,23 @@ def test_icp_steps_the_walls_do_not_constrain_leave_the_forward_speed_to_vo():
         ms = kalman.increments(t, icp, kalman.ICP_SIGMAS, flag) + kalman.increments(t, vo, kalman.VO_SIGMAS)
         _, est = kalman.fuse(ms)
         assert bool(est[-1, 0] == pytest.approx(poses[-1, 0], rel=0.01)) is near_vo
+
+
+def test_vo_runs_without_a_scale_leave_the_forward_speed_to_icp():
+    """A VO run whose length is a guess (no scale: the last measured speed, here a tenth
+    of the true one) measures no forward speed, and a failed run (a constant-velocity
+    guess, here a standstill) nothing: flagged, neither pulls the path off ICP's."""
+    t, poses = _arc(w=1e-6)
+    icp = _scaled(poses, 1.0, 0.0)
+    vo = _scaled(poses, 0.1, 0.0)
+    icp_ms = kalman.increments(t, icp, kalman.ICP_SIGMAS)
+    unflagged = kalman.fuse(icp_ms + kalman.increments(t, vo, kalman.VO_SIGMAS))[1]
+    assert unflagged[-1, 0] < 0.5 * poses[-1, 0]  # VO's weight on forward speed: pulled back
+    guessed = np.ones(len(t), dtype=bool)
+    flagged = kalman.fuse(icp_ms + kalman.increments(t, vo, kalman.VO_SIGMAS, open_forward=guessed))[1]
+    assert flagged[-1, 0] == pytest.approx(poses[-1, 0], rel=0.01)
+    still = _scaled(poses, 0.0, 0.0)
+    failed = np.zeros(len(t), dtype=bool)
+    assert kalman.increments(t, still, kalman.VO_SIGMAS, measured=failed) == []
+    alone = kalman.fuse(icp_ms + kalman.increments(t, still, kalman.VO_SIGMAS, measured=failed))[1]
+    assert np.allclose(alone, kalman.fuse(icp_ms)[1])

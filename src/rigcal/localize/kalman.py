@@ -15,7 +15,10 @@ odometry's cross-track translation weighs less than ICP's (:data:`ICP_SIGMAS`,
 the walls do not constrain (its degeneracy indicator below
 :data:`rigcal.localize.odometry.DEGENERATE_BELOW`: along a corridor whose ends are out of
 the laser's range) measures no forward speed (:data:`OPEN_FORWARD_SIGMA`): its step
-along the corridor is only the motion ICP started from.
+along the corridor is only the motion ICP started from. Likewise a visual odometry run
+without a scale (status ``no-scale``: its length is the last measured speed's guess)
+measures no forward speed, and a failed run (a constant-velocity guess) measures
+nothing and is left out.
 """
 
 from __future__ import annotations
@@ -60,14 +63,16 @@ def increments(
     poses: FloatArray,
     sigmas: tuple[float, float, float],
     open_forward: NDArray[np.bool_] | None = None,
+    measured: NDArray[np.bool_] | None = None,
 ) -> list[Increment]:
     """The steps of an odometry trajectory (poses (N, 3) at stamps (N,)); where
     ``open_forward`` (N,) is True, the step ending there measures no forward speed
-    (:data:`OPEN_FORWARD_SIGMA`)."""
+    (:data:`OPEN_FORWARD_SIGMA`); where ``measured`` (N,) is False, the step ending there
+    was not measured at all (a guess of the odometry's own) and is left out."""
     out = []
     for k in range(1, len(stamps)):
         dt = float(stamps[k] - stamps[k - 1])
-        if dt <= 0:
+        if dt <= 0 or (measured is not None and not measured[k]):
             continue
         local = pose_of(np.linalg.inv(se2(poses[k - 1])) @ se2(poses[k]))
         sig = sigmas

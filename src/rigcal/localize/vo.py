@@ -565,7 +565,7 @@ def visual_odometry(
                 R, t = rel.R, speed * dt * rel.t_unit
             else:
                 last_velocity = (R_to_rotvec(R) / max(dt, 1e-6), t / max(dt, 1e-6))
-                if status == "ok":
+                if status in ("ok", "carried"):
                     speed = float(np.linalg.norm(t)) / max(dt, 1e-6)
             if status in ("ok", "carried"):
                 scaled = (kf, R, t)
