@@ -97,3 +97,13 @@ def test_vo_runs_without_a_scale_leave_the_forward_speed_to_icp():
     assert kalman.increments(t, still, kalman.VO_SIGMAS, measured=failed) == []
     alone = kalman.fuse(icp_ms + kalman.increments(t, still, kalman.VO_SIGMAS, measured=failed))[1]
     assert np.allclose(alone, kalman.fuse(icp_ms)[1])
+
+
+def test_vo_runs_become_measurements_by_their_status():
+    t, poses = _arc(n=5)
+    ms = kalman.vo_increments(t, poses, ["ok", "no-scale", "failed", "carried"])
+    assert [(m.t0, m.t1) for m in ms] == [(t[0], t[1]), (t[1], t[2]), (t[3], t[4])]
+    assert [m.sigmas[0] for m in ms] == [kalman.VO_SIGMAS[0], kalman.OPEN_FORWARD_SIGMA, kalman.VO_SIGMAS[0]]
+    assert all(m.sigmas[1:] == kalman.VO_SIGMAS[1:] for m in ms)
+    with pytest.raises(ValueError, match="3 run statuses for 5 poses"):
+        kalman.vo_increments(t, poses, ["ok", "ok", "ok"])

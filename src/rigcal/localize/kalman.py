@@ -23,6 +23,7 @@ nothing and is left out.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,6 +81,18 @@ def increments(
             sig = (OPEN_FORWARD_SIGMA, sigmas[1], sigmas[2])
         out.append(Increment(float(stamps[k - 1]), float(stamps[k]), local, sig))
     return out
+
+
+def vo_increments(stamps: FloatArray, poses: FloatArray, statuses: Sequence[str]) -> list[Increment]:
+    """Visual odometry's runs as measurements: poses (N, 3) at stamps (N,), and each run's
+    status (N - 1,) (:class:`rigcal.localize.vo.VoStep`). A run without a scale
+    (``no-scale``: its length is a guess) measures no forward speed; a failed run (a
+    constant-velocity guess) measures nothing and is left out."""
+    if len(statuses) != len(stamps) - 1:
+        raise ValueError(f"{len(statuses)} run statuses for {len(stamps)} poses (expected one per run)")
+    status = np.array(["ok", *statuses])  # the first pose ends no run
+    guessed, failed = status == "no-scale", status == "failed"
+    return increments(stamps, poses, VO_SIGMAS, open_forward=guessed, measured=~failed)
 
 
 def fuse(measurements: list[Increment], params: KfParams | None = None) -> tuple[FloatArray, FloatArray]:

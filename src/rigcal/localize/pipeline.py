@@ -116,10 +116,7 @@ def _kf_estimate(streams: Streams) -> Estimate:
     icp = _icp_estimate(streams, od)
     t0 = time.perf_counter()
     ms = kalman.increments(icp.stamps_s, icp.poses, kalman.ICP_SIGMAS, od.degeneracy < DEGENERATE_BELOW)
-    # Each VO pose ends one run: a run without scale guessed its length, a failed run its motion.
-    status = np.array(["ok"] + [s.status for s in res.steps])
-    guessed, failed = status == "no-scale", status == "failed"
-    ms += kalman.increments(vo.stamps_s, vo.poses, kalman.VO_SIGMAS, open_forward=guessed, measured=~failed)
+    ms += kalman.vo_increments(vo.stamps_s, vo.poses, [s.status for s in res.steps])
     stamps, poses = kalman.fuse(ms)
     streams.timings_s["kf_s"] = time.perf_counter() - t0
     return Estimate(
