@@ -56,9 +56,13 @@ def test_solve_and_localize_write_into_the_item_folder(tmp_path):
         "solve", "/p.yaml", "--seed", "3", "-o", str(tmp_path / "rig.yaml"),
         "--report", str(tmp_path / "report"), "--force", "--json",
     ]  # fmt: skip
-    loc = Item("b", "localize", {"sequence": Path("/s"), "method": "icp,kf", "iasm": ["snap_max_m=0"]})
+    loc = Item(
+        "b",
+        "localize",
+        {"sequence": Path("/s"), "method": "icp,kf", "iasm": ["snap_max_m=0"], "tracks": ["detector=sift"]},
+    )
     assert loc.argv(tmp_path) == [
-        "localize", "/s", "--method", "icp,kf", "--iasm", "snap_max_m=0",
+        "localize", "/s", "--method", "icp,kf", "--iasm", "snap_max_m=0", "--tracks", "detector=sift",
         "-o", str(tmp_path / "localize"), "--force", "--json",
     ]  # fmt: skip
 

@@ -344,16 +344,40 @@ def test_a_laser_that_cannot_see_the_corridors_end(tmp_path):
     assert methods["kf"]["metrics"]["average_position_error_m"] < 0.1 * icp_error
 
 
-def test_the_tracks_detector_reaches_the_run_and_the_summary(drive, tmp_path):
-    from rigcal.localize.pipeline import run
+@pytest.mark.parametrize("detector", ["shi-tomasi", "sift"])
+def test_the_tracks_detector_reaches_the_run_and_the_summary(drive, tmp_path, detector):
+    out = tmp_path / detector
+    args = ["localize", str(drive), "--method", "vo", "-o", str(out), "--json"]
+    assert main([*args, "--tracks", f"detector={detector}", "--tracks", "n_features = 800"]) == 0
+    s = yaml.safe_load((out / "summary.yaml").read_text())
+    assert s["config"]["settings"]["tracks"]["detector"] == detector
+    assert s["config"]["settings"]["tracks"]["n_features"] == 800
+    assert s["methods"]["vo"]["metrics"]["average_position_error_m"] < 0.5
+
+
+def test_track_settings_parse_each_field_by_its_type():
+    from rigcal.localize.pipeline import parse_track_settings
     from rigcal.localize.tracks import TrackParams
 
-    out = tmp_path / "shi"
-    r = run(drive, ["vo"], out, tracks=TrackParams(detector="shi-tomasi"))
-    assert r.tracks.detector == "shi-tomasi"
-    assert (
-        yaml.safe_load((out / "summary.yaml").read_text())["config"]["settings"]["tracks"]["detector"]
-        == "shi-tomasi"
-    )
-    assert r.methods[0].metrics is not None
-    assert r.methods[0].metrics["average_position_error_m"] < 0.5
+    p = parse_track_settings(["detector=sift", "predict=false", "max_fb_px=0.5", "levels=2"])
+    assert p == TrackParams(detector="sift", predict=False, max_fb_px=0.5, levels=2)
+    assert isinstance(p.levels, int)
+    assert parse_track_settings([]) == TrackParams()
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        ("detector=orb", "--tracks detector: got 'orb'; expected one of sift, shi-tomasi"),
+        ("detectors=sift", "--tracks: got 'detectors=sift'; expected KEY=VALUE with KEY one of"),
+        ("levels=2.5", "--tracks levels: got '2.5'; expected a whole number, 0 or more"),
+        ("predict=maybe", "--tracks predict: got 'maybe'; expected true or false"),
+    ],
+)
+def test_bad_track_settings_are_refused_before_any_work(sequence, tmp_path, capsys, item, message):
+    out = tmp_path / "bad"
+    assert main(["localize", str(sequence), "--method", "vo", "--tracks", item, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists()

@@ -76,6 +76,7 @@ COMMANDS: dict[str, Command] = {
             "rig": Option("--rig", "path"),
             "kitti": Option("--kitti", "bool"),
             "iasm": Option("--iasm", "list"),
+            "tracks": Option("--tracks", "list"),
         },
         glob_key="sequence",
         outputs=("localize/summary.json",),

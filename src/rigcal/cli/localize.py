@@ -41,6 +41,14 @@ rig_option = click.option(
     help="Change one of IASM's and H-IASM's settings (docs/localization.md), e.g. "
     "snap_max_m=0 or dense_window=true; may be repeated. The summary records them.",
 )
+@click.option(
+    "--tracks",
+    "track_items",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Change one of the feature tracks' settings (vo, kf, hiasm; docs/localization.md), e.g. "
+    "detector=shi-tomasi or n_features=500; may be repeated. The summary records them.",
+)
 def localize(
     sequence: Path,
     methods: str,
@@ -50,6 +58,7 @@ def localize(
     force: bool,
     as_json: bool,
     iasm_items: tuple[str, ...],
+    track_items: tuple[str, ...],
 ) -> None:
     """Estimate the laser's trajectory through SEQUENCE (a sequence folder) with one or
     more methods, run on the same data in the same process.
@@ -64,14 +73,23 @@ def localize(
       rigcal simulate world --world corridor-loop -o corridor/
       rigcal localize corridor/ --method icp,vo,kf -o out/
       rigcal localize corridor/ --method iasm,hiasm --iasm snap_max_m=0 -o out-raw/
+      rigcal localize corridor/ --method vo,kf --tracks detector=sift -o out-sift/
     """
     from rigcal.errors import InputError
     from rigcal.io.files import check_folder_writable
-    from rigcal.localize.pipeline import parse_iasm_settings, parse_methods, run, summary, table
+    from rigcal.localize.pipeline import (
+        parse_iasm_settings,
+        parse_methods,
+        parse_track_settings,
+        run,
+        summary,
+        table,
+    )
 
     try:  # bad option values are usage errors (exit code 2)
         names = parse_methods(methods)
         iasm = parse_iasm_settings(iasm_items)
+        tracks = parse_track_settings(track_items)
     except InputError as exc:
         raise click.UsageError(str(exc)) from None
     check_folder_writable(output, force, [sequence, *([rig_file] if rig_file else [])])
@@ -79,7 +97,15 @@ def localize(
 
     with Progress("step") as bars:
         r = run(
-            sequence, names, output, force=force, kitti=kitti, rig_file=rig_file, progress=bars, iasm=iasm
+            sequence,
+            names,
+            output,
+            force=force,
+            kitti=kitti,
+            rig_file=rig_file,
+            progress=bars,
+            iasm=iasm,
+            tracks=tracks,
         )
     if as_json:
         click.echo(json.dumps(summary(r, sequence), indent=1))

@@ -201,21 +201,44 @@ def parse_methods(text: str) -> list[str]:
 def parse_iasm_settings(items: tuple[str, ...] | list[str]) -> IasmParams:
     """IASM's and H-IASM's settings from ``KEY=VALUE`` texts (``--iasm``), each KEY a field
     of :class:`IasmParams` and each VALUE of its type (a number, or true/false)."""
-    fields = sorted(f.name for f in dataclasses.fields(IasmParams))
-    defaults = IasmParams()
+    return parse_settings(items, IasmParams(), "--iasm")
+
+
+def parse_track_settings(items: tuple[str, ...] | list[str]) -> TrackParams:
+    """The feature tracks' settings from ``KEY=VALUE`` texts (``--tracks``), each KEY a field
+    of :class:`TrackParams`: e.g. ``detector=sift``, ``n_features=500``."""
+    return parse_settings(items, TrackParams(), "--tracks")
+
+
+def parse_settings[S: (IasmParams, TrackParams)](
+    items: tuple[str, ...] | list[str], defaults: S, option: str
+) -> S:
+    """``defaults`` (a dataclass of settings) with the ``KEY=VALUE`` texts of ``option``
+    applied: each KEY a field, each VALUE of the field's type (a number 0 to 1e9,
+    true/false, or for a text field one of its ``choices``).
+
+    Raises:
+        InputError: naming the option, the item and what was expected.
+    """
+    fields = sorted(f.name for f in dataclasses.fields(defaults))
     changes: dict[str, Any] = {}
     for item in items:
         key, sep, text = item.partition("=")
         key = key.strip()
         if not sep or key not in fields:
-            raise InputError.at(None, "--iasm", item, f"KEY=VALUE with KEY one of {fields}")
+            raise InputError.at(None, option, item, f"KEY=VALUE with KEY one of {fields}")
         kind = type(getattr(defaults, key))
         text = text.strip()
         value: Any
         if kind is bool:
             if text.lower() not in ("true", "false", "1", "0"):
-                raise InputError.at(None, f"--iasm {key}", text, "true or false")
+                raise InputError.at(None, f"{option} {key}", text, "true or false")
             value = text.lower() in ("true", "1")
+        elif kind is str:
+            choices: tuple[str, ...] = getattr(defaults, "choices", {}).get(key, ())
+            if text not in choices:
+                raise InputError.at(None, f"{option} {key}", text, f"one of {', '.join(choices)}")
+            value = text
         else:
             try:
                 value = kind(text)
@@ -224,7 +247,7 @@ def parse_iasm_settings(items: tuple[str, ...] | list[str]) -> IasmParams:
                 value = None
             if value is None or not math.isfinite(value) or not 0 <= value <= 1e9:
                 what = "a whole number" if kind is int else "a number"
-                raise InputError.at(None, f"--iasm {key}", text, f"{what}, 0 or more (at most 1e9)")
+                raise InputError.at(None, f"{option} {key}", text, f"{what}, 0 or more (at most 1e9)")
         changes[key] = value
     return dataclasses.replace(defaults, **changes)
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import ClassVar
 
 import cv2
 import numpy as np
@@ -81,6 +82,9 @@ class TrackParams:
     predict: bool = True
     predict_neighbours: int = 5
     detector: str = "sift"
+
+    # The values a text setting takes (``rigcal localize --tracks detector=...``).
+    choices: ClassVar[dict[str, tuple[str, ...]]] = {"detector": DETECTORS}
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
