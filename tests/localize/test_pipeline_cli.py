@@ -306,20 +306,24 @@ def test_iasm_settings_parse_each_field_by_its_type():
 
 
 @pytest.mark.parametrize(
-    ("item", "message"),
+    ("option", "item", "message"),
     [
-        ("snap=0.03", "--iasm: got 'snap=0.03'; expected KEY=VALUE with KEY one of"),
-        ("snap_max_m", "--iasm: got 'snap_max_m'; expected KEY=VALUE"),
-        ("snap_max_m=abc", "--iasm snap_max_m: got 'abc'; expected a number, 0 or more"),
-        ("snap_max_m=-1", "--iasm snap_max_m: got '-1'; expected a number, 0 or more"),
-        ("window_px=nan", "--iasm window_px: got 'nan'; expected a number, 0 or more"),
-        ("hypotheses=1.5", "--iasm hypotheses: got '1.5'; expected a whole number, 0 or more"),
-        ("dense_window=yes", "--iasm dense_window: got 'yes'; expected true or false"),
+        ("--iasm", "snap=0.03", "--iasm: got 'snap=0.03'; expected KEY=VALUE with KEY one of"),
+        ("--iasm", "snap_max_m", "--iasm: got 'snap_max_m'; expected KEY=VALUE"),
+        ("--iasm", "snap_max_m=abc", "--iasm snap_max_m: got 'abc'; expected a number, 0 or more"),
+        ("--iasm", "snap_max_m=-1", "--iasm snap_max_m: got '-1'; expected a number, 0 or more"),
+        ("--iasm", "window_px=nan", "--iasm window_px: got 'nan'; expected a number, 0 or more"),
+        ("--iasm", "hypotheses=1.5", "--iasm hypotheses: got '1.5'; expected a whole number, 0 or more"),
+        ("--iasm", "dense_window=yes", "--iasm dense_window: got 'yes'; expected true or false"),
+        ("--tracks", "detector=orb", "--tracks detector: got 'orb'; expected one of sift, shi-tomasi"),
+        ("--tracks", "detectors=sift", "--tracks: got 'detectors=sift'; expected KEY=VALUE with KEY one of"),
+        ("--tracks", "levels=2.5", "--tracks levels: got '2.5'; expected a whole number, 0 or more"),
+        ("--tracks", "predict=maybe", "--tracks predict: got 'maybe'; expected true or false"),
     ],
 )
-def test_bad_iasm_settings_are_refused_before_any_work(sequence, tmp_path, capsys, item, message):
+def test_bad_settings_are_refused_before_any_work(sequence, tmp_path, capsys, option, item, message):
     out = tmp_path / "bad"
-    assert main(["localize", str(sequence), "--method", "icp", "--iasm", item, "-o", str(out)]) == 2
+    assert main(["localize", str(sequence), "--method", "vo", option, item, "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert message in err
     assert len(err.strip().splitlines()) == 1
@@ -363,21 +367,3 @@ def test_track_settings_parse_each_field_by_its_type():
     assert p == TrackParams(detector="sift", predict=False, max_fb_px=0.5, levels=2)
     assert isinstance(p.levels, int)
     assert parse_track_settings([]) == TrackParams()
-
-
-@pytest.mark.parametrize(
-    ("item", "message"),
-    [
-        ("detector=orb", "--tracks detector: got 'orb'; expected one of sift, shi-tomasi"),
-        ("detectors=sift", "--tracks: got 'detectors=sift'; expected KEY=VALUE with KEY one of"),
-        ("levels=2.5", "--tracks levels: got '2.5'; expected a whole number, 0 or more"),
-        ("predict=maybe", "--tracks predict: got 'maybe'; expected true or false"),
-    ],
-)
-def test_bad_track_settings_are_refused_before_any_work(sequence, tmp_path, capsys, item, message):
-    out = tmp_path / "bad"
-    assert main(["localize", str(sequence), "--method", "vo", "--tracks", item, "-o", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert message in err
-    assert len(err.strip().splitlines()) == 1
-    assert not out.exists()
