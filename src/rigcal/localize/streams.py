@@ -213,7 +213,7 @@ class Streams:
         return frozenset(self.scan_at_image(i) for i in range(self.n_images))
 
     def feature_tracks(self) -> list[FrameTracks]:
-        """SIFT features tracked over all images (computed once; VO and H-IASM share them)."""
+        """Features tracked over all images (computed once; VO and H-IASM share them)."""
         if "tracks" not in self.results:
             rig = self.require_rig("feature tracks")
             t0 = time.perf_counter()

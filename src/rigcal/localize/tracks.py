@@ -1,13 +1,20 @@
 """Feature tracks across the image sequence (paper Section IV: "SIFT features tracked
 across frames until their count falls below a threshold").
 
-SIFT keypoints (OpenCV) are detected in a frame and followed into each next frame by
-pyramidal Lucas-Kanade optical flow (OpenCV's ``calcOpticalFlowPyrLK``). A track
-survives a step when the flow converges, lands inside the image, its window still looks
-like the previous frame's, and it flows back to within ``max_fb_px`` of where it started
+Corners are detected in a frame and followed into each next frame by pyramidal
+Lucas-Kanade optical flow (OpenCV's ``calcOpticalFlowPyrLK``). A track survives a step
+when the flow converges, lands inside the image, its window still looks like the
+previous frame's, and it flows back to within ``max_fb_px`` of where it started
 (forward-backward check: a track that slid onto something else rarely comes back). When
-fewer than ``redetect_below`` tracks are left, SIFT runs again and its strongest new
-keypoints, away from the live tracks, start new tracks.
+fewer than ``redetect_below`` tracks are left, the detector runs again and its strongest
+new points, away from the live tracks, start new tracks.
+
+The detector is Shi-Tomasi's (OpenCV's ``goodFeaturesToTrack``: points whose window is
+well conditioned for Lucas-Kanade, the window the tracker follows) by default, beyond
+the paper; the paper's SIFT keypoints are ``TrackParams(detector="sift")``. On the
+simulated loops the corners' tracks live longer, visual odometry and the Kalman filter
+come out more accurate on most laps, H-IASM the same, and the tracking costs about two
+thirds of SIFT's (``benchmarks/bench_tracks.py``, docs/benchmarks.md).
 
 Each track's search starts where its last displacement takes it (constant image
 velocity; a new track takes the median of its nearest tracks' last displacements). From
@@ -18,11 +25,11 @@ period, the forward-backward check passes (the jump is the same both ways), and 
 odometry reports the rig moving backwards. Predicted, the search only has to cover the
 change of the displacement from one frame to the next.
 
-Tracking is what makes the odometry cheap: SIFT (about 70 ms on a 640x480 frame) runs
-only when tracks run out, and Lucas-Kanade follows a thousand points, each to a
-fraction of a pixel, in about ten milliseconds (docs/benchmarks.md). A track's identity
-is an integer; the correspondences between any two frames are the tracks alive in both
-(:func:`common`).
+Tracking is what makes the odometry cheap: the detector (SIFT: about 70 ms on a 640x480
+frame) runs only when tracks run out, and Lucas-Kanade follows a thousand points, each
+to a fraction of a pixel, in about ten milliseconds (docs/benchmarks.md). A track's
+identity is an integer; the correspondences between any two frames are the tracks alive
+in both (:func:`common`).
 """
 
 from __future__ import annotations
@@ -50,8 +57,8 @@ class TrackParams:
     """Tracking settings.
 
     Attributes:
-        n_features: tracks wanted per frame (SIFT's strongest keypoints fill up to this).
-        redetect_below: SIFT runs again when fewer tracks than this are alive...
+        n_features: tracks wanted per frame (the detector's strongest points fill up to this).
+        redetect_below: the detector runs again when fewer tracks than this are alive...
         redetect_fraction: ... or fewer than this fraction of those alive after the
             last detection (a texture-poor view offers fewer than ``redetect_below``).
         window_px: Lucas-Kanade window side (pixels).
@@ -65,10 +72,10 @@ class TrackParams:
             ``predict_neighbours`` nearest tracks'), so that a displacement larger than
             the pyramid reaches, or than a repeating pattern's period, is still followed.
         predict_neighbours: tracks whose displacements a new track's prediction uses.
-        detector: what starts new tracks: ``"sift"`` (the paper's SIFT keypoints) or
-            ``"shi-tomasi"`` (OpenCV's ``goodFeaturesToTrack``: corners whose window is well
-            conditioned for Lucas-Kanade, several times cheaper to find; compared with SIFT
-            in ``benchmarks/bench_tracks.py``).
+        detector: what starts new tracks: ``"shi-tomasi"`` (OpenCV's
+            ``goodFeaturesToTrack``: corners whose window is well conditioned for
+            Lucas-Kanade, cheaper to find) or ``"sift"`` (the paper's SIFT keypoints);
+            compared in ``benchmarks/bench_tracks.py``.
     """
 
     n_features: int = 1000
@@ -81,7 +88,7 @@ class TrackParams:
     min_distance_px: float = 8.0
     predict: bool = True
     predict_neighbours: int = 5
-    detector: str = "sift"
+    detector: str = "shi-tomasi"
 
     # The values a text setting takes (``rigcal localize --tracks detector=...``).
     choices: ClassVar[dict[str, tuple[str, ...]]] = {"detector": DETECTORS}
@@ -107,7 +114,8 @@ def common(a: FrameTracks, b: FrameTracks) -> tuple[NDArray[np.intp], NDArray[np
 
 
 class Tracker:
-    """Follows SIFT keypoints frame to frame; call :meth:`step` with each frame in order."""
+    """Follows corners (or SIFT keypoints) frame to frame; call :meth:`step` with each frame
+    in order."""
 
     def __init__(self, camera: Camera, params: TrackParams | None = None) -> None:
         self.camera = camera

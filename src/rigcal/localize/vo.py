@@ -1,8 +1,9 @@
 """Visual odometry with the laser's scale (paper Section IV).
 
-The camera's motion between two images, up to scale, from SIFT features:
+The camera's motion between two images, up to scale, from feature tracks:
 
-1. SIFT features are tracked across frames (:mod:`rigcal.localize.tracks`); a *run*
+1. Features (Shi-Tomasi corners; the paper's SIFT keypoints as an option) are tracked
+   across frames (:mod:`rigcal.localize.tracks`); a *run*
    goes on from its first frame while at least ``min_tracked`` of that frame's tracks are
    still alive, up to ``max_run_frames`` frames, so that the epipolar geometry is
    computed over enough motion (Section IV).
