@@ -12,7 +12,7 @@ gives, per loop, detector and method, the mean and the worst loop closure and AT
 the seeds, and the tracking time against SIFT's on the same laps.
 
     .venv/bin/python benchmarks/bench_tracks.py [--worlds corridor-loop,cubicle-loop]
-        [--seeds 1] [--range-max-m 30] [--methods vo,kf] [--keep DIR]
+        [--seeds 1] [--range-max-m 30] [--methods vo,kf] [--detectors sift,shi-tomasi] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="1", help='The simulation seeds: "1", "1,2,3" or "1-10".')
     ap.add_argument("--range-max-m", type=float, default=30.0, help="The simulated laser's range.")
     ap.add_argument("--methods", default="vo,kf", help="The methods run on each lap (vo, kf, hiasm).")
+    ap.add_argument("--detectors", default=",".join(DETECTORS), help="The detectors compared.")
     ap.add_argument("--keep", type=Path, help="Keep the sequences and outputs in this folder.")
     args = ap.parse_args()
     seeds = seeds_of(args.seeds)
@@ -70,7 +71,7 @@ def main() -> None:
                 if not warm:
                     run(seq, ["icp"], root / "warm", force=True)  # load the kernels
                     warm = True
-                for detector in DETECTORS:
+                for detector in args.detectors.split(","):
                     r = run(
                         seq,
                         args.methods.split(","),
@@ -102,7 +103,8 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|")
     for (name, detector, method), v in scores.items():
         a = np.array(v)
-        ratio = np.sum(tracking[name, detector]) / np.sum(tracking[name, "sift"])
+        sift = tracking.get((name, "sift"))
+        ratio = np.sum(tracking[name, detector]) / np.sum(sift) if sift else float("nan")
         print(
             f"| {name} | {detector} | {method} | {a[:, 0].mean():.3f} | {a[:, 0].max():.3f} "
             f"| {a[:, 1].mean():.3f} | {a[:, 1].max():.3f} | {ratio:.2f} |"

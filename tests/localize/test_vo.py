@@ -7,7 +7,14 @@ import pytest
 
 from rigcal.geometry import rotation_angle_rad, rotvec_to_R
 from rigcal.localize.tracks import FrameTracks
-from rigcal.localize.vo import VoParams, carried_scale, laser_scale, refine_essential, relative_pose
+from rigcal.localize.vo import (
+    VoParams,
+    carried_back_scale,
+    carried_scale,
+    laser_scale,
+    refine_essential,
+    relative_pose,
+)
 from rigcal.sim.box_session import default_camera
 
 CAM = default_camera()
@@ -126,6 +133,20 @@ def test_the_tracks_carry_the_scale_of_the_run_before(seed):
     assert twice.scale == pytest.approx(2 * est.scale, rel=0.01)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_tracks_carry_the_scale_back_from_the_run_after(seed):
+    rng = np.random.default_rng(seed)
+    (f0, f1, f2), (R1, t1), (R2, t2) = _carry_case(rng)
+    est = carried_back_scale(f0, f1, f2, (R1, t1 / np.linalg.norm(t1)), (R2, t2), FOCAL, VoParams())
+    assert est.used >= 0.8 * 300
+    assert est.scale == pytest.approx(np.linalg.norm(t1), rel=0.01)
+    # Carried forward from that scale, the run after's comes back.
+    forward = carried_scale(
+        f0, f1, f2, (R1, est.scale * t1 / np.linalg.norm(t1)), (R2, t2 / 0.25), FOCAL, VoParams()
+    )
+    assert forward.scale == pytest.approx(0.25, rel=0.01)
+
+
 def test_a_turn_on_the_spot_carries_no_scale():
     # Without translation the rays of this run do not meet: no track votes.
     rng = np.random.default_rng(7)
@@ -233,14 +254,19 @@ def test_every_run_through_the_first_corner_turns_by_the_true_angle(tmp_path):
     assert np.array_equal(one.poses, res.poses)
 
 
-@pytest.mark.parametrize(("detector", "carried_at_least"), [("sift", 4), ("shi-tomasi", 2)])
-def test_the_tracks_carry_the_scale_where_the_laser_gives_none(tmp_path, detector, carried_at_least):
+@pytest.mark.parametrize(
+    ("detector", "laser_again", "carried_at_least"),
+    [("sift", None, 4), ("shi-tomasi", None, 2), ("shi-tomasi", 19, 3)],
+)
+def test_the_tracks_carry_the_scale_where_the_laser_gives_none(
+    tmp_path, detector, laser_again, carried_at_least
+):
     """The corridor loop's first seconds (simulated, seed 1) with the laser's points taken
-    away after the first frames: the runs after them take their scale from the tracks,
-    each to a few percent of its true length, while tracks live across three frames (a
-    run whose first and last frames share no track with the run before's first frame has
-    nothing to carry its scale, nor has the run after it: they move at the last measured
-    speed, "no-scale")."""
+    away after the first frames (and given back from frame ``laser_again`` on): the runs
+    between take their scale from the tracks, each to a few percent of its true length,
+    while tracks live across three frames. A run whose first and last frames share no
+    track with the run before's first frame takes it back from the run after, if that
+    one has a scale; else it moves at the last measured speed ("no-scale")."""
     from rigcal.io.trajectory import read_tum
     from rigcal.localize.pipeline import planar_at
     from rigcal.localize.streams import open_streams
@@ -257,7 +283,8 @@ def test_the_tracks_carry_the_scale_where_the_laser_gives_none(tmp_path, detecto
     assert rig is not None
 
     def first_frames_only(i: int):
-        return streams.laser_points_at_image(i) if i < 3 else np.zeros((0, 2))
+        given = i < 3 or (laser_again is not None and i >= laser_again)
+        return streams.laser_points_at_image(i) if given else np.zeros((0, 2))
 
     tracks = streams.feature_tracks()
     res = visual_odometry(
@@ -266,7 +293,11 @@ def test_the_tracks_carry_the_scale_where_the_laser_gives_none(tmp_path, detecto
     status = [s.status for s in res.steps]
     assert status[0] == "ok"
     assert status[1 : 1 + carried_at_least] == ["carried"] * carried_at_least
-    assert set(status[1:]) <= {"carried", "no-scale"}
+    if laser_again is None:
+        assert set(status[1:]) <= {"carried", "no-scale"}
+    else:
+        assert status == ["ok", "carried", "carried", "carried", "ok"]
+        assert res.steps[-1].first == laser_again  # the run that carries the scale back
     truth = planar_at(read_tum(tmp_path / "seq" / "groundtruth.tum"), streams.image_stamps_s[res.frames])
     step = np.linalg.norm(np.diff(res.poses[:, :2], axis=0), axis=1)
     true_step = np.linalg.norm(np.diff(truth[:, :2], axis=0), axis=1)
@@ -278,3 +309,4 @@ def test_the_tracks_carry_the_scale_where_the_laser_gives_none(tmp_path, detecto
             alive = np.intersect1d(tracks[before.first].ids, tracks[s.first].ids)
             tracked = len(np.intersect1d(alive, tracks[s.last].ids))
             assert before.status == "no-scale" or tracked < VoParams().min_scale_votes
+            assert k == len(res.steps) - 1 or res.steps[k + 1].status == "no-scale"  # nor after

@@ -29,6 +29,7 @@ camera's, ``x2 = R x1 + t`` (OpenCV's). Laser-frame points are (x, y, 0).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -416,28 +417,62 @@ def carried_scale(
     ``min_parallax_deg`` between the two rays in both runs vote; the votes are agreed on
     as the laser's are (:func:`laser_scale`).
     """
-    ids = np.intersect1d(before.ids, first.ids, assume_unique=True)
-    ids = np.intersect1d(ids, last.ids, assume_unique=True)
+    return _relative_scale((before, first, last), T_before, run, True, focal_px, params)
+
+
+def carried_back_scale(
+    first: FrameTracks,
+    last: FrameTracks,
+    after: FrameTracks,
+    run: tuple[FloatArray, FloatArray],
+    T_after: tuple[FloatArray, FloatArray],
+    focal_px: float,
+    params: VoParams,
+) -> ScaleEstimate:
+    """A run's scale carried back by the tracks from the run after it: as
+    :func:`carried_scale`, the tracks triangulated in this run's last camera (the next
+    run's first) by the next run (metric, ``T_after``: ``x_after = R x_last + t``) and by
+    this run (``run``: (R, t_unit), ``x_last = R x_first + t_unit``)."""
+    return _relative_scale((first, last, after), run, T_after, False, focal_px, params)
+
+
+def _relative_scale(
+    frames: tuple[FrameTracks, FrameTracks, FrameTracks],
+    T_ab: tuple[FloatArray, FloatArray],
+    T_bc: tuple[FloatArray, FloatArray],
+    forward: bool,
+    focal_px: float,
+    params: VoParams,
+) -> ScaleEstimate:
+    """The scale of one of two consecutive runs a -> b -> c from the other's metric
+    translation: of b -> c from a -> b (``forward``), else of a -> b from b -> c. Each
+    track alive in the three frames is triangulated in camera b by both runs."""
+    a, b, c = frames
+    ids = np.intersect1d(a.ids, b.ids, assume_unique=True)
+    ids = np.intersect1d(ids, c.ids, assume_unique=True)
     none = ScaleEstimate(float("nan"), 0, np.zeros(0))
     if len(ids) < params.min_scale_votes:
         return none
-    b0, b1, b2 = (f.bearings[np.searchsorted(f.ids, ids)] for f in (before, first, last))
-    (R0, t0), (R1, t1) = T_before, run
+    ba, bb, bc = (f.bearings[np.searchsorted(f.ids, ids)] for f in (a, b, c))
+    (R0, t0), (R1, t1) = T_ab, T_bc
     tol = params.ransac_threshold_px / focal_px
-    _, d, cos0 = _ray_depths(R0, t0, b0, b1)
-    d1, l2, cos1 = _ray_depths(R1, t1, b1, b2)
+    la, in_b0, cos0 = _ray_depths(R0, t0, ba, bb)  # depths in a and in b, by a -> b
+    in_b1, lc, cos1 = _ray_depths(R1, t1, bb, bc)  # depths in b and in c, by b -> c
     steep = np.cos(np.radians(params.min_parallax_deg))
-    x0, x1, x2 = _homogeneous(b0), _homogeneous(b1), _homogeneous(b2)
+    xa, xb, xc = _homogeneous(ba), _homogeneous(bb), _homogeneous(bc)
+    unit0, unit1 = (t / max(float(np.linalg.norm(t)), 1e-12) for t in (t0, t1))
+    far = lc if forward else la  # the other depth of the run whose scale is sought
     ok = (
-        (np.abs(_sampson(R0, t0 / max(float(np.linalg.norm(t0)), 1e-12), x0, x1)) < tol)
-        & (np.abs(_sampson(R1, t1, x1, x2)) < tol)
-        & (d > 0)
-        & (d1 > 0)
-        & (l2 > 0)
+        (np.abs(_sampson(R0, unit0, xa, xb)) < tol)
+        & (np.abs(_sampson(R1, unit1, xb, xc)) < tol)
+        & (in_b0 > 0)
+        & (in_b1 > 0)
+        & (far > 0)
         & (cos0 < steep)
         & (cos1 < steep)
     )
-    return _agreed(d[ok] / d1[ok], params)
+    per = in_b0[ok] / in_b1[ok] if forward else in_b1[ok] / in_b0[ok]
+    return _agreed(per, params)
 
 
 def _agreed(per: FloatArray, params: VoParams) -> ScaleEstimate:
@@ -498,7 +533,10 @@ def visual_odometry(
     still shares ``min_tracked`` tracks with it (Section IV); the next run starts there.
     A run whose laser points give no scale takes the one its tracks carry from the run
     before (:func:`carried_scale`, status "carried") when that run had a scale (or
-    stood still after one that had), else
+    stood still after one that had), else the one they carry back from the run after
+    (:func:`carried_back_scale`) when that one has a scale (after a turn on the spot no
+    track is alive across it: a loop side begun without a laser scale gets its scale
+    from the first run along it that has one), else
     moves along its own direction at the last measured speed ("no-scale"). A failed run
     (too few inliers) keeps the previous run's velocity (a constant-velocity guess). Each
     run's status is reported in ``steps``.
@@ -520,17 +558,13 @@ def visual_odometry(
         )
         return _Measured(kf, j, dt, rel, est)
 
-    T_laser_cam = np.linalg.inv(T_cam_laser)
-    T_w_c = T_laser_cam.copy()  # the first laser pose is the origin
-    frames = [0]
-    poses = [_planar(T_w_c @ T_cam_laser)]
-    steps: list[VoStep] = []
     last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
     speed = 0.0  # m/s, of the last run with a scale
     # The last run with a scale, (first frame, R, t) up to this run's first frame.
     scaled: tuple[int, FloatArray, FloatArray] | None = None
+    chain: list[_Chained] = []
     # The runs are measured independently (OpenCV and numpy release the interpreter), on
-    # ``workers`` threads, in order; chaining them is sequential.
+    # ``workers`` threads, in order; giving them their scales is sequential.
     with ThreadPoolExecutor(max_workers=max(workers, 1), thread_name_prefix="vo-run") as pool:
         for m in pool.map(measure, runs):
             kf, j, dt, rel = m.first, m.last, m.dt, m.rel
@@ -550,8 +584,7 @@ def visual_odometry(
                     if scaled is not None:
                         b0, b1, b2 = tracks[scaled[0]], tracks[kf], tracks[j]
                         carried = carried_scale(b0, b1, b2, scaled[1:], (rel.R, rel.t_unit), focal, params)
-                        reach = params.max_speed_mps * dt  # as far as the laser's search goes
-                        if carried.used >= params.min_scale_votes and 0.0 < carried.scale <= reach:
+                        if _within_reach(carried, params, dt):
                             status, est = "carried", carried
                 scale_pts = est.used
                 R, t = rel.R, est.scale * rel.t_unit
@@ -576,12 +609,57 @@ def visual_odometry(
                 scaled = (scaled[0], R @ scaled[1], R @ scaled[2])
             else:
                 scaled = None
-            T_c2_c1 = make_T(R, t)
-            T_w_c = T_w_c @ np.linalg.inv(T_c2_c1)
-            frames.append(j)
-            poses.append(_planar(T_w_c @ T_cam_laser))
-            steps.append(VoStep(kf, j, 0 if rel is None else rel.inliers, scale_pts, status))
+            chain.append(_Chained(kf, j, dt, rel, status, R, t, scale_pts))
+    # Runs left without a scale before one that has it (after a stop, say, nothing carried
+    # the scale into them) take it back from the run after, last first.
+    for k in range(len(chain) - 2, -1, -1):
+        c, nxt = chain[k], chain[k + 1]
+        if c.status != "no-scale" or nxt.status not in ("ok", "carried"):
+            continue
+        assert c.rel is not None
+        back = carried_back_scale(
+            tracks[c.first],
+            tracks[c.last],
+            tracks[nxt.last],
+            (c.rel.R, c.rel.t_unit),
+            (nxt.R, nxt.t),
+            focal,
+            params,
+        )
+        if _within_reach(back, params, c.dt):
+            chain[k] = dataclasses.replace(
+                c, status="carried", t=back.scale * c.rel.t_unit, scale_points=back.used
+            )
+    T_w_c = np.linalg.inv(T_cam_laser)  # the first laser pose is the origin
+    frames = [0]
+    poses = [_planar(T_w_c @ T_cam_laser)]
+    steps: list[VoStep] = []
+    for c in chain:
+        T_w_c = T_w_c @ np.linalg.inv(make_T(c.R, c.t))
+        frames.append(c.last)
+        poses.append(_planar(T_w_c @ T_cam_laser))
+        steps.append(VoStep(c.first, c.last, 0 if c.rel is None else c.rel.inliers, c.scale_points, c.status))
     return VoResult(np.array(frames, dtype=np.intp), np.array(poses), tuple(steps))
+
+
+def _within_reach(est: ScaleEstimate, params: VoParams, dt: float) -> bool:
+    """A carried scale with enough votes, and no farther than the laser's search goes."""
+    return est.used >= params.min_scale_votes and 0.0 < est.scale <= params.max_speed_mps * dt
+
+
+@dataclass(frozen=True)
+class _Chained:
+    """One run with its metric motion (``x_last = R x_first + t``, camera frames), its
+    status and the points its scale came from."""
+
+    first: int
+    last: int
+    dt: float
+    rel: RelativePose | None
+    status: str
+    R: FloatArray
+    t: FloatArray
+    scale_points: int
 
 
 @dataclass(frozen=True)
