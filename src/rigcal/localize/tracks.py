@@ -94,8 +94,9 @@ class TrackParams:
     choices: ClassVar[dict[str, tuple[str, ...]]] = {"detector": DETECTORS}
 
     def __post_init__(self) -> None:
-        if self.detector not in DETECTORS:
-            raise ValueError(f"detector must be one of {DETECTORS}, not {self.detector!r}")
+        for key, allowed in self.choices.items():
+            if getattr(self, key) not in allowed:
+                raise ValueError(f"{key} must be one of {allowed}, not {getattr(self, key)!r}")
 
 
 @dataclass(frozen=True)

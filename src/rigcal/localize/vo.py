@@ -450,9 +450,8 @@ def _relative_scale(
     a, b, c = frames
     ids = np.intersect1d(a.ids, b.ids, assume_unique=True)
     ids = np.intersect1d(ids, c.ids, assume_unique=True)
-    none = ScaleEstimate(float("nan"), 0, np.zeros(0))
     if len(ids) < params.min_scale_votes:
-        return none
+        return ScaleEstimate(float("nan"), 0, np.zeros(0))
     ba, bb, bc = (f.bearings[np.searchsorted(f.ids, ids)] for f in (a, b, c))
     (R0, t0), (R1, t1) = T_ab, T_bc
     tol = params.ransac_threshold_px / focal_px
