@@ -1,4 +1,5 @@
-"""The feature tracks' detector: SIFT (the paper's) against Shi-Tomasi corners.
+"""The feature tracks' settings compared over laps: the detector, SIFT (the paper's) against
+Shi-Tomasi corners, or any other ``TrackParams`` setting (``--variants``).
 
 New tracks start at SIFT keypoints (paper Section IV) or, with ``TrackParams(detector=
 "shi-tomasi")``, at OpenCV's ``goodFeaturesToTrack`` corners, which are several times
@@ -9,10 +10,15 @@ cheaper to find. For each built-in loop and seed (one lap, ``rigcal simulate wor
 closure, average position error, ATE) and VO's runs, the tracking stage's time and the
 run's wall time (real time = the lap's duration). With more than one seed a second table
 gives, per loop, detector and method, the mean and the worst loop closure and ATE over
-the seeds, and the tracking time against SIFT's on the same laps.
+the seeds, and the tracking time against the first variant's on the same laps.
+
+``--variants`` compares sets of settings instead of detectors: sets separated by ``;``,
+each a comma-separated list of ``KEY=VALUE`` as ``rigcal localize --tracks`` takes them
+(``"window_px=15;window_px=11"``; an empty set is the defaults).
 
     .venv/bin/python benchmarks/bench_tracks.py [--worlds corridor-loop,cubicle-loop]
-        [--seeds 1] [--range-max-m 30] [--methods vo,kf] [--detectors sift,shi-tomasi] [--keep DIR]
+        [--seeds 1] [--range-max-m 30] [--methods vo,kf] [--detectors sift,shi-tomasi]
+        [--variants "KEY=VALUE,...;..."] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -25,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from bench_localize import sequence_name
-from rigcal.localize.pipeline import run
+from rigcal.localize.pipeline import parse_settings, run
 from rigcal.localize.tracks import DETECTORS, TrackParams
 from rigcal.sim.drive import DriveSpec, write_drive
 from rigcal.sim.world import BUILTIN
@@ -39,6 +45,20 @@ def seeds_of(text: str) -> list[int]:
     return [int(v) for v in text.split(",")]
 
 
+def variants_of(text: str) -> dict[str, TrackParams]:
+    """``"KEY=VALUE,KEY=VALUE;KEY=VALUE"`` -> {label: the settings}."""
+    out = {}
+    for part in text.split(";"):
+        items = [i for i in part.split(",") if i.strip()]
+        out[part.strip() or "defaults"] = parse_settings(items, TrackParams(), "--variants")
+    return out
+
+
+def folder_of(label: str) -> str:
+    """A folder name for a variant's label."""
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in label)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--worlds", default="corridor-loop,cubicle-loop")
@@ -46,10 +66,17 @@ def main() -> None:
     ap.add_argument("--range-max-m", type=float, default=30.0, help="The simulated laser's range.")
     ap.add_argument("--methods", default="vo,kf", help="The methods run on each lap (vo, kf, hiasm).")
     ap.add_argument("--detectors", default=",".join(DETECTORS), help="The detectors compared.")
+    ap.add_argument("--variants", help='Settings compared instead: "KEY=VALUE,...;KEY=VALUE,...".')
     ap.add_argument("--keep", type=Path, help="Keep the sequences and outputs in this folder.")
     args = ap.parse_args()
     seeds = seeds_of(args.seeds)
-    # (world, detector, method) -> [(loop closure, ATE)]; (world, detector) -> [tracks_s]
+    variants = (
+        variants_of(args.variants)
+        if args.variants
+        else {d: TrackParams(detector=d) for d in args.detectors.split(",")}
+    )
+    first = next(iter(variants))
+    # (world, variant, method) -> [(loop closure, ATE)]; (world, variant) -> [tracks_s]
     scores: dict[tuple[str, str, str], list[tuple[float, float]]] = defaultdict(list)
     tracking: dict[tuple[str, str], list[float]] = defaultdict(list)
     with tempfile.TemporaryDirectory() as tmp:
@@ -58,7 +85,7 @@ def main() -> None:
         laser = f", {args.range_max_m:g} m laser" if args.range_max_m != 30.0 else ""
         print(f"\n### Each lap{laser}\n")
         print(
-            "| world | seed | detector | method | loop closure (m) | avg position error (m) | ATE RMSE (m) "
+            "| world | seed | tracks | method | loop closure (m) | avg position error (m) | ATE RMSE (m) "
             "| VO runs | tracks (s) | wall (s) | x real time |"
         )
         print("|---|---|---|---|---|---|---|---|---|---|---|")
@@ -71,15 +98,15 @@ def main() -> None:
                 if not warm:
                     run(seq, ["icp"], root / "warm", force=True)  # load the kernels
                     warm = True
-                for detector in args.detectors.split(","):
+                for variant, params in variants.items():
                     r = run(
                         seq,
                         args.methods.split(","),
-                        root / f"{seq.name}-{detector}",
+                        root / f"{seq.name}-{folder_of(variant)}",
                         force=True,
-                        tracks=TrackParams(detector=detector),
+                        tracks=params,
                     )
-                    tracking[name, detector].append(r.timings_s["tracks_s"])
+                    tracking[name, variant].append(r.timings_s["tracks_s"])
                     speed = (
                         f"| {r.timings_s['tracks_s']:.1f} | {r.wall_s:.1f} | {r.duration_s / r.wall_s:.2f} |"
                     )
@@ -87,9 +114,9 @@ def main() -> None:
                         assert m.metrics is not None
                         runs = ", ".join(f"{k} {v}" for k, v in m.stats.get("run_status", {}).items())
                         lc, ate = m.metrics["loop_closure_error_m"], m.metrics["ate_rmse_m"]
-                        scores[name, detector, m.method].append((float(lc), float(ate)))
+                        scores[name, variant, m.method].append((float(lc), float(ate)))
                         print(
-                            f"| {name} | {seed} | {detector} | {m.method} | {lc} "
+                            f"| {name} | {seed} | {variant} | {m.method} | {lc} "
                             f"| {m.metrics['average_position_error_m']} | {ate} | {runs} " + speed,
                             flush=True,
                         )
@@ -97,16 +124,15 @@ def main() -> None:
         return
     print(f"\n### Over seeds {args.seeds}{laser}\n")
     print(
-        "| world | detector | method | loop closure mean (m) | loop closure worst (m) "
-        "| ATE mean (m) | ATE worst (m) | tracking time / SIFT's |"
+        "| world | tracks | method | loop closure mean (m) | loop closure worst (m) "
+        f"| ATE mean (m) | ATE worst (m) | tracking time / {first}'s |"
     )
     print("|---|---|---|---|---|---|---|---|")
-    for (name, detector, method), v in scores.items():
+    for (name, variant, method), v in scores.items():
         a = np.array(v)
-        sift = tracking.get((name, "sift"))
-        ratio = np.sum(tracking[name, detector]) / np.sum(sift) if sift else float("nan")
+        ratio = np.sum(tracking[name, variant]) / np.sum(tracking[name, first])
         print(
-            f"| {name} | {detector} | {method} | {a[:, 0].mean():.3f} | {a[:, 0].max():.3f} "
+            f"| {name} | {variant} | {method} | {a[:, 0].mean():.3f} | {a[:, 0].max():.3f} "
             f"| {a[:, 1].mean():.3f} | {a[:, 1].max():.3f} | {ratio:.2f} |"
         )
 

@@ -36,6 +36,10 @@ KERNELS = {
         "s = Scan(a, 2 / np.cos(a), 0.1, 30.0); p = s.points; k = np.arange(400)",
         "extract_lines(s); carry_labels(p, 0 * k, None, np.zeros(3), p, k)",
     ),
+    "Colour to grey as OpenCV reads PNGs (rigcal.io.images)": (
+        "import numpy as np; from rigcal.io.images import rgb_to_grey; c = np.zeros((480, 640, 3), np.uint8)",
+        "rgb_to_grey(c)",
+    ),
 }
 
 _TIMED = """

@@ -7,10 +7,10 @@ frame at the image's stamp with the laser odometry between the two stamps, inter
 (:meth:`Streams.laser_points_at_image`): nothing is dropped, and a 12 ms gap at walking
 speed is not left as a centimetre of error.
 
-Images are read from disk when asked for (grey, uint8) and kept, up to 768 MiB (the
-least recently used go first). The feature tracks read them in order, decoded a few
-frames ahead on a second thread (:meth:`Streams.images_in_order`), so that decoding
-overlaps the tracking.
+Images are read from disk when asked for (grey, uint8, :func:`rigcal.io.images.read_grey`)
+and kept, up to 768 MiB (the least recently used go first). The feature tracks read them
+in order, decoded a few frames ahead on a second thread (:meth:`Streams.images_in_order`),
+so that decoding overlaps the tracking.
 """
 
 from __future__ import annotations
@@ -25,12 +25,12 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.calib.lines import Segment, extract_lines
 from rigcal.errors import InputError
+from rigcal.io.images import read_grey
 from rigcal.io.sequence import Sequence, read_sequence
 from rigcal.localize.icp import IcpParams, pose_of, se2
 from rigcal.localize.odometry import Odometry, icp_odometry
@@ -140,10 +140,9 @@ class Streams:
     def _decode(self, i: int) -> Gray:
         t0 = time.perf_counter()
         path = self._image_path(i)
-        raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if raw is None:
+        g = read_grey(path)
+        if g is None:
             raise InputError(f"{path}: not a readable image")
-        g: Gray = np.asarray(raw, dtype=np.uint8)
         seconds = time.perf_counter() - t0
         with self._lock:
             self.timings_s["read_images_s"] = self.timings_s.get("read_images_s", 0.0) + seconds
