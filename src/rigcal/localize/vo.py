@@ -196,11 +196,16 @@ def _homogeneous(b: FloatArray) -> FloatArray:
 
 def _sampson(R: FloatArray, t: FloatArray, x1: FloatArray, x2: FloatArray) -> FloatArray:
     """Sampson distances of Eq. (5), ``x2^T E x1 = 0`` with E = [t]x R (normalised units)."""
-    E = _skew(t) @ R
-    Ex1 = x1 @ E.T
+    out: FloatArray = _sampson_of((_skew(t) @ R)[None], x1, x2)[0]
+    return out
+
+
+def _sampson_of(E: FloatArray, x1: FloatArray, x2: FloatArray) -> FloatArray:
+    """(K, N) the Sampson distances of the matches under each of K essential matrices (K, 3, 3)."""
+    Ex1 = x1 @ E.transpose(0, 2, 1)  # (K, N, 3)
     Etx2 = x2 @ E
-    num = np.einsum("ij,ij->i", x2, Ex1)
-    den = np.sqrt(Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2) + 1e-15
+    num = np.einsum("nj,knj->kn", x2, Ex1)
+    den = np.sqrt(Ex1[..., 0] ** 2 + Ex1[..., 1] ** 2 + Etx2[..., 0] ** 2 + Etx2[..., 1] ** 2) + 1e-15
     out: FloatArray = num / den
     return out
 
@@ -238,45 +243,46 @@ def planar_motion(R: FloatArray, t_unit: FloatArray, up_cam: FloatArray, max_til
     return bool(abs(t_unit @ up_cam) < np.sin(np.radians(3.0 * max_tilt_deg)))
 
 
+# The forward-difference step of refine_essential's Jacobian, and the rotations by it
+# about each camera axis.
+_EPS = 1e-7
+_NUDGES = np.stack([rotvec_to_R(_EPS * e) for e in np.eye(3)])
+_X, _Y = np.eye(3)[:2]
+
+
 def refine_essential(
     R: FloatArray, t: FloatArray, b1: FloatArray, b2: FloatArray, iterations: int = 5
 ) -> tuple[FloatArray, FloatArray]:
     """Gauss-Newton on the Sampson distance of Eq. (5) over (rotation, unit translation).
 
     Parametrisation: R <- Exp(w) R, t <- normalise(t + a u1 + b u2) with u1, u2 spanning
-    the plane orthogonal to t: five parameters, E's degrees of freedom.
+    the plane orthogonal to t: five parameters, E's degrees of freedom. The Jacobian is
+    by forward differences, the five nudged essential matrices' residuals in one pass.
     """
     x1, x2 = _homogeneous(b1), _homogeneous(b2)
-
-    def residuals(R_: FloatArray, t_: FloatArray) -> FloatArray:
-        return _sampson(R_, t_, x1, x2)
-
     t = t / np.linalg.norm(t)
-    r = residuals(R, t)
+    r = _sampson(R, t, x1, x2)
     cost = float(r @ r)
     for _ in range(iterations):
-        u1 = np.cross(t, [1.0, 0.0, 0.0] if abs(t[0]) < 0.9 else [0.0, 1.0, 0.0])
+        E_t = _skew(t)  # also t's cross products
+        u1 = E_t @ (_X if abs(t[0]) < 0.9 else _Y)
         u1 /= np.linalg.norm(u1)
-        u2 = np.cross(t, u1)
-
-        def apply(
-            p: FloatArray, R0: FloatArray = R, t0: FloatArray = t, u1: FloatArray = u1, u2: FloatArray = u2
-        ) -> tuple[FloatArray, FloatArray]:
-            tn = t0 + p[3] * u1 + p[4] * u2
-            return rotvec_to_R(p[:3]) @ R0, tn / np.linalg.norm(tn)
-
-        eps = 1e-7
-        J = np.empty((len(r), 5))
-        for k in range(5):
-            dp = np.zeros(5)
-            dp[k] = eps
-            J[:, k] = (residuals(*apply(dp)) - r) / eps
+        u2 = E_t @ u1
+        ta, tb = t + _EPS * u1, t + _EPS * u2
+        E = np.concatenate(
+            [
+                E_t @ (_NUDGES @ R),  # the three rotations
+                np.stack([_skew(ta / np.linalg.norm(ta)) @ R, _skew(tb / np.linalg.norm(tb)) @ R]),
+            ]
+        )
+        J = ((_sampson_of(E, x1, x2) - r) / _EPS).T  # (N, 5)
         try:
             step = -np.linalg.solve(J.T @ J + 1e-9 * np.eye(5), J.T @ r)
         except np.linalg.LinAlgError:
             break
-        R_new, t_new = apply(step)
-        r_new = residuals(R_new, t_new)
+        tn = t + step[3] * u1 + step[4] * u2
+        R_new, t_new = rotvec_to_R(step[:3]) @ R, tn / np.linalg.norm(tn)
+        r_new = _sampson(R_new, t_new, x1, x2)
         if float(r_new @ r_new) >= cost:
             break
         R, t, r, cost = R_new, t_new, r_new, float(r_new @ r_new)
