@@ -118,7 +118,11 @@ class Camera:
         Returns:
             (N, 2) pixel coordinates; NaN for points at or behind the camera plane (z <= 0).
         """
-        q, _ = self.project_with_gradient(points_cam)
+        import mrcal
+
+        p = np.atleast_2d(np.asarray(points_cam, dtype=float))
+        q = np.array(mrcal.project(p, self.lensmodel, self.intrinsics), dtype=float).reshape(-1, 2)
+        q[~(p[:, 2] > 0)] = np.nan
         return q
 
     def project_with_gradient(self, points_cam: ArrayLike) -> tuple[FloatArray, FloatArray]:
