@@ -14,16 +14,19 @@ the seeds, and the tracking time against the first variant's on the same laps.
 
 ``--variants`` compares sets of settings instead of detectors: sets separated by ``;``,
 each a comma-separated list of ``KEY=VALUE`` as ``rigcal localize --tracks`` takes them
-(``"window_px=15;window_px=11"``; an empty set is the defaults).
+(``"window_px=15;window_px=11"``; an empty set is the defaults). ``--drive`` changes the
+simulated laps (``DriveSpec`` fields, e.g. a harsher camera:
+``"image_noise_sigma=4,image_blur_sigma_px=1,exposure_walk=0.03"``).
 
     .venv/bin/python benchmarks/bench_tracks.py [--worlds corridor-loop,cubicle-loop]
         [--seeds 1] [--range-max-m 30] [--methods vo,kf] [--detectors sift,shi-tomasi]
-        [--variants "KEY=VALUE,...;..."] [--keep DIR]
+        [--variants "KEY=VALUE,...;..."] [--drive KEY=VALUE,...] [--keep DIR]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import tempfile
 from collections import defaultdict
 from pathlib import Path
@@ -54,9 +57,21 @@ def variants_of(text: str) -> dict[str, TrackParams]:
     return out
 
 
-def folder_of(label: str) -> str:
-    """A folder name for a variant's label."""
-    return "".join(c if c.isalnum() or c in "-_" else "_" for c in label)
+def drive_of(text: str) -> dict[str, float]:
+    """``"KEY=VALUE,..."`` -> DriveSpec fields (numbers)."""
+    fields = {f.name: f.type for f in dataclasses.fields(DriveSpec)}
+    out: dict[str, float] = {}
+    for item in filter(None, (i.strip() for i in text.split(","))):
+        key, _, value = item.partition("=")
+        if key not in fields or key in ("seed", "range_max_m"):
+            raise SystemExit(f"--drive {item!r}: KEY one of {sorted(fields)} but seed, range_max_m")
+        out[key] = int(value) if fields[key] in ("int", int) else float(value)
+    return out
+
+
+def folder_of(label: str, prefix: str = "") -> str:
+    """A folder name for a label (empty for an empty label)."""
+    return prefix + "".join(c if c.isalnum() or c in "-_" else "_" for c in label) if label else ""
 
 
 def main() -> None:
@@ -67,8 +82,10 @@ def main() -> None:
     ap.add_argument("--methods", default="vo,kf", help="The methods run on each lap (vo, kf, hiasm).")
     ap.add_argument("--detectors", default=",".join(DETECTORS), help="The detectors compared.")
     ap.add_argument("--variants", help='Settings compared instead: "KEY=VALUE,...;KEY=VALUE,...".')
+    ap.add_argument("--drive", default="", help="DriveSpec fields of the laps: KEY=VALUE,...")
     ap.add_argument("--keep", type=Path, help="Keep the sequences and outputs in this folder.")
     args = ap.parse_args()
+    drive = drive_of(args.drive)
     seeds = seeds_of(args.seeds)
     variants = (
         variants_of(args.variants)
@@ -83,6 +100,7 @@ def main() -> None:
         root = args.keep or Path(tmp)
         root.mkdir(parents=True, exist_ok=True)
         laser = f", {args.range_max_m:g} m laser" if args.range_max_m != 30.0 else ""
+        laser += f", {args.drive}" if args.drive else ""
         print(f"\n### Each lap{laser}\n")
         print(
             "| world | seed | tracks | method | loop closure (m) | avg position error (m) | ATE RMSE (m) "
@@ -92,9 +110,10 @@ def main() -> None:
         warm = False
         for name in args.worlds.split(","):
             for seed in seeds:
-                seq = root / sequence_name(name, seed, args.range_max_m)
+                seq = root / (sequence_name(name, seed, args.range_max_m) + folder_of(args.drive, "-"))
                 if not (seq / "sequence.yaml").exists():
-                    write_drive(BUILTIN[name](), DriveSpec(seed=seed, range_max_m=args.range_max_m), str(seq))
+                    spec = DriveSpec(seed=seed, range_max_m=args.range_max_m, **drive)
+                    write_drive(BUILTIN[name](), spec, str(seq))
                 if not warm:
                     run(seq, ["icp"], root / "warm", force=True)  # load the kernels
                     warm = True

@@ -72,8 +72,8 @@ def test_a_blank_frame_ends_every_track():
 
 
 def test_common_pairs_tracks_by_id():
-    a = FrameTracks(np.array([1, 4, 7, 9]), np.zeros((4, 2)), np.zeros((4, 3)))
-    b = FrameTracks(np.array([4, 9, 12]), np.zeros((3, 2)), np.zeros((3, 3)))
+    a = FrameTracks(np.array([1, 4, 7, 9]), np.zeros((4, 2)), _no_bearings)
+    b = FrameTracks(np.array([4, 9, 12]), np.zeros((3, 2)), _no_bearings)
     ia, ib = common(a, b)
     assert a.ids[ia].tolist() == [4, 9]
     assert b.ids[ib].tolist() == [4, 9]
@@ -126,3 +126,21 @@ def test_a_new_track_starts_from_its_neighbours_displacement():
 def test_an_unknown_detector_is_refused():
     with pytest.raises(ValueError, match=r"detector must be one of \('sift', 'shi-tomasi'\), not 'orb'"):
         TrackParams(detector="orb")
+
+
+def _no_bearings(px):
+    raise AssertionError("bearings are not needed to pair tracks")
+
+
+def test_bearings_are_unprojected_once_when_first_asked_for():
+    calls = []
+
+    def unproject(px):
+        calls.append(len(px))
+        return np.column_stack([px, np.ones(len(px))]) / np.sqrt((px**2).sum(axis=1) + 1)[:, None]
+
+    f = FrameTracks(np.arange(3), np.array([[0.0, 0.0], [1.0, 0.0], [0.0, -1.0]]), unproject)
+    assert calls == []
+    np.testing.assert_allclose(f.bearings[1], [np.sqrt(0.5), 0.0, np.sqrt(0.5)])
+    assert f.bearings is f.bearings
+    assert calls == [3]

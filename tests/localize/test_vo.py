@@ -98,14 +98,14 @@ def _frames(P0, poses, rng, noise_px=0.3, ids=None):
     out = []
     for R, t in poses:
         P = P0 @ R.T + t
-        out.append(
-            FrameTracks(
-                ids,
-                np.zeros((len(P), 2)),
-                _bearings(P + rng.normal(0, noise_px / FOCAL, P.shape) * P[:, 2:3]),
-            )
-        )
+        seen = P + rng.normal(0, noise_px / FOCAL, P.shape) * P[:, 2:3]
+        # Pixels of a camera of unit focal length at the image centre: normalised coordinates.
+        out.append(FrameTracks(ids, seen[:, :2] / seen[:, 2:3], _unproject))
     return out
+
+
+def _unproject(xy):
+    return _bearings(np.column_stack([xy, np.ones(len(xy))]))
 
 
 def _carry_case(rng, ids=None, step=0.25):
@@ -160,7 +160,7 @@ def test_tracks_lost_between_the_runs_carry_no_scale():
     rng = np.random.default_rng(8)
     (f0, f1, f2), before, (R2, t2) = _carry_case(rng)
     # Only 5 of the first frame's tracks are still alive at the run's end.
-    f2 = FrameTracks(f2.ids[:5], f2.pixels[:5], f2.bearings[:5])
+    f2 = FrameTracks(f2.ids[:5], f2.pixels[:5], f2.unproject)
     est = carried_scale(f0, f1, f2, before, (R2, t2 / np.linalg.norm(t2)), FOCAL, VoParams())
     assert est.used == 0
 

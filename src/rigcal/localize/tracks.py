@@ -35,7 +35,8 @@ in both (:func:`common`).
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from typing import ClassVar
 
 import cv2
@@ -99,13 +100,21 @@ class TrackParams:
                 raise ValueError(f"{key} must be one of {allowed}, not {getattr(self, key)!r}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class FrameTracks:
-    """The tracks alive in one frame: ids (increasing), pixels (N, 2), unit bearings (N, 3)."""
+    """The tracks alive in one frame: ids (increasing), pixels (N, 2), and ``unproject``,
+    which gives their unit bearings (N, 3) from the pixels (the camera's
+    :meth:`~rigcal.camera.Camera.bearings`)."""
 
     ids: NDArray[np.int64]
     pixels: FloatArray
-    bearings: FloatArray
+    unproject: Callable[[FloatArray], FloatArray] = field(repr=False)
+
+    @cached_property
+    def bearings(self) -> FloatArray:
+        """(N, 3) the tracks' unit bearings, computed when first asked for (visual odometry
+        reads only its runs' first and last frames, about a third of them)."""
+        return self.unproject(self.pixels)
 
 
 def common(a: FrameTracks, b: FrameTracks) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
@@ -141,7 +150,7 @@ class Tracker:
             self._after_detection = len(self._px)
         self._prev = gray
         px = self._px.astype(float)
-        return FrameTracks(self._ids.copy(), px, self.camera.bearings(px))
+        return FrameTracks(self._ids.copy(), px, self.camera.bearings)
 
     def _follow(self, a: Gray, b: Gray) -> None:
         p = self.params
