@@ -166,22 +166,25 @@ class Tracker:
         p1, st1, err = cv2.calcOpticalFlowPyrLK(  # type: ignore[call-overload]
             a, b, p0, (self._px + guess).reshape(-1, 1, 2), **lk
         )
-        back, st2, _ = cv2.calcOpticalFlowPyrLK(  # type: ignore[call-overload]
-            b, a, p1, (p1.reshape(-1, 2) - guess).reshape(-1, 1, 2), **lk
-        )
         p1 = p1.reshape(-1, 2)
-        fb = np.linalg.norm(back.reshape(-1, 2) - self._px, axis=1)
         h, w = b.shape
         ok = (
             (st1.ravel() == 1)
-            & (st2.ravel() == 1)
-            & (fb < p.max_fb_px)
             & (err.ravel() < p.max_patch_error)
             & (p1[:, 0] >= 0)
             & (p1[:, 1] >= 0)
             & (p1[:, 0] <= w - 1)
             & (p1[:, 1] <= h - 1)
         )
+        # Only the tracks still alive are tracked back (each point is followed on its own,
+        # so the others would change nothing).
+        k = np.flatnonzero(ok)
+        if len(k):
+            back, st2, _ = cv2.calcOpticalFlowPyrLK(  # type: ignore[call-overload]
+                b, a, p1[k].reshape(-1, 1, 2), (p1[k] - guess[k]).reshape(-1, 1, 2), **lk
+            )
+            fb = np.linalg.norm(back.reshape(-1, 2) - self._px[k], axis=1)
+            ok[k] = (st2.ravel() == 1) & (fb < p.max_fb_px)
         self._vel = (p1 - self._px)[ok].astype(np.float32)
         self._ids, self._px = self._ids[ok], p1[ok].astype(np.float32)
 
