@@ -13,13 +13,15 @@ with rigcal's compiled kernels (the laser odometry's ICP iterations and line wor
 laser metric and SAD) and again with
 their numpy references in the same run (``--no-reference`` skips those), after a first
 run that compiles the kernels (or loads them from numba's cache; ``jit_cost.py``).
+``--decoders rigcal,opencv`` runs each also with the images read by OpenCV, in turn (the
+same grey levels; rigcal's reader decodes PNG faster, ``bench_decode.py``).
 
 ``--range-max-m`` shortens the laser's range (30 m by default): at 8 m the corridor lap's
 long sides are corridors whose ends the laser cannot see, the case the paper's image
 methods are for.
 
     .venv/bin/python benchmarks/bench_localize.py [--worlds corridor-loop,cubicle-loop] [--keep DIR]
-        [--seed N] [--range-max-m M] [--methods icp,iasm,...] [--no-speed]
+        [--seed N] [--range-max-m M] [--methods icp,iasm,...] [--no-speed] [--decoders rigcal,opencv]
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import contextlib
 import os
 import tempfile
 from collections.abc import Iterator
+from itertools import product
 from pathlib import Path
 
 from rigcal.localize.pipeline import run, table
@@ -62,6 +65,11 @@ def main() -> None:
     ap.add_argument("--alone", default=",".join(ALONE), help="Methods of the speed table.")
     ap.add_argument("--no-reference", action="store_true", help="Skip the runs with the numpy references.")
     ap.add_argument("--detector", choices=DETECTORS, help="What starts the feature tracks.")
+    ap.add_argument(
+        "--decoders",
+        default="rigcal",
+        help="Image readers of the speed runs, each in turn: rigcal (read_grey), opencv (cv2.imread).",
+    )
     args = ap.parse_args()
     methods = args.methods.split(",")
     tracks = TrackParams() if args.detector is None else TrackParams(detector=args.detector)
@@ -93,22 +101,43 @@ def main() -> None:
             alone = args.alone.split(",")
             # Compile / load the kernels.
             run(seq, alone[:1], root / "compile-alone", force=True, tracks=tracks)
-            for m in alone:
-                for compiled in (True, False) if not args.no_reference else (True,):
-                    with kernels(compiled):
-                        a = run(seq, [m], root / f"{seq.name}-{m}-alone", force=True, tracks=tracks)
-                    cpu = a.cpu_s
-                    stages = ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in a.timings_s.items())
-                    label = "compiled" if compiled else "numpy reference"
-                    print(
-                        f"| {m} | {label} | {a.wall_s:.1f} | {cpu:.1f} "
-                        f"| {a.duration_s / a.wall_s:.2f} | {stages} |",
-                        flush=True,
-                    )
-                    if m == "vo" and compiled:
-                        per = (a.timings_s["tracks_s"] + a.timings_s["vo_s"]) / n_images * 1000
+            for m, compiled, decoder in product(
+                alone, (True, False) if not args.no_reference else (True,), args.decoders.split(",")
+            ):
+                with kernels(compiled), images_read_by(decoder):
+                    a = run(seq, [m], root / f"{seq.name}-{m}-alone", force=True, tracks=tracks)
+                cpu = a.cpu_s
+                stages = ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in a.timings_s.items())
+                label = "compiled" if compiled else "numpy reference"
+                label += ", OpenCV decoding" if decoder == "opencv" else ""
+                print(
+                    f"| {m} | {label} | {a.wall_s:.1f} | {cpu:.1f} "
+                    f"| {a.duration_s / a.wall_s:.2f} | {stages} |",
+                    flush=True,
+                )
+                if m == "vo" and compiled:
+                    per = (a.timings_s["tracks_s"] + a.timings_s["vo_s"]) / n_images * 1000
             if per == per:  # measured only when vo runs alone
                 print(f"\nVO per frame (tracks + runs, the laser odometry beside it): {per:.1f} ms")
+
+
+@contextlib.contextmanager
+def images_read_by(decoder: str) -> Iterator[None]:
+    """Within: the sequence's images are read by rigcal's ``read_grey`` (``"rigcal"``) or
+    by OpenCV's ``cv2.imread(..., IMREAD_GRAYSCALE)`` (``"opencv"``; the same grey levels)."""
+    import cv2
+
+    from rigcal.localize import streams
+
+    if decoder not in ("rigcal", "opencv"):
+        raise SystemExit(f"--decoders: {decoder!r} is not rigcal or opencv")
+    saved = streams.read_grey
+    if decoder == "opencv":
+        streams.read_grey = lambda path: cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    try:
+        yield
+    finally:
+        streams.read_grey = saved
 
 
 @contextlib.contextmanager
