@@ -5,7 +5,7 @@ figure runs a fresh interpreter with an empty ``NUMBA_CACHE_DIR`` (cold: import 
 compile + first call), then another with the cache that run filled (warm: import + load
 + first call), and subtracts the same interpreter's import of the module alone.
 
-    .venv/bin/python benchmarks/jit_cost.py
+    .venv/bin/python benchmarks/jit_cost.py [LABEL-PART]
 """
 
 from __future__ import annotations
@@ -78,4 +78,6 @@ def compile_table(kernels: dict[str, tuple[str, str]]) -> str:
 
 
 if __name__ == "__main__":
-    print(compile_table(KERNELS))
+    # An argument keeps only the kernels whose label contains it.
+    wanted = sys.argv[1] if len(sys.argv) > 1 else ""
+    print(compile_table({k: v for k, v in KERNELS.items() if wanted in k}))
