@@ -1,10 +1,10 @@
 """Images read as grey, the way OpenCV's ``cv2.imread(path, cv2.IMREAD_GRAYSCALE)`` reads
 them, faster for the PNGs sequences are made of.
 
-Decoding is the largest single cost of localizing a sequence from its images (a
-640x480 colour PNG takes about 9 ms in OpenCV's libpng, as long as tracking the frame).
-:func:`read_grey` decodes plain 8-bit grey and colour PNGs with imagecodecs (libpng on
-zlib-ng, about half the time) and converts colour to grey with the integer weights
+Decoding is one of the largest costs of localizing a sequence from its images (a 640x480
+colour PNG takes about 9 ms in OpenCV's libpng). :func:`read_grey` decodes plain 8-bit
+grey and colour PNGs with imagecodecs (libpng on zlib-ng: about 5 ms, 1.7x faster,
+``benchmarks/bench_decode.py``) and converts colour to grey with the integer weights
 libpng applies for OpenCV, ``(9797 R + 19234 G + 3737 B) >> 15`` (ITU-R BT.601's 0.299,
 0.587 and 0.114 in 1/32768, truncated), so the grey levels are bit for bit OpenCV's and
 so are the tracks and trajectories computed from them. Any other image (JPEG, 16-bit
