@@ -72,6 +72,9 @@ def main() -> None:
     )
     args = ap.parse_args()
     methods = args.methods.split(",")
+    decoders = args.decoders.split(",")
+    if not set(decoders) <= {"rigcal", "opencv"}:
+        ap.error(f"--decoders: {args.decoders!r}; expected rigcal, opencv or both")
     tracks = TrackParams() if args.detector is None else TrackParams(detector=args.detector)
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
@@ -102,7 +105,7 @@ def main() -> None:
             # Compile / load the kernels.
             run(seq, alone[:1], root / "compile-alone", force=True, tracks=tracks)
             for m, compiled, decoder in product(
-                alone, (True, False) if not args.no_reference else (True,), args.decoders.split(",")
+                alone, (True, False) if not args.no_reference else (True,), decoders
             ):
                 with kernels(compiled), images_read_by(decoder):
                     a = run(seq, [m], root / f"{seq.name}-{m}-alone", force=True, tracks=tracks)
@@ -129,8 +132,6 @@ def images_read_by(decoder: str) -> Iterator[None]:
 
     from rigcal.localize import streams
 
-    if decoder not in ("rigcal", "opencv"):
-        raise SystemExit(f"--decoders: {decoder!r} is not rigcal or opencv")
     saved = streams.read_grey
     if decoder == "opencv":
         streams.read_grey = lambda path: cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
