@@ -227,3 +227,19 @@ def test_the_lines_of_the_scans_at_the_images_are_kept_and_others_not(seq):
     again = s.lines(k_other)
     assert first is not again  # not kept
     assert [g.indices.tolist() for g in first] == [g.indices.tolist() for g in again]
+
+
+def test_every_reader_of_the_frames_sees_them_equalized_when_asked(seq):
+    from rigcal.io.images import read_grey
+    from rigcal.localize.tracks import TrackParams, equalized
+
+    st = open_streams(seq)
+    st.track_params = TrackParams(equalize="clahe")
+    raw = read_grey(seq / "images" / "000002.png")
+    assert raw is not None
+    want = equalized(raw, st.track_params)
+    assert not np.array_equal(want, raw)
+    assert np.array_equal(st.image(2), want)  # visual odometry's and IASM's patches
+    ordered = list(st.images_in_order())  # the feature tracks
+    assert np.array_equal(ordered[2], want)
+    assert np.array_equal(open_streams(seq).image(2), raw)  # the default leaves them be

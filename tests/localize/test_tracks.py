@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rigcal.geometry import rotvec_to_R
-from rigcal.localize.tracks import FrameTracks, Tracker, TrackParams, common, track_sequence
+from rigcal.localize.tracks import FrameTracks, Tracker, TrackParams, common, equalized, track_sequence
 from rigcal.sim.box_session import default_camera
 
 CAM = default_camera()
@@ -144,3 +144,48 @@ def test_bearings_are_unprojected_once_when_first_asked_for():
     np.testing.assert_allclose(f.bearings[1], [np.sqrt(0.5), 0.0, np.sqrt(0.5)])
     assert f.bearings is f.bearings
     assert calls == [3]
+
+
+def _with_gain(image: np.ndarray, gain: float) -> np.ndarray:
+    """The frame an exposure gain records (a camera's automatic exposure between frames)."""
+    return np.clip(np.round(image.astype(float) * gain), 0, 255).astype(np.uint8)
+
+
+def test_clahe_takes_an_exposure_gain_out_of_the_frame(texture, wall_image):
+    a = (wall_image(np.eye(3), np.zeros(3), DEPTH, texture).astype(float) * 0.7).astype(np.uint8)
+    b = _with_gain(a, 1.3)
+    raw = np.abs(b.astype(float) - a).mean()
+    p = TrackParams(equalize="clahe")
+    eq = np.abs(equalized(b, p).astype(float) - equalized(a, p)).mean()
+    assert raw > 20.0
+    assert eq < 0.1 * raw
+    assert equalized(a, TrackParams()) is a  # "none" leaves the frame as it is
+
+
+def test_tracks_hold_through_exposure_jumps_with_clahe(texture, wall_image):
+    """A 20 % gain step each frame while the camera moves: the patch check drops the
+    raw frames' tracks; equalized, the tracks stay and follow the true motion."""
+    motions = [(rotvec_to_R([0.0, 0.01 * k, 0.0]), np.array([0.04 * k, 0.0, 0.08 * k])) for k in range(4)]
+    gains = [0.7, 0.84, 0.7, 0.84]
+    images = [
+        _with_gain(wall_image(R, t, DEPTH, texture), g) for (R, t), g in zip(motions, gains, strict=True)
+    ]
+    kept = {}
+    for equalize in ("none", "clahe"):
+        p = TrackParams(equalize=equalize)
+        tracks = track_sequence([equalized(im, p) for im in images], CAM, p)
+        ia, ib = common(tracks[0], tracks[-1])
+        kept[equalize] = len(ia) / len(tracks[0].ids)
+        if equalize == "clahe":
+            R, t = motions[-1]
+            err = np.linalg.norm(tracks[-1].pixels[ib] - _truth(tracks[0].pixels[ia], R, t), axis=1)
+            assert np.median(err) < 0.2
+    assert kept["clahe"] > 0.8
+    assert kept["clahe"] > kept["none"] + 0.2
+
+
+def test_a_bad_equalizer_or_clip_is_refused():
+    with pytest.raises(ValueError, match=r"equalize must be one of \('none', 'clahe'\), not 'hist'"):
+        TrackParams(equalize="hist")
+    with pytest.raises(ValueError, match=r"clahe_clip in \(0, 100\], not 0"):
+        TrackParams(clahe_clip=0.0)

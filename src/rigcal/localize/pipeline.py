@@ -249,7 +249,10 @@ def parse_settings[S: (IasmParams, TrackParams)](
                 what = "a whole number" if kind is int else "a number"
                 raise InputError.at(None, f"{option} {key}", text, f"{what}, 0 or more (at most 1e9)")
         changes[key] = value
-    return dataclasses.replace(defaults, **changes)
+    try:
+        return dataclasses.replace(defaults, **changes)
+    except ValueError as e:  # a value the settings refuse (their __post_init__)
+        raise InputError.at(None, option, " ".join(items), str(e)) from None
 
 
 def run(

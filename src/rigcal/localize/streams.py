@@ -34,7 +34,7 @@ from rigcal.io.images import read_grey
 from rigcal.io.sequence import Sequence, read_sequence
 from rigcal.localize.icp import IcpParams, pose_of, se2
 from rigcal.localize.odometry import Odometry, icp_odometry
-from rigcal.localize.tracks import FrameTracks, TrackParams, track_sequence
+from rigcal.localize.tracks import FrameTracks, TrackParams, equalized, track_sequence
 from rigcal.rig import Rig
 from rigcal.rigfile import read_rig
 from rigcal.scan import Scan
@@ -143,6 +143,7 @@ class Streams:
         g = read_grey(path)
         if g is None:
             raise InputError(f"{path}: not a readable image")
+        g = equalized(g, self.track_params)
         seconds = time.perf_counter() - t0
         with self._lock:
             self.timings_s["read_images_s"] = self.timings_s.get("read_images_s", 0.0) + seconds

@@ -51,6 +51,7 @@ Gray = NDArray[np.uint8]
 
 
 DETECTORS = ("sift", "shi-tomasi")
+EQUALIZERS = ("none", "clahe")
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,15 @@ class TrackParams:
             ``goodFeaturesToTrack``: corners whose window is well conditioned for
             Lucas-Kanade, cheaper to find) or ``"sift"`` (the paper's SIFT keypoints);
             compared in ``benchmarks/bench_tracks.py``.
+        equalize: what is done to each image before anything reads it (the tracks, visual
+            odometry's scale search, IASM's and H-IASM's patches): ``"none"`` or
+            ``"clahe"``, contrast-limited adaptive histogram equalization (OpenCV's CLAHE,
+            clip limit ``clahe_clip``, 8x8 tiles). A camera's automatic exposure changes
+            the gain from frame to frame, which breaks Lucas-Kanade's and the patch
+            searches' constant brightness; equalization maps each tile's grey levels by
+            their own distribution, which a gain leaves unchanged (:func:`equalized`).
+        clahe_clip: CLAHE's clip limit (times the mean histogram bin): how far it may
+            stretch the contrast of a flat tile, and so its noise.
     """
 
     n_features: int = 1000
@@ -90,14 +100,27 @@ class TrackParams:
     predict: bool = True
     predict_neighbours: int = 5
     detector: str = "shi-tomasi"
+    equalize: str = "none"
+    clahe_clip: float = 3.0
 
     # The values a text setting takes (``rigcal localize --tracks detector=...``).
-    choices: ClassVar[dict[str, tuple[str, ...]]] = {"detector": DETECTORS}
+    choices: ClassVar[dict[str, tuple[str, ...]]] = {"detector": DETECTORS, "equalize": EQUALIZERS}
 
     def __post_init__(self) -> None:
         for key, allowed in self.choices.items():
             if getattr(self, key) not in allowed:
                 raise ValueError(f"{key} must be one of {allowed}, not {getattr(self, key)!r}")
+        if not 0.0 < self.clahe_clip <= 100.0:
+            raise ValueError(f"clahe_clip in (0, 100], not {self.clahe_clip!r}")
+
+
+def equalized(gray: Gray, params: TrackParams) -> Gray:
+    """A frame as the image side sees it (``params.equalize``): unchanged, or equalized by
+    CLAHE (a new CLAHE object per call: frames are decoded on several threads)."""
+    if params.equalize == "none":
+        return gray
+    clahe = cv2.createCLAHE(clipLimit=params.clahe_clip, tileGridSize=(8, 8))
+    return np.asarray(clahe.apply(gray), dtype=np.uint8)
 
 
 @dataclass(frozen=True, eq=False)
