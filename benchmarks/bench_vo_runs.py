@@ -16,11 +16,13 @@ motion is compared with the ground truth over the same two images:
   ``no-scale``: the last speed, a guess).
 
 The table gives, per loop, camera and status, the runs, the median and 90th percentile
-of each error and the share of runs with a length off by more than 10 %; the photometric
-settings (``--tracks``, ``--vo``-free) are the defaults.
+of each error and the share of runs with a length off by more than 10 %. ``--tracks``
+sets the feature tracks' settings, as ``rigcal localize --tracks`` takes them
+(``"equalize=clahe"``).
 
     .venv/bin/python benchmarks/bench_vo_runs.py [--worlds corridor-loop,cubicle-loop] [--seeds 1,2]
-        [--cameras ";exposure_walk=0.03;image_noise_sigma=4;image_blur_sigma_px=1"] [--keep DIR]
+        [--cameras ";exposure_walk=0.03;image_noise_sigma=4;image_blur_sigma_px=1"]
+        [--tracks KEY=VALUE,...] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -33,20 +35,22 @@ from pathlib import Path
 import numpy as np
 
 from bench_localize import sequence_name
-from bench_tracks import drive_of, folder_of, seeds_of
+from bench_tracks import drive_of, folder_of, seeds_of, variants_of
 from rigcal.io.trajectory import read_tum
 from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.pipeline import _vo_result, planar_at
 from rigcal.localize.streams import open_streams
+from rigcal.localize.tracks import TrackParams
 from rigcal.sim.drive import DriveSpec, write_drive
 from rigcal.sim.world import BUILTIN
 
 MOVED_M = 0.05  # runs shorter than this give no direction or length error
 
 
-def run_errors(seq: Path) -> list[tuple[str, float, float, float]]:
+def run_errors(seq: Path, tracks: TrackParams) -> list[tuple[str, float, float, float]]:
     """(status, turn error deg, direction error deg, length error) of each VO run of a lap."""
     streams = open_streams(seq)
+    streams.track_params = tracks
     try:
         res = _vo_result(streams)
     finally:
@@ -80,8 +84,10 @@ def main() -> None:
         "image_noise_sigma=4,image_blur_sigma_px=1,exposure_walk=0.03",
         help='Cameras compared: DriveSpec fields "KEY=VALUE,...;..." (empty: the simulator\'s).',
     )
+    ap.add_argument("--tracks", default="", help='The feature tracks\' settings: "KEY=VALUE,...".')
     ap.add_argument("--keep", type=Path, help="Keep the sequences in this folder.")
     args = ap.parse_args()
+    tracks = next(iter(variants_of(args.tracks).values()))
     cameras = [c.strip() for c in args.cameras.split(";")]
     rows: dict[tuple[str, str, str], list[tuple[float, float, float]]] = defaultdict(list)
     with tempfile.TemporaryDirectory() as tmp:
@@ -93,10 +99,10 @@ def main() -> None:
                     seq = root / (sequence_name(name, seed, 30.0) + folder_of(camera, "-"))
                     if not (seq / "sequence.yaml").exists():
                         write_drive(BUILTIN[name](), DriveSpec(seed=seed, **drive_of(camera)), str(seq))
-                    for status, *err in run_errors(seq):
+                    for status, *err in run_errors(seq, tracks):
                         rows[name, camera or "simulator's", status].append((err[0], err[1], err[2]))
                         rows[name, camera or "simulator's", "all"].append((err[0], err[1], err[2]))
-    print(f"\n### VO runs against the truth, seeds {args.seeds}\n")
+    print(f"\n### VO runs against the truth, seeds {args.seeds}, tracks: {args.tracks or 'defaults'}\n")
     print(
         "| world | camera | status | runs | turn error median / p90 (deg) "
         "| direction error median / p90 (deg) | length error median / p90 | length off > 10 % |"

@@ -319,7 +319,7 @@ def test_iasm_settings_parse_each_field_by_its_type():
         ("--tracks", "detectors=sift", "--tracks: got 'detectors=sift'; expected KEY=VALUE with KEY one of"),
         ("--tracks", "levels=2.5", "--tracks levels: got '2.5'; expected a whole number, 0 or more"),
         ("--tracks", "predict=maybe", "--tracks predict: got 'maybe'; expected true or false"),
-        ("--tracks", "equalize=hist", "--tracks equalize: got 'hist'; expected one of none, clahe"),
+        ("--tracks", "equalize=hist", "--tracks equalize: got 'hist'; expected one of none, gain, clahe"),
         (
             "--tracks",
             "clahe_clip=0",

@@ -185,7 +185,42 @@ def test_tracks_hold_through_exposure_jumps_with_clahe(texture, wall_image):
 
 
 def test_a_bad_equalizer_or_clip_is_refused():
-    with pytest.raises(ValueError, match=r"equalize must be one of \('none', 'clahe'\), not 'hist'"):
+    with pytest.raises(ValueError, match=r"equalize must be one of \(.none., .gain., .clahe.\), not .hist."):
         TrackParams(equalize="hist")
     with pytest.raises(ValueError, match=r"clahe_clip in \(0, 100\], not 0"):
         TrackParams(clahe_clip=0.0)
+
+
+def test_gain_between_two_frames_is_measured_on_the_points_they_share(texture, wall_image):
+    from rigcal.localize.tracks import gain_between
+
+    a = _with_gain(wall_image(np.eye(3), np.zeros(3), DEPTH, texture), 0.7)
+    R, t = rotvec_to_R([0.0, 0.01, 0.0]), np.array([0.04, 0.0, 0.08])
+    moved = wall_image(R, t, DEPTH, texture)
+    px = np.stack(np.meshgrid(np.arange(40, 600, 40.0), np.arange(40, 440, 40.0)), -1).reshape(-1, 2)
+    for g in (0.8, 1.25):
+        b = _with_gain(moved, 0.7 * g)
+        # (The move, 8 cm towards a wall 3 m off, changes each point's 4x4 pixel mean a
+        # little: about 1 % of gain.)
+        assert gain_between(a, px, b, _truth(px, R, t)) == pytest.approx(g, rel=0.02)
+        assert gain_between(a, px, _with_gain(a, g), px) == pytest.approx(g, rel=0.002)
+    # Within 1.5 % of 1, or too few points: no gain.
+    assert gain_between(a, px, _with_gain(a, 1.012), px) == 1.0
+    assert gain_between(a, px[:10], _with_gain(moved, 0.7 * 1.25), _truth(px[:10], R, t)) == 1.0
+
+
+def test_tracks_hold_through_exposure_jumps_with_the_gain_divided_out(texture, wall_image):
+    motions = [(rotvec_to_R([0.0, 0.01 * k, 0.0]), np.array([0.04 * k, 0.0, 0.08 * k])) for k in range(4)]
+    views = [wall_image(R, t, DEPTH, texture) for R, t in motions]
+    jumps = [_with_gain(v, g) for v, g in zip(views, [0.7, 0.84, 0.7, 0.84], strict=True)]
+    steady = [_with_gain(v, 0.7) for v in views]
+    gain = TrackParams(equalize="gain")
+    tracks = track_sequence(jumps, CAM, gain)
+    ia, ib = common(tracks[0], tracks[-1])
+    assert len(ia) > 0.8 * len(tracks[0].ids)
+    err = np.linalg.norm(tracks[-1].pixels[ib] - _truth(tracks[0].pixels[ia], *motions[-1]), axis=1)
+    assert np.median(err) < 0.2
+    # A fixed exposure: the same tracks as without the setting, to the bit.
+    for a, b in zip(track_sequence(steady, CAM, gain), track_sequence(steady, CAM), strict=True):
+        assert np.array_equal(a.ids, b.ids)
+        assert np.array_equal(a.pixels, b.pixels)

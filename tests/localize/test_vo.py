@@ -310,3 +310,28 @@ def test_the_tracks_carry_the_scale_where_the_laser_gives_none(
             tracked = len(np.intersect1d(alive, tracks[s.last].ids))
             assert before.status == "no-scale" or tracked < VoParams().min_scale_votes
             assert k == len(res.steps) - 1 or res.steps[k + 1].status == "no-scale"  # nor after
+
+
+def test_laser_scale_divides_out_the_second_images_exposure_gain(texture, wall_image):
+    """The second image 35 % brighter (automatic exposure): the SAD along the epipolar
+    line loses most of its votes to the gain; with the gain measured on the tracks they
+    are back."""
+    from rigcal.localize.tracks import gain_between
+
+    t, depth = np.array([0.05, 0.0, 0.3]), 3.0
+    R = rotvec_to_R([0.0, 0.03, 0.0])
+    img1 = (wall_image(np.eye(3), np.zeros(3), depth, texture).astype(float) * 0.6).astype(np.uint8)
+    img2 = np.clip(np.round(wall_image(R, t, depth, texture) * 0.6 * 1.35), 0, 255).astype(np.uint8)
+    x = np.linspace(-2.0, 2.0, 200)
+    P1 = np.column_stack([x, np.full_like(x, 0.1), np.full_like(x, depth)])
+    # Points seen in both images, as the tracks give them.
+    grid = np.stack(np.meshgrid(np.linspace(-1.5, 1.5, 12), np.linspace(-1.0, 1.0, 8)), -1).reshape(-1, 2)
+    Q = np.column_stack([grid, np.full(len(grid), depth)])
+    gain = gain_between(img1, CAM.project(Q), img2, CAM.project(Q @ R.T + t))
+    assert gain == pytest.approx(1.35, rel=0.01)
+    unit = t / np.linalg.norm(t)
+    raw = laser_scale(img1, img2, CAM, R, unit, P1, 1.0, VoParams())
+    fixed = laser_scale(img1, img2, CAM, R, unit, P1, 1.0, VoParams(), gain)
+    assert fixed.used > 20
+    assert fixed.scale == pytest.approx(np.linalg.norm(t), rel=0.03)
+    assert fixed.used > 2 * raw.used or not np.isfinite(raw.scale)

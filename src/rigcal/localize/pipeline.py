@@ -95,6 +95,7 @@ def _vo_result(streams: Streams) -> VoResult:
         rig.T_cam_laser,
         streams.laser_points_at_image,
         progress=lambda k: streams.report("visual odometry", k, streams.n_images),
+        gain_compensation=streams.track_params.equalize == "gain",
     )
     streams.timings_s["vo_s"] = time.perf_counter() - t0
     streams.results["vo"] = res

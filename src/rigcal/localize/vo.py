@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 
 from rigcal.camera import Camera
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
-from rigcal.localize.tracks import FrameTracks, common
+from rigcal.localize.tracks import FrameTracks, common, gain_between
 
 FloatArray = NDArray[np.float64]
 Gray = NDArray[np.uint8]
@@ -331,6 +331,7 @@ def laser_scale(
     P1: FloatArray,
     max_scale_m: float,
     params: VoParams,
+    gain: float = 1.0,
 ) -> ScaleEstimate:
     """The translation's scale from laser points, Eq. (6).
 
@@ -339,6 +340,9 @@ def laser_scale(
         R, t_unit: the relative pose from the essential matrix.
         P1: (N, 3) laser points in the first camera's frame, metres (seen at the first image's time).
         max_scale_m: the largest translation searched.
+        gain: the second image's exposure gain against the first's (``gray2 ~ gain *
+            gray1``, :func:`~rigcal.localize.tracks.gain_between`): the second image's
+            patches are divided by it before they are compared.
 
     Each point's patch in the first image is compared (SAD) with patches along its epipolar
     line in the second image, at ``project(R P + s t_unit)`` for s in [0, max_scale_m];
@@ -370,6 +374,8 @@ def laser_scale(
     u2 = camera.project(np.where(front[..., None], moved, np.array([0.0, 0.0, 1.0])).reshape(-1, 3))
     u2 = u2.reshape(len(P1), len(s), 2)
     cand = sample_patches(gray2, u2.reshape(-1, 2), r).reshape(len(P1), len(s), -1)
+    if gain != 1.0:
+        cand /= np.float32(gain)
     sad = np.abs(cand - ref[:, None, :]).mean(axis=2)
     sad = np.where(
         front & camera.in_image(u2.reshape(-1, 2), margin_px=r + 1).reshape(sad.shape), sad, np.nan
@@ -522,6 +528,7 @@ def visual_odometry(
     params: VoParams | None = None,
     progress: Callable[[int], None] | None = None,
     workers: int = 2,
+    gain_compensation: bool = False,
 ) -> VoResult:
     """Chain the camera's runs into the laser's planar trajectory.
 
@@ -533,6 +540,9 @@ def visual_odometry(
         laser_points: frame index -> (N, 2) laser points in the laser frame at that frame's time.
         progress: called with the frames done so far.
         workers: threads measuring the runs (the result does not depend on it).
+        gain_compensation: each run's exposure gain, measured on its tracks
+            (:func:`~rigcal.localize.tracks.gain_between`), is divided out of the scale
+            search's patches (``TrackParams(equalize="gain")``).
 
     A run goes from its first frame to the last frame, at most ``max_run_frames`` on, that
     still shares ``min_tracked`` tracks with it (Section IV); the next run starts there.
@@ -558,9 +568,9 @@ def visual_odometry(
         if rel is None or rel.still:
             return _Measured(kf, j, dt, rel, None)
         P1 = _to_cam(T_cam_laser, laser_points(kf))
-        est = laser_scale(
-            image(kf), image(j), camera, rel.R, rel.t_unit, P1, params.max_speed_mps * dt, params
-        )
+        g1, g2 = image(kf), image(j)
+        gain = gain_between(g1, tracks[kf].pixels[ia], g2, tracks[j].pixels[ib]) if gain_compensation else 1.0
+        est = laser_scale(g1, g2, camera, rel.R, rel.t_unit, P1, params.max_speed_mps * dt, params, gain)
         return _Measured(kf, j, dt, rel, est)
 
     last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
