@@ -127,7 +127,7 @@ def equalized(gray: Gray, params: TrackParams) -> Gray:
 
 
 # A gain this close to 1 is not applied (gain_between).
-_GAIN_DEADBAND = 0.015
+_GAIN_DEADBAND = 0.025
 # gain_between: points whose quarter-size grey level is outside these are left out
 # (too dark to give a ratio, or clipped by saturation), and fewer than this many points
 # give no gain.
@@ -140,11 +140,10 @@ def gain_between(a: Gray, pixels_a: NDArray[np.floating], b: Gray, pixels_b: NDA
     both (pixels (N, 2) in each): the median ratio of their grey levels in quarter-size
     copies of the frames (4x4 pixel means, so that a pixel or two of error in where a
     point is found changes little). 1 when fewer than 20 points are usable, or when the
-    gain is within 1.5 % of 1 (two grey levels at mid-grey, which Lucas-Kanade and the
+    gain is within 2.5 % of 1 (three grey levels at mid-grey, which Lucas-Kanade and the
     patch searches bear): on a camera of fixed exposure the estimate strays by up to
-    1.4 % where the tracks' positions are only predicted (the tracker's), and by about
-    0.12 % (1 sigma) where they are found, so that such a camera's frames are left as
-    they are.
+    1.8 % over a visual odometry run (the view's change of scale moves the 4x4 means a
+    little), so that such a camera's frames are left as they are.
 
     An automatic exposure changes the gain because the scene's brightness changed, so the
     frames' mean grey levels stay put while the points seen in both do not: the gain is
@@ -236,14 +235,17 @@ class Tracker:
         guess = self._guess() if p.predict else np.zeros_like(self._px)
         if p.predict:
             lk["flags"] = cv2.OPTFLOW_USE_INITIAL_FLOW
+        start = (self._px + guess).reshape(-1, 1, 2)
+        p1, st1, err = cv2.calcOpticalFlowPyrLK(a, b, p0, start, **lk)  # type: ignore[call-overload]
         if p.equalize == "gain":
-            # b's exposure against a's, where the tracks are predicted to be.
-            gain = gain_between(a, self._px, b, self._px + guess)
+            # b's exposure against a's, on the tracks where they were found; when it moved,
+            # the gain is divided out of b and the tracks are followed again. (Where they
+            # are only predicted, the estimate strays too far to tell a small gain.)
+            found = st1.ravel() == 1
+            gain = gain_between(a, self._px[found], b, p1.reshape(-1, 2)[found])
             if gain != 1.0:
                 b = np.asarray(cv2.convertScaleAbs(b, alpha=1.0 / gain), dtype=np.uint8)
-        p1, st1, err = cv2.calcOpticalFlowPyrLK(  # type: ignore[call-overload]
-            a, b, p0, (self._px + guess).reshape(-1, 1, 2), **lk
-        )
+                p1, st1, err = cv2.calcOpticalFlowPyrLK(a, b, p0, start, **lk)  # type: ignore[call-overload]
         p1 = p1.reshape(-1, 2)
         h, w = b.shape
         ok = (
