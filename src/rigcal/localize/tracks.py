@@ -126,8 +126,6 @@ def equalized(gray: Gray, params: TrackParams) -> Gray:
     return np.asarray(clahe.apply(gray), dtype=np.uint8)
 
 
-# A gain this close to 1 is not applied (gain_between).
-_GAIN_DEADBAND = 0.025
 # gain_between: points whose quarter-size grey level is outside these are left out
 # (too dark to give a ratio, or clipped by saturation), and fewer than this many points
 # give no gain.
@@ -135,29 +133,41 @@ _GAIN_GREY = (16.0, 239.0)
 _GAIN_MIN_POINTS = 20
 
 
-def gain_between(a: Gray, pixels_a: NDArray[np.floating], b: Gray, pixels_b: NDArray[np.floating]) -> float:
+def gain_between(
+    a: Gray,
+    pixels_a: NDArray[np.floating],
+    b: Gray,
+    pixels_b: NDArray[np.floating],
+    dead_band: float = 0.02,
+    block_px: int = 4,
+) -> float:
     """The exposure gain of frame b against frame a, ``b ~ gain * a``, from points seen in
-    both (pixels (N, 2) in each): the median ratio of their grey levels in quarter-size
-    copies of the frames (4x4 pixel means, so that a pixel or two of error in where a
-    point is found changes little). 1 when fewer than 20 points are usable, or when the
-    gain is within 2.5 % of 1 (three grey levels at mid-grey, which Lucas-Kanade and the
-    patch searches bear): on a camera of fixed exposure the estimate strays by up to
-    1.8 % over a visual odometry run (the view's change of scale moves the 4x4 means a
-    little), so that such a camera's frames are left as they are.
+    both (pixels (N, 2) in each): the median ratio of their grey levels in copies of the
+    frames reduced to ``block_px`` x ``block_px`` pixel means (so that a pixel or two of
+    error in where a point is placed changes little). 1 when fewer than 20 points are
+    usable, or when the gain is within ``dead_band`` of 1.
+
+    The dead band (2 %, 2-3 grey levels at mid-grey, which the comparisons bear) keeps a
+    camera of fixed exposure's frames as they are: its estimate strays by up to 1.8 %
+    over a visual odometry run (4x4 means: the view's change of scale moves them a
+    little), and by up to 1.7 % between consecutive frames where the tracks are only
+    predicted (8x8 means, as the tracker uses them).
 
     An automatic exposure changes the gain because the scene's brightness changed, so the
     frames' mean grey levels stay put while the points seen in both do not: the gain is
     measured on the points."""
-    qa = cv2.resize(a, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA).astype(np.float32)
-    qb = cv2.resize(b, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA).astype(np.float32)
-    # A quarter-size pixel k covers full-size pixels 4k..4k+3: centre (p + 0.5) / 4 - 0.5.
-    ga, gb = _sample(qa, (pixels_a - 1.5) / 4.0), _sample(qb, (pixels_b - 1.5) / 4.0)
+    f = 1.0 / block_px
+    qa = cv2.resize(a, None, fx=f, fy=f, interpolation=cv2.INTER_AREA).astype(np.float32)
+    qb = cv2.resize(b, None, fx=f, fy=f, interpolation=cv2.INTER_AREA).astype(np.float32)
+    # A small pixel k covers full-size pixels kB..kB+B-1: centre (p + 0.5) / B - 0.5.
+    c = 0.5 * (block_px - 1)
+    ga, gb = _sample(qa, (pixels_a - c) * f), _sample(qb, (pixels_b - c) * f)
     lo, hi = _GAIN_GREY
     ok = (ga >= lo) & (ga <= hi) & (gb >= lo) & (gb <= hi)
     if int(ok.sum()) < _GAIN_MIN_POINTS:
         return 1.0
     gain = float(np.median(gb[ok] / ga[ok]))
-    return gain if abs(gain - 1.0) > _GAIN_DEADBAND else 1.0
+    return gain if abs(gain - 1.0) > dead_band else 1.0
 
 
 def _sample(img: NDArray[np.float32], px: NDArray[np.floating]) -> FloatArray:
@@ -236,16 +246,15 @@ class Tracker:
         if p.predict:
             lk["flags"] = cv2.OPTFLOW_USE_INITIAL_FLOW
         start = (self._px + guess).reshape(-1, 1, 2)
-        p1, st1, err = cv2.calcOpticalFlowPyrLK(a, b, p0, start, **lk)  # type: ignore[call-overload]
         if p.equalize == "gain":
-            # b's exposure against a's, on the tracks where they were found; when it moved,
-            # the gain is divided out of b and the tracks are followed again. (Where they
-            # are only predicted, the estimate strays too far to tell a small gain.)
-            found = st1.ravel() == 1
-            gain = gain_between(a, self._px[found], b, p1.reshape(-1, 2)[found])
+            # b's exposure against a's, where the tracks are predicted to be, in 8x8 pixel
+            # means (a prediction can be some pixels off). Not where Lucas-Kanade finds
+            # them: it finds each where the grey levels match best, which hides part of
+            # the gain.
+            gain = gain_between(a, self._px, b, start.reshape(-1, 2), block_px=8)
             if gain != 1.0:
                 b = np.asarray(cv2.convertScaleAbs(b, alpha=1.0 / gain), dtype=np.uint8)
-                p1, st1, err = cv2.calcOpticalFlowPyrLK(a, b, p0, start, **lk)  # type: ignore[call-overload]
+        p1, st1, err = cv2.calcOpticalFlowPyrLK(a, b, p0, start, **lk)  # type: ignore[call-overload]
         p1 = p1.reshape(-1, 2)
         h, w = b.shape
         ok = (
