@@ -159,7 +159,8 @@ def test_clahe_takes_an_exposure_gain_out_of_the_frame(texture, wall_image):
     eq = np.abs(equalized(b, p).astype(float) - equalized(a, p)).mean()
     assert raw > 20.0
     assert eq < 0.1 * raw
-    assert equalized(a, TrackParams()) is a  # "none" leaves the frame as it is
+    assert equalized(a, TrackParams(equalize="none")) is a  # as do "none" and "gain"
+    assert equalized(a, TrackParams(equalize="gain")) is a
 
 
 def test_tracks_hold_through_exposure_jumps_with_clahe(texture, wall_image):
@@ -221,6 +222,10 @@ def test_tracks_hold_through_exposure_jumps_with_the_gain_divided_out(texture, w
     err = np.linalg.norm(tracks[-1].pixels[ib] - _truth(tracks[0].pixels[ia], *motions[-1]), axis=1)
     assert np.median(err) < 0.2
     # A fixed exposure: the same tracks as without the setting, to the bit.
-    for a, b in zip(track_sequence(steady, CAM, gain), track_sequence(steady, CAM), strict=True):
+    for a, b in zip(
+        track_sequence(steady, CAM, gain),
+        track_sequence(steady, CAM, TrackParams(equalize="none")),
+        strict=True,
+    ):
         assert np.array_equal(a.ids, b.ids)
         assert np.array_equal(a.pixels, b.pixels)

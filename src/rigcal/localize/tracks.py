@@ -80,10 +80,11 @@ class TrackParams:
             compared in ``benchmarks/bench_tracks.py``.
         equalize: how the image side copes with a camera whose exposure changes from frame
             to frame (automatic exposure), which breaks Lucas-Kanade's and the patch
-            searches' constant brightness: ``"none"``; ``"gain"``, each frame pair's gain
-            measured on the tracks (:func:`gain_between`) and divided out where two frames
-            are compared (Lucas-Kanade, visual odometry's scale search), the frames left
-            as they are; or ``"clahe"``, contrast-limited adaptive histogram equalization
+            searches' constant brightness: ``"gain"`` (the default), each frame pair's
+            gain measured on the tracks (:func:`gain_between`) and divided out where two
+            frames are compared (Lucas-Kanade, visual odometry's scale search), the frames
+            left as they are, and a fixed exposure's frames left alone (a dead band);
+            ``"none"``; or ``"clahe"``, contrast-limited adaptive histogram equalization
             (OpenCV's CLAHE, clip limit ``clahe_clip``, 8x8 tiles) of every frame before
             anything reads it (the tracks, the scale search, IASM's and H-IASM's
             patches), which maps each tile's grey levels by their own distribution, one
@@ -103,7 +104,7 @@ class TrackParams:
     predict: bool = True
     predict_neighbours: int = 5
     detector: str = "shi-tomasi"
-    equalize: str = "none"
+    equalize: str = "gain"
     clahe_clip: float = 3.0
 
     # The values a text setting takes (``rigcal localize --tracks detector=...``).
@@ -147,11 +148,11 @@ def gain_between(
     error in where a point is placed changes little). 1 when fewer than 20 points are
     usable, or when the gain is within ``dead_band`` of 1.
 
-    The dead band (2 %, 2-3 grey levels at mid-grey, which the comparisons bear) keeps a
-    camera of fixed exposure's frames as they are: its estimate strays by up to 1.8 %
-    over a visual odometry run (4x4 means: the view's change of scale moves them a
-    little), and by up to 1.7 % between consecutive frames where the tracks are only
-    predicted (8x8 means, as the tracker uses them).
+    The dead band keeps a camera of fixed exposure's frames as they are: its estimate
+    strays by up to 1.8 % over a visual odometry run (4x4 means: the view's change of
+    scale moves them a little; the default 2 % is 2-3 grey levels at mid-grey, which the
+    comparisons bear), and by up to 2.6 % between consecutive frames where the tracks
+    are only predicted (8x8 means; the tracker uses 3 %).
 
     An automatic exposure changes the gain because the scene's brightness changed, so the
     frames' mean grey levels stay put while the points seen in both do not: the gain is
@@ -248,10 +249,10 @@ class Tracker:
         start = (self._px + guess).reshape(-1, 1, 2)
         if p.equalize == "gain":
             # b's exposure against a's, where the tracks are predicted to be, in 8x8 pixel
-            # means (a prediction can be some pixels off). Not where Lucas-Kanade finds
+            # means (a prediction can be some pixels off), past 3 %. Not where Lucas-Kanade finds
             # them: it finds each where the grey levels match best, which hides part of
             # the gain.
-            gain = gain_between(a, self._px, b, start.reshape(-1, 2), block_px=8)
+            gain = gain_between(a, self._px, b, start.reshape(-1, 2), dead_band=0.03, block_px=8)
             if gain != 1.0:
                 b = np.asarray(cv2.convertScaleAbs(b, alpha=1.0 / gain), dtype=np.uint8)
         p1, st1, err = cv2.calcOpticalFlowPyrLK(a, b, p0, start, **lk)  # type: ignore[call-overload]

@@ -528,7 +528,7 @@ def visual_odometry(
     params: VoParams | None = None,
     progress: Callable[[int], None] | None = None,
     workers: int = 2,
-    gain_compensation: bool = False,
+    gain_compensation: bool = True,
 ) -> VoResult:
     """Chain the camera's runs into the laser's planar trajectory.
 
@@ -542,7 +542,7 @@ def visual_odometry(
         workers: threads measuring the runs (the result does not depend on it).
         gain_compensation: each run's exposure gain, measured on its tracks
             (:func:`~rigcal.localize.tracks.gain_between`), is divided out of the scale
-            search's patches (``TrackParams(equalize="gain")``).
+            search's patches (``TrackParams(equalize="gain")``, the default).
 
     A run goes from its first frame to the last frame, at most ``max_run_frames`` on, that
     still shares ``min_tracked`` tracks with it (Section IV); the next run starts there.
