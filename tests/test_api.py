@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 import rigcal
 from rigcal.cli.main import main
@@ -108,3 +109,17 @@ def test_the_api_page_names_every_exported_function():
     ):
         assert f"rigcal.{name}" in page
     assert "examples/api_example.py" in page
+
+
+def test_localize_takes_the_tracks_and_iasm_settings(tmp_path):
+    seq, out = tmp_path / "drive", tmp_path / "out"
+    assert main(["simulate", "world", "-o", str(seq), "--duration-s", "3", "--seed", "1"]) == 0
+    runs = rigcal.localize(seq, ["vo"], output=out, tracks={"equalize": "clahe", "n_features": 600})
+    assert len(runs["vo"].stamps_s) > 2
+    settings = yaml.safe_load((out / "summary.yaml").read_text())["config"]["settings"]
+    assert settings["tracks"]["equalize"] == "clahe"
+    assert settings["tracks"]["n_features"] == 600
+    with pytest.raises(InputError, match=r"tracks equalize: got 'hist'; expected one of none, gain, clahe"):
+        rigcal.localize(seq, ["vo"], tracks={"equalize": "hist"})
+    with pytest.raises(InputError, match=r"iasm: got 'snap=1'; expected KEY=VALUE with KEY one of"):
+        rigcal.localize(seq, ["iasm"], iasm={"snap": 1})

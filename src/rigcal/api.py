@@ -9,7 +9,7 @@ localize`` call), so a result is the same whichever way it was asked for. They r
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -299,6 +299,8 @@ def localize(
     output: str | Path | None = None,
     rig: str | Path | None = None,
     force: bool = False,
+    tracks: Mapping[str, object] | None = None,
+    iasm: Mapping[str, object] | None = None,
 ) -> dict[str, Localization]:
     """Localize a sequence folder (docs/formats/sequence.md), as ``rigcal localize``.
 
@@ -309,6 +311,9 @@ def localize(
             summary, paths picture); default: nothing is written.
         rig: a rig file to use instead of the sequence's own.
         force: replace an existing ``output``.
+        tracks, iasm: settings of the feature tracks and of IASM / H-IASM, as
+            ``--tracks`` and ``--iasm`` take them (``{"equalize": "clahe"}``,
+            ``{"snap_max_m": 0}``); default: the defaults.
 
     Returns:
         Each method's trajectory, by method name.
@@ -318,11 +323,18 @@ def localize(
         OutputError: ``output`` exists and ``force`` is False.
     """
     from rigcal.io.files import check_folder_writable
-    from rigcal.localize.pipeline import run
+    from rigcal.localize.iasm import IasmParams
+    from rigcal.localize.pipeline import parse_settings, run
+    from rigcal.localize.tracks import TrackParams
 
+    # The same checks as the command line's, each error naming the argument.
+    track_params = parse_settings([f"{k}={v}" for k, v in (tracks or {}).items()], TrackParams(), "tracks")
+    iasm_params = parse_settings([f"{k}={v}" for k, v in (iasm or {}).items()], IasmParams(), "iasm")
     if output is not None:
         check_folder_writable(output, force)  # refuse before the work
     with tempfile.TemporaryDirectory(prefix="rigcal-") as tmp:
         out = Path(output) if output is not None else Path(tmp) / "out"
-        r = run(sequence, list(methods), out, force=force, rig_file=rig)
+        r = run(
+            sequence, list(methods), out, force=force, rig_file=rig, iasm=iasm_params, tracks=track_params
+        )
     return {m.method: Localization(m.method, m.stamps_s, m.poses, m.metrics) for m in r.methods}

@@ -362,6 +362,7 @@ def test_the_tracks_detector_reaches_the_run_and_the_summary(drive, tmp_path, de
     s = yaml.safe_load((out / "summary.yaml").read_text())
     assert s["config"]["settings"]["tracks"]["detector"] == detector
     assert s["config"]["settings"]["tracks"]["n_features"] == 800
+    assert s["config"]["settings"]["tracks"]["equalize"] == "gain"  # the default, recorded
     assert s["methods"]["vo"]["metrics"]["average_position_error_m"] < 0.5
 
 
