@@ -31,8 +31,8 @@ from rigcal.localize.iasm import (
     parabola_offset,
     robust_motion,
 )
+from rigcal.localize.patches import sample_patches
 from rigcal.localize.polish import LaserReference, joint_polish
-from rigcal.localize.vo import sample_patches
 
 FloatArray = NDArray[np.float64]
 

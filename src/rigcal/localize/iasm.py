@@ -44,8 +44,8 @@ from rigcal.geometry import transform_points
 from rigcal.jit import njit
 from rigcal.localize.icp import _point_to_point, line_fits
 from rigcal.localize.nearest import Grid
+from rigcal.localize.patches import sample_patches
 from rigcal.localize.polish import LaserReference, joint_polish
-from rigcal.localize.vo import sample_patches
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]

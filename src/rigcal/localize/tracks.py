@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from rigcal.camera import Camera
+from rigcal.localize.patches import sample_patches
 
 FloatArray = NDArray[np.float64]
 Gray = NDArray[np.uint8]
@@ -157,30 +158,21 @@ def gain_between(
     An automatic exposure changes the gain because the scene's brightness changed, so the
     frames' mean grey levels stay put while the points seen in both do not: the gain is
     measured on the points."""
+    if len(pixels_a) < _GAIN_MIN_POINTS:
+        return 1.0
     f = 1.0 / block_px
-    qa = cv2.resize(a, None, fx=f, fy=f, interpolation=cv2.INTER_AREA).astype(np.float32)
-    qb = cv2.resize(b, None, fx=f, fy=f, interpolation=cv2.INTER_AREA).astype(np.float32)
+    qa = np.asarray(cv2.resize(a, None, fx=f, fy=f, interpolation=cv2.INTER_AREA), dtype=np.uint8)
+    qb = np.asarray(cv2.resize(b, None, fx=f, fy=f, interpolation=cv2.INTER_AREA), dtype=np.uint8)
     # A small pixel k covers full-size pixels kB..kB+B-1: centre (p + 0.5) / B - 0.5.
     c = 0.5 * (block_px - 1)
-    ga, gb = _sample(qa, (pixels_a - c) * f), _sample(qb, (pixels_b - c) * f)
+    ga = sample_patches(qa, (pixels_a - c) * f, 0)[:, 0].astype(float)
+    gb = sample_patches(qb, (pixels_b - c) * f, 0)[:, 0].astype(float)
     lo, hi = _GAIN_GREY
     ok = (ga >= lo) & (ga <= hi) & (gb >= lo) & (gb <= hi)
     if int(ok.sum()) < _GAIN_MIN_POINTS:
         return 1.0
     gain = float(np.median(gb[ok] / ga[ok]))
     return gain if abs(gain - 1.0) > dead_band else 1.0
-
-
-def _sample(img: NDArray[np.float32], px: NDArray[np.floating]) -> FloatArray:
-    """Bilinear samples of an image at pixels (N, 2) (pixel centres at whole numbers; NaN
-    outside)."""
-    if not len(px):
-        return np.zeros(0)
-    m = px.astype(np.float32).reshape(-1, 1, 2)
-    out = cv2.remap(
-        img, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
-    )
-    return np.asarray(out, dtype=float).ravel()
 
 
 @dataclass(frozen=True, eq=False)
@@ -249,9 +241,9 @@ class Tracker:
         start = (self._px + guess).reshape(-1, 1, 2)
         if p.equalize == "gain":
             # b's exposure against a's, where the tracks are predicted to be, in 8x8 pixel
-            # means (a prediction can be some pixels off), past 3 %. Not where Lucas-Kanade finds
-            # them: it finds each where the grey levels match best, which hides part of
-            # the gain.
+            # means (a prediction can be some pixels off), past 3 %. Not where
+            # Lucas-Kanade finds them: it finds each where the grey levels match best,
+            # which hides part of the gain.
             gain = gain_between(a, self._px, b, start.reshape(-1, 2), dead_band=0.03, block_px=8)
             if gain != 1.0:
                 b = np.asarray(cv2.convertScaleAbs(b, alpha=1.0 / gain), dtype=np.uint8)

@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from rigcal.camera import Camera
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
+from rigcal.localize.patches import sample_patches
 from rigcal.localize.tracks import FrameTracks, common, gain_between
 
 FloatArray = NDArray[np.float64]
@@ -291,26 +292,6 @@ def refine_essential(
 
 def _skew(v: FloatArray) -> FloatArray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
-def sample_patches(gray: Gray, centres: FloatArray, radius: int) -> NDArray[np.float32]:
-    """(N, (2r+1)^2) bilinear samples of square patches around sub-pixel centres."""
-    off = np.arange(-radius, radius + 1, dtype=np.float32)
-    dx, dy = np.meshgrid(off, off)
-    c = centres.astype(np.float32)
-    mx = (c[:, 0:1] + dx.ravel()[None, :]).astype(np.float32)
-    my = (c[:, 1:2] + dy.ravel()[None, :]).astype(np.float32)
-    return np.asarray(
-        cv2.remap(
-            gray.astype(np.float32),
-            mx,
-            my,
-            cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=np.nan,
-        ),
-        dtype=np.float32,
-    )
 
 
 @dataclass(frozen=True)
