@@ -6,12 +6,13 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from rigcal.calib.refine import NoiseModel, RefineParams
 from rigcal.calib.report import build_report, report_table
 from rigcal.calib.solve import CalibProblem, SolveSettings, solve
 from rigcal.errors import CalibrationError
-from rigcal.geometry import pose_error
+from rigcal.geometry import pose_error, tangent_delta
 from rigcal.sim.box_session import SessionSpec, generate_session, session_observations
 
 
@@ -80,7 +81,13 @@ def test_report_contents_and_truth():
     assert 0.3 < s["rms_px"] < 3.0
     assert len(rep["per_capture"]) == 12
     assert len(rep["ends"]) == 24
-    assert rep["truth"]["nees"] >= 0
+    # NEES is the error's Mahalanobis square under the reported covariance, recomputed
+    # here independently, and an honest covariance puts it below chi-square(6)'s 99.9 %.
+    x = tangent_delta(sess.T_cam_laser, res.T_cam_laser)
+    nees = float(x @ np.linalg.solve(res.covariance, x))
+    assert rep["truth"]["nees"] == pytest.approx(nees, rel=1e-3, abs=1e-3)
+    assert rep["truth"]["nees"] < chi2.ppf(0.999, 6)
+    assert rep["truth"]["rotation_error_deg"] == pytest.approx(np.degrees(np.linalg.norm(x[:3])), abs=1e-4)
     assert "error against truth" in report_table(rep)
 
 
