@@ -71,6 +71,10 @@ run_lint() {
   .venv/bin/ruff format --check --quiet src tests benchmarks
   say "mypy"
   .venv/bin/mypy
+  say "lint-imports (the layer contract, docs/development.md)"
+  local contract
+  contract=$(.venv/bin/lint-imports --no-cache 2>&1) || { echo "$contract" >&2; return 1; }
+  echo "$contract" | tail -n 1 >&2
 }
 
 case "$job" in
