@@ -835,6 +835,10 @@ def write_trajectory(
         force = flag(force, where, "force")
         kind = _format(p, format, where)
         if isinstance(trajectory, Localization):
+            n = len(finite_array(trajectory.poses, where, "trajectory.poses", shape=(None, 3)))
+            stamps = None if trajectory.stamps_s is None else np.asarray(trajectory.stamps_s, dtype=float)
+            if stamps is not None and stamps.shape != (n,):
+                raise InputError.at(where, "trajectory.stamps_s", f"{stamps.shape}", f"({n},) stamps")
             trajectory = trajectory.trajectory()
         _instance(trajectory, Trajectory, where, "trajectory", "a rigcal.Trajectory or rigcal.Localization")
         poses = finite_array(trajectory.poses, where, "trajectory.poses", shape=(None, 4, 4))
