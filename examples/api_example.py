@@ -72,7 +72,7 @@ def drive(folder: Path) -> None:
     from rigcal.sim.world import world_named
 
     spec = DriveSpec(laser_rate_hz=10.0, images=False, duration_s=20.0)
-    write_drive(world_named("cubicle-loop"), spec, folder)
+    write_drive(world_named("cubicle-loop"), spec, str(folder))
     runs = rigcal.localize(folder, ["icp"])
     m = runs["icp"].metrics
     assert m is not None

@@ -442,3 +442,33 @@ def test_the_api_page_names_every_exported_name():
             assert f"rigcal.{name}" in page, name
     assert "examples/api_example.py" in page
     assert "ArgumentError" in (ROOT / "docs" / "cli.md").read_text() or "ArgumentError" in page
+
+
+@pytest.mark.slow
+def test_a_users_script_is_type_checked_against_the_api(tmp_path):
+    """py.typed and the report's types: mypy reads a script's mistakes as it would in a
+    user's project (a report key of the other method, a float taken for text)."""
+    script = tmp_path / "user.py"
+    script.write_text(
+        "import rigcal\n"
+        "sol = rigcal.solve_box('picks.yaml')\n"
+        "rms: float = sol.report['summary']['rms_px']\n"
+        "sig = sol.rig.sigmas()\n"
+        "deg = None if sig is None else sig.rotation_deg\n"
+        "wrong: str = sol.report['summary']['rms_px']\n"
+        "board_key = sol.report['summary']['rms_mm']\n"
+        "board = rigcal.solve_board('board_session.yaml')\n"
+        "mm: float = board.report['summary']['rms_mm']\n"
+        "odom = rigcal.LaserOdometry()\n"
+        "n: int = len(odom)\n"
+    )
+    run = subprocess.run(
+        [sys.executable, "-m", "mypy", "--no-incremental", "--follow-imports=silent", str(script)],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    errors = [line for line in run.stdout.splitlines() if ": error:" in line]
+    assert len(errors) == 2, run.stdout
+    assert "user.py:6: error: Incompatible types in assignment" in errors[0]
+    assert 'user.py:7: error: TypedDict "BoxSummary" has no key "rms_mm"' in errors[1]
