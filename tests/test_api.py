@@ -266,6 +266,13 @@ def test_write_rig_refuses_a_rig_read_rig_would_refuse_and_writes_nothing(sim, t
     cov[0, 0] = -1.0
     with pytest.raises(ArgumentError, match=r"rig\.uncertainty\.covariance"):
         rigcal.write_rig(out, replace(sol.rig, covariance=cov))
+    with pytest.raises(ArgumentError, match=r"rig\.camera: got 'cam'; expected a rigcal\.Camera"):
+        rigcal.write_rig(out, replace(sol.rig, camera="cam"))
+    with pytest.raises(ArgumentError, match=r"rigcal\.write_rig: rig\.laser: got \[1\]; expected a mapping"):
+        rigcal.write_rig(out, replace(sol.rig, laser=[1]))
+    bad_camera = rigcal.Camera("LENSMODEL_OPENCV5", [500, -1, 320, 240, 0, 0, 0, 0, 0], 640, 480)
+    with pytest.raises(ArgumentError, match=r"rig\.camera\.intrinsics: got \[500\.0, -1\.0"):
+        rigcal.write_rig(out, replace(sol.rig, camera=bad_camera))
     with pytest.raises(ArgumentError, match=r"rig: got 'rig'; expected a rigcal\.Rig"):
         rigcal.write_rig(out, "rig")
     with pytest.raises(ArgumentError, match=r"path: got 3"):

@@ -316,6 +316,7 @@ def write_rig(path: str | Path, rig: Rig, force: bool = False) -> Path:
     with _arguments():
         p = _path(path, where, "path")
         _instance(rig, Rig, where, "rig", "a rigcal.Rig")
+        _instance(rig.camera, Camera, where, "rig.camera", "a rigcal.Camera")
         force = flag(force, where, "force")
         text = checked_rig_text(rig, where, "rig")
     return atomic_write_text(p, text, force=force)
