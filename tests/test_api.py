@@ -52,6 +52,18 @@ def test_import_rigcal_exports_the_api_and_loads_it_lazily():
         rigcal.nope  # noqa: B018
 
 
+def test_the_shared_option_rules_keep_the_command_line_light():
+    """rigcal solve declares its options with calib/options' types: importing the command
+    line must not import the solver (``rigcal --help`` stays instant)."""
+    code = (
+        "import sys, rigcal.cli.main; "
+        "print(sorted(m for m in ('rigcal.calib.solve', 'rigcal.calib.refine', 'numpy', 'scipy') "
+        "if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
 def test_the_package_ships_py_typed_and_the_wheel_takes_the_whole_package():
     assert (ROOT / "src" / "rigcal" / "py.typed").is_file()
     import tomllib

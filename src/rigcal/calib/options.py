@@ -9,10 +9,18 @@ the same limits. :func:`box_settings` turns the box method's options into the so
 
 from __future__ import annotations
 
-from rigcal.calib.ransac import RansacParams
-from rigcal.calib.refine import LOSSES, NoiseModel, RefineParams
-from rigcal.calib.solve import NOISE_MODES, SolveSettings
+from typing import TYPE_CHECKING
+
 from rigcal.io.validate import OneOf, Real, Whole
+
+if TYPE_CHECKING:  # the solver is imported where used: ``rigcal --help`` stays instant
+    from rigcal.calib.solve import SolveSettings
+
+# How the noise is set: "auto" estimates it from the session and uses the estimates (the
+# values given are reported beside them); "assumed" uses the values given.
+NOISE_MODES = ("auto", "assumed")
+# The refinement's robust losses (scipy.optimize.least_squares' names).
+LOSSES = ("linear", "huber", "soft_l1", "cauchy")
 
 # The RANSAC stage's inlier threshold (reprojection error, pixels).
 THRESHOLD_PX = Real(min=0.1)
@@ -24,7 +32,6 @@ RANGE_SIGMA_M = Real(min=1e-5)
 CORNER_SIGMA_PX = Real(min=0.0, min_open=True)
 # RANSAC's seed (numpy's generators take any integer >= 0).
 SEED = Whole(min=0)
-# auto: estimate the noise from the session; assumed: use the values given.
 NOISE = OneOf(NOISE_MODES)
 # The refinement's robust loss.
 LOSS = OneOf(LOSSES)
@@ -44,6 +51,10 @@ def box_settings(
 ) -> SolveSettings:
     """The box method's solver settings from ``rigcal solve``'s options (checked by the
     caller: click for the command line, the types' ``check`` for the API)."""
+    from rigcal.calib.ransac import RansacParams
+    from rigcal.calib.refine import NoiseModel, RefineParams
+    from rigcal.calib.solve import SolveSettings
+
     return SolveSettings(
         ransac=RansacParams(threshold_px=threshold_px, seed=seed),
         refine=RefineParams(use_side_points=not paper_endpoints, loss=loss),
