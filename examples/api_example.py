@@ -67,7 +67,6 @@ def checkerboard() -> rigcal.Rig:
 def drive(folder: Path) -> None:
     """Laser odometry through 20 s of a simulated office, scored against its truth, then
     the same scans fed one at a time, as a robot's loop would."""
-    from rigcal.localize.streams import open_streams
     from rigcal.sim.drive import DriveSpec, write_drive
     from rigcal.sim.world import world_named
 
@@ -81,7 +80,7 @@ def drive(folder: Path) -> None:
         f"ATE {m['ate_rmse_m']:.3f} m, RPE 1 m {m['rpe_1m_rmse_m']:.3f} m"
     )
     odom = rigcal.LaserOdometry()
-    for scan in open_streams(folder).scans:  # here from the folder; in a robot, from its driver
+    for scan in rigcal.read_scans(folder):  # here from the folder; in a robot, from its driver
         x, y, yaw = odom.register_scan(scan)
     # The batch run's poses are in the truth's frame; the same step from the first pose:
     batch = runs["icp"].poses

@@ -367,11 +367,12 @@ def test_laser_odometry_scan_by_scan_equals_the_batch_icp(tmp_path):
     seq = tmp_path / "drive"
     assert main(["simulate", "world", "-o", str(seq), "--duration-s", "4", "--seed", "3", "--no-images"]) == 0
     batch = rigcal.localize(seq, "icp,icp-p2p")
-    streams = open_streams(seq)
+    scans = rigcal.read_scans(seq)
+    assert [s.stamp_s for s in scans] == [s.stamp_s for s in open_streams(seq).scans]
     for method in ("icp", "icp-p2p"):
         odom = rigcal.LaserOdometry(method)
-        poses = [odom.register_scan(scan) for scan in streams.scans]
-        assert len(odom) == len(streams.scans)
+        poses = [odom.register_scan(scan) for scan in scans]
+        assert len(odom) == len(scans)
         np.testing.assert_array_equal(np.array(poses), odom.poses)
         np.testing.assert_array_equal(odom.stamps_s, batch[method].stamps_s)
         truth = yaml.safe_load((seq / "sequence.yaml").read_text())["groundtruth"]
@@ -379,7 +380,11 @@ def test_laser_odometry_scan_by_scan_equals_the_batch_icp(tmp_path):
         # The batch run's poses are anchored at the truth's first pose: so are these.
         np.testing.assert_array_equal(anchored(odom.poses, gt), batch[method].poses)
     assert odom.poses[0].tolist() == [0.0, 0.0, 0.0]
-    assert odom.degeneracy.shape == (len(streams.scans),)
+    assert odom.degeneracy.shape == (len(scans),)
+    with pytest.raises(ArgumentError, match=r"rigcal\.read_scans: sequence: got 1"):
+        rigcal.read_scans(1)
+    with pytest.raises(InputError):
+        rigcal.read_scans(tmp_path / "none")
 
 
 def test_laser_odometry_checks_its_scans_and_takes_a_motion_guess():

@@ -49,6 +49,7 @@ __all__ = [
     "Trajectory",
     "localize",
     "read_rig",
+    "read_scans",
     "read_trajectory",
     "solve_board",
     "solve_box",
@@ -767,6 +768,21 @@ class LaserOdometry:
         from rigcal.io.trajectory import planar_trajectory
 
         return planar_trajectory(self.stamps_s, self.poses, z_m)
+
+
+def read_scans(sequence: str | Path) -> tuple[Scan, ...]:
+    """The scans of a sequence folder (docs/formats/sequence.md), in time order, as
+    ``rigcal localize`` reads them (a clockwise scanner's turned counter-clockwise).
+
+    Raises:
+        ArgumentError: ``sequence`` is not a path.
+        InputError: a missing or invalid sequence.
+    """
+    from rigcal.io.sequence import read_sequence
+
+    with _arguments():
+        folder = _path(sequence, "rigcal.read_scans", "sequence")
+    return read_sequence(folder).scans
 
 
 # --- trajectories ---------------------------------------------------------------------------
