@@ -434,6 +434,11 @@ def test_trajectories_read_and_write_under_stable_names(tmp_path):
         with pytest.raises(ArgumentError, match=message):
             rigcal.write_trajectory(*args)
     assert not (tmp_path / "b.tum").exists()
+    with pytest.raises(ArgumentError, match=r"rigcal\.Localization\.trajectory: z_m: got nan"):
+        loc.trajectory(float("nan"))
+    with pytest.raises(ArgumentError, match=r"rigcal\.write_trajectory: trajectory\.poses: got 'an array"):
+        rigcal.write_trajectory(tmp_path / "c.tum", rigcal.Localization("icp", stamps, stamps, None))
+    assert loc.trajectory(0.4).poses[0, 2, 3] == 0.4
     with pytest.raises(ArgumentError, match=r"rigcal\.read_trajectory: format: got 'TUM'"):
         rigcal.read_trajectory(tum, "TUM")
 

@@ -212,10 +212,22 @@ class Localization:
     metrics: dict[str, Any] | None
 
     def trajectory(self, z_m: float = 0.0) -> Trajectory:
-        """The poses as a :class:`Trajectory` (4x4 T_world_laser at height ``z_m``)."""
-        from rigcal.io.trajectory import planar_trajectory
+        """The poses as a :class:`Trajectory` (4x4 T_world_laser at height ``z_m``).
 
-        return planar_trajectory(self.stamps_s, self.poses, z_m)
+        Raises:
+            ArgumentError: ``z_m`` is not a finite number, or the poses are not (N, 3).
+        """
+        return _planar(self.stamps_s, self.poses, z_m, "rigcal.Localization.trajectory")
+
+
+def _planar(stamps_s: Any, poses: Any, z_m: Any, where: str) -> Trajectory:
+    from rigcal.io.trajectory import planar_trajectory
+    from rigcal.io.validate import finite_array, real
+
+    with _arguments():
+        z = real(z_m, where, "z_m")
+        planar = finite_array(poses, where, "poses", shape=(None, 3))
+    return planar_trajectory(stamps_s, planar, z)
 
 
 # --- argument checks --------------------------------------------------------------------
@@ -764,10 +776,13 @@ class LaserOdometry:
         return self._odometry.odometry().degeneracy
 
     def trajectory(self, z_m: float = 0.0) -> Trajectory:
-        """The poses so far as a :class:`Trajectory` (for :func:`write_trajectory`)."""
-        from rigcal.io.trajectory import planar_trajectory
+        """The poses so far as a :class:`Trajectory` at height ``z_m`` (for
+        :func:`write_trajectory`).
 
-        return planar_trajectory(self.stamps_s, self.poses, z_m)
+        Raises:
+            ArgumentError: ``z_m`` is not a finite number.
+        """
+        return _planar(self.stamps_s, self.poses, z_m, "rigcal.LaserOdometry.trajectory")
 
 
 def read_scans(sequence: str | Path) -> tuple[Scan, ...]:
@@ -856,7 +871,7 @@ def write_trajectory(
             stamps = None if trajectory.stamps_s is None else np.asarray(trajectory.stamps_s, dtype=float)
             if stamps is not None and stamps.shape != (n,):
                 raise InputError.at(where, "trajectory.stamps_s", f"{stamps.shape}", f"({n},) stamps")
-            trajectory = trajectory.trajectory()
+            trajectory = _planar(trajectory.stamps_s, trajectory.poses, 0.0, where)
         _instance(trajectory, Trajectory, where, "trajectory", "a rigcal.Trajectory or rigcal.Localization")
         poses = finite_array(trajectory.poses, where, "trajectory.poses", shape=(None, 4, 4))
         if not len(poses):
