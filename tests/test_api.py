@@ -181,6 +181,13 @@ def test_solve_box_refuses_what_the_command_line_refuses(sim):
             rigcal.solve_box(caps, sim.camera, **kwargs)
 
 
+def test_the_command_line_refuses_the_same_values_as_a_usage_error(tmp_path, capsys):
+    out = str(tmp_path / "rig.yaml")
+    for option, value in (("--seed", "-1"), ("--range-sigma-m", "nan"), ("--loss", "l2"), ("--noise", "x")):
+        assert main(["solve", str(tmp_path / "picks.yaml"), "-o", out, option, value]) == 2
+        assert value in capsys.readouterr().err
+
+
 def test_solve_box_bad_captures_name_the_capture_and_value(sim, tmp_path):
     caps = captures(sim)
     cases = [
