@@ -2,7 +2,8 @@
 checkerboard, save and read the rig, and localize a drive (docs/api.md).
 
 The data are simulated here (with a known answer); with your own, build the same
-``BoxCapture``/``BoardCapture`` records from your scans, picks and board poses.
+``BoxCapture``/``BoardCapture`` records from your scans, picks and board corners
+(docs/api.md says how to build a ``rigcal.Scan`` and a ``rigcal.Camera`` from arrays).
 
     python examples/api_example.py
 """
@@ -41,19 +42,22 @@ def box_target() -> rigcal.Rig:
 
 
 def checkerboard() -> rigcal.Rig:
-    """The plane method from board poses (PnP on the corners) and the scan's board returns."""
-    from rigcal.calib.board_session import board_pose
+    """The plane method from each board's corners in the image and its returns in the scan."""
     from rigcal.calib.lines import extract_lines
     from rigcal.sim.board_session import BoardSpec, generate_board_session
 
     spec = BoardSpec(n_captures=10, seed=2)
     sim = generate_board_session(spec)
+    board = rigcal.Board(spec.board.width_n, spec.board.height_n, spec.board.spacing_m)
     captures = []
     for c in sim.captures:
-        T_cam_board, cov, _ = board_pose(sim.camera, spec.board, c.corners_px, spec.corner_sigma_px)
-        seg = extract_lines(c.scan)[c.segment_id]
-        captures.append(rigcal.BoardCapture(T_cam_board, c.scan.points[seg.indices], cov, c.name))
-    sol = rigcal.solve_board(captures, sim.camera, range_sigma_m=spec.range_sigma_m)
+        # The board's corners as cv2.findChessboardCorners finds them, and its returns:
+        # the scan's line on the board.
+        segment = extract_lines(c.scan)[c.segment_id]
+        captures.append(rigcal.BoardCapture(c.corners_px, segment.points, c.name))
+    sol = rigcal.solve_board(
+        captures, sim.camera, board, range_sigma_m=spec.range_sigma_m, corner_sigma_px=spec.corner_sigma_px
+    )
     s = sol.report["summary"]
     fit = f"{s['captures_used']}/{s['captures']} captures, {s['rms_mm']:.1f} mm RMS"
     print(f"checkerboard: {fit}; {error_text(sol.rig.T_cam_laser, sim.T_cam_laser)}")
@@ -61,12 +65,13 @@ def checkerboard() -> rigcal.Rig:
 
 
 def drive(folder: Path) -> None:
-    """Laser odometry through 20 s of a simulated office, scored against its truth."""
+    """Laser odometry through 20 s of a simulated office, scored against its truth, then
+    the same scans fed one at a time, as a robot's loop would."""
     from rigcal.sim.drive import DriveSpec, write_drive
     from rigcal.sim.world import world_named
 
     spec = DriveSpec(laser_rate_hz=10.0, images=False, duration_s=20.0)
-    write_drive(world_named("cubicle-loop"), spec, folder)
+    write_drive(world_named("cubicle-loop"), spec, str(folder))
     runs = rigcal.localize(folder, ["icp"])
     m = runs["icp"].metrics
     assert m is not None
@@ -74,6 +79,16 @@ def drive(folder: Path) -> None:
         f"localize: icp, {len(runs['icp'].stamps_s)} poses over {m['path_length_m']:.1f} m; "
         f"ATE {m['ate_rmse_m']:.3f} m, RPE 1 m {m['rpe_1m_rmse_m']:.3f} m"
     )
+    odom = rigcal.LaserOdometry()
+    for scan in rigcal.read_scans(folder):  # here from the folder; in a robot, from its driver
+        x, y, yaw = odom.register_scan(scan)
+    # The batch run's poses are in the truth's frame; the same step from the first pose:
+    batch = runs["icp"].poses
+    c, s = np.cos(batch[0, 2]), np.sin(batch[0, 2])
+    last = np.array([[c, s], [-s, c]]) @ (batch[-1, :2] - batch[0, :2])
+    same = bool(np.allclose([x, y, yaw], [*last, batch[-1, 2] - batch[0, 2]], atol=1e-9))
+    print(f"streaming: {len(odom)} scans, last pose equal to the batch run's: {same}")
+    rigcal.write_trajectory(folder / "odometry.tum", odom.trajectory())
 
 
 def main() -> None:
@@ -85,7 +100,10 @@ def main() -> None:
         assert np.allclose(again.T_cam_laser, rig.T_cam_laser, atol=1e-9)
         sig = again.sigmas()
         assert sig is not None
-        print(f"rig file: 1-sigma {np.round(sig[0], 3).tolist()} deg, {np.round(sig[1], 1).tolist()} mm")
+        print(
+            f"rig file: 1-sigma rotation {np.round(sig.rotation_deg, 3).tolist()} deg, "
+            f"translation {np.round(sig.translation_mm, 1).tolist()} mm"
+        )
         drive(Path(tmp) / "drive")
 
 

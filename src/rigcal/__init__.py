@@ -8,6 +8,7 @@ The Python API (docs/api.md)::
     rigcal.write_rig("rig.yaml", sol.rig)
     rig = rigcal.read_rig("rig.yaml")
     runs = rigcal.localize("corridor/", ["icp", "hiasm"])
+    odom = rigcal.LaserOdometry()                        # scan by scan, in a robot's loop
 
 The names are loaded on first use, so ``import rigcal`` (and the ``rigcal`` command's
 ``--help``) stays fast.
@@ -20,38 +21,69 @@ from typing import TYPE_CHECKING, Any
 __version__ = "0.1.0"
 
 __all__ = [
+    "ArgumentError",
+    "Board",
     "BoardCapture",
+    "BoardReport",
     "BoxCapture",
+    "BoxReport",
+    "CalibrationError",
     "Camera",
+    "InputError",
+    "LaserOdometry",
     "Localization",
+    "OutputError",
     "Rig",
+    "RigcalError",
     "Scan",
+    "Sigmas",
     "Solution",
+    "Trajectory",
     "__version__",
     "localize",
     "read_rig",
+    "read_scans",
+    "read_trajectory",
     "solve_board",
     "solve_box",
     "write_rig",
+    "write_trajectory",
 ]
 
 if TYPE_CHECKING:
     from rigcal.api import (
+        Board,
         BoardCapture,
+        BoardReport,
         BoxCapture,
+        BoxReport,
+        LaserOdometry,
         Localization,
         Solution,
+        Trajectory,
         localize,
         read_rig,
+        read_scans,
+        read_trajectory,
         solve_board,
         solve_box,
         write_rig,
+        write_trajectory,
     )
     from rigcal.camera import Camera
-    from rigcal.rig import Rig
+    from rigcal.errors import ArgumentError, CalibrationError, InputError, OutputError, RigcalError
+    from rigcal.rig import Rig, Sigmas
     from rigcal.scan import Scan
 
-_HOMES = {"Camera": "rigcal.camera", "Rig": "rigcal.rig", "Scan": "rigcal.scan"}
+_HOMES = {
+    "Camera": "rigcal.camera",
+    "Rig": "rigcal.rig",
+    "Sigmas": "rigcal.rig",
+    "Scan": "rigcal.scan",
+    **dict.fromkeys(
+        ("ArgumentError", "CalibrationError", "InputError", "OutputError", "RigcalError"), "rigcal.errors"
+    ),
+}
 
 
 def __getattr__(name: str) -> Any:

@@ -10,7 +10,7 @@ Exit codes (documented in docs/cli.md):
  0   success
  1   a check ran and its verdict is negative (e.g. drift found)
  2   command-line usage error (click)
- 3   bad input: missing, unreadable, malformed or invalid file
+ 3   bad input: missing, unreadable, malformed or invalid file (or API argument)
  4   calibration failed: too few data, degenerate geometry, no consensus
  5   output refused or failed: file exists without --force, write error
 ===  ==========================================================
@@ -82,3 +82,11 @@ class OutputError(RigcalError):
     """A result could not or must not be written."""
 
     exit_code = 5
+
+
+class ArgumentError(InputError):
+    """An argument of a Python API call (``rigcal.solve_box``, ...) is invalid: the wrong
+    type, or a value the command line's option would refuse. The message names the
+    function, the argument and the value: ``rigcal.solve_box: range_sigma_m: got nan;
+    expected a finite number x>=1e-05``. A subclass of :class:`InputError` (exit code 3
+    at the command line's boundary)."""

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,6 +17,18 @@ COVARIANCE_PARAMETERS = (
     "[dtheta_x, dtheta_y, dtheta_z] rad, [dt_x, dt_y, dt_z] m, in the camera frame: "
     "R_true = Exp(dtheta) R, t_true = t + dt"
 )
+
+
+class Sigmas(NamedTuple):
+    """The 1-sigma uncertainty of T_cam_laser, from its covariance's diagonal.
+
+    Attributes:
+        rotation_deg: (3,) degrees, about the camera's x, y and z axes.
+        translation_mm: (3,) millimetres, along the camera's x, y and z axes.
+    """
+
+    rotation_deg: FloatArray
+    translation_mm: FloatArray
 
 
 @dataclass(frozen=True)
@@ -50,12 +62,13 @@ class Rig:
 
         return inv_T(self.T_cam_laser)
 
-    def sigmas(self) -> tuple[FloatArray, FloatArray] | None:
-        """1-sigma rotation (deg, per camera axis) and translation (mm), or None."""
+    def sigmas(self) -> Sigmas | None:
+        """1-sigma rotation (deg, per camera axis) and translation (mm), or None without
+        a covariance: ``rig.sigmas().rotation_deg``, ``rig.sigmas().translation_mm``."""
         if self.covariance is None:
             return None
         d = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
-        return np.degrees(d[:3]), 1000.0 * d[3:]
+        return Sigmas(np.degrees(d[:3]), 1000.0 * d[3:])
 
     def to_json(self) -> dict[str, Any]:
         """The calibration for ``--json`` output and scripts: T_cam_laser as a 4x4 matrix
@@ -73,6 +86,6 @@ class Rig:
             if self.covariance is None
             else [[float(x) for x in r] for r in self.covariance],
             "covariance_parameters": COVARIANCE_PARAMETERS,
-            "sigma_rotation_deg": None if sig is None else [float(x) for x in sig[0]],
-            "sigma_translation_mm": None if sig is None else [float(x) for x in sig[1]],
+            "sigma_rotation_deg": None if sig is None else [float(x) for x in sig.rotation_deg],
+            "sigma_translation_mm": None if sig is None else [float(x) for x in sig.translation_mm],
         }

@@ -32,9 +32,15 @@ import yaml
 
 from rigcal import __version__
 from rigcal.camera import camera_from_dict
-from rigcal.errors import InputError
+from rigcal.errors import InputError, OutputError
 from rigcal.io.files import atomic_write_text, check_keys, load_yaml
-from rigcal.io.transform import float_matrix, float_vector, transform_from_dict, transform_to_dict
+from rigcal.io.transform import (
+    float_matrix,
+    float_vector,
+    rigid_transform,
+    transform_from_dict,
+    transform_to_dict,
+)
 from rigcal.io.validate import finite_array, real
 from rigcal.rig import COVARIANCE_PARAMETERS, Rig
 
@@ -63,8 +69,8 @@ def rig_to_dict(rig: Rig) -> dict[str, Any]:
         doc["uncertainty"] = {
             "parameters": COVARIANCE_PARAMETERS,
             "covariance": [[float(f"{x:.6e}") for x in row] for row in rig.covariance],
-            "sigma_rotation_deg": [round(float(x), 6) for x in sig[0]],
-            "sigma_translation_mm": [round(float(x), 4) for x in sig[1]],
+            "sigma_rotation_deg": [round(float(x), 6) for x in sig.rotation_deg],
+            "sigma_translation_mm": [round(float(x), 4) for x in sig.translation_mm],
         } | _plain(rig.uncertainty)
     doc["camera"] = rig.camera.to_dict()
     doc["laser"] = _plain(rig.laser)
@@ -79,8 +85,34 @@ def rig_to_text(rig: Rig) -> str:
 
 
 def write_rig(path: str | Path, rig: Rig, force: bool = False) -> Path:
-    """Write a rig file atomically; refuses to overwrite unless ``force``."""
-    return atomic_write_text(path, rig_to_text(rig), force=force)
+    """Write a rig file atomically; refuses to overwrite unless ``force``, and refuses a
+    rig that :func:`read_rig` would refuse (nothing is written then).
+
+    Raises:
+        OutputError: the file exists, cannot be written, or the rig is invalid.
+    """
+    try:
+        text = checked_rig_text(rig, None, "rig")
+    except InputError as e:
+        raise OutputError(f"{path}: not written: the rig is invalid: {e}") from None
+    return atomic_write_text(path, text, force=force)
+
+
+def checked_rig_text(rig: Rig, where: str | Path | None, keypath: str) -> str:
+    """The text of a rig file, checked by the reader's own validation first (a NaN
+    translation, a matrix that is no rotation, a bad camera would write a file that
+    :func:`read_rig` refuses).
+
+    Raises:
+        InputError: ``WHERE: KEYPATH.KEY: got VALUE; expected ...``.
+    """
+    rigid_transform(rig.T_cam_laser, where, f"{keypath}.T_cam_laser")
+    try:
+        text = rig_to_text(rig)
+        rig_from_dict(yaml.safe_load(text), where, prefix=f"{keypath}.")
+    except (TypeError, ValueError, AttributeError, yaml.YAMLError) as e:
+        raise InputError.at(where, keypath, type(rig).__name__, f"a rig that can be written ({e})") from None
+    return text
 
 
 def read_rig(path: str | Path) -> Rig:
@@ -90,8 +122,25 @@ def read_rig(path: str | Path) -> Rig:
         InputError: missing, unreadable or invalid file, naming the key and value.
     """
     path = Path(path)
+    return rig_from_dict(load_yaml(path, "rig file"), path)
+
+
+def rig_from_dict(data: Any, path: str | Path | None, prefix: str = "") -> Rig:
+    """A rig from its parsed YAML document, validated (:func:`read_rig`); ``prefix``
+    goes before every key path in messages."""
+    try:
+        return _rig_from_dict(data, path)
+    except InputError as e:
+        if not prefix:
+            raise
+        where = f"{path}: " if path is not None else ""
+        text = str(e)[len(where) :] if str(e).startswith(where) else str(e)
+        raise InputError(f"{where}{prefix}{text}") from None
+
+
+def _rig_from_dict(data: Any, path: str | Path | None) -> Rig:
     d = check_keys(
-        load_yaml(path, "rig file"),
+        data,
         path,
         "",
         ["schema_version", "T_cam_laser", "camera"],
@@ -144,7 +193,7 @@ def read_rig(path: str | Path) -> Rig:
 _UNCERTAINTY_CHECKS = ("noise", "model_covariance", "spread", "sensitivity")
 
 
-def _covariance(value: Any, path: Path, key: str) -> Any:
+def _covariance(value: Any, path: str | Path | None, key: str) -> Any:
     cov = float_matrix(value, path, key, 6, 6)
     # Tolerances relative to the matrix's scale: the writer keeps 7 significant digits,
     # which can push a (near-)zero eigenvalue slightly below 0.
@@ -157,7 +206,7 @@ def _covariance(value: Any, path: Path, key: str) -> Any:
     return cov
 
 
-def _uncertainty_checks(u: Mapping[str, Any], path: Path) -> dict[str, Any]:
+def _uncertainty_checks(u: Mapping[str, Any], path: str | Path | None) -> dict[str, Any]:
     """The covariance's checks of a version 2 rig file, validated (docs/formats/rig.md)."""
     out: dict[str, Any] = {}
     if "noise" in u:

@@ -8,6 +8,7 @@ warnings, truth) with point-to-plane residuals in millimetres.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -55,13 +56,49 @@ def calibrate_board(
     noise: str = "auto",
     range_bias: bool = True,
 ) -> BoardCalibration:
-    """Read a board session, solve, build the report and the rig.
+    """Read a board session, solve, build the report and the rig
+    (:func:`calibrate_board_session` on the file's session).
+
+    Raises:
+        InputError: a bad session or truth file.
+        CalibrationError: too few captures, parallel boards, or no consensus.
+    """
+    T_truth = read_truth(truth_path) if truth_path is not None else None
+    session = read_board_session(path)
+    return calibrate_board_session(
+        session,
+        range_sigma_m,
+        T_truth,
+        command,
+        seed,
+        noise,
+        range_bias,
+        inputs=session.files,
+        base=Path(path).resolve().parent,
+    )
+
+
+def calibrate_board_session(
+    session: BoardSession,
+    range_sigma_m: float | None = None,
+    T_truth: Any = None,
+    command: str = "",
+    seed: int = 0,
+    noise: str = "auto",
+    range_bias: bool = True,
+    *,
+    inputs: Sequence[Path] = (),
+    base: Path | None = None,
+) -> BoardCalibration:
+    """Solve a board session (read from a file, or built in memory by the Python API),
+    build the report and the rig: the one board solve path of ``rigcal solve`` and
+    ``rigcal.solve_board``.
 
     Args:
-        path: the board session file.
+        session: the session.
         range_sigma_m: the scanner's range noise to assume (default: the session's
             ``laser.range_sigma_m``, else 1 cm).
-        truth_path: a truth file to compare with.
+        T_truth: (4, 4) a known T_cam_laser to compare with.
         command: the command line, for provenance.
         seed: RANSAC seed.
         noise: "auto" estimates the range noise from the board returns' line fits and the
@@ -69,15 +106,14 @@ def calibrate_board(
             (the assumed values are reported beside them); "assumed" uses the assumed ones.
         range_bias: estimate the scanner's range bias by incidence with the pose
             (:class:`rigcal.calib.plane.PlaneNoise`).
+        inputs, base: the files the session was read from and their folder, for the
+            rig's provenance (none for a session built in memory).
 
     Raises:
-        InputError: a bad session or truth file.
         CalibrationError: too few captures, parallel boards, or no consensus.
     """
     if noise not in NOISE_MODES:
         raise ValueError(f"noise must be one of {NOISE_MODES}")
-    T_truth = read_truth(truth_path) if truth_path is not None else None
-    session = read_board_session(path)
     # A noise-free (simulated) scanner still gets a floor, so the whitening stays finite.
     assumed = max(range_sigma_m or float(session.laser.get("range_sigma_m", DEFAULT_RANGE_SIGMA_M)), 1e-4)
     n_corners = session.board.width_n * session.board.height_n
@@ -127,15 +163,15 @@ def calibrate_board(
         },
         provenance=provenance(
             command,
-            list(session.files),
+            list(inputs),
             {
                 "method": "board planes (Zhang and Pless)",
-                "camera_source": str(session.camera_path.resolve()),
+                **({"camera_source": str(session.camera_path.resolve())} if inputs else {}),
                 "noise": {"mode": noise, "fit_range_bias": range_bias}
                 | {k: v["used"] for k, v in noise_doc.items()},
                 "ransac": {"seed": seed},
             },
-            base=Path(path).resolve().parent,
+            base=base,
         ),
         uncertainty=rig_uncertainty(result.covariance_model, noise_doc, report["uncertainty"]),
     )

@@ -23,14 +23,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from rigcal.calib.options import LOSSES
 from rigcal.calib.picks import BoxObservation
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError
 from rigcal.geometry import make_T, rotvec_to_R
 
 FloatArray = NDArray[np.float64]
-
-LOSSES = ("linear", "huber", "soft_l1", "cauchy")
 
 
 @dataclass(frozen=True)

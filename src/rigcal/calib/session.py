@@ -17,7 +17,7 @@ import yaml
 
 from rigcal.calib.picks import BoxObservation, PickSession, read_picks
 from rigcal.calib.report import build_report, report_table, rig_uncertainty
-from rigcal.calib.solve import CalibProblem, CalibResult, SolveSettings, solve
+from rigcal.calib.solve import CalibProblem, CalibResult, FloatArray, SolveSettings, solve
 from rigcal.calib.truth import read_truth
 from rigcal.io.files import atomic_folder, check_folder_writable
 from rigcal.rig import Rig
@@ -41,34 +41,64 @@ def calibrate(
     command: str = "",
     range_sigma_m: float | None = None,
 ) -> Calibration:
-    """Read a picking file, solve, and build the report and the rig.
-
-    The laser's range noise is ``range_sigma_m`` when given, else the picking file's
-    ``laser.range_sigma_m`` when it has one, else ``settings.noise.range_sigma_m`` (the
-    board method's rule, :func:`rigcal.calib.board_calibrate.calibrate_board`).
+    """Read a picking file, solve, and build the report and the rig
+    (:func:`calibrate_session` on the file's session).
 
     Raises:
         InputError: bad picking file or any file it names, or a bad truth file.
         CalibrationError: the data cannot determine a calibration.
     """
-    settings = settings or SolveSettings()
     T_truth = read_truth(truth_path) if truth_path is not None else None
     session = read_picks(picks_path)
+    return calibrate_session(
+        session,
+        settings,
+        T_truth,
+        command,
+        range_sigma_m,
+        inputs=session.input_files(),
+        base=Path(picks_path).resolve().parent,
+    )
+
+
+def calibrate_session(
+    session: PickSession,
+    settings: SolveSettings | None = None,
+    T_truth: FloatArray | None = None,
+    command: str = "",
+    range_sigma_m: float | None = None,
+    *,
+    inputs: Sequence[Path] = (),
+    base: Path | None = None,
+) -> Calibration:
+    """Solve a session (read from a picking file, or built in memory by the Python API),
+    and build the report and the rig: the one box-target solve path of ``rigcal solve``
+    and ``rigcal.solve_box``.
+
+    The laser's range noise is ``range_sigma_m`` when given, else the session's
+    ``laser.range_sigma_m`` when it has one, else ``settings.noise.range_sigma_m`` (the
+    board method's rule, :func:`rigcal.calib.board_calibrate.calibrate_board`).
+
+    Args:
+        inputs, base: the files the session was read from and their folder, for the
+            rig's provenance (none for a session built in memory).
+
+    Raises:
+        CalibrationError: the data cannot determine a calibration.
+    """
+    settings = settings or SolveSettings()
     if range_sigma_m is None and "range_sigma_m" in session.laser:
         range_sigma_m = float(session.laser["range_sigma_m"])  # validated by read_picks
     if range_sigma_m is not None:
         settings = replace(settings, noise=replace(settings.noise, range_sigma_m=max(range_sigma_m, 1e-5)))
     result = solve(CalibProblem(session.camera, session.observations, settings))
     report = build_report(result, T_truth)
+    source = {"camera_source": str(session.camera_path.resolve())} if inputs else {}
     prov = provenance(
         command,
-        session.input_files(),
-        {
-            "method": "box-target (Algorithm 1)",
-            "camera_source": str(session.camera_path.resolve()),
-            **settings.to_dict(),
-        },
-        base=Path(picks_path).resolve().parent,
+        list(inputs),
+        {"method": "box-target (Algorithm 1)", **source, **settings.to_dict()},
+        base=base,
     )
     laser = {**session.laser, **scanner_description(session.observations)}
     rig = box_rig(result, report, laser, prov)

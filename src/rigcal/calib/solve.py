@@ -22,6 +22,7 @@ from rigcal.calib.noise import (
     matching_noise,
     range_noise_from_lines,
 )
+from rigcal.calib.options import NOISE_MODES
 from rigcal.calib.picks import BoxObservation
 from rigcal.calib.ransac import RansacParams, RansacResult, ransac_pose, reprojection_errors
 from rigcal.calib.refine import (
@@ -54,7 +55,6 @@ MIN_CAPTURES = 3
 INLIER_GATE_CHI2 = 18.420680743952367
 
 
-NOISE_MODES = ("auto", "assumed")
 # Box ends of captures this close (laser ends, picked pixels) were taken at one pose and
 # share one verdict.
 SAME_POSE_LASER_M = 0.03

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED, THRESHOLD_PX
 
 
 @click.command("solve")
@@ -24,24 +24,24 @@ from rigcal.io.validate import Real
 @click.option(
     "--truth", type=click.Path(path_type=Path), help="Truth file: also report the error against it."
 )
-@click.option("--seed", default=0, show_default=True, type=int, help="RANSAC random seed.")
+@click.option("--seed", default=0, show_default=True, type=SEED, help="RANSAC random seed.")
 @click.option(
     "--threshold-px",
     default=6.0,
     show_default=True,
-    type=Real(min=0.1),
+    type=THRESHOLD_PX,
     help="RANSAC inlier threshold.",
 )
 @click.option(
     "--pick-sigma-px",
     default=1.0,
     show_default=True,
-    type=Real(min=1e-3),
+    type=PICK_SIGMA_PX,
     help="Pick noise (1 sigma).",
 )
 @click.option(
     "--range-sigma-m",
-    type=Real(min=1e-5),
+    type=RANGE_SIGMA_M,
     help="Range noise (1 sigma) [default: the picking file's laser.range_sigma_m, else 0.01].",
 )
 @click.option(
@@ -49,7 +49,7 @@ from rigcal.io.validate import Real
     "noise_mode",
     default="auto",
     show_default=True,
-    type=click.Choice(["auto", "assumed"]),
+    type=NOISE,
     help="auto: estimate the range and pick/corner noise from the session and use them (the "
     "assumed values are reported beside them); assumed: use --range-sigma-m, --pick-sigma-px "
     "and the session file's values.",
@@ -65,7 +65,7 @@ from rigcal.io.validate import Real
     "--loss",
     default="cauchy",
     show_default=True,
-    type=click.Choice(["linear", "huber", "soft_l1", "cauchy"]),
+    type=LOSS,
     help="Robust loss of the refinement.",
 )
 @click.option(
@@ -106,11 +106,9 @@ def solve(
       rigcal solve session/picks.yaml -o rig.yaml --truth session/truth.yaml --json
       rigcal solve board/board_session.yaml -o rig.yaml --report board-report/
     """
-    from rigcal.calib.ransac import RansacParams
-    from rigcal.calib.refine import NoiseModel, RefineParams
+    from rigcal.calib.options import box_settings
     from rigcal.calib.report import report_table
     from rigcal.calib.session import calibrate, write_report_dir
-    from rigcal.calib.solve import SolveSettings
     from rigcal.io.files import check_apart, check_folder_writable, check_writable
     from rigcal.rigfile import write_rig
 
@@ -121,11 +119,13 @@ def solve(
         # The rig may go inside the report folder (it is written after it), not onto it.
         check_folder_writable(report_dir, force, inputs)
         check_apart(output, [report_dir])
-    settings = SolveSettings(
-        ransac=RansacParams(threshold_px=threshold_px, seed=seed),
-        refine=RefineParams(use_side_points=not paper_endpoints, loss=loss),
-        noise=NoiseModel(pick_sigma_px=pick_sigma_px),
-        noise_mode=noise_mode,
+    settings = box_settings(
+        threshold_px=threshold_px,
+        seed=seed,
+        pick_sigma_px=pick_sigma_px,
+        loss=loss,
+        paper_endpoints=paper_endpoints,
+        noise=noise_mode,
     )
     command = "rigcal " + shlex.join(sys.argv[1:]) if sys.argv else "rigcal solve"
     from rigcal.calib.board_session import is_board_session

@@ -133,3 +133,11 @@ def write_tum(path: str | Path, traj: Trajectory, force: bool = False) -> Path:
 
 def write_kitti(path: str | Path, traj: Trajectory, force: bool = False) -> Path:
     return atomic_write_text(path, kitti_text(traj), force=force)
+
+
+def planar_trajectory(stamps_s: FloatArray | None, poses: FloatArray, z_m: float = 0.0) -> Trajectory:
+    """The trajectory of planar poses (N, 3) (x m, y m, yaw rad about z) at height ``z_m``."""
+    from rigcal.geometry import make_T, rotvec_to_R
+
+    T = [make_T(rotvec_to_R([0.0, 0.0, p[2]]), [p[0], p[1], z_m]) for p in np.asarray(poses, dtype=float)]
+    return Trajectory(np.array(T).reshape(-1, 4, 4), None if stamps_s is None else np.asarray(stamps_s))

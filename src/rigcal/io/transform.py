@@ -65,3 +65,24 @@ def float_matrix(value: Any, path: str | Path | None, keypath: str, n: int, m: i
     if not isinstance(value, list) or len(value) != n:
         raise InputError.at(path, keypath, value, f"{n} rows of {m} numbers")
     return np.array([float_vector(row, path, f"{keypath}[{i}]", m) for i, row in enumerate(value)])
+
+
+def rigid_transform(value: Any, path: str | Path | None, keypath: str) -> NDArray[np.float64]:
+    """``value`` as a (4, 4) rigid transform: finite, the last row [0, 0, 0, 1], and a
+    rotation (orthonormal to 1e-6, determinant +1) in the top-left 3x3 block; the check
+    of a transform given in memory (the Python API's ``T_truth``, a rig to write).
+
+    Raises:
+        InputError: naming the key and what was expected.
+    """
+    from rigcal.io.validate import finite_array
+
+    T = finite_array(value, path, keypath, shape=(4, 4))
+    R = T[:3, :3]
+    if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise InputError.at(path, f"{keypath}[3]", T[3].tolist(), "[0, 0, 0, 1] (a rigid transform)")
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+        raise InputError.at(
+            path, f"{keypath}[:3, :3]", R.tolist(), "a rotation matrix (orthonormal, determinant +1)"
+        )
+    return T

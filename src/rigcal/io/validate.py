@@ -214,7 +214,8 @@ def no_nul(path: str | os.PathLike[str], what: str) -> Path:
 
 class Real(click.FloatRange):
     """A float option: finite (no ``nan``, ``inf``), optionally within a range; a bad
-    value is a usage error (exit code 2) like any other."""
+    value is a usage error (exit code 2) like any other. :meth:`check` applies the same
+    rule to a value given in Python (the API's keywords)."""
 
     name = "float"
 
@@ -223,3 +224,65 @@ class Real(click.FloatRange):
         if not math.isfinite(out):
             self.fail(f"{value!r} is not a finite number.", param, ctx)
         return out
+
+    def check(self, value: Any, where: Where, key: str) -> float:
+        """``value`` (a Python number, not text) checked as the option checks its text.
+
+        Raises:
+            InputError: ``WHERE: KEY: got VALUE; expected a finite number RANGE``.
+        """
+        import numpy as np
+
+        expected = f"a finite number {self._describe_range()}".rstrip()
+        if isinstance(value, (bool, np.bool_)) or not isinstance(
+            value, (int, float, np.integer, np.floating)
+        ):
+            raise InputError.at(where, key, value, expected)
+        try:
+            return float(self.convert(value, None, None))
+        except (click.BadParameter, OverflowError):
+            raise InputError.at(where, key, value, expected) from None
+
+
+class Whole(click.IntRange):
+    """An integer option within a range; :meth:`check` applies the same rule to a value
+    given in Python (booleans, floats and text refused)."""
+
+    def check(self, value: Any, where: Where, key: str) -> int:
+        """``value`` (a Python integer) checked as the option checks its text.
+
+        Raises:
+            InputError: ``WHERE: KEY: got VALUE; expected an integer RANGE``.
+        """
+        import numpy as np
+
+        expected = f"an integer {self._describe_range()}".rstrip()
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+            raise InputError.at(where, key, value, expected)
+        try:
+            return int(self.convert(int(value), None, None))
+        except click.BadParameter:
+            raise InputError.at(where, key, value, expected) from None
+
+
+class OneOf(click.Choice):
+    """A choice option; :meth:`check` applies the same rule to a value given in Python."""
+
+    def check(self, value: Any, where: Where, key: str) -> str:
+        """``value`` checked as the option checks its text (exact, case-sensitive).
+
+        Raises:
+            InputError: ``WHERE: KEY: got VALUE; expected one of A, B, ...``.
+        """
+        if not isinstance(value, str) or value not in self.choices:
+            raise InputError.at(where, key, value, "one of " + ", ".join(map(str, self.choices)))
+        return value
+
+
+def flag(value: Any, where: Where, key: str) -> bool:
+    """``value`` as a boolean: True or False only (a flag of the command line)."""
+    import numpy as np
+
+    if not isinstance(value, (bool, np.bool_)):
+        raise InputError.at(where, key, value, "True or False")
+    return bool(value)

@@ -38,6 +38,13 @@ CARRY_M = 0.03
 # An ICP step whose degeneracy indicator is below this constrains too little.
 DEGENERATE_BELOW = 0.01
 
+# The laser odometry methods of ``rigcal localize`` (and ``rigcal.LaserOdometry``) and
+# their ICP settings.
+LASER_ODOMETRY = {
+    "icp": IcpParams(method="point-to-line"),
+    "icp-p2p": IcpParams(method="point-to-point"),
+}
+
 
 @dataclass(frozen=True)
 class Odometry:
@@ -60,81 +67,139 @@ def icp_odometry(
     *,
     kernel: bool = True,
 ) -> Odometry:
-    """Chain ICP increments T_prev_cur over the scans, each started from the previous
-    increment (constant velocity) and, when that fit is poor
-    (``params.restart_below_inliers``), from zero motion too, the better fit kept;
-    ``progress`` is called with the scans done so far. Point-to-line with
-    ``params.normals == "lines"`` takes each model scan's normals from its lines
-    (``lines(k)``: scan k's segments, to share them with other stages; by default
-    extracted here). ``kernel=False`` runs the line extraction, the carrying of the lines
-    and ICP in their Python/numpy references instead of the compiled kernels."""
-    params = params or IcpParams()
-    use_lines = params.method == "point-to-line" and params.normals == "lines"
-    labels: IntArray | None = None  # the model scan's line of each return
-    extracted = -LINES_EVERY  # the scan whose lines were last extracted
+    """Chain ICP increments T_prev_cur over the scans (:class:`ScanOdometry` fed every
+    scan in turn); ``progress`` is called with the scans done so far. ``lines(k)``: scan
+    k's segments, to share them with other stages (by default extracted here).
+    ``kernel=False`` runs the line extraction, the carrying of the lines and ICP in their
+    Python/numpy references instead of the compiled kernels."""
+    if not scans:
+        raise ValueError("icp_odometry needs at least one scan")
+    od = ScanOdometry(params, lines, kernel=kernel)
+    for k, scan in enumerate(scans):
+        if k and progress is not None:
+            progress(k + 1)
+        od.add(scan)
+    return od.odometry()
 
-    def normals_of(
+
+class ScanOdometry:
+    """Laser odometry one scan at a time: each scan is matched by ICP to the one before
+    it, and the increment T_prev_cur chained onto the pose (:func:`icp_odometry` feeds it
+    a whole sequence; a robot's own loop feeds it scans as they come).
+
+    Each step starts from the previous increment (constant velocity), or from a given
+    guess (wheel odometry), and, when that fit is poor (``params.restart_below_inliers``),
+    from zero motion too, the better fit kept. A scan with fewer than 10 valid returns
+    (or one after such a scan) keeps the last motion and counts as skipped. Point-to-line
+    with ``params.normals == "lines"`` takes the model scan's normals from its lines,
+    extracted every ``LINES_EVERY`` scans (``lines(k)``: scan k's segments when given)
+    and carried between.
+    """
+
+    def __init__(
+        self,
+        params: IcpParams | None = None,
+        lines: Callable[[int], list[Segment]] | None = None,
+        *,
+        kernel: bool = True,
+    ) -> None:
+        self.params = params or IcpParams()
+        self._lines = lines
+        self._kernel = kernel
+        self._use_lines = self.params.method == "point-to-line" and self.params.normals == "lines"
+        self._labels: IntArray | None = None  # the model scan's line of each return
+        self._extracted = -LINES_EVERY  # the scan whose lines were last extracted
+        self._T = np.eye(3)
+        self._poses: list[FloatArray] = []
+        self._deg: list[float] = []
+        self._rms: list[float] = []
+        self._last = np.zeros(3)
+        self._skipped = self._restarts = 0
+        self._prev = np.zeros((0, 2))
+        self._prev_normals: FloatArray | None = None
+        self._nearest: NDArray[np.intp] | None = None  # the last step's nearest model returns
+
+    def __len__(self) -> int:
+        """The number of scans added."""
+        return len(self._poses)
+
+    def add(self, scan: Scan, guess: FloatArray | None = None) -> FloatArray:
+        """Match ``scan`` to the previous one; returns its pose (x m, y m, yaw rad) in the
+        first scan's frame. ``guess``: T_prev_cur (x, y, yaw) to start ICP from instead of
+        the previous increment (e.g. from wheel odometry)."""
+        k = len(self._poses)
+        cur = scan.points[scan.valid]
+        if k == 0:
+            self._prev = cur
+            self._prev_normals = self._normals_of(0, scan, cur, cur, None, np.zeros(3), None)
+            self._poses.append(pose_of(self._T))
+            self._deg.append(1.0)
+            self._rms.append(0.0)
+            return self._poses[-1]
+        params, kernel, prev = self.params, self._kernel, self._prev
+        start = self._last if guess is None else np.asarray(guess, dtype=float)
+        if len(cur) < 10 or len(prev) < 10:
+            step, d, r = start, 0.0, float("nan")
+            self._skipped += 1
+        else:
+            res = icp(
+                prev, cur, initial=start, params=params, model_normals=self._prev_normals, kernel=kernel
+            )
+            if res.inlier_fraction < params.restart_below_inliers:
+                zero = np.zeros(3)
+                again = icp(
+                    prev, cur, initial=zero, params=params, model_normals=self._prev_normals, kernel=kernel
+                )
+                if (again.inlier_fraction, -again.rms_m) > (res.inlier_fraction, -res.rms_m):
+                    res = again
+                self._restarts += 1
+            step, d, r, self._nearest = res.pose, res.degeneracy, res.rms_m, res.nearest
+        self._T = self._T @ se2(step)
+        self._poses.append(pose_of(self._T))
+        self._deg.append(d)
+        self._rms.append(r)
+        self._last = step
+        if len(cur) >= 10:
+            self._prev_normals = self._normals_of(k, scan, cur, prev, self._prev_normals, step, self._nearest)
+            self._prev = cur
+        return self._poses[-1]
+
+    def odometry(self) -> Odometry:
+        """Everything so far: the poses (N, 3), per-step degeneracy and fit RMS, counts."""
+        return Odometry(
+            np.array(self._poses), np.array(self._deg), np.array(self._rms), self._skipped, self._restarts
+        )
+
+    def _normals_of(
+        self,
         k: int,
+        scan: Scan,
         pts: FloatArray,
         model: FloatArray,
         model_normals: FloatArray | None,
         step: FloatArray,
         nearest: NDArray[np.intp] | None,
     ) -> FloatArray | None:
-        """Scan k's (returns ``pts``) line normals: its own lines every LINES_EVERY scans,
+        """Scan k's (``scan``, valid returns ``pts``) line normals: its own lines every LINES_EVERY scans,
         else the model's carried over by the step (T_model_k, ICP's ``nearest`` pairs);
         None (nearest-neighbour normals) until the next extraction when too few returns
         lay on a line (clutter)."""
-        nonlocal labels, extracted
-        if not use_lines:
+        if not self._use_lines:
             return None
-        if k - extracted >= LINES_EVERY:
-            extracted = k
-            if lines is not None:
-                labels = return_labels(scans[k], lines(k))
+        kernel = self._kernel
+        if k - self._extracted >= LINES_EVERY:
+            self._extracted = k
+            if self._lines is not None:
+                self._labels = return_labels(scan, self._lines(k))
             elif kernel:
-                labels = line_labels(scans[k])
+                self._labels = line_labels(scan)
             else:
-                labels = return_labels(scans[k], extract_lines(scans[k], kernel=False))
-            if (labels >= 0).mean() < MIN_LINE_FRACTION:
-                labels = None
-        elif labels is not None:
-            labels = carry_labels(model, labels, model_normals, step, pts, nearest, kernel=kernel)
-        return None if labels is None else line_normals(pts, labels, kernel=kernel)
-
-    T = np.eye(3)
-    poses = [pose_of(T)]
-    deg, rms = [1.0], [0.0]
-    last = np.zeros(3)
-    skipped = restarts = 0
-    prev = scans[0].points[scans[0].valid]
-    nearest = None  # the last step's nearest model return of each data return
-    prev_normals = normals_of(0, prev, prev, None, np.zeros(3), None)
-    for k, scan in enumerate(scans[1:], start=2):
-        if progress is not None:
-            progress(k)
-        cur = scan.points[scan.valid]
-        if len(cur) < 10 or len(prev) < 10:
-            step, d, r = last, 0.0, float("nan")
-            skipped += 1
-        else:
-            res = icp(prev, cur, initial=last, params=params, model_normals=prev_normals, kernel=kernel)
-            if res.inlier_fraction < params.restart_below_inliers:
-                zero = np.zeros(3)
-                again = icp(prev, cur, initial=zero, params=params, model_normals=prev_normals, kernel=kernel)
-                if (again.inlier_fraction, -again.rms_m) > (res.inlier_fraction, -res.rms_m):
-                    res = again
-                restarts += 1
-            step, d, r, nearest = res.pose, res.degeneracy, res.rms_m, res.nearest
-        T = T @ se2(step)
-        poses.append(pose_of(T))
-        deg.append(d)
-        rms.append(r)
-        last = step
-        if len(cur) >= 10:
-            prev_normals = normals_of(k - 1, cur, prev, prev_normals, step, nearest)
-            prev = cur
-    return Odometry(np.array(poses), np.array(deg), np.array(rms), skipped, restarts)
+                self._labels = return_labels(scan, extract_lines(scan, kernel=False))
+            if (self._labels >= 0).mean() < MIN_LINE_FRACTION:
+                self._labels = None
+        elif self._labels is not None:
+            self._labels = carry_labels(model, self._labels, model_normals, step, pts, nearest, kernel=kernel)
+        return None if self._labels is None else line_normals(pts, self._labels, kernel=kernel)
 
 
 def carry_labels(

@@ -26,15 +26,14 @@ import yaml
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
-from rigcal.geometry import make_T, rotvec_to_R
 from rigcal.io.files import atomic_folder
-from rigcal.io.trajectory import Trajectory, kitti_text, read_tum, tum_text
+from rigcal.io.trajectory import Trajectory, kitti_text, planar_trajectory, read_tum, tum_text
 from rigcal.localize import kalman
 from rigcal.localize.iasm import IasmParams
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.image_matching import scan_matching
 from rigcal.localize.metrics import anchored, evaluate
-from rigcal.localize.odometry import DEGENERATE_BELOW, Odometry, icp_odometry
+from rigcal.localize.odometry import DEGENERATE_BELOW, LASER_ODOMETRY, Odometry, icp_odometry
 from rigcal.localize.streams import Streams, open_streams
 from rigcal.localize.tracks import TrackParams
 from rigcal.localize.vo import VoResult, visual_odometry
@@ -133,7 +132,7 @@ def _matching_estimate(streams: Streams, method: str, params: IasmParams) -> Est
 # name -> the method's estimate from the streams and IASM's and H-IASM's settings.
 METHODS: dict[str, Callable[[Streams, IasmParams], Estimate]] = {
     "icp": lambda s, _: _icp_estimate(s, s.laser_odometry()),
-    "icp-p2p": lambda s, _: _icp_estimate(s, icp_odometry(s.scans, IcpParams(method="point-to-point"))),
+    "icp-p2p": lambda s, _: _icp_estimate(s, icp_odometry(s.scans, LASER_ODOMETRY["icp-p2p"])),
     "vo": lambda s, _: _vo_estimate(s, _vo_result(s)),
     "kf": lambda s, _: _kf_estimate(s),
     "iasm": lambda s, p: _matching_estimate(s, "iasm", p),
@@ -188,14 +187,14 @@ def _shared_stages(streams: Streams, methods: list[str]) -> None:
         streams.laser_odometry()
 
 
-def parse_methods(text: str) -> list[str]:
-    """A comma-separated method list, validated."""
+def parse_methods(text: str, key: str = "--method") -> list[str]:
+    """A comma-separated method list, validated (``key`` names it in messages)."""
     names = [m.strip() for m in text.split(",") if m.strip()]
     for m in names:
         if m not in METHODS:
-            raise InputError.at(None, "--method", m, f"one of {sorted(METHODS)} (comma-separated)")
+            raise InputError.at(None, key, m, f"one of {sorted(METHODS)} (comma-separated)")
     if not names or len(set(names)) != len(names):
-        raise InputError.at(None, "--method", text, "one or more distinct methods, comma-separated")
+        raise InputError.at(None, key, text, "one or more distinct methods, comma-separated")
     return names
 
 
@@ -370,10 +369,7 @@ def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool)
             z = 0.0
             if r.truth is not None and r.truth.stamps_s is not None:
                 z = float(np.interp(m.stamps_s[0], r.truth.stamps_s, r.truth.poses[:, 2, 3]))
-            traj = Trajectory(
-                np.array([make_T(rotvec_to_R([0.0, 0.0, p[2]]), [p[0], p[1], z]) for p in m.poses]),
-                m.stamps_s,
-            )
+            traj = planar_trajectory(m.stamps_s, m.poses, z)
             (tmp / m.method).mkdir()
             (tmp / m.method / "trajectory.tum").write_text(tum_text(traj), encoding="utf-8")
             if m.steps_csv is not None:

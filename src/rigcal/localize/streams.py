@@ -32,8 +32,8 @@ from rigcal.calib.lines import Segment, extract_lines
 from rigcal.errors import InputError
 from rigcal.io.images import read_grey
 from rigcal.io.sequence import Sequence, read_sequence
-from rigcal.localize.icp import IcpParams, pose_of, se2
-from rigcal.localize.odometry import Odometry, icp_odometry
+from rigcal.localize.icp import pose_of, se2
+from rigcal.localize.odometry import LASER_ODOMETRY, Odometry, icp_odometry
 from rigcal.localize.tracks import FrameTracks, TrackParams, equalized, track_sequence
 from rigcal.rig import Rig
 from rigcal.rigfile import read_rig
@@ -192,7 +192,7 @@ class Streams:
                 raise _StoppedError
             self.report("laser odometry", k, n)
 
-        od = icp_odometry(self.scans, IcpParams(method="point-to-line"), progress, self.lines)
+        od = icp_odometry(self.scans, LASER_ODOMETRY["icp"], progress, self.lines)
         self.timings_s["icp_s"] = time.perf_counter() - t0
         return od
 
