@@ -163,7 +163,7 @@ class LoopbackCluster:
                     code = -1
             if code == 0:
                 return node
-            self._kill(node)
+            self._kill(node, signal.SIGKILL)
         raise RuntimeError(f"ray start {' '.join(args)} failed {self.attempts} times; see {node.log}")
 
     def kill_node(self, node: Node) -> None:
@@ -176,8 +176,7 @@ class LoopbackCluster:
             os.killpg(node.pgid, sig)
         for pid in own_processes(self.marker, node.ip):
             _signal(pid, sig)
-        if sig == signal.SIGTERM:
-            shutil.rmtree(node.temp_dir, ignore_errors=True)
+        shutil.rmtree(node.temp_dir, ignore_errors=True)
 
     def stop(self) -> None:
         """End every process the cluster started (its node process groups, then any

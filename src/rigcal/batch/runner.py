@@ -319,8 +319,9 @@ def _executor(
     expect = versions()
     with connect(address, settings.workers, settings.connect_timeout_s, log) as (ray, _):
         remote = ray.remote(num_cpus=1, max_retries=settings.ray_retries)(run_item)
-        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
-        yield (lambda argv: remote.remote(argv, expect).future()), 2 * cpus
+        # -j N on a cluster: at most N items at once (a share of a shared cluster)
+        window = settings.workers or 2 * max(1, int(ray.cluster_resources().get("CPU", 1)))
+        yield (lambda argv: remote.remote(argv, expect).future()), window
 
 
 # Thread pools of the libraries under a worker: BLAS (OpenMP, OpenBLAS, MKL) and numba.

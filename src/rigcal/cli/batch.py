@@ -32,7 +32,8 @@ import click
     "--workers",
     default=0,
     type=click.IntRange(min=0),
-    help="Local worker processes [default: one per CPU]; with --ray local, the CPUs Ray may use.",
+    help="Local worker processes [default: one per CPU]; with --ray, at most N items at once "
+    "(and with --ray local, the CPUs Ray may use).",
 )
 @click.option(
     "--ray",
@@ -52,6 +53,14 @@ import click
     metavar="SECONDS",
     help="How long to try reaching a named Ray cluster before giving up.",
 )
+@click.option(
+    "--ray-retries",
+    default=1,
+    show_default=True,
+    type=click.IntRange(min=0),
+    help="How often Ray runs an item again on another worker when its worker or node dies "
+    "(a failing command is never retried).",
+)
 @click.option("--rerun", is_flag=True, help="Run finished items again instead of skipping them.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
 def batch(
@@ -62,6 +71,7 @@ def batch(
     workers: int,
     ray_address: str | None,
     ray_timeout_s: float,
+    ray_retries: int,
     rerun: bool,
     as_json: bool,
 ) -> int:
@@ -121,7 +131,7 @@ def batch(
             line += f": {rec['error']}"
         click.echo(line, err=True)
 
-    settings = BatchSettings(workers, ray_address, rerun, connect_timeout_s=ray_timeout_s)
+    settings = BatchSettings(workers, ray_address, rerun, ray_timeout_s, ray_retries)
     outcomes = run_batch(items, output, settings, report, lambda line: click.echo(line, err=True))
     json_path, csv_path = write_summary(output, outcomes)
     wrote = [str(csv_path), str(json_path)]
