@@ -121,3 +121,21 @@ def test_a_worker_with_other_versions_does_not_run_the_item(tmp_path):
         == f"worker on {other['host']} runs python {versions()['python']} (driver: 3.11.9); not run"
     )
     assert other["stdout"] == ""
+
+
+def test_records_of_item_json_version_1_are_resumed(tmp_path):
+    """item.json 2 adds `node`; a finished record of version 1 is still skipped."""
+    import json
+
+    items = _items(tmp_path)
+    out = tmp_path / "o"
+    (first,) = run_batch(items, out, BatchSettings(workers=1))
+    assert first.record["schema_version"] == 2
+    assert first.record["node"] is None
+    old = {k: v for k, v in first.record.items() if k != "node"} | {"schema_version": 1}
+    (out / "a" / "item.json").write_text(json.dumps(old))
+    (again,) = run_batch(items, out, BatchSettings(workers=1))
+    assert again.resumed
+    from rigcal.batch.summary import rows
+
+    assert rows([again])[0]["node"] is None
