@@ -139,3 +139,16 @@ def test_records_of_item_json_version_1_are_resumed(tmp_path):
     from rigcal.batch.summary import rows
 
     assert rows([again])[0]["node"] is None
+
+
+def test_a_pool_that_refuses_new_items_fails_them_instead_of_the_batch():
+    from concurrent.futures.process import BrokenProcessPool
+
+    from rigcal.batch.runner import _result, _submitted
+
+    def broken(argv):
+        raise BrokenProcessPool("A child process terminated abruptly")
+
+    ran = _result(_submitted(broken, ["evaluate"]))
+    assert ran["exit_code"] == 70
+    assert ran["error"] == "worker failed: BrokenProcessPool: A child process terminated abruptly"

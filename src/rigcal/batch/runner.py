@@ -9,7 +9,9 @@ record says they finished with the same command line and whose outputs are all t
 
 The local pool and Ray share one code path: both hand out
 :class:`concurrent.futures.Future` objects for :func:`run_item` (Ray through
-``ObjectRef.future()``), and one loop collects them.
+``ObjectRef.future()``), and one loop keeps a bounded number of them submitted and
+collects them. Connecting to Ray (the ``--ray`` address forms, the connect timeout, a
+loopback-only local instance) is :mod:`rigcal.batch.raycluster`.
 """
 
 from __future__ import annotations
@@ -258,13 +260,13 @@ def run_batch(
             waiting = iter(todo)
             futures: dict[cf.Future[dict[str, Any]], tuple[Item, list[str]]] = {}
             for item, argv in itertools.islice(waiting, window):
-                futures[submit(argv)] = (item, argv)
+                futures[_submitted(submit, argv)] = (item, argv)
             while futures:
                 finished, _ = cf.wait(futures, return_when=cf.FIRST_COMPLETED)
                 for fut in finished:
                     item, argv = futures.pop(fut)
                     for nxt in itertools.islice(waiting, 1):
-                        futures[submit(nxt[1])] = nxt
+                        futures[_submitted(submit, nxt[1])] = nxt
                     rec = item_record(item, argv, _result(fut))
                     atomic_write_text(
                         out / item.name / ITEM_FILE, json.dumps(rec, indent=1) + "\n", force=True
@@ -274,6 +276,17 @@ def run_batch(
                     if progress is not None:
                         progress(outcomes[item.name], done, len(items))
     return [outcomes[i.name] for i in items]
+
+
+def _submitted(submit: Submit, argv: list[str]) -> cf.Future[dict[str, Any]]:
+    """``submit(argv)``, or a future holding its error: a pool whose worker died refuses
+    new items, which are then recorded as failed like the items it was running."""
+    try:
+        return submit(argv)
+    except Exception as exc:  # BrokenProcessPool, a lost Ray connection
+        fut: cf.Future[dict[str, Any]] = cf.Future()
+        fut.set_exception(exc)
+        return fut
 
 
 def _is_path(value: Any) -> bool:
