@@ -17,8 +17,8 @@ with overlay PNGs). Every figure is measured in this run, on this machine:
   included) with 1, 2 and 4 workers on the local pool, and on Ray with two local nodes
   (separate ``ray start`` processes on loopback addresses, tests/batch/ray_nodes.py) with
   ``-j`` 1, 2 and 4 (at most that many items at once);
-- **fleet cost**: N rigs' checks on M nodes of C cores, from the warm item time, the
-  measured efficiency of the 2-worker run and the cluster's join time.
+- **fleet cost**: N rigs' checks on M nodes of C cores, from the warm item time, each
+  worker's one-off start and the cluster's join time, a core per worker.
 
     .venv/bin/python benchmarks/bench_batch.py [--items 8] [--command check] [--no-ray]
 """
@@ -72,13 +72,17 @@ def main() -> None:
         print(f"| one item, warm (in this process) | {t_item:.3f} |")
         bare = fresh("pass")
         imports = fresh("import rigcal.cli.main, rigcal.batch.runner") - bare
-        first = fresh_first_item(batch[0].argv((root / "first" / batch[0].name).resolve()))
+        libs, first = fresh_first_item(batch[0].argv((root / "first" / batch[0].name).resolve()))
         print(f"| a fresh interpreter (python -c pass) | {bare:.2f} |")
         print(f"| imports of the CLI and the runner | {imports:.2f} |")
         print(
-            f"| first item in a fresh worker, minus a warm one (its imports, numba cache loads, "
-            f"first calls) | {first - t_item:.2f} |"
+            f"| imports of the item's libraries (numpy, scipy, OpenCV, mrcal, numba, rigcal) | {libs:.2f} |"
         )
+        print(
+            f"| first item in a fresh worker after those imports, minus a warm one (numba's cache "
+            f"loads and first calls) | {first - t_item:.2f} |"
+        )
+        first += libs
         argv = batch[0].argv(root / "x")
         t0 = time.perf_counter()
         for _ in range(1000):
@@ -86,7 +90,7 @@ def main() -> None:
             pickle.loads(pickle.dumps(results[0]))
         ser = (time.perf_counter() - t0) / 1000
         print(
-            f"| pickling an item and its result ({len(pickle.dumps(results[0])) // 1024} KiB) "
+            f"| pickling an item and its result ({len(pickle.dumps(results[0]))} bytes) "
             f"| {ser * 1e3:.3f} ms |"
         )
 
@@ -108,22 +112,19 @@ def main() -> None:
         for label, t in rows:
             print(f"| {label} | {t:.1f} | {len(batch) / t:.2f} | {one / t:.2f} |")
 
-        pool2 = dict(rows)["local pool, 2 workers"]
-        efficiency = min(1.0, one / pool2 / 2)
-        start = (join or 0.0) + bare + imports + (first - t_item)
+        # per worker, once: an interpreter, the imports, numba's cache loads and first calls
+        per_worker = bare + imports + (first - t_item)
+        start = (join or 0.0) + per_worker
         print(
             f"\n### A fleet's nightly checks on M nodes of C cores\n\n"
-            f"From the warm item ({t_item:.2f} s on one core here), the 2-worker efficiency "
-            f"measured above ({efficiency:.2f}) and a start of {start:.1f} s (cluster join, a "
-            f"worker's interpreter, imports and first calls); time = start + ceil(N / (M C)) x "
-            f"item / efficiency, one core per item.\n"
+            f"Each worker pays {per_worker:.1f} s once (interpreter, imports, numba's cache loads "
+            f"and first calls), the driver {join or 0.0:.1f} s to join, then {t_item:.2f} s per "
+            f"item (warm, measured here under load {load()}); with a core per worker, time = "
+            f"{start:.1f} s + ceil(N / (M C)) x {t_item:.2f} s.\n"
         )
         print("| rigs N | M x C = 1 x 8 | 4 x 8 | 16 x 8 |\n|---|---|---|---|")
         for n in (50, 500, 5000):
-            cells = []
-            for m in (1, 4, 16):
-                waves = -(-n // (m * 8))
-                cells.append(f"{(start + waves * t_item / efficiency) / 60:.1f} min")
+            cells = [f"{(start + -(-n // (m * 8)) * t_item) / 60:.1f} min" for m in (1, 4, 16)]
             print(f"| {n} | " + " | ".join(cells) + " |")
 
 
@@ -163,15 +164,27 @@ def fresh(code: str, repeat: int = 3) -> float:
     return best
 
 
-def fresh_first_item(argv: list[str]) -> float:
-    """A fresh interpreter's first item, timed inside it after the CLI's imports."""
+def fresh_first_item(argv: list[str]) -> tuple[float, float]:
+    """In a fresh interpreter, after the CLI's imports: the time to import every module a
+    warm item has loaded (this process's ``sys.modules`` of the item's libraries), then
+    the first item's time."""
+    roots = ("rigcal", "numpy", "scipy", "cv2", "mrcal", "numba", "yaml", "matplotlib", "imagecodecs")
+    mods = sorted(m for m in sys.modules if m.split(".")[0] in roots and "._" not in m)
     code = (
-        "import sys, time, rigcal.cli.main, rigcal.batch.runner as r\n"
-        "t0 = time.perf_counter(); out = r.run_item(sys.argv[1:]); assert out['error'] is None, out\n"
-        "print(time.perf_counter() - t0)\n"
+        "import importlib, os, sys, time, rigcal.cli.main, rigcal.batch.runner as r\n"
+        "t0 = time.perf_counter()\n"
+        "for m in os.environ['BENCH_MODULES'].split():\n"
+        "    try: importlib.import_module(m)\n"
+        "    except Exception: pass\n"
+        "t1 = time.perf_counter(); out = r.run_item(sys.argv[1:]); assert out['error'] is None, out\n"
+        "print(t1 - t0, time.perf_counter() - t1)\n"
     )
-    done = subprocess.run([sys.executable, "-c", code, *argv], check=True, capture_output=True, text=True)
-    return float(done.stdout.strip().splitlines()[-1])
+    env = os.environ | {"BENCH_MODULES": " ".join(mods)}
+    done = subprocess.run(
+        [sys.executable, "-c", code, *argv], check=True, capture_output=True, text=True, env=env
+    )
+    libs, first = (float(x) for x in done.stdout.strip().splitlines()[-1].split())
+    return libs, first
 
 
 def timed(batch: list, out: Path, workers: int, address: str | None = None) -> float:
