@@ -149,6 +149,41 @@ def test_without_the_token_the_join_fails_in_one_line(cluster, manifest, tmp_pat
     assert not list((tmp_path / "out").glob("*/item.json"))
 
 
+def test_a_node_killed_mid_batch_has_its_items_run_elsewhere(cluster, manifest, reference, tmp_path):
+    """With the default retry, the item a killed node was running runs again on another
+    node and the batch succeeds, to the pool's results."""
+    node = cluster.add_node(NODE_IPS[1])
+    out = tmp_path / "out"
+    env = driver_env(cluster, RAY_ADDRESS=cluster.address)
+    proc = subprocess.Popen(
+        [RIGCAL, "batch", str(manifest), "-o", str(out), "--ray", "auto"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        _kill_when_busy(cluster, node, proc)
+        _, err = proc.communicate(timeout=900)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert "3 nodes" in err
+    assert results(out) == reference
+    assert set(nodes(out).values()) <= {HEAD_IP, NODE_IPS[0], NODE_IPS[1]}
+
+
+def _kill_when_busy(cluster: LoopbackCluster, node, proc: subprocess.Popen) -> None:
+    """Kill ``node`` as soon as one of its workers runs an item."""
+    deadline = time.monotonic() + 600
+    while not _running_task(cluster.marker, node.ip):
+        assert proc.poll() is None, "the batch ended before a task ran on the node"
+        assert time.monotonic() < deadline, "no task ran on the node"
+        time.sleep(0.2)
+    cluster.kill_node(node)
+
+
 def test_a_node_killed_mid_batch(cluster, manifest, reference, tmp_path):
     """Without retries, the items of a node killed while they run are recorded as failed,
     the batch finishes, every record is whole; the resume runs only those items. (Runs
@@ -159,12 +194,7 @@ def test_a_node_killed_mid_batch(cluster, manifest, reference, tmp_path):
     cmd = [RIGCAL, "batch", str(manifest), "-o", str(out), "--ray", "auto", "--ray-retries", "0"]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 600
-        while not _running_task(cluster.marker, node.ip):
-            assert proc.poll() is None, "the batch ended before a task ran on the second node"
-            assert time.monotonic() < deadline, "no task ran on the second node"
-            time.sleep(0.2)
-        cluster.kill_node(node)
+        _kill_when_busy(cluster, node, proc)
         _, err = proc.communicate(timeout=900)
     finally:
         if proc.poll() is None:
