@@ -152,3 +152,36 @@ def test_a_pool_that_refuses_new_items_fails_them_instead_of_the_batch():
     ran = _result(_submitted(broken, ["evaluate"]))
     assert ran["exit_code"] == 70
     assert ran["error"] == "worker failed: BrokenProcessPool: A child process terminated abruptly"
+
+
+def test_items_are_submitted_a_window_at_a_time(tmp_path, monkeypatch):
+    """However long the manifest, at most `window` items are in the pool or the cluster."""
+    import concurrent.futures as cf
+    import contextlib
+    import threading
+
+    import rigcal.batch.runner as runner
+
+    items = [Item(f"i{k}", "evaluate", _items(tmp_path)[0].options) for k in range(25)]
+    live, peak, lock = [0], [0], threading.Lock()
+    pool = cf.ThreadPoolExecutor(8)
+
+    def work(argv):
+        with lock:
+            live[0] += 1
+            peak[0] = max(peak[0], live[0])
+        time.sleep(0.01)
+        with lock:
+            live[0] -= 1
+        # what run_item returns (it is not thread-safe: it redirects this process's stdout)
+        return {"exit_code": 0, "stdout": "{}", "stderr": "", "error": None, "seconds": 0.01, "host": "h"}
+
+    @contextlib.contextmanager
+    def fake(settings, address, n_items, log):
+        yield (lambda argv: pool.submit(work, argv)), 3
+
+    monkeypatch.setattr(runner, "_executor", fake)
+    outcomes = run_batch(items, tmp_path / "o", BatchSettings(workers=1))
+    pool.shutdown()
+    assert [o.record["status"] for o in outcomes] == ["ok"] * 25
+    assert peak[0] == 3
