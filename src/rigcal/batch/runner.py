@@ -9,7 +9,9 @@ record says they finished with the same command line and whose outputs are all t
 
 The local pool and Ray share one code path: both hand out
 :class:`concurrent.futures.Future` objects for :func:`run_item` (Ray through
-``ObjectRef.future()``), and one loop collects them.
+``ObjectRef.future()``), and one loop keeps a bounded number of them submitted and
+collects them. Connecting to Ray (the ``--ray`` address forms, the connect timeout, a
+loopback-only local instance) is :mod:`rigcal.batch.raycluster`.
 """
 
 from __future__ import annotations
@@ -18,9 +20,11 @@ import concurrent.futures as cf
 import contextlib
 import datetime
 import io
+import itertools
 import json
 import multiprocessing
 import os
+import platform
 import sys
 import time
 import traceback
@@ -29,11 +33,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rigcal import __version__
 from rigcal.batch.manifest import COMMANDS, Item
-from rigcal.errors import InputError, OutputError
+from rigcal.batch.raycluster import RayAddress, connect, parse_address
+from rigcal.errors import OutputError
 from rigcal.io.files import MARKER, atomic_write_text, check_apart
 
-ITEM_SCHEMA_VERSION = 1
+ITEM_SCHEMA_VERSION = 2  # 2: node
+READABLE_ITEM_VERSIONS = (1, 2)
 ITEM_FILE = "item.json"
 
 # Exit codes of the single commands that mean "ran to the end" (check: 1 = drifted).
@@ -43,25 +50,51 @@ FINISHED = {"check": (0, 1), "solve": (0,), "localize": (0,), "evaluate": (0,)}
 @dataclass(frozen=True)
 class BatchSettings:
     """How to run: ``workers`` local processes, or Ray at ``ray_address`` when given
-    (``local`` starts a Ray instance on this machine; ``auto`` joins the running cluster;
-    ``ray://HOST:10001`` a remote one). ``rerun`` re-runs finished items too."""
+    (``local`` starts a Ray instance on this machine's loopback interface; ``auto`` joins
+    the running cluster; ``HOST:PORT`` a cluster's head from one of its nodes;
+    ``ray://HOST:PORT`` a remote one through Ray Client: :mod:`rigcal.batch.raycluster`).
+    ``rerun`` re-runs finished items too. ``connect_timeout_s`` bounds reaching a named
+    cluster; ``ray_retries``: how often Ray runs an item again elsewhere when its worker
+    or node dies (not when the command fails)."""
 
     workers: int = 0  # 0: one per CPU
     ray_address: str | None = None
     rerun: bool = False
+    connect_timeout_s: float = 10.0
+    ray_retries: int = 1
 
 
-def run_item(argv: list[str]) -> dict[str, Any]:
+def versions() -> dict[str, str]:
+    """The rigcal and Python versions of this process, which every worker must share."""
+    return {"rigcal": __version__, "python": platform.python_version()}
+
+
+def run_item(argv: list[str], expect: dict[str, str] | None = None) -> dict[str, Any]:
     """Run one single command in this process; never raises.
 
     Args:
         argv: the command line without ``rigcal`` (``Item.argv``).
+        expect: the driver's :func:`versions`; a worker with others does not run the item
+            (a node of a cluster installed differently) and says which differ.
 
     Returns:
         ``exit_code``; ``stdout``/``stderr`` as the command printed them; ``error``: the
         command's one-line message (``Error: ...`` without the prefix), or the traceback's
-        last line of a bug; ``seconds`` of wall time; ``host`` and ``pid`` that ran it.
+        last line of a bug; ``seconds`` of wall time; ``host`` and ``pid`` that ran it;
+        ``node``: the Ray node's address when run as a Ray task, else None.
     """
+    where = {"host": os.uname().nodename, "pid": os.getpid(), "node": _ray_node()}
+    mine = versions()
+    if expect is not None and expect != mine:
+        differ = ", ".join(f"{k} {mine.get(k)} (driver: {v})" for k, v in expect.items() if mine.get(k) != v)
+        return {
+            "exit_code": 70,
+            "stdout": "",
+            "stderr": "",
+            "error": f"worker on {where['node'] or where['host']} runs {differ}; not run",
+            "seconds": 0.0,
+            **where,
+        }
     from rigcal.cli.main import main
 
     out, err = io.StringIO(), io.StringIO()
@@ -86,9 +119,19 @@ def run_item(argv: list[str]) -> dict[str, Any]:
         "stderr": err.getvalue(),
         "error": error,
         "seconds": round(time.perf_counter() - t0, 3),
-        "host": os.uname().nodename,
-        "pid": os.getpid(),
+        **where,
     }
+
+
+def _ray_node() -> str | None:
+    """The address of the Ray node this process is a worker of, or None."""
+    ray = sys.modules.get("ray")
+    if ray is None or not ray.is_initialized():
+        return None
+    try:
+        return str(ray.util.get_node_ip_address())
+    except Exception:  # Ray's errors have no common base class
+        return None
 
 
 def _error_line(stderr: str) -> str | None:
@@ -122,6 +165,7 @@ def item_record(item: Item, argv: list[str], ran: dict[str, Any]) -> dict[str, A
         "error": ran["error"],
         "seconds": ran["seconds"],
         "host": ran["host"],
+        "node": ran.get("node"),
         "finished_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "result": result,
         "stderr": ran["stderr"][-4000:],
@@ -136,7 +180,7 @@ def finished_record(item: Item, folder: Path) -> dict[str, Any] | None:
         rec = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         return None
-    if not isinstance(rec, dict) or rec.get("schema_version") != ITEM_SCHEMA_VERSION:
+    if not isinstance(rec, dict) or rec.get("schema_version") not in READABLE_ITEM_VERSIONS:
         return None
     if rec.get("status") not in ("ok", "drifted") or rec.get("argv") != item.argv(folder):
         return None
@@ -159,14 +203,19 @@ def run_batch(
     output: str | Path,
     settings: BatchSettings | None = None,
     progress: Callable[[Outcome, int, int], None] | None = None,
+    log: Callable[[str], None] | None = None,
 ) -> list[Outcome]:
     """Run every item not finished yet, writing ``OUT/NAME/`` per item.
+
+    Items are handed out a few at a time (twice the workers or the cluster's CPUs), so
+    that a manifest of any length holds only that many tasks in the pool or the cluster.
 
     Args:
         items: from :func:`~rigcal.batch.manifest.read_manifest` or ``glob_items``.
         output: the batch's output folder (created; kept between runs for resuming).
         settings: workers, Ray address, re-run.
         progress: called after each item with its outcome, the count done and the total.
+        log: called with a line about the run (where Ray runs, its session files).
 
     Returns:
         The outcomes in the items' order.
@@ -176,6 +225,7 @@ def run_batch(
         OutputError: an item's record cannot be written.
     """
     settings = settings or BatchSettings()
+    address = None if settings.ray_address is None else parse_address(settings.ray_address)
     out = Path(output)
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder; expected the batch's output folder")
@@ -206,17 +256,37 @@ def run_batch(
     if todo and not (out / MARKER).is_file():
         atomic_write_text(out / MARKER, "This folder was written by rigcal batch.\n")
     if todo:
-        with _executor(settings, len(todo)) as submit:
-            futures = {submit(argv): (item, argv) for item, argv in todo}
-            for fut in cf.as_completed(futures):
-                item, argv = futures[fut]
-                rec = item_record(item, argv, _result(fut))
-                atomic_write_text(out / item.name / ITEM_FILE, json.dumps(rec, indent=1) + "\n", force=True)
-                outcomes[item.name] = Outcome(item, rec, resumed=False)
-                done += 1
-                if progress is not None:
-                    progress(outcomes[item.name], done, len(items))
+        with _executor(settings, address, len(todo), log or (lambda line: None)) as (submit, window):
+            waiting = iter(todo)
+            futures: dict[cf.Future[dict[str, Any]], tuple[Item, list[str]]] = {}
+            for item, argv in itertools.islice(waiting, window):
+                futures[_submitted(submit, argv)] = (item, argv)
+            while futures:
+                finished, _ = cf.wait(futures, return_when=cf.FIRST_COMPLETED)
+                for fut in finished:
+                    item, argv = futures.pop(fut)
+                    for nxt in itertools.islice(waiting, 1):
+                        futures[_submitted(submit, nxt[1])] = nxt
+                    rec = item_record(item, argv, _result(fut))
+                    atomic_write_text(
+                        out / item.name / ITEM_FILE, json.dumps(rec, indent=1) + "\n", force=True
+                    )
+                    outcomes[item.name] = Outcome(item, rec, resumed=False)
+                    done += 1
+                    if progress is not None:
+                        progress(outcomes[item.name], done, len(items))
     return [outcomes[i.name] for i in items]
+
+
+def _submitted(submit: Submit, argv: list[str]) -> cf.Future[dict[str, Any]]:
+    """``submit(argv)``, or a future holding its error: a pool whose worker died refuses
+    new items, which are then recorded as failed like the items it was running."""
+    try:
+        return submit(argv)
+    except Exception as exc:  # BrokenProcessPool, a lost Ray connection
+        fut: cf.Future[dict[str, Any]] = cf.Future()
+        fut.set_exception(exc)
+        return fut
 
 
 def _is_path(value: Any) -> bool:
@@ -235,6 +305,7 @@ def _result(fut: cf.Future[dict[str, Any]]) -> dict[str, Any]:
             "error": f"worker failed: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}",
             "seconds": 0.0,
             "host": "",
+            "node": None,
         }
 
 
@@ -242,9 +313,12 @@ Submit = Callable[[list[str]], "cf.Future[dict[str, Any]]"]
 
 
 @contextlib.contextmanager
-def _executor(settings: BatchSettings, n_items: int) -> Iterator[Submit]:
-    """A submit function for :func:`run_item`: a local process pool or Ray tasks."""
-    if settings.ray_address is None:
+def _executor(
+    settings: BatchSettings, address: RayAddress | None, n_items: int, log: Callable[[str], None]
+) -> Iterator[tuple[Submit, int]]:
+    """A submit function for :func:`run_item` (a local process pool or Ray tasks) and how
+    many items to keep submitted at once."""
+    if address is None:
         workers = min(settings.workers or os.cpu_count() or 1, n_items)
         # spawn: fresh interpreters, no copied threads or locks (cv2, numba) from this one
         ctx = multiprocessing.get_context("spawn")
@@ -253,26 +327,14 @@ def _executor(settings: BatchSettings, n_items: int) -> Iterator[Submit]:
             _thread_limits(threads),
             cf.ProcessPoolExecutor(workers, ctx, _start_worker, (threads,)) as pool,
         ):
-            yield lambda argv: pool.submit(run_item, argv)
+            yield (lambda argv: pool.submit(run_item, argv)), 2 * workers
         return
-    ray = _ray()
-    started = not ray.is_initialized()
-    if started:
-        try:
-            if settings.ray_address == "local":
-                ray.init(num_cpus=settings.workers or None, include_dashboard=False)
-            else:
-                ray.init(address=settings.ray_address)
-        except Exception as exc:  # ConnectionError and Ray's own errors
-            raise InputError.at(
-                None, "--ray", settings.ray_address, f"a reachable Ray cluster ({exc})"
-            ) from None
-    remote = ray.remote(num_cpus=1, max_retries=0)(run_item)
-    try:
-        yield lambda argv: remote.remote(argv).future()
-    finally:
-        if started:
-            ray.shutdown()
+    expect = versions()
+    with connect(address, settings.workers, settings.connect_timeout_s, log) as (ray, _):
+        remote = ray.remote(num_cpus=1, max_retries=settings.ray_retries)(run_item)
+        # -j N on a cluster: at most N items at once (a share of a shared cluster)
+        window = settings.workers or 2 * max(1, int(ray.cluster_resources().get("CPU", 1)))
+        yield (lambda argv: remote.remote(argv, expect).future()), window
 
 
 # Thread pools of the libraries under a worker: BLAS (OpenMP, OpenBLAS, MKL) and numba.
@@ -300,11 +362,3 @@ def _start_worker(threads: int) -> None:
     import cv2
 
     cv2.setNumThreads(threads)
-
-
-def _ray() -> Any:
-    try:
-        import ray
-    except ImportError:
-        raise InputError.at(None, "--ray", "ray", "Ray installed (pip install 'rigcal[ray]')") from None
-    return ray

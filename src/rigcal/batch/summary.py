@@ -18,8 +18,8 @@ from rigcal import __version__
 from rigcal.batch.runner import Outcome
 from rigcal.io.files import atomic_write_text
 
-SUMMARY_SCHEMA_VERSION = 1
-BASE_COLUMNS = ("name", "command", "status", "resumed", "exit_code", "seconds", "error")
+SUMMARY_SCHEMA_VERSION = 2  # 2: host, node
+BASE_COLUMNS = ("name", "command", "status", "resumed", "exit_code", "seconds", "host", "node", "error")
 METRICS = ("ate_rmse_m", "average_position_error_m", "loop_closure_error_percent", "rpe_1m_rmse_m")
 
 
@@ -66,6 +66,8 @@ def rows(outcomes: list[Outcome]) -> list[dict[str, Any]]:
             "resumed": o.resumed,
             "exit_code": r["exit_code"],
             "seconds": r["seconds"],
+            "host": r.get("host"),
+            "node": r.get("node"),
             "error": r["error"],
         }
         out.append(base | figures(o.item.command, r.get("result")))

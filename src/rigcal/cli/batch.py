@@ -32,14 +32,34 @@ import click
     "--workers",
     default=0,
     type=click.IntRange(min=0),
-    help="Local worker processes [default: one per CPU]; with --ray local, the CPUs Ray may use.",
+    help="Local worker processes [default: one per CPU]; with --ray, at most N items at once "
+    "(and with --ray local, the CPUs Ray may use).",
 )
 @click.option(
     "--ray",
     "ray_address",
     metavar="ADDRESS",
-    help="Run the items as Ray tasks: 'auto' (the cluster this machine belongs to), "
-    "'ray://HOST:10001' (a remote cluster), or 'local' (start Ray here). Needs rigcal[ray].",
+    help="Run the items as Ray tasks: 'local' (start Ray here, on 127.0.0.1 only), 'auto' "
+    "(the cluster RAY_ADDRESS names, or the one started on this machine), 'HOST:PORT' (a "
+    "cluster's head, from one of its nodes) or 'ray://HOST:PORT' (Ray Client, from anywhere). "
+    "Needs rigcal[ray]; docs/batch.md.",
+)
+@click.option(
+    "--ray-timeout",
+    "ray_timeout_s",
+    default=10.0,
+    show_default=True,
+    type=click.FloatRange(min=0, min_open=True),
+    metavar="SECONDS",
+    help="How long to try reaching a named Ray cluster before giving up.",
+)
+@click.option(
+    "--ray-retries",
+    default=1,
+    show_default=True,
+    type=click.IntRange(min=0),
+    help="How often Ray runs an item again on another worker when its worker or node dies "
+    "(a failing command is never retried).",
 )
 @click.option("--rerun", is_flag=True, help="Run finished items again instead of skipping them.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
@@ -50,6 +70,8 @@ def batch(
     set_items: tuple[str, ...],
     workers: int,
     ray_address: str | None,
+    ray_timeout_s: float,
+    ray_retries: int,
     rerun: bool,
     as_json: bool,
 ) -> int:
@@ -70,6 +92,7 @@ def batch(
       rigcal batch 'runs/*/' --command localize --set method=icp,kf -o sweep/ -j 2
       rigcal batch 'sessions/*/picks.yaml' --command solve -o solves/
       rigcal batch fleet.yaml -o nightly/ --ray auto
+      rigcal batch fleet.yaml -o nightly/ --ray ray://head.lab:10001
     """
     import json
 
@@ -108,7 +131,8 @@ def batch(
             line += f": {rec['error']}"
         click.echo(line, err=True)
 
-    outcomes = run_batch(items, output, BatchSettings(workers, ray_address, rerun), report)
+    settings = BatchSettings(workers, ray_address, rerun, ray_timeout_s, ray_retries)
+    outcomes = run_batch(items, output, settings, report, lambda line: click.echo(line, err=True))
     json_path, csv_path = write_summary(output, outcomes)
     wrote = [str(csv_path), str(json_path)]
     if items[0].command == "check":

@@ -1,0 +1,187 @@
+"""The --ray address: its forms, a bounded connect, one-line errors before anything runs;
+the per-item version check of a worker installed differently."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rigcal.batch.manifest import Item
+from rigcal.batch.raycluster import RayAddress, parse_address, probe, resolve
+from rigcal.batch.runner import BatchSettings, run_batch, run_item, versions
+from rigcal.errors import InputError
+
+
+@pytest.mark.parametrize(
+    ("text", "kind", "host", "port"),
+    [
+        ("local", "local", "", 0),
+        ("auto", "auto", "", 0),
+        ("10.0.0.5:6379", "gcs", "10.0.0.5", 6379),
+        ("head.lab.example:6379", "gcs", "head.lab.example", 6379),
+        ("ray://head:10001", "client", "head", 10001),
+        ("ray://[::1]:10001", "client", "::1", 10001),
+    ],
+)
+def test_address_forms(text, kind, host, port):
+    a = parse_address(text)
+    assert (a.kind, a.host, a.port) == (kind, host, port)
+    assert a.target == (text if kind != "client" or host != "::1" else "ray://[::1]:10001")
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["", "Auto", "head", "head:", ":6379", "head:0", "head:65536", "head:63x", "http://head:10001",
+     "ray://head", "ray://:10001", "he ad:6379", "[::1:6379", "[zz]:1", "head:6379/x"],
+)  # fmt: skip
+def test_malformed_addresses_are_one_line(text):
+    with pytest.raises(
+        InputError, match=r"^--ray: got .*; expected auto, local, HOST:PORT or ray://HOST:PORT"
+    ):
+        parse_address(text)
+
+
+def test_auto_takes_ray_address_and_checks_it(monkeypatch):
+    monkeypatch.setenv("RAY_ADDRESS", "10.1.2.3:6379")
+    assert resolve(parse_address("auto")) == RayAddress("auto", "gcs", "10.1.2.3", 6379)
+    monkeypatch.setenv("RAY_ADDRESS", "local")
+    with pytest.raises(InputError, match=r"RAY_ADDRESS \(from --ray auto\): got 'local'; expected HOST:PORT"):
+        resolve(parse_address("auto"))
+    monkeypatch.setenv("RAY_ADDRESS", "nowhere")
+    with pytest.raises(InputError, match=r"RAY_ADDRESS \(from --ray auto\): got 'nowhere'"):
+        resolve(parse_address("auto"))
+    monkeypatch.delenv("RAY_ADDRESS")
+    assert resolve(parse_address("auto")).kind == "auto"
+
+
+def test_probe_of_a_closed_port_fails_at_once():
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    t0 = time.perf_counter()
+    with pytest.raises(
+        InputError, match=rf"cannot connect to 127.0.0.1:{port} within 2 s: Connection refused"
+    ):
+        probe(parse_address(f"127.0.0.1:{port}"), 2.0)
+    assert time.perf_counter() - t0 < 2
+
+
+def _items(tmp_path: Path) -> list[Item]:
+    t = tmp_path / "a.tum"
+    t.write_text("\n".join(f"{0.1 * i:.1f} {x:.3f} 0 0 0 0 0 1" for i, x in enumerate(np.linspace(0, 1, 5))))
+    return [Item("a", "evaluate", {"trajectory": t, "gt": t})]
+
+
+def test_unreachable_cluster_is_one_line_before_anything_is_written(tmp_path):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    for address in (f"127.0.0.1:{port}", f"ray://127.0.0.1:{port}"):
+        with pytest.raises(InputError, match=rf"--ray: got '{address}'; expected a reachable Ray cluster"):
+            run_batch(
+                _items(tmp_path), tmp_path / "o", BatchSettings(ray_address=address, connect_timeout_s=2)
+            )
+    with pytest.raises(InputError, match=r"--ray: got 'ray:/x:1'; expected auto, local"):
+        run_batch(_items(tmp_path), tmp_path / "o", BatchSettings(ray_address="ray:/x:1"))
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").glob("*/item.json"))
+
+
+def test_the_cli_does_not_hang_on_a_port_without_scheme(tmp_path):
+    """`--ray localhost:1` (the form that used to wait for minutes): one line, exit 3."""
+    t = tmp_path / "a.tum"
+    t.write_text("0 0 0 0 0 0 0 1\n0.1 1 0 0 0 0 0 1\n")
+    cmd = [str(Path(sys.executable).with_name("rigcal")), "batch", str(t), "--command", "evaluate"]
+    cmd += ["--set", f"gt={t}", "-o", str(tmp_path / "o"), "--ray", "localhost:1", "--ray-timeout", "3"]
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 3, done.stderr
+    last = done.stderr.strip().splitlines()[-1]
+    assert last.startswith(
+        "Error: --ray: got 'localhost:1'; expected a reachable Ray cluster (cannot connect"
+    )
+    assert last.endswith("localhost:1 within 3 s: Connection refused)")
+    assert time.perf_counter() - t0 < 60
+
+
+def test_a_worker_with_other_versions_does_not_run_the_item(tmp_path):
+    t = _items(tmp_path)[0].options["trajectory"]
+    argv = ["evaluate", str(t), "--gt", str(t), "--json"]
+    same = run_item(argv, versions())
+    assert same["exit_code"] == 0
+    other = run_item(argv, {**versions(), "python": "3.11.9"})
+    assert other["exit_code"] == 70
+    assert (
+        other["error"]
+        == f"worker on {other['host']} runs python {versions()['python']} (driver: 3.11.9); not run"
+    )
+    assert other["stdout"] == ""
+
+
+def test_records_of_item_json_version_1_are_resumed(tmp_path):
+    """item.json 2 adds `node`; a finished record of version 1 is still skipped."""
+    import json
+
+    items = _items(tmp_path)
+    out = tmp_path / "o"
+    (first,) = run_batch(items, out, BatchSettings(workers=1))
+    assert first.record["schema_version"] == 2
+    assert first.record["node"] is None
+    old = {k: v for k, v in first.record.items() if k != "node"} | {"schema_version": 1}
+    (out / "a" / "item.json").write_text(json.dumps(old))
+    (again,) = run_batch(items, out, BatchSettings(workers=1))
+    assert again.resumed
+    from rigcal.batch.summary import rows
+
+    assert rows([again])[0]["node"] is None
+
+
+def test_a_pool_that_refuses_new_items_fails_them_instead_of_the_batch():
+    from concurrent.futures.process import BrokenProcessPool
+
+    from rigcal.batch.runner import _result, _submitted
+
+    def broken(argv):
+        raise BrokenProcessPool("A child process terminated abruptly")
+
+    ran = _result(_submitted(broken, ["evaluate"]))
+    assert ran["exit_code"] == 70
+    assert ran["error"] == "worker failed: BrokenProcessPool: A child process terminated abruptly"
+
+
+def test_items_are_submitted_a_window_at_a_time(tmp_path, monkeypatch):
+    """However long the manifest, at most `window` items are in the pool or the cluster."""
+    import concurrent.futures as cf
+    import contextlib
+    import threading
+
+    import rigcal.batch.runner as runner
+
+    items = [Item(f"i{k}", "evaluate", _items(tmp_path)[0].options) for k in range(25)]
+    live, peak, lock = [0], [0], threading.Lock()
+    pool = cf.ThreadPoolExecutor(8)
+
+    def work(argv):
+        with lock:
+            live[0] += 1
+            peak[0] = max(peak[0], live[0])
+        time.sleep(0.01)
+        with lock:
+            live[0] -= 1
+        # what run_item returns (it is not thread-safe: it redirects this process's stdout)
+        return {"exit_code": 0, "stdout": "{}", "stderr": "", "error": None, "seconds": 0.01, "host": "h"}
+
+    @contextlib.contextmanager
+    def fake(settings, address, n_items, log):
+        yield (lambda argv: pool.submit(work, argv)), 3
+
+    monkeypatch.setattr(runner, "_executor", fake)
+    outcomes = run_batch(items, tmp_path / "o", BatchSettings(workers=1))
+    pool.shutdown()
+    assert [o.record["status"] for o in outcomes] == ["ok"] * 25
+    assert peak[0] == 3
