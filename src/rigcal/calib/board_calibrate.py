@@ -16,7 +16,7 @@ import numpy as np
 
 from rigcal.calib.board_session import BoardSession, read_board_session
 from rigcal.calib.noise import corner_sigma_from_rms
-from rigcal.calib.plane import PlaneResult, solve_plane
+from rigcal.calib.plane import LOSS, LOSS_SCALE, PlaneResult, solve_plane
 from rigcal.calib.report import (
     MAX_SIGMA_ROTATION_DEG,
     MAX_SIGMA_TRANSLATION_MM,
@@ -54,6 +54,7 @@ def calibrate_board(
     seed: int = 0,
     noise: str = "auto",
     range_bias: bool = True,
+    loss: str = LOSS,
 ) -> BoardCalibration:
     """Read a board session, solve, build the report and the rig.
 
@@ -69,6 +70,8 @@ def calibrate_board(
             (the assumed values are reported beside them); "assumed" uses the assumed ones.
         range_bias: estimate the scanner's range bias by incidence with the pose
             (:class:`rigcal.calib.plane.PlaneNoise`).
+        loss: the refinement's robust loss (``rigcal.calib.plane.LOSSES``; "linear" for
+            plain least squares).
 
     Raises:
         InputError: a bad session or truth file.
@@ -98,6 +101,7 @@ def calibrate_board(
         seed=seed,
         corner_sigma_px=corner_used,
         fit_range_bias=range_bias,
+        loss=loss,
     )
     estimated = result.range_noise.sigma_m if result.range_noise is not None else None
     noise_doc = noise_section(
@@ -134,6 +138,7 @@ def calibrate_board(
                 "noise": {"mode": noise, "fit_range_bias": range_bias}
                 | {k: v["used"] for k, v in noise_doc.items()},
                 "ransac": {"seed": seed},
+                "refine": {"loss": loss, "loss_scale": LOSS_SCALE},
             },
             base=Path(path).resolve().parent,
         ),

@@ -27,8 +27,9 @@ Every such return, mapped into the camera frame, must lie on the plane (Zhang an
    whitened per capture by their covariance: the line's offset through the range noise,
    the plane's own error (shared through the board's pose from PnP) and a per-capture
    error estimated from the data where the captures disagree beyond chance (a range bias
-   by incidence, a warped board). A Cauchy loss bends at 3 sigmas, so no capture is
-   thrown out by a hard threshold while it pulls; the explicit verdict is a chi-square
+   by incidence, a warped board). A Cauchy loss (by default; ``loss`` chooses another,
+   or "linear" for none) bends at 3 sigmas, so no capture is thrown out by a hard
+   threshold while it pulls; the explicit verdict is a chi-square
    gate (99.99 %, 2 dof, times the captures' robust scale) on each same-pose group's
    median, so captures taken at one pose share it. The covariance is the box method's
    (``rigcal.calib.refine``'s tangent space), checked against the spread over captures
@@ -50,6 +51,7 @@ from rigcal.calib.noise import (
     MIN_COS_INCIDENCE,
     LineFit,
     RangeNoise,
+    canonical_order,
     connected_groups,
     fit_line_robust,
     grouped_verdicts,
@@ -57,7 +59,7 @@ from rigcal.calib.noise import (
     matching_noise,
     range_noise_from_lines,
 )
-from rigcal.calib.refine import loss_weights
+from rigcal.calib.refine import loss_weights, robust_cost
 from rigcal.calib.spread import (
     Sensitivity,
     Spread,
@@ -289,6 +291,7 @@ def ransac_closed_form(
 # that falls as the square of its distance instead of rising with it.
 LOSS = "cauchy"
 LOSS_SCALE = 3.0
+LOSSES = ("linear", "huber", "soft_l1", "cauchy")
 # A capture is an outlier when its chi-square (2 dof) exceeds the 99.99 % point times the
 # robust scale of all captures' chi-squares (median over the chi-square median, at least 1).
 OUTLIER_GATE_CHI2 = 18.420680743952367
@@ -317,6 +320,10 @@ class PlaneNoise:
             range_bias_m * (1 / cos(i) - 1) (the footprint smears along a slanted board);
             estimated with the pose when ``fit_range_bias``, its uncertainty then entering
             the pose's covariance.
+        loss: the shape assumed for the whitened errors' tails: scipy's robust loss
+            (``LOSSES``), bending at LOSS_SCALE sigmas; "linear" is plain least squares
+            (Gaussian errors: every capture pulls in proportion to its distance; the outlier
+            gate still rejects captures beyond it).
     """
 
     range_sigma_m: float
@@ -324,6 +331,7 @@ class PlaneNoise:
     pose_cov_scale: float = 1.0
     fit_range_bias: bool = False
     range_bias_m: float = 0.0
+    loss: str = LOSS
 
 
 @dataclass(frozen=True)
@@ -332,12 +340,14 @@ class CaptureLine:
 
     Under range noise the least-squares line carries all the returns say about the pose
     (each return only says where the line is), so the solve works on the line's two ends
-    (the outermost kept returns projected on it) with the covariance of the line's offset
-    there; returns the robust fit trimmed (mixed pixels at the board's edges, strays) drop
-    out.
+    (the extreme kept returns along it, whatever their order, projected on it) with the
+    covariance of the line's offset there; returns the robust fit trimmed (mixed pixels at
+    the board's edges, strays) drop out.
 
     Attributes:
-        fit: the robust line fit (:func:`rigcal.calib.noise.fit_line_robust`).
+        fit: the robust line fit (:func:`rigcal.calib.noise.fit_line_robust`) of the returns
+            in :func:`rigcal.calib.noise.canonical_order` (its per-return arrays follow that
+            order, not the order given).
         ends: (2, 2) the cut's two ends on the line, laser frame.
         offset_cov: (2, 2) covariance of the line's offset across itself at the ends, per
             unit range variance (times range_sigma_m^2 gives metres^2).
@@ -359,13 +369,17 @@ class CaptureLine:
 
 def capture_line(points_laser: FloatArray) -> CaptureLine:
     """Reduce a capture's returns on the board to its :class:`CaptureLine`."""
-    fit = fit_line_robust(points_laser)
+    # The returns in a fixed order: the line (and so the solve) is the same to the last bit
+    # whatever order they were given in.
+    points = np.asarray(points_laser, dtype=float)
+    points = points[canonical_order(points)]
+    fit = fit_line_robust(points)
     k = fit.kept
     sigma_across = float(np.sqrt(np.mean(fit.cos_incidence[k] ** 2)))
-    at = fit.along_m[k][[0, -1]]
+    at = fit.extent_m
     # A bias b_j along each return's ray u_j moves it across the line by b_j (u_j . n); the
     # least-squares line through those moves is the line's own.
-    p = np.asarray(points_laser, dtype=float)[k]
+    p = points[k]
     u = p / np.linalg.norm(p, axis=1, keepdims=True)
     across = u @ fit.normal
     g = 1.0 / np.maximum(np.abs(across), MIN_COS_INCIDENCE) - 1.0
@@ -425,6 +439,7 @@ def solve_plane(
     corner_sigma_px: float | None = None,
     uncertainty_checks: bool = True,
     fit_range_bias: bool = False,
+    loss: str = LOSS,
 ) -> PlaneResult:
     """Calibrate T_cam_laser from board planes and laser returns (steps 1-4).
 
@@ -439,10 +454,14 @@ def solve_plane(
         uncertainty_checks: run the leave-one-capture-out spread and the sensitivity.
         fit_range_bias: estimate the scanner's range bias by incidence with the pose
             (:class:`PlaneNoise`), its uncertainty entering the pose's covariance.
+        loss: the robust loss of the refinement (:class:`PlaneNoise`), one of LOSSES.
 
     Raises:
+        ValueError: an unknown loss.
         CalibrationError: too few captures, planes too alike, or no consensus.
     """
+    if loss not in LOSSES:
+        raise ValueError(f"loss must be one of {LOSSES}, not {loss!r}")
     _check_observable(observations)
     lines = tuple(capture_line(o.points_laser) for o in observations)
     try:
@@ -455,7 +474,7 @@ def solve_plane(
                 "no capture has 3 or more returns on its board to estimate the range noise"
             )
         range_sigma_m = estimated.sigma_m
-    noise = PlaneNoise(max(range_sigma_m, 1e-4), fit_range_bias=fit_range_bias)
+    noise = PlaneNoise(max(range_sigma_m, 1e-4), fit_range_bias=fit_range_bias, loss=loss)
     reduced = [replace(o, points_laser=ln.ends) for o, ln in zip(observations, lines, strict=True)]
     # Start from the closed form on every capture and, when asked, from RANSAC's best
     # sample; keep the robust fit that explains most captures (then the lowest cost). A
@@ -598,8 +617,7 @@ def _robust_fit(
     T, noise = refit(T, noise, False)
     chi2 = _chi2(T, observations, lines, noise)
     z = np.sqrt(chi2[mask])
-    cost = float(np.sum(LOSS_SCALE**2 * np.log1p((z / LOSS_SCALE) ** 2)))
-    return T, noise, mask, cost
+    return T, noise, mask, robust_cost(z, noise.loss, LOSS_SCALE)
 
 
 def _capture_cov(T: FloatArray, o: PlaneObservation, line: CaptureLine, noise: PlaneNoise) -> FloatArray:
@@ -686,7 +704,7 @@ def _fit(
     noise: PlaneNoise,
     used: NDArray[np.int64] | None,
 ) -> tuple[FloatArray, float]:
-    """Robust fit (scipy trust region, Cauchy loss) of the whitened cut-end distances of the
+    """Robust fit (scipy trust region, ``noise.loss``) of the whitened cut-end distances of the
     captures ``used`` (all when None) from T0 (step 4); with ``noise.fit_range_bias`` the
     range bias by incidence is fitted too. Returns (pose, range bias)."""
     idx = np.arange(len(observations)) if used is None else used
@@ -706,7 +724,7 @@ def _fit(
         )
 
     x0 = np.concatenate([np.zeros(3), T0[:3, 3], [noise.range_bias_m] if noise.fit_range_bias else []])
-    sol = least_squares(residuals, x0, method="trf", loss=LOSS, f_scale=LOSS_SCALE, x_scale="jac")
+    sol = least_squares(residuals, x0, method="trf", loss=noise.loss, f_scale=LOSS_SCALE, x_scale="jac")
     return pose(sol.x), float(sol.x[6]) if noise.fit_range_bias else noise.range_bias_m
 
 
@@ -736,7 +754,7 @@ def _covariance(
             cols.append((-ln.bias_shift * float(T[:3, :2] @ ln.fit.normal @ n))[:, None])
         Js.append(w @ np.column_stack(cols))
     r, J = np.concatenate(rs), np.concatenate(Js)
-    wts = loss_weights(r, LOSS, LOSS_SCALE)
+    wts = loss_weights(r, noise.loss, LOSS_SCALE)
     blocks = [b * np.sqrt(w)[:, None] for b, w in zip(Js, wts.reshape(-1, 2), strict=True)]
     info = (J * wts[:, None]).T @ J
     evals = np.linalg.eigvalsh(info)

@@ -66,7 +66,8 @@ from rigcal.io.validate import Real
     default="cauchy",
     show_default=True,
     type=click.Choice(["linear", "huber", "soft_l1", "cauchy"]),
-    help="Robust loss of the refinement.",
+    help="Robust loss of the refinement, both methods (the board method bends it at 3 sigmas of "
+    "the whitened errors); linear: plain least squares, outliers still rejected by the gate.",
 )
 @click.option(
     "--paper-endpoints",
@@ -141,6 +142,7 @@ def solve(
             range_sigma_m,
             noise_mode,
             range_bias,
+            loss,
             command,
             force,
             as_json,
@@ -183,6 +185,7 @@ def _solve_board(
     range_sigma_m: float | None,
     noise_mode: str,
     range_bias: bool,
+    loss: str,
     command: str,
     force: bool,
     as_json: bool,
@@ -197,7 +200,14 @@ def _solve_board(
     from rigcal.viz.residual_plot import board_residuals_figure
 
     cal = calibrate_board(
-        session, range_sigma_m, truth, command=command, seed=seed, noise=noise_mode, range_bias=range_bias
+        session,
+        range_sigma_m,
+        truth,
+        command=command,
+        seed=seed,
+        noise=noise_mode,
+        range_bias=range_bias,
+        loss=loss,
     )
     _check_apart_from(output, report_dir, cal.session.files)
     if report_dir is not None:
