@@ -156,6 +156,8 @@ def board_report(
     """The report of a board solve (docs/formats/report.md, board variant)."""
     per = []
     used = []
+    C = len(session.observations)
+    screened = result.screened_out if result.screened_out is not None else np.zeros(C, dtype=bool)
     for k, (o, res, keep, rms_px) in enumerate(
         zip(
             session.observations,
@@ -180,6 +182,7 @@ def board_report(
                 "chi2": round(float(result.chi2[k]), 3),
                 "weight": round(float(result.weights[k]), 3),
                 "pose_group": int(result.pose_group[k]),
+                "screened_out": bool(screened[k]),
                 "inlier": bool(keep),
             }
         )
@@ -191,6 +194,7 @@ def board_report(
         "method": "board",
         "captures": len(session.observations),
         "captures_used": int(result.inlier_captures.sum()),
+        "captures_screened_out": int(screened.sum()),
         "returns": len(allr),
         "rms_mm": round(1000.0 * float(np.sqrt(np.mean(allr**2))), 3),
         "max_mm": round(1000.0 * float(np.abs(allr).max()), 3),
@@ -209,8 +213,9 @@ def board_report(
     if np.degrees(sig[:3]).max() > MAX_SIGMA_ROTATION_DEG or 1000 * sig[3:].max() > MAX_SIGMA_TRANSLATION_MM:
         warnings.append("large uncertainty: add captures with the board turned and tilted more")
     warnings += uncertainty_warnings(result.spread, result.sensitivity, cov_model, "range and corner noise")
+    warnings = _screen_warnings(session, result, screened) + warnings
     for c in per:
-        if not c["inlier"]:
+        if not c["inlier"] and not c["screened_out"]:
             warnings.append(
                 f"capture {c['capture']}: rejected ({c['rms_mm']:.1f} mm RMS off its board plane, "
                 f"chi-square {c['chi2']:.1f} on 2 dof); check its segment id and corners"
@@ -222,12 +227,34 @@ def board_report(
     return report
 
 
+def _screen_warnings(session: BoardSession, result: PlaneResult, screened: Any) -> list[str]:
+    """One warning per capture set aside before the solve (:func:`rigcal.calib.plane.gross_outliers`),
+    saying "millimetres read as metres?" when its returns are 500-2000 times as far as its
+    board is from the camera."""
+    out = []
+    for k in np.flatnonzero(screened):
+        o = session.observations[k]
+        origin = o.board_origin_cam
+        board_m = float(np.linalg.norm(origin)) if origin is not None else o.distance_m
+        ratio = float(np.median(np.linalg.norm(o.points_laser, axis=1))) / max(board_m, 1e-12)
+        hint = "another scan's returns, or a wrong file?"
+        if 500.0 <= ratio <= 2000.0:
+            hint = f"its returns are {ratio:.0f} times as far as its board: millimetres read as metres?"
+        rms = result.screen_rms_m[k] if result.screen_rms_m is not None else float("nan")
+        out.append(
+            f"capture {o.name}: set aside before the solve: {rms:.3g} m off its board plane under the "
+            f"pose the other captures agree on (limit {result.screen_limit_m:.2g} m, far beyond any "
+            f"noise); {hint}"
+        )
+    return out
+
+
 def board_report_table(report: dict[str, Any]) -> str:
     """Readable summary of a board solve."""
     s = report["summary"]
     lines = [f"{'capture':<14}{'dist_m':>8}{'returns':>9}{'rms_mm':>9}{'max_mm':>9}{'corners_px':>12}"]
     for c in report["per_capture"]:
-        mark = "" if c["inlier"] else "  rejected"
+        mark = "" if c["inlier"] else "  set aside" if c.get("screened_out") else "  rejected"
         lines.append(
             f"{c['capture']:<14}{c['distance_m']:>8.2f}{c['returns']:>9}{c['rms_mm']:>9.2f}{c['max_mm']:>9.2f}"
             f"{c['corner_rms_px']:>12.2f}{mark}"

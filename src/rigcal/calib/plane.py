@@ -58,6 +58,7 @@ from rigcal.calib.noise import (
     line_offset_covariance,
     matching_noise,
     range_noise_from_lines,
+    robust_scale,
 )
 from rigcal.calib.refine import loss_weights, robust_cost
 from rigcal.calib.spread import (
@@ -412,6 +413,12 @@ class PlaneResult:
         sensitivity: moves of the answer when a noise setting is halved or doubled.
         range_bias_sigma_m: 1-sigma of the fitted range bias by incidence
             (``noise.range_bias_m``), None when it was not fitted.
+        screened_out: (C,) bool, captures set aside before the solve as gross outliers
+            (:func:`gross_outliers`: off the others' consensus by far more than any noise,
+            a unit mistake or another scan's returns); their verdict is False.
+        screen_rms_m: (C,) each capture's RMS distance from its plane under the others'
+            consensus pose (nan when no consensus was formed).
+        screen_limit_m: the distance beyond which a capture was set aside.
     """
 
     T_cam_laser: FloatArray
@@ -429,6 +436,9 @@ class PlaneResult:
     spread: Spread | None
     sensitivity: tuple[Sensitivity, ...]
     range_bias_sigma_m: float | None
+    screened_out: NDArray[np.bool_] | None = None
+    screen_rms_m: FloatArray | None = None
+    screen_limit_m: float = np.inf
 
 
 def solve_plane(
@@ -464,8 +474,11 @@ def solve_plane(
         raise ValueError(f"loss must be one of {LOSSES}, not {loss!r}")
     _check_observable(observations)
     lines = tuple(capture_line(o.points_laser) for o in observations)
+    screen = gross_outliers(observations, lines, seed)
+    gross = screen.gross
+    kept = np.flatnonzero(~gross)
     try:
-        estimated = range_noise_from_lines([ln.fit for ln in lines])
+        estimated = range_noise_from_lines([lines[i].fit for i in kept])
     except ValueError:
         estimated = None
     if range_sigma_m is None:
@@ -480,13 +493,14 @@ def solve_plane(
     # sample; keep the robust fit that explains most captures (then the lowest cost). A
     # 5-capture closed form is often poorly conditioned, so RANSAC alone can settle on a
     # wrong pose that a few captures fit.
+    reduced = [reduced[i] for i in kept]
     starts = [closed_form(reduced)]
     if use_ransac:
         threshold = max(0.03, 6.0 * noise.range_sigma_m)
         with contextlib.suppress(CalibrationError):
             starts.append(ransac_closed_form(reduced, threshold_m=threshold, seed=seed)[0])
     groups = same_pose_groups(observations, lines)
-    fits = [_robust_fit(T0, observations, lines, noise, groups) for T0 in starts]
+    fits = [_robust_fit(T0, observations, lines, noise, groups, gross) for T0 in starts]
     T, noise, mask, _ = max(fits, key=lambda f: (int(f[2].sum()), -f[3]))
     if mask.sum() < MIN_CAPTURES:
         raise CalibrationError(
@@ -540,7 +554,71 @@ def solve_plane(
         spread,
         tuple(sens),
         bias_sigma,
+        gross,
+        screen.rms_m,
+        screen.limit_m,
     )
+
+
+# A capture is a gross outlier, set aside before the solve, when the consensus of the
+# others puts its cut farther from its board plane than GROSS_SIGMAS range sigmas (the
+# captures' median own scatter), and at least GROSS_FLOOR_M: no noise explains that, only
+# a mistake (returns in millimetres, another scan's returns). Closer ones are left to the
+# robust loss and the chi-square gate.
+GROSS_SIGMAS = 100.0
+GROSS_FLOOR_M = 0.5
+
+
+@dataclass(frozen=True)
+class GrossScreen:
+    """The screen for gross outliers before a solve.
+
+    Attributes:
+        gross: (C,) bool, the captures set aside.
+        rms_m: (C,) each capture's RMS distance of its cut's ends from its plane under
+            the consensus pose (nan when none was formed).
+        limit_m: the distance beyond which a capture is set aside (inf: no screen).
+    """
+
+    gross: NDArray[np.bool_]
+    rms_m: FloatArray
+    limit_m: float
+
+
+def gross_outliers(
+    observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine], seed: int = 0
+) -> GrossScreen:
+    """Captures that disagree with all the others by far more than any noise.
+
+    A robust loss caps a capture's pull, but a capture hundreds of sigmas off (returns in
+    millimetres read as metres, or 140 m away) still wrecks the closed-form start and the
+    range noise estimate, and so steers the solve before any verdict. RANSAC over captures
+    (:func:`ransac_closed_form`, threshold 6 range sigmas, at least 3 cm) finds the pose
+    most captures agree on; a capture outside that consensus whose cut lies farther than
+    max(GROSS_SIGMAS range sigmas, GROSS_FLOOR_M) from its plane is set aside. The range
+    sigma here is the median over captures of their own robust scatter, which one bad
+    capture cannot move. Nothing is set aside unless at least half of the captures (and
+    MIN_CAPTURES) agree and MIN_CAPTURES remain.
+    """
+    C = len(observations)
+    none = GrossScreen(np.zeros(C, dtype=bool), np.full(C, np.nan), float("inf"))
+    own = [robust_scale(ln.fit.range_residuals_m) for ln in lines if ln.fit.kept.sum() >= 4]
+    sigma = float(np.median(own)) if own else 0.0
+    limit = max(GROSS_FLOOR_M, GROSS_SIGMAS * sigma)
+    if C <= MIN_CAPTURES:
+        return none
+    reduced = [replace(o, points_laser=ln.ends) for o, ln in zip(observations, lines, strict=True)]
+    try:
+        T, agree = ransac_closed_form(reduced, threshold_m=max(0.03, 6.0 * sigma), seed=seed)
+    except CalibrationError:
+        return none
+    if agree.sum() < max(MIN_CAPTURES, 0.5 * C):
+        return none
+    rms = np.array([float(np.sqrt(np.mean(point_to_plane(T, o) ** 2))) for o in reduced])
+    gross = (rms > limit) & ~agree
+    if (~gross).sum() < MIN_CAPTURES:
+        return none
+    return GrossScreen(gross, rms, limit)
 
 
 def same_pose_groups(
@@ -587,17 +665,19 @@ def _robust_fit(
     lines: Sequence[CaptureLine],
     noise: PlaneNoise,
     groups: NDArray[np.int64],
+    gross: NDArray[np.bool_],
 ) -> tuple[FloatArray, PlaneNoise, NDArray[np.bool_], float]:
-    """From T0: a robust fit on every capture, the per-capture error estimated from the
-    captures' chi-squares, the verdicts, and a robust fit on the inliers; twice over, as
-    the verdicts and the estimate settle. Returns (pose, noise, inliers, robust cost)."""
-    mask = np.ones(len(observations), dtype=bool)
+    """From T0: a robust fit on every capture but the ``gross`` ones, the per-capture error
+    estimated from the captures' chi-squares, the verdicts, and a robust fit on the
+    inliers; twice over, as the verdicts and the estimate settle. Returns (pose, noise,
+    inliers, robust cost)."""
+    mask = ~gross
 
     def refit(T: FloatArray, noise: PlaneNoise, estimate: bool) -> tuple[FloatArray, PlaneNoise]:
         """The pose (and range bias) on the captures in ``mask``; with ``estimate``, the
         per-capture error re-estimated under it."""
         T, bias = _fit(
-            T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None
+            T, observations, lines, noise, np.flatnonzero(mask if mask.sum() >= MIN_CAPTURES else ~gross)
         )
         noise = replace(noise, range_bias_m=bias)
         if estimate:
@@ -607,7 +687,7 @@ def _robust_fit(
     T = T0
     for _ in range(3):
         T, noise = refit(T, noise, True)
-        new = grouped_verdicts(_chi2(T, observations, lines, noise), groups, mask, OUTLIER_GATE_CHI2)
+        new = grouped_verdicts(_chi2(T, observations, lines, noise), groups, mask, OUTLIER_GATE_CHI2) & ~gross
         if np.array_equal(new, mask):
             break
         mask = new
