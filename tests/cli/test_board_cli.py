@@ -139,6 +139,35 @@ def test_solve_help_says_the_loss_is_for_both_methods(capsys):
     assert "both methods" in " ".join(out.split())
 
 
+def test_intrinsics_sigma_gives_the_cameras_share(session_dir, tmp_path, capsys):
+    rig = tmp_path / "r.yaml"
+    args = ["solve", session_dir / "board_session.yaml", "-o", rig, "--json"]
+    code, out, err = run(capsys, *args, "--intrinsics-sigma", "0.5,0.5,0.5,0.5,0,0,0,0,0")
+    assert code == 0, err
+    camera = json.loads(out)["uncertainty"]["camera"]
+    assert camera["included"] is True
+    assert camera["intrinsics_sigma"] == [0.5, 0.5, 0.5, 0.5, 0, 0, 0, 0, 0]
+    code, out, _ = run(capsys, *args[:-1], "--force")
+    assert code == 0
+    assert "camera intrinsics' uncertainty: not included" in out
+
+
+@pytest.mark.parametrize(
+    ("value", "code", "shown"),
+    [("a,b", 2, "expected comma-separated numbers"), ("1,2", 3, "expected 9 non-negative numbers")],
+)
+def test_bad_intrinsics_sigma_is_refused_and_nothing_written(
+    session_dir, tmp_path, capsys, value, code, shown
+):
+    rig = tmp_path / "r.yaml"
+    got, _, err = run(
+        capsys, "solve", session_dir / "board_session.yaml", "-o", rig, "--intrinsics-sigma", value
+    )
+    assert got == code
+    assert shown in err
+    assert not rig.exists()
+
+
 def test_four_captures_exit_4(copy, tmp_path, capsys):
     edit(copy, lambda d: d.update(captures=d["captures"][:4]))
     rig = tmp_path / "rig.yaml"

@@ -62,6 +62,8 @@ class BoardSession:
         corner_rms_px: (C,) RMS reprojection error of each board's corners under its pose.
         files: every file read (for provenance).
         corner_sigma_px: the corner noise the poses' covariances were computed with.
+        corners_px: per capture, (N, 2) the board's corners in the image (to re-solve the
+            board poses under other intrinsics).
     """
 
     path: Path
@@ -74,6 +76,7 @@ class BoardSession:
     corner_rms_px: FloatArray
     files: tuple[Path, ...]
     corner_sigma_px: float = 0.5
+    corners_px: tuple[FloatArray, ...] = ()
 
 
 def is_board_session(data: Any) -> bool:
@@ -131,6 +134,7 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
     obs: list[PlaneObservation] = []
     poses: list[FloatArray] = []
     rms: list[float] = []
+    corner_sets: list[FloatArray] = []
     files = [path, camera_path]
     vnl: dict[str, FloatArray] | None = None
     if "corners_vnl" in d:
@@ -152,6 +156,7 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
                 "the board's returns in a returns_file)"
             )
         corners = _corners(path, kp, c, board, camera, files, vnl)
+        corner_sets.append(corners)
         T, cov, err = board_pose(camera, board, corners, corner_sigma_px)
         scan = None
         if "scan" in c:
@@ -190,6 +195,7 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         np.array(rms),
         tuple(files),
         corner_sigma_px=corner_sigma_px,
+        corners_px=tuple(corner_sets),
     )
 
 

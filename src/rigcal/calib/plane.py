@@ -33,7 +33,14 @@ Every such return, mapped into the camera frame, must lie on the plane (Zhang an
    gate (99.99 %, 2 dof, times the captures' robust scale) on each same-pose group's
    median, so captures taken at one pose share it. The covariance is the box method's
    (``rigcal.calib.refine``'s tangent space), checked against the spread over captures
-   and the sensitivity to the noise settings (:mod:`rigcal.calib.spread`).
+   and the sensitivity to the noise settings (:mod:`rigcal.calib.spread`), and widened
+   for the noise scale being estimated from few board poses (F instead of chi-square:
+   :func:`rigcal.calib.spread.few_dof_factor`, with 2 dof per pose less the fitted
+   parameters).
+
+A capture hundreds of sigmas off the others (a unit mistake) is set aside before any of
+this (:func:`gross_outliers`). Every result depends on the set of returns, not on the
+order they are given in.
 """
 
 from __future__ import annotations
@@ -65,6 +72,7 @@ from rigcal.calib.spread import (
     Sensitivity,
     Spread,
     expected_jackknife,
+    few_dof_factor,
     honest_covariance,
     leave_one_out,
     sensitivity,
@@ -398,7 +406,7 @@ class PlaneResult:
         T_cam_laser: (4, 4) the pose.
         covariance: (6, 6) over [dtheta (rad), t (m)] in the camera frame, as the box
             method: the model's, scaled up to cover the spread over captures when that is
-            larger (:mod:`rigcal.calib.spread`).
+            larger (:mod:`rigcal.calib.spread`), times ``few_poses_factor``.
         residuals_m: per capture, (M,) signed point-to-plane distances, metres.
         residual_scale: sqrt(chi^2 / dof) of the whitened residuals of the used captures.
         inlier_captures: (C,) bool, the captures' verdicts (grouped by pose).
@@ -419,6 +427,11 @@ class PlaneResult:
         screen_rms_m: (C,) each capture's RMS distance from its plane under the others'
             consensus pose (nan when no consensus was formed).
         screen_limit_m: the distance beyond which a capture was set aside.
+        poses_used: the board poses (same-pose groups) among the used captures.
+        noise_dof: the degrees of freedom the noise scale and per-capture error are
+            estimated with: 2 per pose less the fitted parameters.
+        few_poses_factor: the factor ``covariance`` carries for that estimate
+            (:func:`rigcal.calib.spread.few_dof_factor`; 1 for a large session).
     """
 
     T_cam_laser: FloatArray
@@ -439,6 +452,9 @@ class PlaneResult:
     screened_out: NDArray[np.bool_] | None = None
     screen_rms_m: FloatArray | None = None
     screen_limit_m: float = np.inf
+    poses_used: int = 0
+    noise_dof: int = 0
+    few_poses_factor: float = 1.0
 
 
 def solve_plane(
@@ -537,6 +553,14 @@ def solve_plane(
             return _fit(T, observations, lines, replace(noise, pose_cov_scale=scale), used)[0]
 
         sens = sensitivity(changed, settings, T, cov)
+    # The per-capture error, the residual scale and the range bias are estimated from the
+    # captures themselves: with few board poses they are poorly known, and a covariance
+    # that takes them as exact is too small. Repeats at one pose share its board-pose error,
+    # so the dof count poses, not captures.
+    poses = len(np.unique(groups[used]))
+    noise_dof = 2 * poses - (7 if noise.fit_range_bias else 6)
+    factor = few_dof_factor(noise_dof)
+    cov = cov * factor
     dof = len(r_used) - 6
     return PlaneResult(
         T,
@@ -557,7 +581,18 @@ def solve_plane(
         gross,
         screen.rms_m,
         screen.limit_m,
+        poses,
+        noise_dof,
+        factor,
     )
+
+
+def refit_pose(result: PlaneResult, observations: Sequence[PlaneObservation]) -> FloatArray:
+    """T_cam_laser re-solved from ``result``'s pose with other board planes (the same
+    returns, noise model and verdicts): how the answer follows the planes, e.g. under other
+    camera intrinsics."""
+    used = np.flatnonzero(result.inlier_captures)
+    return _fit(result.T_cam_laser, observations, result.lines, result.noise, used)[0]
 
 
 # A capture is a gross outlier, set aside before the solve, when the consensus of the

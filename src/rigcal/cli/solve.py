@@ -70,6 +70,14 @@ from rigcal.io.validate import Real
     "the whitened errors); linear: plain least squares, outliers still rejected by the gate.",
 )
 @click.option(
+    "--intrinsics-sigma",
+    "intrinsics_sigma",
+    metavar="S1,S2,...",
+    help="Board method: 1-sigma of each camera intrinsic, comma-separated in the lens model's "
+    "order (fx,fy,cx,cy, then distortion); propagated into T's covariance and reported as the "
+    "camera's share. Without it the camera is taken as exact and the report says so.",
+)
+@click.option(
     "--paper-endpoints",
     is_flag=True,
     help="Use only the first/last laser returns of the box side, unweighted (the paper's method).",
@@ -88,6 +96,7 @@ def solve(
     noise_mode: str,
     range_bias: bool,
     loss: str,
+    intrinsics_sigma: str | None,
     paper_endpoints: bool,
     force: bool,
     as_json: bool,
@@ -132,6 +141,7 @@ def solve(
     from rigcal.calib.board_session import is_board_session
     from rigcal.io.files import load_yaml
 
+    sigmas = _sigma_list(intrinsics_sigma) if intrinsics_sigma is not None else None
     if is_board_session(load_yaml(picks, "picking file")):
         _solve_board(
             picks,
@@ -143,11 +153,19 @@ def solve(
             noise_mode,
             range_bias,
             loss,
+            sigmas,
             command,
             force,
             as_json,
         )
         return
+    if sigmas is not None:
+        from rigcal.errors import InputError
+
+        raise InputError(
+            f"--intrinsics-sigma: got {intrinsics_sigma!r}; the box method does not take the "
+            "camera's uncertainty yet (only board sessions, method: board)"
+        )
     # One rule for both methods: --range-sigma-m, else the file's laser.range_sigma_m.
     cal = calibrate(picks, settings, truth, command=command, range_sigma_m=range_sigma_m)
     _check_apart_from(output, report_dir, cal.session.input_files())
@@ -164,6 +182,17 @@ def solve(
     else:
         click.echo(report_table(cal.report), nl=False)
         click.echo(f"wrote {output}" + (f" and {report_dir}/" if report_dir else ""), err=True)
+
+
+def _sigma_list(text: str) -> list[float]:
+    """--intrinsics-sigma's comma-separated numbers."""
+    try:
+        return [float(x) for x in text.split(",")]
+    except ValueError:
+        raise click.BadParameter(
+            f"got {text!r}; expected comma-separated numbers such as 1.5,1.5,2,2,0.01",
+            param_hint="--intrinsics-sigma",
+        ) from None
 
 
 def _check_apart_from(output: Path, report_dir: Path | None, files: Iterable[Path]) -> None:
@@ -186,6 +215,7 @@ def _solve_board(
     noise_mode: str,
     range_bias: bool,
     loss: str,
+    intrinsics_sigma: list[float] | None,
     command: str,
     force: bool,
     as_json: bool,
@@ -208,6 +238,7 @@ def _solve_board(
         noise=noise_mode,
         range_bias=range_bias,
         loss=loss,
+        intrinsics_sigma=intrinsics_sigma,
     )
     _check_apart_from(output, report_dir, cal.session.files)
     if report_dir is not None:
