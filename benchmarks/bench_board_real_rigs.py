@@ -14,6 +14,9 @@ every pose captured ``--repeats`` times, 1-3 deg / 2-5 cm apart):
   or rotated (should be 0, and under 1e-9);
 - **unit mistake**: one capture's returns in millimetres (and, apart, 140 m away): the
   share of trials in which that capture is set aside, and the error of the answer;
+- **camera**: the camera intrinsics' share of T's variance (``--intrinsics-sigma``), and
+  the spread of T over cameras drawn from the intrinsics' covariance against the
+  propagated sigma.
 
     .venv/bin/python benchmarks/bench_board_real_rigs.py                 # 8 seeds
     .venv/bin/python benchmarks/bench_board_real_rigs.py --seeds 3 --sizes 5
@@ -31,7 +34,7 @@ import numpy as np
 import yaml
 
 from rigcal.calib.board_calibrate import calibrate_board
-from rigcal.calib.board_session import read_board_session
+from rigcal.calib.board_session import board_pose, plane_observation, read_board_session
 from rigcal.calib.intrinsics import Board
 from rigcal.calib.plane import solve_plane
 from rigcal.calib.report import truth_comparison
@@ -136,12 +139,51 @@ def unit_mistake(seeds: range, mistake: str) -> dict[str, float]:
     return {"caught": caught / len(seeds), "rot_max": float(e[:, 0].max()), "trans_max": float(e[:, 1].max())}
 
 
+# 1-sigma of the default camera's intrinsics as a careful intrinsics calibration leaves them
+# (OPENCV5: fx, fy, cx, cy, k1, k2, p1, p2, k3).
+INTRINSICS_SIGMA = [0.8, 0.8, 1.0, 1.0, 0.004, 0.004, 0.0003, 0.0003, 0.0]
+
+
+def camera_share(seeds: range, draws: int) -> dict[str, float]:
+    """The camera's share of T's variance (mean over axes and seeds), and the spread of T
+    over sessions whose camera is drawn from the intrinsics' covariance (the same
+    corners and returns, each board pose re-solved under the drawn camera) against the
+    propagated camera sigma (ratio about 1 when the propagation is right)."""
+    shares, ratios = [], []
+    for seed in seeds:
+        with tempfile.TemporaryDirectory() as tmp:
+            _, path = session(10, seed, 1, Path(tmp) / "s")
+            cal = calibrate_board(path, intrinsics_sigma=INTRINSICS_SIGMA)
+            base = calibrate_board(path)
+        shares.append(np.mean(cal.report["uncertainty"]["camera"]["variance_share"]))
+        cam, ses = cal.session.camera, cal.session
+        cov_cam = cal.result.covariance - base.result.covariance
+        rng = np.random.default_rng(seed)
+
+        def solved(camera, ses=ses) -> np.ndarray:
+            obs = []
+            for i, o in enumerate(ses.observations):
+                T_cb, cov, _ = board_pose(camera, ses.board, ses.corners_px[i], ses.corner_sigma_px)
+                obs.append(plane_observation(i, o.name, T_cb, cov, o.points_laser))
+            return solve_plane(obs, fit_range_bias=True, uncertainty_checks=False).T_cam_laser
+
+        T0 = solved(cam)
+        moves = []
+        for _ in range(draws):
+            drawn = replace(cam, intrinsics=cam.intrinsics + rng.normal(size=9) * np.array(INTRINSICS_SIGMA))
+            moves.append(tangent_delta(solved(drawn), T0))
+        m = np.array(moves)
+        ratios.append(float(np.sqrt(np.mean(m**2, axis=0)).sum() / np.sqrt(np.diag(cov_cam)).sum()))
+    return {"share": float(np.mean(shares)), "ratio": float(np.median(ratios))}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--sizes", type=int, nargs="+", default=[5, 8, 10])
     ap.add_argument("--repeats", type=int, default=1)
-    ap.add_argument("--skip", nargs="*", default=[], choices=["coverage", "order", "unit"])
+    ap.add_argument("--skip", nargs="*", default=[], choices=["coverage", "order", "unit", "camera"])
+    ap.add_argument("--draws", type=int, default=8, help="cameras drawn per seed (camera section)")
     args = ap.parse_args()
     seeds = range(args.seeds)
     if "coverage" not in args.skip:
@@ -168,6 +210,14 @@ def main() -> None:
                 f"worst error {u['rot_max']:.2f} deg / {1000 * u['trans_max']:.0f} mm",
                 flush=True,
             )
+
+    if "camera" not in args.skip:
+        c = camera_share(range(min(args.seeds, 3)), args.draws)
+        print(
+            f"camera (sigmas {INTRINSICS_SIGMA}): share of T's variance {c['share']:.0%} (mean over axes); "
+            f"spread over drawn cameras / propagated sigma {c['ratio']:.2f}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":
