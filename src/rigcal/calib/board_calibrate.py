@@ -64,6 +64,7 @@ def calibrate_board(
     range_bias: bool = True,
     loss: str = LOSS,
     intrinsics_sigma: Sequence[float] | None = None,
+    skip_unseen_boards: bool = False,
 ) -> BoardCalibration:
     """Read a board session, solve, build the report and the rig.
 
@@ -86,6 +87,8 @@ def calibrate_board(
             planes is propagated into T_cam_laser's covariance and reported as the camera's
             share (:func:`camera_uncertainty`). None: the camera is taken as exact, and the
             report says that its uncertainty is missing.
+        skip_unseen_boards: leave out captures whose image shows no board, with a
+            warning each (else they stop the solve, all named in one error).
 
     Raises:
         InputError: a bad session or truth file.
@@ -94,7 +97,7 @@ def calibrate_board(
     if noise not in NOISE_MODES:
         raise ValueError(f"noise must be one of {NOISE_MODES}")
     T_truth = read_truth(truth_path) if truth_path is not None else None
-    session = read_board_session(path)
+    session = read_board_session(path, skip_unseen_boards=skip_unseen_boards)
     # A noise-free (simulated) scanner still gets a floor, so the whitening stays finite.
     assumed = max(range_sigma_m or float(session.laser.get("range_sigma_m", DEFAULT_RANGE_SIGMA_M)), 1e-4)
     n_corners = session.board.width_n * session.board.height_n
@@ -321,6 +324,7 @@ def board_report(
     if np.degrees(sig[:3]).max() > MAX_SIGMA_ROTATION_DEG or 1000 * sig[3:].max() > MAX_SIGMA_TRANSLATION_MM:
         warnings.append("large uncertainty: add captures with the board turned and tilted more")
     warnings += uncertainty_warnings(result.spread, result.sensitivity, cov_model, "range and corner noise")
+    warnings = [f"capture {s} (left out: --skip-unseen-boards)" for s in session.skipped] + warnings
     warnings = _screen_warnings(session, result, screened) + warnings
     for c in per:
         if not c["inlier"] and not c["screened_out"]:

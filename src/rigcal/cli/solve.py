@@ -78,6 +78,12 @@ from rigcal.io.validate import Real
     "camera's share. Without it the camera is taken as exact and the report says so.",
 )
 @click.option(
+    "--skip-unseen-boards",
+    is_flag=True,
+    help="Board method: leave out the captures whose image shows no board, with a warning each "
+    "(without it they stop the solve, all named in one error).",
+)
+@click.option(
     "--paper-endpoints",
     is_flag=True,
     help="Use only the first/last laser returns of the box side, unweighted (the paper's method).",
@@ -97,6 +103,7 @@ def solve(
     range_bias: bool,
     loss: str,
     intrinsics_sigma: str | None,
+    skip_unseen_boards: bool,
     paper_endpoints: bool,
     force: bool,
     as_json: bool,
@@ -154,6 +161,7 @@ def solve(
             range_bias,
             loss,
             sigmas,
+            skip_unseen_boards,
             command,
             force,
             as_json,
@@ -216,6 +224,7 @@ def _solve_board(
     range_bias: bool,
     loss: str,
     intrinsics_sigma: list[float] | None,
+    skip_unseen_boards: bool,
     command: str,
     force: bool,
     as_json: bool,
@@ -239,6 +248,7 @@ def _solve_board(
         range_bias=range_bias,
         loss=loss,
         intrinsics_sigma=intrinsics_sigma,
+        skip_unseen_boards=skip_unseen_boards,
     )
     _check_apart_from(output, report_dir, cal.session.files)
     if report_dir is not None:
