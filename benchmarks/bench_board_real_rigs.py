@@ -3,7 +3,7 @@ mistake, the camera's share.
 
 On sessions from the realistic simulator (``rigcal.sim.noise``: Student-t range noise of
 about 20 mm sd, mixed pixels, grazing bias, clutter; a 0.96 x 0.72 m board, hand-held:
-every pose captured ``--repeats`` times, 1-3 deg / 2-5 cm apart):
+every pose captured ``--repeats`` times, with ``--handheld`` 1-3 deg / 2-5 cm apart):
 
 - **coverage**: a session of 2N poses is split in two halves of N poses (N = 5, 8, 10);
   each half is solved on its own (``calibrate_board``, the product's path) and scored by
@@ -47,8 +47,13 @@ CHI2_6_95 = 12.591587243743977
 BOARD = Board(7, 5, 0.12)
 
 
+HANDHELD = False  # --handheld: repeats 1-3 deg / 2-5 cm apart
+
+
 def session(poses: int, seed: int, repeats: int, folder: Path):
-    spec = BoardSpec(n_captures=poses, seed=seed, noise=RealisticNoise(), repeats=repeats, board=BOARD)
+    spec = BoardSpec(
+        n_captures=poses, seed=seed, noise=RealisticNoise(), repeats=repeats, board=BOARD, handheld=HANDHELD
+    )
     sim = generate_board_session(spec)
     return sim, write_board_session(sim, folder) / "board_session.yaml"
 
@@ -182,9 +187,12 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--sizes", type=int, nargs="+", default=[5, 8, 10])
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--handheld", action="store_true", help="repeats of a hand-held board, not at one pose")
     ap.add_argument("--skip", nargs="*", default=[], choices=["coverage", "order", "unit", "camera"])
     ap.add_argument("--draws", type=int, default=8, help="cameras drawn per seed (camera section)")
     args = ap.parse_args()
+    global HANDHELD
+    HANDHELD = args.handheld
     seeds = range(args.seeds)
     if "coverage" not in args.skip:
         print(

@@ -119,3 +119,26 @@ def test_few_poses_widen_the_covariance_and_say_so(tmp_path):
     assert cal.report["uncertainty"]["scaled_to_spread"] is bool(
         cal.result.spread is not None and cal.result.spread.scale > 1.5
     )
+
+
+def test_handheld_repeats_are_grouped_as_one_pose(tmp_path):
+    """A hand-held board's repeats (1-3 deg, 2-5 cm apart) share a pose group, so they get
+    one verdict and count as one pose in the dof of the noise estimate."""
+    sim = generate_board_session(BoardSpec(n_captures=7, seed=3, repeats=3, handheld=True))
+    moved = [
+        np.degrees(
+            np.arccos(np.clip(np.trace(a.T_laser_board[:3, :3].T @ b.T_laser_board[:3, :3]) / 2 - 0.5, -1, 1))
+        )
+        for a, b in zip(sim.captures[::3], sim.captures[1::3], strict=True)
+    ]
+    assert min(moved) >= 1.0
+    assert max(moved) <= 3.0 + 1e-9
+    path = write_board_session(sim, tmp_path / "s") / "board_session.yaml"
+    res = calibrate_board(path).result
+    groups = res.pose_group.reshape(-1, 3)
+    together = (groups == groups[:, :1]).all(axis=1)
+    assert together.sum() >= 6
+    verdicts = res.inlier_captures
+    for g in np.unique(res.pose_group):
+        assert len(set(verdicts[res.pose_group == g].tolist())) == 1
+    assert res.poses_used <= 8

@@ -304,12 +304,16 @@ LOSSES = ("linear", "huber", "soft_l1", "cauchy")
 # A capture is an outlier when its chi-square (2 dof) exceeds the 99.99 % point times the
 # robust scale of all captures' chi-squares (median over the chi-square median, at least 1).
 OUTLIER_GATE_CHI2 = 18.420680743952367
-# Captures whose boards are this close in pose (normal, distance, laser cut; or within 4
-# sigma of their poses' noise where that is larger) were taken at one pose and share one
-# verdict.
-SAME_POSE_NORMAL_DEG = 1.5
-SAME_POSE_DISTANCE_M = 0.015
-SAME_POSE_CUT_M = 0.03
+# Captures whose boards are this close in pose were taken at one pose and share one
+# verdict: a hand-held board's repeats lie 1-3 deg and 2-5 cm apart (the image's board
+# pose: normals within SAME_POSE_NORMAL_DEG, distances within SAME_POSE_DISTANCE_M, or 4
+# sigma of the poses' noise where that is larger; the laser's cut: lines within
+# SAME_POSE_CUT_DEG of each other, each one's centre within SAME_POSE_CUT_M of the other's
+# line, their extents overlapping by at least half the shorter).
+SAME_POSE_NORMAL_DEG = 5.0
+SAME_POSE_DISTANCE_M = 0.06
+SAME_POSE_CUT_M = 0.06
+SAME_POSE_CUT_DEG = 5.0
 
 
 @dataclass(frozen=True)
@@ -660,11 +664,13 @@ def same_pose_groups(
     observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine]
 ) -> NDArray[np.int64]:
     """(C,) a group index per capture: captures whose boards have the same pose share one,
-    so that they get one verdict. Two boards have the same pose when their planes and
-    their cuts agree within their own noise or the fixed floors, whichever is larger:
-    normals within max(SAME_POSE_NORMAL_DEG, 4 sigma), distances within
-    max(SAME_POSE_DISTANCE_M, 4 sigma) (sigmas from the board poses' covariances) and cut
-    ends within SAME_POSE_CUT_M."""
+    so that they get one verdict, and count as one pose. Two boards have the same pose when
+    what the image shows and what the laser shows agree together: their planes within
+    max(SAME_POSE_NORMAL_DEG, 4 sigma) in normal and max(SAME_POSE_DISTANCE_M, 4 sigma) in
+    distance (sigmas from the board poses' covariances), and their cuts on nearly one line
+    (within SAME_POSE_CUT_DEG, each centre within SAME_POSE_CUT_M of the other's line)
+    over a shared stretch (extents overlapping by half the shorter). The floors are a
+    hand-held board's repeats (1-3 deg, 2-5 cm apart); the relation is closed transitively."""
     C = len(observations)
     sig_angle = np.zeros(C)
     sig_dist = np.zeros(C)
@@ -684,14 +690,29 @@ def same_pose_groups(
             a, b = observations[i], observations[j]
             angle_max = max(np.radians(SAME_POSE_NORMAL_DEG), 4.0 * np.hypot(sig_angle[i], sig_angle[j]))
             dist_max = max(SAME_POSE_DISTANCE_M, 4.0 * np.hypot(sig_dist[i], sig_dist[j]))
-            ends_i, ends_j = lines[i].ends, lines[j].ends
-            cut = min(np.abs(ends_i - ends_j).max(), np.abs(ends_i - ends_j[::-1]).max())
             same[i, j] = same[j, i] = (
                 float(np.dot(a.normal_cam, b.normal_cam)) >= np.cos(angle_max)
                 and abs(a.distance_m - b.distance_m) <= dist_max
-                and cut <= SAME_POSE_CUT_M
+                and _same_cut(lines[i], lines[j])
             )
     return connected_groups(same)
+
+
+def _same_cut(a: CaptureLine, b: CaptureLine) -> bool:
+    """Whether two captures' cuts lie on nearly one line over a shared stretch (see
+    :func:`same_pose_groups`)."""
+    fa, fb = a.fit, b.fit
+    if abs(float(fa.direction @ fb.direction)) < np.cos(np.radians(SAME_POSE_CUT_DEG)):
+        return False
+    mid_a, mid_b = a.ends.mean(axis=0), b.ends.mean(axis=0)
+    if abs(float((mid_b - fa.centroid) @ fa.normal)) > SAME_POSE_CUT_M:
+        return False
+    if abs(float((mid_a - fb.centroid) @ fb.normal)) > SAME_POSE_CUT_M:
+        return False
+    sa = np.sort((a.ends - fa.centroid) @ fa.direction)
+    sb = np.sort((b.ends - fa.centroid) @ fa.direction)
+    overlap = min(sa[1], sb[1]) - max(sa[0], sb[0])
+    return bool(overlap >= 0.5 * min(sa[1] - sa[0], sb[1] - sb[0]))
 
 
 def _robust_fit(
