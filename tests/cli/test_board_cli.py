@@ -178,6 +178,22 @@ def test_four_captures_exit_4(copy, tmp_path, capsys):
     assert not rig.exists()
 
 
+def test_boards_that_never_tilt_are_refused_before_auto_looks_for_returns(copy, tmp_path, capsys):
+    """With laser_side auto the boards' normals (what the images alone show) are checked
+    first: the real cause, not "give the board's segment ids"."""
+
+    def same_corners_auto(d):
+        for c in d["captures"]:
+            c["corners_px"] = d["captures"][0]["corners_px"]
+            c["laser_side"] = "auto"
+
+    edit(copy, same_corners_auto)
+    code, _, err = run(capsys, "solve", copy, "-o", tmp_path / "rig.yaml")
+    assert code == 4
+    assert "normals' spread" in err
+    assert "segment ids" not in err
+
+
 def test_parallel_boards_exit_4_and_name_the_captures(copy, tmp_path, capsys):
     def same_corners(d):
         for c in d["captures"]:

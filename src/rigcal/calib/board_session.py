@@ -34,7 +34,7 @@ from rigcal.calib.picks import (
     segment_by_id,
     segments_by_ids,
 )
-from rigcal.calib.plane import PlaneObservation
+from rigcal.calib.plane import PlaneObservation, check_normals
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import make_T, rotvec_to_R
@@ -197,6 +197,13 @@ def read_board_session(
             f"board ({len(unseen)} of {len(captures)} captures show none; `rigcal solve "
             "--skip-unseen-boards` leaves them out with a warning)"
         )
+    if auto and len(obs) >= 3:
+        # What the images alone show comes first: boards that never tilt cannot fix the
+        # pose, however their returns are found.
+        try:
+            check_normals(obs)
+        except CalibrationError as exc:
+            raise CalibrationError(f"{path}: {exc}") from None
     if auto:
         missing = [index[k] for k, sc in enumerate(scans) if sc is None]
         if missing:

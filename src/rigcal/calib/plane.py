@@ -905,21 +905,33 @@ def _covariance(
     return 0.5 * (cov + cov.T), r, wts.reshape(-1, 2).mean(axis=1), blocks, scale2
 
 
+def check_normals(observations: Sequence[PlaneObservation]) -> None:
+    """Whether the boards' planes (what the images alone show) can fix all six degrees of
+    freedom: their normals must span 3D (MIN_NORMAL_SPREAD).
+
+    Raises:
+        CalibrationError: the normals are (nearly) parallel or share an axis (a board
+            upright against a wall, turned but never tilted).
+    """
+    normals = np.array([np.asarray(o.normal_cam, dtype=float) for o in observations]).reshape(-1, 3)
+    s = np.linalg.svd(normals, compute_uv=False) if len(normals) else np.zeros(0)
+    if len(s) < 3 or s[2] < MIN_NORMAL_SPREAD * s[0]:
+        names = ", ".join(o.name for o in observations)
+        spread = s[-1] / s[0] if len(s) == 3 else 0.0
+        raise CalibrationError(
+            f"the board planes of captures {names} are (nearly) parallel or share an axis "
+            f"(normals' spread {spread:.3f} < {MIN_NORMAL_SPREAD}); tilt the board about "
+            "both of its axes between captures"
+        )
+
+
 def _check_observable(observations: Sequence[PlaneObservation]) -> None:
     if len(observations) < MIN_CAPTURES:
         raise CalibrationError(
             f"{len(observations)} board capture(s); the plane method needs at least {MIN_CAPTURES} "
             "(each plane gives 2 constraints on the 9 unknowns of its closed form)"
         )
-    normals = np.array([np.asarray(o.normal_cam, dtype=float) for o in observations])
-    s = np.linalg.svd(normals, compute_uv=False)
-    if len(s) < 3 or s[2] < MIN_NORMAL_SPREAD * s[0]:
-        names = ", ".join(o.name for o in observations)
-        raise CalibrationError(
-            f"the board planes of captures {names} are (nearly) parallel or share an axis "
-            f"(normals' spread {s[-1] / s[0]:.3f} < {MIN_NORMAL_SPREAD}); tilt the board about "
-            "both of its axes between captures"
-        )
+    check_normals(observations)
     for o in observations:
         if len(o.points_laser) < 2:
             raise CalibrationError(f"capture {o.name}: fewer than 2 laser returns on the board")
