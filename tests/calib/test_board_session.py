@@ -480,6 +480,35 @@ def test_image_that_shows_no_board(session):
     assert "8x6 board" in expect_error(session, "captures[1].image", "'blank.png'")
 
 
+def test_every_image_without_a_board_is_named_in_one_error(session):
+    cv2.imwrite(str(session.parent / "blank.png"), np.full((480, 640), 200, np.uint8))
+    for k in (1, 4):
+        edit(session, lambda d, k=k: d["captures"][k].pop("corners_px"))
+        edit_capture(session, k, image="blank.png")
+    message = expect_error(session, "captures[1].image, captures[4].image", "'blank.png', 'blank.png'")
+    assert "2 of 6 captures show none" in message
+    assert "--skip-unseen-boards" in message
+    s = read_board_session(session, skip_unseen_boards=True)
+    assert [o.name for o in s.observations] == ["cap00", "cap02", "cap03", "cap05"]
+    assert [o.capture for o in s.observations] == [0, 2, 3, 5]
+    assert len(s.skipped) == 2
+    assert s.skipped[0].startswith("cap01 (blank.png): no 8x6 board found")
+
+
+def test_skipped_captures_are_warned_about_in_the_report(session):
+    cv2.imwrite(str(session.parent / "blank.png"), np.full((480, 640), 200, np.uint8))
+    edit(session, lambda d: d["captures"][2].pop("corners_px"))
+    edit_capture(session, 2, image="blank.png")
+    with pytest.raises(InputError, match=r"captures\[2\]\.image: got 'blank.png'"):
+        calibrate_board(session)
+    cal = calibrate_board(session, skip_unseen_boards=True)
+    assert cal.report["summary"]["captures"] == 5
+    assert (
+        "capture cap02 (blank.png): no 8x6 board found (left out: --skip-unseen-boards)"
+        in cal.report["warnings"]
+    )
+
+
 def test_missing_image_file(session):
     edit(session, lambda d: d["captures"][1].pop("corners_px"))
     edit_capture(session, 1, image="nope.png")

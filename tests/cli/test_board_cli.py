@@ -6,6 +6,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -117,6 +118,56 @@ def test_range_sigma_option_overrides_the_sessions(session_dir, tmp_path, capsys
     assert u["used"] == u["estimated"] == pytest.approx(0.01, rel=0.15)
 
 
+def test_loss_option_reaches_the_board_method(session_dir, tmp_path, capsys):
+    """--loss linear is plain least squares for the board method too: a different answer
+    from the default Cauchy loss, and recorded in the rig's provenance."""
+    answers = {}
+    for loss in ("cauchy", "linear"):
+        rig = tmp_path / f"{loss}.yaml"
+        code, _, err = run(capsys, "solve", session_dir / "board_session.yaml", "-o", rig, "--loss", loss)
+        assert code == 0, err
+        r = read_rig(rig)
+        assert r.provenance["refine"] == {"loss": loss, "loss_scale": 3.0}
+        answers[loss] = r.T_cam_laser
+    assert not np.array_equal(answers["cauchy"], answers["linear"])
+    assert np.abs(answers["cauchy"] - answers["linear"]).max() < 0.05
+
+
+def test_solve_help_says_the_loss_is_for_both_methods(capsys):
+    code, out, _ = run(capsys, "solve", "--help")
+    assert code == 0
+    assert "both methods" in " ".join(out.split())
+
+
+def test_intrinsics_sigma_gives_the_cameras_share(session_dir, tmp_path, capsys):
+    rig = tmp_path / "r.yaml"
+    args = ["solve", session_dir / "board_session.yaml", "-o", rig, "--json"]
+    code, out, err = run(capsys, *args, "--intrinsics-sigma", "0.5,0.5,0.5,0.5,0,0,0,0,0")
+    assert code == 0, err
+    camera = json.loads(out)["uncertainty"]["camera"]
+    assert camera["included"] is True
+    assert camera["intrinsics_sigma"] == [0.5, 0.5, 0.5, 0.5, 0, 0, 0, 0, 0]
+    code, out, _ = run(capsys, *args[:-1], "--force")
+    assert code == 0
+    assert "camera intrinsics' uncertainty: not included" in out
+
+
+@pytest.mark.parametrize(
+    ("value", "code", "shown"),
+    [("a,b", 2, "expected comma-separated numbers"), ("1,2", 3, "expected 9 non-negative numbers")],
+)
+def test_bad_intrinsics_sigma_is_refused_and_nothing_written(
+    session_dir, tmp_path, capsys, value, code, shown
+):
+    rig = tmp_path / "r.yaml"
+    got, _, err = run(
+        capsys, "solve", session_dir / "board_session.yaml", "-o", rig, "--intrinsics-sigma", value
+    )
+    assert got == code
+    assert shown in err
+    assert not rig.exists()
+
+
 def test_four_captures_exit_4(copy, tmp_path, capsys):
     edit(copy, lambda d: d.update(captures=d["captures"][:4]))
     rig = tmp_path / "rig.yaml"
@@ -125,6 +176,22 @@ def test_four_captures_exit_4(copy, tmp_path, capsys):
     assert "at least 5" in err
     assert out == ""
     assert not rig.exists()
+
+
+def test_boards_that_never_tilt_are_refused_before_auto_looks_for_returns(copy, tmp_path, capsys):
+    """With laser_side auto the boards' normals (what the images alone show) are checked
+    first: the real cause, not "give the board's segment ids"."""
+
+    def same_corners_auto(d):
+        for c in d["captures"]:
+            c["corners_px"] = d["captures"][0]["corners_px"]
+            c["laser_side"] = "auto"
+
+    edit(copy, same_corners_auto)
+    code, _, err = run(capsys, "solve", copy, "-o", tmp_path / "rig.yaml")
+    assert code == 4
+    assert "normals' spread" in err
+    assert "segment ids" not in err
 
 
 def test_parallel_boards_exit_4_and_name_the_captures(copy, tmp_path, capsys):

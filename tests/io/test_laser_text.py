@@ -173,3 +173,57 @@ def test_cli_refuses_an_existing_folder_and_bad_files(radlocc, tmp_path, capsys)
     assert main(["import-laser", str(tmp_path / "bad.txt"), "-o", str(tmp_path / "s2")]) == 3
     assert "line 1" in capsys.readouterr().err
     assert not (tmp_path / "s2").exists()
+
+
+def test_radlocc_header_count_is_trusted_when_angle_max_is_one_step_off(tmp_path):
+    """A Hokuyo log from radlocc_collect: N = 511 and 511 ranges, while angle_max says 512
+    beams (written one step past the last). The header's N is the scanner's."""
+    a0, step = -2.0943951, 0.00613592315
+    a1 = a0 + 511 * step  # 512 beams by the angles
+    ranges = " ".join(["1.5"] * 509 + ["5.0", "nan"])
+    rows = [f"{t} {a0} {step} {a1} 3 511 {ranges}" for t in (1.0, 1.1)]
+    (tmp_path / "laser.txt").write_text("\n".join(rows) + "\n")
+    scans = read_radlocc_laser(tmp_path / "laser.txt", range_max_m=5.6)
+    assert [len(s.ranges_m) for s in scans] == [511, 511]
+    assert scans[0].angles_rad[-1] == pytest.approx(a0 + 510 * step)
+    assert scans[0].valid[509]  # 5.0 is a return unless the scanner's no-return value is given
+    scans = read_radlocc_laser(tmp_path / "laser.txt", range_max_m=5.6, no_return_m=5.0)
+    assert not scans[0].valid[509]
+    assert scans[0].valid[:509].all()
+    # Without the header, one step either way is accepted too.
+    (tmp_path / "plain.txt").write_text(f"1.0 {a0} {step} {a1} {ranges}\n")
+    assert len(read_radlocc_laser(tmp_path / "plain.txt")[0].ranges_m) == 511
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        (
+            "1.0 -0.5 0.25 0.5 3 5 2 2 2 2 2\n1.1 -0.5 0.25 0.5 2 2 2 2 2",
+            r"line 2: got 5 values after the angles; expected stamp angle_min increment angle_max 3 N "
+            r"r_1 \.\.\. r_N \(unit type 3: metres, N ranges\), as line 1 has",
+        ),
+        (
+            "1.0 -0.5 0.25 0.5 2 2 2 2 2\n1.1 -0.5 0.25 0.5 3 5 2 2 2 2 2",
+            r"line 2: .*without unit type and count, as the first line",
+        ),
+        (
+            "1.0 -0.5 0.1 0.5 3 8 2 2 2 2 2 2 2 2",
+            r"line 1: got the header's N = 8; expected 11 \(within one step\)",
+        ),
+    ],
+)
+def test_radlocc_form_and_count_errors_name_the_line(tmp_path, text, match):
+    (tmp_path / "laser.txt").write_text(text + "\n")
+    with pytest.raises(InputError, match=match):
+        read_radlocc_laser(tmp_path / "laser.txt")
+
+
+def test_import_laser_no_return_option(tmp_path, capsys):
+    (tmp_path / "laser.txt").write_text("1.0 -0.5 0.25 0.5 3 5 2.0 5.0 2.0 2.0 2.0\n")
+    out = tmp_path / "seq"
+    assert main(["import-laser", str(tmp_path / "laser.txt"), "-o", str(out), "--no-return-m", "5.0"]) == 0
+    (tmp_path / "l.csv").write_text("stamp_s,angle_rad,range_m\n1,0.1,2\n")
+    code = main(["import-laser", str(tmp_path / "l.csv"), "-o", str(tmp_path / "s2"), "--no-return-m", "5.0"])
+    assert code == 3
+    assert "--no-return-m" in capsys.readouterr().err

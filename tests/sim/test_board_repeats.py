@@ -44,3 +44,22 @@ def test_repeated_captures_get_one_verdict_in_a_solve():
     assert (groups[:, 0] == groups[:, 1]).all()
     v = res.inlier_captures.reshape(-1, 2)
     assert (v[:, 0] == v[:, 1]).all()
+
+
+def test_handheld_repeats_are_near_but_not_at_the_pose():
+    """BoardSpec.handheld: each repeat after the first is turned 1-3 deg about the board's
+    centre and moved 2-5 cm (the centre itself moves by the shift alone)."""
+    from rigcal.geometry import inv_T
+
+    spec = BoardSpec(n_captures=4, repeats=3, seed=6, handheld=True)
+    sim = generate_board_session(spec)
+    b = spec.board
+    centre = np.array([0.5 * (b.width_n - 1) * b.spacing_m, 0.5 * (b.height_n - 1) * b.spacing_m, 0.0, 1.0])
+    for k in range(4):
+        first = sim.captures[3 * k]
+        for c in sim.captures[3 * k + 1 : 3 * k + 3]:
+            D = inv_T(first.T_laser_board) @ c.T_laser_board
+            angle = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
+            assert 1.0 - 1e-9 <= angle <= 3.0 + 1e-9
+            moved = np.linalg.norm((c.T_laser_board @ centre - first.T_laser_board @ centre)[:3])
+            assert 0.02 - 1e-9 <= moved <= 0.05 + 1e-9

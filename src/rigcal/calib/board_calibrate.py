@@ -14,10 +14,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-from rigcal.calib.board_session import BoardSession, read_board_session
+from rigcal.calib.board_session import BoardSession, board_pose, plane_observation, read_board_session
 from rigcal.calib.noise import corner_sigma_from_rms
-from rigcal.calib.plane import PlaneResult, solve_plane
+from rigcal.calib.plane import LOSS, LOSS_SCALE, PlaneObservation, PlaneResult, refit_pose, solve_plane
 from rigcal.calib.report import (
     MAX_SIGMA_ROTATION_DEG,
     MAX_SIGMA_TRANSLATION_MM,
@@ -28,12 +29,18 @@ from rigcal.calib.report import (
     truth_comparison,
     uncertainty_section,
 )
-from rigcal.calib.spread import uncertainty_warnings
+from rigcal.calib.spread import honest_covariance, propagated_covariance, uncertainty_warnings
 from rigcal.calib.truth import read_truth
+from rigcal.errors import InputError
 from rigcal.rig import Rig
 from rigcal.rigfile import provenance
 
+FloatArray = NDArray[np.float64]
+
 DEFAULT_RANGE_SIGMA_M = 0.01
+# Fewer board poses than this are too few to trust the noise estimated from them (the
+# covariance is widened for it at any size; below this the report says so in words).
+MIN_TRUSTED_POSES = 8
 NOISE_MODES = ("auto", "assumed")
 
 
@@ -55,6 +62,9 @@ def calibrate_board(
     seed: int = 0,
     noise: str = "auto",
     range_bias: bool = True,
+    loss: str = LOSS,
+    intrinsics_sigma: Sequence[float] | None = None,
+    skip_unseen_boards: bool = False,
 ) -> BoardCalibration:
     """Read a board session, solve, build the report and the rig
     (:func:`calibrate_board_session` on the file's session).
@@ -64,7 +74,7 @@ def calibrate_board(
         CalibrationError: too few captures, parallel boards, or no consensus.
     """
     T_truth = read_truth(truth_path) if truth_path is not None else None
-    session = read_board_session(path)
+    session = read_board_session(path, skip_unseen_boards=skip_unseen_boards)
     return calibrate_board_session(
         session,
         range_sigma_m,
@@ -73,6 +83,8 @@ def calibrate_board(
         seed,
         noise,
         range_bias,
+        loss=loss,
+        intrinsics_sigma=intrinsics_sigma,
         inputs=session.files,
         base=Path(path).resolve().parent,
     )
@@ -87,6 +99,8 @@ def calibrate_board_session(
     noise: str = "auto",
     range_bias: bool = True,
     *,
+    loss: str = LOSS,
+    intrinsics_sigma: Sequence[float] | None = None,
     inputs: Sequence[Path] = (),
     base: Path | None = None,
 ) -> BoardCalibration:
@@ -106,6 +120,13 @@ def calibrate_board_session(
             (the assumed values are reported beside them); "assumed" uses the assumed ones.
         range_bias: estimate the scanner's range bias by incidence with the pose
             (:class:`rigcal.calib.plane.PlaneNoise`).
+        loss: the refinement's robust loss (``rigcal.calib.plane.LOSSES``; "linear" for
+            plain least squares).
+        intrinsics_sigma: 1-sigma of each of the camera's intrinsics (its lens model's
+            order: fx, fy, cx, cy, distortion...), independent; their effect on the board
+            planes is propagated into T_cam_laser's covariance and reported as the camera's
+            share (:func:`camera_uncertainty`). None: the camera is taken as exact, and the
+            report says that its uncertainty is missing.
         inputs, base: the files the session was read from and their folder, for the
             rig's provenance (none for a session built in memory).
 
@@ -134,7 +155,11 @@ def calibrate_board_session(
         seed=seed,
         corner_sigma_px=corner_used,
         fit_range_bias=range_bias,
+        loss=loss,
     )
+    camera_doc, cov_camera = camera_uncertainty(session, result, observations, corner_used, intrinsics_sigma)
+    if cov_camera is not None:
+        result = replace(result, covariance=result.covariance + cov_camera)
     estimated = result.range_noise.sigma_m if result.range_noise is not None else None
     noise_doc = noise_section(
         {
@@ -143,6 +168,12 @@ def calibrate_board_session(
         }
     )
     report = board_report(session, result, T_truth, noise_doc)
+    report["uncertainty"]["camera"] = camera_doc
+    if cov_camera is not None:
+        camera_doc["variance_share"] = [
+            round(float(a / b), 4) if b > 0 else 0.0
+            for a, b in zip(np.diag(cov_camera), np.diag(result.covariance), strict=True)
+        ]
     s = report["summary"]
     rig = Rig(
         T_cam_laser=result.T_cam_laser,
@@ -170,12 +201,83 @@ def calibrate_board_session(
                 "noise": {"mode": noise, "fit_range_bias": range_bias}
                 | {k: v["used"] for k, v in noise_doc.items()},
                 "ransac": {"seed": seed},
+                "refine": {"loss": loss, "loss_scale": LOSS_SCALE},
             },
             base=base,
         ),
         uncertainty=rig_uncertainty(result.covariance_model, noise_doc, report["uncertainty"]),
     )
     return BoardCalibration(session, result, report, rig)
+
+
+def camera_uncertainty(
+    session: BoardSession,
+    result: PlaneResult,
+    observations: Sequence[PlaneObservation],
+    corner_sigma_px: float,
+    intrinsics_sigma: Sequence[float] | None,
+) -> tuple[dict[str, Any], FloatArray | None]:
+    """The camera intrinsics' share of T_cam_laser's uncertainty.
+
+    Every board plane comes from PnP through the camera's intrinsics, so an error in them
+    moves all the planes together, and the answer with them; the solve itself takes the
+    intrinsics as exact. Each intrinsic is moved by +-1 sigma in turn, every board's pose
+    re-solved by PnP from its corners and T_cam_laser re-fitted on the same returns and
+    verdicts (:func:`rigcal.calib.spread.propagated_covariance`).
+
+    Returns:
+        (the report's ``uncertainty.camera`` section, the (6, 6) covariance to add; None
+        when no sigmas were given: the section then says the uncertainty is missing).
+
+    Raises:
+        InputError: a sigma list whose length is not the lens model's intrinsics count,
+            or a sigma that is negative or not finite.
+    """
+    camera = session.camera
+    if intrinsics_sigma is None:
+        why = (
+            "not included: the camera file gives no uncertainty of its intrinsics "
+            f"({camera.lensmodel}); give their 1-sigmas with --intrinsics-sigma"
+        )
+        return {"included": False, "note": why}, None
+    sig = np.asarray(list(intrinsics_sigma), dtype=float)
+    n = len(camera.intrinsics)
+    if sig.shape != (n,) or not np.all(np.isfinite(sig)) or (sig < 0).any():
+        shown = ",".join(f"{x:g}" for x in sig.ravel())
+        raise InputError(
+            f"--intrinsics-sigma: got {shown!r}; expected {n} non-negative numbers, one per "
+            f"intrinsic of {camera.lensmodel} (fx, fy, cx, cy, then its distortion), in "
+            f"{session.camera_path}'s order"
+        )
+    if not session.corners_px:
+        raise ValueError("the session has no corners to re-solve the board poses from")
+    used = [int(i) for i in np.flatnonzero(result.inlier_captures)]
+
+    def changed(k: int, value: float) -> FloatArray:
+        intr = camera.intrinsics.copy()
+        intr[k] = value
+        cam = replace(camera, intrinsics=intr)
+        moved = list(observations)
+        for i in used:
+            T_cb, _, _ = board_pose(cam, session.board, session.corners_px[i], corner_sigma_px)
+            p = plane_observation(i, "", T_cb, np.eye(6), observations[i].points_laser)
+            moved[i] = replace(
+                observations[i],
+                normal_cam=p.normal_cam,
+                distance_m=p.distance_m,
+                board_origin_cam=p.board_origin_cam,
+            )
+        return refit_pose(result, moved)
+
+    cov = propagated_covariance(changed, result.T_cam_laser, camera.intrinsics, sig)
+    s = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    doc: dict[str, Any] = {
+        "included": True,
+        "intrinsics_sigma": [float(f"{x:.6g}") for x in sig],
+        "sigma_rotation_deg": [round(float(x), 5) for x in np.degrees(s[:3])],
+        "sigma_translation_mm": [round(float(x), 3) for x in 1000.0 * s[3:]],
+    }
+    return doc, cov
 
 
 def board_report(
@@ -187,6 +289,8 @@ def board_report(
     """The report of a board solve (docs/formats/report.md, board variant)."""
     per = []
     used = []
+    C = len(session.observations)
+    screened = result.screened_out if result.screened_out is not None else np.zeros(C, dtype=bool)
     for k, (o, res, keep, rms_px) in enumerate(
         zip(
             session.observations,
@@ -211,6 +315,7 @@ def board_report(
                 "chi2": round(float(result.chi2[k]), 3),
                 "weight": round(float(result.weights[k]), 3),
                 "pose_group": int(result.pose_group[k]),
+                "screened_out": bool(screened[k]),
                 "inlier": bool(keep),
             }
         )
@@ -222,6 +327,10 @@ def board_report(
         "method": "board",
         "captures": len(session.observations),
         "captures_used": int(result.inlier_captures.sum()),
+        "captures_screened_out": int(screened.sum()),
+        "poses_used": result.poses_used,
+        "noise_dof": result.noise_dof,
+        "few_poses_factor": round(result.few_poses_factor, 4),
         "returns": len(allr),
         "rms_mm": round(1000.0 * float(np.sqrt(np.mean(allr**2))), 3),
         "max_mm": round(1000.0 * float(np.abs(allr).max()), 3),
@@ -235,13 +344,27 @@ def board_report(
         "sigma_translation_mm": [round(float(x), 3) for x in 1000.0 * sig[3:]],
     }
     cov_model = result.covariance_model
-    uncertainty = uncertainty_section(cov_model, result.covariance, result.spread, result.sensitivity)
+    # The covariance also carries the few-poses factor and the camera's share; whether it
+    # was scaled to the spread is the spread's own verdict.
+    uncertainty = uncertainty_section(
+        cov_model, honest_covariance(cov_model, result.spread), result.spread, result.sensitivity
+    )
     warnings = noise_warnings(noise or {})
+    if result.poses_used < MIN_TRUSTED_POSES:
+        warnings.append(
+            f"the session is too small to trust: {result.poses_used} board poses leave "
+            f"{result.noise_dof} degree(s) of freedom to estimate the noise scale, range bias and "
+            f"per-capture error from, so the sigmas have been widened "
+            f"{np.sqrt(result.few_poses_factor):.2f}x for that; capture at least {MIN_TRUSTED_POSES} "
+            "poses, the board turned and tilted differently at each"
+        )
     if np.degrees(sig[:3]).max() > MAX_SIGMA_ROTATION_DEG or 1000 * sig[3:].max() > MAX_SIGMA_TRANSLATION_MM:
         warnings.append("large uncertainty: add captures with the board turned and tilted more")
     warnings += uncertainty_warnings(result.spread, result.sensitivity, cov_model, "range and corner noise")
+    warnings = [f"capture {s} (left out: --skip-unseen-boards)" for s in session.skipped] + warnings
+    warnings = _screen_warnings(session, result, screened) + warnings
     for c in per:
-        if not c["inlier"]:
+        if not c["inlier"] and not c["screened_out"]:
             warnings.append(
                 f"capture {c['capture']}: rejected ({c['rms_mm']:.1f} mm RMS off its board plane, "
                 f"chi-square {c['chi2']:.1f} on 2 dof); check its segment id and corners"
@@ -253,12 +376,34 @@ def board_report(
     return report
 
 
+def _screen_warnings(session: BoardSession, result: PlaneResult, screened: Any) -> list[str]:
+    """One warning per capture set aside before the solve (:func:`rigcal.calib.plane.gross_outliers`),
+    saying "millimetres read as metres?" when its returns are 500-2000 times as far as its
+    board is from the camera."""
+    out = []
+    for k in np.flatnonzero(screened):
+        o = session.observations[k]
+        origin = o.board_origin_cam
+        board_m = float(np.linalg.norm(origin)) if origin is not None else o.distance_m
+        ratio = float(np.median(np.linalg.norm(o.points_laser, axis=1))) / max(board_m, 1e-12)
+        hint = "another scan's returns, or a wrong file?"
+        if 500.0 <= ratio <= 2000.0:
+            hint = f"its returns are {ratio:.0f} times as far as its board: millimetres read as metres?"
+        rms = result.screen_rms_m[k] if result.screen_rms_m is not None else float("nan")
+        out.append(
+            f"capture {o.name}: set aside before the solve: {rms:.3g} m off its board plane under the "
+            f"pose the other captures agree on (limit {result.screen_limit_m:.2g} m, far beyond any "
+            f"noise); {hint}"
+        )
+    return out
+
+
 def board_report_table(report: dict[str, Any]) -> str:
     """Readable summary of a board solve."""
     s = report["summary"]
     lines = [f"{'capture':<14}{'dist_m':>8}{'returns':>9}{'rms_mm':>9}{'max_mm':>9}{'corners_px':>12}"]
     for c in report["per_capture"]:
-        mark = "" if c["inlier"] else "  rejected"
+        mark = "" if c["inlier"] else "  set aside" if c.get("screened_out") else "  rejected"
         lines.append(
             f"{c['capture']:<14}{c['distance_m']:>8.2f}{c['returns']:>9}{c['rms_mm']:>9.2f}{c['max_mm']:>9.2f}"
             f"{c['corner_rms_px']:>12.2f}{mark}"
@@ -283,6 +428,18 @@ def board_report_table(report: dict[str, Any]) -> str:
             f"range bias by incidence (reads long by b (1/cos(i) - 1)): b = {s['range_bias_mm']:.1f} "
             f"+- {s['range_bias_sigma_mm']:.1f} mm"
         )
+    cam = report.get("uncertainty", {}).get("camera")
+    if cam is not None and cam.get("included"):
+        lines.append(
+            "camera intrinsics' 1-sigma share: rotation (deg) "
+            + ", ".join(f"{x:.4f}" for x in cam["sigma_rotation_deg"])
+            + "; translation (mm) "
+            + ", ".join(f"{x:.2f}" for x in cam["sigma_translation_mm"])
+            + "; of the variance: "
+            + ", ".join(f"{x:.0%}" for x in cam["variance_share"])
+        )
+    elif cam is not None:
+        lines.append(f"camera intrinsics' uncertainty: {cam['note']}")
     lines += checks_lines(report)
     lines += [f"warning: {w}" for w in report["warnings"]]
     return "\n".join(lines) + "\n"

@@ -30,7 +30,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.calib.intrinsics import Board
-from rigcal.calib.lines import LineParams, extract_lines, fit_line
+from rigcal.calib.lines import LineParams, _ring_order, extract_lines, fit_line
+from rigcal.calib.noise import canonical_order
 from rigcal.calib.plane import PlaneObservation, candidate_consensus, closed_form
 from rigcal.errors import CalibrationError
 from rigcal.geometry import inv_T, transform_points
@@ -138,20 +139,31 @@ def static_returns(scans: Sequence[Scan], tolerance_m: float = STATIC_TOLERANCE_
     C = len(scans)
     if C < MIN_STATIC_CAPTURES:
         return [np.zeros(len(s.ranges_m), dtype=bool) for s in scans]
+    # Beams are matched by their direction, angles taken modulo a turn (one scan's angles may
+    # run -pi..pi and another's 0..2pi) and neighbours round the circle.
+    wrapped = [_wrap(s.angles_rad) for s in scans]
+    sorted_angles = [np.sort(a) for a in wrapped]
+    by_angle = [np.argsort(a, kind="stable") for a in wrapped]
     out = []
     for i, s in enumerate(scans):
         votes = np.zeros(len(s.ranges_m))
         for j, o in enumerate(scans):
             if j == i:
                 continue
-            k = np.searchsorted(o.angles_rad, s.angles_rad)
+            k = np.searchsorted(sorted_angles[j], wrapped[i])
             near = np.full(len(k), np.inf)
             for dk in range(-STATIC_BEAMS, STATIC_BEAMS):
-                kk = np.clip(k + dk, 0, len(o.angles_rad) - 1)
+                kk = by_angle[j][(k + dk) % len(o.angles_rad)]
                 d = np.linalg.norm(o.points[kk] - s.points, axis=1)
                 near = np.fmin(near, d)
             votes += near < tolerance_m
         out.append(s.valid & (votes >= STATIC_SHARE * (C - 1)))
+    return out
+
+
+def _wrap(angles_rad: FloatArray) -> FloatArray:
+    """Angles in [-pi, pi)."""
+    out: FloatArray = np.mod(np.asarray(angles_rad, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
     return out
 
 
@@ -165,12 +177,16 @@ def line_candidates(
     the tolerance), each refitted; a line whose returns span an allowed cut length becomes
     a candidate.
 
+    The returns are taken round the scan as line extraction takes them (a 360-degree scan
+    from its widest gap, :func:`rigcal.calib.lines.extract_lines`), so a board behind the
+    scanner, over the seam between its last and first beams, is one cluster, and the same
+    returns with the angles written -pi..pi or 0..2pi give the same candidates.
+
     Returns:
-        (M,) beam indices per candidate, in beam order.
+        (M,) beam indices per candidate, in that order round the scan.
     """
     rng = np.random.default_rng(seed)
-    beams = np.flatnonzero(scan.valid)
-    pts = scan.points[beams]
+    beams, pts, _ = _ring_order(scan)
     mov = moving[beams]
     out: list[IntArray] = []
     for lo, hi in _clusters(pts, mov):
@@ -256,6 +272,7 @@ def pick_near_cut(
     if keep.sum() < min_points:
         return np.zeros(0, dtype=np.int64)
     near = beams[keep]
+    near = near[canonical_order(scan.points[near])]  # the same set, the same fit to the last bit
     on = _line_inliers(scan.points[near], np.ones(len(near), dtype=bool))
     return near[on] if on.sum() >= min_points else np.zeros(0, dtype=np.int64)
 

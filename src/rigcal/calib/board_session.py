@@ -34,7 +34,7 @@ from rigcal.calib.picks import (
     segment_by_id,
     segments_by_ids,
 )
-from rigcal.calib.plane import PlaneObservation
+from rigcal.calib.plane import PlaneObservation, check_normals
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import make_T, rotvec_to_R
@@ -62,6 +62,10 @@ class BoardSession:
         corner_rms_px: (C,) RMS reprojection error of each board's corners under its pose.
         files: every file read (for provenance).
         corner_sigma_px: the corner noise the poses' covariances were computed with.
+        corners_px: per capture, (N, 2) the board's corners in the image (to re-solve the
+            board poses under other intrinsics).
+        skipped: the captures left out because their image shows no board (with
+            ``skip_unseen_boards``), each as "name (image): why".
     """
 
     path: Path
@@ -74,6 +78,8 @@ class BoardSession:
     corner_rms_px: FloatArray
     files: tuple[Path, ...]
     corner_sigma_px: float = 0.5
+    corners_px: tuple[FloatArray, ...] = ()
+    skipped: tuple[str, ...] = ()
 
 
 def is_board_session(data: Any) -> bool:
@@ -81,16 +87,21 @@ def is_board_session(data: Any) -> bool:
     return isinstance(data, dict) and data.get("method") == "board"
 
 
-def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardSession:
+def read_board_session(
+    path: str | Path, corner_sigma_px: float = 0.5, skip_unseen_boards: bool = False
+) -> BoardSession:
     """Read and validate a board session and every file it names.
 
     Args:
         path: the session file.
         corner_sigma_px: noise of a board corner in the image (for the board pose's
             covariance), unless the file's ``board.corner_sigma_px`` gives it.
+        skip_unseen_boards: leave out the captures whose image shows no board (listed in
+            ``skipped``) instead of stopping.
 
     Raises:
-        InputError: anything missing, unreadable or invalid, naming the file, key and value.
+        InputError: anything missing, unreadable or invalid, naming the file, key and value;
+            images with no board are named all together in one error.
     """
     path = Path(path)
     d = check_keys(
@@ -131,6 +142,7 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
     obs: list[PlaneObservation] = []
     poses: list[FloatArray] = []
     rms: list[float] = []
+    corner_sets: list[FloatArray] = []
     files = [path, camera_path]
     vnl: dict[str, FloatArray] | None = None
     if "corners_vnl" in d:
@@ -140,6 +152,8 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         vnl = {Path(p).name: g for p, g in zip(det.paths, det.corners, strict=True)}
     auto: list[int] = []
     scans: list[Scan | None] = []
+    index: list[int] = []  # each kept capture's index in the file
+    unseen: list[tuple[int, str, Any]] = []
     for i, c in enumerate(captures):
         kp = f"captures[{i}]"
         c = check_keys(c, path, kp, ["laser_side"], ["scan", "name", "corners_px", "image"])
@@ -152,6 +166,10 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
                 "the board's returns in a returns_file)"
             )
         corners = _corners(path, kp, c, board, camera, files, vnl)
+        if corners is None:
+            unseen.append((i, name, c["image"]))
+            continue
+        corner_sets.append(corners)
         T, cov, err = board_pose(camera, board, corners, corner_sigma_px)
         scan = None
         if "scan" in c:
@@ -159,8 +177,9 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
             files.append(scan_path)
             scan = read_scan(scan_path)
         scans.append(scan)
+        index.append(i)
         if side == "auto":
-            auto.append(i)
+            auto.append(len(obs))
             pts = np.zeros((0, 2))
         elif listed:
             pts = _listed_returns(path, f"{kp}.laser_side", side, files, version)
@@ -170,14 +189,29 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         obs.append(plane_observation(i, name, T, cov, pts))
         poses.append(T)
         rms.append(err)
+    if unseen and not skip_unseen_boards:
+        keys = ", ".join(f"captures[{i}].image" for i, _, _ in unseen)
+        shown = ", ".join(repr(str(v)) for _, _, v in unseen)
+        raise InputError(
+            f"{path}: {keys}: got {shown}; expected images showing the {board.width_n}x{board.height_n} "
+            f"board ({len(unseen)} of {len(captures)} captures show none; `rigcal solve "
+            "--skip-unseen-boards` leaves them out with a warning)"
+        )
+    if auto and len(obs) >= 3:
+        # What the images alone show comes first: boards that never tilt cannot fix the
+        # pose, however their returns are found.
+        try:
+            check_normals(obs)
+        except CalibrationError as exc:
+            raise CalibrationError(f"{path}: {exc}") from None
     if auto:
-        missing = [i for i, sc in enumerate(scans) if sc is None]
+        missing = [index[k] for k, sc in enumerate(scans) if sc is None]
         if missing:
             raise InputError(
                 f"{path}: captures[{missing[0]}].scan: missing; laser_side auto compares every "
                 "capture's scan, so each capture needs its scan"
             )
-        obs = _detect(path, obs, auto, [sc for sc in scans if sc is not None], poses, shape, params)
+        obs = _detect(path, obs, auto, [sc for sc in scans if sc is not None], poses, shape, params, index)
     check_unique_names(path, [o.name for o in obs])
     return BoardSession(
         path,
@@ -190,6 +224,10 @@ def read_board_session(path: str | Path, corner_sigma_px: float = 0.5) -> BoardS
         np.array(rms),
         tuple(files),
         corner_sigma_px=corner_sigma_px,
+        corners_px=tuple(corner_sets),
+        skipped=tuple(
+            f"{name} ({value}): no {board.width_n}x{board.height_n} board found" for _, name, value in unseen
+        ),
     )
 
 
@@ -268,8 +306,10 @@ def _detect(
     poses: list[FloatArray],
     shape: BoardShape,
     params: LineParams,
+    index: list[int],
 ) -> list[PlaneObservation]:
-    """Fill in the returns of the ``laser_side: auto`` captures (board_detect)."""
+    """Fill in the returns of the ``laser_side: auto`` captures (board_detect); ``index``
+    maps each capture's position to its index in the file, for the error's key."""
     from dataclasses import replace
 
     given = {i: o.points_laser for i, o in enumerate(obs) if i not in auto}
@@ -277,7 +317,7 @@ def _detect(
     try:
         found = detect_board_returns(scans, poses, planes, shape, given, params)
     except BoardNotFoundError as exc:
-        raise InputError.at(path, f"captures[{exc.capture}].laser_side", "auto", exc.detail) from None
+        raise InputError.at(path, f"captures[{index[exc.capture]}].laser_side", "auto", exc.detail) from None
     except CalibrationError as exc:
         raise CalibrationError(f"{path}: laser_side auto: {exc}") from None
     return [replace(o, points_laser=found[i]) if i in auto else o for i, o in enumerate(obs)]
@@ -291,9 +331,10 @@ def _corners(
     camera: Camera,
     files: list[Path],
     vnl: dict[str, FloatArray] | None,
-) -> FloatArray:
+) -> FloatArray | None:
     """(N, 2) the board's corners in the image, row-major (corners_x per row): listed, or
-    from the session's corners file for this image's name, or detected in the image."""
+    from the session's corners file for this image's name, or detected in the image (None
+    when the image shows no board)."""
     n = board.width_n * board.height_n
     if ("corners_px" in c) == ("image" in c):
         raise InputError.at(
@@ -317,12 +358,7 @@ def _corners(
         files.append(image)
         det = detect_corners([image], board)
         if not det.paths:
-            raise InputError.at(
-                path,
-                f"{kp}.image",
-                c["image"],
-                f"an image showing the {board.width_n}x{board.height_n} board",
-            )
+            return None
         return np.array(det.corners[0, :, :, :2].reshape(-1, 2))
     v = c["corners_px"]
     if not isinstance(v, list) or len(v) != n:

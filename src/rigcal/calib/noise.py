@@ -84,26 +84,57 @@ class LineFit:
         return out
 
     @property
-    def ends(self) -> FloatArray:
-        """(2, 2) the outermost kept returns projected on the line, in scan order."""
+    def extent_m(self) -> FloatArray:
+        """(2,) the kept returns' least and greatest position along the line (the
+        extreme ones, whatever order the returns were given in)."""
         s = self.along_m[self.kept]
-        return self.centroid + np.array([s[0], s[-1]])[:, None] * self.direction
+        return np.array([s.min(), s.max()])
+
+    @property
+    def ends(self) -> FloatArray:
+        """(2, 2) the outermost kept returns projected on the line, in the line's direction."""
+        out: FloatArray = self.centroid + self.extent_m[:, None] * self.direction
+        return out
 
 
 def _tls(points: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Centroid, direction (first to last point) and normal of the total least-squares line."""
+    """Centroid, direction and normal of the total least-squares line, the direction's sign
+    fixed by the line alone (:func:`canonical_direction`), not by the points' order."""
     c, u, _ = fit_line(points)
+    u = canonical_direction(c, u)
     return c, u, np.array([-u[1], u[0]])
+
+
+def canonical_direction(point: FloatArray, direction: FloatArray) -> FloatArray:
+    """The sign of a line's direction that depends on the line only: counter-clockwise as
+    seen from the sensor's origin (``point x direction > 0``, ``point`` on the line), the
+    order a counter-clockwise scanner sweeps it; for a line through the origin, the
+    direction with positive x (then y). The same returns given in any order, or with
+    their angles in -pi..pi or 0..2pi, give the same line with the same direction."""
+    u = np.asarray(direction, dtype=float)
+    cross = float(point[0] * u[1] - point[1] * u[0])
+    if abs(cross) > 1e-12 * max(float(np.hypot(point[0], point[1])), 1e-300):
+        flip = cross < 0
+    else:
+        flip = u[0] < 0 or (u[0] == 0 and u[1] < 0)
+    return -u if flip else u
 
 
 def fit_line_robust(points: FloatArray, iterations: int = 4) -> LineFit:
     """Fit a line to a target's returns, trimming returns that are not on it.
 
+    The result depends on the set of returns, not on their order (the direction's sign is
+    :func:`canonical_direction`'s, the ends are the extreme kept returns).
+
     Args:
-        points: (M, 2) returns in the laser frame (M >= 2), in scan order.
+        points: (M, 2) returns in the laser frame (M >= 2), in any order.
         iterations: fit-and-trim rounds.
     """
-    p = np.asarray(points, dtype=float)
+    given = np.asarray(points, dtype=float)
+    # Work on the returns in one fixed order (the sums in floating point then come out to the
+    # last bit the same for any order); the arrays returned follow the order given.
+    order = canonical_order(given)
+    p = given[order]
     kept = np.ones(len(p), dtype=bool)
     rays = p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-12)
     for _ in range(iterations):
@@ -117,11 +148,20 @@ def fit_line_robust(points: FloatArray, iterations: int = 4) -> LineFit:
         if new.sum() < max(2, kept.sum() // 2) or np.array_equal(new, kept):
             break
         kept = new
-    # The direction runs along the scan order (first to last kept return), as ``ends`` do.
     c, u, n = _tls(p[kept])
     r = (p - c) @ n
     cos = np.maximum(np.abs(rays @ n), MIN_COS_INCIDENCE)
-    return LineFit(c, u, n, r, kept, cos, (p - c) @ u)
+    back = np.empty_like(order)
+    back[order] = np.arange(len(order))
+    return LineFit(c, u, n, r[back], kept[back], cos[back], ((p - c) @ u)[back])
+
+
+def canonical_order(points: FloatArray) -> NDArray[np.int64]:
+    """(M,) the order that sorts (M, 2) points by x, then y: a fixed order for a set of
+    returns, so that what is computed from them does not depend on the order they were
+    listed in (a file's lines, a scan's start angle)."""
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    return np.lexsort((p[:, 1], p[:, 0])).astype(np.int64)
 
 
 @dataclass(frozen=True)

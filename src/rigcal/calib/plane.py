@@ -27,12 +27,20 @@ Every such return, mapped into the camera frame, must lie on the plane (Zhang an
    whitened per capture by their covariance: the line's offset through the range noise,
    the plane's own error (shared through the board's pose from PnP) and a per-capture
    error estimated from the data where the captures disagree beyond chance (a range bias
-   by incidence, a warped board). A Cauchy loss bends at 3 sigmas, so no capture is
-   thrown out by a hard threshold while it pulls; the explicit verdict is a chi-square
+   by incidence, a warped board). A Cauchy loss (by default; ``loss`` chooses another,
+   or "linear" for none) bends at 3 sigmas, so no capture is thrown out by a hard
+   threshold while it pulls; the explicit verdict is a chi-square
    gate (99.99 %, 2 dof, times the captures' robust scale) on each same-pose group's
    median, so captures taken at one pose share it. The covariance is the box method's
    (``rigcal.calib.refine``'s tangent space), checked against the spread over captures
-   and the sensitivity to the noise settings (:mod:`rigcal.calib.spread`).
+   and the sensitivity to the noise settings (:mod:`rigcal.calib.spread`), and widened
+   for the noise scale being estimated from few board poses (F instead of chi-square:
+   :func:`rigcal.calib.spread.few_dof_factor`, with 2 dof per pose less the fitted
+   parameters).
+
+A capture hundreds of sigmas off the others (a unit mistake) is set aside before any of
+this (:func:`gross_outliers`). Every result depends on the set of returns, not on the
+order they are given in.
 """
 
 from __future__ import annotations
@@ -50,18 +58,21 @@ from rigcal.calib.noise import (
     MIN_COS_INCIDENCE,
     LineFit,
     RangeNoise,
+    canonical_order,
     connected_groups,
     fit_line_robust,
     grouped_verdicts,
     line_offset_covariance,
     matching_noise,
     range_noise_from_lines,
+    robust_scale,
 )
-from rigcal.calib.refine import loss_weights
+from rigcal.calib.refine import loss_weights, robust_cost
 from rigcal.calib.spread import (
     Sensitivity,
     Spread,
     expected_jackknife,
+    few_dof_factor,
     honest_covariance,
     leave_one_out,
     sensitivity,
@@ -289,15 +300,20 @@ def ransac_closed_form(
 # that falls as the square of its distance instead of rising with it.
 LOSS = "cauchy"
 LOSS_SCALE = 3.0
+LOSSES = ("linear", "huber", "soft_l1", "cauchy")
 # A capture is an outlier when its chi-square (2 dof) exceeds the 99.99 % point times the
 # robust scale of all captures' chi-squares (median over the chi-square median, at least 1).
 OUTLIER_GATE_CHI2 = 18.420680743952367
-# Captures whose boards are this close in pose (normal, distance, laser cut; or within 4
-# sigma of their poses' noise where that is larger) were taken at one pose and share one
-# verdict.
-SAME_POSE_NORMAL_DEG = 1.5
-SAME_POSE_DISTANCE_M = 0.015
-SAME_POSE_CUT_M = 0.03
+# Captures whose boards are this close in pose were taken at one pose and share one
+# verdict: a hand-held board's repeats lie 1-3 deg and 2-5 cm apart (the image's board
+# pose: normals within SAME_POSE_NORMAL_DEG, distances within SAME_POSE_DISTANCE_M, or 4
+# sigma of the poses' noise where that is larger; the laser's cut: lines within
+# SAME_POSE_CUT_DEG of each other, each one's centre within SAME_POSE_CUT_M of the other's
+# line, their extents overlapping by at least half the shorter).
+SAME_POSE_NORMAL_DEG = 5.0
+SAME_POSE_DISTANCE_M = 0.06
+SAME_POSE_CUT_M = 0.06
+SAME_POSE_CUT_DEG = 5.0
 
 
 @dataclass(frozen=True)
@@ -317,6 +333,10 @@ class PlaneNoise:
             range_bias_m * (1 / cos(i) - 1) (the footprint smears along a slanted board);
             estimated with the pose when ``fit_range_bias``, its uncertainty then entering
             the pose's covariance.
+        loss: the shape assumed for the whitened errors' tails: scipy's robust loss
+            (``LOSSES``), bending at LOSS_SCALE sigmas; "linear" is plain least squares
+            (Gaussian errors: every capture pulls in proportion to its distance; the outlier
+            gate still rejects captures beyond it).
     """
 
     range_sigma_m: float
@@ -324,6 +344,7 @@ class PlaneNoise:
     pose_cov_scale: float = 1.0
     fit_range_bias: bool = False
     range_bias_m: float = 0.0
+    loss: str = LOSS
 
 
 @dataclass(frozen=True)
@@ -332,12 +353,14 @@ class CaptureLine:
 
     Under range noise the least-squares line carries all the returns say about the pose
     (each return only says where the line is), so the solve works on the line's two ends
-    (the outermost kept returns projected on it) with the covariance of the line's offset
-    there; returns the robust fit trimmed (mixed pixels at the board's edges, strays) drop
-    out.
+    (the extreme kept returns along it, whatever their order, projected on it) with the
+    covariance of the line's offset there; returns the robust fit trimmed (mixed pixels at
+    the board's edges, strays) drop out.
 
     Attributes:
-        fit: the robust line fit (:func:`rigcal.calib.noise.fit_line_robust`).
+        fit: the robust line fit (:func:`rigcal.calib.noise.fit_line_robust`) of the returns
+            in :func:`rigcal.calib.noise.canonical_order` (its per-return arrays follow that
+            order, not the order given).
         ends: (2, 2) the cut's two ends on the line, laser frame.
         offset_cov: (2, 2) covariance of the line's offset across itself at the ends, per
             unit range variance (times range_sigma_m^2 gives metres^2).
@@ -359,13 +382,17 @@ class CaptureLine:
 
 def capture_line(points_laser: FloatArray) -> CaptureLine:
     """Reduce a capture's returns on the board to its :class:`CaptureLine`."""
-    fit = fit_line_robust(points_laser)
+    # The returns in a fixed order: the line (and so the solve) is the same to the last bit
+    # whatever order they were given in.
+    points = np.asarray(points_laser, dtype=float)
+    points = points[canonical_order(points)]
+    fit = fit_line_robust(points)
     k = fit.kept
     sigma_across = float(np.sqrt(np.mean(fit.cos_incidence[k] ** 2)))
-    at = fit.along_m[k][[0, -1]]
+    at = fit.extent_m
     # A bias b_j along each return's ray u_j moves it across the line by b_j (u_j . n); the
     # least-squares line through those moves is the line's own.
-    p = np.asarray(points_laser, dtype=float)[k]
+    p = points[k]
     u = p / np.linalg.norm(p, axis=1, keepdims=True)
     across = u @ fit.normal
     g = 1.0 / np.maximum(np.abs(across), MIN_COS_INCIDENCE) - 1.0
@@ -383,7 +410,7 @@ class PlaneResult:
         T_cam_laser: (4, 4) the pose.
         covariance: (6, 6) over [dtheta (rad), t (m)] in the camera frame, as the box
             method: the model's, scaled up to cover the spread over captures when that is
-            larger (:mod:`rigcal.calib.spread`).
+            larger (:mod:`rigcal.calib.spread`), times ``few_poses_factor``.
         residuals_m: per capture, (M,) signed point-to-plane distances, metres.
         residual_scale: sqrt(chi^2 / dof) of the whitened residuals of the used captures.
         inlier_captures: (C,) bool, the captures' verdicts (grouped by pose).
@@ -398,6 +425,17 @@ class PlaneResult:
         sensitivity: moves of the answer when a noise setting is halved or doubled.
         range_bias_sigma_m: 1-sigma of the fitted range bias by incidence
             (``noise.range_bias_m``), None when it was not fitted.
+        screened_out: (C,) bool, captures set aside before the solve as gross outliers
+            (:func:`gross_outliers`: off the others' consensus by far more than any noise,
+            a unit mistake or another scan's returns); their verdict is False.
+        screen_rms_m: (C,) each capture's RMS distance from its plane under the others'
+            consensus pose (nan when no consensus was formed).
+        screen_limit_m: the distance beyond which a capture was set aside.
+        poses_used: the board poses (same-pose groups) among the used captures.
+        noise_dof: the degrees of freedom the noise scale and per-capture error are
+            estimated with: 2 per pose less the fitted parameters.
+        few_poses_factor: the factor ``covariance`` carries for that estimate
+            (:func:`rigcal.calib.spread.few_dof_factor`; 1 for a large session).
     """
 
     T_cam_laser: FloatArray
@@ -415,6 +453,12 @@ class PlaneResult:
     spread: Spread | None
     sensitivity: tuple[Sensitivity, ...]
     range_bias_sigma_m: float | None
+    screened_out: NDArray[np.bool_] | None = None
+    screen_rms_m: FloatArray | None = None
+    screen_limit_m: float = np.inf
+    poses_used: int = 0
+    noise_dof: int = 0
+    few_poses_factor: float = 1.0
 
 
 def solve_plane(
@@ -425,6 +469,7 @@ def solve_plane(
     corner_sigma_px: float | None = None,
     uncertainty_checks: bool = True,
     fit_range_bias: bool = False,
+    loss: str = LOSS,
 ) -> PlaneResult:
     """Calibrate T_cam_laser from board planes and laser returns (steps 1-4).
 
@@ -439,14 +484,21 @@ def solve_plane(
         uncertainty_checks: run the leave-one-capture-out spread and the sensitivity.
         fit_range_bias: estimate the scanner's range bias by incidence with the pose
             (:class:`PlaneNoise`), its uncertainty entering the pose's covariance.
+        loss: the robust loss of the refinement (:class:`PlaneNoise`), one of LOSSES.
 
     Raises:
+        ValueError: an unknown loss.
         CalibrationError: too few captures, planes too alike, or no consensus.
     """
+    if loss not in LOSSES:
+        raise ValueError(f"loss must be one of {LOSSES}, not {loss!r}")
     _check_observable(observations)
     lines = tuple(capture_line(o.points_laser) for o in observations)
+    screen = gross_outliers(observations, lines, seed)
+    gross = screen.gross
+    kept = np.flatnonzero(~gross)
     try:
-        estimated = range_noise_from_lines([ln.fit for ln in lines])
+        estimated = range_noise_from_lines([lines[i].fit for i in kept])
     except ValueError:
         estimated = None
     if range_sigma_m is None:
@@ -455,19 +507,20 @@ def solve_plane(
                 "no capture has 3 or more returns on its board to estimate the range noise"
             )
         range_sigma_m = estimated.sigma_m
-    noise = PlaneNoise(max(range_sigma_m, 1e-4), fit_range_bias=fit_range_bias)
+    noise = PlaneNoise(max(range_sigma_m, 1e-4), fit_range_bias=fit_range_bias, loss=loss)
     reduced = [replace(o, points_laser=ln.ends) for o, ln in zip(observations, lines, strict=True)]
     # Start from the closed form on every capture and, when asked, from RANSAC's best
     # sample; keep the robust fit that explains most captures (then the lowest cost). A
     # 5-capture closed form is often poorly conditioned, so RANSAC alone can settle on a
     # wrong pose that a few captures fit.
+    reduced = [reduced[i] for i in kept]
     starts = [closed_form(reduced)]
     if use_ransac:
         threshold = max(0.03, 6.0 * noise.range_sigma_m)
         with contextlib.suppress(CalibrationError):
             starts.append(ransac_closed_form(reduced, threshold_m=threshold, seed=seed)[0])
     groups = same_pose_groups(observations, lines)
-    fits = [_robust_fit(T0, observations, lines, noise, groups) for T0 in starts]
+    fits = [_robust_fit(T0, observations, lines, noise, groups, gross) for T0 in starts]
     T, noise, mask, _ = max(fits, key=lambda f: (int(f[2].sum()), -f[3]))
     if mask.sum() < MIN_CAPTURES:
         raise CalibrationError(
@@ -504,6 +557,14 @@ def solve_plane(
             return _fit(T, observations, lines, replace(noise, pose_cov_scale=scale), used)[0]
 
         sens = sensitivity(changed, settings, T, cov)
+    # The per-capture error, the residual scale and the range bias are estimated from the
+    # captures themselves: with few board poses they are poorly known, and a covariance
+    # that takes them as exact is too small. Repeats at one pose share its board-pose error,
+    # so the dof count poses, not captures.
+    poses = len(np.unique(groups[used]))
+    noise_dof = 2 * poses - (7 if noise.fit_range_bias else 6)
+    factor = few_dof_factor(noise_dof)
+    cov = cov * factor
     dof = len(r_used) - 6
     return PlaneResult(
         T,
@@ -521,18 +582,95 @@ def solve_plane(
         spread,
         tuple(sens),
         bias_sigma,
+        gross,
+        screen.rms_m,
+        screen.limit_m,
+        poses,
+        noise_dof,
+        factor,
     )
+
+
+def refit_pose(result: PlaneResult, observations: Sequence[PlaneObservation]) -> FloatArray:
+    """T_cam_laser re-solved from ``result``'s pose with other board planes (the same
+    returns, noise model and verdicts): how the answer follows the planes, e.g. under other
+    camera intrinsics."""
+    used = np.flatnonzero(result.inlier_captures)
+    return _fit(result.T_cam_laser, observations, result.lines, result.noise, used)[0]
+
+
+# A capture is a gross outlier, set aside before the solve, when the consensus of the
+# others puts its cut farther from its board plane than GROSS_SIGMAS range sigmas (the
+# captures' median own scatter), and at least GROSS_FLOOR_M: no noise explains that, only
+# a mistake (returns in millimetres, another scan's returns). Closer ones are left to the
+# robust loss and the chi-square gate.
+GROSS_SIGMAS = 100.0
+GROSS_FLOOR_M = 0.5
+
+
+@dataclass(frozen=True)
+class GrossScreen:
+    """The screen for gross outliers before a solve.
+
+    Attributes:
+        gross: (C,) bool, the captures set aside.
+        rms_m: (C,) each capture's RMS distance of its cut's ends from its plane under
+            the consensus pose (nan when none was formed).
+        limit_m: the distance beyond which a capture is set aside (inf: no screen).
+    """
+
+    gross: NDArray[np.bool_]
+    rms_m: FloatArray
+    limit_m: float
+
+
+def gross_outliers(
+    observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine], seed: int = 0
+) -> GrossScreen:
+    """Captures that disagree with all the others by far more than any noise.
+
+    A robust loss caps a capture's pull, but a capture hundreds of sigmas off (returns in
+    millimetres read as metres, or 140 m away) still wrecks the closed-form start and the
+    range noise estimate, and so steers the solve before any verdict. RANSAC over captures
+    (:func:`ransac_closed_form`, threshold 6 range sigmas, at least 3 cm) finds the pose
+    most captures agree on; a capture outside that consensus whose cut lies farther than
+    max(GROSS_SIGMAS range sigmas, GROSS_FLOOR_M) from its plane is set aside. The range
+    sigma here is the median over captures of their own robust scatter, which one bad
+    capture cannot move. Nothing is set aside unless at least half of the captures (and
+    MIN_CAPTURES) agree and MIN_CAPTURES remain.
+    """
+    C = len(observations)
+    none = GrossScreen(np.zeros(C, dtype=bool), np.full(C, np.nan), float("inf"))
+    own = [robust_scale(ln.fit.range_residuals_m) for ln in lines if ln.fit.kept.sum() >= 4]
+    sigma = float(np.median(own)) if own else 0.0
+    limit = max(GROSS_FLOOR_M, GROSS_SIGMAS * sigma)
+    if C <= MIN_CAPTURES:
+        return none
+    reduced = [replace(o, points_laser=ln.ends) for o, ln in zip(observations, lines, strict=True)]
+    try:
+        T, agree = ransac_closed_form(reduced, threshold_m=max(0.03, 6.0 * sigma), seed=seed)
+    except CalibrationError:
+        return none
+    if agree.sum() < max(MIN_CAPTURES, 0.5 * C):
+        return none
+    rms = np.array([float(np.sqrt(np.mean(point_to_plane(T, o) ** 2))) for o in reduced])
+    gross = (rms > limit) & ~agree
+    if (~gross).sum() < MIN_CAPTURES:
+        return none
+    return GrossScreen(gross, rms, limit)
 
 
 def same_pose_groups(
     observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine]
 ) -> NDArray[np.int64]:
     """(C,) a group index per capture: captures whose boards have the same pose share one,
-    so that they get one verdict. Two boards have the same pose when their planes and
-    their cuts agree within their own noise or the fixed floors, whichever is larger:
-    normals within max(SAME_POSE_NORMAL_DEG, 4 sigma), distances within
-    max(SAME_POSE_DISTANCE_M, 4 sigma) (sigmas from the board poses' covariances) and cut
-    ends within SAME_POSE_CUT_M."""
+    so that they get one verdict, and count as one pose. Two boards have the same pose when
+    what the image shows and what the laser shows agree together: their planes within
+    max(SAME_POSE_NORMAL_DEG, 4 sigma) in normal and max(SAME_POSE_DISTANCE_M, 4 sigma) in
+    distance (sigmas from the board poses' covariances), and their cuts on nearly one line
+    (within SAME_POSE_CUT_DEG, each centre within SAME_POSE_CUT_M of the other's line)
+    over a shared stretch (extents overlapping by half the shorter). The floors are a
+    hand-held board's repeats (1-3 deg, 2-5 cm apart); the relation is closed transitively."""
     C = len(observations)
     sig_angle = np.zeros(C)
     sig_dist = np.zeros(C)
@@ -552,14 +690,29 @@ def same_pose_groups(
             a, b = observations[i], observations[j]
             angle_max = max(np.radians(SAME_POSE_NORMAL_DEG), 4.0 * np.hypot(sig_angle[i], sig_angle[j]))
             dist_max = max(SAME_POSE_DISTANCE_M, 4.0 * np.hypot(sig_dist[i], sig_dist[j]))
-            ends_i, ends_j = lines[i].ends, lines[j].ends
-            cut = min(np.abs(ends_i - ends_j).max(), np.abs(ends_i - ends_j[::-1]).max())
             same[i, j] = same[j, i] = (
                 float(np.dot(a.normal_cam, b.normal_cam)) >= np.cos(angle_max)
                 and abs(a.distance_m - b.distance_m) <= dist_max
-                and cut <= SAME_POSE_CUT_M
+                and _same_cut(lines[i], lines[j])
             )
     return connected_groups(same)
+
+
+def _same_cut(a: CaptureLine, b: CaptureLine) -> bool:
+    """Whether two captures' cuts lie on nearly one line over a shared stretch (see
+    :func:`same_pose_groups`)."""
+    fa, fb = a.fit, b.fit
+    if abs(float(fa.direction @ fb.direction)) < np.cos(np.radians(SAME_POSE_CUT_DEG)):
+        return False
+    mid_a, mid_b = a.ends.mean(axis=0), b.ends.mean(axis=0)
+    if abs(float((mid_b - fa.centroid) @ fa.normal)) > SAME_POSE_CUT_M:
+        return False
+    if abs(float((mid_a - fb.centroid) @ fb.normal)) > SAME_POSE_CUT_M:
+        return False
+    sa = np.sort((a.ends - fa.centroid) @ fa.direction)
+    sb = np.sort((b.ends - fa.centroid) @ fa.direction)
+    overlap = min(sa[1], sb[1]) - max(sa[0], sb[0])
+    return bool(overlap >= 0.5 * min(sa[1] - sa[0], sb[1] - sb[0]))
 
 
 def _robust_fit(
@@ -568,17 +721,19 @@ def _robust_fit(
     lines: Sequence[CaptureLine],
     noise: PlaneNoise,
     groups: NDArray[np.int64],
+    gross: NDArray[np.bool_],
 ) -> tuple[FloatArray, PlaneNoise, NDArray[np.bool_], float]:
-    """From T0: a robust fit on every capture, the per-capture error estimated from the
-    captures' chi-squares, the verdicts, and a robust fit on the inliers; twice over, as
-    the verdicts and the estimate settle. Returns (pose, noise, inliers, robust cost)."""
-    mask = np.ones(len(observations), dtype=bool)
+    """From T0: a robust fit on every capture but the ``gross`` ones, the per-capture error
+    estimated from the captures' chi-squares, the verdicts, and a robust fit on the
+    inliers; twice over, as the verdicts and the estimate settle. Returns (pose, noise,
+    inliers, robust cost)."""
+    mask = ~gross
 
     def refit(T: FloatArray, noise: PlaneNoise, estimate: bool) -> tuple[FloatArray, PlaneNoise]:
         """The pose (and range bias) on the captures in ``mask``; with ``estimate``, the
         per-capture error re-estimated under it."""
         T, bias = _fit(
-            T, observations, lines, noise, np.flatnonzero(mask) if mask.sum() >= MIN_CAPTURES else None
+            T, observations, lines, noise, np.flatnonzero(mask if mask.sum() >= MIN_CAPTURES else ~gross)
         )
         noise = replace(noise, range_bias_m=bias)
         if estimate:
@@ -588,7 +743,7 @@ def _robust_fit(
     T = T0
     for _ in range(3):
         T, noise = refit(T, noise, True)
-        new = grouped_verdicts(_chi2(T, observations, lines, noise), groups, mask, OUTLIER_GATE_CHI2)
+        new = grouped_verdicts(_chi2(T, observations, lines, noise), groups, mask, OUTLIER_GATE_CHI2) & ~gross
         if np.array_equal(new, mask):
             break
         mask = new
@@ -598,8 +753,7 @@ def _robust_fit(
     T, noise = refit(T, noise, False)
     chi2 = _chi2(T, observations, lines, noise)
     z = np.sqrt(chi2[mask])
-    cost = float(np.sum(LOSS_SCALE**2 * np.log1p((z / LOSS_SCALE) ** 2)))
-    return T, noise, mask, cost
+    return T, noise, mask, robust_cost(z, noise.loss, LOSS_SCALE)
 
 
 def _capture_cov(T: FloatArray, o: PlaneObservation, line: CaptureLine, noise: PlaneNoise) -> FloatArray:
@@ -686,7 +840,7 @@ def _fit(
     noise: PlaneNoise,
     used: NDArray[np.int64] | None,
 ) -> tuple[FloatArray, float]:
-    """Robust fit (scipy trust region, Cauchy loss) of the whitened cut-end distances of the
+    """Robust fit (scipy trust region, ``noise.loss``) of the whitened cut-end distances of the
     captures ``used`` (all when None) from T0 (step 4); with ``noise.fit_range_bias`` the
     range bias by incidence is fitted too. Returns (pose, range bias)."""
     idx = np.arange(len(observations)) if used is None else used
@@ -706,7 +860,7 @@ def _fit(
         )
 
     x0 = np.concatenate([np.zeros(3), T0[:3, 3], [noise.range_bias_m] if noise.fit_range_bias else []])
-    sol = least_squares(residuals, x0, method="trf", loss=LOSS, f_scale=LOSS_SCALE, x_scale="jac")
+    sol = least_squares(residuals, x0, method="trf", loss=noise.loss, f_scale=LOSS_SCALE, x_scale="jac")
     return pose(sol.x), float(sol.x[6]) if noise.fit_range_bias else noise.range_bias_m
 
 
@@ -736,7 +890,7 @@ def _covariance(
             cols.append((-ln.bias_shift * float(T[:3, :2] @ ln.fit.normal @ n))[:, None])
         Js.append(w @ np.column_stack(cols))
     r, J = np.concatenate(rs), np.concatenate(Js)
-    wts = loss_weights(r, LOSS, LOSS_SCALE)
+    wts = loss_weights(r, noise.loss, LOSS_SCALE)
     blocks = [b * np.sqrt(w)[:, None] for b, w in zip(Js, wts.reshape(-1, 2), strict=True)]
     info = (J * wts[:, None]).T @ J
     evals = np.linalg.eigvalsh(info)
@@ -751,21 +905,33 @@ def _covariance(
     return 0.5 * (cov + cov.T), r, wts.reshape(-1, 2).mean(axis=1), blocks, scale2
 
 
+def check_normals(observations: Sequence[PlaneObservation]) -> None:
+    """Whether the boards' planes (what the images alone show) can fix all six degrees of
+    freedom: their normals must span 3D (MIN_NORMAL_SPREAD).
+
+    Raises:
+        CalibrationError: the normals are (nearly) parallel or share an axis (a board
+            upright against a wall, turned but never tilted).
+    """
+    normals = np.array([np.asarray(o.normal_cam, dtype=float) for o in observations]).reshape(-1, 3)
+    s = np.linalg.svd(normals, compute_uv=False) if len(normals) else np.zeros(0)
+    if len(s) < 3 or s[2] < MIN_NORMAL_SPREAD * s[0]:
+        names = ", ".join(o.name for o in observations)
+        spread = s[-1] / s[0] if len(s) == 3 else 0.0
+        raise CalibrationError(
+            f"the board planes of captures {names} are (nearly) parallel or share an axis "
+            f"(normals' spread {spread:.3f} < {MIN_NORMAL_SPREAD}); tilt the board about "
+            "both of its axes between captures"
+        )
+
+
 def _check_observable(observations: Sequence[PlaneObservation]) -> None:
     if len(observations) < MIN_CAPTURES:
         raise CalibrationError(
             f"{len(observations)} board capture(s); the plane method needs at least {MIN_CAPTURES} "
             "(each plane gives 2 constraints on the 9 unknowns of its closed form)"
         )
-    normals = np.array([np.asarray(o.normal_cam, dtype=float) for o in observations])
-    s = np.linalg.svd(normals, compute_uv=False)
-    if len(s) < 3 or s[2] < MIN_NORMAL_SPREAD * s[0]:
-        names = ", ".join(o.name for o in observations)
-        raise CalibrationError(
-            f"the board planes of captures {names} are (nearly) parallel or share an axis "
-            f"(normals' spread {s[-1] / s[0]:.3f} < {MIN_NORMAL_SPREAD}); tilt the board about "
-            "both of its axes between captures"
-        )
+    check_normals(observations)
     for o in observations:
         if len(o.points_laser) < 2:
             raise CalibrationError(f"capture {o.name}: fewer than 2 laser returns on the board")

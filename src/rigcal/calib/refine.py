@@ -380,6 +380,21 @@ def _block_diagonal(blocks: FloatArray) -> FloatArray:
     return out
 
 
+def robust_cost(r: FloatArray, loss: str, scale: float) -> float:
+    """sum of scale^2 rho((r / scale)^2) for scipy's robust ``loss`` (the cost least_squares
+    minimises, times 2), so fits under one loss can be compared by it."""
+    z = (np.asarray(r, dtype=float) / scale) ** 2
+    if loss == "huber":
+        rho = np.where(z <= 1.0, z, 2.0 * np.sqrt(z) - 1.0)
+    elif loss == "soft_l1":
+        rho = 2.0 * (np.sqrt(1.0 + z) - 1.0)
+    elif loss == "cauchy":
+        rho = np.log1p(z)
+    else:
+        rho = z
+    return float(scale**2 * np.sum(rho))
+
+
 def loss_weights(r: FloatArray, loss: str, scale: float) -> FloatArray:
     """IRLS weights rho'(z) of scipy's robust ``loss`` bending at ``scale`` (1 for linear)."""
     z = (r / scale) ** 2

@@ -249,6 +249,45 @@ def honest_covariance(cov_model: FloatArray, spread: Spread | None) -> FloatArra
     return out
 
 
+def propagated_covariance(
+    changed: Callable[[int, float], FloatArray], T: FloatArray, values: FloatArray, sigmas: FloatArray
+) -> FloatArray:
+    """(6, 6) the covariance an answer inherits from inputs it took as exact (a camera's
+    intrinsics, say), each with its own 1-sigma and independent of the others: first-order
+    propagation with central differences of a whole re-solve, one input moved by +-1 sigma
+    at a time.
+
+    Args:
+        changed: (index, value) -> the answer re-solved with input ``index`` set to ``value``.
+        T: (4, 4) the answer.
+        values: (P,) the inputs as used; sigmas: (P,) their 1-sigmas (0: exact, skipped).
+    """
+    cov = np.zeros((6, 6))
+    for k, (v, s) in enumerate(zip(values, sigmas, strict=True)):
+        if s <= 0:
+            continue
+        g = (tangent_delta(changed(k, v + s), T) - tangent_delta(changed(k, v - s), T)) / 2.0
+        cov += np.outer(g, g)
+    return cov
+
+
+def few_dof_factor(dof: int, params: int = 6, level: float = 0.95) -> float:
+    """The factor on a covariance whose noise scale was estimated from the data with ``dof``
+    degrees of freedom, so that its chi-square bound (``params`` dof, ``level``) still
+    covers the answer as often as it says.
+
+    With the noise scale estimated, the squared Mahalanobis error divided by ``params`` is
+    F-distributed (``params``, ``dof``), not chi-square / ``params`` (Student-t in one
+    dimension): the factor is params * F_level(params, dof) / chi2_level(params). It is
+    about 4.3 with 3 dof (5 board poses and a fitted range bias), 1.6 with 9, and tends to
+    1 as the data grow. ``dof`` below 1 is taken as 1.
+    """
+    from scipy.stats import chi2, f
+
+    nu = max(int(dof), 1)
+    return float(params * f.ppf(level, params, nu) / chi2.ppf(level, params))
+
+
 def uncertainty_warnings(
     spread: Spread | None, sens: Sequence[Sensitivity], cov_model: FloatArray, what: str
 ) -> list[str]:

@@ -31,6 +31,12 @@ from rigcal.io.validate import Real
     help="Longer: no return.",
 )  # fmt: skip
 @click.option(
+    "--no-return-m",
+    type=Real(min=0.0, min_open=True),
+    help="RADLOCC: the range the scanner writes for no return (a Hokuyo driver writes its "
+    "maximum, e.g. 5.0).",
+)
+@click.option(
     "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Sequence folder."
 )
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
@@ -41,6 +47,7 @@ def import_laser(
     fmt: str | None,
     range_min_m: float,
     range_max_m: float,
+    no_return_m: float | None,
     output: Path,
     force: bool,
 ) -> None:
@@ -54,6 +61,7 @@ def import_laser(
     Examples:
       rigcal import-laser data/laser.txt --images data/images.txt --camera cam.xml -o seq/
       rigcal import-laser scans.csv -o seq/ --force
+      rigcal import-laser hokuyo/laser.txt --no-return-m 5.0 -o seq/
       rigcal capture seq/ -o session/ --box-width-m 0.6
     """
     from rigcal.errors import InputError
@@ -65,7 +73,9 @@ def import_laser(
         raise InputError.at(
             None, "--range-min-m", range_min_m, f"a range below --range-max-m {range_max_m:g}"
         )
-    s = import_laser_text(log, output, images, camera, fmt, range_min_m, range_max_m, force=force)
+    s = import_laser_text(
+        log, output, images, camera, fmt, range_min_m, range_max_m, force=force, no_return_m=no_return_m
+    )
     click.echo(
         f"wrote {output}/: {s.scans} scans ({s.format}), {s.images} images"
         + (", camera.yaml" if s.camera else "")

@@ -66,7 +66,22 @@ from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED
     default="cauchy",
     show_default=True,
     type=LOSS,
-    help="Robust loss of the refinement.",
+    help="Robust loss of the refinement, both methods (the board method bends it at 3 sigmas of "
+    "the whitened errors); linear: plain least squares, outliers still rejected by the gate.",
+)
+@click.option(
+    "--intrinsics-sigma",
+    "intrinsics_sigma",
+    metavar="S1,S2,...",
+    help="Board method: 1-sigma of each camera intrinsic, comma-separated in the lens model's "
+    "order (fx,fy,cx,cy, then distortion); propagated into T's covariance and reported as the "
+    "camera's share. Without it the camera is taken as exact and the report says so.",
+)
+@click.option(
+    "--skip-unseen-boards",
+    is_flag=True,
+    help="Board method: leave out the captures whose image shows no board, with a warning each "
+    "(without it they stop the solve, all named in one error).",
 )
 @click.option(
     "--paper-endpoints",
@@ -87,6 +102,8 @@ def solve(
     noise_mode: str,
     range_bias: bool,
     loss: str,
+    intrinsics_sigma: str | None,
+    skip_unseen_boards: bool,
     paper_endpoints: bool,
     force: bool,
     as_json: bool,
@@ -131,6 +148,7 @@ def solve(
     from rigcal.calib.board_session import is_board_session
     from rigcal.io.files import load_yaml
 
+    sigmas = _sigma_list(intrinsics_sigma) if intrinsics_sigma is not None else None
     if is_board_session(load_yaml(picks, "picking file")):
         _solve_board(
             picks,
@@ -141,11 +159,21 @@ def solve(
             range_sigma_m,
             noise_mode,
             range_bias,
+            loss,
+            sigmas,
+            skip_unseen_boards,
             command,
             force,
             as_json,
         )
         return
+    if sigmas is not None:
+        from rigcal.errors import InputError
+
+        raise InputError(
+            f"--intrinsics-sigma: got {intrinsics_sigma!r}; the box method does not take the "
+            "camera's uncertainty yet (only board sessions, method: board)"
+        )
     # One rule for both methods: --range-sigma-m, else the file's laser.range_sigma_m.
     cal = calibrate(picks, settings, truth, command=command, range_sigma_m=range_sigma_m)
     _check_apart_from(output, report_dir, cal.session.input_files())
@@ -162,6 +190,17 @@ def solve(
     else:
         click.echo(report_table(cal.report), nl=False)
         click.echo(f"wrote {output}" + (f" and {report_dir}/" if report_dir else ""), err=True)
+
+
+def _sigma_list(text: str) -> list[float]:
+    """--intrinsics-sigma's comma-separated numbers."""
+    try:
+        return [float(x) for x in text.split(",")]
+    except ValueError:
+        raise click.BadParameter(
+            f"got {text!r}; expected comma-separated numbers such as 1.5,1.5,2,2,0.01",
+            param_hint="--intrinsics-sigma",
+        ) from None
 
 
 def _check_apart_from(output: Path, report_dir: Path | None, files: Iterable[Path]) -> None:
@@ -183,6 +222,9 @@ def _solve_board(
     range_sigma_m: float | None,
     noise_mode: str,
     range_bias: bool,
+    loss: str,
+    intrinsics_sigma: list[float] | None,
+    skip_unseen_boards: bool,
     command: str,
     force: bool,
     as_json: bool,
@@ -197,7 +239,16 @@ def _solve_board(
     from rigcal.viz.residual_plot import board_residuals_figure
 
     cal = calibrate_board(
-        session, range_sigma_m, truth, command=command, seed=seed, noise=noise_mode, range_bias=range_bias
+        session,
+        range_sigma_m,
+        truth,
+        command=command,
+        seed=seed,
+        noise=noise_mode,
+        range_bias=range_bias,
+        loss=loss,
+        intrinsics_sigma=intrinsics_sigma,
+        skip_unseen_boards=skip_unseen_boards,
     )
     _check_apart_from(output, report_dir, cal.session.files)
     if report_dir is not None:

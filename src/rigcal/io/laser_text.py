@@ -4,9 +4,10 @@
   ``stamp angle_min angle_increment angle_max range_unit_type N r_0 ... r_{N-1}`` as
   ``radlocc_collect`` writes it (unit type 3: metres, the only one read), or without the
   unit type and count, ``stamp angle_min angle_increment angle_max r_0 ...`` (seconds,
-  radians, metres; whitespace or commas); ``N = round((angle_max - angle_min) /
-  angle_increment) + 1``. ``nan`` / ``inf`` ranges (and those outside the valid interval)
-  are no return.
+  radians, metres; whitespace or commas). The header's N is trusted (angle_max may be
+  written one step off the last beam); without it ``N = round((angle_max - angle_min) /
+  angle_increment) + 1``, within one step. ``nan`` / ``inf`` ranges (and those outside the
+  valid interval, or equal to the scanner's no-return value when given) are no return.
 - **Generic CSV**: a header naming ``stamp_s``, ``angle_rad`` (or ``angle_deg``) and
   ``range_m`` (other columns are ignored), then one row per beam; consecutive rows with the
   same stamp form a scan, their angles increasing.
@@ -119,15 +120,33 @@ def detect_format(path: Path) -> str:
     return "csv" if "stamp_s" in [f.strip().lower() for f in first.split(",")] else "radlocc"
 
 
-def read_radlocc_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: float = 80.0) -> list[Scan]:
+def read_radlocc_laser(
+    path: str | Path,
+    range_min_m: float = 0.0,
+    range_max_m: float = 80.0,
+    no_return_m: float | None = None,
+) -> list[Scan]:
     """Scans of a RADLOCC ``laser.txt`` (see the module docstring).
+
+    A line in radlocc_collect's form (range unit type and beam count N after the angles) is
+    read by its N: the header's count is the scanner's own, while angle_max is written by
+    some drivers one step short of the last beam (or one past it), so a count from the
+    angles may differ from N by one step; the beams are at angle_min + i increment either
+    way. The first line's form holds for the whole log.
+
+    Args:
+        no_return_m: the range the scanner writes for no return (a Hokuyo driver writes its
+            maximum, e.g. 5.0); such ranges become no return. None: only nan, inf and
+            ranges outside [range_min_m, range_max_m] are.
 
     Raises:
         InputError: a line with too few or non-numeric fields, a non-positive increment, a
-            range count that disagrees with the angles, a stamp not after the previous.
+            range count more than one step off the angles, a later line in the other form
+            than the first, a stamp not after the previous.
     """
     path = Path(path)
     scans: list[Scan] = []
+    header_form: bool | None = None
     for n, line in _content_lines(path, "RADLOCC laser log"):
         f = _fields(line)
         where = f"{path}: line {n}"
@@ -142,7 +161,6 @@ def read_radlocc_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: 
                 f"{where}: got {len(values)} fields; expected stamp, angle_min, increment, max, ranges"
             )
         stamp, a0, step, a1 = values[:4]
-        ranges = np.array(values[4:])
         if not all(math.isfinite(x) for x in (stamp, a0, step, a1)) or not step > 0:
             raise InputError(
                 f"{where}: got stamp {stamp!r}, increment {step!r}; expected finite, increment > 0"
@@ -150,22 +168,44 @@ def read_radlocc_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: 
         if max(abs(a0), abs(a1)) > 2 * math.pi + 1e-6:
             raise InputError(f"{where}: got angles {a0!r} to {a1!r}; expected radians (within +/- 2 pi)")
         count = round((a1 - a0) / step) + 1
-        if len(values) == count + 6 and values[5] == count:
-            # radlocc_collect's form: range unit type and beam count before the ranges.
+        declared = values[5]
+        # radlocc_collect's form: range unit type and beam count N, then exactly N ranges.
+        has_header = declared.is_integer() and declared >= 1 and len(values) == int(declared) + 6
+        if header_form is None:
+            header_form = has_header
+        elif has_header != header_form:
+            expected = (
+                "stamp angle_min increment angle_max 3 N r_1 ... r_N (unit type 3: metres, N ranges), "
+                f"as line {_first_line(path)} has"
+                if header_form
+                else "stamp angle_min increment angle_max r_1 ..., without unit type and count, "
+                "as the first line"
+            )
+            raise InputError(f"{where}: got {len(values) - 4} values after the angles; expected {expected}")
+        ranges = np.array(values[4:])
+        if has_header:
             if values[4] != RADLOCC_METRES:
                 raise InputError(
                     f"{where}: range unit type {values[4]!r}; expected {RADLOCC_METRES:g} (metres)"
                 )
             ranges = ranges[2:]
-        if count != len(ranges):
+        if abs(len(ranges) - count) > 1:
+            said = f"the header's N = {int(declared)}" if has_header else f"{len(ranges)} ranges"
             raise InputError(
-                f"{where}: got {len(ranges)} ranges; expected {count} for angles {a0!r} to {a1!r} by {step!r}"
+                f"{where}: got {said}; expected {count} (within one step) for angles {a0!r} to {a1!r} "
+                f"by {step!r}"
             )
         if scans and not stamp > (scans[-1].stamp_s or -math.inf):
             raise InputError(f"{where}: stamp {stamp!r} not after {scans[-1].stamp_s!r}")
         ranges = np.where(np.isfinite(ranges) & (ranges >= 0), ranges, np.nan)
+        if no_return_m is not None:
+            ranges = np.where(np.abs(ranges - no_return_m) <= 1e-9 * max(1.0, no_return_m), np.nan, ranges)
         scans.append(Scan.from_uniform(a0, step, ranges, range_min_m, range_max_m, stamp))
     return scans
+
+
+def _first_line(path: Path) -> int:
+    return _content_lines(path, "RADLOCC laser log")[0][0]
 
 
 def read_csv_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: float = 80.0) -> list[Scan]:
@@ -285,6 +325,7 @@ def import_laser_text(
     range_min_m: float = 0.0,
     range_max_m: float = 80.0,
     force: bool = False,
+    no_return_m: float | None = None,
 ) -> LaserTextSummary:
     """Write a sequence folder from a RADLOCC or CSV laser log, its image list and camera.
 
@@ -299,7 +340,15 @@ def import_laser_text(
     readers: dict[str, Callable[..., list[Scan]]] = {"radlocc": read_radlocc_laser, "csv": read_csv_laser}
     if fmt not in readers:
         raise InputError.at(log, "--format", fmt, f"one of {sorted(readers)}")
-    scans = readers[fmt](log, range_min_m, range_max_m)
+    if no_return_m is not None and fmt != "radlocc":
+        raise InputError.at(
+            log, "--no-return-m", no_return_m, "a RADLOCC log (a CSV writes no return as nan)"
+        )
+    scans = (
+        read_radlocc_laser(log, range_min_m, range_max_m, no_return_m)
+        if fmt == "radlocc"
+        else readers[fmt](log, range_min_m, range_max_m)
+    )
     frames: list[ImageFrame] = []
     if images is not None:
         stamps, files = read_image_list(images)

@@ -73,6 +73,9 @@ class BoardSpec:
         repeats: captures taken at each board pose, each with fresh scan and corner noise
             (a session has n_captures x repeats captures); a solve should give captures
             at one pose one verdict.
+        handheld: the repeats of a pose are of a hand-held board, not exactly at one
+            pose: each after the first is turned by 1-3 deg about a random axis through
+            the board's centre and moved by 2-5 cm in a random direction.
     """
 
     n_captures: int = 12
@@ -93,6 +96,7 @@ class BoardSpec:
     room: Room = field(default_factory=Room)
     noise: RealisticNoise | None = None
     repeats: int = 1
+    handheld: bool = False
 
     @property
     def sheet_margin_m(self) -> float:
@@ -228,16 +232,50 @@ def _capture(
             scene = static[1]
         else:
             continue
-        segments = np.concatenate([scene, cut[None]])
         out = []
-        for name in names:
-            capture = _noisy_capture(spec, rng, segments, len(scene), cut, px, T_laser_board, params, name)
+        for j, name in enumerate(names):
+            T_j, cut_j, px_j = T_laser_board, cut, px
+            if spec.handheld and j > 0:
+                moved = _handheld(rng, T_laser_board, centre, outline, T, camera, P)
+                if moved is None:
+                    break
+                T_j, cut_j, px_j = moved
+            segments = np.concatenate([scene, cut_j[None]])
+            capture = _noisy_capture(spec, rng, segments, len(scene), cut_j, px_j, T_j, params, name)
             if capture is None:
                 break
             out.append(capture)
         if len(out) == len(names):
             return out
     raise InputError(f"cannot simulate {names[0]}: no board placement was visible and crossed the scan plane")
+
+
+def _handheld(
+    rng: np.random.Generator,
+    T_laser_board: FloatArray,
+    centre: FloatArray,
+    outline: FloatArray,
+    T_cam_laser: FloatArray,
+    camera: Camera,
+    P: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """A hand-held repeat of a board pose: turned by 1-3 deg about a random axis through
+    the board's centre and moved by 2-5 cm; (pose, cut, corners' pixels), or None when the
+    board then misses the scan plane or leaves the image."""
+    axis = rng.normal(size=3)
+    turn = rotvec_to_R(np.radians(rng.uniform(1.0, 3.0)) * axis / np.linalg.norm(axis))
+    shift = rng.normal(size=3)
+    shift *= rng.uniform(0.02, 0.05) / np.linalg.norm(shift)
+    R = turn @ T_laser_board[:3, :3]
+    t = turn @ (T_laser_board[:3, 3] - centre) + centre + shift
+    T_j = make_T(R, t)
+    cut = plane_cut(T_j, outline)
+    if cut is None or np.linalg.norm(cut[1] - cut[0]) < 0.25:
+        return None
+    px = camera.project(transform_points(T_cam_laser @ T_j, P))
+    if not camera.in_image(px, 15.0).all():
+        return None
+    return T_j, cut, px
 
 
 def _noisy_capture(
@@ -363,6 +401,8 @@ def write_board_session(session: SimBoardSession, folder: str | Path, force: boo
             "corner_sigma_px": spec.corner_sigma_px,
             "range_sigma_m": spec.noise.range_sigma_m if spec.noise else spec.range_sigma_m,
         }
+        if spec.repeats > 1:
+            generator["repeats"] = {"per_pose": spec.repeats, "handheld": spec.handheld}
         if spec.noise:
             generator["noise"] = {"model": "realistic", **spec.noise.as_dict()}
             generator["board_size_m"] = [float(x) for x in spec.size_m]
