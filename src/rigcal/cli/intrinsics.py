@@ -131,7 +131,9 @@ def intrinsics(
         elif images:
             import cv2
 
-            img = cv2.imread(str(images[0]), cv2.IMREAD_GRAYSCALE)
+            from rigcal.io.images import read_image_file
+
+            img = read_image_file(images[0], cv2.IMREAD_GRAYSCALE)
             if img is None:
                 raise InputError(f"{images[0]}: image not found or not readable")
             size = (img.shape[1], img.shape[0])
