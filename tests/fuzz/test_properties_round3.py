@@ -1,0 +1,138 @@
+"""Property tests over the bodies of ROS messages (import-bag, capture), the names that
+reach URDF, xacro and shell command lines, and YAML nesting: whatever a message, a name or
+a file holds, rigcal either returns a valid value or raises one InputError naming the
+message or the file; never another exception.
+
+Each property uses the suite's hypothesis profile (tests/conftest.py).
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rigcal.errors import InputError
+from rigcal.io.bag import RAW_ENCODINGS, _camera_yaml, _image_bytes, _scan
+
+SETTINGS = settings()
+WHERE = "run.bag: /image message 3"
+
+
+def attempt(fn, *args):
+    """(value, None) or (None, the InputError's message); any other exception propagates."""
+    try:
+        return fn(*args), None
+    except InputError as exc:
+        return None, str(exc)
+
+
+@SETTINGS
+@given(
+    encoding=st.sampled_from([*RAW_ENCODINGS, "MONO8", "yuv422", "", "bgra8", "32FC1"]),
+    height=st.integers(-2, 9),
+    width=st.integers(-2, 9),
+    pad=st.integers(-3, 5),
+    extra=st.integers(-3, 3),
+    bigendian=st.integers(0, 1),
+)
+def test_a_raw_image_body_is_stored_exactly_or_refused(encoding, height, width, pad, extra, bigendian):
+    size, channels = RAW_ENCODINGS.get(encoding.lower(), (1, 1))
+    step = max(width, 0) * size * channels + pad
+    n = max(height, 0) * max(step, 0) + extra
+    data = np.random.default_rng(n + 100).integers(0, 256, max(n, 0), dtype=np.uint8)
+    msg = SimpleNamespace(
+        encoding=encoding, height=height, width=width, step=step, is_bigendian=bigendian, data=data
+    )
+    ok = (
+        encoding.lower() in RAW_ENCODINGS
+        and height > 0
+        and width > 0
+        and step >= width * size * channels
+        and step % size == 0
+        and n == height * step
+    )
+    if not ok:
+        with pytest.raises(InputError, match=rf"^{WHERE}: (encoding|height|width|step|data): got "):
+            _image_bytes(msg, "sensor_msgs/msg/Image", WHERE)
+        return
+    png, ext = _image_bytes(msg, "sensor_msgs/msg/Image", WHERE)
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert ext == "png"
+    assert img.shape[:2] == (height, width)
+    # The stored pixels are the message's, row padding dropped.
+    dtype = np.dtype(">u2" if bigendian else "<u2") if size == 2 else np.dtype(np.uint8)
+    rows = np.frombuffer(data.tobytes(), dtype=dtype).reshape(height, step // size)[:, : width * channels]
+    want = rows.reshape(height, width, channels) if channels == 3 else rows
+    if encoding.lower() == "rgb8":
+        want = want[:, :, ::-1]
+    np.testing.assert_array_equal(img.reshape(want.shape), want.astype(want.dtype.newbyteorder("=")))
+
+
+@SETTINGS
+@given(data=st.binary(max_size=64), cut=st.integers(0, 200), flip=st.integers(0, 200))
+def test_a_compressed_body_is_kept_only_when_it_decodes(data, cut, flip):
+    png = bytearray(cv2.imencode(".png", np.arange(64, dtype=np.uint8).reshape(8, 8))[1].tobytes())
+    flip %= len(png)
+    for body in (data, bytes(png[:cut]), bytes(png[:flip] + bytes([png[flip] ^ 0x55]) + png[flip + 1 :])):
+        msg = SimpleNamespace(format="png", data=np.frombuffer(body, np.uint8))
+        got, error = attempt(_image_bytes, msg, "sensor_msgs/msg/CompressedImage", WHERE)
+        if error is not None:
+            assert error.startswith(f"{WHERE}: data: got ")
+            continue
+        out = got[0]
+        assert out == body
+        assert cv2.imdecode(np.frombuffer(out, np.uint8), cv2.IMREAD_UNCHANGED) is not None
+
+
+finite_or_not = st.one_of(st.floats(-10, 10), st.sampled_from([float("nan"), float("inf"), -float("inf")]))
+
+
+@SETTINGS
+@given(
+    angle_min=finite_or_not,
+    angle_max=finite_or_not,
+    step=st.one_of(finite_or_not, st.floats(-0.5, 0.5)),
+    n=st.integers(0, 40),
+)
+def test_a_laser_scan_keeps_its_beam_count_within_one_of_its_angles(angle_min, angle_max, step, n):
+    msg = SimpleNamespace(
+        angle_min=angle_min, angle_max=angle_max, angle_increment=step, ranges=np.full(n, 2.0),
+        range_min=0.1, range_max=30.0,
+    )  # fmt: skip
+    scan, error = attempt(_scan, msg, 1.0, WHERE)
+    if error is not None:
+        assert error.startswith(f"{WHERE}: ")
+        return
+    assert len(scan.ranges_m) == n >= 1
+    assert np.all(np.isfinite(scan.angles_rad))
+    if n > 1:
+        assert abs(n - (round((angle_max - angle_min) / step) + 1)) <= 1
+
+
+@SETTINGS
+@given(
+    k=st.lists(finite_or_not, min_size=9, max_size=9),
+    width=st.integers(-1, 3000),
+    height=st.integers(-1, 3000),
+    model=st.sampled_from(["plumb_bob", "rational_polynomial", "equidistant", ""]),
+    nd=st.sampled_from([0, 3, 4, 5, 8, 12]),
+)
+def test_a_camera_info_is_written_only_as_a_camera_rigcal_reads_back(
+    tmp_path_factory, k, width, height, model, nd
+):
+    from rigcal.camera import read_camera
+
+    info = SimpleNamespace(k=np.array(k), d=np.zeros(nd), width=width, height=height, distortion_model=model)
+    text, error = attempt(_camera_yaml, info, "run.bag: /info message 0")
+    if error is not None:
+        assert error.startswith("run.bag: /info message 0: ")
+        return
+    p = tmp_path_factory.mktemp("cam") / "camera.yaml"
+    p.write_text(text)
+    cam = read_camera(p)
+    assert (cam.width_px, cam.height_px) == (width, height)
