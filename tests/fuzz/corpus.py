@@ -1114,6 +1114,86 @@ def body_cases() -> list[Case]:
     return out
 
 
+# Names that would change the XML or the shell line they are pasted into, or hide what
+# they are: none is a ROS name.
+BAD_FRAME_NAMES = [
+    '"/><joint name="x', "a--b", "-->", "", " ", "$(rm -rf ~)", "`id`", "a;b", "a\nb", "/abs",
+    "a__b", "a/", "1a", "a b", "a&b", "\u202eevil", "a\u200bb", "é", "x" * 201,
+]  # fmt: skip
+HIDDEN = ["\u202e", "\u2066", "\u200b", "\x85", "\u2028", "\x1b[2J", "\x7f"]
+
+
+def name_cases() -> list[Case]:
+    """Names that reach other languages (URDF, xacro, shell lines) or the terminal."""
+    out: list[Case] = []
+    for fmt in ("ros", "urdf", "xacro"):
+        base = ["export", "{in}/rig.yaml", "--format", fmt]
+        for i, n in enumerate(BAD_FRAME_NAMES):
+            opt = "--parent-frame" if i % 2 else "--child-frame"
+            out.append(
+                Case(f"export-{fmt}{opt}={_show(n)}", [*base, opt, n, "-o", "{out}/x"], code=2, message=opt)
+            )
+        out.append(
+            Case(
+                f"export-{fmt}-same-frames",
+                [*base, "--parent-frame", "a", "--child-frame", "a"],
+                code=2,
+                message="a",
+            )
+        )
+    for t in ["cam", "", "/a b", "/a;rm", "/a\n", "/\u202e"]:
+        out.append(
+            Case(f"export-rostopic={_show(t)}", [*EXPORT, "--rostopic", t], code=2, message="--rostopic")
+        )
+    for h in HIDDEN:
+        name = f"cap{h}gnp.exe"
+        out.append(
+            Case(
+                f"solve-hidden-name={_show(h)}",
+                SOLVE,
+                set_yaml("sess/picks.yaml", "captures.0.name", name),
+                3,
+                "name",
+            )
+        )
+        out.append(
+            Case(
+                f"batch-hidden-name={_show(h)}",
+                BATCH,
+                set_yaml("batch.yaml", "items.0.name", name),
+                3,
+                "name",
+            )
+        )
+        out.append(
+            Case(
+                f"localize-hidden-image={_show(h)}",
+                LOCALIZE,
+                edit_text("seq/images.csv", "f001.png", f"f{h}001.png"),
+                3,
+                "images.csv",
+            )
+        )
+        for args, o in (
+            (SOLVE, "{out}/rig.yaml"),
+            (LOCALIZE, "{out}/loc"),
+            (BATCH, "{out}/b"),
+            (CAPTURE, "{out}/cap"),
+            (EXPORT, "{out}/k.yaml"),
+        ):
+            bad = [a.replace(o, o[:-2] + h + o[-2:]) for a in args]
+            out.append(Case(f"output-hidden-{args[0]}={_show(h)}", bad, code=5, message=f"U+{ord(h[0]):04X}"))
+    long = "n" * 300
+    out.append(Case("batch-name-300", BATCH, set_yaml("batch.yaml", "items.0.name", long), 3, "at most 200"))
+    out.append(
+        Case("solve-name-300", SOLVE, set_yaml("sess/picks.yaml", "captures.0.name", long), 3, "at most 200")
+    )
+    out.append(
+        Case("pick-name-300", PICK, set_yaml("sess/picks.yaml", "captures.0.name", long), 3, "at most 200")
+    )
+    return out
+
+
 def opt_cases(cmd: str, args: list[str], option: str, values: list[str]) -> list[Case]:
     """``option`` given each of ``values`` (exit 2, the option named)."""
     return [Case(f"{cmd}-option{option}={v}", [*args, option, v], code=2, message=option) for v in values]
@@ -1650,6 +1730,7 @@ def all_cases() -> list[Case]:
         *camera_format_cases(),
         *bag_cases(),
         *body_cases(),
+        *name_cases(),
         *output_cases(),
         *capture_cases(),
         *pick_cases(),

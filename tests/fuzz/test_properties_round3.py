@@ -136,3 +136,97 @@ def test_a_camera_info_is_written_only_as_a_camera_rigcal_reads_back(
     p.write_text(text)
     cam = read_camera(p)
     assert (cam.width_px, cam.height_px) == (width, height)
+
+
+# --- names that reach XML and shell command lines --------------------------------------------
+xml_text = st.text(
+    st.characters(blacklist_categories=("Cs",), blacklist_characters="\x00\ufffe\uffff").filter(
+        lambda c: c in "\t\n\r" or ord(c) >= 32
+    ),
+    max_size=30,
+)
+
+
+@SETTINGS
+@given(name=xml_text)
+def test_escaped_names_come_back_from_xml_as_they_were(name):
+    import xml.etree.ElementTree as ET
+
+    from rigcal.io.exports import _attr, _comment
+
+    doc = ET.fromstring(f'<robot><!-- {_comment(name)} --><link name="{_attr(name)}"/></robot>')
+    assert len(doc) == 1  # one link, whatever the name held: no element added
+    # XML normalizes whitespace in attributes; everything else comes back as it was.
+    assert doc[0].get("name") == name.replace("\r\n", " ").replace("\t", " ").replace("\n", " ").replace(
+        "\r", " "
+    )
+
+
+@SETTINGS
+@given(name=st.text(max_size=30))
+def test_a_frame_name_is_a_ros_name_or_refused(name):
+    from rigcal.io.exports import Frames, ros_name
+
+    got, error = attempt(ros_name, name, "--parent-frame")
+    if error is not None:
+        assert error.startswith("--parent-frame: got ")
+        assert "\n" not in error
+        with pytest.raises(InputError):
+            Frames(parent_frame=name)
+        return
+    assert got == name
+    assert name.isascii()
+    assert name[0].isalpha()
+    assert "__" not in name
+    assert all(c.isalnum() or c in "_/" for c in name)
+
+
+@SETTINGS
+@given(parent=st.from_regex(r"[a-z][a-z0-9_/]{0,12}", fullmatch=True))
+def test_every_export_of_a_valid_name_parses_and_round_trips(parent):
+    import shlex
+    import xml.etree.ElementTree as ET
+
+    from rigcal.io.exports import Frames, T_from_ros_args, export_rig, ros_name
+    from rigcal.rig import Rig
+
+    if attempt(ros_name, parent, "p")[1] is not None:
+        return
+    sim = _sim()
+    rig = Rig(T_cam_laser=sim.T_cam_laser, camera=sim.camera)
+    frames = Frames(parent_frame=parent, child_frame="cam")
+    urdf = ET.fromstring(export_rig(rig, "urdf", frames).split("\n", 1)[1])
+    assert [e.get("name") for e in urdf.iter("link")] == [parent, "cam"]
+    ET.fromstring(export_rig(rig, "xacro", frames).split("\n", 1)[1])
+    ros = export_rig(rig, "ros", frames)
+    line = next(x for x in ros.splitlines() if x.startswith("rosrun"))
+    _, p, c = T_from_ros_args(shlex.split(line)[3:])
+    assert (p, c) == (parent, "cam")
+
+
+_SIM: list = []
+
+
+def _sim():
+    from rigcal.sim.box_session import SessionSpec, generate_session
+
+    if not _SIM:
+        _SIM.append(generate_session(SessionSpec(n_captures=3, seed=1)))
+    return _SIM[0]
+
+
+@SETTINGS
+@given(name=st.text(max_size=12))
+def test_names_with_control_or_bidi_characters_are_refused_as_file_names(name):
+    import unicodedata
+
+    from rigcal.io.validate import path_component
+
+    got, error = attempt(path_component, name, "picks.yaml", "captures[0].name")
+    hidden = any(unicodedata.category(c) in ("Cc", "Cf", "Zl", "Zp", "Cs") for c in name)
+    if hidden:
+        assert error is not None
+    if error is None:
+        assert got == name
+        assert "/" not in name
+        assert name not in ("", ".", "..")

@@ -204,9 +204,20 @@ def check_apart(output: str | Path, inputs: Iterable[str | Path]) -> None:
     """An output must not be, contain or sit inside any input (compared after resolving
     symlinks and ``..``), so that no write or ``--force`` can touch what is being read.
 
+    An output whose path holds a control or bidi character (:func:`hidden_char`) is
+    refused too: its name would not show as it is in a terminal or a file browser.
+
     Raises:
         OutputError: naming the output and the input it collides with.
     """
+    from rigcal.io.validate import hidden_char
+
+    bad = hidden_char(str(output))
+    if bad is not None:
+        raise OutputError(
+            f"{ascii(str(output))[1:-1]}: output path holds U+{ord(bad):04X}; expected a path without "
+            "control or bidi characters"
+        )
     out = _resolved(output)
     for given in inputs:
         inp = _resolved(given)
