@@ -1194,6 +1194,68 @@ def name_cases() -> list[Case]:
     return out
 
 
+DEEP = 50_000
+
+
+def deep_texts() -> dict[str, str]:
+    """Documents nested DEEP levels, each way a parser can nest."""
+    return {
+        "flow-seq": "schema_version: 1\nx: " + "[" * DEEP + "]" * DEEP + "\n",
+        "flow-map": "schema_version: 1\nx: " + "{a: " * DEEP + "1" + "}" * DEEP + "\n",
+        "block-seq": "- " * DEEP + "x\n",
+        "unclosed": "x: " + "[" * DEEP + "\n",
+        "after-error": "x: ]\n" + "[" * DEEP,
+    }
+
+
+def deep_cases() -> list[Case]:
+    """Every YAML (and FileStorage, JSON) reader given a file nested 50 000 levels deep:
+    one error line, not a crash of the parser's recursion."""
+    out: list[Case] = []
+    readers = [
+        ("lines", LINES, "scan.yaml"),
+        ("solve", SOLVE, "sess/picks.yaml"),
+        ("solve-camera", SOLVE, "sess/camera.yaml"),
+        ("export", EXPORT, "rig.yaml"),
+        ("localize", LOCALIZE, "seq/sequence.yaml"),
+        ("world", WORLD, "world.yaml"),
+        ("batch", BATCH, "batch.yaml"),
+        ("capture-camera", CAPTURE, "cam6x4.yaml"),
+        ("board", BOARD, "board/board_session.yaml"),
+        ("pick", PICK, "sess/picks.yaml"),
+    ]
+    texts = deep_texts()
+    for name, args, rel in readers:
+        for kind, text in texts.items():
+            out.append(Case(f"deep-{name}-{kind}", args, write(rel, text), 3, rel.split("/")[-1]))
+
+    for kind, text in (
+        ("opencv-yaml", "%YAML:1.0\n---\nx: " + "[" * DEEP + "]" * DEEP + "\n"),
+        (
+            "opencv-xml",
+            '<?xml version="1.0"?>\n<opencv_storage>' + "<a>" * DEEP + "</a>" * DEEP + "</opencv_storage>\n",
+        ),
+    ):
+        rel = "cv.yaml" if kind == "opencv-yaml" else "cv.xml"
+
+        def mutate(p: Path, rel: str = rel, text: str = text) -> None:
+            write(rel, text)(p)
+            set_yaml("sess/picks.yaml", "camera", f"../{rel}")(p)
+
+        out.append(Case(f"deep-solve-camera-{kind}", SOLVE, mutate, 3, rel))
+
+    out.append(
+        Case(
+            "deep-check-log",
+            [*CHECK[:-1], "{in}/log.jsonl"],
+            write("log.jsonl", "[" * DEEP + "]" * DEEP + "\n"),
+            3,
+            "log.jsonl",
+        )
+    )
+    return out
+
+
 def opt_cases(cmd: str, args: list[str], option: str, values: list[str]) -> list[Case]:
     """``option`` given each of ``values`` (exit 2, the option named)."""
     return [Case(f"{cmd}-option{option}={v}", [*args, option, v], code=2, message=option) for v in values]
@@ -1731,6 +1793,7 @@ def all_cases() -> list[Case]:
         *bag_cases(),
         *body_cases(),
         *name_cases(),
+        *deep_cases(),
         *output_cases(),
         *capture_cases(),
         *pick_cases(),

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from rigcal.errors import InputError
@@ -230,3 +230,44 @@ def test_names_with_control_or_bidi_characters_are_refused_as_file_names(name):
         assert got == name
         assert "/" not in name
         assert name not in ("", ".", "..")
+
+
+# --- YAML nesting -------------------------------------------------------------------------
+@SETTINGS
+@given(
+    kinds=st.lists(st.sampled_from(["[", "{", "-", "k"]), min_size=1, max_size=140),
+    leaf=st.sampled_from(["1", "x", "[]", "'[[['"]),
+)
+@example(kinds=["["] * 100, leaf="1")
+@example(kinds=["["] * 101, leaf="1")
+@example(kinds=["-"] * 101, leaf="x")
+@example(kinds=["k"] * 100, leaf="[]")
+@example(kinds=["k", "{"] * 50, leaf="1")
+def test_yaml_nested_up_to_the_limit_is_read_and_deeper_is_one_error(tmp_path_factory, kinds, leaf):
+    """Nest ``kinds`` (flow sequence, flow mapping, block sequence, block mapping) around
+    ``leaf``: read when the depth is within MAX_YAML_DEPTH, one InputError beyond."""
+    from rigcal.io.files import MAX_YAML_DEPTH, load_yaml
+
+    text = leaf
+    block = False  # a flow collection cannot hold a block one: then wrap in block style
+    for k in reversed(kinds):
+        if k == "[" and not block:
+            text = f"[{text}]"
+        elif k == "{" and not block:
+            text = f"{{a: {text}}}"
+        elif k in "[-":
+            text, block = "- " + text.replace("\n", "\n  "), True
+        else:
+            text, block = "b:\n  " + text.replace("\n", "\n  "), True
+    depth = len(kinds) + (leaf == "[]")
+    p = tmp_path_factory.mktemp("deep") / "doc.yaml"
+    p.write_text(text + "\n")
+    got, error = attempt(load_yaml, p)
+    if depth > MAX_YAML_DEPTH:
+        assert error is not None
+        assert error.startswith(f"{p}: ")
+        assert "nested deeper than" in error
+    else:
+        assert error is None, error
+        for _ in range(len(kinds)):
+            got = got[0] if isinstance(got, list) else next(iter(got.values()))

@@ -134,7 +134,7 @@ def finished_record(item: Item, folder: Path) -> dict[str, Any] | None:
     path = folder / ITEM_FILE
     try:
         rec = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
         return None
     if not isinstance(rec, dict) or rec.get("schema_version") != ITEM_SCHEMA_VERSION:
         return None

@@ -109,6 +109,9 @@ def camera_from_opencv_storage(path: Path) -> Camera:
     """A camera from an OpenCV FileStorage file (XML or ``%YAML:1.0``)."""
     import cv2
 
+    from rigcal.io.files import check_markup_depth
+
+    check_markup_depth(path, "camera file")
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:
