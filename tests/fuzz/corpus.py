@@ -1256,6 +1256,113 @@ def deep_cases() -> list[Case]:
     return out
 
 
+def smaller_cases() -> list[Case]:
+    """Checks made in the wrong order or with the wrong message or exit code before."""
+    out: list[Case] = []
+    missing_images = [
+        "intrinsics",
+        "{in}/nope0.png",
+        "{in}/nope1.png",
+        "--board",
+        "3x2",
+        "--square-m",
+        "0.02",
+    ]
+    for lm in ["LENSMODEL_NOPE", "", "OPENCV8", "LENSMODEL_OPENCV8\n"]:
+        # The lens model is checked before any image is looked at (or corners detected).
+        out.append(
+            Case(
+                f"intrinsics-lensmodel={lm!r}",
+                [*missing_images, "--lensmodel", lm, "-o", "{out}/c.cameramodel"],
+                code=2,
+                message="--lensmodel",
+            )
+        )
+        out.append(
+            Case(
+                f"intrinsics-corners-lensmodel={lm!r}",
+                [*INTR, "--lensmodel", lm],
+                code=2,
+                message="--lensmodel",
+            )
+        )
+
+    def no_images(p: Path) -> None:
+        from rigcal.io.sequence import read_sequence, write_sequence
+
+        seq = read_sequence(p / "seq")
+        write_sequence(p / "noimg", "room", list(seq.scans), [], None, {"made": "corpus"})
+
+    def one_image(p: Path) -> None:
+        from rigcal.io.sequence import ImageFrame, read_sequence, write_sequence
+
+        seq = read_sequence(p / "seq")
+        frame = ImageFrame(10.05, "f000.png", (p / "seq" / "images" / "f000.png").read_bytes())
+        write_sequence(p / "oneimg", "room", list(seq.scans), [frame], None, {"made": "corpus"})
+
+    for i in ("0", "1", "5"):
+        out.append(
+            Case(
+                f"matches-no-images-{i}",
+                ["matches", "{in}/noimg", "--image", i, "-o", "{out}/m.png"],
+                no_images,
+                3,
+                "noimg: images: got '0 images'; expected 2 or more",
+            )
+        )
+        out.append(
+            Case(
+                f"matches-one-image-{i}",
+                ["matches", "{in}/oneimg", "--image", i, "-o", "{out}/m.png"],
+                one_image,
+                3,
+                "got '1 images'",
+            )
+        )
+    out.append(
+        Case(
+            "matches-last-image",
+            ["matches", "{in}/seq", "--image", "2", "-o", "{out}/m.png"],
+            code=3,
+            message="--image: got 2; expected an index from 0 to 1",
+        )
+    )
+    for log in ("{in}/seq", "{in}", "{out}"):
+        out.append(
+            Case(
+                f"check-log-folder-{log.strip('{}').replace('/', '-')}",
+                [*CHECK[:-1], log],
+                code=5,
+                message="is a folder" if log != "{in}" else "contains the input",
+            )
+        )
+    out.append(
+        Case(
+            "check-log-folder-with-plot",
+            [*CHECK[:-1], "{out}", "--no-log", "--plot", "{out}/p.png"],
+            code=5,
+            message="is a folder",
+        )
+    )
+
+    def link(target: str) -> Callable[[Path], None]:
+        def mutate(p: Path) -> None:
+            (p / "im1.png").unlink()
+            (p / "im1.png").symlink_to(target if target.startswith("/") else p / target)
+
+        return mutate
+
+    for name, target in (("outside", "../outside.png"), ("abs", "/etc/hostname"), ("loop", "im1.png")):
+
+        def mutate(p: Path, target: str = target, name: str = name) -> None:
+            if name == "outside":
+                (p.parent / "outside.png").write_bytes((p / "im0.png").read_bytes())
+            link(target)(p)
+
+        out.append(Case(f"import-laser-images-symlink-{name}", LASER, mutate, 3, "images.txt: line 2"))
+    return out
+
+
 def opt_cases(cmd: str, args: list[str], option: str, values: list[str]) -> list[Case]:
     """``option`` given each of ``values`` (exit 2, the option named)."""
     return [Case(f"{cmd}-option{option}={v}", [*args, option, v], code=2, message=option) for v in values]
@@ -1794,6 +1901,7 @@ def all_cases() -> list[Case]:
         *body_cases(),
         *name_cases(),
         *deep_cases(),
+        *smaller_cases(),
         *output_cases(),
         *capture_cases(),
         *pick_cases(),

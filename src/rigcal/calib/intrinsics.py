@@ -305,6 +305,21 @@ def write_corners_vnl(detections: Detections) -> str:
     return "\n".join(rows) + "\n"
 
 
+def check_lensmodel(lensmodel: str, key: str = "lensmodel") -> str:
+    """``lensmodel`` if mrcal knows it (its parameter count can be computed).
+
+    Raises:
+        InputError: ``KEY: got NAME; expected a mrcal lens model ...``.
+    """
+    import mrcal
+
+    try:
+        mrcal.lensmodel_num_params(lensmodel)
+    except Exception:  # mrcal raises bare Exceptions for unknown names
+        raise InputError.at(None, key, lensmodel, "a mrcal lens model, e.g. LENSMODEL_OPENCV8") from None
+    return lensmodel
+
+
 def solve_intrinsics(
     detections: Detections,
     board: Board,
@@ -326,12 +341,7 @@ def solve_intrinsics(
     """
     import mrcal
 
-    try:
-        mrcal.lensmodel_num_params(lensmodel)
-    except Exception:
-        raise InputError.at(
-            None, "lensmodel", lensmodel, "a mrcal lens model, e.g. LENSMODEL_OPENCV8"
-        ) from None
+    check_lensmodel(lensmodel)
     n = len(detections.paths)
     if n < MIN_IMAGES:
         raise CalibrationError(

@@ -226,6 +226,22 @@ def relative_inside(rel: Any, where: Where, key: str) -> str:
     return rel
 
 
+def file_inside(folder: Path, rel: Any, where: Where, key: str) -> Path:
+    """``folder / rel`` for a ``rel`` that :func:`relative_inside` accepts and that, with
+    its symlinks followed, is still inside ``folder``: a list's entry that is a symlink
+    to a file elsewhere would copy that file's bytes into an output."""
+    path = folder / relative_inside(rel, where, key)
+    try:
+        real_path, real_folder = path.resolve(), folder.resolve()
+    except (OSError, RuntimeError):  # a symlink loop
+        raise InputError.at(where, key, rel, "a file, not a symlink loop") from None
+    if not real_path.is_relative_to(real_folder):
+        raise InputError.at(
+            where, key, rel, f"a file inside {folder} (it is a symlink to {real_path}, outside)"
+        )
+    return path
+
+
 def no_nul(path: str | os.PathLike[str], what: str) -> Path:
     """A path given on the command line, refused when it holds a NUL byte (which no file
     system accepts)."""
