@@ -1108,7 +1108,7 @@ def body_cases() -> list[Case]:
             capture_info,
             bag(1, info={"width": 640, "height": 480}),
             3,
-            "expected the camera's size 640x480",
+            "width x height: got '640x480'; expected the images' size 6x4",
         )
     )
     return out

@@ -60,7 +60,8 @@ def test_a_raw_image_body_is_stored_exactly_or_refused(encoding, height, width, 
         with pytest.raises(InputError, match=rf"^{WHERE}: (encoding|height|width|step|data): got "):
             _image_bytes(msg, "sensor_msgs/msg/Image", WHERE)
         return
-    png, ext = _image_bytes(msg, "sensor_msgs/msg/Image", WHERE)
+    png, ext, size = _image_bytes(msg, "sensor_msgs/msg/Image", WHERE)
+    assert size == (width, height)
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
     assert ext == "png"
     assert img.shape[:2] == (height, width)

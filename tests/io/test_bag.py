@@ -68,7 +68,7 @@ def _msgs(ts):
         }
         kw = {(key.upper() if upper else key): v for key, v in mats.items()}
         return T["sensor_msgs/msg/CameraInfo"](
-            header=hdr(t, "cam"), height=480, width=640, distortion_model="plumb_bob",
+            header=hdr(t, "cam"), height=4, width=6, distortion_model="plumb_bob",
             binning_x=0, binning_y=0, roi=roi, **kw,
         )  # fmt: skip
 
@@ -408,3 +408,19 @@ def test_libpng_says_nothing_of_its_own(tmp_path, capfd):
         f"Error: {bag}: /cam/image message 1: data: got '{len(png)} bytes of PNG'; expected an image that "
         "decodes (damaged data)"
     ]
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_images_of_two_sizes_or_a_camera_of_another_size_are_refused(tmp_path, ros):
+    bag = bag_with(tmp_path / ("b.bag" if ros == 1 else "b2"), ros, image={"height": 3, "data": _u8(54)})
+    with pytest.raises(
+        InputError, match=rf"^{bag}: /cam/image message 1: size: got '6x3'; expected 6x4 like "
+    ):
+        import_bag(bag, tmp_path / "seq", "/scan", "/cam/image")
+    bag = bag_with(tmp_path / ("c.bag" if ros == 1 else "c2"), ros, info={"width": 640, "height": 480})
+    with pytest.raises(
+        InputError,
+        match=rf"^{bag}: /cam/info message 0: width x height: got '640x480'; expected the images' size 6x4",
+    ):
+        import_bag(bag, tmp_path / "seq", "/scan", "/cam/image", "/cam/info")
+    assert not (tmp_path / "seq").exists()

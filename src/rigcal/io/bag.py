@@ -86,6 +86,8 @@ def import_bag(
         images: list[tuple[float, bytes, str]] = []
         info: Any = None
         camera_yaml: str | None = None
+        first_image: tuple[tuple[int, int], str] | None = None  # (width, height), where
+        info_where = ""
         conns = [c for c in reader.connections if c.topic in {t for t, _ in wanted.values()}]
         total = sum(int(c.msgcount) for c in conns)
         seen = dict.fromkeys(topics, 0)
@@ -97,13 +99,30 @@ def import_bag(
             if con.topic == scan_topic:
                 scans.append((stamp, _scan(msg, stamp, where)))
             elif con.topic == image_topic:
-                data, ext = _image_bytes(msg, con.msgtype, where)
+                data, ext, size = _image_bytes(msg, con.msgtype, where)
+                first_image = first_image or (size, where)
+                if size != first_image[0]:
+                    raise InputError.at(
+                        where, "size", _wxh(size), f"{_wxh(first_image[0])} like {first_image[1]}"
+                    )
                 images.append((stamp, data, ext))
             elif info is None:
                 info = msg
                 camera_yaml = _camera_yaml(msg, where)
+                info_where = where
             if progress is not None:
                 progress(k + 1, total)
+        if (
+            info is not None
+            and first_image is not None
+            and (int(info.width), int(info.height)) != first_image[0]
+        ):
+            raise InputError.at(
+                info_where,
+                "width x height",
+                _wxh((int(info.width), int(info.height))),
+                f"the images' size {_wxh(first_image[0])} ({first_image[1]}): a camera of other images",
+            )
     finally:
         reader.close()
     log.info("%s: %d scans, %d images read from %d messages", bag, len(scans), len(images), total)
@@ -213,9 +232,13 @@ RAW_ENCODINGS = {
 MAX_IMAGE_SIDE_PX = 10**6
 
 
-def _image_bytes(msg: Any, msgtype: str, where: str) -> tuple[bytes, str]:
-    """Encoded image bytes and their extension: compressed images as they are (once they
-    decode), raw images as lossless PNG.
+def _wxh(size: tuple[int, int]) -> str:
+    return f"{size[0]}x{size[1]}"
+
+
+def _image_bytes(msg: Any, msgtype: str, where: str) -> tuple[bytes, str, tuple[int, int]]:
+    """Encoded image bytes, their extension and the image's (width, height): compressed
+    images as they are (once they decode), raw images as lossless PNG.
 
     A raw image must hold exactly ``height * step`` bytes with ``step >= width * bytes per
     pixel`` (whole pixels for 16-bit encodings) and both sides positive; big-endian 16-bit
@@ -234,11 +257,12 @@ def _image_bytes(msg: Any, msgtype: str, where: str) -> tuple[bytes, str]:
             raise InputError.at(
                 where, "data", data[:8], f"PNG or JPEG bytes (format says {str(msg.format)[:40]!r})"
             )
-        if decode(data, cv2.IMREAD_UNCHANGED) is None:
+        img = decode(data, cv2.IMREAD_UNCHANGED)
+        if img is None:
             raise InputError.at(
                 where, "data", f"{len(data)} bytes of {ext.upper()}", "an image that decodes (damaged data)"
             )
-        return data, ext
+        return data, ext, (int(img.shape[1]), int(img.shape[0]))
     enc = str(msg.encoding).lower()
     if enc not in RAW_ENCODINGS:
         raise InputError.at(where, "encoding", str(msg.encoding)[:40], "mono8, mono16, bgr8 or rgb8")
@@ -270,7 +294,7 @@ def _image_bytes(msg: Any, msgtype: str, where: str) -> tuple[bytes, str]:
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(img, dtype=img.dtype.newbyteorder("=")))
     if not ok:  # pragma: no cover - cv2 encodes any 8/16-bit image
         raise InputError(f"{where}: cannot encode an image as PNG")
-    return bytes(buf.tobytes()), "png"
+    return bytes(buf.tobytes()), "png", (w, h)
 
 
 def _camera_yaml(info: Any, where: str) -> str:
