@@ -74,14 +74,19 @@ def read_grey(path: str | Path) -> Gray | None:
 
 def decode(data: bytes, flags: int) -> NDArray[Any] | None:
     """``cv2.imdecode(data, flags)``, None for a file that does not decode, with what
-    OpenCV's codecs print about a damaged file (libpng's "libpng error: IDAT: CRC error",
-    OpenCV's own warnings) kept off the terminal: it goes to the debug log, so that the
-    one line a command prints on bad input is rigcal's."""
+    OpenCV's PNG codec prints about a damaged file (libpng's "libpng error: IDAT: CRC
+    error", OpenCV's own warnings) kept off the terminal: it goes to the debug log, so that
+    the one line a command prints on bad input is rigcal's. (PNG decodes hold a lock while
+    stderr is redirected; plain 8-bit PNGs of sequences are read by :func:`read_grey`'s
+    own decoder, JPEGs without the lock.)"""
     import cv2
 
     if not data:
         return None
-    with _codec_messages_to_log():
+    if data.startswith(_PNG_SIGNATURE):  # libpng writes its own "libpng error: ..." lines
+        with _codec_messages_to_log():
+            out = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    else:  # JPEG and the rest say nothing of their own, and decode in parallel threads
         out = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     return None if out is None else np.asarray(out)
 
