@@ -1419,7 +1419,14 @@ def capture_cases() -> list[Case]:
     o = CAPTURE.index("{out}/cap")
     out.append(Case("capture-onto-input-folder", [*arg(o, "{in}"), "--force"], code=5, message="input"))
     out.append(Case("capture-onto-bag", [*arg(o, "{in}/run.bag"), "--force"], code=2, message="run.bag"))
-    out.append(Case("capture-onto-camera", [*arg(o, "{in}/sess"), "--force"], code=5, message="sess"))
+    out.append(
+        Case(
+            "capture-onto-camera",
+            [*arg(o, "{in}/sess")[:cam], "{in}/sess/camera.yaml", *arg(o, "{in}/sess")[cam + 1 :], "--force"],
+            code=5,
+            message="sess",
+        )
+    )
     out.append(Case("capture-into-sequence", [*arg(src, "{in}/seq")[:-1], "{in}/seq/sub", "--force"], code=5))
     out.append(Case("capture-exists", arg(o, "{in}/seq"), code=5, message="exists"))
     out.append(Case("capture-onto-file", arg(o, "{in}/a.tum"), code=2, message="a.tum"))
