@@ -202,3 +202,33 @@ def test_a_side_that_is_not_found_leaves_the_capture_unpicked(rendered, tmp_path
     assert main(argv) == 0
     assert "not picked (pick by hand or remove): cap03" in capsys.readouterr().out
     assert cv2.imread(str(sheet)) is not None
+
+
+def test_a_rig_that_puts_the_box_behind_the_camera_picks_nothing_and_says_so(rendered, tmp_path, capsys):
+    from rigcal.geometry import make_T
+    from rigcal.rig import Rig
+    from rigcal.rigfile import write_rig
+
+    sim, folder = rendered
+    path = draft_file(folder, sim, 0)
+    flipped = make_T(np.diag([-1.0, 1.0, -1.0]), np.zeros(3)) @ sim.T_cam_laser  # turned 180 deg about y
+    write_rig(tmp_path / "behind.yaml", Rig(T_cam_laser=flipped, camera=sim.camera))
+    out, sheet = tmp_path / "auto.yaml", tmp_path / "sheet.png"
+    argv = ["pick", str(path), "--rig", str(tmp_path / "behind.yaml"), "-o", str(out), "--sheet", str(sheet)]
+    assert main(argv) == 4
+    captured = capsys.readouterr()
+    assert "picked automatically" not in captured.out
+    assert f"Error: {path}: no capture could be picked (8 captures): with the pose from rig" in captured.err
+    assert not out.exists()
+    assert not sheet.exists()
+
+
+def test_no_contact_sheet_is_left_when_the_picks_cannot_be_written(rendered, tmp_path, capsys):
+    sim, folder = rendered
+    path = draft_file(folder, sim, 3)
+    (tmp_path / "a-file").write_text("x")
+    sheet = tmp_path / "sheet.png"
+    argv = ["pick", str(path), "-o", str(tmp_path / "a-file" / "auto.yaml"), "--sheet", str(sheet)]
+    assert main(argv) == 5
+    assert "a-file/auto.yaml: cannot write" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]

@@ -203,8 +203,34 @@ def test_capture_errors(recorded, tmp_path, capsys):
     assert main(argv) == 3  # no camera
     assert "give --camera FILE" in capsys.readouterr().err
     assert main([*argv, "--camera-info-topic", "/cam/info", "--still-frames", "500"]) == 3
-    assert "still periods: got none" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    # The error names the bag, not the temporary folder the bag was read into (gone by now).
+    assert f"Error: {bag}: still periods: got none" in err
+    assert "rigcal-capture-" not in err
     assert not (tmp_path / "s").exists()
+
+
+def test_images_of_another_size_than_the_camera_are_refused(recorded, sim, tmp_path, capsys):
+    from rigcal.camera import Camera, camera_to_opencv_yaml
+
+    bag, _ = recorded
+    c = sim.camera
+    half = Camera.from_opencv(c.K / 2 * [[1], [1], [2]], c.distortion, c.width_px // 2, c.height_px // 2)
+    (tmp_path / "half.yaml").write_text(camera_to_opencv_yaml(half))
+    argv = ["capture", str(bag), "--scan-topic", "/scan", "--image-topic", "/cam/image",
+            "--camera", str(tmp_path / "half.yaml"), "-o", str(tmp_path / "s")]  # fmt: skip
+    assert main(argv) == 3
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith(f"Error: {bag}: image at ")
+    assert err.endswith(
+        f"size: got '{c.width_px}x{c.height_px}'; expected the camera's size "
+        f"{c.width_px // 2}x{c.height_px // 2} ({tmp_path / 'half.yaml'})"
+    )
+    assert not (tmp_path / "s").exists()
+    # From a sequence folder the image file is named.
+    import_bag(bag, tmp_path / "seq", "/scan", "/cam/image")
+    assert main(["capture", str(tmp_path / "seq"), *argv[6:]]) == 3
+    assert f"Error: {tmp_path / 'seq' / 'images'}/" in capsys.readouterr().err
 
 
 def test_negative_range_stops_before_writing(recorded, tmp_path):

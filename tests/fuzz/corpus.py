@@ -127,6 +127,11 @@ def build_template(root: Path) -> Path:
     )
     (root / "corners.vnl").write_text(corners, encoding="utf-8")
     write_bag(root / "run.bag")
+    (root / "cam6x4.yaml").write_text(  # the camera of run.bag's 6 x 4 images
+        "schema_version: 1\nimage_width_px: 6\nimage_height_px: 4\n"
+        "K: [[50.0, 0, 3], [0, 50.0, 2], [0, 0, 1]]\ndistortion: [0, 0, 0, 0, 0]\n",
+        encoding="utf-8",
+    )
     build_new_inputs(root, png)
     return root
 
@@ -786,17 +791,28 @@ def output_cases() -> list[Case]:
     return out
 
 
-def write_bag(path: Path, **scan: Any) -> None:
-    """A ROS 1 bag with three scans and two images; ``scan`` overrides LaserScan fields."""
+def write_bag(
+    path: Path,
+    image: dict[str, Any] | None = None,
+    info: dict[str, Any] | None = None,
+    ros: int = 1,
+    **scan: Any,
+) -> None:
+    """A ROS 1 (or 2: ``path`` a folder) bag with three scans, two images and, when
+    ``info`` is given, a CameraInfo (/info, with ``info``'s fields); ``scan`` overrides
+    LaserScan fields, ``image`` the second image's (with ``format``: CompressedImages)."""
     from rosbags.rosbag1 import Writer
+    from rosbags.rosbag2 import Writer as Writer2
     from rosbags.typesys import Stores, get_typestore
 
-    ts = get_typestore(Stores.ROS1_NOETIC)
+    ts = get_typestore(Stores.ROS1_NOETIC if ros == 1 else Stores.ROS2_HUMBLE)
     T = ts.types
+    ser = ts.serialize_ros1 if ros == 1 else ts.serialize_cdr
 
     def header(t: float) -> Any:
         stamp = T["builtin_interfaces/msg/Time"](sec=int(t), nanosec=round((t % 1) * 1e9))
-        return T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id="f")
+        extra = {"seq": 0} if ros == 1 else {}
+        return T["std_msgs/msg/Header"](stamp=stamp, frame_id="f", **extra)
 
     fields = {
         "angle_min": -0.5, "angle_max": 0.5, "angle_increment": 0.1, "time_increment": 0.0,
@@ -804,18 +820,50 @@ def write_bag(path: Path, **scan: Any) -> None:
         "ranges": np.full(11, 2.0, np.float32), "intensities": np.zeros(0, np.float32),
     }  # fmt: skip
     fields.update(scan)
-    with Writer(path) as w:
+    compressed = image is not None and "format" in image
+    img_type = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
+    with Writer(path) if ros == 1 else Writer2(path, version=8) as w:
         cs = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
-        ci = w.add_connection("/image", "sensor_msgs/msg/Image", typestore=ts)
+        ci = w.add_connection("/image", img_type, typestore=ts)
         for k in range(3):
             msg = T["sensor_msgs/msg/LaserScan"](header=header(1.0 + 0.1 * k), **fields)
-            w.write(cs, int(1e9 * (1 + k)), ts.serialize_ros1(msg, "sensor_msgs/msg/LaserScan"))
+            w.write(cs, int(1e9 * (1 + k)), ser(msg, "sensor_msgs/msg/LaserScan"))
         for k in range(2):
-            img = T["sensor_msgs/msg/Image"](
-                header=header(1.0 + 0.2 * k), height=4, width=6, encoding="mono8", is_bigendian=0, step=6,
-                data=np.full(24, 50, np.uint8),
+            if compressed:
+                png = np.frombuffer(cv2_png(np.full((4, 6), 50, np.uint8)), np.uint8)
+                img = T[img_type](header=header(1.0 + 0.2 * k), format="png", data=png)
+            else:
+                img = T[img_type](
+                    header=header(1.0 + 0.2 * k), height=4, width=6, encoding="mono8", is_bigendian=0,
+                    step=6, data=np.full(24, 50, np.uint8),
+                )  # fmt: skip
+            for key, v in (image or {}).items() if k == 1 else ():
+                setattr(img, key, _png_body(v) if key == "data" and compressed else v)
+            w.write(ci, int(1e9 * (1 + k)) + 1, ser(img, img_type))
+        if info is not None:
+            cc = w.add_connection("/info", "sensor_msgs/msg/CameraInfo", typestore=ts)
+            upper = ros == 1  # ROS 1 names the matrices K, D, R, P
+            mats = {
+                "d": np.zeros(5), "k": np.array([50.0, 0, 3, 0, 50, 2, 0, 0, 1]), "r": np.eye(3).ravel(),
+                "p": np.array([50.0, 0, 3, 0, 0, 50, 2, 0, 0, 0, 1, 0]), **info,
+            }  # fmt: skip
+            roi = T["sensor_msgs/msg/RegionOfInterest"](
+                x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+            )
+            plain = {k: v for k, v in mats.items() if len(k) > 1}
+            msg = T["sensor_msgs/msg/CameraInfo"](
+                header=header(1.0), height=plain.pop("height", 4), width=plain.pop("width", 6),
+                distortion_model=plain.pop("distortion_model", "plumb_bob"), binning_x=0, binning_y=0,
+                roi=roi,
+                **{(k.upper() if upper else k): v for k, v in mats.items() if len(k) == 1},
             )  # fmt: skip
-            w.write(ci, int(1e9 * (1 + k)) + 1, ts.serialize_ros1(img, "sensor_msgs/msg/Image"))
+            w.write(cc, int(1e9) + 2, ser(msg, "sensor_msgs/msg/CameraInfo"))
+
+
+def cv2_png(img: np.ndarray) -> bytes:
+    import cv2
+
+    return bytes(cv2.imencode(".png", img)[1].tobytes())
 
 
 INTR = [
@@ -839,7 +887,7 @@ CAPTURE = [
     "--image-topic",
     "/image",
     "--camera",
-    "{in}/sess/camera.yaml",
+    "{in}/cam6x4.yaml",
     "--still-frames",
     "2",
     "-o",
@@ -906,6 +954,415 @@ def bag_cases() -> list[Case]:
     return out
 
 
+def _u8(n: int) -> np.ndarray:
+    return np.full(n, 7, np.uint8)
+
+
+# Message bodies a broken driver writes: (name, fields of the second image, the key named).
+BAD_IMAGE_BODIES: list[tuple[str, dict[str, Any], str]] = [
+    ("data-short", {"data": _u8(23)}, "data"),
+    ("data-long", {"data": _u8(25)}, "data"),
+    ("data-empty", {"data": _u8(0)}, "data"),
+    ("height-0", {"height": 0, "data": _u8(0)}, "height"),
+    ("width-0", {"width": 0, "step": 0, "data": _u8(0)}, "width"),
+    ("width-huge", {"width": 2**31, "step": 6}, "width"),
+    ("step-short", {"step": 5, "data": _u8(20)}, "step"),
+    ("step-0", {"step": 0, "data": _u8(0)}, "step"),
+    ("bgr-step", {"encoding": "bgr8", "step": 6}, "step"),
+    ("mono16-odd-step", {"encoding": "mono16", "step": 13, "data": _u8(52)}, "step"),
+    ("mono16-odd-bytes", {"encoding": "mono16", "step": 12, "data": _u8(47)}, "data"),
+    ("mono16-8-bit-step", {"encoding": "mono16"}, "step"),
+    ("encoding-yuv", {"encoding": "yuv422"}, "encoding"),
+    ("encoding-empty", {"encoding": ""}, "encoding"),
+    ("encoding-bidi", {"encoding": "mono8\u202e\x1b[2J"}, "encoding"),
+    ("compressed-broken-png", {"format": "png", "data": b"\x89PNG\r\n\x1a\nbroken"}, "data"),
+    ("compressed-truncated-png", {"format": "png", "data": "truncated"}, "data"),
+    ("compressed-crc", {"format": "png", "data": "crc"}, "data"),
+    ("compressed-garbage", {"format": "jpeg", "data": _u8(40)}, "data"),
+    ("compressed-empty", {"format": "png", "data": _u8(0)}, "data"),
+]  # fmt: skip
+BAD_BEAM_COUNTS: list[tuple[str, dict[str, Any], str]] = [
+    ("angle-max-far", {"angle_max": 0.9}, "ranges"),
+    ("angle-max-short", {"angle_max": 0.2}, "ranges"),
+    ("angle-max-nan", {"angle_max": NAN}, "angle_max"),
+    ("angle-max-inf", {"angle_max": INF}, "angle_max"),
+    ("angle-max-wrong-side", {"angle_max": -1.5}, "ranges"),
+    ("one-beam-of-many", {"ranges": np.full(1, 2.0, np.float32)}, "ranges"),
+    ("ranges-doubled", {"ranges": np.full(22, 2.0, np.float32)}, "ranges"),
+]
+BAD_CAMERA_INFOS: list[tuple[str, dict[str, Any], str]] = [
+    ("K-zero", {"k": np.zeros(9)}, "K"),
+    ("fx-zero", {"k": np.array([0.0, 0, 3, 0, 50, 2, 0, 0, 1])}, "K"),
+    ("fy-negative", {"k": np.array([50.0, 0, 3, 0, -50, 2, 0, 0, 1])}, "K"),
+    ("K-nan", {"k": np.array([50.0, 0, NAN, 0, 50, 2, 0, 0, 1])}, "K"),
+    ("width-0", {"width": 0}, "width"),
+    ("height-0", {"height": 0}, "height"),
+    ("size-0", {"width": 0, "height": 0}, "width"),
+    ("model-fisheye", {"distortion_model": "equidistant", "d": np.zeros(4)}, "distortion_model"),
+    ("d-short", {"d": np.zeros(3)}, "D"),
+    ("d-inf", {"d": np.array([0.1, INF, 0, 0, 0])}, "D"),
+]
+
+
+def _png_body(kind: Any) -> Any:
+    """Damaged PNG data: "truncated" (40 bytes of a PNG), "crc" (its image data fail their
+    CRC: libpng prints a line of its own), bytes as they are."""
+    if isinstance(kind, np.ndarray):
+        return kind
+    png = bytearray(cv2_png(np.arange(400, dtype=np.uint8).reshape(20, 20)))
+    if kind == "truncated":
+        png = png[:40]
+    elif kind == "crc":
+        png[60] ^= 0xFF
+    else:
+        png = bytearray(kind)
+    return np.frombuffer(bytes(png), np.uint8)
+
+
+def body_cases() -> list[Case]:
+    """Bags whose messages do not hold what their type promises, for import-bag and
+    capture, ROS 1 and ROS 2: each error names the bag, the topic and the message."""
+    out: list[Case] = []
+    capture_info = [
+        *CAPTURE[: CAPTURE.index("--camera")],
+        "--camera-info-topic",
+        "/info",
+        *CAPTURE[CAPTURE.index("--still-frames") :],
+    ]
+
+    def bag(ros: int, **kw: Any) -> Callable[[Path], None]:
+        def mutate(p: Path) -> None:
+            if ros == 1:
+                (p / "run.bag").unlink()
+            write_bag(p / ("run.bag" if ros == 1 else "run2"), ros=ros, **kw)
+
+        return mutate
+
+    def on(args: list[str], ros: int) -> list[str]:
+        return [a.replace("{in}/run.bag", "{in}/run2") if ros == 2 else a for a in args]
+
+    for ros in (1, 2):
+        bagname = "run.bag" if ros == 1 else "run2"
+        for name, fields, text in BAD_IMAGE_BODIES:
+            msg = f"{bagname}: /image message 1: {text}: got "
+            out.append(Case(f"bag-ros{ros}-image-{name}", on(BAG, ros), bag(ros, image=fields), 3, msg))
+        for name, fields, text in BAD_BEAM_COUNTS:
+            out.append(
+                Case(
+                    f"bag-ros{ros}-scan-{name}",
+                    on(BAG, ros),
+                    bag(ros, **fields),
+                    3,
+                    f"/scan message 0: {text}",
+                )
+            )
+        for name, fields, text in BAD_CAMERA_INFOS:
+            args = [*on(BAG, ros), "--camera-info-topic", "/info"]
+            out.append(
+                Case(f"bag-ros{ros}-info-{name}", args, bag(ros, info=fields), 3, f"/info message 0: {text}")
+            )
+        for name, fields, text in BAD_IMAGE_BODIES[::3]:
+            out.append(
+                Case(
+                    f"capture-ros{ros}-image-{name}",
+                    on(CAPTURE, ros),
+                    bag(ros, image=fields),
+                    3,
+                    f"{bagname}: /image message 1: {text}: got ",
+                )
+            )
+        for name, fields, text in BAD_CAMERA_INFOS[::3]:
+            out.append(
+                Case(
+                    f"capture-ros{ros}-info-{name}",
+                    on(capture_info, ros),
+                    bag(ros, info=fields),
+                    3,
+                    f"{bagname}: /info message 0: {text}",
+                )
+            )
+        out.append(
+            Case(
+                f"capture-ros{ros}-scan-count",
+                on(CAPTURE, ros),
+                bag(ros, angle_max=0.9),
+                3,
+                f"{bagname}: /scan message 0: ranges",
+            )
+        )
+    out.append(
+        Case(
+            "capture-camera-of-another-size",
+            [
+                *CAPTURE[: CAPTURE.index("{in}/cam6x4.yaml")],
+                "{in}/sess/camera.yaml",
+                *CAPTURE[CAPTURE.index("{in}/cam6x4.yaml") + 1 :],
+            ],
+            code=3,
+            message="expected the camera's size 640x480",
+        )
+    )
+    out.append(
+        Case(
+            "capture-info-of-another-size",
+            capture_info,
+            bag(1, info={"width": 640, "height": 480}),
+            3,
+            "width x height: got '640x480'; expected the images' size 6x4",
+        )
+    )
+    return out
+
+
+# Names that would change the XML or the shell line they are pasted into, or hide what
+# they are: none is a ROS name.
+BAD_FRAME_NAMES = [
+    '"/><joint name="x', "a--b", "-->", "", " ", "$(rm -rf ~)", "`id`", "a;b", "a\nb", "/abs",
+    "a__b", "a/", "1a", "a b", "a&b", "\u202eevil", "a\u200bb", "é", "x" * 201,
+]  # fmt: skip
+HIDDEN = ["\u202e", "\u2066", "\u200b", "\x85", "\u2028", "\x1b[2J", "\x7f"]
+
+
+def name_cases() -> list[Case]:
+    """Names that reach other languages (URDF, xacro, shell lines) or the terminal."""
+    out: list[Case] = []
+    for fmt in ("ros", "urdf", "xacro"):
+        base = ["export", "{in}/rig.yaml", "--format", fmt]
+        for i, n in enumerate(BAD_FRAME_NAMES):
+            opt = "--parent-frame" if i % 2 else "--child-frame"
+            out.append(
+                Case(f"export-{fmt}{opt}={_show(n)}", [*base, opt, n, "-o", "{out}/x"], code=2, message=opt)
+            )
+        out.append(
+            Case(
+                f"export-{fmt}-same-frames",
+                [*base, "--parent-frame", "a", "--child-frame", "a"],
+                code=2,
+                message="a",
+            )
+        )
+    for t in ["cam", "", "/a b", "/a;rm", "/a\n", "/\u202e"]:
+        out.append(
+            Case(f"export-rostopic={_show(t)}", [*EXPORT, "--rostopic", t], code=2, message="--rostopic")
+        )
+    for h in HIDDEN:
+        name = f"cap{h}gnp.exe"
+        out.append(
+            Case(
+                f"solve-hidden-name={_show(h)}",
+                SOLVE,
+                set_yaml("sess/picks.yaml", "captures.0.name", name),
+                3,
+                "name",
+            )
+        )
+        out.append(
+            Case(
+                f"batch-hidden-name={_show(h)}",
+                BATCH,
+                set_yaml("batch.yaml", "items.0.name", name),
+                3,
+                "name",
+            )
+        )
+        out.append(
+            Case(
+                f"localize-hidden-image={_show(h)}",
+                LOCALIZE,
+                edit_text("seq/images.csv", "f001.png", f"f{h}001.png"),
+                3,
+                "images.csv",
+            )
+        )
+        for args, o in (
+            (SOLVE, "{out}/rig.yaml"),
+            (LOCALIZE, "{out}/loc"),
+            (BATCH, "{out}/b"),
+            (CAPTURE, "{out}/cap"),
+            (EXPORT, "{out}/k.yaml"),
+        ):
+            bad = [a.replace(o, o[:-2] + h + o[-2:]) for a in args]
+            out.append(Case(f"output-hidden-{args[0]}={_show(h)}", bad, code=5, message=f"U+{ord(h[0]):04X}"))
+    long = "n" * 300
+    out.append(Case("batch-name-300", BATCH, set_yaml("batch.yaml", "items.0.name", long), 3, "at most 200"))
+    out.append(
+        Case("solve-name-300", SOLVE, set_yaml("sess/picks.yaml", "captures.0.name", long), 3, "at most 200")
+    )
+    out.append(
+        Case("pick-name-300", PICK, set_yaml("sess/picks.yaml", "captures.0.name", long), 3, "at most 200")
+    )
+    return out
+
+
+DEEP = 50_000
+
+
+def deep_texts() -> dict[str, str]:
+    """Documents nested DEEP levels, each way a parser can nest."""
+    return {
+        "flow-seq": "schema_version: 1\nx: " + "[" * DEEP + "]" * DEEP + "\n",
+        "flow-map": "schema_version: 1\nx: " + "{a: " * DEEP + "1" + "}" * DEEP + "\n",
+        "block-seq": "- " * DEEP + "x\n",
+        "unclosed": "x: " + "[" * DEEP + "\n",
+        "after-error": "x: ]\n" + "[" * DEEP,
+    }
+
+
+def deep_cases() -> list[Case]:
+    """Every YAML (and FileStorage, JSON) reader given a file nested 50 000 levels deep:
+    one error line, not a crash of the parser's recursion."""
+    out: list[Case] = []
+    readers = [
+        ("lines", LINES, "scan.yaml"),
+        ("solve", SOLVE, "sess/picks.yaml"),
+        ("solve-camera", SOLVE, "sess/camera.yaml"),
+        ("export", EXPORT, "rig.yaml"),
+        ("localize", LOCALIZE, "seq/sequence.yaml"),
+        ("world", WORLD, "world.yaml"),
+        ("batch", BATCH, "batch.yaml"),
+        ("capture-camera", CAPTURE, "cam6x4.yaml"),
+        ("board", BOARD, "board/board_session.yaml"),
+        ("pick", PICK, "sess/picks.yaml"),
+    ]
+    texts = deep_texts()
+    for name, args, rel in readers:
+        for kind, text in texts.items():
+            out.append(Case(f"deep-{name}-{kind}", args, write(rel, text), 3, rel.split("/")[-1]))
+
+    for kind, text in (
+        ("opencv-yaml", "%YAML:1.0\n---\nx: " + "[" * DEEP + "]" * DEEP + "\n"),
+        (
+            "opencv-xml",
+            '<?xml version="1.0"?>\n<opencv_storage>' + "<a>" * DEEP + "</a>" * DEEP + "</opencv_storage>\n",
+        ),
+    ):
+        rel = "cv.yaml" if kind == "opencv-yaml" else "cv.xml"
+
+        def mutate(p: Path, rel: str = rel, text: str = text) -> None:
+            write(rel, text)(p)
+            set_yaml("sess/picks.yaml", "camera", f"../{rel}")(p)
+
+        out.append(Case(f"deep-solve-camera-{kind}", SOLVE, mutate, 3, rel))
+
+    out.append(
+        Case(
+            "deep-check-log",
+            [*CHECK[:-1], "{in}/log.jsonl"],
+            write("log.jsonl", "[" * DEEP + "]" * DEEP + "\n"),
+            3,
+            "log.jsonl",
+        )
+    )
+    return out
+
+
+def smaller_cases() -> list[Case]:
+    """Checks made in the wrong order or with the wrong message or exit code before."""
+    out: list[Case] = []
+    missing_images = [
+        "intrinsics",
+        "{in}/nope0.png",
+        "{in}/nope1.png",
+        "--board",
+        "3x2",
+        "--square-m",
+        "0.02",
+    ]
+    for lm in ["LENSMODEL_NOPE", "", "OPENCV8", "LENSMODEL_OPENCV8\n"]:
+        # The lens model is checked before any image is looked at (or corners detected).
+        out.append(
+            Case(
+                f"intrinsics-lensmodel={lm!r}",
+                [*missing_images, "--lensmodel", lm, "-o", "{out}/c.cameramodel"],
+                code=2,
+                message="--lensmodel",
+            )
+        )
+        out.append(
+            Case(
+                f"intrinsics-corners-lensmodel={lm!r}",
+                [*INTR, "--lensmodel", lm],
+                code=2,
+                message="--lensmodel",
+            )
+        )
+
+    def no_images(p: Path) -> None:
+        from rigcal.io.sequence import read_sequence, write_sequence
+
+        seq = read_sequence(p / "seq")
+        write_sequence(p / "noimg", "room", list(seq.scans), [], None, {"made": "corpus"})
+
+    def one_image(p: Path) -> None:
+        from rigcal.io.sequence import ImageFrame, read_sequence, write_sequence
+
+        seq = read_sequence(p / "seq")
+        frame = ImageFrame(10.05, "f000.png", (p / "seq" / "images" / "f000.png").read_bytes())
+        write_sequence(p / "oneimg", "room", list(seq.scans), [frame], None, {"made": "corpus"})
+
+    for i in ("0", "1", "5"):
+        out.append(
+            Case(
+                f"matches-no-images-{i}",
+                ["matches", "{in}/noimg", "--image", i, "-o", "{out}/m.png"],
+                no_images,
+                3,
+                "noimg: images: got '0 images'; expected 2 or more",
+            )
+        )
+        out.append(
+            Case(
+                f"matches-one-image-{i}",
+                ["matches", "{in}/oneimg", "--image", i, "-o", "{out}/m.png"],
+                one_image,
+                3,
+                "got '1 images'",
+            )
+        )
+    out.append(
+        Case(
+            "matches-last-image",
+            ["matches", "{in}/seq", "--image", "2", "-o", "{out}/m.png"],
+            code=3,
+            message="--image: got 2; expected an index from 0 to 1",
+        )
+    )
+    for log in ("{in}/seq", "{in}", "{out}"):
+        out.append(
+            Case(
+                f"check-log-folder-{log.strip('{}').replace('/', '-')}",
+                [*CHECK[:-1], log],
+                code=5,
+                message="is a folder" if log != "{in}" else "contains the input",
+            )
+        )
+    out.append(
+        Case(
+            "check-log-folder-with-plot",
+            [*CHECK[:-1], "{out}", "--no-log", "--plot", "{out}/p.png"],
+            code=5,
+            message="is a folder",
+        )
+    )
+
+    def link(target: str) -> Callable[[Path], None]:
+        def mutate(p: Path) -> None:
+            (p / "im1.png").unlink()
+            (p / "im1.png").symlink_to(target if target.startswith("/") else p / target)
+
+        return mutate
+
+    for name, target in (("outside", "../outside.png"), ("abs", "/etc/hostname"), ("loop", "im1.png")):
+
+        def mutate(p: Path, target: str = target, name: str = name) -> None:
+            if name == "outside":
+                (p.parent / "outside.png").write_bytes((p / "im0.png").read_bytes())
+            link(target)(p)
+
+        out.append(Case(f"import-laser-images-symlink-{name}", LASER, mutate, 3, "images.txt: line 2"))
+    return out
+
+
 def opt_cases(cmd: str, args: list[str], option: str, values: list[str]) -> list[Case]:
     """``option`` given each of ``values`` (exit 2, the option named)."""
     return [Case(f"{cmd}-option{option}={v}", [*args, option, v], code=2, message=option) for v in values]
@@ -923,7 +1380,7 @@ def capture_cases() -> list[Case]:
     out += opt_cases("capture", CAPTURE, "--max-offset-s", [*BAD_FLOATS, "0"])
     out += opt_cases("capture", CAPTURE, "--box-width-m", [*BAD_FLOATS, "0.01"])
     src = CAPTURE.index("{in}/run.bag")
-    cam = CAPTURE.index("{in}/sess/camera.yaml")
+    cam = CAPTURE.index("{in}/cam6x4.yaml")
 
     def arg(i: int, value: str) -> list[str]:
         return [*CAPTURE[:i], value, *CAPTURE[i + 1 :]]
@@ -937,10 +1394,10 @@ def capture_cases() -> list[Case]:
     out.append(Case("capture-missing-camera", arg(cam, "{in}/nope.yaml"), code=3, message="nope.yaml"))
     out.append(Case("capture-camera-folder", arg(cam, "{in}/seq"), code=3, message="seq"))
     out += [
-        Case(f"capture-camera-K={_show(v)}", CAPTURE, set_yaml("sess/camera.yaml", "K.0.0", v), 3, "K")
+        Case(f"capture-camera-K={_show(v)}", CAPTURE, set_yaml("cam6x4.yaml", "K.0.0", v), 3, "K")
         for v in NOT_POSITIVE[::2]
     ]
-    out.append(Case("capture-camera-not-utf8", CAPTURE, write("sess/camera.yaml", b"\xff\xfe"), 3, "camera"))
+    out.append(Case("capture-camera-not-utf8", CAPTURE, write("cam6x4.yaml", b"\xff\xfe"), 3, "camera"))
     out.append(
         Case(
             "capture-sequence-garbage-npz",
@@ -962,7 +1419,14 @@ def capture_cases() -> list[Case]:
     o = CAPTURE.index("{out}/cap")
     out.append(Case("capture-onto-input-folder", [*arg(o, "{in}"), "--force"], code=5, message="input"))
     out.append(Case("capture-onto-bag", [*arg(o, "{in}/run.bag"), "--force"], code=2, message="run.bag"))
-    out.append(Case("capture-onto-camera", [*arg(o, "{in}/sess"), "--force"], code=5, message="sess"))
+    out.append(
+        Case(
+            "capture-onto-camera",
+            [*arg(o, "{in}/sess")[:cam], "{in}/sess/camera.yaml", *arg(o, "{in}/sess")[cam + 1 :], "--force"],
+            code=5,
+            message="sess",
+        )
+    )
     out.append(Case("capture-into-sequence", [*arg(src, "{in}/seq")[:-1], "{in}/seq/sub", "--force"], code=5))
     out.append(Case("capture-exists", arg(o, "{in}/seq"), code=5, message="exists"))
     out.append(Case("capture-onto-file", arg(o, "{in}/a.tum"), code=2, message="a.tum"))
@@ -1441,6 +1905,10 @@ def all_cases() -> list[Case]:
         *option_cases(),
         *camera_format_cases(),
         *bag_cases(),
+        *body_cases(),
+        *name_cases(),
+        *deep_cases(),
+        *smaller_cases(),
         *output_cases(),
         *capture_cases(),
         *pick_cases(),

@@ -68,7 +68,7 @@ def _msgs(ts):
         }
         kw = {(key.upper() if upper else key): v for key, v in mats.items()}
         return T["sensor_msgs/msg/CameraInfo"](
-            header=hdr(t, "cam"), height=480, width=640, distortion_model="plumb_bob",
+            header=hdr(t, "cam"), height=4, width=6, distortion_model="plumb_bob",
             binning_x=0, binning_y=0, roi=roi, **kw,
         )  # fmt: skip
 
@@ -201,16 +201,226 @@ def test_a_negative_angle_increment_gives_the_same_points_in_increasing_order():
 
     ranges = [1.0, 2.0, 3.0, 4.0]
     up = _scan(
-        SimpleNamespace(angle_min=-0.3, angle_increment=0.2, ranges=ranges, range_min=0.1, range_max=9.0),
+        SimpleNamespace(
+            angle_min=-0.3, angle_max=0.3, angle_increment=0.2, ranges=ranges, range_min=0.1, range_max=9.0
+        ),
         1.0,
         "bag: /scan",
     )
     down = _scan(
         SimpleNamespace(
-            angle_min=0.3, angle_increment=-0.2, ranges=ranges[::-1], range_min=0.1, range_max=9.0
+            angle_min=0.3,
+            angle_max=-0.3,
+            angle_increment=-0.2,
+            ranges=ranges[::-1],
+            range_min=0.1,
+            range_max=9.0,
         ),
         1.0,
         "bag: /scan",
     )
     np.testing.assert_allclose(down.angles_rad, up.angles_rad, atol=1e-15)
     np.testing.assert_allclose(down.points, up.points, atol=1e-15)
+
+
+# --- message bodies a broken driver can write ------------------------------------------------
+def bag_with(
+    path: Path, ros: int, image: dict | None = None, scan: dict | None = None, info: dict | None = None
+):
+    """A bag with two scans, two images and a CameraInfo; the second image's, every scan's
+    and the CameraInfo's fields overridden. ``image`` with ``format`` makes CompressedImages."""
+    ts = TS2 if ros == 2 else TS1
+    mk_scan, mk_image, mk_comp, mk_info = _msgs(ts)
+    compressed = image is not None and "format" in image
+    img_type = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
+    ser = ts.serialize_cdr if ros == 2 else ts.serialize_ros1
+    writer = Writer2(path, version=8) if ros == 2 else Writer1(path)
+    with writer as w:
+        cs = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
+        ci = w.add_connection("/cam/image", img_type, typestore=ts)
+        cc = w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts)
+        for k in range(2):
+            msg = mk_scan(1.0 + 0.1 * k, k)
+            for key, v in (scan or {}).items():
+                setattr(msg, key, v)
+            w.write(cs, int(1e9 * (10 + k)), ser(msg, "sensor_msgs/msg/LaserScan"))
+        for k in range(2):
+            msg = mk_comp(1.0 + k, k) if compressed else mk_image(1.0 + k, k)
+            for key, v in (image or {}).items() if k == 1 else ():
+                setattr(msg, key, v)
+            w.write(ci, int(1e9 * (10 + k)) + 1, ser(msg, img_type))
+        msg = mk_info(1.0)
+        for key, v in (info or {}).items():
+            setattr(msg, key.upper() if ros == 1 and len(key) == 1 else key, v)
+        w.write(cc, int(1e9 * 10) + 2, ser(msg, "sensor_msgs/msg/CameraInfo"))
+    return path
+
+
+def _u8(n: int) -> np.ndarray:
+    return np.full(n, 7, np.uint8)
+
+
+BAD_IMAGES = [
+    ("short-data", {"data": _u8(71)}, r"data: got '71 bytes'; expected height \* step = 4 \* 18 = 72 bytes"),
+    ("long-data", {"data": _u8(90)}, r"data: got '90 bytes'; expected height \* step = 4 \* 18 = 72"),
+    ("height-0", {"height": 0, "data": _u8(0)}, r"height: got 0; expected a positive number of pixels"),
+    ("width-0", {"width": 0, "step": 0, "data": _u8(0)}, r"width: got 0; expected a positive"),
+    (
+        "step-below-width",
+        {"step": 12, "data": _u8(48)},
+        r"step: got 12; expected at least width \* 3 = 18 bytes",
+    ),
+    (
+        "mono16-odd-step",
+        {"encoding": "mono16", "step": 13, "data": _u8(52)},
+        r"step: got 13; expected at least width \* 2 = 12 bytes, a multiple of 2 \(mono16\)",
+    ),
+    (
+        "mono16-odd-bytes",
+        {"encoding": "mono16", "step": 12, "data": _u8(47)},
+        r"data: got '47 bytes'; expected height \* step = 4 \* 12 = 48 bytes",
+    ),
+    (
+        "unknown-encoding",
+        {"encoding": "yuv422"},
+        r"encoding: got 'yuv422'; expected mono8, mono16, bgr8 or rgb8",
+    ),
+    (
+        "compressed-broken-png",
+        {"format": "png", "data": np.frombuffer(b"\x89PNG\r\n\x1a\nbroken", np.uint8)},
+        r"data: got '14 bytes of PNG'; expected an image that decodes",
+    ),
+    (
+        "compressed-not-an-image",
+        {"format": "jpeg", "data": _u8(40)},
+        r"data: got b'\\x07.*; expected PNG or JPEG bytes \(format says 'jpeg'\)",
+    ),
+]
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+@pytest.mark.parametrize(("name", "fields", "message"), BAD_IMAGES, ids=[c[0] for c in BAD_IMAGES])
+def test_bad_image_bodies_are_refused_naming_bag_topic_and_message(tmp_path, ros, name, fields, message):
+    bag = bag_with(tmp_path / ("b.bag" if ros == 1 else "b2"), ros, image=fields)
+    with pytest.raises(InputError, match=rf"^{bag}: /cam/image message 1: {message}"):
+        import_bag(bag, tmp_path / "seq", "/scan", "/cam/image")
+    assert not (tmp_path / "seq").exists()
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_padded_rows_and_big_endian_mono16_are_read_as_the_pixels(tmp_path, ros):
+    img16 = np.arange(24, dtype=np.uint16).reshape(4, 6) * 1000
+    padded = np.zeros((4, 16), np.uint8)  # 12 bytes of pixels + 4 of padding per row
+    padded[:, :12] = img16.astype(">u2").view(np.uint8).reshape(4, 12)
+    fields = {"encoding": "mono16", "is_bigendian": 1, "step": 16, "data": padded.ravel()}
+    bag = bag_with(tmp_path / ("b.bag" if ros == 1 else "b2"), ros, image=fields)
+    import_bag(bag, tmp_path / "seq", "/scan", "/cam/image")
+    seq = read_sequence(tmp_path / "seq")
+    got = cv2.imread(str(tmp_path / "seq" / "images" / seq.image_files[1]), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(got, img16)
+
+
+BEAMS = [  # 11 ranges from -0.5 in steps of 0.1: angle_max 0.5 exactly, 0.4 / 0.6 one beam off
+    (0.5, None),
+    (0.4, None),
+    (0.6, None),
+    (
+        0.3,
+        r"ranges: got '11 ranges'; expected 9 \(\+-1\) = round\(\(angle_max - angle_min\) / angle_incr",
+    ),
+    (0.8, r"ranges: got '11 ranges'; expected 14 \(\+-1\)"),
+    (float("nan"), r"angle_max: got nan"),
+    (7.0, r"angle_max: got 7.0"),
+]
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+@pytest.mark.parametrize(("angle_max", "message"), BEAMS)
+def test_the_beam_count_must_match_the_angles_within_one(tmp_path, ros, angle_max, message):
+    bag = bag_with(tmp_path / ("b.bag" if ros == 1 else "b2"), ros, scan={"angle_max": angle_max})
+    if message is None:
+        assert import_bag(bag, tmp_path / "seq", "/scan", "/cam/image").scans == 2
+        return
+    with pytest.raises(InputError, match=rf"^{bag}: /scan message 0: {message}"):
+        import_bag(bag, tmp_path / "seq", "/scan", "/cam/image")
+
+
+BAD_INFOS = [
+    ({"k": np.zeros(9)}, r"K: got \[\[0.0, 0.0, 0.0\], .*; expected \[\[fx, 0, cx\], \[0, fy, cy\]"),
+    ({"k": np.array([0.0, 0, 320, 0, 500, 240, 0, 0, 1])}, r"K: .*; expected positive focal lengths fx, fy"),
+    ({"k": np.array([500.0, 1, 320, 0, 500, 240, 0, 0, 1])}, r"K: .*expected .*\(no skew\)"),
+    ({"k": np.array([500.0, 0, np.nan, 0, 500, 240, 0, 0, 1])}, r"K: got .*; expected finite numbers"),
+    ({"width": 0}, r"width: got 0; expected a positive image size"),
+    ({"height": 0}, r"height: got 0; expected a positive image size"),
+    ({"distortion_model": "equidistant", "d": np.zeros(4)}, r"distortion_model: got 'equidistant'"),
+    ({"d": np.zeros(3)}, r"D: got \[0.0, 0.0, 0.0\]; expected 5 finite coefficients for plumb_bob"),
+    ({"d": np.array([0.1, np.inf, 0, 0, 0])}, r"D: got .*; expected 5 finite coefficients"),
+]
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+@pytest.mark.parametrize(("fields", "message"), BAD_INFOS)
+def test_a_camera_info_that_is_no_camera_is_refused_before_writing(tmp_path, ros, fields, message):
+    bag = bag_with(tmp_path / ("b.bag" if ros == 1 else "b2"), ros, info=fields)
+    with pytest.raises(InputError, match=rf"^{bag}: /cam/info message 0: {message}"):
+        import_bag(bag, tmp_path / "seq", "/scan", "/cam/image", "/cam/info")
+    assert not (tmp_path / "seq").exists()
+    import_bag(bag, tmp_path / "seq", "/scan", "/cam/image")  # without the camera: fine
+
+
+def test_a_camera_without_distortion_is_a_pinhole(tmp_path):
+    bag = bag_with(tmp_path / "b2", 2, info={"d": np.zeros(0), "distortion_model": ""})
+    import_bag(bag, tmp_path / "seq", "/scan", "/cam/image", "/cam/info")
+    assert read_camera(tmp_path / "seq" / "camera.yaml").lensmodel == "LENSMODEL_PINHOLE"
+
+
+def test_a_message_too_short_for_its_type_is_named(tmp_path):
+    ts = TS1
+    with Writer1(tmp_path / "b.bag") as w:
+        cs = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
+        ci = w.add_connection("/cam/image", "sensor_msgs/msg/Image", typestore=ts)
+        w.write(cs, 1, b"\x00\x01")
+        w.write(ci, 2, b"")
+    with pytest.raises(
+        InputError, match=r"b\.bag: /scan message 0: cannot decode a sensor_msgs/msg/LaserScan"
+    ):
+        import_bag(tmp_path / "b.bag", tmp_path / "seq", "/scan", "/cam/image")
+
+
+def test_libpng_says_nothing_of_its_own(tmp_path, capfd):
+    png = bytearray(cv2.imencode(".png", np.arange(400, dtype=np.uint8).reshape(20, 20))[1].tobytes())
+    png[60] ^= 0xFF  # a CRC error in IDAT: libpng would print "libpng error: IDAT: CRC error"
+    bag = bag_with(tmp_path / "b2", 2, image={"format": "png", "data": np.frombuffer(bytes(png), np.uint8)})
+    argv = [
+        "-q",
+        "import-bag",
+        str(bag),
+        "--scan-topic",
+        "/scan",
+        "--image-topic",
+        "/cam/image",
+        "-o",
+        str(tmp_path / "s"),
+    ]
+    assert main(argv) == 3
+    err = capfd.readouterr().err
+    assert [x for x in err.splitlines() if x.strip()] == [
+        f"Error: {bag}: /cam/image message 1: data: got '{len(png)} bytes of PNG'; expected an image that "
+        "decodes (damaged data)"
+    ]
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_images_of_two_sizes_or_a_camera_of_another_size_are_refused(tmp_path, ros):
+    bag = bag_with(tmp_path / ("b.bag" if ros == 1 else "b2"), ros, image={"height": 3, "data": _u8(54)})
+    with pytest.raises(
+        InputError, match=rf"^{bag}: /cam/image message 1: size: got '6x3'; expected 6x4 like "
+    ):
+        import_bag(bag, tmp_path / "seq", "/scan", "/cam/image")
+    bag = bag_with(tmp_path / ("c.bag" if ros == 1 else "c2"), ros, info={"width": 640, "height": 480})
+    with pytest.raises(
+        InputError,
+        match=rf"^{bag}: /cam/info message 0: width x height: got '640x480'; expected the images' size 6x4",
+    ):
+        import_bag(bag, tmp_path / "seq", "/scan", "/cam/image", "/cam/info")
+    assert not (tmp_path / "seq").exists()

@@ -166,3 +166,30 @@ def test_a_path_given_as_text_reads_too(tmp_path: Path):
     img = _textured(np.random.default_rng(6), 5, 7, 1)
     path.write_bytes(_png(img))
     np.testing.assert_array_equal(read_grey(str(path)), img)
+
+
+def test_a_damaged_png_decodes_to_none_and_libpng_says_nothing(tmp_path, capfd, caplog):
+    import logging
+
+    from rigcal.io.images import decode, read_image_file
+
+    png = bytearray(cv2.imencode(".png", np.arange(400, dtype=np.uint8).reshape(20, 20))[1].tobytes())
+    png[60] ^= 0xFF  # damaged IDAT: libpng prints "libpng error: IDAT: ..." on fd 2
+    (tmp_path / "bad.png").write_bytes(bytes(png))
+    with caplog.at_level(logging.DEBUG, logger="rigcal.io.images"):
+        assert decode(bytes(png), cv2.IMREAD_GRAYSCALE) is None
+        assert read_image_file(tmp_path / "bad.png", cv2.IMREAD_COLOR) is None
+        assert read_grey(tmp_path / "bad.png") is None
+    assert capfd.readouterr().err == ""
+    assert "image codec: libpng error: IDAT: " in caplog.text  # -v shows it
+    assert read_image_file(tmp_path / "nope.png", cv2.IMREAD_COLOR) is None
+
+
+def test_other_text_on_stderr_while_decoding_is_written_back(capfd):
+    import os
+
+    from rigcal.io.images import _codec_messages_to_log
+
+    with _codec_messages_to_log():
+        os.write(2, b"progress 3/4\n")
+    assert capfd.readouterr().err == "progress 3/4\n"

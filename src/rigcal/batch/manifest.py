@@ -18,6 +18,7 @@ from typing import Any
 
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, check_schema_version, load_yaml
+from rigcal.io.validate import MAX_NAME_BYTES
 
 MANIFEST_SCHEMA_VERSION = 1
 
@@ -285,8 +286,10 @@ def _check_required(options: Mapping[str, Any], command: str, path: Path | None,
 
 
 def _name(value: Any, path: Path | None, key: str) -> str:
-    if not isinstance(value, str) or not NAME_RE.match(value):
-        raise InputError.at(path, key, value, "a name of letters, digits, '.', '_' and '-'")
+    if not isinstance(value, str) or not NAME_RE.match(value) or len(value) > MAX_NAME_BYTES:
+        raise InputError.at(
+            path, key, value, f"a name of letters, digits, '.', '_' and '-' (at most {MAX_NAME_BYTES})"
+        )
     return value
 
 
@@ -314,7 +317,10 @@ def _derived_names(paths: list[Path]) -> list[str]:
                 q.pop(0)
     else:
         parts = [[parts[0][-1] if parts[0][-1] not in ("picks", "trajectory") else parts[0][-2]]]
-    names = [re.sub(r"[^A-Za-z0-9._-]", "_", "_".join(q)).lstrip("._-") or "item" for q in parts]
+    names = [
+        re.sub(r"[^A-Za-z0-9._-]", "_", "_".join(q)).lstrip("._-")[-MAX_NAME_BYTES:].lstrip("._-") or "item"
+        for q in parts
+    ]
     if len(set(names)) != len(names):  # cannot happen for distinct paths; keep names unique anyway
         names = [f"{n}-{i}" for i, n in enumerate(names)]
     return names

@@ -178,7 +178,7 @@ def finished_record(item: Item, folder: Path) -> dict[str, Any] | None:
     path = folder / ITEM_FILE
     try:
         rec = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
         return None
     if not isinstance(rec, dict) or rec.get("schema_version") not in READABLE_ITEM_VERSIONS:
         return None

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.camera import Camera
 from rigcal.errors import InputError
 from rigcal.io.sequence import Sequence
 from rigcal.scan import Scan
@@ -107,7 +108,9 @@ def thumbnail(path: Path) -> NDArray[np.float32]:
     """An image as grey float32, area-downscaled to at most THUMB_WIDTH_PX wide."""
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    from rigcal.io.images import read_image_file
+
+    img = read_image_file(path, cv2.IMREAD_GRAYSCALE)
     if img is None:
         raise InputError(f"{path}: cannot decode image (expected PNG, JPEG or another format OpenCV reads)")
     if img.dtype != np.uint8:  # mono16: to 8 bits, as the threshold is in 8-bit levels
@@ -136,15 +139,19 @@ def still_runs(changes: FloatArray, max_fraction: float, min_frames: int) -> lis
     return runs
 
 
-def find_still_periods(seq: Sequence, settings: CaptureSettings | None = None) -> list[StillCapture]:
-    """The still periods of a sequence and one scan + image pair from each.
+def find_still_periods(
+    seq: Sequence, settings: CaptureSettings | None = None, origin: str | Path | None = None
+) -> list[StillCapture]:
+    """The still periods of a sequence and one scan + image pair from each. ``origin``
+    is what messages name (the bag a temporary sequence folder was read from; default the
+    sequence's folder).
 
     Raises:
         InputError: the sequence has no images or an image cannot be decoded.
     """
     settings = settings or CaptureSettings()
     if seq.folder is None or not seq.image_files:
-        raise InputError(f"{seq.folder}: images: got none; expected a sequence with camera images")
+        raise InputError(f"{origin or seq.folder}: images: got none; expected a recording with camera images")
     scans = seq.scans
     scan_t = np.array([s.stamp_s for s in scans], dtype=float)
     scan_d = np.array(
@@ -190,6 +197,34 @@ def find_still_periods(seq: Sequence, settings: CaptureSettings | None = None) -
     return out
 
 
+def _check_image_sizes(
+    seq: Sequence, captures: Seq[StillCapture], camera: Camera, origin: str | Path | None
+) -> None:
+    """Every captured image must have the camera's size."""
+    import cv2
+
+    from rigcal.io.images import read_image_file
+
+    for c in captures:
+        path = _images_dir(seq) / seq.image_files[c.image_index]
+        img = read_image_file(path, cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise InputError(
+                f"{path}: cannot decode image (expected PNG, JPEG or another format OpenCV reads)"
+            )
+        h, w = img.shape[:2]
+        if (w, h) != (camera.width_px, camera.height_px):
+            stamp = float(seq.image_stamps_s[c.image_index])
+            own = origin is None or Path(origin) == seq.folder
+            where = path if own else f"{origin}: image at {stamp:.9f} s"
+            raise InputError.at(
+                where,
+                "size",
+                f"{w}x{h}",
+                f"the camera's size {camera.width_px}x{camera.height_px} ({camera.source})",
+            )
+
+
 def _images_dir(seq: Sequence) -> Path:
     assert seq.folder is not None
     return seq.folder / "images"
@@ -218,33 +253,39 @@ def write_capture_session(
     camera_file: Path,
     box_width_m: float | None = None,
     force: bool = False,
+    origin: str | Path | None = None,
 ) -> Path:
     """Write the session folder: ``camera.*``, ``scans/capNN.yaml``, ``images/capNN.*``
-    and ``picks.yaml`` (schema 2, captures not picked yet), atomically.
+    and ``picks.yaml`` (schema 2, captures not picked yet), atomically. ``origin`` is
+    what messages name, as in :func:`find_still_periods`.
 
     Raises:
-        InputError: no still period was found.
+        InputError: no still period was found, or a captured image's size is not the
+            camera's (a wrong camera would bias every pick and the solve).
         OutputError: the folder exists and ``force`` is false, or a write failed.
     """
     import yaml
 
+    from rigcal.camera import read_camera
     from rigcal.io.files import atomic_folder
     from rigcal.scan import scan_to_text
 
+    origin = origin or seq.folder
     if not captures:
         raise InputError(
-            f"{seq.folder}: still periods: got none; expected moments where the scans and images stay "
+            f"{origin}: still periods: got none; expected moments where the scans and images stay "
             "still for the given number of frames (see rigcal capture --help for the thresholds)"
         )
     for k, c in enumerate(captures):
         r = seq.scans[c.scan_index].ranges_m
         if np.any(r < 0):
             raise InputError.at(
-                seq.folder,
+                origin,
                 f"scans[{c.scan_index}].ranges_m",
                 float(r[r < 0][0]),
                 f"ranges >= 0 (0, NaN or inf for no return) in the scan of capture {k}",
             )
+    _check_image_sizes(seq, captures, read_camera(camera_file), origin)
     with atomic_folder(output, force) as tmp:
         (tmp / "scans").mkdir()
         (tmp / "images").mkdir()

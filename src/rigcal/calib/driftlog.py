@@ -98,6 +98,8 @@ def read_log(path: str | Path) -> list[dict[str, Any]]:
             rec = json.loads(line)
         except json.JSONDecodeError as exc:
             raise InputError(f"{path}: line {n}: not JSON ({exc.msg})") from None
+        except RecursionError:  # json recurses per level: 50 000 nested brackets
+            raise InputError(f"{path}: line {n}: JSON nested too deep; expected one check record") from None
         if not isinstance(rec, dict):
             raise InputError.at(path, f"line {n}", rec, "a JSON object (one check)")
         if (

@@ -194,13 +194,15 @@ def _detect_all(
     returns the (height_n, width_n, 3) observations of the board, or None."""
     import cv2
 
+    from rigcal.io.images import read_image_file
+
     paths: list[str] = []
     found: list[FloatArray] = []
     missing: list[str] = []
     size: tuple[int, int] | None = None
     first: Path | None = None
     for path in images:
-        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        img = read_image_file(path, cv2.IMREAD_GRAYSCALE)
         if img is None:
             raise InputError(f"{path}: image not found or not readable (expected PNG, JPEG, ...)")
         h, w = img.shape
@@ -303,6 +305,21 @@ def write_corners_vnl(detections: Detections) -> str:
     return "\n".join(rows) + "\n"
 
 
+def check_lensmodel(lensmodel: str, key: str = "lensmodel") -> str:
+    """``lensmodel`` if mrcal knows it (its parameter count can be computed).
+
+    Raises:
+        InputError: ``KEY: got NAME; expected a mrcal lens model ...``.
+    """
+    import mrcal
+
+    try:
+        mrcal.lensmodel_num_params(lensmodel)
+    except Exception:  # mrcal raises bare Exceptions for unknown names
+        raise InputError.at(None, key, lensmodel, "a mrcal lens model, e.g. LENSMODEL_OPENCV8") from None
+    return lensmodel
+
+
 def solve_intrinsics(
     detections: Detections,
     board: Board,
@@ -324,12 +341,7 @@ def solve_intrinsics(
     """
     import mrcal
 
-    try:
-        mrcal.lensmodel_num_params(lensmodel)
-    except Exception:
-        raise InputError.at(
-            None, "lensmodel", lensmodel, "a mrcal lens model, e.g. LENSMODEL_OPENCV8"
-        ) from None
+    check_lensmodel(lensmodel)
     n = len(detections.paths)
     if n < MIN_IMAGES:
         raise CalibrationError(
@@ -508,13 +520,15 @@ def other_board_sizes(images: list[Path], board: Board, max_images: int = 3) -> 
     """
     import cv2
 
+    from rigcal.io.images import read_image_file
+
     # Larger grids first: a detector may take part of a large board for a smaller one.
     given = {(board.width_n, board.height_n), (board.height_n, board.width_n)}
     sizes = sorted((s for s in COMMON_BOARDS if s not in given), key=lambda s: -s[0] * s[1])
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
     out: dict[str, tuple[int, int]] = {}
     for path in images[:max_images]:
-        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        img = read_image_file(path, cv2.IMREAD_GRAYSCALE)
         if img is None:
             continue
         for w, h in sizes:

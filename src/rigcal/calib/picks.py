@@ -381,7 +381,9 @@ def _check_image(path: Path, key: str, value: str, image_path: Path, camera: Cam
     image would silently bias every pick)."""
     import cv2
 
-    img = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
+    from rigcal.io.images import read_image_file
+
+    img = read_image_file(image_path, cv2.IMREAD_UNCHANGED)
     if img is None:
         raise InputError.at(path, key, value, "an image file OpenCV can read (PNG, JPEG, ...)")
     h, w = img.shape[:2]

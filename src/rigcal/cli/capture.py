@@ -108,8 +108,8 @@ def capture(
                 source, "camera", None, "a camera: give --camera FILE (or --camera-info-topic for a bag)"
             )
         read_camera(cam)  # a bad camera file stops here, before anything is written
-        captures = find_still_periods(seq, settings)
-        write_capture_session(seq, captures, output, cam, box_width_m, force=force)
+        captures = find_still_periods(seq, settings, origin=source)
+        write_capture_session(seq, captures, output, cam, box_width_m, force=force, origin=source)
     rows = [
         {
             "name": f"cap{k:02d}",

@@ -76,13 +76,15 @@ def check(
     from rigcal.calib.drift import DriftSettings, check_drift
     from rigcal.calib.driftlog import append_record, default_log_path, drift_record, read_log
     from rigcal.calib.picks import read_picks
-    from rigcal.errors import InputError
+    from rigcal.errors import InputError, OutputError
     from rigcal.io.files import check_apart, check_writable
     from rigcal.rigfile import read_rig
     from rigcal.viz.drift_plot import write_drift_plot
 
     log = log_path or default_log_path(rig)
     check_apart(log, [rig, picks])
+    if (plot is not None or not no_log) and log.is_dir():  # an output where a file goes: exit 5
+        raise OutputError(f"{log}: is a folder; expected the drift log's file path (--log)")
     if plot is not None:
         from rigcal.viz.charts import check_chart_name
 

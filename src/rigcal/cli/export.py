@@ -8,6 +8,20 @@ from pathlib import Path
 import click
 
 
+def _ros_name(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """A frame (or, for --rostopic, topic) name checked against the ROS name rules: a bad
+    one is a usage error (exit 2) before any file is read."""
+    from rigcal.errors import InputError
+    from rigcal.io.exports import ros_name
+
+    if value is None:
+        return None
+    try:
+        return ros_name(value, f"--{param.name}".replace("_", "-"), topic=param.name == "rostopic")
+    except InputError as exc:
+        raise click.BadParameter(str(exc).split(": ", 1)[1]) from None
+
+
 @click.command("export")
 @click.argument("rig", type=click.Path(path_type=Path))
 @click.option(
@@ -28,9 +42,14 @@ import click
     help="Parent sensor of the ros, urdf and xacro transforms (the child is the other sensor).",
 )
 @click.option(
-    "--parent-frame", help="Name of the parent frame (default: laser, camera_optical_frame or camera_link)."
+    "--parent-frame",
+    callback=_ros_name,
+    help="Name of the parent frame (default: laser, camera_optical_frame or camera_link); a ROS "
+    "name: letters, digits and '_', tokens joined by '/'.",
 )
-@click.option("--child-frame", help="Name of the child frame (default as --parent-frame).")
+@click.option(
+    "--child-frame", callback=_ros_name, help="Name of the child frame (default as --parent-frame)."
+)
 @click.option(
     "--camera-link",
     is_flag=True,
@@ -42,6 +61,7 @@ import click
     "--rostopic",
     default="/camera/image_raw",
     show_default=True,
+    callback=_ros_name,
     help="The camera's image topic, written into the Kalibr camchain.",
 )
 @click.option("-o", "--output", type=click.Path(path_type=Path), help="Write to this file instead of stdout.")
@@ -79,13 +99,17 @@ def export(
       rigcal export rig.yaml --format kalibr --rostopic /cam0/image_raw -o camchain.yaml
       rigcal export rig.yaml --format mrcal -o camera.cameramodel --force
     """
+    from rigcal.errors import InputError
     from rigcal.io.exports import Frames, export_rig, transform_between
     from rigcal.io.files import atomic_write_text, check_writable
     from rigcal.rigfile import read_rig
 
     if output is not None:
         check_writable(output, force, [rig])
-    frames = Frames(parent, camera_link, parent_frame, child_frame)
+    try:
+        frames = Frames(parent, camera_link, parent_frame, child_frame)
+    except InputError as exc:  # the same name for both frames
+        raise click.UsageError(f"--child-frame: {str(exc).split(': ', 1)[1]}") from None
     the_rig = read_rig(rig)
     text = export_rig(the_rig, fmt, frames, rostopic, source=rig)
     if output is not None:

@@ -21,6 +21,17 @@ def _board(value: str, option: str) -> tuple[int, int]:
     return int(m[1]), int(m[2])
 
 
+def _lensmodel(ctx: click.Context, param: click.Parameter, value: str) -> str:
+    """An unknown lens model is a usage error, found before any image is read."""
+    from rigcal.calib.intrinsics import check_lensmodel
+    from rigcal.errors import InputError
+
+    try:
+        return check_lensmodel(value, "--lensmodel")
+    except InputError as exc:
+        raise click.BadParameter(str(exc).split(": ", 1)[1]) from None
+
+
 @click.command("intrinsics")
 @click.argument("images", nargs=-1, type=click.Path(path_type=Path))
 @click.option("--board", help="Chessboard: inner corners per row x per column, e.g. 9x6.")
@@ -47,6 +58,7 @@ def _board(value: str, option: str) -> tuple[int, int]:
     "--lensmodel",
     default="LENSMODEL_OPENCV8",
     show_default=True,
+    callback=_lensmodel,
     help="mrcal lens model, e.g. LENSMODEL_OPENCV5, LENSMODEL_OPENCV8, "
     "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg=100.",
 )
@@ -131,7 +143,9 @@ def intrinsics(
         elif images:
             import cv2
 
-            img = cv2.imread(str(images[0]), cv2.IMREAD_GRAYSCALE)
+            from rigcal.io.images import read_image_file
+
+            img = read_image_file(images[0], cv2.IMREAD_GRAYSCALE)
             if img is None:
                 raise InputError(f"{images[0]}: image not found or not readable")
             size = (img.shape[1], img.shape[0])

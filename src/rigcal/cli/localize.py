@@ -223,8 +223,14 @@ def matches(
 
     check_writable(output, force, [sequence, *([rig_file] if rig_file else [])])
     streams = open_streams(sequence, rig_file)
+    if streams.n_images < 2:
+        raise InputError.at(
+            sequence, "images", f"{streams.n_images} images", "2 or more images (a pair to match)"
+        )
     if index + 1 >= streams.n_images:
-        raise InputError.at(None, "--image", index, f"an image index below {streams.n_images - 1}")
+        raise InputError.at(
+            None, "--image", index, f"an index from 0 to {streams.n_images - 2} (the first image of a pair)"
+        )
     img, st = step_picture(streams, index, method)
     atomic_write_bytes(output, cv2.imencode(".png", img)[1].tobytes(), force=True)
     n = 0 if st.matches is None else len(st.matches.i1)

@@ -68,6 +68,7 @@ def pick(
     """
     from rigcal.calib.autopick import PickSettings, auto_pick, pick_file_text
     from rigcal.calib.picks import read_pick_draft
+    from rigcal.errors import CalibrationError
     from rigcal.io.files import atomic_write_text, check_apart, check_writable
     from rigcal.rigfile import read_rig
     from rigcal.viz.contact_sheet import SheetEntry, write_contact_sheet
@@ -86,7 +87,14 @@ def pick(
         search_px=search_px, edge_span_m=edge_span_m, review_below=review_below, box_width_m=box_width_m
     )
     run = auto_pick(draft, settings, T)
+    if all(p.image_endpoints_px is None for p in run.picks):
+        raise CalibrationError(
+            f"{picks}: no capture could be picked ({len(run.picks)} captures): with the pose from "
+            f"{run.seeded_from} no box end lands in its image (the box behind the camera or outside "
+            "the image); check --rig, or pick 3 or more captures by hand"
+        )
     text = pick_file_text(run, output)
+    sheet_was_there = sheet is not None and (sheet.exists() or sheet.is_symlink())
     if sheet is not None:
         entries = [
             SheetEntry(
@@ -101,8 +109,13 @@ def pick(
             for p, c in zip(run.picks, draft.captures, strict=True)
         ]
         write_contact_sheet(sheet, entries, force=force)
-    atomic_write_text(output, text, force=force)
-    auto = [p for p in run.picks if p.source == "auto"]
+    try:
+        atomic_write_text(output, text, force=force)
+    except BaseException:
+        if sheet is not None and not sheet_was_there:  # no sheet of a run that wrote no picks
+            sheet.unlink(missing_ok=True)
+        raise
+    auto = [p for p in run.picks if p.source == "auto" and p.image_endpoints_px is not None]
     review = [p for p in run.picks if p.review]
     for p in review:
         click.echo(f"review {p.name}: {'; '.join(p.reasons)}", err=True)

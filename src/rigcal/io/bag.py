@@ -85,20 +85,44 @@ def import_bag(
         scans: list[tuple[float, Scan]] = []
         images: list[tuple[float, bytes, str]] = []
         info: Any = None
+        camera_yaml: str | None = None
+        first_image: tuple[tuple[int, int], str] | None = None  # (width, height), where
+        info_where = ""
         conns = [c for c in reader.connections if c.topic in {t for t, _ in wanted.values()}]
         total = sum(int(c.msgcount) for c in conns)
+        seen = dict.fromkeys(topics, 0)
         for k, (con, _, raw) in enumerate(reader.messages(connections=conns)):
-            msg: Any = reader.deserialize(raw, con.msgtype)
+            where = f"{bag}: {con.topic} message {seen[con.topic]}"
+            seen[con.topic] += 1
+            msg = _deserialize(reader, raw, con.msgtype, where)
             stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
             if con.topic == scan_topic:
-                scans.append((stamp, _scan(msg, stamp, f"{bag}: {scan_topic} at {stamp:.9f} s")))
+                scans.append((stamp, _scan(msg, stamp, where)))
             elif con.topic == image_topic:
-                data, ext = _image_bytes(msg, con.msgtype, bag, image_topic)
+                data, ext, size = _image_bytes(msg, con.msgtype, where)
+                first_image = first_image or (size, where)
+                if size != first_image[0]:
+                    raise InputError.at(
+                        where, "size", _wxh(size), f"{_wxh(first_image[0])} like {first_image[1]}"
+                    )
                 images.append((stamp, data, ext))
             elif info is None:
                 info = msg
+                camera_yaml = _camera_yaml(msg, where)
+                info_where = where
             if progress is not None:
                 progress(k + 1, total)
+        if (
+            info is not None
+            and first_image is not None
+            and (int(info.width), int(info.height)) != first_image[0]
+        ):
+            raise InputError.at(
+                info_where,
+                "width x height",
+                _wxh((int(info.width), int(info.height))),
+                f"the images' size {_wxh(first_image[0])} ({first_image[1]}): a camera of other images",
+            )
     finally:
         reader.close()
     log.info("%s: %d scans, %d images read from %d messages", bag, len(scans), len(images), total)
@@ -109,7 +133,6 @@ def import_bag(
     scans_sorted, summary.reordered["scans"], summary.duplicates["scans"] = _ordered(scans)
     images_sorted, summary.reordered["images"], summary.duplicates["images"] = _ordered(images)
     frames = [ImageFrame(stamp, f"{i:06d}.{ext}", data) for i, (stamp, data, ext) in enumerate(images_sorted)]
-    camera_yaml = _camera_yaml(info) if info is not None else None
     write_sequence(
         output,
         bag.name,
@@ -143,14 +166,32 @@ def _ordered(items: list[Any]) -> tuple[list[Any], int, int]:
     return out, reordered, dup
 
 
+def _deserialize(reader: Any, raw: bytes, msgtype: str, where: str) -> Any:
+    """One message, or InputError naming it when its bytes do not make one of its type."""
+    try:
+        return reader.deserialize(raw, msgtype)
+    except Exception as exc:  # rosbags raises struct/index/value errors on short bodies
+        raise InputError(
+            f"{where}: cannot decode a {msgtype} ({type(exc).__name__}: {str(exc).strip()[:80]})"
+        ) from None
+
+
+# A real scanner's beam count is round((angle_max - angle_min) / angle_increment) + 1, but
+# drivers differ by one (urg_node and sick_scan drop or add the end beam), so a count
+# within one of it is accepted (docs/formats/sequence.md).
+BEAM_COUNT_SLACK = 1
+
+
 def _scan(msg: Any, stamp: float, where: str) -> Scan:
     """A LaserScan message as a scan; its geometry checked (finite, angles within 2 pi,
-    0 <= range_min < range_max), -inf ranges ("too close", REP 117) as 0 (no return) and
-    other negative ranges refused. A negative ``angle_increment`` (a scanner sweeping
-    clockwise, angle_max < angle_min) gives the same beams in reverse order, so that the
-    angles increase (docs/formats/scan.md)."""
+    0 <= range_min < range_max, as many ranges as angle_min .. angle_max in steps of
+    angle_increment give, within :data:`BEAM_COUNT_SLACK`), -inf ranges ("too close", REP
+    117) as 0 (no return) and other negative ranges refused. A negative
+    ``angle_increment`` (a scanner sweeping clockwise, angle_max < angle_min) gives the
+    same beams in reverse order, so that the angles increase (docs/formats/scan.md)."""
     two_pi = 2 * np.pi
     a0 = real(float(msg.angle_min), where, "angle_min", lo=-two_pi, hi=two_pi)
+    a1 = real(float(msg.angle_max), where, "angle_max", lo=-two_pi, hi=two_pi)
     r = np.asarray(msg.ranges, dtype=float)
     r = np.where(r == -np.inf, 0.0, r)
     if len(r) == 0:
@@ -158,6 +199,16 @@ def _scan(msg: Any, stamp: float, where: str) -> Scan:
     step = real(float(msg.angle_increment), where, "angle_increment", lo=-two_pi, hi=two_pi)
     if len(r) > 1 and step == 0:
         raise InputError.at(where, "angle_increment", step, "a non-zero step (rad)")
+    if step != 0:
+        n = round((a1 - a0) / step) + 1
+        if abs(len(r) - n) > BEAM_COUNT_SLACK:
+            raise InputError.at(
+                where,
+                "ranges",
+                f"{len(r)} ranges",
+                f"{n} (+-{BEAM_COUNT_SLACK}) = round((angle_max - angle_min) / angle_increment) + 1 "
+                f"with angle_min {a0:g}, angle_max {a1:g}, angle_increment {step:g} rad",
+            )
     lo = real(float(msg.range_min), where, "range_min", nonneg=True)
     hi = real(float(msg.range_max), where, "range_max", positive=True)
     if lo >= hi:
@@ -172,39 +223,107 @@ def _scan(msg: Any, stamp: float, where: str) -> Scan:
     return Scan.from_uniform(a0, step, r, lo, hi, stamp)
 
 
-def _image_bytes(msg: Any, msgtype: str, bag: Path, topic: str) -> tuple[bytes, str]:
-    """Encoded image bytes and their extension: compressed images as they are, raw images
-    as lossless PNG."""
+# Raw encodings stored (sensor_msgs/image_encodings.h): bytes per channel, channels.
+RAW_ENCODINGS = {
+    "mono8": (1, 1), "8uc1": (1, 1), "mono16": (2, 1), "16uc1": (2, 1),
+    "bgr8": (1, 3), "rgb8": (1, 3), "8uc3": (1, 3),
+}  # fmt: skip
+# The largest image side accepted (as camera files: docs/formats/camera.md).
+MAX_IMAGE_SIDE_PX = 10**6
+
+
+def _wxh(size: tuple[int, int]) -> str:
+    return f"{size[0]}x{size[1]}"
+
+
+def _image_bytes(msg: Any, msgtype: str, where: str) -> tuple[bytes, str, tuple[int, int]]:
+    """Encoded image bytes, their extension and the image's (width, height): compressed
+    images as they are (once they decode), raw images as lossless PNG.
+
+    A raw image must hold exactly ``height * step`` bytes with ``step >= width * bytes per
+    pixel`` (whole pixels for 16-bit encodings) and both sides positive; big-endian 16-bit
+    data are swapped to the machine's order."""
     import cv2
 
+    from rigcal.io.images import decode
+
     if msgtype.endswith("CompressedImage"):
-        fmt = str(msg.format).lower()
-        ext = "png" if "png" in fmt else "jpg"
-        return bytes(msg.data), ext
+        data = bytes(msg.data)
+        if data.startswith(b"\x89PNG\r\n\x1a\n"):
+            ext = "png"
+        elif data.startswith(b"\xff\xd8\xff"):
+            ext = "jpg"
+        else:
+            raise InputError.at(
+                where, "data", data[:8], f"PNG or JPEG bytes (format says {str(msg.format)[:40]!r})"
+            )
+        img = decode(data, cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise InputError.at(
+                where, "data", f"{len(data)} bytes of {ext.upper()}", "an image that decodes (damaged data)"
+            )
+        return data, ext, (int(img.shape[1]), int(img.shape[0]))
     enc = str(msg.encoding).lower()
-    h, w = int(msg.height), int(msg.width)
-    data = np.frombuffer(bytes(msg.data), dtype=np.uint16 if enc in ("mono16", "16uc1") else np.uint8)
-    if enc in ("mono8", "8uc1", "mono16", "16uc1"):
-        img = data.reshape(h, -1)[:, :w]
-    elif enc in ("bgr8", "rgb8", "8uc3"):
-        img = data.reshape(h, -1)[:, : 3 * w].reshape(h, w, 3)
-        if enc == "rgb8":
-            img = img[:, :, ::-1]
-    else:
-        raise InputError.at(bag, f"{topic}.encoding", enc, "mono8, mono16, bgr8 or rgb8")
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(img))
+    if enc not in RAW_ENCODINGS:
+        raise InputError.at(where, "encoding", str(msg.encoding)[:40], "mono8, mono16, bgr8 or rgb8")
+    size, channels = RAW_ENCODINGS[enc]
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    for key, v in (("height", h), ("width", w)):
+        if not 0 < v <= MAX_IMAGE_SIDE_PX:
+            raise InputError.at(where, key, v, f"a positive number of pixels (at most {MAX_IMAGE_SIDE_PX})")
+    if step < w * size * channels or step % size:
+        raise InputError.at(
+            where,
+            "step",
+            step,
+            f"at least width * {size * channels} = {w * size * channels} bytes"
+            + (f", a multiple of {size} ({enc})" if size > 1 else f" ({enc})"),
+        )
+    raw = bytes(msg.data)
+    if len(raw) != h * step:
+        raise InputError.at(
+            where, "data", f"{len(raw)} bytes", f"height * step = {h} * {step} = {h * step} bytes"
+        )
+    dtype = np.dtype(np.uint16 if size == 2 else np.uint8)
+    if size == 2:
+        dtype = dtype.newbyteorder(">" if int(msg.is_bigendian) else "<")
+    rows = np.frombuffer(raw, dtype=dtype).reshape(h, step // size)[:, : w * channels]
+    img = rows.reshape(h, w, channels) if channels == 3 else rows
+    if enc == "rgb8":
+        img = img[:, :, ::-1]
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(img, dtype=img.dtype.newbyteorder("=")))
     if not ok:  # pragma: no cover - cv2 encodes any 8/16-bit image
-        raise InputError(f"{bag}: {topic}: cannot encode an image as PNG")
-    return bytes(buf.tobytes()), "png"
+        raise InputError(f"{where}: cannot encode an image as PNG")
+    return bytes(buf.tobytes()), "png", (w, h)
 
 
-def _camera_yaml(info: Any) -> str:
-    """A rigcal camera file from a CameraInfo message (plumb_bob / rational_polynomial)."""
+def _camera_yaml(info: Any, where: str) -> str:
+    """A rigcal camera file from a CameraInfo message, checked as a ROS camera_info file is
+    (docs/formats/camera.md: a positive size, a finite K with fx, fy > 0 and no skew,
+    plumb_bob with 5 or rational_polynomial with 8 coefficients, or none), so that what is
+    written can be read back."""
     from rigcal.camera import Camera, camera_to_opencv_yaml
+    from rigcal.io.camera_formats import ROS_DISTORTION_MODELS, check_pinhole_K
 
     # ROS 2 names the fields k, d; ROS 1 names them K, D.
     K = np.asarray(info.k if hasattr(info, "k") else info.K, dtype=float).reshape(3, 3)
-    d = [float(x) for x in np.asarray(info.d if hasattr(info, "d") else info.D, dtype=float)]
-    if len(d) not in (0, 4, 5, 8, 12):
-        raise InputError.at(None, "camera_info.d", d, "0, 4, 5, 8 or 12 distortion coefficients")
-    return camera_to_opencv_yaml(Camera.from_opencv(K, d, int(info.width), int(info.height)))
+    d = np.asarray(info.d if hasattr(info, "d") else info.D, dtype=float)
+    w, h = int(info.width), int(info.height)
+    for key, v in (("width", w), ("height", h)):
+        if not 0 < v <= MAX_IMAGE_SIDE_PX:
+            raise InputError.at(
+                where, key, v, f"a positive image size in pixels (at most {MAX_IMAGE_SIDE_PX})"
+            )
+    if not np.all(np.isfinite(K)):
+        raise InputError.at(where, "K", K.ravel().tolist(), "finite numbers")
+    check_pinhole_K(K, where, "K")
+    model = str(info.distortion_model)
+    if len(d):
+        if model not in ROS_DISTORTION_MODELS:
+            raise InputError.at(
+                where, "distortion_model", model[:40], f"one of {sorted(ROS_DISTORTION_MODELS)}"
+            )
+        if len(d) not in ROS_DISTORTION_MODELS[model] or not np.all(np.isfinite(d)):
+            n = ROS_DISTORTION_MODELS[model][0]
+            raise InputError.at(where, "D", d.tolist(), f"{n} finite coefficients for {model}")
+    return camera_to_opencv_yaml(Camera.from_opencv(K, d.tolist(), w, h))

@@ -84,7 +84,7 @@ def camera_from_ros_camera_info(data: Mapping[str, Any], path: Path) -> Camera:
             dist.tolist(),
             f"{ROS_DISTORTION_MODELS[model][0]} coefficients",
         )
-    _check_K(K, path, "camera_matrix")
+    check_pinhole_K(K, path, "camera_matrix")
     return Camera.from_opencv(K, dist, d["image_width"], d["image_height"], source=str(path))
 
 
@@ -109,6 +109,9 @@ def camera_from_opencv_storage(path: Path) -> Camera:
     """A camera from an OpenCV FileStorage file (XML or ``%YAML:1.0``)."""
     import cv2
 
+    from rigcal.io.files import check_markup_depth
+
+    check_markup_depth(path, "camera file")
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:
@@ -127,7 +130,7 @@ def camera_from_opencv_storage(path: Path) -> Camera:
         fs.release()
     if K.shape != (3, 3):
         raise InputError.at(path, _found_key(OPENCV_KEYS["K"]), K.tolist(), "a 3x3 matrix")
-    _check_K(K, path, "camera_matrix")
+    check_pinhole_K(K, path, "camera_matrix")
     if len(D) not in (0, 4, 5, 8, 12):
         raise InputError.at(path, "distortion_coefficients", D.tolist(), "0, 4, 5, 8 or 12 coefficients")
     return Camera.from_opencv(K, D, size[0], size[1], source=str(path))
@@ -172,7 +175,8 @@ def _node_int(fs: Any, path: Path, what: str) -> int:
     return int(v)
 
 
-def _check_K(K: np.ndarray, path: Path, key: str) -> None:
+def check_pinhole_K(K: np.ndarray, path: str | Path | None, key: str) -> None:
+    """Refuse a K with skew or non-positive focal lengths (every reader of K uses this)."""
     if K[0, 1] != 0 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
         raise InputError.at(path, key, K.tolist(), "[[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)")
     if not (K[0, 0] > 0 and K[1, 1] > 0):

@@ -11,10 +11,17 @@ With :class:`Frames` ``camera_link`` the camera end is instead the camera's body
 (REP 103 axes), the frame a camera driver hangs its optical frame from.
 
 All functions are pure (text in, text out); :func:`export_rig` picks one by name.
+
+Names reach other languages here: frame names become XML attributes and comments (URDF,
+xacro, launch files) and shell words (``rosrun``, ``ros2 run``). They are checked against
+the ROS name rules (:func:`ros_name`) and, as a second fence, escaped for each language
+(:func:`_attr`, :func:`_comment`, ``shlex.quote``).
 """
 
 from __future__ import annotations
 
+import re
+import shlex
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +46,51 @@ FORMATS = ("ros", "urdf", "xacro", "kalibr", "mrcal")
 R_LINK_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
+# A ROS name (wiki.ros.org/Names, design.ros2.org "Topic and Service name mapping"): tokens
+# of a letter then letters, digits and '_', joined by '/'. tf2 frame ids take no leading
+# '/' (ROS 2 refuses them); topics are absolute ('/' first) here. No '__' (reserved in ROS
+# 2), no trailing '_' or '/'.
+_TOKENS = r"[A-Za-z][A-Za-z0-9_]*(?:/[A-Za-z][A-Za-z0-9_]*)*"
+_FRAME_RE = re.compile(_TOKENS)
+_TOPIC_RE = re.compile("/" + _TOKENS)
+MAX_ROS_NAME = 200
+FRAME_NAME_RULE = (
+    "a ROS frame name: a letter, then letters, digits and '_' (tokens joined by '/'; "
+    "no leading '/', no '__', no trailing '_')"
+)
+TOPIC_NAME_RULE = "a ROS topic name: '/', then tokens of a letter, letters, digits and '_' joined by '/'"
+
+
+def ros_name(name: object, key: str, topic: bool = False) -> str:
+    """``name`` if it is a ROS frame name (or, with ``topic``, an absolute topic name).
+
+    Raises:
+        InputError: ``KEY: got NAME; expected a ROS frame name ...``.
+    """
+    pattern, rule = (_TOPIC_RE, TOPIC_NAME_RULE) if topic else (_FRAME_RE, FRAME_NAME_RULE)
+    if (
+        not isinstance(name, str)
+        or len(name) > MAX_ROS_NAME
+        or not pattern.fullmatch(name)
+        or "__" in name
+        or name.endswith("_")
+    ):
+        raise InputError.at(None, key, name, rule)
+    return name
+
+
+def _attr(value: str) -> str:
+    """``value`` escaped for a double-quoted XML attribute."""
+    return value.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;")
+
+
+def _comment(text: str) -> str:
+    """``text`` safe inside an XML comment (which may not hold ``--`` nor end in ``-``)."""
+    while "--" in text:
+        text = text.replace("--", "- -")
+    return text + " " if text.endswith("-") else text
+
+
 @dataclass(frozen=True)
 class Frames:
     """Which frames an export joins, and their names.
@@ -57,6 +109,15 @@ class Frames:
     camera_link: bool = False
     parent_frame: str | None = None
     child_frame: str | None = None
+
+    def __post_init__(self) -> None:
+        """Frame names are checked here, before they reach any export."""
+        for key, name in (("parent_frame", self.parent_frame), ("child_frame", self.child_frame)):
+            if name is not None:
+                ros_name(name, key)
+        pf, cf = self.names()
+        if pf == cf:
+            raise InputError.at(None, "child_frame", cf, "a name other than the parent frame's")
 
     def camera_name(self) -> str:
         return "camera_link" if self.camera_link else "camera_optical_frame"
@@ -122,11 +183,13 @@ def ros_static_transform(rig: Rig, frames: Frames | None = None) -> str:
     """ROS 1 and ROS 2 ``static_transform_publisher`` commands and launch-file lines."""
     T, pf, cf, what = _direction(rig, frames or Frames())
     xyz, q = _xyz_quat(T)
-    args1 = " ".join(_f(v) for v in (*xyz, *q)) + f" {pf} {cf}"
-    args2 = (
-        f"--x {_f(xyz[0])} --y {_f(xyz[1])} --z {_f(xyz[2])} --qx {_f(q[0])} --qy {_f(q[1])} "
-        f"--qz {_f(q[2])} --qw {_f(q[3])} --frame-id {pf} --child-frame-id {cf}"
-    )
+    words1 = [*(_f(v) for v in (*xyz, *q)), pf, cf]
+    words2 = [
+        *("--x", _f(xyz[0]), "--y", _f(xyz[1]), "--z", _f(xyz[2])),
+        *("--qx", _f(q[0]), "--qy", _f(q[1]), "--qz", _f(q[2]), "--qw", _f(q[3])),
+        *("--frame-id", pf, "--child-frame-id", cf),
+    ]
+    node = _attr(f"{pf}_to_{cf}".replace("/", "_"))  # a node name has no '/'
     return "\n".join(
         [
             f"# rigcal rig as a ROS static transform: parent {pf}, child {cf}.",
@@ -135,12 +198,14 @@ def ros_static_transform(rig: Rig, frames: Frames | None = None) -> str:
             f"# {what[2]}.",
             "",
             "# ROS 1:",
-            f"rosrun tf2_ros static_transform_publisher {args1}",
-            f'<node pkg="tf2_ros" type="static_transform_publisher" name="{pf}_to_{cf}" args="{args1}"/>',
+            f"rosrun tf2_ros static_transform_publisher {shlex.join(words1)}",
+            f'<node pkg="tf2_ros" type="static_transform_publisher" name="{node}" '
+            f'args="{_attr(shlex.join(words1))}"/>',
             "",
             "# ROS 2:",
-            f"ros2 run tf2_ros static_transform_publisher {args2}",
-            f'<node pkg="tf2_ros" exec="static_transform_publisher" name="{pf}_to_{cf}" args="{args2}"/>',
+            f"ros2 run tf2_ros static_transform_publisher {shlex.join(words2)}",
+            f'<node pkg="tf2_ros" exec="static_transform_publisher" name="{node}" '
+            f'args="{_attr(shlex.join(words2))}"/>',
             "",
         ]
     )
@@ -159,19 +224,19 @@ def _origin(T: FloatArray) -> str:
 def _xml_head(title: str, what: list[str], usage: tuple[str, ...] = ()) -> list[str]:
     return [
         '<?xml version="1.0"?>',
-        f"<!-- rigcal rig as {title} places {what[0]}",
-        f"     {what[1]}",
-        f"     {what[2]}.",
-        *usage,
+        "<!-- " + _comment(f"rigcal rig as {title} places {what[0]}"),
+        _comment(f"     {what[1]}"),
+        _comment(f"     {what[2]}."),
+        *(_comment(u) for u in usage),
         "     rpy: fixed-axis roll, pitch, yaw (rad). -->",
     ]
 
 
 def _joint(parent: str, child: str, T: FloatArray, indent: str) -> list[str]:
     return [
-        f'{indent}<joint name="{parent}_to_{child}" type="fixed">',
-        f'{indent}  <parent link="{parent}"/>',
-        f'{indent}  <child link="{child}"/>',
+        f'{indent}<joint name="{_attr(parent)}_to_{_attr(child)}" type="fixed">',
+        f'{indent}  <parent link="{_attr(parent)}"/>',
+        f'{indent}  <child link="{_attr(child)}"/>',
         f"{indent}  {_origin(T)}",
         f"{indent}</joint>",
     ]
@@ -183,9 +248,9 @@ def urdf_robot(rig: Rig, frames: Frames | None = None, robot_name: str = "rigcal
     return "\n".join(
         [
             *_xml_head(f"a URDF robot: the joint {pf}_to_{cf}", what),
-            f'<robot name="{robot_name}">',
-            f'  <link name="{pf}"/>',
-            f'  <link name="{cf}"/>',
+            f'<robot name="{_attr(robot_name)}">',
+            f'  <link name="{_attr(pf)}"/>',
+            f'  <link name="{_attr(cf)}"/>',
             *_joint(pf, cf, T, "  "),
             "</robot>",
             "",
@@ -208,7 +273,7 @@ def urdf_xacro(rig: Rig, frames: Frames | None = None) -> str:
         [
             *_xml_head("a xacro macro: the joint", what, usage),
             '<robot xmlns:xacro="http://www.ros.org/wiki/xacro">',
-            f'  <xacro:macro name="rigcal_rig" params="parent:={pf} child:={cf}">',
+            f'  <xacro:macro name="rigcal_rig" params="parent:={_attr(pf)} child:={_attr(cf)}">',
             '    <link name="${child}"/>',
             *_joint("${parent}", "${child}", T, "    "),
             "  </xacro:macro>",
@@ -255,8 +320,7 @@ def kalibr_yaml(rig: Rig, rostopic: str = "/camera/image_raw", source: str | Pat
             f"k3..k6 = 0 for Kalibr's radtan distortion (k1, k2, p1, p2; {cam.lensmodel}); "
             "recalibrate with LENSMODEL_OPENCV4 or use --format mrcal",
         )
-    if not rostopic.startswith("/"):
-        raise InputError.at(None, "--rostopic", rostopic, "a ROS topic name starting with '/'")
+    ros_name(rostopic, "--rostopic", topic=True)
     dist = [float(x) for x in intr[4:8]] if len(intr) > 4 else [0.0, 0.0, 0.0, 0.0]
     T = np.asarray(rig.T_cam_laser, dtype=float)
     doc: dict[str, Any] = {

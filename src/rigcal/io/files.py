@@ -13,6 +13,7 @@ import contextlib
 import hashlib
 import math
 import os
+import re
 import secrets
 import shutil
 import tempfile
@@ -36,6 +37,13 @@ except AttributeError:  # pragma: no cover - depends on how PyYAML was built
 # nested aliases can stand for gigabytes (a "billion laughs").
 MAX_TEXT_BYTES = 1 << 30
 MAX_YAML_VALUES = 10_000_000
+# Collections nest at most this deep in a YAML file rigcal reads. The parser builds nested
+# values by recursion: 50 000 nested brackets overflow the C stack and kill the process
+# (a segmentation fault, no message). rigcal's own files nest 6 deep at most.
+MAX_YAML_DEPTH = 100
+# Indicators that can open a nesting level: flow brackets, and block entries or keys
+# ("- ", "? ", ": " or the same at the end of a line).
+_OPENERS = re.compile(r"[\[{]|[-?:](?=[ \t\r\n]|$)", re.MULTILINE)
 
 
 def read_text(path: str | Path, what: str = "file") -> str:
@@ -71,6 +79,14 @@ def load_yaml(path: str | Path, what: str = "file") -> Any:
     """
     path = Path(path)
     text = read_text(path, what)
+    return parse_yaml(text, path, what)
+
+
+def parse_yaml(text: str, path: str | Path, what: str = "file") -> Any:
+    """The YAML document ``text`` read from ``path`` (named in errors), checked as
+    :func:`load_yaml` checks a file: nesting depth, alias expansion, syntax, file kind."""
+    path = Path(path)
+    _check_depth(text, path)
     try:
         if "*" in text and "&" in text:  # only then can aliases expand or loop
             _check_expansion(yaml.compose(text, Loader=_SafeLoader), path)
@@ -84,6 +100,92 @@ def load_yaml(path: str | Path, what: str = "file") -> Any:
     if message is not None:
         raise InputError(message)
     return data
+
+
+def _check_depth(text: str, path: Path) -> None:
+    """Refuse a document whose collections nest deeper than MAX_YAML_DEPTH, before the
+    recursive parser sees it. Each level needs an opening indicator, so a document with
+    fewer indicators than the limit is shallow enough (the usual case, a regex count);
+    otherwise the parser's event stream, which libyaml produces without recursion, is
+    walked and the depth counted exactly."""
+    if len(_OPENERS.findall(text, 0, len(text))) <= MAX_YAML_DEPTH:
+        return
+    depth = 0
+    try:
+        for event in yaml.parse(text, Loader=_SafeLoader):
+            if isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
+                depth += 1
+                if depth > MAX_YAML_DEPTH:
+                    mark = event.start_mark
+                    at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+                    raise InputError(
+                        f"{path}: YAML nested deeper than {MAX_YAML_DEPTH} levels{at}; "
+                        "expected a rigcal file (a few levels deep)"
+                    )
+            elif isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
+                depth -= 1
+    except yaml.YAMLError:
+        # Not YAML that PyYAML reads (another parser's dialect, or a syntax error that the
+        # parse that follows reports with its place): bound the depth from the text.
+        if _text_depth(text) > MAX_YAML_DEPTH:
+            raise InputError(
+                f"{path}: nested deeper than {MAX_YAML_DEPTH} levels; "
+                "expected a rigcal file (a few levels deep)"
+            ) from None
+
+
+def _text_depth(text: str) -> int:
+    """An over-estimate of how deep a YAML-like text nests: the deepest run of unclosed
+    brackets plus, per line, its indentation and its chained "- " entries."""
+    depth = deepest = 0
+    for c in text:
+        if c in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif c in "]}":
+            depth = max(depth - 1, 0)
+    block = max(
+        (len(line) - len(line.lstrip(" -")) for line in text.splitlines() if line.lstrip(" -")),
+        default=0,
+    )
+    return deepest + block
+
+
+def check_markup_depth(path: str | Path, what: str = "file") -> None:
+    """Refuse a YAML or XML file that another library will parse (OpenCV's FileStorage,
+    which recurses and crashes on 50 000 nested levels) when it nests deeper than
+    MAX_YAML_DEPTH: XML counted with expat (no recursion), YAML as :func:`load_yaml`
+    counts it (after OpenCV's ``%YAML:1.0`` line).
+
+    Raises:
+        InputError: the file is missing, unreadable or too deep.
+    """
+    path = Path(path)
+    text = read_text(path, what)
+    if not text.lstrip().startswith("<"):
+        _check_depth(re.sub(r"\A%YAML:1\.0[^\n]*", "", text), path)  # (keeps the line numbers)
+        return
+    import xml.parsers.expat
+
+    parser = xml.parsers.expat.ParserCreate()
+    depth = [0]
+
+    def start(*_: Any) -> None:
+        depth[0] += 1
+        if depth[0] > MAX_YAML_DEPTH:
+            raise InputError(
+                f"{path}: XML nested deeper than {MAX_YAML_DEPTH} levels at line {parser.CurrentLineNumber}; "
+                f"expected a {what} (a few levels deep)"
+            )
+
+    def end(*_: Any) -> None:
+        depth[0] -= 1
+
+    parser.StartElementHandler, parser.EndElementHandler = start, end
+    try:
+        parser.Parse(text, True)
+    except xml.parsers.expat.ExpatError:
+        return  # not well-formed: the reader reports it
 
 
 def _check_expansion(root: yaml.Node | None, path: Path) -> None:
@@ -204,9 +306,20 @@ def check_apart(output: str | Path, inputs: Iterable[str | Path]) -> None:
     """An output must not be, contain or sit inside any input (compared after resolving
     symlinks and ``..``), so that no write or ``--force`` can touch what is being read.
 
+    An output whose path holds a control or bidi character (:func:`hidden_char`) is
+    refused too: its name would not show as it is in a terminal or a file browser.
+
     Raises:
         OutputError: naming the output and the input it collides with.
     """
+    from rigcal.io.validate import hidden_char
+
+    bad = hidden_char(str(output))
+    if bad is not None:
+        raise OutputError(
+            f"{ascii(str(output))[1:-1]}: output path holds U+{ord(bad):04X}; expected a path without "
+            "control or bidi characters"
+        )
     out = _resolved(output)
     for given in inputs:
         inp = _resolved(given)

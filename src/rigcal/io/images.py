@@ -14,8 +14,15 @@ libpng may honour) is read by OpenCV itself.
 
 from __future__ import annotations
 
+import contextlib
+import logging
+import os
 import struct
+import tempfile
+import threading
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +30,7 @@ from numpy.typing import NDArray
 from rigcal.jit import njit
 
 Gray = NDArray[np.uint8]
+log = logging.getLogger(__name__)
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # Chunks before the image data that leave the decoded levels as stored: text, time,
@@ -60,8 +68,73 @@ def read_grey(path: str | Path) -> Gray | None:
                 return img
             if kind == _RGB and img.ndim == 3 and img.shape[2] == 3:
                 return rgb_to_grey(img)
-    out = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    out = decode(data, cv2.IMREAD_GRAYSCALE)
     return None if out is None else np.asarray(out, dtype=np.uint8)
+
+
+def decode(data: bytes, flags: int) -> NDArray[Any] | None:
+    """``cv2.imdecode(data, flags)``, None for a file that does not decode, with what
+    OpenCV's PNG codec prints about a damaged file (libpng's "libpng error: IDAT: CRC
+    error", OpenCV's own warnings) kept off the terminal: it goes to the debug log, so that
+    the one line a command prints on bad input is rigcal's. (PNG decodes hold a lock while
+    stderr is redirected; plain 8-bit PNGs of sequences are read by :func:`read_grey`'s
+    own decoder, JPEGs without the lock.)"""
+    import cv2
+
+    if not data:
+        return None
+    if data.startswith(_PNG_SIGNATURE):  # libpng writes its own "libpng error: ..." lines
+        with _codec_messages_to_log():
+            out = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    else:  # JPEG and the rest say nothing of their own, and decode in parallel threads
+        out = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    return None if out is None else np.asarray(out)
+
+
+def read_image_file(path: str | Path, flags: int) -> NDArray[Any] | None:
+    """The image at ``path`` decoded with :func:`decode`; None when it is missing,
+    unreadable or does not decode (as ``cv2.imread(path, flags)``)."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError:
+        return None
+    return decode(data, flags)
+
+
+_STDERR_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _codec_messages_to_log() -> Iterator[None]:
+    """Redirect file descriptor 2 (where libpng and OpenCV's logger write) to a temporary
+    file for the duration; lines from the codecs go to the debug log, any other text
+    (another thread's) is written back to stderr afterwards."""
+    import cv2
+
+    with _STDERR_LOCK, tempfile.TemporaryFile() as sink:
+        level = cv2.utils.logging.getLogLevel()
+        try:
+            saved = os.dup(2)
+        except OSError:  # no stderr to redirect
+            yield
+            return
+        try:
+            cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+            os.dup2(sink.fileno(), 2)
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            cv2.utils.logging.setLogLevel(level)
+            sink.seek(0)
+            other = []
+            for line in sink.read().decode("utf-8", "replace").splitlines(keepends=True):
+                if line.startswith(("libpng", "libjpeg", "Corrupt JPEG", "Premature end of JPEG")):
+                    log.debug("image codec: %s", line.strip())
+                else:
+                    other.append(line)
+            if other:
+                os.write(2, "".join(other).encode())
 
 
 def plain_png_kind(data: bytes) -> int | None:

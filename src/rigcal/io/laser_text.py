@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from rigcal.errors import InputError
 from rigcal.io.files import read_text
 from rigcal.io.sequence import ImageFrame, write_sequence
-from rigcal.io.validate import relative_inside
+from rigcal.io.validate import file_inside
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
@@ -288,7 +288,7 @@ def read_image_list(path: str | Path) -> tuple[FloatArray, list[Path]]:
                     f"{path}: line {n}: got {line[:60]!r}; expected a stamp (s) and an image file"
                 )
             stamp = float(numbers[0])
-            file = path.parent / relative_inside(names[0], path, f"line {n}")
+            file = file_inside(path.parent, names[0], path, f"line {n}")
             if not file.is_file():
                 raise InputError(f"{path}: line {n}: image {names[0]} not found in {path.parent}")
         if stamps and not stamp > stamps[-1]:

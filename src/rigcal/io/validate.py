@@ -175,17 +175,40 @@ def finite_array(
     return a
 
 
+# Unicode categories a name must not hold: controls (C0, DEL, C1), format characters (the
+# bidi overrides and isolates U+202A-U+202E, U+2066-U+2069 that make a terminal show
+# "evil\u202egnp.exe" as "evilexe.png", zero-width characters), line and paragraph
+# separators, lone surrogates.
+_HIDDEN_CATEGORIES = frozenset({"Cc", "Cf", "Zl", "Zp", "Cs"})
+# A name that becomes a file name is at most this many UTF-8 bytes (file systems allow 255;
+# rigcal appends suffixes and temporary-name parts).
+MAX_NAME_BYTES = 200
+
+
+def hidden_char(text: str) -> str | None:
+    """The first character of ``text`` that a terminal or an editor would not show as it
+    is (:data:`_HIDDEN_CATEGORIES`), or None."""
+    if text.isascii():
+        return next((c for c in text if ord(c) < 32 or ord(c) == 127), None)
+    import unicodedata
+
+    return next((c for c in text if unicodedata.category(c) in _HIDDEN_CATEGORIES), None)
+
+
 def path_component(name: Any, where: Where, key: str) -> str:
     """``name`` as one file-name component: non-empty text without a slash, a backslash, a
-    NUL byte or control characters, and not ``.`` or ``..``, so that it can never name a
-    file outside the folder it is joined to."""
-    expected = "a name without '/', '\\', '..', NUL or control characters"
+    NUL byte, control or bidi characters (:func:`hidden_char`), not ``.`` or ``..`` and at
+    most :data:`MAX_NAME_BYTES` bytes, so that it can never name a file outside the folder
+    it is joined to, nor one the file system refuses."""
+    expected = (
+        f"a name of at most {MAX_NAME_BYTES} bytes without '/', '\\', '..', NUL, control or bidi characters"
+    )
     if (
         not isinstance(name, str)
         or name in ("", ".", "..")
         or any(c in name for c in "/\\")
-        or any(ord(c) < 32 or ord(c) == 127 for c in name)
-        or len(name.encode("utf-8", "surrogatepass")) > 200
+        or hidden_char(name) is not None
+        or len(name.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES
     ):
         raise InputError.at(where, key, name, expected)
     return name
@@ -194,13 +217,29 @@ def path_component(name: Any, where: Where, key: str) -> str:
 def relative_inside(rel: Any, where: Where, key: str) -> str:
     """``rel`` as a relative path that stays inside the folder it is joined to: no absolute
     path, no drive, no ``..`` component, no NUL or control characters."""
-    expected = "a relative path inside the folder (no '..', no leading '/', no NUL)"
-    if not isinstance(rel, str) or not rel.strip() or any(ord(c) < 32 or ord(c) == 127 for c in rel):
+    expected = "a relative path inside the folder (no '..', no leading '/', no NUL, control or bidi chars)"
+    if not isinstance(rel, str) or not rel.strip() or hidden_char(rel) is not None:
         raise InputError.at(where, key, rel, expected)
     posix, win = PurePosixPath(rel), PureWindowsPath(rel)
     if posix.is_absolute() or win.is_absolute() or win.drive or ".." in posix.parts or ".." in win.parts:
         raise InputError.at(where, key, rel, expected)
     return rel
+
+
+def file_inside(folder: Path, rel: Any, where: Where, key: str) -> Path:
+    """``folder / rel`` for a ``rel`` that :func:`relative_inside` accepts and that, with
+    its symlinks followed, is still inside ``folder``: a list's entry that is a symlink
+    to a file elsewhere would copy that file's bytes into an output."""
+    path = folder / relative_inside(rel, where, key)
+    try:
+        real_path, real_folder = path.resolve(), folder.resolve()
+    except (OSError, RuntimeError):  # a symlink loop
+        raise InputError.at(where, key, rel, "a file, not a symlink loop") from None
+    if not real_path.is_relative_to(real_folder):
+        raise InputError.at(
+            where, key, rel, f"a file inside {folder} (it is a symlink to {real_path}, outside)"
+        )
+    return path
 
 
 def no_nul(path: str | os.PathLike[str], what: str) -> Path:

@@ -31,10 +31,12 @@ def read_image(path: str | Path) -> NDArray[np.uint8]:
     """Read an image as 8-bit BGR; InputError if missing or unreadable."""
     import cv2
 
+    from rigcal.io.images import read_image_file
+
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: image not found")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    img = read_image_file(path, cv2.IMREAD_COLOR)
     if img is None:
         raise InputError(f"{path}: cannot decode image (expected PNG, JPEG or another format OpenCV reads)")
     out: NDArray[np.uint8] = np.asarray(img, dtype=np.uint8)
