@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from rigcal.io.validate import Real
+
+if TYPE_CHECKING:
+    from rigcal.localize.pipeline import MethodRun
 
 rig_option = click.option(
     "--rig",
@@ -112,7 +116,7 @@ def localize(
     elif r.truth is not None:
         click.echo(table([(m.method, m.metrics) for m in r.methods if m.metrics is not None]))
     for m in r.methods:
-        click.echo(f"{m.method}: {len(m.stamps_s)} poses, {m.seconds:.1f} s of its own", err=True)
+        click.echo(method_line(m), err=True)
     shared = ", ".join(f"{k.removesuffix('_s')} {v:.1f} s" for k, v in r.timings_s.items())
     click.echo(f"stages: {shared}", err=True)
     ratio = r.duration_s / r.wall_s if r.wall_s > 0 else float("inf")
@@ -120,6 +124,15 @@ def localize(
         f"{r.duration_s:.1f} s of data in {r.wall_s:.1f} s ({ratio:.2f}x real time); wrote {output}/",
         err=True,
     )
+
+
+def method_line(m: MethodRun) -> str:
+    """One method's poses and time: the shared stages it is built on, then its own work."""
+    line = f"{m.method}: {len(m.stamps_s)} poses in {m.total_s:.1f} s"
+    if not m.shared_s:
+        return line
+    shared = ", ".join(f"{k.removesuffix('_s')} {v:.1f} s" for k, v in m.shared_s.items())
+    return f"{line} (shared stages {shared}; its own {m.seconds:.1f} s)"
 
 
 @click.command("evaluate")

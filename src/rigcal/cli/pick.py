@@ -97,6 +97,7 @@ def pick(
                 "manual" if p.source == "manual" else f"auto, confidence {p.confidence:.2f}",
                 p.review,
                 p.source == "manual",
+                p.reasons,
             )
             for p, c in zip(run.picks, draft.captures, strict=True)
         ]

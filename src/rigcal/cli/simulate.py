@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import click
@@ -15,7 +16,7 @@ def simulate() -> None:
 
     \b
     Examples:
-      rigcal simulate calib-session -o session/ --seed 1
+      rigcal simulate box-session -o session/ --seed 1
     """
 
 
@@ -31,7 +32,7 @@ _noise_option = click.option(
 )
 
 
-@simulate.command("calib-session")
+@simulate.command("box-session")
 @click.option(
     "-o",
     "--output",
@@ -92,7 +93,7 @@ _noise_option = click.option(
     is_flag=True,
     help="Print what was written (and the true T_cam_laser) as JSON on stdout.",
 )
-def calib_session(
+def box_session(
     output: Path,
     captures: int,
     seed: int,
@@ -106,7 +107,8 @@ def calib_session(
     force: bool,
     as_json: bool,
 ) -> None:
-    """Write a synthetic box-target session with its truth file.
+    """Write a synthetic box-target session with its truth file (also known by its first
+    name, calib-session).
 
     The box is placed at random distances (1.2-4 m), bearings and angles in a simulated
     room; scans are ray-cast with range noise and dropouts, images rendered through the
@@ -116,13 +118,13 @@ def calib_session(
 
     \b
     Examples:
-      rigcal simulate calib-session -o examples/box-session --seed 1
-      rigcal simulate calib-session -o /tmp/s --captures 8 --wrong-picks 0.25 --force
-      rigcal simulate calib-session -o /tmp/s --pick-sigma-px 2 --range-sigma-m 0.02 --no-images
+      rigcal simulate box-session -o examples/box-session --seed 1
+      rigcal simulate box-session -o /tmp/s --captures 8 --wrong-picks 0.25 --force
+      rigcal simulate box-session -o /tmp/s --pick-sigma-px 2 --range-sigma-m 0.02 --no-images
       rigcal solve /tmp/s/picks.yaml -o rig.yaml --truth /tmp/s/truth.yaml
-      rigcal simulate calib-session -o /tmp/moved --captures 8 --seed 2 --move-deg 0.5 --no-images
+      rigcal simulate box-session -o /tmp/moved --captures 8 --seed 2 --move-deg 0.5 --no-images
       rigcal check rig.yaml --picks /tmp/moved/picks.yaml
-      rigcal simulate calib-session -o /tmp/real --noise realistic --no-images
+      rigcal simulate box-session -o /tmp/real --noise realistic --no-images
     """
     from rigcal.io.files import check_folder_writable
     from rigcal.sim.box_session import (
@@ -159,6 +161,12 @@ def calib_session(
         f"Solve it with: rigcal solve {output}/picks.yaml -o rig.yaml --truth {output}/truth.yaml",
         err=True,
     )
+
+
+# The box session's first name, kept so that scripts written for it still run.
+calib_session = copy.copy(box_session)
+calib_session.hidden = True
+simulate.add_command(calib_session, "calib-session")
 
 
 @simulate.command("board-session")
