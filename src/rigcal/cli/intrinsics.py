@@ -52,7 +52,12 @@ def _board(value: str, option: str) -> tuple[int, int]:
 )
 @click.option("--focal-px", type=Real(min=1.0), help="Rough focal length for the seed [image width].")
 @click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path), help="The .cameramodel to write."
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path),
+    metavar="FILE",
+    help="The .cameramodel to write.",
 )
 @click.option(
     "--save-corners", type=click.Path(path_type=Path), help="Also write the detected corners (corners.vnl)."

@@ -32,7 +32,9 @@ rig_option = click.option(
     "Eq. 4), vo (visual odometry with laser scale), kf (Kalman filter of icp and vo), iasm "
     "(image augmented scan matching), hiasm (homography based IASM).",
 )
-@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output folder.")
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path), metavar="DIR", help="Output folder."
+)
 @rig_option
 @click.option("--kitti", is_flag=True, help="Also write each trajectory in KITTI form.")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
@@ -209,7 +211,12 @@ def labels(paths: tuple[Path, ...]) -> list[str]:
     help="Matching method.",
 )
 @click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path, dir_okay=False), help="PNG to write."
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    metavar="FILE",
+    help="PNG to write.",
 )
 @rig_option
 @click.option("--force", is_flag=True, help="Replace an existing file.")

@@ -39,6 +39,7 @@ _noise_option = click.option(
     "output",
     required=True,
     type=click.Path(path_type=Path),
+    metavar="DIR",
     help="Session folder to create.",
 )
 @click.option(
@@ -176,6 +177,7 @@ simulate.add_command(calib_session, "calib-session")
     "output",
     required=True,
     type=click.Path(path_type=Path),
+    metavar="DIR",
     help="Folder to create.",
 )
 @click.option(
@@ -261,6 +263,7 @@ def board_session(
     "output",
     required=True,
     type=click.Path(path_type=Path),
+    metavar="DIR",
     help="Sequence folder.",
 )
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
