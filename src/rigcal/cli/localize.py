@@ -11,7 +11,12 @@ import click
 from rigcal.io.validate import Real
 
 if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
     from rigcal.localize.pipeline import MethodRun
+
+    FloatArray = NDArray[np.float64]
 
 rig_option = click.option(
     "--rig",
@@ -147,28 +152,61 @@ def method_line(m: MethodRun) -> str:
     type=Real(min=0.0),
     help="Stamps of estimate and truth closer than this are matched (evo's --t_max_diff).",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
-def evaluate_cmd(trajectories: tuple[Path, ...], gt: Path, max_diff_s: float, as_json: bool) -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON, unrounded.")
+@click.option(
+    "--precision",
+    default=4,
+    show_default=True,
+    type=click.IntRange(0, 12),
+    help="Decimals of the table's figures (the JSON is never rounded).",
+)
+@click.option(
+    "--plot",
+    type=click.Path(path_type=Path, dir_okay=False),
+    metavar="FILE",
+    help="Chart the paths against the truth beside their errors over time (.png, .svg or .pdf).",
+)
+@click.option("--force", is_flag=True, help="Overwrite an existing --plot file.")
+def evaluate_cmd(
+    trajectories: tuple[Path, ...],
+    gt: Path,
+    max_diff_s: float,
+    as_json: bool,
+    precision: int,
+    plot: Path | None,
+    force: bool,
+) -> None:
     """Score TUM TRAJECTORIES against ground truth the way the paper's Table 1 does, plus
     ATE and RPE over 1 m and 10 m exactly as evo computes them (evo_ape --align,
     evo_rpe --delta D --delta_unit m). Poses are matched to the truth by stamp as evo does.
     Each row is labelled by its method folder (out/icp/trajectory.tum -> icp; longer
-    paths where two would be the same). With --json, one trajectory gives one object of
-    figures, several give one object per label.
+    paths where two would be the same). The table rounds to --precision decimals; with
+    --json, unrounded figures: one trajectory gives one object of figures, several give
+    one object per label. --plot charts the paths (each started at the truth's first
+    matched pose) and their position errors over time, as evo_ape --plot does.
 
     \b
     Examples:
       rigcal evaluate out/icp/trajectory.tum --gt corridor/groundtruth.tum
       rigcal evaluate out/*/trajectory.tum --gt corridor/groundtruth.tum --json
+      rigcal evaluate out/iasm/trajectory.tum out/hiasm/trajectory.tum --gt corridor/groundtruth.tum \\
+        --plot compare.png --precision 6
     """
     from rigcal.errors import InputError
+    from rigcal.io.files import check_writable
     from rigcal.io.trajectory import read_tum
-    from rigcal.localize.metrics import associate, evaluate
+    from rigcal.localize.metrics import anchored, associate, evaluate
     from rigcal.localize.pipeline import planar_at, table
 
+    if plot is not None:
+        from rigcal.viz.charts import check_chart_name
+
+        check_chart_name(plot)
+        check_writable(plot, force, [*trajectories, gt])
     truth = read_tum(gt)
     assert truth.stamps_s is not None
     rows = []
+    drawn: dict[str, tuple[FloatArray, FloatArray, FloatArray]] = {}  # label -> (estimate, truth, stamps)
     for path, label in zip(trajectories, labels(trajectories), strict=True):
         est = read_tum(path)
         assert est.stamps_s is not None
@@ -182,11 +220,24 @@ def evaluate_cmd(trajectories: tuple[Path, ...], gt: Path, max_diff_s: float, as
             )
         poses_est = planar_at(est, est.stamps_s)[i_est]
         poses_gt = planar_at(truth, truth.stamps_s)[i_gt]
-        rows.append((label, {**evaluate(poses_est, poses_gt), "matched_poses": len(i_est)}))
+        rows.append((label, {**evaluate(poses_est, poses_gt, rounded=False), "matched_poses": len(i_est)}))
+        drawn[label] = (anchored(poses_est, poses_gt), poses_gt, est.stamps_s[i_est])
+    if plot is not None:
+        from rigcal.viz.charts import save_figure
+        from rigcal.viz.paths_plot import evaluation_figure
+
+        fig = evaluation_figure(
+            planar_at(truth, truth.stamps_s),
+            {k: v[0] for k, v in drawn.items()},
+            {k: v[1] for k, v in drawn.items()},
+            {k: v[2] for k, v in drawn.items()},
+        )
+        save_figure(plot, fig, force=force)
+        click.echo(f"wrote {plot}", err=True)
     if as_json:
         click.echo(json.dumps(rows[0][1] if len(rows) == 1 else dict(rows), indent=1))
     else:
-        click.echo(table(rows))
+        click.echo(table(rows, precision))
 
 
 def labels(paths: tuple[Path, ...]) -> list[str]:

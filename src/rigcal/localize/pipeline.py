@@ -440,8 +440,9 @@ def planar_at(traj: Trajectory, stamps: FloatArray) -> FloatArray:
     return np.column_stack([x, y, np.interp(stamps, traj.stamps_s, yaw)])
 
 
-def table(rows: list[tuple[str, dict[str, Any]]]) -> str:
-    """The paper's Table 1 (plus ATE and RPE) as a Markdown table."""
+def table(rows: list[tuple[str, dict[str, Any]]], precision: int | None = None) -> str:
+    """The paper's Table 1 (plus ATE and RPE) as a Markdown table, each figure with
+    ``precision`` decimals (None: as the figures are)."""
     keys = (
         "loop_closure_error_m",
         "loop_closure_error_percent",
@@ -454,10 +455,13 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> str:
         "| method | loop closure (m) | loop closure (%) | avg position error (m) | ATE RMSE (m) "
         "| RPE 1 m (m) | RPE 10 m (m) |\n|---|---|---|---|---|---|---|"
     )
-    lines = [head] + [f"| {label} | " + " | ".join(_cell(m[k]) for k in keys) + " |" for label, m in rows]
+    lines = [head]
+    lines += [f"| {label} | " + " | ".join(_cell(m[k], precision) for k in keys) + " |" for label, m in rows]
     return "\n".join(lines)
 
 
-def _cell(v: Any) -> str:
+def _cell(v: Any, precision: int | None = None) -> str:
     """A table cell: "-" where a figure is undefined (no loop; a path shorter than the RPE)."""
-    return "-" if v is None else str(v)
+    if v is None:
+        return "-"
+    return str(v) if precision is None else f"{v:.{precision}f}"
