@@ -256,10 +256,10 @@ def labels(paths: tuple[Path, ...]) -> list[str]:
 @click.option("--image", "index", required=True, type=click.IntRange(min=0), help="First image of the pair.")
 @click.option(
     "--method",
-    default="hiasm",
+    default="iasm",
     show_default=True,
     type=click.Choice(["iasm", "hiasm"]),
-    help="Matching method.",
+    help="Matching method; as localize's --method, the default is the simplest (the paper's Fig. 5).",
 )
 @click.option(
     "-o",
