@@ -141,10 +141,14 @@ def test_matches_picture(drive, tmp_path, capsys):
     assert main(["matches", str(drive), "--image", "10", "-o", str(png)]) == 5  # exists
     assert main(["matches", str(drive), "--image", "9999", "-o", str(tmp_path / "n.png")]) == 3
     assert "--image: got 9999" in capsys.readouterr().err
-    png2 = tmp_path / "m2.png"
-    assert main(["matches", str(drive), "--image", "10", "--method", "iasm", "-o", str(png2), "--json"]) == 0
+    svg = tmp_path / "m2.svg"
+    assert main(["matches", str(drive), "--image", "10", "-o", str(svg), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert doc["output"] == str(png2)
+    assert doc["output"] == str(svg)
+    assert doc["method"] == "iasm"  # the default, the simplest as localize's
+    assert b"<svg" in svg.read_bytes()[:400]
+    assert main(["matches", str(drive), "--image", "10", "-o", str(tmp_path / "m.gif")]) == 3
+    assert "a name ending in .png, .svg, .pdf" in capsys.readouterr().err
     assert doc["correspondences"] >= doc["inliers"] > 0
     assert set(doc["motion"]) == {"x_m", "y_m", "yaw_rad"}
 

@@ -267,7 +267,7 @@ def labels(paths: tuple[Path, ...]) -> list[str]:
     required=True,
     type=click.Path(path_type=Path, dir_okay=False),
     metavar="FILE",
-    help="PNG to write.",
+    help="Picture to write (.png, .svg or .pdf).",
 )
 @rig_option
 @click.option("--force", is_flag=True, help="Replace an existing file.")
@@ -276,28 +276,29 @@ def matches(
     sequence: Path, index: int, method: str, output: Path, rig_file: Path | None, force: bool, as_json: bool
 ) -> None:
     """Draw the scan-return correspondences IASM or H-IASM finds between image INDEX and
-    the next (as the paper's Fig. 5): inliers green, outliers red. Prints the metric
-    chosen, the counts and the step's motion.
+    the next (as the paper's Fig. 5): both images with axes in pixels, inliers green,
+    outliers red. Prints the metric chosen, the counts and the step's motion.
 
     \b
     Examples:
       rigcal matches corridor/ --image 120 --method iasm -o iasm.png
       rigcal matches corridor/ --image 120 --method hiasm -o hiasm.png
     """
-    import cv2
     import numpy as np
 
     from rigcal.errors import InputError
-    from rigcal.io.files import atomic_write_bytes, check_writable
+    from rigcal.io.files import check_writable
     from rigcal.localize.image_matching import step_picture
     from rigcal.localize.streams import open_streams
+    from rigcal.viz.charts import check_chart_name, save_figure
 
+    check_chart_name(output)
     check_writable(output, force, [sequence, *([rig_file] if rig_file else [])])
     streams = open_streams(sequence, rig_file)
     if index + 1 >= streams.n_images:
         raise InputError.at(None, "--image", index, f"an image index below {streams.n_images - 1}")
-    img, st = step_picture(streams, index, method)
-    atomic_write_bytes(output, cv2.imencode(".png", img)[1].tobytes(), force=True)
+    fig, st = step_picture(streams, index, method)
+    save_figure(output, fig, force=True)
     n = 0 if st.matches is None else len(st.matches.i1)
     inl = 0 if st.result is None else st.result.inliers
     metric = "-" if st.result is None else st.result.metric
