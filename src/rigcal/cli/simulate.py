@@ -181,7 +181,19 @@ simulate.add_command(calib_session, "calib-session")
     help="Folder to create.",
 )
 @click.option(
-    "--captures", default=12, show_default=True, type=click.IntRange(min=1, max=999), help="Board captures."
+    "--session",
+    "kind",
+    default="good",
+    show_default=True,
+    type=click.Choice(["good", "weak"]),
+    help="good: the board's distance, bearing, turn and tilt spread evenly over their ranges, as a "
+    "careful lab records them (the solve is certain); weak: each at random, as a hurried one "
+    "(the solve often warns of a large uncertainty).",
+)
+@click.option(
+    "--captures",
+    type=click.IntRange(min=1, max=999),
+    help="Board captures.  [default: 20 for a good session, 12 for a weak one]",
 )
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
 @click.option(
@@ -208,7 +220,8 @@ simulate.add_command(calib_session, "calib-session")
 )
 def board_session(
     output: Path,
-    captures: int,
+    kind: str,
+    captures: int | None,
     seed: int,
     corner_sigma_px: float,
     range_sigma_m: float,
@@ -217,11 +230,14 @@ def board_session(
     as_json: bool,
 ) -> None:
     """Write a synthetic checkerboard session (board corners listed, scans, truth) for the
-    plane method of `rigcal solve`. See docs/formats/board-session.md.
+    plane method of `rigcal solve`. By default a good session (20 captures, the board's
+    poses spread over their ranges); --session weak writes what a hurried lab records,
+    to see the solve's warnings. See docs/formats/board-session.md.
 
     \b
     Examples:
       rigcal simulate board-session -o /tmp/board --seed 1
+      rigcal simulate board-session -o /tmp/weak --session weak
       rigcal solve /tmp/board/board_session.yaml -o rig.yaml --truth /tmp/board/truth.yaml
       rigcal simulate board-session -o /tmp/real --captures 28 --noise realistic
     """
@@ -230,7 +246,9 @@ def board_session(
     from rigcal.sim.noise import RealisticNoise
 
     check_folder_writable(output, force)
+    captures = captures or (GOOD_BOARD_CAPTURES if kind == "good" else WEAK_BOARD_CAPTURES)
     spec = BoardSpec(
+        spread=kind == "good",
         n_captures=captures,
         corner_sigma_px=corner_sigma_px,
         range_sigma_m=range_sigma_m,
@@ -243,10 +261,14 @@ def board_session(
         _echo_json(output, "board_session.yaml", session.T_cam_laser, captures=captures, seed=seed)
         return
     click.echo(
-        f"wrote {output}/: {captures} board captures, seed {seed}. Solve it with: rigcal solve "
-        f"{output}/board_session.yaml -o rig.yaml --truth {output}/truth.yaml",
+        f"wrote {output}/: {captures} board captures ({kind} session), seed {seed}. Solve it with: "
+        f"rigcal solve {output}/board_session.yaml -o rig.yaml --truth {output}/truth.yaml",
         err=True,
     )
+
+
+GOOD_BOARD_CAPTURES = 20
+WEAK_BOARD_CAPTURES = 12
 
 
 @simulate.command("world")
@@ -338,6 +360,14 @@ def board_session(
     "[default: the simulated forward-looking rig]",
 )
 @click.option("--no-images", is_flag=True, help="Write no camera images (laser and ground truth only).")
+@click.option(
+    "--image-format",
+    default="png",
+    show_default=True,
+    type=click.Choice(["png", "png-grey", "jpg"]),
+    help="png: lossless colour; png-grey: lossless grey, the levels rigcal reads (the same "
+    "results in a third of the space); jpg: colour JPEG quality 95 (a fifth, lossy).",
+)
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 @click.option(
     "--json",
@@ -360,6 +390,7 @@ def world(
     duration_s: float | None,
     rig_file: Path | None,
     no_images: bool,
+    image_format: str,
     force: bool,
     as_json: bool,
 ) -> None:
@@ -374,10 +405,12 @@ def world(
       rigcal simulate world --world cubicle-loop -o cubicles/ --clock-offset-s 0.03 --image-noise 3
       rigcal simulate world --world my-office.yaml -o office/ --laser-rate-hz 20 --no-images --force
       rigcal simulate world -o side/ --rig side-looking-rig.yaml --duration-s 20
+      rigcal simulate world -o small/ --image-format png-grey
     """
+    from rigcal.cli.progress import Progress, quiet
     from rigcal.io.files import check_folder_writable
     from rigcal.rigfile import read_rig
-    from rigcal.sim.drive import DriveSpec, Motion, camera_stamps, write_drive
+    from rigcal.sim.drive import DriveSpec, Motion, camera_stamps, first_image_bytes, write_drive
     from rigcal.sim.world import BUILTIN, world_named
 
     world_file = [Path(world_name)] if Path(world_name).suffix in (".yaml", ".yml") else []
@@ -400,10 +433,21 @@ def world(
         exposure_walk=exposure_walk,
         images=not no_images,
         duration_s=duration_s,
+        image_format=image_format,
     )
     n_images = len(camera_stamps(Motion(w, spec), spec)) if spec.images else 0
-    from rigcal.cli.progress import Progress
-
+    if n_images and not quiet():
+        each = first_image_bytes(w, spec, rig)
+        hint = (
+            "; --image-format png-grey writes a third of it, the same for rigcal"
+            if image_format == "png"
+            else ""
+        )
+        click.echo(
+            f"writing {n_images} images of about {each / 1e3:.0f} kB ({image_format}): "
+            f"about {n_images * each / 1e6:.0f} MB{hint}",
+            err=True,
+        )
     done = [0]
 
     with Progress("image") as bars:
