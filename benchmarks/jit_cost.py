@@ -7,12 +7,16 @@ compile + first call), then another with the cache that run filled (warm: import
 
     .venv/bin/python benchmarks/jit_cost.py [LABEL-PART]
     .venv/bin/python benchmarks/jit_cost.py --localize [DURATION-S]
+    .venv/bin/python benchmarks/jit_cost.py --warm-up
 
 ``--localize`` times what a user meets: ``rigcal localize --method icp`` on a simulated
 corridor drive (40 s by default, scans only), run twice in fresh processes sharing one
 cache that starts empty: the first run compiles, the second loads. It prints the ICP
 figure localize reports (its ``total_s``: the laser odometry) and the whole command's
 wall time of both runs, and the kernels the first run said it compiled.
+
+``--warm-up`` times ``rigcal warm-up`` the same way: with an empty cache (it compiles
+every kernel) and again (it loads them and prints nothing), wall and CPU seconds.
 """
 
 from __future__ import annotations
@@ -116,7 +120,37 @@ def localize_first_and_second(duration_s: float = 40.0) -> str:
     return "\n".join(rows)
 
 
+def warm_up_twice() -> str:
+    """Markdown rows: ``rigcal warm-up`` with an empty cache, then with the cache it filled."""
+    import resource
+    import time
+    from pathlib import Path
+
+    rows = ["| run | wall (s) | CPU (s) | what it printed |", "|---|---|---|---|"]
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"))
+        for label in ("first (empty cache)", "second (cache filled)"):
+            cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t0 = time.perf_counter()
+            done = subprocess.run(
+                [sys.executable, "-c", "from rigcal.cli.main import entry; entry()", "warm-up"],
+                env=env,
+                check=True,
+                capture_output=True,
+                text=True,
+            )
+            wall = time.perf_counter() - t0
+            cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = cpu1.ru_utime - cpu0.ru_utime + cpu1.ru_stime - cpu0.ru_stime
+            said = done.stderr.strip().split(";")[0] or "nothing"
+            rows.append(f"| {label} | {wall:.0f} | {cpu:.0f} | {said} |")
+    return "\n".join(rows)
+
+
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--warm-up"]:
+        print(warm_up_twice())
+        sys.exit()
     if sys.argv[1:2] == ["--localize"]:
         print(localize_first_and_second(float(sys.argv[2]) if len(sys.argv) > 2 else 40.0))
         sys.exit()

@@ -13,7 +13,7 @@ def test_images_have_pixel_axes_and_each_match_is_a_line_between_them():
     g1 = rng.integers(0, 255, (480, 640), dtype=np.uint8)
     g2 = np.roll(g1, 12, axis=1)
     returns1 = np.column_stack([np.linspace(20, 600, 50), np.full(50, 250.0)])
-    returns2 = returns1 + [12.0, 0.0]
+    returns2 = returns1 + np.array([12.0, 0.0])
     inlier = np.arange(50) % 5 != 0
     fig = matches_figure(g1, g2, returns1, returns2, returns1, returns2, inlier, "IASM images 3->4")
     top, bottom = fig.axes
