@@ -1,7 +1,7 @@
 """Pick assist (rigcal pick): automatic box ends against the truth, and the calibration
 they give.
 
-Rendered box-target sessions (``rigcal simulate calib-session``: 20 captures, 1 cm range
+Rendered box-target sessions (``rigcal simulate box-session``: 20 captures, 1 cm range
 noise, the simulated user's picks with 1 px noise). For each session the automatic picks
 are started four ways: from the simulated user's picks of the first 3 or 5 captures
 (``rigcal pick``'s usual use), from a rough rig (the truth turned 0.5 deg about a random

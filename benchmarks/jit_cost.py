@@ -6,6 +6,17 @@ compile + first call), then another with the cache that run filled (warm: import
 + first call), and subtracts the same interpreter's import of the module alone.
 
     .venv/bin/python benchmarks/jit_cost.py [LABEL-PART]
+    .venv/bin/python benchmarks/jit_cost.py --localize [DURATION-S]
+    .venv/bin/python benchmarks/jit_cost.py --warm-up
+
+``--localize`` times what a user meets: ``rigcal localize --method icp`` on a simulated
+corridor drive (40 s by default, scans only), run twice in fresh processes sharing one
+cache that starts empty: the first run compiles, the second loads. It prints the ICP
+figure localize reports (its ``total_s``: the laser odometry) and the whole command's
+wall time of both runs, and the kernels the first run said it compiled.
+
+``--warm-up`` times ``rigcal warm-up`` the same way: with an empty cache (it compiles
+every kernel) and again (it loads them and prints nothing), wall and CPU seconds.
 """
 
 from __future__ import annotations
@@ -77,7 +88,72 @@ def compile_table(kernels: dict[str, tuple[str, str]]) -> str:
     return "\n".join(lines)
 
 
+def localize_first_and_second(duration_s: float = 40.0) -> str:
+    """Markdown rows: localize's ICP seconds and wall seconds, first run (empty cache)
+    against second run (cache filled by the first), on one simulated drive."""
+    import json
+    import time
+    from pathlib import Path
+
+    rigcal = [sys.executable, "-c", "from rigcal.cli.main import entry; entry()"]
+    with tempfile.TemporaryDirectory() as tmp:
+        seq = Path(tmp) / "seq"
+        drive = ["world", "-o", str(seq), "--duration-s", str(duration_s), "--no-images"]
+        subprocess.run([*rigcal, "-q", "simulate", *drive], check=True)
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"))
+        rows = ["| run | ICP, as localize reports it (s) | localize command, wall (s) | kernels compiled |"]
+        rows.append("|---|---|---|---|")
+        for label in ("first (empty cache)", "second (cache filled)"):
+            out = Path(tmp) / "out"
+            t0 = time.perf_counter()
+            done = subprocess.run(
+                [*rigcal, "localize", str(seq), "--method", "icp", "-o", str(out), "--force", "--json"],
+                env=env,
+                check=True,
+                capture_output=True,
+                text=True,
+            )
+            wall = time.perf_counter() - t0
+            icp = json.loads(done.stdout)["methods"]["icp"]["total_s"]
+            compiled = sum("rigcal.jit: compiled" in line for line in done.stderr.splitlines())
+            rows.append(f"| {label} | {icp:.1f} | {wall:.1f} | {compiled} |")
+    return "\n".join(rows)
+
+
+def warm_up_twice() -> str:
+    """Markdown rows: ``rigcal warm-up`` with an empty cache, then with the cache it filled."""
+    import resource
+    import time
+    from pathlib import Path
+
+    rows = ["| run | wall (s) | CPU (s) | what it printed |", "|---|---|---|---|"]
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"))
+        for label in ("first (empty cache)", "second (cache filled)"):
+            cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t0 = time.perf_counter()
+            done = subprocess.run(
+                [sys.executable, "-c", "from rigcal.cli.main import entry; entry()", "warm-up"],
+                env=env,
+                check=True,
+                capture_output=True,
+                text=True,
+            )
+            wall = time.perf_counter() - t0
+            cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = cpu1.ru_utime - cpu0.ru_utime + cpu1.ru_stime - cpu0.ru_stime
+            said = done.stderr.strip().split(";")[0] or "nothing"
+            rows.append(f"| {label} | {wall:.0f} | {cpu:.0f} | {said} |")
+    return "\n".join(rows)
+
+
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--warm-up"]:
+        print(warm_up_twice())
+        sys.exit()
+    if sys.argv[1:2] == ["--localize"]:
+        print(localize_first_and_second(float(sys.argv[2]) if len(sys.argv) > 2 else 40.0))
+        sys.exit()
     # An argument keeps only the kernels whose label contains it.
     wanted = sys.argv[1] if len(sys.argv) > 1 else ""
     print(compile_table({k: v for k, v in KERNELS.items() if wanted in k}))

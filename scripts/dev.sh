@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # rigcal developer entry point: installs everything, then runs one job.
 #
-#   bash scripts/dev.sh example   install, solve the bundled sample session, print the summary
+#   bash scripts/dev.sh example   install, compile the kernels (rigcal warm-up), solve the bundled
+#                                 sample session, print the summary
 #   bash scripts/dev.sh test      install, run linters (ruff, mypy) and the test suite
 #   bash scripts/dev.sh lint      linters only
 #
@@ -80,6 +81,8 @@ run_lint() {
 case "$job" in
   example)
     out=out/example
+    say "compiling rigcal's kernels once (rigcal warm-up; nothing to do when they are cached)"
+    .venv/bin/rigcal warm-up
     .venv/bin/rigcal solve examples/box-session/picks.yaml -o "$out/rig.yaml" \
       --report "$out/report" --truth examples/box-session/truth.yaml --force
     say "rig file: $out/rig.yaml; report: $out/report/"

@@ -1,4 +1,4 @@
-"""`rigcal simulate calib-session` through the command line."""
+"""`rigcal simulate box-session` through the command line."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ def test_writes_a_session(tmp_path):
     out = tmp_path / "sess"
     res = CliRunner().invoke(
         cli,
-        ["simulate", "calib-session", "-o", str(out), "--captures", "4", "--seed", "2", "--no-images"],
+        ["simulate", "box-session", "-o", str(out), "--captures", "4", "--seed", "2", "--no-images"],
     )
     assert res.exit_code == 0, res.output
     assert res.stdout == ""  # results are files; the summary goes to stderr
@@ -30,7 +30,7 @@ def test_writes_a_session(tmp_path):
 
 def test_noise_and_wrong_picks_reach_the_truth_file(tmp_path):
     out = tmp_path / "sess"
-    args = ["simulate", "calib-session", "-o", str(out), "--captures", "4", "--no-images"]
+    args = ["simulate", "box-session", "-o", str(out), "--captures", "4", "--no-images"]
     args += ["--pick-sigma-px", "2.5", "--range-sigma-m", "0.02", "--wrong-picks", "0.5"]
     res = CliRunner().invoke(cli, args)
     assert res.exit_code == 0, res.output
@@ -53,20 +53,20 @@ def test_noise_and_wrong_picks_reach_the_truth_file(tmp_path):
     ],
 )
 def test_bad_option_values_are_usage_errors(tmp_path, bad):
-    res = CliRunner().invoke(cli, ["simulate", "calib-session", "-o", str(tmp_path / "s"), *bad])
+    res = CliRunner().invoke(cli, ["simulate", "box-session", "-o", str(tmp_path / "s"), *bad])
     assert res.exit_code == 2
     assert not (tmp_path / "s").exists()
 
 
 def test_output_is_required():
-    assert CliRunner().invoke(cli, ["simulate", "calib-session"]).exit_code == 2
+    assert CliRunner().invoke(cli, ["simulate", "box-session"]).exit_code == 2
 
 
 def test_existing_folder_needs_force(tmp_path, capsys):
     out = tmp_path / "sess"
     out.mkdir()
     (out / "mine.txt").write_text("keep")
-    args = ["simulate", "calib-session", "-o", str(out), "--captures", "3", "--no-images"]
+    args = ["simulate", "box-session", "-o", str(out), "--captures", "3", "--no-images"]
     assert main(args) == 5
     err = capsys.readouterr().err
     assert err.startswith("Error: ")
@@ -83,18 +83,18 @@ def test_existing_folder_needs_force(tmp_path, capsys):
 
 
 def test_help_has_examples():
-    for args in (["simulate", "--help"], ["simulate", "calib-session", "--help"]):
+    for args in (["simulate", "--help"], ["simulate", "box-session", "--help"]):
         res = CliRunner().invoke(cli, args)
         assert res.exit_code == 0
         assert "Examples:" in res.output
-    res = CliRunner().invoke(cli, ["simulate", "calib-session", "--help"])
-    assert "rigcal simulate calib-session -o examples/box-session --seed 1" in res.output
+    res = CliRunner().invoke(cli, ["simulate", "box-session", "--help"])
+    assert "rigcal simulate box-session -o examples/box-session --seed 1" in res.output
 
 
 @pytest.mark.parametrize(
     ("command", "session_file", "extra"),
     [
-        ("calib-session", "picks.yaml", ["--captures", "5", "--no-images"]),
+        ("box-session", "picks.yaml", ["--captures", "5", "--no-images"]),
         ("board-session", "board_session.yaml", ["--captures", "6"]),
     ],
 )
@@ -112,7 +112,7 @@ def test_noise_realistic(tmp_path, command, session_file, extra):
 @pytest.mark.parametrize(
     ("command", "entry"),
     [
-        (["calib-session", "--captures", "3", "--no-images"], "picks.yaml"),
+        (["box-session", "--captures", "3", "--no-images"], "picks.yaml"),
         (["board-session", "--captures", "3"], "board_session.yaml"),
         (["world", "--world", "cubicle-loop", "--no-images", "--duration-s", "2"], "sequence.yaml"),
     ],
@@ -131,3 +131,14 @@ def test_json_names_what_was_written_and_the_true_transform(command, entry, tmp_
     np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
     if command[0] == "world":
         assert doc["x_real_time"] == pytest.approx(doc["duration_s"] / doc["wall_s"], rel=1e-9)
+
+
+def test_calib_session_is_kept_as_a_hidden_alias(tmp_path):
+    out = tmp_path / "s"
+    args = ["simulate", "calib-session", "-o", str(out), "--captures", "3", "--no-images"]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 0, res.output
+    assert (out / "picks.yaml").is_file()
+    listing = CliRunner().invoke(cli, ["simulate", "--help"]).output
+    assert "box-session" in listing
+    assert "calib-session" not in listing

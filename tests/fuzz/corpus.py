@@ -674,6 +674,10 @@ OPTIONS: list[tuple[list[str], str, list[str]]] = [
         ["0x0", "1x6", "9" * 400 + "x6", "²x6", "9x"],
     ),
     (["matches", "{in}/seq", "--image", "0", "-o", "{out}/m.png"], "--method", ["sift"]),
+    (WORLD, "--image-format", ["gif", "PNG", ""]),
+    (EVALUATE, "--precision", ["-1", "13", "1.5", "nan"]),
+    (["simulate", "board-session", "-o", "{out}/b"], "--session", ["fine", ""]),
+    (["simulate", "board-session", "-o", "{out}/b"], "--captures", ["0", "nan"]),
 ]
 
 
@@ -767,6 +771,10 @@ def output_cases() -> list[Case]:
     case("simulate-foreign", [*CALIB[:-1], "{in}/sess/scans", "--force"], "not written by rigcal")
     case("simulate-onto-file", [*CALIB[:-1], "{in}/a.tum"], "exists")
     case("world-onto-world-file", [*WORLD[:-1], "{in}/world.yaml", "--force"], "is the input")
+    case("evaluate-plot-onto-truth", [*EVALUATE, "--plot", "{in}/gt.tum", "--force"], "a name ending in", 3)
+    image = "{in}/sess/images/cap00.png"
+    case("evaluate-plot-onto-file", [*EVALUATE, "--plot", image], "exists")
+    case("matches-onto-file", ["matches", "{in}/seq", "--image", "0", "-o", image], "exists")
 
     def dangling(rel: str) -> Callable[[Path], None]:
         def mutate(inp: Path) -> None:

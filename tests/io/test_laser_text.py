@@ -227,3 +227,21 @@ def test_import_laser_no_return_option(tmp_path, capsys):
     code = main(["import-laser", str(tmp_path / "l.csv"), "-o", str(tmp_path / "s2"), "--no-return-m", "5.0"])
     assert code == 3
     assert "--no-return-m" in capsys.readouterr().err
+
+
+def test_csv_scans_are_put_on_their_beam_grid(tmp_path):
+    """Sequence folders store angle_min and increment: a row left out (no return) is a
+    missing beam; angles off one grid are refused, naming the scan."""
+    rows = ["stamp_s,angle_deg,range_m"] + [f"1.0,{a},2.0" for a in (-10, -5, 10)]
+    (tmp_path / "l.csv").write_text("\n".join(rows) + "\n")
+    (s,) = read_csv_laser(tmp_path / "l.csv")
+    assert s.angle_increment_rad == pytest.approx(math.radians(5))
+    np.testing.assert_allclose(s.angles_rad, np.radians([-10, -5, 0, 5, 10]))
+    assert s.valid.tolist() == [True, True, False, False, True]
+    assert main(["import-laser", str(tmp_path / "l.csv"), "-o", str(tmp_path / "seq")]) == 0
+    assert read_sequence(tmp_path / "seq").scans[0].valid.tolist() == s.valid.tolist()
+    (tmp_path / "l.csv").write_text("\n".join([*rows[:3], "1.0,2.5,2.0"]) + "\n")
+    with pytest.raises(
+        InputError, match=r"scan at stamp 1\.0: angles: got .gaps from .*; expected angles on one grid"
+    ):
+        read_csv_laser(tmp_path / "l.csv")

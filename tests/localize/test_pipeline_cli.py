@@ -37,10 +37,21 @@ def sequence(tmp_path_factory):
 def test_localize_writes_trajectory_summary_and_table(sequence, tmp_path, capsys):
     out = tmp_path / "icp"
     assert main(["localize", str(sequence), "--method", "icp", "-o", str(out), "--kitti"]) == 0
-    table = capsys.readouterr().out
+    cap = capsys.readouterr()
+    table = cap.out
     assert "| icp |" in table
     traj = read_tum(out / "icp" / "trajectory.tum")
     summary = yaml.safe_load((out / "summary.yaml").read_text())
+    # icp's time is the shared laser odometry's, which the stage line shows too.
+    icp = summary["methods"]["icp"]
+    icp_s = summary["stage_timings_s"]["icp_s"]
+    assert icp["shared_stages_s"] == {"icp_s": icp_s}
+    assert icp["total_s"] == pytest.approx(icp["seconds"] + icp_s, abs=2e-3)
+    line = next(x for x in cap.err.splitlines() if x.startswith("icp: "))
+    assert line == (
+        f"icp: {len(traj)} poses in {icp['seconds'] + icp_s:.1f} s "
+        f"(shared stages icp {icp_s:.1f} s; its own {icp['seconds']:.1f} s)"
+    )
     assert len(traj) == summary["methods"]["icp"]["poses"]
     assert (out / "icp" / "trajectory.kitti").read_text().count("\n") == len(traj)
     assert summary["config"]["methods"] == ["icp"]
@@ -113,6 +124,10 @@ def test_all_methods_on_one_sequence(drive, tmp_path, capsys):
         # Centimetres over the first 6 m: the images are used, and used right.
         assert methods[m]["metrics"]["average_position_error_m"] < 0.1
     assert {"read_s", "icp_s", "tracks_s", "vo_s", "hiasm_matching_s"} <= set(s["stage_timings_s"])
+    # vo runs before kf: kf's own time leaves out the visual odometry it shares.
+    stages = s["stage_timings_s"]
+    assert methods["kf"]["shared_stages_s"] == {k: stages[k] for k in ("tracks_s", "icp_s", "vo_s")}
+    assert methods["kf"]["seconds"] < s["stage_timings_s"]["vo_s"] + 0.5
     assert s["wall_s"] > 0
     assert (out / "paths.png").stat().st_size > 1000
     assert (out / "errors.svg").read_bytes()[:5] == b"<?xml"
@@ -126,10 +141,14 @@ def test_matches_picture(drive, tmp_path, capsys):
     assert main(["matches", str(drive), "--image", "10", "-o", str(png)]) == 5  # exists
     assert main(["matches", str(drive), "--image", "9999", "-o", str(tmp_path / "n.png")]) == 3
     assert "--image: got 9999" in capsys.readouterr().err
-    png2 = tmp_path / "m2.png"
-    assert main(["matches", str(drive), "--image", "10", "--method", "iasm", "-o", str(png2), "--json"]) == 0
+    svg = tmp_path / "m2.svg"
+    assert main(["matches", str(drive), "--image", "10", "-o", str(svg), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert doc["output"] == str(png2)
+    assert doc["output"] == str(svg)
+    assert doc["method"] == "iasm"  # the default, the simplest as localize's
+    assert b"<svg" in svg.read_bytes()[:400]
+    assert main(["matches", str(drive), "--image", "10", "-o", str(tmp_path / "m.gif")]) == 3
+    assert "a name ending in .png, .svg, .pdf" in capsys.readouterr().err
     assert doc["correspondences"] >= doc["inliers"] > 0
     assert set(doc["motion"]) == {"x_m", "y_m", "yaw_rad"}
 

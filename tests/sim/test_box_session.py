@@ -246,7 +246,7 @@ def test_written_session_reads_back_identically(session, written):
 def test_picking_file_text(session, written):
     text = (written / "picks.yaml").read_text()
     assert text.startswith("# rigcal picking file")
-    assert "Regenerate with: rigcal simulate calib-session -o SESSION --seed 3 --captures 6" in text
+    assert "Regenerate with: rigcal simulate box-session -o SESSION --seed 3 --captures 6" in text
     c = session.captures[1]
     assert f"laser_side: {{segment: {c.segment_id}}}" in text
     (u0, v0), (u1, v1) = c.picked_pixels

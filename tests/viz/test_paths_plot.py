@@ -39,3 +39,29 @@ def test_charts_encode_as_png_and_svg():
     fig = paths_figure(TRUTH_XY, EST)
     assert figure_bytes(fig, ".png")[:4] == b"\x89PNG"
     assert b"<svg" in figure_bytes(fig, ".svg")[:400]
+
+
+def _pixels_of(png: bytes, hex_colour: str) -> int:
+    """How many pixels of a PNG have (nearly) the colour."""
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    bgr = np.array([int(hex_colour[i : i + 2], 16) for i in (5, 3, 1)])
+    return int((np.abs(img.astype(int) - bgr).max(axis=2) < 40).sum())
+
+
+def test_two_methods_that_agree_both_stay_visible():
+    same = TRUTH_XY + np.array([0.3, 0.0])
+    png = figure_bytes(paths_figure(TRUTH_XY, {"iasm": same, "hiasm": same.copy()}), ".png")
+    alone = figure_bytes(paths_figure(TRUTH_XY, {"hiasm": same}), ".png")
+    # The first method shows around the second (a wider line below it): a good share of
+    # the pixels it would have alone, not just its legend entry.
+    first = _pixels_of(png, METHODS[0])
+    assert first > 0.3 * _pixels_of(alone, METHODS[0])
+    assert _pixels_of(png, METHODS[1]) > 500
+    lines = {
+        ln.get_label(): ln for ln in paths_figure(TRUTH_XY, {"iasm": same, "hiasm": same}).axes[0].get_lines()
+    }
+    assert lines["iasm"].get_linestyle() != lines["hiasm"].get_linestyle()
+    assert lines["iasm"].get_marker() != lines["hiasm"].get_marker()
+    assert lines["iasm"].get_zorder() < lines["hiasm"].get_zorder()

@@ -9,7 +9,7 @@ capture into a :class:`BoxObservation`, the solver's input.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +61,7 @@ class BoxObservation:
         end_gap_steps: (2,) for each end, in beam steps, the width of the interval in which
             the true box end lies (see :func:`extended_ends`): 1 at a clean depth jump, more
             at a corner or next to missing returns.
+        review: the picking file marks the pick for review (``pick.review: true``).
     """
 
     capture: int
@@ -73,6 +74,7 @@ class BoxObservation:
     beam_step_rad: float
     image_endpoints_px: FloatArray
     end_gap_steps: tuple[int, int] = (1, 1)
+    review: bool = False
 
 
 @dataclass(frozen=True)
@@ -220,9 +222,10 @@ def resolve_capture(draft: PickDraft, c: CaptureDraft) -> BoxObservation:
     side = _laser_side(
         draft.path, kp, c.laser_side, c.scan, c.scan_path, draft.line_params, draft.schema_version
     )
+    review = c.pick is not None and c.pick.review
     if isinstance(side, tuple):  # two laser points given: no returns to fit
         ends, pts, beams = side
-        return BoxObservation(
+        obs = BoxObservation(
             c.index,
             c.name,
             c.scan_path,
@@ -233,7 +236,9 @@ def resolve_capture(draft: PickDraft, c: CaptureDraft) -> BoxObservation:
             c.scan.step_rad,
             c.image_endpoints_px,
         )
-    return side_observation(c.index, c.name, c.scan_path, c.image_path, c.scan, side, c.image_endpoints_px)
+    else:
+        obs = side_observation(c.index, c.name, c.scan_path, c.image_path, c.scan, side, c.image_endpoints_px)
+    return replace(obs, review=review) if review else obs
 
 
 def side_ends(draft: PickDraft, c: CaptureDraft, laser_side: dict[str, Any]) -> FloatArray:

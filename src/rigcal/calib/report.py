@@ -284,6 +284,12 @@ def _warnings(result: CalibResult, sig_rot: FloatArray, sig_t: FloatArray) -> li
             f"captures (correlation {corr[i, j]:+.3f}); vary the box distance and bearing more"
         )
     out += _swapped_or_wrong(result)
+    review = [o.name for o in used if o.review]
+    if review:
+        out.append(
+            f"{len(review)} picks marked for review used: {', '.join(review)}; check them on "
+            "rigcal pick's contact sheet (--sheet), then set pick.review to false or remove the capture"
+        )
     return out
 
 

@@ -11,7 +11,12 @@ import click
 @click.command("batch")
 @click.argument("source")
 @click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Batch folder."
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    metavar="DIR",
+    help="Batch folder.",
 )
 @click.option(
     "--command",

@@ -13,7 +13,12 @@ from rigcal.io.validate import Real
 @click.command("capture")
 @click.argument("source", type=click.Path(path_type=Path))
 @click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Session folder."
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    metavar="DIR",
+    help="Session folder.",
 )
 @click.option("--scan-topic", help="Bags: the sensor_msgs/LaserScan topic.")
 @click.option("--image-topic", help="Bags: the sensor_msgs/Image or CompressedImage topic.")

@@ -64,7 +64,13 @@ def _ros_name(ctx: click.Context, param: click.Parameter, value: str | None) -> 
     callback=_ros_name,
     help="The camera's image topic, written into the Kalibr camchain.",
 )
-@click.option("-o", "--output", type=click.Path(path_type=Path), help="Write to this file instead of stdout.")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path),
+    metavar="FILE",
+    help="Write to this file instead of stdout.",
+)
 @click.option("--force", is_flag=True, help="Overwrite an existing output file.")
 @click.option(
     "--json",

@@ -13,7 +13,9 @@ import click
 @click.option("--scan-topic", required=True, help="sensor_msgs/LaserScan topic.")
 @click.option("--image-topic", required=True, help="sensor_msgs/Image or CompressedImage topic.")
 @click.option("--camera-info-topic", help="sensor_msgs/CameraInfo topic: also write camera.yaml.")
-@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Sequence folder.")
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path), metavar="DIR", help="Sequence folder."
+)
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
 def import_bag(

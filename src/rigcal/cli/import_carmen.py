@@ -12,7 +12,9 @@ from rigcal.io.validate import Real
 
 @click.command("import-carmen")
 @click.argument("log", type=click.Path(path_type=Path))
-@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Sequence folder.")
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path), metavar="DIR", help="Sequence folder."
+)
 @click.option(
     "--flaser-range-max-m",
     type=Real(min=0.0, min_open=True),

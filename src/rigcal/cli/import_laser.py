@@ -37,9 +37,15 @@ from rigcal.io.validate import Real
     "maximum, e.g. 5.0).",
 )
 @click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Sequence folder."
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    metavar="DIR",
+    help="Sequence folder.",
 )
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
+@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
 def import_laser(
     log: Path,
     images: Path | None,
@@ -50,6 +56,7 @@ def import_laser(
     no_return_m: float | None,
     output: Path,
     force: bool,
+    as_json: bool,
 ) -> None:
     """Write the scans of LOG (and the images of --images) as a sequence folder.
 
@@ -60,7 +67,7 @@ def import_laser(
     \b
     Examples:
       rigcal import-laser data/laser.txt --images data/images.txt --camera cam.xml -o seq/
-      rigcal import-laser scans.csv -o seq/ --force
+      rigcal import-laser scans.csv -o seq/ --force --json
       rigcal import-laser hokuyo/laser.txt --no-return-m 5.0 -o seq/
       rigcal capture seq/ -o session/ --box-width-m 0.6
     """
@@ -76,6 +83,19 @@ def import_laser(
     s = import_laser_text(
         log, output, images, camera, fmt, range_min_m, range_max_m, force=force, no_return_m=no_return_m
     )
+    if as_json:
+        import json
+
+        doc = {
+            "output": str(output),
+            "entry": str(output / "sequence.yaml"),
+            "format": s.format,
+            "scans": s.scans,
+            "images": s.images,
+            "camera": str(output / "camera.yaml") if s.camera else None,
+        }
+        click.echo(json.dumps(doc, indent=1))
+        return
     click.echo(
         f"wrote {output}/: {s.scans} scans ({s.format}), {s.images} images"
         + (", camera.yaml" if s.camera else "")

@@ -64,7 +64,12 @@ def _lensmodel(ctx: click.Context, param: click.Parameter, value: str) -> str:
 )
 @click.option("--focal-px", type=Real(min=1.0), help="Rough focal length for the seed [image width].")
 @click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path), help="The .cameramodel to write."
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path),
+    metavar="FILE",
+    help="The .cameramodel to write.",
 )
 @click.option(
     "--save-corners", type=click.Path(path_type=Path), help="Also write the detected corners (corners.vnl)."

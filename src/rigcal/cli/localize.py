@@ -4,10 +4,19 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from rigcal.io.validate import Real
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
+    from rigcal.localize.pipeline import MethodRun
+
+    FloatArray = NDArray[np.float64]
 
 rig_option = click.option(
     "--rig",
@@ -28,7 +37,9 @@ rig_option = click.option(
     "Eq. 4), vo (visual odometry with laser scale), kf (Kalman filter of icp and vo), iasm "
     "(image augmented scan matching), hiasm (homography based IASM).",
 )
-@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output folder.")
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path), metavar="DIR", help="Output folder."
+)
 @rig_option
 @click.option("--kitti", is_flag=True, help="Also write each trajectory in KITTI form.")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
@@ -112,7 +123,7 @@ def localize(
     elif r.truth is not None:
         click.echo(table([(m.method, m.metrics) for m in r.methods if m.metrics is not None]))
     for m in r.methods:
-        click.echo(f"{m.method}: {len(m.stamps_s)} poses, {m.seconds:.1f} s of its own", err=True)
+        click.echo(method_line(m), err=True)
     shared = ", ".join(f"{k.removesuffix('_s')} {v:.1f} s" for k, v in r.timings_s.items())
     click.echo(f"stages: {shared}", err=True)
     ratio = r.duration_s / r.wall_s if r.wall_s > 0 else float("inf")
@@ -120,6 +131,15 @@ def localize(
         f"{r.duration_s:.1f} s of data in {r.wall_s:.1f} s ({ratio:.2f}x real time); wrote {output}/",
         err=True,
     )
+
+
+def method_line(m: MethodRun) -> str:
+    """One method's poses and time: the shared stages it is built on, then its own work."""
+    line = f"{m.method}: {len(m.stamps_s)} poses in {m.total_s:.1f} s"
+    if not m.shared_s:
+        return line
+    shared = ", ".join(f"{k.removesuffix('_s')} {v:.1f} s" for k, v in m.shared_s.items())
+    return f"{line} (shared stages {shared}; its own {m.seconds:.1f} s)"
 
 
 @click.command("evaluate")
@@ -132,28 +152,61 @@ def localize(
     type=Real(min=0.0),
     help="Stamps of estimate and truth closer than this are matched (evo's --t_max_diff).",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
-def evaluate_cmd(trajectories: tuple[Path, ...], gt: Path, max_diff_s: float, as_json: bool) -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON, unrounded.")
+@click.option(
+    "--precision",
+    default=4,
+    show_default=True,
+    type=click.IntRange(0, 12),
+    help="Decimals of the table's figures (the JSON is never rounded).",
+)
+@click.option(
+    "--plot",
+    type=click.Path(path_type=Path, dir_okay=False),
+    metavar="FILE",
+    help="Chart the paths against the truth beside their errors over time (.png, .svg or .pdf).",
+)
+@click.option("--force", is_flag=True, help="Overwrite an existing --plot file.")
+def evaluate_cmd(
+    trajectories: tuple[Path, ...],
+    gt: Path,
+    max_diff_s: float,
+    as_json: bool,
+    precision: int,
+    plot: Path | None,
+    force: bool,
+) -> None:
     """Score TUM TRAJECTORIES against ground truth the way the paper's Table 1 does, plus
     ATE and RPE over 1 m and 10 m exactly as evo computes them (evo_ape --align,
     evo_rpe --delta D --delta_unit m). Poses are matched to the truth by stamp as evo does.
     Each row is labelled by its method folder (out/icp/trajectory.tum -> icp; longer
-    paths where two would be the same). With --json, one trajectory gives one object of
-    figures, several give one object per label.
+    paths where two would be the same). The table rounds to --precision decimals; with
+    --json, unrounded figures: one trajectory gives one object of figures, several give
+    one object per label. --plot charts the paths (each started at the truth's first
+    matched pose) and their position errors over time, as evo_ape --plot does.
 
     \b
     Examples:
       rigcal evaluate out/icp/trajectory.tum --gt corridor/groundtruth.tum
       rigcal evaluate out/*/trajectory.tum --gt corridor/groundtruth.tum --json
+      rigcal evaluate out/iasm/trajectory.tum out/hiasm/trajectory.tum --gt corridor/groundtruth.tum \\
+        --plot compare.png --precision 6
     """
     from rigcal.errors import InputError
+    from rigcal.io.files import check_writable
     from rigcal.io.trajectory import read_tum
-    from rigcal.localize.metrics import associate, evaluate
+    from rigcal.localize.metrics import anchored, associate, evaluate
     from rigcal.localize.pipeline import planar_at, table
 
+    if plot is not None:
+        from rigcal.viz.charts import check_chart_name
+
+        check_chart_name(plot)
+        check_writable(plot, force, [*trajectories, gt])
     truth = read_tum(gt)
     assert truth.stamps_s is not None
     rows = []
+    drawn: dict[str, tuple[FloatArray, FloatArray, FloatArray]] = {}  # label -> (estimate, truth, stamps)
     for path, label in zip(trajectories, labels(trajectories), strict=True):
         est = read_tum(path)
         assert est.stamps_s is not None
@@ -167,11 +220,24 @@ def evaluate_cmd(trajectories: tuple[Path, ...], gt: Path, max_diff_s: float, as
             )
         poses_est = planar_at(est, est.stamps_s)[i_est]
         poses_gt = planar_at(truth, truth.stamps_s)[i_gt]
-        rows.append((label, {**evaluate(poses_est, poses_gt), "matched_poses": len(i_est)}))
+        rows.append((label, {**evaluate(poses_est, poses_gt, rounded=False), "matched_poses": len(i_est)}))
+        drawn[label] = (anchored(poses_est, poses_gt), poses_gt, est.stamps_s[i_est])
+    if plot is not None:
+        from rigcal.viz.charts import save_figure
+        from rigcal.viz.paths_plot import evaluation_figure
+
+        fig = evaluation_figure(
+            planar_at(truth, truth.stamps_s),
+            {k: v[0] for k, v in drawn.items()},
+            {k: v[1] for k, v in drawn.items()},
+            {k: v[2] for k, v in drawn.items()},
+        )
+        save_figure(plot, fig, force=force)
+        click.echo(f"wrote {plot}", err=True)
     if as_json:
         click.echo(json.dumps(rows[0][1] if len(rows) == 1 else dict(rows), indent=1))
     else:
-        click.echo(table(rows))
+        click.echo(table(rows, precision))
 
 
 def labels(paths: tuple[Path, ...]) -> list[str]:
@@ -190,13 +256,18 @@ def labels(paths: tuple[Path, ...]) -> list[str]:
 @click.option("--image", "index", required=True, type=click.IntRange(min=0), help="First image of the pair.")
 @click.option(
     "--method",
-    default="hiasm",
+    default="iasm",
     show_default=True,
     type=click.Choice(["iasm", "hiasm"]),
-    help="Matching method.",
+    help="Matching method; as localize's --method, the default is the simplest (the paper's Fig. 5).",
 )
 @click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path, dir_okay=False), help="PNG to write."
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    metavar="FILE",
+    help="Picture to write (.png, .svg or .pdf).",
 )
 @rig_option
 @click.option("--force", is_flag=True, help="Replace an existing file.")
@@ -205,22 +276,23 @@ def matches(
     sequence: Path, index: int, method: str, output: Path, rig_file: Path | None, force: bool, as_json: bool
 ) -> None:
     """Draw the scan-return correspondences IASM or H-IASM finds between image INDEX and
-    the next (as the paper's Fig. 5): inliers green, outliers red. Prints the metric
-    chosen, the counts and the step's motion.
+    the next (as the paper's Fig. 5): both images with axes in pixels, inliers green,
+    outliers red. Prints the metric chosen, the counts and the step's motion.
 
     \b
     Examples:
       rigcal matches corridor/ --image 120 --method iasm -o iasm.png
       rigcal matches corridor/ --image 120 --method hiasm -o hiasm.png
     """
-    import cv2
     import numpy as np
 
     from rigcal.errors import InputError
-    from rigcal.io.files import atomic_write_bytes, check_writable
+    from rigcal.io.files import check_writable
     from rigcal.localize.image_matching import step_picture
     from rigcal.localize.streams import open_streams
+    from rigcal.viz.charts import check_chart_name, save_figure
 
+    check_chart_name(output)
     check_writable(output, force, [sequence, *([rig_file] if rig_file else [])])
     streams = open_streams(sequence, rig_file)
     if streams.n_images < 2:
@@ -231,8 +303,8 @@ def matches(
         raise InputError.at(
             None, "--image", index, f"an index from 0 to {streams.n_images - 2} (the first image of a pair)"
         )
-    img, st = step_picture(streams, index, method)
-    atomic_write_bytes(output, cv2.imencode(".png", img)[1].tobytes(), force=True)
+    fig, st = step_picture(streams, index, method)
+    save_figure(output, fig, force=True)
     n = 0 if st.matches is None else len(st.matches.i1)
     inl = 0 if st.result is None else st.result.inliers
     metric = "-" if st.result is None else st.result.metric

@@ -28,6 +28,7 @@ from rigcal.cli import pick as pick_cmd
 from rigcal.cli import project as project_cmd
 from rigcal.cli import simulate as simulate_cmd
 from rigcal.cli import solve as solve_cmd
+from rigcal.cli import warm_up as warm_up_cmd
 from rigcal.errors import RigcalError
 
 
@@ -47,9 +48,10 @@ def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
       rigcal check rig.yaml --picks today/picks.yaml
       rigcal export rig.yaml --format ros
       rigcal intrinsics calib/*.jpg --board 9x6 --square-m 0.025 -o camera.cameramodel
-      rigcal simulate calib-session -o session/ --seed 1
+      rigcal simulate box-session -o session/ --seed 1
       rigcal -q localize corridor/ --method icp -o out/ --json
       rigcal batch fleet.yaml -o nightly/ --ray auto
+      rigcal warm-up
     """
     from rigcal.cli.progress import configure
 
@@ -73,6 +75,7 @@ cli.add_command(batch_cmd.batch)
 cli.add_command(pick_cmd.pick)
 cli.add_command(capture_cmd.capture)
 cli.add_command(import_laser_cmd.import_laser)
+cli.add_command(warm_up_cmd.warm_up)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from rigcal.io.validate import Real
+
+if TYPE_CHECKING:
+    from rigcal.calib.autopick import PickRun
 
 
 @click.command("pick")
@@ -16,6 +21,7 @@ from rigcal.io.validate import Real
     "--output",
     required=True,
     type=click.Path(path_type=Path, dir_okay=False),
+    metavar="FILE",
     help="Picking file to write.",
 )
 @click.option("--rig", type=click.Path(path_type=Path), help="A rough rig file to predict the ends with.")
@@ -42,6 +48,9 @@ from rigcal.io.validate import Real
     help="Mark picks with a lower confidence for review.",
 )  # fmt: skip
 @click.option("--force", is_flag=True, help="Overwrite the output files.")
+@click.option(
+    "--json", "as_json", is_flag=True, help="Print the picks, confidences and review reasons as JSON."
+)
 def pick(
     picks: Path,
     output: Path,
@@ -52,6 +61,7 @@ def pick(
     edge_span_m: float,
     review_below: float,
     force: bool,
+    as_json: bool,
 ) -> None:
     """Propose the box ends in every image of the picking file PICKS.
 
@@ -64,6 +74,7 @@ def pick(
     Examples:
       rigcal pick session/picks.yaml -o session/picks-auto.yaml --sheet sheet.png
       rigcal pick session/picks.yaml --rig rough-rig.yaml --box-width-m 0.6 -o picks2.yaml --force
+      rigcal pick session/picks.yaml -o picks-auto.yaml --json | jq '.captures[] | select(.review)'
       rigcal solve session/picks-auto.yaml -o rig.yaml
     """
     from rigcal.calib.autopick import PickSettings, auto_pick, pick_file_text
@@ -105,6 +116,7 @@ def pick(
                 "manual" if p.source == "manual" else f"auto, confidence {p.confidence:.2f}",
                 p.review,
                 p.source == "manual",
+                p.reasons,
             )
             for p, c in zip(run.picks, draft.captures, strict=True)
         ]
@@ -126,13 +138,44 @@ def pick(
     if run.final is not None:
         s = run.final
         summary += f"; solve over all picks: {int(s.inliers.sum())}/{len(s.inliers)} ends inliers"
-    click.echo(summary)
+    if as_json:
+        click.echo(json.dumps(pick_doc(run, output, sheet), indent=1))
+    else:
+        click.echo(summary)
     if run.seeded_from == "rig" and not any(p.source == "manual" for p in run.picks):
         click.echo(
             "note: with no capture picked by hand, the picks' height on the box is the rig's own "
             "(the images cannot show the laser plane); pick 3 or more by hand to measure it",
             err=True,
         )
-    if unpicked:
+    if unpicked and not as_json:
         click.echo(f"not picked (pick by hand or remove): {', '.join(unpicked)}")
     click.echo(f"wrote {output}" + (f" and {sheet}" if sheet else ""), err=True)
+
+
+def pick_doc(run: PickRun, output: Path, sheet: Path | None) -> dict[str, Any]:
+    """What ``--json`` prints: the files written, where the pose came from, the solve over
+    all picks, and per capture its ends (pixels, unrounded), source, confidence, review
+    flag and reasons (null ends: not picked)."""
+    final = None
+    if run.final is not None:
+        final = {"inlier_ends": int(run.final.inliers.sum()), "ends": len(run.final.inliers)}
+    return {
+        "output": str(output),
+        "sheet": None if sheet is None else str(sheet),
+        "seeded_from": run.seeded_from,
+        "solve": final,
+        "captures": [
+            {
+                "name": p.name,
+                "source": p.source,
+                "image_endpoints_px": None
+                if p.image_endpoints_px is None
+                else [[float(x) for x in e] for e in p.image_endpoints_px],
+                "confidence": float(p.confidence),
+                "review": bool(p.review),
+                "reasons": list(p.reasons),
+            }
+            for p in run.picks
+        ],
+    }

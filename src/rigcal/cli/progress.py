@@ -3,7 +3,8 @@
 Bars are tqdm's (counts, totals, rates, time left), drawn only when stderr is a terminal
 and ``-q`` was not given; when they are off, a stage that ends still gets one plain line
 (``stage: N/N in S s``) unless ``-q``. ``-v``/``-q`` on the ``rigcal`` group set the
-level of the ``rigcal`` loggers (warnings by default).
+level of the ``rigcal`` loggers (warnings and notes by default: a kernel compiled on first
+use says so, rigcal.jit).
 """
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ import click
 
 def configure(verbose: int, quiet: bool) -> None:
     """The ``rigcal`` loggers' level and handler for ``-v`` (info), ``-vv`` (debug), ``-q``."""
-    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    from rigcal.jit import NOTE
+
+    level = logging.ERROR if quiet else (NOTE, logging.INFO, logging.DEBUG)[min(verbose, 2)]
     log = logging.getLogger("rigcal")
     log.setLevel(level)
     if not any(isinstance(h, _StderrHandler) for h in log.handlers):

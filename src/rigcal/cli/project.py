@@ -12,7 +12,14 @@ import click
 @click.argument("rig", type=click.Path(path_type=Path))
 @click.argument("scan", type=click.Path(path_type=Path))
 @click.argument("image", type=click.Path(path_type=Path))
-@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Overlay PNG to write.")
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path),
+    metavar="FILE",
+    help="Overlay PNG to write.",
+)
 @click.option("--force", is_flag=True, help="Overwrite an existing PNG.")
 @click.option("--json", "as_json", is_flag=True, help="Print the projected pixels as JSON on stdout.")
 def project(rig: Path, scan: Path, image: Path, output: Path, force: bool, as_json: bool) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import click
@@ -15,7 +16,7 @@ def simulate() -> None:
 
     \b
     Examples:
-      rigcal simulate calib-session -o session/ --seed 1
+      rigcal simulate box-session -o session/ --seed 1
     """
 
 
@@ -31,13 +32,14 @@ _noise_option = click.option(
 )
 
 
-@simulate.command("calib-session")
+@simulate.command("box-session")
 @click.option(
     "-o",
     "--output",
     "output",
     required=True,
     type=click.Path(path_type=Path),
+    metavar="DIR",
     help="Session folder to create.",
 )
 @click.option(
@@ -92,7 +94,7 @@ _noise_option = click.option(
     is_flag=True,
     help="Print what was written (and the true T_cam_laser) as JSON on stdout.",
 )
-def calib_session(
+def box_session(
     output: Path,
     captures: int,
     seed: int,
@@ -106,7 +108,8 @@ def calib_session(
     force: bool,
     as_json: bool,
 ) -> None:
-    """Write a synthetic box-target session with its truth file.
+    """Write a synthetic box-target session with its truth file (also known by its first
+    name, calib-session).
 
     The box is placed at random distances (1.2-4 m), bearings and angles in a simulated
     room; scans are ray-cast with range noise and dropouts, images rendered through the
@@ -116,13 +119,13 @@ def calib_session(
 
     \b
     Examples:
-      rigcal simulate calib-session -o examples/box-session --seed 1
-      rigcal simulate calib-session -o /tmp/s --captures 8 --wrong-picks 0.25 --force
-      rigcal simulate calib-session -o /tmp/s --pick-sigma-px 2 --range-sigma-m 0.02 --no-images
+      rigcal simulate box-session -o examples/box-session --seed 1
+      rigcal simulate box-session -o /tmp/s --captures 8 --wrong-picks 0.25 --force
+      rigcal simulate box-session -o /tmp/s --pick-sigma-px 2 --range-sigma-m 0.02 --no-images
       rigcal solve /tmp/s/picks.yaml -o rig.yaml --truth /tmp/s/truth.yaml
-      rigcal simulate calib-session -o /tmp/moved --captures 8 --seed 2 --move-deg 0.5 --no-images
+      rigcal simulate box-session -o /tmp/moved --captures 8 --seed 2 --move-deg 0.5 --no-images
       rigcal check rig.yaml --picks /tmp/moved/picks.yaml
-      rigcal simulate calib-session -o /tmp/real --noise realistic --no-images
+      rigcal simulate box-session -o /tmp/real --noise realistic --no-images
     """
     from rigcal.io.files import check_folder_writable
     from rigcal.sim.box_session import (
@@ -161,6 +164,12 @@ def calib_session(
     )
 
 
+# The box session's first name, kept so that scripts written for it still run.
+calib_session = copy.copy(box_session)
+calib_session.hidden = True
+simulate.add_command(calib_session, "calib-session")
+
+
 @simulate.command("board-session")
 @click.option(
     "-o",
@@ -168,10 +177,23 @@ def calib_session(
     "output",
     required=True,
     type=click.Path(path_type=Path),
+    metavar="DIR",
     help="Folder to create.",
 )
 @click.option(
-    "--captures", default=12, show_default=True, type=click.IntRange(min=1, max=999), help="Board captures."
+    "--session",
+    "kind",
+    default="good",
+    show_default=True,
+    type=click.Choice(["good", "weak"]),
+    help="good: the board's distance, bearing, turn and tilt spread evenly over their ranges, as a "
+    "careful lab records them (the solve is certain); weak: each at random, as a hurried one "
+    "(the solve often warns of a large uncertainty).",
+)
+@click.option(
+    "--captures",
+    type=click.IntRange(min=1, max=999),
+    help="Board captures.  [default: 20 for a good session, 12 for a weak one]",
 )
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
 @click.option(
@@ -198,7 +220,8 @@ def calib_session(
 )
 def board_session(
     output: Path,
-    captures: int,
+    kind: str,
+    captures: int | None,
     seed: int,
     corner_sigma_px: float,
     range_sigma_m: float,
@@ -207,11 +230,14 @@ def board_session(
     as_json: bool,
 ) -> None:
     """Write a synthetic checkerboard session (board corners listed, scans, truth) for the
-    plane method of `rigcal solve`. See docs/formats/board-session.md.
+    plane method of `rigcal solve`. By default a good session (20 captures, the board's
+    poses spread over their ranges); --session weak writes what a hurried lab records,
+    to see the solve's warnings. See docs/formats/board-session.md.
 
     \b
     Examples:
       rigcal simulate board-session -o /tmp/board --seed 1
+      rigcal simulate board-session -o /tmp/weak --session weak
       rigcal solve /tmp/board/board_session.yaml -o rig.yaml --truth /tmp/board/truth.yaml
       rigcal simulate board-session -o /tmp/real --captures 28 --noise realistic
     """
@@ -220,7 +246,9 @@ def board_session(
     from rigcal.sim.noise import RealisticNoise
 
     check_folder_writable(output, force)
+    captures = captures or (GOOD_BOARD_CAPTURES if kind == "good" else WEAK_BOARD_CAPTURES)
     spec = BoardSpec(
+        spread=kind == "good",
         n_captures=captures,
         corner_sigma_px=corner_sigma_px,
         range_sigma_m=range_sigma_m,
@@ -233,10 +261,14 @@ def board_session(
         _echo_json(output, "board_session.yaml", session.T_cam_laser, captures=captures, seed=seed)
         return
     click.echo(
-        f"wrote {output}/: {captures} board captures, seed {seed}. Solve it with: rigcal solve "
-        f"{output}/board_session.yaml -o rig.yaml --truth {output}/truth.yaml",
+        f"wrote {output}/: {captures} board captures ({kind} session), seed {seed}. Solve it with: "
+        f"rigcal solve {output}/board_session.yaml -o rig.yaml --truth {output}/truth.yaml",
         err=True,
     )
+
+
+GOOD_BOARD_CAPTURES = 20
+WEAK_BOARD_CAPTURES = 12
 
 
 @simulate.command("world")
@@ -253,6 +285,7 @@ def board_session(
     "output",
     required=True,
     type=click.Path(path_type=Path),
+    metavar="DIR",
     help="Sequence folder.",
 )
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
@@ -327,6 +360,14 @@ def board_session(
     "[default: the simulated forward-looking rig]",
 )
 @click.option("--no-images", is_flag=True, help="Write no camera images (laser and ground truth only).")
+@click.option(
+    "--image-format",
+    default="png",
+    show_default=True,
+    type=click.Choice(["png", "png-grey", "jpg"]),
+    help="png: lossless colour; png-grey: lossless grey, the levels rigcal reads (the same "
+    "results in a third of the space); jpg: colour JPEG quality 95 (a fifth, lossy).",
+)
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 @click.option(
     "--json",
@@ -349,6 +390,7 @@ def world(
     duration_s: float | None,
     rig_file: Path | None,
     no_images: bool,
+    image_format: str,
     force: bool,
     as_json: bool,
 ) -> None:
@@ -363,10 +405,12 @@ def world(
       rigcal simulate world --world cubicle-loop -o cubicles/ --clock-offset-s 0.03 --image-noise 3
       rigcal simulate world --world my-office.yaml -o office/ --laser-rate-hz 20 --no-images --force
       rigcal simulate world -o side/ --rig side-looking-rig.yaml --duration-s 20
+      rigcal simulate world -o small/ --image-format png-grey
     """
+    from rigcal.cli.progress import Progress, quiet
     from rigcal.io.files import check_folder_writable
     from rigcal.rigfile import read_rig
-    from rigcal.sim.drive import DriveSpec, Motion, camera_stamps, write_drive
+    from rigcal.sim.drive import DriveSpec, Motion, camera_stamps, first_image_bytes, write_drive
     from rigcal.sim.world import BUILTIN, world_named
 
     world_file = [Path(world_name)] if Path(world_name).suffix in (".yaml", ".yml") else []
@@ -389,10 +433,21 @@ def world(
         exposure_walk=exposure_walk,
         images=not no_images,
         duration_s=duration_s,
+        image_format=image_format,
     )
     n_images = len(camera_stamps(Motion(w, spec), spec)) if spec.images else 0
-    from rigcal.cli.progress import Progress
-
+    if n_images and not quiet():
+        each = first_image_bytes(w, spec, rig)
+        hint = (
+            "; --image-format png-grey writes a third of it, the same for rigcal"
+            if image_format == "png"
+            else ""
+        )
+        click.echo(
+            f"writing {n_images} images of about {each / 1e3:.0f} kB ({image_format}): "
+            f"about {n_images * each / 1e6:.0f} MB{hint}",
+            err=True,
+        )
     done = [0]
 
     with Progress("image") as bars:

@@ -16,7 +16,13 @@ from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED
 @click.command("solve")
 @click.argument("picks", type=click.Path(path_type=Path))
 @click.option(
-    "-o", "--output", "output", required=True, type=click.Path(path_type=Path), help="Rig file to write."
+    "-o",
+    "--output",
+    "output",
+    required=True,
+    type=click.Path(path_type=Path),
+    metavar="FILE",
+    help="Rig file to write.",
 )
 @click.option(
     "--report", "report_dir", type=click.Path(path_type=Path), help="Folder for the residual report."

@@ -10,7 +10,8 @@
   valid interval, or equal to the scanner's no-return value when given) are no return.
 - **Generic CSV**: a header naming ``stamp_s``, ``angle_rad`` (or ``angle_deg``) and
   ``range_m`` (other columns are ignored), then one row per beam; consecutive rows with the
-  same stamp form a scan, their angles increasing.
+  same stamp form a scan, their angles increasing, on one grid of beams (a gap of several
+  steps: the beams between gave no return).
 - **Image list**: one image per line, its stamp (seconds) and its file (relative to the
   list's folder), in either order; or RADLOCC's ``image_stamps.txt``: stamps only (one or
   two equal numbers per line), the k-th line for ``image_00k.png`` (k from 1, 3 digits or
@@ -254,7 +255,38 @@ def read_csv_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: floa
         g[2].append(rng if math.isfinite(rng) and rng >= 0 else math.nan)
     if not groups:
         raise InputError(f"{path}: got a header only; expected rows stamp_s, angle, range_m")
-    return [Scan(np.array(a), np.array(r), range_min_m, range_max_m, stamp) for stamp, a, r in groups]
+    return [_on_a_grid(path, stamp, a, r, range_min_m, range_max_m) for stamp, a, r in groups]
+
+
+MAX_GRID_BEAMS = 100_000
+
+
+def _on_a_grid(
+    path: Path, stamp: float, angles: list[float], ranges: list[float], range_min_m: float, range_max_m: float
+) -> Scan:
+    """A CSV scan on its uniform beam grid (what sequence folders store: angle_min and
+    increment): the step is the smallest angle gap and beams missing from the rows (rows
+    left out for no return) get no return.
+
+    Raises:
+        InputError: angles that are not on one grid (a gap not a whole number of steps).
+    """
+    a = np.asarray(angles, dtype=np.float64)
+    if len(a) == 1:
+        return Scan.from_uniform(a[0], 0.0, np.asarray(ranges), range_min_m, range_max_m, stamp)
+    step = float(np.diff(a).min())
+    k = (a - a[0]) / step
+    n = round(float(k[-1])) + 1
+    if np.abs(k - np.round(k)).max() > 1e-3 or n > MAX_GRID_BEAMS:
+        raise InputError.at(
+            path,
+            f"scan at stamp {stamp!r}: angles",
+            f"gaps from {step!r} to {float(np.diff(a).max())!r} rad",
+            "angles on one grid: every gap a whole number of the smallest (missing beams are no return)",
+        )
+    r = np.full(n, np.nan)
+    r[np.round(k).astype(int)] = ranges
+    return Scan.from_uniform(a[0], step, r, range_min_m, range_max_m, stamp)
 
 
 def read_image_list(path: str | Path) -> tuple[FloatArray, list[Path]]:

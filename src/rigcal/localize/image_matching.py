@@ -290,14 +290,15 @@ def scan_matching(
     return streams.image_stamps_s, chain(motions), stats, "\n".join(rows) + "\n"
 
 
-def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint8], Step]:
-    """The correspondences of the step from image i to image i+1 (Fig. 5), and the step.
+def step_picture(streams: Streams, i: int, method: str) -> tuple[Any, Step]:
+    """The correspondences of the step from image i to image i+1 (Fig. 5) as a matplotlib
+    figure with axes in pixels, and the step.
 
     H-IASM's scale is, as in a run, the laser odometry's between the two images where
     the walls constrain it, else (and with ``IasmParams.odometry_scale`` False) that of
     a step on the images before (i-1, i).
     """
-    from rigcal.viz.matches_plot import draw_matches
+    from rigcal.viz.matches_plot import matches_figure
 
     tracks = None
     if method == "hiasm":
@@ -323,8 +324,18 @@ def step_picture(streams: Streams, i: int, method: str) -> tuple[NDArray[np.uint
     n_in = int(inl.sum())
     metric = st.result.metric if st.result is not None else "-"
     title = f"{st.used.upper()} images {i}->{i + 1}: {len(p1)} matches, {n_in} inliers, {metric} metric"
-    img = draw_matches(f1.gray, f2.gray, f1.pixels[f1.visible], f2.pixels[f2.visible], p1, p2, inl, title)
-    return img, st
+    fig = matches_figure(
+        f1.gray,
+        f2.gray,
+        f1.pixels[f1.visible],
+        f2.pixels[f2.visible],
+        p1,
+        p2,
+        inl,
+        title,
+        (f"image {i}", f"image {i + 1}"),
+    )
+    return fig, st
 
 
 def chain(motions: list[FloatArray]) -> FloatArray:

@@ -132,10 +132,18 @@ def associate(
     return (b, a) if swap else (a, b)
 
 
-def evaluate(est: FloatArray, gt: FloatArray) -> dict[str, Any]:
-    """Every figure above, for an estimate and the truth at the same stamps."""
+def evaluate(est: FloatArray, gt: FloatArray, rounded: bool = True) -> dict[str, Any]:
+    """Every figure above, for an estimate and the truth at the same stamps; rounded to
+    0.1 mm (lengths to 1 mm, percentages to 0.001) unless ``rounded`` is False."""
     if est.shape != gt.shape:
         raise ValueError(f"estimate {est.shape} and truth {gt.shape} differ in shape")
+
+    def r(x: float, digits: int = 4) -> float | None:
+        """Rounded (or as is), None when undefined (a path shorter than the RPE distance)."""
+        if not np.isfinite(x):
+            return None
+        return round(float(x), digits) if rounded else float(x)
+
     a = anchored(est, gt)
     length = path_length_m(gt)
     gt_offset = gt[-1, :2] - gt[0, :2]
@@ -143,18 +151,13 @@ def evaluate(est: FloatArray, gt: FloatArray) -> dict[str, Any]:
     gt_gap = float(np.linalg.norm(gt_offset))
     is_loop = length > 0 and gt_gap <= max(0.5, LOOP_GAP_FRACTION * length)
     return {
-        "path_length_m": round(length, 3),
-        "loop_closure_error_m": round(loop, 4) if is_loop else None,
-        "loop_closure_error_percent": round(100.0 * loop / length, 3) if is_loop else None,
-        "truth_loop_gap_m": round(gt_gap, 4),
-        "end_position_error_m": round(float(np.linalg.norm(a[-1, :2] - gt[-1, :2])), 4),
-        "average_position_error_m": round(float(np.mean(np.linalg.norm(a[:, :2] - gt[:, :2], axis=1))), 4),
-        "ate_rmse_m": round(ate_rmse(est, gt), 4),
-        "rpe_1m_rmse_m": _finite(rpe_rmse(est, gt, 1.0)),
-        "rpe_10m_rmse_m": _finite(rpe_rmse(est, gt, 10.0)),
+        "path_length_m": r(length, 3),
+        "loop_closure_error_m": r(loop) if is_loop else None,
+        "loop_closure_error_percent": r(100.0 * loop / length, 3) if is_loop else None,
+        "truth_loop_gap_m": r(gt_gap),
+        "end_position_error_m": r(float(np.linalg.norm(a[-1, :2] - gt[-1, :2]))),
+        "average_position_error_m": r(float(np.mean(np.linalg.norm(a[:, :2] - gt[:, :2], axis=1)))),
+        "ate_rmse_m": r(ate_rmse(est, gt)),
+        "rpe_1m_rmse_m": r(rpe_rmse(est, gt, 1.0)),
+        "rpe_10m_rmse_m": r(rpe_rmse(est, gt, 10.0)),
     }
-
-
-def _finite(x: float) -> float | None:
-    """Rounded, or None when undefined (a path shorter than the RPE distance)."""
-    return round(x, 4) if np.isfinite(x) else None

@@ -144,6 +144,18 @@ METHODS: dict[str, Callable[[Streams, IasmParams], Estimate]] = {
 # then runs beside the tracking on a second thread.
 TRACKING = ("vo", "kf", "hiasm")
 
+# The shared stages (their keys in the stage timings) each method's estimate is built on;
+# a method's own time leaves them out, wherever they ran (before the methods, or inside
+# the first method that needed them).
+SHARED_STAGES: dict[str, tuple[str, ...]] = {
+    "icp": ("icp_s",),
+    "icp-p2p": (),
+    "vo": ("tracks_s", "icp_s", "vo_s"),
+    "kf": ("tracks_s", "icp_s", "vo_s"),
+    "iasm": ("icp_s",),
+    "hiasm": ("tracks_s", "icp_s"),
+}
+
 
 @dataclass(frozen=True)
 class MethodRun:
@@ -155,8 +167,15 @@ class MethodRun:
     poses: FloatArray
     metrics: dict[str, Any] | None
     stats: dict[str, Any]
-    seconds: float
+    seconds: float  # its own work, without the shared stages
     steps_csv: str | None = None
+    shared_s: dict[str, float] = field(default_factory=dict)  # the shared stages it uses
+
+    @property
+    def total_s(self) -> float:
+        """Its own seconds and those of the shared stages it uses (stages that ran side by
+        side, as the laser odometry beside the feature tracks, count in full)."""
+        return self.seconds + sum(self.shared_s.values())
 
 
 @dataclass(frozen=True)
@@ -292,16 +311,25 @@ def run(
     try:
         _shared_stages(streams, methods)
         for name in methods:
+            shared = SHARED_STAGES[name]
+            before = {k: streams.timings_s.get(k, 0.0) for k in shared}
             t0 = time.perf_counter()
             est = METHODS[name](streams, iasm)
             seconds = time.perf_counter() - t0
+            # A shared stage first needed here ran inside this method's time: not its own.
+            seconds -= sum(streams.timings_s.get(k, 0.0) - before[k] for k in shared)
+            shared_s = {k: streams.timings_s[k] for k in shared if k in streams.timings_s}
             poses, metrics = est.poses, None
             if truth is not None:
                 gt = planar_at(truth, est.stamps_s)
                 poses = anchored(est.poses, gt)  # the estimate in the world frame
                 metrics = evaluate(poses, gt)
-            results.append(MethodRun(name, est.stamps_s, poses, metrics, est.stats, seconds, est.steps_csv))
-            log.info("%s: %d poses in %.1f s", name, len(est.stamps_s), seconds)
+            results.append(
+                MethodRun(
+                    name, est.stamps_s, poses, metrics, est.stats, max(seconds, 0.0), est.steps_csv, shared_s
+                )
+            )
+            log.info("%s: %d poses in %.1f s of its own", name, len(est.stamps_s), seconds)
     finally:
         streams.stop_background()
     stamps = streams.scan_stamps_s
@@ -328,6 +356,8 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
             m.method: {
                 "poses": len(m.stamps_s),
                 "seconds": round(m.seconds, 3),
+                "shared_stages_s": {k: round(v, 3) for k, v in m.shared_s.items()},
+                "total_s": round(m.total_s, 3),
                 **m.stats,
                 "metrics": m.metrics,
             }
@@ -406,8 +436,9 @@ def planar_at(traj: Trajectory, stamps: FloatArray) -> FloatArray:
     return np.column_stack([x, y, np.interp(stamps, traj.stamps_s, yaw)])
 
 
-def table(rows: list[tuple[str, dict[str, Any]]]) -> str:
-    """The paper's Table 1 (plus ATE and RPE) as a Markdown table."""
+def table(rows: list[tuple[str, dict[str, Any]]], precision: int | None = None) -> str:
+    """The paper's Table 1 (plus ATE and RPE) as a Markdown table, each figure with
+    ``precision`` decimals (None: as the figures are)."""
     keys = (
         "loop_closure_error_m",
         "loop_closure_error_percent",
@@ -420,10 +451,13 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> str:
         "| method | loop closure (m) | loop closure (%) | avg position error (m) | ATE RMSE (m) "
         "| RPE 1 m (m) | RPE 10 m (m) |\n|---|---|---|---|---|---|---|"
     )
-    lines = [head] + [f"| {label} | " + " | ".join(_cell(m[k]) for k in keys) + " |" for label, m in rows]
+    lines = [head]
+    lines += [f"| {label} | " + " | ".join(_cell(m[k], precision) for k in keys) + " |" for label, m in rows]
     return "\n".join(lines)
 
 
-def _cell(v: Any) -> str:
+def _cell(v: Any, precision: int | None = None) -> str:
     """A table cell: "-" where a figure is undefined (no loop; a path shorter than the RPE)."""
-    return "-" if v is None else str(v)
+    if v is None:
+        return "-"
+    return str(v) if precision is None else f"{v:.{precision}f}"

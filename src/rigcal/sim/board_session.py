@@ -76,6 +76,10 @@ class BoardSpec:
         handheld: the repeats of a pose are of a hand-held board, not exactly at one
             pose: each after the first is turned by 1-3 deg about a random axis through
             the board's centre and moved by 2-5 cm in a random direction.
+        spread: place the boards as a careful lab does, covering the ranges of distance,
+            bearing, turn and tilt evenly (each capture in its own stratum of each, a
+            Latin hypercube), instead of independently at random (False), which can
+            leave a range uncovered and the solve uncertain.
     """
 
     n_captures: int = 12
@@ -97,6 +101,7 @@ class BoardSpec:
     noise: RealisticNoise | None = None
     repeats: int = 1
     handheld: bool = False
+    spread: bool = False
 
     @property
     def sheet_margin_m(self) -> float:
@@ -158,9 +163,11 @@ def generate_board_session(
     # noise, the realistic one does not (defaults).
     params = LineParams() if spec.noise else LineParams.for_range_noise(spec.range_sigma_m)
     captures: list[BoardCapture] = []
+    strata = _strata(rng, spec.n_captures) if spec.spread else None
     for i in range(spec.n_captures):
         names = [f"cap{spec.repeats * i + j:02d}" for j in range(spec.repeats)]
-        captures += _capture(spec, camera, T, rng, params, names, static)
+        stratum = None if strata is None else strata[i]
+        captures += _capture(spec, camera, T, rng, params, names, static, stratum)
     scene = np.zeros((0, 2, 2)) if static is None else static[1]
     return SimBoardSession(spec, camera, T, tuple(captures), scene)
 
@@ -185,6 +192,17 @@ def _static_scene(spec: BoardSpec, rng: np.random.Generator) -> tuple[tuple[floa
         raise InputError(f"cannot simulate: {exc}") from None
 
 
+# A spread pose's draws stay in their strata for this many attempts, then go free (a
+# stratum whose poses are all out of sight, e.g. near and far to the side).
+_STRATUM_ATTEMPTS = 200
+
+
+def _strata(rng: np.random.Generator, n: int) -> FloatArray:
+    """(n, 4) a Latin hypercube over (distance, bearing, turn, tilt): capture i's stratum
+    of each as [k, k+1) / n, each stratum used once per column."""
+    return np.column_stack([rng.permutation(n) for _ in range(4)]).astype(np.float64)
+
+
 def _capture(
     spec: BoardSpec,
     camera: Camera,
@@ -193,8 +211,10 @@ def _capture(
     params: LineParams,
     names: list[str],
     static: tuple[tuple[float, float, float], FloatArray] | None,
+    stratum: FloatArray | None = None,
 ) -> list[BoardCapture]:
-    """One board pose and its captures (one per name), each with fresh noise."""
+    """One board pose and its captures (one per name), each with fresh noise; with a
+    ``stratum`` (from :func:`_strata`) the pose's draws come from it."""
     b = spec.board
     P = board_points(b)
     w = (b.width_n - 1) * b.spacing_m
@@ -202,17 +222,25 @@ def _capture(
     outline = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * spec.sheet_margin_m + np.array(
         [[0, 0], [w, 0], [w, h], [0, h]]
     )
-    for _ in range(_MAX_ATTEMPTS):
-        dist = rng.uniform(*spec.distance_m)
-        bearing = rng.uniform(-_BOARD_BEARING, _BOARD_BEARING)
+    for attempt in range(_MAX_ATTEMPTS):
+        strata = stratum if attempt < _STRATUM_ATTEMPTS else None
+
+        def draw(k: int, lo: float, hi: float, strata: FloatArray | None = strata) -> float:
+            """Uniform in [lo, hi), within stratum k of the capture while it has one."""
+            if strata is None:
+                return float(rng.uniform(lo, hi))
+            return lo + (hi - lo) * (strata[k] + float(rng.uniform())) / spec.n_captures
+
+        dist = draw(0, *spec.distance_m)
+        bearing = draw(1, -_BOARD_BEARING, _BOARD_BEARING)
         radial = np.array([np.cos(bearing), np.sin(bearing), 0.0])
         centre = dist * radial + np.array([0.0, 0.0, rng.uniform(-0.08, 0.08)])
         # Board axes before turning: x along the rows (to the scanner's right as seen from
         # it), y down, z away from the scanner.
         x0 = np.array([np.sin(bearing), -np.cos(bearing), 0.0])
         R_base = np.column_stack([x0, [0.0, 0.0, -1.0], radial])
-        turn = rotvec_to_R([0.0, 0.0, np.radians(rng.uniform(-1, 1) * spec.max_turn_deg)])
-        tilt = rotvec_to_R(np.radians(rng.uniform(-1, 1) * spec.max_tilt_deg) * R_base[:, 0])
+        turn = rotvec_to_R([0.0, 0.0, np.radians(draw(2, -1, 1) * spec.max_turn_deg)])
+        tilt = rotvec_to_R(np.radians(draw(3, -1, 1) * spec.max_tilt_deg) * R_base[:, 0])
         roll = rotvec_to_R(np.radians(rng.uniform(-15, 15)) * radial)
         R = roll @ tilt @ turn @ R_base
         origin = centre - R @ np.array([0.5 * w, 0.5 * h, 0.0])
@@ -400,6 +428,7 @@ def write_board_session(session: SimBoardSession, folder: str | Path, force: boo
             "captures": len(session.captures),
             "corner_sigma_px": spec.corner_sigma_px,
             "range_sigma_m": spec.noise.range_sigma_m if spec.noise else spec.range_sigma_m,
+            "poses": "spread" if spec.spread else "random",
         }
         if spec.repeats > 1:
             generator["repeats"] = {"per_pose": spec.repeats, "handheld": spec.handheld}

@@ -668,14 +668,14 @@ def _png(session: BoxSession, capture: SimCapture, render: bool) -> bytes:
 
 
 def regenerate_command(spec: SessionSpec, images: bool = True) -> str | None:
-    """The ``rigcal simulate calib-session`` command that makes this spec, or None when the
+    """The ``rigcal simulate box-session`` command that makes this spec, or None when the
     spec uses settings the command does not expose."""
     exposed = ("n_captures", "pick_sigma_px", "range_sigma_m", "wrong_pick_fraction", "seed", "noise")
     default = SessionSpec()
     for name in SessionSpec.__dataclass_fields__:
         if name not in exposed and getattr(spec, name) != getattr(default, name):
             return None
-    cmd = f"rigcal simulate calib-session -o SESSION --seed {spec.seed}"
+    cmd = f"rigcal simulate box-session -o SESSION --seed {spec.seed}"
     if spec.n_captures != default.n_captures:
         cmd += f" --captures {spec.n_captures}"
     if spec.pick_sigma_px != default.pick_sigma_px:

@@ -45,7 +45,8 @@ class DriveSpec:
     written image stamps (camera clock = true time + offset); ``image_noise_sigma`` (grey
     levels), ``image_blur_sigma_px`` and ``exposure_walk`` (the log-gain's random-walk step
     per frame) as in :class:`rigcal.sim.world_render.CameraEffects`; ``images`` False
-    writes no images. ``duration_s`` drives only the lap's first seconds (None: the lap).
+    writes no images; ``image_format`` is how they are stored (:data:`IMAGE_FORMATS`).
+    ``duration_s`` drives only the lap's first seconds (None: the lap).
     """
 
     speed_mps: float = 1.0
@@ -67,6 +68,7 @@ class DriveSpec:
     exposure_walk: float = 0.0
     images: bool = True
     duration_s: float | None = None
+    image_format: str = "png"
 
     def __post_init__(self) -> None:
         checks = [
@@ -102,6 +104,19 @@ class DriveSpec:
         for key, value, ok, expected in checks:
             if not ok or (value is not None and not np.isfinite(value)):
                 raise InputError.at(None, key, value, expected)
+        if self.image_format not in IMAGE_FORMATS:
+            raise InputError.at(None, "image_format", self.image_format, f"one of {list(IMAGE_FORMATS)}")
+
+
+IMAGE_FORMATS = {
+    "png": "lossless colour PNG (fast settings)",
+    "png-grey": "lossless grey PNG of the levels rigcal reads (OpenCV's grey weights, as "
+    "cv2.imread's): localize and matches give the same results as with png, in about a third "
+    "of the space; other tools see grey images",
+    "jpg": "colour JPEG, quality 95: about a fifth of png's space, lossy (grey levels off by "
+    "about 1.5 RMS, so results differ slightly)",
+}
+"""How ``rigcal simulate world`` stores images (``--image-format``)."""
 
 
 class Motion:
@@ -266,13 +281,10 @@ def write_drive(
     """
     from rigcal.io.sequence import write_sequence
     from rigcal.io.trajectory import Trajectory, tum_text
-    from rigcal.rig import Rig
     from rigcal.rigfile import rig_to_text
-    from rigcal.sim.box_session import default_camera, default_T_cam_laser
 
     start = time.perf_counter()
-    if rig is None:
-        rig = Rig(default_T_cam_laser(), default_camera(), laser={"name": "simulated 2D scanner"})
+    rig = rig or default_rig()
     motion = Motion(world, spec)
     stamps = laser_stamps(motion, spec)
     scans = simulate_scans(world, motion.poses(stamps), stamps, spec)
@@ -291,6 +303,8 @@ def write_drive(
         "image_blur_sigma_px": spec.image_blur_sigma_px,
         "exposure_walk": spec.exposure_walk,
     }
+    if spec.images and spec.image_format != "png":
+        source["image_format"] = spec.image_format
     write_sequence(
         folder,
         world.name,
@@ -342,8 +356,8 @@ def _images(
             image = apply_effects(frame.image, effects, rng, float(np.exp(log_gain[k])))
             if pending is not None:
                 yield ImageFrame(stamp, name, pending.result())
-            pending = pool.submit(encode_png, image)
-            stamp, name = float(t + spec.camera_clock_offset_s), f"{k:06d}.png"
+            pending = pool.submit(encode_image, image, spec.image_format)
+            stamp, name = float(t + spec.camera_clock_offset_s), f"{k:06d}{image_suffix(spec.image_format)}"
             if progress is not None:
                 progress(1)
         if pending is not None:
@@ -352,11 +366,49 @@ def _images(
 
 def encode_png(image: NDArray[np.uint8]) -> bytes:
     """Lossless PNG, fast settings (low compression, Huffman only)."""
+    return encode_image(image, "png")
+
+
+def image_suffix(image_format: str) -> str:
+    """The file name suffix of an image format of :data:`IMAGE_FORMATS`."""
+    return ".jpg" if image_format == "jpg" else ".png"
+
+
+def encode_image(image: NDArray[np.uint8], image_format: str) -> bytes:
+    """A rendered BGR image encoded in one of :data:`IMAGE_FORMATS`."""
     import cv2
 
-    params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
-    ok, buf = cv2.imencode(".png", image, params)
-    if not ok:  # pragma: no cover - cv2 encodes any uint8 BGR image
-        raise RuntimeError("PNG encoding failed")
+    if image_format == "jpg":
+        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    else:
+        if image_format == "png-grey":
+            from rigcal.io.images import rgb_to_grey
+
+            image = rgb_to_grey(np.ascontiguousarray(image[..., ::-1]))  # the levels read_grey gives
+        params = [
+            cv2.IMWRITE_PNG_COMPRESSION,
+            1,
+            cv2.IMWRITE_PNG_STRATEGY,
+            cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
+        ]
+        ok, buf = cv2.imencode(".png", image, params)
+    if not ok:  # pragma: no cover - cv2 encodes any uint8 image
+        raise RuntimeError(f"{image_format} encoding failed")
     out: bytes = buf.tobytes()
     return out
+
+
+def first_image_bytes(world: World, spec: DriveSpec, rig: Rig | None = None) -> int:
+    """The size of the drive's first image as it will be written (rendered and encoded
+    now, one frame's work), to estimate a sequence's size before writing it."""
+    motion = Motion(world, spec)
+    stamps = camera_stamps(motion, spec)[:1]
+    return sum(len(f.data) for f in _images(world, spec, motion, stamps, rig or default_rig(), None))
+
+
+def default_rig() -> Rig:
+    """The simulated forward-looking rig (:func:`rigcal.sim.box_session.default_T_cam_laser`)."""
+    from rigcal.rig import Rig
+    from rigcal.sim.box_session import default_camera, default_T_cam_laser
+
+    return Rig(default_T_cam_laser(), default_camera(), laser={"name": "simulated 2D scanner"})

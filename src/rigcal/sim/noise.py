@@ -18,7 +18,7 @@ tuned on it:
 :class:`RealisticNoise` holds the model's parameters; :func:`realistic_ranges` casts a
 scan under it; :func:`clutter_segments` furnishes the room; :func:`fixed_room_pose`
 places the still rig in it. ``rigcal simulate board-session --noise realistic`` and
-``calib-session --noise realistic`` use them.
+``box-session --noise realistic`` use them.
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 
 Each tile shows the whole image scaled down with the two box ends, and below it both ends
 magnified (4x) with a cross at the pick (sub-pixel) and a circle at the prediction. The
-label gives the capture's name, the pick's source and confidence; picks to review are red,
-automatic picks green, manual picks blue.
+label gives the capture's name, the pick's source and confidence and, for a pick to
+review, why; picks to review are red, automatic picks green, manual picks blue.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ REVIEW_BGR = (0, 0, 255)
 AUTO_BGR = (0, 200, 0)
 MANUAL_BGR = (255, 140, 0)
 PREDICTED_BGR = (0, 220, 255)
+LABEL_CHARS = 52  # characters of a reason's line across a tile (Hershey simplex at 0.34)
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,7 @@ class SheetEntry:
         label: text under the name (source, confidence).
         review: draw in red.
         manual: draw in blue.
+        reasons: why the pick is marked for review, one line or more each.
     """
 
     name: str
@@ -50,6 +52,7 @@ class SheetEntry:
     label: str
     review: bool
     manual: bool
+    reasons: tuple[str, ...] = ()
 
 
 def contact_sheet(entries: Sequence[SheetEntry]) -> NDArray[np.uint8]:
@@ -107,12 +110,22 @@ def _tile(e: SheetEntry) -> NDArray[np.uint8]:
         )
     size = TILE_W // 2
     zoom_row = np.hstack([cv2.resize(z, (size, size), interpolation=cv2.INTER_NEAREST) for z in zooms])
-    label = np.full((34, TILE_W, 3), 255, np.uint8)
+    why = [line for r in e.reasons for line in _wrapped(f"- {r}")] if e.review else []
+    label = np.full((34 + 14 * len(why), TILE_W, 3), 255, np.uint8)
     cv2.putText(label, e.name, (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.putText(label, e.label, (4, 29), cv2.FONT_HERSHEY_SIMPLEX, 0.38, colour, 1, cv2.LINE_AA)
+    for k, line in enumerate(why):
+        cv2.putText(label, line, (4, 43 + 14 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.34, colour, 1, cv2.LINE_AA)
     tile = np.vstack([thumb, zoom_row, label])
     cv2.rectangle(tile, (0, 0), (TILE_W - 1, tile.shape[0] - 1), (255, 255, 255), 2)
     return tile
+
+
+def _wrapped(text: str) -> list[str]:
+    """``text`` in lines that fit a tile's width at the reasons' font size."""
+    import textwrap
+
+    return textwrap.wrap(text, width=LABEL_CHARS, subsequent_indent="  ")
 
 
 def _zoom(

@@ -1,25 +1,30 @@
 """Matched scan returns between two images (the paper's Fig. 5).
 
-Both images in grey, the first above the second (the scan crosses both as a band at
-about the same height, so the correspondences run down the picture and stay apart);
-every projected return of each scan is a small dot, and every correspondence a line from
-its return in the first image to its match in the second: green when the step's final
-motion agrees with it (an inlier), red otherwise.
+A matplotlib figure (rigcal.viz.charts): both images in grey, the first above the
+second, each with its axes in pixels (u right, v down; pixel (0, 0)'s centre at (0, 0)),
+so a correspondence's pixels can be read off it. Every projected return of each scan is a
+small dot, and every correspondence a line from its return in the first image to its match
+in the second: green when the step's final motion agrees with it (an inlier), red
+otherwise.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.viz.charts import figure
+
 FloatArray = NDArray[np.float64]
 
-INLIER_BGR = (40, 170, 40)
-OUTLIER_BGR = (40, 40, 230)
-RETURN_BGR = (200, 120, 0)
+INLIER = "#28aa28"
+OUTLIER = "#e62828"
+RETURN = "#0078c8"
 
 
-def draw_matches(
+def matches_figure(
     gray1: NDArray[np.uint8],
     gray2: NDArray[np.uint8],
     returns1: FloatArray,
@@ -28,34 +33,43 @@ def draw_matches(
     match2: FloatArray,
     inlier: NDArray[np.bool_],
     title: str = "",
-) -> NDArray[np.uint8]:
-    """The picture as an 8-bit BGR image.
+    labels: tuple[str, str] = ("first image", "second image"),
+) -> Any:
+    """The picture as a matplotlib figure.
 
     Args:
         returns1, returns2: (N, 2) pixels of each scan's visible returns.
         match1, match2: (M, 2) pixels of the matched returns in image 1 and image 2.
         inlier: (M,) which matches agree with the final motion.
+        labels: the two images' titles.
     """
-    import cv2
+    from matplotlib.patches import ConnectionPatch
 
-    gap = 6
-    dy = gray1.shape[0] + gap
-    img = np.concatenate(
-        [
-            cv2.cvtColor(gray1, cv2.COLOR_GRAY2BGR),
-            np.zeros((gap, gray1.shape[1], 3), np.uint8),
-            cv2.cvtColor(gray2, cv2.COLOR_GRAY2BGR),
-        ],
-        axis=0,
-    )
-    for (u1, v1), (u2, v2), ok in zip(match1, match2, inlier, strict=True):
-        colour = INLIER_BGR if ok else OUTLIER_BGR
-        cv2.line(img, (round(u1), round(v1)), (round(u2), round(v2) + dy), colour, 1, cv2.LINE_AA)
-    for pts, off in ((returns1, 0), (returns2, dy)):
-        for u, v in pts:
-            cv2.circle(img, (round(u), round(v) + off), 1, RETURN_BGR, -1)
+    h, w = gray1.shape[:2]
+    fig = figure(9.0, 9.0 * 2 * h / w * 0.92 + 0.6)
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    for ax, img, pts, label in ((top, gray1, returns1, labels[0]), (bottom, gray2, returns2, labels[1])):
+        ax.imshow(img, cmap="gray", vmin=0, vmax=255, extent=(-0.5, w - 0.5, h - 0.5, -0.5))
+        ax.plot(pts[:, 0], pts[:, 1], ".", color=RETURN, markersize=2)
+        ax.set_title(label, fontsize=10)
+        ax.set_ylabel("v (px)")
+    bottom.set_xlabel("u (px)")
+    # Outliers first, so inliers are drawn on top of them.
+    order = np.argsort(inlier, kind="stable")
+    for k in order:
+        ok = bool(inlier[k])
+        line = ConnectionPatch(
+            xyA=tuple(match1[k]),
+            coordsA="data",
+            axesA=top,
+            xyB=tuple(match2[k]),
+            coordsB="data",
+            axesB=bottom,
+            color=INLIER if ok else OUTLIER,
+            linewidth=0.7,
+            alpha=0.85,
+        )
+        fig.add_artist(line)
     if title:
-        (tw, th), _ = cv2.getTextSize(title, cv2.FONT_HERSHEY_SIMPLEX, 0.6, 1)
-        cv2.rectangle(img, (4, 4), (16 + tw, 14 + th), (0, 0, 0), -1)
-        cv2.putText(img, title, (10, 9 + th), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
-    return img
+        fig.suptitle(title, fontsize=11)
+    return fig
