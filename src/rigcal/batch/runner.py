@@ -36,8 +36,9 @@ from rigcal.io.files import MARKER, atomic_write_text, check_apart
 ITEM_SCHEMA_VERSION = 1
 ITEM_FILE = "item.json"
 
-# Exit codes of the single commands that mean "ran to the end" (check: 1 = drifted).
-FINISHED = {"check": (0, 1), "solve": (0,), "localize": (0,), "evaluate": (0,)}
+# Exit codes of the single commands that mean "ran to the end" (check: 1 = drifted,
+# 6 = a drive that cannot tell).
+FINISHED = {"check": (0, 1, 6), "solve": (0,), "localize": (0,), "evaluate": (0,)}
 
 
 @dataclass(frozen=True)
@@ -111,7 +112,7 @@ def item_record(item: Item, argv: list[str], ran: dict[str, Any]) -> dict[str, A
             ok, ran["error"] = False, "the command's output is not JSON"
     status = "failed"
     if ok:
-        status = "drifted" if item.command == "check" and code == 1 else "ok"
+        status = {1: "drifted", 6: "cannot_tell"}.get(code, "ok") if item.command == "check" else "ok"
     return {
         "schema_version": ITEM_SCHEMA_VERSION,
         "name": item.name,
@@ -138,7 +139,7 @@ def finished_record(item: Item, folder: Path) -> dict[str, Any] | None:
         return None
     if not isinstance(rec, dict) or rec.get("schema_version") != ITEM_SCHEMA_VERSION:
         return None
-    if rec.get("status") not in ("ok", "drifted") or rec.get("argv") != item.argv(folder):
+    if rec.get("status") not in ("ok", "drifted", "cannot_tell") or rec.get("argv") != item.argv(folder):
         return None
     if not all((folder / o).exists() for o in COMMANDS[item.command].outputs):
         return None
