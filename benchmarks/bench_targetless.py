@@ -38,17 +38,10 @@ def drive(cache: Path, world: str, seed: int) -> Path:
     """The simulated lap, made once."""
     out = cache / f"{world}-s{seed}"
     if not (out / "sequence.yaml").exists():
+        rigcal = str(Path(sys.executable).parent / "rigcal")
+        command = [rigcal, "simulate", "world", "--world", world, "-o", str(out), "--seed", str(seed)]
         subprocess.run(
-            [
-                str(Path(sys.executable).parent / "rigcal"),
-                "simulate",
-                "world",
-                "--world",
-                world,
-                "-o",
-                str(out),
-            ]
-            + ["--seed", str(seed), *REALISTIC, "--force"],
+            [*command, *REALISTIC, "--force"],
             check=True,
         )
     return out
@@ -126,6 +119,11 @@ def main() -> None:
                             "verdict": res.verdict,
                             "observed": rec.get("observed_axes", []),
                             "p_value": rec.get("p_value"),
+                            "t2": rec.get("t2"),
+                            "correction_deg": rec.get("correction_rotation_deg"),
+                            "correction_mm": rec.get("correction_translation_mm"),
+                            "sigma_deg": rec.get("sigma_rotation_deg"),
+                            "sigma_mm": rec.get("sigma_translation_mm"),
                             "wall_s": round(wall, 2),
                         }
                         if axis is not None and res.verdict != "cannot_tell":
@@ -165,9 +163,15 @@ def report(rows: list[dict], sizes: list[tuple[float, ...]]) -> None:  # type: i
                 err = [abs(r["error"]) for r in obs if "error" in r]
                 unit = "deg" if axis.startswith("r") else "mm"
                 e = f"{np.median(err):.3f}, {max(err):.3f} {unit}" if err else "-"
-                print(
-                    f"| {length} s | {axis} | {size:g} {unit} | {len(obs)}/{len(rs)} | {det}/{len(obs)} | {e} |"
-                )
+                cells = [
+                    f"{length} s",
+                    axis,
+                    f"{size:g} {unit}",
+                    f"{len(obs)}/{len(rs)}",
+                    f"{det}/{len(obs)}",
+                    e,
+                ]
+                print("| " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":

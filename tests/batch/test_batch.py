@@ -98,7 +98,7 @@ def test_check_fleet_on_the_local_pool(fleet, tmp_path, capsys):
     assert stdout.splitlines()[2].startswith("gone\tfailed\t")
     # each item ran in a worker process, not here
     assert all(
-        r["exit_code"] == 3 or r["result"]["picks"].startswith(str(fleet.parent)) for r in rec.values()
+        r["exit_code"] == 3 or r["result"]["input"].startswith(str(fleet.parent)) for r in rec.values()
     )
     # the item's result is what the single command prints with --json
     code1 = main(

@@ -97,7 +97,8 @@ def test_yaw_of_half_a_degree_is_detected_and_corrected(drives, tmp_path, capsys
     code, out, err = run(capsys, "check", stored, "--sequence", drives["drive"], "--json")
     assert code == 1, err
     rec = json.loads(out)
-    assert rec["kind"] == "targetless" and rec["verdict"] == "drifted"
+    assert rec["kind"] == "targetless"
+    assert rec["verdict"] == "drifted"
     t = rec["targetless"]
     # The right correction is -0.5 deg about laser z.
     assert abs(t["correction_rotation_deg"][2] + 0.5) < 0.1
@@ -105,11 +106,12 @@ def test_yaw_of_half_a_degree_is_detected_and_corrected(drives, tmp_path, capsys
 
 
 def test_short_drive_cannot_tell(drives, tmp_path, capsys):
-    code, out, err = run(
+    code, out, _ = run(
         capsys, "check", drives["rig"], "--sequence", drives["short"], "--log", tmp_path / "l.jsonl"
     )
     assert code == 6
-    assert "verdict: cannot_tell" in out and "too short" in out
+    assert "verdict: cannot_tell" in out
+    assert "too short" in out
     assert read_log(tmp_path / "l.jsonl")[-1]["verdict"] == "cannot_tell"
 
 
@@ -124,7 +126,8 @@ def test_camera_looking_away_from_the_returns_cannot_tell(drives, tmp_path, caps
 def test_sequence_without_images_is_bad_input(drives, capsys):
     code, _, err = run(capsys, "check", drives["rig"], "--sequence", drives["blind"], "--no-log")
     assert code == 3
-    assert "images.count: got 0" in err and err.count("\n") == 1
+    assert "images.count: got 0" in err
+    assert err.count("\n") == 1
 
 
 def test_sequence_of_another_camera_is_bad_input(drives, tmp_path, capsys):
@@ -139,7 +142,8 @@ def test_sequence_of_another_camera_is_bad_input(drives, tmp_path, capsys):
 
 def test_one_source_only(drives, capsys):
     code, _, err = run(capsys, "check", drives["rig"], "--no-log")
-    assert code == 2 and "one of --picks, --session or --sequence" in err
+    assert code == 2
+    assert "one of --picks, --session or --sequence" in err
     code, _, err = run(
         capsys, "check", drives["rig"], "--sequence", drives["drive"], "--picks", drives["rig"]
     )

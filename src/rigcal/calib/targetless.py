@@ -475,8 +475,9 @@ def _sample(img: NDArray[np.float32], q: FloatArray) -> FloatArray:
 LEVEL_STEP = 1.1
 LEVELS = 8
 _FIXED = 5  # laser z: never observed by a planar drive (module docstring, step 6)
-# The odometry's errors, per unit: scale 0.1 %, yaw scale 0.1 %, yaw rate 1 mrad/s, pivot 1 mm.
-_NUISANCE_UNITS = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3)
+# The odometry's errors, per unit: scale 0.1 %, yaw scale 0.1 %, yaw rate 1 mrad/s, pivot 1 mm,
+# crab angle 1 mrad.
+_NUISANCE_UNITS = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3)
 _GRAD_STEP_PX = 0.5
 
 
@@ -531,16 +532,18 @@ def _sample_with_gradient(
 def _residuals(
     rig: Rig, T: FloatArray, nuis: FloatArray, patches: _Patches, images: _Images
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
-    """(P, S) residuals, (P, S, 11) their derivatives with respect to a right update of T
+    """(P, S) residuals, (P, S, 12) their derivatives with respect to a right update of T
     (T Exp(w, v), laser frame) and to the odometry's errors ``nuis`` (its scale, its yaw's
-    scale, its yaw rate's bias, its pivot: a translation (R - I) l for a turn R), (P,)
-    usable patches."""
+    scale, its yaw rate's bias, its pivot: a translation (R - I) l for a turn R, its crab
+    angle: the step turned about z), (P,) usable patches."""
     cam = rig.camera
     X = patches.X
     Pn, S, _ = X.shape
-    eps, kappa, bias, lx, ly = nuis
+    eps, kappa, bias, lx, ly, crab = nuis
     R_I = patches.M[:, :3, :3] - np.eye(3)
-    t_M = patches.M[:, :3, 3] * (1.0 + eps) + R_I @ np.array([lx, ly, 0.0])
+    t0 = patches.M[:, :3, 3]
+    crabbed = t0 + crab * np.column_stack([-t0[:, 1], t0[:, 0], np.zeros(len(t0))])
+    t_M = crabbed * (1.0 + eps) + R_I @ np.array([lx, ly, 0.0])
     RX = np.einsum("pab,psb->psa", patches.M[:, :3, :3], X)
     turn = patches.yaw * kappa + patches.dt * bias
     c, sn = np.cos(turn)[:, None], np.sin(turn)[:, None]
@@ -563,9 +566,9 @@ def _residuals(
         gR = g_pix @ T[:3, :3]
         x = pts.reshape(-1, 3)
         # x' = Exp(w) x + v: d grey / d w = x cross gR, d grey / d v = gR.
-        J = np.column_stack([np.cross(x, gR), gR, np.zeros((len(x), 5))])
+        J = np.column_stack([np.cross(x, gR), gR, np.zeros((len(x), 6))])
         out_v.append(v.reshape(Pn, S))
-        out_J.append(J.reshape(Pn, S, 11))
+        out_J.append(J.reshape(Pn, S, 12))
     a, b = out_v
     Ja, Jb = out_J
     # The odometry's errors move frame j's points: its scale along the step (d y / d eps =
@@ -576,6 +579,7 @@ def _residuals(
     Jb[:, :, 7] = d_turn * patches.yaw[:, None]
     Jb[:, :, 8] = d_turn * patches.dt[:, None]
     Jb[:, :, 9:11] = np.einsum("psk,pkl->psl", gRb, R_I[:, :, :2])
+    Jb[:, :, 11] = gRb[..., 1] * t0[:, None, 0] - gRb[..., 0] * t0[:, None, 1]
     usable = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
     a = np.where(usable[:, None], a, 0.0)
     b = np.where(usable[:, None], b, 0.0)
@@ -636,7 +640,7 @@ class _Estimate:
 
     xi: FloatArray
     cov_z: FloatArray
-    odometry: FloatArray  # (5,) the odometry's scale, yaw scale, yaw rate bias (rad/s), pivot (m)
+    odometry: FloatArray  # (6,) the odometry's scale, yaw scale, yaw rate bias (rad/s), pivot (m), crab
     odometry_sigma: FloatArray
     blocks: int
     determined: FloatArray  # (6, m) basis, resolution units
@@ -646,24 +650,24 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     """Gauss-Newton on (xi without laser z, the odometry's scale error), coarse to fine,
     then the sandwich covariance over blocks (module docstring, steps 4-5)."""
     T0 = rig.T_cam_laser
-    free = [0, 1, 2, 3, 4, 6, 7, 8, 9, 10]  # rx ry rz tx ty, the odometry's errors; laser z (5) held
+    free = [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11]  # rx ry rz tx ty, the odometry's errors; laser z (5) held
     D = np.diag(np.r_[s.scale, _NUISANCE_UNITS])[np.ix_(free, free)]
     n_blocks = int(patches.block.max()) + 1
     T = T0.copy()
-    nuis = np.zeros(5)
+    nuis = np.zeros(6)
     V = np.eye(len(free))
     for stage, blur in enumerate(s.blur_px):
         images = _Images(streams, blur, s.native_blur_px)
         last = stage == len(s.blur_px) - 1
         for it in range(s.iterations + (1 if last else 0)):
-            r, J11, usable = _residuals(rig, T, nuis, patches, images)
+            r, J12, usable = _residuals(rig, T, nuis, patches, images)
             if usable.sum() < s.min_returns:
                 raise _CannotTellError(
                     f"no overlap: only {int(usable.sum())} patches stay inside both frames as T_cam_laser "
                     "is corrected (the stored calibration may be far off)"
                 )
             w = _weights(r, usable)
-            H, g, g_blocks, var = _normal(r, J11[:, :, free], w, patches.block, n_blocks)
+            H, g, g_blocks, var = _normal(r, J12[:, :, free], w, patches.block, n_blocks)
             Hz = D @ H @ D
             evals, evecs = np.linalg.eigh(Hz / max(var, 1e-12))
             # Directions the drive determines at all (naive sigma under one resolution).
@@ -689,7 +693,7 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     Hs_inv = np.linalg.inv(V.T @ Hz @ V)
     Bg = V.T @ D @ g_blocks.T
     Cs = Hs_inv @ (Bg @ Bg.T) * (G / max(G - 1, 1)) @ Hs_inv
-    C_free = V @ Cs @ V.T  # (10, 10) over the free parameters, their units
+    C_free = V @ Cs @ V.T  # (11, 11) over the free parameters, their units
     cov_z = np.zeros((6, 6))
     cov_z[np.ix_(free[:5], free[:5])] = C_free[:5, :5]  # the odometry's errors marginalised out
     determined = np.zeros((6, V.shape[1]))
@@ -742,6 +746,7 @@ def _test(
                 _r(math.degrees(est.odometry[2]), 5),
                 _r(math.degrees(est.odometry_sigma[2]), 5),
             ],
+            "crab_deg": [_r(math.degrees(est.odometry[5]), 4), _r(math.degrees(est.odometry_sigma[5]), 4)],
             "pivot_mm": [
                 [_r(1000.0 * est.odometry[3], 2), _r(1000.0 * est.odometry[4], 2)],
                 [_r(1000.0 * est.odometry_sigma[3], 2), _r(1000.0 * est.odometry_sigma[4], 2)],

@@ -175,7 +175,8 @@ def _targetless(rig_path: Path, stored: Any, sequence: Path, level: float) -> di
 
 def _summary(record: dict[str, object]) -> str:
     kind = record.get("kind", "box")
-    lines = [f"verdict: {record['verdict']} ({kind} check, false-alarm level {record['level']})"]
+    what = "" if kind == "box" else f"{kind} check, "
+    lines = [f"verdict: {record['verdict']} ({what}false-alarm level {record['level']})"]
     r = record["residual"]
     if isinstance(r, dict) and "ends" in r:
         lines.append(
