@@ -479,6 +479,7 @@ _FIXED = 5  # laser z: never observed by a planar drive (module docstring, step 
 # crab angle 1 mrad.
 _NUISANCE_UNITS = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3)
 _GRAD_STEP_PX = 0.5
+PRIOR_UNITS = 10.0  # the weak prior's sigma, in resolutions (and odometry error units)
 
 
 def _levels(ratio: FloatArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -655,7 +656,6 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     n_blocks = int(patches.block.max()) + 1
     T = T0.copy()
     nuis = np.zeros(6)
-    V = np.eye(len(free))
     for stage, blur in enumerate(s.blur_px):
         images = _Images(streams, blur, s.native_blur_px)
         last = stage == len(s.blur_px) - 1
@@ -668,18 +668,12 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
                 )
             w = _weights(r, usable)
             H, g, g_blocks, var = _normal(r, J12[:, :, free], w, patches.block, n_blocks)
-            Hz = D @ H @ D
-            evals, evecs = np.linalg.eigh(Hz / max(var, 1e-12))
-            # Directions the drive determines at all (naive sigma under one resolution).
-            V = evecs[:, evals > 1.0]
-            if V.shape[1] == 0:
-                raise _CannotTellError(
-                    "degenerate motion: the drive determines no direction of T_cam_laser to the "
-                    f"resolution ({s.resolution_deg:g} deg, {100 * s.resolution_m:g} cm)"
-                )
+            # A weak prior (PRIOR_UNITS resolutions, or odometry error units) keeps the
+            # directions the drive leaves open where they were instead of wandering.
+            A = D @ H @ D + max(var, 1e-12) / PRIOR_UNITS**2 * np.eye(len(free))
             if last and it == s.iterations:
                 break
-            dz = -V @ np.linalg.solve(V.T @ Hz @ V, V.T @ (D @ g))
+            dz = -np.linalg.solve(A, D @ g)
             dz *= min(1.0, 3.0 / max(float(np.abs(dz).max()), 1e-12))  # at most 3 resolutions a step
             d = D @ dz
             T = T @ make_T(rotvec_to_R(d[:3]), np.r_[d[3:5], 0.0])
@@ -688,16 +682,26 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
                 break
     Delta = np.linalg.inv(T0) @ T
     xi = np.concatenate([R_to_rotvec(Delta[:3, :3]), Delta[:3, 3]])
-    # Sandwich over blocks in the determined subspace (small-sample factor G / (G - 1)).
+    # What the drive determines of xi once the odometry's errors are free: the Schur
+    # complement of their block in the (naive) information, in resolution units.
+    info = (D @ H @ D) / max(var, 1e-12)
+    nn = info[5:, 5:] + np.eye(len(free) - 5) / PRIOR_UNITS**2
+    schur = info[:5, :5] - info[:5, 5:] @ np.linalg.solve(nn, info[5:, :5])
+    ev, U = np.linalg.eigh(schur)
+    determined = np.zeros((6, int((ev > 1.0).sum())))
+    determined[free[:5]] = U[:, ev > 1.0]
+    if determined.shape[1] == 0:
+        raise _CannotTellError(
+            "degenerate motion: the drive determines no direction of T_cam_laser to the "
+            f"resolution ({s.resolution_deg:g} deg, {100 * s.resolution_m:g} cm)"
+        )
+    # Sandwich over blocks (small-sample factor G / (G - 1)): A^-1 B A^-1.
     G = n_blocks
-    Hs_inv = np.linalg.inv(V.T @ Hz @ V)
-    Bg = V.T @ D @ g_blocks.T
-    Cs = Hs_inv @ (Bg @ Bg.T) * (G / max(G - 1, 1)) @ Hs_inv
-    C_free = V @ Cs @ V.T  # (11, 11) over the free parameters, their units
+    A_inv = np.linalg.inv(A)
+    Bg = D @ g_blocks.T
+    C_free = A_inv @ (Bg @ Bg.T) * (G / max(G - 1, 1)) @ A_inv  # over the free parameters, units
     cov_z = np.zeros((6, 6))
     cov_z[np.ix_(free[:5], free[:5])] = C_free[:5, :5]  # the odometry's errors marginalised out
-    determined = np.zeros((6, V.shape[1]))
-    determined[free[:5]] = V[:5]
     sig = np.sqrt(np.clip(np.diag(C_free)[5:], 0.0, None)) * np.array(_NUISANCE_UNITS)
     return _Estimate(xi, cov_z, nuis, sig, G, determined)
 
@@ -711,15 +715,11 @@ def _floor_z(s: TargetlessSettings) -> FloatArray:
 
 
 def _observed_basis(est: _Estimate, s: TargetlessSettings) -> FloatArray:
-    """(6, k) orthonormal directions (resolution units) whose sigma is under one
-    resolution over the detection factor, among those the drive determines."""
-    C = est.cov_z
-    # Only directions inside the determined span (outside it the covariance is 0 by
-    # construction, not by information).
-    Q, _ = np.linalg.qr(est.determined[:5]) if est.determined.shape[1] else (np.zeros((5, 0)), None)
-    Q6 = np.zeros((6, Q.shape[1]))
-    Q6[:5] = Q
-    Cq = Q6.T @ (C + _floor_z(s)) @ Q6
+    """(6, k) orthonormal directions (resolution units) whose sigma (the blocks' sandwich
+    plus the floor) is under one resolution over the detection factor, among those the
+    drive determines once the odometry's errors are free."""
+    Q6 = est.determined
+    Cq = Q6.T @ (est.cov_z + _floor_z(s)) @ Q6
     ev, U = np.linalg.eigh(Cq)
     keep = ev < (1.0 / s.detection_factor()) ** 2
     out: FloatArray = Q6 @ U[:, keep]
