@@ -116,7 +116,7 @@ class TargetlessSettings:
     patch_half: int = 1
     patch_step_px: float = 2.0
     blur_px: tuple[float, ...] = (3.0, 1.2)
-    iterations: int = 4
+    iterations: int = 6
     min_range_m: float = 0.5
     max_range_m: float = 10.0
     min_texture: float = 3.0
@@ -676,11 +676,14 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
             if last and it == s.iterations:
                 break
             dz = -np.linalg.solve(A, D @ g)
-            dz *= min(1.0, 3.0 / max(float(np.abs(dz).max()), 1e-12))  # at most 3 resolutions a step
+            # At most 3 resolutions a step on T (the odometry's errors follow freely: their
+            # units are small, and clamping by them would stall the steps along the valley
+            # where a camera yaw and the odometry's crab angle trade off).
+            dz *= min(1.0, 3.0 / max(float(np.abs(dz[:5]).max()), 1e-12))
             d = D @ dz
             T = T @ make_T(rotvec_to_R(d[:3]), np.r_[d[3:5], 0.0])
             nuis += d[5:]
-            if float(np.abs(dz).max()) < 0.01 and not last:
+            if float(np.abs(dz[:5]).max()) < 0.01 and not last:
                 break
     Delta = np.linalg.inv(T0) @ T
     xi = np.concatenate([R_to_rotvec(Delta[:3, :3]), Delta[:3, 3]])
