@@ -147,7 +147,7 @@ def _with_target(
             "(re-solve the rig with `rigcal solve`)"
         )
     settings = DriftSettings(level=level, min_captures_for_solve=min_captures)
-    board = is_board_session(load_yaml(source, "session file"))
+    board = is_board_session(load_yaml(source, "picking file" if flag == "--picks" else "session file"))
     if board and flag == "--picks":
         raise InputError(
             f"{source}: method: got 'board'; expected a box picking file for --picks: check a board "
