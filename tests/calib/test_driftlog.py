@@ -222,7 +222,7 @@ def test_bad_schema_2_records_name_the_line_and_key(picks, tmp_path, change, mat
 
 def test_a_schema_1_verdict_cannot_be_cannot_tell(picks, tmp_path):
     log = tmp_path / "rig.checks.jsonl"
-    old = {k: None for k in ("checked_utc", "picks", "picks_sha256", "level", "residual", "pose")}
+    old = dict.fromkeys(("checked_utc", "picks", "picks_sha256", "level", "residual", "pose"))
     log.write_text(json.dumps(old | {"schema_version": 1, "verdict": "cannot_tell", "reasons": []}) + "\n")
     with pytest.raises(InputError, match=r"verdict: got 'cannot_tell'; expected one of \['ok', 'drifted'\]"):
         read_log(log)

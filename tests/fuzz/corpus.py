@@ -1495,7 +1495,14 @@ def all_cases() -> list[Case]:
         Case("check-unwritable-plot", [*CHECK, "--plot", "{out}/nodir/\0.png"], code=2, message="NUL"),
         Case(
             "check-board-session-as-picks",
-            ["check", "{in}/rig.yaml", "--picks", "{in}/board/board_session.yaml", "--log", "{out}/log.jsonl"],
+            [
+                "check",
+                "{in}/rig.yaml",
+                "--picks",
+                "{in}/board/board_session.yaml",
+                "--log",
+                "{out}/log.jsonl",
+            ],
             code=3,
             message="check a board session with",
         ),
