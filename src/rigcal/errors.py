@@ -13,6 +13,7 @@ Exit codes (documented in docs/cli.md):
  3   bad input: missing, unreadable, malformed or invalid file (or API argument)
  4   calibration failed: too few data, degenerate geometry, no consensus
  5   output refused or failed: file exists without --force, write error
+ 6   a check ran and cannot tell (rigcal check --sequence: too short, no overlap, no motion)
 ===  ==========================================================
 """
 

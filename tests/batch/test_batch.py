@@ -98,7 +98,7 @@ def test_check_fleet_on_the_local_pool(fleet, tmp_path, capsys):
     assert stdout.splitlines()[2].startswith("gone\tfailed\t")
     # each item ran in a worker process, not here
     assert all(
-        r["exit_code"] == 3 or r["result"]["picks"].startswith(str(fleet.parent)) for r in rec.values()
+        r["exit_code"] == 3 or r["result"]["input"].startswith(str(fleet.parent)) for r in rec.values()
     )
     # the item's result is what the single command prints with --json
     code1 = main(
@@ -119,7 +119,7 @@ def test_check_fleet_on_the_local_pool(fleet, tmp_path, capsys):
     # summary: CSV and JSON agree, one row per item in the manifest's order
     doc = json.loads((out / "summary.json").read_text())
     assert doc["schema_version"] == 2
-    assert doc["counts"] == {"ok": 2, "drifted": 1, "failed": 1}
+    assert doc["counts"] == {"ok": 2, "drifted": 1, "cannot_tell": 0, "failed": 1}
     with open(out / "summary.csv", newline="") as f:
         table = list(csv.DictReader(f))
     assert [r["name"] for r in table] == ["r1", "r2", "gone", "r3"]

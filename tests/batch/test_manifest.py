@@ -106,6 +106,14 @@ def test_names_are_derived_from_the_paths_that_differ(tmp_path):
             r"items\[0\].rig: missing; check needs it",
         ),
         (
+            {"schema_version": 1, "command": "check", "items": [{"rig": "r"}]},
+            r"items\[0\]: got 'none of them'; expected exactly one of \['picks', 'session', 'sequence'\]",
+        ),
+        (
+            {"schema_version": 1, "command": "check", "items": [{"rig": "r", "picks": "p", "sequence": "s"}]},
+            r"items\[0\]: got \['picks', 'sequence'\]; expected exactly one of",
+        ),
+        (
             {"schema_version": 1, "command": "check", "defaults": {"level": "high"}, "items": [{}]},
             r"defaults.level: got 'high'; expected a number",
         ),
@@ -164,3 +172,34 @@ def test_a_glob_fills_the_main_input(tmp_path, monkeypatch):
         glob_items("runs/*", "localize", {"sequence": "x"})
     with pytest.raises(InputError, match=r"evaluate needs it"):
         glob_items("runs/*", "evaluate", {})
+
+
+def test_check_items_take_drives_and_board_sessions(tmp_path, monkeypatch):
+    for name in ("r01", "r02"):
+        (tmp_path / "fleet" / name / "drive").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path)
+    items = glob_items("fleet/*/drive", "check", {"rig": "rig.yaml"})
+    assert [i.name for i in items] == ["r01", "r02"]
+    assert items[0].options["sequence"] == tmp_path / "fleet" / "r01" / "drive"
+    assert items[0].argv(tmp_path / "out")[:4] == [
+        "check",
+        str(tmp_path / "rig.yaml"),
+        "--sequence",
+        str(items[0].options["sequence"]),
+    ]
+    with pytest.raises(InputError, match=r"--set: got 'picks'; expected an option other than"):
+        glob_items("fleet/*/drive", "check", {"rig": "rig.yaml", "picks": "p.yaml"})
+    manifest = tmp_path / "m.yaml"
+    manifest.write_text(
+        yaml.safe_dump(
+            {
+                "schema_version": 1,
+                "command": "check",
+                "defaults": {"rig": "rig.yaml"},
+                "items": [{"sequence": "fleet/r01/drive"}, {"session": "r02/board_session.yaml"}],
+            }
+        )
+    )
+    a, b = read_manifest(manifest)
+    assert (a.name, b.name) == ("fleet_r01_drive", "r02_board_session")
+    assert "--session" in b.argv(tmp_path)

@@ -55,8 +55,10 @@ def test_record_has_every_key_and_names_the_picks(picks):
     assert rec["schema_version"] == DRIFT_LOG_SCHEMA_VERSION
     assert rec["verdict"] == "drifted"
     assert rec["level"] == 0.01
-    assert rec["picks"] == str(picks.resolve())
-    assert rec["picks_sha256"] == hashlib.sha256(picks.read_bytes()).hexdigest()
+    assert rec["kind"] == "box"
+    assert rec["input"] == str(picks.resolve())
+    assert rec["input_sha256"] == hashlib.sha256(picks.read_bytes()).hexdigest()
+    assert rec["targetless"] is None
     assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", rec["checked_utc"])
     assert rec["residual"] == RESIDUAL
     assert rec["pose"] == POSE
@@ -135,7 +137,7 @@ def test_read_log_refuses_a_line_that_is_not_an_object(picks, tmp_path):
         read_log(log)
 
 
-@pytest.mark.parametrize("version", [2, 0, "1", 1.0, True, None])
+@pytest.mark.parametrize("version", [3, 0, "1", 1.0, True, None])
 def test_read_log_refuses_another_schema_version(picks, tmp_path, version):
     bad = good_record(picks) | {"schema_version": version}
     log = write_lines(tmp_path / "log.jsonl", good_record(picks), good_record(picks), bad)
@@ -153,7 +155,7 @@ def test_read_log_refuses_missing_keys(picks, tmp_path):
 @pytest.mark.parametrize("verdict", ["OK", "maybe", None, True])
 def test_read_log_refuses_a_bad_verdict(picks, tmp_path, verdict):
     log = write_lines(tmp_path / "log.jsonl", good_record(picks), good_record(picks) | {"verdict": verdict})
-    with pytest.raises(InputError, match=r"line 2: verdict.*'ok' or 'drifted'"):
+    with pytest.raises(InputError, match=r"line 2: verdict.*\['ok', 'drifted', 'cannot_tell'\]"):
         read_log(log)
 
 
@@ -177,3 +179,50 @@ def test_append_after_a_last_line_without_newline_keeps_both_records(picks, tmp_
     log.write_text(log.read_text().rstrip("\n"))  # an editor dropped the final newline
     append_record(log, drift_record(result(drifted=True), picks))
     assert [r["verdict"] for r in read_log(log)] == ["ok", "drifted"]
+
+
+def test_schema_1_records_are_read_as_they_are(picks, tmp_path):
+    old = {
+        "schema_version": 1,
+        "checked_utc": "2026-11-23T08:12:40Z",
+        "picks": str(picks),
+        "picks_sha256": "0" * 64,
+        "verdict": "ok",
+        "level": 0.01,
+        "residual": RESIDUAL,
+        "pose": None,
+        "reasons": [],
+    }
+    log = tmp_path / "rig.checks.jsonl"
+    log.write_text(json.dumps(old) + "\n")
+    append_record(log, drift_record(result(drifted=False), picks))
+    recs = read_log(log)
+    assert [r["schema_version"] for r in recs] == [1, 2]
+    assert recs[0]["picks"] == str(picks)
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        ({"kind": "lidar"}, r"line 1: kind: got 'lidar'; expected one of \['box', 'board', 'targetless'\]"),
+        (
+            {"verdict": "maybe"},
+            r"line 1: verdict: got 'maybe'; expected one of \['ok', 'drifted', 'cannot_tell'\]",
+        ),
+        ({"schema_version": 3}, r"line 1: schema_version: got 3; expected 1 or 2"),
+    ],
+)
+def test_bad_schema_2_records_name_the_line_and_key(picks, tmp_path, change, match):
+    rec = drift_record(result(drifted=False), picks) | change
+    log = tmp_path / "rig.checks.jsonl"
+    log.write_text(json.dumps(rec) + "\n")
+    with pytest.raises(InputError, match=match):
+        read_log(log)
+
+
+def test_a_schema_1_verdict_cannot_be_cannot_tell(picks, tmp_path):
+    log = tmp_path / "rig.checks.jsonl"
+    old = dict.fromkeys(("checked_utc", "picks", "picks_sha256", "level", "residual", "pose"))
+    log.write_text(json.dumps(old | {"schema_version": 1, "verdict": "cannot_tell", "reasons": []}) + "\n")
+    with pytest.raises(InputError, match=r"verdict: got 'cannot_tell'; expected one of \['ok', 'drifted'\]"):
+        read_log(log)

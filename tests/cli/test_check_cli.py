@@ -100,7 +100,8 @@ def test_json_output_parses_and_has_the_verdict(rig, data, capsys):
     doc = json.loads(out)
     assert doc["verdict"] == "drifted"
     assert doc["level"] == 0.01
-    assert doc["picks"] == str(data["turned"].resolve())
+    assert doc["input"] == str(data["turned"].resolve())
+    assert doc["kind"] == "box"
     assert doc["pose"]["p_value"] < 0.005
     assert doc["residual"]["ends"] == 12
 
@@ -132,7 +133,7 @@ def test_each_check_appends_one_line_to_the_log_beside_the_rig(rig, data, capsys
     assert len(lines) == 2
     assert [json.loads(line)["verdict"] for line in lines] == ["ok", "drifted"]
     assert [r["verdict"] for r in read_log(log)] == ["ok", "drifted"]
-    assert read_log(log)[1]["picks"] == str(data["turned"].resolve())
+    assert read_log(log)[1]["input"] == str(data["turned"].resolve())
 
 
 def test_no_log_leaves_the_log_alone(rig, data, capsys):
@@ -255,3 +256,60 @@ def test_help_has_examples(capsys):
     assert "rigcal check rig.yaml --picks today/picks.yaml" in out
     for option in ("--picks", "--level", "--log", "--no-log", "--plot", "--force", "--json"):
         assert option in out
+
+
+@pytest.fixture(scope="module")
+def board(tmp_path_factory) -> dict[str, Path]:
+    """A rig solved from one simulated board session (whatever its method, a rig) and a
+    new board session of the same rig."""
+    base = tmp_path_factory.mktemp("board-check")
+    for name, seed in (("calib", 4), ("today", 5)):
+        assert (
+            main(
+                ["simulate", "board-session", "-o", str(base / name), "--seed", str(seed), "--captures", "10"]
+            )
+            == 0
+        )
+    rig = base / "rig.yaml"
+    assert main(["solve", str(base / "calib" / "board_session.yaml"), "-o", str(rig)]) == 0
+    return {"rig": rig, "session": base / "today" / "board_session.yaml"}
+
+
+def test_board_session_checks_a_rig(board, tmp_path, capsys):
+    rig = Path(shutil.copy(board["rig"], tmp_path / "rig.yaml"))
+    code, out, err = run(capsys, "check", rig, "--session", board["session"])
+    assert code == 0, out + err
+    assert out.startswith("verdict: ok (board check, false-alarm level 0.01)\n")
+    assert "board captures, RMS" in out
+    rec = read_log(tmp_path / "rig.checks.jsonl")[-1]
+    assert rec["kind"] == "board"
+    assert rec["input"] == str(board["session"].resolve())
+
+
+def test_board_session_finds_a_turned_camera(board, tmp_path, capsys):
+    from rigcal.geometry import make_T, rotvec_to_R
+    from rigcal.rigfile import read_rig
+
+    stored = read_rig(board["rig"])
+    turned = make_T(rotvec_to_R([0.0, np.radians(0.5), 0.0]), [0.0, 0.0, 0.0]) @ stored.T_cam_laser
+    rig = tmp_path / "turned.yaml"
+    import dataclasses
+
+    write_rig(rig, dataclasses.replace(stored, T_cam_laser=turned))
+    code, out, _ = run(capsys, "check", rig, "--session", board["session"], "--no-log")
+    assert code == 1
+    assert "a fresh solve differs by" in out
+
+
+def test_board_session_given_as_picks_says_to_use_session(board, capsys):
+    code, _, err = run(capsys, "check", board["rig"], "--picks", board["session"], "--no-log")
+    assert code == 3
+    assert "method: got 'board'; expected a box picking file for --picks" in err
+    assert f"--session {board['session']}" in err
+    assert err.count("\n") == 1
+
+
+def test_box_picks_given_as_session_are_checked_as_box(rig, data, capsys):
+    code, out, _ = run(capsys, "check", rig, "--session", data["same"], "--no-log")
+    assert code == 0
+    assert out.startswith("verdict: ok (false-alarm level 0.01)\n")

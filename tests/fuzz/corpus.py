@@ -1969,6 +1969,26 @@ def all_cases() -> list[Case]:
             "scan.yaml",
         ),
         Case("check-unwritable-plot", [*CHECK, "--plot", "{out}/nodir/\0.png"], code=2, message="NUL"),
+        Case(
+            "check-board-session-as-picks",
+            [
+                "check",
+                "{in}/rig.yaml",
+                "--picks",
+                "{in}/board/board_session.yaml",
+                "--log",
+                "{out}/log.jsonl",
+            ],
+            code=3,
+            message="check a board session with",
+        ),
+        Case("check-two-sources", [*CHECK, "--sequence", "{in}/seq"], code=2, message="one of --picks"),
+        Case(
+            "check-sequence-of-another-camera",
+            ["check", "{in}/rig.yaml", "--sequence", "{in}/seq", "--log", "{out}/log.jsonl"],
+            code=3,
+            message="expected 640x480",
+        ),
     ]
     ids = [c.id for c in cases]
     dup = {i for i in ids if ids.count(i) > 1}

@@ -71,6 +71,8 @@ def test_three_labelled_panels_with_real_ticks_and_a_legend(axes):
     assert [t.get_text() for t in axes[0].get_legend().get_texts()] == [
         "ok",
         "drifted",
+        "targetless (a drive)",
+        "cannot tell",
         "2 sigma (noise alone)",
     ]
     assert axes[-1].get_xticklabels()[0].get_text() == "#1 2026-11-23"
@@ -124,3 +126,27 @@ def test_refuses_to_overwrite_without_force_and_unknown_formats(tmp_path):
     assert path.read_bytes()[:4] == b"\x89PNG"
     with pytest.raises(InputError, match=r"chart file: got '.*drift\.jpg'; expected a name ending in \.png"):
         write_drift_plot(tmp_path / "drift.jpg", RECORDS)
+
+
+def test_drives_are_diamonds_and_cannot_tell_a_grey_cross():
+    drive = {
+        "schema_version": 2,
+        "checked_utc": "2026-11-26T08:00:00Z",
+        "kind": "targetless",
+        "verdict": "drifted",
+        "residual": None,
+        "pose": None,
+        "targetless": {
+            "rotation_deg": 0.31,
+            "translation_mm": 4.0,
+            "sigma_rotation_deg": [0.05, 0.05, 0.05],
+            "sigma_translation_mm": [3.0, 3.0, 0.0],
+        },
+    }
+    blind = drive | {"verdict": "cannot_tell", "targetless": {"duration_s": 5.0}}
+    ax = drift_figure([*RECORDS, drive, blind]).axes[0]
+    diamonds = [ln for ln in ax.get_lines() if ln.get_marker() == "D"]
+    assert [list(ln.get_ydata()) for ln in diamonds] == [[0.31]]
+    crosses = [ln for ln in ax.get_lines() if ln.get_marker() == "x"]
+    assert [list(ln.get_xdata()) for ln in crosses] == [[len(RECORDS) + 2]]
+    assert bands(ax)[len(RECORDS) + 1] == pytest.approx(2 * np.linalg.norm([0.05, 0.05, 0.05]))

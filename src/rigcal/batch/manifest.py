@@ -47,7 +47,10 @@ COMMANDS: dict[str, Command] = {
     "check": Command(
         {
             "rig": Option(None, "path", required=True),
-            "picks": Option("--picks", "path", required=True),
+            # One of these three (ONE_OF): a box session, a board session, a drive.
+            "picks": Option("--picks", "path"),
+            "session": Option("--session", "path"),
+            "sequence": Option("--sequence", "path"),
             "level": Option("--level", "float"),
             "min_captures": Option("--min-captures", "int"),
             "log": Option("--log", "path"),
@@ -91,6 +94,10 @@ COMMANDS: dict[str, Command] = {
         outputs=(),
     ),
 }
+
+
+# Options of which an item needs exactly one: what a check checks against.
+ONE_OF = {"check": ("picks", "session", "sequence")}
 
 
 @dataclass(frozen=True)
@@ -165,7 +172,7 @@ def read_manifest(path: str | Path) -> list[Item]:
         merged = {**defaults, **_options(entry, command, path, where, base, partial=True)}
         _check_required(merged, command, path, where)
         named.append((name, merged))
-    derived = _derived_names([Path(m[COMMANDS[command].glob_key]) for _, m in named])
+    derived = _derived_names([Path(_main_input(m, command)) for _, m in named])
     out = [
         Item(derived[i] if name is None else _name(name, path, f"items[{i}].name"), command, merged)
         for i, (name, merged) in enumerate(named)
@@ -187,15 +194,27 @@ def glob_items(pattern: str, command: str, options: Mapping[str, Any]) -> list[I
     if not matches:
         raise InputError.at(None, "manifest glob", pattern, "a pattern matching at least one input")
     shared = _options(dict(options), command, None, "--set", Path.cwd(), partial=True, from_text=True)
-    if spec.glob_key in shared:
-        raise InputError.at(None, "--set", spec.glob_key, "an option other than the one the glob fills")
+    for key in ONE_OF.get(command, (spec.glob_key,)):
+        if key in shared:
+            raise InputError.at(None, "--set", key, "an option other than the one the glob fills")
     paths = [Path(m).resolve() for m in matches]
     items = []
     for name, p in zip(_derived_names(paths), paths, strict=True):
-        merged = {**shared, spec.glob_key: p}
+        # A check's glob over folders names drives (targetless), over files sessions.
+        key = "sequence" if command == "check" and p.is_dir() else spec.glob_key
+        merged = {**shared, key: p}
         _check_required(merged, command, None, f"glob match {p}")
         items.append(Item(name, command, merged))
     return items
+
+
+def _main_input(options: Mapping[str, Any], command: str) -> Any:
+    """The input an item's name is derived from: the glob key's, or the one given of
+    ``ONE_OF``."""
+    for key in ONE_OF.get(command, ()):
+        if key in options:
+            return options[key]
+    return options[COMMANDS[command].glob_key]
 
 
 def _command(value: Any, path: Path | None, key: str) -> str:
@@ -283,6 +302,10 @@ def _check_required(options: Mapping[str, Any], command: str, path: Path | None,
     for key, opt in COMMANDS[command].options.items():
         if opt.required and key not in options:
             raise InputError(f"{path or 'batch'}: {where}.{key}: missing; {command} needs it")
+    one_of = ONE_OF.get(command)
+    if one_of and sum(k in options for k in one_of) != 1:
+        given = [k for k in one_of if k in options]
+        raise InputError.at(path, where, given or "none of them", f"exactly one of {list(one_of)}")
 
 
 def _name(value: Any, path: Path | None, key: str) -> str:
@@ -316,7 +339,8 @@ def _derived_names(paths: list[Path]) -> list[str]:
             for q in parts:
                 q.pop(0)
     else:
-        parts = [[parts[0][-1] if parts[0][-1] not in ("picks", "trajectory") else parts[0][-2]]]
+        generic = ("picks", "trajectory", "board_session", "session")
+        parts = [[parts[0][-1] if parts[0][-1] not in generic else parts[0][-2]]]
     names = [
         re.sub(r"[^A-Za-z0-9._-]", "_", "_".join(q)).lstrip("._-")[-MAX_NAME_BYTES:].lstrip("._-") or "item"
         for q in parts

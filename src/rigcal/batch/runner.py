@@ -43,8 +43,9 @@ ITEM_SCHEMA_VERSION = 2  # 2: node
 READABLE_ITEM_VERSIONS = (1, 2)
 ITEM_FILE = "item.json"
 
-# Exit codes of the single commands that mean "ran to the end" (check: 1 = drifted).
-FINISHED = {"check": (0, 1), "solve": (0,), "localize": (0,), "evaluate": (0,)}
+# Exit codes of the single commands that mean "ran to the end" (check: 1 = drifted,
+# 6 = a drive that cannot tell).
+FINISHED = {"check": (0, 1, 6), "solve": (0,), "localize": (0,), "evaluate": (0,)}
 
 
 @dataclass(frozen=True)
@@ -154,7 +155,7 @@ def item_record(item: Item, argv: list[str], ran: dict[str, Any]) -> dict[str, A
             ok, ran["error"] = False, "the command's output is not JSON"
     status = "failed"
     if ok:
-        status = "drifted" if item.command == "check" and code == 1 else "ok"
+        status = {1: "drifted", 6: "cannot_tell"}.get(code, "ok") if item.command == "check" else "ok"
     return {
         "schema_version": ITEM_SCHEMA_VERSION,
         "name": item.name,
@@ -182,7 +183,7 @@ def finished_record(item: Item, folder: Path) -> dict[str, Any] | None:
         return None
     if not isinstance(rec, dict) or rec.get("schema_version") not in READABLE_ITEM_VERSIONS:
         return None
-    if rec.get("status") not in ("ok", "drifted") or rec.get("argv") != item.argv(folder):
+    if rec.get("status") not in ("ok", "drifted", "cannot_tell") or rec.get("argv") != item.argv(folder):
         return None
     if not all((folder / o).exists() for o in COMMANDS[item.command].outputs):
         return None

@@ -29,8 +29,10 @@ def figures(command: str, result: Any) -> dict[str, Any]:
         return {}
     if command == "check":
         r = result.get("residual") or {}
-        pose = result.get("pose") or {}
+        # A drive's targetless correction stands where a fresh solve's change would.
+        pose = result.get("pose") or result.get("targetless") or {}
         return {
+            "kind": result.get("kind", "box"),
             "verdict": result.get("verdict"),
             "residual_rms_px": r.get("rms_px"),
             "residual_p_value": r.get("p_value"),
@@ -82,7 +84,7 @@ def write_summary(output: str | Path, outcomes: list[Outcome]) -> tuple[Path, Pa
     columns = list(BASE_COLUMNS)
     for row in table:
         columns += [k for k in row if k not in columns]
-    counts = {s: sum(r["status"] == s for r in table) for s in ("ok", "drifted", "failed")}
+    counts = {s: sum(r["status"] == s for r in table) for s in ("ok", "drifted", "cannot_tell", "failed")}
     doc = {
         "schema_version": SUMMARY_SCHEMA_VERSION,
         "rigcal_version": __version__,

@@ -24,6 +24,7 @@ rig has moved too far for any of them to agree).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -46,7 +47,7 @@ from rigcal.rig import Rig
 
 FloatArray = NDArray[np.float64]
 
-DRIFT_LOG_SCHEMA_VERSION = 1
+DRIFT_LOG_SCHEMA_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -164,6 +165,102 @@ def check_drift(rig: Rig, session: PickSession, settings: DriftSettings | None =
     return DriftResult(drifted, settings.level, residual, pose, fresh, reasons)
 
 
+def check_drift_board(
+    rig: Rig, session_path: str | Path, settings: DriftSettings | None = None
+) -> DriftResult:
+    """Test a new board session (``method: board``) against a stored rig, whatever
+    method the rig was solved with: what is tested is the rig's T_cam_laser.
+
+    1. **Residual test.** The cut ends of each capture's board returns (the solve's
+       reduction of a capture to its line, :class:`rigcal.calib.plane.CaptureLine`) lie on
+       the board's plane (from the corners' PnP) under the stored T: their point-to-plane
+       distances e (2C,) ~ N(0, S), S = the capture covariances of the fresh solve's noise
+       model (range noise, the board poses' covariances, the per-capture error) + J C_rig
+       J^T. Chi-square with 2C dof over the captures the fresh solve kept.
+    2. **Pose test** as for box sessions: the fresh board solve against the stored pose.
+
+    Raises:
+        InputError: a bad session file; the rig has no covariance.
+        CalibrationError: the session cannot be solved (too few captures, parallel boards).
+    """
+    from rigcal.calib.board_calibrate import calibrate_board
+
+    settings = settings or DriftSettings()
+    if rig.covariance is None:
+        raise InputError(
+            "the rig file has no uncertainty block (covariance); a drift check needs the stored "
+            "calibration's covariance: re-solve the rig with `rigcal solve`"
+        )
+    board = calibrate_board(session_path)
+    fresh = board.result
+    alpha = settings.level / 2
+    reasons: list[str] = []
+    if board.session.camera.lensmodel != rig.camera.lensmodel or not np.allclose(
+        board.session.camera.intrinsics, rig.camera.intrinsics
+    ):
+        reasons.append("the session's camera file differs from the rig's camera; the rig's camera is used")
+    residual = _board_residual_test(rig, fresh, board.session.observations)
+    if residual["p_value"] < alpha:
+        reasons.append(
+            f"the new board returns lie off their boards' planes under the stored calibration beyond the "
+            f"noise (chi2 {residual['chi2']:.1f} over {residual['dof']} dof, p = {residual['p_value']:.2g})"
+        )
+    pose = _pose_test(rig, fresh)
+    if pose["p_value"] < alpha:
+        reasons.append(
+            f"a fresh solve differs by {pose['rotation_deg']:.3f} deg and {pose['translation_mm']:.1f} mm "
+            f"(Mahalanobis^2 {pose['mahalanobis2']:.1f}, p = {pose['p_value']:.2g})"
+        )
+    drifted = residual["p_value"] < alpha or pose["p_value"] < alpha
+    return DriftResult(drifted, settings.level, residual, pose, None, reasons)
+
+
+def _board_residual_test(rig: Rig, fresh: Any, observations: Any) -> dict[str, Any]:
+    """Point-to-plane distances of the kept captures' cut ends under the stored T."""
+    from rigcal.calib.plane import _capture_cov, _end_residuals
+
+    T = rig.T_cam_laser
+    noise = fresh.noise
+    kept = [k for k in range(len(observations)) if fresh.inlier_captures[k]]
+
+    def residuals(T_: FloatArray) -> FloatArray:
+        return np.concatenate(
+            [_end_residuals(T_, observations[k], fresh.lines[k], noise.range_bias_m) for k in kept]
+        )
+
+    e = residuals(T)
+    # Derivative with respect to the rig's tangent (R = Exp(d) R0, t = t0 + e), by central
+    # differences (the residuals are linear in t and smooth in R).
+    h = 1e-6
+    J = np.zeros((len(e), 6))
+    for a in range(6):
+        d = np.zeros(6)
+        d[a] = h
+        J[:, a] = (residuals(_moved(T, d)) - residuals(_moved(T, -d))) / (2 * h)
+    S = np.zeros((len(e), len(e)))
+    for n, k in enumerate(kept):
+        S[2 * n : 2 * n + 2, 2 * n : 2 * n + 2] = _capture_cov(T, observations[k], fresh.lines[k], noise)
+    assert rig.covariance is not None
+    S += J @ rig.covariance @ J.T
+    chi2_value = float(e @ np.linalg.solve(S, e)) if len(e) else 0.0
+    dof = len(e)
+    return {
+        "captures": len(observations),
+        "used_captures": len(kept),
+        "rms_mm": _r(1000.0 * float(np.sqrt(np.mean(e**2))) if len(e) else float("nan"), 3),
+        "max_mm": _r(1000.0 * float(np.max(np.abs(e))) if len(e) else float("nan"), 3),
+        "chi2": _r(chi2_value, 4),
+        "dof": dof,
+        "p_value": float(f"{float(chi2.sf(chi2_value, dof)) if dof else 1.0:.4g}"),
+    }
+
+
+def _moved(T: FloatArray, d: FloatArray) -> FloatArray:
+    from rigcal.geometry import make_T, rotvec_to_R
+
+    return make_T(rotvec_to_R(d[:3]) @ T[:3, :3], T[:3, 3] + d[3:])
+
+
 def rig_noise_model(rig: Rig) -> NoiseModel:
     """The noise model the rig was solved with: the noise it used (estimated from its
     session, rig file schema 2's ``uncertainty.noise``), else its provenance's settings,
@@ -257,7 +354,8 @@ def _end_chi2(e: FloatArray, W: FloatArray, pose_block: FloatArray) -> float:
     return float(e @ np.linalg.solve(S, e))
 
 
-def _pose_test(rig: Rig, fresh: CalibResult) -> dict[str, Any]:
+def _pose_test(rig: Rig, fresh: CalibResult | Any) -> dict[str, Any]:
+    """The fresh solve (box or board: a T_cam_laser and its covariance) against the rig."""
     assert rig.covariance is not None
     T0, T1 = rig.T_cam_laser, fresh.T_cam_laser
     d = tangent_delta(T1, T0)

@@ -1,6 +1,10 @@
 """The drift history of a rig: one JSON record per check, appended to a file beside the rig
 (docs/formats/drift-log.md). ``rigcal check`` appends to ``<rig>.checks.jsonl``; the plot
-of drift over time is drawn from it (:mod:`rigcal.viz.drift_plot`)."""
+of drift over time is drawn from it (:mod:`rigcal.viz.drift_plot`).
+
+Schema 2 records say which kind of check ran (``box``, ``board`` or ``targetless``) and
+what it read (``input``, ``input_sha256``); schema 1 records (box checks, ``picks``) are
+read as they are."""
 
 from __future__ import annotations
 
@@ -9,13 +13,16 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rigcal.calib.drift import DRIFT_LOG_SCHEMA_VERSION, DriftResult
 from rigcal.errors import InputError, OutputError
 from rigcal.io.files import read_text, sha256_file
 
-RECORD_KEYS = (
+if TYPE_CHECKING:  # a drive's check is built above the methods (rigcal.drift)
+    from rigcal.drift.targetless import TargetlessResult
+
+RECORD_KEYS_V1 = (
     "schema_version",
     "checked_utc",
     "picks",
@@ -26,6 +33,23 @@ RECORD_KEYS = (
     "pose",
     "reasons",
 )
+RECORD_KEYS = (
+    "schema_version",
+    "checked_utc",
+    "kind",
+    "input",
+    "input_sha256",
+    "verdict",
+    "level",
+    "residual",
+    "pose",
+    "targetless",
+    "reasons",
+)
+KINDS = ("box", "board", "targetless")
+VERDICTS = ("ok", "drifted", "cannot_tell")
+# The verdicts' exit codes (docs/cli.md).
+EXIT_CODES = {"ok": 0, "drifted": 1, "cannot_tell": 6}
 
 
 def default_log_path(rig_path: str | Path) -> Path:
@@ -34,19 +58,50 @@ def default_log_path(rig_path: str | Path) -> Path:
     return p.with_name(p.stem + ".checks.jsonl")
 
 
-def drift_record(result: DriftResult, picks_path: str | Path) -> dict[str, Any]:
-    """The log record of one check."""
+def drift_record(result: DriftResult, session_path: str | Path, kind: str = "box") -> dict[str, Any]:
+    """The log record of one check with a target (``box`` picks or a ``board`` session)."""
     return {
         "schema_version": DRIFT_LOG_SCHEMA_VERSION,
-        "checked_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "picks": str(Path(picks_path).resolve()),
-        "picks_sha256": sha256_file(picks_path),
+        "checked_utc": _now(),
+        "kind": kind,
+        "input": str(Path(session_path).resolve()),
+        "input_sha256": sha256_file(session_path),
         "verdict": result.verdict,
         "level": result.level,
         "residual": _json_safe(result.residual),
         "pose": _json_safe(result.pose),
+        "targetless": None,
         "reasons": result.reasons,
     }
+
+
+def targetless_record(result: TargetlessResult, sequence: str | Path) -> dict[str, Any]:
+    """The log record of one targetless check of a drive (a sequence folder); its hash is
+    over the sequence's index files (sequence.yaml, images.csv, scans.npz)."""
+    import hashlib
+
+    folder = Path(sequence)
+    h = hashlib.sha256()
+    for name in ("sequence.yaml", "images.csv", "scans.npz"):
+        if (folder / name).is_file():
+            h.update(sha256_file(folder / name).encode())
+    return {
+        "schema_version": DRIFT_LOG_SCHEMA_VERSION,
+        "checked_utc": _now(),
+        "kind": "targetless",
+        "input": str(folder.resolve()),
+        "input_sha256": h.hexdigest(),
+        "verdict": result.verdict,
+        "level": result.level,
+        "residual": None,
+        "pose": None,
+        "targetless": _json_safe(result.record),
+        "reasons": result.reasons,
+    }
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 def _json_safe(x: Any) -> Any:
@@ -102,17 +157,18 @@ def read_log(path: str | Path) -> list[dict[str, Any]]:
             raise InputError(f"{path}: line {n}: JSON nested too deep; expected one check record") from None
         if not isinstance(rec, dict):
             raise InputError.at(path, f"line {n}", rec, "a JSON object (one check)")
-        if (
-            rec.get("schema_version") != DRIFT_LOG_SCHEMA_VERSION
-            or type(rec.get("schema_version")) is not int
-        ):
+        version = rec.get("schema_version")
+        if version not in (1, DRIFT_LOG_SCHEMA_VERSION) or type(version) is not int:
             raise InputError.at(
-                path, f"line {n}: schema_version", rec.get("schema_version"), f"{DRIFT_LOG_SCHEMA_VERSION}"
+                path, f"line {n}: schema_version", version, f"1 or {DRIFT_LOG_SCHEMA_VERSION}"
             )
-        missing = [k for k in RECORD_KEYS if k not in rec]
+        missing = [k for k in (RECORD_KEYS_V1 if version == 1 else RECORD_KEYS) if k not in rec]
         if missing:
             raise InputError(f"{path}: line {n}: missing keys {missing}")
-        if rec["verdict"] not in ("ok", "drifted"):
-            raise InputError.at(path, f"line {n}: verdict", rec["verdict"], "'ok' or 'drifted'")
+        if version == 2 and rec["kind"] not in KINDS:
+            raise InputError.at(path, f"line {n}: kind", rec["kind"], f"one of {list(KINDS)}")
+        verdicts = VERDICTS if version == 2 else VERDICTS[:2]
+        if rec["verdict"] not in verdicts:
+            raise InputError.at(path, f"line {n}: verdict", rec["verdict"], f"one of {list(verdicts)}")
         out.append(rec)
     return out

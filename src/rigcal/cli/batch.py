@@ -149,9 +149,10 @@ def batch(
     else:
         for r in table:
             click.echo(f"{r['name']}\t{r['status']}" + (f"\t{r['error']}" if r["error"] else ""))
-    counts = {s: sum(r["status"] == s for r in table) for s in ("ok", "drifted", "failed")}
+    counts = {s: sum(r["status"] == s for r in table) for s in ("ok", "drifted", "cannot_tell", "failed")}
     click.echo(
-        f"{len(table)} items: {counts['ok']} ok, {counts['drifted']} drifted, {counts['failed']} failed; "
+        f"{len(table)} items: {counts['ok']} ok, {counts['drifted']} drifted, "
+        f"{counts['cannot_tell']} cannot tell, {counts['failed']} failed; "
         f"wrote {', '.join(wrote)}",
         err=True,
     )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -14,9 +15,18 @@ from rigcal.io.validate import Real
 @click.argument("rig", type=click.Path(path_type=Path))
 @click.option(
     "--picks",
-    required=True,
     type=click.Path(path_type=Path),
     help="Picking file of a new box-target session.",
+)
+@click.option(
+    "--session",
+    type=click.Path(path_type=Path),
+    help="A new session file: a board session (method: board) or a box picking file.",
+)
+@click.option(
+    "--sequence",
+    type=click.Path(path_type=Path),
+    help="A drive (sequence folder with images): the targetless check.",
 )
 @click.option(
     "--level",
@@ -30,7 +40,7 @@ from rigcal.io.validate import Real
     default=5,
     show_default=True,
     type=click.IntRange(min=3),
-    help="Captures needed for a fresh solve (fewer: residual test only).",
+    help="Captures needed for a fresh solve of a box session (fewer: residual test only).",
 )
 @click.option(
     "--log",
@@ -48,7 +58,9 @@ from rigcal.io.validate import Real
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 def check(
     rig: Path,
-    picks: Path,
+    picks: Path | None,
+    session: Path | None,
+    sequence: Path | None,
     level: float,
     min_captures: int,
     log_path: Path | None,
@@ -57,48 +69,55 @@ def check(
     force: bool,
     as_json: bool,
 ) -> int:
-    """Test a new box-target session against the calibration in RIG.
+    """Test the calibration in RIG against a new box session, a board session or a drive.
 
-    The new picks are reprojected with the stored T_cam_laser and their errors tested
-    against the noise and the rig's uncertainty (chi-square); with enough captures a fresh
-    solve is also compared with the stored pose (Mahalanobis distance over both
-    covariances, chi-square with 6 dof). Exit code 0 when the rig is ok, 1 when it has
-    drifted, 2 for usage errors, 3 for bad input. Each check is appended to a drift log
-    beside the rig.
+    With --picks (or --session of a box picking file) the new picks are reprojected with
+    the stored T_cam_laser and their errors tested against the noise and the rig's
+    uncertainty (chi-square); with enough captures a fresh solve is also compared with
+    the stored pose (Mahalanobis distance over both covariances, chi-square with 6 dof).
+    With --session of a board session, the board returns' distances from their planes
+    and a fresh board solve are tested alike, whatever method solved RIG.
+
+    With --sequence, no target: the drive's laser returns are projected into the frames
+    that see them and T_cam_laser is corrected to make them photometrically consistent
+    (IASM's projection, paper Section III); the correction is tested on the directions the
+    drive observes, and those it does not are named with why.
+
+    Exit code 0 when the rig is ok, 1 when it has drifted, 6 when the drive cannot tell
+    (too short, no camera-laser overlap, no motion that observes the rig), 2 for usage
+    errors, 3 for bad input. Each check is appended to a drift log beside the rig.
 
     \b
     Examples:
       rigcal check rig.yaml --picks today/picks.yaml
-      rigcal check rig.yaml --picks today/picks.yaml --json --no-log
-      rigcal check rig.yaml --picks today/picks.yaml --plot drift.png --force
-      rigcal check rig.yaml --picks today/picks.yaml || echo "recalibrate the rig"
+      rigcal check rig.yaml --session today/board_session.yaml --json --no-log
+      rigcal check rig.yaml --sequence drives/2026-11-26/ --plot drift.png --force
+      rigcal check rig.yaml --sequence drives/today/ || echo "recalibrate, or drive more"
     """
-    from rigcal.calib.drift import DriftSettings, check_drift
-    from rigcal.calib.driftlog import append_record, default_log_path, drift_record, read_log
-    from rigcal.calib.picks import read_picks
-    from rigcal.errors import InputError, OutputError
+    from rigcal.calib.driftlog import EXIT_CODES, append_record, default_log_path, read_log
+    from rigcal.errors import OutputError
     from rigcal.io.files import check_apart, check_writable
     from rigcal.rigfile import read_rig
     from rigcal.viz.drift_plot import write_drift_plot
 
+    given = [(n, p) for n, p in (("--picks", picks), ("--session", session), ("--sequence", sequence)) if p]
+    if len(given) != 1:
+        raise click.UsageError("give one of --picks, --session or --sequence")
+    kind_flag, source = given[0]
     log = log_path or default_log_path(rig)
-    check_apart(log, [rig, picks])
+    check_apart(log, [rig, source])
     if (plot is not None or not no_log) and log.is_dir():  # an output where a file goes: exit 5
         raise OutputError(f"{log}: is a folder; expected the drift log's file path (--log)")
     if plot is not None:
         from rigcal.viz.charts import check_chart_name
 
-        check_writable(plot, force, [rig, picks, log])
+        check_writable(plot, force, [rig, source, log])
         check_chart_name(plot)
     stored = read_rig(rig)
-    if stored.covariance is None:
-        raise InputError(
-            f"{rig}: uncertainty: missing; a drift check needs the stored calibration's covariance "
-            "(re-solve the rig with `rigcal solve`)"
-        )
-    session = read_picks(picks)
-    result = check_drift(stored, session, DriftSettings(level=level, min_captures_for_solve=min_captures))
-    record = drift_record(result, picks)
+    if kind_flag == "--sequence":
+        record = _targetless(rig, stored, source, level)
+    else:
+        record = _with_target(rig, stored, source, kind_flag, level, min_captures)
     # The plot (the history and this check) first: a failure there leaves the log as it was.
     history = read_log(log) if (plot is not None or not no_log) and log.exists() else []
     if plot is not None:
@@ -111,17 +130,68 @@ def check(
         click.echo(_summary(record))
     if not no_log:
         click.echo(f"appended to {log}" + (f"; drew {plot}" if plot else ""), err=True)
-    return 1 if result.drifted else 0
+    return EXIT_CODES[str(record["verdict"])]
+
+
+def _with_target(
+    rig_path: Path, stored: Any, source: Path, flag: str, level: float, min_captures: int
+) -> dict[str, Any]:
+    """A box or board session's check record."""
+    from rigcal.calib.board_session import is_board_session
+    from rigcal.calib.drift import DriftSettings, check_drift, check_drift_board
+    from rigcal.calib.driftlog import drift_record
+    from rigcal.calib.picks import read_picks
+    from rigcal.errors import InputError
+    from rigcal.io.files import load_yaml
+
+    if stored.covariance is None:
+        raise InputError(
+            f"{rig_path}: uncertainty: missing; a drift check needs the stored calibration's covariance "
+            "(re-solve the rig with `rigcal solve`)"
+        )
+    settings = DriftSettings(level=level, min_captures_for_solve=min_captures)
+    board = is_board_session(load_yaml(source, "picking file" if flag == "--picks" else "session file"))
+    if board and flag == "--picks":
+        raise InputError(
+            f"{source}: method: got 'board'; expected a box picking file for --picks: check a board "
+            f"session with `rigcal check {rig_path} --session {source}`"
+        )
+    if board:
+        return drift_record(check_drift_board(stored, source, settings), source, kind="board")
+    return drift_record(check_drift(stored, read_picks(source), settings), source, kind="box")
+
+
+def _targetless(rig_path: Path, stored: Any, sequence: Path, level: float) -> dict[str, Any]:
+    """A drive's targetless check record."""
+    from rigcal.calib.driftlog import targetless_record
+    from rigcal.cli.progress import Progress
+    from rigcal.drift.targetless import TargetlessSettings, check_targetless, same_camera
+    from rigcal.localize.streams import open_streams
+
+    streams = open_streams(sequence, rig_file=rig_path)
+    same_camera(stored, streams, rig_path)
+    with Progress("frame") as bars:
+        streams.progress = bars
+        result = check_targetless(stored, streams, TargetlessSettings(level=level))
+    return targetless_record(result, sequence)
 
 
 def _summary(record: dict[str, object]) -> str:
+    kind = record.get("kind", "box")
+    what = "" if kind == "box" else f"{kind} check, "
+    lines = [f"verdict: {record['verdict']} ({what}false-alarm level {record['level']})"]
     r = record["residual"]
-    assert isinstance(r, dict)
-    lines = [
-        f"verdict: {record['verdict']} (false-alarm level {record['level']})",
-        f"residual test: {r['used_ends']}/{r['ends']} box ends, RMS {_px(r['rms_px'])} px under the stored "
-        f"calibration, chi2 {r['chi2']:.1f} over {r['dof']} dof, p = {r['p_value']:.3g}",
-    ]
+    if isinstance(r, dict) and "ends" in r:
+        lines.append(
+            f"residual test: {r['used_ends']}/{r['ends']} box ends, RMS {_px(r['rms_px'])} px under the "
+            f"stored calibration, chi2 {r['chi2']:.1f} over {r['dof']} dof, p = {r['p_value']:.3g}"
+        )
+    elif isinstance(r, dict):
+        lines.append(
+            f"residual test: {r['used_captures']}/{r['captures']} board captures, RMS {_px(r['rms_mm'])} mm "
+            f"off their planes under the stored calibration, chi2 {r['chi2']:.1f} over {r['dof']} dof, "
+            f"p = {r['p_value']:.3g}"
+        )
     pose = record["pose"]
     if isinstance(pose, dict):
         lines.append(
@@ -129,10 +199,28 @@ def _summary(record: dict[str, object]) -> str:
             f"{pose['translation_mm']:.2f} mm; Mahalanobis^2 {pose['mahalanobis2']:.2f} (6 dof), "
             f"p = {pose['p_value']:.3g}"
         )
+    t = record.get("targetless")
+    if isinstance(t, dict) and "t2" in t:
+        lines.append(
+            f"drive: {t['duration_s']:.1f} s, {t['travel_m']:.1f} m, {t['patches']} patches in {t['blocks']} "
+            f"blocks; observed: {', '.join(t['observed_axes']) or 'none'}"
+        )
+        lines.append(
+            f"correction (laser frame): rotation {_vec(t['correction_rotation_deg'])} deg "
+            f"(1 sigma {_vec(t['sigma_rotation_deg'])}), "
+            f"translation {_vec(t['correction_translation_mm'])} mm "
+            f"(1 sigma {_vec(t['sigma_translation_mm'])})"
+        )
+        lines.append(f"test: T^2 {t['t2']:.2f} over {t['dof']} directions, p = {t['p_value']:.3g}")
     reasons = record["reasons"]
     assert isinstance(reasons, list)
     lines += [f"note: {x}" for x in reasons]
     return "\n".join(lines)
+
+
+def _vec(v: object) -> str:
+    assert isinstance(v, list)
+    return "[" + ", ".join(f"{x:.3f}" if isinstance(x, (int, float)) else "n/a" for x in v) + "]"
 
 
 def _px(value: object) -> str:

@@ -3,8 +3,11 @@
 Three panels share the check axis: the rotation and the translation between each fresh
 solve and the stored calibration, with a grey bar of 2 combined sigmas (what noise alone
 would give), and the RMS reprojection error of the new picks under the stored calibration.
-Checks are green when ok and red when drifted; checks without a fresh solve have no point
-in the first two panels. Ticks, labels and a legend are matplotlib's (rigcal.viz.charts).
+Targetless checks (drives) put their correction of T_cam_laser on the observed directions
+in the first two panels, as diamonds, with 2 sigmas of their own. Checks are green when ok,
+red when drifted, grey when the drive could not tell; checks without a fresh solve have
+no point in the first two panels. Ticks, labels and a legend are matplotlib's
+(rigcal.viz.charts).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import numpy as np
 from rigcal.viz.charts import DRIFTED, OK, figure, save_figure, style
 
 BAND = "#d9d9d9"
+CANNOT_TELL = "#7f7f7f"
 
 PANELS = (
     ("rotation change", "deg", "rotation_deg", "sigma_rotation_deg"),
@@ -29,9 +33,11 @@ def panel_values(records: list[dict[str, Any]], key: str | None, sig_key: str | 
     """(values, 2-sigma bands) of one panel, NaN where a check has none."""
     values, bands = [], []
     for r in records:
-        pose = r.get("pose")
+        pose = r.get("pose") or r.get("targetless")
+        if pose and "rotation_deg" not in pose:
+            pose = None  # a targetless check that could not tell
         if key is None:
-            rms = r["residual"]["rms_px"]  # null when no end was within the gate
+            rms = (r.get("residual") or {}).get("rms_px")  # null when no end was within the gate
             values.append(np.nan if rms is None else float(rms))
             bands.append(np.nan)
         elif pose:
@@ -51,16 +57,21 @@ def drift_figure(records: list[dict[str, Any]]) -> Any:
     fig = figure(9.0, 7.5)
     axes = fig.subplots(3, 1, sharex=True)
     x = np.arange(1, len(records) + 1)
-    drifted = np.array([r["verdict"] == "drifted" for r in records], dtype=bool)
+    verdict = np.array([r["verdict"] for r in records])
+    drive = np.array([r.get("kind") == "targetless" for r in records], dtype=bool)
     for ax, (title, unit, key, sig_key) in zip(axes, PANELS, strict=True):
         v, b = panel_values(records, key, sig_key)
         ok_band = np.isfinite(b)
         if ok_band.any():
             ax.bar(x[ok_band], b[ok_band], width=0.6, color=BAND, label="2 sigma (noise alone)")
-        for mask, colour, label in ((~drifted, OK, "ok"), (drifted, DRIFTED, "drifted")):
-            m = mask & np.isfinite(v)
-            if m.any():
-                ax.plot(x[m], v[m], "o", color=colour, markersize=7, label=label)
+        for name, colour in (("ok", OK), ("drifted", DRIFTED)):
+            for kind, marker in ((~drive, "o"), (drive, "D")):
+                m = (verdict == name) & kind & np.isfinite(v)
+                if m.any():
+                    ax.plot(x[m], v[m], marker, color=colour, markersize=7, label=name)
+        m = (verdict == "cannot_tell") & drive
+        if key is not None and m.any():
+            ax.plot(x[m], np.zeros(int(m.sum())), "x", color=CANNOT_TELL, markersize=8, clip_on=False)
         style(ax, title, "", unit)
         ax.margins(y=0.15)
         ax.set_ylim(bottom=0)
@@ -72,6 +83,8 @@ def drift_figure(records: list[dict[str, Any]]) -> Any:
     handles = [
         Line2D([], [], marker="o", linestyle="", color=OK, label="ok"),
         Line2D([], [], marker="o", linestyle="", color=DRIFTED, label="drifted"),
+        Line2D([], [], marker="D", linestyle="", color="black", label="targetless (a drive)"),
+        Line2D([], [], marker="x", linestyle="", color=CANNOT_TELL, label="cannot tell"),
         Patch(color=BAND, label="2 sigma (noise alone)"),
     ]
     axes[0].legend(handles=handles, loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)

@@ -4,7 +4,9 @@ Three panels share the rig axis: the rotation and the translation between each r
 fresh solve and its stored calibration, each with a bar of 2 combined sigmas (what noise
 alone would give), and the RMS reprojection error of the new picks under the stored
 calibration. Rigs are green when ok and red when drifted; an item that failed is marked
-with a grey cross on the axis.
+with a grey cross on the axis, as is a drive that could not tell. A targetless check (a
+drive) shows its correction of T_cam_laser on the observed directions in the first two
+panels.
 """
 
 from __future__ import annotations
@@ -42,16 +44,17 @@ def fleet_png(items: list[tuple[str, str, dict[str, Any] | None]]) -> bytes:
     ]
     for ax, (label, key, sigma_key) in zip(axes, panels, strict=True):
         for i, (_, status, rec) in enumerate(items):
-            if rec is None:
+            if rec is None or status == "cannot_tell":
                 ax.plot(i, 0, "x", color=FAILED, ms=8, clip_on=False)
                 continue
             colour = DRIFT if status == "drifted" else OK
             if key is None:
-                value = rec["residual"].get("rms_px")
+                value = (rec.get("residual") or {}).get("rms_px")
             else:
-                pose = rec.get("pose")
-                if not pose:
-                    continue  # no fresh solve: no pose test
+                # A drive's targetless correction stands where a fresh solve's change would.
+                pose = rec.get("pose") or rec.get("targetless")
+                if not pose or "rotation_deg" not in pose:
+                    continue  # no fresh solve, or a drive that could not tell
                 value = pose[key]
                 band = 2.0 * float(np.linalg.norm(pose[sigma_key]))
                 ax.bar(i, band, width=0.6, color="#dddddd", zorder=1)
@@ -62,7 +65,8 @@ def fleet_png(items: list[tuple[str, str, dict[str, Any] | None]]) -> bytes:
         ax.grid(axis="y", alpha=0.3)
     axes[0].set_title(
         f"drift checks of {n} rigs: {sum(s == 'drifted' for _, s, _ in items)} drifted, "
-        f"{sum(s == 'failed' for _, s, _ in items)} failed\n(grey bars: 2 sigma of noise)",
+        f"{sum(s == 'failed' for _, s, _ in items)} failed, "
+        f"{sum(s == 'cannot_tell' for _, s, _ in items)} cannot tell\n(grey bars: 2 sigma of noise)",
         fontsize=10,
     )
     axes[-1].set_xticks(

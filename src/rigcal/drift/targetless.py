@@ -1,0 +1,943 @@
+"""Targetless drift check: is T_cam_laser still right, judged from an ordinary drive?
+
+The paper's IASM projects each scan's returns into the camera image with T_cam_laser and
+compares the image patches around them across frames (Section III, III-A). With the right
+T the projections of one return land on the same scene point in every frame that sees it;
+with a wrong T they land on different points and the patches disagree. This module turns
+that into a measurement of T:
+
+1. The laser's motion from the point-to-line laser odometry (Eq. (4)), interpolated to the
+   images' stamps (:mod:`rigcal.localize.streams`). Pairs of frames across a step where
+   the odometry is degenerate (a featureless corridor) are left out.
+2. For each used image i, returns on the scan's lines (snapped onto them, the range noise
+   taken out) well inside the image; around each, a small grid of points on its wall (the
+   vertical plane through the scan's line): along the line and up, spaced about
+   ``patch_step_px`` apart in image i. The grid is a patch that warps with the wall, so the
+   right T makes the two frames' samples the same surface points whatever the viewpoint.
+3. Each grid is projected into image i and into image j (a fraction of a second later,
+   moved by the odometry) with T = T_stored * Exp(xi), xi = (rotation, translation) in the
+   laser frame. The residual is the difference of the zero-mean patches, frame j's scaled
+   by the pair's exposure gain (the camera's automatic exposure moves; the gain is
+   re-measured at every iteration), on blurred images (coarse to fine).
+4. Gauss-Newton on xi with image gradients, robust (Cauchy) weights per patch, restricted
+   to the directions the drive determines.
+5. The covariance of xi: the sandwich H^-1 B H^-1 with B summed over blocks of
+   ``block_s`` seconds (neighbouring frames share odometry and images; blocks are nearly
+   independent), so model errors (odometry drift, rendering, range noise) count as they
+   show in the data rather than as assumed.
+6. Which directions are observed: those whose 1-sigma is below the resolution (0.3 deg, 2
+   cm by default) over the detection factor (a change of one resolution is then detected
+   95 % of the time at the level). A 2D laser moving in its scan plane never observes the
+   camera's height above the laser (laser z): lifting every return along its wall keeps it
+   on the same surface point in every frame. A drive that keeps one heading (a straight
+   corridor) does not observe a shift along the travel nor a roll about it (both slide the
+   returns along their walls, alike in every frame).
+7. The test: the correction on the observed directions against its covariance plus the
+   stored calibration's (Hotelling's T^2 with the blocks' count: an F test that tends to
+   the chi-square with k dof as the blocks grow). Drifted when p < level. When the drive
+   is too short, sees no returns, or observes no direction, the verdict is "cannot tell".
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import f as f_dist
+from scipy.stats import ncx2, norm
+
+from rigcal.calib.lines import return_labels
+from rigcal.errors import InputError
+from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
+from rigcal.localize.iasm import snap_to_lines
+from rigcal.localize.icp import line_fits, se2
+from rigcal.localize.odometry import DEGENERATE_BELOW
+from rigcal.localize.streams import Streams, nearest_index, pose_at
+from rigcal.rig import Rig
+
+FloatArray = NDArray[np.float64]
+
+AXES = ("rx", "ry", "rz", "tx", "ty", "tz")
+AXIS_WORDS = (
+    "rotation about the laser's x (forward: roll)",
+    "rotation about the laser's y (left: pitch)",
+    "rotation about the laser's z (up: yaw)",
+    "translation along the laser's x (forward)",
+    "translation along the laser's y (left)",
+    "translation along the laser's z (up)",
+)
+
+VERDICTS = ("ok", "drifted", "cannot_tell")
+
+
+@dataclass(frozen=True)
+class TargetlessSettings:
+    """Settings of the targetless check (docs/calibration.md, "Drift from ordinary drives").
+
+    Attributes:
+        level: chance of a false alarm on an unmoved rig.
+        resolution_deg, resolution_m: the smallest change the check is meant to detect; a
+            direction counts as observed when a change this large along it would be
+            detected 95 % of the time.
+        frame_rate_hz: images used at most at this rate (the rest skipped).
+        gaps_s: each used image is compared with the images this long after it.
+        returns_per_frame: returns used per image (spread evenly along the scan).
+        patch_half: each return's grid is (2h+1) x (2h+1) points on its wall.
+        patch_step_px: the grid's spacing, in image i's pixels.
+        blur_px: the images' Gaussian blur at each stage (coarse to fine).
+        iterations: Gauss-Newton iterations per stage.
+        min_range_m, max_range_m: returns used.
+        min_texture: patches whose grey levels' standard deviation is below this are flat.
+        block_s: length of the blocks the covariance treats as independent.
+        min_blocks: fewer blocks: "cannot tell" (too short).
+        min_returns: fewer patches in all: "cannot tell" (no overlap).
+        min_travel_m: a drive shorter than this: "cannot tell" (no parallax).
+        native_blur_px: the camera's own blur (1 sigma) assumed when matching the blur of
+            two frames.
+        floor_deg, floor_m: a systematic floor added to every direction's variance: what
+            no drive averages out (the image model, the lens model, the odometry's errors
+            beyond those estimated). Measured on simulated drives (docs/benchmarks.md):
+            the rotations' errors stay within 0.05 deg, but the translations' reach 1-1.5
+            cm (the odometry's crab angle and pivot take up a shifted camera), so with the
+            default resolution (2 cm) no translation counts as observed.
+    """
+
+    level: float = 0.01
+    resolution_deg: float = 0.3
+    resolution_m: float = 0.02
+    frame_rate_hz: float = 5.0
+    gaps_s: tuple[float, ...] = (0.2, 0.6)
+    returns_per_frame: int = 40
+    patch_half: int = 1
+    patch_step_px: float = 2.0
+    blur_px: tuple[float, ...] = (3.0, 1.2)
+    iterations: int = 6
+    min_range_m: float = 0.5
+    max_range_m: float = 10.0
+    min_texture: float = 3.0
+    block_s: float = 2.0
+    min_blocks: int = 8
+    min_returns: int = 200
+    min_travel_m: float = 1.0
+    native_blur_px: float = 0.8
+    floor_deg: float = 0.05
+    floor_m: float = 0.01
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.level < 1.0:
+            raise ValueError("TargetlessSettings: level must be in (0, 1)")
+
+    @property
+    def scale(self) -> FloatArray:
+        """(6,) xi per resolution unit: rotations in rad, translations in m."""
+        r = math.radians(self.resolution_deg)
+        return np.array([r, r, r, self.resolution_m, self.resolution_m, self.resolution_m])
+
+    def detection_factor(self) -> float:
+        """How many sigmas a resolution must span to be detected 95 % of the time in a
+        one-dof test at ``level`` (two-sided)."""
+        return float(norm.ppf(1.0 - self.level / 2.0) + norm.ppf(0.95))
+
+
+@dataclass(frozen=True)
+class TargetlessResult:
+    """Outcome of a targetless check.
+
+    Attributes:
+        verdict: "ok", "drifted" or "cannot_tell".
+        level: the false-alarm level.
+        correction: (6,) xi on the observed directions: T_new = T_stored Exp(xi), laser
+            frame, [rotation (rad), translation (m)]; NaN when nothing could be estimated.
+        covariance: (6, 6) its covariance on the observed directions (zero elsewhere).
+        record: the drift log's ``targetless`` block (JSON-ready).
+        reasons: sentences behind the verdict.
+    """
+
+    verdict: str
+    level: float
+    correction: FloatArray
+    covariance: FloatArray
+    record: dict[str, Any]
+    reasons: list[str]
+
+    @property
+    def drifted(self) -> bool:
+        return self.verdict == "drifted"
+
+
+@dataclass
+class _Patches:
+    """Every compared patch: the grid points in the laser frame at image i's time, the
+    laser motion to image j, which images, which block."""
+
+    X: FloatArray  # (P, S, 3) grid points, laser frame at frame i's stamp
+    M: FloatArray  # (P, 4, 4) laser at i in the laser frame at j
+    img_i: NDArray[np.int64]  # (P,) image index of frame i
+    img_j: NDArray[np.int64]  # (P,) image index of frame j
+    pair: NDArray[np.int64]  # (P,) pair index (for the gain)
+    ratio: FloatArray  # (P,) depth in frame i over depth in frame j (the view's change of scale)
+    yaw: FloatArray  # (P,) the laser's turn from frame i to frame j, rad
+    dt: FloatArray  # (P,) time from frame i to frame j, s
+    block: NDArray[np.int64]  # (P,) block index
+    n_pairs: int
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class _CannotTellError(Exception):
+    """The drive cannot decide (a reason for the verdict, not an error)."""
+
+
+def check_targetless(
+    rig: Rig, streams: Streams, settings: TargetlessSettings | None = None
+) -> TargetlessResult:
+    """Check the rig's T_cam_laser against a drive (see the module docstring).
+
+    Args:
+        rig: the stored calibration (its covariance, when it has one, is part of the test).
+        streams: the drive's scans and images (:func:`rigcal.localize.streams.open_streams`).
+
+    Raises:
+        InputError: the sequence has no images, or images of another size than the rig's
+            camera.
+    """
+    settings = settings or TargetlessSettings()
+    t_start = time.perf_counter()
+    if streams.n_images < 2:
+        raise InputError.at(
+            streams._yaml(), "images.count", streams.n_images, "a drive with camera images (at least 2)"
+        )
+    streams.rig = rig
+    streams.require_images("targetless check")
+    reasons: list[str] = []
+    nan6 = np.full(6, np.nan)
+    duration = float(streams.image_stamps_s[-1] - streams.image_stamps_s[0])
+    base: dict[str, Any] = {"duration_s": round(duration, 3), "images": streams.n_images}
+    try:
+        patches = _build_patches(rig, streams, settings)
+        base.update(patches.info)
+        est = _estimate(rig, streams, patches, settings)
+    except _CannotTellError as exc:
+        reasons.append(str(exc))
+        rec = base | {"check_s": round(time.perf_counter() - t_start, 3)}
+        return TargetlessResult("cannot_tell", settings.level, nan6, np.zeros((6, 6)), _json(rec), reasons)
+    res = _test(rig, est, patches, settings, reasons)
+    rec = base | res["record"] | {"check_s": round(time.perf_counter() - t_start, 3)}
+    return TargetlessResult(res["verdict"], settings.level, res["xi"], res["cov"], _json(rec), reasons)
+
+
+def same_camera(rig: Rig, streams: Streams, rig_path: Any = None) -> None:
+    """An error when the sequence says it comes from another camera than the rig's (its
+    own camera file or rig file naming another lens model or image size).
+
+    Raises:
+        InputError: naming the sequence's file, the key, its value and the rig's.
+    """
+    from rigcal.camera import read_camera
+    from rigcal.rigfile import read_rig
+
+    seq = streams.sequence
+    if seq.folder is None:
+        return
+    own = []
+    if seq.camera_file is not None:
+        own.append((seq.folder / seq.camera_file, lambda p: read_camera(p)))
+    if seq.rig_file is not None:
+        own.append((seq.folder / seq.rig_file, lambda p: read_rig(p).camera))
+    for path, read in own:
+        cam = read(path)
+        theirs = rig.camera
+        where = f"the rig's camera{f' ({rig_path})' if rig_path else ''}"
+        if cam.lensmodel != theirs.lensmodel:
+            raise InputError.at(
+                path, "lensmodel", cam.lensmodel, f"{theirs.lensmodel!r}, {where}: a drive of another rig?"
+            )
+        if (cam.width_px, cam.height_px) != (theirs.width_px, theirs.height_px):
+            raise InputError.at(
+                path,
+                "image size",
+                f"{cam.width_px}x{cam.height_px}",
+                f"{theirs.width_px}x{theirs.height_px}, {where}: a drive of another rig?",
+            )
+
+
+# --- the problem ----------------------------------------------------------------------
+
+
+def _used_frames(streams: Streams, rate_hz: float) -> list[int]:
+    """Image indices at most ``rate_hz`` apart in time."""
+    out: list[int] = []
+    last = -np.inf
+    for i, t in enumerate(streams.image_stamps_s):
+        if t - last >= 0.9 / rate_hz:
+            out.append(i)
+            last = float(t)
+    return out
+
+
+def _se3_of_se2(T2: FloatArray) -> FloatArray:
+    T = np.eye(4)
+    T[:2, :2] = T2[:2, :2]
+    T[:2, 3] = T2[:2, 2]
+    return T
+
+
+def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patches:
+    cam = rig.camera
+    T0 = rig.T_cam_laser
+    frames = _used_frames(streams, s.frame_rate_hz)
+    od = streams.laser_odometry()
+    scan_t = streams.scan_stamps_s
+    img_t = streams.image_stamps_s
+    poses = np.array([pose_at(scan_t, od.poses, float(img_t[i])) for i in frames])
+    travel = float(np.sum(np.linalg.norm(np.diff(poses[:, :2], axis=0), axis=1))) if len(frames) > 1 else 0.0
+    heading = np.unwrap(poses[:, 2]) if len(frames) else np.zeros(0)
+    info: dict[str, Any] = {
+        "frames_used": len(frames),
+        "travel_m": round(travel, 3),
+        "heading_range_deg": round(float(np.degrees(np.ptp(heading))) if len(heading) else 0.0, 2),
+    }
+    if travel < s.min_travel_m:
+        raise _CannotTellError(
+            f"degenerate motion: the rig moved {travel:.2f} m over the drive; the check needs at "
+            f"least {s.min_travel_m:g} m of travel (parallax between the frames)"
+        )
+    degenerate = od.degeneracy < DEGENERATE_BELOW
+    degenerate[0] = False
+    f_mean = float(np.mean(cam.intrinsics[:2]))
+    h = s.patch_half
+    grid = np.arange(-h, h + 1, dtype=float)
+    ga, gb = (g.ravel() for g in np.meshgrid(grid, grid))
+    frame_of_image = {img: k for k, img in enumerate(frames)}
+    Xs, Ms, ii, jj, pairs, blocks, ratios, yaws, dts = [], [], [], [], [], [], [], [], []
+    n_pairs = 0
+    n_degenerate = 0
+    seen_returns = 0
+    for k, i in enumerate(frames):
+        streams.report("targetless check: frames", k + 1, len(frames))
+        t_i = float(img_t[i])
+        partners = []
+        for gap in s.gaps_s:
+            j = nearest_index(img_t, t_i + gap)
+            if j == i or j not in frame_of_image or abs(float(img_t[j]) - t_i - gap) > 0.5 * gap:
+                continue
+            k0, k1 = nearest_index(scan_t, t_i), nearest_index(scan_t, float(img_t[j]))
+            if degenerate[k0 + 1 : k1 + 1].any():
+                n_degenerate += 1
+                continue
+            partners.append(j)
+        if not partners:
+            continue
+        X = _frame_grid(streams, i, T0, cam, s, f_mean, ga, gb)
+        if X is None:
+            continue
+        seen_returns += len(X)
+        P_i = se2(poses[k])
+        block = int((t_i - float(img_t[frames[0]])) // s.block_s)
+        for j in dict.fromkeys(partners):
+            P_j = se2(poses[frame_of_image[j]])
+            M = _se3_of_se2(np.linalg.inv(P_j) @ P_i)
+            # Keep the grids wholly inside image j under the stored T (margin for the blur).
+            Y = X @ M[:3, :3].T + M[:3, 3]
+            q = cam.project((Y @ T0[:3, :3].T + T0[:3, 3]).reshape(-1, 3)).reshape(len(X), -1, 2)
+            inside = cam.in_image(q.reshape(-1, 2), margin_px=8.0).reshape(len(X), -1).all(axis=1)
+            if inside.sum() < 5:
+                continue
+            n = int(inside.sum())
+            z_i = X[inside, X.shape[1] // 2] @ T0[2, :3] + T0[2, 3]
+            z_j = Y[inside, X.shape[1] // 2] @ T0[2, :3] + T0[2, 3]
+            ratios.append(z_i / z_j)
+            yaws.append(np.full(n, float(np.arctan2(M[1, 0], M[0, 0]))))
+            dts.append(np.full(n, float(img_t[j]) - t_i))
+            Xs.append(X[inside])
+            Ms.append(np.broadcast_to(M, (n, 4, 4)))
+            ii.append(np.full(n, i))
+            jj.append(np.full(n, j))
+            pairs.append(np.full(n, n_pairs))
+            blocks.append(np.full(n, block))
+            n_pairs += 1
+    info |= {"pairs": n_pairs, "pairs_degenerate": n_degenerate}
+    if not Xs or sum(len(x) for x in Xs) < s.min_returns:
+        got = sum(len(x) for x in Xs)
+        raise _CannotTellError(
+            "no overlap: "
+            + (
+                f"{got} textured laser returns on walls project into frames that see them twice "
+                f"(at least {s.min_returns} needed)"
+                if seen_returns
+                else "no laser return on a wall falls inside the camera's image under the stored T_cam_laser"
+            )
+        )
+    block_of = np.concatenate(blocks)
+    used_blocks = np.unique(block_of)
+    info |= {"patches": len(block_of), "blocks": len(used_blocks)}
+    if len(used_blocks) < s.min_blocks:
+        raise _CannotTellError(
+            f"too short: {len(used_blocks)} blocks of {s.block_s:g} s with usable frame pairs; at least "
+            f"{s.min_blocks} are needed (a drive of about {s.min_blocks * s.block_s:g} s seeing "
+            "textured walls)"
+        )
+    remap = {b: n for n, b in enumerate(used_blocks)}
+    return _Patches(
+        np.concatenate(Xs),
+        np.concatenate(Ms),
+        np.concatenate(ii),
+        np.concatenate(jj),
+        np.concatenate(pairs),
+        np.concatenate(ratios),
+        np.concatenate(yaws),
+        np.concatenate(dts),
+        np.array([remap[b] for b in block_of], dtype=np.int64),
+        n_pairs,
+        info,
+    )
+
+
+def _frame_grid(
+    streams: Streams,
+    i: int,
+    T0: FloatArray,
+    cam: Any,
+    s: TargetlessSettings,
+    f_mean: float,
+    ga: FloatArray,
+    gb: FloatArray,
+) -> FloatArray | None:
+    """(R, S, 3) grids on the walls around image i's chosen returns (laser frame at the
+    image's stamp), or None when none is usable."""
+    k, T_img_scan = streams.scan_to_image(i)
+    scan = streams.scans[k]
+    labels = return_labels(scan, streams.lines(k))
+    pts = snap_to_lines(scan.points[scan.valid], labels, 0.03)
+    pts = pts @ T_img_scan[:2, :2].T + T_img_scan[:2, 2]
+    _, normals = line_fits(pts, labels)
+    # Returns on a line, not its two outermost on either end (a corner, an edge).
+    lab = labels
+    first = np.r_[True, lab[1:] != lab[:-1]]
+    last = np.r_[lab[1:] != lab[:-1], True]
+    near_end = first | last | np.r_[False, first[:-1]] | np.r_[last[1:], False]
+    r = np.linalg.norm(pts, axis=1)
+    ok = (lab >= 0) & ~near_end & (r >= s.min_range_m) & (r <= s.max_range_m) & np.isfinite(normals[:, 0])
+    idx = np.flatnonzero(ok)
+    if len(idx) == 0:
+        return None
+    p3 = np.column_stack([pts[idx], np.zeros(len(idx))])
+    P = p3 @ T0[:3, :3].T + T0[:3, 3]
+    front = P[:, 2] > 0.2
+    idx, p3, P = idx[front], p3[front], P[front]
+    if len(idx) == 0:
+        return None
+    q = cam.project(P)
+    margin = (s.patch_half * s.patch_step_px) + 8.0
+    inside = cam.in_image(q, margin_px=margin)
+    idx, p3, P, q = idx[inside], p3[inside], P[inside], q[inside]
+    if len(idx) == 0:
+        return None
+    tang = np.column_stack([-normals[idx, 1], normals[idx, 0], np.zeros(len(idx))])
+    step_m = s.patch_step_px * P[:, 2] / f_mean
+    up = np.array([0.0, 0.0, 1.0])
+    X = (
+        p3[:, None, :]
+        + (ga[None, :, None] * step_m[:, None, None]) * tang[:, None, :]
+        + (gb[None, :, None] * step_m[:, None, None]) * up[None, None, :]
+    )
+    # Texture: the grid's grey levels in image i under the stored T.
+    gray = streams.image(i)
+    qs = cam.project((X @ T0[:3, :3].T + T0[:3, 3]).reshape(-1, 3))
+    v = _sample(gray.astype(np.float32), qs).reshape(len(X), -1)
+    textured = np.nanstd(v, axis=1) >= s.min_texture
+    X = X[textured]
+    if len(X) == 0:
+        return None
+    if len(X) > s.returns_per_frame:
+        X = X[np.linspace(0, len(X) - 1, s.returns_per_frame).round().astype(int)]
+    out: FloatArray = X
+    return out
+
+
+def _sample(img: NDArray[np.float32], q: FloatArray) -> FloatArray:
+    """Bilinear samples at sub-pixel points (pixel centres at integers; NaN outside)."""
+    qf = np.nan_to_num(q, nan=-1e6).astype(np.float32)
+    out = cv2.remap(
+        img, qf[:, 0:1], qf[:, 1:2], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
+    )
+    return np.asarray(out, dtype=np.float64).ravel()
+
+
+# --- the estimate ---------------------------------------------------------------------
+
+# Blur levels: the nearer frame of a pair is blurred by the view's change of scale more, so
+# that both frames see the wall's texture through the same blur in metres (a fixed blur
+# in pixels shows the nearer frame sharper, a difference no T explains). Level k blurs
+# the image to LEVEL_STEP**k times the stage's blur in all.
+LEVEL_STEP = 1.1
+LEVELS = 8
+_FIXED = 5  # laser z: never observed by a planar drive (module docstring, step 6)
+# The odometry's errors, per unit: scale 0.1 %, yaw scale 0.1 %, yaw rate 1 mrad/s, pivot 1 mm,
+# crab angle 1 mrad.
+_NUISANCE_UNITS = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3)
+_GRAD_STEP_PX = 0.5
+PRIOR_UNITS = 10.0  # the weak prior's sigma, in resolutions (and odometry error units)
+
+
+def _levels(ratio: FloatArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(P,) blur levels of frame i and of frame j of each patch."""
+    step = math.log(LEVEL_STEP)
+    li = np.clip(np.round(np.log(np.maximum(1.0 / ratio, 1.0)) / step), 0, LEVELS - 1).astype(np.int64)
+    lj = np.clip(np.round(np.log(np.maximum(ratio, 1.0)) / step), 0, LEVELS - 1).astype(np.int64)
+    return li, lj
+
+
+class _Images:
+    """The blurred images of a stage, by (image, level), made when first asked for; grey
+    levels x 64 as uint16 (an eighth of float64's memory, 1/64 grey level steps)."""
+
+    def __init__(self, streams: Streams, blur_px: float, native_px: float) -> None:
+        self.streams = streams
+        self.total = math.hypot(blur_px, native_px)
+        self.native = native_px
+        self.kept: dict[tuple[int, int], NDArray[np.uint16]] = {}
+
+    def get(self, img: int, level: int) -> NDArray[np.uint16]:
+        key = (img, level)
+        out = self.kept.get(key)
+        if out is None:
+            sigma = math.sqrt(max((self.total * LEVEL_STEP**level) ** 2 - self.native**2, 0.04))
+            g = self.streams.image(img).astype(np.float32)
+            b = cv2.GaussianBlur(g, (0, 0), sigma)
+            out = np.asarray(np.clip(b * 64.0 + 0.5, 0, 65535), dtype=np.uint16)
+            self.kept[key] = out
+        return out
+
+
+def _sample_with_gradient(
+    image: NDArray[np.uint16], q: FloatArray, width: int, height: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Grey levels and their x, y derivatives (central differences) at sub-pixel points
+    (NaN outside the image)."""
+    h = _GRAD_STEP_PX
+    n = len(q)
+    dx, dy = np.array([h, 0.0]), np.array([0.0, h])
+    pts = np.concatenate([q, q + dx, q - dx, q + dy, q - dy]).astype(np.float32)
+    v = cv2.remap(image, pts[:, 0:1], pts[:, 1:2], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    v = np.asarray(v, dtype=np.float64).ravel() / 64.0
+    inside = (q[:, 0] >= 1.0) & (q[:, 1] >= 1.0) & (q[:, 0] <= width - 2.0) & (q[:, 1] <= height - 2.0)
+    val = np.where(inside, v[:n], np.nan)
+    gx = (v[n : 2 * n] - v[2 * n : 3 * n]) / (2 * h)
+    gy = (v[3 * n : 4 * n] - v[4 * n :]) / (2 * h)
+    return val, gx, gy
+
+
+def _residuals(
+    rig: Rig, T: FloatArray, nuis: FloatArray, patches: _Patches, images: _Images
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """(P, S) residuals, (P, S, 12) their derivatives with respect to a right update of T
+    (T Exp(w, v), laser frame) and to the odometry's errors ``nuis`` (its scale, its yaw's
+    scale, its yaw rate's bias, its pivot: a translation (R - I) l for a turn R, its crab
+    angle: the step turned about z), (P,) usable patches."""
+    cam = rig.camera
+    X = patches.X
+    Pn, S, _ = X.shape
+    eps, kappa, bias, lx, ly, crab = nuis
+    R_I = patches.M[:, :3, :3] - np.eye(3)
+    t0 = patches.M[:, :3, 3]
+    crabbed = t0 + crab * np.column_stack([-t0[:, 1], t0[:, 0], np.zeros(len(t0))])
+    t_M = crabbed * (1.0 + eps) + R_I @ np.array([lx, ly, 0.0])
+    RX = np.einsum("pab,psb->psa", patches.M[:, :3, :3], X)
+    turn = patches.yaw * kappa + patches.dt * bias
+    c, sn = np.cos(turn)[:, None], np.sin(turn)[:, None]
+    RX = np.stack([c * RX[..., 0] - sn * RX[..., 1], sn * RX[..., 0] + c * RX[..., 1], RX[..., 2]], axis=-1)
+    Y = RX + t_M[:, None, :]
+    li, lj = _levels(patches.ratio)
+    out_v, out_J = [], []
+    for pts, which, level in ((X, patches.img_i, li), (Y, patches.img_j, lj)):
+        Pc = pts @ T[:3, :3].T + T[:3, 3]
+        q, dq = cam.project_with_gradient(Pc.reshape(-1, 3))
+        v = np.empty(len(q))
+        gx = np.empty(len(q))
+        gy = np.empty(len(q))
+        for key, m in _groups(np.repeat(which * LEVELS + level, S)):
+            v[m], gx[m], gy[m] = _sample_with_gradient(
+                images.get(key // LEVELS, key % LEVELS), q[m], cam.width_px, cam.height_px
+            )
+        # d grey / d x (laser frame): the image gradient through dq/dP and R.
+        g_pix = gx[:, None] * dq[:, 0, :] + gy[:, None] * dq[:, 1, :]
+        gR = g_pix @ T[:3, :3]
+        x = pts.reshape(-1, 3)
+        # x' = Exp(w) x + v: d grey / d w = x cross gR, d grey / d v = gR.
+        J = np.column_stack([np.cross(x, gR), gR, np.zeros((len(x), 6))])
+        out_v.append(v.reshape(Pn, S))
+        out_J.append(J.reshape(Pn, S, 12))
+    a, b = out_v
+    Ja, Jb = out_J
+    # The odometry's errors move frame j's points: its scale along the step (d y / d eps =
+    # t_M), its yaw about the laser's z (d y / d turn = z cross R x).
+    gRb = Jb[:, :, 3:6]
+    Jb[:, :, 6] = np.einsum("psk,pk->ps", gRb, patches.M[:, :3, 3])
+    d_turn = gRb[..., 1] * RX[..., 0] - gRb[..., 0] * RX[..., 1]
+    Jb[:, :, 7] = d_turn * patches.yaw[:, None]
+    Jb[:, :, 8] = d_turn * patches.dt[:, None]
+    Jb[:, :, 9:11] = np.einsum("psk,pkl->psl", gRb, R_I[:, :, :2])
+    Jb[:, :, 11] = gRb[..., 1] * t0[:, None, 0] - gRb[..., 0] * t0[:, None, 1]
+    usable = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    a = np.where(usable[:, None], a, 0.0)
+    b = np.where(usable[:, None], b, 0.0)
+    Ja = np.where(usable[:, None, None], Ja, 0.0)
+    Jb = np.where(usable[:, None, None], Jb, 0.0)
+    # Zero-mean patches (an offset between the frames drops out), frame j scaled by the
+    # pair's gain (the automatic exposure): the square root of the ratio of the patches'
+    # energies.
+    a0 = a - a.mean(axis=1, keepdims=True)
+    b0 = b - b.mean(axis=1, keepdims=True)
+    Ja0 = Ja - Ja.mean(axis=1, keepdims=True)
+    Jb0 = Jb - Jb.mean(axis=1, keepdims=True)
+    ea = np.bincount(patches.pair, np.where(usable, (a0**2).sum(axis=1), 0.0), patches.n_pairs)
+    eb = np.bincount(patches.pair, np.where(usable, (b0**2).sum(axis=1), 0.0), patches.n_pairs)
+    gain = np.sqrt(np.where(eb > 0, ea / np.where(eb > 0, eb, 1.0), 1.0))[patches.pair]
+    r = b0 * gain[:, None] - a0
+    J = Jb0 * gain[:, None, None] - Ja0
+    return r, J, usable
+
+
+def _groups(rows: NDArray[np.int64]) -> list[tuple[int, NDArray[np.intp]]]:
+    """(value, indices) of each distinct value of ``rows``."""
+    order = np.argsort(rows, kind="stable")
+    values, starts = np.unique(rows[order], return_index=True)
+    ends = np.r_[starts[1:], len(rows)]
+    return [(int(v), order[a:b]) for v, a, b in zip(values, starts, ends, strict=True)]
+
+
+def _weights(r: FloatArray, usable: NDArray[np.bool_]) -> FloatArray:
+    """Cauchy weights per patch from its mean squared residual (occlusions, a patch
+    across an edge or off the wall weigh little)."""
+    e = (r**2).mean(axis=1)
+    med = float(np.median(e[usable])) if usable.any() else 1.0
+    w = 1.0 / (1.0 + e / (4.0 * max(med, 1e-9)))
+    return np.where(usable, w, 0.0)
+
+
+def _normal(
+    r: FloatArray, J: FloatArray, w: FloatArray, blocks: NDArray[np.int64], n_blocks: int
+) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+    """H (7, 7), g (7,), per-block gradients (G, 7), weighted residual variance."""
+    K = J.shape[2]
+    Jf = J.reshape(-1, K)
+    wf = np.repeat(w, r.shape[1])
+    rf = r.ravel()
+    H = (Jf * wf[:, None]).T @ Jf
+    gp = np.einsum("psk,ps->pk", J, r) * w[:, None]  # per patch
+    g_blocks = np.zeros((n_blocks, K))
+    np.add.at(g_blocks, blocks, gp)
+    var = float(np.sum(wf * rf**2) / max(np.sum(wf), 1.0))
+    return H, g_blocks.sum(axis=0), g_blocks, var
+
+
+@dataclass(frozen=True)
+class _Estimate:
+    """xi (6,) laser frame; its covariance in resolution units (6, 6; laser z's row and
+    column zero: held); the odometry's errors; blocks; the directions determined."""
+
+    xi: FloatArray
+    cov_z: FloatArray
+    odometry: FloatArray  # (6,) the odometry's scale, yaw scale, yaw rate bias (rad/s), pivot (m), crab
+    odometry_sigma: FloatArray
+    blocks: int
+    determined: FloatArray  # (6, m) basis, resolution units
+
+
+def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettings) -> _Estimate:
+    """Gauss-Newton on (xi without laser z, the odometry's scale error), coarse to fine,
+    then the sandwich covariance over blocks (module docstring, steps 4-5)."""
+    T0 = rig.T_cam_laser
+    free = [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11]  # rx ry rz tx ty, the odometry's errors; laser z (5) held
+    D = np.diag(np.r_[s.scale, _NUISANCE_UNITS])[np.ix_(free, free)]
+    n_blocks = int(patches.block.max()) + 1
+    T = T0.copy()
+    nuis = np.zeros(6)
+    for stage, blur in enumerate(s.blur_px):
+        images = _Images(streams, blur, s.native_blur_px)
+        last = stage == len(s.blur_px) - 1
+        for it in range(s.iterations + (1 if last else 0)):
+            r, J12, usable = _residuals(rig, T, nuis, patches, images)
+            if usable.sum() < s.min_returns:
+                raise _CannotTellError(
+                    f"no overlap: only {int(usable.sum())} patches stay inside both frames as T_cam_laser "
+                    "is corrected (the stored calibration may be far off)"
+                )
+            w = _weights(r, usable)
+            H, g, g_blocks, var = _normal(r, J12[:, :, free], w, patches.block, n_blocks)
+            # A weak prior (PRIOR_UNITS resolutions, or odometry error units) keeps the
+            # directions the drive leaves open where they were instead of wandering.
+            A = D @ H @ D + max(var, 1e-12) / PRIOR_UNITS**2 * np.eye(len(free))
+            if last and it == s.iterations:
+                break
+            dz = -np.linalg.solve(A, D @ g)
+            # At most 3 resolutions a step on T (the odometry's errors follow freely: their
+            # units are small, and clamping by them would stall the steps along the valley
+            # where a camera yaw and the odometry's crab angle trade off).
+            dz *= min(1.0, 3.0 / max(float(np.abs(dz[:5]).max()), 1e-12))
+            d = D @ dz
+            T = T @ make_T(rotvec_to_R(d[:3]), np.r_[d[3:5], 0.0])
+            nuis += d[5:]
+            if float(np.abs(dz[:5]).max()) < 0.01 and not last:
+                break
+    Delta = np.linalg.inv(T0) @ T
+    xi = np.concatenate([R_to_rotvec(Delta[:3, :3]), Delta[:3, 3]])
+    # What the drive determines of xi once the odometry's errors are free: the Schur
+    # complement of their block in the (naive) information, in resolution units.
+    info = (D @ H @ D) / max(var, 1e-12)
+    nn = info[5:, 5:] + np.eye(len(free) - 5) / PRIOR_UNITS**2
+    schur = info[:5, :5] - info[:5, 5:] @ np.linalg.solve(nn, info[5:, :5])
+    ev, U = np.linalg.eigh(schur)
+    determined = np.zeros((6, int((ev > 1.0).sum())))
+    determined[free[:5]] = U[:, ev > 1.0]
+    if determined.shape[1] == 0:
+        raise _CannotTellError(
+            "degenerate motion: the drive determines no direction of T_cam_laser to the "
+            f"resolution ({s.resolution_deg:g} deg, {100 * s.resolution_m:g} cm)"
+        )
+    # Sandwich over blocks (small-sample factor G / (G - 1)): A^-1 B A^-1.
+    G = n_blocks
+    A_inv = np.linalg.inv(A)
+    Bg = D @ g_blocks.T
+    C_free = A_inv @ (Bg @ Bg.T) * (G / max(G - 1, 1)) @ A_inv  # over the free parameters, units
+    cov_z = np.zeros((6, 6))
+    cov_z[np.ix_(free[:5], free[:5])] = C_free[:5, :5]  # the odometry's errors marginalised out
+    sig = np.sqrt(np.clip(np.diag(C_free)[5:], 0.0, None)) * np.array(_NUISANCE_UNITS)
+    return _Estimate(xi, cov_z, nuis, sig, G, determined)
+
+
+def _floor_limited(s: TargetlessSettings) -> set[int]:
+    """Axes whose floor alone is above the observed threshold."""
+    limit = 1.0 / s.detection_factor()
+    out = set()
+    if s.floor_deg / s.resolution_deg >= limit:
+        out |= {0, 1, 2}
+    if s.floor_m / s.resolution_m >= limit:
+        out |= {3, 4}
+    return out
+
+
+def _floor_z(s: TargetlessSettings) -> FloatArray:
+    """(6, 6) the systematic floor in resolution units (laser z's row and column zero)."""
+    f = np.array([math.radians(s.floor_deg)] * 3 + [s.floor_m] * 3) / s.scale
+    f[_FIXED] = 0.0
+    out: FloatArray = np.diag(f**2)
+    return out
+
+
+def _observed_basis(est: _Estimate, s: TargetlessSettings) -> FloatArray:
+    """(6, k) orthonormal directions (resolution units) whose sigma (the blocks' sandwich
+    plus the floor) is under one resolution over the detection factor, among those the
+    drive determines once the odometry's errors are free."""
+    Q6 = est.determined
+    Cq = Q6.T @ (est.cov_z + _floor_z(s)) @ Q6
+    ev, U = np.linalg.eigh(Cq)
+    keep = ev < (1.0 / s.detection_factor()) ** 2
+    out: FloatArray = Q6 @ U[:, keep]
+    return out
+
+
+# --- the test -------------------------------------------------------------------------
+
+
+def _test(
+    rig: Rig, est: _Estimate, patches: _Patches, s: TargetlessSettings, reasons: list[str]
+) -> dict[str, Any]:
+    D = np.diag(s.scale)
+    G = est.blocks
+    V_obs = _observed_basis(est, s)
+    k = V_obs.shape[1]
+    unobserved = _unobserved_words(V_obs, patches.info, _floor_limited(s))
+    record: dict[str, Any] = {
+        "unobserved": unobserved,
+        "odometry_errors": {
+            "scale_pct": [_r(100.0 * est.odometry[0], 4), _r(100.0 * est.odometry_sigma[0], 4)],
+            "yaw_scale_pct": [_r(100.0 * est.odometry[1], 4), _r(100.0 * est.odometry_sigma[1], 4)],
+            "yaw_rate_bias_deg_s": [
+                _r(math.degrees(est.odometry[2]), 5),
+                _r(math.degrees(est.odometry_sigma[2]), 5),
+            ],
+            "crab_deg": [_r(math.degrees(est.odometry[5]), 4), _r(math.degrees(est.odometry_sigma[5]), 4)],
+            "pivot_mm": [
+                [_r(1000.0 * est.odometry[3], 2), _r(1000.0 * est.odometry[4], 2)],
+                [_r(1000.0 * est.odometry_sigma[3], 2), _r(1000.0 * est.odometry_sigma[4], 2)],
+            ],
+        },
+    }
+    nothing = {"xi": np.full(6, np.nan), "cov": np.zeros((6, 6))}
+    if k == 0:
+        reasons.append(
+            "degenerate motion: no direction of T_cam_laser is observed to the resolution "
+            f"({s.resolution_deg:g} deg, {100 * s.resolution_m:g} cm) by this drive"
+        )
+        return {"verdict": "cannot_tell", "record": record} | nothing
+    if G - k < 2:
+        reasons.append(
+            f"too short: {G} blocks of {s.block_s:g} s for {k} observed directions (needs at least {k + 2})"
+        )
+        return {"verdict": "cannot_tell", "record": record} | nothing
+    # In the observed basis (resolution units): the blocks' sandwich, plus the known
+    # parts (the floor, the stored calibration's covariance).
+    Ck_est = V_obs.T @ est.cov_z @ V_obs
+    Ck = Ck_est + V_obs.T @ _floor_z(s) @ V_obs
+    z = V_obs.T @ np.linalg.solve(D, est.xi)
+    Ck_total = Ck + V_obs.T @ _rig_cov_z(rig, D) @ V_obs
+    t2 = float(z @ np.linalg.solve(Ck_total, z))
+    # Hotelling: (n - k) / (k (n - 1)) T^2 ~ F(k, n - k) under no change, n the blocks'
+    # count; the known parts make the covariance surer than n blocks alone
+    # (Satterthwaite's effective count). Tends to the chi-square with k dof.
+    n = _effective_blocks(Ck_est, Ck_total, G)
+    F = t2 * (n - k) / (k * (n - 1))
+    p = float(f_dist.sf(F, k, n - k))
+    drifted = p < s.level
+    xi_obs = D @ V_obs @ z
+    cov_obs = D @ V_obs @ Ck @ V_obs.T @ D
+    sig = np.sqrt(np.clip(np.diag(cov_obs), 0.0, None))
+    observed = [AXES[a] for a in range(6) if _axis_observed(V_obs, a)]
+    crit = float(f_dist.isf(s.level, k, n - k)) * k * (n - 1) / (n - k)
+    record |= {
+        "observed_axes": observed,
+        "observed_directions": k,
+        "correction_rotation_deg": [_r(math.degrees(x), 4) for x in xi_obs[:3]],
+        "correction_translation_mm": [_r(1000.0 * x, 2) for x in xi_obs[3:]],
+        "sigma_rotation_deg": [_r(math.degrees(x), 4) for x in sig[:3]],
+        "sigma_translation_mm": [_r(1000.0 * x, 2) for x in sig[3:]],
+        "rotation_deg": _r(math.degrees(float(np.linalg.norm(xi_obs[:3]))), 4),
+        "translation_mm": _r(1000.0 * float(np.linalg.norm(xi_obs[3:])), 2),
+        "t2": _r(t2, 4),
+        "t2_critical": _r(crit, 4),
+        "dof": k,
+        "blocks": G,
+        "effective_blocks": _r(n, 1),
+        "p_value": float(f"{p:.4g}"),
+        "detects": _detectable(Ck_total, k, n, s),
+    }
+    if rig.covariance is None:
+        reasons.append("the rig has no covariance: the stored calibration is taken as exact")
+    for u in unobserved:
+        reasons.append(f"not observed by this drive: {u['direction']} ({u['why']})")
+    if drifted:
+        reasons.append(
+            f"the drive is most consistent with T_cam_laser corrected by {record['rotation_deg']:.3f} deg "
+            f"and {record['translation_mm']:.1f} mm (T^2 {t2:.1f} over {k} observed directions, {G} blocks, "
+            f"p = {p:.2g})"
+        )
+    return {"verdict": "drifted" if drifted else "ok", "xi": xi_obs, "cov": cov_obs, "record": record}
+
+
+def _effective_blocks(C_est: FloatArray, C_total: FloatArray, G: int) -> float:
+    """Satterthwaite: a covariance estimated from G blocks (G - 1 dof) plus known parts
+    is as sure as one estimated from this many blocks."""
+    a = float(np.trace(C_est))
+    b = float(np.trace(C_total))
+    if a <= 0.0:
+        return 1e6
+    return float(min(1.0 + (G - 1) * (b / a) ** 2, 1e6))
+
+
+def _detectable(C: FloatArray, k: int, n: float, s: TargetlessSettings) -> dict[str, float]:
+    """The smallest change along the least-determined observed direction detected 95 %
+    of the time at the level, as rotation deg and translation mm (for the record)."""
+    crit = float(f_dist.isf(s.level, k, n - k)) * k * (n - 1) / (n - k)
+    lam = _noncentrality(k, crit)
+    sig_max = float(np.sqrt(np.linalg.eigvalsh(C).max()))
+    return {
+        "resolution_units": _r(sig_max * math.sqrt(lam), 3),
+        "rotation_deg": _r(sig_max * math.sqrt(lam) * s.resolution_deg, 4),
+        "translation_mm": _r(sig_max * math.sqrt(lam) * 1000.0 * s.resolution_m, 2),
+    }
+
+
+def _noncentrality(k: int, crit: float) -> float:
+    lo, hi = 0.0, 400.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if float(ncx2.sf(crit, k, mid)) < 0.95:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def _rig_cov_z(rig: Rig, D: FloatArray) -> FloatArray:
+    """The rig's covariance (camera-frame tangent: R = Exp(d) R0, t = t0 + e) in xi's
+    resolution units (T = T0 Exp(xi): d = R0 w, e = R0 v)."""
+    if rig.covariance is None:
+        return np.zeros((6, 6))
+    R0 = rig.T_cam_laser[:3, :3]
+    A = np.zeros((6, 6))
+    A[:3, :3] = R0.T
+    A[3:, 3:] = R0.T
+    Dinv = np.linalg.inv(D)
+    out: FloatArray = Dinv @ A @ rig.covariance @ A.T @ Dinv
+    return out
+
+
+def _axis_observed(V_obs: FloatArray, a: int) -> bool:
+    """An axis counts as observed when most of it lies in the observed subspace."""
+    return float(np.sum(V_obs[a] ** 2)) > 0.5
+
+
+def _unobserved_words(
+    V_obs: FloatArray, info: dict[str, Any], floor_limited: set[int] | None = None
+) -> list[dict[str, Any]]:
+    """The directions the drive leaves open, in words, with why (``floor_limited``: axes
+    whose determination the systematic floor, not the drive, limits)."""
+    P = np.eye(6) - V_obs @ V_obs.T
+    evals, evecs = np.linalg.eigh(P)
+    out = []
+    straight = float(info.get("heading_range_deg", 0.0)) < 30.0
+    for n in np.flatnonzero(evals > 0.5):
+        u = evecs[:, n]
+        u = u * (1.0 if u[np.argmax(np.abs(u))] > 0 else -1.0)
+        parts = [(abs(float(c)), a) for a, c in enumerate(u) if abs(c) >= 0.3]
+        parts.sort(reverse=True)
+        words = " with ".join(AXIS_WORDS[a] for _, a in parts)
+        main = parts[0][1]
+        if main == 5:
+            why = (
+                "a 2D laser moving in its own scan plane: raising the camera's idea of where the returns "
+                "are slides each one up its wall, onto a surface point seen alike from every frame"
+            )
+        elif floor_limited and main in floor_limited:
+            why = (
+                "the laser odometry's own errors (its crab angle, its pivot in turns) and the image model "
+                "leave it uncertain by the systematic floor, more than the resolution allows"
+            )
+        elif straight and main in (0, 3, 4):
+            why = (
+                f"the drive keeps one heading (within {info.get('heading_range_deg', 0):.0f} deg): "
+                "as along a straight corridor, a shift along the travel or a roll about it slides the "
+                "returns along their walls alike in every frame; turns observe it"
+            )
+        else:
+            why = "the walls this drive sees, and the views it sees them from, leave it loose"
+        out.append(
+            {
+                "direction": words,
+                "components": {AXES[a]: _r(float(u[a]), 3) for _, a in parts},
+                "why": why,
+            }
+        )
+    return out
+
+
+def _r(x: float, digits: int) -> float:
+    return round(float(x), digits)
+
+
+def _json(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {k: _json(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        return None if not math.isfinite(float(x)) else float(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    return x

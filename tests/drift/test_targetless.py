@@ -1,0 +1,160 @@
+"""The targetless drift check (`rigcal check RIG --sequence SEQ`) on small simulated drives.
+
+The drives use a 320x240 camera (the simulated camera at half size) so that rendering
+stays quick; the check's statistics are the same at any image size."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rigcal.calib.driftlog import read_log
+from rigcal.camera import Camera
+from rigcal.cli.main import main
+from rigcal.drift.targetless import TargetlessSettings, check_targetless
+from rigcal.geometry import make_T, rotvec_to_R
+from rigcal.localize.streams import open_streams
+from rigcal.rig import Rig
+from rigcal.rigfile import read_rig, write_rig
+from rigcal.sim.box_session import default_T_cam_laser
+
+REALISTIC = ["--exposure-walk", "0.02", "--image-blur-px", "0.7", "--image-noise", "3"]
+
+
+def small_camera() -> Camera:
+    K = np.array([[260.0, 0.0, 159.5], [0.0, 260.0, 119.5], [0.0, 0.0, 1.0]])
+    return Camera.from_opencv(K, [-0.15, 0.05, 0.0005, -0.0003, 0.0], 320, 240, source="simulated")
+
+
+def run(capsys, *args: object) -> tuple[int, str, str]:
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def drives(tmp_path_factory) -> dict[str, Path]:
+    base = tmp_path_factory.mktemp("targetless")
+    rig = Rig(default_T_cam_laser(), small_camera(), laser={"name": "simulated 2D scanner"})
+    write_rig(base / "rig.yaml", rig)
+    out = {"rig": base / "rig.yaml"}
+    for name, extra in (
+        ("drive", ["--world", "cubicle-loop", "--duration-s", "24", "--camera-rate-hz", "5"]),
+        ("short", ["--world", "cubicle-loop", "--duration-s", "6", "--camera-rate-hz", "5"]),
+        ("blind", ["--world", "cubicle-loop", "--duration-s", "4", "--no-images"]),
+    ):
+        folder = base / name
+        code = main(
+            [
+                "simulate",
+                "world",
+                "-o",
+                str(folder),
+                "--seed",
+                "3",
+                "--rig",
+                str(out["rig"]),
+                *REALISTIC,
+                *extra,
+            ]
+        )
+        assert code == 0
+        out[name] = folder
+    return out
+
+
+def moved(rig_path: Path, out: Path, axis: int, size: float) -> Path:
+    """The rig file with T_cam_laser moved along one laser-frame axis: T Exp(p)."""
+    rig = read_rig(rig_path)
+    p = np.zeros(6)
+    p[axis] = size
+    write_rig(out, dataclasses.replace(rig, T_cam_laser=rig.T_cam_laser @ make_T(rotvec_to_R(p[:3]), p[3:])))
+    return out
+
+
+def test_true_rig_is_ok_and_laser_z_is_never_observed(drives):
+    rig = read_rig(drives["rig"])
+    res = check_targetless(rig, open_streams(drives["drive"], rig_file=drives["rig"]))
+    assert res.verdict == "ok", res.reasons
+    rec = res.record
+    assert "tz" not in rec["observed_axes"]
+    assert {"rx", "ry", "rz"} <= set(rec["observed_axes"])
+    z = [u for u in rec["unobserved"] if u["components"] == {"tz": 1.0}]
+    assert len(z) == 1
+    assert "scan plane" in z[0]["why"]
+    # With the default floor (1 cm) no translation is observed to 2 cm, and the record says why.
+    assert not {"tx", "ty"} & set(rec["observed_axes"])
+    assert any("systematic floor" in u["why"] for u in rec["unobserved"])
+    # The correction is within its own (honest) uncertainty of zero on every observed axis.
+    for x, s in zip(rec["correction_rotation_deg"], rec["sigma_rotation_deg"], strict=True):
+        assert abs(x) <= 4 * s + 1e-9
+    for x, s in zip(rec["correction_translation_mm"], rec["sigma_translation_mm"], strict=True):
+        assert abs(x) <= 4 * s + 1e-9
+
+
+def test_yaw_of_half_a_degree_is_detected_and_corrected(drives, tmp_path, capsys):
+    stored = moved(drives["rig"], tmp_path / "moved.yaml", 2, math.radians(0.5))
+    code, out, err = run(capsys, "check", stored, "--sequence", drives["drive"], "--json")
+    assert code == 1, err
+    rec = json.loads(out)
+    assert rec["kind"] == "targetless"
+    assert rec["verdict"] == "drifted"
+    t = rec["targetless"]
+    # The right correction is -0.5 deg about laser z.
+    assert abs(t["correction_rotation_deg"][2] + 0.5) < 0.1
+    assert read_log(tmp_path / "moved.checks.jsonl")[-1]["targetless"]["dof"] == t["dof"]
+
+
+def test_short_drive_cannot_tell(drives, tmp_path, capsys):
+    code, out, _ = run(
+        capsys, "check", drives["rig"], "--sequence", drives["short"], "--log", tmp_path / "l.jsonl"
+    )
+    assert code == 6
+    assert "verdict: cannot_tell" in out
+    assert "too short" in out
+    assert read_log(tmp_path / "l.jsonl")[-1]["verdict"] == "cannot_tell"
+
+
+def test_camera_looking_away_from_the_returns_cannot_tell(drives, tmp_path, capsys):
+    # The camera turned to look backwards: no return of the laser's 270 deg... but the back.
+    stored = moved(drives["rig"], tmp_path / "back.yaml", 2, math.pi)
+    code, out, _ = run(capsys, "check", stored, "--sequence", drives["drive"], "--no-log")
+    assert code == 6
+    assert "no overlap" in out
+
+
+def test_sequence_without_images_is_bad_input(drives, capsys):
+    code, _, err = run(capsys, "check", drives["rig"], "--sequence", drives["blind"], "--no-log")
+    assert code == 3
+    assert "images.count: got 0" in err
+    assert err.count("\n") == 1
+
+
+def test_sequence_of_another_camera_is_bad_input(drives, tmp_path, capsys):
+    from rigcal.sim.box_session import default_camera
+
+    other = tmp_path / "other.yaml"
+    write_rig(other, Rig(default_T_cam_laser(), default_camera()))
+    code, _, err = run(capsys, "check", other, "--sequence", drives["drive"], "--no-log")
+    assert code == 3
+    assert "image size: got '320x240'; expected 640x480" in err
+
+
+def test_one_source_only(drives, capsys):
+    code, _, err = run(capsys, "check", drives["rig"], "--no-log")
+    assert code == 2
+    assert "one of --picks, --session or --sequence" in err
+    code, _, err = run(
+        capsys, "check", drives["rig"], "--sequence", drives["drive"], "--picks", drives["rig"]
+    )
+    assert code == 2
+
+
+def test_settings_reject_a_bad_level():
+    with pytest.raises(ValueError, match="level"):
+        TargetlessSettings(level=1.5)
