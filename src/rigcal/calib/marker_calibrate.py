@@ -26,15 +26,13 @@ from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 
 from rigcal.calib.board_calibrate import DEFAULT_RANGE_SIGMA_M, NOISE_MODES, board_report, board_report_table
-from rigcal.calib.marker_session import MarkerSession, read_marker_session, with_corner_scale
+from rigcal.calib.marker_session import MarkerSession, fit_scale, read_marker_session, with_corner_scale
 from rigcal.calib.noise import corner_sigma_from_rms
 from rigcal.calib.plane import PlaneResult, solve_plane
 from rigcal.calib.report import noise_section, rig_uncertainty
 from rigcal.calib.truth import read_truth
-from rigcal.geometry import make_T, rotvec_to_R
 from rigcal.rig import Rig
 from rigcal.rigfile import provenance
 
@@ -229,31 +227,13 @@ def scale_check(session: MarkerSession, result: PlaneResult) -> tuple[float, flo
     """The ratio by which the laser puts the faces farther than the camera does, and its
     1-sigma: the pose refitted with every face's distance multiplied by a free factor s,
     n . (R p + t) = s d, on the cut ends of the used faces (unweighted; the sigma from the
-    fit's residual scale)."""
+    fit's residual scale). The returns are taken as the scanner gives them, with no range
+    bias by incidence taken out: the solve's bias would absorb part of a scale."""
     used = np.flatnonzero(result.inlier_captures)
-    obs = [session.observations[i] for i in used]
-    ends = [result.lines[i].ends_corrected(result.noise.range_bias_m) for i in used]
-    R0 = result.T_cam_laser[:3, :3]
-
-    def residuals(x: FloatArray) -> FloatArray:
-        T = make_T(rotvec_to_R(x[:3]) @ R0, x[3:6])
-        return np.concatenate(
-            [
-                (e @ T[:3, :2].T + T[:3, 3]) @ np.asarray(o.normal_cam) - x[6] * o.distance_m
-                for o, e in zip(obs, ends, strict=True)
-            ]
-        )
-
-    x0 = np.concatenate([np.zeros(3), result.T_cam_laser[:3, 3], [1.0]])
-    sol = least_squares(residuals, x0, method="lm")
-    J = sol.jac
-    dof = max(len(sol.fun) - 7, 1)
-    s2 = float(sol.fun @ sol.fun) / dof
-    try:
-        cov = s2 * np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        return float(sol.x[6]), float("inf")
-    return float(sol.x[6]), float(np.sqrt(max(cov[6, 6], 0.0)))
+    planes = [
+        (np.asarray(session.observations[i].normal_cam), session.observations[i].distance_m) for i in used
+    ]
+    return fit_scale(result.T_cam_laser, planes, [result.lines[i].ends for i in used])
 
 
 _AXES = ("forward (laser x)", "sideways (laser y)", "up-down (laser z)")
@@ -270,27 +250,7 @@ def geometry_warnings(session: MarkerSession, result: PlaneResult) -> list[str]:
     used = np.flatnonzero(result.inlier_captures)
     R = result.T_cam_laser[:3, :3]
     normals = np.array([R.T @ np.asarray(session.observations[i].normal_cam) for i in used])
-    _, sv, Vt = np.linalg.svd(normals, full_matrices=False)
-    out = []
-    if sv[-1] < WEAK_NORMAL_SPREAD * sv[0]:
-        v = Vt[-1]
-        axis = _AXES[int(np.argmax(np.abs(v)))]
-        what = (
-            "the laser's height, roll and pitch"
-            if np.argmax(np.abs(v)) == 2
-            else "the laser's position and turn along that direction"
-        )
-        out.append(
-            f"weak geometry: the faces' normals hardly point {axis} (spread {sv[-1] / sv[0]:.2f} < "
-            f"{WEAK_NORMAL_SPREAD}), so {what} rest on few views; add views with the target tilted "
-            "20-30 degrees (its top towards and away from the rig) and rolled 20-30 degrees both ways"
-        )
-    dist = np.array([session.observations[i].distance_m for i in used])
-    if np.ptp(dist) < MIN_DISTANCE_SPREAD_M:
-        out.append(
-            f"weak geometry: every face within {np.ptp(dist):.2f} m of one distance ({dist.mean():.2f} m); "
-            "add views nearer and farther"
-        )
+    out = weak_views(normals, np.array([session.observations[i].distance_m for i in used]))
     sig = np.sqrt(np.clip(np.diag(result.covariance), 0.0, None))
     if np.degrees(sig[:3]).max() > 0.2 or 1000 * sig[3:].max() > 5.0:
         k = int(np.argmax(1000 * sig[3:]))
@@ -298,6 +258,27 @@ def geometry_warnings(session: MarkerSession, result: PlaneResult) -> list[str]:
             f"large uncertainty (1 sigma up to {np.degrees(sig[:3]).max():.3f} deg, "
             f"{1000 * sig[3:].max():.1f} mm along camera {'xyz'[k]}): add views with the target turned, "
             "tilted and rolled more"
+        )
+    return out
+
+
+def weak_views(normals_laser: FloatArray, distances_m: FloatArray) -> list[str]:
+    """Warnings on the views' geometry from the used faces' (K, 3) unit normals in the
+    laser frame and their (K,) distances from the camera (see :func:`geometry_warnings`)."""
+    _, sv, Vt = np.linalg.svd(normals_laser, full_matrices=False)
+    out = []
+    if sv[-1] < WEAK_NORMAL_SPREAD * sv[0]:
+        k = int(np.argmax(np.abs(Vt[-1])))
+        what = "the laser's height, roll and pitch" if k == 2 else "the laser's position and turn along it"
+        out.append(
+            f"weak geometry: the faces' normals hardly point {_AXES[k]} (spread {sv[-1] / sv[0]:.2f} < "
+            f"{WEAK_NORMAL_SPREAD}), so {what} rest on few views; add views with the target tilted "
+            "20-30 degrees (its top towards and away from the rig) and rolled 20-30 degrees both ways"
+        )
+    if np.ptp(distances_m) < MIN_DISTANCE_SPREAD_M:
+        out.append(
+            f"weak geometry: every face within {np.ptp(distances_m):.2f} m of one distance "
+            f"({float(np.mean(distances_m)):.2f} m); add views nearer and farther"
         )
     return out
 

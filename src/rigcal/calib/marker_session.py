@@ -220,7 +220,56 @@ def _find_v(
     dropped: dict[str, str],
 ) -> list[tuple[FloatArray, FloatArray] | None]:
     """Each face's returns in each capture (None for a capture set aside here, its reason
-    added to ``dropped``)."""
+    added to ``dropped``).
+
+    A pattern printed at the wrong scale puts every face too near or too far by one
+    factor, and the cuts the faces' poses predict then miss the returns, or a consensus
+    settles on a wrong pose and picks a few stray ones. So when the search at the file's
+    scale finds few returns on most faces (fewer than SPARSE_RETURNS x the least a line
+    has on more than SPARSE_SHARE of them), it is repeated with the faces' distances
+    scaled by SEARCH_SCALES in turn and the scale that finds most returns is kept; the
+    solve's scale check then reports the factor.
+    """
+    best: tuple[int, list[tuple[FloatArray, FloatArray] | None], dict[str, str]] | None = None
+    error: CalibrationError | None = None
+    for scale in SEARCH_SCALES:
+        lost = dict(dropped)
+        try:
+            out = _search_v(path, target, scans, views, names, params, lost, scale)
+        except CalibrationError as exc:
+            error = error or exc
+            continue
+        faces = [len(p) for pair in out if pair is not None for p in pair]
+        if best is None or sum(faces) > best[0]:
+            best = (sum(faces), out, lost)
+        if np.mean(np.array(faces) < SPARSE_RETURNS * params.min_points) <= SPARSE_SHARE:
+            break
+    if best is None:
+        assert error is not None
+        raise error
+    dropped.update(best[2])
+    return best[1]
+
+
+# Scales of the faces' distances the V search tries in turn (see _find_v).
+SEARCH_SCALES = (1.0, 1.04, 0.96, 1.08, 0.92, 1.15, 0.87)
+SPARSE_RETURNS = 2
+SPARSE_SHARE = 0.2
+
+
+def _search_v(
+    path: Path,
+    target: MarkerTarget,
+    scans: list[Scan],
+    views: list[Any],
+    names: list[str],
+    params: LineParams,
+    dropped: dict[str, str],
+    scale: float,
+) -> list[tuple[FloatArray, FloatArray] | None]:
+    """The V search with the faces' distances scaled by ``scale``
+    (:func:`rigcal.calib.board_detect.detect_board_returns` per face); a capture in which
+    a face has no candidate is set aside and the search repeated without it."""
     alive = list(range(len(scans)))
     while True:
         if len(alive) < MIN_CAPTURES:
@@ -232,11 +281,15 @@ def _find_v(
         found: list[list[FloatArray]] = []
         try:
             for k in range(2):
-                poses = [views[i][k].T_cam_face for i in alive]
-                planes = [_plane(T) for T in poses]
+                poses = [_scaled(views[i][k].T_cam_face, scale) for i in alive]
                 found.append(
                     detect_board_returns(
-                        [scans[i] for i in alive], poses, planes, face_shape(target, k), {}, params
+                        [scans[i] for i in alive],
+                        poses,
+                        [_plane(T) for T in poses],
+                        face_shape(target, k),
+                        {},
+                        params,
                     )
                 )
         except BoardNotFoundError as exc:
@@ -250,6 +303,42 @@ def _find_v(
         for j, i in enumerate(alive):
             out[i] = split_faces(found[0][j], found[1][j])
         return out
+
+
+def _scaled(T: FloatArray, scale: float) -> FloatArray:
+    out = T.copy()
+    out[:3, 3] *= scale
+    return out
+
+
+def fit_scale(
+    T0: FloatArray, planes: list[tuple[FloatArray, float]], points: list[FloatArray], scale0: float = 1.0
+) -> tuple[float, float]:
+    """The pose refitted with every plane's distance multiplied by a free factor s,
+    n . (R p + t) = s d, from T0 (unweighted least squares on the given laser points, (M, 2)
+    per plane). Returns s and its 1-sigma from the fit's residual scale."""
+    from scipy.optimize import least_squares
+
+    from rigcal.geometry import make_T, rotvec_to_R
+
+    R0 = T0[:3, :3]
+
+    def residuals(x: FloatArray) -> FloatArray:
+        T = make_T(rotvec_to_R(x[:3]) @ R0, x[3:6])
+        return np.concatenate(
+            [
+                (p @ T[:3, :2].T + T[:3, 3]) @ np.asarray(n) - x[6] * d
+                for (n, d), p in zip(planes, points, strict=True)
+            ]
+        )
+
+    sol = least_squares(residuals, np.concatenate([np.zeros(3), T0[:3, 3], [scale0]]), method="lm")
+    dof = max(len(sol.fun) - 7, 1)
+    try:
+        cov = float(sol.fun @ sol.fun) / dof * np.linalg.inv(sol.jac.T @ sol.jac)
+    except np.linalg.LinAlgError:
+        return float(sol.x[6]), float("inf")
+    return float(sol.x[6]), float(np.sqrt(max(cov[6, 6], 0.0)))
 
 
 def _early(dropped: dict[str, str], names: list[str]) -> int:
@@ -286,3 +375,21 @@ def with_corner_scale(session: MarkerSession, k: float) -> tuple[PlaneObservatio
         replace(o, board_pose_cov=None if o.board_pose_cov is None else k * o.board_pose_cov)
         for o in session.observations
     )
+
+
+def capture_markers(images: Path, name: str, camera: Camera, target: MarkerTarget) -> str:
+    """What one captured image shows of the target, for ``rigcal capture``'s table: each
+    face's markers seen, or why the capture will be set aside."""
+    from rigcal.io.images import read_grey
+
+    found = sorted(images.glob(f"{name}.*"))
+    grey = read_grey(found[0]) if found else None
+    if grey is None:
+        return "image unreadable"
+    view = detect_target(grey, camera, target)
+    seen = ", ".join(
+        f"{f.name} {n}/{f.n_markers}" for f, n in zip(target.faces, view.markers_seen, strict=True)
+    )
+    why = view.missing(target)
+    extra = f"; {len(view.foreign_ids)} markers of another target ignored" if view.foreign_ids else ""
+    return f"markers {seen}" + (f" (set aside: {why})" if why else "") + extra

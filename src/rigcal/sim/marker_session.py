@@ -49,7 +49,7 @@ _BEARING = 0.3
 TEXELS_PER_M = 2000.0
 # A face seen more obliquely than this (cosine between its normal and the view) is not
 # placed: its markers would not be read.
-_MIN_VIEW_COS = 0.3
+_MIN_VIEW_COS = 0.5
 # A face's cut by the scan plane is at least this long.
 _MIN_CUT_M = 0.12
 
