@@ -165,9 +165,9 @@ def _texture(target: MarkerTarget, k: int) -> MipImage:
     return _mips(np.repeat(img[:, :, None], 3, axis=2), TEXELS_PER_M)
 
 
-def T_laser_face(session_or_target: MarkerTarget, T_laser_target: FloatArray, k: int) -> FloatArray:
+def T_laser_face(target: MarkerTarget, T_laser_target: FloatArray, k: int) -> FloatArray:
     """Face k's frame in the laser frame."""
-    out: FloatArray = T_laser_target @ session_or_target.T_target_face(k)
+    out: FloatArray = T_laser_target @ target.T_target_face(k)
     return out
 
 
