@@ -25,7 +25,12 @@ def test_round_trip(tmp_path):
     p.write_text(targets_text(t))
     back = read_targets(p)
     assert back.faces == t.faces
-    assert (back.angle_deg, back.edge_m, back.dictionary, back.corner) == (90.0, 0.6, "DICT_4X4_50", "concave")
+    assert (back.angle_deg, back.edge_m, back.dictionary, back.corner) == (
+        90.0,
+        0.6,
+        "DICT_4X4_50",
+        "concave",
+    )
 
 
 def test_faces_meet_on_the_edge():
@@ -38,7 +43,8 @@ def test_faces_meet_on_the_edge():
         # The left face's right side and the right face's left side are the common edge.
         a_edge = A[:3, :3] @ np.array([t.faces[0].width_m, 0.3, 0.0]) + A[:3, 3]
         b_edge = B[:3, :3] @ np.array([0.0, 0.3, 0.0]) + B[:3, 3]
-        assert np.allclose(a_edge, [0.0, 0.3, 0.0]) and np.allclose(b_edge, [0.0, 0.3, 0.0])
+        assert np.allclose(a_edge, [0.0, 0.3, 0.0])
+        assert np.allclose(b_edge, [0.0, 0.3, 0.0])
         cos = float(A[:3, 2] @ B[:3, 2])
         assert cos == pytest.approx(-np.cos(np.radians(t.angle_deg)))
         # Concave: the faces' outer sides are nearer the viewer (-z) than the edge.
@@ -54,14 +60,23 @@ def test_faces_meet_on_the_edge():
         (lambda d: d["faces"][0].update(width_m=-0.5), r"faces\[0\]\.width_m: got -0.5"),
         (lambda d: d["faces"][1].update(square_m=0), r"faces\[1\]\.square_m: got 0"),
         (lambda d: d.update(dictionary="DICT_9X9_50"), r"dictionary: got 'DICT_9X9_50'; expected one of"),
-        (lambda d: d["faces"][1].update(first_id=5), r"faces\[1\]\.ids: got \[5, 6, 7, 8, 9\]; .*duplicate ids"),
+        (
+            lambda d: d["faces"][1].update(first_id=5),
+            r"faces\[1\]\.ids: got \[5, 6, 7, 8, 9\]; .*duplicate ids",
+        ),
         (lambda d: d["faces"][0].pop("first_id") or d["faces"][0].update(ids=[1] * 10), r"duplicate ids"),
         (lambda d: d["faces"][1].update(first_id=45), r"faces\[1\]\.first_id: got 45; expected at most 40"),
         (lambda d: d.update(angle_deg=180), r"angle_deg: got 180; expected the angle between the faces"),
         (lambda d: d.update(angle_deg=5), r"angle_deg: got 5"),
         (lambda d: d["faces"].pop(), r"faces: got '1 faces'; expected a list of two faces"),
-        (lambda d: d["faces"][0].update(square_m=0.2), r"faces\[0\]: got 'pattern 0.8 x 1 m.*inside its face"),
-        (lambda d: d["faces"][0].update(marker_m=0.12), r"faces\[0\]\.marker_m: got 0.12; expected a marker side"),
+        (
+            lambda d: d["faces"][0].update(square_m=0.2),
+            r"faces\[0\]: got 'pattern 0.8 x 1 m.*inside its face",
+        ),
+        (
+            lambda d: d["faces"][0].update(marker_m=0.12),
+            r"faces\[0\]\.marker_m: got 0.12; expected a marker side",
+        ),
         (lambda d: d.update(corner="flat"), r"corner: got 'flat'"),
         (lambda d: d.update(schema_version=2), r"schema_version: got 2"),
         (lambda d: d.update(colour="red"), r"colour: got 'red'; expected no such key"),
@@ -76,7 +91,8 @@ def test_errors_name_file_key_and_value(tmp_path, edit, match):
     p.write_text(yaml.safe_dump(d))
     with pytest.raises(InputError, match=match) as e:
         read_targets(p)
-    assert str(p) in str(e.value) and "\n" not in str(e.value)
+    assert str(p) in str(e.value)
+    assert "\n" not in str(e.value)
 
 
 def test_explicit_ids():
@@ -84,7 +100,8 @@ def test_explicit_ids():
     d["faces"][0].pop("first_id")
     d["faces"][0]["ids"] = [30, 31, 32, 33, 34, 35, 36, 37, 38, 39]
     t = parse_targets(d, None)
-    assert t.faces[0].ids[0] == 30 and t.all_ids == set(range(10, 20)) | set(range(30, 40))
+    assert t.faces[0].ids[0] == 30
+    assert t.all_ids == set(range(10, 20)) | set(range(30, 40))
 
 
 def test_face_image_is_the_pattern_at_its_offset():
@@ -93,7 +110,8 @@ def test_face_image_is_the_pattern_at_its_offset():
     assert img.shape == (1200, 1000)
     f = t.faces[0]
     x0, y0 = round(f.offset_m[0] * 2000), round(f.offset_m[1] * 2000)
-    assert (img[:y0] == 255).all() and (img[:, :x0] == 255).all()
+    assert (img[:y0] == 255).all()
+    assert (img[:, :x0] == 255).all()
     # The pattern's first square (top-left) is black in OpenCV's ChArUco layout.
     assert img[y0 + 10, x0 + 10] == 0
 

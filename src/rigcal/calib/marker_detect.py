@@ -1,9 +1,10 @@
 """Reading the marker target's faces in an image: ChArUco corners, then each face's pose.
 
-The markers are found once (OpenCV's ``ArucoDetector`` with the target's dictionary);
-those whose ids belong to no face are counted and ignored (another target in view, a
-marker of another project on the wall). Each face's markers then give its ChArUco
-corners (``CharucoDetector``): the saddle points between the chessboard squares,
+The markers are found (OpenCV's ``ArucoDetector`` with the target's dictionary); those
+whose ids belong to no face are counted and ignored (another target in view, a marker of
+another project on the wall). Each face's ChArUco detector (``CharucoDetector``) then
+finds its markers, looks again for those it missed where the found ones predict them,
+and gives the face's ChArUco corners: the saddle points between the chessboard squares,
 interpolated from the markers and refined to sub-pixel on the image. A saddle point is
 where two dark and two light squares meet, so blur and exposure move its edges outwards
 and inwards alike and it stays put, unlike a marker's outer corner, which a detector
@@ -99,51 +100,61 @@ def detect_target(
     import cv2
 
     grey = np.asarray(image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
+    params = detector_parameters()
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, target.dictionary))
-    params = cv2.aruco.DetectorParameters()
-    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    corners, ids, _ = cv2.aruco.ArucoDetector(dictionary, params).detectMarkers(grey)
+    _, ids, _ = cv2.aruco.ArucoDetector(dictionary, params).detectMarkers(grey)
     ids = np.zeros(0, dtype=np.int64) if ids is None else np.asarray(ids, dtype=np.int64).ravel()
     foreign = tuple(sorted(int(i) for i in ids if int(i) not in target.all_ids))
     faces: list[FaceView | None] = []
     seen = []
-    for k, face in enumerate(target.faces):
-        mine = [j for j, i in enumerate(ids) if int(i) in face.ids]
-        seen.append(len(mine))
-        faces.append(
-            _face_view(grey, camera, target, k, [corners[j] for j in mine], ids[mine], corner_sigma_px)
-            if len(mine) >= 2
-            else None
-        )
+    for k in range(2):
+        view, n_markers = _face_view(grey, camera, target, k, params, corner_sigma_px)
+        faces.append(view)
+        seen.append(n_markers)
     return TargetView((faces[0], faces[1]), (seen[0], seen[1]), foreign)
 
 
-def _face_view(
-    grey: NDArray[np.uint8],
-    camera: Camera,
-    target: MarkerTarget,
-    k: int,
-    marker_corners: list[Any],
-    marker_ids: NDArray[np.int64],
-    corner_sigma_px: float,
-) -> FaceView | None:
+def detector_parameters() -> Any:
+    """OpenCV's marker detector settings: sub-pixel marker corners, 8 px per marker cell
+    when reading the bits (a small or oblique marker's bits are read from more samples),
+    a looser polygon fit and larger threshold windows (blurred edges), markers down to 1 %
+    of the image's size in perimeter."""
     import cv2
 
-    board = charuco_board(target, k)
+    params = cv2.aruco.DetectorParameters()
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    params.perspectiveRemovePixelPerCell = 8
+    params.polygonalApproxAccuracyRate = 0.05
+    params.adaptiveThreshWinSizeMax = 53
+    params.minMarkerPerimeterRate = 0.01
+    return params
+
+
+def _face_view(
+    grey: NDArray[np.uint8], camera: Camera, target: MarkerTarget, k: int, params: Any, corner_sigma_px: float
+) -> tuple[FaceView | None, int]:
+    """Face k's view (None when too few corners are read) and how many of its markers
+    were found. The ChArUco detector finds the face's markers, looks again for missed ones
+    where the found ones predict them (``tryRefineMarkers``), interpolates the corners
+    from as few as one marker and refines them on the image."""
+    import cv2
+
     cparams = cv2.aruco.CharucoParameters()
     cparams.minMarkers = 1
-    detector = cv2.aruco.CharucoDetector(board, cparams)
-    ch_corners, ch_ids, _, _ = detector.detectBoard(
-        grey, markerCorners=tuple(marker_corners), markerIds=marker_ids.reshape(-1, 1).astype(np.int32)
+    cparams.tryRefineMarkers = True
+    detector = cv2.aruco.CharucoDetector(charuco_board(target, k), cparams, params)
+    ch_corners, ch_ids, _, marker_ids = detector.detectBoard(grey)
+    mine = (
+        0 if marker_ids is None else int(np.isin(np.asarray(marker_ids).ravel(), target.faces[k].ids).sum())
     )
     if ch_ids is None or len(ch_ids) < MIN_FACE_CORNERS:
-        return None
+        return None, mine
     cid = ch_ids.ravel().astype(np.int64)
     px = ch_corners.reshape(-1, 2).astype(float)
     P = target.faces[k].corner_points[cid]
     # Corners on one row or one column (collinear) do not fix a pose.
     if len(np.unique(P[:, 0])) < 2 or len(np.unique(P[:, 1])) < 2:
-        return None
+        return None, mine
     T, cov, rms = points_pose(camera, P, px, corner_sigma_px)
     # A corner refined onto the wrong saddle (blur, a marker misread) is dropped when it
     # lies farther off the pose than OUTLIER_SIGMAS robust sigmas (at least
@@ -153,6 +164,6 @@ def _face_view(
     if not keep.all():
         cid, px, P = cid[keep], px[keep], P[keep]
         if len(cid) < MIN_FACE_CORNERS or len(np.unique(P[:, 0])) < 2 or len(np.unique(P[:, 1])) < 2:
-            return None
+            return None, mine
         T, cov, rms = points_pose(camera, P, px, corner_sigma_px)
-    return FaceView(k, cid, px, T, cov, rms)
+    return FaceView(k, cid, px, T, cov, rms), mine
