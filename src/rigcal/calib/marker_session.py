@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.board_detect import BoardNotFoundError, BoardShape, detect_board_returns
+from rigcal.calib.board_detect import BoardShape
 from rigcal.calib.board_session import plane_observation
 from rigcal.calib.lines import LineParams, fit_line
 from rigcal.calib.marker_detect import FaceView, detect_target
@@ -223,14 +223,16 @@ def _find_v(
     added to ``dropped``).
 
     A pattern printed at the wrong scale puts every face too near or too far by one
-    factor, and the cuts the faces' poses predict then miss the returns, or a consensus
-    settles on a wrong pose and picks a few stray ones. So when the search at the file's
-    scale finds few returns on most faces (fewer than SPARSE_RETURNS x the least a line
-    has on more than SPARSE_SHARE of them), it is repeated with the faces' distances
-    scaled by SEARCH_SCALES in turn and the scale that finds most returns is kept; the
-    solve's scale check then reports the factor.
+    factor; the cuts the faces' poses predict then miss the returns, or a consensus
+    settles on a wrong pose and picks others. So the search's returns are checked: under
+    the closed-form pose at the scale searched, each face's returns must lie on its plane
+    about as closely as on their own line (median over faces of the RMS distance from the
+    plane at most ON_PLANE_FACTOR times the median of the returns' robust scatter about
+    their line, plus ON_PLANE_FLOOR_M). When they do not, the search is repeated with the
+    faces' distances scaled by SEARCH_SCALES in turn and the scale whose returns lie
+    best on their planes is kept; the solve's scale check then reports the factor.
     """
-    best: tuple[int, list[tuple[FloatArray, FloatArray] | None], dict[str, str]] | None = None
+    best: tuple[float, list[tuple[FloatArray, FloatArray] | None], dict[str, str]] | None = None
     error: CalibrationError | None = None
     for scale in SEARCH_SCALES:
         lost = dict(dropped)
@@ -239,22 +241,88 @@ def _find_v(
         except CalibrationError as exc:
             error = error or exc
             continue
-        faces = [len(p) for pair in out if pair is not None for p in pair]
-        if best is None or sum(faces) > best[0]:
-            best = (sum(faces), out, lost)
-        if np.mean(np.array(faces) < SPARSE_RETURNS * params.min_points) <= SPARSE_SHARE:
+        misfit = _misfit(views, out, scale)
+        if best is None or misfit < best[0]:
+            best = (misfit, out, lost)
+        if misfit <= 1.0:
             break
     if best is None:
         assert error is not None
         raise error
+    # The returns found say at what scale the faces stand; search again there while that
+    # moves (the first search's scale is only the nearest tried).
+    searched = scale
+    for _ in range(MAX_SCALE_ROUNDS):
+        shown = _returns_scale(views, best[1], searched)
+        if abs(shown - searched) < SCALE_SETTLED:
+            break
+        lost = dict(dropped)
+        try:
+            out = _search_v(path, target, scans, views, names, params, lost, shown)
+        except CalibrationError:
+            break
+        misfit = _misfit(views, out, shown)
+        if misfit > max(best[0], 1.0):
+            break
+        best, searched = (misfit, out, lost), shown
     dropped.update(best[2])
     return best[1]
 
 
 # Scales of the faces' distances the V search tries in turn (see _find_v).
 SEARCH_SCALES = (1.0, 1.04, 0.96, 1.08, 0.92, 1.15, 0.87)
-SPARSE_RETURNS = 2
-SPARSE_SHARE = 0.2
+ON_PLANE_FACTOR = 2.0
+ON_PLANE_FLOOR_M = 0.003
+SCALE_SETTLED = 0.005
+MAX_SCALE_ROUNDS = 2
+
+
+def _returns_scale(
+    views: list[Any], found: list[tuple[FloatArray, FloatArray] | None], scale: float
+) -> float:
+    """The factor on the faces' distances that best puts the found returns on their
+    planes (:func:`fit_scale` from the closed-form pose at ``scale``)."""
+    from rigcal.calib.plane import closed_form
+
+    planes = [
+        _plane(views[i][k].T_cam_face) for i, pair in enumerate(found) if pair is not None for k in range(2)
+    ]
+    points = [p for pair in found if pair is not None for p in pair]
+    obs = [
+        PlaneObservation(j, str(j), n, scale * d, p)
+        for j, ((n, d), p) in enumerate(zip(planes, points, strict=True))
+    ]
+    try:
+        T0 = closed_form(obs)
+    except CalibrationError:
+        return scale
+    return fit_scale(T0, planes, points, scale)[0]
+
+
+def _misfit(views: list[Any], found: list[tuple[FloatArray, FloatArray] | None], scale: float) -> float:
+    """How far the found returns lie off their faces' planes, under the closed-form pose
+    with the faces' distances scaled by ``scale``, in units of what the returns' own
+    scatter allows (at most 1: as expected; see :func:`_find_v`)."""
+    from rigcal.calib.plane import closed_form, point_to_plane
+
+    obs: list[PlaneObservation] = []
+    scatter = []
+    for i, pair in enumerate(found):
+        if pair is None:
+            continue
+        for k in range(2):
+            n, d = _plane(views[i][k].T_cam_face)
+            obs.append(PlaneObservation(len(obs), str(len(obs)), n, scale * d, pair[k]))
+            if len(pair[k]) >= 3:
+                c, u, _ = fit_line(pair[k])
+                scatter.append(1.4826 * float(np.median(np.abs((pair[k] - c) @ np.array([-u[1], u[0]])))))
+    try:
+        T = closed_form(obs)
+    except CalibrationError:
+        return float("inf")
+    rms = [float(np.sqrt(np.mean(point_to_plane(T, o) ** 2))) for o in obs if len(o.points_laser)]
+    allowed = ON_PLANE_FACTOR * float(np.median(scatter) if scatter else 0.0) + ON_PLANE_FLOOR_M
+    return float(np.median(rms)) / allowed
 
 
 def _search_v(
@@ -267,42 +335,138 @@ def _search_v(
     dropped: dict[str, str],
     scale: float,
 ) -> list[tuple[FloatArray, FloatArray] | None]:
-    """The V search with the faces' distances scaled by ``scale``
-    (:func:`rigcal.calib.board_detect.detect_board_returns` per face); a capture in which
-    a face has no candidate is set aside and the search repeated without it."""
-    alive = list(range(len(scans)))
-    while True:
-        if len(alive) < MIN_CAPTURES:
-            why = "; ".join(f"{n}: {r}" for n, r in dropped.items())
-            raise CalibrationError(
-                f"{path}: the target was found in {len(alive)} of {len(scans) + _early(dropped, names)} "
-                f"captures; the marker method needs {MIN_CAPTURES} ({why})"
+    """The V search with the faces' distances scaled by ``scale``.
+
+    1. The moving returns (:func:`rigcal.calib.board_detect.static_returns` drops the
+       background seen in most captures) give straight pieces as long as a cut of a face
+       may be (:func:`rigcal.calib.board_detect.line_candidates`); two pieces whose lines
+       cross within APEX_GAP_M of an end of each, at more than MIN_V_DEG, are a candidate
+       V, its left arm (as seen from the sensors: the larger bearing) on the left face.
+       A capture with no candidate V is set aside.
+    2. A RANSAC over captures and their candidate arms (each face of each capture one
+       plane, :func:`rigcal.calib.plane.candidate_consensus`) gives a rough T_cam_laser.
+    3. Each face's returns are re-picked near the cut its pose predicts under that pose
+       (:func:`rigcal.calib.board_detect.pick_near_cut`), the pose re-solved by the closed
+       form and the re-picking repeated with a tighter window, as for a board.
+    """
+    from rigcal.calib import board_detect as bd
+    from rigcal.calib.plane import candidate_consensus, closed_form
+
+    static = bd.static_returns(scans)
+    moving = [sc.valid & ~st for sc, st in zip(scans, static, strict=True)]
+    shapes = [face_shape(target, k) for k in range(2)]
+    either = BoardShape(shapes[0].outline, min(x.min_cut_m for x in shapes), max(x.max_cut_m for x in shapes))
+    pairs: dict[int, list[tuple[NDArray[np.int64], NDArray[np.int64]]]] = {}
+    for i, sc in enumerate(scans):
+        pairs[i] = v_candidates(sc, bd.line_candidates(sc, moving[i], either, params, seed=i))
+        if not pairs[i]:
+            dropped[names[i]] = (
+                "the V in the scan: no two straight pieces of the moving returns meet at an apex "
+                f"({int(moving[i].sum())} moving returns)"
             )
-        found: list[list[FloatArray]] = []
-        try:
+    alive = [i for i in range(len(scans)) if pairs[i]]
+    if len(alive) < MIN_CAPTURES:
+        why = "; ".join(f"{n}: {r}" for n, r in dropped.items())
+        raise CalibrationError(
+            f"{path}: the target was found in {len(alive)} of {len(scans) + _early(dropped, names)} "
+            f"captures; the marker method needs {MIN_CAPTURES} ({why})"
+        )
+    poses = {(i, k): _scaled(views[i][k].T_cam_face, scale) for i in alive for k in range(2)}
+    planes = [_plane(poses[i, k]) for i in alive for k in range(2)]
+    arms = [
+        _unique([sc_pts[p[k]] for p in pairs[i]])
+        for i in alive
+        for k in range(2)
+        for sc_pts in [scans[i].points]
+    ]
+    threshold = max(bd.LINE_TOLERANCE_M, bd.LINE_SIGMAS * _scatter([a for c in arms for a in c]))
+    try:
+        T, chosen, _ = candidate_consensus(planes, arms, threshold_m=threshold)
+    except CalibrationError as exc:
+        raise CalibrationError(f"{path}: finding the V in the scans: {exc}") from None
+    picked = {(i, k): arms[2 * j + k][chosen[2 * j + k]] for j, i in enumerate(alive) for k in range(2)}
+    window = bd.FIRST_WINDOW_M
+    for _ in range(bd.REFINE_PASSES):
+        for i in alive:
             for k in range(2):
-                poses = [_scaled(views[i][k].T_cam_face, scale) for i in alive]
-                found.append(
-                    detect_board_returns(
-                        [scans[i] for i in alive],
-                        poses,
-                        [_plane(T) for T in poses],
-                        face_shape(target, k),
-                        {},
-                        params,
-                    )
-                )
-        except BoardNotFoundError as exc:
-            i = alive[exc.capture]
-            dropped[names[i]] = f"the V in the scan: face {target.faces[k].name}: {exc.detail.split(';')[0]}"
-            alive.remove(i)
-            continue
-        except CalibrationError as exc:
-            raise CalibrationError(f"{path}: finding the V in the scans: {exc}") from None
-        out: list[tuple[FloatArray, FloatArray] | None] = [None] * len(scans)
-        for j, i in enumerate(alive):
-            out[i] = split_faces(found[0][j], found[1][j])
-        return out
+                cut = bd.predicted_cut(T, poses[i, k], shapes[k])
+                if cut is None:
+                    continue
+                near = bd.pick_near_cut(scans[i], moving[i], cut, window, params.min_points)
+                if len(near):
+                    picked[i, k] = scans[i].points[near]
+        obs = [
+            PlaneObservation(2 * j + k, "", *_plane(poses[i, k]), picked[i, k])
+            for j, i in enumerate(alive)
+            for k in range(2)
+        ]
+        try:
+            T = closed_form(obs)
+        except CalibrationError:
+            break
+        window = max(bd.WINDOW_FLOOR_M, bd.WINDOW_SIGMAS * threshold / bd.LINE_SIGMAS)
+    out: list[tuple[FloatArray, FloatArray] | None] = [None] * len(scans)
+    for i in alive:
+        out[i] = split_faces(picked[i, 0], picked[i, 1])
+    return out
+
+
+# Two straight pieces are a candidate V when their lines cross within APEX_GAP_M of an
+# end of each and at more than MIN_V_DEG.
+APEX_GAP_M = 0.08
+MIN_V_DEG = 15.0
+
+
+def v_candidates(
+    scan: Scan, lines: list[NDArray[np.int64]]
+) -> list[tuple[NDArray[np.int64], NDArray[np.int64]]]:
+    """Pairs (left arm, right arm) of straight pieces (beam indices) that make a V: their
+    lines cross within APEX_GAP_M of an end of each, at more than MIN_V_DEG; the left arm
+    (as seen from the sensors) is the one at the larger bearing."""
+    fits = []
+    for beams in lines:
+        p = scan.points[beams]
+        c, u, _ = fit_line(p)
+        along = (p - c) @ u
+        fits.append((c, u, c + along.min() * u, c + along.max() * u))
+    out = []
+    for a in range(len(lines)):
+        for b in range(len(lines)):
+            if a == b:
+                continue
+            ca, ua, *ends_a = fits[a]
+            cb, ub, *ends_b = fits[b]
+            cross = float(ua[0] * ub[1] - ua[1] * ub[0])
+            if abs(cross) < np.sin(np.radians(MIN_V_DEG)):
+                continue
+            s = np.linalg.solve(np.column_stack([ua, -ub]), cb - ca)
+            apex = ca + s[0] * ua
+            if min(np.linalg.norm(e - apex) for e in ends_a) > APEX_GAP_M:
+                continue
+            if min(np.linalg.norm(e - apex) for e in ends_b) > APEX_GAP_M:
+                continue
+            if np.arctan2(ca[1], ca[0]) > np.arctan2(cb[1], cb[0]):
+                out.append((lines[a], lines[b]))
+    return out
+
+
+def _unique(arms: list[FloatArray]) -> list[FloatArray]:
+    """The arms with repeats (one piece in several candidate Vs) listed once."""
+    out: list[FloatArray] = []
+    for a in arms:
+        if not any(len(a) == len(b) and np.array_equal(a, b) for b in out):
+            out.append(a)
+    return out
+
+
+def _scatter(point_sets: list[FloatArray]) -> float:
+    """The median over point sets of their robust scatter about their own line."""
+    sig = []
+    for p in point_sets:
+        if len(p) >= 3:
+            c, u, _ = fit_line(p)
+            sig.append(1.4826 * float(np.median(np.abs((p - c) @ np.array([-u[1], u[0]])))))
+    return float(np.median(sig)) if sig else 0.0
 
 
 def _scaled(T: FloatArray, scale: float) -> FloatArray:
