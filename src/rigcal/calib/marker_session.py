@@ -7,13 +7,11 @@ validates it and, for every capture:
 1. reads the target in the image (:func:`rigcal.calib.marker_detect.detect_target`): each
    face's pose by PnP from its ChArUco corners, with its covariance; markers of other
    targets are ignored and counted;
-2. finds each face's returns in the scan, as the board method finds a board's
-   (:func:`rigcal.calib.board_detect.detect_board_returns`): the static background is
-   dropped across captures, straight pieces of the moving returns as long as a cut of the
-   face may be are the candidates, a RANSAC over captures and candidates picks the one on
-   the face's plane, and the returns are re-picked near the cut the face's pose predicts.
-   The two faces' returns are then told apart near the apex (each return goes to the
-   face whose line it is nearer).
+2. finds the V in the scan (:func:`_search_v`): the static background dropped across
+   captures, straight pieces of the moving returns that meet at an apex are candidate
+   Vs, a RANSAC over captures and candidate arms gives a rough pose, and each face's
+   returns are re-picked near the cut its pose predicts, as the board method re-picks a
+   board's (:mod:`rigcal.calib.board_detect`).
 
 A capture whose faces are not both read, or whose V is not found in the scan, is set
 aside with the reason, and the others go on. Each kept capture becomes two
