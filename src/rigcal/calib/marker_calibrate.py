@@ -174,7 +174,10 @@ def marker_report(
         "dictionary": session.target.dictionary,
         "dropped": [{"capture": n, "reason": r} for n, r in session.dropped],
         "foreign_markers": {"captures": len(session.foreign_ids), "ids": foreign},
-        "apex_mm": {n: round(1000.0 * a, 2) for n, a in zip(session.found, apex, strict=True)},
+        "apex_mm": {
+            n: round(1000.0 * float(a), 2) if np.isfinite(a) else None
+            for n, a in zip(session.found, apex, strict=True)
+        },
         "scale": {"ratio": round(scale, 5), "sigma": round(scale_sigma, 5)},
     }
     warnings = [w for w in report["warnings"] if not w.startswith("large uncertainty")]
@@ -292,7 +295,7 @@ def marker_report_table(report: dict[str, Any]) -> str:
         f"captures ({100 * s['found_share']:.0f} %), {s['captures_used']} used with both faces; "
         f"scale laser/camera {m['scale']['ratio']:.4f} +- {m['scale']['sigma']:.4f}",
     ]
-    apex = [a for a in m["apex_mm"].values() if a == a]
+    apex = [a for a in m["apex_mm"].values() if a is not None]
     if apex:
         head.append(
             f"apex off the faces' edge: median {float(np.median(apex)):.1f} mm, max {max(apex):.1f} mm"
