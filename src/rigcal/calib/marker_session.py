@@ -304,22 +304,18 @@ def _misfit(views: list[Any], found: list[tuple[FloatArray, FloatArray] | None],
     from rigcal.calib.plane import closed_form, point_to_plane
 
     obs: list[PlaneObservation] = []
-    scatter = []
     for i, pair in enumerate(found):
         if pair is None:
             continue
         for k in range(2):
             n, d = _plane(views[i][k].T_cam_face)
             obs.append(PlaneObservation(len(obs), str(len(obs)), n, scale * d, pair[k]))
-            if len(pair[k]) >= 3:
-                c, u, _ = fit_line(pair[k])
-                scatter.append(1.4826 * float(np.median(np.abs((pair[k] - c) @ np.array([-u[1], u[0]])))))
     try:
         T = closed_form(obs)
     except CalibrationError:
         return float("inf")
     rms = [float(np.sqrt(np.mean(point_to_plane(T, o) ** 2))) for o in obs if len(o.points_laser)]
-    allowed = ON_PLANE_FACTOR * float(np.median(scatter) if scatter else 0.0) + ON_PLANE_FLOOR_M
+    allowed = ON_PLANE_FACTOR * _scatter([o.points_laser for o in obs]) + ON_PLANE_FLOOR_M
     return float(np.median(rms)) / allowed
 
 
