@@ -411,14 +411,23 @@ def board_pose(
 ) -> tuple[FloatArray, FloatArray, float]:
     """T_cam_board by PnP, its (6, 6) covariance over [w, dt] (left perturbation, camera
     frame) and the corners' RMS reprojection error (px)."""
+    return points_pose(camera, board_points(board), corners_px, corner_sigma_px)
+
+
+def points_pose(
+    camera: Camera, P: FloatArray, corners_px: FloatArray, corner_sigma_px: float
+) -> tuple[FloatArray, FloatArray, float]:
+    """The pose of a planar pattern whose points ``P`` ((N, 3), its frame, z = 0) are seen
+    at ``corners_px`` ((N, 2)): T_cam_pattern by PnP through the camera's full lens model,
+    its (6, 6) covariance over [w, dt] (left perturbation, camera frame) from the
+    reprojection Jacobian and ``corner_sigma_px``, and the RMS reprojection error (px)."""
     import cv2
 
-    P = board_points(board)
     b = camera.bearings(corners_px)
     norm = b[:, :2] / b[:, 2:3]
     ok, rvec, tvec = cv2.solvePnP(P, norm, np.eye(3), None, flags=cv2.SOLVEPNP_ITERATIVE)
     if not ok:  # pragma: no cover - PnP on a full board does not fail
-        raise InputError("PnP failed on a board's corners")
+        raise InputError("PnP failed on a pattern's corners")
     T = make_T(rotvec_to_R(rvec.ravel()), tvec.ravel())
 
     def project(x: FloatArray) -> FloatArray:

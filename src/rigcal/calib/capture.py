@@ -254,10 +254,13 @@ def write_capture_session(
     box_width_m: float | None = None,
     force: bool = False,
     origin: str | Path | None = None,
+    targets_file: Path | None = None,
 ) -> Path:
     """Write the session folder: ``camera.*``, ``scans/capNN.yaml``, ``images/capNN.*``
-    and ``picks.yaml`` (schema 2, captures not picked yet), atomically. ``origin`` is
-    what messages name, as in :func:`find_still_periods`.
+    and ``picks.yaml`` (schema 2, captures not picked yet), atomically; with a marker
+    target's ``targets_file``, that file (as ``targets.yaml``) and ``marker_session.yaml``
+    (docs/formats/marker-session.md, ready for ``rigcal solve``) instead of the picking file.
+    ``origin`` is what messages name, as in :func:`find_still_periods`.
 
     Raises:
         InputError: no still period was found, or a captured image's size is not the
@@ -301,6 +304,9 @@ def write_capture_session(
             image_rel = f"images/{name}{src.suffix.lower()}"
             shutil.copyfile(src, tmp / image_rel)
             entries.append({"name": name, "scan": f"scans/{name}.yaml", "image": image_rel})
+        if targets_file is not None:
+            _write_marker_session(tmp, seq, captures, camera_name, targets_file, entries)
+            return Path(output)
         doc: dict[str, object] = {
             "schema_version": 2,
             "name": f"captured from {seq.name}",
@@ -328,3 +334,33 @@ def write_capture_session(
             encoding="utf-8",
         )
     return Path(output)
+
+
+def _write_marker_session(
+    tmp: Path,
+    seq: Sequence,
+    captures: Seq[StillCapture],
+    camera_name: str,
+    targets_file: Path,
+    entries: list[dict[str, str]],
+) -> None:
+    """The marker session file of a captured folder, and its targets file beside it."""
+    import yaml
+
+    shutil.copyfile(targets_file, tmp / "targets.yaml")
+    doc = {
+        "schema_version": 1,
+        "method": "marker",
+        "name": f"captured from {seq.name}",
+        "camera": camera_name,
+        "targets": "targets.yaml",
+        "captures": entries,
+    }
+    head = [
+        "# rigcal marker session (docs/formats/marker-session.md), written by rigcal capture.",
+        f"# {len(captures)} still moments of {seq.name}; solve it as it is: rigcal solve marker_session.yaml",
+    ]
+    (tmp / "marker_session.yaml").write_text(
+        "\n".join(head) + "\n" + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=110),
+        encoding="utf-8",
+    )

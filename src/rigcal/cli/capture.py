@@ -1,4 +1,4 @@
-"""``rigcal capture``: a recording (bag or sequence folder) into a box-target session."""
+"""``rigcal capture``: a recording (bag or sequence folder) into a box-target or marker session."""
 
 from __future__ import annotations
 
@@ -27,6 +27,13 @@ from rigcal.io.validate import Real
     "--camera", "camera_file", type=click.Path(path_type=Path), help="Camera file (else the recording's)."
 )
 @click.option("--box-width-m", type=Real(min=0.05), help="The box side's length (written for rigcal pick).")
+@click.option(
+    "--target",
+    "target_file",
+    type=click.Path(path_type=Path),
+    help="A marker target's targets file (docs/formats/targets.md): write a marker session that "
+    "rigcal solve takes as it is, and list the markers each capture shows.",
+)
 @click.option(
     "--still-frames", default=5, show_default=True, type=click.IntRange(min=2),
     help="Least number of consecutive still frames of each stream.",
@@ -58,6 +65,7 @@ def capture(
     camera_info_topic: str | None,
     camera_file: Path | None,
     box_width_m: float | None,
+    target_file: Path | None,
     still_frames: int,
     scan_threshold_m: float,
     image_threshold: float,
@@ -79,6 +87,7 @@ def capture(
       rigcal capture lab.bag --scan-topic /scan --image-topic /cam/image_raw \\
           --camera-info-topic /cam/camera_info --box-width-m 0.6 -o session/
       rigcal capture run1/ --camera camera.yaml -o session/ --still-frames 10 --force
+      rigcal capture run1/ --camera camera.yaml --target targets.yaml -o v-session/
     """
     import tempfile
 
@@ -88,7 +97,17 @@ def capture(
     from rigcal.io.files import check_folder_writable
     from rigcal.io.sequence import read_sequence
 
-    check_folder_writable(output, force, [source, *([camera_file] if camera_file is not None else [])])
+    inputs = [
+        source,
+        *([camera_file] if camera_file is not None else []),
+        *([target_file] if target_file else []),
+    ]
+    check_folder_writable(output, force, inputs)
+    target = None
+    if target_file is not None:
+        from rigcal.targets.marker import read_targets
+
+        target = read_targets(target_file)  # a bad targets file stops here, before anything is read
     settings = CaptureSettings(
         scan_threshold_m, image_threshold, changed_fraction, still_frames, max_offset_s
     )
@@ -112,9 +131,11 @@ def capture(
             raise InputError.at(
                 source, "camera", None, "a camera: give --camera FILE (or --camera-info-topic for a bag)"
             )
-        read_camera(cam)  # a bad camera file stops here, before anything is written
+        camera = read_camera(cam)  # a bad camera file stops here, before anything is written
         captures = find_still_periods(seq, settings, origin=source)
-        write_capture_session(seq, captures, output, cam, box_width_m, force=force, origin=source)
+        write_capture_session(
+            seq, captures, output, cam, box_width_m, force=force, origin=source, targets_file=target_file
+        )
     rows = [
         {
             "name": f"cap{k:02d}",
@@ -127,6 +148,11 @@ def capture(
         }
         for k, c in enumerate(captures)
     ]
+    if target is not None:
+        from rigcal.calib.marker_session import capture_markers
+
+        for r in rows:
+            r["markers"] = capture_markers(output / "images", str(r["name"]), camera, target)
     if as_json:
         click.echo(json.dumps({"session": str(output), "captures": rows}, indent=1))
     else:
@@ -135,7 +161,13 @@ def capture(
             click.echo(
                 f"{r['name']:7s}  {r['scan_stamp_s']:14.3f}  {r['image_stamp_s']:15.3f}  "
                 f"{r['offset_ms']:+11.1f}  {r['still_s']:9.2f}"
+                + (f"  {r['markers']}" if "markers" in r else "")
             )
         worst = max(abs(1000 * c.offset_s) for c in captures)
         click.echo(f"{len(rows)} captures; largest stamp offset {worst:.1f} ms")
+    if target is not None:
+        click.echo(
+            f"wrote {output}/; solve it with: rigcal solve {output}/marker_session.yaml -o rig.yaml", err=True
+        )
+        return
     click.echo(f"wrote {output}/ (pick 3+ captures in picks.yaml, then rigcal pick)", err=True)

@@ -28,6 +28,7 @@ from rigcal.cli import pick as pick_cmd
 from rigcal.cli import project as project_cmd
 from rigcal.cli import simulate as simulate_cmd
 from rigcal.cli import solve as solve_cmd
+from rigcal.cli import targets as targets_cmd
 from rigcal.cli import warm_up as warm_up_cmd
 from rigcal.errors import RigcalError
 
@@ -49,6 +50,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
       rigcal export rig.yaml --format ros
       rigcal intrinsics calib/*.jpg --board 9x6 --square-m 0.025 -o camera.cameramodel
       rigcal simulate box-session -o session/ --seed 1
+      rigcal targets print targets.yaml -o print/
       rigcal -q localize corridor/ --method icp -o out/ --json
       rigcal batch fleet.yaml -o nightly/ --ray auto
       rigcal warm-up
@@ -76,6 +78,7 @@ cli.add_command(pick_cmd.pick)
 cli.add_command(capture_cmd.capture)
 cli.add_command(import_laser_cmd.import_laser)
 cli.add_command(warm_up_cmd.warm_up)
+cli.add_command(targets_cmd.targets)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -17,6 +17,7 @@ def simulate() -> None:
     \b
     Examples:
       rigcal simulate box-session -o session/ --seed 1
+      rigcal simulate marker-session -o v-session/ --seed 1
     """
 
 
@@ -263,6 +264,87 @@ def board_session(
     click.echo(
         f"wrote {output}/: {captures} board captures ({kind} session), seed {seed}. Solve it with: "
         f"rigcal solve {output}/board_session.yaml -o rig.yaml --truth {output}/truth.yaml",
+        err=True,
+    )
+
+
+@simulate.command("marker-session")
+@click.option(
+    "-o", "--output", "output", required=True, type=click.Path(path_type=Path), help="Folder to create."
+)
+@click.option(
+    "--captures",
+    default=20,
+    show_default=True,
+    type=click.IntRange(min=1, max=999),
+    help="Views of the target.",
+)
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
+@click.option(
+    "--range-sigma-m", default=0.01, show_default=True, type=Real(min=0.0, max=0.05), help="Range noise."
+)
+@click.option(
+    "--targets",
+    "targets_file",
+    type=click.Path(path_type=Path),
+    help="Targets file of the V to simulate [default: `rigcal targets new`'s].",
+)
+@click.option(
+    "--upright",
+    is_flag=True,
+    help="Every view upright (no tilt, no roll): the weak geometry the solve warns about.",
+)
+@_noise_option
+@click.option("--force", is_flag=True, help="Replace an existing folder.")
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print what was written (and the true T_cam_laser) as JSON on stdout.",
+)
+def marker_session(
+    output: Path,
+    captures: int,
+    seed: int,
+    range_sigma_m: float,
+    targets_file: Path | None,
+    upright: bool,
+    noise_model: str,
+    force: bool,
+    as_json: bool,
+) -> None:
+    """Write a synthetic marker session (rendered images, scans, the targets file, truth)
+    for the marker method of `rigcal solve`. See docs/formats/marker-session.md.
+
+    \b
+    Examples:
+      rigcal simulate marker-session -o /tmp/v --seed 1
+      rigcal solve /tmp/v/marker_session.yaml -o rig.yaml --truth /tmp/v/truth.yaml
+      rigcal simulate marker-session -o /tmp/vr --noise realistic --captures 10
+    """
+    from rigcal.io.files import check_folder_writable
+    from rigcal.sim.marker_session import MarkerSpec, generate_marker_session, write_marker_session
+    from rigcal.sim.noise import RealisticNoise
+    from rigcal.targets.marker import default_target, read_targets
+
+    check_folder_writable(output, force, [targets_file] if targets_file else [])
+    target = read_targets(targets_file) if targets_file else default_target()
+    spec = MarkerSpec(
+        n_captures=captures,
+        range_sigma_m=range_sigma_m,
+        seed=seed,
+        upright=upright,
+        noise=RealisticNoise() if noise_model == "realistic" else None,
+        target=target,
+    )
+    session = generate_marker_session(spec)
+    write_marker_session(session, output, force=force)
+    if as_json:
+        _echo_json(output, "marker_session.yaml", session.T_cam_laser, captures=captures, seed=seed)
+        return
+    click.echo(
+        f"wrote {output}/: {captures} views of the marker target, seed {seed}. Solve it with: rigcal solve "
+        f"{output}/marker_session.yaml -o rig.yaml --truth {output}/truth.yaml",
         err=True,
     )
 

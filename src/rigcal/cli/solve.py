@@ -7,6 +7,7 @@ import shlex
 import sys
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -114,11 +115,14 @@ def solve(
     force: bool,
     as_json: bool,
 ) -> None:
-    """Solve T_cam_laser from a box-target picking file or a board session.
+    """Solve T_cam_laser from a box-target picking file, a board session or a marker session.
 
     For a box-target picking file, runs the paper's Algorithm 1: line extraction, RANSAC
     over P3P + Horn hypotheses, Levenberg-Marquardt refinement with covariance. For a board
-    session (method: board) runs the plane method (docs/formats/board-session.md). Writes
+    session (method: board) runs the plane method (docs/formats/board-session.md); for a
+    marker session (method: marker) it reads the V marker target in every image and finds
+    it in every scan, then runs the plane method on both faces
+    (docs/formats/marker-session.md). Writes
     the rig file, and with --report a folder with report.yaml/json/txt (and, for the box
     method, one overlay PNG per capture). Prints the residual table (or JSON) on stdout.
 
@@ -128,6 +132,7 @@ def solve(
       rigcal solve session/picks.yaml -o rig.yaml --report report/ --force
       rigcal solve session/picks.yaml -o rig.yaml --truth session/truth.yaml --json
       rigcal solve board/board_session.yaml -o rig.yaml --report board-report/
+      rigcal solve v/marker_session.yaml -o rig.yaml --report v-report/
     """
     from rigcal.calib.options import box_settings
     from rigcal.calib.report import report_table
@@ -152,10 +157,12 @@ def solve(
     )
     command = "rigcal " + shlex.join(sys.argv[1:]) if sys.argv else "rigcal solve"
     from rigcal.calib.board_session import is_board_session
+    from rigcal.calib.marker_session import is_marker_session
     from rigcal.io.files import load_yaml
 
     sigmas = _sigma_list(intrinsics_sigma) if intrinsics_sigma is not None else None
-    if is_board_session(load_yaml(picks, "picking file")):
+    data = load_yaml(picks, "picking file")
+    if is_board_session(data) or is_marker_session(data):
         _solve_board(
             picks,
             output,
@@ -171,6 +178,7 @@ def solve(
             command,
             force,
             as_json,
+            marker=is_marker_session(data),
         )
         return
     if sigmas is not None:
@@ -234,37 +242,54 @@ def _solve_board(
     command: str,
     force: bool,
     as_json: bool,
+    marker: bool = False,
 ) -> None:
-    """A board session (``method: board``): the plane method, then the same outputs."""
+    """A board session (``method: board``) or a marker session (``method: marker``): the
+    plane method, then the same outputs."""
     import yaml
 
     from rigcal.calib.board_calibrate import board_report_table, calibrate_board
+    from rigcal.calib.marker_calibrate import calibrate_marker, marker_report_table
     from rigcal.io.files import atomic_folder
     from rigcal.rigfile import write_rig
     from rigcal.viz.charts import figure_bytes
     from rigcal.viz.residual_plot import board_residuals_figure
 
-    cal = calibrate_board(
-        session,
-        range_sigma_m,
-        truth,
-        command=command,
-        seed=seed,
-        noise=noise_mode,
-        range_bias=range_bias,
-        loss=loss,
-        intrinsics_sigma=intrinsics_sigma,
-        skip_unseen_boards=skip_unseen_boards,
-    )
+    table = marker_report_table if marker else board_report_table
+    kind = "marker" if marker else "board"
+    if marker and intrinsics_sigma is not None:
+        from rigcal.errors import InputError
+
+        raise InputError(
+            f"--intrinsics-sigma: got {','.join(f'{x:g}' for x in intrinsics_sigma)!r}; the marker "
+            "method does not take the camera's uncertainty yet (only board sessions, method: board)"
+        )
+    if marker:
+        cal: Any = calibrate_marker(
+            session, range_sigma_m, truth, command, seed, noise_mode, range_bias, loss=loss
+        )
+    else:
+        cal = calibrate_board(
+            session,
+            range_sigma_m,
+            truth,
+            command,
+            seed,
+            noise_mode,
+            range_bias,
+            loss=loss,
+            intrinsics_sigma=intrinsics_sigma,
+            skip_unseen_boards=skip_unseen_boards,
+        )
     _check_apart_from(output, report_dir, cal.session.files)
     if report_dir is not None:
         with atomic_folder(report_dir, force) as tmp:
             (tmp / "report.yaml").write_text(
-                "# rigcal solve report, board method (docs/formats/report.md)\n"
+                f"# rigcal solve report, {kind} method (docs/formats/report.md)\n"
                 + yaml.safe_dump(cal.report, sort_keys=False, default_flow_style=None, width=110)
             )
             (tmp / "report.json").write_text(json.dumps(cal.report, indent=1) + "\n")
-            (tmp / "report.txt").write_text(board_report_table(cal.report))
+            (tmp / "report.txt").write_text(table(cal.report))
             fig = board_residuals_figure(cal.report, cal.result.residuals_m)
             for fmt in (".png", ".svg"):
                 (tmp / f"residuals{fmt}").write_bytes(figure_bytes(fig, fmt))
@@ -275,5 +300,5 @@ def _solve_board(
         doc["rig"] = cal.rig.to_json()
         click.echo(json.dumps(doc, indent=1))
     else:
-        click.echo(board_report_table(cal.report), nl=False)
+        click.echo(table(cal.report), nl=False)
         click.echo(f"wrote {output}" + (f" and {report_dir}/" if report_dir else ""), err=True)

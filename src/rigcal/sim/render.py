@@ -113,14 +113,14 @@ class Scene:
     Attributes:
         room: the room.
         room_pose: (x_m, y_m, yaw_rad) of the room frame in the laser frame.
-        box: the box target.
+        box: the box target (None: an empty room).
         box_pose: (x_m, y_m, yaw_rad) of the box (rigcal.targets.box) in the laser frame.
         stand: draw the post the box stands on (floor to the box's bottom).
     """
 
     room: Room
     room_pose: tuple[float, float, float]
-    box: BoxTarget = field(default_factory=BoxTarget)
+    box: BoxTarget | None = field(default_factory=BoxTarget)
     box_pose: tuple[float, float, float] = (2.0, 0.0, 0.0)
     stand: bool = True
 
@@ -208,9 +208,10 @@ def render_scene(camera: Camera, T_cam_laser: ArrayLike, scene: Scene) -> tuple[
 
     # Box faces and stand faces: bounded rectangles; keep the face coordinates for outlines.
     bx, by, byaw = (float(v) for v in scene.box_pose)
-    rects = [(f, LABEL_BOX + i) for i, f in enumerate(scene.box.faces(bx, by, byaw))]
-    if scene.stand:
-        stand_h = room.laser_height_m - 0.5 * scene.box.height_m
+    box = scene.box
+    rects = [] if box is None else [(f, LABEL_BOX + i) for i, f in enumerate(box.faces(bx, by, byaw))]
+    if box is not None and scene.stand:
+        stand_h = room.laser_height_m - 0.5 * box.height_m
         if stand_h > 0:
             post = BoxTarget(width_m=STAND_SIZE_M, depth_m=STAND_SIZE_M, height_m=stand_h)
             z_mid = -room.laser_height_m + 0.5 * stand_h

@@ -1,0 +1,553 @@
+"""Marker sessions: captures of the V marker target, read with no hand input.
+
+A marker session file (docs/formats/marker-session.md) names the camera, the targets file
+(:mod:`rigcal.targets.marker`) and per capture a scan and an image. :func:`read_marker_session`
+validates it and, for every capture:
+
+1. reads the target in the image (:func:`rigcal.calib.marker_detect.detect_target`): each
+   face's pose by PnP from its ChArUco corners, with its covariance; markers of other
+   targets are ignored and counted;
+2. finds the V in the scan (:func:`_search_v`): the static background dropped across
+   captures, straight pieces of the moving returns that meet at an apex are candidate
+   Vs, a RANSAC over captures and candidate arms gives a rough pose, and each face's
+   returns are re-picked near the cut its pose predicts, as the board method re-picks a
+   board's (:mod:`rigcal.calib.board_detect`).
+
+A capture whose faces are not both read, or whose V is not found in the scan, is set
+aside with the reason, and the others go on. Each kept capture becomes two
+:class:`~rigcal.calib.plane.PlaneObservation` (one per face, named ``CAPTURE/FACE``), so
+the board method's solve takes them as they are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.calib.board_detect import BoardShape
+from rigcal.calib.board_session import plane_observation
+from rigcal.calib.lines import LineParams, fit_line
+from rigcal.calib.marker_detect import FaceView, detect_target
+from rigcal.calib.picks import _check_image, _file, capture_name, check_unique_names, line_params_for
+from rigcal.calib.plane import MIN_CAPTURES, PlaneObservation
+from rigcal.camera import Camera, read_camera
+from rigcal.errors import CalibrationError, InputError
+from rigcal.io.files import check_keys, get_float, load_yaml
+from rigcal.scan import Scan, read_scan
+from rigcal.targets.marker import MarkerTarget, read_targets
+
+FloatArray = NDArray[np.float64]
+
+MARKER_SESSION_SCHEMA_VERSION = 1
+DEFAULT_CORNER_SIGMA_PX = 0.3
+
+
+@dataclass(frozen=True)
+class MarkerSession:
+    """A marker session, read and detected.
+
+    Attributes:
+        path: the session file.
+        camera, camera_path: the camera and its file.
+        target: the marker target.
+        laser: the scanner's description.
+        captures: every capture's name, in file order.
+        found: the names of the captures kept (both faces read, the V found).
+        dropped: (name, reason) of the captures set aside.
+        observations: two plane observations per kept capture (left face, right face).
+        faces: the face views of the kept captures, in the observations' order.
+        corner_rms_px: (2K,) each observation's RMS corner reprojection error.
+        foreign_ids: per capture name, the ids of markers not on the target it showed.
+        files: every file read (for provenance).
+        corner_sigma_px: the corner noise the face poses' covariances were computed with.
+    """
+
+    path: Path
+    camera: Camera
+    camera_path: Path
+    target: MarkerTarget
+    laser: dict[str, Any]
+    captures: tuple[str, ...]
+    found: tuple[str, ...]
+    dropped: tuple[tuple[str, str], ...]
+    observations: tuple[PlaneObservation, ...]
+    faces: tuple[FaceView, ...]
+    corner_rms_px: FloatArray
+    foreign_ids: dict[str, tuple[int, ...]]
+    files: tuple[Path, ...]
+    corner_sigma_px: float = DEFAULT_CORNER_SIGMA_PX
+
+
+def is_marker_session(data: Any) -> bool:
+    """Whether a parsed session file asks for the marker method."""
+    return isinstance(data, dict) and data.get("method") == "marker"
+
+
+def read_marker_session(path: str | Path) -> MarkerSession:
+    """Read and validate a marker session, detect the target in every capture.
+
+    Raises:
+        InputError: anything missing, unreadable or invalid, naming the file, key and value.
+        CalibrationError: fewer than MIN_CAPTURES captures with the target found.
+    """
+    path = Path(path)
+    d = check_keys(
+        load_yaml(path, "marker session file"),
+        path,
+        "",
+        ["schema_version", "method", "camera", "targets", "captures"],
+        ["name", "laser", "corner_sigma_px"],
+    )
+    version = d["schema_version"]
+    if type(version) is not int or version != MARKER_SESSION_SCHEMA_VERSION:
+        raise InputError.at(path, "schema_version", version, "1 (the version this rigcal reads)")
+    if d["method"] != "marker":
+        raise InputError.at(path, "method", d["method"], "'marker'")
+    camera_path = _file(path, "camera", d["camera"])
+    camera = read_camera(camera_path)
+    targets_path = _file(path, "targets", d["targets"])
+    target = read_targets(targets_path)
+    sigma = (
+        get_float(d, "corner_sigma_px", path, positive=True)
+        if "corner_sigma_px" in d
+        else DEFAULT_CORNER_SIGMA_PX
+    )
+    laser = d.get("laser", {})
+    if not isinstance(laser, dict):
+        raise InputError.at(path, "laser", laser, "a mapping describing the scanner")
+    params = line_params_for(path, laser)
+    captures = d["captures"]
+    if not isinstance(captures, list) or not captures:
+        raise InputError.at(path, "captures", captures, "a non-empty list of captures")
+    files = [path, camera_path, targets_path]
+    names: list[str] = []
+    scans: list[Scan] = []
+    views: list[tuple[FaceView, FaceView] | None] = []
+    dropped: dict[str, str] = {}
+    foreign: dict[str, tuple[int, ...]] = {}
+    from rigcal.io.images import read_grey
+
+    for i, c in enumerate(captures):
+        kp = f"captures[{i}]"
+        c = check_keys(c, path, kp, ["scan", "image"], ["name"])
+        name = capture_name(path, kp, c, i)
+        names.append(name)
+        scan_path = _file(path, f"{kp}.scan", c["scan"])
+        image_path = _file(path, f"{kp}.image", c["image"])
+        _check_image(path, f"{kp}.image", c["image"], image_path, camera)
+        files += [scan_path, image_path]
+        scans.append(read_scan(scan_path))
+        grey = read_grey(image_path)
+        if grey is None:  # pragma: no cover - _check_image read it already
+            raise InputError.at(path, f"{kp}.image", c["image"], "an image file OpenCV can read")
+        view = detect_target(grey, camera, target, sigma)
+        if view.foreign_ids:
+            foreign[name] = view.foreign_ids
+        a, b = view.faces
+        if a is None or b is None:
+            dropped[name] = "markers: " + view.missing(target)
+            views.append(None)
+        else:
+            views.append((a, b))
+    check_unique_names(path, names)
+    keep = [i for i, v in enumerate(views) if v is not None]
+    points = _find_v(
+        path,
+        target,
+        [scans[i] for i in keep],
+        [views[i] for i in keep],
+        [names[i] for i in keep],
+        params,
+        dropped,
+    )
+    obs: list[PlaneObservation] = []
+    faces: list[FaceView] = []
+    found = []
+    for j, i in enumerate(keep):
+        if names[i] in dropped:
+            continue
+        v = views[i]
+        pts = points[j]
+        assert v is not None
+        assert pts is not None
+        found.append(names[i])
+        for k in range(2):
+            f = v[k]
+            obs.append(
+                plane_observation(
+                    len(obs), f"{names[i]}/{target.faces[k].name}", f.T_cam_face, f.pose_cov, pts[k]
+                )
+            )
+            faces.append(f)
+    return MarkerSession(
+        path,
+        camera,
+        camera_path,
+        target,
+        dict(laser),
+        tuple(names),
+        tuple(found),
+        tuple((n, dropped[n]) for n in names if n in dropped),
+        tuple(obs),
+        tuple(faces),
+        np.array([f.rms_px for f in faces]),
+        foreign,
+        tuple(files),
+        sigma,
+    )
+
+
+def face_shape(target: MarkerTarget, k: int) -> BoardShape:
+    """Face k's outline (face frame) and the lengths its cut by the scan plane may have:
+    at least a fifth of its smaller side, at most its diagonal."""
+    w, h = target.faces[k].width_m, target.edge_m
+    return BoardShape(target.outline(k), 0.2 * min(w, h), float(np.hypot(w, h)))
+
+
+def _find_v(
+    path: Path,
+    target: MarkerTarget,
+    scans: list[Scan],
+    views: list[Any],
+    names: list[str],
+    params: LineParams,
+    dropped: dict[str, str],
+) -> list[tuple[FloatArray, FloatArray] | None]:
+    """Each face's returns in each capture (None for a capture set aside here, its reason
+    added to ``dropped``).
+
+    A pattern printed at the wrong scale puts every face too near or too far by one
+    factor; the cuts the faces' poses predict then miss the returns, or a consensus
+    settles on a wrong pose and picks others. So the search's returns are checked: under
+    the closed-form pose at the scale searched, each face's returns must lie on its plane
+    about as closely as on their own line (median over faces of the RMS distance from the
+    plane at most ON_PLANE_FACTOR times the median of the returns' robust scatter about
+    their line, plus ON_PLANE_FLOOR_M). When they do not, the search is repeated with the
+    faces' distances scaled by SEARCH_SCALES in turn and the scale whose returns lie
+    best on their planes is kept; the solve's scale check then reports the factor.
+    """
+    best: tuple[float, list[tuple[FloatArray, FloatArray] | None], dict[str, str]] | None = None
+    error: CalibrationError | None = None
+    for scale in SEARCH_SCALES:
+        lost = dict(dropped)
+        try:
+            out = _search_v(path, target, scans, views, names, params, lost, scale)
+        except CalibrationError as exc:
+            error = error or exc
+            continue
+        misfit = _misfit(views, out, scale)
+        if best is None or misfit < best[0]:
+            best = (misfit, out, lost)
+        if misfit <= 1.0:
+            break
+    if best is None:
+        assert error is not None
+        raise error
+    # The returns found say at what scale the faces stand; search again there while that
+    # moves (the first search's scale is only the nearest tried).
+    searched = scale
+    for _ in range(MAX_SCALE_ROUNDS):
+        shown = _returns_scale(views, best[1], searched)
+        if abs(shown - searched) < SCALE_SETTLED:
+            break
+        lost = dict(dropped)
+        try:
+            out = _search_v(path, target, scans, views, names, params, lost, shown)
+        except CalibrationError:
+            break
+        misfit = _misfit(views, out, shown)
+        if misfit > max(best[0], 1.0):
+            break
+        best, searched = (misfit, out, lost), shown
+    dropped.update(best[2])
+    return best[1]
+
+
+# Scales of the faces' distances the V search tries in turn (see _find_v).
+SEARCH_SCALES = (1.0, 1.04, 0.96, 1.08, 0.92, 1.15, 0.87)
+ON_PLANE_FACTOR = 2.0
+ON_PLANE_FLOOR_M = 0.003
+SCALE_SETTLED = 0.005
+MAX_SCALE_ROUNDS = 2
+
+
+def _returns_scale(
+    views: list[Any], found: list[tuple[FloatArray, FloatArray] | None], scale: float
+) -> float:
+    """The factor on the faces' distances that best puts the found returns on their
+    planes (:func:`fit_scale` from the closed-form pose at ``scale``)."""
+    from rigcal.calib.plane import closed_form
+
+    planes = [
+        _plane(views[i][k].T_cam_face) for i, pair in enumerate(found) if pair is not None for k in range(2)
+    ]
+    points = [p for pair in found if pair is not None for p in pair]
+    obs = [
+        PlaneObservation(j, str(j), n, scale * d, p)
+        for j, ((n, d), p) in enumerate(zip(planes, points, strict=True))
+    ]
+    try:
+        T0 = closed_form(obs)
+    except CalibrationError:
+        return scale
+    return fit_scale(T0, planes, points, scale)[0]
+
+
+def _misfit(views: list[Any], found: list[tuple[FloatArray, FloatArray] | None], scale: float) -> float:
+    """How far the found returns lie off their faces' planes, under the closed-form pose
+    with the faces' distances scaled by ``scale``, in units of what the returns' own
+    scatter allows (at most 1: as expected; see :func:`_find_v`)."""
+    from rigcal.calib.plane import closed_form, point_to_plane
+
+    obs: list[PlaneObservation] = []
+    for i, pair in enumerate(found):
+        if pair is None:
+            continue
+        for k in range(2):
+            n, d = _plane(views[i][k].T_cam_face)
+            obs.append(PlaneObservation(len(obs), str(len(obs)), n, scale * d, pair[k]))
+    try:
+        T = closed_form(obs)
+    except CalibrationError:
+        return float("inf")
+    rms = [float(np.sqrt(np.mean(point_to_plane(T, o) ** 2))) for o in obs if len(o.points_laser)]
+    allowed = ON_PLANE_FACTOR * _scatter([o.points_laser for o in obs]) + ON_PLANE_FLOOR_M
+    return float(np.median(rms)) / allowed
+
+
+def _search_v(
+    path: Path,
+    target: MarkerTarget,
+    scans: list[Scan],
+    views: list[Any],
+    names: list[str],
+    params: LineParams,
+    dropped: dict[str, str],
+    scale: float,
+) -> list[tuple[FloatArray, FloatArray] | None]:
+    """The V search with the faces' distances scaled by ``scale``.
+
+    1. The moving returns (:func:`rigcal.calib.board_detect.static_returns` drops the
+       background seen in most captures) give straight pieces as long as a cut of a face
+       may be (:func:`rigcal.calib.board_detect.line_candidates`); two pieces whose lines
+       cross within APEX_GAP_M of an end of each, at more than MIN_V_DEG, are a candidate
+       V, its left arm (as seen from the sensors: the larger bearing) on the left face.
+       A capture with no candidate V is set aside.
+    2. A RANSAC over captures and their candidate arms (each face of each capture one
+       plane, :func:`rigcal.calib.plane.candidate_consensus`) gives a rough T_cam_laser.
+    3. Each face's returns are re-picked near the cut its pose predicts under that pose
+       (:func:`rigcal.calib.board_detect.pick_near_cut`), the pose re-solved by the closed
+       form and the re-picking repeated with a tighter window, as for a board.
+    """
+    from rigcal.calib import board_detect as bd
+    from rigcal.calib.plane import candidate_consensus, closed_form
+
+    static = bd.static_returns(scans)
+    moving = [sc.valid & ~st for sc, st in zip(scans, static, strict=True)]
+    shapes = [face_shape(target, k) for k in range(2)]
+    either = BoardShape(shapes[0].outline, min(x.min_cut_m for x in shapes), max(x.max_cut_m for x in shapes))
+    pairs: dict[int, list[tuple[NDArray[np.int64], NDArray[np.int64]]]] = {}
+    for i, sc in enumerate(scans):
+        pairs[i] = v_candidates(sc, bd.line_candidates(sc, moving[i], either, params, seed=i))
+        if not pairs[i]:
+            dropped[names[i]] = (
+                "the V in the scan: no two straight pieces of the moving returns meet at an apex "
+                f"({int(moving[i].sum())} moving returns)"
+            )
+    alive = [i for i in range(len(scans)) if pairs[i]]
+    if len(alive) < MIN_CAPTURES:
+        why = "; ".join(f"{n}: {r}" for n, r in dropped.items())
+        raise CalibrationError(
+            f"{path}: the target was found in {len(alive)} of {len(scans) + _early(dropped, names)} "
+            f"captures; the marker method needs {MIN_CAPTURES} ({why})"
+        )
+    poses = {(i, k): _scaled(views[i][k].T_cam_face, scale) for i in alive for k in range(2)}
+    planes = [_plane(poses[i, k]) for i in alive for k in range(2)]
+    arms = [
+        _unique([sc_pts[p[k]] for p in pairs[i]])
+        for i in alive
+        for k in range(2)
+        for sc_pts in [scans[i].points]
+    ]
+    threshold = max(bd.LINE_TOLERANCE_M, bd.LINE_SIGMAS * _scatter([a for c in arms for a in c]))
+    try:
+        T, chosen, _ = candidate_consensus(planes, arms, threshold_m=threshold)
+    except CalibrationError as exc:
+        raise CalibrationError(f"{path}: finding the V in the scans: {exc}") from None
+    picked = {(i, k): arms[2 * j + k][chosen[2 * j + k]] for j, i in enumerate(alive) for k in range(2)}
+    window = bd.FIRST_WINDOW_M
+    for _ in range(bd.REFINE_PASSES):
+        for i in alive:
+            for k in range(2):
+                cut = bd.predicted_cut(T, poses[i, k], shapes[k])
+                if cut is None:
+                    continue
+                near = bd.pick_near_cut(scans[i], moving[i], cut, window, params.min_points)
+                if len(near):
+                    picked[i, k] = scans[i].points[near]
+        obs = [
+            PlaneObservation(2 * j + k, "", *_plane(poses[i, k]), picked[i, k])
+            for j, i in enumerate(alive)
+            for k in range(2)
+        ]
+        try:
+            T = closed_form(obs)
+        except CalibrationError:
+            break
+        window = max(bd.WINDOW_FLOOR_M, bd.WINDOW_SIGMAS * threshold / bd.LINE_SIGMAS)
+    out: list[tuple[FloatArray, FloatArray] | None] = [None] * len(scans)
+    for i in alive:
+        out[i] = split_faces(picked[i, 0], picked[i, 1])
+    return out
+
+
+# Two straight pieces are a candidate V when their lines cross within APEX_GAP_M of an
+# end of each and at more than MIN_V_DEG.
+APEX_GAP_M = 0.08
+MIN_V_DEG = 15.0
+
+
+def v_candidates(
+    scan: Scan, lines: list[NDArray[np.int64]]
+) -> list[tuple[NDArray[np.int64], NDArray[np.int64]]]:
+    """Pairs (left arm, right arm) of straight pieces (beam indices) that make a V: their
+    lines cross within APEX_GAP_M of an end of each, at more than MIN_V_DEG; the left arm
+    (as seen from the sensors) is the one at the larger bearing."""
+    fits = []
+    for beams in lines:
+        p = scan.points[beams]
+        c, u, _ = fit_line(p)
+        along = (p - c) @ u
+        fits.append((c, u, c + along.min() * u, c + along.max() * u))
+    out = []
+    for a in range(len(lines)):
+        for b in range(len(lines)):
+            if a == b:
+                continue
+            ca, ua, *ends_a = fits[a]
+            cb, ub, *ends_b = fits[b]
+            cross = float(ua[0] * ub[1] - ua[1] * ub[0])
+            if abs(cross) < np.sin(np.radians(MIN_V_DEG)):
+                continue
+            s = np.linalg.solve(np.column_stack([ua, -ub]), cb - ca)
+            apex = ca + s[0] * ua
+            if min(np.linalg.norm(e - apex) for e in ends_a) > APEX_GAP_M:
+                continue
+            if min(np.linalg.norm(e - apex) for e in ends_b) > APEX_GAP_M:
+                continue
+            if np.arctan2(ca[1], ca[0]) > np.arctan2(cb[1], cb[0]):
+                out.append((lines[a], lines[b]))
+    return out
+
+
+def _unique(arms: list[FloatArray]) -> list[FloatArray]:
+    """The arms with repeats (one piece in several candidate Vs) listed once."""
+    out: list[FloatArray] = []
+    for a in arms:
+        if not any(len(a) == len(b) and np.array_equal(a, b) for b in out):
+            out.append(a)
+    return out
+
+
+def _scatter(point_sets: list[FloatArray]) -> float:
+    """The median over point sets of their robust scatter about their own line."""
+    sig = []
+    for p in point_sets:
+        if len(p) >= 3:
+            c, u, _ = fit_line(p)
+            sig.append(1.4826 * float(np.median(np.abs((p - c) @ np.array([-u[1], u[0]])))))
+    return float(np.median(sig)) if sig else 0.0
+
+
+def _scaled(T: FloatArray, scale: float) -> FloatArray:
+    out = T.copy()
+    out[:3, 3] *= scale
+    return out
+
+
+def fit_scale(
+    T0: FloatArray, planes: list[tuple[FloatArray, float]], points: list[FloatArray], scale0: float = 1.0
+) -> tuple[float, float]:
+    """The pose refitted with every plane's distance multiplied by a free factor s,
+    n . (R p + t) = s d, from T0 (unweighted least squares on the given laser points, (M, 2)
+    per plane). Returns s and its 1-sigma from the fit's residual scale."""
+    from scipy.optimize import least_squares
+
+    from rigcal.geometry import make_T, rotvec_to_R
+
+    R0 = T0[:3, :3]
+
+    def residuals(x: FloatArray) -> FloatArray:
+        T = make_T(rotvec_to_R(x[:3]) @ R0, x[3:6])
+        return np.concatenate(
+            [
+                (p @ T[:3, :2].T + T[:3, 3]) @ np.asarray(n) - x[6] * d
+                for (n, d), p in zip(planes, points, strict=True)
+            ]
+        )
+
+    sol = least_squares(residuals, np.concatenate([np.zeros(3), T0[:3, 3], [scale0]]), method="lm")
+    dof = max(len(sol.fun) - 7, 1)
+    try:
+        cov = float(sol.fun @ sol.fun) / dof * np.linalg.inv(sol.jac.T @ sol.jac)
+    except np.linalg.LinAlgError:
+        return float(sol.x[6]), float("inf")
+    return float(sol.x[6]), float(np.sqrt(max(cov[6, 6], 0.0)))
+
+
+def _early(dropped: dict[str, str], names: list[str]) -> int:
+    """Captures dropped before the scans were looked at (their markers)."""
+    return sum(1 for n in dropped if n not in names)
+
+
+def _plane(T_cam_face: FloatArray) -> tuple[FloatArray, float]:
+    n = T_cam_face[:3, 2]
+    dist = float(n @ T_cam_face[:3, 3])
+    return (n, dist) if dist > 0 else (-n, -dist)
+
+
+def split_faces(a: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Each face's returns, those near the apex told apart: a return found for both faces
+    goes to the face whose line is nearer; one found for one face only stays with it
+    unless it lies more than twice as near the other face's line (then it is dropped)."""
+    pts = np.unique(np.vstack([a, b]), axis=0)
+    ca, ua, _ = fit_line(a)
+    cb, ub, _ = fit_line(b)
+    da = np.abs((pts - ca) @ np.array([-ua[1], ua[0]]))
+    db = np.abs((pts - cb) @ np.array([-ub[1], ub[0]]))
+    in_a = (pts[:, None, :] == a[None]).all(axis=2).any(axis=1)
+    in_b = (pts[:, None, :] == b[None]).all(axis=2).any(axis=1)
+    nearer_a = da <= db
+    to_a = np.where(in_a & in_b, nearer_a, in_a & (da <= 2.0 * db))
+    to_b = np.where(in_a & in_b, ~nearer_a, in_b & (db <= 2.0 * da))
+    return pts[to_a], pts[to_b]
+
+
+def with_corner_scale(session: MarkerSession, k: float) -> tuple[PlaneObservation, ...]:
+    """The observations with every face pose's covariance scaled by ``k``."""
+    return tuple(
+        replace(o, board_pose_cov=None if o.board_pose_cov is None else k * o.board_pose_cov)
+        for o in session.observations
+    )
+
+
+def capture_markers(images: Path, name: str, camera: Camera, target: MarkerTarget) -> str:
+    """What one captured image shows of the target, for ``rigcal capture``'s table: each
+    face's markers seen, or why the capture will be set aside."""
+    from rigcal.io.images import read_grey
+
+    found = sorted(images.glob(f"{name}.*"))
+    grey = read_grey(found[0]) if found else None
+    if grey is None:
+        return "image unreadable"
+    view = detect_target(grey, camera, target)
+    seen = ", ".join(
+        f"{f.name} {n}/{f.n_markers}" for f, n in zip(target.faces, view.markers_seen, strict=True)
+    )
+    why = view.missing(target)
+    extra = f"; {len(view.foreign_ids)} markers of another target ignored" if view.foreign_ids else ""
+    return f"markers {seen}" + (f" (set aside: {why})" if why else "") + extra

@@ -1,0 +1,194 @@
+"""The marker method end to end: a simulated V session read with no hand input and solved;
+markers of another target, a print at the wrong scale, a capture without the target, weak
+views, the session file's errors, and the route from a bag (rigcal capture --target)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from rigcal.calib.marker_calibrate import calibrate_marker, weak_views
+from rigcal.calib.marker_session import read_marker_session
+from rigcal.calib.report import truth_comparison
+from rigcal.cli.main import main
+from rigcal.errors import CalibrationError, InputError
+from rigcal.sim.marker_session import MarkerSpec, generate_marker_session, write_marker_session
+
+N = 8
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return generate_marker_session(MarkerSpec(n_captures=N, seed=5))
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory, sim) -> Path:
+    return write_marker_session(sim, tmp_path_factory.mktemp("marker") / "s")
+
+
+@pytest.fixture(scope="module")
+def solved(folder):
+    return calibrate_marker(folder / "marker_session.yaml", truth_path=folder / "truth.yaml")
+
+
+def _copy(folder: Path, tmp_path: Path) -> Path:
+    out = tmp_path / "s"
+    shutil.copytree(folder, out)
+    return out
+
+
+def test_recovers_the_truth_with_an_honest_covariance(solved, sim):
+    r = solved.report
+    assert r["summary"]["method"] == "marker"
+    assert r["summary"]["captures"] == N
+    assert r["summary"]["captures_found"] >= N - 1
+    t = truth_comparison(solved.result.T_cam_laser, solved.result.covariance, sim.T_cam_laser)
+    # Bounds from the noise: 1 cm range noise on ~16 faces gives a few tenths of a degree.
+    assert t["rotation_error_deg"] < 1.0
+    assert t["translation_error_mm"] < 20.0
+    assert t["nees"] < 25.0  # chi-square 6 dof: 99.97 %
+    assert r["marker"]["scale"]["ratio"] == pytest.approx(1.0, abs=0.01)
+    assert not [w for w in r["warnings"] if "scale disagreement" in w]
+    assert np.median([a for a in r["marker"]["apex_mm"].values() if a is not None]) < 15.0
+    # The rig file looks like the board method's: covariance, uncertainty checks.
+    assert solved.rig.covariance.shape == (6, 6)
+    assert "spread" in solved.rig.uncertainty
+
+
+def test_markers_of_another_target_are_ignored_and_counted(folder, tmp_path):
+    s = _copy(folder, tmp_path)
+    img = cv2.imread(str(s / "images" / "cap00.png"))
+    d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    for k, marker_id in enumerate((40, 41)):
+        m = cv2.aruco.generateImageMarker(d, marker_id, 48, borderBits=1)
+        pad = cv2.copyMakeBorder(m, 8, 8, 8, 8, cv2.BORDER_CONSTANT, value=255)
+        img[10 : 10 + 64, 10 + 80 * k : 74 + 80 * k] = pad[:, :, None]
+    cv2.imwrite(str(s / "images" / "cap00.png"), img)
+    session = read_marker_session(s / "marker_session.yaml")
+    assert session.foreign_ids == {"cap00": (40, 41)}
+    cal = calibrate_marker(s / "marker_session.yaml")
+    assert cal.report["marker"]["foreign_markers"] == {"captures": 1, "ids": [40, 41]}
+    assert any("2 markers of another target (ids [40, 41])" in w for w in cal.report["warnings"])
+
+
+def test_a_print_at_the_wrong_scale_shows_as_a_scale_disagreement(folder, tmp_path):
+    s = _copy(folder, tmp_path)
+    t = yaml.safe_load((s / "targets.yaml").read_text())
+    # The file says 5 % smaller than printed: the camera puts every face 5 % too near.
+    for f in t["faces"]:
+        f["square_m"] *= 0.95
+        f["marker_m"] *= 0.95
+    (s / "targets.yaml").write_text(yaml.safe_dump(t))
+    cal = calibrate_marker(s / "marker_session.yaml")
+    ratio = cal.report["marker"]["scale"]["ratio"]
+    assert ratio == pytest.approx(1 / 0.95, abs=0.01)
+    assert any(
+        w.startswith(f"scale disagreement: the laser puts the faces {ratio:.4f}")
+        for w in cal.report["warnings"]
+    )
+
+
+def test_a_capture_without_the_target_is_set_aside_with_the_reason(folder, tmp_path):
+    s = _copy(folder, tmp_path)
+    cv2.imwrite(str(s / "images" / "cap03.png"), np.full((480, 640, 3), 128, np.uint8))
+    session = read_marker_session(s / "marker_session.yaml")
+    assert "cap03" not in session.found
+    reason = dict(session.dropped)["cap03"]
+    assert reason.startswith("markers: face left: 0 of its 10 markers seen")
+    assert len(session.observations) == 2 * len(session.found)
+
+
+def test_too_few_captures_found(folder, tmp_path):
+    s = _copy(folder, tmp_path)
+    for k in range(N - 4):
+        cv2.imwrite(str(s / "images" / f"cap{k:02d}.png"), np.full((480, 640, 3), 128, np.uint8))
+    with pytest.raises(
+        CalibrationError, match=r"the target was found in \d of 8 captures; the marker method needs 5"
+    ):
+        read_marker_session(s / "marker_session.yaml")
+
+
+def test_weak_views():
+    rng = np.random.default_rng(0)
+    yaw = rng.uniform(-1, 1, 20)
+    upright = np.column_stack([-np.cos(yaw), np.sin(yaw), np.zeros(20)])
+    w = weak_views(upright + rng.normal(0, 0.02, upright.shape), rng.uniform(1, 2, 20))
+    assert len(w) == 1
+    assert "hardly point up-down (laser z)" in w[0]
+    assert "tilted" in w[0]
+    tilt = rng.uniform(-0.5, 0.5, 20)
+    tilted = upright * np.cos(tilt)[:, None] + np.outer(np.sin(tilt), [0, 0, 1])
+    assert weak_views(tilted, rng.uniform(1, 2, 20)) == []
+    near = weak_views(tilted, 1.5 + rng.uniform(0, 0.05, 20))
+    assert len(near) == 1
+    assert "add views nearer and farther" in near[0]
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda d: d.update(method="board"), r"method: got 'board'; expected 'marker'"),
+        (lambda d: d.update(schema_version=3), r"schema_version: got 3"),
+        (lambda d: d.update(targets="nope.yaml"), r"targets: got 'nope.yaml'; expected an existing file"),
+        (lambda d: d["captures"][1].pop("image"), r"captures\[1\]\.image: missing"),
+        (
+            lambda d: d["captures"][1].update(image="scans/cap01.yaml"),
+            r"captures\[1\]\.image: .*an image file",
+        ),
+        (lambda d: d["captures"][0].update(colour=1), r"captures\[0\]\.colour: got 1; expected no such key"),
+        (lambda d: d.update(captures=[]), r"captures: got \[\]; expected a non-empty list"),
+        (lambda d: d["captures"][2].update(name="cap01"), r"captures\[2\]\.name: got 'cap01'"),
+    ],
+)
+def test_session_errors(folder, tmp_path, edit, match):
+    s = _copy(folder, tmp_path)
+    d = yaml.safe_load((s / "marker_session.yaml").read_text())
+    edit(d)
+    (s / "marker_session.yaml").write_text(yaml.safe_dump(d))
+    with pytest.raises(InputError, match=match):
+        read_marker_session(s / "marker_session.yaml")
+
+
+def test_cli_solve_writes_rig_and_report(folder, tmp_path, capsys):
+    rig, rep = tmp_path / "rig.yaml", tmp_path / "rep"
+    args = ["solve", str(folder / "marker_session.yaml"), "-o", str(rig), "--report", str(rep)]
+    assert main([*args, "--truth", str(folder / "truth.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("marker target 'V target' (DICT_4X4_50): found in")
+    assert "error against truth" in out
+    report = yaml.safe_load((rep / "report.yaml").read_text())
+    assert report["summary"]["method"] == "marker"
+    assert (rep / "residuals.png").is_file()
+    assert rig.is_file()
+
+
+def test_from_a_bag_with_no_hand_input(sim, folder, tmp_path, capsys):
+    from test_capture import write_still_bag
+
+    bag = tmp_path / "lab"
+    write_still_bag(bag, [c.scan for c in sim.captures], [c.image for c in sim.captures], sim.camera)
+    out = tmp_path / "v"
+    args = ["capture", str(bag), "--scan-topic", "/scan", "--image-topic", "/cam/image"]
+    args += ["--camera-info-topic", "/cam/info", "-o", str(out)]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text((folder / "targets.yaml").read_text().replace("edge_m: 0.6", "edge_m: -1"))
+    assert main([*args, "--target", str(bad)]) == 3
+    assert not out.exists()
+    assert main([*args, "--target", str(folder / "targets.yaml")]) == 0
+    table = capsys.readouterr().out
+    assert table.count("markers left ") == N
+    assert (out / "marker_session.yaml").is_file()
+    assert (out / "targets.yaml").is_file()
+    assert main(["solve", str(out / "marker_session.yaml"), "-o", str(tmp_path / "rig.yaml")]) == 0
+    from rigcal.rigfile import read_rig
+
+    T = read_rig(tmp_path / "rig.yaml").T_cam_laser
+    t = truth_comparison(T, np.eye(6), sim.T_cam_laser)
+    assert t["rotation_error_deg"] < 1.5
+    assert t["translation_error_mm"] < 30.0
