@@ -21,7 +21,16 @@ def _commands(group: click.Group, prefix: str = "") -> dict[str, click.Command]:
 
 
 COMMANDS = _commands(cli)
-WRITE_FOLDERS = {"batch", "capture", "import-bag", "import-carmen", "import-laser", "localize", "simulate"}
+WRITE_FOLDERS = {
+    "batch",
+    "capture",
+    "import-bag",
+    "import-carmen",
+    "import-laser",
+    "localize",
+    "simulate",
+    "targets print",
+}
 
 
 def test_output_metavar_says_folder_or_file():
@@ -32,7 +41,8 @@ def test_output_metavar_says_folder_or_file():
                 seen[name] = p.metavar
     assert len(seen) >= 14
     for name, metavar in seen.items():
-        assert metavar == ("DIR" if name.split()[0] in WRITE_FOLDERS else "FILE"), name
+        folder = name in WRITE_FOLDERS or name.split()[0] in WRITE_FOLDERS
+        assert metavar == ("DIR" if folder else "FILE"), name
 
 
 def test_every_command_with_a_result_has_json():

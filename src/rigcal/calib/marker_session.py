@@ -80,6 +80,8 @@ class MarkerSession:
     foreign_ids: dict[str, tuple[int, ...]]
     files: tuple[Path, ...]
     corner_sigma_px: float = DEFAULT_CORNER_SIGMA_PX
+    # The board report's "left out" list; a marker session's set-aside captures are ``dropped``.
+    skipped: tuple[str, ...] = ()
 
 
 def is_marker_session(data: Any) -> bool:

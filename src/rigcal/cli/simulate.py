@@ -270,7 +270,13 @@ def board_session(
 
 @simulate.command("marker-session")
 @click.option(
-    "-o", "--output", "output", required=True, type=click.Path(path_type=Path), help="Folder to create."
+    "-o",
+    "--output",
+    "output",
+    required=True,
+    type=click.Path(path_type=Path),
+    metavar="DIR",
+    help="Folder to create.",
 )
 @click.option(
     "--captures",

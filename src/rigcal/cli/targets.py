@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
@@ -22,10 +23,17 @@ def targets() -> None:
 
 @targets.command("new")
 @click.option(
-    "-o", "--output", "output", required=True, type=click.Path(path_type=Path), help="Targets file to write."
+    "-o",
+    "--output",
+    "output",
+    required=True,
+    type=click.Path(path_type=Path),
+    metavar="FILE",
+    help="Targets file to write.",
 )
 @click.option("--force", is_flag=True, help="Overwrite an existing file.")
-def new(output: Path, force: bool) -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
+def new(output: Path, force: bool, as_json: bool) -> None:
     """Write the default V target's targets file (two 0.5 x 0.6 m faces at 90 degrees,
     4 x 5 ChArUco squares of 110 mm, DICT_4X4_50) to edit and print.
 
@@ -38,13 +46,22 @@ def new(output: Path, force: bool) -> None:
 
     check_writable(output, force)
     atomic_write_text(output, targets_text(default_target()), force=force)
+    if as_json:
+        click.echo(json.dumps({"output": str(output)}))
+        return
     click.echo(f"wrote {output}; print it with: rigcal targets print {output} -o print/", err=True)
 
 
 @targets.command("print")
 @click.argument("targets_file", type=click.Path(path_type=Path))
 @click.option(
-    "-o", "--output", "output", required=True, type=click.Path(path_type=Path), help="Folder to create."
+    "-o",
+    "--output",
+    "output",
+    required=True,
+    type=click.Path(path_type=Path),
+    metavar="DIR",
+    help="Folder to create.",
 )
 @click.option(
     "--dpi",
@@ -54,7 +71,8 @@ def new(output: Path, force: bool) -> None:
     help="Resolution of the pages.",
 )
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
-def print_cmd(targets_file: Path, output: Path, dpi: float, force: bool) -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON on stdout.")
+def print_cmd(targets_file: Path, output: Path, dpi: float, force: bool, as_json: bool) -> None:
     """Write one printable page per face (PNG and PDF at true scale, with its ids and a
     100 mm measuring bar) and the targets file beside them. Print at 100 % (no "fit to
     page"), measure the bar, cut along the grey line and glue each face on its side of
@@ -72,6 +90,11 @@ def print_cmd(targets_file: Path, output: Path, dpi: float, force: bool) -> None
     check_folder_writable(output, force, [targets_file])
     target = read_targets(targets_file)
     files = write_print(target, output, dpi=dpi, force=force)
+    if as_json:
+        click.echo(
+            json.dumps({"output": str(output), "files": [str(f) for f in files], "dpi": dpi}, indent=1)
+        )
+        return
     sizes = ", ".join(f"{f.name} {1000 * f.width_m:g} x {1000 * target.edge_m:g} mm" for f in target.faces)
     click.echo(
         f"wrote {len(files)} files to {output}/ (faces: {sizes}); print at 100 % and measure the bar",
