@@ -279,7 +279,7 @@ class Localization:
     """One method's trajectory through a sequence.
 
     Attributes:
-        method: the method's name (icp, icp-p2p, vo, kf, iasm, hiasm).
+        method: the method's name (icp, icp-p2p, vo, kf, iasm, hiasm, odom).
         stamps_s: (N,) the pose stamps, seconds.
         poses: (N, 3) the laser's planar poses (x m, y m, yaw rad), in the truth's frame
             when the sequence has ground truth, else in the first pose's.
@@ -301,12 +301,13 @@ def localize(
     force: bool = False,
     tracks: Mapping[str, object] | None = None,
     iasm: Mapping[str, object] | None = None,
+    wheel_odometry: bool = True,
 ) -> dict[str, Localization]:
     """Localize a sequence folder (docs/formats/sequence.md), as ``rigcal localize``.
 
     Args:
         sequence: the sequence folder.
-        methods: one or more of icp, icp-p2p, vo, kf, iasm, hiasm.
+        methods: one or more of icp, icp-p2p, vo, kf, iasm, hiasm, odom.
         output: also write the output folder ``rigcal localize`` writes (trajectories,
             summary, paths picture); default: nothing is written.
         rig: a rig file to use instead of the sequence's own.
@@ -314,6 +315,8 @@ def localize(
         tracks, iasm: settings of the feature tracks and of IASM / H-IASM, as
             ``--tracks`` and ``--iasm`` take them (``{"equalize": "clahe"}``,
             ``{"snap_max_m": 0}``); default: the defaults.
+        wheel_odometry: start ICP from the sequence's wheel odometry, when it has one,
+            and fuse it in the Kalman filter (``--wheel-odometry use``).
 
     Returns:
         Each method's trajectory, by method name.
@@ -335,6 +338,13 @@ def localize(
     with tempfile.TemporaryDirectory(prefix="rigcal-") as tmp:
         out = Path(output) if output is not None else Path(tmp) / "out"
         r = run(
-            sequence, list(methods), out, force=force, rig_file=rig, iasm=iasm_params, tracks=track_params
+            sequence,
+            list(methods),
+            out,
+            force=force,
+            rig_file=rig,
+            iasm=iasm_params,
+            tracks=track_params,
+            wheel_odometry=wheel_odometry,
         )
     return {m.method: Localization(m.method, m.stamps_s, m.poses, m.metrics) for m in r.methods}

@@ -25,8 +25,9 @@ rig_option = click.option(
     default="icp",
     show_default=True,
     help="One method or several, comma-separated: icp (point-to-line), icp-p2p (point-to-point, "
-    "Eq. 4), vo (visual odometry with laser scale), kf (Kalman filter of icp and vo), iasm "
-    "(image augmented scan matching), hiasm (homography based IASM).",
+    "Eq. 4), vo (visual odometry with laser scale), kf (Kalman filter of icp and vo, and the wheel "
+    "odometry when used), iasm (image augmented scan matching), hiasm (homography based IASM), "
+    "odom (the wheel odometry alone).",
 )
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output folder.")
 @rig_option
@@ -49,6 +50,14 @@ rig_option = click.option(
     help="Change one of the feature tracks' settings (vo, kf, hiasm; docs/localization.md), e.g. "
     "detector=shi-tomasi or n_features=500; may be repeated. The summary records them.",
 )
+@click.option(
+    "--wheel-odometry",
+    type=click.Choice(["use", "ignore"]),
+    default="use",
+    show_default=True,
+    help="use: ICP starts each step from the sequence's wheel odometry (when it has one) and the "
+    "Kalman filter fuses it; ignore: start from the previous motion.",
+)
 def localize(
     sequence: Path,
     methods: str,
@@ -59,6 +68,7 @@ def localize(
     as_json: bool,
     iasm_items: tuple[str, ...],
     track_items: tuple[str, ...],
+    wheel_odometry: str,
 ) -> None:
     """Estimate the laser's trajectory through SEQUENCE (a sequence folder) with one or
     more methods, run on the same data in the same process.
@@ -106,6 +116,7 @@ def localize(
             progress=bars,
             iasm=iasm,
             tracks=tracks,
+            wheel_odometry=wheel_odometry == "use",
         )
     if as_json:
         click.echo(json.dumps(summary(r, sequence), indent=1))

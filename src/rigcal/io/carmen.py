@@ -63,6 +63,8 @@ class CarmenLog:
         odom: (M, 4) the ODOM lines' stamp (repaired as the scans'), x, y, theta.
         odom_stamps: what the stamp repair did to the ODOM lines' stamps.
         params: the laser mounting's PARAM values read (name -> value).
+        g2o_steps: (N - 1, 3) in a g2o file whose EDGE_SE2 lines link every vertex to the
+            next, one vertex per laser line: those edges (dx, dy, dtheta), else (0, 3).
     """
 
     scans: list[Scan]
@@ -74,6 +76,7 @@ class CarmenLog:
     odom: FloatArray = field(default_factory=lambda: np.zeros((0, 4)))
     odom_stamps: StampRepair | None = None
     params: dict[str, float] = field(default_factory=dict)
+    g2o_steps: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 def read_carmen(
@@ -131,6 +134,7 @@ def read_carmen(
         odom_lines,
         odom_fixed,
         extra.params,
+        extra.g2o_steps(len(scans)),
     )
 
 
@@ -152,9 +156,19 @@ class _OtherMessages:
         self.odom: list[list[float]] = []
         self.lines: list[int] = []
         self.params: dict[str, float] = {}
+        self.vertices = 0
+        self.steps: dict[int, list[float]] = {}  # g2o EDGE_SE2 i -> i + 1: i -> (dx, dy, dth)
 
     def read(self, fields: list[str], where: str, no: int) -> bool:
-        """Read the line if it is an ODOM line or a mounting PARAM; False otherwise."""
+        """Read the line if it is an ODOM line or a mounting PARAM; False otherwise (g2o
+        vertices and sequential edges are read, and counted as skipped)."""
+        if fields and fields[0] == "VERTEX_SE2":
+            self.vertices += 1
+        if len(fields) >= 6 and fields[0] == "EDGE_SE2":
+            ij = [parse_whole(f, where, "EDGE_SE2 vertex id", lo=0, hi=2**62) for f in fields[1:3]]
+            if ij[1] == ij[0] + 1:
+                self.steps[ij[0]] = _numbers(fields, 3, 6, where, "EDGE_SE2", "i j dx dy dtheta, information")
+            return False
         if fields and fields[0] == "ODOM":
             layout = "x y theta tv rv accel ipc_timestamp"
             _need(fields[1:], 7, where, "ODOM", layout)
@@ -166,6 +180,13 @@ class _OtherMessages:
             self.params[fields[1]] = parse_real(fields[2], where, f"PARAM {fields[1]}")
             return True
         return False
+
+    def g2o_steps(self, n: int) -> FloatArray:
+        """The sequential edges 0 -> 1 -> ... -> n - 1 when the file has n vertices (one
+        per laser line) and every such edge; else none."""
+        if n < 2 or self.vertices != n or any(i not in self.steps for i in range(n - 1)):
+            return np.zeros((0, 3))
+        return np.array([self.steps[i] for i in range(n - 1)])
 
     def odometry(self, p: Path, stamps: str) -> tuple[FloatArray, StampRepair | None]:
         if not self.odom:
@@ -181,8 +202,10 @@ def carmen_odometry(
     log: CarmenLog, where: str, mounting: FloatArray | None = None
 ) -> tuple[WheelOdometry | None, str]:
     """The log's wheel odometry and where its numbers came from: the ODOM lines when
-    there are two or more, else the odometry pose of each laser line (at the scan's
-    stamp); None when those never change (a log that left them at 0). The laser's
+    there are two or more; else, in a g2o file, its sequential EDGE_SE2 lines (vertex k
+    to k + 1, chained; its vertices are the laser's poses, and its laser lines' robot
+    poses are those vertices, not the raw odometry); else the odometry pose of each laser
+    line (at the scan's stamp); None when those never change (a log that left them at 0). The laser's
     mounting on the robot: ``mounting`` when given; else the log's
     ``robot_frontlaser_*`` PARAMs; else, when every laser line's laser pose is its
     odometry pose moved by one fixed offset (a raw log), that offset; else none (0, 0, 0).
@@ -202,6 +225,14 @@ def carmen_odometry(
         fixed = _fixed_offset(log.odometry_poses, log.laser_poses)
         how.append("mounting from the laser lines" if fixed is not None else "no mounting known (0, 0, 0)")
         mount = np.zeros(3) if fixed is None else fixed
+    if len(log.odom) < 2 and len(log.g2o_steps):
+        if mounting is None:
+            mount, how = np.zeros(3), ["the g2o's vertices are the laser's poses"]
+        poses = [log.laser_poses[0]]
+        for step in log.g2o_steps:
+            poses.append(_compose(poses[-1], step))
+        od = checked(scan_t, np.array(poses), mount, f"{where}: EDGE_SE2 lines", scan_t)
+        return od, "; ".join([f"{len(log.g2o_steps)} sequential EDGE_SE2 lines", *how])
     if len(log.odom) < 2 and np.ptp(log.odometry_poses, axis=0).max(initial=0.0) == 0.0:
         return None, "no odometry: the laser lines' odometry poses never change"
     if len(log.odom) >= 2:
@@ -211,6 +242,12 @@ def carmen_odometry(
         od = checked(scan_t, log.odometry_poses, mount, f"{where}: laser lines' odometry", scan_t)
         how.insert(0, "the laser lines' odometry poses")
     return od, "; ".join(how)
+
+
+def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Planar pose a moved by b in a's frame (x, y, theta)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]])
 
 
 def _fixed_offset(robot: FloatArray, laser: FloatArray) -> FloatArray | None:

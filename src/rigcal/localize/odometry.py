@@ -16,6 +16,7 @@ references (and ICP's numpy iterations), which the tests hold them to.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -37,19 +38,38 @@ LINES_EVERY = 4
 CARRY_M = 0.03
 # An ICP step whose degeneracy indicator is below this constrains too little.
 DEGENERATE_BELOW = 0.01
+# The wheel odometry's error over one step, bounding how far ICP may move its guess:
+# (m, fraction of the step's length) and (rad, fraction of the step's turn).
+WHEEL_GATE_M = (0.10, 0.10)
+WHEEL_GATE_RAD = (np.radians(3.0), 0.10)
+
+
+def agrees_with_wheels(step: FloatArray, wheel: FloatArray) -> bool:
+    """Whether ICP's step (x, y, yaw) lies within the wheel odometry's error bound of its
+    guess (:data:`WHEEL_GATE_M`, :data:`WHEEL_GATE_RAD`): a fit beyond it slid into
+    another minimum (a repeated corridor, clutter) more likely than the wheels erred."""
+    d = np.asarray(step, dtype=float) - np.asarray(wheel, dtype=float)
+    turn = abs(float(np.angle(np.exp(1j * d[2]))))
+    far = float(np.hypot(d[0], d[1]))
+    return bool(
+        far <= WHEEL_GATE_M[0] + WHEEL_GATE_M[1] * float(np.hypot(wheel[0], wheel[1]))
+        and turn <= WHEEL_GATE_RAD[0] + WHEEL_GATE_RAD[1] * abs(float(wheel[2]))
+    )
 
 
 @dataclass(frozen=True)
 class Odometry:
     """Poses (N, 3) of the laser in the first scan's frame, per-step degeneracy and ICP
     fit RMS, how many steps were skipped (too few points) and kept the last motion, and
-    how many were tried again from zero motion (a poor fit from the previous motion)."""
+    how many were tried again from zero motion (a poor fit from the previous motion), and
+    how many ICP steps the wheel odometry overruled (a fit beyond its error bound)."""
 
     poses: FloatArray
     degeneracy: FloatArray
     rms_m: FloatArray
     skipped: int
     restarts: int = 0
+    overruled: int = 0
 
 
 def icp_odometry(
@@ -59,15 +79,22 @@ def icp_odometry(
     lines: Callable[[int], list[Segment]] | None = None,
     *,
     kernel: bool = True,
+    guess: FloatArray | None = None,
 ) -> Odometry:
-    """Chain ICP increments T_prev_cur over the scans, each started from the previous
-    increment (constant velocity) and, when that fit is poor
+    """Chain ICP increments T_prev_cur over the scans, each started from ``guess[k]``
+    (N - 1, 3: the wheel odometry's motion from scan k to k + 1, NaN where it has none)
+    or else from the previous increment (constant velocity) and, when that fit is poor
     (``params.restart_below_inliers``), from zero motion too, the better fit kept;
     ``progress`` is called with the scans done so far. Point-to-line with
     ``params.normals == "lines"`` takes each model scan's normals from its lines
     (``lines(k)``: scan k's segments, to share them with other stages; by default
     extracted here). ``kernel=False`` runs the line extraction, the carrying of the lines
-    and ICP in their Python/numpy references instead of the compiled kernels."""
+    and ICP in their Python/numpy references instead of the compiled kernels.
+
+    From the wheel odometry's guess, a step ICP cannot constrain keeps the odometry's
+    motion where the scans say nothing: ICP solves only in the directions the scans
+    constrain and keeps its initial guess along the others (a corridor's length), and a
+    scan with too few returns takes the odometry's step whole."""
     params = params or IcpParams()
     use_lines = params.method == "point-to-line" and params.normals == "lines"
     labels: IntArray | None = None  # the model scan's line of each return
@@ -106,7 +133,7 @@ def icp_odometry(
     poses = [pose_of(T)]
     deg, rms = [1.0], [0.0]
     last = np.zeros(3)
-    skipped = restarts = 0
+    skipped = restarts = overruled = 0
     prev = scans[0].points[scans[0].valid]
     nearest = None  # the last step's nearest model return of each data return
     prev_normals = normals_of(0, prev, prev, None, np.zeros(3), None)
@@ -114,12 +141,18 @@ def icp_odometry(
         if progress is not None:
             progress(k)
         cur = scan.points[scan.valid]
+        start, wheel = last, False
+        if guess is not None and np.isfinite(guess[k - 2]).all():
+            start, wheel = guess[k - 2], True
         if len(cur) < 10 or len(prev) < 10:
-            step, d, r = last, 0.0, float("nan")
+            step, d, r = start, 0.0, float("nan")
             skipped += 1
         else:
-            res = icp(prev, cur, initial=last, params=params, model_normals=prev_normals, kernel=kernel)
-            if res.inlier_fraction < params.restart_below_inliers:
+            res = icp(prev, cur, initial=start, params=params, model_normals=prev_normals, kernel=kernel)
+            if wheel and not agrees_with_wheels(res.pose, start):
+                res = dataclasses.replace(res, pose=start, degeneracy=0.0)
+                overruled += 1
+            elif not wheel and res.inlier_fraction < params.restart_below_inliers:
                 zero = np.zeros(3)
                 again = icp(prev, cur, initial=zero, params=params, model_normals=prev_normals, kernel=kernel)
                 if (again.inlier_fraction, -again.rms_m) > (res.inlier_fraction, -res.rms_m):
@@ -134,7 +167,7 @@ def icp_odometry(
         if len(cur) >= 10:
             prev_normals = normals_of(k - 1, cur, prev, prev_normals, step, nearest)
             prev = cur
-    return Odometry(np.array(poses), np.array(deg), np.array(rms), skipped, restarts)
+    return Odometry(np.array(poses), np.array(deg), np.array(rms), skipped, restarts, overruled)
 
 
 def carry_labels(

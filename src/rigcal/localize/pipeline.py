@@ -29,9 +29,10 @@ from rigcal.errors import InputError
 from rigcal.geometry import make_T, rotvec_to_R
 from rigcal.io.files import atomic_folder
 from rigcal.io.trajectory import Trajectory, kitti_text, read_tum, tum_text
+from rigcal.io.wheel_odometry import laser_motions
 from rigcal.localize import kalman
 from rigcal.localize.iasm import IasmParams
-from rigcal.localize.icp import IcpParams
+from rigcal.localize.icp import IcpParams, pose_of, se2
 from rigcal.localize.image_matching import scan_matching
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import DEGENERATE_BELOW, Odometry, icp_odometry
@@ -59,10 +60,16 @@ class Estimate:
 
 def _icp_estimate(streams: Streams, od: Odometry) -> Estimate:
     degenerate = od.degeneracy < DEGENERATE_BELOW
+    guess = streams.wheel_guess()
+    from_wheels = 0 if guess is None else int(np.isfinite(guess).all(axis=1).sum())
     stats = {
         "degenerate_steps": int(degenerate[1:].sum()),
         "skipped_steps": od.skipped,
         "restarted_steps": od.restarts,
+        # Steps started from the wheel odometry (the others: from the previous motion),
+        # and those whose fit it overruled (beyond its error bound).
+        "wheel_odometry_steps": from_wheels,
+        "wheel_overruled_steps": od.overruled,
     }
     # Per step: the degeneracy indicator (smallest over largest eigenvalue of the
     # translation information: near 0, a direction the scans do not constrain, as along
@@ -118,11 +125,37 @@ def _kf_estimate(streams: Streams) -> Estimate:
     t0 = time.perf_counter()
     ms = kalman.increments(icp.stamps_s, icp.poses, kalman.ICP_SIGMAS, od.degeneracy < DEGENERATE_BELOW)
     ms += kalman.vo_increments(vo.stamps_s, vo.poses, [s.status for s in res.steps])
+    stats = {"icp_measurements": len(icp.stamps_s) - 1, "vo_measurements": len(vo.stamps_s) - 1}
+    if streams.wheel_odometry is not None:
+        wheel = _wheel_estimate(streams)
+        wheel_ms = kalman.increments(wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS)
+        ms += wheel_ms
+        stats["wheel_measurements"] = len(wheel_ms)
     stamps, poses = kalman.fuse(ms)
     streams.timings_s["kf_s"] = time.perf_counter() - t0
-    return Estimate(
-        stamps, poses, {"icp_measurements": len(icp.stamps_s) - 1, "vo_measurements": len(vo.stamps_s) - 1}
-    )
+    return Estimate(stamps, poses, stats)
+
+
+def _wheel_estimate(streams: Streams) -> Estimate:
+    """The laser's path by the wheel odometry alone, at the scans' stamps within its span."""
+    od = streams.sequence.odometry
+    if od is None:
+        raise InputError(
+            f"{streams.sequence.folder}: no wheel odometry (key 'odometry' of sequence.yaml); method "
+            "'odom' needs it: import the log with its odometry (docs/formats/sequence.md)"
+        )
+    t = streams.scan_stamps_s
+    t = t[(t >= od.stamps_s[0]) & (t <= od.stamps_s[-1])]
+    if len(t) < MIN_SCANS:
+        raise InputError.at(
+            streams.sequence.folder, "odometry", f"{len(t)} scan(s) within its span", f"at least {MIN_SCANS}"
+        )
+    T = np.eye(3)
+    poses = [pose_of(T)]
+    for step in laser_motions(od, t):
+        T = T @ se2(step)
+        poses.append(pose_of(T))
+    return Estimate(t, np.array(poses), {"odometry_poses": len(od.stamps_s)})
 
 
 def _matching_estimate(streams: Streams, method: str, params: IasmParams) -> Estimate:
@@ -133,7 +166,10 @@ def _matching_estimate(streams: Streams, method: str, params: IasmParams) -> Est
 # name -> the method's estimate from the streams and IASM's and H-IASM's settings.
 METHODS: dict[str, Callable[[Streams, IasmParams], Estimate]] = {
     "icp": lambda s, _: _icp_estimate(s, s.laser_odometry()),
-    "icp-p2p": lambda s, _: _icp_estimate(s, icp_odometry(s.scans, IcpParams(method="point-to-point"))),
+    "icp-p2p": lambda s, _: _icp_estimate(
+        s, icp_odometry(s.scans, IcpParams(method="point-to-point"), guess=s.wheel_guess())
+    ),
+    "odom": lambda s, _: _wheel_estimate(s),
     "vo": lambda s, _: _vo_estimate(s, _vo_result(s)),
     "kf": lambda s, _: _kf_estimate(s),
     "iasm": lambda s, p: _matching_estimate(s, "iasm", p),
@@ -172,6 +208,7 @@ class Run:
     iasm: IasmParams = field(default_factory=IasmParams)
     cpu_s: float = 0.0  # CPU seconds over the same span as wall_s, all threads
     tracks: TrackParams = field(default_factory=TrackParams)
+    wheel_odometry: str = "none"  # "used", "ignored" or "none" (the sequence has none)
 
 
 def _shared_stages(streams: Streams, methods: list[str]) -> None:
@@ -266,12 +303,14 @@ def run(
     progress: Callable[[str, int, int], None] | None = None,
     iasm: IasmParams | None = None,
     tracks: TrackParams | None = None,
+    wheel_odometry: bool = True,
 ) -> Run:
     """Localize a sequence with each method and write the output folder:
     ``METHOD/trajectory.tum`` (and ``.kitti``) per method, ``summary.yaml``/``.json`` and,
     with ground truth, ``paths.png``/``.svg`` and ``errors.png``/``.svg`` (charts).
     ``iasm``: IASM's and H-IASM's settings, ``tracks`` the feature tracks' (the defaults
-    unless given).
+    unless given). ``wheel_odometry``: start ICP from the sequence's wheel odometry (when
+    it has one) and fuse it in the Kalman filter; False ignores it.
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -283,6 +322,7 @@ def run(
     streams = open_streams(sequence, rig_file)
     streams.progress = progress
     streams.track_params = tracks or TrackParams()
+    streams.use_wheel_odometry = wheel_odometry
     if len(streams.scans) < MIN_SCANS:
         raise InputError.at(
             Path(sequence) / "sequence.yaml", "scans.count", len(streams.scans), f"at least {MIN_SCANS} scans"
@@ -308,7 +348,8 @@ def run(
     stamps = streams.scan_stamps_s
     duration = float(stamps[-1] - stamps[0])
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
-    out = Run(results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params)
+    wheel = "none" if streams.sequence.odometry is None else "used" if wheel_odometry else "ignored"
+    out = Run(results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params, wheel)
     _write(out, Path(sequence), output, force, kitti)
     return out
 
@@ -320,6 +361,7 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
             "sequence": str(sequence.resolve()),
             "methods": [m.method for m in r.methods],
             "settings": settings(r.iasm, r.tracks),
+            "wheel_odometry": r.wheel_odometry,
         },
         "duration_s": round(r.duration_s, 3),
         "wall_s": round(r.wall_s, 3),
@@ -351,6 +393,7 @@ def settings(iasm: IasmParams | None = None, tracks: TrackParams | None = None) 
             **asdict(kalman.KfParams()),
             "icp_sigmas_forward_cross_yawrate": list(kalman.ICP_SIGMAS),
             "vo_sigmas_forward_cross_yawrate": list(kalman.VO_SIGMAS),
+            "wheel_sigmas_forward_cross_yawrate": list(kalman.WHEEL_SIGMAS),
         },
         "iasm": asdict(iasm or IasmParams()),
         "hiasm_vo": asdict(VoParams()),
