@@ -34,9 +34,10 @@ from rigcal.localize import kalman
 from rigcal.localize.iasm import IasmParams
 from rigcal.localize.icp import IcpParams, pose_of, se2
 from rigcal.localize.image_matching import scan_matching
+from rigcal.localize.loop_closure import LoopParams, LoopResult, close_loops
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import DEGENERATE_BELOW, Odometry, icp_odometry
-from rigcal.localize.streams import Streams, open_streams
+from rigcal.localize.streams import Streams, nearest_index, open_streams
 from rigcal.localize.tracks import TrackParams
 from rigcal.localize.vo import VoResult, visual_odometry
 
@@ -56,6 +57,23 @@ class Estimate:
     poses: FloatArray
     stats: dict[str, Any] = field(default_factory=dict)
     steps_csv: str | None = None
+    closures: LoopResult | None = None
+
+
+# Methods whose poses are laser poses at scan stamps that loop closure can take.
+LOOP_CLOSURE_METHODS = ("icp", "icp-p2p", "iasm", "hiasm")
+
+
+def _loop_closed(streams: Streams, est: Estimate, params: LoopParams) -> Estimate:
+    """The estimate with loop closure (rigcal.localize.loop_closure): each pose takes the
+    scan nearest its stamp."""
+    t0 = time.perf_counter()
+    idx = [nearest_index(streams.scan_stamps_s, float(t)) for t in est.stamps_s]
+    res = close_loops([streams.scans[k] for k in idx], est.poses, params)
+    seconds = time.perf_counter() - t0
+    streams.timings_s["loop_closure_s"] = streams.timings_s.get("loop_closure_s", 0.0) + seconds
+    stats = {"closures": res.counts, "loop_closure_s": round(seconds, 3)}
+    return Estimate(est.stamps_s, res.poses, stats, None, res)
 
 
 def _icp_estimate(streams: Streams, od: Odometry) -> Estimate:
@@ -194,6 +212,7 @@ class MethodRun:
     stats: dict[str, Any]
     seconds: float
     steps_csv: str | None = None
+    closures: LoopResult | None = None
 
 
 @dataclass(frozen=True)
@@ -304,13 +323,15 @@ def run(
     iasm: IasmParams | None = None,
     tracks: TrackParams | None = None,
     wheel_odometry: bool = True,
+    loop_closure: LoopParams | None = None,
 ) -> Run:
     """Localize a sequence with each method and write the output folder:
     ``METHOD/trajectory.tum`` (and ``.kitti``) per method, ``summary.yaml``/``.json`` and,
     with ground truth, ``paths.png``/``.svg`` and ``errors.png``/``.svg`` (charts).
     ``iasm``: IASM's and H-IASM's settings, ``tracks`` the feature tracks' (the defaults
     unless given). ``wheel_odometry``: start ICP from the sequence's wheel odometry (when
-    it has one) and fuse it in the Kalman filter; False ignores it.
+    it has one) and fuse it in the Kalman filter; False ignores it. ``loop_closure``: also
+    run each of :data:`LOOP_CLOSURE_METHODS` chosen with loop closure, as ``METHOD+lc``.
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -343,6 +364,18 @@ def run(
                 metrics = evaluate(poses, gt)
             results.append(MethodRun(name, est.stamps_s, poses, metrics, est.stats, seconds, est.steps_csv))
             log.info("%s: %d poses in %.1f s", name, len(est.stamps_s), seconds)
+            if loop_closure is not None and name in LOOP_CLOSURE_METHODS:
+                t0 = time.perf_counter()
+                lc = _loop_closed(streams, est, loop_closure)
+                seconds += time.perf_counter() - t0
+                poses, metrics = lc.poses, None
+                if truth is not None:
+                    gt = planar_at(truth, lc.stamps_s)
+                    poses = anchored(lc.poses, gt)
+                    metrics = evaluate(poses, gt)
+                results.append(
+                    MethodRun(f"{name}+lc", lc.stamps_s, poses, metrics, lc.stats, seconds, None, lc.closures)
+                )
     finally:
         streams.stop_background()
     stamps = streams.scan_stamps_s
@@ -421,6 +454,8 @@ def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool)
             (tmp / m.method / "trajectory.tum").write_text(tum_text(traj), encoding="utf-8")
             if m.steps_csv is not None:
                 (tmp / m.method / "steps.csv").write_text(m.steps_csv, encoding="utf-8")
+            if m.closures is not None:
+                _write_closures(tmp / m.method, m)
             if kitti:
                 (tmp / m.method / "trajectory.kitti").write_text(kitti_text(traj), encoding="utf-8")
         (tmp / "summary.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
@@ -433,6 +468,28 @@ def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool)
             for fmt in (".png", ".svg"):
                 (tmp / f"paths{fmt}").write_bytes(figure_bytes(paths_figure(gt, poses), fmt))
                 (tmp / f"errors{fmt}").write_bytes(figure_bytes(errors_figure(truth_at, poses, stamps), fmt))
+
+
+def _write_closures(folder: Path, m: MethodRun) -> None:
+    """METHOD+lc/closures.csv (every closure proposed, and what became of it) and
+    graph.png/.svg (the optimised path and its closures)."""
+    from rigcal.viz.charts import figure_bytes
+    from rigcal.viz.paths_plot import graph_figure
+
+    assert m.closures is not None
+    rows = ["i,j,stamp_i_s,stamp_j_s,status,inliers,rms_m,why_not"]
+    accepted: list[tuple[int, int]] = []
+    rejected: list[tuple[int, int]] = []
+    for c in m.closures.closures:
+        status = "accepted" if c.T_j_i is not None and not c.kernel_rejected else "rejected"
+        (accepted if status == "accepted" else rejected).append((c.i, c.j))
+        rows.append(
+            f"{c.i},{c.j},{float(m.stamps_s[c.i])!r},{float(m.stamps_s[c.j])!r},{status},"
+            f"{c.inliers:.3f},{c.rms_m:.4f},{c.why_not}"
+        )
+    (folder / "closures.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    for fmt in (".png", ".svg"):
+        (folder / f"graph{fmt}").write_bytes(figure_bytes(graph_figure(m.poses, accepted, rejected), fmt))
 
 
 def _ground_truth(folder: Path, name: str | None) -> Trajectory | None:
