@@ -7,15 +7,17 @@ rigcal.io.carmen.carmen_odometry); each method is scored against the g2o's verti
 SLAM-optimised poses) by ATE (evo's, SE(2)-aligned) and the relation error of Kuemmerle
 et al. 2009 over consecutive scans (mean +- std, m and deg; rigcal.localize.metrics.
 relation_error; the relations are the optimised poses' own, not the hand-verified
-relation files of the Freiburg site). Speed: the log's duration over the run's wall time.
+relation files of the Freiburg site). Speed: the log's duration over the run's wall time
+(ICP, and ICP with loop closure).
 
 Simulated loops (``--sim``): each of the cubicle and corridor loops driven once and
-scanned at 1 Hz (scans ~1 m and up to ~60 deg apart, as the subsampled logs of SLAM
-papers), with simulated wheel odometry (rigcal.sim.drive.wheel_odometry); ATE and loop
-closure error of ICP from the previous motion, ICP from the odometry, and the odometry.
+scanned at 1 Hz (``--rate-hz``; scans ~1 m and up to ~60 deg apart, as the subsampled
+logs of SLAM papers), with simulated wheel odometry (rigcal.sim.drive.wheel_odometry);
+ATE and loop closure error of ICP from the previous motion, ICP from the odometry, each
+with and without loop closure (rigcal.localize.loop_closure), and the odometry.
 
     uv sync --group bench        # rtb-data
-    .venv/bin/python benchmarks/bench_wheel_odometry.py [--sim] [--scans N]
+    .venv/bin/python benchmarks/bench_wheel_odometry.py [--sim [--rate-hz R]] [--scans N]
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import numpy as np
 from rigcal.io.carmen import carmen_odometry, read_carmen
 from rigcal.io.wheel_odometry import laser_motions
 from rigcal.localize.icp import IcpParams, pose_of, se2
+from rigcal.localize.loop_closure import close_loops
 from rigcal.localize.metrics import anchored, evaluate, relation_error
 from rigcal.localize.odometry import icp_odometry
 
@@ -64,6 +67,10 @@ def killian(n: int | None) -> None:
         od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=g)
         wall = time.perf_counter() - t0
         rows[name] = (od.poses, duration / wall)
+        t1 = time.perf_counter()
+        lc = close_loops(scans, od.poses)
+        rows[f"{name} + loop closure"] = (lc.poses, duration / (wall + time.perf_counter() - t1))
+        print(f"{name}: closures {lc.counts}")
     rows["odometry (g2o sequential edges)"] = (chained(guess), float("nan"))
     print(f"Killian Court: {len(scans)} scans, {duration:.0f} s of data; odometry: {how}")
     print(
@@ -80,20 +87,20 @@ def killian(n: int | None) -> None:
         )
 
 
-def simulated() -> None:
+def simulated(rate_hz: float) -> None:
     from rigcal.io.sequence import read_sequence
     from rigcal.io.trajectory import read_tum
     from rigcal.localize.pipeline import planar_at
     from rigcal.sim.drive import DriveSpec
     from rigcal.sim.world import world_named
 
-    print("| loop (1 Hz scans) | method | ATE (m) | loop closure error (m) |")
+    print(f"| loop ({rate_hz:g} Hz scans) | method | ATE (m) | loop closure error (m) |")
     print("|---|---|---|---|")
     for world in ("cubicle-loop", "corridor-loop"):
         with tempfile.TemporaryDirectory() as tmp:
             from rigcal.sim.drive import write_drive
 
-            spec = DriveSpec(laser_rate_hz=1.0, images=False, wheel_odometry=True)
+            spec = DriveSpec(laser_rate_hz=rate_hz, images=False, wheel_odometry=True)
             write_drive(world_named(world), spec, f"{tmp}/seq")
             seq = read_sequence(f"{tmp}/seq")
             assert seq.odometry is not None
@@ -105,6 +112,8 @@ def simulated() -> None:
                 "ICP from the odometry": icp_odometry(seq.scans, guess=guess).poses,
                 "odometry": chained(guess),
             }
+            for name in list(ests)[:2]:
+                ests[f"{name} + loop closure"] = close_loops(seq.scans, ests[name]).poses
             for name, est in ests.items():
                 m = evaluate(anchored(est, gt), gt)
                 print(f"| {world} | {name} | {m['ate_rmse_m']:.3f} | {m['loop_closure_error_m']:.3f} |")
@@ -114,9 +123,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sim", action="store_true", help="the simulated loops instead of Killian Court")
     ap.add_argument("--scans", type=int, default=None, help="only the log's first N scans")
+    ap.add_argument("--rate-hz", type=float, default=1.0, help="the simulated laser's rate")
     a = ap.parse_args()
     if a.sim:
-        simulated()
+        simulated(a.rate_hz)
     else:
         killian(a.scans)
 
