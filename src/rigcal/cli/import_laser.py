@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.stamps import laser_offset_option, stamps_option, warn_stamps
 from rigcal.io.validate import Real
 
 
@@ -39,6 +40,13 @@ from rigcal.io.validate import Real
 @click.option(
     "-o", "--output", required=True, type=click.Path(path_type=Path, file_okay=False), help="Sequence folder."
 )
+@stamps_option
+@click.option(
+    "--odometry",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Wheel odometry: a TUM file of the robot base's poses (same clock as the scans).",
+)
+@laser_offset_option
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 def import_laser(
     log: Path,
@@ -49,6 +57,9 @@ def import_laser(
     range_max_m: float,
     no_return_m: float | None,
     output: Path,
+    stamps: str,
+    odometry: Path | None,
+    laser_offset: str | None,
     force: bool,
 ) -> None:
     """Write the scans of LOG (and the images of --images) as a sequence folder.
@@ -67,16 +78,31 @@ def import_laser(
     from rigcal.errors import InputError
     from rigcal.io.files import check_folder_writable
     from rigcal.io.laser_text import import_laser_text
+    from rigcal.io.wheel_odometry import parse_mounting
 
-    check_folder_writable(output, force, [p for p in (log, images, camera) if p is not None])
+    mounting = parse_mounting(laser_offset) if laser_offset is not None else None
+    check_folder_writable(output, force, [p for p in (log, images, camera, odometry) if p is not None])
     if not range_min_m < range_max_m:
         raise InputError.at(
             None, "--range-min-m", range_min_m, f"a range below --range-max-m {range_max_m:g}"
         )
     s = import_laser_text(
-        log, output, images, camera, fmt, range_min_m, range_max_m, force=force, no_return_m=no_return_m
+        log,
+        output,
+        images,
+        camera,
+        fmt,
+        range_min_m,
+        range_max_m,
+        force=force,
+        no_return_m=no_return_m,
+        stamps=stamps,
+        odometry=odometry,
+        laser_offset=mounting,
     )
+    warn_stamps(s.stamps, "scan stamps")
     click.echo(
         f"wrote {output}/: {s.scans} scans ({s.format}), {s.images} images"
         + (", camera.yaml" if s.camera else "")
+        + (", odometry.tum" if s.odometry else "")
     )

@@ -327,6 +327,12 @@ def board_session(
     "[default: the simulated forward-looking rig]",
 )
 @click.option("--no-images", is_flag=True, help="Write no camera images (laser and ground truth only).")
+@click.option(
+    "--wheel-odometry",
+    is_flag=True,
+    help="Also write the base's wheel odometry (odometry.tum: 50 Hz, 2 %% scale error, "
+    "0.5 deg/m heading drift; docs/formats/sequence.md).",
+)
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 @click.option(
     "--json",
@@ -349,6 +355,7 @@ def world(
     duration_s: float | None,
     rig_file: Path | None,
     no_images: bool,
+    wheel_odometry: bool,
     force: bool,
     as_json: bool,
 ) -> None:
@@ -389,6 +396,7 @@ def world(
         exposure_walk=exposure_walk,
         images=not no_images,
         duration_s=duration_s,
+        wheel_odometry=wheel_odometry,
     )
     n_images = len(camera_stamps(Motion(w, spec), spec)) if spec.images else 0
     from rigcal.cli.progress import Progress
