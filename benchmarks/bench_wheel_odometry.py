@@ -31,9 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
+from rigcal.geometry import pose_of, se2
 from rigcal.io.carmen import carmen_odometry, read_carmen
 from rigcal.io.wheel_odometry import laser_motions
-from rigcal.localize.icp import IcpParams, pose_of, se2
+from rigcal.localize.icp import IcpParams
 from rigcal.localize.loop_closure import close_loops
 from rigcal.localize.metrics import anchored, evaluate, relation_error
 from rigcal.localize.odometry import icp_odometry

@@ -398,7 +398,7 @@ def test_laser_odometry_starts_each_step_from_a_given_motion(tmp_path):
     """Scans far apart at irregular gaps (as a robot's loop that falls behind): the
     constant-velocity start fails, a motion from elsewhere (wheel odometry; here the
     truth) keeps the track."""
-    from rigcal.localize.icp import pose_of, se2
+    from rigcal.geometry import pose_of, se2
     from rigcal.localize.metrics import anchored
     from rigcal.localize.pipeline import planar_at
 

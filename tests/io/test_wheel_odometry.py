@@ -9,10 +9,10 @@ from click.testing import CliRunner
 
 from rigcal.cli.main import cli, main
 from rigcal.errors import InputError
+from rigcal.geometry import pose_of, se2
 from rigcal.io.carmen import carmen_odometry, read_carmen
 from rigcal.io.sequence import read_sequence
 from rigcal.io.wheel_odometry import checked, laser_motions, parse_mounting
-from rigcal.localize.icp import pose_of, se2
 
 
 def flaser(pose, odom, stamp):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rigcal.cli.main import main
-from rigcal.localize.icp import pose_of, se2
+from rigcal.geometry import pose_of, se2
 from rigcal.localize.loop_closure import Closure, LoopParams, optimise, propose
 
 

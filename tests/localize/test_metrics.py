@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigcal.localize.icp import pose_of, se2
+from rigcal.geometry import pose_of, se2
 from rigcal.localize.metrics import align_se2, anchored, evaluate, relation_error, rpe_rmse
 
 

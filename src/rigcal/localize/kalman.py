@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.localize.icp import pose_of, se2
+from rigcal.geometry import pose_of, se2
 
 FloatArray = NDArray[np.float64]
 

@@ -34,7 +34,8 @@ from numpy.typing import NDArray
 from scipy.sparse import csr_matrix, diags
 from scipy.sparse.linalg import spsolve
 
-from rigcal.localize.icp import IcpParams, icp, pose_of, se2
+from rigcal.geometry import pose_of, se2
+from rigcal.localize.icp import IcpParams, icp
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]

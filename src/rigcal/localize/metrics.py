@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.localize.icp import pose_of, se2
+from rigcal.geometry import pose_of, se2
 
 FloatArray = NDArray[np.float64]
 

@@ -25,8 +25,9 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from rigcal.calib.lines import Segment, extract_lines, line_labels, return_labels
+from rigcal.geometry import pose_of, se2
 from rigcal.jit import njit
-from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, icp, label_runs, line_normals, pose_of, se2
+from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, icp, label_runs, line_normals
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]

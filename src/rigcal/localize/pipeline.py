@@ -26,12 +26,13 @@ import yaml
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
+from rigcal.geometry import pose_of, se2
 from rigcal.io.files import atomic_folder
 from rigcal.io.trajectory import Trajectory, kitti_text, planar_trajectory, read_tum, tum_text
 from rigcal.io.wheel_odometry import laser_motions
 from rigcal.localize import kalman
 from rigcal.localize.iasm import IasmParams
-from rigcal.localize.icp import IcpParams, pose_of, se2
+from rigcal.localize.icp import IcpParams
 from rigcal.localize.image_matching import scan_matching
 from rigcal.localize.loop_closure import LoopParams, LoopResult, close_loops
 from rigcal.localize.metrics import anchored, evaluate

@@ -30,10 +30,10 @@ from numpy.typing import NDArray
 
 from rigcal.calib.lines import Segment, extract_lines
 from rigcal.errors import InputError
+from rigcal.geometry import pose_of, se2
 from rigcal.io.images import read_grey
 from rigcal.io.sequence import Sequence, read_sequence
 from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
-from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.odometry import LASER_ODOMETRY, Odometry, icp_odometry
 from rigcal.localize.tracks import FrameTracks, TrackParams, equalized, track_sequence
 from rigcal.rig import Rig

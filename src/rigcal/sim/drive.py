@@ -259,7 +259,7 @@ def wheel_odometry(motion: Motion, spec: DriveSpec) -> tuple[FloatArray, FloatAr
     base motion (the laser's, moved by :data:`WHEEL_T_BASE_LASER`) between consecutive
     stamps, its distance scaled by (1 + scale error + noise) and its heading drifting with
     the distance driven, chained from the true start."""
-    from rigcal.localize.icp import pose_of, se2
+    from rigcal.geometry import pose_of, se2
 
     rng = np.random.default_rng([spec.seed, 7])
     t: FloatArray = np.arange(0.0, drive_duration(motion, spec), 1.0 / WHEEL_RATE_HZ)
