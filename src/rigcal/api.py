@@ -743,7 +743,9 @@ class LaserOdometry:
             scan: the new scan; its ``stamp_s``, when given, must be after the previous one's.
             guess: the motion since the previous scan, T_prev_cur as (x m, y m, yaw rad)
                 in the previous scan's frame (e.g. from wheel odometry), to start ICP
-                from; default: the previous step's motion (constant velocity).
+                from, used as ``rigcal localize`` uses a sequence's wheel odometry (a fit
+                beyond its error bound keeps the guess); default: the previous step's
+                motion (constant velocity).
 
         Raises:
             ArgumentError: not a Scan, a stamp not after the previous one, a bad guess.
