@@ -342,6 +342,8 @@ def test_localize_checks_its_arguments_before_working(tmp_path):
         rigcal.localize(7)
     with pytest.raises(ArgumentError, match=r"force: got 1"):
         rigcal.localize(seq, force=1)
+    with pytest.raises(ArgumentError, match=r"localize: wheel_odometry: got 'use'; expected True or False"):
+        rigcal.localize(seq, wheel_odometry="use")
     (tmp_path / "out").mkdir()
     with pytest.raises(OutputError, match="exists"):
         rigcal.localize(seq, "icp", output=tmp_path / "out")
