@@ -23,8 +23,8 @@ import numpy as np
 from evo.core import metrics, sync
 from evo.core.trajectory import PoseTrajectory3D
 
+from rigcal.geometry import se2
 from rigcal.io.trajectory import read_tum
-from rigcal.localize.icp import se2
 from rigcal.localize.metrics import associate, ate_rmse, rpe_rmse
 from rigcal.localize.pipeline import planar_at, run
 from rigcal.sim.drive import DriveSpec, write_drive

@@ -71,12 +71,11 @@ from typing import Any
 import numpy as np
 
 from rigcal.errors import InputError
-from rigcal.geometry import transform_points
+from rigcal.geometry import pose_of, se2, transform_points
 from rigcal.io.trajectory import Trajectory, read_tum
 from rigcal.localize import image_matching
 from rigcal.localize.hiasm import window_search
 from rigcal.localize.iasm import IasmParams, Matches, match_returns, robust_motion
-from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.pipeline import parse_iasm_settings, planar_at
 from rigcal.localize.streams import Streams, open_streams

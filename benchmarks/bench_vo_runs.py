@@ -36,8 +36,8 @@ import numpy as np
 
 from bench_localize import sequence_name
 from bench_tracks import drive_of, folder_of, seeds_of, variants_of
+from rigcal.geometry import pose_of, se2
 from rigcal.io.trajectory import read_tum
-from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.pipeline import _vo_result, planar_at
 from rigcal.localize.streams import open_streams
 from rigcal.localize.tracks import TrackParams

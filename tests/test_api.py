@@ -342,6 +342,8 @@ def test_localize_checks_its_arguments_before_working(tmp_path):
         rigcal.localize(7)
     with pytest.raises(ArgumentError, match=r"force: got 1"):
         rigcal.localize(seq, force=1)
+    with pytest.raises(ArgumentError, match=r"localize: wheel_odometry: got 'use'; expected True or False"):
+        rigcal.localize(seq, wheel_odometry="use")
     (tmp_path / "out").mkdir()
     with pytest.raises(OutputError, match="exists"):
         rigcal.localize(seq, "icp", output=tmp_path / "out")
@@ -398,7 +400,7 @@ def test_laser_odometry_starts_each_step_from_a_given_motion(tmp_path):
     """Scans far apart at irregular gaps (as a robot's loop that falls behind): the
     constant-velocity start fails, a motion from elsewhere (wheel odometry; here the
     truth) keeps the track."""
-    from rigcal.localize.icp import pose_of, se2
+    from rigcal.geometry import pose_of, se2
     from rigcal.localize.metrics import anchored
     from rigcal.localize.pipeline import planar_at
 

@@ -199,7 +199,7 @@ class Localization:
     """One method's trajectory through a sequence.
 
     Attributes:
-        method: the method's name (icp, icp-p2p, vo, kf, iasm, hiasm).
+        method: the method's name (icp, icp-p2p, vo, kf, iasm, hiasm, odom).
         stamps_s: (N,) the pose stamps, seconds.
         poses: (N, 3) the laser's planar poses (x m, y m, yaw rad), in the truth's frame
             when the sequence has ground truth, else in the first pose's.
@@ -633,13 +633,14 @@ def localize(
     force: bool = False,
     tracks: Mapping[str, object] | None = None,
     iasm: Mapping[str, object] | None = None,
+    wheel_odometry: bool = True,
 ) -> dict[str, Localization]:
     """Localize a sequence folder (docs/formats/sequence.md), as ``rigcal localize``.
 
     Args:
         sequence: the sequence folder.
         methods: one method or several (a name, a comma-separated text as ``--method``
-            takes, or a list): icp, icp-p2p, vo, kf, iasm, hiasm.
+            takes, or a list): icp, icp-p2p, vo, kf, iasm, hiasm, odom.
         output: also write the output folder ``rigcal localize`` writes (trajectories,
             summary, paths picture); default: nothing is written.
         rig: a rig file to use instead of the sequence's own.
@@ -647,6 +648,8 @@ def localize(
         tracks, iasm: settings of the feature tracks and of IASM / H-IASM, as
             ``--tracks`` and ``--iasm`` take them (``{"equalize": "clahe"}``,
             ``{"snap_max_m": 0}``); default: the defaults.
+        wheel_odometry: start ICP from the sequence's wheel odometry, when it has one,
+            and fuse it in the Kalman filter (``--wheel-odometry use``).
 
     Returns:
         Each method's trajectory, by method name.
@@ -669,6 +672,7 @@ def localize(
         out_path = None if output is None else _path(output, where, "output")
         rig_path = None if rig is None else _path(rig, where, "rig")
         force = flag(force, where, "force")
+        use_wheels = flag(wheel_odometry, where, "wheel_odometry")
         if isinstance(methods, str):
             names = parse_methods(methods, f"{where}: methods")
         elif (
@@ -690,7 +694,16 @@ def localize(
         check_folder_writable(out_path, force)  # refuse before the work
     with tempfile.TemporaryDirectory(prefix="rigcal-") as tmp:
         out = out_path if out_path is not None else Path(tmp) / "out"
-        r = run(seq, names, out, force=force, rig_file=rig_path, iasm=iasm_params, tracks=track_params)
+        r = run(
+            seq,
+            names,
+            out,
+            force=force,
+            rig_file=rig_path,
+            iasm=iasm_params,
+            tracks=track_params,
+            wheel_odometry=use_wheels,
+        )
     return {m.method: Localization(m.method, m.stamps_s, m.poses, m.metrics) for m in r.methods}
 
 
@@ -730,7 +743,9 @@ class LaserOdometry:
             scan: the new scan; its ``stamp_s``, when given, must be after the previous one's.
             guess: the motion since the previous scan, T_prev_cur as (x m, y m, yaw rad)
                 in the previous scan's frame (e.g. from wheel odometry), to start ICP
-                from; default: the previous step's motion (constant velocity).
+                from, used as ``rigcal localize`` uses a sequence's wheel odometry (a fit
+                beyond its error bound keeps the guess); default: the previous step's
+                motion (constant velocity).
 
         Raises:
             ArgumentError: not a Scan, a stamp not after the previous one, a bad guess.

@@ -16,6 +16,18 @@ from scipy.spatial.transform import Rotation
 FloatArray = NDArray[np.float64]
 
 
+def se2(pose: FloatArray) -> FloatArray:
+    """(3, 3) homogeneous matrix of a planar pose (x, y, yaw)."""
+    x, y, yaw = pose
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
+
+
+def pose_of(M: FloatArray) -> FloatArray:
+    """(x, y, yaw) of a (3, 3) homogeneous matrix."""
+    return np.array([M[0, 2], M[1, 2], np.arctan2(M[1, 0], M[0, 0])])
+
+
 def make_T(R: ArrayLike, t: ArrayLike) -> FloatArray:
     """Homogeneous 4x4 transform from a (3, 3) rotation and a (3,) translation."""
     T = np.eye(4)

@@ -162,9 +162,9 @@ def read_scan(path: str | Path) -> Scan:
     return counter_clockwise(scan) if clockwise else scan
 
 
-def laser_clockwise(d: Any, path: Path, versions: tuple[int, ...]) -> bool:
-    """Check ``schema_version`` (one of ``versions``; the last adds ``laser``) and return
-    the file's ``laser.clockwise`` (False when absent).
+def laser_clockwise(d: Any, path: Path, versions: tuple[int, ...], since: int | None = None) -> bool:
+    """Check ``schema_version`` (one of ``versions``; ``since``, by default the last, adds
+    ``laser``) and return the file's ``laser.clockwise`` (False when absent).
 
     Raises:
         InputError: a version not read, ``laser`` in a version that does not define it, or
@@ -176,10 +176,10 @@ def laser_clockwise(d: Any, path: Path, versions: tuple[int, ...]) -> bool:
         raise InputError.at(path, "schema_version", v, f"one of {expected} (the versions this rigcal reads)")
     if "laser" not in d:
         return False
-    if v < versions[-1]:
-        raise InputError.at(
-            path, "laser", d["laser"], f"no laser key in schema_version {v} (laser needs {versions[-1]})"
-        )
+    since = versions[-1] if since is None else since
+    if v < since:
+        need = f"no laser key in schema_version {v} (laser needs {since})"
+        raise InputError.at(path, "laser", d["laser"], need)
     laser = check_keys(d["laser"], path, "laser", [], ["clockwise"])
     cw = laser.get("clockwise", False)
     if not isinstance(cw, bool):

@@ -388,9 +388,19 @@ def carmen_cases() -> list[Case]:
             "ipc_timestamp",
         )
     )
+    strict = [*CARMEN, "--stamps", "strict"]  # the default repairs small glitches
     out.append(
         Case(
-            "carmen-stamp-repeated", CARMEN, edit_text(rel, " 101.0 host", " 100.0 host"), 3, "ipc_timestamp"
+            "carmen-stamp-repeated", strict, edit_text(rel, " 101.0 host", " 100.0 host"), 3, "ipc_timestamp"
+        )
+    )
+    out.append(
+        Case(
+            "carmen-stamp-broken-clock",
+            CARMEN,
+            edit_text(rel, " 101.0 host", " 50.0 host"),
+            3,
+            "broken clock",
         )
     )
     robot = "ROBOTLASER1 0 -1.5708 3.1416 0.7854 30.0 0.01"
@@ -502,7 +512,7 @@ def sequence_cases() -> list[Case]:
         ("images.index", ["../../../etc/passwd", None]),
         ("images.folder", ["../..", "/", None]),
         ("groundtruth", ["../../../nope", "/etc/passwd", 5]),
-        ("schema_version", [3, None, "1"]),
+        ("schema_version", [4, None, "1"]),  # 3 (odometry) is read
     ]:
         for v in vals:
             seq(f"yaml-{key}={_show(v)}", set_yaml(y, key, v), key.split(".")[0])
@@ -1545,17 +1555,29 @@ def laser_cases() -> list[Case]:
     radlocc("angles-beyond-2pi", "1.0 -50 25 50 3 5 2.0 2.0 2.0 2.0 2.0")
     radlocc("too-few", "1.0 -0.5 0.25")
     radlocc("short-ranges", "1.0 -0.5 0.25 0.5 3 5 2.0 2.0")
+    strict = [*LASER, "--stamps", "strict"]  # the default repairs small glitches
     out.append(
         Case(
             "import-laser-radlocc-stamp-repeated",
-            LASER,
+            strict,
             edit_text(rel, "1.1 -0.5", "1.0 -0.5"),
             3,
             "laser.txt",
         )
     )
     out.append(
-        Case("import-laser-radlocc-stamp-back", LASER, edit_text(rel, "1.2 -0.5", "0.5 -0.5"), 3, "laser.txt")
+        Case(
+            "import-laser-radlocc-stamp-back", strict, edit_text(rel, "1.2 -0.5", "0.5 -0.5"), 3, "laser.txt"
+        )
+    )
+    out.append(
+        Case(
+            "import-laser-radlocc-broken-clock",
+            LASER,
+            edit_text(rel, "1.2 -0.5", "-9 -0.5"),
+            3,
+            "broken clock",
+        )
     )
     out.append(Case("import-laser-radlocc-empty", LASER, write(rel, ""), 3, "laser.txt"))
     out.append(Case("import-laser-radlocc-comments", LASER, write(rel, "# nothing\n"), 3, "laser.txt"))
@@ -1573,7 +1595,17 @@ def laser_cases() -> list[Case]:
     csvcase("angle-degrees-as-rad", "1.1,0.2,2.0", "1.1,90,2.0")
     csvcase("angles-decrease", "1.1,0.2,2.0", "1.1,-0.1,2.0")
     csvcase("angle-repeated", "1.1,0.2,2.0", "1.1,0.0,2.0")
-    csvcase("stamp-back", "1.2,-0.2,2.0\n1.2,0.0,2.0\n1.2,0.2,2.0", "0.5,-0.2,2.0\n0.5,0.0,2.0\n0.5,0.2,2.0")
+    back = ("1.2,-0.2,2.0\n1.2,0.0,2.0\n1.2,0.2,2.0", "0.5,-0.2,2.0\n0.5,0.0,2.0\n0.5,0.2,2.0")
+    out.append(
+        Case(
+            "import-laser-csv-stamp-back",
+            [*LASER_CSV, "--stamps", "strict"],
+            edit_text(csv, *back),
+            3,
+            "laser.csv",
+        )
+    )
+    csvcase("broken-clock", back[0], back[0].replace("1.2,", "-9,"))
     csvcase("short-row", "1.1,0.0,2.0", "1.1,0.0")
     csvcase("no-range-column", "stamp_s,angle_rad,range_m", "stamp_s,angle_rad,dist")
     csvcase("no-angle-column", "stamp_s,angle_rad,range_m", "stamp_s,bearing,range_m")

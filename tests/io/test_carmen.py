@@ -106,8 +106,11 @@ def test_flaser_spans_180_degrees_from_minus_90(tmp_path, n, step_deg):
         ),
         (
             robotlaser1([1.0, 2.0], stamp=50.0),
-            r"run.log:2: ROBOTLASER1 ipc_timestamp: got 50.0; expected a stamp after line 1",
+            r"run.log: laser ipc_timestamp: line 2: got stamp 50.0; expected stamps that increase but for "
+            r"glitches of at most 1 s",
         ),
+        ("ODOM 1 2 x 0 0 0 61.0 h 1", r"run.log:2: ODOM field 3 \(x y theta tv rv accel ipc_timestamp\)"),
+        ("ODOM 1 2 3", r"run.log:2: ODOM: got '3 fields'; expected at least 7"),
     ],
 )
 def test_bad_lines_name_file_line_and_what_was_expected(tmp_path, line, match):

@@ -127,7 +127,7 @@ def test_csv_laser(tmp_path):
         ("1.0 -0.5 x 0.5 2 2", r"line 1: got '1.0 -0.5 x 0.5 2 2'; expected numbers"),
         ("1.0 -0.5 0.0 0.5 2 2", r"increment 0.0; expected finite, increment > 0"),
         ("1.0 -50 1 -48 2 2 2", r"expected radians"),
-        ("2.0 -0.1 0.1 0.1 2 2 2\n1.0 -0.1 0.1 0.1 2 2 2", r"line 2: stamp 1.0 not after 2.0"),
+        ("3.0 -0.1 0.1 0.1 2 2 2\n1.0 -0.1 0.1 0.1 2 2 2", r"line 2: got stamp 1.0; expected stamps that"),
         ("1.0 -0.1", r"line 1: got 2 fields"),
         ("# nothing\n", r"got an empty file"),
     ],

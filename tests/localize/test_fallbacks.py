@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
+from rigcal.geometry import pose_of, se2
 from rigcal.io.trajectory import read_tum
 from rigcal.localize import image_matching
 from rigcal.localize.iasm import Matches
-from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.image_matching import ScanMatcher
 from rigcal.localize.pipeline import planar_at
 from rigcal.localize.streams import open_streams

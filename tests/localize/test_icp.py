@@ -7,16 +7,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from rigcal.calib.lines import extract_lines, return_labels
-from rigcal.localize.icp import (
-    MIN_LINE_FRACTION,
-    IcpParams,
-    _normals,
-    _point_to_line,
-    icp,
-    line_normals,
-    pose_of,
-    se2,
-)
+from rigcal.geometry import pose_of, se2
+from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, _normals, _point_to_line, icp, line_normals
 from rigcal.localize.odometry import carry_labels, icp_odometry
 from rigcal.scan import Scan
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans

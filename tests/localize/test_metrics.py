@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigcal.localize.icp import pose_of, se2
-from rigcal.localize.metrics import align_se2, anchored, evaluate, rpe_rmse
+from rigcal.geometry import pose_of, se2
+from rigcal.localize.metrics import align_se2, anchored, evaluate, relation_error, rpe_rmse
 
 
 def square_loop(n: int = 400) -> np.ndarray:
@@ -89,3 +89,18 @@ def test_a_closed_loop_scores_its_end_position_error_too():
     m = evaluate(est, gt)
     assert m["loop_closure_error_m"] is not None
     assert m["end_position_error_m"] == pytest.approx(0.4, abs=1e-6)
+
+
+def test_relation_error_of_consecutive_and_chosen_relations():
+    gt = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, np.pi / 2], [2.0, 1.0, np.pi / 2]])
+    est = gt.copy()
+    est[2:, 0] += 0.1  # the second step 10 cm too long, the others exact
+    r = relation_error(est, gt)
+    assert r["relations"] == 3
+    assert r["trans_mean_m"] == pytest.approx(0.1 / 3)
+    assert r["trans_std_m"] == pytest.approx(np.std([0.0, 0.1, 0.0]))
+    assert r["rot_mean_deg"] == pytest.approx(0.0, abs=1e-12)
+    est[3, 2] += np.radians(2.0)  # the last pose turned 2 deg: its relation errs 2 deg
+    r = relation_error(est, gt, [(0, 3)])
+    assert r["rot_mean_deg"] == pytest.approx(2.0)
+    assert r["trans_mean_m"] == pytest.approx(0.1)

@@ -14,9 +14,8 @@ from evo.core import metrics, sync
 from evo.core.trajectory import PoseTrajectory3D
 
 from rigcal.cli.main import main
-from rigcal.geometry import make_T, rotvec_to_R
+from rigcal.geometry import make_T, pose_of, rotvec_to_R, se2
 from rigcal.io.trajectory import Trajectory, read_tum, tum_text
-from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.metrics import anchored, associate, ate_rmse, rpe_rmse
 from rigcal.localize.pipeline import planar_at
 

@@ -7,8 +7,9 @@ import itertools
 import numpy as np
 import pytest
 
+from rigcal.geometry import pose_of, se2
 from rigcal.localize.iasm import Frame, IasmParams
-from rigcal.localize.icp import line_normals, pose_of, se2
+from rigcal.localize.icp import line_normals
 from rigcal.localize.polish import joint_polish, keyframe_reference, match_weights, new_keyframe
 
 

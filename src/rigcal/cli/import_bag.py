@@ -7,12 +7,27 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.stamps import laser_offset_option
+
 
 @click.command("import-bag")
 @click.argument("bag", type=click.Path(path_type=Path))
 @click.option("--scan-topic", required=True, help="sensor_msgs/LaserScan topic.")
 @click.option("--image-topic", required=True, help="sensor_msgs/Image or CompressedImage topic.")
 @click.option("--camera-info-topic", help="sensor_msgs/CameraInfo topic: also write camera.yaml.")
+@click.option(
+    "--odometry-topic",
+    help="nav_msgs/Odometry topic: keep it as the wheel odometry (the laser's mounting from "
+    "--laser-offset or the bag's /tf_static).",
+)
+@laser_offset_option
+@click.option(
+    "--stamps",
+    type=click.Choice(["repair", "strict"]),
+    default="repair",
+    show_default=True,
+    help="repair: sort messages out of time order and drop repeated stamps (counted); strict: refuse them.",
+)
 @click.option(
     "-o", "--output", required=True, type=click.Path(path_type=Path), metavar="DIR", help="Sequence folder."
 )
@@ -23,6 +38,9 @@ def import_bag(
     scan_topic: str,
     image_topic: str,
     camera_info_topic: str | None,
+    odometry_topic: str | None,
+    laser_offset: str | None,
+    stamps: str,
     output: Path,
     force: bool,
     as_json: bool,
@@ -40,7 +58,9 @@ def import_bag(
     """
     from rigcal.io.bag import import_bag as run
     from rigcal.io.files import check_folder_writable
+    from rigcal.io.wheel_odometry import parse_mounting
 
+    mounting = parse_mounting(laser_offset) if laser_offset is not None else None
     check_folder_writable(output, force, [bag])
     from rigcal.cli.progress import Progress
 
@@ -53,6 +73,9 @@ def import_bag(
             camera_info_topic,
             force=force,
             progress=lambda done, total: bars("reading", done, total),
+            stamps=stamps,
+            odometry_topic=odometry_topic,
+            laser_offset=mounting,
         )
     if as_json:
         doc = {
@@ -62,6 +85,7 @@ def import_bag(
             "camera_yaml": s.camera,
             "reordered": dict(s.reordered),
             "duplicates_dropped": dict(s.duplicates),
+            "odometry_poses": s.odometry,
         }
         click.echo(json.dumps(doc, indent=1))
         return
@@ -74,5 +98,6 @@ def import_bag(
     click.echo(
         f"wrote {output}/: {s.scans} scans, {s.images} images"
         + (", camera.yaml" if s.camera else "")
+        + (f", odometry.tum ({s.odometry} poses)" if s.odometry else "")
         + ("; " + "; ".join(notes) if notes else "")
     )

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.stamps import laser_offset_option, stamps_option, warn_stamps
 from rigcal.io.validate import Real
 
 
@@ -22,15 +23,30 @@ from rigcal.io.validate import Real
     show_default=True,
     help="Maximum range of FLASER lines (they carry none); farther returns count as no return.",
 )
+@stamps_option
+@laser_offset_option
+@click.option("--no-odometry", is_flag=True, help="Leave the log's wheel odometry out of the folder.")
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
-def import_carmen(log: Path, output: Path, flaser_range_max_m: float, force: bool, as_json: bool) -> None:
+def import_carmen(
+    log: Path,
+    output: Path,
+    flaser_range_max_m: float,
+    stamps: str,
+    laser_offset: str | None,
+    no_odometry: bool,
+    force: bool,
+    as_json: bool,
+) -> None:
     """Write the laser scans of LOG as a sequence folder (docs/formats/sequence.md).
 
     Reads FLASER and ROBOTLASER1 lines from a CARMEN log, or from a g2o file that keeps
     them (the MIT Killian Court log); the logged laser poses (SLAM-corrected in corrected
     logs) become the folder's groundtruth.tum, so `rigcal localize` and `rigcal evaluate`
-    score laser odometry on real scans. The folder has no images.
+    score laser odometry on real scans. The folder has no images. The log's wheel
+    odometry (its ODOM lines, else the laser lines' odometry poses) is kept as
+    odometry.tum with the laser's mounting (--laser-offset, else the log's PARAMs); ICP
+    starts from it. Equal stamps and small steps back are repaired (--stamps).
 
     \b
     Examples:
@@ -40,16 +56,29 @@ def import_carmen(log: Path, output: Path, flaser_range_max_m: float, force: boo
     import numpy as np
 
     from rigcal.geometry import make_T, rotvec_to_R
-    from rigcal.io.carmen import read_carmen
+    from rigcal.io.carmen import carmen_odometry, read_carmen
     from rigcal.io.files import check_folder_writable
     from rigcal.io.sequence import write_sequence
     from rigcal.io.trajectory import Trajectory, tum_text
+    from rigcal.io.wheel_odometry import parse_mounting
 
+    mounting = parse_mounting(laser_offset) if laser_offset is not None else None
     check_folder_writable(output, force, [log])
-    c = read_carmen(log, flaser_range_max_m)
+    c = read_carmen(log, flaser_range_max_m, stamps)
+    odometry, odometry_how = (None, "left out (--no-odometry)")
+    if not no_odometry:
+        odometry, odometry_how = carmen_odometry(c, str(log), mounting)
+    warn_stamps(c.stamps, "scan stamps")
+    warn_stamps(c.odom_stamps, "ODOM stamps")
     T = np.array([make_T(rotvec_to_R([0.0, 0.0, th]), [x, y, 0.0]) for x, y, th in c.laser_poses])
-    stamps = np.array([s.stamp_s for s in c.scans], dtype=float)
-    source = {"carmen_log": str(log), "laser_lines": len(c.scans), "other_lines": c.skipped_lines}
+    stamps_s = np.array([s.stamp_s for s in c.scans], dtype=float)
+    source = {
+        "carmen_log": str(log),
+        "laser_lines": len(c.scans),
+        "other_lines": c.skipped_lines,
+        "stamps": c.stamps.record(stamps) if c.stamps else {"mode": stamps},
+        "odometry": odometry_how,
+    }
     write_sequence(
         output,
         log.name,
@@ -58,7 +87,8 @@ def import_carmen(log: Path, output: Path, flaser_range_max_m: float, force: boo
         None,
         source,
         force=force,
-        groundtruth_tum=tum_text(Trajectory(T, stamps)),
+        groundtruth_tum=tum_text(Trajectory(T, stamps_s)),
+        odometry=odometry,
     )
     if as_json:
         doc = {
@@ -66,10 +96,14 @@ def import_carmen(log: Path, output: Path, flaser_range_max_m: float, force: boo
             "scans": len(c.scans),
             "groundtruth": "groundtruth.tum",
             "other_lines_skipped": c.skipped_lines,
-            "duration_s": float(stamps[-1] - stamps[0]) if len(stamps) else 0.0,
+            "duration_s": float(stamps_s[-1] - stamps_s[0]) if len(stamps_s) else 0.0,
+            "stamps_repaired": c.stamps.repaired if c.stamps else 0,
+            "odometry": odometry_how if odometry is not None else None,
         }
         click.echo(json.dumps(doc, indent=1))
         return
     click.echo(
-        f"wrote {output}/: {len(c.scans)} scans, groundtruth.tum; {c.skipped_lines} other lines skipped"
+        f"wrote {output}/: {len(c.scans)} scans, groundtruth.tum"
+        + (f", odometry.tum ({odometry_how})" if odometry is not None else "")
+        + f"; {c.skipped_lines} other lines skipped"
     )

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.stamps import laser_offset_option, stamps_option, warn_stamps
 from rigcal.io.validate import Real
 
 
@@ -44,6 +45,13 @@ from rigcal.io.validate import Real
     metavar="DIR",
     help="Sequence folder.",
 )
+@stamps_option
+@click.option(
+    "--odometry",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Wheel odometry: a TUM file of the robot base's poses (same clock as the scans).",
+)
+@laser_offset_option
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
 def import_laser(
@@ -55,6 +63,9 @@ def import_laser(
     range_max_m: float,
     no_return_m: float | None,
     output: Path,
+    stamps: str,
+    odometry: Path | None,
+    laser_offset: str | None,
     force: bool,
     as_json: bool,
 ) -> None:
@@ -74,15 +85,29 @@ def import_laser(
     from rigcal.errors import InputError
     from rigcal.io.files import check_folder_writable
     from rigcal.io.laser_text import import_laser_text
+    from rigcal.io.wheel_odometry import parse_mounting
 
-    check_folder_writable(output, force, [p for p in (log, images, camera) if p is not None])
+    mounting = parse_mounting(laser_offset) if laser_offset is not None else None
+    check_folder_writable(output, force, [p for p in (log, images, camera, odometry) if p is not None])
     if not range_min_m < range_max_m:
         raise InputError.at(
             None, "--range-min-m", range_min_m, f"a range below --range-max-m {range_max_m:g}"
         )
     s = import_laser_text(
-        log, output, images, camera, fmt, range_min_m, range_max_m, force=force, no_return_m=no_return_m
+        log,
+        output,
+        images,
+        camera,
+        fmt,
+        range_min_m,
+        range_max_m,
+        force=force,
+        no_return_m=no_return_m,
+        stamps=stamps,
+        odometry=odometry,
+        laser_offset=mounting,
     )
+    warn_stamps(s.stamps, "scan stamps")
     if as_json:
         import json
 
@@ -99,4 +124,5 @@ def import_laser(
     click.echo(
         f"wrote {output}/: {s.scans} scans ({s.format}), {s.images} images"
         + (", camera.yaml" if s.camera else "")
+        + (", odometry.tum" if s.odometry else "")
     )

@@ -34,8 +34,9 @@ rig_option = click.option(
     default="icp",
     show_default=True,
     help="One method or several, comma-separated: icp (point-to-line), icp-p2p (point-to-point, "
-    "Eq. 4), vo (visual odometry with laser scale), kf (Kalman filter of icp and vo), iasm "
-    "(image augmented scan matching), hiasm (homography based IASM).",
+    "Eq. 4), vo (visual odometry with laser scale), kf (Kalman filter of icp and vo, and the wheel "
+    "odometry when used), iasm (image augmented scan matching), hiasm (homography based IASM), "
+    "odom (the wheel odometry alone).",
 )
 @click.option(
     "-o", "--output", required=True, type=click.Path(path_type=Path), metavar="DIR", help="Output folder."
@@ -60,6 +61,20 @@ rig_option = click.option(
     help="Change one of the feature tracks' settings (vo, kf, hiasm; docs/localization.md), e.g. "
     "detector=shi-tomasi or n_features=500; may be repeated. The summary records them.",
 )
+@click.option(
+    "--wheel-odometry",
+    type=click.Choice(["use", "ignore"]),
+    default="use",
+    show_default=True,
+    help="use: ICP starts each step from the sequence's wheel odometry (when it has one) and the "
+    "Kalman filter fuses it; ignore: start from the previous motion.",
+)
+@click.option(
+    "--loop-closure",
+    is_flag=True,
+    help="Also run icp, icp-p2p, iasm and hiasm with loop closure (scan-to-submap closures, a pose "
+    "graph with a robust kernel), as METHOD+lc: closures.csv and graph.png beside its trajectory.",
+)
 def localize(
     sequence: Path,
     methods: str,
@@ -70,6 +85,8 @@ def localize(
     as_json: bool,
     iasm_items: tuple[str, ...],
     track_items: tuple[str, ...],
+    wheel_odometry: str,
+    loop_closure: bool,
 ) -> None:
     """Estimate the laser's trajectory through SEQUENCE (a sequence folder) with one or
     more methods, run on the same data in the same process.
@@ -88,6 +105,7 @@ def localize(
     """
     from rigcal.errors import InputError
     from rigcal.io.files import check_folder_writable
+    from rigcal.localize.loop_closure import LoopParams
     from rigcal.localize.pipeline import (
         parse_iasm_settings,
         parse_methods,
@@ -117,6 +135,8 @@ def localize(
             progress=bars,
             iasm=iasm,
             tracks=tracks,
+            wheel_odometry=wheel_odometry == "use",
+            loop_closure=LoopParams() if loop_closure else None,
         )
     if as_json:
         click.echo(json.dumps(summary(r, sequence), indent=1))
@@ -124,6 +144,14 @@ def localize(
         click.echo(table([(m.method, m.metrics) for m in r.methods if m.metrics is not None]))
     for m in r.methods:
         click.echo(method_line(m), err=True)
+        if m.closures is not None:
+            c = m.closures.counts
+            click.echo(
+                f"{m.method}: {c['proposed']} closures proposed, {c['accepted']} accepted, "
+                f"{c['rejected_by_verification']} rejected by the verification, "
+                f"{c['rejected_by_kernel']} by the robust kernel",
+                err=True,
+            )
     shared = ", ".join(f"{k.removesuffix('_s')} {v:.1f} s" for k, v in r.timings_s.items())
     click.echo(f"stages: {shared}", err=True)
     ratio = r.duration_s / r.wall_s if r.wall_s > 0 else float("inf")

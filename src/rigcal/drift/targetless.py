@@ -53,9 +53,9 @@ from scipy.stats import ncx2, norm
 
 from rigcal.calib.lines import return_labels
 from rigcal.errors import InputError
-from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
+from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R, se2
 from rigcal.localize.iasm import snap_to_lines
-from rigcal.localize.icp import line_fits, se2
+from rigcal.localize.icp import line_fits
 from rigcal.localize.odometry import DEGENERATE_BELOW
 from rigcal.localize.streams import Streams, nearest_index, pose_at
 from rigcal.rig import Rig

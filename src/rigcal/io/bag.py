@@ -16,15 +16,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from rigcal.errors import InputError
 from rigcal.io.sequence import ImageFrame, write_sequence
 from rigcal.io.validate import real
+from rigcal.io.wheel_odometry import WheelOdometry, checked
 from rigcal.scan import Scan
 
 log = logging.getLogger(__name__)
 
 SCAN_TYPES = ("sensor_msgs/msg/LaserScan",)
+ODOMETRY_TYPES = ("nav_msgs/msg/Odometry",)
+TF_TYPES = ("tf2_msgs/msg/TFMessage",)
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
 
@@ -38,6 +42,7 @@ class ImportSummary:
     camera: bool = False
     reordered: dict[str, int] = field(default_factory=dict)
     duplicates: dict[str, int] = field(default_factory=dict)
+    odometry: int = 0
 
 
 def import_bag(
@@ -48,13 +53,20 @@ def import_bag(
     camera_info_topic: str | None = None,
     force: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    stamps: str = "repair",
+    odometry_topic: str | None = None,
+    laser_offset: NDArray[np.float64] | None = None,
 ) -> ImportSummary:
     """Write a sequence folder from a bag. ``progress`` is called with (messages read,
-    messages on the wanted topics).
+    messages on the wanted topics). ``stamps="strict"`` refuses messages out of time order
+    and repeated stamps instead of sorting and dropping them. ``odometry_topic``: a
+    nav_msgs/Odometry topic kept as the wheel odometry, the laser's mounting from
+    ``laser_offset`` or else the bag's /tf_static (:func:`bag_odometry`).
 
     Raises:
         InputError: unreadable bag, a missing topic (the bag's topics are listed), a topic
-            of the wrong type, an empty topic, or an image encoding that cannot be stored.
+            of the wrong type, an empty topic, an image encoding that cannot be stored,
+            stamps out of order (strict), or odometry that cannot be used.
     """
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
@@ -72,6 +84,10 @@ def import_bag(
         wanted = {"scan": (scan_topic, SCAN_TYPES), "image": (image_topic, IMAGE_TYPES)}
         if camera_info_topic is not None:
             wanted["camera_info"] = (camera_info_topic, INFO_TYPES)
+        if odometry_topic is not None:
+            wanted["odometry"] = (odometry_topic, ODOMETRY_TYPES)
+            if topics.get(TF_STATIC) in TF_TYPES:
+                wanted["tf_static"] = (TF_STATIC, TF_TYPES)
         for what, (topic, types) in wanted.items():
             if topic not in topics:
                 raise InputError.at(
@@ -88,6 +104,7 @@ def import_bag(
         camera_yaml: str | None = None
         first_image: tuple[tuple[int, int], str] | None = None  # (width, height), where
         info_where = ""
+        wheel = _WheelMessages()
         conns = [c for c in reader.connections if c.topic in {t for t, _ in wanted.values()}]
         total = sum(int(c.msgcount) for c in conns)
         seen = dict.fromkeys(topics, 0)
@@ -95,8 +112,14 @@ def import_bag(
             where = f"{bag}: {con.topic} message {seen[con.topic]}"
             seen[con.topic] += 1
             msg = _deserialize(reader, raw, con.msgtype, where)
+            if con.topic in (odometry_topic, TF_STATIC):  # TFMessage has no header
+                wheel.add(con.topic, msg)
+                if progress is not None:
+                    progress(k + 1, total)
+                continue
             stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
             if con.topic == scan_topic:
+                wheel.scan_frame = wheel.scan_frame or str(msg.header.frame_id)
                 scans.append((stamp, _scan(msg, stamp, where)))
             elif con.topic == image_topic:
                 data, ext, size = _image_bytes(msg, con.msgtype, where)
@@ -132,6 +155,13 @@ def import_bag(
             raise InputError.at(bag, topic, "no messages", f"a topic with {what}")
     scans_sorted, summary.reordered["scans"], summary.duplicates["scans"] = _ordered(scans)
     images_sorted, summary.reordered["images"], summary.duplicates["images"] = _ordered(images)
+    if stamps == "strict":
+        _strict_order(bag, [(scan_topic, scans), (image_topic, images)])
+    odometry = None
+    if odometry_topic is not None:
+        scan_t = np.array([t for t, _ in scans_sorted])
+        odometry = bag_odometry(wheel, f"{bag}: {odometry_topic}", laser_offset, scan_t)
+        summary.odometry = len(odometry.stamps_s)
     frames = [ImageFrame(stamp, f"{i:06d}.{ext}", data) for i, (stamp, data, ext) in enumerate(images_sorted)]
     write_sequence(
         output,
@@ -144,11 +174,100 @@ def import_bag(
             "scan_topic": scan_topic,
             "image_topic": image_topic,
             "camera_info_topic": camera_info_topic,
+            **({"odometry_topic": odometry_topic} if odometry_topic is not None else {}),
         },
         force=force,
+        odometry=odometry,
     )
     summary.scans, summary.images, summary.camera = len(scans_sorted), len(frames), camera_yaml is not None
     return summary
+
+
+TF_STATIC = "/tf_static"
+
+
+class _WheelMessages:
+    """The odometry topic's poses and /tf_static's transforms, gathered as the bag is read."""
+
+    def __init__(self) -> None:
+        self.poses: list[tuple[float, float, float, float]] = []  # stamp, x, y, yaw
+        self.frames: set[tuple[str, str]] = set()  # (frame_id, child_frame_id)
+        self.static: dict[tuple[str, str], NDArray[np.float64]] = {}  # (parent, child) -> x y yaw
+        self.scan_frame = ""
+
+    def add(self, topic: str, msg: Any) -> None:
+        if topic == TF_STATIC:
+            for tf in msg.transforms:
+                t, q = tf.transform.translation, tf.transform.rotation
+                key = (str(tf.header.frame_id).lstrip("/"), str(tf.child_frame_id).lstrip("/"))
+                self.static[key] = np.array([float(t.x), float(t.y), _yaw(q)])
+            return
+        stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
+        p = msg.pose.pose
+        self.poses.append((stamp, float(p.position.x), float(p.position.y), _yaw(p.orientation)))
+        self.frames.add((str(msg.header.frame_id).lstrip("/"), str(msg.child_frame_id).lstrip("/")))
+
+
+def _yaw(q: Any) -> float:
+    """The heading of a quaternion (rotation about z)."""
+    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
+    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+def bag_odometry(
+    wheel: _WheelMessages,
+    where: str,
+    laser_offset: NDArray[np.float64] | None,
+    scan_stamps_s: NDArray[np.float64],
+) -> WheelOdometry:
+    """The odometry topic's poses (T_odom_base: header.frame_id -> child_frame_id) as the
+    wheel odometry. The laser's mounting: ``laser_offset`` when given; else 0 when the
+    scans' frame is the odometry's child frame; else the /tf_static transform from the
+    child frame to the scans' frame.
+
+    Raises:
+        InputError: messages that switch frames, no transform between the odometry's child
+            frame and the scans' frame (unknown frames), and the checks of
+            :func:`rigcal.io.wheel_odometry.checked` (stamps, NaN, no overlap).
+    """
+    if len(wheel.frames) > 1:
+        raise InputError.at(
+            where, "frame_id -> child_frame_id", sorted(wheel.frames), "one pair of frames for the topic"
+        )
+    child = next(iter(wheel.frames))[1] if wheel.frames else ""
+    if laser_offset is not None:
+        mount = laser_offset
+    elif child == wheel.scan_frame.lstrip("/"):
+        mount = np.zeros(3)
+    elif (child, wheel.scan_frame.lstrip("/")) in wheel.static:
+        mount = wheel.static[(child, wheel.scan_frame.lstrip("/"))]
+    else:
+        raise InputError.at(
+            where,
+            "child_frame_id",
+            child,
+            f"the scans' frame {wheel.scan_frame!r} or a frame linked to it by a {TF_STATIC} transform "
+            f"(known: {sorted(wheel.static)}); or give --laser-offset",
+        )
+    a = np.array(wheel.poses, dtype=float).reshape(-1, 4)
+    order = np.argsort(a[:, 0], kind="stable")
+    return checked(a[order, 0], a[order, 1:], mount, where, scan_stamps_s)
+
+
+def _strict_order(bag: Path, streams: list[tuple[str, list[Any]]]) -> None:
+    """--stamps strict: the first message whose header stamp is not after the previous
+    one's (in the bag's order) is an error."""
+    for topic, items in streams:
+        t = np.array([it[0] for it in items])
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if len(bad):
+            k = int(bad[0]) + 1
+            raise InputError.at(
+                bag,
+                f"{topic} message {k} header.stamp",
+                float(t[k]),
+                f"a stamp after the previous {t[k - 1]!r}",
+            )
 
 
 def _ordered(items: list[Any]) -> tuple[list[Any], int, int]:

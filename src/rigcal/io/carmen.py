@@ -13,9 +13,14 @@ FLASER carries no beam geometry: CARMEN's front laser spans 180 degrees from -90
 (n even: n steps of 180/n degrees, as 180 beams at 1 degree; n odd: both ends included,
 as 181 or 361 beams), and no maximum range (``flaser_range_max_m``).
 
+and the odometry messages and the laser's mounting parameters:
+
+    ODOM x y theta tv rv accel  ipc_timestamp host logger_timestamp
+    PARAM robot_frontlaser_offset VALUE  (also _side_offset, _angular_offset)
+
 g2o files written from CARMEN logs (the MIT Killian Court log, for one) keep the
-ROBOTLASER1 lines next to their VERTEX_SE2 / EDGE_SE2 lines; every other message (ODOM,
-PARAM, SYNC, g2o vertices and edges, comments) is skipped and counted. In a corrected
+ROBOTLASER1 lines next to their VERTEX_SE2 / EDGE_SE2 lines; every other message (SYNC,
+other PARAMs, g2o vertices and edges, comments) is skipped and counted. In a corrected
 log the laser pose (FLASER x y theta, ROBOTLASER1 laser pose) is the SLAM-corrected pose;
 the odometry pose is the robot's raw odometry (ROBOTLASER1: the robot pose).
 """
@@ -23,14 +28,16 @@ the odometry pose is the robot's raw odometry (ROBOTLASER1: the robot pose).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
+from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.validate import parse_real, parse_whole
+from rigcal.io.wheel_odometry import WheelOdometry, checked
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
@@ -52,6 +59,12 @@ class CarmenLog:
         odometry_poses: (N, 3) the robot's odometry pose logged with each scan.
         line_numbers: (N,) 1-based line of each scan in the file.
         skipped_lines: lines of other messages, blank lines and comments.
+        stamps: what the stamp repair did to the scans' stamps (rigcal.io.stamps).
+        odom: (M, 4) the ODOM lines' stamp (repaired as the scans'), x, y, theta.
+        odom_stamps: what the stamp repair did to the ODOM lines' stamps.
+        params: the laser mounting's PARAM values read (name -> value).
+        g2o_steps: (N - 1, 3) in a g2o file whose EDGE_SE2 lines link every vertex to the
+            next, one vertex per laser line: those edges (dx, dy, dtheta), else (0, 3).
     """
 
     scans: list[Scan]
@@ -59,15 +72,25 @@ class CarmenLog:
     odometry_poses: FloatArray
     line_numbers: NDArray[np.int64]
     skipped_lines: int
+    stamps: StampRepair | None = None
+    odom: FloatArray = field(default_factory=lambda: np.zeros((0, 4)))
+    odom_stamps: StampRepair | None = None
+    params: dict[str, float] = field(default_factory=dict)
+    g2o_steps: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
-def read_carmen(path: str | Path, flaser_range_max_m: float = FLASER_RANGE_MAX_M) -> CarmenLog:
-    """Read the FLASER and ROBOTLASER1 lines of a CARMEN log or a g2o file.
+def read_carmen(
+    path: str | Path, flaser_range_max_m: float = FLASER_RANGE_MAX_M, stamps: str = "repair"
+) -> CarmenLog:
+    """Read the FLASER, ROBOTLASER1 and ODOM lines (and the laser's mounting PARAMs) of a
+    CARMEN log or a g2o file. ``stamps``: "repair" mends equal stamps and small steps back
+    (rigcal.io.stamps), "strict" refuses them.
 
     Raises:
-        InputError: unreadable file; a laser line with too few fields, a field that is not
-            a number, a beam count that is not a non-negative integer, a non-positive
-            angular step or maximum range; stamps not strictly increasing; no laser line.
+        InputError: unreadable file; a laser or ODOM line with too few fields, a field that
+            is not a number, a beam count that is not a non-negative integer, a non-positive
+            angular step or maximum range; stamps that do not increase (strict) or that the
+            repair cannot mend; no laser line.
     """
     p = Path(path)
     try:
@@ -79,19 +102,16 @@ def read_carmen(path: str | Path, flaser_range_max_m: float = FLASER_RANGE_MAX_M
     odom: list[FloatArray] = []
     lines: list[int] = []
     skipped = 0
+    extra = _OtherMessages()
     for no, line in enumerate(text.splitlines(), start=1):
         fields = line.split()
         if not fields or fields[0] not in LASER_MESSAGES:
-            skipped += 1
+            if not extra.read(fields, f"{p}:{no}", no):
+                skipped += 1
             continue
         where = f"{p}:{no}"
         parse = _flaser if fields[0] == "FLASER" else _robotlaser1
         scan, pose, odo = parse(fields[1:], where, flaser_range_max_m)
-        last = scans[-1].stamp_s if scans else None
-        if last is not None and scan.stamp_s is not None and scan.stamp_s <= last:
-            raise InputError.at(
-                where, f"{fields[0]} ipc_timestamp", scan.stamp_s, f"a stamp after line {lines[-1]}'s"
-            )
         scans.append(scan)
         laser.append(pose)
         odom.append(odo)
@@ -100,7 +120,147 @@ def read_carmen(path: str | Path, flaser_range_max_m: float = FLASER_RANGE_MAX_M
         raise InputError(
             f"{p}: no FLASER or ROBOTLASER1 lines; expected a CARMEN log or a g2o file with them"
         )
-    return CarmenLog(scans, np.array(laser), np.array(odom), np.array(lines, dtype=np.int64), skipped)
+    line_numbers = np.array(lines, dtype=np.int64)
+    fixed = repair_stamps([s.stamp_s for s in scans], f"{p}: laser ipc_timestamp", stamps, line_numbers)
+    scans = [replace(s, stamp_s=float(t)) for s, t in zip(scans, fixed.stamps_s, strict=True)]
+    odom_lines, odom_fixed = extra.odometry(p, stamps)
+    return CarmenLog(
+        scans,
+        np.array(laser),
+        np.array(odom),
+        line_numbers,
+        skipped,
+        fixed,
+        odom_lines,
+        odom_fixed,
+        extra.params,
+        extra.g2o_steps(len(scans)),
+    )
+
+
+# CARMEN's laser mounting parameters: x forward (m), y left (m), yaw (rad) on the robot.
+MOUNTING_PARAMS = (
+    "robot_frontlaser_offset",
+    "robot_frontlaser_side_offset",
+    "robot_frontlaser_angular_offset",
+)
+# T_robot^-1 T_laser of every laser line within these of the first (m, rad): the log's
+# laser poses are its odometry moved by a fixed mounting (a raw, uncorrected log).
+MOUNTING_TOLERANCE = (1e-3, 1e-3)
+
+
+class _OtherMessages:
+    """ODOM lines and the mounting PARAMs, gathered as the log is read."""
+
+    def __init__(self) -> None:
+        self.odom: list[list[float]] = []
+        self.lines: list[int] = []
+        self.params: dict[str, float] = {}
+        self.vertices = 0
+        self.steps: dict[int, list[float]] = {}  # g2o EDGE_SE2 i -> i + 1: i -> (dx, dy, dth)
+
+    def read(self, fields: list[str], where: str, no: int) -> bool:
+        """Read the line if it is an ODOM line or a mounting PARAM; False otherwise (g2o
+        vertices and sequential edges are read, and counted as skipped)."""
+        if fields and fields[0] == "VERTEX_SE2":
+            self.vertices += 1
+        if len(fields) >= 6 and fields[0] == "EDGE_SE2":
+            ij = [parse_whole(f, where, "EDGE_SE2 vertex id", lo=0, hi=2**62) for f in fields[1:3]]
+            if ij[1] == ij[0] + 1:
+                self.steps[ij[0]] = _numbers(fields, 3, 6, where, "EDGE_SE2", "i j dx dy dtheta, information")
+            return False
+        if fields and fields[0] == "ODOM":
+            layout = "x y theta tv rv accel ipc_timestamp"
+            _need(fields[1:], 7, where, "ODOM", layout)
+            v = _numbers(fields[1:], 0, 7, where, "ODOM", layout)
+            self.odom.append([v[6], v[0], v[1], v[2]])
+            self.lines.append(no)
+            return True
+        if len(fields) >= 3 and fields[0] == "PARAM" and fields[1] in MOUNTING_PARAMS:
+            self.params[fields[1]] = parse_real(fields[2], where, f"PARAM {fields[1]}")
+            return True
+        return False
+
+    def g2o_steps(self, n: int) -> FloatArray:
+        """The sequential edges 0 -> 1 -> ... -> n - 1 when the file has n vertices (one
+        per laser line) and every such edge; else none."""
+        if n < 2 or self.vertices != n or any(i not in self.steps for i in range(n - 1)):
+            return np.zeros((0, 3))
+        return np.array([self.steps[i] for i in range(n - 1)])
+
+    def odometry(self, p: Path, stamps: str) -> tuple[FloatArray, StampRepair | None]:
+        if not self.odom:
+            return np.zeros((0, 4)), None
+        a = np.array(self.odom)
+        lines = np.array(self.lines, dtype=np.int64)
+        fixed = repair_stamps(a[:, 0], f"{p}: ODOM ipc_timestamp", stamps, lines)
+        a[:, 0] = fixed.stamps_s
+        return a, fixed
+
+
+def carmen_odometry(
+    log: CarmenLog, where: str, mounting: FloatArray | None = None
+) -> tuple[WheelOdometry | None, str]:
+    """The log's wheel odometry and where its numbers came from: the ODOM lines when
+    there are two or more; else, in a g2o file, its sequential EDGE_SE2 lines (vertex k
+    to k + 1, chained; its vertices are the laser's poses, and its laser lines' robot
+    poses are those vertices, not the raw odometry); else the odometry pose of each laser
+    line (at the scan's stamp); None when those never change (a log that left them at 0). The laser's
+    mounting on the robot: ``mounting`` when given; else the log's
+    ``robot_frontlaser_*`` PARAMs; else, when every laser line's laser pose is its
+    odometry pose moved by one fixed offset (a raw log), that offset; else none (0, 0, 0).
+
+    Raises:
+        InputError: odometry that is not finite, or whose span misses the scans'.
+    """
+    scan_t = np.array([s.stamp_s for s in log.scans], dtype=float)
+    how = []
+    if mounting is not None:
+        mount = np.asarray(mounting, dtype=float)
+        how.append("mounting given")
+    elif any(k in log.params for k in MOUNTING_PARAMS):
+        mount = np.array([log.params.get(k, 0.0) for k in MOUNTING_PARAMS])
+        how.append("mounting from PARAM robot_frontlaser_*")
+    else:
+        fixed = _fixed_offset(log.odometry_poses, log.laser_poses)
+        how.append("mounting from the laser lines" if fixed is not None else "no mounting known (0, 0, 0)")
+        mount = np.zeros(3) if fixed is None else fixed
+    if len(log.odom) < 2 and len(log.g2o_steps):
+        if mounting is None:
+            mount, how = np.zeros(3), ["the g2o's vertices are the laser's poses"]
+        poses = [log.laser_poses[0]]
+        for step in log.g2o_steps:
+            poses.append(_compose(poses[-1], step))
+        od = checked(scan_t, np.array(poses), mount, f"{where}: EDGE_SE2 lines", scan_t)
+        return od, "; ".join([f"{len(log.g2o_steps)} sequential EDGE_SE2 lines", *how])
+    if len(log.odom) < 2 and np.ptp(log.odometry_poses, axis=0).max(initial=0.0) == 0.0:
+        return None, "no odometry: the laser lines' odometry poses never change"
+    if len(log.odom) >= 2:
+        od = checked(log.odom[:, 0], log.odom[:, 1:], mount, f"{where}: ODOM lines", scan_t)
+        how.insert(0, f"{len(log.odom)} ODOM lines")
+    else:
+        od = checked(scan_t, log.odometry_poses, mount, f"{where}: laser lines' odometry", scan_t)
+        how.insert(0, "the laser lines' odometry poses")
+    return od, "; ".join(how)
+
+
+def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Planar pose a moved by b in a's frame (x, y, theta)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]])
+
+
+def _fixed_offset(robot: FloatArray, laser: FloatArray) -> FloatArray | None:
+    """T_robot^-1 T_laser when it is the same (within MOUNTING_TOLERANCE) on every line."""
+    c, s = np.cos(robot[:, 2]), np.sin(robot[:, 2])
+    d = laser[:, :2] - robot[:, :2]
+    yaw = np.angle(np.exp(1j * (laser[:, 2] - robot[:, 2])))
+    off = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], yaw])
+    spread_m = np.abs(off[:, :2] - off[0, :2]).max()
+    spread_rad = np.abs(np.angle(np.exp(1j * (off[:, 2] - off[0, 2])))).max()
+    if spread_m > MOUNTING_TOLERANCE[0] or spread_rad > MOUNTING_TOLERANCE[1]:
+        return None
+    return np.asarray(off.mean(axis=0), dtype=float)
 
 
 def _numbers(fields: list[str], start: int, stop: int, where: str, what: str, names: str) -> list[float]:

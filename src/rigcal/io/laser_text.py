@@ -32,6 +32,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,7 +40,9 @@ from numpy.typing import NDArray
 from rigcal.errors import InputError
 from rigcal.io.files import read_text
 from rigcal.io.sequence import ImageFrame, write_sequence
+from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.validate import file_inside
+from rigcal.io.wheel_odometry import read_odometry_tum
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
@@ -57,6 +60,8 @@ class LaserTextSummary:
     scans: int
     images: int
     camera: bool
+    stamps: StampRepair | None = None
+    odometry: bool = False
 
 
 def _fields(line: str) -> list[str]:
@@ -126,8 +131,10 @@ def read_radlocc_laser(
     range_min_m: float = 0.0,
     range_max_m: float = 80.0,
     no_return_m: float | None = None,
+    stamps: str = "repair",
 ) -> list[Scan]:
-    """Scans of a RADLOCC ``laser.txt`` (see the module docstring).
+    """Scans of a RADLOCC ``laser.txt`` (see the module docstring); ``stamps`` as
+    :func:`restamped`.
 
     A line in radlocc_collect's form (range unit type and beam count N after the angles) is
     read by its N: the header's count is the scanner's own, while angle_max is written by
@@ -143,11 +150,27 @@ def read_radlocc_laser(
     Raises:
         InputError: a line with too few or non-numeric fields, a non-positive increment, a
             range count more than one step off the angles, a later line in the other form
-            than the first, a stamp not after the previous.
+            than the first, a stamp not after the previous (strict) or beyond repair.
     """
     path = Path(path)
+    return restamped(*_radlocc_scans(path, range_min_m, range_max_m, no_return_m), path, stamps)[0]
+
+
+def restamped(scans: list[Scan], lines: list[int], path: Path, stamps: str) -> tuple[list[Scan], StampRepair]:
+    """The scans with their stamps repaired (``stamps="repair"``) or checked as they are
+    (``"strict"``) by :func:`rigcal.io.stamps.repair_stamps`; ``lines`` their lines."""
+    from dataclasses import replace
+
+    fixed = repair_stamps([s.stamp_s for s in scans], f"{path}: stamp", stamps, lines)
+    return [replace(s, stamp_s=float(t)) for s, t in zip(scans, fixed.stamps_s, strict=True)], fixed
+
+
+def _radlocc_scans(
+    path: Path, range_min_m: float, range_max_m: float, no_return_m: float | None = None
+) -> tuple[list[Scan], list[int]]:
     scans: list[Scan] = []
     header_form: bool | None = None
+    numbers: list[int] = []
     for n, line in _content_lines(path, "RADLOCC laser log"):
         f = _fields(line)
         where = f"{path}: line {n}"
@@ -196,27 +219,32 @@ def read_radlocc_laser(
                 f"{where}: got {said}; expected {count} (within one step) for angles {a0!r} to {a1!r} "
                 f"by {step!r}"
             )
-        if scans and not stamp > (scans[-1].stamp_s or -math.inf):
-            raise InputError(f"{where}: stamp {stamp!r} not after {scans[-1].stamp_s!r}")
         ranges = np.where(np.isfinite(ranges) & (ranges >= 0), ranges, np.nan)
         if no_return_m is not None:
             ranges = np.where(np.abs(ranges - no_return_m) <= 1e-9 * max(1.0, no_return_m), np.nan, ranges)
         scans.append(Scan.from_uniform(a0, step, ranges, range_min_m, range_max_m, stamp))
-    return scans
+        numbers.append(n)
+    return scans, numbers
 
 
 def _first_line(path: Path) -> int:
     return _content_lines(path, "RADLOCC laser log")[0][0]
 
 
-def read_csv_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: float = 80.0) -> list[Scan]:
-    """Scans of a generic CSV log (see the module docstring).
+def read_csv_laser(
+    path: str | Path, range_min_m: float = 0.0, range_max_m: float = 80.0, stamps: str = "repair"
+) -> list[Scan]:
+    """Scans of a generic CSV log (see the module docstring); rows with one stamp are a
+    scan, so only steps back are repaired (``stamps`` as :func:`restamped`).
 
     Raises:
         InputError: a missing column, a non-numeric value, angles not increasing within a
-            scan, a stamp not after the previous scan's.
+            scan, a stamp not after the previous scan's (strict) or beyond repair.
     """
-    path = Path(path)
+    return restamped(*_csv_scans(Path(path), range_min_m, range_max_m), Path(path), stamps)[0]
+
+
+def _csv_scans(path: Path, range_min_m: float, range_max_m: float) -> tuple[list[Scan], list[int]]:
     lines = _content_lines(path, "CSV laser log")
     header = [h.strip().lower() for h in lines[0][1].split(",")]
     angle_key = "angle_rad" if "angle_rad" in header else "angle_deg"
@@ -228,6 +256,7 @@ def read_csv_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: floa
     cols = [header.index(k) for k in ("stamp_s", angle_key, "range_m")]
     scale = math.pi / 180.0 if angle_key == "angle_deg" else 1.0
     groups: list[tuple[float, list[float], list[float]]] = []
+    first_rows: list[int] = []
     for n, line in lines[1:]:
         parts = line.split(",")
         try:
@@ -241,9 +270,8 @@ def read_csv_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: floa
                 f"{path}: line {n}: got stamp {stamp!r}, angle {angle!r}; expected finite numbers"
             )
         if not groups or stamp != groups[-1][0]:
-            if groups and not stamp > groups[-1][0]:
-                raise InputError(f"{path}: line {n}: stamp {stamp!r} not after {groups[-1][0]!r}")
             groups.append((stamp, [], []))
+            first_rows.append(n)
         if abs(angle * scale) > 2 * math.pi + 1e-6:
             raise InputError(f"{path}: line {n}: got angle {angle!r}; expected within +/- 2 pi radians")
         g = groups[-1]
@@ -255,7 +283,8 @@ def read_csv_laser(path: str | Path, range_min_m: float = 0.0, range_max_m: floa
         g[2].append(rng if math.isfinite(rng) and rng >= 0 else math.nan)
     if not groups:
         raise InputError(f"{path}: got a header only; expected rows stamp_s, angle, range_m")
-    return [_on_a_grid(path, stamp, a, r, range_min_m, range_max_m) for stamp, a, r in groups]
+    scans = [_on_a_grid(path, stamp, a, r, range_min_m, range_max_m) for stamp, a, r in groups]
+    return scans, first_rows
 
 
 MAX_GRID_BEAMS = 100_000
@@ -358,41 +387,53 @@ def import_laser_text(
     range_max_m: float = 80.0,
     force: bool = False,
     no_return_m: float | None = None,
+    stamps: str = "repair",
+    odometry: str | Path | None = None,
+    laser_offset: FloatArray | None = None,
 ) -> LaserTextSummary:
-    """Write a sequence folder from a RADLOCC or CSV laser log, its image list and camera.
+    """Write a sequence folder from a RADLOCC or CSV laser log, its image list and camera,
+    and (``odometry``: a TUM file of the base's poses, the laser at ``laser_offset`` on
+    it) its wheel odometry. ``stamps``: "repair" or "strict" (:func:`restamped`).
 
     Raises:
-        InputError: a malformed log, image list or camera file.
+        InputError: a malformed log, image list, camera or odometry file.
         OutputError: the folder exists and ``force`` is false.
     """
     from rigcal.camera import camera_to_opencv_yaml, read_camera
 
     log = Path(log)
     fmt = fmt or detect_format(log)
-    readers: dict[str, Callable[..., list[Scan]]] = {"radlocc": read_radlocc_laser, "csv": read_csv_laser}
+    readers: dict[str, Callable[..., tuple[list[Scan], list[int]]]] = {
+        "radlocc": _radlocc_scans,
+        "csv": _csv_scans,
+    }
     if fmt not in readers:
         raise InputError.at(log, "--format", fmt, f"one of {sorted(readers)}")
     if no_return_m is not None and fmt != "radlocc":
         raise InputError.at(
             log, "--no-return-m", no_return_m, "a RADLOCC log (a CSV writes no return as nan)"
         )
-    scans = (
-        read_radlocc_laser(log, range_min_m, range_max_m, no_return_m)
-        if fmt == "radlocc"
-        else readers[fmt](log, range_min_m, range_max_m)
-    )
+    extra = (no_return_m,) if fmt == "radlocc" else ()
+    scans, fixed = restamped(*readers[fmt](log, range_min_m, range_max_m, *extra), log, stamps)
+    wheel = None
+    if odometry is not None:
+        mount = np.zeros(3) if laser_offset is None else laser_offset
+        wheel = read_odometry_tum(odometry, mount, fixed.stamps_s)
     frames: list[ImageFrame] = []
     if images is not None:
-        stamps, files = read_image_list(images)
+        image_stamps, files = read_image_list(images)
         frames = [
             ImageFrame(float(t), f"{i:06d}{f.suffix.lower()}", f.read_bytes())
-            for i, (t, f) in enumerate(zip(stamps, files, strict=True))
+            for i, (t, f) in enumerate(zip(image_stamps, files, strict=True))
         ]
     camera_yaml = camera_to_opencv_yaml(read_camera(camera)) if camera is not None else None
-    source = {
+    source: dict[str, Any] = {
         "log": str(log.resolve()),
         "format": fmt,
         "images": str(Path(images).resolve()) if images else None,
     }
-    write_sequence(output, log.name, scans, frames, camera_yaml, source, force=force)
-    return LaserTextSummary(fmt, len(scans), len(frames), camera_yaml is not None)
+    source["stamps"] = fixed.record(stamps)
+    if odometry is not None:
+        source["odometry"] = str(Path(odometry).resolve())
+    write_sequence(output, log.name, scans, frames, camera_yaml, source, force=force, odometry=wheel)
+    return LaserTextSummary(fmt, len(scans), len(frames), camera_yaml is not None, fixed, wheel is not None)

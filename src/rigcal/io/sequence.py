@@ -11,6 +11,7 @@ The input of the localization pipeline and the output of ``rigcal import-bag``::
       camera.yaml       the camera, when the source had it (rigcal camera file)
       rig.yaml          the rig, when known (rig file)
       groundtruth.tum   the laser's true poses in the world, when known (simulations)
+      odometry.tum      the robot base's wheel odometry, when the log has it (schema 3)
 
 Stamps are seconds, increasing within each stream. :func:`write_sequence` writes a whole
 folder atomically; :func:`read_sequence` validates it.
@@ -19,7 +20,7 @@ folder atomically; :func:`read_sequence` validates it.
 from __future__ import annotations
 
 import zipfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,14 +31,18 @@ from numpy.typing import NDArray
 
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text
-from rigcal.io.validate import finite_array, parse_real, relative_inside, whole
+from rigcal.io.validate import finite_array, parse_real, real, relative_inside, whole
+from rigcal.io.wheel_odometry import WheelOdometry, odometry_tum, read_odometry_tum
 from rigcal.scan import Scan, counter_clockwise, laser_clockwise
 
 FloatArray = NDArray[np.float64]
 
 SEQUENCE_SCHEMA_VERSION = 1
-# Versions read: 2 adds the optional ``laser: {clockwise: BOOL}`` mapping.
-SEQUENCE_SCHEMA_VERSIONS = (1, 2)
+# Written when the folder keeps wheel odometry (its ``odometry`` mapping).
+SEQUENCE_SCHEMA_VERSION_ODOMETRY = 3
+# Versions read: 2 adds the optional ``laser: {clockwise: BOOL}`` mapping, 3 the optional
+# ``odometry: {file, T_base_laser}`` (rigcal.io.wheel_odometry).
+SEQUENCE_SCHEMA_VERSIONS = (1, 2, 3)
 SCAN_KEYS = (
     "stamps_s",
     "ranges_m",
@@ -71,6 +76,7 @@ class Sequence:
     source: dict[str, Any]
     rig_file: str | None = None
     groundtruth_file: str | None = None
+    odometry: WheelOdometry | None = None
 
 
 def write_sequence(
@@ -83,12 +89,13 @@ def write_sequence(
     force: bool = False,
     groundtruth_tum: str | None = None,
     rig_yaml: str | None = None,
+    odometry: WheelOdometry | None = None,
 ) -> Path:
     """Write a sequence folder atomically (refuses an existing folder unless ``force``).
 
     ``groundtruth_tum`` (the laser's poses in the world, TUM text) and ``rig_yaml`` (a rig
-    file's text) are written when given. ``images`` may be a generator: each frame is
-    written as it comes.
+    file's text) are written when given, and so is ``odometry`` (odometry.tum and its
+    mounting; schema 3). ``images`` may be a generator: each frame is written as it comes.
     """
     B = max((len(s.ranges_m) for s in scans), default=0)
     ranges = np.full((len(scans), B), np.nan)
@@ -116,6 +123,9 @@ def write_sequence(
         doc["rig"] = "rig.yaml"
     if groundtruth_tum is not None:
         doc["groundtruth"] = "groundtruth.tum"
+    if odometry is not None:
+        doc["schema_version"] = SEQUENCE_SCHEMA_VERSION_ODOMETRY
+        doc["odometry"] = {"file": "odometry.tum", "T_base_laser": [float(v) for v in odometry.T_base_laser]}
     with atomic_folder(folder, force) as tmp:
         np.savez_compressed(tmp / "scans.npz", **arrays)  # type: ignore[arg-type]
         (tmp / "images").mkdir()
@@ -131,6 +141,8 @@ def write_sequence(
             (tmp / "rig.yaml").write_text(rig_yaml, encoding="utf-8")
         if groundtruth_tum is not None:
             (tmp / "groundtruth.tum").write_text(groundtruth_tum, encoding="utf-8")
+        if odometry is not None:
+            (tmp / "odometry.tum").write_text(odometry_tum(odometry), encoding="utf-8")
         (tmp / "sequence.yaml").write_text(
             "# rigcal sequence (docs/formats/sequence.md)\n" + yaml.safe_dump(doc, sort_keys=False),
             encoding="utf-8",
@@ -151,9 +163,9 @@ def read_sequence(folder: str | Path) -> Sequence:
         path,
         "",
         ["schema_version", "name", "scans", "images"],
-        ["source", "camera", "rig", "groundtruth", "laser"],
+        ["source", "camera", "rig", "groundtruth", "laser", "odometry"],
     )
-    clockwise = laser_clockwise(d, path, SEQUENCE_SCHEMA_VERSIONS)
+    clockwise = laser_clockwise(d, path, SEQUENCE_SCHEMA_VERSIONS, since=2)
     sc = check_keys(d["scans"], path, "scans", ["file", "count"])
     npz = folder / relative_inside(sc["file"], path, "scans.file")
     count = whole(sc["count"], path, "scans.count")
@@ -199,6 +211,9 @@ def read_sequence(folder: str | Path) -> Sequence:
     for key in ("camera", "rig", "groundtruth"):
         if key in d and not (folder / relative_inside(d[key], path, key)).is_file():
             raise InputError.at(path, key, d[key], f"a file in {folder}")
+    odometry = None
+    if "odometry" in d:
+        odometry = _read_odometry(folder, path, d, np.array([s.stamp_s for s in scans], dtype=float))
     return Sequence(
         folder,
         str(d["name"]),
@@ -209,7 +224,24 @@ def read_sequence(folder: str | Path) -> Sequence:
         d.get("source", {}),
         d.get("rig"),
         d.get("groundtruth"),
+        odometry,
     )
+
+
+def _read_odometry(
+    folder: Path, path: Path, d: Mapping[str, Any], scan_stamps_s: FloatArray
+) -> WheelOdometry:
+    """The ``odometry`` mapping (schema 3) and its TUM file, checked against the scans."""
+    if whole(d["schema_version"], path, "schema_version") < SEQUENCE_SCHEMA_VERSION_ODOMETRY:
+        need = f"{SEQUENCE_SCHEMA_VERSION_ODOMETRY} for key 'odometry'"
+        raise InputError.at(path, "schema_version", d["schema_version"], need)
+    od = check_keys(d["odometry"], path, "odometry", ["file", "T_base_laser"])
+    mount = od["T_base_laser"]
+    if not isinstance(mount, list) or len(mount) != 3:
+        raise InputError.at(path, "odometry.T_base_laser", mount, "[x, y, yaw] (m, m, rad)")
+    xyz = [real(v, path, f"odometry.T_base_laser[{i}]") for i, v in enumerate(mount)]
+    file = folder / relative_inside(od["file"], path, "odometry.file")
+    return read_odometry_tum(file, np.array(xyz), scan_stamps_s)
 
 
 def _check_scan_arrays(a: dict[str, Any], npz: Path) -> int:

@@ -121,18 +121,6 @@ class IcpResult:
     nearest: NDArray[np.intp] | None = None
 
 
-def se2(pose: FloatArray) -> FloatArray:
-    """(3, 3) homogeneous matrix of (x, y, yaw)."""
-    x, y, yaw = pose
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, x], [s, c, y], [0.0, 0.0, 1.0]])
-
-
-def pose_of(M: FloatArray) -> FloatArray:
-    """(x, y, yaw) of a (3, 3) homogeneous matrix."""
-    return np.array([M[0, 2], M[1, 2], np.arctan2(M[1, 0], M[0, 0])])
-
-
 def icp(
     model: FloatArray,
     data: FloatArray,

@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.geometry import pose_of, se2
 from rigcal.localize.hiasm import camera_motion, hiasm_step, visual_fallback
 from rigcal.localize.iasm import Frame, IasmParams, Matches, StepResult, iasm_step, make_frame
-from rigcal.localize.icp import pose_of, se2
 from rigcal.localize.odometry import DEGENERATE_BELOW
 from rigcal.localize.polish import LaserReference, joint_polish, keyframe_reference, new_keyframe
 from rigcal.localize.streams import Streams, computed_ahead

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.localize.icp import pose_of, se2
+from rigcal.geometry import pose_of, se2
 
 FloatArray = NDArray[np.float64]
 
@@ -37,6 +37,10 @@ FloatArray = NDArray[np.float64]
 # yaw rate (rad/s).
 ICP_SIGMAS = (0.10, 0.03, 0.05)
 VO_SIGMAS = (0.03, 0.15, 0.02)
+# Wheel odometry (beyond the paper): its forward speed is good to a few percent of a
+# walking pace, a wheeled base barely slides sideways, and its heading drifts most
+# (wheel slip in turns).
+WHEEL_SIGMAS = (0.05, 0.02, 0.08)
 # Forward speed noise (m/s) of an ICP step the walls do not constrain: in effect none.
 OPEN_FORWARD_SIGMA = 10.0
 

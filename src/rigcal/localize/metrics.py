@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.localize.icp import pose_of, se2
+from rigcal.geometry import pose_of, se2
 
 FloatArray = NDArray[np.float64]
 
@@ -101,6 +101,32 @@ def rpe_rmse(est: FloatArray, gt: FloatArray, delta_m: float) -> float:
         e = np.linalg.inv(rel_gt) @ rel_est
         errs.append(np.hypot(e[0, 2], e[1, 2]))
     return float(np.sqrt(np.mean(np.square(errs)))) if errs else float("nan")
+
+
+def relation_error(
+    est: FloatArray, gt: FloatArray, pairs: list[tuple[int, int]] | None = None
+) -> dict[str, float]:
+    """The relation-based error of Kuemmerle et al. 2009 ("On measuring the accuracy of
+    SLAM algorithms", Eq. (2)): for each relation (i, j), the error of the estimate's
+    relative displacement T_i^-1 T_j against the truth's, as its translation (m) and its
+    rotation (deg); their means and standard deviations. ``pairs`` defaults to every
+    pose and the next (the relations between consecutive scans)."""
+    if pairs is None:
+        pairs = [(k, k + 1) for k in range(len(gt) - 1)]
+    t, r = [], []
+    for i, j in pairs:
+        e = pose_of(
+            np.linalg.inv(np.linalg.inv(se2(gt[i])) @ se2(gt[j])) @ (np.linalg.inv(se2(est[i])) @ se2(est[j]))
+        )
+        t.append(np.hypot(e[0], e[1]))
+        r.append(np.degrees(abs(e[2])))
+    return {
+        "relations": len(pairs),
+        "trans_mean_m": float(np.mean(t)),
+        "trans_std_m": float(np.std(t)),
+        "rot_mean_deg": float(np.mean(r)),
+        "rot_std_deg": float(np.std(r)),
+    }
 
 
 def associate(

@@ -16,6 +16,7 @@ references (and ICP's numpy iterations), which the tests hold them to.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -24,8 +25,9 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from rigcal.calib.lines import Segment, extract_lines, line_labels, return_labels
+from rigcal.geometry import pose_of, se2
 from rigcal.jit import njit
-from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, icp, label_runs, line_normals, pose_of, se2
+from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, icp, label_runs, line_normals
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
@@ -37,6 +39,24 @@ LINES_EVERY = 4
 CARRY_M = 0.03
 # An ICP step whose degeneracy indicator is below this constrains too little.
 DEGENERATE_BELOW = 0.01
+# The wheel odometry's error over one step, bounding how far ICP may move its guess:
+# (m, fraction of the step's length) and (rad, fraction of the step's turn).
+WHEEL_GATE_M = (0.10, 0.10)
+WHEEL_GATE_RAD = (np.radians(3.0), 0.10)
+
+
+def agrees_with_wheels(step: FloatArray, wheel: FloatArray) -> bool:
+    """Whether ICP's step (x, y, yaw) lies within the wheel odometry's error bound of its
+    guess (:data:`WHEEL_GATE_M`, :data:`WHEEL_GATE_RAD`): a fit beyond it slid into
+    another minimum (a repeated corridor, clutter) more likely than the wheels erred."""
+    d = np.asarray(step, dtype=float) - np.asarray(wheel, dtype=float)
+    turn = abs(float(np.angle(np.exp(1j * d[2]))))
+    far = float(np.hypot(d[0], d[1]))
+    return bool(
+        far <= WHEEL_GATE_M[0] + WHEEL_GATE_M[1] * float(np.hypot(wheel[0], wheel[1]))
+        and turn <= WHEEL_GATE_RAD[0] + WHEEL_GATE_RAD[1] * abs(float(wheel[2]))
+    )
+
 
 # The laser odometry methods of ``rigcal localize`` (and ``rigcal.LaserOdometry``) and
 # their ICP settings.
@@ -50,13 +70,15 @@ LASER_ODOMETRY = {
 class Odometry:
     """Poses (N, 3) of the laser in the first scan's frame, per-step degeneracy and ICP
     fit RMS, how many steps were skipped (too few points) and kept the last motion, and
-    how many were tried again from zero motion (a poor fit from the previous motion)."""
+    how many were tried again from zero motion (a poor fit from the previous motion), and
+    how many ICP steps the wheel odometry overruled (a fit beyond its error bound)."""
 
     poses: FloatArray
     degeneracy: FloatArray
     rms_m: FloatArray
     skipped: int
     restarts: int = 0
+    overruled: int = 0
 
 
 def icp_odometry(
@@ -66,19 +88,24 @@ def icp_odometry(
     lines: Callable[[int], list[Segment]] | None = None,
     *,
     kernel: bool = True,
+    guess: FloatArray | None = None,
 ) -> Odometry:
     """Chain ICP increments T_prev_cur over the scans (:class:`ScanOdometry` fed every
-    scan in turn); ``progress`` is called with the scans done so far. ``lines(k)``: scan
-    k's segments, to share them with other stages (by default extracted here).
+    scan in turn), each started from ``guess[k]`` (N - 1, 3: the wheel odometry's motion
+    from scan k to k + 1, NaN where it has none) or else from the previous increment
+    (constant velocity); ``progress`` is called with the scans done so far. ``lines(k)``:
+    scan k's segments, to share them with other stages (by default extracted here).
     ``kernel=False`` runs the line extraction, the carrying of the lines and ICP in their
     Python/numpy references instead of the compiled kernels."""
     if not scans:
         raise ValueError("icp_odometry needs at least one scan")
+    if guess is not None and np.shape(guess) != (len(scans) - 1, 3):
+        raise ValueError(f"icp_odometry: guess of shape {np.shape(guess)}, expected ({len(scans) - 1}, 3)")
     od = ScanOdometry(params, lines, kernel=kernel)
     for k, scan in enumerate(scans):
         if k and progress is not None:
             progress(k + 1)
-        od.add(scan)
+        od.add(scan, None if guess is None or not k else guess[k - 1])
     return od.odometry()
 
 
@@ -87,10 +114,15 @@ class ScanOdometry:
     it, and the increment T_prev_cur chained onto the pose (:func:`icp_odometry` feeds it
     a whole sequence; a robot's own loop feeds it scans as they come).
 
-    Each step starts from the previous increment (constant velocity), or from a given
-    guess (wheel odometry), and, when that fit is poor (``params.restart_below_inliers``),
-    from zero motion too, the better fit kept. A scan with fewer than 10 valid returns
-    (or one after such a scan) keeps the last motion and counts as skipped. Point-to-line
+    Each step starts from a given guess (wheel odometry), or else from the previous
+    increment (constant velocity) and, when that fit is poor
+    (``params.restart_below_inliers``), from zero motion too, the better fit kept. From a
+    guess, a fit beyond its error bound (:func:`agrees_with_wheels`) is overruled by the
+    guess, and a step ICP cannot constrain keeps the guess where the scans say nothing:
+    ICP solves only in the directions the scans constrain and keeps its initial guess
+    along the others (a corridor's length). A scan with fewer than 10 valid returns (or
+    one after such a scan) takes the guess, or else keeps the last motion, and counts as
+    skipped. Point-to-line
     with ``params.normals == "lines"`` takes the model scan's normals from its lines,
     extracted every ``LINES_EVERY`` scans (``lines(k)``: scan k's segments when given)
     and carried between.
@@ -114,7 +146,7 @@ class ScanOdometry:
         self._deg: list[float] = []
         self._rms: list[float] = []
         self._last = np.zeros(3)
-        self._skipped = self._restarts = 0
+        self._skipped = self._restarts = self._overruled = 0
         self._prev = np.zeros((0, 2))
         self._prev_normals: FloatArray | None = None
         self._nearest: NDArray[np.intp] | None = None  # the last step's nearest model returns
@@ -126,7 +158,8 @@ class ScanOdometry:
     def add(self, scan: Scan, guess: FloatArray | None = None) -> FloatArray:
         """Match ``scan`` to the previous one; returns its pose (x m, y m, yaw rad) in the
         first scan's frame. ``guess``: T_prev_cur (x, y, yaw) to start ICP from instead of
-        the previous increment (e.g. from wheel odometry)."""
+        the previous increment (e.g. from wheel odometry); a guess with a non-finite value
+        counts as none."""
         k = len(self._poses)
         cur = scan.points[scan.valid]
         if k == 0:
@@ -137,7 +170,8 @@ class ScanOdometry:
             self._rms.append(0.0)
             return self._poses[-1]
         params, kernel, prev = self.params, self._kernel, self._prev
-        start = self._last if guess is None else np.asarray(guess, dtype=float)
+        wheel = guess is not None and bool(np.isfinite(guess).all())
+        start = np.asarray(guess, dtype=float) if wheel else self._last
         if len(cur) < 10 or len(prev) < 10:
             step, d, r = start, 0.0, float("nan")
             self._skipped += 1
@@ -145,7 +179,10 @@ class ScanOdometry:
             res = icp(
                 prev, cur, initial=start, params=params, model_normals=self._prev_normals, kernel=kernel
             )
-            if res.inlier_fraction < params.restart_below_inliers:
+            if wheel and not agrees_with_wheels(res.pose, start):
+                res = dataclasses.replace(res, pose=start, degeneracy=0.0)
+                self._overruled += 1
+            elif not wheel and res.inlier_fraction < params.restart_below_inliers:
                 zero = np.zeros(3)
                 again = icp(
                     prev, cur, initial=zero, params=params, model_normals=self._prev_normals, kernel=kernel
@@ -167,7 +204,12 @@ class ScanOdometry:
     def odometry(self) -> Odometry:
         """Everything so far: the poses (N, 3), per-step degeneracy and fit RMS, counts."""
         return Odometry(
-            np.array(self._poses), np.array(self._deg), np.array(self._rms), self._skipped, self._restarts
+            np.array(self._poses),
+            np.array(self._deg),
+            np.array(self._rms),
+            self._skipped,
+            self._restarts,
+            self._overruled,
         )
 
     def _normals_of(

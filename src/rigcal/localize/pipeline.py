@@ -26,15 +26,18 @@ import yaml
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
+from rigcal.geometry import pose_of, se2
 from rigcal.io.files import atomic_folder
 from rigcal.io.trajectory import Trajectory, kitti_text, planar_trajectory, read_tum, tum_text
+from rigcal.io.wheel_odometry import laser_motions
 from rigcal.localize import kalman
 from rigcal.localize.iasm import IasmParams
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.image_matching import scan_matching
+from rigcal.localize.loop_closure import LoopParams, LoopResult, close_loops
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import DEGENERATE_BELOW, LASER_ODOMETRY, Odometry, icp_odometry
-from rigcal.localize.streams import Streams, open_streams
+from rigcal.localize.streams import Streams, nearest_index, open_streams
 from rigcal.localize.tracks import TrackParams
 from rigcal.localize.vo import VoResult, visual_odometry
 
@@ -54,14 +57,37 @@ class Estimate:
     poses: FloatArray
     stats: dict[str, Any] = field(default_factory=dict)
     steps_csv: str | None = None
+    closures: LoopResult | None = None
+
+
+# Methods whose poses are laser poses at scan stamps that loop closure can take.
+LOOP_CLOSURE_METHODS = ("icp", "icp-p2p", "iasm", "hiasm")
+
+
+def _loop_closed(streams: Streams, est: Estimate, params: LoopParams) -> Estimate:
+    """The estimate with loop closure (rigcal.localize.loop_closure): each pose takes the
+    scan nearest its stamp."""
+    t0 = time.perf_counter()
+    idx = [nearest_index(streams.scan_stamps_s, float(t)) for t in est.stamps_s]
+    res = close_loops([streams.scans[k] for k in idx], est.poses, params)
+    seconds = time.perf_counter() - t0
+    streams.timings_s["loop_closure_s"] = streams.timings_s.get("loop_closure_s", 0.0) + seconds
+    stats = {"closures": res.counts, "loop_closure_s": round(seconds, 3)}
+    return Estimate(est.stamps_s, res.poses, stats, None, res)
 
 
 def _icp_estimate(streams: Streams, od: Odometry) -> Estimate:
     degenerate = od.degeneracy < DEGENERATE_BELOW
+    guess = streams.wheel_guess()
+    from_wheels = 0 if guess is None else int(np.isfinite(guess).all(axis=1).sum())
     stats = {
         "degenerate_steps": int(degenerate[1:].sum()),
         "skipped_steps": od.skipped,
         "restarted_steps": od.restarts,
+        # Steps started from the wheel odometry (the others: from the previous motion),
+        # and those whose fit it overruled (beyond its error bound).
+        "wheel_odometry_steps": from_wheels,
+        "wheel_overruled_steps": od.overruled,
     }
     # Per step: the degeneracy indicator (smallest over largest eigenvalue of the
     # translation information: near 0, a direction the scans do not constrain, as along
@@ -117,11 +143,37 @@ def _kf_estimate(streams: Streams) -> Estimate:
     t0 = time.perf_counter()
     ms = kalman.increments(icp.stamps_s, icp.poses, kalman.ICP_SIGMAS, od.degeneracy < DEGENERATE_BELOW)
     ms += kalman.vo_increments(vo.stamps_s, vo.poses, [s.status for s in res.steps])
+    stats = {"icp_measurements": len(icp.stamps_s) - 1, "vo_measurements": len(vo.stamps_s) - 1}
+    if streams.wheel_odometry is not None:
+        wheel = _wheel_estimate(streams)
+        wheel_ms = kalman.increments(wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS)
+        ms += wheel_ms
+        stats["wheel_measurements"] = len(wheel_ms)
     stamps, poses = kalman.fuse(ms)
     streams.timings_s["kf_s"] = time.perf_counter() - t0
-    return Estimate(
-        stamps, poses, {"icp_measurements": len(icp.stamps_s) - 1, "vo_measurements": len(vo.stamps_s) - 1}
-    )
+    return Estimate(stamps, poses, stats)
+
+
+def _wheel_estimate(streams: Streams) -> Estimate:
+    """The laser's path by the wheel odometry alone, at the scans' stamps within its span."""
+    od = streams.sequence.odometry
+    if od is None:
+        raise InputError(
+            f"{streams.sequence.folder}: no wheel odometry (key 'odometry' of sequence.yaml); method "
+            "'odom' needs it: import the log with its odometry (docs/formats/sequence.md)"
+        )
+    t = streams.scan_stamps_s
+    t = t[(t >= od.stamps_s[0]) & (t <= od.stamps_s[-1])]
+    if len(t) < MIN_SCANS:
+        raise InputError.at(
+            streams.sequence.folder, "odometry", f"{len(t)} scan(s) within its span", f"at least {MIN_SCANS}"
+        )
+    T = np.eye(3)
+    poses = [pose_of(T)]
+    for step in laser_motions(od, t):
+        T = T @ se2(step)
+        poses.append(pose_of(T))
+    return Estimate(t, np.array(poses), {"odometry_poses": len(od.stamps_s)})
 
 
 def _matching_estimate(streams: Streams, method: str, params: IasmParams) -> Estimate:
@@ -132,7 +184,10 @@ def _matching_estimate(streams: Streams, method: str, params: IasmParams) -> Est
 # name -> the method's estimate from the streams and IASM's and H-IASM's settings.
 METHODS: dict[str, Callable[[Streams, IasmParams], Estimate]] = {
     "icp": lambda s, _: _icp_estimate(s, s.laser_odometry()),
-    "icp-p2p": lambda s, _: _icp_estimate(s, icp_odometry(s.scans, LASER_ODOMETRY["icp-p2p"])),
+    "icp-p2p": lambda s, _: _icp_estimate(
+        s, icp_odometry(s.scans, LASER_ODOMETRY["icp-p2p"], guess=s.wheel_guess())
+    ),
+    "odom": lambda s, _: _wheel_estimate(s),
     "vo": lambda s, _: _vo_estimate(s, _vo_result(s)),
     "kf": lambda s, _: _kf_estimate(s),
     "iasm": lambda s, p: _matching_estimate(s, "iasm", p),
@@ -170,6 +225,7 @@ class MethodRun:
     seconds: float  # its own work, without the shared stages
     steps_csv: str | None = None
     shared_s: dict[str, float] = field(default_factory=dict)  # the shared stages it uses
+    closures: LoopResult | None = None
 
     @property
     def total_s(self) -> float:
@@ -190,6 +246,7 @@ class Run:
     iasm: IasmParams = field(default_factory=IasmParams)
     cpu_s: float = 0.0  # CPU seconds over the same span as wall_s, all threads
     tracks: TrackParams = field(default_factory=TrackParams)
+    wheel_odometry: str = "none"  # "used", "ignored" or "none" (the sequence has none)
 
 
 def _shared_stages(streams: Streams, methods: list[str]) -> None:
@@ -284,12 +341,16 @@ def run(
     progress: Callable[[str, int, int], None] | None = None,
     iasm: IasmParams | None = None,
     tracks: TrackParams | None = None,
+    wheel_odometry: bool = True,
+    loop_closure: LoopParams | None = None,
 ) -> Run:
     """Localize a sequence with each method and write the output folder:
     ``METHOD/trajectory.tum`` (and ``.kitti``) per method, ``summary.yaml``/``.json`` and,
     with ground truth, ``paths.png``/``.svg`` and ``errors.png``/``.svg`` (charts).
     ``iasm``: IASM's and H-IASM's settings, ``tracks`` the feature tracks' (the defaults
-    unless given).
+    unless given). ``wheel_odometry``: start ICP from the sequence's wheel odometry (when
+    it has one) and fuse it in the Kalman filter; False ignores it. ``loop_closure``: also
+    run each of :data:`LOOP_CLOSURE_METHODS` chosen with loop closure, as ``METHOD+lc``.
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -301,6 +362,7 @@ def run(
     streams = open_streams(sequence, rig_file)
     streams.progress = progress
     streams.track_params = tracks or TrackParams()
+    streams.use_wheel_odometry = wheel_odometry
     if len(streams.scans) < MIN_SCANS:
         raise InputError.at(
             Path(sequence) / "sequence.yaml", "scans.count", len(streams.scans), f"at least {MIN_SCANS} scans"
@@ -330,12 +392,35 @@ def run(
                 )
             )
             log.info("%s: %d poses in %.1f s of its own", name, len(est.stamps_s), seconds)
+            if loop_closure is not None and name in LOOP_CLOSURE_METHODS:
+                t0 = time.perf_counter()
+                lc = _loop_closed(streams, est, loop_closure)
+                seconds += time.perf_counter() - t0
+                poses, metrics = lc.poses, None
+                if truth is not None:
+                    gt = planar_at(truth, lc.stamps_s)
+                    poses = anchored(lc.poses, gt)
+                    metrics = evaluate(poses, gt)
+                results.append(
+                    MethodRun(
+                        f"{name}+lc",
+                        lc.stamps_s,
+                        poses,
+                        metrics,
+                        lc.stats,
+                        max(seconds, 0.0),
+                        None,
+                        shared_s,
+                        lc.closures,
+                    )
+                )
     finally:
         streams.stop_background()
     stamps = streams.scan_stamps_s
     duration = float(stamps[-1] - stamps[0])
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
-    out = Run(results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params)
+    wheel = "none" if streams.sequence.odometry is None else "used" if wheel_odometry else "ignored"
+    out = Run(results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params, wheel)
     _write(out, Path(sequence), output, force, kitti)
     return out
 
@@ -347,6 +432,7 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
             "sequence": str(sequence.resolve()),
             "methods": [m.method for m in r.methods],
             "settings": settings(r.iasm, r.tracks),
+            "wheel_odometry": r.wheel_odometry,
         },
         "duration_s": round(r.duration_s, 3),
         "wall_s": round(r.wall_s, 3),
@@ -380,6 +466,7 @@ def settings(iasm: IasmParams | None = None, tracks: TrackParams | None = None) 
             **asdict(kalman.KfParams()),
             "icp_sigmas_forward_cross_yawrate": list(kalman.ICP_SIGMAS),
             "vo_sigmas_forward_cross_yawrate": list(kalman.VO_SIGMAS),
+            "wheel_sigmas_forward_cross_yawrate": list(kalman.WHEEL_SIGMAS),
         },
         "iasm": asdict(iasm or IasmParams()),
         "hiasm_vo": asdict(VoParams()),
@@ -404,6 +491,8 @@ def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool)
             (tmp / m.method / "trajectory.tum").write_text(tum_text(traj), encoding="utf-8")
             if m.steps_csv is not None:
                 (tmp / m.method / "steps.csv").write_text(m.steps_csv, encoding="utf-8")
+            if m.closures is not None:
+                _write_closures(tmp / m.method, m)
             if kitti:
                 (tmp / m.method / "trajectory.kitti").write_text(kitti_text(traj), encoding="utf-8")
         (tmp / "summary.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
@@ -416,6 +505,28 @@ def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool)
             for fmt in (".png", ".svg"):
                 (tmp / f"paths{fmt}").write_bytes(figure_bytes(paths_figure(gt, poses), fmt))
                 (tmp / f"errors{fmt}").write_bytes(figure_bytes(errors_figure(truth_at, poses, stamps), fmt))
+
+
+def _write_closures(folder: Path, m: MethodRun) -> None:
+    """METHOD+lc/closures.csv (every closure proposed, and what became of it) and
+    graph.png/.svg (the optimised path and its closures)."""
+    from rigcal.viz.charts import figure_bytes
+    from rigcal.viz.paths_plot import graph_figure
+
+    assert m.closures is not None
+    rows = ["i,j,stamp_i_s,stamp_j_s,status,inliers,rms_m,why_not"]
+    accepted: list[tuple[int, int]] = []
+    rejected: list[tuple[int, int]] = []
+    for c in m.closures.closures:
+        status = "accepted" if c.T_j_i is not None and not c.kernel_rejected else "rejected"
+        (accepted if status == "accepted" else rejected).append((c.i, c.j))
+        rows.append(
+            f"{c.i},{c.j},{float(m.stamps_s[c.i])!r},{float(m.stamps_s[c.j])!r},{status},"
+            f"{c.inliers:.3f},{c.rms_m:.4f},{c.why_not}"
+        )
+    (folder / "closures.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    for fmt in (".png", ".svg"):
+        (folder / f"graph{fmt}").write_bytes(figure_bytes(graph_figure(m.poses, accepted, rejected), fmt))
 
 
 def _ground_truth(folder: Path, name: str | None) -> Trajectory | None:

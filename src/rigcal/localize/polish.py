@@ -21,7 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from rigcal.localize.icp import pairing_normals, pose_of, se2
+from rigcal.geometry import pose_of, se2
+from rigcal.localize.icp import pairing_normals
 
 if TYPE_CHECKING:
     from rigcal.localize.iasm import Frame, IasmParams

@@ -30,9 +30,10 @@ from numpy.typing import NDArray
 
 from rigcal.calib.lines import Segment, extract_lines
 from rigcal.errors import InputError
+from rigcal.geometry import pose_of, se2
 from rigcal.io.images import read_grey
 from rigcal.io.sequence import Sequence, read_sequence
-from rigcal.localize.icp import pose_of, se2
+from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
 from rigcal.localize.odometry import LASER_ODOMETRY, Odometry, icp_odometry
 from rigcal.localize.tracks import FrameTracks, TrackParams, equalized, track_sequence
 from rigcal.rig import Rig
@@ -78,6 +79,24 @@ class Streams:
     _lines: dict[int, list[Segment]] = field(default_factory=dict, repr=False)
     progress: Callable[[str, int, int], None] | None = field(default=None, repr=False)
     track_params: TrackParams = field(default_factory=TrackParams)
+    use_wheel_odometry: bool = True
+
+    @property
+    def wheel_odometry(self) -> WheelOdometry | None:
+        """The sequence's wheel odometry, unless told not to use it."""
+        return self.sequence.odometry if self.use_wheel_odometry else None
+
+    def wheel_guess(self) -> FloatArray | None:
+        """(N - 1, 3) the laser's motion between consecutive scans by the wheel odometry
+        (NaN where a scan is outside its span), or None without odometry."""
+        od = self.wheel_odometry
+        if od is None:
+            return None
+        t = self.scan_stamps_s
+        steps = laser_motions(od, t)
+        inside = (t >= od.stamps_s[0]) & (t <= od.stamps_s[-1])
+        steps[~(inside[:-1] & inside[1:])] = np.nan
+        return steps
 
     @property
     def scans(self) -> tuple[Scan, ...]:
@@ -192,7 +211,7 @@ class Streams:
                 raise _StoppedError
             self.report("laser odometry", k, n)
 
-        od = icp_odometry(self.scans, LASER_ODOMETRY["icp"], progress, self.lines)
+        od = icp_odometry(self.scans, LASER_ODOMETRY["icp"], progress, self.lines, guess=self.wheel_guess())
         self.timings_s["icp_s"] = time.perf_counter() - t0
         return od
 

@@ -16,6 +16,7 @@ pose at every sensor stamp, in true (laser) time.
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -47,6 +48,7 @@ class DriveSpec:
     per frame) as in :class:`rigcal.sim.world_render.CameraEffects`; ``images`` False
     writes no images; ``image_format`` is how they are stored (:data:`IMAGE_FORMATS`).
     ``duration_s`` drives only the lap's first seconds (None: the lap).
+    ``wheel_odometry`` also writes the base's wheel odometry (:func:`wheel_odometry`).
     """
 
     speed_mps: float = 1.0
@@ -69,6 +71,7 @@ class DriveSpec:
     images: bool = True
     duration_s: float | None = None
     image_format: str = "png"
+    wheel_odometry: bool = False
 
     def __post_init__(self) -> None:
         checks = [
@@ -255,6 +258,41 @@ def simulate_scans(world: World, poses: FloatArray, stamps: FloatArray, spec: Dr
     return scans
 
 
+# Simulated wheel odometry: its rate, the laser's pose on the base (x, y, yaw), and its
+# errors: a wheel-radius scale error (fraction of the distance), a heading drift per metre
+# (a wheel-base error: deg/m, as the right wheel's radius off by 0.1 %), and white noise
+# per step on the distance (fraction) and on the heading (rad per sqrt(step)).
+WHEEL_RATE_HZ = 50.0
+WHEEL_T_BASE_LASER = (0.20, 0.0, 0.0)
+WHEEL_SCALE_ERROR = 0.02
+WHEEL_DRIFT_DEG_PER_M = 0.5
+WHEEL_NOISE = (0.01, 0.002)
+
+
+def wheel_odometry(motion: Motion, spec: DriveSpec) -> tuple[FloatArray, FloatArray]:
+    """Stamps (M,) and poses (M, 3) of the base's wheel odometry over the drive: the true
+    base motion (the laser's, moved by :data:`WHEEL_T_BASE_LASER`) between consecutive
+    stamps, its distance scaled by (1 + scale error + noise) and its heading drifting with
+    the distance driven, chained from the true start."""
+    from rigcal.geometry import pose_of, se2
+
+    rng = np.random.default_rng([spec.seed, 7])
+    t: FloatArray = np.arange(0.0, drive_duration(motion, spec), 1.0 / WHEEL_RATE_HZ)
+    T_laser_base = np.linalg.inv(se2(np.array(WHEEL_T_BASE_LASER)))
+    base = [se2(p) @ T_laser_base for p in motion.poses(t)]
+    T = base[0]
+    out = [pose_of(T)]
+    drift = np.radians(WHEEL_DRIFT_DEG_PER_M)
+    for a, b in itertools.pairwise(base):
+        dx, dy, dth = pose_of(np.linalg.inv(a) @ b)
+        dist = float(np.hypot(dx, dy))
+        scale = 1.0 + WHEEL_SCALE_ERROR + WHEEL_NOISE[0] * rng.standard_normal()
+        dth_noisy = dth + drift * dist + WHEEL_NOISE[1] * rng.standard_normal()
+        T = T @ se2(np.array([dx * scale, dy * scale, dth_noisy]))
+        out.append(pose_of(T))
+    return t, np.array(out)
+
+
 def write_drive(
     world: World,
     spec: DriveSpec,
@@ -305,6 +343,18 @@ def write_drive(
     }
     if spec.images and spec.image_format != "png":
         source["image_format"] = spec.image_format
+    odometry = None
+    if spec.wheel_odometry:
+        from rigcal.io.wheel_odometry import checked
+
+        wheel_t, wheel_poses = wheel_odometry(motion, spec)
+        odometry = checked(wheel_t, wheel_poses, WHEEL_T_BASE_LASER, "simulated wheel odometry")
+        source["wheel_odometry"] = {
+            "rate_hz": WHEEL_RATE_HZ,
+            "scale_error": WHEEL_SCALE_ERROR,
+            "drift_deg_per_m": WHEEL_DRIFT_DEG_PER_M,
+            "noise_distance_fraction_heading_rad": list(WHEEL_NOISE),
+        }
     write_sequence(
         folder,
         world.name,
@@ -315,6 +365,7 @@ def write_drive(
         force=force,
         groundtruth_tum=truth,
         rig_yaml=rig_to_text(rig),
+        odometry=odometry,
     )
     return {
         "length_m": world.path_length_m,

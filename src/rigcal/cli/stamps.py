@@ -1,0 +1,32 @@
+"""The importers' shared options: how stamps are repaired, where the laser sits on the base."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import click
+
+if TYPE_CHECKING:
+    from rigcal.io.stamps import StampRepair
+
+stamps_option = click.option(
+    "--stamps",
+    type=click.Choice(["repair", "strict"]),
+    default="repair",
+    show_default=True,
+    help="repair: equal stamps and small steps back are placed evenly between their increasing "
+    "neighbours, with one warning (docs/formats/sequence.md); strict: refuse them.",
+)
+
+laser_offset_option = click.option(
+    "--laser-offset",
+    metavar="X,Y,YAW_DEG",
+    help="The laser's pose on the robot base (m, m, deg) for the wheel odometry.",
+)
+
+
+def warn_stamps(repair: StampRepair | None, what: str) -> None:
+    """Print the stamp repair's one warning line (stderr), if it did anything."""
+    msg = repair.message(what) if repair is not None else None
+    if msg:
+        click.echo(f"warning: {msg}", err=True)

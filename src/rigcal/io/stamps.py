@@ -1,0 +1,207 @@
+"""Stamps of real logs: equal stamps, small backward steps and gaps, repaired by one rule.
+
+Real laser logs break the rule that stamps increase: a log printed with few significant
+digits gives neighbouring scans equal stamps; a host clock corrected by NTP steps back a
+fraction of a second once; a stamp that is wrong on its own jumps ahead and the next ones
+look like a step back. Rule (``stamps="repair"``, the importers' default):
+
+1. The stamps that keep their value are the **longest strictly increasing subsequence**
+   of the stamps (of equal stamps, the earliest is kept): the fewest stamps are changed.
+2. Every other stamp is placed **evenly between its kept neighbours** (a run of k
+   changed stamps between kept stamps a and b: a + j (b - a) / (k + 1), j = 1..k); a run
+   after the last kept stamp (or before the first) continues it one scan period apart
+   (the kept stamps' mean spacing per scan).
+3. A stamp moved by more than ``max_shift_s`` (1 s by default) is not a glitch but a
+   broken clock: the import stops, naming the stamp's line.
+
+Gaps (a step longer than :data:`GAP_PERIODS` scan periods: dropped scans, a paused
+logger) are counted and reported, not filled: nothing was measured there.
+
+``stamps="strict"`` refuses the first stamp that is not after the previous one, as the
+importers did before. The importers print one warning saying how many stamps were
+repaired and how (:meth:`StampRepair.message`); docs/formats/sequence.md documents it.
+"""
+
+from __future__ import annotations
+
+import bisect
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.errors import InputError
+
+FloatArray = NDArray[np.float64]
+
+STAMP_MODES = ("repair", "strict")
+# A stamp moved further than this (s) by the repair is a broken clock, not a glitch.
+MAX_SHIFT_S = 1.0
+# A step longer than this many scan periods is a gap (reported).
+GAP_PERIODS = 5.0
+
+
+@dataclass(frozen=True)
+class StampRepair:
+    """What the repair did: the stamps, and the counts of each case.
+
+    Attributes:
+        stamps_s: (N,) strictly increasing stamps.
+        equal: stamps equal to the previous kept one (low-precision printing), spread.
+        backward: stamps before the previous kept one (a step back, or after a stamp
+            that jumped ahead), placed between their neighbours.
+        max_shift_s: the largest change made to a stamp (s).
+        gaps: steps longer than GAP_PERIODS scan periods (left as they are).
+        longest_gap_s: the longest of them (0 without gaps).
+        period_s: the scan period (median positive step).
+    """
+
+    stamps_s: FloatArray
+    equal: int = 0
+    backward: int = 0
+    max_shift_s: float = 0.0
+    gaps: int = 0
+    longest_gap_s: float = 0.0
+    period_s: float = 0.0
+
+    @property
+    def repaired(self) -> int:
+        return self.equal + self.backward
+
+    def record(self, mode: str) -> dict[str, Any]:
+        """What the repair did, for a sequence's ``source``."""
+        return {
+            "mode": mode,
+            "equal_spread": self.equal,
+            "backward_placed": self.backward,
+            "max_shift_s": round(self.max_shift_s, 6),
+            "gaps": self.gaps,
+        }
+
+    def message(self, what: str) -> str | None:
+        """The one-line warning about ``what`` (e.g. "scan stamps"), None when nothing
+        was repaired and there are no gaps."""
+        parts = []
+        if self.repaired:
+            how = []
+            if self.equal:
+                how.append(f"{self.equal} equal to the previous one")
+            if self.backward:
+                how.append(f"{self.backward} stepping back")
+            parts.append(
+                f"repaired {self.repaired} {what} ({', '.join(how)}): placed evenly between "
+                f"their increasing neighbours, moved at most {self.max_shift_s:.3g} s"
+            )
+        if self.gaps:
+            parts.append(
+                f"{self.gaps} gap(s) longer than {GAP_PERIODS:g} scan periods "
+                f"({self.period_s:.3g} s), the longest {self.longest_gap_s:.3g} s, kept as they are"
+            )
+        return "; ".join(parts) if parts else None
+
+
+def repair_stamps(
+    stamps_s: FloatArray | list[float] | list[float | None],
+    where: str,
+    mode: str = "repair",
+    lines: NDArray[np.int64] | list[int] | None = None,
+    max_shift_s: float = MAX_SHIFT_S,
+) -> StampRepair:
+    """The stamps made strictly increasing by the module's rule (``mode="repair"``), or
+    checked as they are (``mode="strict"``). ``where`` names the file (and the stamp
+    field); ``lines`` (N,) gives each stamp's line in it for the error.
+
+    Raises:
+        InputError: a stamp that is not finite; in strict mode, a stamp not after the
+            previous one; in repair mode, a stamp the repair would move by more than
+            ``max_shift_s``.
+    """
+    t = np.asarray(stamps_s, dtype=float)
+    n = len(t)
+
+    def at(i: int) -> str:
+        return f"{where}: line {int(lines[i])}" if lines is not None else f"{where}[{i}]"
+
+    if mode not in STAMP_MODES:
+        raise InputError.at(None, "--stamps", mode, f"one of {', '.join(STAMP_MODES)}")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if len(bad):
+        raise InputError(f"{at(int(bad[0]))}: got stamp {float(t[bad[0]])!r}; expected a finite stamp (s)")
+    steps = np.diff(t)
+    period = float(np.median(steps[steps > 0])) if (steps > 0).any() else 0.0
+    if mode == "strict" or n < 2 or (steps > 0).all():
+        back = np.flatnonzero(steps <= 0)
+        if len(back):
+            i = int(back[0]) + 1
+            raise InputError(
+                f"{at(i)}: got stamp {float(t[i])!r}; expected a stamp after the previous one "
+                f"{float(t[i - 1])!r} (--stamps repair mends equal stamps and small steps back)"
+            )
+        return _with_gaps(StampRepair(t.copy(), period_s=period))
+    keep = _longest_increasing(t)
+    kept = np.zeros(n, dtype=bool)
+    kept[keep] = True
+    out = t.copy()
+    k = np.flatnonzero(kept)
+    # Beyond the kept stamps: their mean spacing per scan (a median of printed steps
+    # would be the printing's resolution).
+    period = float((t[k[-1]] - t[k[0]]) / (k[-1] - k[0])) if len(k) > 1 else period
+    for m in np.flatnonzero(~kept):
+        j = int(np.searchsorted(k, m))  # kept neighbours k[j - 1] < m < k[j]
+        if j == 0:  # before the first kept stamp: one period before it per stamp
+            out[m] = t[k[0]] - (k[0] - m) * period
+        elif j == len(k):
+            out[m] = t[k[-1]] + (m - k[-1]) * period
+        else:
+            a, b = k[j - 1], k[j]
+            out[m] = t[a] + (m - a) * (t[b] - t[a]) / (b - a)
+    shift = np.abs(out - t)
+    worst: int = int(np.argmax(shift))
+    if shift[worst] > max_shift_s:
+        raise InputError(
+            f"{at(int(worst))}: got stamp {float(t[worst])!r}; expected stamps that increase but for "
+            f"glitches of at most {max_shift_s:g} s (repairing it would move it "
+            f"{float(shift[worst]):.3g} s: a broken clock)"
+        )
+    # A changed stamp equal to its kept predecessor came from low-precision printing.
+    prev_kept = np.maximum.accumulate(np.where(kept, np.arange(n), -1))
+    changed = np.flatnonzero(~kept)
+    equal = sum(1 for i in changed if prev_kept[i] >= 0 and t[i] == t[prev_kept[i]])
+    return _with_gaps(StampRepair(out, equal, len(changed) - equal, float(shift[worst]), period_s=period))
+
+
+def _with_gaps(r: StampRepair) -> StampRepair:
+    steps = np.diff(r.stamps_s)
+    if r.period_s <= 0 or not len(steps):
+        return r
+    long = steps[steps > GAP_PERIODS * r.period_s]
+    return StampRepair(
+        r.stamps_s, r.equal, r.backward, r.max_shift_s, len(long), float(long.max(initial=0.0)), r.period_s
+    )
+
+
+def _longest_increasing(t: FloatArray) -> NDArray[np.int64]:
+    """Indices of a longest strictly increasing subsequence of t (patience sorting,
+    O(N log N)), preferring the earliest stamps where several are as long: run backwards
+    as a longest decreasing subsequence, a later (in the file, earlier) stamp replacing an
+    equal one."""
+    n = len(t)
+    tails: list[float] = []  # tails[L]: the smallest last value of an increasing run of L + 1
+    tail_at: list[int] = []
+    parent = np.full(n, -1, dtype=np.int64)
+    for i, v in enumerate((-t[::-1]).tolist()):
+        L = bisect.bisect_left(tails, v)
+        if len(tails) == L:
+            tails.append(v)
+            tail_at.append(i)
+        else:
+            tails[L] = v
+            tail_at[L] = i
+        parent[i] = tail_at[L - 1] if L > 0 else -1
+    out = []
+    i = tail_at[-1] if tail_at else -1
+    while i >= 0:
+        out.append(n - 1 - i)
+        i = int(parent[i])
+    return np.array(out, dtype=np.int64)

@@ -1,0 +1,164 @@
+"""Wheel odometry: the robot base's dead-reckoned poses and where the laser sits on it.
+
+A sequence folder keeps it as ``odometry.tum`` (T_odom_base: the base's pose in the
+odometry frame, TUM, z = 0) and ``odometry: {file, T_base_laser}`` in sequence.yaml (the
+laser's mounting offset on the base, x y yaw: metres, radians; docs/formats/sequence.md).
+Every source goes through :func:`checked`: stamps finite and increasing, poses finite,
+and a time span that overlaps the scans', else a one-line error naming the file or topic.
+
+The laser's motion between two stamps (:meth:`WheelOdometry.laser_motion`) is the base's
+motion, interpolated at both stamps, seen from the laser:
+T_laser0_laser1 = T_base_laser^-1 T_odom_base(t0)^-1 T_odom_base(t1) T_base_laser.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.errors import InputError
+from rigcal.io.trajectory import Trajectory, read_tum, tum_text
+
+FloatArray = NDArray[np.float64]
+
+# A TUM odometry file is planar: its poses may tilt by at most this (rad) off the floor.
+MAX_TILT_RAD = 0.2
+
+
+@dataclass(frozen=True)
+class WheelOdometry:
+    """The base's planar poses (N, 3: x, y, yaw) in the odometry frame at stamps (N,), and
+    the laser's pose on the base (x, y, yaw)."""
+
+    stamps_s: FloatArray
+    poses: FloatArray
+    T_base_laser: FloatArray
+
+    def covers(self, t: float) -> bool:
+        return bool(self.stamps_s[0] <= t <= self.stamps_s[-1])
+
+    def base_pose(self, t: float) -> FloatArray:
+        """The base's pose at t (x, y, yaw; linear, yaw unwrapped), held at the ends."""
+        yaw = np.unwrap(self.poses[:, 2])
+        s = self.stamps_s
+        return np.array(
+            [np.interp(t, s, self.poses[:, 0]), np.interp(t, s, self.poses[:, 1]), np.interp(t, s, yaw)]
+        )
+
+    def laser_motion(self, t0: float, t1: float) -> FloatArray | None:
+        """The laser's pose at t1 in its frame at t0 (x, y, yaw), or None when either stamp
+        is outside the odometry's span."""
+        if not (self.covers(t0) and self.covers(t1)):
+            return None
+        return laser_motions(self, np.array([t0, t1]))[0]
+
+
+def laser_motions(odom: WheelOdometry, stamps_s: FloatArray) -> FloatArray:
+    """(N - 1, 3) the laser's motion from each stamp to the next (T_laser_k-1_laser_k),
+    from the base's poses interpolated at the stamps (vectorised)."""
+    yaw = np.unwrap(odom.poses[:, 2])
+    x = np.interp(stamps_s, odom.stamps_s, odom.poses[:, 0])
+    y = np.interp(stamps_s, odom.stamps_s, odom.poses[:, 1])
+    th = np.interp(stamps_s, odom.stamps_s, yaw)
+    # The base's motion in its own frame at each earlier stamp.
+    dx, dy = np.diff(x), np.diff(y)
+    c, s = np.cos(th[:-1]), np.sin(th[:-1])
+    bx, by, bth = c * dx + s * dy, -s * dx + c * dy, np.diff(th)
+    # Conjugated by the mounting: T_bl^-1 (bx, by, bth) T_bl.
+    lx, ly, lth = (float(v) for v in odom.T_base_laser)
+    cl, sl = np.cos(lth), np.sin(lth)
+    cb, sb = np.cos(bth), np.sin(bth)
+    # t = R_l^T (R_b t_l + t_b - t_l)
+    px = cb * lx - sb * ly + bx - lx
+    py = sb * lx + cb * ly + by - ly
+    return np.column_stack([cl * px + sl * py, -sl * px + cl * py, bth])
+
+
+def checked(
+    stamps_s: FloatArray,
+    poses: FloatArray,
+    T_base_laser: FloatArray | tuple[float, float, float],
+    where: str,
+    scan_stamps_s: FloatArray | None = None,
+) -> WheelOdometry:
+    """Odometry from its stamps (N,) and base poses (N, 3), validated; ``where`` names the
+    file or topic it came from.
+
+    Raises:
+        InputError: fewer than 2 poses, a stamp or pose that is not finite, stamps not
+            increasing, or (given the scans' stamps) a span that does not overlap theirs.
+    """
+    t = np.asarray(stamps_s, dtype=float)
+    p = np.asarray(poses, dtype=float).reshape(-1, 3)
+    mount = np.asarray(T_base_laser, dtype=float)
+    if len(t) < 2:
+        raise InputError.at(where, "odometry", f"{len(t)} poses", "at least 2 odometry poses")
+    bad = np.flatnonzero(~np.isfinite(t) | ~np.isfinite(p).all(axis=1))
+    if len(bad):
+        k = int(bad[0])
+        raise InputError.at(
+            where, f"odometry pose {k}", [float(t[k]), *p[k].tolist()], "finite stamp, x, y and yaw"
+        )
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if len(back):
+        k = int(back[0]) + 1
+        raise InputError.at(
+            where, f"odometry stamp {k}", float(t[k]), f"a stamp after the previous one {float(t[k - 1])!r}"
+        )
+    if mount.shape != (3,) or not np.isfinite(mount).all():
+        raise InputError.at(where, "T_base_laser", mount.tolist(), "3 finite numbers: x y (m), yaw (rad)")
+    if scan_stamps_s is not None and len(scan_stamps_s):
+        lo, hi = float(scan_stamps_s[0]), float(scan_stamps_s[-1])
+        if t[-1] < lo or t[0] > hi:
+            raise InputError.at(
+                where,
+                "odometry stamps",
+                f"{float(t[0])!r} to {float(t[-1])!r}",
+                f"a span overlapping the scans' ({lo!r} to {hi!r}): the same clock",
+            )
+    return WheelOdometry(t, p, mount)
+
+
+def planar_poses(traj: Trajectory, where: str) -> FloatArray:
+    """(N, 3) x, y, yaw of a trajectory's poses, refusing ones tilted off the floor
+    (an odometry file of a 3D body, or the wrong frames)."""
+    R = traj.poses[:, :3, :3]
+    tilt = np.arccos(np.clip(R[:, 2, 2], -1.0, 1.0))
+    if (tilt > MAX_TILT_RAD).any():
+        k = int(np.argmax(tilt))
+        raise InputError.at(
+            where, f"pose {k}", f"tilted {np.degrees(tilt[k]):.1f} deg", "planar odometry (z axis up)"
+        )
+    return np.column_stack([traj.poses[:, 0, 3], traj.poses[:, 1, 3], np.arctan2(R[:, 1, 0], R[:, 0, 0])])
+
+
+def read_odometry_tum(
+    path: str | Path, T_base_laser: FloatArray | tuple[float, float, float], scan_stamps_s: FloatArray | None
+) -> WheelOdometry:
+    """Wheel odometry from a TUM file (T_odom_base per line)."""
+    traj = read_tum(path)
+    assert traj.stamps_s is not None
+    return checked(traj.stamps_s, planar_poses(traj, str(path)), T_base_laser, str(path), scan_stamps_s)
+
+
+def odometry_tum(odom: WheelOdometry) -> str:
+    """The base's poses as TUM text (z = 0)."""
+    from rigcal.geometry import make_T, rotvec_to_R
+
+    T = np.array([make_T(rotvec_to_R([0.0, 0.0, th]), [x, y, 0.0]) for x, y, th in odom.poses])
+    return tum_text(Trajectory(T, odom.stamps_s))
+
+
+def parse_mounting(text: str, option: str = "--laser-offset") -> FloatArray:
+    """``X,Y,YAW_DEG`` (metres, degrees) as (x, y, yaw rad)."""
+    parts = text.replace(" ", "").split(",")
+    try:
+        v = [float(p) for p in parts]
+    except ValueError:
+        v = []
+    if len(v) != 3 or not all(np.isfinite(v)) or max(abs(v[0]), abs(v[1])) > 100 or abs(v[2]) > 360:
+        raise InputError.at(None, option, text, "X,Y,YAW_DEG: the laser on the base (m, m, deg)")
+    return np.array([v[0], v[1], np.radians(v[2])])
