@@ -16,10 +16,12 @@ from rigcal.geometry import (
     inv_T,
     make_T,
     pose_error,
+    pose_of,
     random_rotation,
     rotation_angle_rad,
     rotvec_to_R,
     rt_from_T,
+    se2,
     tangent_delta,
     transform_points,
 )
@@ -148,3 +150,15 @@ def test_random_rotation_is_a_rotation_within_its_bound():
             assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-12)
             if bound is not None:
                 assert rotation_angle_rad(R) <= bound + 1e-12
+
+
+@settings(max_examples=100, deadline=None)
+@given(finite, finite, st.floats(-math.pi + 1e-9, math.pi))
+def test_se2_and_pose_of_round_trip(x, y, yaw):
+    T = se2(np.array([x, y, yaw]))
+    c, s = math.cos(yaw), math.sin(yaw)
+    assert np.allclose(T[:2, :2], [[c, -s], [s, c]], atol=1e-15)
+    assert np.allclose(T[:2, 2], [x, y])
+    p = pose_of(T)
+    assert np.allclose(p[:2], [x, y])
+    assert abs(math.remainder(p[2] - yaw, 2 * math.pi)) < 1e-12
