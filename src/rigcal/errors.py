@@ -67,8 +67,8 @@ class InputError(RigcalError):
         """
         # A huge or deeply nested value (a YAML alias bomb) gets a bounded repr.
         shown = repr(value) if _small(value) else _short.repr(value)
-        if len(shown) > 80:
-            shown = shown[:77] + "..."
+        if len(shown) > 80:  # keep both ends: a path's file name, a list's last items
+            shown = shown[:38] + "..." + shown[-39:]
         where = f"{path}: " if path is not None else ""
         return cls(f"{where}{key}: got {shown}; expected {expected}")
 

@@ -7,6 +7,8 @@ from typing import Any
 
 import click
 
+from rigcal.io.validate import Real
+
 
 @click.command("batch")
 @click.argument("source")
@@ -54,7 +56,7 @@ import click
     "ray_timeout_s",
     default=10.0,
     show_default=True,
-    type=click.FloatRange(min=0, min_open=True),
+    type=Real(min=0.0, min_open=True),
     metavar="SECONDS",
     help="How long to try reaching a named Ray cluster before giving up.",
 )
