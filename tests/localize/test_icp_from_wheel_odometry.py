@@ -61,3 +61,9 @@ def test_the_gate_takes_icp_within_the_wheels_error_bound():
     assert agrees_with_wheels(wheel + np.array([0.15, -0.05, np.radians(5.0)]), wheel)
     assert not agrees_with_wheels(wheel + np.array([0.5, 0.0, 0.0]), wheel)  # slid along a pattern
     assert not agrees_with_wheels(wheel + np.array([0.0, 0.0, np.radians(20.0)]), wheel)
+
+
+def test_every_method_names_its_shared_stages():
+    from rigcal.localize.pipeline import METHODS, SHARED_STAGES
+
+    assert set(SHARED_STAGES) == set(METHODS)

@@ -209,6 +209,7 @@ SHARED_STAGES: dict[str, tuple[str, ...]] = {
     "kf": ("tracks_s", "icp_s", "vo_s"),
     "iasm": ("icp_s",),
     "hiasm": ("tracks_s", "icp_s"),
+    "odom": (),
 }
 
 
