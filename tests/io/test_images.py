@@ -168,10 +168,15 @@ def test_a_path_given_as_text_reads_too(tmp_path: Path):
     np.testing.assert_array_equal(read_grey(str(path)), img)
 
 
-def test_a_damaged_png_decodes_to_none_and_libpng_says_nothing(tmp_path, capfd, caplog):
+def test_a_damaged_png_decodes_to_none_and_libpng_says_nothing(tmp_path, capfd, caplog, monkeypatch):
     import logging
 
     from rigcal.io.images import decode, read_image_file
+
+    # A command run with -v by a module-scoped fixture elsewhere may have left a stderr
+    # handler on the rigcal logger; this test is about libpng's own output, not rigcal's.
+    monkeypatch.setattr(logging.getLogger("rigcal"), "handlers", [])
+    monkeypatch.setattr(logging.getLogger("rigcal"), "propagate", True)
 
     png = bytearray(cv2.imencode(".png", np.arange(400, dtype=np.uint8).reshape(20, 20))[1].tobytes())
     png[60] ^= 0xFF  # damaged IDAT: libpng prints "libpng error: IDAT: ..." on fd 2
