@@ -190,6 +190,7 @@ def test_run_item_reports_bugs_and_usage_errors_without_raising(tmp_path, monkey
     assert usage["exit_code"] == 2
     assert "Missing option '--gt'" in usage["error"]
     import rigcal.localize.metrics as metrics
+    import rigcal.localize.pipeline  # noqa: F401  (imported first, so it keeps the real evaluate)
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("boom")
