@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import tempfile
@@ -53,6 +54,9 @@ def main() -> None:
     ap.add_argument("--command", choices=["check", "solve"], default="check")
     ap.add_argument("--no-ray", action="store_true")
     args = ap.parse_args()
+    # a stopped run (kill, Ctrl-C) unwinds the context managers, so the Ray nodes it started
+    # are stopped and the temporary folder removed
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         batch = make_items(root, args.items, args.command)
