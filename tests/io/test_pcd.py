@@ -183,6 +183,6 @@ def test_broken_files_name_line_field_and_value(tmp_path: Path, text: str | byte
 def test_missing_file(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="PCD scan not found"):
         read_scan(tmp_path / "none.pcd")
+    (tmp_path / "d.pcd").mkdir()
     with pytest.raises(InputError, match="got a folder"):
-        (tmp_path / "d.pcd").mkdir()
         read_scan(tmp_path / "d.pcd")
