@@ -910,19 +910,41 @@ def check_normals(observations: Sequence[PlaneObservation]) -> None:
     freedom: their normals must span 3D (MIN_NORMAL_SPREAD).
 
     Raises:
-        CalibrationError: the normals are (nearly) parallel or share an axis (a board
-            upright against a wall, turned but never tilted).
+        CalibrationError: the normals are (nearly) parallel or share a plane (a board
+            upright against a wall, turned but never tilted), saying in words how far
+            they spread and which views to add.
     """
     normals = np.array([np.asarray(o.normal_cam, dtype=float) for o in observations]).reshape(-1, 3)
-    s = np.linalg.svd(normals, compute_uv=False) if len(normals) else np.zeros(0)
-    if len(s) < 3 or s[2] < MIN_NORMAL_SPREAD * s[0]:
-        names = ", ".join(o.name for o in observations)
-        spread = s[-1] / s[0] if len(s) == 3 else 0.0
+    if len(normals) == 0:
+        raise CalibrationError("no board planes to calibrate from")
+    _, s, Vt = np.linalg.svd(normals)
+    s = np.concatenate([s, np.zeros(3 - len(s))])
+    if s[2] >= MIN_NORMAL_SPREAD * s[0]:
+        return
+    names = ", ".join(o.name for o in observations)
+    mean = normals.sum(axis=0)
+    mean /= max(float(np.linalg.norm(mean)), 1e-12)
+    turned = float(np.degrees(np.arccos(np.clip(np.abs(normals @ mean).min(), 0.0, 1.0))))
+    if s[1] < MIN_NORMAL_SPREAD * s[0]:
         raise CalibrationError(
-            f"the board planes of captures {names} are (nearly) parallel or share an axis "
-            f"(normals' spread {spread:.3f} < {MIN_NORMAL_SPREAD}); tilt the board about "
-            "both of its axes between captures"
+            f"the boards of captures {names} all face one way (every normal within {turned:.1f} deg "
+            f"of their mean; normals' spread {s[2] / s[0]:.3f} < {MIN_NORMAL_SPREAD}), as the images "
+            "show before any laser return is looked at: turn the board left and right (by 20-40 deg) "
+            "and tilt it forward and back between captures"
         )
+    out = np.abs(normals @ Vt[2])
+    lean = float(np.degrees(np.arcsin(np.clip(out.max(), 0.0, 1.0))))
+    raise CalibrationError(
+        f"the boards of captures {names} never tilt: every board normal is within {lean:.1f} deg of "
+        f"one plane (normals' spread {s[2] / s[0]:.3f} < {MIN_NORMAL_SPREAD}; the boards are turned "
+        f"up to {turned:.0f} deg), as an upright board turned against a wall gives. The images alone "
+        "show this, before any laser return: such planes cannot fix the laser's height, roll and "
+        "pitch. Add captures with the board tilted forward and back by 20-40 deg (top towards and "
+        "away from the camera) and rolled, or, for a level scanner, give the level priors (roll, "
+        "pitch and the camera's height above the scan plane, each with its 1-sigma: the session's "
+        "level: or `rigcal solve --level-prior`) for the reduced solve of the yaw and the "
+        "horizontal translations"
+    )
 
 
 def _check_observable(observations: Sequence[PlaneObservation]) -> None:
