@@ -152,12 +152,13 @@ def board_vertical(normals_cam: FloatArray) -> Vertical:
     # chi-square one (rigcal.calib.spread.few_dof_factor, 2 parameters).
     s2 = float(out @ out) / dof * few_dof_factor(dof, params=2)
     JtJ = J.T @ J
-    cov_delta = s2 * np.linalg.inv(JtJ) if np.linalg.cond(JtJ) < 1e12 else np.full((2, 2), np.inf)
     # up + da ex + db ey is up turned about ey by da and about -ex by db.
     P = np.array([[0.0, -1.0], [1.0, 0.0]])
+    ok = np.linalg.cond(JtJ) < 1e12
+    tilt_cov = P @ (s2 * np.linalg.inv(JtJ)) @ P.T if ok else np.full((2, 2), np.inf)
     return Vertical(
         up,
-        P @ cov_delta @ P.T,
+        tilt_cov,
         float(np.degrees(np.arcsin(np.clip(np.abs(out).max(), 0.0, 1.0)))),
         float(s[2] / s[0]),
         float(s[1] / s[0]),
