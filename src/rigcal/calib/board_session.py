@@ -126,7 +126,7 @@ def read_board_session(
     )
     version = d["schema_version"]
     if type(version) is not int or version not in BOARD_SESSION_SCHEMA_VERSIONS:
-        raise InputError.at(path, "schema_version", version, "1 or 2 (the versions this rigcal reads)")
+        raise InputError.at(path, "schema_version", version, "1, 2 or 3 (the versions this rigcal reads)")
     if d["method"] != "board":
         raise InputError.at(
             path, "method", d["method"], "'board' (a box-target picking file has no method key)"
