@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from rigcal.calib.noise import CLIP_CHI2, grouped_verdicts, matching_noise, range_noise_from_lines
+from rigcal.calib.noise import CLIP_CHI2, grouped_verdicts, range_noise_from_lines
 from rigcal.calib.plane import (
     LOSS,
     LOSS_SCALE,
@@ -59,6 +59,7 @@ from rigcal.calib.plane import (
     PlaneNoise,
     PlaneObservation,
     PlaneResult,
+    _capture_sigma,
     _chi2,
     _end_residuals,
     _whiteners,
@@ -516,7 +517,8 @@ def _robust_level_fit(
     x = x0
     for _ in range(4):
         x, noise = _fit(frame, prior, x, observations, lines, noise, np.flatnonzero(mask))
-        noise = replace(noise, capture_sigma_m=_capture_sigma(frame, x, observations, lines, noise, mask))
+        sigma = _capture_sigma(frame.pose(x[:6]), observations, lines, noise, mask, params=3)
+        noise = replace(noise, capture_sigma_m=sigma)
         chi2 = _chi2(frame.pose(x[:6]), observations, lines, noise)
         new = grouped_verdicts(chi2, groups, mask, OUTLIER_GATE_CHI2)
         if np.array_equal(new, mask) or new.sum() < MIN_LEVEL_CAPTURES:
@@ -525,33 +527,6 @@ def _robust_level_fit(
     x, noise = _fit(frame, prior, x, observations, lines, noise, np.flatnonzero(mask))
     z = np.sqrt(_chi2(frame.pose(x[:6]), observations, lines, noise)[mask])
     return x, noise, mask, robust_cost(z, noise.loss, LOSS_SCALE)
-
-
-def _capture_sigma(
-    frame: LevelFrame,
-    x: FloatArray,
-    observations: Sequence[PlaneObservation],
-    lines: Sequence[CaptureLine],
-    noise: PlaneNoise,
-    mask: NDArray[np.bool_],
-) -> float:
-    """The per-capture error that makes the captures in ``mask`` as far off their planes
-    as the noise model predicts (as :func:`rigcal.calib.plane._capture_sigma`, with the
-    level solve's 3 observed parameters)."""
-    from scipy.stats import chi2
-
-    T = frame.pose(x[:6])
-    obs = [o for o, k in zip(observations, mask, strict=True) if k]
-    lns = [ln for ln, k in zip(lines, mask, strict=True) if k]
-    dof = 2 * len(obs) - 3
-    if dof <= 0 or float(np.sum(np.minimum(_chi2(T, obs, lns, noise), CLIP_CHI2))) < chi2.ppf(0.9, dof):
-        return 0.0
-    return matching_noise(
-        lambda s: _chi2(T, obs, lns, replace(noise, capture_sigma_m=s)),
-        max(1.0 - 3.0 / (2 * len(obs)), 0.1),
-        0.0,
-        1.0,
-    )
 
 
 def _x_covariance(

@@ -812,22 +812,24 @@ def _capture_sigma(
     lines: Sequence[CaptureLine],
     noise: PlaneNoise,
     mask: NDArray[np.bool_],
+    params: int = 6,
 ) -> float:
     """The per-capture error that makes the captures in ``mask`` as far off their planes
     as the noise model predicts (:func:`rigcal.calib.noise.matching_noise`; 0 when the range
-    noise and the board poses already explain them)."""
+    noise and the board poses already explain them); ``params``: the parameters fitted
+    (6, or the level solve's 3 observed ones)."""
     from scipy.stats import chi2
 
     obs = [o for o, k in zip(observations, mask, strict=True) if k]
     lns = [ln for ln, k in zip(lines, mask, strict=True) if k]
-    dof = 2 * len(obs) - 6
+    dof = 2 * len(obs) - params
     # No per-capture error unless the captures disagree beyond chance (90 %): an estimate
     # from chance alone would only widen the covariance.
     if dof <= 0 or float(np.sum(np.minimum(_chi2(T, obs, lns, noise), CLIP_CHI2))) < chi2.ppf(0.9, dof):
         return 0.0
     return matching_noise(
         lambda s: _chi2(T, obs, lns, replace(noise, capture_sigma_m=s)),
-        max(1.0 - 6.0 / (2 * len(obs)), 0.1),
+        max(1.0 - params / (2 * len(obs)), 0.1),
         0.0,
         1.0,
     )
