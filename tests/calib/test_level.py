@@ -269,3 +269,41 @@ def test_cli_level_prior(
     code, out = run()
     assert code == 4
     assert "never tilt" in out
+
+
+def test_pcd_scans_give_the_same_board_returns(wall: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    """The session's scans as clockwise binary PCD files (no return: 0 0 0): the same
+    segment ids pick the same returns, to float32 precision."""
+    from rigcal.scan import read_scan
+
+    path, T = wall
+    folder = path.parent
+    for scan_file in sorted((folder / "scans").glob("*.yaml")):
+        scan = read_scan(scan_file)
+        xyz = np.zeros((len(scan.ranges_m), 3), dtype="<f4")
+        xyz[scan.valid, :2] = scan.points[scan.valid]
+        head = (
+            "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+            f"WIDTH {len(xyz)}\nHEIGHT 1\nPOINTS {len(xyz)}\nDATA binary\n"
+        )
+        scan_file.with_suffix(".pcd").write_bytes(head.encode() + xyz[::-1].tobytes())
+    pcd = folder / "pcd_session.yaml"
+    pcd.write_text(re.sub(r"(scan: scans/\S+)\.yaml", r"\1.pcd", path.read_text()))
+    a = read_board_session(path, level=priors_for(T))
+    b = read_board_session(pcd, level=priors_for(T))
+    for x, y in zip(a.observations, b.observations, strict=True):
+        assert len(x.points_laser) == len(y.points_laser)
+        assert np.allclose(np.sort(x.points_laser, axis=0), np.sort(y.points_laser, axis=0), atol=1e-6)
+
+
+def test_api_solve_board_takes_level_priors(wall: tuple[Path, np.ndarray]) -> None:
+    import rigcal
+
+    path, T = wall
+    sol = rigcal.solve_board(path, level=priors_for(T), T_truth=T)
+    assert sol.rig.uncertainty["reduced"]["model"] == "level scanner, upright boards"
+    assert sol.report["truth"]["nees"] < CHI2_6_999
+    with pytest.raises(
+        InputError, match=r"rigcal.solve_board: level: got 'flat'; expected a rigcal.calib.level"
+    ):
+        rigcal.solve_board(path, level="flat")  # type: ignore[arg-type]
