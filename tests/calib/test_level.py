@@ -73,7 +73,9 @@ def test_boards_facing_one_way_are_told_to_turn() -> None:
 
     n = np.array([0.0, 0.0, 1.0])
     obs = [PlaneObservation(i, f"c{i}", n, 2.0, np.zeros((2, 2))) for i in range(5)]
-    with pytest.raises(CalibrationError, match=r"all face one way \(every normal within 0\.0 deg"):
+    with pytest.raises(
+        CalibrationError, match=r"all face one way \(their planes are parallel: every normal within 0\.0 deg"
+    ):
         check_normals(obs)
 
 

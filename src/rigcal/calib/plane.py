@@ -929,9 +929,9 @@ def check_normals(observations: Sequence[PlaneObservation]) -> None:
     turned = float(np.degrees(np.arccos(np.clip(np.abs(normals @ mean).min(), 0.0, 1.0))))
     if s[1] < MIN_NORMAL_SPREAD * s[0]:
         raise CalibrationError(
-            f"the boards of captures {names} all face one way (every normal within {turned:.1f} deg "
-            f"of their mean; normals' spread {s[2] / s[0]:.3f} < {MIN_NORMAL_SPREAD}), as the images "
-            "show before any laser return is looked at: turn the board left and right (by 20-40 deg) "
+            f"the boards of captures {names} all face one way (their planes are parallel: every normal "
+            f"within {turned:.1f} deg of their mean; normals' spread {s[2] / s[0]:.3f} < "
+            f"{MIN_NORMAL_SPREAD}), as the images show before any laser return is looked at: turn the board left and right (by 20-40 deg) "
             "and tilt it forward and back between captures"
         )
     out = np.abs(normals @ Vt[2])
