@@ -931,8 +931,8 @@ def check_normals(observations: Sequence[PlaneObservation]) -> None:
         raise CalibrationError(
             f"the boards of captures {names} all face one way (their planes are parallel: every normal "
             f"within {turned:.1f} deg of their mean; normals' spread {s[2] / s[0]:.3f} < "
-            f"{MIN_NORMAL_SPREAD}), as the images show before any laser return is looked at: turn the board left and right (by 20-40 deg) "
-            "and tilt it forward and back between captures"
+            f"{MIN_NORMAL_SPREAD}), as the images show before any laser return is looked at: turn "
+            "the board left and right (by 20-40 deg) and tilt it forward and back between captures"
         )
     out = np.abs(normals @ Vt[2])
     lean = float(np.degrees(np.arcsin(np.clip(out.max(), 0.0, 1.0))))
