@@ -199,7 +199,11 @@ def calibrate_board_session(
         reduced = level_section(level, result, cov_camera)
         report["reduced"] = reduced
         report["summary"]["method"] = "board, reduced (level scanner)"
-        report["warnings"].insert(0, reduced_warning(reduced))
+        # T's sigma is the priors' along what the data cannot see: the generic "large
+        # uncertainty" advice would only repeat the reduced solve's own warning.
+        report["warnings"] = [reduced_warning(reduced)] + [
+            w for w in report["warnings"] if not w.startswith("large uncertainty")
+        ]
         if T_truth is not None:
             report["truth"]["level"] = {k: round(v, 4) for k, v in level_errors(level, T_truth).items()}
     if cov_camera is not None:
