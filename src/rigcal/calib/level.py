@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from rigcal.calib.noise import CLIP_CHI2, grouped_verdicts, range_noise_from_lines
+from rigcal.calib.noise import CLIP_CHI2, grouped_verdicts
 from rigcal.calib.plane import (
     LOSS,
     LOSS_SCALE,
@@ -66,6 +66,7 @@ from rigcal.calib.plane import (
     capture_line,
     point_to_plane,
     same_pose_groups,
+    start_noise,
 )
 from rigcal.calib.refine import loss_weights, robust_cost
 from rigcal.calib.spread import few_dof_factor
@@ -299,17 +300,7 @@ def solve_level(
     vertical = board_vertical(np.array([o.normal_cam for o in observations]))
     check_level_geometry(vertical, [o.name for o in observations])
     lines = tuple(capture_line(o.points_laser) for o in observations)
-    try:
-        estimated = range_noise_from_lines([ln.fit for ln in lines])
-    except ValueError:
-        estimated = None
-    if range_sigma_m is None:
-        if estimated is None:
-            raise CalibrationError(
-                "no capture has 3 or more returns on its board to estimate the range noise"
-            )
-        range_sigma_m = estimated.sigma_m
-    noise = PlaneNoise(max(range_sigma_m, 1e-4), fit_range_bias=fit_range_bias, loss=loss)
+    noise, estimated = start_noise(lines, range_sigma_m, fit_range_bias, loss)
     groups = same_pose_groups(observations, lines)
     fits = []
     for sign in (1, -1):

@@ -497,17 +497,7 @@ def solve_plane(
     screen = gross_outliers(observations, lines, seed)
     gross = screen.gross
     kept = np.flatnonzero(~gross)
-    try:
-        estimated = range_noise_from_lines([lines[i].fit for i in kept])
-    except ValueError:
-        estimated = None
-    if range_sigma_m is None:
-        if estimated is None:
-            raise CalibrationError(
-                "no capture has 3 or more returns on its board to estimate the range noise"
-            )
-        range_sigma_m = estimated.sigma_m
-    noise = PlaneNoise(max(range_sigma_m, 1e-4), fit_range_bias=fit_range_bias, loss=loss)
+    noise, estimated = start_noise([lines[i] for i in kept], range_sigma_m, fit_range_bias, loss)
     reduced = [replace(o, points_laser=ln.ends) for o, ln in zip(observations, lines, strict=True)]
     # Start from the closed form on every capture and, when asked, from RANSAC's best
     # sample; keep the robust fit that explains most captures (then the lowest cost). A
@@ -589,6 +579,29 @@ def solve_plane(
         noise_dof,
         factor,
     )
+
+
+def start_noise(
+    lines: Sequence[CaptureLine], range_sigma_m: float | None, fit_range_bias: bool, loss: str
+) -> tuple[PlaneNoise, RangeNoise | None]:
+    """The noise model a solve starts from: the range noise given, else the one estimated
+    from the captures' lines (:func:`rigcal.calib.noise.range_noise_from_lines`, also
+    returned, None when no line has enough returns), with a 0.1 mm floor.
+
+    Raises:
+        CalibrationError: no range noise given and none can be estimated.
+    """
+    try:
+        estimated = range_noise_from_lines([ln.fit for ln in lines])
+    except ValueError:
+        estimated = None
+    if range_sigma_m is None:
+        if estimated is None:
+            raise CalibrationError(
+                "no capture has 3 or more returns on its board to estimate the range noise"
+            )
+        range_sigma_m = estimated.sigma_m
+    return PlaneNoise(max(range_sigma_m, 1e-4), fit_range_bias=fit_range_bias, loss=loss), estimated
 
 
 def refit_pose(result: PlaneResult, observations: Sequence[PlaneObservation]) -> FloatArray:
