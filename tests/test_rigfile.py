@@ -209,7 +209,7 @@ def test_missing_required_key(rig_path, keypath):
 
 
 @pytest.mark.parametrize(
-    ("version", "shown"), [(3, "3"), (0, "0"), ("1", "'1'"), (True, "True"), (None, "None")]
+    ("version", "shown"), [(4, "4"), (0, "0"), ("1", "'1'"), (True, "True"), (None, "None")]
 )
 def test_wrong_schema_version(rig_path, version, shown):
     doc = load(rig_path)

@@ -16,7 +16,7 @@ import os
 import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NotRequired, TypedDict, cast
 
@@ -31,6 +31,7 @@ from rigcal.rig import Rig
 from rigcal.scan import Scan
 
 if TYPE_CHECKING:
+    from rigcal.calib.level import LevelPriors
     from rigcal.calib.picks import BoxObservation
     from rigcal.calib.plane import PlaneResult
     from rigcal.calib.solve import CalibResult
@@ -494,6 +495,7 @@ def solve_board(
     range_bias: bool = True,
     seed: int = 0,
     T_truth: ArrayLike | None = None,
+    level: LevelPriors | None = None,
 ) -> Solution[BoardReport, PlaneResult]:
     """Plane-based (checkerboard) calibration, as ``rigcal solve`` on a board session.
 
@@ -514,6 +516,9 @@ def solve_board(
             (``--range-bias/--no-range-bias``).
         seed: RANSAC's seed (``--seed``).
         T_truth: (4, 4) a known T_cam_laser, compared with in the report.
+        level: the reduced solve for boards that never tilt
+            (``rigcal.calib.level.LevelPriors``: roll, pitch and camera height priors;
+            ``--level-prior``), over a session file's ``level:``.
 
     Raises:
         ArgumentError: a bad argument (a type, a value the option would refuse, corners
@@ -523,6 +528,7 @@ def solve_board(
     """
     from rigcal.calib import options
     from rigcal.calib.board_calibrate import calibrate_board, calibrate_board_session
+    from rigcal.calib.level import LevelPriors
     from rigcal.io.validate import flag
 
     where = "rigcal.solve_board"
@@ -533,6 +539,8 @@ def solve_board(
         bias = flag(range_bias, where, "range_bias")
         rng_seed = options.SEED.check(seed, where, "seed")
         truth = _truth(T_truth, where)
+        if level is not None:
+            _instance(level, LevelPriors, where, "level", "a rigcal.calib.level.LevelPriors")
         if isinstance(captures, (str, os.PathLike)):
             path = _path(captures, where, "captures")
             for key, value in (("camera", camera), ("board", board)):
@@ -547,10 +555,12 @@ def solve_board(
             cam = _camera(camera, where)
             session = _board_session(caps, cam, _board(board, where), sigma, corner_sigma, where)
     if isinstance(captures, (str, os.PathLike)):
-        cal = calibrate_board(path, sigma, command=where, seed=rng_seed, noise=mode, range_bias=bias)
+        cal = calibrate_board(
+            path, sigma, command=where, seed=rng_seed, noise=mode, range_bias=bias, level=level
+        )
     else:
         cal = calibrate_board_session(
-            session, sigma, command=where, seed=rng_seed, noise=mode, range_bias=bias
+            replace(session, level=level), sigma, command=where, seed=rng_seed, noise=mode, range_bias=bias
         )
     return Solution(cal.rig, cast(BoardReport, _with_truth(cal.report, cal.result, truth)), cal.result)
 

@@ -45,10 +45,12 @@ from rigcal.io.validate import finite_array, real
 from rigcal.rig import COVARIANCE_PARAMETERS, Rig
 
 RIG_SCHEMA_VERSION = 2
-RIG_SCHEMA_VERSIONS = (1, 2)
+# Versions read: 3 adds uncertainty.reduced (a reduced solve's fixed and prior-bound
+# parameters); a rig is written as 3 only when it has that section, else as 2.
+RIG_SCHEMA_VERSIONS = (1, 2, 3)
 
 _HEADER = (
-    "# rigcal rig file, schema 2 (docs/formats/rig.md).\n"
+    "# rigcal rig file, schema {version} (docs/formats/rig.md).\n"
     "# T_cam_laser maps laser-frame points into the camera frame: p_cam = R p_laser + t,\n"
     "# R given as a rotation vector (axis * angle, rad), t in metres.\n"
 )
@@ -61,7 +63,7 @@ MAX_OFFSET_M = 1000.0
 def rig_to_dict(rig: Rig) -> dict[str, Any]:
     """The YAML document of a rig (plain Python types only)."""
     doc: dict[str, Any] = {
-        "schema_version": RIG_SCHEMA_VERSION,
+        "schema_version": _version(rig),
         "T_cam_laser": transform_to_dict(rig.T_cam_laser, "cam", "laser"),
     }
     sig = rig.sigmas()
@@ -79,9 +81,16 @@ def rig_to_dict(rig: Rig) -> dict[str, Any]:
     return doc
 
 
+def _version(rig: Rig) -> int:
+    """The schema a rig is written in: 3 for a reduced solve's, else RIG_SCHEMA_VERSION."""
+    return 3 if "reduced" in rig.uncertainty else RIG_SCHEMA_VERSION
+
+
 def rig_to_text(rig: Rig) -> str:
     """Text of a rig file."""
-    return _HEADER + yaml.safe_dump(rig_to_dict(rig), sort_keys=False, default_flow_style=None, width=100)
+    return _HEADER.format(version=_version(rig)) + yaml.safe_dump(
+        rig_to_dict(rig), sort_keys=False, default_flow_style=None, width=100
+    )
 
 
 def write_rig(path: str | Path, rig: Rig, force: bool = False) -> Path:
@@ -148,7 +157,7 @@ def _rig_from_dict(data: Any, path: str | Path | None) -> Rig:
     )
     version = d["schema_version"]
     if type(version) is not int or version not in RIG_SCHEMA_VERSIONS:
-        raise InputError.at(path, "schema_version", version, "1 or 2 (the versions this rigcal reads)")
+        raise InputError.at(path, "schema_version", version, "1, 2 or 3 (the versions this rigcal reads)")
     T = transform_from_dict(d["T_cam_laser"], path, "T_cam_laser", "cam", "laser")
     finite_array(T[:3, 3], path, "T_cam_laser.translation_m", lo=-MAX_OFFSET_M, hi=MAX_OFFSET_M)
     camera = camera_from_dict(d["camera"], path, "camera")
@@ -156,6 +165,7 @@ def _rig_from_dict(data: Any, path: str | Path | None) -> Rig:
     extra: dict[str, Any] = {}
     if "uncertainty" in d:
         checks = list(_UNCERTAINTY_CHECKS) if version >= 2 else []
+        checks += ["reduced"] if version >= 3 else []
         u = check_keys(
             d["uncertainty"],
             path,
@@ -237,6 +247,25 @@ def _uncertainty_checks(u: Mapping[str, Any], path: str | Path | None) -> dict[s
         if not isinstance(sens, list) or not all(isinstance(x, dict) for x in sens):
             raise InputError.at(path, "uncertainty.sensitivity", sens, "a list of mappings")
         out["sensitivity"] = sens
+    if "reduced" in u:
+        r = check_keys(
+            u["reduced"],
+            path,
+            "uncertainty.reduced",
+            ["model", "solved", "prior_bound"],
+            ["level_frame", "noise_dof"],
+        )
+        for key in ("solved", "prior_bound"):
+            if not isinstance(r[key], dict) or not all(
+                isinstance(v, dict) and "value" in v and "sigma" in v for v in r[key].values()
+            ):
+                raise InputError.at(
+                    path,
+                    f"uncertainty.reduced.{key}",
+                    r[key],
+                    "a mapping of parameter to {value, sigma, ...}",
+                )
+        out["reduced"] = u["reduced"]
     return out
 
 

@@ -117,6 +117,8 @@ def read_scan(path: str | Path) -> Scan:
             wrong types, angles not strictly increasing, or lengths that disagree.
     """
     path = Path(path)
+    if path.suffix.lower() == ".pcd":
+        return read_pcd(path)
     data = load_yaml(path, "scan file")
     d = check_keys(
         data,
@@ -160,6 +162,21 @@ def read_scan(path: str | Path) -> Scan:
         raise InputError.at(path, f"angles_rad[{i}]", float(angles[i]), f"an angle > angles_rad[{i - 1}]")
     scan = Scan(angles, ranges, range_min, range_max, stamp)
     return counter_clockwise(scan) if clockwise else scan
+
+
+def read_pcd(path: str | Path) -> Scan:
+    """A PCD file's sweep as a scan (:mod:`rigcal.io.pcd`; docs/formats/scan.md): each
+    return at its own angle atan2(y, x), ordered counter-clockwise, no-return points
+    (stored as 0 0 0) kept as invalid beams in their place; no range limits beyond the
+    data's (range_min_m 0, range_max_m inf).
+
+    Raises:
+        InputError: a malformed PCD file (:func:`rigcal.io.pcd.read_pcd_scan`).
+    """
+    from rigcal.io.pcd import read_pcd_scan
+
+    pcd = read_pcd_scan(path)
+    return Scan(pcd.angles_rad, pcd.ranges_m, 0.0, math.inf)
 
 
 def laser_clockwise(d: Any, path: Path, versions: tuple[int, ...], since: int | None = None) -> bool:

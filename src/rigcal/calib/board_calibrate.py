@@ -8,7 +8,7 @@ warnings, truth) with point-to-plane residuals in millimetres.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -17,6 +17,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.calib.board_session import BoardSession, board_pose, plane_observation, read_board_session
+from rigcal.calib.level import (
+    LevelPriors,
+    LevelSolution,
+    level_errors,
+    level_section,
+    reduced_warning,
+    refit_level,
+    solve_level,
+)
 from rigcal.calib.noise import corner_sigma_from_rms
 from rigcal.calib.plane import LOSS, LOSS_SCALE, PlaneObservation, PlaneResult, refit_pose, solve_plane
 from rigcal.calib.report import (
@@ -65,16 +74,18 @@ def calibrate_board(
     loss: str = LOSS,
     intrinsics_sigma: Sequence[float] | None = None,
     skip_unseen_boards: bool = False,
+    level: LevelPriors | None = None,
 ) -> BoardCalibration:
     """Read a board session, solve, build the report and the rig
-    (:func:`calibrate_board_session` on the file's session).
+    (:func:`calibrate_board_session` on the file's session); ``level`` (over the session's
+    ``level:``) asks for the reduced solve of :mod:`rigcal.calib.level`.
 
     Raises:
         InputError: a bad session or truth file.
         CalibrationError: too few captures, parallel boards, or no consensus.
     """
     T_truth = read_truth(truth_path) if truth_path is not None else None
-    session = read_board_session(path, skip_unseen_boards=skip_unseen_boards)
+    session = read_board_session(path, skip_unseen_boards=skip_unseen_boards, level=level)
     return calibrate_board_session(
         session,
         range_sigma_m,
@@ -149,15 +160,29 @@ def calibrate_board_session(
             replace(o, board_pose_cov=None if o.board_pose_cov is None else k * o.board_pose_cov)
             for o in observations
         ]
-    result = solve_plane(
-        observations,
-        range_sigma_m=assumed if noise == "assumed" else None,
-        seed=seed,
-        corner_sigma_px=corner_used,
-        fit_range_bias=range_bias,
-        loss=loss,
+    level: LevelSolution | None = None
+    if session.level is not None:
+        # Boards that never tilt: yaw and the horizontal translations, the rest from priors.
+        result, level = solve_level(
+            observations,
+            session.level,
+            range_sigma_m=assumed if noise == "assumed" else None,
+            fit_range_bias=range_bias,
+            loss=loss,
+        )
+    else:
+        result = solve_plane(
+            observations,
+            range_sigma_m=assumed if noise == "assumed" else None,
+            seed=seed,
+            corner_sigma_px=corner_used,
+            fit_range_bias=range_bias,
+            loss=loss,
+        )
+    refit = (lambda r, moved: refit_level(r, level, moved)) if level is not None else refit_pose
+    camera_doc, cov_camera = camera_uncertainty(
+        session, result, observations, corner_used, intrinsics_sigma, refit=refit
     )
-    camera_doc, cov_camera = camera_uncertainty(session, result, observations, corner_used, intrinsics_sigma)
     if cov_camera is not None:
         result = replace(result, covariance=result.covariance + cov_camera)
     estimated = result.range_noise.sigma_m if result.range_noise is not None else None
@@ -169,6 +194,18 @@ def calibrate_board_session(
     )
     report = board_report(session, result, T_truth, noise_doc)
     report["uncertainty"]["camera"] = camera_doc
+    reduced = None
+    if level is not None:
+        reduced = level_section(level, result, cov_camera)
+        report["reduced"] = reduced
+        report["summary"]["method"] = "board, reduced (level scanner)"
+        # T's sigma is the priors' along what the data cannot see: the generic "large
+        # uncertainty" advice would only repeat the reduced solve's own warning.
+        report["warnings"] = [reduced_warning(reduced)] + [
+            w for w in report["warnings"] if not w.startswith("large uncertainty")
+        ]
+        if T_truth is not None:
+            report["truth"]["level"] = {k: round(v, 4) for k, v in level_errors(level, T_truth).items()}
     if cov_camera is not None:
         camera_doc["variance_share"] = [
             round(float(a / b), 4) if b > 0 else 0.0
@@ -205,7 +242,8 @@ def calibrate_board_session(
             },
             base=base,
         ),
-        uncertainty=rig_uncertainty(result.covariance_model, noise_doc, report["uncertainty"]),
+        uncertainty=rig_uncertainty(result.covariance_model, noise_doc, report["uncertainty"])
+        | ({"reduced": reduced} if reduced is not None else {}),
     )
     return BoardCalibration(session, result, report, rig)
 
@@ -216,6 +254,7 @@ def camera_uncertainty(
     observations: Sequence[PlaneObservation],
     corner_sigma_px: float,
     intrinsics_sigma: Sequence[float] | None,
+    refit: Callable[[PlaneResult, Sequence[PlaneObservation]], FloatArray] = refit_pose,
 ) -> tuple[dict[str, Any], FloatArray | None]:
     """The camera intrinsics' share of T_cam_laser's uncertainty.
 
@@ -223,7 +262,8 @@ def camera_uncertainty(
     moves all the planes together, and the answer with them; the solve itself takes the
     intrinsics as exact. Each intrinsic is moved by +-1 sigma in turn, every board's pose
     re-solved by PnP from its corners and T_cam_laser re-fitted on the same returns and
-    verdicts (:func:`rigcal.calib.spread.propagated_covariance`).
+    verdicts (:func:`rigcal.calib.spread.propagated_covariance`) by ``refit`` (the full
+    solve's, or the level solve's).
 
     Returns:
         (the report's ``uncertainty.camera`` section, the (6, 6) covariance to add; None
@@ -267,7 +307,7 @@ def camera_uncertainty(
                 distance_m=p.distance_m,
                 board_origin_cam=p.board_origin_cam,
             )
-        return refit_pose(result, moved)
+        return refit(result, moved)
 
     cov = propagated_covariance(changed, result.T_cam_laser, camera.intrinsics, sig)
     s = np.sqrt(np.clip(np.diag(cov), 0.0, None))
@@ -417,6 +457,22 @@ def board_report_table(report: dict[str, Any]) -> str:
         "1-sigma translation (mm, along cam x/y/z): "
         + ", ".join(f"{x:.2f}" for x in s["sigma_translation_mm"]),
     ]
+    if "reduced" in report:
+        r = report["reduced"]
+        sv, pb = r["solved"], r["prior_bound"]
+        lines.append(
+            f"reduced solve ({r['model']}): yaw {sv['yaw_deg']['value']:.3f} +- "
+            f"{sv['yaw_deg']['sigma']:.3f} deg; camera in the scan plane x "
+            f"{sv['camera_x_mm']['value']:.1f} +- {sv['camera_x_mm']['sigma']:.1f} mm, "
+            f"y {sv['camera_y_mm']['value']:.1f} +- {sv['camera_y_mm']['sigma']:.1f} mm"
+        )
+        lines.append(
+            "prior-bound (not measured): "
+            + "; ".join(
+                f"{k} {v['value']:.3f} +- {v['sigma']:.3f} (prior {v['prior']:g} +- {v['prior_sigma']:g})"
+                for k, v in pb.items()
+            )
+        )
     if "truth" in report:
         t = report["truth"]
         lines.append(

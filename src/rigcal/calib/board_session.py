@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from rigcal.calib.board_detect import BoardNotFoundError, BoardShape, board_shape, detect_board_returns
 from rigcal.calib.intrinsics import Board, detect_corners, read_corners_vnl
+from rigcal.calib.level import LevelPriors, board_vertical, check_level_geometry
 from rigcal.calib.lines import LineParams
 from rigcal.calib.picks import (
     _beams_near,
@@ -44,8 +45,10 @@ from rigcal.scan import Scan, read_scan
 FloatArray = NDArray[np.float64]
 
 BOARD_SESSION_SCHEMA_VERSION = 1
-# Versions read: 2 adds board.size_m and laser_side: {segments: [...]}.
-BOARD_SESSION_SCHEMA_VERSIONS = (1, 2)
+# Versions read: 2 adds board.size_m and laser_side: {segments: [...]}; 3 adds level: (the
+# priors of the reduced solve for a level scanner and upright boards).
+BOARD_SESSION_SCHEMA_VERSIONS = (1, 2, 3)
+LEVEL_KEYS = ("roll_deg", "pitch_deg", "camera_height_m")
 
 
 @dataclass(frozen=True)
@@ -66,6 +69,8 @@ class BoardSession:
             board poses under other intrinsics).
         skipped: the captures left out because their image shows no board (with
             ``skip_unseen_boards``), each as "name (image): why".
+        level: the priors of the reduced solve (:mod:`rigcal.calib.level`: the session's
+            ``level:`` or the caller's), None for the full 6-dof solve.
     """
 
     path: Path
@@ -80,6 +85,7 @@ class BoardSession:
     corner_sigma_px: float = 0.5
     corners_px: tuple[FloatArray, ...] = ()
     skipped: tuple[str, ...] = ()
+    level: LevelPriors | None = None
 
 
 def is_board_session(data: Any) -> bool:
@@ -88,7 +94,10 @@ def is_board_session(data: Any) -> bool:
 
 
 def read_board_session(
-    path: str | Path, corner_sigma_px: float = 0.5, skip_unseen_boards: bool = False
+    path: str | Path,
+    corner_sigma_px: float = 0.5,
+    skip_unseen_boards: bool = False,
+    level: LevelPriors | None = None,
 ) -> BoardSession:
     """Read and validate a board session and every file it names.
 
@@ -98,10 +107,14 @@ def read_board_session(
             covariance), unless the file's ``board.corner_sigma_px`` gives it.
         skip_unseen_boards: leave out the captures whose image shows no board (listed in
             ``skipped``) instead of stopping.
+        level: the reduced solve's priors, over the session's ``level:``.
 
     Raises:
         InputError: anything missing, unreadable or invalid, naming the file, key and value;
             images with no board are named all together in one error.
+        CalibrationError: the boards' normals (from the images alone, checked before any
+            laser return is looked at) cannot fix the pose: for the full solve they must
+            span 3D, for the level solve two horizontal directions.
     """
     path = Path(path)
     d = check_keys(
@@ -109,15 +122,17 @@ def read_board_session(
         path,
         "",
         ["schema_version", "method", "camera", "board", "captures"],
-        ["laser", "name", "corners_vnl"],
+        ["laser", "name", "corners_vnl", "level"],
     )
     version = d["schema_version"]
     if type(version) is not int or version not in BOARD_SESSION_SCHEMA_VERSIONS:
-        raise InputError.at(path, "schema_version", version, "1 or 2 (the versions this rigcal reads)")
+        raise InputError.at(path, "schema_version", version, "1, 2 or 3 (the versions this rigcal reads)")
     if d["method"] != "board":
         raise InputError.at(
             path, "method", d["method"], "'board' (a box-target picking file has no method key)"
         )
+    if "level" in d and level is None:
+        level = _level_priors(path, d["level"], version)
     camera_path = _file(path, "camera", d["camera"])
     camera = read_camera(camera_path)
     b = check_keys(
@@ -154,10 +169,35 @@ def read_board_session(
     scans: list[Scan | None] = []
     index: list[int] = []  # each kept capture's index in the file
     unseen: list[tuple[int, str, Any]] = []
+    # What the images alone show comes first: the boards' poses, and whether their planes
+    # can fix the pose at all, before any laser return is looked for.
+    seen: list[tuple[int, Any, str, FloatArray, FloatArray, float]] = []
     for i, c in enumerate(captures):
         kp = f"captures[{i}]"
         c = check_keys(c, path, kp, ["laser_side"], ["scan", "name", "corners_px", "image"])
         name = capture_name(path, kp, c, i)
+        corners = _corners(path, kp, c, board, camera, files, vnl)
+        if corners is None:
+            unseen.append((i, name, c["image"]))
+            continue
+        corner_sets.append(corners)
+        T, cov, err = board_pose(camera, board, corners, corner_sigma_px)
+        seen.append((i, c, name, T, cov, err))
+    if unseen and not skip_unseen_boards:
+        keys = ", ".join(f"captures[{i}].image" for i, _, _ in unseen)
+        shown = ", ".join(repr(str(v)) for _, _, v in unseen)
+        raise InputError(
+            f"{path}: {keys}: got {shown}; expected images showing the {board.width_n}x{board.height_n} "
+            f"board ({len(unseen)} of {len(captures)} captures show none; `rigcal solve "
+            "--skip-unseen-boards` leaves them out with a warning)"
+        )
+    _check_board_normals(
+        path,
+        [(name, plane_observation(i, name, T, cov, np.zeros((0, 2)))) for i, _, name, T, cov, _ in seen],
+        level,
+    )
+    for i, c, name, T, cov, err in seen:
+        kp = f"captures[{i}]"
         side = c["laser_side"]
         listed = isinstance(side, dict) and "returns_file" in side
         if "scan" not in c and not listed:
@@ -165,12 +205,6 @@ def read_board_session(
                 f"{path}: {kp}.scan: missing; this key is required (unless laser_side lists "
                 "the board's returns in a returns_file)"
             )
-        corners = _corners(path, kp, c, board, camera, files, vnl)
-        if corners is None:
-            unseen.append((i, name, c["image"]))
-            continue
-        corner_sets.append(corners)
-        T, cov, err = board_pose(camera, board, corners, corner_sigma_px)
         scan = None
         if "scan" in c:
             scan_path = _file(path, f"{kp}.scan", c["scan"])
@@ -189,21 +223,14 @@ def read_board_session(
         obs.append(plane_observation(i, name, T, cov, pts))
         poses.append(T)
         rms.append(err)
-    if unseen and not skip_unseen_boards:
-        keys = ", ".join(f"captures[{i}].image" for i, _, _ in unseen)
-        shown = ", ".join(repr(str(v)) for _, _, v in unseen)
-        raise InputError(
-            f"{path}: {keys}: got {shown}; expected images showing the {board.width_n}x{board.height_n} "
-            f"board ({len(unseen)} of {len(captures)} captures show none; `rigcal solve "
-            "--skip-unseen-boards` leaves them out with a warning)"
+    if auto and level is not None:
+        raise InputError.at(
+            path,
+            f"captures[{index[auto[0]]}].laser_side",
+            "auto",
+            "the board's segment ids (`rigcal lines`), returns_file or points: laser_side auto "
+            "finds the returns with the full solve, which upright boards cannot support",
         )
-    if auto and len(obs) >= 3:
-        # What the images alone show comes first: boards that never tilt cannot fix the
-        # pose, however their returns are found.
-        try:
-            check_normals(obs)
-        except CalibrationError as exc:
-            raise CalibrationError(f"{path}: {exc}") from None
     if auto:
         missing = [index[k] for k, sc in enumerate(scans) if sc is None]
         if missing:
@@ -228,7 +255,46 @@ def read_board_session(
         skipped=tuple(
             f"{name} ({value}): no {board.width_n}x{board.height_n} board found" for _, name, value in unseen
         ),
+        level=level,
     )
+
+
+def _check_board_normals(
+    path: Path, planes: list[tuple[str, PlaneObservation]], level: LevelPriors | None
+) -> None:
+    """The images-first check: the boards' planes must be able to fix what the solve
+    solves (all six dof; with level priors, yaw and the horizontal translations)."""
+    if len(planes) < 3:
+        return
+    obs = [o for _, o in planes]
+    try:
+        if level is None:
+            check_normals(obs)
+        else:
+            check_level_geometry(
+                board_vertical(np.array([o.normal_cam for o in obs])), [n for n, _ in planes]
+            )
+    except CalibrationError as exc:
+        raise CalibrationError(f"{path}: {exc}") from None
+
+
+def _level_priors(path: Path, v: Any, version: int) -> LevelPriors:
+    """The session's ``level:``: each of LEVEL_KEYS as [value, sigma]."""
+    if version < 3:
+        raise InputError.at(path, "level", v, "no level in schema_version 1 or 2 (level needs 3)")
+    d = check_keys(v, path, "level", list(LEVEL_KEYS), [])
+    out = []
+    for key in LEVEL_KEYS:
+        x = d[key]
+        ok = isinstance(x, list) and len(x) == 2
+        ok = ok and all(isinstance(a, (int, float)) and not isinstance(a, bool) and np.isfinite(a) for a in x)
+        if not ok or x[1] <= 0:
+            unit = "m" if key.endswith("_m") else "deg"
+            raise InputError.at(
+                path, f"level.{key}", x, f"[measured value, 1-sigma > 0] in {unit}, e.g. [0.0, 0.5]"
+            )
+        out.append((float(x[0]), float(x[1])))
+    return LevelPriors(*out)
 
 
 def _size_m(path: Path, b: Any, board: Board, version: int) -> tuple[float, float]:

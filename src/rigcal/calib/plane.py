@@ -497,17 +497,7 @@ def solve_plane(
     screen = gross_outliers(observations, lines, seed)
     gross = screen.gross
     kept = np.flatnonzero(~gross)
-    try:
-        estimated = range_noise_from_lines([lines[i].fit for i in kept])
-    except ValueError:
-        estimated = None
-    if range_sigma_m is None:
-        if estimated is None:
-            raise CalibrationError(
-                "no capture has 3 or more returns on its board to estimate the range noise"
-            )
-        range_sigma_m = estimated.sigma_m
-    noise = PlaneNoise(max(range_sigma_m, 1e-4), fit_range_bias=fit_range_bias, loss=loss)
+    noise, estimated = start_noise([lines[i] for i in kept], range_sigma_m, fit_range_bias, loss)
     reduced = [replace(o, points_laser=ln.ends) for o, ln in zip(observations, lines, strict=True)]
     # Start from the closed form on every capture and, when asked, from RANSAC's best
     # sample; keep the robust fit that explains most captures (then the lowest cost). A
@@ -589,6 +579,29 @@ def solve_plane(
         noise_dof,
         factor,
     )
+
+
+def start_noise(
+    lines: Sequence[CaptureLine], range_sigma_m: float | None, fit_range_bias: bool, loss: str
+) -> tuple[PlaneNoise, RangeNoise | None]:
+    """The noise model a solve starts from: the range noise given, else the one estimated
+    from the captures' lines (:func:`rigcal.calib.noise.range_noise_from_lines`, also
+    returned, None when no line has enough returns), with a 0.1 mm floor.
+
+    Raises:
+        CalibrationError: no range noise given and none can be estimated.
+    """
+    try:
+        estimated = range_noise_from_lines([ln.fit for ln in lines])
+    except ValueError:
+        estimated = None
+    if range_sigma_m is None:
+        if estimated is None:
+            raise CalibrationError(
+                "no capture has 3 or more returns on its board to estimate the range noise"
+            )
+        range_sigma_m = estimated.sigma_m
+    return PlaneNoise(max(range_sigma_m, 1e-4), fit_range_bias=fit_range_bias, loss=loss), estimated
 
 
 def refit_pose(result: PlaneResult, observations: Sequence[PlaneObservation]) -> FloatArray:
@@ -812,22 +825,24 @@ def _capture_sigma(
     lines: Sequence[CaptureLine],
     noise: PlaneNoise,
     mask: NDArray[np.bool_],
+    params: int = 6,
 ) -> float:
     """The per-capture error that makes the captures in ``mask`` as far off their planes
     as the noise model predicts (:func:`rigcal.calib.noise.matching_noise`; 0 when the range
-    noise and the board poses already explain them)."""
+    noise and the board poses already explain them); ``params``: the parameters fitted
+    (6, or the level solve's 3 observed ones)."""
     from scipy.stats import chi2
 
     obs = [o for o, k in zip(observations, mask, strict=True) if k]
     lns = [ln for ln, k in zip(lines, mask, strict=True) if k]
-    dof = 2 * len(obs) - 6
+    dof = 2 * len(obs) - params
     # No per-capture error unless the captures disagree beyond chance (90 %): an estimate
     # from chance alone would only widen the covariance.
     if dof <= 0 or float(np.sum(np.minimum(_chi2(T, obs, lns, noise), CLIP_CHI2))) < chi2.ppf(0.9, dof):
         return 0.0
     return matching_noise(
         lambda s: _chi2(T, obs, lns, replace(noise, capture_sigma_m=s)),
-        max(1.0 - 6.0 / (2 * len(obs)), 0.1),
+        max(1.0 - params / (2 * len(obs)), 0.1),
         0.0,
         1.0,
     )
@@ -910,19 +925,41 @@ def check_normals(observations: Sequence[PlaneObservation]) -> None:
     freedom: their normals must span 3D (MIN_NORMAL_SPREAD).
 
     Raises:
-        CalibrationError: the normals are (nearly) parallel or share an axis (a board
-            upright against a wall, turned but never tilted).
+        CalibrationError: the normals are (nearly) parallel or share a plane (a board
+            upright against a wall, turned but never tilted), saying in words how far
+            they spread and which views to add.
     """
     normals = np.array([np.asarray(o.normal_cam, dtype=float) for o in observations]).reshape(-1, 3)
-    s = np.linalg.svd(normals, compute_uv=False) if len(normals) else np.zeros(0)
-    if len(s) < 3 or s[2] < MIN_NORMAL_SPREAD * s[0]:
-        names = ", ".join(o.name for o in observations)
-        spread = s[-1] / s[0] if len(s) == 3 else 0.0
+    if len(normals) == 0:
+        raise CalibrationError("no board planes to calibrate from")
+    _, s, Vt = np.linalg.svd(normals)
+    s = np.concatenate([s, np.zeros(3 - len(s))])
+    if s[2] >= MIN_NORMAL_SPREAD * s[0]:
+        return
+    names = ", ".join(o.name for o in observations)
+    mean = normals.sum(axis=0)
+    mean /= max(float(np.linalg.norm(mean)), 1e-12)
+    turned = float(np.degrees(np.arccos(np.clip(np.abs(normals @ mean).min(), 0.0, 1.0))))
+    if s[1] < MIN_NORMAL_SPREAD * s[0]:
         raise CalibrationError(
-            f"the board planes of captures {names} are (nearly) parallel or share an axis "
-            f"(normals' spread {spread:.3f} < {MIN_NORMAL_SPREAD}); tilt the board about "
-            "both of its axes between captures"
+            f"the boards of captures {names} all face one way (their planes are parallel: every normal "
+            f"within {turned:.1f} deg of their mean; normals' spread {s[2] / s[0]:.3f} < "
+            f"{MIN_NORMAL_SPREAD}), as the images show before any laser return is looked at: turn "
+            "the board left and right (by 20-40 deg) and tilt it forward and back between captures"
         )
+    out = np.abs(normals @ Vt[2])
+    lean = float(np.degrees(np.arcsin(np.clip(out.max(), 0.0, 1.0))))
+    raise CalibrationError(
+        f"the boards of captures {names} never tilt: every board normal is within {lean:.1f} deg of "
+        f"one plane (normals' spread {s[2] / s[0]:.3f} < {MIN_NORMAL_SPREAD}; the boards are turned "
+        f"up to {turned:.0f} deg), as an upright board turned against a wall gives. The images alone "
+        "show this, before any laser return: such planes cannot fix the laser's height, roll and "
+        "pitch. Add captures with the board tilted forward and back by 20-40 deg (top towards and "
+        "away from the camera) and rolled, or, for a level scanner, give the level priors (roll, "
+        "pitch and the camera's height above the scan plane, each with its 1-sigma: the session's "
+        "level: or `rigcal solve --level-prior`) for the reduced solve of the yaw and the "
+        "horizontal translations"
+    )
 
 
 def _check_observable(observations: Sequence[PlaneObservation]) -> None:

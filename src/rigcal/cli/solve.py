@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import shlex
 import sys
 from collections.abc import Iterable
@@ -91,6 +92,18 @@ from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED
     "(without it they stop the solve, all named in one error).",
 )
 @click.option(
+    "--level-prior",
+    "level_prior",
+    multiple=True,
+    nargs=3,
+    type=(click.Choice(["roll_deg", "pitch_deg", "camera_height_m"]), float, float),
+    metavar="NAME VALUE SIGMA",
+    help="Board method, boards that never tilt: the reduced solve (yaw and the camera's "
+    "position in the scan plane) for a level scanner, with NAME's measured VALUE and 1-sigma "
+    "as a prior; give all three: roll_deg, pitch_deg (the scanner's tilt from level) and "
+    "camera_height_m (the camera centre's height above the scan plane). Over the session's level:.",
+)
+@click.option(
     "--paper-endpoints",
     is_flag=True,
     help="Use only the first/last laser returns of the box side, unweighted (the paper's method).",
@@ -111,6 +124,7 @@ def solve(
     loss: str,
     intrinsics_sigma: str | None,
     skip_unseen_boards: bool,
+    level_prior: tuple[tuple[str, float, float], ...],
     paper_endpoints: bool,
     force: bool,
     as_json: bool,
@@ -132,6 +146,8 @@ def solve(
       rigcal solve session/picks.yaml -o rig.yaml --report report/ --force
       rigcal solve session/picks.yaml -o rig.yaml --truth session/truth.yaml --json
       rigcal solve board/board_session.yaml -o rig.yaml --report board-report/
+      rigcal solve wall/board_session.yaml -o rig.yaml --level-prior roll_deg 0 0.5 \\
+        --level-prior pitch_deg 0 0.5 --level-prior camera_height_m 0.12 0.005
       rigcal solve v/marker_session.yaml -o rig.yaml --report v-report/
     """
     from rigcal.calib.options import box_settings
@@ -161,7 +177,14 @@ def solve(
     from rigcal.io.files import load_yaml
 
     sigmas = _sigma_list(intrinsics_sigma) if intrinsics_sigma is not None else None
+    level = _level_priors(level_prior) if level_prior else None
     data = load_yaml(picks, "picking file")
+    if level is not None and not is_board_session(data):
+        from rigcal.errors import InputError
+
+        raise InputError(
+            f"--level-prior: given for {picks}; the reduced solve is the board method's (method: board)"
+        )
     if is_board_session(data) or is_marker_session(data):
         _solve_board(
             picks,
@@ -179,6 +202,7 @@ def solve(
             force,
             as_json,
             marker=is_marker_session(data),
+            level=level,
         )
         return
     if sigmas is not None:
@@ -217,6 +241,32 @@ def _sigma_list(text: str) -> list[float]:
         ) from None
 
 
+def _level_priors(given: tuple[tuple[str, float, float], ...]) -> Any:
+    """--level-prior's triples as :class:`rigcal.calib.level.LevelPriors` (all three names,
+    once each, finite values, sigmas > 0)."""
+    from rigcal.calib.level import LevelPriors
+    from rigcal.errors import InputError
+
+    names = ("roll_deg", "pitch_deg", "camera_height_m")
+    out: dict[str, tuple[float, float]] = {}
+    for name, value, sigma in given:
+        if name in out:
+            raise InputError(f"--level-prior: {name} given twice; expected each of {', '.join(names)} once")
+        if not (math.isfinite(value) and math.isfinite(sigma) and sigma > 0):
+            raise InputError(
+                f"--level-prior: {name}: got value {value:g}, sigma {sigma:g}; expected a finite value "
+                "and a 1-sigma > 0"
+            )
+        out[name] = (value, sigma)
+    missing = [n for n in names if n not in out]
+    if missing:
+        raise InputError(
+            f"--level-prior: {', '.join(missing)} missing; the reduced solve needs all three priors "
+            "(roll_deg, pitch_deg, camera_height_m), each as NAME VALUE SIGMA"
+        )
+    return LevelPriors(out["roll_deg"], out["pitch_deg"], out["camera_height_m"])
+
+
 def _check_apart_from(output: Path, report_dir: Path | None, files: Iterable[Path]) -> None:
     """The outputs against every file the session read (its scans, images, camera, lists)."""
     from rigcal.io.files import check_apart
@@ -243,6 +293,7 @@ def _solve_board(
     force: bool,
     as_json: bool,
     marker: bool = False,
+    level: Any = None,
 ) -> None:
     """A board session (``method: board``) or a marker session (``method: marker``): the
     plane method, then the same outputs."""
@@ -280,6 +331,7 @@ def _solve_board(
             loss=loss,
             intrinsics_sigma=intrinsics_sigma,
             skip_unseen_boards=skip_unseen_boards,
+            level=level,
         )
     _check_apart_from(output, report_dir, cal.session.files)
     if report_dir is not None:

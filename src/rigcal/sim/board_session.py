@@ -64,6 +64,8 @@ class BoardSpec:
         distance_m: (min, max) distance of the board's centre from the laser.
         max_turn_deg, max_tilt_deg: the board is turned about the vertical and tilted about
             its horizontal axis by up to these.
+        max_roll_deg: and rolled about the line from the laser to it by up to this (0
+            with max_tilt_deg a few degrees: an upright board turned against a wall).
         board: the checkerboard (inner corners, square size); margin_m: its border
             beyond the inner corners (None: one square, the printed pattern's edge).
         seed: seed of the generator.
@@ -89,6 +91,7 @@ class BoardSpec:
     distance_m: tuple[float, float] = (1.2, 3.0)
     max_turn_deg: float = 45.0
     max_tilt_deg: float = 35.0
+    max_roll_deg: float = 15.0
     board: Board = field(default_factory=lambda: Board(8, 6, 0.06))
     margin_m: float | None = None
     seed: int = 0
@@ -241,7 +244,7 @@ def _capture(
         R_base = np.column_stack([x0, [0.0, 0.0, -1.0], radial])
         turn = rotvec_to_R([0.0, 0.0, np.radians(draw(2, -1, 1) * spec.max_turn_deg)])
         tilt = rotvec_to_R(np.radians(draw(3, -1, 1) * spec.max_tilt_deg) * R_base[:, 0])
-        roll = rotvec_to_R(np.radians(rng.uniform(-15, 15)) * radial)
+        roll = rotvec_to_R(np.radians(rng.uniform(-spec.max_roll_deg, spec.max_roll_deg)) * radial)
         R = roll @ tilt @ turn @ R_base
         origin = centre - R @ np.array([0.5 * w, 0.5 * h, 0.0])
         T_laser_board = make_T(R, origin)
