@@ -585,7 +585,7 @@ def icp_covariance(
         r = diff.T.ravel()
     if len(r) < 3:
         return out
-    sigma = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), COVARIANCE_SIGMA_FLOOR_M)
+    sigma = _residual_sigma(model, normals, moved[keep], nearest[keep], r)
     info = J.T @ J
     w, v = np.linalg.eigh(info[:2, :2])
     weak = np.zeros((3, 3))
@@ -599,6 +599,37 @@ def icp_covariance(
     except np.linalg.LinAlgError:
         return out
     return 0.5 * (cov + cov.T) + weak
+
+
+def _mad_sigma(r: FloatArray) -> float:
+    """1.4826 x the median absolute deviation: a robust 1-sigma."""
+    return 1.4826 * float(np.median(np.abs(r - np.median(r)))) if len(r) else 0.0
+
+
+def _residual_sigma(
+    model: FloatArray, normals: FloatArray | None, moved: FloatArray, pairs: NDArray[np.intp], r: FloatArray
+) -> float:
+    """The 1-sigma of a residual n . (R d + t - m): with line normals (one normal per line,
+    shared by its returns), the data returns' spread about the model's lines (each line's
+    offset the mean n . m of its returns) and the model returns' own, added in quadrature;
+    a residual's spread about its nearest model return would understate both, for the
+    nearest of a wall's returns is the one whose noise brought it nearest. Else (nearest-
+    neighbour normals, point-to-point) the residuals' robust spread. At least
+    COVARIANCE_SIGMA_FLOOR_M."""
+    sigma = _mad_sigma(r)
+    if normals is not None:
+        on = np.flatnonzero(np.isfinite(normals[:, 0]))
+        _, line, count = np.unique(normals[on], axis=0, return_inverse=True, return_counts=True)
+        if len(count) <= len(on) // 3:  # each line shared by its returns: line normals
+            dot = np.einsum("ij,ij->i", normals[on], model[on])
+            offset = np.bincount(line, weights=dot) / count
+            model_res = dot - offset[line]
+            of_line = np.full(len(model), -1)
+            of_line[on] = line
+            n = normals.take(pairs, axis=0)
+            data_res = np.einsum("ij,ij->i", n, moved) - offset[of_line.take(pairs)]
+            sigma = float(np.hypot(_mad_sigma(data_res), _mad_sigma(model_res)))
+    return max(sigma, COVARIANCE_SIGMA_FLOOR_M)
 
 
 # The compiled ICP: icp()'s steps for one scan pair in one call.
