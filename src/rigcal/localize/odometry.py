@@ -195,9 +195,11 @@ class ScanOdometry:
             res = icp(
                 prev, cur, initial=start, params=params, model_normals=self._prev_normals, kernel=kernel
             )
+            measured = True
             if wheel and not agrees_with_wheels(res.pose, start):
-                res = dataclasses.replace(res, pose=start, degeneracy=0.0, nearest=None)
+                res = dataclasses.replace(res, pose=start, degeneracy=0.0)
                 self._overruled += 1
+                measured = False  # the step is the wheels' own
             elif not wheel and res.inlier_fraction < params.restart_below_inliers:
                 zero = np.zeros(3)
                 again = icp(
@@ -207,7 +209,7 @@ class ScanOdometry:
                     res = again
                 self._restarts += 1
             step, d, r, self._nearest = res.pose, res.degeneracy, res.rms_m, res.nearest
-            if res.nearest is not None:
+            if measured and res.nearest is not None:
                 cov = self._covariance(prev, cur, res)
         self._T = self._T @ se2(step)
         self._poses.append(pose_of(self._T))
