@@ -59,6 +59,11 @@ OPEN_SIGMA_M = 10.0
 # Kept for the rate form: forward rate noise (m/s) of a step that measures no forward speed.
 OPEN_FORWARD_SIGMA = OPEN_SIGMA_M
 WEIGHTS = ("covariance", "fixed")
+# Covariance matching (``KfParams.adapt``): an input's covariance is scaled up by the
+# running mean (over about ADAPT_WINDOW steps) of its innovations' NIS per dimension when
+# that exceeds 1; a single innovation counts at most NIS_CAP (an outlier step).
+ADAPT_WINDOW = 50
+NIS_CAP = 25.0
 
 
 @dataclass(frozen=True)
@@ -83,6 +88,7 @@ class KfParams:
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
     weights: str = "covariance"
+    adapt: bool = True
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
@@ -201,6 +207,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     for m in ms:
         pending[m.t0] = pending.get(m.t0, 0) + 1
     clones: list[float] = []  # the stamps of the state's clones, in state order
+    mean_nis: dict[str, float] = {}  # per input: its innovations' NIS per dimension, running mean
     t = events[0][0]
     x = np.zeros(6)
     P = np.diag([1e-12, 1e-12, 1e-12, 1.0, 1.0, 1.0])
@@ -216,7 +223,11 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
                 clones.append(m.t0)
             continue
         c = 6 + 3 * clones.index(m.t0)
-        x, P = _update(x, P, c, m)
+        x, P, nis = _update(x, P, c, m, max(1.0, mean_nis.get(m.source, 1.0)) if params.adapt else 1.0)
+        # Covariance matching: each input's recent innovations against its covariance.
+        mean_nis[m.source] = (
+            mean_nis.get(m.source, 1.0) + (min(nis, NIS_CAP) - mean_nis.get(m.source, 1.0)) / ADAPT_WINDOW
+        )
         pending[m.t0] -= 1
         if not pending[m.t0]:
             keep = np.r_[0:c, c + 3 : len(x)]
@@ -239,9 +250,13 @@ def _clone(x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
     return np.concatenate([x, x[:3]]), J @ P @ J.T
 
 
-def _update(x: FloatArray, P: FloatArray, c: int, m: Increment) -> tuple[FloatArray, FloatArray]:
-    """The EKF update with increment ``m`` against the clone at state index ``c``: h(S)
-    is the motion from the clone's pose to the current one in the clone's frame."""
+def _update(
+    x: FloatArray, P: FloatArray, c: int, m: Increment, scale: float = 1.0
+) -> tuple[FloatArray, FloatArray, float]:
+    """The EKF update with increment ``m`` (its covariance times ``scale``) against the
+    clone at state index ``c``: h(S) is the motion from the clone's pose to the current
+    one in the clone's frame. Also returns the innovation's NIS per dimension under the
+    increment's own covariance (unscaled)."""
     cyaw, syaw = np.cos(x[c + 2]), np.sin(x[c + 2])
     Rt = np.array([[cyaw, syaw], [-syaw, cyaw]])  # R(yaw_t0)^T
     d = x[:2] - x[c : c + 2]
@@ -253,12 +268,15 @@ def _update(x: FloatArray, P: FloatArray, c: int, m: Increment) -> tuple[FloatAr
     H[2, 2], H[2, c + 2] = 1.0, -1.0
     y = m.motion - h
     y[2] = np.angle(np.exp(1j * y[2]))
-    S = H @ P @ H.T + m.covariance
+    HPH = H @ P @ H.T
+    nis = float(y @ np.linalg.solve(HPH + m.covariance, y)) / 3.0
+    Rm = scale * m.covariance
+    S = HPH + Rm
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
     x = x + K @ y
     A = np.eye(len(x)) - K @ H
-    P = A @ P @ A.T + K @ m.covariance @ K.T  # Joseph form: stays symmetric, positive
-    return x, P
+    P = A @ P @ A.T + K @ Rm @ K.T  # Joseph form: stays symmetric, positive
+    return x, P, nis
 
 
 def _predict(x: FloatArray, P: FloatArray, dt: float, params: KfParams) -> tuple[FloatArray, FloatArray]:
