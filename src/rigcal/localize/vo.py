@@ -658,8 +658,10 @@ def visual_odometry(
         kf, j, ia, ib = run
         dt = float(stamps_s[j] - stamps_s[kf])
         rel = relative_pose(tracks[kf].bearings[ia], tracks[j].bearings[ib], focal, params, forward)
+        if rel is None:
+            return _Measured(kf, j, dt, rel, None)
         P1 = _to_cam(T_cam_laser, laser_points(kf))
-        if rel is None or rel.still:
+        if rel.still:
             depth = float(np.median(np.linalg.norm(P1, axis=1))) if len(P1) else float("nan")
             return _Measured(kf, j, dt, rel, None, depth)
         g1, g2 = image(kf), image(j)
