@@ -583,7 +583,7 @@ def icp_covariance(
         ones, zeros = np.ones(len(arm)), np.zeros(len(arm))
         J = np.vstack([np.column_stack([ones, zeros, arm[:, 0]]), np.column_stack([zeros, ones, arm[:, 1]])])
         r = diff.T.ravel()
-    if len(r) < 3:
+    if len(arm) < 3:  # pairs
         return out
     sigma = _residual_sigma(model, normals, moved[keep], nearest[keep], r)
     info = J.T @ J
