@@ -29,7 +29,10 @@ votes (:func:`rigcal.localize.vo.run_covariance`); the wheel odometry's from its
 noise model (:data:`WHEEL_SIGMAS`, a rate noise over the step's time). A well-constrained
 ICP step then pins the pose and VO takes over along a corridor. ``weights="fixed"`` gives
 every step the paper's fixed covariance (:data:`ICP_SIGMAS`, :data:`VO_SIGMAS`), with
-ICP's degenerate steps and VO's runs without a scale open forward as before.
+ICP's degenerate steps and VO's runs without a scale open forward as before. With
+``adapt`` (the default) each input's covariances are matched to its innovations (Mehra's
+covariance matching, one scale factor per input), as a fit's covariance leaves out what
+the fit cannot see.
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.geometry import pose_of, se2
+from rigcal.localize.icp import OPEN_SIGMA_M
 
 FloatArray = NDArray[np.float64]
 
@@ -53,9 +57,9 @@ VO_SIGMAS = (0.03, 0.15, 0.02)
 # good to a few percent of a walking pace, a wheeled base barely slides sideways, and its
 # heading drifts most (wheel slip in turns).
 WHEEL_SIGMAS = (0.05, 0.02, 0.08)
-# 1-sigma (m) of a step's translation along a direction its input does not measure (an
-# ICP step along a corridor whose ends are out of reach, a VO run without a scale).
-OPEN_SIGMA_M = 10.0
+# OPEN_SIGMA_M (icp.py): 1-sigma (m) of a step's translation along a direction its input
+# does not measure (an ICP step along a corridor whose ends are out of reach, a VO run
+# without a scale).
 # Kept for the rate form: forward rate noise (m/s) of a step that measures no forward speed.
 OPEN_FORWARD_SIGMA = OPEN_SIGMA_M
 WEIGHTS = ("covariance", "fixed")
@@ -83,7 +87,8 @@ class Increment:
 class KfParams:
     """Process noise: white acceleration (m/s^2) and angular acceleration (rad/s^2);
     ``weights``: each step's own covariance ("covariance") or the paper's fixed ones
-    ("fixed")."""
+    ("fixed"); ``adapt``: scale each input's covariances up by its innovations' running
+    NIS where that exceeds 1 (covariance matching: :data:`ADAPT_WINDOW`)."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0

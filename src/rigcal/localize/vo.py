@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from rigcal.camera import Camera
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
+from rigcal.localize.icp import OPEN_SIGMA_M
 from rigcal.localize.patches import sample_patches
 from rigcal.localize.tracks import FrameTracks, common, gain_between
 
@@ -254,8 +255,6 @@ def planar_motion(R: FloatArray, t_unit: FloatArray, up_cam: FloatArray, max_til
 _EPS = 1e-7
 # The least 1-sigma (pixels) a fit's residuals are taken to have (noise-free images).
 MIN_PIXEL_SIGMA_PX = 0.1
-# 1-sigma (m) of a run's translation along a direction it does not measure (no scale).
-OPEN_SIGMA_M = 10.0
 _NUDGES = np.stack([rotvec_to_R(_EPS * e) for e in np.eye(3)])
 _X, _Y = np.eye(3)[:2]
 
