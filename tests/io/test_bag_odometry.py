@@ -14,7 +14,9 @@ from rigcal.io.bag import import_bag
 from rigcal.io.sequence import read_sequence
 
 
-def _odometry_bag(path, ros, odom_stamps, child="base_link", static=(("base_link", "laser"),), nan=False):
+def _odometry_bag(
+    path, ros, odom_stamps, child="base_link", static=(("base_link", "laser"),), nan=False, via_tf=False
+):
     ts = TS2 if ros == 2 else TS1
     T = ts.types
     scan, image, _, _ = _msgs(ts)
@@ -52,12 +54,28 @@ def _odometry_bag(path, ros, odom_stamps, child="base_link", static=(("base_link
         tfs = [stamped(header=hdr(0.0, a), child_frame_id=b, transform=tf) for a, b in static]
         return T["tf2_msgs/msg/TFMessage"](transforms=tfs)
 
+    def tf(t, k):
+        """/tf: map -> odom (not the odometry) and odom -> child, the odometry's pose."""
+        x = float("nan") if nan and k == 1 else 0.5 * k
+        stamped = T["geometry_msgs/msg/TransformStamped"]
+        move = T["geometry_msgs/msg/Vector3"](x=x, y=0.0, z=0.0)
+        fix = T["geometry_msgs/msg/Vector3"](x=1.0, y=2.0, z=0.0)
+        return T["tf2_msgs/msg/TFMessage"](
+            transforms=[
+                stamped(header=hdr(t, "map"), child_frame_id="odom",
+                        transform=T["geometry_msgs/msg/Transform"](translation=fix, rotation=quat(0.5))),
+                stamped(header=hdr(t, "odom"), child_frame_id=child,
+                        transform=T["geometry_msgs/msg/Transform"](translation=move, rotation=quat(0.1 * k))),
+            ]
+        )  # fmt: skip
+
     writer = Writer2(path, version=8) if ros == 2 else Writer1(path)
     ser = ts.serialize_cdr if ros == 2 else ts.serialize_ros1
     with writer as w:
         cs = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
         ci = w.add_connection("/cam/image", "sensor_msgs/msg/Image", typestore=ts)
-        co = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=ts)
+        odom_type = "tf2_msgs/msg/TFMessage" if via_tf else "nav_msgs/msg/Odometry"
+        co = w.add_connection("/tf" if via_tf else "/odom", odom_type, typestore=ts)
         if ros == 2:  # (the ROS 1 type store has no tf2_msgs)
             ct = w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts)
             w.write(ct, int(1e9 * 9), ser(tf_static(), "tf2_msgs/msg/TFMessage"))
@@ -65,7 +83,7 @@ def _odometry_bag(path, ros, odom_stamps, child="base_link", static=(("base_link
             w.write(cs, int(1e9 * (10 + k)), ser(scan(t, k), "sensor_msgs/msg/LaserScan"))
             w.write(ci, int(1e9 * (10 + k)) + 1, ser(image(t, k), "sensor_msgs/msg/Image"))
         for k, t in enumerate(odom_stamps):
-            w.write(co, int(1e9 * (10 + k)) + 2, ser(odom(t, k), "nav_msgs/msg/Odometry"))
+            w.write(co, int(1e9 * (10 + k)) + 2, ser(tf(t, k) if via_tf else odom(t, k), odom_type))
     return path
 
 
@@ -129,3 +147,48 @@ def test_strict_stamps_refuse_what_repair_sorts(tmp_path):
         InputError, match=r"b2: /scan message 1 header.stamp: got 1.0; expected a stamp after"
     ):
         import_bag(bag, tmp_path / "s2", "/scan", "/cam/image", stamps="strict")
+
+
+def test_tf_odom_to_base_link_as_the_odometry(tmp_path):
+    """A bag without nav_msgs/Odometry: /tf's odom -> base_link transforms are the wheel
+    odometry (the other transforms on /tf left alone), the mounting from /tf_static."""
+    bag = _odometry_bag(tmp_path / "b2", 2, [0.9, 1.4, 1.9, 2.4], via_tf=True)
+    s = import_bag(bag, tmp_path / "seq", "/scan", "/cam/image", odometry_topic="/tf")
+    assert s.odometry == 4
+    od = read_sequence(tmp_path / "seq").odometry
+    assert od is not None
+    np.testing.assert_allclose(od.stamps_s, [0.9, 1.4, 1.9, 2.4])
+    np.testing.assert_allclose(od.poses[:, 0], [0.0, 0.5, 1.0, 1.5])
+    np.testing.assert_allclose(od.poses[:, 2], [0.0, 0.1, 0.2, 0.3], atol=1e-9)
+    np.testing.assert_allclose(od.T_base_laser, [0.3, 0.0, 0.0], atol=1e-9)
+
+
+def test_tf_odometry_errors_name_the_topic_and_the_frames(tmp_path, capsys):
+    bag = _odometry_bag(tmp_path / "b2", 2, [0.9, 1.4, 1.9, 2.4], via_tf=True)
+    with pytest.raises(
+        InputError,
+        match=r"b2: /tf: transforms: got \[\('map', 'odom'\), \('odom', 'base_link'\)\]; "
+        r"expected transforms odom -> base_footprint",
+    ):
+        import_bag(
+            bag, tmp_path / "seq", "/scan", "/cam/image", odometry_topic="/tf",
+            odometry_frames=("odom", "base_footprint"),
+        )  # fmt: skip
+    assert not (tmp_path / "seq").exists()
+    nan_bag = _odometry_bag(tmp_path / "n2", 2, [0.9, 1.4, 1.9, 2.4], via_tf=True, nan=True)
+    with pytest.raises(InputError, match=r"n2: /tf: odometry pose 1: got \[1.4, nan"):
+        import_bag(nan_bag, tmp_path / "seq", "/scan", "/cam/image", odometry_topic="/tf")
+    args = [
+        "import-bag",
+        str(bag),
+        "--scan-topic",
+        "/scan",
+        "--image-topic",
+        "/cam/image",
+        "--odometry-topic",
+        "/tf",
+    ]
+    assert main([*args, "--odometry-frames", "odom", "-o", str(tmp_path / "t")]) == 3
+    assert "--odometry-frames: got 'odom'; expected PARENT,CHILD" in capsys.readouterr().err
+    assert main([*args, "--odometry-frames", "/odom,base_link", "-o", str(tmp_path / "u")]) == 0
+    assert read_sequence(tmp_path / "u").odometry is not None

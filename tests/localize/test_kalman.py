@@ -1,4 +1,4 @@
-"""The Kalman filter of Section VI: constant velocity, velocity measurements from increments."""
+"""The Kalman filter of Section VI: constant velocity, increments as relative-pose measurements."""
 
 from __future__ import annotations
 
@@ -20,7 +20,6 @@ def test_exact_increments_reproduce_the_path():
     t, poses = _arc()
     st, est = kalman.fuse(kalman.increments(t, poses, kalman.ICP_SIGMAS))
     assert np.allclose(st, t)
-    # A velocity measured over a step lags half a step at most: centimetres over 20 m.
     assert np.max(np.linalg.norm(est[:, :2] - poses[:, :2], axis=1)) < 0.1
     assert np.max(np.abs(est[:, 2] - poses[:, 2])) < 0.01
 
@@ -103,7 +102,105 @@ def test_vo_runs_become_measurements_by_their_status():
     t, poses = _arc(n=5)
     ms = kalman.vo_increments(t, poses, ["ok", "no-scale", "failed", "carried"])
     assert [(m.t0, m.t1) for m in ms] == [(t[0], t[1]), (t[1], t[2]), (t[3], t[4])]
-    assert [m.sigmas[0] for m in ms] == [kalman.VO_SIGMAS[0], kalman.OPEN_FORWARD_SIGMA, kalman.VO_SIGMAS[0]]
-    assert all(m.sigmas[1:] == kalman.VO_SIGMAS[1:] for m in ms)
+    dt = t[1] - t[0]
+    forward = [np.sqrt(m.covariance[0, 0]) for m in ms]
+    assert forward == pytest.approx([kalman.VO_SIGMAS[0] * dt, kalman.OPEN_SIGMA_M, kalman.VO_SIGMAS[0] * dt])
+    assert all(
+        np.sqrt(np.diag(m.covariance)[1:]) == pytest.approx(np.array(kalman.VO_SIGMAS[1:]) * dt) for m in ms
+    )
+    assert all(m.source == "vo" for m in ms)
     with pytest.raises(ValueError, match="3 run statuses for 5 poses"):
         kalman.vo_increments(t, poses, ["ok", "ok", "ok"])
+
+
+def test_vo_runs_with_their_own_covariances():
+    t, poses = _arc(n=4)
+    own = np.stack([np.diag([1e-4, 4e-4, 1e-6])] * 3)
+    own[2] = np.nan  # a run whose covariance is unknown is left out
+    ms = kalman.vo_increments(t, poses, ["ok", "no-scale", "ok"], own)
+    assert len(ms) == 2
+    assert np.allclose(ms[0].covariance, own[0])
+    assert ms[1].covariance[0, 0] == kalman.OPEN_SIGMA_M**2  # no scale: open forward
+    assert ms[1].covariance[1, 1] == own[1][1, 1]
+    with pytest.raises(ValueError, match=r"VO covariances of shape \(2, 3, 3\), expected \(3, 3, 3\)"):
+        kalman.vo_increments(t, poses, ["ok", "ok", "ok"], own[:2])
+
+
+def _own(t, sigmas_m_rad):
+    """Per-step covariances (N, 3, 3) of constant 1-sigma (forward m, cross m, yaw rad)."""
+    return np.stack([np.diag(np.square(sigmas_m_rad))] * len(t))
+
+
+def test_a_precise_input_is_reproduced_without_lag():
+    """Relative-pose measurements (the clone of the pose at each step's start): a precise
+    input's path comes back to the micrometre, in turns too (the paper's velocity
+    measurements lag half a step there)."""
+    t, poses = _arc(n=300, dt=0.025, w=0.6)
+    res = kalman.run_filter(kalman.increments(t, poses, _own(t, (1e-5, 1e-5, 1e-6))))
+    assert np.allclose(res.stamps_s, t)
+    assert np.max(np.linalg.norm(res.poses[:, :2] - poses[:, :2], axis=1)) < 1e-4
+    assert np.max(np.abs(res.poses[:, 2] - poses[:, 2])) < 1e-5
+    # The filter's pose covariance grows as the steps' errors add up.
+    assert np.all(np.diff([np.trace(c[:2, :2]) for c in res.covariances[1:]]) > -1e-15)
+
+
+def test_a_well_constrained_input_dominates_a_poor_one_at_another_rate():
+    """ICP at 40 Hz good to 1 mm per step, VO runs at 10 Hz each 20 % long, good to 5 cm:
+    the fused path stays with ICP."""
+    t, poses = _arc(n=401, dt=0.025, w=0.3)
+    ms = kalman.increments(t, poses, _own(t, (1e-3, 1e-3, 1e-4)), source="icp")
+    vo = _scaled(poses[::4], 1.2, 0.0)
+    ms += kalman.increments(t[::4], vo, _own(t[::4], (0.05, 0.05, 0.01)), source="vo")
+    res = kalman.run_filter(ms)
+    end_error = np.linalg.norm(res.poses[-1, :2] - poses[-1, :2])
+    assert end_error < 0.02 * np.linalg.norm(vo[-1, :2] - poses[-1, :2])
+
+
+def test_where_icp_is_open_along_a_corridor_vo_carries_the_forward_motion():
+    t, poses = _arc(n=201, dt=0.025, w=1e-6)
+    icp_cov = _own(t, (kalman.OPEN_SIGMA_M, 1e-3, 1e-4))
+    icp = _scaled(poses, 0.5, 0.0)  # its step along the corridor is only its guess
+    ms = kalman.increments(t, icp, icp_cov) + kalman.increments(
+        t[::4], poses[::4], _own(t[::4], (0.01, 0.05, 0.01))
+    )
+    res = kalman.run_filter(ms)
+    assert res.poses[-1, 0] == pytest.approx(poses[-1, 0], rel=0.01)
+
+
+def test_the_filters_settings_are_checked():
+    with pytest.raises(ValueError, match="weights 'equal': expected one of covariance, fixed"):
+        kalman.KfParams(weights="equal")
+    with pytest.raises(ValueError, match="must be > 0"):
+        kalman.KfParams(accel_sigma=0.0)
+    t, poses = _arc(n=4)
+    with pytest.raises(ValueError, match=r"covariances of shape \(2, 3, 3\), expected \(4, 3, 3\)"):
+        kalman.increments(t, poses, np.zeros((2, 3, 3)))
+
+
+def _noisy(poses, rng, sigma_m):
+    """Odometry whose every step has white noise of sigma_m (m) in x and y."""
+    out = [poses[0]]
+    for k in range(1, len(poses)):
+        step = kalman.pose_of(np.linalg.inv(kalman.se2(poses[k - 1])) @ kalman.se2(poses[k]))
+        step[:2] += rng.normal(0.0, sigma_m, 2)
+        out.append(kalman.pose_of(kalman.se2(out[-1]) @ kalman.se2(step)))
+    return np.array(out)
+
+
+def test_an_input_whose_covariance_is_too_small_is_matched_to_its_innovations():
+    """VO claims 2 mm per run but errs by 2 cm: with covariance matching (the default) its
+    innovations against a precise ICP scale its covariance up, and the path stays with
+    ICP; without, VO pulls it off by several times as much."""
+    rng = np.random.default_rng(0)
+    t, poses = _arc(n=801, dt=0.025, w=0.3)
+    icp = _noisy(poses, rng, 2e-4)
+    ms = kalman.increments(t, icp, _own(t, (2e-4, 2e-4, 1e-5)), source="icp")
+    vo = _noisy(poses[::4], rng, 0.02)
+    ms += kalman.increments(t[::4], vo, _own(t[::4], (2e-3, 2e-3, 1e-4)), source="vo")
+    errors = {}
+    for adapt in (False, True):
+        res = kalman.run_filter(ms, kalman.KfParams(adapt=adapt))
+        errors[adapt] = np.sqrt(np.mean(np.sum((res.poses[:, :2] - poses[:, :2]) ** 2, axis=1)))
+    icp_error = np.sqrt(np.mean(np.sum((icp[:, :2] - poses[:, :2]) ** 2, axis=1)))
+    assert errors[True] < 0.5 * errors[False]
+    assert errors[True] < 2.0 * icp_error + 1e-3

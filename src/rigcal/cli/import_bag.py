@@ -17,8 +17,15 @@ from rigcal.cli.stamps import laser_offset_option
 @click.option("--camera-info-topic", help="sensor_msgs/CameraInfo topic: also write camera.yaml.")
 @click.option(
     "--odometry-topic",
-    help="nav_msgs/Odometry topic: keep it as the wheel odometry (the laser's mounting from "
-    "--laser-offset or the bag's /tf_static).",
+    help="nav_msgs/Odometry topic, or a tf topic (/tf) with the odom -> base_link transform: keep "
+    "it as the wheel odometry (the laser's mounting from --laser-offset or the bag's /tf_static).",
+)
+@click.option(
+    "--odometry-frames",
+    default="odom,base_link",
+    show_default=True,
+    metavar="PARENT,CHILD",
+    help="With a tf --odometry-topic: the transform that is the odometry.",
 )
 @laser_offset_option
 @click.option(
@@ -39,6 +46,7 @@ def import_bag(
     image_topic: str,
     camera_info_topic: str | None,
     odometry_topic: str | None,
+    odometry_frames: str,
     laser_offset: str | None,
     stamps: str,
     output: Path,
@@ -55,12 +63,17 @@ def import_bag(
       rigcal import-bag run1.bag --scan-topic /scan --image-topic /camera/image_raw -o run1/
       rigcal import-bag run2/ --scan-topic /scan --image-topic /cam/image/compressed \\
           --camera-info-topic /cam/camera_info -o run2-seq/ --force
+      rigcal import-bag run3/ --scan-topic /scan --image-topic /cam/image --odometry-topic /tf -o run3/
     """
+    from rigcal.errors import InputError
     from rigcal.io.bag import import_bag as run
     from rigcal.io.files import check_folder_writable
     from rigcal.io.wheel_odometry import parse_mounting
 
     mounting = parse_mounting(laser_offset) if laser_offset is not None else None
+    frames = tuple(f.strip().lstrip("/") for f in odometry_frames.split(","))
+    if len(frames) != 2 or not all(frames):
+        raise InputError.at(None, "--odometry-frames", odometry_frames, "PARENT,CHILD (e.g. odom,base_link)")
     check_folder_writable(output, force, [bag])
     from rigcal.cli.progress import Progress
 
@@ -76,6 +89,7 @@ def import_bag(
             stamps=stamps,
             odometry_topic=odometry_topic,
             laser_offset=mounting,
+            odometry_frames=(frames[0], frames[1]),
         )
     if as_json:
         doc = {

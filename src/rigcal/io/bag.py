@@ -27,8 +27,10 @@ from rigcal.scan import Scan
 log = logging.getLogger(__name__)
 
 SCAN_TYPES = ("sensor_msgs/msg/LaserScan",)
-ODOMETRY_TYPES = ("nav_msgs/msg/Odometry",)
 TF_TYPES = ("tf2_msgs/msg/TFMessage",)
+# The odometry: nav_msgs/Odometry, or tf's transform between two frames (odom -> base_link).
+ODOMETRY_TYPES = ("nav_msgs/msg/Odometry", *TF_TYPES)
+ODOMETRY_FRAMES = ("odom", "base_link")
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
 
@@ -56,12 +58,15 @@ def import_bag(
     stamps: str = "repair",
     odometry_topic: str | None = None,
     laser_offset: NDArray[np.float64] | None = None,
+    odometry_frames: tuple[str, str] = ODOMETRY_FRAMES,
 ) -> ImportSummary:
     """Write a sequence folder from a bag. ``progress`` is called with (messages read,
     messages on the wanted topics). ``stamps="strict"`` refuses messages out of time order
     and repeated stamps instead of sorting and dropping them. ``odometry_topic``: a
-    nav_msgs/Odometry topic kept as the wheel odometry, the laser's mounting from
-    ``laser_offset`` or else the bag's /tf_static (:func:`bag_odometry`).
+    nav_msgs/Odometry topic kept as the wheel odometry, or a tf topic (tf2_msgs/TFMessage,
+    as /tf) whose transforms ``odometry_frames`` (parent, child: odom -> base_link by
+    default) are; the laser's mounting from ``laser_offset`` or else the bag's /tf_static
+    (:func:`bag_odometry`).
 
     Raises:
         InputError: unreadable bag, a missing topic (the bag's topics are listed), a topic
@@ -104,7 +109,7 @@ def import_bag(
         camera_yaml: str | None = None
         first_image: tuple[tuple[int, int], str] | None = None  # (width, height), where
         info_where = ""
-        wheel = _WheelMessages()
+        wheel = _WheelMessages(odometry_frames)
         conns = [c for c in reader.connections if c.topic in {t for t, _ in wanted.values()}]
         total = sum(int(c.msgcount) for c in conns)
         seen = dict.fromkeys(topics, 0)
@@ -189,9 +194,12 @@ TF_STATIC = "/tf_static"
 class _WheelMessages:
     """The odometry topic's poses and /tf_static's transforms, gathered as the bag is read."""
 
-    def __init__(self) -> None:
+    def __init__(self, tf_frames: tuple[str, str] = ODOMETRY_FRAMES) -> None:
         self.poses: list[tuple[float, float, float, float]] = []  # stamp, x, y, yaw
         self.frames: set[tuple[str, str]] = set()  # (frame_id, child_frame_id)
+        self.tf_frames = tf_frames  # the odometry's transform on a tf topic (parent, child)
+        self.tf_seen: set[tuple[str, str]] = set()  # every transform a tf topic carried
+        self.via_tf = False
         self.static: dict[tuple[str, str], NDArray[np.float64]] = {}  # (parent, child) -> x y yaw
         self.scan_frame = ""
 
@@ -201,6 +209,18 @@ class _WheelMessages:
                 t, q = tf.transform.translation, tf.transform.rotation
                 key = (str(tf.header.frame_id).lstrip("/"), str(tf.child_frame_id).lstrip("/"))
                 self.static[key] = np.array([float(t.x), float(t.y), _yaw(q)])
+            return
+        if hasattr(msg, "transforms"):  # a tf topic: the odometry is one of its transforms
+            self.via_tf = True
+            for tf in msg.transforms:
+                key = (str(tf.header.frame_id).lstrip("/"), str(tf.child_frame_id).lstrip("/"))
+                self.tf_seen.add(key)
+                if key != self.tf_frames:
+                    continue
+                t, q = tf.transform.translation, tf.transform.rotation
+                stamp = float(tf.header.stamp.sec) + 1e-9 * float(tf.header.stamp.nanosec)
+                self.poses.append((stamp, float(t.x), float(t.y), _yaw(q)))
+                self.frames.add(key)
             return
         stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
         p = msg.pose.pose
@@ -230,6 +250,14 @@ def bag_odometry(
             frame and the scans' frame (unknown frames), and the checks of
             :func:`rigcal.io.wheel_odometry.checked` (stamps, NaN, no overlap).
     """
+    if wheel.via_tf and not wheel.poses:
+        parent, child = wheel.tf_frames
+        raise InputError.at(
+            where,
+            "transforms",
+            sorted(wheel.tf_seen),
+            f"transforms {parent} -> {child} (--odometry-frames PARENT,CHILD)",
+        )
     if len(wheel.frames) > 1:
         raise InputError.at(
             where, "frame_id -> child_frame_id", sorted(wheel.frames), "one pair of frames for the topic"

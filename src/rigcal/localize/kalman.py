@@ -1,24 +1,38 @@
-"""Kalman filter fusion of laser and visual odometry (paper Section VI, Eq. (11)).
+"""Kalman filter fusion of laser, visual and wheel odometry (paper Section VI, Eq. (11)).
 
 State S = [x, y, yaw, vx, vy, yaw_rate] (Eq. (11)): the laser's planar pose in the world
 and its velocity, world frame. Process model: a constant-velocity particle driven by
-white acceleration noise. Measurements: each odometry increment (dx, dy, dyaw) over
-[t0, t1], expressed in the rig's frame at t0, becomes a velocity measurement at t1,
+white acceleration noise (Section VI: "the process model is that of a constant-velocity
+particle").
 
-    v_world = R(yaw_mid) (dx, dy) / (t1 - t0),   yaw_rate = dyaw / (t1 - t0),
+Measurements: each odometry increment z = (dx, dy, dyaw) over [t0, t1], the motion in
+the rig's frame at t0, with its covariance in that frame. The paper turns increments into
+velocity measurements; a velocity measured over [t0, t1] and applied at t1 makes the
+filter lag half a step behind a precise input (its heading most, in turns), which cost
+the filter centimetres against ICP alone. Here the increment is measured as what it is,
+a relative pose, by stochastic cloning (Roumeliotis and Burdick, ICRA 2002): at t0 the
+filter appends a copy of its pose to the state, and at t1
 
-with a fixed covariance given in the rig's frame (forward, cross-track, yaw rate) and
-turned into the world frame with the filter's heading. As the paper sets them, ICP's
-forward translation and rotation weigh less than visual odometry's, and visual
-odometry's cross-track translation weighs less than ICP's (:data:`ICP_SIGMAS`,
-:data:`VO_SIGMAS`; documented in docs/localization.md). Beyond the paper, an ICP step
-the walls do not constrain (its degeneracy indicator below
-:data:`rigcal.localize.odometry.DEGENERATE_BELOW`: along a corridor whose ends are out of
-the laser's range) measures no forward speed (:data:`OPEN_FORWARD_SIGMA`): its step
-along the corridor is only the motion ICP started from. Likewise a visual odometry run
-without a scale (status ``no-scale``: its length is the last measured speed's guess)
-measures no forward speed, and a failed run (a constant-velocity guess) measures
-nothing and is left out.
+    h(S) = ( R(yaw_t0)^T (p_t1 - p_t0),  yaw_t1 - yaw_t0 )
+
+is compared with z (an extended Kalman filter update on the state with its clone); the
+clone is dropped once no pending increment starts at t0. Inputs at different rates (ICP
+at the laser's, VO at the camera's runs, wheel odometry at the scans') and overlapping
+intervals are fused exactly so.
+
+Covariances: the paper gives each input a fixed one (ICP's forward translation and
+rotation weigh less than VO's, VO's cross-track less than ICP's). Beyond the paper each
+step carries its own (``weights="covariance"``, the default): ICP's from its Hessian at
+the solution, inflated along directions the walls do not constrain
+(:func:`rigcal.localize.icp.icp_covariance`); VO's from its tracks' fit and the scale's
+votes (:func:`rigcal.localize.vo.run_covariance`); the wheel odometry's from its fixed
+noise model (:data:`WHEEL_SIGMAS`, a rate noise over the step's time). A well-constrained
+ICP step then pins the pose and VO takes over along a corridor. ``weights="fixed"`` gives
+every step the paper's fixed covariance (:data:`ICP_SIGMAS`, :data:`VO_SIGMAS`), with
+ICP's degenerate steps and VO's runs without a scale open forward as before. With
+``adapt`` (the default) each input's covariances are matched to its innovations (Mehra's
+covariance matching, one scale factor per input), as a fit's covariance leaves out what
+the fit cannot see.
 """
 
 from __future__ import annotations
@@ -30,125 +44,254 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.geometry import pose_of, se2
+from rigcal.localize.icp import OPEN_SIGMA_M
 
 FloatArray = NDArray[np.float64]
 
-# 1-sigma velocity measurement noise in the rig's frame: forward (m/s), cross-track (m/s),
-# yaw rate (rad/s).
+# The paper's fixed covariances (weights="fixed"), as 1-sigma rate noise in the rig's
+# frame: forward (m/s), cross-track (m/s), yaw rate (rad/s); a step over dt seconds has
+# 1-sigma sigma * dt.
 ICP_SIGMAS = (0.10, 0.03, 0.05)
 VO_SIGMAS = (0.03, 0.15, 0.02)
-# Wheel odometry (beyond the paper): its forward speed is good to a few percent of a
-# walking pace, a wheeled base barely slides sideways, and its heading drifts most
-# (wheel slip in turns).
+# Wheel odometry (beyond the paper; its noise model in both modes): its forward speed is
+# good to a few percent of a walking pace, a wheeled base barely slides sideways, and its
+# heading drifts most (wheel slip in turns).
 WHEEL_SIGMAS = (0.05, 0.02, 0.08)
-# Forward speed noise (m/s) of an ICP step the walls do not constrain: in effect none.
-OPEN_FORWARD_SIGMA = 10.0
+# OPEN_SIGMA_M (icp.py): 1-sigma (m) of a step's translation along a direction its input
+# does not measure (an ICP step along a corridor whose ends are out of reach, a VO run
+# without a scale).
+# Kept for the rate form: forward rate noise (m/s) of a step that measures no forward speed.
+OPEN_FORWARD_SIGMA = OPEN_SIGMA_M
+WEIGHTS = ("covariance", "fixed")
+# Covariance matching (``KfParams.adapt``): an input's covariance is scaled up by the
+# running mean (over about ADAPT_WINDOW steps) of its innovations' NIS per dimension when
+# that exceeds 1; a single innovation counts at most NIS_CAP (an outlier step).
+ADAPT_WINDOW = 50
+NIS_CAP = 25.0
 
 
 @dataclass(frozen=True)
 class Increment:
-    """One odometry step: the motion (dx, dy, dyaw) from t0 to t1 in the rig's frame at t0."""
+    """One odometry step: the motion (dx m, dy m, dyaw rad) from t0 to t1 in the rig's
+    frame at t0, its covariance (3, 3) in that frame (m^2, m rad, rad^2) and the input it
+    came from ("icp", "vo", "wheel")."""
 
     t0: float
     t1: float
     motion: FloatArray
-    sigmas: tuple[float, float, float]
+    covariance: FloatArray
+    source: str = ""
 
 
 @dataclass(frozen=True)
 class KfParams:
-    """Process noise: white acceleration (m/s^2) and angular acceleration (rad/s^2)."""
+    """Process noise: white acceleration (m/s^2) and angular acceleration (rad/s^2);
+    ``weights``: each step's own covariance ("covariance") or the paper's fixed ones
+    ("fixed"); ``adapt``: scale each input's covariances up by its innovations' running
+    NIS where that exceeds 1 (covariance matching: :data:`ADAPT_WINDOW`)."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
+    weights: str = "covariance"
+    adapt: bool = True
+
+    def __post_init__(self) -> None:
+        if self.weights not in WEIGHTS:
+            raise ValueError(f"weights {self.weights!r}: expected one of {', '.join(WEIGHTS)}")
+        if not (self.accel_sigma > 0 and self.yaw_accel_sigma > 0):
+            raise ValueError("accel_sigma and yaw_accel_sigma must be > 0")
+
+
+@dataclass(frozen=True)
+class KfResult:
+    """The filtered path: stamps (M,), poses (M, 3) after each update (the first: the
+    origin at the earliest stamp) and their covariances (M, 3, 3) (x, y, yaw; world)."""
+
+    stamps_s: FloatArray
+    poses: FloatArray
+    covariances: FloatArray
+
+
+def rate_covariance(sigmas: tuple[float, float, float], dt: float, open_forward: bool = False) -> FloatArray:
+    """A step's covariance (3, 3) from 1-sigma rate noise (forward m/s, cross m/s, yaw
+    rad/s) over dt seconds; ``open_forward``: it measures no forward motion."""
+    var = np.square(np.asarray(sigmas, dtype=float) * dt)
+    if open_forward:
+        var[0] = OPEN_SIGMA_M**2
+    return np.diag(var)
 
 
 def increments(
     stamps: FloatArray,
     poses: FloatArray,
-    sigmas: tuple[float, float, float],
+    covariances: FloatArray | tuple[float, float, float],
     open_forward: NDArray[np.bool_] | None = None,
     measured: NDArray[np.bool_] | None = None,
+    source: str = "",
 ) -> list[Increment]:
-    """The steps of an odometry trajectory (poses (N, 3) at stamps (N,)); where
-    ``open_forward`` (N,) is True, the step ending there measures no forward speed
-    (:data:`OPEN_FORWARD_SIGMA`); where ``measured`` (N,) is False, the step ending there
-    was not measured at all (a guess of the odometry's own) and is left out."""
+    """The steps of an odometry trajectory (poses (N, 3) at stamps (N,)).
+
+    ``covariances``: each step's own (N, 3, 3), the one ending at k at index k (index 0
+    unused), a step with a non-finite one left out; or 1-sigma rate noise (forward m/s,
+    cross m/s, yaw rad/s: :func:`rate_covariance`) for every step. Where ``open_forward``
+    (N,) is True, the step ending there measures no forward motion; where ``measured``
+    (N,) is False, the step ending there was not measured at all (a guess of the
+    odometry's own) and is left out. Steps of no duration are left out."""
+    own = not isinstance(covariances, tuple)
+    if own and np.shape(covariances) != (len(stamps), 3, 3):
+        raise ValueError(f"covariances of shape {np.shape(covariances)}, expected ({len(stamps)}, 3, 3)")
     out = []
     for k in range(1, len(stamps)):
         dt = float(stamps[k] - stamps[k - 1])
         if dt <= 0 or (measured is not None and not measured[k]):
             continue
+        is_open = open_forward is not None and bool(open_forward[k])
+        if own:
+            cov = np.array(covariances[k], dtype=float)
+            if not np.isfinite(cov).all():
+                continue
+            if is_open:
+                cov[0, :] = cov[:, 0] = 0.0
+                cov[0, 0] = OPEN_SIGMA_M**2
+        else:
+            cov = rate_covariance(covariances, dt, is_open)  # type: ignore[arg-type]
         local = pose_of(np.linalg.inv(se2(poses[k - 1])) @ se2(poses[k]))
-        sig = sigmas
-        if open_forward is not None and open_forward[k]:
-            sig = (OPEN_FORWARD_SIGMA, sigmas[1], sigmas[2])
-        out.append(Increment(float(stamps[k - 1]), float(stamps[k]), local, sig))
+        out.append(Increment(float(stamps[k - 1]), float(stamps[k]), local, cov, source))
     return out
 
 
-def vo_increments(stamps: FloatArray, poses: FloatArray, statuses: Sequence[str]) -> list[Increment]:
-    """Visual odometry's runs as measurements: poses (N, 3) at stamps (N,), and each run's
-    status (N - 1,) (:class:`rigcal.localize.vo.VoStep`). A run without a scale
-    (``no-scale``: its length is a guess) measures no forward speed; a failed run (a
-    constant-velocity guess) measures nothing and is left out."""
+def vo_increments(
+    stamps: FloatArray,
+    poses: FloatArray,
+    statuses: Sequence[str],
+    covariances: FloatArray | None = None,
+) -> list[Increment]:
+    """Visual odometry's runs as measurements: poses (N, 3) at stamps (N,), each run's
+    status (N - 1,) (:class:`rigcal.localize.vo.VoStep`) and, unless the paper's fixed
+    covariance is wanted (None), its covariance (N - 1, 3, 3) (``VoStep.covariance``). A
+    run without a scale (``no-scale``: its length is a guess) measures no forward motion;
+    a failed run (a constant-velocity guess) measures nothing and is left out."""
     if len(statuses) != len(stamps) - 1:
         raise ValueError(f"{len(statuses)} run statuses for {len(stamps)} poses (expected one per run)")
     status = np.array(["ok", *statuses])  # the first pose ends no run
     guessed, failed = status == "no-scale", status == "failed"
-    return increments(stamps, poses, VO_SIGMAS, open_forward=guessed, measured=~failed)
+    if covariances is None:
+        return increments(stamps, poses, VO_SIGMAS, open_forward=guessed, measured=~failed, source="vo")
+    if np.shape(covariances) != (len(stamps) - 1, 3, 3):
+        expected = f"({len(stamps) - 1}, 3, 3)"
+        raise ValueError(f"VO covariances of shape {np.shape(covariances)}, expected {expected}")
+    own = np.concatenate([np.full((1, 3, 3), np.nan), covariances])
+    return increments(stamps, poses, own, open_forward=guessed, measured=~failed, source="vo")
 
 
 def fuse(measurements: list[Increment], params: KfParams | None = None) -> tuple[FloatArray, FloatArray]:
-    """Run the filter over the increments in time order (by their end stamps).
+    """:func:`run_filter`'s stamps (M,) and poses (M, 3)."""
+    res = run_filter(measurements, params)
+    return res.stamps_s, res.poses
+
+
+def run_filter(measurements: list[Increment], params: KfParams | None = None) -> KfResult:
+    """Run the filter over the increments in time order (Section VI, Eq. (11)).
+
+    Each increment clones the pose at its start t0 and updates at its end t1 (module
+    docstring); at equal stamps updates come before clones, so that a step starting where
+    another ends starts from the updated pose.
 
     Returns:
-        stamps (M,) and poses (M, 3): the filtered pose after each update, starting with
-        the origin at the earliest stamp.
+        the filtered pose after each update, starting with the origin at the earliest
+        stamp, with its covariance.
     """
     params = params or KfParams()
-    ms = sorted(measurements, key=lambda m: m.t1)
+    ms = sorted(measurements, key=lambda m: (m.t1, m.t0))
     if not ms:
-        return np.zeros(0), np.zeros((0, 3))
-    t = min(m.t0 for m in ms)
-    x = np.zeros(6)
-    P = np.diag([1e-9, 1e-9, 1e-9, 1.0, 1.0, 1.0])
-    stamps, poses = [t], [x[:3].copy()]
-    H = np.zeros((3, 6))
-    H[:, 3:] = np.eye(3)
+        return KfResult(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)))
+    # Events (time, 0 = update / 1 = clone, measurement); updates first at equal times.
+    events = [(m.t1, 0, i) for i, m in enumerate(ms)] + [(m.t0, 1, i) for i, m in enumerate(ms)]
+    events.sort(key=lambda e: (e[0], e[1], e[2]))
+    pending: dict[float, int] = {}  # clone stamp -> increments still to use it
     for m in ms:
-        dt = m.t1 - t
-        if dt > 0:
-            x, P = _predict(x, P, dt, params)
-            t = m.t1
-        span = m.t1 - m.t0
-        yaw_mid = x[2] - 0.5 * m.motion[2]
-        c, s = np.cos(yaw_mid), np.sin(yaw_mid)
-        R = np.array([[c, -s], [s, c]])
-        z = np.concatenate([R @ m.motion[:2], [m.motion[2]]]) / span
-        Rm = np.zeros((3, 3))
-        Rm[:2, :2] = R @ np.diag(np.square(m.sigmas[:2])) @ R.T
-        Rm[2, 2] = m.sigmas[2] ** 2
-        y = z - H @ x
-        S = H @ P @ H.T + Rm
-        K = P @ H.T @ np.linalg.inv(S)
-        x = x + K @ y
-        P = (np.eye(6) - K @ H) @ P
+        pending[m.t0] = pending.get(m.t0, 0) + 1
+    clones: list[float] = []  # the stamps of the state's clones, in state order
+    mean_nis: dict[str, float] = {}  # per input: its innovations' NIS per dimension, running mean
+    t = events[0][0]
+    x = np.zeros(6)
+    P = np.diag([1e-12, 1e-12, 1e-12, 1.0, 1.0, 1.0])
+    stamps, poses, covs = [t], [x[:3].copy()], [P[:3, :3].copy()]
+    for when, kind, i in events:
+        if when > t:
+            x, P = _predict(x, P, when - t, params)
+            t = when
+        m = ms[i]
+        if kind == 1:
+            if m.t0 not in clones:
+                x, P = _clone(x, P)
+                clones.append(m.t0)
+            continue
+        c = 6 + 3 * clones.index(m.t0)
+        x, P, nis = _update(x, P, c, m, max(1.0, mean_nis.get(m.source, 1.0)) if params.adapt else 1.0)
+        # Covariance matching: each input's recent innovations against its covariance.
+        mean_nis[m.source] = (
+            mean_nis.get(m.source, 1.0) + (min(nis, NIS_CAP) - mean_nis.get(m.source, 1.0)) / ADAPT_WINDOW
+        )
+        pending[m.t0] -= 1
+        if not pending[m.t0]:
+            keep = np.r_[0:c, c + 3 : len(x)]
+            x, P = x[keep], P[np.ix_(keep, keep)]
+            clones.remove(m.t0)
         if stamps[-1] == t:
-            poses[-1] = x[:3].copy()
+            poses[-1], covs[-1] = x[:3].copy(), P[:3, :3].copy()
         else:
             stamps.append(t)
             poses.append(x[:3].copy())
-    return np.array(stamps), np.array(poses)
+            covs.append(P[:3, :3].copy())
+    return KfResult(np.array(stamps), np.array(poses), np.array(covs))
+
+
+def _clone(x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The state with a copy of its pose appended, and its covariance (the copy fully
+    correlated with the pose)."""
+    n = len(x)
+    J = np.vstack([np.eye(n), np.eye(n)[:3]])
+    return np.concatenate([x, x[:3]]), J @ P @ J.T
+
+
+def _update(
+    x: FloatArray, P: FloatArray, c: int, m: Increment, scale: float = 1.0
+) -> tuple[FloatArray, FloatArray, float]:
+    """The EKF update with increment ``m`` (its covariance times ``scale``) against the
+    clone at state index ``c``: h(S) is the motion from the clone's pose to the current
+    one in the clone's frame. Also returns the innovation's NIS per dimension under the
+    increment's own covariance (unscaled)."""
+    cyaw, syaw = np.cos(x[c + 2]), np.sin(x[c + 2])
+    Rt = np.array([[cyaw, syaw], [-syaw, cyaw]])  # R(yaw_t0)^T
+    d = x[:2] - x[c : c + 2]
+    h = np.array([*(Rt @ d), x[2] - x[c + 2]])
+    H = np.zeros((3, len(x)))
+    H[:2, :2] = Rt
+    H[:2, c : c + 2] = -Rt
+    H[:2, c + 2] = np.array([[-syaw, cyaw], [-cyaw, -syaw]]) @ d  # d(R^T d) / d yaw_t0
+    H[2, 2], H[2, c + 2] = 1.0, -1.0
+    y = m.motion - h
+    y[2] = np.angle(np.exp(1j * y[2]))
+    HPH = H @ P @ H.T
+    nis = float(y @ np.linalg.solve(HPH + m.covariance, y)) / 3.0
+    Rm = scale * m.covariance
+    S = HPH + Rm
+    K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
+    x = x + K @ y
+    A = np.eye(len(x)) - K @ H
+    P = A @ P @ A.T + K @ Rm @ K.T  # Joseph form: stays symmetric, positive
+    return x, P, nis
 
 
 def _predict(x: FloatArray, P: FloatArray, dt: float, params: KfParams) -> tuple[FloatArray, FloatArray]:
-    F = np.eye(6)
-    F[:3, 3:] = dt * np.eye(3)
+    """The constant-velocity prediction of the pose and velocity over dt; clones stay."""
+    F = np.eye(len(x))
+    F[:3, 3:6] = dt * np.eye(3)
     q = np.array([params.accel_sigma, params.accel_sigma, params.yaw_accel_sigma]) ** 2
     # White-acceleration noise integrated over dt, per axis: [[dt^3/3, dt^2/2], [dt^2/2, dt]].
-    Q = np.zeros((6, 6))
+    Q = np.zeros((len(x), len(x)))
     Q[:3, :3] = np.diag(q * dt**3 / 3.0)
-    Q[:3, 3:] = Q[3:, :3] = np.diag(q * dt**2 / 2.0)
-    Q[3:, 3:] = np.diag(q * dt)
+    Q[:3, 3:6] = Q[3:6, :3] = np.diag(q * dt**2 / 2.0)
+    Q[3:6, 3:6] = np.diag(q * dt)
     return F @ x, F @ P @ F.T + Q

@@ -27,7 +27,16 @@ from scipy.spatial import cKDTree
 from rigcal.calib.lines import Segment, extract_lines, line_labels, return_labels
 from rigcal.geometry import pose_of, se2
 from rigcal.jit import njit
-from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, icp, label_runs, line_normals
+from rigcal.localize.icp import (
+    MIN_LINE_FRACTION,
+    IcpParams,
+    IcpResult,
+    icp,
+    icp_covariance,
+    label_runs,
+    line_normals,
+    pairing_normals,
+)
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
@@ -71,7 +80,10 @@ class Odometry:
     """Poses (N, 3) of the laser in the first scan's frame, per-step degeneracy and ICP
     fit RMS, how many steps were skipped (too few points) and kept the last motion, and
     how many were tried again from zero motion (a poor fit from the previous motion), and
-    how many ICP steps the wheel odometry overruled (a fit beyond its error bound)."""
+    how many ICP steps the wheel odometry overruled (a fit beyond its error bound).
+    ``covariance`` (N, 3, 3): each step's T_prev_cur covariance (x, y, yaw; the one ending
+    at scan k at index k, :func:`rigcal.localize.icp.icp_covariance`), NaN where ICP did
+    not measure the step (index 0, skipped and overruled steps: a guess)."""
 
     poses: FloatArray
     degeneracy: FloatArray
@@ -79,6 +91,7 @@ class Odometry:
     skipped: int
     restarts: int = 0
     overruled: int = 0
+    covariance: FloatArray | None = None
 
 
 def icp_odometry(
@@ -145,6 +158,7 @@ class ScanOdometry:
         self._poses: list[FloatArray] = []
         self._deg: list[float] = []
         self._rms: list[float] = []
+        self._cov: list[FloatArray] = []
         self._last = np.zeros(3)
         self._skipped = self._restarts = self._overruled = 0
         self._prev = np.zeros((0, 2))
@@ -168,10 +182,12 @@ class ScanOdometry:
             self._poses.append(pose_of(self._T))
             self._deg.append(1.0)
             self._rms.append(0.0)
+            self._cov.append(np.full((3, 3), np.nan))
             return self._poses[-1]
         params, kernel, prev = self.params, self._kernel, self._prev
         wheel = guess is not None and bool(np.isfinite(guess).all())
         start = np.asarray(guess, dtype=float) if wheel else self._last
+        cov = np.full((3, 3), np.nan)
         if len(cur) < 10 or len(prev) < 10:
             step, d, r = start, 0.0, float("nan")
             self._skipped += 1
@@ -179,9 +195,11 @@ class ScanOdometry:
             res = icp(
                 prev, cur, initial=start, params=params, model_normals=self._prev_normals, kernel=kernel
             )
+            measured = True
             if wheel and not agrees_with_wheels(res.pose, start):
                 res = dataclasses.replace(res, pose=start, degeneracy=0.0)
                 self._overruled += 1
+                measured = False  # the step is the wheels' own
             elif not wheel and res.inlier_fraction < params.restart_below_inliers:
                 zero = np.zeros(3)
                 again = icp(
@@ -191,10 +209,13 @@ class ScanOdometry:
                     res = again
                 self._restarts += 1
             step, d, r, self._nearest = res.pose, res.degeneracy, res.rms_m, res.nearest
+            if measured and res.nearest is not None:
+                cov = self._covariance(prev, cur, res)
         self._T = self._T @ se2(step)
         self._poses.append(pose_of(self._T))
         self._deg.append(d)
         self._rms.append(r)
+        self._cov.append(cov)
         self._last = step
         if len(cur) >= 10:
             self._prev_normals = self._normals_of(k, scan, cur, prev, self._prev_normals, step, self._nearest)
@@ -210,7 +231,21 @@ class ScanOdometry:
             self._skipped,
             self._restarts,
             self._overruled,
+            np.array(self._cov),
         )
+
+    def _covariance(self, prev: FloatArray, cur: FloatArray, res: IcpResult) -> FloatArray:
+        """ICP's step covariance (:func:`icp_covariance`) with the normals it paired along."""
+        assert res.nearest is not None
+        normals = None
+        if self.params.method == "point-to-line":
+            given = self._prev_normals
+            if given is not None and np.isfinite(given[:, 0]).mean() >= MIN_LINE_FRACTION:
+                normals = given
+            else:
+                normals = pairing_normals(prev, cKDTree(prev), self.params.normal_neighbours, None)[0]
+        reject_m = self.params.reject_m
+        return icp_covariance(prev, cur, res.pose, res.nearest, normals, reject_m, DEGENERATE_BELOW)
 
     def _normals_of(
         self,

@@ -135,23 +135,51 @@ def _vo_estimate(streams: Streams, res: VoResult) -> Estimate:
     return Estimate(streams.image_stamps_s[res.frames], res.poses, stats)
 
 
-def _kf_estimate(streams: Streams) -> Estimate:
-    res = _vo_result(streams)
-    vo = _vo_estimate(streams, res)
-    od = streams.laser_odometry()
-    icp = _icp_estimate(streams, od)
+def _kf_estimate(streams: Streams, params: kalman.KfParams | None = None) -> Estimate:
+    params = params or kalman.KfParams()
+    od, res = streams.laser_odometry(), _vo_result(streams)
     t0 = time.perf_counter()
-    ms = kalman.increments(icp.stamps_s, icp.poses, kalman.ICP_SIGMAS, od.degeneracy < DEGENERATE_BELOW)
-    ms += kalman.vo_increments(vo.stamps_s, vo.poses, [s.status for s in res.steps])
-    stats = {"icp_measurements": len(icp.stamps_s) - 1, "vo_measurements": len(vo.stamps_s) - 1}
+    ms = kf_measurements(streams, od, res, params)
+    stats = {
+        "icp_measurements": sum(m.source == "icp" for m in ms),
+        "vo_measurements": sum(m.source == "vo" for m in ms),
+        "weights": params.weights,
+    }
     if streams.wheel_odometry is not None:
-        wheel = _wheel_estimate(streams)
-        wheel_ms = kalman.increments(wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS)
-        ms += wheel_ms
-        stats["wheel_measurements"] = len(wheel_ms)
-    stamps, poses = kalman.fuse(ms)
+        stats["wheel_measurements"] = sum(m.source == "wheel" for m in ms)
+    stamps, poses = kalman.fuse(ms, params)
     streams.timings_s["kf_s"] = time.perf_counter() - t0
     return Estimate(stamps, poses, stats)
+
+
+def kf_inputs(streams: Streams) -> tuple[Odometry, VoResult]:
+    """The laser odometry and the visual odometry of the sequence (computed once per run)."""
+    return streams.laser_odometry(), _vo_result(streams)
+
+
+def kf_measurements(
+    streams: Streams, od: Odometry, res: VoResult, params: kalman.KfParams
+) -> list[kalman.Increment]:
+    """The Kalman filter's inputs: ICP's steps (``od``), VO's runs (``res``) and the wheel
+    odometry's steps (when used), each with its covariance (``params.weights``;
+    docs/localization.md)."""
+    icp, vo = _icp_estimate(streams, od), _vo_estimate(streams, res)
+    statuses = [s.status for s in res.steps]
+    degenerate = od.degeneracy < DEGENERATE_BELOW
+    if params.weights == "fixed" or od.covariance is None:
+        ms = kalman.increments(icp.stamps_s, icp.poses, kalman.ICP_SIGMAS, degenerate, source="icp")
+        ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses)
+    else:
+        # The covariance already opens a degenerate step along the corridor only.
+        ms = kalman.increments(icp.stamps_s, icp.poses, od.covariance, source="icp")
+        vo_cov = np.array(
+            [np.full((3, 3), np.nan) if s.covariance is None else s.covariance for s in res.steps]
+        )
+        ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses, vo_cov.reshape(-1, 3, 3))
+    if streams.wheel_odometry is not None:
+        wheel = _wheel_estimate(streams)
+        ms += kalman.increments(wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS, source="wheel")
+    return ms
 
 
 def _wheel_estimate(streams: Streams) -> Estimate:

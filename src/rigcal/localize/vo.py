@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from rigcal.camera import Camera
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
+from rigcal.localize.icp import OPEN_SIGMA_M
 from rigcal.localize.patches import sample_patches
 from rigcal.localize.tracks import FrameTracks, common, gain_between
 
@@ -94,6 +95,9 @@ class RelativePose:
     still: bool
     bearings1: FloatArray = field(repr=False)
     bearings2: FloatArray = field(repr=False)
+    # (5, 5) of (rotation vector applied on the left of R, t_unit's two tangent steps):
+    # :func:`essential_covariance`; a still camera's (3, 3) of its rotation alone.
+    covariance: FloatArray | None = field(default=None, repr=False)
 
 
 def _normalised(bearings: FloatArray) -> FloatArray:
@@ -130,7 +134,8 @@ def relative_pose(
     R_rot = rotation_between(b1, b2)
     moved = np.linalg.norm(b2 - b1 @ R_rot.T, axis=1) * focal_px
     if float(np.median(moved)) < params.still_px:
-        return RelativePose(R_rot, np.zeros(3), len(b1), True, b1, b2)
+        cov = rotation_covariance(R_rot, b1, b2, focal_px)
+        return RelativePose(R_rot, np.zeros(3), len(b1), True, b1, b2, cov)
     p1, p2 = _normalised(b1), _normalised(b2)
     E, mask = cv2.findEssentialMat(
         p1, p2, np.eye(3), method=cv2.USAC_MAGSAC, prob=0.999, threshold=params.ransac_threshold_px / focal_px
@@ -166,7 +171,8 @@ def relative_pose(
     if n < params.min_inliers or n < params.min_inlier_ratio * len(b1):
         return None
     R, t = refine_essential(R, t, b1[inl], b2[inl])
-    return RelativePose(R, t, n, False, b1[inl], b2[inl])
+    cov = essential_covariance(R, t, b1[inl], b2[inl], focal_px)
+    return RelativePose(R, t, n, False, b1[inl], b2[inl], cov)
 
 
 def _nearer_of_twisted_pair(R: FloatArray, t: FloatArray, R_rot: FloatArray) -> FloatArray:
@@ -247,6 +253,8 @@ def planar_motion(R: FloatArray, t_unit: FloatArray, up_cam: FloatArray, max_til
 # The forward-difference step of refine_essential's Jacobian, and the rotations by it
 # about each camera axis.
 _EPS = 1e-7
+# The least 1-sigma (pixels) a fit's residuals are taken to have (noise-free images).
+MIN_PIXEL_SIGMA_PX = 0.1
 _NUDGES = np.stack([rotvec_to_R(_EPS * e) for e in np.eye(3)])
 _X, _Y = np.eye(3)[:2]
 
@@ -265,18 +273,7 @@ def refine_essential(
     r = _sampson(R, t, x1, x2)
     cost = float(r @ r)
     for _ in range(iterations):
-        E_t = _skew(t)  # also t's cross products
-        u1 = E_t @ (_X if abs(t[0]) < 0.9 else _Y)
-        u1 /= np.linalg.norm(u1)
-        u2 = E_t @ u1
-        ta, tb = t + _EPS * u1, t + _EPS * u2
-        E = np.concatenate(
-            [
-                E_t @ (_NUDGES @ R),  # the three rotations
-                np.stack([_skew(ta / np.linalg.norm(ta)) @ R, _skew(tb / np.linalg.norm(tb)) @ R]),
-            ]
-        )
-        J = ((_sampson_of(E, x1, x2) - r) / _EPS).T  # (N, 5)
+        J, u1, u2 = _sampson_jacobian(R, t, x1, x2, r)
         try:
             step = -np.linalg.solve(J.T @ J + 1e-9 * np.eye(5), J.T @ r)
         except np.linalg.LinAlgError:
@@ -290,6 +287,106 @@ def refine_essential(
     return R, t
 
 
+def _sampson_jacobian(
+    R: FloatArray, t: FloatArray, x1: FloatArray, x2: FloatArray, r: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(N, 5) Jacobian of the Sampson distances ``r`` at (R, t) over :func:`refine_essential`'s
+    parameters (forward differences), and the tangent directions u1, u2 of t."""
+    E_t = _skew(t)  # also t's cross products
+    u1, u2 = _tangents(t)
+    ta, tb = t + _EPS * u1, t + _EPS * u2
+    E = np.concatenate(
+        [
+            E_t @ (_NUDGES @ R),  # the three rotations
+            np.stack([_skew(ta / np.linalg.norm(ta)) @ R, _skew(tb / np.linalg.norm(tb)) @ R]),
+        ]
+    )
+    J: FloatArray = ((_sampson_of(E, x1, x2) - r) / _EPS).T
+    return J, u1, u2
+
+
+def _tangents(t: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Two unit directions orthogonal to the unit vector t (and to each other)."""
+    u1 = _skew(t) @ (_X if abs(t[0]) < 0.9 else _Y)
+    u1 /= np.linalg.norm(u1)
+    return u1, _skew(t) @ u1
+
+
+def run_covariance(
+    R: FloatArray,
+    t: FloatArray,
+    rel_covariance: FloatArray,
+    scale_sigma_m: float,
+    T_cam_laser: FloatArray,
+    still_sigma_m: float = 0.0,
+) -> FloatArray:
+    """The covariance (3, 3) of a run's planar laser motion (dx, dy, dyaw; Section VI's
+    reduction to two dimensions) from the camera's (``x2 = R x1 + t``, t metric):
+
+    - moving (``rel_covariance`` (5, 5), :func:`essential_covariance`): the rotation and
+      the translation's direction from the tracks' fit, scaled by |t|, and the length's
+      1-sigma ``scale_sigma_m`` (the scale votes', :meth:`ScaleEstimate.sigma`; OPEN_SIGMA_M
+      for a run without a scale);
+    - still (``rel_covariance`` (3, 3), :func:`rotation_covariance`; t = 0): the rotation,
+      and a translation of 1-sigma ``still_sigma_m`` in every direction (what the
+      still test lets through);
+
+    propagated to first order through T_l1_l2 = T_cam_laser^-1 [R | t]^-1 T_cam_laser
+    (forward differences)."""
+    length = float(np.linalg.norm(t))
+    if rel_covariance.shape == (5, 5) and length > 0:
+        unit = t / length
+        u1, u2 = _tangents(unit)
+        A = np.zeros((6, 6))
+        A[:3, :3] = np.eye(3)
+        A[3:, 3], A[3:, 4], A[3:, 5] = length * u1, length * u2, unit
+        inner = np.zeros((6, 6))
+        inner[:5, :5], inner[5, 5] = rel_covariance, scale_sigma_m**2
+        cov6 = A @ inner @ A.T
+    else:
+        cov6 = np.zeros((6, 6))
+        cov6[:3, :3] = rel_covariance[:3, :3]
+        cov6[3:, 3:] = still_sigma_m**2 * np.eye(3)
+    T_laser_cam = np.linalg.inv(T_cam_laser)
+
+    def planar(d: FloatArray) -> FloatArray:
+        T = T_laser_cam @ np.linalg.inv(make_T(rotvec_to_R(d[:3]) @ R, t + d[3:])) @ T_cam_laser
+        return _planar(T)
+
+    base = planar(np.zeros(6))
+    step = 1e-6
+    diffs = np.column_stack([planar(step * e) - base for e in np.eye(6)])
+    diffs[2] = np.angle(np.exp(1j * diffs[2]))  # yaw differences across +-pi
+    J = diffs / step
+    out: FloatArray = J @ cov6 @ J.T
+    return 0.5 * (out + out.T)
+
+
+def essential_covariance(
+    R: FloatArray, t: FloatArray, b1: FloatArray, b2: FloatArray, focal_px: float
+) -> FloatArray:
+    """The covariance (5, 5) of (R, t_unit) fitted to the inlier bearings (Eq. (5)), in
+    :func:`refine_essential`'s parameters: sigma^2 (J^T J)^-1 at the solution, sigma the
+    Sampson distances' robust spread (1.4826 MAD, at least ``MIN_PIXEL_SIGMA_PX``)."""
+    x1, x2 = _homogeneous(b1), _homogeneous(b2)
+    r = _sampson(R, t, x1, x2)
+    J, _, _ = _sampson_jacobian(R, t, x1, x2, r)
+    sigma = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), MIN_PIXEL_SIGMA_PX / focal_px)
+    out: FloatArray = sigma**2 * np.linalg.pinv(J.T @ J)
+    return out
+
+
+def rotation_covariance(R: FloatArray, b1: FloatArray, b2: FloatArray, focal_px: float) -> FloatArray:
+    """The covariance (3, 3) of a still camera's rotation (:func:`rotation_between`) as a
+    rotation vector on the left of R: sigma^2 (sum_i [b2_i]x^T [b2_i]x)^-1, sigma the
+    bearings' residual spread per axis (at least ``MIN_PIXEL_SIGMA_PX``)."""
+    res = b2 - b1 @ R.T
+    sigma = max(float(np.sqrt(np.mean(np.sum(res**2, axis=1)) / 2.0)), MIN_PIXEL_SIGMA_PX / focal_px)
+    info = sum((_skew(b).T @ _skew(b) for b in b2), np.zeros((3, 3)))
+    out: FloatArray = sigma**2 * np.linalg.pinv(info)
+    return out
+
+
 def _skew(v: FloatArray) -> FloatArray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
@@ -301,6 +398,17 @@ class ScaleEstimate:
     scale: float
     used: int
     per_point: FloatArray
+
+    def sigma(self, quantum: float) -> float:
+        """1-sigma of the scale: the median's of the agreeing votes (1.253 x 1.4826 MAD /
+        sqrt(votes)), at least the search's ``quantum`` (the spacing of its samples) over
+        sqrt(12); NaN without a scale."""
+        if not np.isfinite(self.scale) or self.used == 0:
+            return float("nan")
+        # The agreeing votes: the ``used`` nearest the scale (their median).
+        off = np.sort(np.abs(self.per_point - self.scale))[: self.used]
+        mad = float(np.median(off)) if len(off) else 0.0
+        return max(1.253 * 1.4826 * mad / np.sqrt(self.used), quantum / np.sqrt(12.0))
 
 
 def laser_scale(
@@ -488,6 +596,9 @@ class VoStep:
     inliers: int
     scale_points: int
     status: str  # "ok", "carried", "still", "no-scale", "failed"
+    # (3, 3): the run's planar laser motion's covariance (:func:`run_covariance`), NaN
+    # for a failed run (a constant-velocity guess).
+    covariance: FloatArray | None = field(default=None, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -546,9 +657,12 @@ def visual_odometry(
         kf, j, ia, ib = run
         dt = float(stamps_s[j] - stamps_s[kf])
         rel = relative_pose(tracks[kf].bearings[ia], tracks[j].bearings[ib], focal, params, forward)
-        if rel is None or rel.still:
+        if rel is None:
             return _Measured(kf, j, dt, rel, None)
         P1 = _to_cam(T_cam_laser, laser_points(kf))
+        if rel.still:
+            depth = float(np.median(np.linalg.norm(P1, axis=1))) if len(P1) else float("nan")
+            return _Measured(kf, j, dt, rel, None, depth)
         g1, g2 = image(kf), image(j)
         gain = gain_between(g1, tracks[kf].pixels[ia], g2, tracks[j].pixels[ib]) if gain_compensation else 1.0
         est = laser_scale(g1, g2, camera, rel.R, rel.t_unit, P1, params.max_speed_mps * dt, params, gain)
@@ -567,6 +681,9 @@ def visual_odometry(
             if progress is not None:
                 progress(j + 1)
             status, scale_pts = "ok", 0
+            # The run's length's 1-sigma (m): the scale search's sample spacing at least.
+            quantum = params.max_speed_mps * dt / max(params.scale_steps - 1, 1)
+            scale_sigma = OPEN_SIGMA_M
             if rel is None:
                 status = "failed"
             elif rel.still:
@@ -583,6 +700,8 @@ def visual_odometry(
                         if _within_reach(carried, params, dt):
                             status, est = "carried", carried
                 scale_pts = est.used
+                if status != "no-scale":
+                    scale_sigma = est.sigma(quantum)
                 R, t = rel.R, est.scale * rel.t_unit
             if status == "failed":
                 # Constant velocity: the previous run's motion rates over this run's time.
@@ -605,7 +724,10 @@ def visual_odometry(
                 scaled = (scaled[0], R @ scaled[1], R @ scaled[2])
             else:
                 scaled = None
-            chain.append(_Chained(kf, j, dt, rel, status, R, t, scale_pts))
+            if status == "still":
+                # What the still test lets through: still_px at the laser points' distance.
+                scale_sigma = params.still_px / focal * (m.depth_m if np.isfinite(m.depth_m) else 1.0)
+            chain.append(_Chained(kf, j, dt, rel, status, R, t, scale_pts, scale_sigma))
     # Runs left without a scale before one that has it (after a stop, say, nothing carried
     # the scale into them) take it back from the run after, last first.
     for k in range(len(chain) - 2, -1, -1):
@@ -623,8 +745,13 @@ def visual_odometry(
             params,
         )
         if _within_reach(back, params, c.dt):
+            quantum = params.max_speed_mps * c.dt / max(params.scale_steps - 1, 1)
             chain[k] = dataclasses.replace(
-                c, status="carried", t=back.scale * c.rel.t_unit, scale_points=back.used
+                c,
+                status="carried",
+                t=back.scale * c.rel.t_unit,
+                scale_points=back.used,
+                scale_sigma_m=back.sigma(quantum),
             )
     T_w_c = np.linalg.inv(T_cam_laser)  # the first laser pose is the origin
     frames = [0]
@@ -634,7 +761,12 @@ def visual_odometry(
         T_w_c = T_w_c @ np.linalg.inv(make_T(c.R, c.t))
         frames.append(c.last)
         poses.append(_planar(T_w_c @ T_cam_laser))
-        steps.append(VoStep(c.first, c.last, 0 if c.rel is None else c.rel.inliers, c.scale_points, c.status))
+        cov = np.full((3, 3), np.nan)
+        if c.rel is not None and c.rel.covariance is not None and c.status != "failed":
+            still_m = c.scale_sigma_m if c.status == "still" else 0.0
+            cov = run_covariance(c.R, c.t, c.rel.covariance, c.scale_sigma_m, T_cam_laser, still_m)
+        inliers = 0 if c.rel is None else c.rel.inliers
+        steps.append(VoStep(c.first, c.last, inliers, c.scale_points, c.status, cov))
     return VoResult(np.array(frames, dtype=np.intp), np.array(poses), tuple(steps))
 
 
@@ -656,6 +788,7 @@ class _Chained:
     R: FloatArray
     t: FloatArray
     scale_points: int
+    scale_sigma_m: float = OPEN_SIGMA_M  # the length's 1-sigma (still: the translation's)
 
 
 @dataclass(frozen=True)
@@ -668,6 +801,7 @@ class _Measured:
     dt: float
     rel: RelativePose | None
     scale: ScaleEstimate | None
+    depth_m: float = float("nan")  # a still run's laser points' median distance
 
 
 def _runs(

@@ -1,0 +1,196 @@
+"""The Kalman filter against its inputs, lap by lap: ICP, VO, the KF with the paper's fixed
+covariances and the KF with each step's own covariance (docs/localization.md).
+
+For each built-in loop and seed a drive of ``--duration-s`` seconds (40 by default; the
+whole lap with 0) is simulated (``rigcal simulate world``: 30 m laser at 40 Hz, 10 Hz
+camera; ``--wheel-odometry`` adds the base's wheel odometry, which then is ICP's initial
+guess and a KF input) and localized once: the laser odometry and the visual odometry
+are computed once, then three filters are run on them (:data:`VARIANTS`: the paper's
+fixed covariances, each step's own, and each step's own matched to its input's
+innovations, which ``rigcal localize --method kf`` runs). Each is scored against the
+truth (ATE RMSE after anchoring the first pose, as ``rigcal localize`` scores).
+
+Consistency (NEES, normalized estimation error squared; 3 for a consistent 3-dof
+estimate): each input's steps against the truth's motion over the same interval
+(x, y, yaw in the step's start frame) with the step's covariance, and the KF's poses
+against the truth with the filter's covariance. The mean over a lap is printed.
+
+    .venv/bin/python benchmarks/bench_kf.py [--worlds cubicle-loop,corridor-loop]
+        [--seeds 1-10] [--duration-s 40] [--wheel-odometry] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import pickle
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bench_tracks import seeds_of
+from rigcal.geometry import pose_of, se2
+from rigcal.io.trajectory import read_tum
+from rigcal.localize import kalman
+from rigcal.localize.metrics import anchored, evaluate
+from rigcal.localize.pipeline import kf_inputs, kf_measurements, planar_at
+from rigcal.localize.streams import open_streams
+from rigcal.sim.drive import DriveSpec, write_drive
+from rigcal.sim.world import BUILTIN
+
+FloatArray = NDArray[np.float64]
+# The filters compared: the paper's fixed covariances, each step's own, and each step's
+# own matched to its input's innovations (the default).
+VARIANTS = {
+    "kf-fixed": kalman.KfParams(weights="fixed", adapt=False),
+    "kf-own": kalman.KfParams(adapt=False),
+    "kf": kalman.KfParams(),
+}
+
+
+def step_nees(ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArray) -> FloatArray:
+    """Each increment's NEES against the truth's motion over its interval."""
+    out = []
+    t0s = planar_at_stamps(truth, stamps, np.array([m.t0 for m in ms]))
+    t1s = planar_at_stamps(truth, stamps, np.array([m.t1 for m in ms]))
+    for m, a, b in zip(ms, t0s, t1s, strict=True):
+        true = pose_of(np.linalg.inv(se2(a)) @ se2(b))
+        e = m.motion - true
+        e[2] = np.angle(np.exp(1j * e[2]))
+        out.append(float(e @ np.linalg.solve(m.covariance, e)))
+    return np.array(out)
+
+
+def planar_at_stamps(truth: FloatArray, stamps: FloatArray, at: FloatArray) -> FloatArray:
+    """The truth (N, 3) at ``stamps`` (N,) interpolated at ``at``."""
+    yaw = np.unwrap(truth[:, 2])
+    return np.column_stack(
+        [np.interp(at, stamps, truth[:, 0]), np.interp(at, stamps, truth[:, 1]), np.interp(at, stamps, yaw)]
+    )
+
+
+def pose_nees(poses: FloatArray, covs: FloatArray, gt: FloatArray) -> FloatArray:
+    """The KF's poses' NEES against the truth (both anchored at the first pose)."""
+    e = poses - gt
+    e[:, 2] = np.angle(np.exp(1j * e[:, 2]))
+    out = [float(v @ np.linalg.solve(c + 1e-12 * np.eye(3), v)) for v, c in zip(e[1:], covs[1:], strict=True)]
+    return np.array(out)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--worlds", default="cubicle-loop,corridor-loop")
+    ap.add_argument("--seeds", default="1-10", help='"1", "1,2,3" or "1-10".')
+    ap.add_argument("--duration-s", type=float, default=40.0, help="Drive length (0: the whole lap).")
+    ap.add_argument("--wheel-odometry", action="store_true", help="Simulate and fuse wheel odometry.")
+    ap.add_argument("--keep", type=Path, help="Keep (and reuse) the sequences in this folder.")
+    ap.add_argument("--reuse", action="store_true", help="Reuse each lap's odometries of an earlier run.")
+    args = ap.parse_args()
+    duration = args.duration_s or None
+    scores: dict[tuple[str, str], list[float]] = defaultdict(list)
+    wins: dict[str, list[bool]] = defaultdict(list)
+    with tempfile.TemporaryDirectory() as tmp:
+        root = args.keep or Path(tmp)
+        root.mkdir(parents=True, exist_ok=True)
+        print(
+            "| world | seed | ICP ATE (m) | VO ATE (m) | odom ATE (m) | KF fixed ATE (m) | KF own ATE (m) "
+            "| KF ATE (m) | KF <= best input | NEES ICP steps | NEES VO runs | NEES KF poses | KF s |"
+        )
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        for seed in seeds_of(args.seeds):
+            for name in args.worlds.split(","):
+                tag = f"-{duration:g}s" if duration else ""
+                tag += "-wheels" if args.wheel_odometry else ""
+                seq = root / f"{name}-seed{seed}{tag}"
+                if not (seq / "sequence.yaml").exists():
+                    spec = DriveSpec(seed=seed, duration_s=duration, wheel_odometry=args.wheel_odometry)
+                    write_drive(BUILTIN[name](), spec, str(seq))
+                row = lap(seq, args.reuse)
+                for k, v in row.items():
+                    if isinstance(v, float):
+                        scores[name, k].append(v)
+                inputs = [row[k] for k in ("icp", "vo", "odom") if isinstance(row.get(k), float)]
+                best = min(inputs)
+                win = row["kf"] <= best
+                wins[name].append(win)
+                odom = f"{row['odom']:.4f}" if "odom" in row else "-"
+                print(
+                    f"| {name} | {seed} | {row['icp']:.4f} | {row['vo']:.4f} | {odom} "
+                    f"| {row['kf-fixed']:.4f} | {row['kf-own']:.4f} | {row['kf']:.4f} "
+                    f"| {'yes' if win else 'no'} "
+                    f"| {row['nees-icp']:.2f} | {row['nees-vo']:.2f} | {row['nees-kf']:.2f} "
+                    f"| {row['kf-s']:.2f} |",
+                    flush=True,
+                )
+    print(
+        "\n| world | laps | ICP ATE mean (m) | VO ATE mean (m) | KF fixed ATE mean (m) | KF ATE mean (m) "
+        "| KF ATE worst (m) | laps KF <= best input |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for name in args.worlds.split(","):
+        s = {k: np.array(v) for (w, k), v in scores.items() if w == name}
+        print(
+            f"| {name} | {len(wins[name])} | {s['icp'].mean():.4f} | {s['vo'].mean():.4f} "
+            f"| {s['kf-fixed'].mean():.4f} | {s['kf-own'].mean():.4f} | {s['kf'].mean():.4f} "
+            f"| {s['kf'].max():.4f} "
+            f"| {sum(wins[name])} of {len(wins[name])} |"
+        )
+
+
+def lap(seq: Path, reuse: bool = False) -> dict[str, float]:
+    """One lap's ATEs, NEES means and the filter's time. ``reuse``: take the visual
+    odometry from an earlier run's ``vo-result.pkl`` in the lap's folder (written by every
+    run), to try the filter's settings without tracking the images again (the laser
+    odometry is computed again)."""
+    streams = open_streams(seq)
+    cache = seq / "vo-result.pkl"
+    if reuse and cache.exists():
+        streams.results["vo"] = pickle.loads(cache.read_bytes())
+    else:
+        streams.start_laser_odometry()
+        streams.feature_tracks()
+    od, res = kf_inputs(streams)
+    cache.write_bytes(pickle.dumps(res))
+    assert streams.sequence.groundtruth_file is not None
+    truth = read_tum(seq / streams.sequence.groundtruth_file)
+    assert truth.stamps_s is not None
+    gt_all = planar_at(truth, truth.stamps_s)
+    row: dict[str, float] = {}
+
+    def ate(stamps: FloatArray, poses: FloatArray) -> float:
+        return float(
+            evaluate(anchored(poses, planar_at(truth, stamps)), planar_at(truth, stamps))["ate_rmse_m"]
+        )
+
+    for key, params in VARIANTS.items():
+        ms = kf_measurements(streams, od, res, params)
+        t0 = time.perf_counter()
+        kf = kalman.run_filter(ms, params)
+        seconds = time.perf_counter() - t0
+        row[key] = ate(kf.stamps_s, kf.poses)
+        if key == "kf":
+            row["kf-s"] = seconds
+            wheel = [m for m in ms if m.source == "wheel"]
+            if wheel:  # the wheel odometry's own path: its steps chained
+                T, path = np.eye(3), [np.zeros(3)]
+                for m in wheel:
+                    T = T @ se2(m.motion)
+                    path.append(pose_of(T))
+                row["odom"] = ate(np.array([wheel[0].t0] + [m.t1 for m in wheel]), np.array(path))
+            for src in ("icp", "vo"):
+                row[f"nees-{src}"] = float(
+                    np.mean(step_nees([m for m in ms if m.source == src], gt_all, truth.stamps_s))
+                )
+            gt = planar_at(truth, kf.stamps_s)
+            row["nees-kf"] = float(np.mean(pose_nees(anchored(kf.poses, gt), kf.covariances, gt)))
+    row["icp"] = ate(streams.scan_stamps_s, od.poses)
+    row["vo"] = ate(streams.image_stamps_s[res.frames], res.poses)
+    streams.stop_background()
+    return row
+
+
+if __name__ == "__main__":
+    main()
