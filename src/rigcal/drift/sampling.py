@@ -234,6 +234,17 @@ def _project_sample_kernel(
         _chain(pts[n], R, g0, g1, g2, d_point[n], d_rot[n])
 
 
+def compile_now() -> None:
+    """Compile (or load from the cache) the kernel with the argument types the check uses,
+    on one point (``rigcal warm-up``: a drive long enough to reach the check's estimate
+    would take the warm-up minutes to simulate)."""
+    from rigcal.camera import Camera
+
+    cam = Camera.from_opencv(np.diag([100.0, 100.0, 1.0]) + np.eye(3, k=2) * 10.0, [], 20, 20)
+    stack = np.zeros((1, 20, 20), dtype=np.uint16)
+    project_sample(np.array([[0.0, 0.0, 1.0]]), np.eye(3), np.zeros(3), cam, stack, np.zeros(1, np.int64), 1)
+
+
 def project_sample_reference(
     points: FloatArray,
     R: FloatArray,
