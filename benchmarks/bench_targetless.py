@@ -175,6 +175,10 @@ def rate(k: int, n: int) -> str:
     return f"{k}/{n} ({100 * lo:.0f}-{100 * hi:.0f} %)"
 
 
+def label(length: str) -> str:
+    return "full lap" if length == "full" else f"{length} s"
+
+
 def report(rows: list[dict], sizes: list[tuple[float, ...]]) -> None:  # type: ignore[type-arg]
     print(
         "\n| drive | unperturbed: false alarms (95 % interval) / cannot tell | "
@@ -193,7 +197,7 @@ def report(rows: list[dict], sizes: list[tuple[float, ...]]) -> None:  # type: i
         ratio = [r["wall_s"] / r["icp_s"] for r in first if r["icp_s"] > 0]
         rel = f"{min(ratio):.2f}-{max(ratio):.2f}" if ratio else "-"
         cells = [
-            f"{length} s",
+            label(length),
             f"{rate(fa, len(r0) - ct)} / {ct}",
             f"{min(speed):.1f}-{max(speed):.1f}, {min(both):.1f}-{max(both):.1f}",
             rel,
@@ -216,7 +220,7 @@ def report(rows: list[dict], sizes: list[tuple[float, ...]]) -> None:  # type: i
                 unit = "deg" if axis.startswith("r") else "mm"
                 e = f"{np.median(err):.3f}, {max(err):.3f} {unit}" if err else "-"
                 cells = [
-                    f"{length} s",
+                    label(length),
                     axis,
                     f"{size:g} {unit}",
                     f"{len(obs)}/{len(rs)}",
