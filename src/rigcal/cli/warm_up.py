@@ -10,7 +10,8 @@ import click
 
 # The commands a newcomer runs, on small simulated data: together they call every kernel
 # (P3P and Horn in the solves, line extraction, ICP and its grid search, the odometry's
-# line carrying, IASM's matching, the image reader), with the argument types real runs use.
+# line carrying, IASM's matching, the image reader), with the argument types real runs use;
+# the targetless check's kernel is called directly (its drives take long to simulate).
 _COMMANDS = (
     "simulate box-session -o {tmp}/box --captures 8 --no-images",
     "solve {tmp}/box/picks.yaml -o {tmp}/box-rig.yaml",
@@ -57,6 +58,9 @@ def warm_up(ctx: click.Context) -> None:
                     cli.main(args=["-q", *args], prog_name="rigcal", standalone_mode=False)
             except RigcalError as exc:  # pragma: no cover - a bug: the data are rigcal's own
                 raise RuntimeError(f"rigcal {' '.join(args)} failed: {exc}\n{sink.getvalue()}") from exc
+    from rigcal.drift.sampling import compile_now
+
+    compile_now()
     root = ctx.find_root().obj or {}
     configure(root.get("verbose", 0), root.get("quiet", False))  # the inner -q changed the level
     new = COMPILED[before:]

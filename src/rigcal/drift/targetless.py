@@ -52,6 +52,7 @@ from scipy.stats import f as f_dist
 from scipy.stats import ncx2, norm
 
 from rigcal.calib.lines import return_labels
+from rigcal.drift.sampling import GREY_SCALE, project_sample
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R, se2
 from rigcal.localize.iasm import snap_to_lines
@@ -317,7 +318,8 @@ def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patche
     n_pairs = 0
     n_degenerate = 0
     seen_returns = 0
-    for k, i in enumerate(frames):
+    # The used frames decoded ahead on a second thread (their decoding overlaps the work).
+    for k, (i, gray) in enumerate(zip(frames, streams.images_at(frames), strict=True)):
         streams.report("targetless check: frames", k + 1, len(frames))
         t_i = float(img_t[i])
         partners = []
@@ -332,7 +334,7 @@ def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patche
             partners.append(j)
         if not partners:
             continue
-        X = _frame_grid(streams, i, T0, cam, s, f_mean, ga, gb)
+        X = _frame_grid(streams, i, gray, T0, cam, s, f_mean, ga, gb)
         if X is None:
             continue
         seen_returns += len(X)
@@ -400,6 +402,7 @@ def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patche
 def _frame_grid(
     streams: Streams,
     i: int,
+    gray: NDArray[np.uint8],
     T0: FloatArray,
     cam: Any,
     s: TargetlessSettings,
@@ -407,8 +410,8 @@ def _frame_grid(
     ga: FloatArray,
     gb: FloatArray,
 ) -> FloatArray | None:
-    """(R, S, 3) grids on the walls around image i's chosen returns (laser frame at the
-    image's stamp), or None when none is usable."""
+    """(R, S, 3) grids on the walls around image i's (``gray``) chosen returns (laser frame
+    at the image's stamp), or None when none is usable."""
     k, T_img_scan = streams.scan_to_image(i)
     scan = streams.scans[k]
     labels = return_labels(scan, streams.lines(k))
@@ -446,7 +449,6 @@ def _frame_grid(
         + (gb[None, :, None] * step_m[:, None, None]) * up[None, None, :]
     )
     # Texture: the grid's grey levels in image i under the stored T.
-    gray = streams.image(i)
     qs = cam.project((X @ T0[:3, :3].T + T0[:3, 3]).reshape(-1, 3))
     v = _sample(gray.astype(np.float32), qs).reshape(len(X), -1)
     textured = np.nanstd(v, axis=1) >= s.min_texture
@@ -480,7 +482,6 @@ _FIXED = 5  # laser z: never observed by a planar drive (module docstring, step 
 # The odometry's errors, per unit: scale 0.1 %, yaw scale 0.1 %, yaw rate 1 mrad/s, pivot 1 mm,
 # crab angle 1 mrad.
 _NUISANCE_UNITS = (1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3)
-_GRAD_STEP_PX = 0.5
 PRIOR_UNITS = 10.0  # the weak prior's sigma, in resolutions (and odometry error units)
 
 
@@ -492,44 +493,66 @@ def _levels(ratio: FloatArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     return li, lj
 
 
+DOWNSAMPLE_BLUR_PX = 2.5
+"""A stage whose blur (1 sigma, with the camera's own) is at least this is read from
+images of half the size (a quarter of the blurring and the memory; the blur still spans
+more than a pixel of the smaller image)."""
+
+
+BAND_MARGIN_PX = 24.0
+"""The stacks hold the band of rows the patches fall in under the stored T, this much
+wider on either side (a correction of 2 deg moves a return about 18 px)."""
+
+
 class _Images:
-    """The blurred images of a stage, by (image, level), made when first asked for; grey
-    levels x 64 as uint16 (an eighth of float64's memory, 1/64 grey level steps)."""
+    """The blurred images of a stage: every (image, blur level) the patches read, made
+    once, in one stack (:mod:`rigcal.drift.sampling`), grey levels x 64 as uint16 (an
+    eighth of float64's memory, 1/64 grey level steps), the band of rows the patches
+    fall in only; half size when the stage's blur is wide."""
 
-    def __init__(self, streams: Streams, blur_px: float, native_px: float) -> None:
-        self.streams = streams
-        self.total = math.hypot(blur_px, native_px)
-        self.native = native_px
-        self.kept: dict[tuple[int, int], NDArray[np.uint16]] = {}
+    def __init__(
+        self, streams: Streams, patches: _Patches, rows: tuple[float, float], blur_px: float, native_px: float
+    ) -> None:
+        total = math.hypot(blur_px, native_px)
+        self.down = down = 2 if total >= DOWNSAMPLE_BLUR_PX else 1
+        li, lj = _levels(patches.ratio)
+        keys = np.unique(np.r_[patches.img_i * LEVELS + li, patches.img_j * LEVELS + lj])
+        self.key_i = np.searchsorted(keys, patches.img_i * LEVELS + li)
+        self.key_j = np.searchsorted(keys, patches.img_j * LEVELS + lj)
+        # A pixel (u, v) of a half-size image is the mean of full-size pixels (2u, 2v) to
+        # (2u + 1, 2v + 1): a box of 2 pixels adds a variance of 0.25 pixel^2 to the blur.
+        base = native_px**2 + (0.25 if down > 1 else 0.0)
+        sigmas = [math.sqrt(max((total * LEVEL_STEP**k) ** 2 - base, 0.04)) / down for k in range(LEVELS)]
+        height = streams.rig.camera.height_px // down if streams.rig is not None else 0
+        lo = max(math.floor((rows[0] - BAND_MARGIN_PX - 0.5) / down), 0)
+        hi = min(math.ceil((rows[1] + BAND_MARGIN_PX - 0.5) / down) + 1, height)
+        pad = math.ceil(4.0 * max(sigmas)) + 1  # rows beyond the band the blur reads
+        self.row0 = lo
+        self.stack: NDArray[np.uint16] | None = None
+        for n, key in enumerate(keys):
+            img, level = divmod(int(key), LEVELS)
+            if n == 0 or img != int(keys[n - 1]) // LEVELS:
+                g = np.asarray(streams.image(img), dtype=np.uint16) * np.uint16(GREY_SCALE)
+                if down > 1:
+                    half = (g.shape[1] // 2, g.shape[0] // 2)
+                    g = np.asarray(cv2.resize(g, half, interpolation=cv2.INTER_AREA), dtype=np.uint16)
+                a = max(lo - pad, 0)
+                g = g[a : min(hi + pad, g.shape[0])]
+            b = cv2.GaussianBlur(g, (0, 0), sigmas[level])[lo - a : hi - a]
+            if self.stack is None:
+                self.stack = np.empty((len(keys), *b.shape), dtype=np.uint16)
+            self.stack[n] = b
 
-    def get(self, img: int, level: int) -> NDArray[np.uint16]:
-        key = (img, level)
-        out = self.kept.get(key)
-        if out is None:
-            sigma = math.sqrt(max((self.total * LEVEL_STEP**level) ** 2 - self.native**2, 0.04))
-            g = self.streams.image(img).astype(np.float32)
-            b = cv2.GaussianBlur(g, (0, 0), sigma)
-            out = np.asarray(np.clip(b * 64.0 + 0.5, 0, 65535), dtype=np.uint16)
-            self.kept[key] = out
-        return out
 
-
-def _sample_with_gradient(
-    image: NDArray[np.uint16], q: FloatArray, width: int, height: int
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Grey levels and their x, y derivatives (central differences) at sub-pixel points
-    (NaN outside the image)."""
-    h = _GRAD_STEP_PX
-    n = len(q)
-    dx, dy = np.array([h, 0.0]), np.array([0.0, h])
-    pts = np.concatenate([q, q + dx, q - dx, q + dy, q - dy]).astype(np.float32)
-    v = cv2.remap(image, pts[:, 0:1], pts[:, 1:2], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    v = np.asarray(v, dtype=np.float64).ravel() / 64.0
-    inside = (q[:, 0] >= 1.0) & (q[:, 1] >= 1.0) & (q[:, 0] <= width - 2.0) & (q[:, 1] <= height - 2.0)
-    val = np.where(inside, v[:n], np.nan)
-    gx = (v[n : 2 * n] - v[2 * n : 3 * n]) / (2 * h)
-    gy = (v[3 * n : 4 * n] - v[4 * n :]) / (2 * h)
-    return val, gx, gy
+def _rows(rig: Rig, patches: _Patches) -> tuple[float, float]:
+    """The image rows the patches fall in, in both frames, under the stored T."""
+    T = rig.T_cam_laser
+    X = patches.X.reshape(-1, 3)
+    Y = patches.X @ patches.M[:, :3, :3].transpose(0, 2, 1) + patches.M[:, None, :3, 3]
+    Y = Y.reshape(-1, 3)
+    q = rig.camera.project(np.concatenate([X, Y]) @ T[:3, :3].T + T[:3, 3])
+    v = q[np.isfinite(q[:, 1]), 1]
+    return (float(v.min()), float(v.max())) if len(v) else (0.0, float(rig.camera.height_px))
 
 
 def _residuals(
@@ -547,29 +570,22 @@ def _residuals(
     t0 = patches.M[:, :3, 3]
     crabbed = t0 + crab * np.column_stack([-t0[:, 1], t0[:, 0], np.zeros(len(t0))])
     t_M = crabbed * (1.0 + eps) + R_I @ np.array([lx, ly, 0.0])
-    RX = np.einsum("pab,psb->psa", patches.M[:, :3, :3], X)
+    RX = X @ patches.M[:, :3, :3].transpose(0, 2, 1)
     turn = patches.yaw * kappa + patches.dt * bias
     c, sn = np.cos(turn)[:, None], np.sin(turn)[:, None]
     RX = np.stack([c * RX[..., 0] - sn * RX[..., 1], sn * RX[..., 0] + c * RX[..., 1], RX[..., 2]], axis=-1)
     Y = RX + t_M[:, None, :]
-    li, lj = _levels(patches.ratio)
     out_v, out_J = [], []
-    for pts, which, level in ((X, patches.img_i, li), (Y, patches.img_j, lj)):
-        Pc = pts @ T[:3, :3].T + T[:3, 3]
-        q, dq = cam.project_with_gradient(Pc.reshape(-1, 3))
-        v = np.empty(len(q))
-        gx = np.empty(len(q))
-        gy = np.empty(len(q))
-        for key, m in _groups(np.repeat(which * LEVELS + level, S)):
-            v[m], gx[m], gy[m] = _sample_with_gradient(
-                images.get(key // LEVELS, key % LEVELS), q[m], cam.width_px, cam.height_px
-            )
-        # d grey / d x (laser frame): the image gradient through dq/dP and R.
-        g_pix = gx[:, None] * dq[:, 0, :] + gy[:, None] * dq[:, 1, :]
-        gR = g_pix @ T[:3, :3]
-        x = pts.reshape(-1, 3)
-        # x' = Exp(w) x + v: d grey / d w = x cross gR, d grey / d v = gR.
-        J = np.column_stack([np.cross(x, gR), gR, np.zeros((len(x), 6))])
+    assert images.stack is not None
+    for pts, key in ((X, images.key_i), (Y, images.key_j)):
+        which = np.repeat(key, S)
+        v, d_point, d_rot = project_sample(
+            pts.reshape(-1, 3), T[:3, :3], T[:3, 3], cam, images.stack, which, images.down, images.row0
+        )
+        # x' = Exp(w) x + v: d grey / d w = x cross d grey / d x, d grey / d v = d grey / d x.
+        J = np.zeros((Pn * S, 12))
+        J[:, :3] = d_rot
+        J[:, 3:6] = d_point
         out_v.append(v.reshape(Pn, S))
         out_J.append(J.reshape(Pn, S, 12))
     a, b = out_v
@@ -577,11 +593,11 @@ def _residuals(
     # The odometry's errors move frame j's points: its scale along the step (d y / d eps =
     # t_M), its yaw about the laser's z (d y / d turn = z cross R x).
     gRb = Jb[:, :, 3:6]
-    Jb[:, :, 6] = np.einsum("psk,pk->ps", gRb, patches.M[:, :3, 3])
+    Jb[:, :, 6] = (gRb @ patches.M[:, :3, 3:4])[..., 0]
     d_turn = gRb[..., 1] * RX[..., 0] - gRb[..., 0] * RX[..., 1]
     Jb[:, :, 7] = d_turn * patches.yaw[:, None]
     Jb[:, :, 8] = d_turn * patches.dt[:, None]
-    Jb[:, :, 9:11] = np.einsum("psk,pkl->psl", gRb, R_I[:, :, :2])
+    Jb[:, :, 9:11] = gRb @ R_I[:, :, :2]
     Jb[:, :, 11] = gRb[..., 1] * t0[:, None, 0] - gRb[..., 0] * t0[:, None, 1]
     usable = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
     a = np.where(usable[:, None], a, 0.0)
@@ -603,14 +619,6 @@ def _residuals(
     return r, J, usable
 
 
-def _groups(rows: NDArray[np.int64]) -> list[tuple[int, NDArray[np.intp]]]:
-    """(value, indices) of each distinct value of ``rows``."""
-    order = np.argsort(rows, kind="stable")
-    values, starts = np.unique(rows[order], return_index=True)
-    ends = np.r_[starts[1:], len(rows)]
-    return [(int(v), order[a:b]) for v, a, b in zip(values, starts, ends, strict=True)]
-
-
 def _weights(r: FloatArray, usable: NDArray[np.bool_]) -> FloatArray:
     """Cauchy weights per patch from its mean squared residual (occlusions, a patch
     across an edge or off the wall weigh little)."""
@@ -629,7 +637,7 @@ def _normal(
     wf = np.repeat(w, r.shape[1])
     rf = r.ravel()
     H = (Jf * wf[:, None]).T @ Jf
-    gp = np.einsum("psk,ps->pk", J, r) * w[:, None]  # per patch
+    gp = (r[:, None, :] @ J)[:, 0, :] * w[:, None]  # per patch
     g_blocks = np.zeros((n_blocks, K))
     np.add.at(g_blocks, blocks, gp)
     var = float(np.sum(wf * rf**2) / max(np.sum(wf), 1.0))
@@ -658,9 +666,11 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     n_blocks = int(patches.block.max()) + 1
     T = T0.copy()
     nuis = np.zeros(6)
+    rows = _rows(rig, patches)
     for stage, blur in enumerate(s.blur_px):
-        images = _Images(streams, blur, s.native_blur_px)
+        images = _Images(streams, patches, rows, blur, s.native_blur_px)
         last = stage == len(s.blur_px) - 1
+        converged = False
         for it in range(s.iterations + (1 if last else 0)):
             r, J12, usable = _residuals(rig, T, nuis, patches, images)
             if usable.sum() < s.min_returns:
@@ -673,8 +683,8 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
             # A weak prior (PRIOR_UNITS resolutions, or odometry error units) keeps the
             # directions the drive leaves open where they were instead of wandering.
             A = D @ H @ D + max(var, 1e-12) / PRIOR_UNITS**2 * np.eye(len(free))
-            if last and it == s.iterations:
-                break
+            if last and (it == s.iterations or converged):
+                break  # H and the blocks' gradients at the estimate: the covariance's
             dz = -np.linalg.solve(A, D @ g)
             # At most 3 resolutions a step on T (the odometry's errors follow freely: their
             # units are small, and clamping by them would stall the steps along the valley
@@ -683,8 +693,10 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
             d = D @ dz
             T = T @ make_T(rotvec_to_R(d[:3]), np.r_[d[3:5], 0.0])
             nuis += d[5:]
-            if float(np.abs(dz[:5]).max()) < 0.01 and not last:
+            converged = float(np.abs(dz[:5]).max()) < 0.01
+            if converged and not last:
                 break
+        del images  # the next stage's stack replaces it
     Delta = np.linalg.inv(T0) @ T
     xi = np.concatenate([R_to_rotvec(Delta[:3, :3]), Delta[:3, 3]])
     # What the drive determines of xi once the odometry's errors are free: the Schur

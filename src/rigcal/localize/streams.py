@@ -19,6 +19,7 @@ import threading
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator
+from collections.abc import Sequence as PySequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -148,8 +149,12 @@ class Streams:
         """Every frame in order, decoded ``ahead`` frames in advance on a second thread
         (OpenCV's PNG/JPEG decoding releases the interpreter, so it overlaps the work
         done on each frame). Frames already kept are not decoded again."""
-        for i, g in computed_ahead(self._kept_or_decoded, self.n_images, ahead):
-            yield self._keep(i, g)
+        return self.images_at(range(self.n_images), ahead)
+
+    def images_at(self, indices: PySequence[int], ahead: int = 8) -> Iterator[Gray]:
+        """The frames ``indices`` in that order, decoded ahead as :meth:`images_in_order`."""
+        for k, g in computed_ahead(lambda k: self._kept_or_decoded(indices[k]), len(indices), ahead):
+            yield self._keep(indices[k], g)
 
     def _kept_or_decoded(self, i: int) -> Gray:
         with self._lock:

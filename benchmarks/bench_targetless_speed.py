@@ -1,0 +1,76 @@
+"""Speed of the targetless check (``rigcal check RIG --sequence SEQ``) on one window of a
+simulated drive, against the laser odometry of the same window in the same process.
+
+The drive is the one ``bench_targetless.py`` simulates (realistic camera; kept in
+``--cache``). The laser odometry of the window runs first (the reference: ``rigcal
+check`` reuses the odometry a pipeline has computed), then the check (decoding the
+window's images included), then the check again (images kept). Each is timed by the wall
+clock and by the process's CPU time (all threads): on a machine shared with other jobs
+the wall clock measures the load, while the CPU time and the ratio to the odometry do
+not. Printed as x real time (the window's duration over the time) and as the check's
+time over the odometry's.
+
+    .venv/bin/python benchmarks/bench_targetless_speed.py --world corridor-loop --length 60
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+from bench_targetless import drive, window
+from rigcal.drift.targetless import check_targetless
+from rigcal.localize.streams import open_streams
+
+
+def timed(fn):  # type: ignore[no-untyped-def]
+    """(result, wall s, CPU s) of fn()."""
+    c, t = time.process_time(), time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t, time.process_time() - c
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/rigcal-bench-targetless"))
+    ap.add_argument("--world", default="corridor-loop")
+    ap.add_argument("--seed", type=int, default=2)
+    ap.add_argument("--start-s", type=float, default=0.0)
+    ap.add_argument("--length", type=float, default=60.0)
+    args = ap.parse_args()
+    full = open_streams(drive(args.cache, args.world, args.seed))
+    w = window(full, args.start_s, args.length)
+    dur = float(w.scan_stamps_s[-1] - w.scan_stamps_s[0])
+    assert w.rig is not None
+    load0 = os.getloadavg()[0]
+    _, icp_wall, icp_cpu = timed(w.laser_odometry)
+    res, wall1, cpu1 = timed(lambda: check_targetless(w.rig, w))
+    _, wall2, cpu2 = timed(lambda: check_targetless(w.rig, w))
+    row = {
+        "world": args.world,
+        "window_s": round(dur, 1),
+        "verdict": res.verdict,
+        "load": [round(load0, 1), round(os.getloadavg()[0], 1)],
+        "odometry_s": {"wall": round(icp_wall, 2), "cpu": round(icp_cpu, 2)},
+        "check_s": {"wall": round(wall1, 2), "cpu": round(cpu1, 2)},
+        "check_again_s": {"wall": round(wall2, 2), "cpu": round(cpu2, 2)},
+        "check_over_odometry": {"wall": round(wall1 / icp_wall, 2), "cpu": round(cpu1 / icp_cpu, 2)},
+        "x_real_time_cpu": {
+            "odometry": round(dur / icp_cpu, 1),
+            "check": round(dur / cpu1, 1),
+            "check_again": round(dur / cpu2, 1),
+            "odometry_and_check": round(dur / (icp_cpu + cpu1), 1),
+        },
+        "x_real_time_wall": {
+            "check": round(dur / wall1, 2),
+            "odometry_and_check": round(dur / (icp_wall + wall1), 2),
+        },
+    }
+    print(json.dumps(row, indent=1))
+
+
+if __name__ == "__main__":
+    main()
