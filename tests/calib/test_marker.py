@@ -92,6 +92,8 @@ def test_a_print_at_the_wrong_scale_shows_as_a_scale_disagreement(folder, tmp_pa
         w.startswith(f"scale disagreement: the laser puts the faces {ratio:.4f}")
         for w in cal.report["warnings"]
     )
+    # And each face's own pose disagrees with the target's.
+    assert any("own pose is" in w and "off the target's" in w for w in cal.report["warnings"])
 
 
 def test_a_capture_without_the_target_is_set_aside_with_the_reason(folder, tmp_path):
@@ -100,7 +102,8 @@ def test_a_capture_without_the_target_is_set_aside_with_the_reason(folder, tmp_p
     session = read_marker_session(s / "marker_session.yaml")
     assert "cap03" not in session.found
     reason = dict(session.dropped)["cap03"]
-    assert reason.startswith("markers: face left: 0 of its 10 markers seen")
+    assert reason.startswith("markers: 0 ChArUco corners over both faces")
+    assert "face left: 0 of its 10 markers" in reason
     assert len(session.observations) == 2 * len(session.found)
 
 

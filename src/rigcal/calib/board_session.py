@@ -37,7 +37,7 @@ from rigcal.calib.picks import (
 from rigcal.calib.plane import PlaneObservation, check_normals
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import CalibrationError, InputError
-from rigcal.geometry import make_T, rotvec_to_R
+from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
 from rigcal.io.files import check_keys, get_float, load_yaml
 from rigcal.scan import Scan, read_scan
 
@@ -415,17 +415,29 @@ def board_pose(
 
 
 def points_pose(
-    camera: Camera, P: FloatArray, corners_px: FloatArray, corner_sigma_px: float
+    camera: Camera,
+    P: FloatArray,
+    corners_px: FloatArray,
+    corner_sigma_px: float,
+    T_init: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, float]:
-    """The pose of a planar pattern whose points ``P`` ((N, 3), its frame, z = 0) are seen
-    at ``corners_px`` ((N, 2)): T_cam_pattern by PnP through the camera's full lens model,
-    its (6, 6) covariance over [w, dt] (left perturbation, camera frame) from the
-    reprojection Jacobian and ``corner_sigma_px``, and the RMS reprojection error (px)."""
+    """The pose of a pattern whose points ``P`` ((N, 3), its frame; planar or not) are seen
+    at ``corners_px`` ((N, 2)): T_cam_pattern by PnP through the camera's full lens model
+    (from ``T_init`` when given), its (6, 6) covariance over [w, dt] (left perturbation,
+    camera frame, the rotation about the pattern's origin) from the reprojection Jacobian
+    and ``corner_sigma_px``, and the RMS reprojection error (px)."""
     import cv2
 
     b = camera.bearings(corners_px)
     norm = b[:, :2] / b[:, 2:3]
-    ok, rvec, tvec = cv2.solvePnP(P, norm, np.eye(3), None, flags=cv2.SOLVEPNP_ITERATIVE)
+    if T_init is None:
+        ok, rvec, tvec = cv2.solvePnP(P, norm, np.eye(3), None, flags=cv2.SOLVEPNP_ITERATIVE)
+    else:
+        rvec0 = R_to_rotvec(T_init[:3, :3]).reshape(3, 1)
+        tvec0 = np.asarray(T_init[:3, 3], dtype=float).reshape(3, 1).copy()
+        ok, rvec, tvec = cv2.solvePnP(
+            P, norm, np.eye(3), None, rvec0, tvec0, useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE
+        )
     if not ok:  # pragma: no cover - PnP on a full board does not fail
         raise InputError("PnP failed on a pattern's corners")
     T = make_T(rotvec_to_R(rvec.ravel()), tvec.ravel())

@@ -82,11 +82,12 @@ def calibrate_marker(
     T_truth = read_truth(truth_path) if truth_path is not None else None
     session = read_marker_session(path)
     assumed = max(range_sigma_m or float(session.laser.get("range_sigma_m", DEFAULT_RANGE_SIGMA_M)), 1e-4)
-    counts = np.array([len(f.corner_ids) for f in session.faces])
-    # Pooled over faces with their own corner counts (corner_sigma_from_rms per face).
+    counts = np.array([v.n_corners for v in session.views])
+    # Pooled over the captures' target poses with their own corner counts
+    # (corner_sigma_from_rms per pose: 2 n - 6 degrees of freedom).
     ss = sum(
-        corner_sigma_from_rms(np.array([r]), int(n)) ** 2 * (2 * n - 6)
-        for r, n in zip(session.corner_rms_px, counts, strict=True)
+        corner_sigma_from_rms(np.array([v.rms_px]), int(n)) ** 2 * (2 * n - 6)
+        for v, n in zip(session.views, counts, strict=True)
     )
     corner_est = float(np.sqrt(ss / max(int(np.sum(2 * counts - 6)), 1)))
     corner_used = session.corner_sigma_px
@@ -167,8 +168,11 @@ def marker_report(
     report["summary"] = summary | {
         k: v for k, v in s.items() if k not in ("method", "captures", "captures_used")
     }
-    for c, f in zip(report["per_capture"], session.faces, strict=True):
-        c["corners"] = len(f.corner_ids)
+    for j, c in enumerate(report["per_capture"]):
+        view = session.views[j // 2]
+        f = view.faces[j % 2]
+        c["corners"] = 0 if f is None else len(f.corner_ids)
+        c["scans"] = session.scans_per_capture.get(session.found[j // 2], 1)
     apex = apex_distances(session, result)
     scale, scale_sigma = scale_check(session, result)
     foreign = sorted({i for ids in session.foreign_ids.values() for i in ids})
@@ -187,6 +191,8 @@ def marker_report(
     warnings = [w.replace("check its segment id and corners", "check its markers and scan") for w in warnings]
     for n, r in session.dropped:
         warnings.append(f"capture {n}: target not found ({r}); set aside")
+    for n, r in session.disagreements:
+        warnings.append(f"capture {n}: {r}")
     if foreign:
         warnings.append(
             f"{sum(len(v) for v in session.foreign_ids.values())} markers of another target "
@@ -234,11 +240,24 @@ def scale_check(session: MarkerSession, result: PlaneResult) -> tuple[float, flo
     1-sigma: the pose refitted with every face's distance multiplied by a free factor s,
     n . (R p + t) = s d, on the cut ends of the used faces (unweighted; the sigma from the
     fit's residual scale). The returns are taken as the scanner gives them, with no range
-    bias by incidence taken out: the solve's bias would absorb part of a scale."""
+    bias by incidence taken out: the solve's bias would absorb part of a scale.
+
+    The planes are the faces' own poses (each from its own corners) where a face has one:
+    a pattern printed at the wrong scale puts each face at the wrong distance by the print's
+    factor, while the one target pose over both faces, fitted to patterns of the wrong
+    size at the right offsets, takes up an unknown part of it. Faces without an own pose
+    use the target's."""
     used = np.flatnonzero(result.inlier_captures)
-    planes = [
-        (np.asarray(session.observations[i].normal_cam), session.observations[i].distance_m) for i in used
-    ]
+    planes = []
+    for i in used:
+        o = session.observations[i]
+        own = session.views[i // 2].faces[i % 2]
+        if own is not None and own.T_cam_face is not None:
+            n = own.T_cam_face[:3, 2]
+            d = float(n @ own.T_cam_face[:3, 3])
+            planes.append((n, d) if d > 0 else (-n, -d))
+        else:
+            planes.append((np.asarray(o.normal_cam), o.distance_m))
     return fit_scale(result.T_cam_laser, planes, [result.lines[i].ends for i in used])
 
 
