@@ -27,14 +27,20 @@ from typing import Any, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.board_calibrate import DEFAULT_RANGE_SIGMA_M, NOISE_MODES, board_report, board_report_table
+from rigcal.calib.board_calibrate import (
+    DEFAULT_RANGE_SIGMA_M,
+    NOISE_MODES,
+    RIG_RESIDUAL_KEYS,
+    board_report,
+    board_report_table,
+    plane_rig,
+)
 from rigcal.calib.marker_session import MarkerSession, fit_scale, read_marker_session, with_corner_scale
 from rigcal.calib.noise import corner_sigma_from_rms
-from rigcal.calib.plane import LOSS, LOSS_SCALE, PlaneResult, solve_plane
-from rigcal.calib.report import noise_section, rig_uncertainty
+from rigcal.calib.plane import LOSS, PlaneResult, solve_plane
+from rigcal.calib.report import noise_section
 from rigcal.calib.truth import read_truth
 from rigcal.rig import Rig
-from rigcal.rigfile import provenance
 
 FloatArray = NDArray[np.float64]
 
@@ -82,14 +88,11 @@ def calibrate_marker(
     T_truth = read_truth(truth_path) if truth_path is not None else None
     session = read_marker_session(path)
     assumed = max(range_sigma_m or float(session.laser.get("range_sigma_m", DEFAULT_RANGE_SIGMA_M)), 1e-4)
-    counts = np.array([v.n_corners for v in session.views])
-    # Pooled over the captures' target poses with their own corner counts
+    # Pooled over the poses the planes came from, with their own corner counts
     # (corner_sigma_from_rms per pose: 2 n - 6 degrees of freedom).
-    ss = sum(
-        corner_sigma_from_rms(np.array([v.rms_px]), int(n)) ** 2 * (2 * n - 6)
-        for v, n in zip(session.views, counts, strict=True)
-    )
-    corner_est = float(np.sqrt(ss / max(int(np.sum(2 * counts - 6)), 1)))
+    fits = [(r, n) for r, n in session.pose_fits if n > 3]
+    ss = sum(corner_sigma_from_rms(np.array([r]), int(n)) ** 2 * (2 * n - 6) for r, n in fits)
+    corner_est = float(np.sqrt(ss / max(sum(2 * n - 6 for _, n in fits), 1)))
     corner_used = session.corner_sigma_px
     observations = session.observations
     if noise == "auto":
@@ -111,39 +114,20 @@ def calibrate_marker(
         }
     )
     report = marker_report(session, result, T_truth, noise_doc)
-    s = report["summary"]
-    rig = Rig(
-        T_cam_laser=result.T_cam_laser,
-        camera=session.camera,
-        covariance=result.covariance,
-        laser=dict(session.laser),
-        residuals={
-            k: s[k]
-            for k in (
-                "captures",
-                "captures_found",
-                "captures_used",
-                "rms_mm",
-                "max_mm",
-                "residual_scale",
-                "range_bias_mm",
-                "range_bias_sigma_mm",
-            )
-        },
-        provenance=provenance(
-            command,
-            list(session.files),
-            {
-                "method": "marker V target (ChArUco faces, plane method)",
-                "camera_source": str(session.camera_path.resolve()),
-                "noise": {"mode": noise, "fit_range_bias": range_bias}
-                | {k: v["used"] for k, v in noise_doc.items()},
-                "ransac": {"seed": seed},
-                "refine": {"loss": loss, "loss_scale": LOSS_SCALE},
-            },
-            base=Path(path).resolve().parent,
-        ),
-        uncertainty=rig_uncertainty(result.covariance_model, noise_doc, report["uncertainty"]),
+    rig = plane_rig(
+        session,
+        result,
+        report,
+        noise_doc,
+        "marker V target (ChArUco faces, plane method)",
+        ("captures", "captures_found", *RIG_RESIDUAL_KEYS[1:]),
+        command=command,
+        inputs=session.files,
+        base=Path(path).resolve().parent,
+        noise=noise,
+        range_bias=range_bias,
+        seed=seed,
+        loss=loss,
     )
     return MarkerCalibration(session, result, report, rig)
 
@@ -193,6 +177,12 @@ def marker_report(
         warnings.append(f"capture {n}: target not found ({r}); set aside")
     for n, r in session.disagreements:
         warnings.append(f"capture {n}: {r}")
+    if not session.rigid:
+        warnings.append(
+            f"the faces disagree with the targets file's geometry in {len(session.disagreements)} of "
+            f"{len(session.found)} captures: each face was posed on its own from its own corners; check the "
+            "targets file (angle_deg, offset_m, square_m) against the target and the print's measuring bar"
+        )
     if foreign:
         warnings.append(
             f"{sum(len(v) for v in session.foreign_ids.values())} markers of another target "
