@@ -30,15 +30,15 @@ from rigcal.calib.picks import (
     _pairs,
     capture_name,
     check_unique_names,
-    line_params_for,
+    read_session_header,
     segment_by_id,
     segments_by_ids,
 )
 from rigcal.calib.plane import PlaneObservation, check_normals
-from rigcal.camera import Camera, read_camera
+from rigcal.camera import Camera
 from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
-from rigcal.io.files import check_keys, get_float, load_yaml
+from rigcal.io.files import check_keys, get_float
 from rigcal.scan import Scan, read_scan
 
 FloatArray = NDArray[np.float64]
@@ -104,22 +104,16 @@ def read_board_session(
             images with no board are named all together in one error.
     """
     path = Path(path)
-    d = check_keys(
-        load_yaml(path, "board session file"),
+    head = read_session_header(
         path,
-        "",
-        ["schema_version", "method", "camera", "board", "captures"],
-        ["laser", "name", "corners_vnl"],
+        "board session file",
+        "board",
+        BOARD_SESSION_SCHEMA_VERSIONS,
+        ["board"],
+        ["corners_vnl"],
+        " (a box-target picking file has no method key)",
     )
-    version = d["schema_version"]
-    if type(version) is not int or version not in BOARD_SESSION_SCHEMA_VERSIONS:
-        raise InputError.at(path, "schema_version", version, "1 or 2 (the versions this rigcal reads)")
-    if d["method"] != "board":
-        raise InputError.at(
-            path, "method", d["method"], "'board' (a box-target picking file has no method key)"
-        )
-    camera_path = _file(path, "camera", d["camera"])
-    camera = read_camera(camera_path)
+    d, version, camera, camera_path = head.data, head.version, head.camera, head.camera_path
     b = check_keys(
         d["board"], path, "board", ["corners_x", "corners_y", "spacing_m"], ["corner_sigma_px", "size_m"]
     )
@@ -132,13 +126,7 @@ def read_board_session(
     board = Board(b["corners_x"], b["corners_y"], get_float(b, "spacing_m", path, "board", positive=True))
     size_m = _size_m(path, b, board, version) if "size_m" in b else None
     shape = board_shape(board, size_m)
-    laser = d.get("laser", {})
-    if not isinstance(laser, dict):
-        raise InputError.at(path, "laser", laser, "a mapping describing the scanner")
-    params = line_params_for(path, laser)
-    captures = d["captures"]
-    if not isinstance(captures, list) or not captures:
-        raise InputError.at(path, "captures", captures, "a non-empty list of captures")
+    laser, params, captures = head.laser, head.params, head.captures
     obs: list[PlaneObservation] = []
     poses: list[FloatArray] = []
     rms: list[float] = []

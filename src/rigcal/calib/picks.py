@@ -607,3 +607,66 @@ def read_capture_scans(
                 path, f"{kp}.scans[{j}]", value[j], f"a scan with the range limits of {value[0]}"
             )
     return mean_scan(scans), files
+
+
+@dataclass(frozen=True)
+class SessionHeader:
+    """What every plane-method session file (board, marker) starts with, validated.
+
+    Attributes:
+        data: the file's top-level mapping.
+        version: its ``schema_version``.
+        camera, camera_path: the camera and its file.
+        laser: the scanner's description (``laser``, default empty).
+        params: the line extraction's settings for that scanner.
+        captures: the ``captures`` list, non-empty, entries not yet checked.
+    """
+
+    data: Mapping[str, Any]
+    version: int
+    camera: Camera
+    camera_path: Path
+    laser: dict[str, Any]
+    params: LineParams
+    captures: list[Any]
+
+
+def read_session_header(
+    path: Path,
+    kind: str,
+    method: str,
+    versions: tuple[int, ...],
+    required: list[str],
+    optional: list[str],
+    method_hint: str = "",
+) -> SessionHeader:
+    """Read a session file's top level: its keys (``schema_version``, ``method``, ``camera``,
+    ``captures`` and ``required`` must be there; ``laser``, ``name`` and ``optional`` may),
+    the version among ``versions``, ``method``, the camera, ``laser`` and ``captures``.
+
+    Raises:
+        InputError: anything missing, unknown or invalid, naming the file, key and value.
+    """
+    d = check_keys(
+        load_yaml(path, kind),
+        path,
+        "",
+        ["schema_version", "method", "camera", "captures", *required],
+        ["laser", "name", *optional],
+    )
+    version = d["schema_version"]
+    if type(version) is not int or version not in versions:
+        shown = " or ".join(str(v) for v in versions)
+        raise InputError.at(path, "schema_version", version, f"{shown} (the versions this rigcal reads)")
+    if d["method"] != method:
+        raise InputError.at(path, "method", d["method"], f"'{method}'{method_hint}")
+    camera_path = _file(path, "camera", d["camera"])
+    camera = read_camera(camera_path)
+    laser = d.get("laser", {})
+    if not isinstance(laser, dict):
+        raise InputError.at(path, "laser", laser, "a mapping describing the scanner")
+    params = line_params_for(path, laser)
+    captures = d["captures"]
+    if not isinstance(captures, list) or not captures:
+        raise InputError.at(path, "captures", captures, "a non-empty list of captures")
+    return SessionHeader(d, version, camera, camera_path, laser, params, captures)

@@ -35,6 +35,7 @@ from rigcal.errors import InputError, OutputError
 from rigcal.geometry import inv_T, make_T, rotvec_to_R, transform_points
 from rigcal.io.files import atomic_folder
 from rigcal.scan import Scan, write_scan
+from rigcal.sim.board_session import session_head_lines
 from rigcal.sim.box_session import _write_camera, default_camera, default_T_cam_laser
 from rigcal.sim.noise import RealisticNoise, realistic_ranges, static_scene
 from rigcal.sim.raycast import beam_angles, cast_scan_hits, noisy_ranges
@@ -308,26 +309,18 @@ def render_capture(
 def marker_session_text(session: SimMarkerSession, camera_file: str = "camera.yaml") -> str:
     """Text of the session's marker session file (docs/formats/marker-session.md)."""
     spec = session.spec
-    lines = [
-        "# rigcal marker session (docs/formats/marker-session.md)",
-        f"# Synthetic (rigcal.sim.marker_session), seed {spec.seed}: "
-        + (
-            f"range noise {spec.range_sigma_m:g} m."
-            if spec.noise is None
-            else "realistic scanner, camera and cluttered room (the true noise is in truth.yaml)."
-        ),
-        f"schema_version: {MARKER_SESSION_SCHEMA_VERSION}",
-        "method: marker",
-        f"name: simulated marker session, seed {spec.seed}",
-        f"camera: {camera_file}",
-        "targets: targets.yaml",
-        "laser:",
-        "  name: simulated 2D scanner (Hokuyo UTM-30LX-like)",
-        f"  angle_increment_deg: {spec.angle_increment_deg:g}",
-    ]
-    if spec.noise is None:
-        lines.append(f"  range_sigma_m: {spec.range_sigma_m:g}")
-    lines.append("captures:")
+    lines = session_head_lines(
+        "marker",
+        spec.seed,
+        f"range noise {spec.range_sigma_m:g} m."
+        if spec.noise is None
+        else "realistic scanner, camera and cluttered room (the true noise is in truth.yaml).",
+        MARKER_SESSION_SCHEMA_VERSION,
+        camera_file,
+        ["targets: targets.yaml"],
+        spec.angle_increment_deg,
+        spec.range_sigma_m if spec.noise is None else None,
+    )
     for c in session.captures:
         if len(c.scans) > 1:
             files = ", ".join(f"scans/{c.name}_{j:02d}.yaml" for j in range(len(c.scans)))
