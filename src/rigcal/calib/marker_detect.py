@@ -64,6 +64,8 @@ class FaceView:
             the camera frame) from its corners alone, None with too few for one.
         pose_cov: (6, 6) its covariance over [w, dt] for ``corner_sigma_px``, or None.
         rms_px: RMS reprojection error of the corners under the target's pose.
+        own_rms_px: RMS reprojection error of the corners kept by the face's own pose.
+        own_corners: how many corners the face's own pose kept (0 without one).
     """
 
     face: int
@@ -72,6 +74,8 @@ class FaceView:
     T_cam_face: FloatArray | None
     pose_cov: FloatArray | None
     rms_px: float
+    own_rms_px: float = float("nan")
+    own_corners: int = 0
 
 
 @dataclass(frozen=True)
@@ -202,8 +206,10 @@ def _face_corners(
         return None, mine
     cid = ch_ids.ravel().astype(np.int64)
     px = ch_corners.reshape(-1, 2).astype(float)
-    T, cov = _own_pose(camera, target.faces[k].corner_points[cid], px, corner_sigma_px)
-    return FaceView(k, cid, px, T, cov, float("nan")), mine
+    own = _own_pose(camera, target.faces[k].corner_points[cid], px, corner_sigma_px)
+    if own is None:
+        return FaceView(k, cid, px, None, None, float("nan")), mine
+    return FaceView(k, cid, px, own[0], own[1], float("nan"), own[2], int(own[3].sum())), mine
 
 
 def _spans(P: FloatArray) -> bool:
@@ -213,16 +219,14 @@ def _spans(P: FloatArray) -> bool:
 
 def _own_pose(
     camera: Camera, P: FloatArray, px: FloatArray, corner_sigma_px: float
-) -> tuple[FloatArray | None, FloatArray | None]:
-    """A face's own pose and covariance from its corners (:func:`robust_pose`), when there
-    are MIN_FACE_CORNERS of them spanning two rows and two columns (else None, None)."""
+) -> tuple[FloatArray, FloatArray, float, NDArray[np.bool_]] | None:
+    """A face's own pose from its corners (:func:`robust_pose`), when there are
+    MIN_FACE_CORNERS of them spanning two rows and two columns (else None)."""
+
     def enough(keep: NDArray[np.bool_]) -> bool:
         return bool(keep.sum() >= MIN_FACE_CORNERS) and _spans(P[keep])
 
-    found = robust_pose(camera, P, px, corner_sigma_px, enough)
-    if found is None:
-        return None, None
-    return found[0], found[1]
+    return robust_pose(camera, P, px, corner_sigma_px, enough)
 
 
 def robust_pose(
@@ -305,8 +309,8 @@ def target_pose(
         k_rows = keep[rows]
         mine = keep & rows
         face_rms = float(np.sqrt(np.mean(err[mine] ** 2))) if mine.any() else float("nan")
-        out[f.face] = FaceView(
-            f.face, f.corner_ids[k_rows], f.corners_px[k_rows], f.T_cam_face, f.pose_cov, face_rms
+        out[f.face] = replace(
+            f, corner_ids=f.corner_ids[k_rows], corners_px=f.corners_px[k_rows], rms_px=face_rms
         )
     return T, cov, rms, (out[0], out[1])
 

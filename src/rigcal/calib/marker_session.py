@@ -38,19 +38,19 @@ from numpy.typing import NDArray
 from rigcal.calib.board_detect import BoardShape
 from rigcal.calib.board_session import plane_observation
 from rigcal.calib.lines import LineParams, fit_line
-from rigcal.calib.marker_detect import TargetView, detect_target
+from rigcal.calib.marker_detect import MIN_FACE_CORNERS, TargetView, detect_target
 from rigcal.calib.picks import (
     _check_image,
     _file,
     capture_name,
     check_unique_names,
-    line_params_for,
     read_capture_scans,
+    read_session_header,
 )
 from rigcal.calib.plane import MIN_CAPTURES, PlaneObservation
-from rigcal.camera import Camera, read_camera
+from rigcal.camera import Camera
 from rigcal.errors import CalibrationError, InputError
-from rigcal.io.files import check_keys, get_float, load_yaml
+from rigcal.io.files import check_keys, get_float
 from rigcal.scan import Scan
 from rigcal.targets.marker import MarkerTarget, read_targets
 
@@ -85,6 +85,9 @@ class MarkerSession:
         disagreements: (name, why) of the kept captures where a face's own pose disagrees
             with the target's.
         scans_per_capture: per capture name, how many scans its laser side is the mean of.
+        rigid: the faces were posed as one target (False: they disagreed with the targets
+            file in most captures, :func:`faces_agree`, and each face was posed on its own).
+        pose_fits: (RMS reprojection error px, corners) of every pose the planes came from.
     """
 
     path: Path
@@ -103,6 +106,8 @@ class MarkerSession:
     corner_sigma_px: float = DEFAULT_CORNER_SIGMA_PX
     disagreements: tuple[tuple[str, str], ...] = ()
     scans_per_capture: dict[str, int] = field(default_factory=dict)
+    rigid: bool = True
+    pose_fits: tuple[tuple[float, int], ...] = ()
     # The board report's "left out" list; a marker session's set-aside captures are ``dropped``.
     skipped: tuple[str, ...] = ()
 
@@ -120,20 +125,15 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         CalibrationError: fewer than MIN_CAPTURES captures with the target found.
     """
     path = Path(path)
-    d = check_keys(
-        load_yaml(path, "marker session file"),
+    head = read_session_header(
         path,
-        "",
-        ["schema_version", "method", "camera", "targets", "captures"],
-        ["name", "laser", "corner_sigma_px"],
+        "marker session file",
+        "marker",
+        MARKER_SESSION_SCHEMA_VERSIONS,
+        ["targets"],
+        ["corner_sigma_px"],
     )
-    version = d["schema_version"]
-    if type(version) is not int or version not in MARKER_SESSION_SCHEMA_VERSIONS:
-        raise InputError.at(path, "schema_version", version, "1 or 2 (the versions this rigcal reads)")
-    if d["method"] != "marker":
-        raise InputError.at(path, "method", d["method"], "'marker'")
-    camera_path = _file(path, "camera", d["camera"])
-    camera = read_camera(camera_path)
+    d, version, camera, camera_path = head.data, head.version, head.camera, head.camera_path
     targets_path = _file(path, "targets", d["targets"])
     target = read_targets(targets_path)
     sigma = (
@@ -141,13 +141,7 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         if "corner_sigma_px" in d
         else DEFAULT_CORNER_SIGMA_PX
     )
-    laser = d.get("laser", {})
-    if not isinstance(laser, dict):
-        raise InputError.at(path, "laser", laser, "a mapping describing the scanner")
-    params = line_params_for(path, laser)
-    captures = d["captures"]
-    if not isinstance(captures, list) or not captures:
-        raise InputError.at(path, "captures", captures, "a non-empty list of captures")
+    laser, params, captures = head.laser, head.params, head.captures
     files = [path, camera_path, targets_path]
     names: list[str] = []
     scans: list[Scan] = []
@@ -182,12 +176,25 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         else:
             views.append(view)
     check_unique_names(path, names)
+    rigid = faces_agree(views)
+    if not rigid:
+        for i, v in enumerate(views):
+            lacking = (
+                [] if v is None else [k for k, f in enumerate(v.faces) if f is None or f.T_cam_face is None]
+            )
+            if lacking:
+                dropped[names[i]] = (
+                    "markers: the faces disagree with the targets file, so each needs a pose of its own, "
+                    f"and face {target.faces[lacking[0]].name} has fewer than {MIN_FACE_CORNERS} corners "
+                    "on two rows and columns"
+                )
+                views[i] = None
     keep = [i for i, v in enumerate(views) if v is not None]
     points = _find_v(
         path,
         target,
         [scans[i] for i in keep],
-        [_face_poses(target, views[i]) for i in keep],
+        [_face_poses(target, views[i], rigid) for i in keep],
         [names[i] for i in keep],
         params,
         dropped,
@@ -207,9 +214,15 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         assert v.T_cam_target is not None
         assert v.pose_cov is not None
         for k in range(2):
-            o = plane_observation(
-                len(obs), f"{names[i]}/{target.faces[k].name}", v.T_cam_face(target, k), v.pose_cov, pts[k]
-            )
+            name = f"{names[i]}/{target.faces[k].name}"
+            if not rigid:
+                f = v.faces[k]
+                assert f is not None
+                assert f.T_cam_face is not None
+                assert f.pose_cov is not None
+                obs.append(plane_observation(len(obs), name, f.T_cam_face, f.pose_cov, pts[k]))
+                continue
+            o = plane_observation(len(obs), name, v.T_cam_face(target, k), v.pose_cov, pts[k])
             # The pose's covariance is about the target's origin, on both faces' planes.
             obs.append(replace(o, board_origin_cam=v.T_cam_target[:3, 3].copy(), pose_key=names[i]))
     return MarkerSession(
@@ -229,13 +242,48 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         sigma,
         tuple((n, v.disagreement) for n, v in zip(found, kept_views, strict=True) if v.disagreement),
         n_scans,
+        rigid,
+        tuple(_pose_fits(kept_views, rigid)),
     )
 
 
-def _face_poses(target: MarkerTarget, view: TargetView | None) -> tuple[FloatArray, FloatArray]:
-    """Both faces' frames in the camera frame from a read target pose."""
+# The faces are taken as one rigid target unless more than this share of the captures
+# whose faces both have a pose of their own show a face disagreeing with the target's
+# pose (at least DISAGREE_MIN of them): then the targets file does not describe the
+# target (a wrong angle, a print at the wrong scale) and each face is posed on its own.
+DISAGREE_SHARE = 0.5
+DISAGREE_MIN = 3
+
+
+def faces_agree(views: list[TargetView | None]) -> bool:
+    """Whether the faces may be posed as one rigid target (see DISAGREE_SHARE)."""
+    both = [
+        v for v in views if v is not None and all(f is not None and f.T_cam_face is not None for f in v.faces)
+    ]
+    bad = sum(1 for v in both if v.disagreement)
+    return not (bad >= DISAGREE_MIN and bad > DISAGREE_SHARE * len(both))
+
+
+def _pose_fits(views: list[TargetView], rigid: bool) -> list[tuple[float, int]]:
+    """(RMS reprojection error, corners) of every pose the planes came from: the target's
+    per capture, or each face's own."""
+    if rigid:
+        return [(v.rms_px, v.n_corners) for v in views]
+    return [(f.own_rms_px, f.own_corners) for v in views for f in v.faces if f is not None]
+
+
+def _face_poses(target: MarkerTarget, view: TargetView | None, rigid: bool) -> tuple[FloatArray, FloatArray]:
+    """Both faces' frames in the camera frame: from the target's pose, or (not ``rigid``)
+    each face's own."""
     assert view is not None
-    return view.T_cam_face(target, 0), view.T_cam_face(target, 1)
+    if rigid:
+        return view.T_cam_face(target, 0), view.T_cam_face(target, 1)
+    a, b = view.faces
+    assert a is not None
+    assert b is not None
+    assert a.T_cam_face is not None
+    assert b.T_cam_face is not None
+    return a.T_cam_face, b.T_cam_face
 
 
 def face_shape(target: MarkerTarget, k: int) -> BoardShape:
