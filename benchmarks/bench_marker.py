@@ -166,6 +166,7 @@ def main() -> None:
     ap.add_argument("--first-seed", type=int, default=100)
     ap.add_argument("--noise", choices=["clean", "realistic", "both"], default="both")
     ap.add_argument("--no-board", action="store_true")
+    ap.add_argument("--no-marker", action="store_true", help="the board method only")
     ap.add_argument("--scans", type=int, default=10, help="scans per still moment (marker sessions)")
     args = ap.parse_args()
     views = [10, 20]
@@ -178,7 +179,9 @@ def main() -> None:
         bias: list = []
         t0 = time.time()
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            for n, row in marker_runs(seed, noise, views, bias, args.scans).items():
+            for n, row in (
+                {} if args.no_marker else marker_runs(seed, noise, views, bias, args.scans)
+            ).items():
                 marker[n].append(row)
                 print(f"  {name} marker seed {seed} views {n}: {row}", flush=True)
             if not args.no_board:
@@ -187,7 +190,8 @@ def main() -> None:
                     print(f"  {name} board seed {seed} views {n}: {row}", flush=True)
         print(f"== {name} noise, {args.scans} scans a still moment ({time.time() - t0:.0f} s)")
         for n in views:
-            print(f"marker, {n} views: {summarise(marker[n])}")
+            if not args.no_marker:
+                print(f"marker, {n} views: {summarise(marker[n])}")
             if not args.no_board:
                 print(f"board,  {n} views: {summarise(board[n])}")
         for kind in ("charuco", "aruco"):
