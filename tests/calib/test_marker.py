@@ -180,7 +180,7 @@ def test_weak_views():
         (lambda d: d.update(targets="nope.yaml"), r"targets: got 'nope.yaml'; expected an existing file"),
         (lambda d: d["captures"][1].pop("image"), r"captures\[1\]\.image: missing"),
         (
-            lambda d: d["captures"][1].update(image="scans/cap01.yaml"),
+            lambda d: d["captures"][1].update(image="scans/cap01_00.yaml"),
             r"captures\[1\]\.image: .*an image file",
         ),
         (lambda d: d["captures"][0].update(colour=1), r"captures\[0\]\.colour: got 1; expected no such key"),
