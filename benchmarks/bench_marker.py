@@ -188,7 +188,8 @@ def main() -> None:
                 for n, row in board_runs(seed, noise, views).items():
                     board[n].append(row)
                     print(f"  {name} board seed {seed} views {n}: {row}", flush=True)
-        print(f"== {name} noise, {args.scans} scans a still moment ({time.time() - t0:.0f} s)")
+        scans = "" if args.no_marker else f", {args.scans} scans a still moment (marker; the board: 1)"
+        print(f"== {name} noise{scans} ({time.time() - t0:.0f} s)")
         for n in views:
             if not args.no_marker:
                 print(f"marker, {n} views: {summarise(marker[n])}")
