@@ -2,9 +2,11 @@
 
 Per seed, one simulated marker session of 20 views (``rigcal.sim.marker_session``: images
 rendered from the printed faces, the realistic camera's blur, noise and exposure when the
-noise is realistic) is solved with no hand input (``calibrate_marker``: markers read,
-the V found in the scans, the plane method on both faces) on all 20 views and on the
-first 10. Beside it, the board method (``calibrate_board``) on a board session of the
+noise is realistic; ``--scans`` scans per still moment, independent range noise each) is
+solved with no hand input (``calibrate_marker``: the target's pose read from both faces'
+corners at once, each moment's scans averaged per beam, the V found in the scans, the
+plane method on both faces) on all 20 views and on the first 10. Beside it, the board
+method (``calibrate_board``) on a board session of the
 same seed, views and noise model (the lab's large board of bench_realistic_calib.py;
 its corners are given, its returns found by ``laser_side`` segment ids).
 
@@ -19,7 +21,8 @@ the raw ArUco marker corners (OpenCV's detector with sub-pixel refinement, no Ch
 against the markers' true corners; the bias is the mean error along the outward
 direction (from the pattern's / the marker's centre), in pixels: negative means inside.
 
-    .venv/bin/python benchmarks/bench_marker.py --seeds 5
+    .venv/bin/python benchmarks/bench_marker.py --seeds 6
+    .venv/bin/python benchmarks/bench_marker.py --seeds 6 --scans 1 --no-board   # one scan a moment
     .venv/bin/python benchmarks/bench_marker.py --seeds 2 --noise clean   # quicker
 """
 
@@ -52,8 +55,11 @@ def _scores(T, cov, T_truth) -> dict[str, float]:
     return {"rot": t["rotation_error_deg"], "trans": t["translation_error_mm"], "nees": t["nees"]}
 
 
-def marker_runs(seed: int, noise: RealisticNoise | None, views: list[int], bias: list) -> dict[int, dict]:
-    sim = generate_marker_session(MarkerSpec(n_captures=max(views), seed=seed, noise=noise))
+def marker_runs(
+    seed: int, noise: RealisticNoise | None, views: list[int], bias: list, scans: int
+) -> dict[int, dict]:
+    spec = MarkerSpec(n_captures=max(views), seed=seed, noise=noise, scans_per_capture=scans)
+    sim = generate_marker_session(spec)
     _corner_bias(sim, bias)
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -160,6 +166,8 @@ def main() -> None:
     ap.add_argument("--first-seed", type=int, default=100)
     ap.add_argument("--noise", choices=["clean", "realistic", "both"], default="both")
     ap.add_argument("--no-board", action="store_true")
+    ap.add_argument("--no-marker", action="store_true", help="the board method only")
+    ap.add_argument("--scans", type=int, default=10, help="scans per still moment (marker sessions)")
     args = ap.parse_args()
     views = [10, 20]
     models = {"clean": None, "realistic": RealisticNoise()}
@@ -171,16 +179,20 @@ def main() -> None:
         bias: list = []
         t0 = time.time()
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            for n, row in marker_runs(seed, noise, views, bias).items():
+            for n, row in (
+                {} if args.no_marker else marker_runs(seed, noise, views, bias, args.scans)
+            ).items():
                 marker[n].append(row)
                 print(f"  {name} marker seed {seed} views {n}: {row}", flush=True)
             if not args.no_board:
                 for n, row in board_runs(seed, noise, views).items():
                     board[n].append(row)
                     print(f"  {name} board seed {seed} views {n}: {row}", flush=True)
-        print(f"== {name} noise ({time.time() - t0:.0f} s)")
+        scans = "" if args.no_marker else f", {args.scans} scans a still moment (marker; the board: 1)"
+        print(f"== {name} noise{scans} ({time.time() - t0:.0f} s)")
         for n in views:
-            print(f"marker, {n} views: {summarise(marker[n])}")
+            if not args.no_marker:
+                print(f"marker, {n} views: {summarise(marker[n])}")
             if not args.no_board:
                 print(f"board,  {n} views: {summarise(board[n])}")
         for kind in ("charuco", "aruco"):

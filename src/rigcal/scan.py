@@ -269,3 +269,62 @@ def scan_to_text(scan: Scan) -> str:
 def write_scan(path: str | Path, scan: Scan, force: bool = False) -> Path:
     """Write a scan file atomically (refuses to overwrite unless ``force``)."""
     return atomic_write_text(path, scan_to_text(scan), force=force)
+
+
+# --- still moments -----------------------------------------------------------------------------
+# A return is left out of its beam's mean when it lies farther than this many robust sigmas
+# from the beam's median (and farther than STILL_FLOOR_M): a mixed pixel flickering to the
+# background, a heavy-tailed outlier.
+STILL_OUTLIER_SIGMAS = 4.0
+STILL_FLOOR_M = 0.002
+
+
+def mean_scan(scans: list[Scan]) -> Scan:
+    """The per-beam robust mean of scans taken while nothing moved (one still moment).
+
+    Independent range noise averages down over the K scans (by sqrt(K)); what every scan
+    repeats (a range bias by incidence, a mixed pixel that stays mixed) does not, and the
+    mean keeps it, so a line fitted to the mean's returns shows the noise left. Per beam:
+    the median of its valid returns, the returns farther from it than STILL_OUTLIER_SIGMAS
+    robust sigmas (the scan's pooled median absolute deviation about the beams' medians,
+    times 1.4826; at least STILL_FLOOR_M) left out, the mean of the others. A beam is
+    valid in the mean when at least half of the scans gave it a kept return; otherwise
+    its range is NaN. One scan is returned as it is.
+
+    Raises:
+        ValueError: no scans, or scans whose beams differ (angles or range limits).
+    """
+    if not scans:
+        raise ValueError("mean_scan: no scans")
+    first = scans[0]
+    if len(scans) == 1:
+        return first
+    for s in scans[1:]:
+        if (
+            s.angles_rad.shape != first.angles_rad.shape
+            or not np.allclose(s.angles_rad, first.angles_rad, atol=1e-9)
+            or s.range_min_m != first.range_min_m
+            or s.range_max_m != first.range_max_m
+        ):
+            raise ValueError("mean_scan: the scans' beams differ (angles or range limits)")
+    R = np.array([np.where(s.valid, s.ranges_m, np.nan) for s in scans])
+    ok = np.isfinite(R)
+    any_ok = ok.any(axis=0)
+    med = np.full(R.shape[1], np.nan)
+    med[any_ok] = np.nanmedian(R[:, any_ok], axis=0)
+    dev = np.abs(R - med)
+    spread = dev[ok & (ok.sum(axis=0) >= 3)]
+    sigma = 1.4826 * float(np.median(spread)) if len(spread) else 0.0
+    keep = ok & (dev <= max(STILL_OUTLIER_SIGMAS * sigma, STILL_FLOOR_M))
+    n = keep.sum(axis=0)
+    mean = np.where(n > 0, np.where(keep, R, 0.0).sum(axis=0) / np.maximum(n, 1), np.nan)
+    mean[n < 0.5 * len(scans)] = np.nan
+    stamps = [s.stamp_s for s in scans if s.stamp_s is not None]
+    return Scan(
+        first.angles_rad,
+        mean,
+        first.range_min_m,
+        first.range_max_m,
+        float(np.mean(stamps)) if stamps else None,
+        first.angle_increment_rad,
+    )

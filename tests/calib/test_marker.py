@@ -92,6 +92,8 @@ def test_a_print_at_the_wrong_scale_shows_as_a_scale_disagreement(folder, tmp_pa
         w.startswith(f"scale disagreement: the laser puts the faces {ratio:.4f}")
         for w in cal.report["warnings"]
     )
+    # And each face's own pose disagrees with the target's.
+    assert any("own pose is" in w and "off the target's" in w for w in cal.report["warnings"])
 
 
 def test_a_capture_without_the_target_is_set_aside_with_the_reason(folder, tmp_path):
@@ -100,8 +102,48 @@ def test_a_capture_without_the_target_is_set_aside_with_the_reason(folder, tmp_p
     session = read_marker_session(s / "marker_session.yaml")
     assert "cap03" not in session.found
     reason = dict(session.dropped)["cap03"]
-    assert reason.startswith("markers: face left: 0 of its 10 markers seen")
+    assert reason.startswith("markers: 0 ChArUco corners over both faces")
+    assert "face left: 0 of its 10 markers" in reason
     assert len(session.observations) == 2 * len(session.found)
+
+
+def test_a_capture_with_one_face_hidden_still_gives_both_planes(sim, folder, tmp_path):
+    """The target's pose comes from every face's corners at once, so a capture whose right
+    face is covered still gives both faces' planes."""
+    from rigcal.geometry import transform_points
+    from rigcal.sim.marker_session import T_laser_face
+
+    s = _copy(folder, tmp_path)
+    c = sim.captures[2]
+    t = sim.spec.target
+    T = sim.T_cam_laser @ T_laser_face(t, c.T_laser_target, 1)
+    outline = np.column_stack([t.outline(1), np.zeros(4)])
+    px = sim.camera.project(transform_points(T, outline))
+    img = cv2.imread(str(s / "images" / "cap02.png"))
+    cv2.fillConvexPoly(img, np.round(px).astype(np.int32), (128, 128, 128))
+    cv2.imwrite(str(s / "images" / "cap02.png"), img)
+    session = read_marker_session(s / "marker_session.yaml")
+    assert "cap02" in session.found
+    view = session.views[session.found.index("cap02")]
+    assert view.faces[1] is None
+    assert view.n_corners >= 6
+    j = session.found.index("cap02")
+    a, b = session.observations[2 * j : 2 * j + 2]
+    assert a.pose_key == b.pose_key == "cap02"
+    # Both planes where the truth puts them.
+    for o, k in ((a, 0), (b, 1)):
+        T_true = sim.T_cam_laser @ T_laser_face(t, c.T_laser_target, k)
+        n_true = T_true[:3, 2] * np.sign(T_true[:3, 2] @ T_true[:3, 3])
+        assert np.degrees(np.arccos(min(1.0, float(o.normal_cam @ n_true)))) < 1.0
+        assert abs(o.distance_m - float(n_true @ T_true[:3, 3])) < 0.01
+
+
+def test_a_capture_carries_the_scans_of_its_still_moment(sim, folder):
+    doc = yaml.safe_load((folder / "marker_session.yaml").read_text())
+    assert doc["schema_version"] == 2
+    assert len(doc["captures"][0]["scans"]) == sim.spec.scans_per_capture == 10
+    session = read_marker_session(folder / "marker_session.yaml")
+    assert set(session.scans_per_capture.values()) == {10}
 
 
 def test_too_few_captures_found(folder, tmp_path):
@@ -138,12 +180,25 @@ def test_weak_views():
         (lambda d: d.update(targets="nope.yaml"), r"targets: got 'nope.yaml'; expected an existing file"),
         (lambda d: d["captures"][1].pop("image"), r"captures\[1\]\.image: missing"),
         (
-            lambda d: d["captures"][1].update(image="scans/cap01.yaml"),
+            lambda d: d["captures"][1].update(image="scans/cap01_00.yaml"),
             r"captures\[1\]\.image: .*an image file",
         ),
         (lambda d: d["captures"][0].update(colour=1), r"captures\[0\]\.colour: got 1; expected no such key"),
         (lambda d: d.update(captures=[]), r"captures: got \[\]; expected a non-empty list"),
         (lambda d: d["captures"][2].update(name="cap01"), r"captures\[2\]\.name: got 'cap01'"),
+        (
+            lambda d: d["captures"][1].update(scan="scans/cap01_00.yaml"),
+            r"captures\[1\]: got \['image', 'name', 'scan', 'scans'\]; expected one of scan .* or scans",
+        ),
+        (
+            lambda d: d["captures"][1].update(scans=[]),
+            r"captures\[1\]\.scans: got \[\]; expected a non-empty list",
+        ),
+        (
+            lambda d: d["captures"][1]["scans"].append("nope.yaml"),
+            r"captures\[1\]\.scans\[10\]: got 'nope.yaml'; expected an existing file",
+        ),
+        (lambda d: d.update(schema_version=1), r"captures\[0\]\.scans: got .*; expected no such key"),
     ],
 )
 def test_session_errors(folder, tmp_path, edit, match):
@@ -185,6 +240,11 @@ def test_from_a_bag_with_no_hand_input(sim, folder, tmp_path, capsys):
     assert table.count("markers left ") == N
     assert (out / "marker_session.yaml").is_file()
     assert (out / "targets.yaml").is_file()
+    # Every scan of each still moment is kept (10 Hz for about a second, the overlap with
+    # the still images' run), for the solve to average.
+    doc = yaml.safe_load((out / "marker_session.yaml").read_text())
+    assert doc["schema_version"] == 2
+    assert all(4 <= len(c["scans"]) <= 11 for c in doc["captures"])
     assert main(["solve", str(out / "marker_session.yaml"), "-o", str(tmp_path / "rig.yaml")]) == 0
     from rigcal.rigfile import read_rig
 

@@ -211,29 +211,68 @@ def calibrate_board_session(
             round(float(a / b), 4) if b > 0 else 0.0
             for a, b in zip(np.diag(cov_camera), np.diag(result.covariance), strict=True)
         ]
+    rig = plane_rig(
+        session,
+        result,
+        report,
+        noise_doc,
+        "board planes (Zhang and Pless)",
+        RIG_RESIDUAL_KEYS,
+        command=command,
+        inputs=inputs,
+        base=base,
+        noise=noise,
+        range_bias=range_bias,
+        seed=seed,
+        loss=loss,
+    )
+    return BoardCalibration(session, result, report, rig)
+
+
+# The report summary's keys a board rig file's ``residuals`` carries.
+RIG_RESIDUAL_KEYS = (
+    "captures",
+    "captures_used",
+    "rms_mm",
+    "max_mm",
+    "residual_scale",
+    "range_bias_mm",
+    "range_bias_sigma_mm",
+)
+
+
+def plane_rig(
+    session: Any,
+    result: PlaneResult,
+    report: dict[str, Any],
+    noise_doc: dict[str, Any],
+    method: str,
+    residual_keys: Sequence[str],
+    *,
+    command: str,
+    inputs: Sequence[Path],
+    base: Path | None,
+    noise: str,
+    range_bias: bool,
+    seed: int,
+    loss: str,
+) -> Rig:
+    """The rig of a plane-method solve (board or marker session): the pose, the camera,
+    the covariance, the report summary's ``residual_keys``, provenance (``method``, the
+    camera file when read from files, the noise, RANSAC and refinement settings) and the
+    uncertainty section."""
     s = report["summary"]
-    rig = Rig(
+    return Rig(
         T_cam_laser=result.T_cam_laser,
         camera=session.camera,
         covariance=result.covariance,
         laser=dict(session.laser),
-        residuals={
-            k: s[k]
-            for k in (
-                "captures",
-                "captures_used",
-                "rms_mm",
-                "max_mm",
-                "residual_scale",
-                "range_bias_mm",
-                "range_bias_sigma_mm",
-            )
-        },
+        residuals={k: s[k] for k in residual_keys},
         provenance=provenance(
             command,
             list(inputs),
             {
-                "method": "board planes (Zhang and Pless)",
+                "method": method,
                 **({"camera_source": str(session.camera_path.resolve())} if inputs else {}),
                 "noise": {"mode": noise, "fit_range_bias": range_bias}
                 | {k: v["used"] for k, v in noise_doc.items()},
@@ -245,7 +284,6 @@ def calibrate_board_session(
         uncertainty=rig_uncertainty(result.covariance_model, noise_doc, report["uncertainty"])
         | ({"reduced": reduced} if reduced is not None else {}),
     )
-    return BoardCalibration(session, result, report, rig)
 
 
 def camera_uncertainty(

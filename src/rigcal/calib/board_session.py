@@ -31,15 +31,15 @@ from rigcal.calib.picks import (
     _pairs,
     capture_name,
     check_unique_names,
-    line_params_for,
+    read_session_header,
     segment_by_id,
     segments_by_ids,
 )
 from rigcal.calib.plane import PlaneObservation, check_normals
-from rigcal.camera import Camera, read_camera
+from rigcal.camera import Camera
 from rigcal.errors import CalibrationError, InputError
-from rigcal.geometry import make_T, rotvec_to_R
-from rigcal.io.files import check_keys, get_float, load_yaml
+from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
+from rigcal.io.files import check_keys, get_float
 from rigcal.scan import Scan, read_scan
 
 FloatArray = NDArray[np.float64]
@@ -117,24 +117,18 @@ def read_board_session(
             span 3D, for the level solve two horizontal directions.
     """
     path = Path(path)
-    d = check_keys(
-        load_yaml(path, "board session file"),
+    head = read_session_header(
         path,
-        "",
-        ["schema_version", "method", "camera", "board", "captures"],
-        ["laser", "name", "corners_vnl", "level"],
+        "board session file",
+        "board",
+        BOARD_SESSION_SCHEMA_VERSIONS,
+        ["board"],
+        ["corners_vnl", "level"],
+        " (a box-target picking file has no method key)",
     )
-    version = d["schema_version"]
-    if type(version) is not int or version not in BOARD_SESSION_SCHEMA_VERSIONS:
-        raise InputError.at(path, "schema_version", version, "1, 2 or 3 (the versions this rigcal reads)")
-    if d["method"] != "board":
-        raise InputError.at(
-            path, "method", d["method"], "'board' (a box-target picking file has no method key)"
-        )
+    d, version, camera, camera_path = head.data, head.version, head.camera, head.camera_path
     if "level" in d and level is None:
         level = _level_priors(path, d["level"], version)
-    camera_path = _file(path, "camera", d["camera"])
-    camera = read_camera(camera_path)
     b = check_keys(
         d["board"], path, "board", ["corners_x", "corners_y", "spacing_m"], ["corner_sigma_px", "size_m"]
     )
@@ -147,13 +141,7 @@ def read_board_session(
     board = Board(b["corners_x"], b["corners_y"], get_float(b, "spacing_m", path, "board", positive=True))
     size_m = _size_m(path, b, board, version) if "size_m" in b else None
     shape = board_shape(board, size_m)
-    laser = d.get("laser", {})
-    if not isinstance(laser, dict):
-        raise InputError.at(path, "laser", laser, "a mapping describing the scanner")
-    params = line_params_for(path, laser)
-    captures = d["captures"]
-    if not isinstance(captures, list) or not captures:
-        raise InputError.at(path, "captures", captures, "a non-empty list of captures")
+    laser, params, captures = head.laser, head.params, head.captures
     obs: list[PlaneObservation] = []
     poses: list[FloatArray] = []
     rms: list[float] = []
@@ -481,17 +469,29 @@ def board_pose(
 
 
 def points_pose(
-    camera: Camera, P: FloatArray, corners_px: FloatArray, corner_sigma_px: float
+    camera: Camera,
+    P: FloatArray,
+    corners_px: FloatArray,
+    corner_sigma_px: float,
+    T_init: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, float]:
-    """The pose of a planar pattern whose points ``P`` ((N, 3), its frame, z = 0) are seen
-    at ``corners_px`` ((N, 2)): T_cam_pattern by PnP through the camera's full lens model,
-    its (6, 6) covariance over [w, dt] (left perturbation, camera frame) from the
-    reprojection Jacobian and ``corner_sigma_px``, and the RMS reprojection error (px)."""
+    """The pose of a pattern whose points ``P`` ((N, 3), its frame; planar or not) are seen
+    at ``corners_px`` ((N, 2)): T_cam_pattern by PnP through the camera's full lens model
+    (from ``T_init`` when given), its (6, 6) covariance over [w, dt] (left perturbation,
+    camera frame, the rotation about the pattern's origin) from the reprojection Jacobian
+    and ``corner_sigma_px``, and the RMS reprojection error (px)."""
     import cv2
 
     b = camera.bearings(corners_px)
     norm = b[:, :2] / b[:, 2:3]
-    ok, rvec, tvec = cv2.solvePnP(P, norm, np.eye(3), None, flags=cv2.SOLVEPNP_ITERATIVE)
+    if T_init is None:
+        ok, rvec, tvec = cv2.solvePnP(P, norm, np.eye(3), None, flags=cv2.SOLVEPNP_ITERATIVE)
+    else:
+        rvec0 = R_to_rotvec(T_init[:3, :3]).reshape(3, 1)
+        tvec0 = np.asarray(T_init[:3, 3], dtype=float).reshape(3, 1).copy()
+        ok, rvec, tvec = cv2.solvePnP(
+            P, norm, np.eye(3), None, rvec0, tvec0, useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE
+        )
     if not ok:  # pragma: no cover - PnP on a full board does not fail
         raise InputError("PnP failed on a pattern's corners")
     T = make_T(rotvec_to_R(rvec.ravel()), tvec.ravel())

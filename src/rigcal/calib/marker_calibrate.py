@@ -27,14 +27,20 @@ from typing import Any, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.board_calibrate import DEFAULT_RANGE_SIGMA_M, NOISE_MODES, board_report, board_report_table
+from rigcal.calib.board_calibrate import (
+    DEFAULT_RANGE_SIGMA_M,
+    NOISE_MODES,
+    RIG_RESIDUAL_KEYS,
+    board_report,
+    board_report_table,
+    plane_rig,
+)
 from rigcal.calib.marker_session import MarkerSession, fit_scale, read_marker_session, with_corner_scale
 from rigcal.calib.noise import corner_sigma_from_rms
-from rigcal.calib.plane import LOSS, LOSS_SCALE, PlaneResult, solve_plane
-from rigcal.calib.report import noise_section, rig_uncertainty
+from rigcal.calib.plane import LOSS, PlaneResult, solve_plane
+from rigcal.calib.report import noise_section
 from rigcal.calib.truth import read_truth
 from rigcal.rig import Rig
-from rigcal.rigfile import provenance
 
 FloatArray = NDArray[np.float64]
 
@@ -82,13 +88,11 @@ def calibrate_marker(
     T_truth = read_truth(truth_path) if truth_path is not None else None
     session = read_marker_session(path)
     assumed = max(range_sigma_m or float(session.laser.get("range_sigma_m", DEFAULT_RANGE_SIGMA_M)), 1e-4)
-    counts = np.array([len(f.corner_ids) for f in session.faces])
-    # Pooled over faces with their own corner counts (corner_sigma_from_rms per face).
-    ss = sum(
-        corner_sigma_from_rms(np.array([r]), int(n)) ** 2 * (2 * n - 6)
-        for r, n in zip(session.corner_rms_px, counts, strict=True)
-    )
-    corner_est = float(np.sqrt(ss / max(int(np.sum(2 * counts - 6)), 1)))
+    # Pooled over the poses the planes came from, with their own corner counts
+    # (corner_sigma_from_rms per pose: 2 n - 6 degrees of freedom).
+    fits = [(r, n) for r, n in session.pose_fits if n > 3]
+    ss = sum(corner_sigma_from_rms(np.array([r]), int(n)) ** 2 * (2 * n - 6) for r, n in fits)
+    corner_est = float(np.sqrt(ss / max(sum(2 * n - 6 for _, n in fits), 1)))
     corner_used = session.corner_sigma_px
     observations = session.observations
     if noise == "auto":
@@ -110,39 +114,20 @@ def calibrate_marker(
         }
     )
     report = marker_report(session, result, T_truth, noise_doc)
-    s = report["summary"]
-    rig = Rig(
-        T_cam_laser=result.T_cam_laser,
-        camera=session.camera,
-        covariance=result.covariance,
-        laser=dict(session.laser),
-        residuals={
-            k: s[k]
-            for k in (
-                "captures",
-                "captures_found",
-                "captures_used",
-                "rms_mm",
-                "max_mm",
-                "residual_scale",
-                "range_bias_mm",
-                "range_bias_sigma_mm",
-            )
-        },
-        provenance=provenance(
-            command,
-            list(session.files),
-            {
-                "method": "marker V target (ChArUco faces, plane method)",
-                "camera_source": str(session.camera_path.resolve()),
-                "noise": {"mode": noise, "fit_range_bias": range_bias}
-                | {k: v["used"] for k, v in noise_doc.items()},
-                "ransac": {"seed": seed},
-                "refine": {"loss": loss, "loss_scale": LOSS_SCALE},
-            },
-            base=Path(path).resolve().parent,
-        ),
-        uncertainty=rig_uncertainty(result.covariance_model, noise_doc, report["uncertainty"]),
+    rig = plane_rig(
+        session,
+        result,
+        report,
+        noise_doc,
+        "marker V target (ChArUco faces, plane method)",
+        ("captures", "captures_found", *RIG_RESIDUAL_KEYS[1:]),
+        command=command,
+        inputs=session.files,
+        base=Path(path).resolve().parent,
+        noise=noise,
+        range_bias=range_bias,
+        seed=seed,
+        loss=loss,
     )
     return MarkerCalibration(session, result, report, rig)
 
@@ -167,8 +152,11 @@ def marker_report(
     report["summary"] = summary | {
         k: v for k, v in s.items() if k not in ("method", "captures", "captures_used")
     }
-    for c, f in zip(report["per_capture"], session.faces, strict=True):
-        c["corners"] = len(f.corner_ids)
+    for j, c in enumerate(report["per_capture"]):
+        view = session.views[j // 2]
+        f = view.faces[j % 2]
+        c["corners"] = 0 if f is None else len(f.corner_ids)
+        c["scans"] = session.scans_per_capture.get(session.found[j // 2], 1)
     apex = apex_distances(session, result)
     scale, scale_sigma = scale_check(session, result)
     foreign = sorted({i for ids in session.foreign_ids.values() for i in ids})
@@ -187,6 +175,14 @@ def marker_report(
     warnings = [w.replace("check its segment id and corners", "check its markers and scan") for w in warnings]
     for n, r in session.dropped:
         warnings.append(f"capture {n}: target not found ({r}); set aside")
+    for n, r in session.disagreements:
+        warnings.append(f"capture {n}: {r}")
+    if not session.rigid:
+        warnings.append(
+            f"the faces disagree with the targets file's geometry in {len(session.disagreements)} of "
+            f"{len(session.found)} captures: each face was posed on its own from its own corners; check the "
+            "targets file (angle_deg, offset_m, square_m) against the target and the print's measuring bar"
+        )
     if foreign:
         warnings.append(
             f"{sum(len(v) for v in session.foreign_ids.values())} markers of another target "
@@ -234,11 +230,24 @@ def scale_check(session: MarkerSession, result: PlaneResult) -> tuple[float, flo
     1-sigma: the pose refitted with every face's distance multiplied by a free factor s,
     n . (R p + t) = s d, on the cut ends of the used faces (unweighted; the sigma from the
     fit's residual scale). The returns are taken as the scanner gives them, with no range
-    bias by incidence taken out: the solve's bias would absorb part of a scale."""
+    bias by incidence taken out: the solve's bias would absorb part of a scale.
+
+    The planes are the faces' own poses (each from its own corners) where a face has one:
+    a pattern printed at the wrong scale puts each face at the wrong distance by the print's
+    factor, while the one target pose over both faces, fitted to patterns of the wrong
+    size at the right offsets, takes up an unknown part of it. Faces without an own pose
+    use the target's."""
     used = np.flatnonzero(result.inlier_captures)
-    planes = [
-        (np.asarray(session.observations[i].normal_cam), session.observations[i].distance_m) for i in used
-    ]
+    planes = []
+    for i in used:
+        o = session.observations[i]
+        own = session.views[i // 2].faces[i % 2]
+        if own is not None and own.T_cam_face is not None:
+            n = own.T_cam_face[:3, 2]
+            d = float(n @ own.T_cam_face[:3, 3])
+            planes.append((n, d) if d > 0 else (-n, -d))
+        else:
+            planes.append((np.asarray(o.normal_cam), o.distance_m))
     return fit_scale(result.T_cam_laser, planes, [result.lines[i].ends for i in used])
 
 

@@ -4,24 +4,31 @@ A marker session file (docs/formats/marker-session.md) names the camera, the tar
 (:mod:`rigcal.targets.marker`) and per capture a scan and an image. :func:`read_marker_session`
 validates it and, for every capture:
 
-1. reads the target in the image (:func:`rigcal.calib.marker_detect.detect_target`): each
-   face's pose by PnP from its ChArUco corners, with its covariance; markers of other
-   targets are ignored and counted;
+1. reads the target in the image (:func:`rigcal.calib.marker_detect.detect_target`): the
+   target's pose by one PnP over the ChArUco corners of both faces, with its covariance,
+   each face's own pose checked against it; markers of other targets are ignored and
+   counted;
 2. finds the V in the scan (:func:`_search_v`): the static background dropped across
    captures, straight pieces of the moving returns that meet at an apex are candidate
    Vs, a RANSAC over captures and candidate arms gives a rough pose, and each face's
    returns are re-picked near the cut its pose predicts, as the board method re-picks a
    board's (:mod:`rigcal.calib.board_detect`).
 
-A capture whose faces are not both read, or whose V is not found in the scan, is set
+A capture whose target pose is not read, or whose V is not found in the scan, is set
 aside with the reason, and the others go on. Each kept capture becomes two
-:class:`~rigcal.calib.plane.PlaneObservation` (one per face, named ``CAPTURE/FACE``), so
-the board method's solve takes them as they are.
+:class:`~rigcal.calib.plane.PlaneObservation` (one per face, named ``CAPTURE/FACE``) that
+share the target's pose (``pose_key``: the plane solve whitens them together, their errors
+from the one pose being one error), so the board method's solve takes them as they are.
+
+A capture's laser side is one scan, or (schema version 2) the scans of its still moment,
+``scans``, reduced to their per-beam robust mean (:func:`rigcal.scan.mean_scan`): the
+independent range noise averages down, what every scan repeats stays, and the solve
+estimates the noise left from the mean's own line fits.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,18 +38,27 @@ from numpy.typing import NDArray
 from rigcal.calib.board_detect import BoardShape
 from rigcal.calib.board_session import plane_observation
 from rigcal.calib.lines import LineParams, fit_line
-from rigcal.calib.marker_detect import FaceView, detect_target
-from rigcal.calib.picks import _check_image, _file, capture_name, check_unique_names, line_params_for
+from rigcal.calib.marker_detect import MIN_FACE_CORNERS, TargetView, detect_target
+from rigcal.calib.picks import (
+    _check_image,
+    _file,
+    capture_name,
+    check_unique_names,
+    read_capture_scans,
+    read_session_header,
+)
 from rigcal.calib.plane import MIN_CAPTURES, PlaneObservation
-from rigcal.camera import Camera, read_camera
+from rigcal.camera import Camera
 from rigcal.errors import CalibrationError, InputError
-from rigcal.io.files import check_keys, get_float, load_yaml
-from rigcal.scan import Scan, read_scan
+from rigcal.io.files import check_keys, get_float
+from rigcal.scan import Scan
 from rigcal.targets.marker import MarkerTarget, read_targets
 
 FloatArray = NDArray[np.float64]
 
-MARKER_SESSION_SCHEMA_VERSION = 1
+MARKER_SESSION_SCHEMA_VERSION = 2
+# Versions read: 2 adds a capture's ``scans`` (the scans of one still moment).
+MARKER_SESSION_SCHEMA_VERSIONS = (1, 2)
 DEFAULT_CORNER_SIGMA_PX = 0.3
 
 
@@ -58,12 +74,20 @@ class MarkerSession:
         captures: every capture's name, in file order.
         found: the names of the captures kept (both faces read, the V found).
         dropped: (name, reason) of the captures set aside.
-        observations: two plane observations per kept capture (left face, right face).
-        faces: the face views of the kept captures, in the observations' order.
-        corner_rms_px: (2K,) each observation's RMS corner reprojection error.
+        observations: two plane observations per kept capture (left face, right face),
+            sharing the capture's target pose.
+        views: the target as read in each kept capture, in the captures' order.
+        corner_rms_px: (2K,) each observation's RMS corner reprojection error (its
+            capture's, over both faces' corners).
         foreign_ids: per capture name, the ids of markers not on the target it showed.
         files: every file read (for provenance).
-        corner_sigma_px: the corner noise the face poses' covariances were computed with.
+        corner_sigma_px: the corner noise the target poses' covariances were computed with.
+        disagreements: (name, why) of the kept captures where a face's own pose disagrees
+            with the target's.
+        scans_per_capture: per capture name, how many scans its laser side is the mean of.
+        rigid: the faces were posed as one target (False: they disagreed with the targets
+            file in most captures, :func:`faces_agree`, and each face was posed on its own).
+        pose_fits: (RMS reprojection error px, corners) of every pose the planes came from.
     """
 
     path: Path
@@ -75,11 +99,15 @@ class MarkerSession:
     found: tuple[str, ...]
     dropped: tuple[tuple[str, str], ...]
     observations: tuple[PlaneObservation, ...]
-    faces: tuple[FaceView, ...]
+    views: tuple[TargetView, ...]
     corner_rms_px: FloatArray
     foreign_ids: dict[str, tuple[int, ...]]
     files: tuple[Path, ...]
     corner_sigma_px: float = DEFAULT_CORNER_SIGMA_PX
+    disagreements: tuple[tuple[str, str], ...] = ()
+    scans_per_capture: dict[str, int] = field(default_factory=dict)
+    rigid: bool = True
+    pose_fits: tuple[tuple[float, int], ...] = ()
     # The board report's "left out" list; a marker session's set-aside captures are ``dropped``.
     skipped: tuple[str, ...] = ()
 
@@ -97,20 +125,15 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         CalibrationError: fewer than MIN_CAPTURES captures with the target found.
     """
     path = Path(path)
-    d = check_keys(
-        load_yaml(path, "marker session file"),
+    head = read_session_header(
         path,
-        "",
-        ["schema_version", "method", "camera", "targets", "captures"],
-        ["name", "laser", "corner_sigma_px"],
+        "marker session file",
+        "marker",
+        MARKER_SESSION_SCHEMA_VERSIONS,
+        ["targets"],
+        ["corner_sigma_px"],
     )
-    version = d["schema_version"]
-    if type(version) is not int or version != MARKER_SESSION_SCHEMA_VERSION:
-        raise InputError.at(path, "schema_version", version, "1 (the version this rigcal reads)")
-    if d["method"] != "marker":
-        raise InputError.at(path, "method", d["method"], "'marker'")
-    camera_path = _file(path, "camera", d["camera"])
-    camera = read_camera(camera_path)
+    d, version, camera, camera_path = head.data, head.version, head.camera, head.camera_path
     targets_path = _file(path, "targets", d["targets"])
     target = read_targets(targets_path)
     sigma = (
@@ -118,56 +141,66 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         if "corner_sigma_px" in d
         else DEFAULT_CORNER_SIGMA_PX
     )
-    laser = d.get("laser", {})
-    if not isinstance(laser, dict):
-        raise InputError.at(path, "laser", laser, "a mapping describing the scanner")
-    params = line_params_for(path, laser)
-    captures = d["captures"]
-    if not isinstance(captures, list) or not captures:
-        raise InputError.at(path, "captures", captures, "a non-empty list of captures")
+    laser, params, captures = head.laser, head.params, head.captures
     files = [path, camera_path, targets_path]
     names: list[str] = []
     scans: list[Scan] = []
-    views: list[tuple[FaceView, FaceView] | None] = []
+    views: list[TargetView | None] = []
+    n_scans: dict[str, int] = {}
     dropped: dict[str, str] = {}
     foreign: dict[str, tuple[int, ...]] = {}
     from rigcal.io.images import read_grey
 
     for i, c in enumerate(captures):
         kp = f"captures[{i}]"
-        c = check_keys(c, path, kp, ["scan", "image"], ["name"])
+        many = version >= 2
+        required, optional = (["image"], ["name", "scan", "scans"]) if many else (["scan", "image"], ["name"])
+        c = check_keys(c, path, kp, required, optional)
         name = capture_name(path, kp, c, i)
         names.append(name)
-        scan_path = _file(path, f"{kp}.scan", c["scan"])
+        scan, scan_files = read_capture_scans(path, kp, c, many)
         image_path = _file(path, f"{kp}.image", c["image"])
         _check_image(path, f"{kp}.image", c["image"], image_path, camera)
-        files += [scan_path, image_path]
-        scans.append(read_scan(scan_path))
+        files += [*scan_files, image_path]
+        scans.append(scan)
+        n_scans[name] = len(scan_files)
         grey = read_grey(image_path)
         if grey is None:  # pragma: no cover - _check_image read it already
             raise InputError.at(path, f"{kp}.image", c["image"], "an image file OpenCV can read")
         view = detect_target(grey, camera, target, sigma)
         if view.foreign_ids:
             foreign[name] = view.foreign_ids
-        a, b = view.faces
-        if a is None or b is None:
+        if view.T_cam_target is None:
             dropped[name] = "markers: " + view.missing(target)
             views.append(None)
         else:
-            views.append((a, b))
+            views.append(view)
     check_unique_names(path, names)
+    rigid = faces_agree(views)
+    if not rigid:
+        for i, v in enumerate(views):
+            lacking = (
+                [] if v is None else [k for k, f in enumerate(v.faces) if f is None or f.T_cam_face is None]
+            )
+            if lacking:
+                dropped[names[i]] = (
+                    "markers: the faces disagree with the targets file, so each needs a pose of its own, "
+                    f"and face {target.faces[lacking[0]].name} has fewer than {MIN_FACE_CORNERS} corners "
+                    "on two rows and columns"
+                )
+                views[i] = None
     keep = [i for i, v in enumerate(views) if v is not None]
     points = _find_v(
         path,
         target,
         [scans[i] for i in keep],
-        [views[i] for i in keep],
+        [_face_poses(target, views[i], rigid) for i in keep],
         [names[i] for i in keep],
         params,
         dropped,
     )
     obs: list[PlaneObservation] = []
-    faces: list[FaceView] = []
+    kept_views: list[TargetView] = []
     found = []
     for j, i in enumerate(keep):
         if names[i] in dropped:
@@ -177,14 +210,21 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         assert v is not None
         assert pts is not None
         found.append(names[i])
+        kept_views.append(v)
+        assert v.T_cam_target is not None
+        assert v.pose_cov is not None
         for k in range(2):
-            f = v[k]
-            obs.append(
-                plane_observation(
-                    len(obs), f"{names[i]}/{target.faces[k].name}", f.T_cam_face, f.pose_cov, pts[k]
-                )
-            )
-            faces.append(f)
+            name = f"{names[i]}/{target.faces[k].name}"
+            if not rigid:
+                f = v.faces[k]
+                assert f is not None
+                assert f.T_cam_face is not None
+                assert f.pose_cov is not None
+                obs.append(plane_observation(len(obs), name, f.T_cam_face, f.pose_cov, pts[k]))
+                continue
+            o = plane_observation(len(obs), name, v.T_cam_face(target, k), v.pose_cov, pts[k])
+            # The pose's covariance is about the target's origin, on both faces' planes.
+            obs.append(replace(o, board_origin_cam=v.T_cam_target[:3, 3].copy(), pose_key=names[i]))
     return MarkerSession(
         path,
         camera,
@@ -195,12 +235,55 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         tuple(found),
         tuple((n, dropped[n]) for n in names if n in dropped),
         tuple(obs),
-        tuple(faces),
-        np.array([f.rms_px for f in faces]),
+        tuple(kept_views),
+        np.array([v.rms_px for v in kept_views for _ in range(2)]),
         foreign,
         tuple(files),
         sigma,
+        tuple((n, v.disagreement) for n, v in zip(found, kept_views, strict=True) if v.disagreement),
+        n_scans,
+        rigid,
+        tuple(_pose_fits(kept_views, rigid)),
     )
+
+
+# The faces are taken as one rigid target unless more than this share of the captures
+# whose faces both have a pose of their own show a face disagreeing with the target's
+# pose (at least DISAGREE_MIN of them): then the targets file does not describe the
+# target (a wrong angle, a print at the wrong scale) and each face is posed on its own.
+DISAGREE_SHARE = 0.5
+DISAGREE_MIN = 3
+
+
+def faces_agree(views: list[TargetView | None]) -> bool:
+    """Whether the faces may be posed as one rigid target (see DISAGREE_SHARE)."""
+    both = [
+        v for v in views if v is not None and all(f is not None and f.T_cam_face is not None for f in v.faces)
+    ]
+    bad = sum(1 for v in both if v.disagreement)
+    return not (bad >= DISAGREE_MIN and bad > DISAGREE_SHARE * len(both))
+
+
+def _pose_fits(views: list[TargetView], rigid: bool) -> list[tuple[float, int]]:
+    """(RMS reprojection error, corners) of every pose the planes came from: the target's
+    per capture, or each face's own."""
+    if rigid:
+        return [(v.rms_px, v.n_corners) for v in views]
+    return [(f.own_rms_px, f.own_corners) for v in views for f in v.faces if f is not None]
+
+
+def _face_poses(target: MarkerTarget, view: TargetView | None, rigid: bool) -> tuple[FloatArray, FloatArray]:
+    """Both faces' frames in the camera frame: from the target's pose, or (not ``rigid``)
+    each face's own."""
+    assert view is not None
+    if rigid:
+        return view.T_cam_face(target, 0), view.T_cam_face(target, 1)
+    a, b = view.faces
+    assert a is not None
+    assert b is not None
+    assert a.T_cam_face is not None
+    assert b.T_cam_face is not None
+    return a.T_cam_face, b.T_cam_face
 
 
 def face_shape(target: MarkerTarget, k: int) -> BoardShape:
@@ -284,9 +367,7 @@ def _returns_scale(
     planes (:func:`fit_scale` from the closed-form pose at ``scale``)."""
     from rigcal.calib.plane import closed_form
 
-    planes = [
-        _plane(views[i][k].T_cam_face) for i, pair in enumerate(found) if pair is not None for k in range(2)
-    ]
+    planes = [_plane(views[i][k]) for i, pair in enumerate(found) if pair is not None for k in range(2)]
     points = [p for pair in found if pair is not None for p in pair]
     obs = [
         PlaneObservation(j, str(j), n, scale * d, p)
@@ -310,7 +391,7 @@ def _misfit(views: list[Any], found: list[tuple[FloatArray, FloatArray] | None],
         if pair is None:
             continue
         for k in range(2):
-            n, d = _plane(views[i][k].T_cam_face)
+            n, d = _plane(views[i][k])
             obs.append(PlaneObservation(len(obs), str(len(obs)), n, scale * d, pair[k]))
     try:
         T = closed_form(obs)
@@ -367,7 +448,7 @@ def _search_v(
             f"{path}: the target was found in {len(alive)} of {len(scans) + _early(dropped, names)} "
             f"captures; the marker method needs {MIN_CAPTURES} ({why})"
         )
-    poses = {(i, k): _scaled(views[i][k].T_cam_face, scale) for i in alive for k in range(2)}
+    poses = {(i, k): _scaled(views[i][k], scale) for i in alive for k in range(2)}
     planes = [_plane(poses[i, k]) for i in alive for k in range(2)]
     arms = [
         _unique([sc_pts[p[k]] for p in pairs[i]])

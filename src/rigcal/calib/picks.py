@@ -9,6 +9,7 @@ capture into a :class:`BoxObservation`, the solver's input.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -21,7 +22,7 @@ from rigcal.camera import Camera, read_camera
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, get_float, load_yaml
 from rigcal.io.validate import is_real, path_component
-from rigcal.scan import Scan, read_scan
+from rigcal.scan import Scan, mean_scan, read_scan
 
 FloatArray = NDArray[np.float64]
 
@@ -570,3 +571,102 @@ def _ray_line(angle: float, c: FloatArray, u: FloatArray) -> FloatArray:
     lam, _ = np.linalg.solve(A, c)
     out: FloatArray = lam * r
     return out
+
+
+def read_capture_scans(
+    path: Path, kp: str, capture: Mapping[str, Any], many: bool
+) -> tuple[Scan, list[Path]]:
+    """A capture's scan: its ``scan`` file, or with ``many`` (a session version that has
+    them) the per-beam robust mean (:func:`rigcal.scan.mean_scan`) of its ``scans``, the
+    scans of one still moment; exactly one of the two keys. Returns the scan and the
+    files read.
+
+    Raises:
+        InputError: both keys or neither, an empty or non-list ``scans``, a missing or bad
+            scan file, or scans whose beams differ from the first one's.
+    """
+    if many and ("scan" in capture) == ("scans" in capture):
+        raise InputError.at(path, kp, sorted(capture), "one of scan (a file) or scans (a list of files)")
+    if "scan" in capture:
+        p = _file(path, f"{kp}.scan", capture["scan"])
+        return read_scan(p), [p]
+    value = capture["scans"]
+    if not isinstance(value, list) or not value:
+        raise InputError.at(path, f"{kp}.scans", value, "a non-empty list of scan files (one still moment)")
+    files = [_file(path, f"{kp}.scans[{j}]", v) for j, v in enumerate(value)]
+    scans = [read_scan(p) for p in files]
+    for j, s in enumerate(scans[1:], 1):
+        if s.angles_rad.shape != scans[0].angles_rad.shape or not np.allclose(
+            s.angles_rad, scans[0].angles_rad, atol=1e-9
+        ):
+            raise InputError.at(
+                path, f"{kp}.scans[{j}]", value[j], f"a scan with the beams of {value[0]} (one scanner)"
+            )
+        if (s.range_min_m, s.range_max_m) != (scans[0].range_min_m, scans[0].range_max_m):
+            raise InputError.at(
+                path, f"{kp}.scans[{j}]", value[j], f"a scan with the range limits of {value[0]}"
+            )
+    return mean_scan(scans), files
+
+
+@dataclass(frozen=True)
+class SessionHeader:
+    """What every plane-method session file (board, marker) starts with, validated.
+
+    Attributes:
+        data: the file's top-level mapping.
+        version: its ``schema_version``.
+        camera, camera_path: the camera and its file.
+        laser: the scanner's description (``laser``, default empty).
+        params: the line extraction's settings for that scanner.
+        captures: the ``captures`` list, non-empty, entries not yet checked.
+    """
+
+    data: Mapping[str, Any]
+    version: int
+    camera: Camera
+    camera_path: Path
+    laser: dict[str, Any]
+    params: LineParams
+    captures: list[Any]
+
+
+def read_session_header(
+    path: Path,
+    kind: str,
+    method: str,
+    versions: tuple[int, ...],
+    required: list[str],
+    optional: list[str],
+    method_hint: str = "",
+) -> SessionHeader:
+    """Read a session file's top level: its keys (``schema_version``, ``method``, ``camera``,
+    ``captures`` and ``required`` must be there; ``laser``, ``name`` and ``optional`` may),
+    the version among ``versions``, ``method``, the camera, ``laser`` and ``captures``.
+
+    Raises:
+        InputError: anything missing, unknown or invalid, naming the file, key and value.
+    """
+    d = check_keys(
+        load_yaml(path, kind),
+        path,
+        "",
+        ["schema_version", "method", "camera", "captures", *required],
+        ["laser", "name", *optional],
+    )
+    version = d["schema_version"]
+    if type(version) is not int or version not in versions:
+        shown = ", ".join(map(str, versions[:-1])) + " or " * (len(versions) > 1) + str(versions[-1])
+        raise InputError.at(path, "schema_version", version, f"{shown} (the versions this rigcal reads)")
+    if d["method"] != method:
+        raise InputError.at(path, "method", d["method"], f"'{method}'{method_hint}")
+    camera_path = _file(path, "camera", d["camera"])
+    camera = read_camera(camera_path)
+    laser = d.get("laser", {})
+    if not isinstance(laser, dict):
+        raise InputError.at(path, "laser", laser, "a mapping describing the scanner")
+    params = line_params_for(path, laser)
+    captures = d["captures"]
+    if not isinstance(captures, list) or not captures:
+        raise InputError.at(path, "captures", captures, "a non-empty list of captures")
+    return SessionHeader(d, version, camera, camera_path, laser, params, captures)

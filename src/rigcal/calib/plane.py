@@ -102,8 +102,14 @@ class PlaneObservation:
             pose covariance is not known.
         board_origin_cam: (3,) a point of the plane (the board's origin), camera frame, and
         board_pose_cov: (6, 6) covariance of the board's pose from PnP over [w (rad), dt (m)]
-            (left perturbation in the camera frame); when given, each capture's residuals
-            are whitened with the errors they share through the board's pose.
+            (left perturbation in the camera frame, the rotation about ``board_origin_cam``);
+            when given, each capture's residuals are whitened with the errors they share
+            through the board's pose.
+        pose_key: observations with one key are planes of one rigid target posed by one
+            PnP (the marker target's faces): they carry the same ``board_pose_cov`` about the
+            same ``board_origin_cam`` (a point on each of their planes), so their errors from
+            that pose are one error, and they are whitened together (their joint
+            covariance, :func:`_joint_cov`). None: the capture's plane is its own.
     """
 
     capture: int
@@ -114,6 +120,7 @@ class PlaneObservation:
     distance_sigma_m: float = 0.001
     board_origin_cam: FloatArray | None = None
     board_pose_cov: FloatArray | None = None
+    pose_key: str | None = None
 
 
 def closed_form(observations: Sequence[PlaneObservation]) -> FloatArray:
@@ -780,9 +787,7 @@ def _capture_cov(T: FloatArray, o: PlaneObservation, line: CaptureLine, noise: P
     a = float(T[:3, :2] @ line.fit.normal @ n)
     cov = (a * noise.range_sigma_m) ** 2 * line.offset_cov
     if o.board_pose_cov is not None and o.board_origin_cam is not None:
-        # res = n . (p - b); d res = w . (n x (p - b)) - n . db for a board pose change (w, db).
-        pc = np.column_stack([line.ends, np.zeros(2)]) @ T[:3, :3].T + T[:3, 3]
-        G = np.column_stack([np.cross(n, pc - o.board_origin_cam), np.broadcast_to(-n, pc.shape)])
+        G = _pose_jacobian(T, o, line)
         cov = cov + noise.pose_cov_scale * G @ o.board_pose_cov @ G.T
     else:
         cov = cov + o.distance_sigma_m**2
@@ -793,10 +798,69 @@ def _capture_cov(T: FloatArray, o: PlaneObservation, line: CaptureLine, noise: P
 def _whiteners(
     T: FloatArray, observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine], noise: PlaneNoise
 ) -> list[FloatArray]:
+    """Per capture, the inverse Cholesky factor of its own (marginal) covariance."""
     return [
         np.linalg.inv(np.linalg.cholesky(_capture_cov(T, o, ln, noise)))
         for o, ln in zip(observations, lines, strict=True)
     ]
+
+
+def pose_units(observations: Sequence[PlaneObservation]) -> list[NDArray[np.int64]]:
+    """The observations grouped by ``pose_key`` (each without a key on its own), in order of
+    first appearance: the units whose errors are whitened together."""
+    units: dict[object, list[int]] = {}
+    for i, o in enumerate(observations):
+        units.setdefault(i if o.pose_key is None else o.pose_key, []).append(i)
+    return [np.array(u, dtype=np.int64) for u in units.values()]
+
+
+def _pose_jacobian(T: FloatArray, o: PlaneObservation, line: CaptureLine) -> FloatArray:
+    """(2, 6) how the cut ends' point-to-plane distances move with the board's pose
+    [w, db] (rotation about ``board_origin_cam``): res = n . (p - b), so
+    d res = w . (n x (p - b)) - n . db."""
+    n = np.asarray(o.normal_cam, dtype=float)
+    assert o.board_origin_cam is not None
+    pc = np.column_stack([line.ends, np.zeros(2)]) @ T[:3, :3].T + T[:3, 3]
+    return np.column_stack([np.cross(n, pc - o.board_origin_cam), np.broadcast_to(-n, pc.shape)])
+
+
+def _joint_cov(
+    T: FloatArray, observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine], noise: PlaneNoise
+) -> FloatArray:
+    """(2m, 2m) covariance of the cut ends' distances of m observations of one rigid
+    target's pose: each one's own (:func:`_capture_cov`) on the diagonal, and between two
+    the error they share through the one pose, G_i C G_j^T."""
+    m = len(observations)
+    cov = np.zeros((2 * m, 2 * m))
+    G = [
+        _pose_jacobian(T, o, ln) if o.board_pose_cov is not None and o.board_origin_cam is not None else None
+        for o, ln in zip(observations, lines, strict=True)
+    ]
+    for i, (o, ln) in enumerate(zip(observations, lines, strict=True)):
+        cov[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = _capture_cov(T, o, ln, noise)
+        for j in range(i):
+            Gi, Gj = G[i], G[j]
+            if Gi is None or Gj is None or o.board_pose_cov is None:
+                continue
+            c = noise.pose_cov_scale * Gi @ o.board_pose_cov @ Gj.T
+            cov[2 * i : 2 * i + 2, 2 * j : 2 * j + 2] = c
+            cov[2 * j : 2 * j + 2, 2 * i : 2 * i + 2] = c.T
+    return cov
+
+
+def _unit_whiteners(
+    T: FloatArray, observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine], noise: PlaneNoise
+) -> list[tuple[NDArray[np.int64], FloatArray]]:
+    """Per unit (:func:`pose_units`), its observations' positions and the inverse Cholesky
+    factor of their joint covariance: lower triangular, so each observation's two whitened
+    rows depend on it and the unit's earlier ones only."""
+    out = []
+    for u in pose_units(observations):
+        obs = [observations[i] for i in u]
+        lns = [lines[i] for i in u]
+        cov = _joint_cov(T, obs, lns, noise) if len(u) > 1 else _capture_cov(T, obs[0], lns[0], noise)
+        out.append((u, np.linalg.inv(np.linalg.cholesky(cov))))
+    return out
 
 
 def _end_residuals(T: FloatArray, o: PlaneObservation, line: CaptureLine, range_bias_m: float) -> FloatArray:
@@ -861,7 +925,7 @@ def _fit(
     idx = np.arange(len(observations)) if used is None else used
     obs = [observations[i] for i in idx]
     lns = [lines[i] for i in idx]
-    W = _whiteners(T0, obs, lns, noise)
+    W = _unit_whiteners(T0, obs, lns, noise)
     R0 = T0[:3, :3]
 
     def pose(x: FloatArray) -> FloatArray:
@@ -871,7 +935,7 @@ def _fit(
         T = pose(x)
         bias = float(x[6]) if noise.fit_range_bias else noise.range_bias_m
         return np.concatenate(
-            [w @ _end_residuals(T, o, ln, bias) for w, o, ln in zip(W, obs, lns, strict=True)]
+            [w @ np.concatenate([_end_residuals(T, obs[i], lns[i], bias) for i in u]) for u, w in W]
         )
 
     x0 = np.concatenate([np.zeros(3), T0[:3, 3], [noise.range_bias_m] if noise.fit_range_bias else []])
@@ -892,18 +956,25 @@ def _covariance(
     Jacobian rows and the inflation factor (squared residual scale, at least 1)."""
     obs = [observations[i] for i in used]
     lns = [lines[i] for i in used]
-    W = _whiteners(T, obs, lns, noise)
-    rs, Js = [], []
-    for w, o, ln in zip(W, obs, lns, strict=True):
+    raw_r, raw_J = [], []
+    for o, ln in zip(obs, lns, strict=True):
         n = np.asarray(o.normal_cam, dtype=float)
         rp = np.column_stack([ln.ends_corrected(noise.range_bias_m), np.zeros(2)]) @ T[:3, :3].T
-        rs.append(w @ _end_residuals(T, o, ln, noise.range_bias_m))
+        raw_r.append(_end_residuals(T, o, ln, noise.range_bias_m))
         # d(n . (Exp(w) R p))/dw = n . (w x Rp) = w . (Rp x n)
         cols = [np.cross(rp, n), np.broadcast_to(n, rp.shape)]
         if noise.fit_range_bias:
             # d/db of n . (R (e - b s n_line)) = -s (R n_line) . n
             cols.append((-ln.bias_shift * float(T[:3, :2] @ ln.fit.normal @ n))[:, None])
-        Js.append(w @ np.column_stack(cols))
+        raw_J.append(np.column_stack(cols))
+    # Whitened per unit; an observation's rows are its two rows of its unit's whitened rows.
+    rs: list[FloatArray] = [np.zeros(2)] * len(obs)
+    Js: list[FloatArray] = [np.zeros((2, raw_J[0].shape[1]))] * len(obs)
+    for u, w in _unit_whiteners(T, obs, lns, noise):
+        ru = w @ np.concatenate([raw_r[i] for i in u])
+        Ju = w @ np.concatenate([raw_J[i] for i in u])
+        for k, i in enumerate(u):
+            rs[i], Js[i] = ru[2 * k : 2 * k + 2], Ju[2 * k : 2 * k + 2]
     r, J = np.concatenate(rs), np.concatenate(Js)
     wts = loss_weights(r, noise.loss, LOSS_SCALE)
     blocks = [b * np.sqrt(w)[:, None] for b, w in zip(Js, wts.reshape(-1, 2), strict=True)]

@@ -32,7 +32,8 @@ from rigcal.io.validate import Real
     "target_file",
     type=click.Path(path_type=Path),
     help="A marker target's targets file (docs/formats/targets.md): write a marker session that "
-    "rigcal solve takes as it is, and list the markers each capture shows.",
+    "rigcal solve takes as it is, each capture with every scan of its still moment (up to 30; "
+    "the solve averages them), and list the markers each capture shows.",
 )
 @click.option(
     "--still-frames", default=5, show_default=True, type=click.IntRange(min=2),

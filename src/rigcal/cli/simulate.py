@@ -300,6 +300,14 @@ def board_session(
     is_flag=True,
     help="Every view upright (no tilt, no roll): the weak geometry the solve warns about.",
 )
+@click.option(
+    "--scans-per-capture",
+    default=10,
+    show_default=True,
+    type=click.IntRange(min=1, max=200),
+    help="Scans of each still moment, independent range noise each (a bag's 40 Hz scanner "
+    "held still a quarter of a second gives 10); 1 writes one scan per capture.",
+)
 @_noise_option
 @click.option("--force", is_flag=True, help="Replace an existing folder.")
 @click.option(
@@ -315,6 +323,7 @@ def marker_session(
     range_sigma_m: float,
     targets_file: Path | None,
     upright: bool,
+    scans_per_capture: int,
     noise_model: str,
     force: bool,
     as_json: bool,
@@ -342,6 +351,7 @@ def marker_session(
         upright=upright,
         noise=RealisticNoise() if noise_model == "realistic" else None,
         target=target,
+        scans_per_capture=scans_per_capture,
     )
     session = generate_marker_session(spec)
     write_marker_session(session, output, force=force)

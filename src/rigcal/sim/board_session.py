@@ -374,33 +374,58 @@ def _segments_on(
     return tuple(ids) if ids and covered >= _BOARD_COVERED * len(board) else None
 
 
+def session_head_lines(
+    method: str,
+    seed: int,
+    noise_text: str,
+    schema_version: int,
+    camera_file: str,
+    extra: list[str],
+    angle_increment_deg: float,
+    range_sigma_m: float | None,
+) -> list[str]:
+    """The lines a simulated plane-method session file (board, marker) starts with, up to
+    and including ``captures:``: the comment naming its format and simulator, the version,
+    method, name, camera, the ``extra`` top-level lines and the simulated scanner (its range
+    noise when the clean model's)."""
+    lines = [
+        f"# rigcal {method} session (docs/formats/{method}-session.md)",
+        f"# Synthetic (rigcal.sim.{method}_session), seed {seed}: {noise_text}",
+        f"schema_version: {schema_version}",
+        f"method: {method}",
+        f"name: simulated {method} session, seed {seed}",
+        f"camera: {camera_file}",
+        *extra,
+        "laser:",
+        "  name: simulated 2D scanner (Hokuyo UTM-30LX-like)",
+        f"  angle_increment_deg: {angle_increment_deg:g}",
+    ]
+    if range_sigma_m is not None:
+        lines.append(f"  range_sigma_m: {range_sigma_m:g}")
+    return [*lines, "captures:"]
+
+
 def board_session_text(session: SimBoardSession, camera_file: str = "camera.yaml") -> str:
     """Text of the session's board session file (docs/formats/board-session.md)."""
     spec = session.spec
     b = spec.board
     noise = spec.noise
     size = f", size_m: [{spec.size_m[0]:g}, {spec.size_m[1]:g}]" if noise else ""
-    lines = [
-        "# rigcal board session (docs/formats/board-session.md)",
-        f"# Synthetic (rigcal.sim.board_session), seed {spec.seed}: "
-        + (
-            f"corner noise {spec.corner_sigma_px:g} px, range noise {spec.range_sigma_m:g} m."
-            if noise is None
-            else "realistic scanner and cluttered room (the true noise is in truth.yaml)."
-        ),
-        f"schema_version: {2 if noise else 1}",
-        "method: board",
-        f"name: simulated board session, seed {spec.seed}",
-        f"camera: {camera_file}",
-        f"board: {{corners_x: {b.width_n}, corners_y: {b.height_n}, spacing_m: {b.spacing_m:g}, "
-        f"corner_sigma_px: {max(spec.corner_sigma_px, 0.01):g}{size}}}",
-        "laser:",
-        "  name: simulated 2D scanner (Hokuyo UTM-30LX-like)",
-        f"  angle_increment_deg: {spec.angle_increment_deg:g}",
-    ]
-    if noise is None:
-        lines.append(f"  range_sigma_m: {spec.range_sigma_m:g}")
-    lines.append("captures:")
+    lines = session_head_lines(
+        "board",
+        spec.seed,
+        f"corner noise {spec.corner_sigma_px:g} px, range noise {spec.range_sigma_m:g} m."
+        if noise is None
+        else "realistic scanner and cluttered room (the true noise is in truth.yaml).",
+        2 if noise else 1,
+        camera_file,
+        [
+            f"board: {{corners_x: {b.width_n}, corners_y: {b.height_n}, spacing_m: {b.spacing_m:g}, "
+            f"corner_sigma_px: {max(spec.corner_sigma_px, 0.01):g}{size}}}"
+        ],
+        spec.angle_increment_deg,
+        spec.range_sigma_m if noise is None else None,
+    )
     for c in session.captures:
         corners = ", ".join(f"[{u:.2f}, {v:.2f}]" for u, v in c.corners_px)
         lines += [

@@ -7,8 +7,11 @@ laser's height, roll and pitch unobserved). The image is ray-cast: the room
 (:func:`rigcal.sim.render.render_scene`, with no box) and the target's two faces, textured
 with the very images ``rigcal targets print`` prints (:func:`rigcal.targets.marker.face_image`),
 mip-mapped, shaded by incidence, then recorded by the camera (exposure gain, blur, image
-noise: :func:`rigcal.sim.world_render.apply_effects`). The scan is ray-cast against the
-faces' cuts and the room, as the board simulator's.
+noise: :func:`rigcal.sim.world_render.apply_effects`). The scans are ray-cast against the
+faces' cuts and the room, as the board simulator's: ``scans_per_capture`` of them per
+capture, with independent range noise, as a still moment of a bag holds (a 40 Hz scanner
+held still for a quarter of a second gives 10); what the scanner repeats from scan to
+scan at one pose (the grazing bias, the room) repeats in the simulation too.
 
 With ``MarkerSpec(noise=RealisticNoise())`` (``--noise realistic``) the scanner and room
 are :mod:`rigcal.sim.noise`'s (heavy-tailed range noise, mixed pixels, grazing bias,
@@ -26,11 +29,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from rigcal.calib.board_detect import plane_cut
+from rigcal.calib.marker_session import MARKER_SESSION_SCHEMA_VERSION
 from rigcal.camera import Camera
 from rigcal.errors import InputError, OutputError
 from rigcal.geometry import inv_T, make_T, rotvec_to_R, transform_points
 from rigcal.io.files import atomic_folder
 from rigcal.scan import Scan, write_scan
+from rigcal.sim.board_session import session_head_lines
 from rigcal.sim.box_session import _write_camera, default_camera, default_T_cam_laser
 from rigcal.sim.noise import RealisticNoise, realistic_ranges, static_scene
 from rigcal.sim.raycast import beam_angles, cast_scan_hits, noisy_ranges
@@ -74,6 +79,7 @@ class MarkerSpec:
             (grey levels), blur and log-gain spread between captures; None: 1 / 0 / 0 for
             the clean model, 3 / 0.8 / 0.25 for the realistic one.
         target: the marker target.
+        scans_per_capture: scans of each still moment, independent range noise each.
     """
 
     n_captures: int = 20
@@ -96,6 +102,11 @@ class MarkerSpec:
     blur_sigma_px: float | None = None
     exposure_sigma: float | None = None
     target: MarkerTarget = field(default_factory=default_target)
+    scans_per_capture: int = 10
+
+    def __post_init__(self) -> None:
+        if self.scans_per_capture < 1:
+            raise ValueError("MarkerSpec: scans_per_capture must be >= 1")
 
     @property
     def effects(self) -> tuple[CameraEffects, float]:
@@ -109,14 +120,15 @@ class MarkerSpec:
 
 @dataclass(frozen=True, eq=False)
 class MarkerCapture:
-    """One simulated capture: the target's pose, the scan, the image and the beams whose
-    true ray hits each face."""
+    """One simulated capture: the target's pose, its still moment's scans (``scan`` the
+    first), the image and the beams whose true ray hits each face."""
 
     name: str
     T_laser_target: FloatArray
     scan: Scan
     image: NDArray[np.uint8]
     face_beams: tuple[NDArray[np.int64], NDArray[np.int64]]
+    scans: tuple[Scan, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -228,11 +240,13 @@ def _capture(
             room_pose, scene = static[0], static[1]
         else:
             continue
-        scan, beams = _scan(spec, rng, np.concatenate([scene, np.array(cuts)]), len(scene))
+        segments = np.concatenate([scene, np.array(cuts)])
+        scan, beams = _scan(spec, rng, segments, len(scene))
         if min(len(b) for b in beams) < 8:
             continue
+        more = [_scan(spec, rng, segments, len(scene))[0] for _ in range(spec.scans_per_capture - 1)]
         image = render_capture(spec, camera, T, T_laser_target, room_pose, textures, rng)
-        return MarkerCapture(name, T_laser_target, scan, image, beams)
+        return MarkerCapture(name, T_laser_target, scan, image, beams, (scan, *more))
     raise InputError(f"cannot simulate {name}: no target placement was visible and crossed the scan plane")
 
 
@@ -295,28 +309,24 @@ def render_capture(
 def marker_session_text(session: SimMarkerSession, camera_file: str = "camera.yaml") -> str:
     """Text of the session's marker session file (docs/formats/marker-session.md)."""
     spec = session.spec
-    lines = [
-        "# rigcal marker session (docs/formats/marker-session.md)",
-        f"# Synthetic (rigcal.sim.marker_session), seed {spec.seed}: "
-        + (
-            f"range noise {spec.range_sigma_m:g} m."
-            if spec.noise is None
-            else "realistic scanner, camera and cluttered room (the true noise is in truth.yaml)."
-        ),
-        "schema_version: 1",
-        "method: marker",
-        f"name: simulated marker session, seed {spec.seed}",
-        f"camera: {camera_file}",
-        "targets: targets.yaml",
-        "laser:",
-        "  name: simulated 2D scanner (Hokuyo UTM-30LX-like)",
-        f"  angle_increment_deg: {spec.angle_increment_deg:g}",
-    ]
-    if spec.noise is None:
-        lines.append(f"  range_sigma_m: {spec.range_sigma_m:g}")
-    lines.append("captures:")
+    lines = session_head_lines(
+        "marker",
+        spec.seed,
+        f"range noise {spec.range_sigma_m:g} m."
+        if spec.noise is None
+        else "realistic scanner, camera and cluttered room (the true noise is in truth.yaml).",
+        MARKER_SESSION_SCHEMA_VERSION,
+        camera_file,
+        ["targets: targets.yaml"],
+        spec.angle_increment_deg,
+        spec.range_sigma_m if spec.noise is None else None,
+    )
     for c in session.captures:
-        lines += [f"  - {{name: {c.name}, scan: scans/{c.name}.yaml, image: images/{c.name}.png}}"]
+        if len(c.scans) > 1:
+            files = ", ".join(f"scans/{c.name}_{j:02d}.yaml" for j in range(len(c.scans)))
+            lines += [f"  - {{name: {c.name}, image: images/{c.name}.png, scans: [{files}]}}"]
+        else:
+            lines += [f"  - {{name: {c.name}, scan: scans/{c.name}.yaml, image: images/{c.name}.png}}"]
     return "\n".join(lines) + "\n"
 
 
@@ -333,7 +343,11 @@ def write_marker_session(session: SimMarkerSession, folder: str | Path, force: b
         camera_file = _write_camera(session.camera, tmp)
         (tmp / "targets.yaml").write_text(targets_text(spec.target), encoding="utf-8")
         for c in session.captures:
-            write_scan(tmp / "scans" / f"{c.name}.yaml", c.scan)
+            if len(c.scans) > 1:
+                for j, sc in enumerate(c.scans):
+                    write_scan(tmp / "scans" / f"{c.name}_{j:02d}.yaml", sc)
+            else:
+                write_scan(tmp / "scans" / f"{c.name}.yaml", c.scan)
             ok, buf = cv2.imencode(".png", c.image, [cv2.IMWRITE_PNG_COMPRESSION, 3])
             if not ok:  # pragma: no cover - cv2 encodes any 8-bit image
                 raise OutputError(f"{c.name}: cannot encode the image as PNG")
@@ -346,6 +360,7 @@ def write_marker_session(session: SimMarkerSession, folder: str | Path, force: b
             "captures": len(session.captures),
             "range_sigma_m": spec.noise.range_sigma_m if spec.noise else spec.range_sigma_m,
             "upright": spec.upright,
+            "scans_per_capture": spec.scans_per_capture,
             "camera_effects": {
                 "noise_sigma": effects.noise_sigma,
                 "blur_sigma_px": effects.blur_sigma_px,
