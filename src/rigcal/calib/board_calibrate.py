@@ -282,7 +282,7 @@ def plane_rig(
             base=base,
         ),
         uncertainty=rig_uncertainty(result.covariance_model, noise_doc, report["uncertainty"])
-        | ({"reduced": reduced} if reduced is not None else {}),
+        | ({"reduced": report["reduced"]} if "reduced" in report else {}),
     )
 
 
