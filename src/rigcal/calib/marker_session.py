@@ -32,7 +32,7 @@ from rigcal.calib.board_detect import BoardShape
 from rigcal.calib.board_session import plane_observation
 from rigcal.calib.lines import LineParams, fit_line
 from rigcal.calib.marker_detect import FaceView, detect_target
-from rigcal.calib.picks import _check_image, _file, capture_name, check_unique_names, line_params_for
+from rigcal.calib.picks import capture_name, check_image, check_unique_names, line_params_for, session_file
 from rigcal.calib.plane import MIN_CAPTURES, PlaneObservation
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import CalibrationError, InputError
@@ -109,9 +109,9 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         raise InputError.at(path, "schema_version", version, "1 (the version this rigcal reads)")
     if d["method"] != "marker":
         raise InputError.at(path, "method", d["method"], "'marker'")
-    camera_path = _file(path, "camera", d["camera"])
+    camera_path = session_file(path, "camera", d["camera"])
     camera = read_camera(camera_path)
-    targets_path = _file(path, "targets", d["targets"])
+    targets_path = session_file(path, "targets", d["targets"])
     target = read_targets(targets_path)
     sigma = (
         get_float(d, "corner_sigma_px", path, positive=True)
@@ -138,13 +138,13 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         c = check_keys(c, path, kp, ["scan", "image"], ["name"])
         name = capture_name(path, kp, c, i)
         names.append(name)
-        scan_path = _file(path, f"{kp}.scan", c["scan"])
-        image_path = _file(path, f"{kp}.image", c["image"])
-        _check_image(path, f"{kp}.image", c["image"], image_path, camera)
+        scan_path = session_file(path, f"{kp}.scan", c["scan"])
+        image_path = session_file(path, f"{kp}.image", c["image"])
+        check_image(path, f"{kp}.image", c["image"], image_path, camera)
         files += [scan_path, image_path]
         scans.append(read_scan(scan_path))
         grey = read_grey(image_path)
-        if grey is None:  # pragma: no cover - _check_image read it already
+        if grey is None:  # pragma: no cover - check_image read it already
             raise InputError.at(path, f"{kp}.image", c["image"], "an image file OpenCV can read")
         view = detect_target(grey, camera, target, sigma)
         if view.foreign_ids:

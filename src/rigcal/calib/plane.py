@@ -756,7 +756,7 @@ def _robust_fit(
     return T, noise, mask, robust_cost(z, noise.loss, LOSS_SCALE)
 
 
-def _capture_cov(T: FloatArray, o: PlaneObservation, line: CaptureLine, noise: PlaneNoise) -> FloatArray:
+def capture_cov(T: FloatArray, o: PlaneObservation, line: CaptureLine, noise: PlaneNoise) -> FloatArray:
     """(2, 2) covariance of the point-to-plane distances of a capture's two cut ends: the
     line's offset through the range noise, the board plane's own error (through the board's
     pose when its covariance is known, else an independent distance error) and the
@@ -781,12 +781,12 @@ def _whiteners(
     T: FloatArray, observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine], noise: PlaneNoise
 ) -> list[FloatArray]:
     return [
-        np.linalg.inv(np.linalg.cholesky(_capture_cov(T, o, ln, noise)))
+        np.linalg.inv(np.linalg.cholesky(capture_cov(T, o, ln, noise)))
         for o, ln in zip(observations, lines, strict=True)
     ]
 
 
-def _end_residuals(T: FloatArray, o: PlaneObservation, line: CaptureLine, range_bias_m: float) -> FloatArray:
+def end_residuals(T: FloatArray, o: PlaneObservation, line: CaptureLine, range_bias_m: float) -> FloatArray:
     """(2,) the point-to-plane distances of a capture's cut ends, range bias taken out."""
     n = np.asarray(o.normal_cam, dtype=float)
     out: FloatArray = (line.ends_corrected(range_bias_m) @ T[:3, :2].T + T[:3, 3]) @ n - o.distance_m
@@ -800,7 +800,7 @@ def _chi2(
     W = _whiteners(T, observations, lines, noise)
     return np.array(
         [
-            float(np.sum((w @ _end_residuals(T, o, ln, noise.range_bias_m)) ** 2))
+            float(np.sum((w @ end_residuals(T, o, ln, noise.range_bias_m)) ** 2))
             for w, o, ln in zip(W, observations, lines, strict=True)
         ]
     )
@@ -856,7 +856,7 @@ def _fit(
         T = pose(x)
         bias = float(x[6]) if noise.fit_range_bias else noise.range_bias_m
         return np.concatenate(
-            [w @ _end_residuals(T, o, ln, bias) for w, o, ln in zip(W, obs, lns, strict=True)]
+            [w @ end_residuals(T, o, ln, bias) for w, o, ln in zip(W, obs, lns, strict=True)]
         )
 
     x0 = np.concatenate([np.zeros(3), T0[:3, 3], [noise.range_bias_m] if noise.fit_range_bias else []])
@@ -882,7 +882,7 @@ def _covariance(
     for w, o, ln in zip(W, obs, lns, strict=True):
         n = np.asarray(o.normal_cam, dtype=float)
         rp = np.column_stack([ln.ends_corrected(noise.range_bias_m), np.zeros(2)]) @ T[:3, :3].T
-        rs.append(w @ _end_residuals(T, o, ln, noise.range_bias_m))
+        rs.append(w @ end_residuals(T, o, ln, noise.range_bias_m))
         # d(n . (Exp(w) R p))/dw = n . (w x Rp) = w . (Rp x n)
         cols = [np.cross(rp, n), np.broadcast_to(n, rp.shape)]
         if noise.fit_range_bias:
