@@ -11,7 +11,6 @@ that would lead outside a folder stop at the boundary instead of deep inside a s
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import TYPE_CHECKING, Any
 
@@ -240,15 +239,6 @@ def file_inside(folder: Path, rel: Any, where: Where, key: str) -> Path:
             where, key, rel, f"a file inside {folder} (it is a symlink to {real_path}, outside)"
         )
     return path
-
-
-def no_nul(path: str | os.PathLike[str], what: str) -> Path:
-    """A path given on the command line, refused when it holds a NUL byte (which no file
-    system accepts)."""
-    p = Path(path)
-    if "\0" in str(p):
-        raise InputError.at(None, what, str(p), "a path without NUL bytes")
-    return p
 
 
 class Real(click.FloatRange):
