@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shlex
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -139,7 +141,8 @@ def batch(
         click.echo(line, err=True)
 
     settings = BatchSettings(workers, ray_address, rerun, ray_timeout_s, ray_retries)
-    outcomes = run_batch(items, output, settings, report, lambda line: click.echo(line, err=True))
+    command = "rigcal " + shlex.join(sys.argv[1:]) if sys.argv else "rigcal batch"
+    outcomes = run_batch(items, output, settings, report, lambda line: click.echo(line, err=True), command)
     json_path, csv_path = write_summary(output, outcomes)
     wrote = [str(csv_path), str(json_path)]
     if items[0].command == "check":

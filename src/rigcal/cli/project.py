@@ -36,9 +36,10 @@ def project(rig: Path, scan: Path, image: Path, output: Path, force: bool, as_js
     """
     from rigcal.errors import InputError
     from rigcal.io.files import check_writable
+    from rigcal.io.images import read_image
     from rigcal.rigfile import read_rig
     from rigcal.scan import read_scan
-    from rigcal.viz.overlay import draw_overlay, project_scan, read_image, write_png
+    from rigcal.viz.overlay import draw_overlay, project_scan, write_png
 
     check_writable(output, force, [rig, scan, image])
     r = read_rig(rig)
