@@ -9,7 +9,7 @@ from typing import Any
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.types import Real
 
 
 @click.command("batch")

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.types import option_type
 from rigcal.jobs import LEVEL, MIN_CAPTURES
 
 
@@ -30,14 +31,14 @@ from rigcal.jobs import LEVEL, MIN_CAPTURES
     "--level",
     default=0.01,
     show_default=True,
-    type=LEVEL,
+    type=option_type(LEVEL),
     help="Chance of a false alarm when nothing moved.",
 )
 @click.option(
     "--min-captures",
     default=5,
     show_default=True,
-    type=MIN_CAPTURES,
+    type=option_type(MIN_CAPTURES),
     help="Captures needed for a fresh solve of a box session (fewer: residual test only).",
 )
 @click.option(

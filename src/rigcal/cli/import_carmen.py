@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from rigcal.cli.stamps import laser_offset_option, stamps_option, warn_stamps
-from rigcal.io.validate import Real
+from rigcal.cli.types import Real
 
 
 @click.command("import-carmen")

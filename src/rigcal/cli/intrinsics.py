@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.types import Real
 
 
 def _board(value: str, option: str) -> tuple[int, int]:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.types import Real
 
 
 @click.command("lines")

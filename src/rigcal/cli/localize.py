@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from rigcal.cli.types import option_type
 from rigcal.jobs import MAX_DIFF_S
 
 if TYPE_CHECKING:
@@ -165,7 +166,7 @@ def method_line(m: MethodRun) -> str:
     "--max-diff-s",
     default=0.01,
     show_default=True,
-    type=MAX_DIFF_S,
+    type=option_type(MAX_DIFF_S),
     help="Stamps of estimate and truth closer than this are matched (evo's --t_max_diff).",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON, unrounded.")

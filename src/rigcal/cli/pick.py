@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.types import Real
 
 if TYPE_CHECKING:
     from rigcal.calib.autopick import PickRun

@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED, THRESHOLD_PX
+from rigcal.cli.types import option_type
 
 
 @click.command("solve")
@@ -28,24 +29,24 @@ from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED
 @click.option(
     "--truth", type=click.Path(path_type=Path), help="Truth file: also report the error against it."
 )
-@click.option("--seed", default=0, show_default=True, type=SEED, help="RANSAC random seed.")
+@click.option("--seed", default=0, show_default=True, type=option_type(SEED), help="RANSAC random seed.")
 @click.option(
     "--threshold-px",
     default=6.0,
     show_default=True,
-    type=THRESHOLD_PX,
+    type=option_type(THRESHOLD_PX),
     help="RANSAC inlier threshold.",
 )
 @click.option(
     "--pick-sigma-px",
     default=1.0,
     show_default=True,
-    type=PICK_SIGMA_PX,
+    type=option_type(PICK_SIGMA_PX),
     help="Pick noise (1 sigma).",
 )
 @click.option(
     "--range-sigma-m",
-    type=RANGE_SIGMA_M,
+    type=option_type(RANGE_SIGMA_M),
     help="Range noise (1 sigma) [default: the picking file's laser.range_sigma_m, else 0.01].",
 )
 @click.option(
@@ -53,7 +54,7 @@ from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED
     "noise_mode",
     default="auto",
     show_default=True,
-    type=NOISE,
+    type=option_type(NOISE),
     help="auto: estimate the range and pick/corner noise from the session and use them (the "
     "assumed values are reported beside them); assumed: use --range-sigma-m, --pick-sigma-px "
     "and the session file's values.",
@@ -69,7 +70,7 @@ from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED
     "--loss",
     default="cauchy",
     show_default=True,
-    type=LOSS,
+    type=option_type(LOSS),
     help="Robust loss of the refinement, both methods (the board method bends it at 3 sigmas of "
     "the whitened errors); linear: plain least squares, outliers still rejected by the gate.",
 )
