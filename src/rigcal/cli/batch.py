@@ -9,19 +9,13 @@ from typing import Any
 
 import click
 
+from rigcal.cli.options import json_option, output_option
 from rigcal.cli.types import Real
 
 
 @click.command("batch")
 @click.argument("source")
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path, file_okay=False),
-    metavar="DIR",
-    help="Batch folder.",
-)
+@output_option("Batch folder.", "DIR", file_okay=False)
 @click.option(
     "--command",
     "command",
@@ -71,7 +65,7 @@ from rigcal.cli.types import Real
     "(a failing command is never retried).",
 )
 @click.option("--rerun", is_flag=True, help="Run finished items again instead of skipping them.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+@json_option("Print the summary as JSON on stdout.")
 def batch(
     source: str,
     output: Path,

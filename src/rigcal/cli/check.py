@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.options import force_option, json_option
 from rigcal.cli.types import option_type
 from rigcal.jobs import LEVEL, MIN_CAPTURES
 
@@ -53,8 +54,8 @@ from rigcal.jobs import LEVEL, MIN_CAPTURES
     type=click.Path(path_type=Path),
     help="Also draw the drift history (the log) as a chart: .png, .svg or .pdf.",
 )
-@click.option("--force", is_flag=True, help="Overwrite an existing plot.")
-@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+@force_option("Overwrite an existing plot.")
+@json_option("Print the result as JSON on stdout.")
 def check(
     rig: Path,
     picks: Path | None,

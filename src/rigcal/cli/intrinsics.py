@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.options import force_option, json_option, output_option
 from rigcal.cli.types import Real
 
 
@@ -63,19 +64,12 @@ def _lensmodel(ctx: click.Context, param: click.Parameter, value: str) -> str:
     "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg=100.",
 )
 @click.option("--focal-px", type=Real(min=1.0), help="Rough focal length for the seed [image width].")
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="FILE",
-    help="The .cameramodel to write.",
-)
+@output_option("The .cameramodel to write.")
 @click.option(
     "--save-corners", type=click.Path(path_type=Path), help="Also write the detected corners (corners.vnl)."
 )
-@click.option("--force", is_flag=True, help="Overwrite existing outputs.")
-@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+@force_option("Overwrite existing outputs.")
+@json_option("Print the result as JSON on stdout.")
 def intrinsics(
     images: tuple[Path, ...],
     board: str | None,

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from rigcal.cli.options import force_option, json_option, output_option
 from rigcal.cli.types import option_type
 from rigcal.jobs import MAX_DIFF_S
 
@@ -39,13 +40,11 @@ rig_option = click.option(
     "odometry when used), iasm (image augmented scan matching), hiasm (homography based IASM), "
     "odom (the wheel odometry alone).",
 )
-@click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path), metavar="DIR", help="Output folder."
-)
+@output_option("Output folder.", "DIR")
 @rig_option
 @click.option("--kitti", is_flag=True, help="Also write each trajectory in KITTI form.")
-@click.option("--force", is_flag=True, help="Replace an existing output folder.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@force_option("Replace an existing output folder.")
+@json_option("Print the summary as JSON.")
 @click.option(
     "--iasm",
     "iasm_items",
@@ -169,7 +168,7 @@ def method_line(m: MethodRun) -> str:
     type=option_type(MAX_DIFF_S),
     help="Stamps of estimate and truth closer than this are matched (evo's --t_max_diff).",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON, unrounded.")
+@json_option("Print the figures as JSON, unrounded.")
 @click.option(
     "--precision",
     default=4,
@@ -183,7 +182,7 @@ def method_line(m: MethodRun) -> str:
     metavar="FILE",
     help="Chart the paths against the truth beside their errors over time (.png, .svg or .pdf).",
 )
-@click.option("--force", is_flag=True, help="Overwrite an existing --plot file.")
+@force_option("Overwrite an existing --plot file.")
 def evaluate_cmd(
     trajectories: tuple[Path, ...],
     gt: Path,
@@ -231,17 +230,10 @@ def evaluate_cmd(
     type=click.Choice(["iasm", "hiasm"]),
     help="Matching method; as localize's --method, the default is the simplest (the paper's Fig. 5).",
 )
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path, dir_okay=False),
-    metavar="FILE",
-    help="Picture to write (.png, .svg or .pdf).",
-)
+@output_option("Picture to write (.png, .svg or .pdf).", dir_okay=False)
 @rig_option
-@click.option("--force", is_flag=True, help="Replace an existing file.")
-@click.option("--json", "as_json", is_flag=True, help="Print the counts and the step's motion as JSON.")
+@force_option("Replace an existing file.")
+@json_option("Print the counts and the step's motion as JSON.")
 def matches(
     sequence: Path, index: int, method: str, output: Path, rig_file: Path | None, force: bool, as_json: bool
 ) -> None:

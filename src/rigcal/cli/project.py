@@ -7,21 +7,16 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.options import force_option, json_option, output_option
+
 
 @click.command("project")
 @click.argument("rig", type=click.Path(path_type=Path))
 @click.argument("scan", type=click.Path(path_type=Path))
 @click.argument("image", type=click.Path(path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="FILE",
-    help="Overlay PNG to write.",
-)
-@click.option("--force", is_flag=True, help="Overwrite an existing PNG.")
-@click.option("--json", "as_json", is_flag=True, help="Print the projected pixels as JSON on stdout.")
+@output_option("Overlay PNG to write.")
+@force_option("Overwrite an existing PNG.")
+@json_option("Print the projected pixels as JSON on stdout.")
 def project(rig: Path, scan: Path, image: Path, output: Path, force: bool, as_json: bool) -> None:
     """Project SCAN into IMAGE with RIG's T_cam_laser and camera model; write an overlay PNG.
 

@@ -9,20 +9,13 @@ from pathlib import Path
 import click
 
 from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED, THRESHOLD_PX
+from rigcal.cli.options import force_option, json_option, output_option
 from rigcal.cli.types import option_type
 
 
 @click.command("solve")
 @click.argument("picks", type=click.Path(path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    "output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="FILE",
-    help="Rig file to write.",
-)
+@output_option("Rig file to write.")
 @click.option(
     "--report", "report_dir", type=click.Path(path_type=Path), help="Folder for the residual report."
 )
@@ -93,8 +86,8 @@ from rigcal.cli.types import option_type
     is_flag=True,
     help="Use only the first/last laser returns of the box side, unweighted (the paper's method).",
 )
-@click.option("--force", is_flag=True, help="Overwrite an existing rig file / report folder.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+@force_option("Overwrite an existing rig file / report folder.")
+@json_option("Print the summary as JSON on stdout.")
 def solve(
     picks: Path,
     output: Path,
