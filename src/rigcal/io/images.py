@@ -106,6 +106,20 @@ def read_image(path: str | Path) -> NDArray[np.uint8]:
     return out
 
 
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(width, height) in pixels of an image file.
+
+    Raises:
+        InputError: the file is missing or not a readable image.
+    """
+    import cv2
+
+    img = read_image_file(path, cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise InputError(f"{path}: image not found or not readable")
+    return (int(img.shape[1]), int(img.shape[0]))
+
+
 def read_image_file(path: str | Path, flags: int) -> NDArray[Any] | None:
     """The image at ``path`` decoded with :func:`decode`; None when it is missing,
     unreadable or does not decode (as ``cv2.imread(path, flags)``)."""
