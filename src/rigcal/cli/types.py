@@ -17,15 +17,11 @@ class Real(click.FloatRange):
 
     name = "float"
 
-    def __init__(
-        self,
-        min: float | None = None,
-        max: float | None = None,
-        min_open: bool = False,
-        max_open: bool = False,
-    ) -> None:
-        super().__init__(min, max, min_open=min_open, max_open=max_open)
-        self.rule = validate.Real(min, max, min_open, max_open)
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        """The arguments of :class:`rigcal.io.validate.Real` (``min``, ``max``, ``min_open``,
+        ``max_open``)."""
+        self.rule = r = validate.Real(*args, **kwargs)
+        super().__init__(r.min, r.max, min_open=r.min_open, max_open=r.max_open)
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         out = super().convert(value, param, ctx)

@@ -395,11 +395,3 @@ def T_from_ros_args(args: list[str]) -> tuple[FloatArray, str, str]:
     T[:3, :3] = Rotation.from_quat(v[3:7]).as_matrix()
     T[:3, 3] = v[:3]
     return T, args[7], args[8]
-
-
-def T_from_urdf_origin(xyz: list[float], rpy: list[float]) -> FloatArray:
-    """T_parent_child from a URDF joint origin."""
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
-    T[:3, 3] = xyz
-    return T
