@@ -25,7 +25,7 @@ import shlex
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -34,7 +34,9 @@ from scipy.spatial.transform import Rotation
 
 from rigcal.errors import InputError
 from rigcal.geometry import inv_T, make_T, rt_from_T
-from rigcal.rig import Rig
+
+if TYPE_CHECKING:  # the rig is only named here; exports take one built elsewhere
+    from rigcal.rig import Rig
 
 FloatArray = NDArray[np.float64]
 
