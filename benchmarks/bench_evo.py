@@ -29,6 +29,7 @@ from rigcal.localize.metrics import associate, ate_rmse, rpe_rmse
 from rigcal.localize.pipeline import planar_at, run
 from rigcal.sim.drive import DriveSpec, write_drive
 from rigcal.sim.world import world_named
+from rigcal.viz.localize_output import write_run
 
 
 def evo_figures(ref: PoseTrajectory3D, est: PoseTrajectory3D) -> dict[str, float]:
@@ -69,7 +70,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             seq, out = Path(tmp) / "seq", Path(tmp) / "out"
             write_drive(world_named(world), DriveSpec(laser_rate_hz=10.0, images=False, seed=1), seq)
-            run(seq, ["icp"], out)
+            write_run(run(seq, ["icp"]), seq, out)
             est, truth = read_tum(out / "icp" / "trajectory.tum"), read_tum(seq / "groundtruth.tum")
         assert est.stamps_s is not None
         assert truth.stamps_s is not None

@@ -38,6 +38,7 @@ from rigcal.localize.pipeline import run, table
 from rigcal.localize.tracks import DETECTORS, TrackParams
 from rigcal.sim.drive import DriveSpec, write_drive
 from rigcal.sim.world import BUILTIN
+from rigcal.viz.localize_output import write_run
 
 # Accuracy: every method on the same sequence in one run. The paper's ICP (Eq. 4) is
 # point-to-point; point-to-line is listed as the stronger baseline.
@@ -84,7 +85,8 @@ def main() -> None:
             if not (seq / "sequence.yaml").exists():
                 spec = DriveSpec(seed=args.seed, range_max_m=args.range_max_m)
                 write_drive(BUILTIN[name](), spec, str(seq))
-            r = run(seq, methods, root / f"{seq.name}-out", force=True, tracks=tracks)
+            r = run(seq, methods, tracks=tracks)
+            write_run(r, seq, root / f"{seq.name}-out", force=True)
             laser = f", {args.range_max_m:g} m laser" if args.range_max_m != 30.0 else ""
             length = r.methods[0].metrics["path_length_m"]  # type: ignore[index]
             print(f"\n### {name}: {length} m lap in {r.duration_s:.1f} s{laser}, {tracks.detector} tracks\n")
@@ -103,12 +105,12 @@ def main() -> None:
             per = float("nan")
             alone = args.alone.split(",")
             # Compile / load the kernels.
-            run(seq, alone[:1], root / "compile-alone", force=True, tracks=tracks)
+            run(seq, alone[:1], tracks=tracks)
             for m, compiled, decoder in product(
                 alone, (True, False) if not args.no_reference else (True,), decoders
             ):
                 with kernels(compiled), images_read_by(decoder):
-                    a = run(seq, [m], root / f"{seq.name}-{m}-alone", force=True, tracks=tracks)
+                    a = run(seq, [m], tracks=tracks)
                 cpu = a.cpu_s
                 stages = ", ".join(f"{k.removesuffix('_s')} {v:.1f}" for k, v in a.timings_s.items())
                 label = "compiled" if compiled else "numpy reference"

@@ -34,9 +34,10 @@ import numpy as np
 from rigcal.calib.horn import horn_batch
 from rigcal.calib.p3p import p3p, p3p_numpy, p3p_poses
 from rigcal.calib.picks import read_picks
-from rigcal.calib.session import calibrate, write_report_dir
+from rigcal.calib.session import calibrate
 from rigcal.geometry import random_rotation
 from rigcal.sim.box_session import SessionSpec, generate_session, write_session
+from rigcal.viz.report_dir import write_box_report
 
 
 def random_triples(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -123,7 +124,7 @@ def bench_solve(captures: int, repeats: int) -> None:
 
         def with_report() -> int:
             cal = calibrate(picks)
-            write_report_dir(Path(tmp) / "report", cal, force=True)
+            write_box_report(Path(tmp) / "report", cal, force=True)
             return 0
 
         t_report, _ = best_of(repeats, with_report)

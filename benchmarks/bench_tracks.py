@@ -115,16 +115,10 @@ def main() -> None:
                     spec = DriveSpec(seed=seed, range_max_m=args.range_max_m, **drive)
                     write_drive(BUILTIN[name](), spec, str(seq))
                 if not warm:
-                    run(seq, ["icp"], root / "warm", force=True)  # load the kernels
+                    run(seq, ["icp"])  # load the kernels
                     warm = True
                 for variant, params in variants.items():
-                    r = run(
-                        seq,
-                        args.methods.split(","),
-                        root / f"{seq.name}-{folder_of(variant)}",
-                        force=True,
-                        tracks=params,
-                    )
+                    r = run(seq, args.methods.split(","), tracks=params)
                     tracking[name, variant].append(r.timings_s["tracks_s"])
                     speed = (
                         f"| {r.timings_s['tracks_s']:.1f} | {r.wall_s:.1f} | {r.duration_s / r.wall_s:.2f} |"

@@ -674,6 +674,7 @@ def localize(
     from rigcal.localize.iasm import IasmParams
     from rigcal.localize.pipeline import parse_methods, parse_settings, run
     from rigcal.localize.tracks import TrackParams
+    from rigcal.viz.localize_output import write_run
 
     where = "rigcal.localize"
     # The same checks as the command line's, each error naming the argument.
@@ -707,13 +708,12 @@ def localize(
         r = run(
             seq,
             names,
-            out,
-            force=force,
             rig_file=rig_path,
             iasm=iasm_params,
             tracks=track_params,
             wheel_odometry=use_wheels,
         )
+        write_run(r, seq, out, force=force)
     return {m.method: Localization(m.method, m.stamps_s, m.poses, m.metrics) for m in r.methods}
 
 

@@ -92,12 +92,6 @@ def R_to_rotvec(R: ArrayLike) -> FloatArray:
     return out
 
 
-def T_from_rt(rt: ArrayLike) -> FloatArray:
-    """(6,) [rotation vector (rad), translation] to a 4x4 transform (mrcal's rt layout)."""
-    rt = np.asarray(rt, dtype=float)
-    return make_T(rotvec_to_R(rt[:3]), rt[3:])
-
-
 def rt_from_T(T: ArrayLike) -> FloatArray:
     """4x4 transform to (6,) [rotation vector (rad), translation]."""
     T = np.asarray(T, dtype=float)

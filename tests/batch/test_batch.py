@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shlex
 from pathlib import Path
 
 import cv2
@@ -177,18 +178,68 @@ def test_a_solve_item_with_missing_outputs_runs_again(tmp_path):
     assert (out / "s" / "rig.yaml").exists()
     assert (out / "s" / "report" / "report.json").exists()
     rig = yaml.safe_load((out / "s" / "rig.yaml").read_text())
-    # provenance records the single command's own command line
-    assert rig["provenance"]["command"].startswith(f"rigcal solve {picks} --seed 2 -o ")
+    # provenance names the batch, the item and the single command that writes the same
+    assert rig["provenance"]["command"].startswith(f"rigcal batch [item s: rigcal solve {picks} --seed 2 -o ")
     (out / "s" / "rig.yaml").unlink()
     (o,) = run_batch(items, out, BatchSettings(workers=1))
     assert not o.resumed
     assert (out / "s" / "rig.yaml").exists()
 
 
+def test_a_solve_item_writes_the_rig_and_report_the_command_writes(tmp_path, monkeypatch):
+    """Same inputs, same files: the batch item's rig file equals `rigcal solve`'s but for
+    the provenance's command line (which names the batch) and its time."""
+    picks = session(tmp_path / "s", 6, seed=5)
+    out = tmp_path / "out"
+    (o,) = run_batch([Item("s", "solve", {"picks": picks, "seed": 3})], out, BatchSettings(workers=1))
+    assert o.record["status"] == "ok"
+    single = tmp_path / "single"
+    argv = [
+        "solve",
+        str(picks),
+        "--seed",
+        "3",
+        "-o",
+        str(single / "rig.yaml"),
+        "--report",
+        str(single / "report"),
+    ]
+    monkeypatch.setattr("sys.argv", ["rigcal", *argv])
+    assert main(argv) == 0
+
+    def without_made(path: Path) -> tuple[dict, str]:
+        doc = yaml.safe_load(path.read_text())
+        del doc["provenance"]["created_utc"]
+        return doc, doc["provenance"].pop("command")
+
+    batch_rig, batch_cmd = without_made(out / "s" / "rig.yaml")
+    single_rig, single_cmd = without_made(single / "rig.yaml")
+    assert batch_rig == single_rig
+    assert single_cmd == "rigcal " + shlex.join(argv)
+    assert batch_cmd == f"rigcal batch [item s: rigcal {shlex.join(o.record['argv'])}]"
+    for name in ("report.json", "report.txt", "residuals.svg"):
+        assert (out / "s" / "report" / name).read_bytes() == (single / "report" / name).read_bytes(), name
+    assert sorted(p.name for p in (out / "s" / "report").iterdir()) == sorted(
+        p.name for p in (single / "report").iterdir()
+    )
+    # the item's result is what `rigcal solve --json` prints, but for the rig's command line
+    assert (
+        o.record["result"]["summary"]
+        == json.loads((single / "report" / "report.json").read_text())["summary"]
+    )
+
+
 def test_run_item_reports_bugs_and_usage_errors_without_raising(tmp_path, monkeypatch):
-    usage = run_item(["evaluate", str(tmp_path / "a.tum")])  # --gt missing
-    assert usage["exit_code"] == 2
-    assert "Missing option '--gt'" in usage["error"]
+    t = tum(tmp_path / "a.tum", np.linspace(0, 1, 5))
+    bad_solve = Item("s", "solve", {"picks": t, "threshold_px": -1.0})
+    usage = run_item(bad_solve, tmp_path / "s", "rigcal batch")
+    assert usage["exit_code"] == 2  # as `rigcal solve --threshold-px -1`
+    assert usage["error"].startswith("--threshold-px: got -1.0; expected a finite number")
+    assert not (tmp_path / "s").exists()
+    missing = run_item(Item("e", "evaluate", {"trajectory": tmp_path / "none.tum", "gt": t}), tmp_path, "b")
+    assert missing["exit_code"] == 3
+    assert "none.tum" in missing["error"]
+    assert missing["stderr"].startswith("Error: ")
     import rigcal.localize.metrics as metrics
     import rigcal.localize.pipeline  # noqa: F401  (imported first, so it keeps the real evaluate)
 
@@ -196,8 +247,7 @@ def test_run_item_reports_bugs_and_usage_errors_without_raising(tmp_path, monkey
         raise ZeroDivisionError("boom")
 
     monkeypatch.setattr(metrics, "evaluate", broken)
-    t = tum(tmp_path / "a.tum", np.linspace(0, 1, 5))
-    bug = run_item(["evaluate", str(t), "--gt", str(t), "--json"])
+    bug = run_item(Item("e", "evaluate", {"trajectory": t, "gt": t}), tmp_path / "e", "rigcal batch")
     assert bug["exit_code"] == 70
     assert bug["error"] == "internal error: ZeroDivisionError: boom"
     assert "Traceback" in bug["stderr"]

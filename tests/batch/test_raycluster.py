@@ -110,11 +110,10 @@ def test_the_cli_does_not_hang_on_a_port_without_scheme(tmp_path):
 
 
 def test_a_worker_with_other_versions_does_not_run_the_item(tmp_path):
-    t = _items(tmp_path)[0].options["trajectory"]
-    argv = ["evaluate", str(t), "--gt", str(t), "--json"]
-    same = run_item(argv, versions())
+    item = _items(tmp_path)[0]
+    same = run_item(item, tmp_path / "a", "rigcal batch", versions())
     assert same["exit_code"] == 0
-    other = run_item(argv, {**versions(), "python": "3.11.9"})
+    other = run_item(item, tmp_path / "b", "rigcal batch", {**versions(), "python": "3.11.9"})
     assert other["exit_code"] == 70
     assert (
         other["error"]
@@ -144,12 +143,13 @@ def test_records_of_item_json_version_1_are_resumed(tmp_path):
 def test_a_pool_that_refuses_new_items_fails_them_instead_of_the_batch():
     from concurrent.futures.process import BrokenProcessPool
 
-    from rigcal.batch.runner import _result, _submitted
+    from rigcal.batch.runner import Task, _result, _submitted
 
-    def broken(argv):
+    def broken(task):
         raise BrokenProcessPool("A child process terminated abruptly")
 
-    ran = _result(_submitted(broken, ["evaluate"]))
+    item = Item("e", "evaluate", {"trajectory": "a.tum", "gt": "b.tum"})
+    ran = _result(_submitted(broken, Task(item, Path("e"), "rigcal batch", ["evaluate"])))
     assert ran["exit_code"] == 70
     assert ran["error"] == "worker failed: BrokenProcessPool: A child process terminated abruptly"
 
@@ -166,7 +166,7 @@ def test_items_are_submitted_a_window_at_a_time(tmp_path, monkeypatch):
     live, peak, lock = [0], [0], threading.Lock()
     pool = cf.ThreadPoolExecutor(8)
 
-    def work(argv):
+    def work(task):
         with lock:
             live[0] += 1
             peak[0] = max(peak[0], live[0])
@@ -178,7 +178,7 @@ def test_items_are_submitted_a_window_at_a_time(tmp_path, monkeypatch):
 
     @contextlib.contextmanager
     def fake(settings, address, n_items, log):
-        yield (lambda argv: pool.submit(work, argv)), 3
+        yield (lambda task: pool.submit(work, task)), 3
 
     monkeypatch.setattr(runner, "_executor", fake)
     outcomes = run_batch(items, tmp_path / "o", BatchSettings(workers=1))

@@ -225,15 +225,15 @@ def test_planes_of_one_pose_are_whitened_together_and_the_covariance_stays_hones
 
 
 def test_joint_covariance_couples_only_planes_of_one_pose():
-    from rigcal.calib.plane import PlaneNoise, _capture_cov, _joint_cov, capture_line, pose_units
+    from rigcal.calib.plane import PlaneNoise, _joint_cov, capture_cov, capture_line, pose_units
 
     obs = v_target_views(7, n=3)
     assert [list(u) for u in pose_units(obs)] == [[0, 1], [2, 3], [4, 5]]
     lines = [capture_line(o.points_laser) for o in obs]
     noise = PlaneNoise(0.002)
     J = _joint_cov(T_TRUE, obs[:2], lines[:2], noise)
-    assert np.allclose(J[:2, :2], _capture_cov(T_TRUE, obs[0], lines[0], noise))
-    assert np.allclose(J[2:, 2:], _capture_cov(T_TRUE, obs[1], lines[1], noise))
+    assert np.allclose(J[:2, :2], capture_cov(T_TRUE, obs[0], lines[0], noise))
+    assert np.allclose(J[2:, 2:], capture_cov(T_TRUE, obs[1], lines[1], noise))
     assert np.abs(J[:2, 2:]).max() > 1e-7
     assert np.allclose(J[:2, 2:], J[2:, :2].T)
     assert [list(u) for u in pose_units(v_target_views(7, n=2, keyed=False))] == [[0], [1], [2], [3]]

@@ -9,9 +9,9 @@ from rigcal.calib.refine import (
     EndpointSet,
     NoiseModel,
     RefineParams,
-    _whitened_residuals_and_jacobian,
     loss_weights,
     refine_pose,
+    whitened_residuals_and_jacobian,
     whitening,
 )
 from rigcal.camera import Camera
@@ -75,7 +75,7 @@ def test_jacobian_matches_finite_differences():
     c, m = measurements(rng, 5, noise)
     T = perturbed(T_TRUE, rng)
     W = whitening(c, T, m, noise)
-    r0, J = _whitened_residuals_and_jacobian(c, T, m, W)
+    r0, J = whitened_residuals_and_jacobian(c, T, m, W)
     h = 1e-6
     num = np.zeros_like(J)
     for i in range(6):
@@ -84,8 +84,7 @@ def test_jacobian_matches_finite_differences():
         Tp = make_T(rotvec_to_R(dx[:3]) @ T[:3, :3], T[:3, 3] + dx[3:])
         Tm = make_T(rotvec_to_R(-dx[:3]) @ T[:3, :3], T[:3, 3] - dx[3:])
         num[:, i] = (
-            _whitened_residuals_and_jacobian(c, Tp, m, W)[0]
-            - _whitened_residuals_and_jacobian(c, Tm, m, W)[0]
+            whitened_residuals_and_jacobian(c, Tp, m, W)[0] - whitened_residuals_and_jacobian(c, Tm, m, W)[0]
         ) / (2 * h)
     np.testing.assert_allclose(J, num, rtol=1e-5, atol=1e-4)
     assert r0.shape == (2 * len(m.points_laser),)

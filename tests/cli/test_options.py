@@ -50,3 +50,38 @@ def test_every_command_with_a_result_has_json():
     for name, cmd in COMMANDS.items():
         flags = {o for p in cmd.params if isinstance(p, click.Option) for o in p.opts}
         assert ("--json" in flags) != (name in no_result), name
+
+
+def test_option_types_apply_the_rules_the_api_checks():
+    """A value the command line refuses is refused by the rule the API checks, and the
+    other way round (rigcal.cli.types.option_type over rigcal.io.validate's rules)."""
+    from rigcal.calib import options
+    from rigcal.cli.types import option_type
+    from rigcal.errors import InputError
+    from rigcal.jobs import LEVEL, MAX_DIFF_S, MIN_CAPTURES
+
+    rules = [
+        options.THRESHOLD_PX,
+        options.PICK_SIGMA_PX,
+        options.RANGE_SIGMA_M,
+        options.CORNER_SIGMA_PX,
+        options.SEED,
+        options.NOISE,
+        options.LOSS,
+        LEVEL,
+        MIN_CAPTURES,
+        MAX_DIFF_S,
+    ]
+    values = [-1, 0, 2, 3, 1e-6, 0.05, 0.1, 0.5, 0.7, 1e400, float("nan"), "auto", "cauchy", "x"]
+    for rule in rules:
+        t = option_type(rule)
+        for v in values:
+            try:
+                by_rule = rule.check(v, None, "k")
+            except InputError:
+                by_rule = None
+            try:
+                by_option = t.convert(str(v), None, None)
+            except click.BadParameter:
+                by_option = None
+            assert by_option == by_rule, (rule, v)

@@ -20,8 +20,9 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rigcal.cli.types import Real
 from rigcal.errors import InputError
-from rigcal.io.validate import Real, path_component, relative_inside, whole
+from rigcal.io.validate import path_component, relative_inside, whole
 
 # The suite's hypothesis profile (tests/conftest.py): a fixed 40 examples per test,
 # RIGCAL_HYPOTHESIS_EXAMPLES=N explores N random ones.

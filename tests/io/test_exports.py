@@ -24,7 +24,6 @@ from rigcal.io.exports import (
     R_LINK_OPTICAL,
     Frames,
     T_from_ros_args,
-    T_from_urdf_origin,
     export_rig,
     kalibr_yaml,
     mrcal_cameramodel_text,
@@ -45,6 +44,14 @@ ATOL = 1e-8
 # Camera 10 cm above the laser, optical axis along the laser's x (forward).
 R_LASER_CAM_LEVEL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 T_LASER_CAM_LEVEL = make_T(R_LASER_CAM_LEVEL, [0.0, 0.0, 0.1])
+
+
+def T_from_urdf_origin(xyz: list[float], rpy: list[float]) -> np.ndarray:
+    """T_parent_child from a URDF joint origin (fixed-axis roll, pitch, yaw), read as ROS does."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
+    T[:3, 3] = xyz
+    return T
 
 
 def camera(dist=DIST5) -> Camera:

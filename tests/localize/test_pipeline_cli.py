@@ -181,7 +181,7 @@ def test_progress_reaches_every_stages_end(sequence, tmp_path):
     from rigcal.localize.pipeline import run
 
     calls: list[tuple[str, int, int]] = []
-    run(sequence, ["icp"], tmp_path / "p", progress=lambda *a: calls.append(a))
+    run(sequence, ["icp"], progress=lambda *a: calls.append(a))
     stages = {c[0] for c in calls}
     assert stages == {"laser odometry"}
     last = calls[-1]

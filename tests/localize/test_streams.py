@@ -134,8 +134,7 @@ def test_a_failed_run_stops_the_background_laser_odometry(seq):
     bad = seq / "images" / "000003.png"
     bad.write_bytes(b"not a png")
     with pytest.raises(InputError, match=r"000003\.png: not a readable image"):
-        run(seq, ["vo"], seq.parent / "out", progress=None)
-    assert not (seq.parent / "out").exists()  # nothing half-written
+        run(seq, ["vo"], progress=None)
     # The laser odometry thread was told to stop (or had finished): none is left running.
     import threading
 

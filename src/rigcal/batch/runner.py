@@ -1,10 +1,12 @@
 """Run a batch's items, each in a worker process, on a local process pool or a Ray cluster.
 
-Every item runs the single command itself (:func:`rigcal.cli.main.main` with the item's
-command line), so its outputs are written exactly as ``rigcal check|solve|localize|evaluate``
-writes them; the command's JSON on stdout is the item's result. A rigcal error, a usage
-error or a bug in one item is recorded for that item and the others go on. When an item
-ends, ``OUT/NAME/item.json`` records it (docs/formats/batch.md); a re-run skips items whose
+Every item calls the library function of its command (:mod:`rigcal.jobs`, the one the
+single command calls), so its outputs are written exactly as ``rigcal
+check|solve|localize|evaluate`` writes them; the command's JSON is the item's result. The
+command line a rig file's provenance records is passed in: the batch's own, naming the
+item and its single command's equivalent. A rigcal error, a bad option value or a bug in
+one item is recorded for that item and the others go on. When an item ends,
+``OUT/NAME/item.json`` records it (docs/formats/batch.md); a re-run skips items whose
 record says they finished with the same command line and whose outputs are all there.
 
 The local pool and Ray share one code path: both hand out
@@ -25,6 +27,7 @@ import json
 import multiprocessing
 import os
 import platform
+import shlex
 import sys
 import time
 import traceback
@@ -70,19 +73,22 @@ def versions() -> dict[str, str]:
     return {"rigcal": __version__, "python": platform.python_version()}
 
 
-def run_item(argv: list[str], expect: dict[str, str] | None = None) -> dict[str, Any]:
-    """Run one single command in this process; never raises.
+def run_item(item: Item, folder: Path, command: str, expect: dict[str, str] | None = None) -> dict[str, Any]:
+    """Run one item in this process; never raises.
 
     Args:
-        argv: the command line without ``rigcal`` (``Item.argv``).
+        item: the item, its command and options.
+        folder: the item's output folder.
+        command: the command line its rig file's provenance records.
         expect: the driver's :func:`versions`; a worker with others does not run the item
             (a node of a cluster installed differently) and says which differ.
 
     Returns:
-        ``exit_code``; ``stdout``/``stderr`` as the command printed them; ``error``: the
-        command's one-line message (``Error: ...`` without the prefix), or the traceback's
-        last line of a bug; ``seconds`` of wall time; ``host`` and ``pid`` that ran it;
-        ``node``: the Ray node's address when run as a Ray task, else None.
+        ``exit_code`` as the single command's (2 for a bad option value); ``stdout``: the
+        command's JSON; ``stderr``: its log lines and errors; ``error``: the one-line
+        message of a rigcal error, or the traceback's last line of a bug; ``seconds`` of
+        wall time; ``host`` and ``pid`` that ran it; ``node``: the Ray node's address when
+        run as a Ray task, else None.
     """
     where = {"host": os.uname().nodename, "pid": os.getpid(), "node": _ray_node()}
     mine = versions()
@@ -96,32 +102,93 @@ def run_item(argv: list[str], expect: dict[str, str] | None = None) -> dict[str,
             "seconds": 0.0,
             **where,
         }
-    from rigcal.cli.main import main
+    from rigcal.errors import ArgumentError, RigcalError
 
-    out, err = io.StringIO(), io.StringIO()
-    saved = sys.argv
-    sys.argv = ["rigcal", *argv]  # the command line that provenance records
+    out, err = "", io.StringIO()
     t0 = time.perf_counter()
     error: str | None = None
     try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            code = main(argv)
+        with contextlib.redirect_stderr(err):
+            code, doc = _run_job(item, folder, command)
+        out = json.dumps(doc, indent=1) + "\n"
+    except RigcalError as exc:
+        # A bad option value is the command's usage error (exit code 2), as on its command line.
+        code = 2 if isinstance(exc, ArgumentError) else exc.exit_code
+        error = str(exc)
+        err.write(f"Error: {error}\n")
     except Exception as exc:  # a bug in the command: keep its traceback in the record
         code = 70
         err.write(traceback.format_exc())
         error = f"internal error: {type(exc).__name__}: {exc}"
-    finally:
-        sys.argv = saved
-    if error is None and code not in FINISHED[argv[0]]:
-        error = _error_line(err.getvalue()) or f"exit code {code}"
     return {
         "exit_code": code,
-        "stdout": out.getvalue(),
+        "stdout": out,
         "stderr": err.getvalue(),
         "error": error,
         "seconds": round(time.perf_counter() - t0, 3),
         **where,
     }
+
+
+def _run_job(item: Item, folder: Path, command: str) -> tuple[int, Any]:
+    """The item's command as its library function (:mod:`rigcal.jobs`) with the outputs
+    :meth:`Item.argv` gives the single command; the exit code and the JSON document."""
+    from rigcal import jobs
+
+    o = item.options
+
+    def path(key: str) -> Path | None:
+        return Path(o[key]) if key in o else None
+
+    if item.command == "solve":
+        given = {
+            k: o[k]
+            for k in ("truth", "seed", "threshold_px", "pick_sigma_px", "range_sigma_m", "loss")
+            if k in o
+        }
+        if "truth" in given:
+            given["truth"] = Path(given["truth"])
+        solved = jobs.solve_files(
+            Path(o["picks"]),
+            folder / "rig.yaml",
+            command=command,
+            report_dir=folder / "report",
+            paper_endpoints=bool(o.get("paper_endpoints", False)),
+            force=True,
+            **given,
+        )
+        return 0, solved.doc
+    if item.command == "check":
+        checked = jobs.check_rig(
+            Path(o["rig"]),
+            picks=path("picks"),
+            session=path("session"),
+            sequence=path("sequence"),
+            log=path("log"),
+            no_log=bool(o.get("no_log", False)),
+            **{k: o[k] for k in ("level", "min_captures") if k in o},
+        )
+        return checked.exit_code, checked.record
+    if item.command == "localize":
+        done = jobs.localize_sequence(
+            Path(o["sequence"]),
+            folder / "localize",
+            methods=o.get("method", "icp"),
+            rig=path("rig"),
+            kitti=bool(o.get("kitti", False)),
+            iasm=[str(v) for v in o.get("iasm", ())],
+            tracks=[str(v) for v in o.get("tracks", ())],
+            force=True,
+        )
+        return 0, done.doc
+    assert item.command == "evaluate", item.command
+    return 0, jobs.evaluate_files([Path(o["trajectory"])], Path(o["gt"])).doc
+
+
+def item_command(batch_command: str, item: Item, argv: list[str]) -> str:
+    """The command line an item's results record (a rig file's ``provenance.command``):
+    the batch's, then the item and the single command that writes the same."""
+    return f"{batch_command} [item {item.name}: rigcal {shlex.join(argv)}]"
 
 
 def _ray_node() -> str | None:
@@ -133,14 +200,6 @@ def _ray_node() -> str | None:
         return str(ray.util.get_node_ip_address())
     except Exception:  # Ray's errors have no common base class
         return None
-
-
-def _error_line(stderr: str) -> str | None:
-    """The ``Error: ...`` line the command's boundary printed, without the prefix."""
-    for line in reversed(stderr.splitlines()):
-        if line.startswith("Error: "):
-            return line.removeprefix("Error: ")
-    return None
 
 
 def item_record(item: Item, argv: list[str], ran: dict[str, Any]) -> dict[str, Any]:
@@ -190,6 +249,17 @@ def finished_record(item: Item, folder: Path) -> dict[str, Any] | None:
     return rec
 
 
+@dataclass(frozen=True)
+class Task:
+    """One item to run: its output folder, the command line its results record, and the
+    single command's equivalent (``item.json``'s ``argv``)."""
+
+    item: Item
+    folder: Path
+    command: str
+    argv: list[str]
+
+
 @dataclass
 class Outcome:
     """One item's record and whether it was taken from an earlier run."""
@@ -205,6 +275,7 @@ def run_batch(
     settings: BatchSettings | None = None,
     progress: Callable[[Outcome, int, int], None] | None = None,
     log: Callable[[str], None] | None = None,
+    command: str = "rigcal batch",
 ) -> list[Outcome]:
     """Run every item not finished yet, writing ``OUT/NAME/`` per item.
 
@@ -217,6 +288,8 @@ def run_batch(
         settings: workers, Ray address, re-run.
         progress: called after each item with its outcome, the count done and the total.
         log: called with a line about the run (where Ray runs, its session files).
+        command: the batch's command line, which the items' rig files record
+            (:func:`item_command`).
 
     Returns:
         The outcomes in the items' order.
@@ -242,14 +315,15 @@ def run_batch(
             "expected a new, empty or earlier batch output folder"
         )
     outcomes: dict[str, Outcome] = {}
-    todo: list[tuple[Item, list[str]]] = []
+    todo: list[Task] = []
     for item in items:
         folder = (out / item.name).resolve()
         rec = None if settings.rerun else finished_record(item, folder)
         if rec is not None:
             outcomes[item.name] = Outcome(item, rec, resumed=True)
         else:
-            todo.append((item, item.argv(folder)))
+            argv = item.argv(folder)
+            todo.append(Task(item, folder, item_command(command, item, argv), argv))
     done = len(outcomes)
     if progress is not None:
         for o in outcomes.values():
@@ -259,16 +333,17 @@ def run_batch(
     if todo:
         with _executor(settings, address, len(todo), log or (lambda line: None)) as (submit, window):
             waiting = iter(todo)
-            futures: dict[cf.Future[dict[str, Any]], tuple[Item, list[str]]] = {}
-            for item, argv in itertools.islice(waiting, window):
-                futures[_submitted(submit, argv)] = (item, argv)
+            futures: dict[cf.Future[dict[str, Any]], Task] = {}
+            for task in itertools.islice(waiting, window):
+                futures[_submitted(submit, task)] = task
             while futures:
                 finished, _ = cf.wait(futures, return_when=cf.FIRST_COMPLETED)
                 for fut in finished:
-                    item, argv = futures.pop(fut)
+                    task = futures.pop(fut)
+                    item = task.item
                     for nxt in itertools.islice(waiting, 1):
-                        futures[_submitted(submit, nxt[1])] = nxt
-                    rec = item_record(item, argv, _result(fut))
+                        futures[_submitted(submit, nxt)] = nxt
+                    rec = item_record(item, task.argv, _result(fut))
                     atomic_write_text(
                         out / item.name / ITEM_FILE, json.dumps(rec, indent=1) + "\n", force=True
                     )
@@ -279,11 +354,11 @@ def run_batch(
     return [outcomes[i.name] for i in items]
 
 
-def _submitted(submit: Submit, argv: list[str]) -> cf.Future[dict[str, Any]]:
-    """``submit(argv)``, or a future holding its error: a pool whose worker died refuses
+def _submitted(submit: Submit, task: Task) -> cf.Future[dict[str, Any]]:
+    """``submit(task)``, or a future holding its error: a pool whose worker died refuses
     new items, which are then recorded as failed like the items it was running."""
     try:
-        return submit(argv)
+        return submit(task)
     except Exception as exc:  # BrokenProcessPool, a lost Ray connection
         fut: cf.Future[dict[str, Any]] = cf.Future()
         fut.set_exception(exc)
@@ -310,7 +385,7 @@ def _result(fut: cf.Future[dict[str, Any]]) -> dict[str, Any]:
         }
 
 
-Submit = Callable[[list[str]], "cf.Future[dict[str, Any]]"]
+Submit = Callable[[Task], "cf.Future[dict[str, Any]]"]
 
 
 @contextlib.contextmanager
@@ -328,14 +403,14 @@ def _executor(
             _thread_limits(threads),
             cf.ProcessPoolExecutor(workers, ctx, _start_worker, (threads,)) as pool,
         ):
-            yield (lambda argv: pool.submit(run_item, argv)), 2 * workers
+            yield (lambda t: pool.submit(run_item, t.item, t.folder, t.command)), 2 * workers
         return
     expect = versions()
     with connect(address, settings.workers, settings.connect_timeout_s, log) as (ray, _):
         remote = ray.remote(num_cpus=1, max_retries=settings.ray_retries)(run_item)
         # -j N on a cluster: at most N items at once (a share of a shared cluster)
         window = settings.workers or 2 * max(1, int(ray.cluster_resources().get("CPU", 1)))
-        yield (lambda argv: remote.remote(argv, expect).future()), window
+        yield (lambda t: remote.remote(t.item, t.folder, t.command, expect).future()), window
 
 
 # Thread pools of the libraries under a worker: BLAS (OpenMP, OpenBLAS, MKL) and numba.

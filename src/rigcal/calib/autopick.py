@@ -461,7 +461,7 @@ def _mark_rejected(picks: list[CapturePick], final: CalibResult) -> list[Capture
 
 # --- the image side ----------------------------------------------------------------------
 def _read_float_image(c: CaptureDraft) -> NDArray[np.float32]:
-    from rigcal.viz.overlay import read_image
+    from rigcal.io.images import read_image
 
     return read_image(c.image_path).astype(np.float32)
 

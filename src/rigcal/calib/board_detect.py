@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.calib.intrinsics import Board
-from rigcal.calib.lines import LineParams, _ring_order, extract_lines, fit_line
+from rigcal.calib.lines import LineParams, extract_lines, fit_line, ring_order
 from rigcal.calib.noise import canonical_order
 from rigcal.calib.plane import PlaneObservation, candidate_consensus, closed_form
 from rigcal.errors import CalibrationError
@@ -186,7 +186,7 @@ def line_candidates(
         (M,) beam indices per candidate, in that order round the scan.
     """
     rng = np.random.default_rng(seed)
-    beams, pts, _ = _ring_order(scan)
+    beams, pts, _ = ring_order(scan)
     mov = moving[beams]
     out: list[IntArray] = []
     for lo, hi in _clusters(pts, mov):

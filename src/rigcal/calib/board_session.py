@@ -25,15 +25,15 @@ from rigcal.calib.intrinsics import Board, detect_corners, read_corners_vnl
 from rigcal.calib.level import LevelPriors, board_vertical, check_level_geometry
 from rigcal.calib.lines import LineParams
 from rigcal.calib.picks import (
-    _beams_near,
-    _check_image,
-    _file,
-    _pairs,
+    beams_near,
     capture_name,
+    check_image,
     check_unique_names,
+    point_pairs,
     read_session_header,
     segment_by_id,
     segments_by_ids,
+    session_file,
 )
 from rigcal.calib.plane import PlaneObservation, check_normals
 from rigcal.camera import Camera
@@ -149,7 +149,7 @@ def read_board_session(
     files = [path, camera_path]
     vnl: dict[str, FloatArray] | None = None
     if "corners_vnl" in d:
-        vnl_path = _file(path, "corners_vnl", d["corners_vnl"])
+        vnl_path = session_file(path, "corners_vnl", d["corners_vnl"])
         files.append(vnl_path)
         det = read_corners_vnl(vnl_path, board, (camera.width_px, camera.height_px))
         vnl = {Path(p).name: g for p, g in zip(det.paths, det.corners, strict=True)}
@@ -195,7 +195,7 @@ def read_board_session(
             )
         scan = None
         if "scan" in c:
-            scan_path = _file(path, f"{kp}.scan", c["scan"])
+            scan_path = session_file(path, f"{kp}.scan", c["scan"])
             files.append(scan_path)
             scan = read_scan(scan_path)
         scans.append(scan)
@@ -316,7 +316,7 @@ def _listed_returns(path: Path, key: str, side: Any, files: list[Path], version:
         raise InputError.at(
             path, f"{key}.returns_file", side["returns_file"], "no returns_file in schema_version 1 (needs 2)"
         )
-    points_path = _file(path, f"{key}.returns_file", side["returns_file"])
+    points_path = session_file(path, f"{key}.returns_file", side["returns_file"])
     files.append(points_path)
     return read_board_points(points_path)
 
@@ -341,10 +341,10 @@ def _given_returns(
     if "segments" in side:
         pieces = segments_by_ids(path, f"{key}.segments", side["segments"], scan, scan_path, params, version)
         return np.concatenate([np.array(g.points) for g in pieces])
-    ends = _pairs(side["points"], path, f"{key}.points", "laser point")
+    ends = point_pairs(side["points"], path, f"{key}.points", "laser point")
     if np.linalg.norm(ends[0] - ends[1]) < 0.05:
         raise InputError.at(path, f"{key}.points", ends.tolist(), "two distinct ends at least 5 cm apart")
-    beams = _beams_near(scan, ends)
+    beams = beams_near(scan, ends)
     if len(beams) < 2:
         raise InputError.at(
             path, f"{key}.points", ends.tolist(), "two points on the board in the scan (no returns near)"
@@ -407,8 +407,8 @@ def _corners(
             )
         return np.array(grid[..., :2].reshape(-1, 2))
     if "image" in c:
-        image = _file(path, f"{kp}.image", c["image"])
-        _check_image(path, f"{kp}.image", c["image"], image, camera)
+        image = session_file(path, f"{kp}.image", c["image"])
+        check_image(path, f"{kp}.image", c["image"], image, camera)
         files.append(image)
         det = detect_corners([image], board)
         if not det.paths:

@@ -35,9 +35,9 @@ from rigcal.calib.picks import PickSession
 from rigcal.calib.refine import (
     EndpointSet,
     NoiseModel,
-    _whitened_residuals_and_jacobian,
     endpoint_set,
     pixel_covariance,
+    whitened_residuals_and_jacobian,
     whitening,
 )
 from rigcal.calib.solve import INLIER_GATE_CHI2, CalibProblem, CalibResult, SolveSettings, solve
@@ -217,7 +217,7 @@ def check_drift_board(
 
 def _board_residual_test(rig: Rig, fresh: Any, observations: Any) -> dict[str, Any]:
     """Point-to-plane distances of the kept captures' cut ends under the stored T."""
-    from rigcal.calib.plane import _capture_cov, _end_residuals
+    from rigcal.calib.plane import capture_cov, end_residuals
 
     T = rig.T_cam_laser
     noise = fresh.noise
@@ -225,7 +225,7 @@ def _board_residual_test(rig: Rig, fresh: Any, observations: Any) -> dict[str, A
 
     def residuals(T_: FloatArray) -> FloatArray:
         return np.concatenate(
-            [_end_residuals(T_, observations[k], fresh.lines[k], noise.range_bias_m) for k in kept]
+            [end_residuals(T_, observations[k], fresh.lines[k], noise.range_bias_m) for k in kept]
         )
 
     e = residuals(T)
@@ -239,7 +239,7 @@ def _board_residual_test(rig: Rig, fresh: Any, observations: Any) -> dict[str, A
         J[:, a] = (residuals(_moved(T, d)) - residuals(_moved(T, -d))) / (2 * h)
     S = np.zeros((len(e), len(e)))
     for n, k in enumerate(kept):
-        S[2 * n : 2 * n + 2, 2 * n : 2 * n + 2] = _capture_cov(T, observations[k], fresh.lines[k], noise)
+        S[2 * n : 2 * n + 2, 2 * n : 2 * n + 2] = capture_cov(T, observations[k], fresh.lines[k], noise)
     assert rig.covariance is not None
     S += J @ rig.covariance @ J.T
     chi2_value = float(e @ np.linalg.solve(S, e)) if len(e) else 0.0
@@ -298,7 +298,7 @@ def _residual_test(
     P = len(meas.points_laser)
     # Per-end gate, with the stored calibration's uncertainty included.
     # With W = I these are the plain pixel errors (2P,) and their pose Jacobian.
-    e, J = _whitened_residuals_and_jacobian(camera, T, meas, np.eye(2 * P))
+    e, J = whitened_residuals_and_jacobian(camera, T, meas, np.eye(2 * P))
     assert rig.covariance is not None
     pose_cov = J @ rig.covariance @ J.T
     W_end = whitening(camera, T, meas, noise)

@@ -61,9 +61,9 @@ from rigcal.calib.plane import (
     PlaneResult,
     _capture_sigma,
     _chi2,
-    _end_residuals,
     _whiteners,
     capture_line,
+    end_residuals,
     point_to_plane,
     same_pose_groups,
     start_noise,
@@ -463,7 +463,7 @@ def _data_residuals(
 ) -> FloatArray:
     T = frame.pose(x[:6])
     bias = float(x[6]) if noise.fit_range_bias else noise.range_bias_m
-    return np.concatenate([w @ _end_residuals(T, o, ln, bias) for w, o, ln in zip(W, obs, lns, strict=True)])
+    return np.concatenate([w @ end_residuals(T, o, ln, bias) for w, o, ln in zip(W, obs, lns, strict=True)])
 
 
 def _fit(

@@ -244,7 +244,7 @@ def extract_lines(scan: Scan, params: LineParams | None = None, *, kernel: bool 
         The segments in beam order, numbered from 0.
     """
     params = params or LineParams()
-    beams, pts, _ = _ring_order(scan)
+    beams, pts, _ = ring_order(scan)
     if kernel:
         members, bounds, fits = _extract_compiled(pts, params)
         out = []
@@ -269,7 +269,7 @@ def line_labels(scan: Scan, params: LineParams | None = None) -> IntArray:
     """``return_labels(scan, extract_lines(scan, params))`` straight from the compiled
     kernel, without building the segments (the laser odometry wants only the labels)."""
     params = params or LineParams()
-    beams, pts, shift = _ring_order(scan)
+    beams, pts, shift = ring_order(scan)
     members, bounds, _ = _extract_compiled(pts, params)
     rank = np.empty(len(bounds) - 1, dtype=np.int64)
     rank[np.argsort(beams[members[bounds[:-1]]], kind="stable")] = np.arange(len(rank))
@@ -279,7 +279,7 @@ def line_labels(scan: Scan, params: LineParams | None = None) -> IntArray:
     return out
 
 
-def _ring_order(scan: Scan) -> tuple[IntArray, FloatArray, int]:
+def ring_order(scan: Scan) -> tuple[IntArray, FloatArray, int]:
     """The scan's valid returns (beam indices, (N, 2) points) in the order the growing
     runs over them, and by how many returns that order is rotated from the beam order.
 

@@ -40,12 +40,12 @@ from rigcal.calib.board_session import plane_observation
 from rigcal.calib.lines import LineParams, fit_line
 from rigcal.calib.marker_detect import MIN_FACE_CORNERS, TargetView, detect_target
 from rigcal.calib.picks import (
-    _check_image,
-    _file,
     capture_name,
+    check_image,
     check_unique_names,
     read_capture_scans,
     read_session_header,
+    session_file,
 )
 from rigcal.calib.plane import MIN_CAPTURES, PlaneObservation
 from rigcal.camera import Camera
@@ -134,7 +134,7 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         ["corner_sigma_px"],
     )
     d, version, camera, camera_path = head.data, head.version, head.camera, head.camera_path
-    targets_path = _file(path, "targets", d["targets"])
+    targets_path = session_file(path, "targets", d["targets"])
     target = read_targets(targets_path)
     sigma = (
         get_float(d, "corner_sigma_px", path, positive=True)
@@ -159,13 +159,13 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         name = capture_name(path, kp, c, i)
         names.append(name)
         scan, scan_files = read_capture_scans(path, kp, c, many)
-        image_path = _file(path, f"{kp}.image", c["image"])
-        _check_image(path, f"{kp}.image", c["image"], image_path, camera)
+        image_path = session_file(path, f"{kp}.image", c["image"])
+        check_image(path, f"{kp}.image", c["image"], image_path, camera)
         files += [*scan_files, image_path]
         scans.append(scan)
         n_scans[name] = len(scan_files)
         grey = read_grey(image_path)
-        if grey is None:  # pragma: no cover - _check_image read it already
+        if grey is None:  # pragma: no cover - check_image read it already
             raise InputError.at(path, f"{kp}.image", c["image"], "an image file OpenCV can read")
         view = detect_target(grey, camera, target, sigma)
         if view.foreign_ids:

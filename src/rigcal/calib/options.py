@@ -1,9 +1,10 @@
 """The solve's settings, each with its rule stated once.
 
-``rigcal solve`` declares its options with these types, and the Python API
-(``rigcal.solve_box``, ``rigcal.solve_board``) checks its keywords with the same objects
-(their ``check``), so a value the command line refuses is refused by the API too, with
-the same limits. :func:`box_settings` turns the box method's options into the solver's
+``rigcal solve`` declares its options with these rules (as click types:
+:func:`rigcal.cli.types.option_type`), and the Python API (``rigcal.solve_box``,
+``rigcal.solve_board``) checks its keywords with the same objects (their ``check``), so a
+value the command line refuses is refused by the API too, with the same limits.
+:func:`box_settings` turns the box method's options into the solver's
 :class:`~rigcal.calib.solve.SolveSettings` for both.
 """
 

@@ -188,7 +188,7 @@ def read_pick_draft(path: str | Path, line_params: LineParams | None = None) -> 
     name = d.get("name")
     if name is not None and not isinstance(name, str):
         raise InputError.at(path, "name", name, "a string")
-    camera_path = _file(path, "camera", d["camera"])
+    camera_path = session_file(path, "camera", d["camera"])
     camera = read_camera(camera_path)
     laser = d.get("laser", {})
     if not isinstance(laser, dict) or not all(isinstance(k, str) for k in laser):
@@ -278,13 +278,13 @@ def _read_draft(path: Path, version: int, i: int, c: Any, camera: Camera) -> Cap
     else:
         c = check_keys(c, path, kp, ["scan", "image"], ["name", "laser_side", "image_endpoints_px", "pick"])
     name = capture_name(path, kp, c, i)
-    scan_path = _file(path, f"{kp}.scan", c["scan"])
-    image_path = _file(path, f"{kp}.image", c["image"])
-    _check_image(path, f"{kp}.image", c["image"], image_path, camera)
+    scan_path = session_file(path, f"{kp}.scan", c["scan"])
+    image_path = session_file(path, f"{kp}.image", c["image"])
+    check_image(path, f"{kp}.image", c["image"], image_path, camera)
     scan = read_scan(scan_path)
     px = None
     if "image_endpoints_px" in c:
-        px = _pairs(c["image_endpoints_px"], path, f"{kp}.image_endpoints_px", "pixel")
+        px = point_pairs(c["image_endpoints_px"], path, f"{kp}.image_endpoints_px", "pixel")
         inside = camera.in_image(px)
         for j in range(2):
             if not inside[j]:
@@ -343,7 +343,7 @@ def check_unique_names(path: Path, names: list[str]) -> None:
             raise InputError.at(path, f"captures[{i}].name", n, "a name not used by another capture")
 
 
-def _file(base: Path, key: str, value: Any) -> Path:
+def session_file(base: Path, key: str, value: Any) -> Path:
     if not isinstance(value, str) or not value or "\0" in value:
         raise InputError.at(base, key, value, "a file path (relative to the picking file)")
     p = (base.parent / value).resolve()
@@ -382,7 +382,7 @@ def side_observation(
     )
 
 
-def _check_image(path: Path, key: str, value: str, image_path: Path, camera: Camera) -> None:
+def check_image(path: Path, key: str, value: str, image_path: Path, camera: Camera) -> None:
     """The image must decode and have the camera's size (a wrong camera file or a resized
     image would silently bias every pick)."""
     import cv2
@@ -402,7 +402,7 @@ def _check_image(path: Path, key: str, value: str, image_path: Path, camera: Cam
         )
 
 
-def _pairs(value: Any, path: Path, key: str, what: str) -> FloatArray:
+def point_pairs(value: Any, path: Path, key: str, what: str) -> FloatArray:
     ok = (
         isinstance(value, list)
         and len(value) == 2
@@ -436,7 +436,7 @@ def _laser_side(
             path, f"{key}.segments", side["segments"], scan, scan_path, line_params, version
         )
         return np.concatenate([np.asarray(g.indices, dtype=np.int64) for g in pieces])
-    ends = _pairs(side["points"], path, f"{key}.points", "laser point")
+    ends = point_pairs(side["points"], path, f"{key}.points", "laser point")
     if np.linalg.norm(ends[0] - ends[1]) < 0.05:
         raise InputError.at(path, f"{key}.points", ends.tolist(), "two distinct ends at least 5 cm apart")
     # End 0 is the end at the smaller beam angle (docs/conventions.md), as for a segment,
@@ -444,7 +444,7 @@ def _laser_side(
     a = np.mod(np.arctan2(ends[:, 1], ends[:, 0]) - scan.angles_rad[0], 2.0 * np.pi)
     if a[1] < a[0]:
         ends = ends[::-1].copy()
-    beams = _beams_near(scan, ends)
+    beams = beams_near(scan, ends)
     pts = scan.points[beams]
     if len(beams) < 2:
         raise InputError.at(
@@ -498,7 +498,7 @@ def segment_by_id(
     return segments[sid]
 
 
-def _beams_near(scan: Scan, ends: FloatArray) -> NDArray[np.int64]:
+def beams_near(scan: Scan, ends: FloatArray) -> NDArray[np.int64]:
     """Valid beams whose points lie on the segment between two laser points."""
     pts = scan.points
     valid = scan.valid
@@ -588,12 +588,12 @@ def read_capture_scans(
     if many and ("scan" in capture) == ("scans" in capture):
         raise InputError.at(path, kp, sorted(capture), "one of scan (a file) or scans (a list of files)")
     if "scan" in capture:
-        p = _file(path, f"{kp}.scan", capture["scan"])
+        p = session_file(path, f"{kp}.scan", capture["scan"])
         return read_scan(p), [p]
     value = capture["scans"]
     if not isinstance(value, list) or not value:
         raise InputError.at(path, f"{kp}.scans", value, "a non-empty list of scan files (one still moment)")
-    files = [_file(path, f"{kp}.scans[{j}]", v) for j, v in enumerate(value)]
+    files = [session_file(path, f"{kp}.scans[{j}]", v) for j, v in enumerate(value)]
     scans = [read_scan(p) for p in files]
     for j, s in enumerate(scans[1:], 1):
         if s.angles_rad.shape != scans[0].angles_rad.shape or not np.allclose(
@@ -660,7 +660,7 @@ def read_session_header(
         raise InputError.at(path, "schema_version", version, f"{shown} (the versions this rigcal reads)")
     if d["method"] != method:
         raise InputError.at(path, "method", d["method"], f"'{method}'{method_hint}")
-    camera_path = _file(path, "camera", d["camera"])
+    camera_path = session_file(path, "camera", d["camera"])
     camera = read_camera(camera_path)
     laser = d.get("laser", {})
     if not isinstance(laser, dict):

@@ -776,7 +776,7 @@ def _robust_fit(
     return T, noise, mask, robust_cost(z, noise.loss, LOSS_SCALE)
 
 
-def _capture_cov(T: FloatArray, o: PlaneObservation, line: CaptureLine, noise: PlaneNoise) -> FloatArray:
+def capture_cov(T: FloatArray, o: PlaneObservation, line: CaptureLine, noise: PlaneNoise) -> FloatArray:
     """(2, 2) covariance of the point-to-plane distances of a capture's two cut ends: the
     line's offset through the range noise, the board plane's own error (through the board's
     pose when its covariance is known, else an independent distance error) and the
@@ -800,7 +800,7 @@ def _whiteners(
 ) -> list[FloatArray]:
     """Per capture, the inverse Cholesky factor of its own (marginal) covariance."""
     return [
-        np.linalg.inv(np.linalg.cholesky(_capture_cov(T, o, ln, noise)))
+        np.linalg.inv(np.linalg.cholesky(capture_cov(T, o, ln, noise)))
         for o, ln in zip(observations, lines, strict=True)
     ]
 
@@ -828,7 +828,7 @@ def _joint_cov(
     T: FloatArray, observations: Sequence[PlaneObservation], lines: Sequence[CaptureLine], noise: PlaneNoise
 ) -> FloatArray:
     """(2m, 2m) covariance of the cut ends' distances of m observations of one rigid
-    target's pose: each one's own (:func:`_capture_cov`) on the diagonal, and between two
+    target's pose: each one's own (:func:`capture_cov`) on the diagonal, and between two
     the error they share through the one pose, G_i C G_j^T."""
     m = len(observations)
     cov = np.zeros((2 * m, 2 * m))
@@ -837,7 +837,7 @@ def _joint_cov(
         for o, ln in zip(observations, lines, strict=True)
     ]
     for i, (o, ln) in enumerate(zip(observations, lines, strict=True)):
-        cov[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = _capture_cov(T, o, ln, noise)
+        cov[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = capture_cov(T, o, ln, noise)
         for j in range(i):
             Gi, Gj = G[i], G[j]
             if Gi is None or Gj is None or o.board_pose_cov is None:
@@ -858,12 +858,12 @@ def _unit_whiteners(
     for u in pose_units(observations):
         obs = [observations[i] for i in u]
         lns = [lines[i] for i in u]
-        cov = _joint_cov(T, obs, lns, noise) if len(u) > 1 else _capture_cov(T, obs[0], lns[0], noise)
+        cov = _joint_cov(T, obs, lns, noise) if len(u) > 1 else capture_cov(T, obs[0], lns[0], noise)
         out.append((u, np.linalg.inv(np.linalg.cholesky(cov))))
     return out
 
 
-def _end_residuals(T: FloatArray, o: PlaneObservation, line: CaptureLine, range_bias_m: float) -> FloatArray:
+def end_residuals(T: FloatArray, o: PlaneObservation, line: CaptureLine, range_bias_m: float) -> FloatArray:
     """(2,) the point-to-plane distances of a capture's cut ends, range bias taken out."""
     n = np.asarray(o.normal_cam, dtype=float)
     out: FloatArray = (line.ends_corrected(range_bias_m) @ T[:3, :2].T + T[:3, 3]) @ n - o.distance_m
@@ -877,7 +877,7 @@ def _chi2(
     W = _whiteners(T, observations, lines, noise)
     return np.array(
         [
-            float(np.sum((w @ _end_residuals(T, o, ln, noise.range_bias_m)) ** 2))
+            float(np.sum((w @ end_residuals(T, o, ln, noise.range_bias_m)) ** 2))
             for w, o, ln in zip(W, observations, lines, strict=True)
         ]
     )
@@ -935,7 +935,7 @@ def _fit(
         T = pose(x)
         bias = float(x[6]) if noise.fit_range_bias else noise.range_bias_m
         return np.concatenate(
-            [w @ np.concatenate([_end_residuals(T, obs[i], lns[i], bias) for i in u]) for u, w in W]
+            [w @ np.concatenate([end_residuals(T, obs[i], lns[i], bias) for i in u]) for u, w in W]
         )
 
     x0 = np.concatenate([np.zeros(3), T0[:3, 3], [noise.range_bias_m] if noise.fit_range_bias else []])
@@ -960,7 +960,7 @@ def _covariance(
     for o, ln in zip(obs, lns, strict=True):
         n = np.asarray(o.normal_cam, dtype=float)
         rp = np.column_stack([ln.ends_corrected(noise.range_bias_m), np.zeros(2)]) @ T[:3, :3].T
-        raw_r.append(_end_residuals(T, o, ln, noise.range_bias_m))
+        raw_r.append(end_residuals(T, o, ln, noise.range_bias_m))
         # d(n . (Exp(w) R p))/dw = n . (w x Rp) = w . (Rp x n)
         cols = [np.cross(rp, n), np.broadcast_to(n, rp.shape)]
         if noise.fit_range_bias:

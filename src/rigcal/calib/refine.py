@@ -314,7 +314,7 @@ def refine_pose(
     T = make_T(R, sol.x[3:])
     # Re-whiten at the solution (the projection Jacobians moved a little) and linearise there.
     W = whitening_matrix(camera, T, meas, noise)
-    r, J = _whitened_residuals_and_jacobian(camera, T, meas, W)
+    r, J = whitened_residuals_and_jacobian(camera, T, meas, W)
     weights = loss_weights(r, params.loss, params.loss_scale)
     Jw = J * np.sqrt(weights)[:, None]
     info = Jw.T @ Jw
@@ -341,13 +341,13 @@ def capture_jacobian_blocks(
     IRLS weights (for the spread's expected jackknife, :mod:`rigcal.calib.spread`). The
     whitening couples only the two ends of one capture, so the rows split by capture."""
     W = whitening_matrix(camera, T, meas, noise)
-    r, J = _whitened_residuals_and_jacobian(camera, T, meas, W)
+    r, J = whitened_residuals_and_jacobian(camera, T, meas, W)
     Jw = J * np.sqrt(loss_weights(r, params.loss, params.loss_scale))[:, None]
     rows = np.repeat(meas.capture, 2)
     return [Jw[rows == c] for c in np.unique(meas.capture)]
 
 
-def _whitened_residuals_and_jacobian(
+def whitened_residuals_and_jacobian(
     camera: Camera, T: FloatArray, meas: EndpointSet, W: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """Whitened residuals (2P,) and their analytic Jacobian (2P, 6) at dtheta = 0.

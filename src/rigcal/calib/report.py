@@ -9,7 +9,8 @@ captures, little spread in distance or angle, large uncertainty, strongly correl
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,6 +19,9 @@ from rigcal.calib.ransac import reprojection_errors
 from rigcal.calib.solve import CalibResult
 from rigcal.calib.spread import Sensitivity, Spread, uncertainty_warnings
 from rigcal.geometry import tangent_delta
+
+if TYPE_CHECKING:
+    from rigcal.calib.intrinsics import Detections, IntrinsicsResult
 
 FloatArray = NDArray[np.float64]
 
@@ -359,3 +363,43 @@ def report_table(report: dict[str, Any]) -> str:
 
 def _r(x: float | np.floating[Any], nd: int) -> float:
     return round(float(x), nd)
+
+
+def intrinsics_report(result: IntrinsicsResult, det: Detections, output: Path) -> tuple[dict[str, Any], str]:
+    """``rigcal intrinsics``' summary of a solve written to ``output``: the JSON document
+    (``--json``) and the readable lines (fit over the inliers and over all corners, the
+    worst images, the projection uncertainty)."""
+    lens, intr = result.model.intrinsics()
+    doc = {
+        "output": str(output),
+        "lensmodel": lens,
+        "intrinsics": [round(float(x), 8) for x in intr],
+        "imagersize": list(det.imagersize),
+        "images_used": result.images_used,
+        "boards_not_found": list(det.missing),
+        "rms_px": result.rms_px,
+        "worst_px": result.worst_px,
+        "rms_all_corners_px": result.rms_all_px,
+        "worst_all_corners_px": result.worst_all_px,
+        "warnings": list(result.warnings),
+        "outliers": result.outliers,
+        "corners": result.corners,
+        "per_image_rms_px": result.per_image_rms_px,
+        "projection_uncertainty_px": result.uncertainty_px,
+    }
+    worst = sorted(result.per_image_rms_px.items(), key=lambda kv: -kv[1])[:3]
+    text = "\n".join(
+        [
+            f"{lens}: fx {intr[0]:.3f}, fy {intr[1]:.3f}, cx {intr[2]:.3f}, cy {intr[3]:.3f} px",
+            f"images used {result.images_used} (board not found in {len(det.missing)}); "
+            f"outliers {result.outliers} of {result.corners} corners",
+            f"reprojection over the inliers ({result.corners - result.outliers} corners): "
+            f"RMS {result.rms_px:.3f} px, worst {result.worst_px:.3f} px",
+            f"reprojection over all detected corners (outliers included): "
+            f"RMS {result.rms_all_px:.3f} px, worst {result.worst_all_px:.3f} px",
+            "worst images (RMS px): " + ", ".join(f"{k} {v:.3f}" for k, v in worst),
+            "projection uncertainty (1-sigma, worst direction, px): "
+            + ", ".join(f"{k.replace('_', ' ')} {v:.3f}" for k, v in result.uncertainty_px.items()),
+        ]
+    )
+    return doc, text

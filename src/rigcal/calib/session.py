@@ -1,25 +1,23 @@
 """From a picking file to a rig and its report: the library side of ``rigcal solve``.
 
 Data flow: picking file -> :func:`rigcal.calib.picks.read_picks` -> :class:`CalibProblem`
--> :func:`rigcal.calib.solve.solve` -> report + :class:`~rigcal.rig.Rig` -> writers.
+-> :func:`rigcal.calib.solve.solve` -> report + :class:`~rigcal.rig.Rig` -> writers
+(:mod:`rigcal.viz.report_dir`, :func:`rigcal.rigfile.write_rig`).
 """
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from rigcal.calib.picks import BoxObservation, PickSession, read_picks
-from rigcal.calib.report import build_report, report_table, rig_uncertainty
+from rigcal.calib.report import build_report, rig_uncertainty
 from rigcal.calib.solve import CalibProblem, CalibResult, FloatArray, SolveSettings, solve
 from rigcal.calib.truth import read_truth
-from rigcal.io.files import atomic_folder, check_folder_writable
 from rigcal.rig import Rig
 from rigcal.rigfile import provenance
 
@@ -125,56 +123,3 @@ def box_rig(result: CalibResult, report: dict[str, Any], laser: dict[str, Any], 
 def scanner_description(observations: Sequence[BoxObservation]) -> dict[str, Any]:
     steps = [o.beam_step_rad for o in observations if o.beam_step_rad > 0]
     return {"angle_increment_deg": round(float(np.degrees(np.median(steps))), 6)} if steps else {}
-
-
-def check_report_dir(folder: str | Path, force: bool) -> Path:
-    """Refuse an existing report folder unless ``force`` (checked before solving)."""
-    return check_folder_writable(folder, force)
-
-
-def write_report_dir(folder: str | Path, cal: Calibration, force: bool = False) -> Path:
-    """Write report.yaml, report.json, report.txt, the residual summary chart
-    (residuals.png/.svg) and one overlay PNG per capture.
-
-    Everything goes into a temporary sibling folder first, then replaces ``folder`` in one
-    rename, so a failure leaves no half-written report.
-    """
-    from rigcal.scan import read_scan
-    from rigcal.viz.charts import figure_bytes
-    from rigcal.viz.overlay import draw_overlay, read_image, write_png
-    from rigcal.viz.residual_plot import residuals_figure
-
-    with atomic_folder(check_report_dir(folder, force), force) as tmp:
-        (tmp / "report.yaml").write_text(
-            "# rigcal solve report (docs/formats/report.md)\n"
-            + yaml.safe_dump(cal.report, sort_keys=False, default_flow_style=None, width=110)
-        )
-        (tmp / "report.json").write_text(json.dumps(cal.report, indent=1) + "\n")
-        (tmp / "report.txt").write_text(report_table(cal.report))
-        res = cal.result
-        T = res.T_cam_laser
-        pts = res.measurements.points_laser
-        projected_all = cal.session.camera.project(
-            np.column_stack([pts, np.zeros(len(pts))]) @ T[:3, :3].T + T[:3, 3]
-        )
-        cam = cal.session.camera
-        fig = residuals_figure(
-            cal.report, res.measurements.pixels, projected_all, res.inliers, (cam.width_px, cam.height_px)
-        )
-        for fmt in (".png", ".svg"):
-            (tmp / f"residuals{fmt}").write_bytes(figure_bytes(fig, fmt))
-        for obs in cal.session.observations:
-            m = res.measurements.capture == obs.capture
-            ends3 = np.column_stack([res.measurements.points_laser[m], np.zeros(int(m.sum()))])
-            projected = cal.session.camera.project(ends3 @ T[:3, :3].T + T[:3, 3])
-            img = draw_overlay(
-                read_image(obs.image_path),
-                cal.session.camera,
-                T,
-                read_scan(obs.scan_path),
-                picked_px=obs.image_endpoints_px,
-                projected_ends_px=projected,
-                end_inlier=res.inliers[m],
-            )
-            write_png(tmp / f"overlay_{obs.name}.png", img)
-    return Path(folder)

@@ -2,24 +2,20 @@
 
 from __future__ import annotations
 
+import shlex
+import sys
 from pathlib import Path
 from typing import Any
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.options import json_option, output_option
+from rigcal.cli.types import Real
 
 
 @click.command("batch")
 @click.argument("source")
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path, file_okay=False),
-    metavar="DIR",
-    help="Batch folder.",
-)
+@output_option("Batch folder.", "DIR", file_okay=False)
 @click.option(
     "--command",
     "command",
@@ -69,7 +65,7 @@ from rigcal.io.validate import Real
     "(a failing command is never retried).",
 )
 @click.option("--rerun", is_flag=True, help="Run finished items again instead of skipping them.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+@json_option("Print the summary as JSON on stdout.")
 def batch(
     source: str,
     output: Path,
@@ -139,7 +135,8 @@ def batch(
         click.echo(line, err=True)
 
     settings = BatchSettings(workers, ray_address, rerun, ray_timeout_s, ray_retries)
-    outcomes = run_batch(items, output, settings, report, lambda line: click.echo(line, err=True))
+    command = "rigcal " + shlex.join(sys.argv[1:]) if sys.argv else "rigcal batch"
+    outcomes = run_batch(items, output, settings, report, lambda line: click.echo(line, err=True), command)
     json_path, csv_path = write_summary(output, outcomes)
     wrote = [str(csv_path), str(json_path)]
     if items[0].command == "check":

@@ -7,19 +7,13 @@ from pathlib import Path
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.options import force_option, json_option, output_option
+from rigcal.cli.types import Real
 
 
 @click.command("capture")
 @click.argument("source", type=click.Path(path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path, file_okay=False),
-    metavar="DIR",
-    help="Session folder.",
-)
+@output_option("Session folder.", "DIR", file_okay=False)
 @click.option("--scan-topic", help="Bags: the sensor_msgs/LaserScan topic.")
 @click.option("--image-topic", help="Bags: the sensor_msgs/Image or CompressedImage topic.")
 @click.option("--camera-info-topic", help="Bags: a sensor_msgs/CameraInfo topic for the camera.")
@@ -56,8 +50,8 @@ from rigcal.io.validate import Real
     "--max-offset-s", default=0.5, show_default=True, type=Real(min=0.0, min_open=True),
     help="Largest stamp difference of a scan + image pair.",
 )  # fmt: skip
-@click.option("--force", is_flag=True, help="Replace an existing session folder.")
-@click.option("--json", "as_json", is_flag=True, help="Print the captures as JSON on stdout.")
+@force_option("Replace an existing session folder.")
+@json_option("Print the captures as JSON on stdout.")
 def capture(
     source: Path,
     output: Path,

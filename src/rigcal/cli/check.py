@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import Any
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.options import force_option, json_option
+from rigcal.cli.types import option_type
+from rigcal.jobs import LEVEL, MIN_CAPTURES
 
 
 @click.command("check")
@@ -32,14 +32,14 @@ from rigcal.io.validate import Real
     "--level",
     default=0.01,
     show_default=True,
-    type=Real(min=1e-6, max=0.5),
+    type=option_type(LEVEL),
     help="Chance of a false alarm when nothing moved.",
 )
 @click.option(
     "--min-captures",
     default=5,
     show_default=True,
-    type=click.IntRange(min=3),
+    type=option_type(MIN_CAPTURES),
     help="Captures needed for a fresh solve of a box session (fewer: residual test only).",
 )
 @click.option(
@@ -54,8 +54,8 @@ from rigcal.io.validate import Real
     type=click.Path(path_type=Path),
     help="Also draw the drift history (the log) as a chart: .png, .svg or .pdf.",
 )
-@click.option("--force", is_flag=True, help="Overwrite an existing plot.")
-@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+@force_option("Overwrite an existing plot.")
+@json_option("Print the result as JSON on stdout.")
 def check(
     rig: Path,
     picks: Path | None,
@@ -94,86 +94,31 @@ def check(
       rigcal check rig.yaml --sequence drives/2026-11-26/ --plot drift.png --force
       rigcal check rig.yaml --sequence drives/today/ || echo "recalibrate, or drive more"
     """
-    from rigcal.calib.driftlog import EXIT_CODES, append_record, default_log_path, read_log
-    from rigcal.errors import OutputError
-    from rigcal.io.files import check_apart, check_writable
-    from rigcal.rigfile import read_rig
-    from rigcal.viz.drift_plot import write_drift_plot
+    from rigcal.cli.progress import Progress
+    from rigcal.jobs import as_json as json_text
+    from rigcal.jobs import check_rig
 
-    given = [(n, p) for n, p in (("--picks", picks), ("--session", session), ("--sequence", sequence)) if p]
+    given = [p for p in (picks, session, sequence) if p]
     if len(given) != 1:
         raise click.UsageError("give one of --picks, --session or --sequence")
-    kind_flag, source = given[0]
-    log = log_path or default_log_path(rig)
-    check_apart(log, [rig, source])
-    if (plot is not None or not no_log) and log.is_dir():  # an output where a file goes: exit 5
-        raise OutputError(f"{log}: is a folder; expected the drift log's file path (--log)")
-    if plot is not None:
-        from rigcal.viz.charts import check_chart_name
-
-        check_writable(plot, force, [rig, source, log])
-        check_chart_name(plot)
-    stored = read_rig(rig)
-    if kind_flag == "--sequence":
-        record = _targetless(rig, stored, source, level)
-    else:
-        record = _with_target(rig, stored, source, kind_flag, level, min_captures)
-    # The plot (the history and this check) first: a failure there leaves the log as it was.
-    history = read_log(log) if (plot is not None or not no_log) and log.exists() else []
-    if plot is not None:
-        write_drift_plot(plot, [*history, record], force=force)
-    if not no_log:
-        append_record(log, record)
-    if as_json:
-        click.echo(json.dumps(record, indent=1))
-    else:
-        click.echo(_summary(record))
-    if not no_log:
-        click.echo(f"appended to {log}" + (f"; drew {plot}" if plot else ""), err=True)
-    return EXIT_CODES[str(record["verdict"])]
-
-
-def _with_target(
-    rig_path: Path, stored: Any, source: Path, flag: str, level: float, min_captures: int
-) -> dict[str, Any]:
-    """A box or board session's check record."""
-    from rigcal.calib.board_session import is_board_session
-    from rigcal.calib.drift import DriftSettings, check_drift, check_drift_board
-    from rigcal.calib.driftlog import drift_record
-    from rigcal.calib.picks import read_picks
-    from rigcal.errors import InputError
-    from rigcal.io.files import load_yaml
-
-    if stored.covariance is None:
-        raise InputError(
-            f"{rig_path}: uncertainty: missing; a drift check needs the stored calibration's covariance "
-            "(re-solve the rig with `rigcal solve`)"
-        )
-    settings = DriftSettings(level=level, min_captures_for_solve=min_captures)
-    board = is_board_session(load_yaml(source, "picking file" if flag == "--picks" else "session file"))
-    if board and flag == "--picks":
-        raise InputError(
-            f"{source}: method: got 'board'; expected a box picking file for --picks: check a board "
-            f"session with `rigcal check {rig_path} --session {source}`"
-        )
-    if board:
-        return drift_record(check_drift_board(stored, source, settings), source, kind="board")
-    return drift_record(check_drift(stored, read_picks(source), settings), source, kind="box")
-
-
-def _targetless(rig_path: Path, stored: Any, sequence: Path, level: float) -> dict[str, Any]:
-    """A drive's targetless check record."""
-    from rigcal.calib.driftlog import targetless_record
-    from rigcal.cli.progress import Progress
-    from rigcal.drift.targetless import TargetlessSettings, check_targetless, same_camera
-    from rigcal.localize.streams import open_streams
-
-    streams = open_streams(sequence, rig_file=rig_path)
-    same_camera(stored, streams, rig_path)
     with Progress("frame") as bars:
-        streams.progress = bars
-        result = check_targetless(stored, streams, TargetlessSettings(level=level))
-    return targetless_record(result, sequence)
+        done = check_rig(
+            rig,
+            picks=picks,
+            session=session,
+            sequence=sequence,
+            level=level,
+            min_captures=min_captures,
+            log=log_path,
+            no_log=no_log,
+            plot=plot,
+            force=force,
+            progress=bars,
+        )
+    click.echo(json_text(done.record) if as_json else _summary(done.record))
+    if done.log is not None:
+        click.echo(f"appended to {done.log}" + (f"; drew {plot}" if plot else ""), err=True)
+    return done.exit_code
 
 
 def _summary(record: dict[str, object]) -> str:

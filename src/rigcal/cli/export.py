@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.options import force_option, output_option
+
 
 def _ros_name(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
     """A frame (or, for --rostopic, topic) name checked against the ROS name rules: a bad
@@ -64,14 +66,8 @@ def _ros_name(ctx: click.Context, param: click.Parameter, value: str | None) -> 
     callback=_ros_name,
     help="The camera's image topic, written into the Kalibr camchain.",
 )
-@click.option(
-    "-o",
-    "--output",
-    type=click.Path(path_type=Path),
-    metavar="FILE",
-    help="Write to this file instead of stdout.",
-)
-@click.option("--force", is_flag=True, help="Overwrite an existing output file.")
+@output_option("Write to this file instead of stdout.", required=False)
+@force_option("Overwrite an existing output file.")
 @click.option(
     "--json",
     "as_json",

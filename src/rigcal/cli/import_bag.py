@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.options import force_option, json_option, output_option
 from rigcal.cli.stamps import laser_offset_option
 
 
@@ -35,11 +36,9 @@ from rigcal.cli.stamps import laser_offset_option
     show_default=True,
     help="repair: sort messages out of time order and drop repeated stamps (counted); strict: refuse them.",
 )
-@click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path), metavar="DIR", help="Sequence folder."
-)
-@click.option("--force", is_flag=True, help="Replace an existing folder.")
-@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
+@output_option("Sequence folder.", "DIR")
+@force_option("Replace an existing folder.")
+@json_option("Print what was written as JSON on stdout.")
 def import_bag(
     bag: Path,
     scan_topic: str,

@@ -7,15 +7,14 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.options import force_option, json_option, output_option
 from rigcal.cli.stamps import laser_offset_option, stamps_option, warn_stamps
-from rigcal.io.validate import Real
+from rigcal.cli.types import Real
 
 
 @click.command("import-carmen")
 @click.argument("log", type=click.Path(path_type=Path))
-@click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path), metavar="DIR", help="Sequence folder."
-)
+@output_option("Sequence folder.", "DIR")
 @click.option(
     "--flaser-range-max-m",
     type=Real(min=0.0, min_open=True),
@@ -26,8 +25,8 @@ from rigcal.io.validate import Real
 @stamps_option
 @laser_offset_option
 @click.option("--no-odometry", is_flag=True, help="Leave the log's wheel odometry out of the folder.")
-@click.option("--force", is_flag=True, help="Replace an existing folder.")
-@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
+@force_option("Replace an existing folder.")
+@json_option("Print what was written as JSON on stdout.")
 def import_carmen(
     log: Path,
     output: Path,

@@ -6,8 +6,9 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.options import force_option, json_option, output_option
 from rigcal.cli.stamps import laser_offset_option, stamps_option, warn_stamps
-from rigcal.io.validate import Real
+from rigcal.cli.types import Real
 
 
 @click.command("import-laser")
@@ -37,14 +38,7 @@ from rigcal.io.validate import Real
     help="RADLOCC: the range the scanner writes for no return (a Hokuyo driver writes its "
     "maximum, e.g. 5.0).",
 )
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path, file_okay=False),
-    metavar="DIR",
-    help="Sequence folder.",
-)
+@output_option("Sequence folder.", "DIR", file_okay=False)
 @stamps_option
 @click.option(
     "--odometry",
@@ -52,8 +46,8 @@ from rigcal.io.validate import Real
     help="Wheel odometry: a TUM file of the robot base's poses (same clock as the scans).",
 )
 @laser_offset_option
-@click.option("--force", is_flag=True, help="Replace an existing folder.")
-@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
+@force_option("Replace an existing folder.")
+@json_option("Print what was written as JSON on stdout.")
 def import_laser(
     log: Path,
     images: Path | None,

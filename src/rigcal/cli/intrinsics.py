@@ -8,7 +8,8 @@ from pathlib import Path
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.options import force_option, json_option, output_option
+from rigcal.cli.types import Real
 
 
 def _board(value: str, option: str) -> tuple[int, int]:
@@ -63,19 +64,12 @@ def _lensmodel(ctx: click.Context, param: click.Parameter, value: str) -> str:
     "LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg=100.",
 )
 @click.option("--focal-px", type=Real(min=1.0), help="Rough focal length for the seed [image width].")
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="FILE",
-    help="The .cameramodel to write.",
-)
+@output_option("The .cameramodel to write.")
 @click.option(
     "--save-corners", type=click.Path(path_type=Path), help="Also write the detected corners (corners.vnl)."
 )
-@click.option("--force", is_flag=True, help="Overwrite existing outputs.")
-@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+@force_option("Overwrite existing outputs.")
+@json_option("Print the result as JSON on stdout.")
 def intrinsics(
     images: tuple[Path, ...],
     board: str | None,
@@ -118,7 +112,6 @@ def intrinsics(
         solve_intrinsics,
         write_corners_vnl,
     )
-    from rigcal.errors import InputError
     from rigcal.io.files import atomic_write_text, check_writable
 
     if (board is None) == (charuco is None):
@@ -146,14 +139,9 @@ def intrinsics(
         if imagersize is not None:
             size = _board(imagersize, "--imagersize")
         elif images:
-            import cv2
+            from rigcal.io.images import image_size
 
-            from rigcal.io.images import read_image_file
-
-            img = read_image_file(images[0], cv2.IMREAD_GRAYSCALE)
-            if img is None:
-                raise InputError(f"{images[0]}: image not found or not readable")
-            size = (img.shape[1], img.shape[0])
+            size = image_size(images[0])
         else:
             raise click.UsageError("with --corners, give --imagersize WxH or one of the images")
         det = read_corners_vnl(corners_file, spec, size)
@@ -189,44 +177,13 @@ def intrinsics(
     atomic_write_text(output, text, force=force)
     if save_corners is not None:
         atomic_write_text(save_corners, write_corners_vnl(det), force=force)
-    lens, intr = result.model.intrinsics()
-    doc = {
-        "output": str(output),
-        "lensmodel": lens,
-        "intrinsics": [round(float(x), 8) for x in intr],
-        "imagersize": list(det.imagersize),
-        "images_used": result.images_used,
-        "boards_not_found": list(det.missing),
-        "rms_px": result.rms_px,
-        "worst_px": result.worst_px,
-        "rms_all_corners_px": result.rms_all_px,
-        "worst_all_corners_px": result.worst_all_px,
-        "warnings": list(result.warnings),
-        "outliers": result.outliers,
-        "corners": result.corners,
-        "per_image_rms_px": result.per_image_rms_px,
-        "projection_uncertainty_px": result.uncertainty_px,
-    }
+    from rigcal.calib.report import intrinsics_report
+
+    doc, table = intrinsics_report(result, det, output)
     if as_json:
         click.echo(json.dumps(doc, indent=1))
         return
-    worst = sorted(result.per_image_rms_px.items(), key=lambda kv: -kv[1])[:3]
-    click.echo(
-        "\n".join(
-            [
-                f"{lens}: fx {intr[0]:.3f}, fy {intr[1]:.3f}, cx {intr[2]:.3f}, cy {intr[3]:.3f} px",
-                f"images used {result.images_used} (board not found in {len(det.missing)}); "
-                f"outliers {result.outliers} of {result.corners} corners",
-                f"reprojection over the inliers ({result.corners - result.outliers} corners): "
-                f"RMS {result.rms_px:.3f} px, worst {result.worst_px:.3f} px",
-                f"reprojection over all detected corners (outliers included): "
-                f"RMS {result.rms_all_px:.3f} px, worst {result.worst_all_px:.3f} px",
-                "worst images (RMS px): " + ", ".join(f"{k} {v:.3f}" for k, v in worst),
-                "projection uncertainty (1-sigma, worst direction, px): "
-                + ", ".join(f"{k.replace('_', ' ')} {v:.3f}" for k, v in result.uncertainty_px.items()),
-            ]
-        )
-    )
+    click.echo(table)
     for message in result.warnings:
         click.echo(f"warning: {message}", err=True)
     click.echo(f"wrote {output}", err=True)

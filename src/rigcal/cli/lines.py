@@ -7,14 +7,15 @@ from pathlib import Path
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.options import force_option, json_option
+from rigcal.cli.types import Real
 
 
 @click.command("lines")
 @click.argument("scan", type=click.Path(path_type=Path))
 @click.option("--png", type=click.Path(path_type=Path), help="Also draw the scan with numbered segments.")
-@click.option("--force", is_flag=True, help="Overwrite an existing PNG.")
-@click.option("--json", "as_json", is_flag=True, help="Print the segments as JSON on stdout.")
+@force_option("Overwrite an existing PNG.")
+@json_option("Print the segments as JSON on stdout.")
 @click.option(
     "--range-sigma-m",
     type=Real(min=0.0, min_open=True, max=1.0, max_open=True),

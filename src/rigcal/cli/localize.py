@@ -8,7 +8,9 @@ from typing import TYPE_CHECKING
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.options import force_option, json_option, output_option
+from rigcal.cli.types import option_type
+from rigcal.jobs import MAX_DIFF_S
 
 if TYPE_CHECKING:
     import numpy as np
@@ -38,13 +40,11 @@ rig_option = click.option(
     "odometry when used), iasm (image augmented scan matching), hiasm (homography based IASM), "
     "odom (the wheel odometry alone).",
 )
-@click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path), metavar="DIR", help="Output folder."
-)
+@output_option("Output folder.", "DIR")
 @rig_option
 @click.option("--kitti", is_flag=True, help="Also write each trajectory in KITTI form.")
-@click.option("--force", is_flag=True, help="Replace an existing output folder.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@force_option("Replace an existing output folder.")
+@json_option("Print the summary as JSON.")
 @click.option(
     "--iasm",
     "iasm_items",
@@ -103,43 +103,31 @@ def localize(
       rigcal localize corridor/ --method iasm,hiasm --iasm snap_max_m=0 -o out-raw/
       rigcal localize corridor/ --method vo,kf --tracks detector=sift -o out-sift/
     """
-    from rigcal.errors import InputError
-    from rigcal.io.files import check_folder_writable
-    from rigcal.localize.loop_closure import LoopParams
-    from rigcal.localize.pipeline import (
-        parse_iasm_settings,
-        parse_methods,
-        parse_track_settings,
-        run,
-        summary,
-        table,
-    )
-
-    try:  # bad option values are usage errors (exit code 2)
-        names = parse_methods(methods)
-        iasm = parse_iasm_settings(iasm_items)
-        tracks = parse_track_settings(track_items)
-    except InputError as exc:
-        raise click.UsageError(str(exc)) from None
-    check_folder_writable(output, force, [sequence, *([rig_file] if rig_file else [])])
     from rigcal.cli.progress import Progress
+    from rigcal.errors import ArgumentError
+    from rigcal.jobs import localize_sequence
+    from rigcal.localize.pipeline import table
 
-    with Progress("step") as bars:
-        r = run(
-            sequence,
-            names,
-            output,
-            force=force,
-            kitti=kitti,
-            rig_file=rig_file,
-            progress=bars,
-            iasm=iasm,
-            tracks=tracks,
-            wheel_odometry=wheel_odometry == "use",
-            loop_closure=LoopParams() if loop_closure else None,
-        )
+    try:
+        with Progress("step") as bars:
+            done = localize_sequence(
+                sequence,
+                output,
+                methods=methods,
+                rig=rig_file,
+                kitti=kitti,
+                iasm=iasm_items,
+                tracks=track_items,
+                wheel_odometry=wheel_odometry == "use",
+                loop_closure=loop_closure,
+                force=force,
+                progress=bars,
+            )
+    except ArgumentError as exc:  # bad option values are usage errors (exit code 2)
+        raise click.UsageError(str(exc)) from None
+    r = done.run
     if as_json:
-        click.echo(json.dumps(summary(r, sequence), indent=1))
+        click.echo(json.dumps(done.doc, indent=1))
     elif r.truth is not None:
         click.echo(table([(m.method, m.metrics) for m in r.methods if m.metrics is not None]))
     for m in r.methods:
@@ -177,10 +165,10 @@ def method_line(m: MethodRun) -> str:
     "--max-diff-s",
     default=0.01,
     show_default=True,
-    type=Real(min=0.0),
+    type=option_type(MAX_DIFF_S),
     help="Stamps of estimate and truth closer than this are matched (evo's --t_max_diff).",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON, unrounded.")
+@json_option("Print the figures as JSON, unrounded.")
 @click.option(
     "--precision",
     default=4,
@@ -194,7 +182,7 @@ def method_line(m: MethodRun) -> str:
     metavar="FILE",
     help="Chart the paths against the truth beside their errors over time (.png, .svg or .pdf).",
 )
-@click.option("--force", is_flag=True, help="Overwrite an existing --plot file.")
+@force_option("Overwrite an existing --plot file.")
 def evaluate_cmd(
     trajectories: tuple[Path, ...],
     gt: Path,
@@ -220,63 +208,16 @@ def evaluate_cmd(
       rigcal evaluate out/iasm/trajectory.tum out/hiasm/trajectory.tum --gt corridor/groundtruth.tum \\
         --plot compare.png --precision 6
     """
-    from rigcal.errors import InputError
-    from rigcal.io.files import check_writable
-    from rigcal.io.trajectory import read_tum
-    from rigcal.localize.metrics import anchored, associate, evaluate
-    from rigcal.localize.pipeline import planar_at, table
+    from rigcal.jobs import evaluate_files
+    from rigcal.localize.pipeline import table
 
+    done = evaluate_files(trajectories, gt, max_diff_s=max_diff_s, plot=plot, force=force)
     if plot is not None:
-        from rigcal.viz.charts import check_chart_name
-
-        check_chart_name(plot)
-        check_writable(plot, force, [*trajectories, gt])
-    truth = read_tum(gt)
-    assert truth.stamps_s is not None
-    rows = []
-    drawn: dict[str, tuple[FloatArray, FloatArray, FloatArray]] = {}  # label -> (estimate, truth, stamps)
-    for path, label in zip(trajectories, labels(trajectories), strict=True):
-        est = read_tum(path)
-        assert est.stamps_s is not None
-        i_est, i_gt = associate(est.stamps_s, truth.stamps_s, max_diff_s)
-        if len(i_est) < 2:
-            raise InputError.at(
-                path,
-                "timestamps",
-                f"{len(i_est)} within {max_diff_s} s of {gt}",
-                "at least 2 stamps matching the truth's (no time overlap to score)",
-            )
-        poses_est = planar_at(est, est.stamps_s)[i_est]
-        poses_gt = planar_at(truth, truth.stamps_s)[i_gt]
-        rows.append((label, {**evaluate(poses_est, poses_gt, rounded=False), "matched_poses": len(i_est)}))
-        drawn[label] = (anchored(poses_est, poses_gt), poses_gt, est.stamps_s[i_est])
-    if plot is not None:
-        from rigcal.viz.charts import save_figure
-        from rigcal.viz.paths_plot import evaluation_figure
-
-        fig = evaluation_figure(
-            planar_at(truth, truth.stamps_s),
-            {k: v[0] for k, v in drawn.items()},
-            {k: v[1] for k, v in drawn.items()},
-            {k: v[2] for k, v in drawn.items()},
-        )
-        save_figure(plot, fig, force=force)
         click.echo(f"wrote {plot}", err=True)
     if as_json:
-        click.echo(json.dumps(rows[0][1] if len(rows) == 1 else dict(rows), indent=1))
+        click.echo(json.dumps(done.doc, indent=1))
     else:
-        click.echo(table(rows, precision))
-
-
-def labels(paths: tuple[Path, ...]) -> list[str]:
-    """Row labels: the method folder of METHOD/trajectory.tum, else the file's stem, with
-    more of each path's folders while two labels would be the same."""
-    parts = [(p.parent if p.stem == "trajectory" else p.with_suffix("")).resolve().parts for p in paths]
-    for n in range(1, max(len(x) for x in parts) + 1):
-        out = ["/".join(x[-n:]) for x in parts]
-        if len(set(out)) == len(out):
-            return out
-    return [str(p) for p in paths]
+        click.echo(table(done.rows, precision))
 
 
 @click.command("matches")
@@ -289,17 +230,10 @@ def labels(paths: tuple[Path, ...]) -> list[str]:
     type=click.Choice(["iasm", "hiasm"]),
     help="Matching method; as localize's --method, the default is the simplest (the paper's Fig. 5).",
 )
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path, dir_okay=False),
-    metavar="FILE",
-    help="Picture to write (.png, .svg or .pdf).",
-)
+@output_option("Picture to write (.png, .svg or .pdf).", dir_okay=False)
 @rig_option
-@click.option("--force", is_flag=True, help="Replace an existing file.")
-@click.option("--json", "as_json", is_flag=True, help="Print the counts and the step's motion as JSON.")
+@force_option("Replace an existing file.")
+@json_option("Print the counts and the step's motion as JSON.")
 def matches(
     sequence: Path, index: int, method: str, output: Path, rig_file: Path | None, force: bool, as_json: bool
 ) -> None:
@@ -316,9 +250,10 @@ def matches(
 
     from rigcal.errors import InputError
     from rigcal.io.files import check_writable
-    from rigcal.localize.image_matching import step_picture
+    from rigcal.localize.image_matching import step_matches
     from rigcal.localize.streams import open_streams
     from rigcal.viz.charts import check_chart_name, save_figure
+    from rigcal.viz.matches_plot import step_figure
 
     check_chart_name(output)
     check_writable(output, force, [sequence, *([rig_file] if rig_file else [])])
@@ -331,8 +266,9 @@ def matches(
         raise InputError.at(
             None, "--image", index, f"an index from 0 to {streams.n_images - 2} (the first image of a pair)"
         )
-    fig, st = step_picture(streams, index, method)
-    save_figure(output, fig, force=True)
+    found = step_matches(streams, index, method)
+    save_figure(output, step_figure(found), force=True)
+    st = found.step
     n = 0 if st.matches is None else len(st.matches.i1)
     inl = 0 if st.result is None else st.result.inliers
     metric = "-" if st.result is None else st.result.metric

@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.options import force_option, output_option
+from rigcal.cli.types import Real
 
 if TYPE_CHECKING:
     from rigcal.calib.autopick import PickRun
@@ -16,14 +17,7 @@ if TYPE_CHECKING:
 
 @click.command("pick")
 @click.argument("picks", type=click.Path(path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path, dir_okay=False),
-    metavar="FILE",
-    help="Picking file to write.",
-)
+@output_option("Picking file to write.", dir_okay=False)
 @click.option("--rig", type=click.Path(path_type=Path), help="A rough rig file to predict the ends with.")
 @click.option(
     "--sheet",
@@ -47,7 +41,7 @@ if TYPE_CHECKING:
     "--review-below", default=0.5, show_default=True, type=Real(min=0.0, max=1.0),
     help="Mark picks with a lower confidence for review.",
 )  # fmt: skip
-@click.option("--force", is_flag=True, help="Overwrite the output files.")
+@force_option("Overwrite the output files.")
 @click.option(
     "--json", "as_json", is_flag=True, help="Print the picks, confidences and review reasons as JSON."
 )

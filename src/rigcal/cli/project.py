@@ -7,21 +7,16 @@ from pathlib import Path
 
 import click
 
+from rigcal.cli.options import force_option, json_option, output_option
+
 
 @click.command("project")
 @click.argument("rig", type=click.Path(path_type=Path))
 @click.argument("scan", type=click.Path(path_type=Path))
 @click.argument("image", type=click.Path(path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="FILE",
-    help="Overlay PNG to write.",
-)
-@click.option("--force", is_flag=True, help="Overwrite an existing PNG.")
-@click.option("--json", "as_json", is_flag=True, help="Print the projected pixels as JSON on stdout.")
+@output_option("Overlay PNG to write.")
+@force_option("Overwrite an existing PNG.")
+@json_option("Print the projected pixels as JSON on stdout.")
 def project(rig: Path, scan: Path, image: Path, output: Path, force: bool, as_json: bool) -> None:
     """Project SCAN into IMAGE with RIG's T_cam_laser and camera model; write an overlay PNG.
 
@@ -36,9 +31,10 @@ def project(rig: Path, scan: Path, image: Path, output: Path, force: bool, as_js
     """
     from rigcal.errors import InputError
     from rigcal.io.files import check_writable
+    from rigcal.io.images import read_image
     from rigcal.rigfile import read_rig
     from rigcal.scan import read_scan
-    from rigcal.viz.overlay import draw_overlay, project_scan, read_image, write_png
+    from rigcal.viz.overlay import draw_overlay, project_scan, write_png
 
     check_writable(output, force, [rig, scan, image])
     r = read_rig(rig)

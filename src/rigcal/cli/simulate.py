@@ -7,7 +7,8 @@ from pathlib import Path
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.options import force_option, output_option
+from rigcal.cli.types import Real
 
 
 @click.group("simulate")
@@ -34,15 +35,7 @@ _noise_option = click.option(
 
 
 @simulate.command("box-session")
-@click.option(
-    "-o",
-    "--output",
-    "output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="DIR",
-    help="Session folder to create.",
-)
+@output_option("Session folder to create.", "DIR")
 @click.option(
     "--captures",
     default=20,
@@ -88,7 +81,7 @@ _noise_option = click.option(
 )
 @_noise_option
 @click.option("--no-images", is_flag=True, help="Write flat grey placeholder images instead of renders.")
-@click.option("--force", is_flag=True, help="Replace an existing session folder.")
+@force_option("Replace an existing session folder.")
 @click.option(
     "--json",
     "as_json",
@@ -172,15 +165,7 @@ simulate.add_command(calib_session, "calib-session")
 
 
 @simulate.command("board-session")
-@click.option(
-    "-o",
-    "--output",
-    "output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="DIR",
-    help="Folder to create.",
-)
+@output_option("Folder to create.", "DIR")
 @click.option(
     "--session",
     "kind",
@@ -212,7 +197,7 @@ simulate.add_command(calib_session, "calib-session")
     help="Range noise.",
 )
 @_noise_option
-@click.option("--force", is_flag=True, help="Replace an existing folder.")
+@force_option("Replace an existing folder.")
 @click.option(
     "--json",
     "as_json",
@@ -269,15 +254,7 @@ def board_session(
 
 
 @simulate.command("marker-session")
-@click.option(
-    "-o",
-    "--output",
-    "output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="DIR",
-    help="Folder to create.",
-)
+@output_option("Folder to create.", "DIR")
 @click.option(
     "--captures",
     default=20,
@@ -309,7 +286,7 @@ def board_session(
     "held still a quarter of a second gives 10); 1 writes one scan per capture.",
 )
 @_noise_option
-@click.option("--force", is_flag=True, help="Replace an existing folder.")
+@force_option("Replace an existing folder.")
 @click.option(
     "--json",
     "as_json",
@@ -377,15 +354,7 @@ WEAK_BOARD_CAPTURES = 12
     show_default=True,
     help="corridor-loop (60 m), cubicle-loop (35 m), calibration-room, or a world file (.yaml).",
 )
-@click.option(
-    "-o",
-    "--output",
-    "output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="DIR",
-    help="Sequence folder.",
-)
+@output_option("Sequence folder.", "DIR")
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
 @click.option(
     "--range-sigma-m",
@@ -472,7 +441,7 @@ WEAK_BOARD_CAPTURES = 12
     help="Also write the base's wheel odometry (odometry.tum: 50 Hz, 2 %% scale error, "
     "0.5 deg/m heading drift; docs/formats/sequence.md).",
 )
-@click.option("--force", is_flag=True, help="Replace an existing folder.")
+@force_option("Replace an existing folder.")
 @click.option(
     "--json",
     "as_json",

@@ -2,54 +2,46 @@
 
 from __future__ import annotations
 
-import json
 import math
 import shlex
 import sys
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import click
 
 from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED, THRESHOLD_PX
+from rigcal.cli.options import force_option, json_option, output_option
+from rigcal.cli.types import option_type
 
 
 @click.command("solve")
 @click.argument("picks", type=click.Path(path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    "output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="FILE",
-    help="Rig file to write.",
-)
+@output_option("Rig file to write.")
 @click.option(
     "--report", "report_dir", type=click.Path(path_type=Path), help="Folder for the residual report."
 )
 @click.option(
     "--truth", type=click.Path(path_type=Path), help="Truth file: also report the error against it."
 )
-@click.option("--seed", default=0, show_default=True, type=SEED, help="RANSAC random seed.")
+@click.option("--seed", default=0, show_default=True, type=option_type(SEED), help="RANSAC random seed.")
 @click.option(
     "--threshold-px",
     default=6.0,
     show_default=True,
-    type=THRESHOLD_PX,
+    type=option_type(THRESHOLD_PX),
     help="RANSAC inlier threshold.",
 )
 @click.option(
     "--pick-sigma-px",
     default=1.0,
     show_default=True,
-    type=PICK_SIGMA_PX,
+    type=option_type(PICK_SIGMA_PX),
     help="Pick noise (1 sigma).",
 )
 @click.option(
     "--range-sigma-m",
-    type=RANGE_SIGMA_M,
+    type=option_type(RANGE_SIGMA_M),
     help="Range noise (1 sigma) [default: the picking file's laser.range_sigma_m, else 0.01].",
 )
 @click.option(
@@ -57,7 +49,7 @@ from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED
     "noise_mode",
     default="auto",
     show_default=True,
-    type=NOISE,
+    type=option_type(NOISE),
     help="auto: estimate the range and pick/corner noise from the session and use them (the "
     "assumed values are reported beside them); assumed: use --range-sigma-m, --pick-sigma-px "
     "and the session file's values.",
@@ -73,7 +65,7 @@ from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED
     "--loss",
     default="cauchy",
     show_default=True,
-    type=LOSS,
+    type=option_type(LOSS),
     help="Robust loss of the refinement, both methods (the board method bends it at 3 sigmas of "
     "the whitened errors); linear: plain least squares, outliers still rejected by the gate.",
 )
@@ -108,8 +100,8 @@ from rigcal.calib.options import LOSS, NOISE, PICK_SIGMA_PX, RANGE_SIGMA_M, SEED
     is_flag=True,
     help="Use only the first/last laser returns of the box side, unweighted (the paper's method).",
 )
-@click.option("--force", is_flag=True, help="Overwrite an existing rig file / report folder.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+@force_option("Overwrite an existing rig file / report folder.")
+@json_option("Print the summary as JSON on stdout.")
 def solve(
     picks: Path,
     output: Path,
@@ -150,83 +142,32 @@ def solve(
         --level-prior pitch_deg 0 0.5 --level-prior camera_height_m 0.12 0.005
       rigcal solve v/marker_session.yaml -o rig.yaml --report v-report/
     """
-    from rigcal.calib.options import box_settings
-    from rigcal.calib.report import report_table
-    from rigcal.calib.session import calibrate, write_report_dir
-    from rigcal.io.files import check_apart, check_folder_writable, check_writable
-    from rigcal.rigfile import write_rig
+    from rigcal.jobs import as_json as json_text
+    from rigcal.jobs import solve_files
 
-    # Refuse before working: nothing is written unless everything can be.
-    inputs = [picks, *([truth] if truth else [])]
-    check_writable(output, force, inputs)
-    if report_dir is not None:
-        # The rig may go inside the report folder (it is written after it), not onto it.
-        check_folder_writable(report_dir, force, inputs)
-        check_apart(output, [report_dir])
-    settings = box_settings(
-        threshold_px=threshold_px,
+    done = solve_files(
+        picks,
+        output,
+        command="rigcal " + shlex.join(sys.argv[1:]) if sys.argv else "rigcal solve",
+        report_dir=report_dir,
+        truth=truth,
         seed=seed,
+        threshold_px=threshold_px,
         pick_sigma_px=pick_sigma_px,
-        loss=loss,
-        paper_endpoints=paper_endpoints,
+        range_sigma_m=range_sigma_m,
         noise=noise_mode,
+        range_bias=range_bias,
+        loss=loss,
+        intrinsics_sigma=_sigma_list(intrinsics_sigma) if intrinsics_sigma is not None else None,
+        skip_unseen_boards=skip_unseen_boards,
+        paper_endpoints=paper_endpoints,
+        level=_level_priors(level_prior) if level_prior else None,
+        force=force,
     )
-    command = "rigcal " + shlex.join(sys.argv[1:]) if sys.argv else "rigcal solve"
-    from rigcal.calib.board_session import is_board_session
-    from rigcal.calib.marker_session import is_marker_session
-    from rigcal.io.files import load_yaml
-
-    sigmas = _sigma_list(intrinsics_sigma) if intrinsics_sigma is not None else None
-    level = _level_priors(level_prior) if level_prior else None
-    data = load_yaml(picks, "picking file")
-    if level is not None and not is_board_session(data):
-        from rigcal.errors import InputError
-
-        raise InputError(
-            f"--level-prior: given for {picks}; the reduced solve is the board method's (method: board)"
-        )
-    if is_board_session(data) or is_marker_session(data):
-        _solve_board(
-            picks,
-            output,
-            report_dir,
-            truth,
-            seed,
-            range_sigma_m,
-            noise_mode,
-            range_bias,
-            loss,
-            sigmas,
-            skip_unseen_boards,
-            command,
-            force,
-            as_json,
-            marker=is_marker_session(data),
-            level=level,
-        )
-        return
-    if sigmas is not None:
-        from rigcal.errors import InputError
-
-        raise InputError(
-            f"--intrinsics-sigma: got {intrinsics_sigma!r}; the box method does not take the "
-            "camera's uncertainty yet (only board sessions, method: board)"
-        )
-    # One rule for both methods: --range-sigma-m, else the file's laser.range_sigma_m.
-    cal = calibrate(picks, settings, truth, command=command, range_sigma_m=range_sigma_m)
-    _check_apart_from(output, report_dir, cal.session.input_files())
-    if report_dir is not None:
-        write_report_dir(report_dir, cal, force=force)
-    write_rig(output, cal.rig, force=force)
     if as_json:
-        doc = {k: cal.report[k] for k in ("summary", "noise", "uncertainty", "rejected", "warnings")}
-        doc["rig_file"] = str(output)
-        doc["rig"] = cal.rig.to_json()
-        if "truth" in cal.report:
-            doc["truth"] = cal.report["truth"]
-        click.echo(json.dumps(doc, indent=1))
+        click.echo(json_text(done.doc))
     else:
-        click.echo(report_table(cal.report), nl=False)
+        click.echo(done.table, nl=False)
         click.echo(f"wrote {output}" + (f" and {report_dir}/" if report_dir else ""), err=True)
 
 
@@ -265,92 +206,3 @@ def _level_priors(given: tuple[tuple[str, float, float], ...]) -> Any:
             "(roll_deg, pitch_deg, camera_height_m), each as NAME VALUE SIGMA"
         )
     return LevelPriors(out["roll_deg"], out["pitch_deg"], out["camera_height_m"])
-
-
-def _check_apart_from(output: Path, report_dir: Path | None, files: Iterable[Path]) -> None:
-    """The outputs against every file the session read (its scans, images, camera, lists)."""
-    from rigcal.io.files import check_apart
-
-    files = list(files)
-    check_apart(output, files)
-    if report_dir is not None:
-        check_apart(report_dir, files)
-
-
-def _solve_board(
-    session: Path,
-    output: Path,
-    report_dir: Path | None,
-    truth: Path | None,
-    seed: int,
-    range_sigma_m: float | None,
-    noise_mode: str,
-    range_bias: bool,
-    loss: str,
-    intrinsics_sigma: list[float] | None,
-    skip_unseen_boards: bool,
-    command: str,
-    force: bool,
-    as_json: bool,
-    marker: bool = False,
-    level: Any = None,
-) -> None:
-    """A board session (``method: board``) or a marker session (``method: marker``): the
-    plane method, then the same outputs."""
-    import yaml
-
-    from rigcal.calib.board_calibrate import board_report_table, calibrate_board
-    from rigcal.calib.marker_calibrate import calibrate_marker, marker_report_table
-    from rigcal.io.files import atomic_folder
-    from rigcal.rigfile import write_rig
-    from rigcal.viz.charts import figure_bytes
-    from rigcal.viz.residual_plot import board_residuals_figure
-
-    table = marker_report_table if marker else board_report_table
-    kind = "marker" if marker else "board"
-    if marker and intrinsics_sigma is not None:
-        from rigcal.errors import InputError
-
-        raise InputError(
-            f"--intrinsics-sigma: got {','.join(f'{x:g}' for x in intrinsics_sigma)!r}; the marker "
-            "method does not take the camera's uncertainty yet (only board sessions, method: board)"
-        )
-    if marker:
-        cal: Any = calibrate_marker(
-            session, range_sigma_m, truth, command, seed, noise_mode, range_bias, loss=loss
-        )
-    else:
-        cal = calibrate_board(
-            session,
-            range_sigma_m,
-            truth,
-            command,
-            seed,
-            noise_mode,
-            range_bias,
-            loss=loss,
-            intrinsics_sigma=intrinsics_sigma,
-            skip_unseen_boards=skip_unseen_boards,
-            level=level,
-        )
-    _check_apart_from(output, report_dir, cal.session.files)
-    if report_dir is not None:
-        with atomic_folder(report_dir, force) as tmp:
-            (tmp / "report.yaml").write_text(
-                f"# rigcal solve report, {kind} method (docs/formats/report.md)\n"
-                + yaml.safe_dump(cal.report, sort_keys=False, default_flow_style=None, width=110)
-            )
-            (tmp / "report.json").write_text(json.dumps(cal.report, indent=1) + "\n")
-            (tmp / "report.txt").write_text(table(cal.report))
-            fig = board_residuals_figure(cal.report, cal.result.residuals_m)
-            for fmt in (".png", ".svg"):
-                (tmp / f"residuals{fmt}").write_bytes(figure_bytes(fig, fmt))
-    write_rig(output, cal.rig, force=force)
-    if as_json:
-        doc = dict(cal.report)
-        doc["rig_file"] = str(output)
-        doc["rig"] = cal.rig.to_json()
-        click.echo(json.dumps(doc, indent=1))
-    else:
-        click.echo(table(cal.report), nl=False)
-        click.echo(f"wrote {output}" + (f" and {report_dir}/" if report_dir else ""), err=True)

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import click
 
-from rigcal.io.validate import Real
+from rigcal.cli.options import force_option, json_option, output_option
+from rigcal.cli.types import Real
 
 
 @click.group("targets")
@@ -22,17 +23,9 @@ def targets() -> None:
 
 
 @targets.command("new")
-@click.option(
-    "-o",
-    "--output",
-    "output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="FILE",
-    help="Targets file to write.",
-)
-@click.option("--force", is_flag=True, help="Overwrite an existing file.")
-@click.option("--json", "as_json", is_flag=True, help="Print what was written as JSON on stdout.")
+@output_option("Targets file to write.")
+@force_option("Overwrite an existing file.")
+@json_option("Print what was written as JSON on stdout.")
 def new(output: Path, force: bool, as_json: bool) -> None:
     """Write the default V target's targets file (two 0.5 x 0.6 m faces at 90 degrees,
     4 x 5 ChArUco squares of 110 mm, DICT_4X4_50) to edit and print.
@@ -54,15 +47,7 @@ def new(output: Path, force: bool, as_json: bool) -> None:
 
 @targets.command("print")
 @click.argument("targets_file", type=click.Path(path_type=Path))
-@click.option(
-    "-o",
-    "--output",
-    "output",
-    required=True,
-    type=click.Path(path_type=Path),
-    metavar="DIR",
-    help="Folder to create.",
-)
+@output_option("Folder to create.", "DIR")
 @click.option(
     "--dpi",
     default=300.0,
@@ -70,8 +55,8 @@ def new(output: Path, force: bool, as_json: bool) -> None:
     type=Real(min=50.0, max=1200.0),
     help="Resolution of the pages.",
 )
-@click.option("--force", is_flag=True, help="Replace an existing folder.")
-@click.option("--json", "as_json", is_flag=True, help="Print the files written as JSON on stdout.")
+@force_option("Replace an existing folder.")
+@json_option("Print the files written as JSON on stdout.")
 def print_cmd(targets_file: Path, output: Path, dpi: float, force: bool, as_json: bool) -> None:
     """Write one printable page per face (PNG and PDF at true scale, with its ids and a
     100 mm measuring bar) and the targets file beside them. Print at 100 % (no "fit to

@@ -25,7 +25,7 @@ import shlex
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -34,7 +34,9 @@ from scipy.spatial.transform import Rotation
 
 from rigcal.errors import InputError
 from rigcal.geometry import inv_T, make_T, rt_from_T
-from rigcal.rig import Rig
+
+if TYPE_CHECKING:  # the rig is only named here; exports take one built elsewhere
+    from rigcal.rig import Rig
 
 FloatArray = NDArray[np.float64]
 
@@ -395,11 +397,3 @@ def T_from_ros_args(args: list[str]) -> tuple[FloatArray, str, str]:
     T[:3, :3] = Rotation.from_quat(v[3:7]).as_matrix()
     T[:3, 3] = v[:3]
     return T, args[7], args[8]
-
-
-def T_from_urdf_origin(xyz: list[float], rpy: list[float]) -> FloatArray:
-    """T_parent_child from a URDF joint origin."""
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
-    T[:3, 3] = xyz
-    return T

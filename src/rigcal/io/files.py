@@ -26,7 +26,7 @@ import yaml
 from rigcal.errors import InputError, OutputError
 from rigcal.io.kinds import binary_message, wrong_kind
 
-try:  # the C loader is ~10x faster on long float lists (scan files)
+try:  # the C loader: much faster on long float lists (scan files)
     _SafeLoader: type[yaml.SafeLoader] = yaml.CSafeLoader  # type: ignore[assignment]
 except AttributeError:  # pragma: no cover - depends on how PyYAML was built
     _SafeLoader = yaml.SafeLoader

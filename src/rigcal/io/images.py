@@ -1,10 +1,10 @@
 """Images read as grey, the way OpenCV's ``cv2.imread(path, cv2.IMREAD_GRAYSCALE)`` reads
 them, faster for the PNGs sequences are made of.
 
-Decoding is one of the largest costs of localizing a sequence from its images (a 640x480
-colour PNG takes about 9 ms in OpenCV's libpng). :func:`read_grey` decodes plain 8-bit
-grey and colour PNGs with imagecodecs (libpng on zlib-ng: about 5 ms, 1.7x faster,
-``benchmarks/bench_decode.py``) and converts colour to grey with the integer weights
+Decoding is one of the largest costs of localizing a sequence from its images.
+:func:`read_grey` decodes plain 8-bit grey and colour PNGs with imagecodecs (libpng on
+zlib-ng, faster than OpenCV's libpng: ``benchmarks/bench_decode.py``, figures in
+docs/benchmarks.md) and converts colour to grey with the integer weights
 libpng applies for OpenCV, ``(9797 R + 19234 G + 3737 B) >> 15`` (ITU-R BT.601's 0.299,
 0.587 and 0.114 in 1/32768, truncated), so the grey levels are bit for bit OpenCV's and
 so are the tracks and trajectories computed from them. Any other image (JPEG, 16-bit
@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.errors import InputError
 from rigcal.jit import njit
 
 Gray = NDArray[np.uint8]
@@ -89,6 +90,34 @@ def decode(data: bytes, flags: int) -> NDArray[Any] | None:
     else:  # JPEG and the rest say nothing of their own, and decode in parallel threads
         out = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     return None if out is None else np.asarray(out)
+
+
+def read_image(path: str | Path) -> NDArray[np.uint8]:
+    """Read an image as 8-bit BGR; InputError if missing or unreadable."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: image not found")
+    img = read_image_file(path, cv2.IMREAD_COLOR)
+    if img is None:
+        raise InputError(f"{path}: cannot decode image (expected PNG, JPEG or another format OpenCV reads)")
+    out: NDArray[np.uint8] = np.asarray(img, dtype=np.uint8)
+    return out
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(width, height) in pixels of an image file.
+
+    Raises:
+        InputError: the file is missing or not a readable image.
+    """
+    import cv2
+
+    img = read_image_file(path, cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise InputError(f"{path}: image not found or not readable")
+    return (int(img.shape[1]), int(img.shape[0]))
 
 
 def read_image_file(path: str | Path, flags: int) -> NDArray[Any] | None:

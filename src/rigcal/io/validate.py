@@ -1,21 +1,21 @@
 """One place for the checks every number and name from outside goes through.
 
 Readers of files call :func:`real`, :func:`whole`, :func:`finite_array` and
-:func:`path_component` / :func:`relative_inside`; every float option of the command line
-has the type :class:`Real`. Each failure is one :class:`~rigcal.errors.InputError` line
-naming the file, the key, the value and what was expected (or, for options, click's usage
-error, exit code 2), so NaN, infinities, 400-digit integers, negative sizes and names
-that would lead outside a folder stop at the boundary instead of deep inside a solver.
+:func:`path_component` / :func:`relative_inside`; every option's rule is a :class:`Real`,
+:class:`Whole` or :class:`OneOf`, which the command line's option types
+(:mod:`rigcal.cli.types`) and the Python API's keyword checks both apply. Each failure is
+one :class:`~rigcal.errors.InputError` line naming the file, the key, the value and what
+was expected (or, for options, click's usage error, exit code 2), so NaN, infinities,
+400-digit integers, negative sizes and names that would lead outside a folder stop at the
+boundary instead of deep inside a solver.
 """
 
 from __future__ import annotations
 
 import math
-import os
+from collections.abc import Sequence
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import TYPE_CHECKING, Any
-
-import click
 
 from rigcal.errors import InputError
 
@@ -242,27 +242,36 @@ def file_inside(folder: Path, rel: Any, where: Where, key: str) -> Path:
     return path
 
 
-def no_nul(path: str | os.PathLike[str], what: str) -> Path:
-    """A path given on the command line, refused when it holds a NUL byte (which no file
-    system accepts)."""
-    p = Path(path)
-    if "\0" in str(p):
-        raise InputError.at(None, what, str(p), "a path without NUL bytes")
-    return p
+class Real:
+    """A float option's rule: finite (no ``nan``, ``inf``), optionally within a range
+    (``min``/``max``, each bound open or closed). The command line's option type
+    (:class:`rigcal.cli.types.Real`) and the Python API's keyword checks apply the same
+    rule, so the two cannot drift apart."""
 
+    def __init__(
+        self,
+        min: float | None = None,
+        max: float | None = None,
+        min_open: bool = False,
+        max_open: bool = False,
+    ) -> None:
+        self.min, self.max, self.min_open, self.max_open = min, max, min_open, max_open
 
-class Real(click.FloatRange):
-    """A float option: finite (no ``nan``, ``inf``), optionally within a range; a bad
-    value is a usage error (exit code 2) like any other. :meth:`check` applies the same
-    rule to a value given in Python (the API's keywords)."""
+    def describe(self) -> str:
+        """The range as click writes it: ``x>=0.1``, ``0.0<x``, ``1e-06<=x<=0.5``."""
+        if self.min is None and self.max is None:
+            return ""
+        if self.min is None:
+            return f"x{'<' if self.max_open else '<='}{self.max}"
+        if self.max is None:
+            return f"x{'>' if self.min_open else '>='}{self.min}"
+        return f"{self.min}{'<' if self.min_open else '<='}x{'<' if self.max_open else '<='}{self.max}"
 
-    name = "float"
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        out = super().convert(value, param, ctx)
-        if not math.isfinite(out):
-            self.fail(f"{value!r} is not a finite number.", param, ctx)
-        return out
+    def holds(self, x: float) -> bool:
+        """Whether the finite number ``x`` is within the range."""
+        lo = self.min is None or (x > self.min if self.min_open else x >= self.min)
+        hi = self.max is None or (x < self.max if self.max_open else x <= self.max)
+        return lo and hi
 
     def check(self, value: Any, where: Where, key: str) -> float:
         """``value`` (a Python number, not text) checked as the option checks its text.
@@ -272,49 +281,62 @@ class Real(click.FloatRange):
         """
         import numpy as np
 
-        expected = f"a finite number {self._describe_range()}".rstrip()
+        expected = f"a finite number {self.describe()}".rstrip()
         if isinstance(value, (bool, np.bool_)) or not isinstance(
             value, (int, float, np.integer, np.floating)
         ):
             raise InputError.at(where, key, value, expected)
         try:
-            return float(self.convert(value, None, None))
-        except (click.BadParameter, OverflowError):
+            x = float(value)
+        except OverflowError:
             raise InputError.at(where, key, value, expected) from None
+        if not math.isfinite(x) or not self.holds(x):
+            raise InputError.at(where, key, value, expected)
+        return x
 
 
-class Whole(click.IntRange):
-    """An integer option within a range; :meth:`check` applies the same rule to a value
-    given in Python (booleans, floats and text refused)."""
+class Whole:
+    """An integer option's rule, within ``min``..``max`` (both included)."""
+
+    def __init__(self, min: int | None = None, max: int | None = None) -> None:
+        self.min, self.max = min, max
+
+    def describe(self) -> str:
+        """The range as click writes it: ``x>=0``, ``1<=x<=12``."""
+        return Real(self.min, self.max).describe()
 
     def check(self, value: Any, where: Where, key: str) -> int:
-        """``value`` (a Python integer) checked as the option checks its text.
+        """``value`` (a Python integer) checked as the option checks its text (booleans,
+        floats and text refused).
 
         Raises:
             InputError: ``WHERE: KEY: got VALUE; expected an integer RANGE``.
         """
         import numpy as np
 
-        expected = f"an integer {self._describe_range()}".rstrip()
+        expected = f"an integer {self.describe()}".rstrip()
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
             raise InputError.at(where, key, value, expected)
-        try:
-            return int(self.convert(int(value), None, None))
-        except click.BadParameter:
-            raise InputError.at(where, key, value, expected) from None
+        n = int(value)
+        if (self.min is not None and n < self.min) or (self.max is not None and n > self.max):
+            raise InputError.at(where, key, value, expected)
+        return n
 
 
-class OneOf(click.Choice):
-    """A choice option; :meth:`check` applies the same rule to a value given in Python."""
+class OneOf:
+    """A choice option's rule: one of ``choices``, exact and case-sensitive."""
+
+    def __init__(self, choices: Sequence[str]) -> None:
+        self.choices = tuple(choices)
 
     def check(self, value: Any, where: Where, key: str) -> str:
-        """``value`` checked as the option checks its text (exact, case-sensitive).
+        """``value`` checked as the option checks its text.
 
         Raises:
             InputError: ``WHERE: KEY: got VALUE; expected one of A, B, ...``.
         """
         if not isinstance(value, str) or value not in self.choices:
-            raise InputError.at(where, key, value, "one of " + ", ".join(map(str, self.choices)))
+            raise InputError.at(where, key, value, "one of " + ", ".join(self.choices))
         return value
 
 

@@ -42,7 +42,7 @@ from rigcal.calib.lines import Segment, extract_lines, return_labels
 from rigcal.camera import Camera
 from rigcal.geometry import transform_points
 from rigcal.jit import njit
-from rigcal.localize.icp import _point_to_point, line_fits
+from rigcal.localize.icp import line_fits, point_to_point
 from rigcal.localize.nearest import Grid
 from rigcal.localize.patches import sample_patches
 from rigcal.localize.polish import LaserReference, joint_polish
@@ -547,7 +547,7 @@ def robust_motion(
     inl = res[best] < params.inlier_m
     pose = hyp[best]
     for _ in range(2):
-        pose = _point_to_point(m.b[inl], m.a[inl])
+        pose = point_to_point(m.b[inl], m.a[inl])
         inl = np.linalg.norm(_apply(pose[None], m.b)[0] - m.a, axis=1) < params.inlier_m
         if inl.sum() < params.min_inliers:
             return None

@@ -261,7 +261,7 @@ def _iterate(
         d_inl, pair, src = dist.take(inl), idx.take(inl), moved.take(inl, axis=0)
         fit = _Fit(k, math.sqrt(float(d_inl @ d_inl) / n_inl), n_inl / eligible, src, pair, idx)
         if lines is None:
-            x, y, yaw = _point_to_point(src, model.take(pair, axis=0)).tolist()
+            x, y, yaw = point_to_point(src, model.take(pair, axis=0)).tolist()
         else:
             x, y, yaw = _point_to_line(src, lines.take(pair, axis=0))
         T = T.after(x, y, yaw)
@@ -308,7 +308,7 @@ class _Nearest:
         return np.sqrt(d2.ravel().take(pick)), self.nb.take(pick)
 
 
-def _point_to_point(src: FloatArray, dst: FloatArray) -> FloatArray:
+def point_to_point(src: FloatArray, dst: FloatArray) -> FloatArray:
     """Closed-form 2D rigid step (Eq. (4)) moving src onto dst, as (x, y, yaw)."""
     X = np.concatenate((src, dst), axis=1)
     mean = X.sum(axis=0) / len(X)
@@ -1000,7 +1000,7 @@ def _iterate_kernel(
 def _k_point_to_point(
     src: FloatArray, pairs: NDArray[np.int64], model: FloatArray, n: int
 ) -> tuple[float, float, float]:
-    """:func:`_point_to_point` over the first n pairs (Eq. (4))."""
+    """:func:`point_to_point` over the first n pairs (Eq. (4))."""
     msx = msy = mdx = mdy = 0.0
     for i in range(n):
         msx += src[i, 0]

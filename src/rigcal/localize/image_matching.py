@@ -11,7 +11,7 @@ that lies more than ``IasmParams.odometry_gate_m`` from it, where the odometry i
 constrained, fails as well. Each step's joint polish aligns scan t+1 with a keyframe's
 scan (``IasmParams.keyframe_m``), and so does a fallback to ICP. Each fallback is logged
 (logger ``rigcal.localize``) and counted in the run's summary.
-:func:`scan_matching` chains the steps over a sequence; :func:`step_picture` draws one
+:func:`scan_matching` chains the steps over a sequence; :func:`step_matches` finds one
 step's correspondences (the paper's Fig. 5).
 """
 
@@ -290,16 +290,39 @@ def scan_matching(
     return streams.image_stamps_s, chain(motions), stats, "\n".join(rows) + "\n"
 
 
-def step_picture(streams: Streams, i: int, method: str) -> tuple[Any, Step]:
-    """The correspondences of the step from image i to image i+1 (Fig. 5) as a matplotlib
-    figure with axes in pixels, and the step.
+@dataclass(frozen=True)
+class StepMatches:
+    """The correspondences of one step between two images (the paper's Fig. 5), as
+    :func:`rigcal.viz.matches_plot.step_figure` draws them.
+
+    Attributes:
+        gray1, gray2: the two images.
+        returns1, returns2: (N, 2) pixels of each scan's visible returns.
+        match1, match2: (M, 2) pixels of the matched returns in image 1 and image 2.
+        inlier: (M,) which matches agree with the final motion.
+        title, labels: the picture's title and the two images' titles.
+        step: the step itself (its motion, method used, result).
+    """
+
+    gray1: NDArray[np.uint8]
+    gray2: NDArray[np.uint8]
+    returns1: FloatArray
+    returns2: FloatArray
+    match1: FloatArray
+    match2: FloatArray
+    inlier: NDArray[np.bool_]
+    title: str
+    labels: tuple[str, str]
+    step: Step
+
+
+def step_matches(streams: Streams, i: int, method: str) -> StepMatches:
+    """The correspondences of the step from image i to image i+1 (Fig. 5), with pixels.
 
     H-IASM's scale is, as in a run, the laser odometry's between the two images where
     the walls constrain it, else (and with ``IasmParams.odometry_scale`` False) that of
     a step on the images before (i-1, i).
     """
-    from rigcal.viz.matches_plot import matches_figure
-
     tracks = None
     if method == "hiasm":
         rig = streams.require_rig(method)
@@ -324,7 +347,7 @@ def step_picture(streams: Streams, i: int, method: str) -> tuple[Any, Step]:
     n_in = int(inl.sum())
     metric = st.result.metric if st.result is not None else "-"
     title = f"{st.used.upper()} images {i}->{i + 1}: {len(p1)} matches, {n_in} inliers, {metric} metric"
-    fig = matches_figure(
+    return StepMatches(
         f1.gray,
         f2.gray,
         f1.pixels[f1.visible],
@@ -334,8 +357,8 @@ def step_picture(streams: Streams, i: int, method: str) -> tuple[Any, Step]:
         inl,
         title,
         (f"image {i}", f"image {i + 1}"),
+        st,
     )
-    return fig, st
 
 
 def chain(motions: list[FloatArray]) -> FloatArray:

@@ -12,7 +12,6 @@ settings to an :class:`Estimate`), so adding one is a local change.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import math
 import time
@@ -22,13 +21,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
-from rigcal.io.files import atomic_folder
-from rigcal.io.trajectory import Trajectory, kitti_text, planar_trajectory, read_tum, tum_text
+from rigcal.io.trajectory import Trajectory, read_tum
 from rigcal.io.wheel_odometry import laser_motions
 from rigcal.localize import kalman
 from rigcal.localize.iasm import IasmParams
@@ -363,9 +360,6 @@ def parse_settings[S: (IasmParams, TrackParams)](
 def run(
     sequence: str | Path,
     methods: list[str],
-    output: str | Path,
-    force: bool = False,
-    kitti: bool = False,
     rig_file: str | Path | None = None,
     progress: Callable[[str, int, int], None] | None = None,
     iasm: IasmParams | None = None,
@@ -373,13 +367,12 @@ def run(
     wheel_odometry: bool = True,
     loop_closure: LoopParams | None = None,
 ) -> Run:
-    """Localize a sequence with each method and write the output folder:
-    ``METHOD/trajectory.tum`` (and ``.kitti``) per method, ``summary.yaml``/``.json`` and,
-    with ground truth, ``paths.png``/``.svg`` and ``errors.png``/``.svg`` (charts).
-    ``iasm``: IASM's and H-IASM's settings, ``tracks`` the feature tracks' (the defaults
-    unless given). ``wheel_odometry``: start ICP from the sequence's wheel odometry (when
-    it has one) and fuse it in the Kalman filter; False ignores it. ``loop_closure``: also
-    run each of :data:`LOOP_CLOSURE_METHODS` chosen with loop closure, as ``METHOD+lc``.
+    """Localize a sequence with each method; :func:`rigcal.viz.localize_output.write_run`
+    writes the output folder. ``iasm``: IASM's and H-IASM's settings, ``tracks`` the
+    feature tracks' (the defaults unless given). ``wheel_odometry``: start ICP from the
+    sequence's wheel odometry (when it has one) and fuse it in the Kalman filter; False
+    ignores it. ``loop_closure``: also run each of :data:`LOOP_CLOSURE_METHODS` chosen with
+    loop closure, as ``METHOD+lc``.
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -449,9 +442,9 @@ def run(
     duration = float(stamps[-1] - stamps[0])
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
     wheel = "none" if streams.sequence.odometry is None else "used" if wheel_odometry else "ignored"
-    out = Run(results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params, wheel)
-    _write(out, Path(sequence), output, force, kitti)
-    return out
+    return Run(
+        results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params, wheel
+    )
 
 
 def summary(r: Run, sequence: Path) -> dict[str, Any]:
@@ -501,61 +494,6 @@ def settings(iasm: IasmParams | None = None, tracks: TrackParams | None = None) 
         "hiasm_vo": asdict(VoParams()),
         "tracks": asdict(tracks or TrackParams()),
     }
-
-
-def _write(r: Run, sequence: Path, output: str | Path, force: bool, kitti: bool) -> None:
-    from rigcal.viz.charts import figure_bytes
-    from rigcal.viz.paths_plot import errors_figure, paths_figure
-
-    doc = summary(r, sequence)
-    with atomic_folder(output, force, inputs=[sequence]) as tmp:
-        for m in r.methods:
-            # The estimate is anchored at the truth's first pose, so it runs at the truth's
-            # height (the laser's, e.g. 0.4 m above the floor); 0 without truth.
-            z = 0.0
-            if r.truth is not None and r.truth.stamps_s is not None:
-                z = float(np.interp(m.stamps_s[0], r.truth.stamps_s, r.truth.poses[:, 2, 3]))
-            traj = planar_trajectory(m.stamps_s, m.poses, z)
-            (tmp / m.method).mkdir()
-            (tmp / m.method / "trajectory.tum").write_text(tum_text(traj), encoding="utf-8")
-            if m.steps_csv is not None:
-                (tmp / m.method / "steps.csv").write_text(m.steps_csv, encoding="utf-8")
-            if m.closures is not None:
-                _write_closures(tmp / m.method, m)
-            if kitti:
-                (tmp / m.method / "trajectory.kitti").write_text(kitti_text(traj), encoding="utf-8")
-        (tmp / "summary.yaml").write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
-        (tmp / "summary.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-        if r.truth is not None:
-            gt = planar_at(r.truth, r.truth.stamps_s)  # type: ignore[arg-type]
-            poses = {m.method: m.poses for m in r.methods}
-            truth_at = {m.method: planar_at(r.truth, m.stamps_s) for m in r.methods}
-            stamps = {m.method: m.stamps_s for m in r.methods}
-            for fmt in (".png", ".svg"):
-                (tmp / f"paths{fmt}").write_bytes(figure_bytes(paths_figure(gt, poses), fmt))
-                (tmp / f"errors{fmt}").write_bytes(figure_bytes(errors_figure(truth_at, poses, stamps), fmt))
-
-
-def _write_closures(folder: Path, m: MethodRun) -> None:
-    """METHOD+lc/closures.csv (every closure proposed, and what became of it) and
-    graph.png/.svg (the optimised path and its closures)."""
-    from rigcal.viz.charts import figure_bytes
-    from rigcal.viz.paths_plot import graph_figure
-
-    assert m.closures is not None
-    rows = ["i,j,stamp_i_s,stamp_j_s,status,inliers,rms_m,why_not"]
-    accepted: list[tuple[int, int]] = []
-    rejected: list[tuple[int, int]] = []
-    for c in m.closures.closures:
-        status = "accepted" if c.T_j_i is not None and not c.kernel_rejected else "rejected"
-        (accepted if status == "accepted" else rejected).append((c.i, c.j))
-        rows.append(
-            f"{c.i},{c.j},{float(m.stamps_s[c.i])!r},{float(m.stamps_s[c.j])!r},{status},"
-            f"{c.inliers:.3f},{c.rms_m:.4f},{c.why_not}"
-        )
-    (folder / "closures.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
-    for fmt in (".png", ".svg"):
-        (folder / f"graph{fmt}").write_bytes(figure_bytes(graph_figure(m.poses, accepted, rejected), fmt))
 
 
 def _ground_truth(folder: Path, name: str | None) -> Trajectory | None:

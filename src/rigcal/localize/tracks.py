@@ -13,8 +13,8 @@ The detector is Shi-Tomasi's (OpenCV's ``goodFeaturesToTrack``: points whose win
 well conditioned for Lucas-Kanade, the window the tracker follows) by default, beyond
 the paper; the paper's SIFT keypoints are ``TrackParams(detector="sift")``. On the
 simulated loops the corners' tracks live longer, visual odometry and the Kalman filter
-come out more accurate on most laps, H-IASM the same, and the tracking costs about two
-thirds of SIFT's (``benchmarks/bench_tracks.py``, docs/benchmarks.md).
+come out more accurate on most laps, H-IASM the same, and the tracking costs less than
+SIFT's (``benchmarks/bench_tracks.py``; figures in docs/benchmarks.md).
 
 Each track's search starts where its last displacement takes it (constant image
 velocity; a new track takes the median of its nearest tracks' last displacements). From
@@ -25,9 +25,9 @@ period, the forward-backward check passes (the jump is the same both ways), and 
 odometry reports the rig moving backwards. Predicted, the search only has to cover the
 change of the displacement from one frame to the next.
 
-Tracking is what makes the odometry cheap: the detector (SIFT: about 70 ms on a 640x480
-frame) runs only when tracks run out, and Lucas-Kanade follows a thousand points, each
-to a fraction of a pixel, in about ten milliseconds (docs/benchmarks.md). A track's
+Tracking is what makes the odometry cheap: the detector runs only when tracks run out,
+and Lucas-Kanade follows a thousand points, each to a fraction of a pixel, in a fraction
+of the detector's time (figures in docs/benchmarks.md). A track's
 identity is an integer; the correspondences between any two frames are the tracks alive
 in both (:func:`common`).
 """

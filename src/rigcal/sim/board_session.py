@@ -37,11 +37,11 @@ from rigcal.scan import Scan, write_scan
 from rigcal.sim.box_session import (
     FACE_TOLERANCE_M,
     FACE_TOLERANCE_SIGMAS,
-    _room_pose,
-    _write_camera,
     default_camera,
     default_T_cam_laser,
     find_face_segment,
+    random_room_pose,
+    write_camera,
 )
 from rigcal.sim.noise import RealisticNoise, realistic_ranges, static_scene
 from rigcal.sim.raycast import beam_angles, cast_scan_hits, noisy_ranges
@@ -255,7 +255,7 @@ def _capture(
         if not camera.in_image(px, 15.0).all():
             continue
         if static is None:
-            room_pose = _room_pose(spec, rng, cut)  # type: ignore[arg-type]
+            room_pose = random_room_pose(spec, rng, cut)  # type: ignore[arg-type]
             if room_pose is None:
                 continue
             scene = spec.room.wall_segments(room_pose)
@@ -360,14 +360,14 @@ def _segments_on(
     """The ids of the segments a user would list for the board (most of their returns
     within 3 sigma of the true cut), if they hold most of the board's returns; else None."""
     from rigcal.calib.lines import extract_lines
-    from rigcal.sim.box_session import _distance_to_segment
+    from rigcal.sim.box_session import distance_to_segment
 
     board = board_beams[scan.valid[board_beams]]
     if len(board) < params.min_points:
         return None
     ids, covered = [], 0
     for seg in extract_lines(scan, params):
-        on = _distance_to_segment(np.asarray(seg.points), cut) < max(FACE_TOLERANCE_M, 3.0 * sigma_m)
+        on = distance_to_segment(np.asarray(seg.points), cut) < max(FACE_TOLERANCE_M, 3.0 * sigma_m)
         if on.mean() >= _ON_BOARD_SHARE:
             ids.append(seg.id)
             covered += int(np.isin(seg.indices, board).sum())
@@ -445,7 +445,7 @@ def write_board_session(session: SimBoardSession, folder: str | Path, force: boo
 
     with atomic_folder(folder, force) as tmp:
         (tmp / "scans").mkdir()
-        camera_file = _write_camera(session.camera, tmp)
+        camera_file = write_camera(session.camera, tmp)
         for c in session.captures:
             write_scan(tmp / "scans" / f"{c.name}.yaml", c.scan)
         (tmp / "board_session.yaml").write_text(board_session_text(session, camera_file), encoding="utf-8")

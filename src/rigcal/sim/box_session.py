@@ -362,7 +362,7 @@ def _capture(
             u = 0.5 + 0.93 * (u - 0.5)
             continue
         if static is None:
-            room_pose = _room_pose(spec, rng, box.footprint(*pose))
+            room_pose = random_room_pose(spec, rng, box.footprint(*pose))
             if room_pose is None:
                 continue
             walls = spec.room.wall_segments(room_pose)
@@ -452,7 +452,7 @@ def find_face_segment(
     best_count = 0
     for seg in extract_lines(scan, line_params):
         pts = np.asarray(seg.points, dtype=float)
-        on = _distance_to_segment(pts, true_ends) < tolerance_m
+        on = distance_to_segment(pts, true_ends) < tolerance_m
         if len(pts) >= 3 and on.mean() >= FACE_SHARE and on.sum() > best_count:
             best, best_count = (seg.id, seg), int(on.sum())
     if best is None:
@@ -470,7 +470,7 @@ def find_face_segment(
             return None
         # A return from the box's side may end the segment only if it is at the corner.
         first_last = np.asarray(seg.points, dtype=float)[[0, -1]]
-        if (_distance_to_segment(first_last, true_ends) > tolerance_m).any():
+        if (distance_to_segment(first_last, true_ends) > tolerance_m).any():
             return None
     ends, _ = extended_ends(np.asarray(seg.points, dtype=float), indices, scan)
     if np.linalg.norm(ends - true_ends, axis=1).max() > END_TOLERANCE_M:
@@ -485,7 +485,7 @@ def _order_ends(ends: FloatArray) -> FloatArray:
     return out
 
 
-def _distance_to_segment(points: FloatArray, ends: FloatArray) -> FloatArray:
+def distance_to_segment(points: FloatArray, ends: FloatArray) -> FloatArray:
     """(N,) distances from points (N, 2) to the finite segment between ends (2, 2)."""
     d = ends[1] - ends[0]
     s = np.clip((points - ends[0]) @ d / (d @ d), 0.0, 1.0)
@@ -520,7 +520,7 @@ def _box_in_image(spec: SessionSpec, camera: Camera, T: FloatArray, pose: tuple[
     return bool(normal @ (cam_centre - front.mean(axis=0)) > 0)
 
 
-def _room_pose(
+def random_room_pose(
     spec: SessionSpec, rng: np.random.Generator, footprint: FloatArray
 ) -> tuple[float, float, float] | None:
     """A room pose (laser frame) that holds the laser and the box with clearance, or None
@@ -625,7 +625,7 @@ def write_session(
     with atomic_folder(folder, force) as tmp:
         (tmp / "scans").mkdir()
         (tmp / "images").mkdir()
-        camera_file = _write_camera(session.camera, tmp)
+        camera_file = write_camera(session.camera, tmp)
         for c in session.captures:
             scan_rel, image_rel = _capture_files(c.name)
             write_scan(tmp / scan_rel, c.scan)
@@ -640,7 +640,7 @@ def _capture_files(name: str) -> tuple[str, str]:
     return f"scans/{name}.yaml", f"images/{name}.png"
 
 
-def _write_camera(camera: Camera, folder: Path) -> str:
+def write_camera(camera: Camera, folder: Path) -> str:
     """Write the camera file; returns its name (a rigcal camera file when the lens model is
     OpenCV's, else a mrcal .cameramodel)."""
     from rigcal.camera import camera_to_opencv_yaml

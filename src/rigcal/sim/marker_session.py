@@ -36,11 +36,11 @@ from rigcal.geometry import inv_T, make_T, rotvec_to_R, transform_points
 from rigcal.io.files import atomic_folder
 from rigcal.scan import Scan, write_scan
 from rigcal.sim.board_session import session_head_lines
-from rigcal.sim.box_session import _write_camera, default_camera, default_T_cam_laser
+from rigcal.sim.box_session import default_camera, default_T_cam_laser, write_camera
 from rigcal.sim.noise import RealisticNoise, realistic_ranges, static_scene
 from rigcal.sim.raycast import beam_angles, cast_scan_hits, noisy_ranges
-from rigcal.sim.render import Room, Scene, _ray_rectangle, pixel_bearings, render_scene
-from rigcal.sim.textures import MipImage, _mips, sample
+from rigcal.sim.render import Room, Scene, pixel_bearings, ray_rectangle, render_scene
+from rigcal.sim.textures import MipImage, mips, sample
 from rigcal.sim.world_render import CameraEffects, apply_effects
 from rigcal.targets.marker import MarkerTarget, default_target, face_image, targets_text
 
@@ -174,7 +174,7 @@ def generate_marker_session(
 
 def _texture(target: MarkerTarget, k: int) -> MipImage:
     img = face_image(target, k, TEXELS_PER_M)
-    return _mips(np.repeat(img[:, :, None], 3, axis=2), TEXELS_PER_M)
+    return mips(np.repeat(img[:, :, None], 3, axis=2), TEXELS_PER_M)
 
 
 def T_laser_face(target: MarkerTarget, T_laser_target: FloatArray, k: int) -> FloatArray:
@@ -288,7 +288,7 @@ def render_capture(
     for k in range(2):
         T_lf = T_laser_face(spec.target, T_laser_target, k)
         outline = np.column_stack([spec.target.outline(k), np.zeros(4)])
-        t, _ = _ray_rectangle(o, D, transform_points(T_lf, outline))
+        t, _ = ray_rectangle(o, D, transform_points(T_lf, outline))
         hit = np.flatnonzero(t < t_best)
         if not len(hit):
             continue
@@ -340,7 +340,7 @@ def write_marker_session(session: SimMarkerSession, folder: str | Path, force: b
     with atomic_folder(folder, force) as tmp:
         (tmp / "scans").mkdir()
         (tmp / "images").mkdir()
-        camera_file = _write_camera(session.camera, tmp)
+        camera_file = write_camera(session.camera, tmp)
         (tmp / "targets.yaml").write_text(targets_text(spec.target), encoding="utf-8")
         for c in session.captures:
             if len(c.scans) > 1:

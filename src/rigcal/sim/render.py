@@ -43,7 +43,7 @@ STAND_SIZE_M = 0.04
 _WALL_BGR = ((205, 215, 220), (190, 205, 185), (215, 200, 190), (200, 200, 212))
 _FLOOR_BGR = ((150, 165, 180), (130, 145, 160))
 _CEILING_BGR = (232, 232, 228)
-_POSTER_HUES = (1.8, 4.8)  # on _hue_bgr's circle: 0 red, 1 yellow, 2 green, 3 cyan, 4 blue, 5 magenta
+_POSTER_HUES = (1.8, 4.8)  # on hue_bgr's circle: 0 red, 1 yellow, 2 green, 3 cyan, 4 blue, 5 magenta
 
 
 @dataclass(frozen=True)
@@ -219,7 +219,7 @@ def render_scene(camera: Camera, T_cam_laser: ArrayLike, scene: Scene) -> tuple[
                 rects.append((f + np.array([0.0, 0.0, z_mid]), LABEL_STAND))
     edge_m = np.full(len(D), np.inf, dtype=np.float32)
     for corners, lab in rects:
-        t, e = _ray_rectangle(o, D, corners)
+        t, e = ray_rectangle(o, D, corners)
         closer = t < t_best
         t_best[closer] = t[closer]
         label[closer] = lab
@@ -229,7 +229,7 @@ def render_scene(camera: Camera, T_cam_laser: ArrayLike, scene: Scene) -> tuple[
     return img.reshape(H, W, 3), label.reshape(H, W)
 
 
-def _ray_rectangle(
+def ray_rectangle(
     o: NDArray[np.float32], D: NDArray[np.float32], corners: FloatArray
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Ray parameters of hits with a rectangle (inf where missed) and each hit's distance to
@@ -307,7 +307,7 @@ def _tiles(
     iy = np.floor(y / size_m)
     parity = ((ix + iy) % 2).astype(np.int64)
     base = np.array(colours, dtype=np.float32)[parity]
-    base *= (0.94 + 0.12 * _hash01(ix, iy))[:, None]
+    base *= (0.94 + 0.12 * hash01(ix, iy))[:, None]
     fx = np.abs(x / size_m - np.round(x / size_m)) * size_m
     fy = np.abs(y / size_m - np.round(y / size_m)) * size_m
     line = np.minimum(fx, fy) < np.maximum(0.006, 0.6 * px_m)
@@ -334,16 +334,16 @@ def _wall(
     zz = z - z0
     on = (a >= 0) & (a <= pw) & (zz >= 0) & (zz <= ph)
     if on.any():
-        h = _hash01(slot[on], np.full(int(on.sum()), k, dtype=np.float32))
+        h = hash01(slot[on], np.full(int(on.sum()), k, dtype=np.float32))
         frame = (a[on] < 0.04) | (a[on] > pw - 0.04) | (zz[on] < 0.04) | (zz[on] > ph - 0.04)
         # Three horizontal colour bands and a disc whose hues depend on the poster. Hues
         # stay within green-cyan-blue-violet, so that nothing but the box is orange.
         band = np.clip((zz[on] / ph * 3).astype(np.int64), 0, 2)
         hue = _POSTER_HUES[0] + (h * 3.0 + band * 1.1) % (_POSTER_HUES[1] - _POSTER_HUES[0])
-        pc: NDArray[Any] = _hue_bgr(hue) * np.float32(200) + np.float32(30)
+        pc: NDArray[Any] = hue_bgr(hue) * np.float32(200) + np.float32(30)
         circle = (a[on] - 0.5 * pw) ** 2 + (zz[on] - 0.62 * ph) ** 2 < (0.18 + 0.08 * h) ** 2
         disc = _POSTER_HUES[0] + (hue[circle] - _POSTER_HUES[0] + 1.5) % (_POSTER_HUES[1] - _POSTER_HUES[0])
-        pc[circle] = np.array([40, 40, 40], dtype=np.float32) + 180 * _hue_bgr(disc)
+        pc[circle] = np.array([40, 40, 40], dtype=np.float32) + 180 * hue_bgr(disc)
         pc[frame] = np.array([245, 245, 245], dtype=np.float32)
         col[on] = pc
     skirt = z < 0.1
@@ -353,14 +353,14 @@ def _wall(
     return col
 
 
-def _hue_bgr(hue: NDArray[Any]) -> NDArray[np.float32]:
+def hue_bgr(hue: NDArray[Any]) -> NDArray[np.float32]:
     """Saturated colours on the hue circle (hue in [0, 6)), as BGR in [0, 1]."""
     h = hue[:, None] + np.array([4.0, 2.0, 0.0], dtype=np.float32)  # B, G, R phase
     out: NDArray[np.float32] = np.clip(np.abs((h % 6.0) - 3.0) - 1.0, 0.0, 1.0).astype(np.float32)
     return out
 
 
-def _hash01(a: NDArray[np.floating], b: NDArray[np.floating]) -> NDArray[np.float32]:
+def hash01(a: NDArray[np.floating], b: NDArray[np.floating]) -> NDArray[np.float32]:
     """A deterministic pseudo-random value in [0, 1) per integer pair (texture variation)."""
     v = np.sin(a.astype(np.float64) * 12.9898 + b.astype(np.float64) * 78.233) * 43758.5453
     out: NDArray[np.float32] = (v - np.floor(v)).astype(np.float32)

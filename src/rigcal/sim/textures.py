@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.sim.render import _hash01, _hue_bgr
+from rigcal.sim.render import hash01, hue_bgr
 from rigcal.sim.world import World
 
 FloatArray = NDArray[np.float64]
@@ -126,11 +126,11 @@ def world_textures(world: World, seed: int = 0, ceiling_height_m: float | None =
     cw, ch = (_ceil32(float(v) * cppm) for v in hi - lo)
     origin_m = (float(lo[0]), float(lo[1]))
     return WorldTextures(
-        walls=_mips(atlas, ppm),
+        walls=mips(atlas, ppm),
         origin_px=origin,
-        floor=_mips(_floor(np.random.default_rng([seed, 1_000_001]), fh, fw, fppm), fppm),
+        floor=mips(_floor(np.random.default_rng([seed, 1_000_001]), fh, fw, fppm), fppm),
         floor_origin_m=origin_m,
-        ceiling=_mips(_ceiling(np.random.default_rng([seed, 1_000_002]), ch, cw, cppm), cppm),
+        ceiling=mips(_ceiling(np.random.default_rng([seed, 1_000_002]), ch, cw, cppm), cppm),
         ceiling_origin_m=origin_m,
         ceiling_height_m=hc,
     )
@@ -217,7 +217,7 @@ def _pack(images: list[Image]) -> tuple[Image, F32]:
     return atlas, origin
 
 
-def _mips(img: Image, texels_per_m: float) -> MipImage:
+def mips(img: Image, texels_per_m: float) -> MipImage:
     """The mip pyramid (2x2 averages), level 0 on top and the others side by side below it."""
     levels = [np.ascontiguousarray(img)]
     for _ in range(1, MIP_LEVELS):
@@ -274,9 +274,9 @@ def _colour(rng: np.random.Generator, lo: float, hi: float) -> NDArray[np.float3
 
 
 def _saturated(rng: np.random.Generator) -> tuple[int, int, int]:
-    c = _hue_bgr(np.array([rng.uniform(0.0, 6.0)], dtype=np.float32))[0] * rng.uniform(
-        150, 235
-    ) + rng.uniform(0, 40)
+    c = hue_bgr(np.array([rng.uniform(0.0, 6.0)], dtype=np.float32))[0] * rng.uniform(150, 235) + rng.uniform(
+        0, 40
+    )
     return (int(c[0]), int(c[1]), int(c[2]))
 
 
@@ -377,8 +377,8 @@ def _bricks(rng: np.random.Generator, h: int, w: int, ppm: float) -> Image:
     fx = (cols + shift) - idx * bw
     fy = rows - course * bh
     seed = float(rng.integers(1, 1000))
-    tone = _hash01(idx + seed, course)
-    tone2 = _hash01(course + 0.5 * seed, idx)
+    tone = hash01(idx + seed, course)
+    tone2 = hash01(course + 0.5 * seed, idx)
     base = np.array([60, 75, 150], dtype=np.float32)
     img = base * (0.7 + 0.5 * tone)[:, :, None]
     img[:, :, 1] += 25 * (tone2 - 0.5)
@@ -603,7 +603,7 @@ def _floor(rng: np.random.Generator, h: int, w: int, ppm: float) -> Image:
     tile = 0.4 * ppm
     ny, nx = int(h / tile) + 2, int(w / tile) + 2
     iy, ix = np.mgrid[0:ny, 0:nx].astype(np.float32)
-    tone = 0.85 + 0.3 * _hash01(ix + float(rng.integers(0, 1000)), iy)
+    tone = 0.85 + 0.3 * hash01(ix + float(rng.integers(0, 1000)), iy)
     big = cv2.resize(tone, (int(nx * tile), int(ny * tile)), interpolation=cv2.INTER_NEAREST)
     g: F32 = np.asarray(big, dtype=np.float32)[:h, :w]
     g *= 1.0 + 0.08 * _fbm(rng, h, w, (1.5, 4.0, 0.5 * ppm))
@@ -631,7 +631,7 @@ def _ceiling(rng: np.random.Generator, h: int, w: int, ppm: float) -> Image:
     off = float(rng.integers(0, 1000))
     for j in range(0, ny - 1, 2):
         for i in range(nx):
-            if _hash01(np.array([i + off]), np.array([j + 0.0]))[0] < 0.18:
+            if hash01(np.array([i + off]), np.array([j + 0.0]))[0] < 0.18:
                 x0, y0 = int(i * panel), int(j * panel)
                 x1, y1 = int(x0 + panel), int(y0 + 2 * panel)
                 img[y0:y1, x0:x1] = 252.0

@@ -82,7 +82,7 @@ def write_contact_sheet(path: str | Path, entries: Sequence[SheetEntry], force: 
 def _tile(e: SheetEntry) -> NDArray[np.uint8]:
     import cv2
 
-    from rigcal.viz.overlay import read_image
+    from rigcal.io.images import read_image
 
     img = read_image(e.image_path)
     H, W = img.shape[:2]

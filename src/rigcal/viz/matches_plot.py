@@ -10,12 +10,15 @@ otherwise.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.viz.charts import figure
+
+if TYPE_CHECKING:
+    from rigcal.localize.image_matching import StepMatches
 
 FloatArray = NDArray[np.float64]
 
@@ -73,3 +76,18 @@ def matches_figure(
     if title:
         fig.suptitle(title, fontsize=11)
     return fig
+
+
+def step_figure(step: StepMatches) -> Any:
+    """The picture of one step's correspondences (:func:`rigcal.localize.image_matching.step_matches`)."""
+    return matches_figure(
+        step.gray1,
+        step.gray2,
+        step.returns1,
+        step.returns2,
+        step.match1,
+        step.match2,
+        step.inlier,
+        step.title,
+        step.labels,
+    )

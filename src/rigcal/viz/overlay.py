@@ -14,7 +14,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.camera import Camera
-from rigcal.errors import InputError
 from rigcal.geometry import transform_points
 from rigcal.io.files import atomic_write_bytes
 from rigcal.scan import Scan
@@ -25,22 +24,6 @@ SCAN_BGR = (255, 120, 0)  # blue, as in Fig. 2a
 PICK_BGR = (0, 200, 0)
 END_BGR = (0, 255, 255)
 REJECTED_BGR = (0, 0, 255)
-
-
-def read_image(path: str | Path) -> NDArray[np.uint8]:
-    """Read an image as 8-bit BGR; InputError if missing or unreadable."""
-    import cv2
-
-    from rigcal.io.images import read_image_file
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: image not found")
-    img = read_image_file(path, cv2.IMREAD_COLOR)
-    if img is None:
-        raise InputError(f"{path}: cannot decode image (expected PNG, JPEG or another format OpenCV reads)")
-    out: NDArray[np.uint8] = np.asarray(img, dtype=np.uint8)
-    return out
 
 
 def project_scan(camera: Camera, T_cam_laser: FloatArray, scan: Scan) -> tuple[FloatArray, NDArray[np.bool_]]:
