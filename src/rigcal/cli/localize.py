@@ -75,6 +75,14 @@ rig_option = click.option(
     help="Also run icp, icp-p2p, iasm and hiasm with loop closure (scan-to-submap closures, a pose "
     "graph with a robust kernel), as METHOD+lc: closures.csv and graph.png beside its trajectory.",
 )
+@click.option(
+    "--pose-graph",
+    type=click.Choice(["auto", "scipy", "gtsam"]),
+    default="auto",
+    show_default=True,
+    help="The loop closure's pose-graph back end: gtsam (the optional extra rigcal[gtsam]), "
+    "scipy, or auto (gtsam where installed, scipy otherwise).",
+)
 def localize(
     sequence: Path,
     methods: str,
@@ -87,6 +95,7 @@ def localize(
     track_items: tuple[str, ...],
     wheel_odometry: str,
     loop_closure: bool,
+    pose_graph: str,
 ) -> None:
     """Estimate the laser's trajectory through SEQUENCE (a sequence folder) with one or
     more methods, run on the same data in the same process.
@@ -114,8 +123,17 @@ def localize(
         summary,
         table,
     )
+    from rigcal.localize.pose_graph import gtsam_available
 
     try:  # bad option values are usage errors (exit code 2)
+        lc_params = LoopParams(backend=pose_graph)
+        if lc_params.pose_graph == "gtsam" and not gtsam_available():
+            raise InputError.at(
+                None,
+                "--pose-graph",
+                pose_graph,
+                "auto or scipy: GTSAM is not installed (pip install rigcal[gtsam])",
+            )
         names = parse_methods(methods)
         iasm = parse_iasm_settings(iasm_items)
         tracks = parse_track_settings(track_items)
@@ -136,7 +154,7 @@ def localize(
             iasm=iasm,
             tracks=tracks,
             wheel_odometry=wheel_odometry == "use",
-            loop_closure=LoopParams() if loop_closure else None,
+            loop_closure=lc_params if loop_closure else None,
         )
     if as_json:
         click.echo(json.dumps(summary(r, sequence), indent=1))
@@ -149,7 +167,7 @@ def localize(
             click.echo(
                 f"{m.method}: {c['proposed']} closures proposed, {c['accepted']} accepted, "
                 f"{c['rejected_by_verification']} rejected by the verification, "
-                f"{c['rejected_by_kernel']} by the robust kernel",
+                f"{c['rejected_by_kernel']} by the robust kernel (pose graph on {m.closures.backend})",
                 err=True,
             )
     shared = ", ".join(f"{k.removesuffix('_s')} {v:.1f} s" for k, v in r.timings_s.items())

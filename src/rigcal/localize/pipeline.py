@@ -72,7 +72,7 @@ def _loop_closed(streams: Streams, est: Estimate, params: LoopParams) -> Estimat
     res = close_loops([streams.scans[k] for k in idx], est.poses, params)
     seconds = time.perf_counter() - t0
     streams.timings_s["loop_closure_s"] = streams.timings_s.get("loop_closure_s", 0.0) + seconds
-    stats = {"closures": res.counts, "loop_closure_s": round(seconds, 3)}
+    stats = {"closures": res.counts, "pose_graph": res.backend, "loop_closure_s": round(seconds, 3)}
     return Estimate(est.stamps_s, res.poses, stats, None, res)
 
 
