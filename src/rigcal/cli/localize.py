@@ -72,7 +72,7 @@ rig_option = click.option(
 @click.option(
     "--loop-closure",
     is_flag=True,
-    help="Also run icp, icp-p2p, iasm and hiasm with loop closure (scan-to-submap closures, a pose "
+    help="Also run icp, icp-p2p, kf, iasm and hiasm with loop closure (scan-to-submap closures, a pose "
     "graph with a robust kernel), as METHOD+lc: closures.csv and graph.png beside its trajectory.",
 )
 @click.option(

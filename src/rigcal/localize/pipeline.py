@@ -60,8 +60,9 @@ class Estimate:
     closures: LoopResult | None = None
 
 
-# Methods whose poses are laser poses at scan stamps that loop closure can take.
-LOOP_CLOSURE_METHODS = ("icp", "icp-p2p", "iasm", "hiasm")
+# Methods whose poses are laser poses that loop closure can take (at scan stamps; the
+# Kalman filter's also at image stamps, each matched with the scan nearest it).
+LOOP_CLOSURE_METHODS = ("icp", "icp-p2p", "kf", "iasm", "hiasm")
 
 
 def _loop_closed(streams: Streams, est: Estimate, params: LoopParams) -> Estimate:
