@@ -221,3 +221,15 @@ def test_localize_refuses_gtsam_where_it_is_not_installed(corridor, tmp_path, ca
     err = capsys.readouterr().err
     assert "--pose-graph: got 'gtsam'; expected auto or scipy: GTSAM is not installed" in err
     assert not (tmp_path / "out").exists()  # nothing written
+
+
+def test_the_compiled_search_matches_its_numpy_reference(rng):
+    model = _room(rng)
+    T = np.array([-1.3, 0.8, np.radians(-6.0)])
+    data = _moved(model[::4], T) + rng.normal(0, 0.01, (len(model[::4]), 2))
+    params = LoopParams()
+    compiled = correlative_match(model, data, np.zeros(3), 3.0, np.radians(10), params)
+    reference = correlative_match(model, data, np.zeros(3), 3.0, np.radians(10), params, kernel=False)
+    np.testing.assert_allclose(compiled[0], reference[0], atol=1e-12)
+    assert compiled[1] == pytest.approx(reference[1], abs=1e-12)
+    assert compiled[2] == pytest.approx(reference[2], abs=1e-12)

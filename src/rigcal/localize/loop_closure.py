@@ -46,6 +46,7 @@ starts from a map whose earlier loops are already closed:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,6 +55,7 @@ from scipy.ndimage import distance_transform_edt, maximum_filter
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from rigcal.jit import njit
 from rigcal.localize.icp import IcpParams, icp
 from rigcal.localize.pose_graph import PoseGraph, edge_errors, gtsam_available, optimise
 from rigcal.scan import Scan
@@ -329,12 +331,15 @@ def correlative_match(
     window_m: float,
     window_rad: float,
     params: LoopParams,
+    *,
+    kernel: bool = True,
 ) -> tuple[FloatArray, float, float]:
     """The pose T_model_data (x, y, yaw) within ``window_m`` / ``window_rad`` of ``guess``
     that puts ``data`` (N, 2) best on ``model`` (M, 2), and its score: the mean over the
     points of exp(-d^2 / 2 r^2), d the distance to the nearest model point on a grid of
     r = ``grid_m`` (Olson 2009), and the best score of the poses farther than
-    ``ambiguity_m`` from it. Branch and bound over one coarse level (module docstring)."""
+    ``ambiguity_m`` from it. Branch and bound over one coarse level (module docstring).
+    ``kernel=False`` scores the shifts with numpy (the compiled kernel's reference)."""
     r, k = params.grid_m, params.coarse
     pad = k + 1
     lo = model.min(axis=0) - pad * r
@@ -348,46 +353,42 @@ def correlative_match(
     # an upper bound of the score of any shift inside the block.
     bound = maximum_filter(like, size=k, origin=-(k // 2), mode="constant")
     n_t = int(np.ceil(window_m / (k * r)))
-    shifts = np.arange(-n_t, n_t) * k  # coarse blocks, in fine cells
+    shifts = np.arange(-n_t, n_t, dtype=np.int64) * k  # coarse blocks, in fine cells
     n_y = int(np.ceil(window_rad / params.yaw_step_rad))
     yaws = guess[2] + np.arange(-n_y, n_y + 1) * params.yaw_step_rad
     hi = np.array(shape) - 1
-    bases = []
-    bounds = np.empty((len(yaws), len(shifts), len(shifts)))
-    for y, yaw in enumerate(yaws):
-        c, s = np.cos(yaw), np.sin(yaw)
-        q = data @ np.array([[c, s], [-s, c]]) + guess[:2]
-        base = np.floor((q - lo) / r).astype(int)
-        bases.append(base)
-        iu = np.clip(base[:, 0][None, :] + shifts[:, None], 0, hi[0])
-        iv = np.clip(base[:, 1][None, :] + shifts[:, None], 0, hi[1])
-        bounds[y] = bound[iu[:, None, :], iv[None, :, :]].mean(axis=2)
-    best, best_pose = _best_in_blocks(bounds, bases, like, shifts, yaws, guess, r, k, hi, None, 0.0)
+    c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
+    qx = c * data[:, 0] - s * data[:, 1] + guess[0]  # (Y, P) the points at each yaw
+    qy = s * data[:, 0] + c * data[:, 1] + guess[1]
+    bases = np.stack([np.floor((qx - lo[0]) / r), np.floor((qy - lo[1]) / r)]).astype(np.int64)  # (2, Y, P)
+    scores = _block_scores if kernel else block_scores_numpy
+    bounds = scores(bound, bases[0], bases[1], shifts, shifts, int(hi[0]), int(hi[1]))
+    args = (bounds, bases, like, shifts, yaws, guess, r, k, hi, scores)
+    best, best_pose = _best_in_blocks(*args, None, 0.0)
     # The best elsewhere (beyond ``ambiguity_m`` of the best): a corridor's repeated doors
     # or a long wall fit as well a few metres along, and such a match is no closure.
-    second, _ = _best_in_blocks(
-        bounds, bases, like, shifts, yaws, guess, r, k, hi, best_pose, params.ambiguity_m
-    )
+    second, _ = _best_in_blocks(*args, best_pose, params.ambiguity_m)
     return best_pose, best, max(second, 0.0)
 
 
 def _best_in_blocks(
     bounds: FloatArray,
-    bases: list[NDArray[np.int_]],
+    bases: NDArray[np.int64],
     like: FloatArray,
-    shifts: NDArray[np.int_],
+    shifts: NDArray[np.int64],
     yaws: FloatArray,
     guess: FloatArray,
     r: float,
     k: int,
     hi: NDArray[np.int_],
+    scores_of: Callable[..., FloatArray],
     away_from: FloatArray | None,
     away_m: float,
 ) -> tuple[float, FloatArray]:
     """Branch and bound: the best fine score and its pose among the coarse blocks, best
     bound first, skipping blocks within ``away_m`` of ``away_from`` when given."""
     best, best_pose = -1.0, guess.copy()
-    fine = np.arange(k)
+    fine = np.arange(k, dtype=np.int64)
     block_m = k * r
     searched = 0
     for flat in np.argsort(-bounds, axis=None):
@@ -398,15 +399,57 @@ def _best_in_blocks(
         if away_from is not None and np.hypot(*(corner + block_m / 2 - away_from[:2])) < away_m + block_m:
             continue
         searched += 1
-        base = bases[y]
-        iu = np.clip(base[:, 0][None, :] + (shifts[u] + fine)[:, None], 0, hi[0])
-        iv = np.clip(base[:, 1][None, :] + (shifts[v] + fine)[:, None], 0, hi[1])
-        scores = like[iu[:, None, :], iv[None, :, :]].mean(axis=2)  # (k, k)
+        bu, bv = bases[0, y : y + 1], bases[1, y : y + 1]
+        su, sv = shifts[u] + fine, shifts[v] + fine
+        scores = scores_of(like, bu, bv, su, sv, int(hi[0]), int(hi[1]))[0]  # (k, k)
         du, dv = np.unravel_index(np.argmax(scores), scores.shape)
         if scores[du, dv] > best:
             best = float(scores[du, dv])
             best_pose = np.array([corner[0] + du * r, corner[1] + dv * r, yaws[y]])
     return best, best_pose
+
+
+def block_scores_numpy(
+    grid: FloatArray,
+    base_u: NDArray[np.int64],
+    base_v: NDArray[np.int64],
+    shift_u: NDArray[np.int64],
+    shift_v: NDArray[np.int64],
+    hi_u: int,
+    hi_v: int,
+) -> FloatArray:
+    """(Y, U, V) the mean of ``grid`` over the points' cells (Y, P) shifted by each
+    (shift_u, shift_v), cells clipped to the grid (its border is 0)."""
+    out = np.empty((len(base_u), len(shift_u), len(shift_v)))
+    for y in range(len(base_u)):
+        iu = np.clip(base_u[y][None, :] + shift_u[:, None], 0, hi_u)
+        iv = np.clip(base_v[y][None, :] + shift_v[:, None], 0, hi_v)
+        out[y] = grid[iu[:, None, :], iv[None, :, :]].mean(axis=2)
+    return out
+
+
+@njit
+def _block_scores(
+    grid: FloatArray,
+    base_u: NDArray[np.int64],
+    base_v: NDArray[np.int64],
+    shift_u: NDArray[np.int64],
+    shift_v: NDArray[np.int64],
+    hi_u: int,
+    hi_v: int,
+) -> FloatArray:  # pragma: no cover - compiled; block_scores_numpy is its reference
+    n_y, n_p = base_u.shape
+    out = np.empty((n_y, len(shift_u), len(shift_v)))
+    for y in range(n_y):
+        for a in range(len(shift_u)):
+            for b in range(len(shift_v)):
+                total = 0.0
+                for p in range(n_p):
+                    u = min(max(base_u[y, p] + shift_u[a], 0), hi_u)
+                    v = min(max(base_v[y, p] + shift_v[b], 0), hi_v)
+                    total += grid[u, v]
+                out[y, a, b] = total / n_p
+    return out
 
 
 def voxel_filter(points: FloatArray, voxel_m: float) -> FloatArray:
