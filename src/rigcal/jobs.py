@@ -389,6 +389,7 @@ def localize_sequence(
     tracks: Sequence[str] = (),
     wheel_odometry: bool = True,
     loop_closure: bool = False,
+    pose_graph: str = "auto",
     force: bool = False,
     progress: Progress | None = None,
 ) -> Localized:
@@ -397,6 +398,8 @@ def localize_sequence(
 
     Args:
         iasm, tracks: ``KEY=VALUE`` settings of IASM and H-IASM, and of the feature tracks.
+        pose_graph: the loop closures' pose-graph back end: ``auto`` (GTSAM where
+            installed, else scipy), ``scipy`` or ``gtsam``.
 
     Raises:
         ArgumentError: an unknown method or setting (the command line's usage errors).
@@ -412,9 +415,18 @@ def localize_sequence(
         run,
         summary,
     )
+    from rigcal.localize.pose_graph import gtsam_available
     from rigcal.viz.localize_output import write_run
 
     with _options():
+        lc_params = LoopParams(backend=pose_graph)
+        if lc_params.pose_graph == "gtsam" and not gtsam_available():
+            raise InputError.at(
+                None,
+                "--pose-graph",
+                pose_graph,
+                "auto or scipy: GTSAM is not installed (pip install rigcal[gtsam])",
+            )
         names = parse_methods(methods)
         iasm_params = parse_iasm_settings(list(iasm))
         track_params = parse_track_settings(list(tracks))
@@ -427,7 +439,7 @@ def localize_sequence(
         iasm=iasm_params,
         tracks=track_params,
         wheel_odometry=wheel_odometry,
-        loop_closure=LoopParams() if loop_closure else None,
+        loop_closure=lc_params if loop_closure else None,
     )
     write_run(r, sequence, output, force=force, kitti=kitti)
     return Localized(r, summary(r, sequence))

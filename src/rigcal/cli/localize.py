@@ -72,8 +72,16 @@ rig_option = click.option(
 @click.option(
     "--loop-closure",
     is_flag=True,
-    help="Also run icp, icp-p2p, iasm and hiasm with loop closure (scan-to-submap closures, a pose "
+    help="Also run icp, icp-p2p, kf, iasm and hiasm with loop closure (scan-to-submap closures, a pose "
     "graph with a robust kernel), as METHOD+lc: closures.csv and graph.png beside its trajectory.",
+)
+@click.option(
+    "--pose-graph",
+    type=click.Choice(["auto", "scipy", "gtsam"]),
+    default="auto",
+    show_default=True,
+    help="The loop closure's pose-graph back end: gtsam (the optional extra rigcal[gtsam]), "
+    "scipy, or auto (gtsam where installed, scipy otherwise).",
 )
 def localize(
     sequence: Path,
@@ -87,6 +95,7 @@ def localize(
     track_items: tuple[str, ...],
     wheel_odometry: str,
     loop_closure: bool,
+    pose_graph: str,
 ) -> None:
     """Estimate the laser's trajectory through SEQUENCE (a sequence folder) with one or
     more methods, run on the same data in the same process.
@@ -120,6 +129,7 @@ def localize(
                 tracks=track_items,
                 wheel_odometry=wheel_odometry == "use",
                 loop_closure=loop_closure,
+                pose_graph=pose_graph,
                 force=force,
                 progress=bars,
             )
@@ -137,7 +147,7 @@ def localize(
             click.echo(
                 f"{m.method}: {c['proposed']} closures proposed, {c['accepted']} accepted, "
                 f"{c['rejected_by_verification']} rejected by the verification, "
-                f"{c['rejected_by_kernel']} by the robust kernel",
+                f"{c['rejected_by_kernel']} by the robust kernel (pose graph on {m.closures.backend})",
                 err=True,
             )
     shared = ", ".join(f"{k.removesuffix('_s')} {v:.1f} s" for k, v in r.timings_s.items())

@@ -1,74 +1,130 @@
-"""Loop closure: scan-to-submap closures, verified, and a pose graph with a robust kernel.
+"""Loop closure: scan-to-submap closures searched within the drift's reach, verified, and
+a pose graph with a robust kernel.
 
 The paper names automatic loop closure as its future work (Section VIII). Here, on top of
-any odometry (ICP, ICP from the wheels, H-IASM):
+any odometry (ICP, ICP from the wheels, H-IASM), keyframes every
+:attr:`LoopParams.keyframe_m` of path are taken in driving order, as an online system
+would, and the poses are corrected as closures are found, so that each later search
+starts from a map whose earlier loops are already closed:
 
-1. **Proposals.** Keyframes every :attr:`LoopParams.keyframe_m` of path. A keyframe i
-   and an earlier keyframe j are proposed as a closure when the path between them is at
-   least ``min_loop_m`` long and the odometry puts them within ``search_m`` plus
-   ``drift_fraction`` of that path of each other (the odometry's drift grows with the
-   path); each keyframe proposes its nearest such j.
-2. **Verification.** Keyframe i's scan is matched by point-to-line ICP to the submap of
-   j (j's scan and its neighbours within ``submap_scans``, moved into j's frame by the
-   odometry), started from the odometry's relative pose and, since that may be metres
-   off after a long loop, from a grid of offsets around it; the closure is accepted when
-   the best fit keeps at least ``min_inliers`` of the points as inliers with an RMS
-   below ``max_rms_m`` and the scans constrain every direction (degeneracy indicator
-   above ``min_degeneracy``: a corridor's length is not a closure).
+1. **Proposals.** Keyframe i and an earlier keyframe j at least ``min_loop_m`` of path
+   back are proposed as a closure when the current poses put them within the search
+   window of each other; each keyframe proposes its nearest such j. The window grows with
+   the drift accumulated between them: over L metres of path, position sigma
+   sqrt((a L)^2 + b^2 L^3 / 3) and heading sigma b sqrt(L) (a scale error a per metre,
+   ``drift_per_m``, and a heading random walk b, ``drift_rad_per_sqrt_m``), times
+   ``n_sigma``, plus ``search_m``, at most ``max_search_m`` / ``max_search_rad``. L is
+   the shortest path between them in the graph, where an accepted closure is a short cut:
+   once a loop is closed, the places it joined are close in the graph again.
+2. **Verification.** Keyframe i is matched to the submap of j (the scans within
+   ``submap_m`` of path of j, moved into j's frame by the current poses). First i's
+   context (its scan and those of the 2 ``submap_m`` of path before it, placed by the
+   odometry, which is locally right) is searched for over the whole window by a
+   correlative search (Olson 2009, "Real-time correlative scan matching"; one level of
+   branch and bound as in Hess et al. 2016: a coarse grid's block maxima bound the fine
+   score, and blocks are searched best bound first until no bound beats the best score).
+   Matching the context rather than one scan is what tells a corridor's repeated doors
+   apart. Then i's scan alone, the part that overlaps j's submap, is fitted by
+   point-to-line ICP from the search's match. The closure is accepted when the search's
+   score (the mean likelihood of the context's points in the submap, 1 when every point
+   lies on a submap return) is at least ``min_score``; no pose farther than
+   ``ambiguity_m`` from the best scores above ``max_ambiguity`` of it; ICP moves the
+   match by at most ``max_refine_m`` (else the fit slides along a corridor); ICP keeps
+   at least ``min_inliers`` of the scan's points as inliers with an RMS below
+   ``max_rms_m``; and the scans constrain every direction (degeneracy indicator above
+   ``min_degeneracy``: a corridor's length is not a closure).
 3. **Pose graph.** The odometry steps between consecutive scans (1-sigma
-   ``step_sigmas`` per metre of step plus a floor) and the accepted closures
-   (``closure_sigmas``) are the edges; the poses minimise their whitened residuals under
-   a Cauchy kernel (Gauss-Newton, iteratively reweighted, on scipy's sparse solver), so
-   a false closure that
-   passed the verification is down-weighted instead of bending the map. A closure whose
-   whitened residual stays above ``reject_whitened`` after the optimisation contradicts
-   the others and is reported as rejected by the kernel.
+   ``step_sigmas`` plus ``step_sigma_per_m`` per metre of step) and the accepted closures
+   (``closure_sigmas``, under the Cauchy kernel) are the edges
+   (:mod:`rigcal.localize.pose_graph`, on scipy or GTSAM). A closure that disagrees with
+   the current poses by more than ``reoptimise_whitened`` (whitened) corrects them at
+   once (the graph up to keyframe i; the later poses follow it rigidly); the whole graph
+   is optimised at the end, and a closure whose whitened residual stays above
+   ``reject_whitened`` there contradicts the others and is reported as rejected by the
+   kernel.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import csr_matrix, diags
-from scipy.sparse.linalg import spsolve
+from scipy.ndimage import distance_transform_edt, maximum_filter
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
 
-from rigcal.geometry import pose_of, se2
+from rigcal.jit import njit
 from rigcal.localize.icp import IcpParams, icp
+from rigcal.localize.pose_graph import PoseGraph, edge_errors, gtsam_available, optimise
 from rigcal.scan import Scan
 
 FloatArray = NDArray[np.float64]
 
-
-# The Cauchy kernel's scale (whitened residual) and the Gauss-Newton iterations at most.
-KERNEL_SCALE = 3.0
-MAX_ITERATIONS = 30
+# A closure edge's weight in the graph of path lengths (a short cut; not 0, which the
+# sparse graph would read as no edge).
+_SHORT_CUT_M = 1e-6
+# The correlative search stops after this many coarse blocks (best bound first).
+_MAX_BLOCKS = 64
 
 
 @dataclass(frozen=True)
 class LoopParams:
-    """Loop closure's settings (module docstring)."""
+    """Loop closure's settings (module docstring). ``backend``: the pose graph's, "scipy",
+    "gtsam" or "auto" (GTSAM where it is installed, scipy otherwise)."""
 
     keyframe_m: float = 1.0
     min_loop_m: float = 10.0
-    search_m: float = 2.0
-    drift_fraction: float = 0.05
-    submap_scans: int = 2
+    search_m: float = 1.0
+    drift_per_m: float = 0.01
+    drift_rad_per_sqrt_m: float = 0.005
+    n_sigma: float = 3.0
+    max_search_m: float = 8.0
+    min_search_rad: float = 0.05
+    max_search_rad: float = 0.35
+    submap_m: float = 5.0
+    voxel_m: float = 0.05
+    match_points: int = 150
+    grid_m: float = 0.1
+    coarse: int = 4
+    yaw_step_rad: float = 0.015
+    min_score: float = 0.3
+    ambiguity_m: float = 1.0
+    max_ambiguity: float = 0.9
+    max_refine_m: float = 0.3
     min_inliers: float = 0.8
     max_rms_m: float = 0.06
     min_degeneracy: float = 0.05
-    grid_m: float = 0.5
     step_sigmas: tuple[float, float, float] = (0.002, 0.002, 0.001)  # m, m, rad (floor)
     step_sigma_per_m: float = 0.02
     closure_sigmas: tuple[float, float, float] = (0.05, 0.05, 0.02)
+    reoptimise_whitened: float = 3.0
     reject_whitened: float = 5.0
+    backend: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.backend not in ("auto", "scipy", "gtsam"):
+            raise ValueError(f"backend must be auto, scipy or gtsam, not {self.backend!r}")
+        for name in ("keyframe_m", "grid_m", "voxel_m", "yaw_step_rad", "n_sigma"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive")
+        if self.coarse < 1 or self.match_points < 3:
+            raise ValueError("coarse must be at least 1 and match_points at least 3")
+
+    @property
+    def pose_graph(self) -> str:
+        """The back end this run uses."""
+        if self.backend == "auto":
+            return "gtsam" if gtsam_available() else "scipy"
+        return self.backend
 
 
 @dataclass(frozen=True)
 class Closure:
     """A proposed closure: keyframe scan i matched to scan j; T_j_i (x, y, yaw) when it
-    passed the verification, and why not otherwise."""
+    passed the verification, and why not otherwise. ``score``: the correlative search's
+    best score; ``window_m``: the translation window it searched."""
 
     i: int
     j: int
@@ -77,6 +133,8 @@ class Closure:
     rms_m: float = float("nan")
     why_not: str = ""
     kernel_rejected: bool = False
+    score: float = float("nan")
+    window_m: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -85,6 +143,7 @@ class LoopResult:
 
     poses: FloatArray
     closures: list[Closure] = field(default_factory=list)
+    backend: str = "scipy"
 
     @property
     def counts(self) -> dict[str, int]:
@@ -102,159 +161,364 @@ def close_loops(
 ) -> LoopResult:
     """Loop closure over an odometry's poses (N, 3) of the scans (module docstring)."""
     params = params or LoopParams()
-    proposals = propose(poses, params)
-    closures = [verify(scans, poses, i, j, params) for i, j in proposals]
-    accepted = [c for c in closures if c.T_j_i is not None]
-    if not accepted:
-        return LoopResult(poses.copy(), closures)
-    optimised, whitened = optimise(poses, accepted, params)
-    flags = iter(whitened > params.reject_whitened)
-    out = []
-    for c in closures:
-        if c.T_j_i is not None and next(flags):
-            c = Closure(c.i, c.j, c.T_j_i, c.inliers, c.rms_m, "contradicts the other edges", True)
-        out.append(c)
-    return LoopResult(optimised, out)
-
-
-def propose(poses: FloatArray, params: LoopParams) -> list[tuple[int, int]]:
-    """(i, j) pairs, j < i, of keyframes the odometry puts close after a long path."""
-    along = np.r_[0.0, np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))]
-    keys = [0]
-    for k in range(1, len(poses)):
-        if along[k] - along[keys[-1]] >= params.keyframe_m:
-            keys.append(k)
-    kf = np.array(keys)
-    out = []
-    for a, i in enumerate(kf):
-        earlier = kf[:a]
-        path = along[i] - along[earlier]
-        ok = path >= params.min_loop_m
-        if not ok.any():
+    backend = params.pose_graph
+    along = path_along(poses)
+    keys = keyframes(along, params.keyframe_m)
+    est = poses.copy()
+    closures: list[Closure] = []
+    short_cuts: list[tuple[int, int]] = []  # keyframe positions joined by a closure
+    position = {int(k): a for a, k in enumerate(keys)}
+    for a, i in enumerate(keys):
+        earlier = keys[:a][along[i] - along[keys[:a]] >= params.min_loop_m]
+        if not len(earlier):
             continue
-        d = np.hypot(*(poses[earlier, :2] - poses[i, :2]).T)
-        reach = params.search_m + params.drift_fraction * path
-        near = np.flatnonzero(ok & (d <= reach))
-        if len(near):
-            out.append((int(i), int(earlier[near[np.argmin(d[near])]])))
-    return out
+        path = graph_path(along, keys, short_cuts, a, [position[int(k)] for k in earlier])
+        window_m, window_rad = search_window(path, params)
+        d = np.hypot(*(est[earlier, :2] - est[i, :2]).T)
+        near = np.flatnonzero(d <= window_m)
+        if not len(near):
+            continue
+        c = near[np.argmin(d[near])]
+        j = int(earlier[c])
+        closure = verify(scans, est, along, int(i), j, float(window_m[c]), float(window_rad[c]), params)
+        closures.append(closure)
+        if closure.T_j_i is None:
+            continue
+        short_cuts.append((a, position[j]))
+        accepted = [x for x in closures if x.T_j_i is not None]
+        innovation = _whitened(est, [closure], params)[0]
+        if innovation > params.reoptimise_whitened:
+            est = _corrected(poses, est, accepted, int(i), params, backend)
+    accepted = [x for x in closures if x.T_j_i is not None]
+    if not accepted:
+        return LoopResult(poses.copy(), closures, backend)
+    graph = build_graph(poses, est, accepted, len(poses) - 1, params)
+    optimised, whitened = optimise(graph, backend)
+    flags = iter(whitened[len(poses) - 1 :] > params.reject_whitened)
+    out = []
+    for x in closures:
+        if x.T_j_i is not None and next(flags):
+            x = Closure(
+                x.i,
+                x.j,
+                x.T_j_i,
+                x.inliers,
+                x.rms_m,
+                "contradicts the other edges",
+                True,
+                x.score,
+                x.window_m,
+            )
+        out.append(x)
+    return LoopResult(optimised, out, backend)
+
+
+def path_along(poses: FloatArray) -> FloatArray:
+    """(N,) the path length (m) from the first pose to each."""
+    return np.r_[0.0, np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))]
+
+
+def keyframes(along: FloatArray, keyframe_m: float) -> NDArray[np.intp]:
+    """The first pose and each pose at least ``keyframe_m`` of path after the previous key."""
+    keys = [0]
+    for k in range(1, len(along)):
+        if along[k] - along[keys[-1]] >= keyframe_m:
+            keys.append(k)
+    return np.array(keys, dtype=np.intp)
+
+
+def graph_path(
+    along: FloatArray, keys: NDArray[np.intp], short_cuts: list[tuple[int, int]], a: int, targets: list[int]
+) -> FloatArray:
+    """The shortest path (m) from keyframe position a to each target position, along the
+    odometry and through the accepted closures (short cuts)."""
+    if not short_cuts:
+        return np.asarray(along[keys[a]] - along[keys[targets]], dtype=float)
+    n = a + 1
+    seg = np.diff(along[keys[:n]])
+    rows = [np.arange(n - 1), np.array([s[0] for s in short_cuts])]
+    cols = [np.arange(1, n), np.array([s[1] for s in short_cuts])]
+    weights = [np.maximum(seg, _SHORT_CUT_M), np.full(len(short_cuts), _SHORT_CUT_M)]
+    g = coo_matrix(
+        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
+    ).tocsr()
+    dist = dijkstra(g, directed=False, indices=a)
+    return np.asarray(dist[targets], dtype=float)
+
+
+def search_window(path_m: FloatArray, params: LoopParams) -> tuple[FloatArray, FloatArray]:
+    """The translation (m) and yaw (rad) half-widths of the search after ``path_m`` of
+    drift (module docstring, step 1)."""
+    L = np.maximum(path_m, 0.0)
+    a, b = params.drift_per_m, params.drift_rad_per_sqrt_m
+    sigma_xy = np.sqrt((a * L) ** 2 + b**2 * L**3 / 3.0)
+    window_m = np.minimum(params.search_m + params.n_sigma * sigma_xy, params.max_search_m)
+    window_rad = np.clip(params.n_sigma * b * np.sqrt(L), params.min_search_rad, params.max_search_rad)
+    return window_m, window_rad
 
 
 def verify(
-    scans: list[Scan] | tuple[Scan, ...], poses: FloatArray, i: int, j: int, params: LoopParams
+    scans: list[Scan] | tuple[Scan, ...],
+    poses: FloatArray,
+    along: FloatArray,
+    i: int,
+    j: int,
+    window_m: float,
+    window_rad: float,
+    params: LoopParams,
 ) -> Closure:
-    """Match scan i to scan j's submap; the closure T_j_i when the fit passes the test."""
-    T_j = se2(poses[j])
-    parts = []
-    for k in range(max(0, j - params.submap_scans), min(len(scans), j + params.submap_scans + 1)):
-        pts = scans[k].points[scans[k].valid]
-        T = np.linalg.inv(T_j) @ se2(poses[k])
-        parts.append(pts @ T[:2, :2].T + T[:2, 2])
-    submap = np.vstack(parts)
-    data = scans[i].points[scans[i].valid]
+    """Match scan i to scan j's submap within the window; the closure T_j_i when the fit
+    passes the test (module docstring, step 2)."""
+    submap = local_map(scans, poses, j, np.flatnonzero(np.abs(along - along[j]) <= params.submap_m), params)
+    # The search matches keyframe i's context: its scan and those of the last 2 x submap_m
+    # of path before it (the odometry is locally right), so that a corridor's repeated
+    # structure is matched with what surrounds it, not one scan at a time. ICP then fits
+    # i's scan alone, the part that overlaps j's submap, and its fit is the test.
+    behind = np.flatnonzero((along <= along[i]) & (along >= along[i] - 2 * params.submap_m))
+    context = local_map(scans, poses, i, behind[behind <= i], params)
+    data = voxel_filter(scans[i].points[scans[i].valid], params.voxel_m)
     if len(submap) < 20 or len(data) < 20:
-        return Closure(i, j, None, why_not="too few returns")
-    guess = pose_of(np.linalg.inv(T_j) @ se2(poses[i]))
-    icp_params = IcpParams(method="point-to-line")
-    best = None
-    g = params.grid_m
-    for dx, dy in [(0, 0), (g, 0), (-g, 0), (0, g), (0, -g), (g, g), (-g, -g), (g, -g), (-g, g)]:
-        res = icp(submap, data, initial=guess + np.array([dx, dy, 0.0]), params=icp_params)
-        if best is None or (res.inlier_fraction, -res.rms_m) > (best.inlier_fraction, -best.rms_m):
-            best = res
-    assert best is not None
-    if best.inlier_fraction < params.min_inliers:
-        why = f"inliers {best.inlier_fraction:.2f} < {params.min_inliers:g}"
-    elif not best.rms_m <= params.max_rms_m:
-        why = f"RMS {best.rms_m:.3f} m > {params.max_rms_m:g} m"
-    elif best.degeneracy < params.min_degeneracy:
-        why = f"degenerate ({best.degeneracy:.3f})"
+        return Closure(i, j, None, why_not="too few returns", window_m=window_m)
+    guess = relative(poses[j][None], poses[i][None])[0]
+    stride = max(1, int(np.ceil(len(context) / params.match_points)))
+    start, score, elsewhere = correlative_match(
+        submap, context[::stride], guess, window_m, window_rad, params
+    )
+    if score < params.min_score:
+        return Closure(
+            i, j, None, why_not=f"score {score:.2f} < {params.min_score:g}", score=score, window_m=window_m
+        )
+    if elsewhere > params.max_ambiguity * score:
+        why = f"ambiguous (score {elsewhere:.2f} {params.ambiguity_m:g} m away, {score:.2f} at best)"
+        return Closure(i, j, None, why_not=why, score=score, window_m=window_m)
+    res = icp(submap, data, initial=start, params=IcpParams(method="point-to-line"))
+    slid = float(np.hypot(*(res.pose[:2] - start[:2])))
+    if slid > params.max_refine_m:
+        why = f"ICP slid {slid:.2f} m > {params.max_refine_m:g} m from the search's match"
+    elif res.inlier_fraction < params.min_inliers:
+        why = f"inliers {res.inlier_fraction:.2f} < {params.min_inliers:g}"
+    elif not res.rms_m <= params.max_rms_m:
+        why = f"RMS {res.rms_m:.3f} m > {params.max_rms_m:g} m"
+    elif res.degeneracy < params.min_degeneracy:
+        why = f"degenerate ({res.degeneracy:.3f})"
     else:
-        return Closure(i, j, best.pose, best.inlier_fraction, best.rms_m)
-    return Closure(i, j, None, best.inlier_fraction, best.rms_m, why)
+        return Closure(i, j, res.pose, res.inlier_fraction, res.rms_m, score=score, window_m=window_m)
+    return Closure(i, j, None, res.inlier_fraction, res.rms_m, why, score=score, window_m=window_m)
 
 
-def optimise(poses: FloatArray, closures: list[Closure], params: LoopParams) -> tuple[FloatArray, FloatArray]:
-    """The pose graph's optimum (N, 3), the first pose held, and each closure's whitened
-    residual norm there."""
-    n = len(poses)
-    steps = np.array([pose_of(np.linalg.inv(se2(poses[k])) @ se2(poses[k + 1])) for k in range(n - 1)])
+def local_map(
+    scans: list[Scan] | tuple[Scan, ...],
+    poses: FloatArray,
+    at: int,
+    which: NDArray[np.intp],
+    params: LoopParams,
+) -> FloatArray:
+    """The returns of scans ``which`` moved into scan ``at``'s frame by the poses, one per
+    ``voxel_m`` cell (M, 2)."""
+    rel = relative(np.repeat(poses[at][None], len(which), 0), poses[which])
+    parts = [np.zeros((0, 2))]
+    for k, T in zip(which, rel, strict=True):
+        pts = scans[k].points[scans[k].valid]
+        c, s = np.cos(T[2]), np.sin(T[2])
+        parts.append(pts @ np.array([[c, s], [-s, c]]) + T[:2])
+    return voxel_filter(np.vstack(parts), params.voxel_m)
+
+
+def correlative_match(
+    model: FloatArray,
+    data: FloatArray,
+    guess: FloatArray,
+    window_m: float,
+    window_rad: float,
+    params: LoopParams,
+    *,
+    kernel: bool = True,
+) -> tuple[FloatArray, float, float]:
+    """The pose T_model_data (x, y, yaw) within ``window_m`` / ``window_rad`` of ``guess``
+    that puts ``data`` (N, 2) best on ``model`` (M, 2), and its score: the mean over the
+    points of exp(-d^2 / 2 r^2), d the distance to the nearest model point on a grid of
+    r = ``grid_m`` (Olson 2009), and the best score of the poses farther than
+    ``ambiguity_m`` from it. Branch and bound over one coarse level (module docstring).
+    ``kernel=False`` scores the shifts with numpy (the compiled kernel's reference)."""
+    r, k = params.grid_m, params.coarse
+    pad = k + 1
+    lo = model.min(axis=0) - pad * r
+    shape = tuple(np.ceil((model.max(axis=0) + pad * r - lo) / r).astype(int) + 1)
+    occupied = np.zeros(shape, dtype=bool)
+    cells = np.floor((model - lo) / r).astype(int)
+    occupied[cells[:, 0], cells[:, 1]] = True
+    like = np.exp(-0.5 * distance_transform_edt(~occupied) ** 2)
+    like[:pad], like[-pad:], like[:, :pad], like[:, -pad:] = 0.0, 0.0, 0.0, 0.0
+    # Block (u, v) of the coarse grid holds the best fine cell among u..u+k-1, v..v+k-1:
+    # an upper bound of the score of any shift inside the block.
+    bound = maximum_filter(like, size=k, origin=-(k // 2), mode="constant")
+    n_t = int(np.ceil(window_m / (k * r)))
+    shifts = np.arange(-n_t, n_t, dtype=np.int64) * k  # coarse blocks, in fine cells
+    n_y = int(np.ceil(window_rad / params.yaw_step_rad))
+    yaws = guess[2] + np.arange(-n_y, n_y + 1) * params.yaw_step_rad
+    hi = np.array(shape) - 1
+    c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
+    qx = c * data[:, 0] - s * data[:, 1] + guess[0]  # (Y, P) the points at each yaw
+    qy = s * data[:, 0] + c * data[:, 1] + guess[1]
+    bases = np.stack([np.floor((qx - lo[0]) / r), np.floor((qy - lo[1]) / r)]).astype(np.int64)  # (2, Y, P)
+    scores = _block_scores if kernel else block_scores_numpy
+    bounds = scores(bound, bases[0], bases[1], shifts, shifts, int(hi[0]), int(hi[1]))
+    args = (bounds, bases, like, shifts, yaws, guess, r, k, hi, scores)
+    best, best_pose = _best_in_blocks(*args, None, 0.0)
+    # The best elsewhere (beyond ``ambiguity_m`` of the best): a corridor's repeated doors
+    # or a long wall fit as well a few metres along, and such a match is no closure.
+    second, _ = _best_in_blocks(*args, best_pose, params.ambiguity_m)
+    return best_pose, best, max(second, 0.0)
+
+
+def _best_in_blocks(
+    bounds: FloatArray,
+    bases: NDArray[np.int64],
+    like: FloatArray,
+    shifts: NDArray[np.int64],
+    yaws: FloatArray,
+    guess: FloatArray,
+    r: float,
+    k: int,
+    hi: NDArray[np.int_],
+    scores_of: Callable[..., FloatArray],
+    away_from: FloatArray | None,
+    away_m: float,
+) -> tuple[float, FloatArray]:
+    """Branch and bound: the best fine score and its pose among the coarse blocks, best
+    bound first, skipping blocks within ``away_m`` of ``away_from`` when given."""
+    best, best_pose = -1.0, guess.copy()
+    fine = np.arange(k, dtype=np.int64)
+    block_m = k * r
+    searched = 0
+    for flat in np.argsort(-bounds, axis=None):
+        if bounds.flat[flat] <= best or searched >= _MAX_BLOCKS:
+            break
+        y, u, v = np.unravel_index(flat, bounds.shape)
+        corner = guess[:2] + np.array([shifts[u], shifts[v]]) * r
+        if away_from is not None and np.hypot(*(corner + block_m / 2 - away_from[:2])) < away_m + block_m:
+            continue
+        searched += 1
+        bu, bv = bases[0, y : y + 1], bases[1, y : y + 1]
+        su, sv = shifts[u] + fine, shifts[v] + fine
+        scores = scores_of(like, bu, bv, su, sv, int(hi[0]), int(hi[1]))[0]  # (k, k)
+        du, dv = np.unravel_index(np.argmax(scores), scores.shape)
+        if scores[du, dv] > best:
+            best = float(scores[du, dv])
+            best_pose = np.array([corner[0] + du * r, corner[1] + dv * r, yaws[y]])
+    return best, best_pose
+
+
+def block_scores_numpy(
+    grid: FloatArray,
+    base_u: NDArray[np.int64],
+    base_v: NDArray[np.int64],
+    shift_u: NDArray[np.int64],
+    shift_v: NDArray[np.int64],
+    hi_u: int,
+    hi_v: int,
+) -> FloatArray:
+    """(Y, U, V) the mean of ``grid`` over the points' cells (Y, P) shifted by each
+    (shift_u, shift_v), cells clipped to the grid (its border is 0)."""
+    out = np.empty((len(base_u), len(shift_u), len(shift_v)))
+    for y in range(len(base_u)):
+        iu = np.clip(base_u[y][None, :] + shift_u[:, None], 0, hi_u)
+        iv = np.clip(base_v[y][None, :] + shift_v[:, None], 0, hi_v)
+        out[y] = grid[iu[:, None, :], iv[None, :, :]].mean(axis=2)
+    return out
+
+
+@njit
+def _block_scores(
+    grid: FloatArray,
+    base_u: NDArray[np.int64],
+    base_v: NDArray[np.int64],
+    shift_u: NDArray[np.int64],
+    shift_v: NDArray[np.int64],
+    hi_u: int,
+    hi_v: int,
+) -> FloatArray:  # pragma: no cover - compiled; block_scores_numpy is its reference
+    n_y, n_p = base_u.shape
+    out = np.empty((n_y, len(shift_u), len(shift_v)))
+    for y in range(n_y):
+        for a in range(len(shift_u)):
+            for b in range(len(shift_v)):
+                total = 0.0
+                for p in range(n_p):
+                    u = min(max(base_u[y, p] + shift_u[a], 0), hi_u)
+                    v = min(max(base_v[y, p] + shift_v[b], 0), hi_v)
+                    total += grid[u, v]
+                out[y, a, b] = total / n_p
+    return out
+
+
+def voxel_filter(points: FloatArray, voxel_m: float) -> FloatArray:
+    """The first point of each ``voxel_m`` square cell, in the points' order."""
+    if not len(points):
+        return points
+    cells = np.floor(points / voxel_m).astype(np.int64)
+    cells -= cells.min(axis=0)
+    key = cells[:, 0] * (int(cells[:, 1].max()) + 1) + cells[:, 1]
+    _, first = np.unique(key, return_index=True)
+    return points[np.sort(first)]
+
+
+def relative(pa: FloatArray, pb: FloatArray) -> FloatArray:
+    """(M, 3) T_a_b of poses a and b (M, 3), vectorised."""
+    c, s = np.cos(pa[:, 2]), np.sin(pa[:, 2])
+    dx, dy = pb[:, 0] - pa[:, 0], pb[:, 1] - pa[:, 1]
+    return np.column_stack([c * dx + s * dy, -s * dx + c * dy, np.angle(np.exp(1j * (pb[:, 2] - pa[:, 2])))])
+
+
+def compose(pa: FloatArray, rel: FloatArray) -> FloatArray:
+    """(M, 3) the poses a (M, 3) composed with T_a_b (M, 3), vectorised."""
+    c, s = np.cos(pa[:, 2]), np.sin(pa[:, 2])
+    return np.column_stack(
+        [
+            pa[:, 0] + c * rel[:, 0] - s * rel[:, 1],
+            pa[:, 1] + s * rel[:, 0] + c * rel[:, 1],
+            pa[:, 2] + rel[:, 2],
+        ]
+    )
+
+
+def build_graph(
+    odometry: FloatArray, start: FloatArray, closures: list[Closure], last: int, params: LoopParams
+) -> PoseGraph:
+    """The graph of poses 0..last: the odometry's steps and the closures, started at ``start``."""
+    steps = relative(odometry[:last], odometry[1 : last + 1])
     length = np.hypot(steps[:, 0], steps[:, 1])
     step_sig = np.array(params.step_sigmas)[None, :] + params.step_sigma_per_m * length[:, None]
-    a = np.r_[np.arange(n - 1), [c.j for c in closures]].astype(int)
-    b = np.r_[np.arange(1, n), [c.i for c in closures]].astype(int)
-    measured = [np.asarray(c.T_j_i, dtype=float) for c in closures if c.T_j_i is not None]
-    z = np.vstack([steps, *measured]) if measured else steps
-    sig = np.vstack([step_sig, np.tile(params.closure_sigmas, (len(closures), 1))])
-
-    w = 1.0 / sig  # (M, 3) whitening
-
-    def residuals(x: FloatArray) -> FloatArray:
-        p = np.vstack([poses[:1], x.reshape(-1, 3)])
-        return (_edge_errors(p[a], p[b], z) * w).ravel()
-
-    def jacobian(x: FloatArray) -> csr_matrix:
-        p = np.vstack([poses[:1], x.reshape(-1, 3)])
-        Ja, Jb = _edge_jacobians(p[a], p[b], z)
-        rows, cols, vals = [], [], []
-        r = np.repeat(np.arange(3 * len(a)).reshape(-1, 3, 1), 3, axis=2)  # (M, 3, 3) row index
-        for v, J in ((a, Ja), (b, Jb)):
-            c = 3 * (v[:, None, None] - 1) + np.arange(3)[None, None, :]  # column of pose v - 1
-            keep = np.broadcast_to((v > 0)[:, None, None], J.shape)
-            rows.append(r[keep])
-            cols.append(np.broadcast_to(c, J.shape)[keep])
-            vals.append((J * w[:, :, None])[keep])
-        return csr_matrix(
-            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-            shape=(3 * len(a), 3 * (n - 1)),
-        )
-
-    # Gauss-Newton on the Cauchy kernel by iteratively reweighted least squares: each
-    # edge weighs 1 / (1 + |r|^2 / c^2) of its whitened residual r (c = KERNEL_SCALE).
-    x = poses[1:].ravel().copy()
-    for _ in range(MAX_ITERATIONS):
-        r = residuals(x)
-        weight = 1.0 / (1.0 + np.sum(r.reshape(-1, 3) ** 2, axis=1) / KERNEL_SCALE**2)
-        J = jacobian(x)
-        Wd = diags(np.repeat(weight, 3))
-        H = (J.T @ Wd @ J).tocsc()
-        step = spsolve(H, -(J.T @ (np.repeat(weight, 3) * r)))
-        x += step
-        if np.abs(step).max() < 1e-7:
-            break
-    out = np.vstack([poses[:1], x.reshape(-1, 3)])
-    r = residuals(x).reshape(-1, 3)[n - 1 :]
-    return out, np.linalg.norm(r, axis=1)
+    measured = np.array([c.T_j_i for c in closures], dtype=float).reshape(-1, 3)
+    return PoseGraph(
+        poses=start[: last + 1].copy(),
+        a=np.r_[np.arange(last), [c.j for c in closures]].astype(np.intp),
+        b=np.r_[np.arange(1, last + 1), [c.i for c in closures]].astype(np.intp),
+        z=np.vstack([steps, measured]),
+        sigmas=np.vstack([step_sig, np.tile(params.closure_sigmas, (len(closures), 1))]),
+        robust=np.r_[np.zeros(last, dtype=bool), np.ones(len(closures), dtype=bool)],
+    )
 
 
-def _edge_jacobians(pa: FloatArray, pb: FloatArray, z: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """(M, 3, 3) the derivatives of :func:`_edge_errors` by pose a and by pose b (x, y, yaw)."""
-    c, s = np.cos(pa[:, 2]), np.sin(pa[:, 2])
-    cz, sz = np.cos(z[:, 2]), np.sin(z[:, 2])
-    dx, dy = pb[:, 0] - pa[:, 0], pb[:, 1] - pa[:, 1]
-    # e_xy = Rz^T Ra^T (tb - ta) - Rz^T tz; M = Rz^T Ra^T = R(-(yaw_a + yaw_z)).
-    cm, sm = np.cos(pa[:, 2] + z[:, 2]), np.sin(pa[:, 2] + z[:, 2])
-    M = np.stack([np.stack([cm, sm], -1), np.stack([-sm, cm], -1)], 1)  # (M, 2, 2)
-    # d(Ra^T d)/dyaw_a = (-s dx + c dy, -c dx - s dy), then Rz^T.
-    gx, gy = -s * dx + c * dy, -c * dx - s * dy
-    dyaw = np.column_stack([cz * gx + sz * gy, -sz * gx + cz * gy])
-    Ja = np.zeros((len(pa), 3, 3))
-    Jb = np.zeros((len(pa), 3, 3))
-    Ja[:, :2, :2] = -M
-    Ja[:, :2, 2] = dyaw
-    Ja[:, 2, 2] = -1.0
-    Jb[:, :2, :2] = M
-    Jb[:, 2, 2] = 1.0
-    return Ja, Jb
+def _whitened(est: FloatArray, closures: list[Closure], params: LoopParams) -> FloatArray:
+    """Each closure's whitened disagreement with the poses ``est``."""
+    z = np.array([c.T_j_i for c in closures], dtype=float)
+    e = edge_errors(est[[c.j for c in closures]], est[[c.i for c in closures]], z) / np.array(
+        params.closure_sigmas
+    )
+    return np.asarray(np.linalg.norm(e, axis=1), dtype=float)
 
 
-def _edge_errors(pa: FloatArray, pb: FloatArray, z: FloatArray) -> FloatArray:
-    """(M, 3) the error of each edge's measurement z (T_a_b) at poses a, b: z^-1 a^-1 b,
-    vectorised."""
-    c, s = np.cos(pa[:, 2]), np.sin(pa[:, 2])
-    dx, dy = pb[:, 0] - pa[:, 0], pb[:, 1] - pa[:, 1]
-    rel = np.column_stack([c * dx + s * dy, -s * dx + c * dy, pb[:, 2] - pa[:, 2]])
-    cz, sz = np.cos(z[:, 2]), np.sin(z[:, 2])
-    ex, ey = rel[:, 0] - z[:, 0], rel[:, 1] - z[:, 1]
-    yaw = np.angle(np.exp(1j * (rel[:, 2] - z[:, 2])))
-    return np.column_stack([cz * ex + sz * ey, -sz * ex + cz * ey, yaw])
+def _corrected(
+    odometry: FloatArray, est: FloatArray, closures: list[Closure], i: int, params: LoopParams, backend: str
+) -> FloatArray:
+    """The poses with the graph of poses 0..i optimised and the later poses moved with
+    pose i along the odometry."""
+    head, _ = optimise(build_graph(odometry, est, closures, i, params), backend)
+    out = est.copy()
+    out[: i + 1] = head
+    if i + 1 < len(est):
+        tail = relative(np.repeat(odometry[i][None], len(est) - i - 1, 0), odometry[i + 1 :])
+        out[i + 1 :] = compose(np.repeat(head[i][None], len(tail), 0), tail)
+        out[i + 1 :, 2] = head[i, 2] + odometry[i + 1 :, 2] - odometry[i, 2]  # yaw kept continuous
+    return out

@@ -57,8 +57,9 @@ class Estimate:
     closures: LoopResult | None = None
 
 
-# Methods whose poses are laser poses at scan stamps that loop closure can take.
-LOOP_CLOSURE_METHODS = ("icp", "icp-p2p", "iasm", "hiasm")
+# Methods whose poses are laser poses that loop closure can take (at scan stamps; the
+# Kalman filter's also at image stamps, each matched with the scan nearest it).
+LOOP_CLOSURE_METHODS = ("icp", "icp-p2p", "kf", "iasm", "hiasm")
 
 
 def _loop_closed(streams: Streams, est: Estimate, params: LoopParams) -> Estimate:
@@ -69,7 +70,7 @@ def _loop_closed(streams: Streams, est: Estimate, params: LoopParams) -> Estimat
     res = close_loops([streams.scans[k] for k in idx], est.poses, params)
     seconds = time.perf_counter() - t0
     streams.timings_s["loop_closure_s"] = streams.timings_s.get("loop_closure_s", 0.0) + seconds
-    stats = {"closures": res.counts, "loop_closure_s": round(seconds, 3)}
+    stats = {"closures": res.counts, "pose_graph": res.backend, "loop_closure_s": round(seconds, 3)}
     return Estimate(est.stamps_s, res.poses, stats, None, res)
 
 

@@ -1,0 +1,155 @@
+"""Loop closure on and off: on the Killian Court log, and on the simulated loops for every
+method.
+
+Killian Court (the rtb-data package's g2o file, 3873 ROBOTLASER1 scans ~0.5 m apart,
+7673 s of data), imported as ``rigcal import-carmen`` does: ICP started from the log's
+odometry (rigcal.localize.odometry.icp_odometry), then loop closure on its poses
+(rigcal.localize.loop_closure.close_loops, the pose graph on each back end installed).
+Scored against the g2o's vertices (the SLAM-optimised poses) by ATE (SE(2)-aligned), the
+end position error and the relation error of Kuemmerle et al. 2009 over consecutive
+scans and over all pairs of scans 10 m of path apart (mean +- std; rigcal.localize.
+metrics.relation_error). Speed, measured in the same process: the loop closure's time as a
+ratio to ICP's, and the log's duration over ICP + loop closure's wall and CPU time (x real
+time); the load average is printed beside it.
+
+Simulated loops (``--sim``): each loop of the paper driven once (images and scans, seed
+0), localized by ``rigcal localize --loop-closure`` (rigcal.localize.pipeline.run) with
+every method loop closure takes (icp, kf, iasm, hiasm): ATE and loop closure error of
+each with closure off and on, and the closures' counts.
+
+    uv sync --group bench --extra gtsam     # rtb-data, GTSAM
+    .venv/bin/python benchmarks/bench_loop_closure.py [--scans N] [--backend scipy|gtsam|both]
+    .venv/bin/python benchmarks/bench_loop_closure.py --sim [--methods icp,kf,iasm,hiasm]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+import zipfile
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from rigcal.io.carmen import carmen_odometry, read_carmen
+from rigcal.io.wheel_odometry import laser_motions
+from rigcal.localize.icp import IcpParams
+from rigcal.localize.loop_closure import LoopParams, close_loops
+from rigcal.localize.metrics import anchored, evaluate, relation_error, rpe_pairs
+from rigcal.localize.odometry import icp_odometry
+from rigcal.localize.pose_graph import gtsam_available
+
+
+def _row(name: str, est: np.ndarray, gt: np.ndarray, speed: str) -> str:
+    m = evaluate(anchored(est, gt), gt)
+    r1 = relation_error(est, gt)
+    r10 = relation_error(est, gt, rpe_pairs(gt, 10.0))
+    return (
+        f"| {name} | {m['ate_rmse_m']:.3f} | {m['end_position_error_m']:.2f} "
+        f"| {r1['trans_mean_m']:.4f} ± {r1['trans_std_m']:.4f} "
+        f"| {r1['rot_mean_deg']:.3f} ± {r1['rot_std_deg']:.3f} "
+        f"| {r10['trans_mean_m']:.3f} ± {r10['trans_std_m']:.3f} "
+        f"| {r10['rot_mean_deg']:.2f} ± {r10['rot_std_deg']:.2f} "
+        f"| {speed} |"
+    )
+
+
+def killian(n: int | None, backends: list[str]) -> None:
+    archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
+    with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
+        z.extract("killian.g2o", tmp)
+        log = read_carmen(Path(tmp) / "killian.g2o")
+        odom, _ = carmen_odometry(log, "killian.g2o")
+    assert odom is not None
+    scans, gt = log.scans[:n], log.laser_poses[:n]
+    t = np.array([s.stamp_s for s in scans])
+    duration = float(t[-1] - t[0])
+    guess = laser_motions(odom, t)
+    icp_odometry(scans[:50], IcpParams(method="point-to-line"), guess=guess[:49])  # compile / load kernels
+    w0, c0 = time.perf_counter(), time.process_time()
+    od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess)
+    icp_wall, icp_cpu = time.perf_counter() - w0, time.process_time() - c0
+    load = [os.getloadavg()[0]]
+    print(
+        f"Killian Court: {len(scans)} scans, {duration:.0f} s of data; "
+        f"ICP {icp_wall:.1f} s wall, {icp_cpu:.1f} s CPU"
+    )
+    header = (
+        "| method | ATE (m) | end error (m) | relation error, consecutive (m) | (deg) "
+        "| relation error, 10 m apart (m) | (deg) | speed |"
+    )
+    rows = [_row("ICP from the odometry", od.poses, gt, f"{duration / icp_wall:.0f}x real time")]
+    for backend in backends:
+        w0, c0 = time.perf_counter(), time.process_time()
+        lc = close_loops(scans, od.poses, LoopParams(backend=backend))
+        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        load.append(os.getloadavg()[0])
+        c = lc.counts
+        print(
+            f"{backend}: closures proposed {c['proposed']}, accepted {c['accepted']}, rejected by the "
+            f"verification {c['rejected_by_verification']}, by the kernel {c['rejected_by_kernel']}; "
+            f"loop closure {wall:.1f} s wall ({wall / icp_wall:.2f}x ICP's), "
+            f"{cpu:.1f} s CPU ({cpu / icp_cpu:.2f}x ICP's)"
+        )
+        speed = (
+            f"{duration / (icp_wall + wall):.0f}x real time wall, {duration / (icp_cpu + cpu):.0f}x CPU; "
+            f"closure {cpu / icp_cpu:.2f}x ICP's CPU"
+        )
+        rows.append(_row(f"ICP from the odometry + loop closure ({backend})", lc.poses, gt, speed))
+    print(f"load average (1 min) over the runs: {min(load):.1f}-{max(load):.1f}")
+    print(header)
+    print("|---|---|---|---|---|---|---|---|")
+    print("\n".join(rows))
+
+
+def simulated(methods: list[str]) -> None:
+    from rigcal.localize.pipeline import run
+    from rigcal.sim.drive import DriveSpec, write_drive
+    from rigcal.sim.world import world_named
+
+    print(
+        "| loop | method | ATE off (m) | ATE on (m) | loop closure error off (m) | on (m) "
+        "| closures (proposed / accepted) |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for world in ("cubicle-loop", "corridor-loop"):
+        with tempfile.TemporaryDirectory() as tmp:
+            write_drive(world_named(world), DriveSpec(), f"{tmp}/seq")
+            r = run(f"{tmp}/seq", methods, f"{tmp}/out", loop_closure=LoopParams())
+            by = {m.method: m for m in r.methods}
+            for name in methods:
+                off, on = by[name], by[f"{name}+lc"]
+                assert off.metrics is not None
+                assert on.metrics is not None
+                assert on.closures is not None
+                c = on.closures.counts
+                print(
+                    f"| {world} | {name} | {off.metrics['ate_rmse_m']:.4f} | {on.metrics['ate_rmse_m']:.4f} "
+                    f"| {off.metrics['loop_closure_error_m']:.4f} | {on.metrics['loop_closure_error_m']:.4f} "
+                    f"| {c['proposed']} / {c['accepted']} |"
+                )
+    print(f"load average (1 min) at the end: {os.getloadavg()[0]:.1f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sim", action="store_true", help="the simulated loops instead of Killian Court")
+    ap.add_argument("--methods", default="icp,kf,iasm,hiasm", help="--sim: the methods")
+    ap.add_argument("--scans", type=int, default=None, help="only the log's first N scans")
+    ap.add_argument("--backend", default="both", choices=["scipy", "gtsam", "both"])
+    a = ap.parse_args()
+    if a.sim:
+        simulated(a.methods.split(","))
+        return
+    backends = ["scipy", "gtsam"] if a.backend == "both" else [a.backend]
+    if not gtsam_available() and "gtsam" in backends:
+        print("GTSAM is not installed (uv sync --extra gtsam): scipy only")
+        backends = ["scipy"]
+    killian(a.scans, backends)
+
+
+if __name__ == "__main__":
+    main()
