@@ -69,7 +69,9 @@ class LoopbackCluster:
     attempts: int = 5
     # A higher CPU priority (negative niceness, root only) for the nodes' start, back to
     # normal once they are up: Ray's raylet gives its agents a fixed 15 s to start
-    # (ray-project/ray#65983), which a machine shared by many can miss every time.
+    # (ray-project/ray#65983), which a machine shared by many can miss every time. With
+    # the kernel's autogroups (sched_autogroup_enabled), each node's session is scheduled
+    # as one group against the machine's other sessions, so the group's niceness is set too.
     start_nice: int = 0
     marker: str = field(default_factory=lambda: uuid.uuid4().hex)
     nodes: list[Node] = field(default_factory=list)
@@ -160,6 +162,7 @@ class LoopbackCluster:
                 for pid in own_processes(self.marker, ip):
                     with contextlib.suppress(OSError):
                         os.setpriority(os.PRIO_PROCESS, pid, 0)
+                        _autogroup_nice(pid, 0)
                 return node
             self._kill(node, signal.SIGKILL)
         raise RuntimeError(f"ray start {' '.join(args)} failed {self.attempts} times; see {node.log}")
@@ -197,6 +200,8 @@ class LoopbackCluster:
                 start_new_session=True,
             )
             node.pgid = proc.pid
+            if self.start_nice:
+                _autogroup_nice(proc.pid, self.start_nice)
             try:
                 code = proc.wait(timeout=240)
             except subprocess.TimeoutExpired:
@@ -229,6 +234,13 @@ class LoopbackCluster:
         for node in self.nodes:
             shutil.rmtree(node.temp_dir, ignore_errors=True)
         self.nodes.clear()
+
+
+def _autogroup_nice(pid: int, nice: int) -> None:
+    """The niceness of the scheduler autogroup (the session) of ``pid``, where the kernel
+    has autogroups and allows it."""
+    with contextlib.suppress(OSError):
+        Path(f"/proc/{pid}/autogroup").write_text(f"{nice}\n")
 
 
 def own_processes(marker: str, node_ip: str | None = None) -> list[int]:

@@ -264,13 +264,14 @@ def test_nodes_with_other_versions_get_no_items():
 def test_a_cluster_without_a_node_of_this_rigcal_is_one_line():
     from rigcal.batch.raycluster import check_nodes
 
-    fake = _FakeRay({"10.0.0.6": {**versions(), "rigcal": "0.0.9"}, "10.0.0.7": RuntimeError("a\n  b")})
+    task_error = RuntimeError("\x1b[36mray::versions()\x1b[39m (pid=1)\nAttributeError: no versions\n")
+    fake = _FakeRay({"10.0.0.6": {**versions(), "rigcal": "0.0.9"}, "10.0.0.7": task_error})
     with pytest.raises(InputError) as info:
         check_nodes(fake, parse_address("ray://head:10001"), 7.0, print)
     assert str(info.value) == (
         f"--ray: got 'ray://head:10001'; expected a node running rigcal {versions()['rigcal']} on Python "
         f"{versions()['python']} (node 10.0.0.6 runs rigcal 0.0.9 (driver: {versions()['rigcal']}); "
-        "node 10.0.0.7 cannot run rigcal's version check (RuntimeError: a b))"
+        "node 10.0.0.7 cannot run rigcal's version check (AttributeError: no versions))"
     )
 
 

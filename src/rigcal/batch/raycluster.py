@@ -322,7 +322,7 @@ def check_nodes(
             reason = differ(ray.get(ref), expect)
             reason = None if reason is None else f"runs {reason}"
         except Exception as exc:  # a node whose rigcal cannot even run the check
-            reason = f"cannot run rigcal's version check ({_one_line(exc)})"
+            reason = f"cannot run rigcal's version check ({_cause(exc)})"
         if reason is not None:
             bad[asked[ref]] = f"node {nodes[asked[ref]]} {reason}"
     for ref in late:
@@ -342,6 +342,18 @@ def check_nodes(
     for line in bad.values():
         log(f"Ray: {line}; no items are sent there")
     return {"label_selector": {"ray.io/node-id": f"!in({','.join(sorted(bad))})"}} if bad else {}
+
+
+def _cause(exc: BaseException) -> str:
+    """A failed task's reason: the last line of its text, where Ray's task errors put the
+    worker's own exception (``AttributeError: ... 'versions' on <module ...>``)."""
+    lines = [line.strip() for line in _ANSI.sub("", str(exc)).splitlines() if line.strip()]
+    if len(lines) > 1:
+        return lines[-1]
+    return f"{type(exc).__name__}: {lines[0] if lines else ''}"
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
 
 def _one_line(exc: BaseException, limit: int = 400) -> str:
