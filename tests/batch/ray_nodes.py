@@ -263,6 +263,19 @@ def own_processes(marker: str, node_ip: str | None = None) -> list[int]:
     return out
 
 
+def running_items(marker: str, node_ip: str | None = None) -> int:
+    """How many Ray workers of the cluster (of one node when given) run an item now (a
+    worker's process title names its task)."""
+    count = 0
+    for pid in own_processes(marker, node_ip):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                count += f.read().startswith(b"ray::run_item")
+        except OSError:
+            continue
+    return count
+
+
 def _signal(pid: int, sig: int) -> None:
     with contextlib.suppress(ProcessLookupError, PermissionError):
         os.kill(pid, sig)

@@ -27,7 +27,7 @@ from ray_nodes import (
     descendants,
     item_nodes,
     listening_sockets,
-    own_processes,
+    running_items,
     solve_manifest,
 )
 
@@ -152,7 +152,7 @@ def test_a_node_killed_mid_batch_has_its_items_run_elsewhere(cluster, manifest, 
 def _kill_when_busy(cluster: LoopbackCluster, node, proc: subprocess.Popen) -> None:
     """Kill ``node`` as soon as one of its workers runs an item."""
     deadline = time.monotonic() + 600
-    while not _running_task(cluster.marker, node.ip):
+    while not running_items(cluster.marker, node.ip):
         assert proc.poll() is None, "the batch ended before a task ran on the node"
         assert time.monotonic() < deadline, "no task ran on the node"
         time.sleep(0.2)
@@ -187,15 +187,3 @@ def test_a_node_killed_mid_batch(cluster, manifest, reference, tmp_path):
     assert again.stderr.count("skipped, finished before") == N_ITEMS - len(failed)
     assert {k: v for k, v in item_nodes(out).items() if k in failed} == dict.fromkeys(failed, HEAD_IP)
     assert results(out) == reference
-
-
-def _running_task(marker: str, node_ip: str) -> bool:
-    """A Ray worker of the node is running an item (its process title names the task)."""
-    for pid in own_processes(marker, node_ip):
-        try:
-            with open(f"/proc/{pid}/cmdline", "rb") as f:
-                if f.read().startswith(b"ray::run_item"):
-                    return True
-        except OSError:
-            continue
-    return False

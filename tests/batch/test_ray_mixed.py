@@ -18,10 +18,21 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
-from ray_nodes import HEAD_IP, NODE_IPS, TEST_NICE, LoopbackCluster, batch, item_nodes, solve_manifest
+from ray_nodes import (
+    HEAD_IP,
+    NODE_IPS,
+    RIGCAL,
+    TEST_NICE,
+    LoopbackCluster,
+    batch,
+    item_nodes,
+    running_items,
+    solve_manifest,
+)
 
 ray = pytest.importorskip("ray")
 pytestmark = pytest.mark.slow
@@ -138,6 +149,26 @@ def test_a_driver_of_another_python_is_refused_in_one_line(cluster, other_env):
         "(RuntimeError: Version mismatch: "
     ), line
     assert f"Python: {sys.version.split()[0]} This process on" in line, line
+
+
+def test_a_long_manifest_holds_a_window_of_items_in_the_cluster(cluster, manifest, tmp_path):
+    """With -j 1 on a cluster of two CPUs, the driver hands Ray one item at a time: never
+    two items run at once (were they all submitted, both CPUs would take one)."""
+    out = tmp_path / "out"
+    cmd = [RIGCAL, "batch", str(manifest), "-o", str(out), "--ray", "auto", "-j", "1"]
+    env = cluster.driver_env(RAY_ADDRESS=cluster.address)
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    seen = []
+    try:
+        while proc.poll() is None:
+            seen.append(running_items(cluster.marker))
+            time.sleep(0.2)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert max(seen) == 1, seen
 
 
 def test_a_node_with_another_rigcal_gets_no_items(cluster, manifest, tmp_path):
