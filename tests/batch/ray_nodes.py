@@ -11,6 +11,7 @@ user on the machine), and its files live in its own folders, removed at the end.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -23,7 +24,12 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import yaml
+
+from rigcal.sim.box_session import SessionSpec, generate_session, write_session
+
 RAY = str(Path(sys.executable).with_name("ray"))
+RIGCAL = str(Path(sys.executable).with_name("rigcal"))
 
 # Loopback addresses other than 127.0.0.1: Ray replaces 127.0.0.1 and localhost by the
 # machine's outward address on Linux (ray._private.services.resolve_ip_for_localhost)
@@ -31,6 +37,8 @@ RAY = str(Path(sys.executable).with_name("ray"))
 # of 127.0.0.0/8.
 HEAD_IP = "127.0.0.2"
 NODE_IPS = ("127.0.0.3", "127.0.0.4", "127.0.0.5")
+# The tests' start_nice (see LoopbackCluster.start_nice): a higher priority when allowed.
+TEST_NICE = -10 if os.geteuid() == 0 else 0
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -61,7 +69,9 @@ class LoopbackCluster:
     attempts: int = 5
     # A higher CPU priority (negative niceness, root only) for the nodes' start, back to
     # normal once they are up: Ray's raylet gives its agents a fixed 15 s to start
-    # (ray-project/ray#65983), which a machine shared by many can miss every time.
+    # (ray-project/ray#65983), which a machine shared by many can miss every time. With
+    # the kernel's autogroups (sched_autogroup_enabled), each node's session is scheduled
+    # as one group against the machine's other sessions, so the group's niceness is set too.
     start_nice: int = 0
     marker: str = field(default_factory=lambda: uuid.uuid4().hex)
     nodes: list[Node] = field(default_factory=list)
@@ -87,6 +97,13 @@ class LoopbackCluster:
             "RAY_USAGE_STATS_ENABLED": "0",
         }
         return env
+
+    def driver_env(self, **extra: str) -> dict[str, str]:
+        """A driver's environment as the docs set it up: the token in ~/.ray/auth_token
+        (rigcal turns authentication on when it finds one), nothing else."""
+        env = self.env
+        env.pop("RAY_AUTH_MODE")
+        return env | extra
 
     def __enter__(self) -> LoopbackCluster:
         try:
@@ -121,57 +138,75 @@ class LoopbackCluster:
         for k in range(self.workers):
             self.add_node(NODE_IPS[k])
 
-    def add_node(self, ip: str) -> Node:
-        node = self._start_node(ip, ["--address", self.address])
+    def add_node(self, ip: str, env: dict[str, str] | None = None) -> Node:
+        """A node joining the head; ``env``: variables of its own (``PYTHONPATH``)."""
+        node = self._start_node(ip, ["--address", self.address], env=env)
         self.nodes.append(node)
         return node
 
-    def _start_node(self, ip: str, args: list[str]) -> Node:
+    def try_node(self, ip: str, ray: str) -> tuple[int, str]:
+        """``ray start --address`` with another installation's ``ray`` (another Python),
+        once: its exit code and output. A node that started is stopped again."""
+        node, code = self._launch(ip, ["--address", self.address], ray, {}, "try")
+        text = node.log.read_text(errors="replace")
+        self._kill(node, signal.SIGKILL)
+        return code, text
+
+    def _start_node(self, ip: str, args: list[str], env: dict[str, str] | None = None) -> Node:
         """``ray start`` with its own temp folder and ports; retried because Ray's raylet
         gives its agents a fixed 15 s to start (ray-project/ray#65983), too short on a
         loaded machine."""
         for attempt in range(self.attempts):
-            node = Node(ip, Path(tempfile.mkdtemp(prefix="rgr")), self.root / f"node-{ip}-{attempt}.log")
-            ports = {
-                "--node-manager-port": free_port(ip),
-                "--object-manager-port": free_port(ip),
-                "--dashboard-agent-listen-port": free_port(ip),
-                "--dashboard-agent-grpc-port": free_port(ip),
-                "--runtime-env-agent-port": free_port(ip),
-                "--metrics-export-port": free_port(ip),
-            }
-            prefix = ["nice", "-n", str(self.start_nice)] if self.start_nice else []
-            cmd = [*prefix, RAY, "start", *args, "--node-ip-address", ip, "--num-cpus", str(self.cpus)]
-            # no log monitor: one Python process fewer competing with the agents' start
-            cmd += [
-                "--temp-dir",
-                str(node.temp_dir),
-                "--disable-usage-stats",
-                "--include-log-monitor",
-                "false",
-            ]
-            for flag, port in ports.items():
-                cmd += [flag, str(port)]
-            with open(node.log, "w") as log:
-                proc = subprocess.Popen(
-                    cmd,
-                    env=self.env | {"RIGCAL_TEST_RAY_NODE": ip},
-                    stdout=log,
-                    stderr=subprocess.STDOUT,
-                    start_new_session=True,
-                )
-                node.pgid = proc.pid
-                try:
-                    code = proc.wait(timeout=240)
-                except subprocess.TimeoutExpired:
-                    code = -1
+            node, code = self._launch(ip, args, RAY, env or {}, str(attempt))
             if code == 0:
                 for pid in own_processes(self.marker, ip):
                     with contextlib.suppress(OSError):
                         os.setpriority(os.PRIO_PROCESS, pid, 0)
+                        _autogroup_nice(pid, 0)
                 return node
             self._kill(node, signal.SIGKILL)
         raise RuntimeError(f"ray start {' '.join(args)} failed {self.attempts} times; see {node.log}")
+
+    def _launch(self, ip: str, args: list[str], ray: str, env: dict[str, str], tag: str) -> tuple[Node, int]:
+        """One ``ray start``, its output in ``root/node-IP-TAG.log``; its exit code (-1
+        when it has not returned in 240 s)."""
+        node = Node(ip, Path(tempfile.mkdtemp(prefix="rgr")), self.root / f"node-{ip}-{tag}.log")
+        ports = {
+            "--node-manager-port": free_port(ip),
+            "--object-manager-port": free_port(ip),
+            "--dashboard-agent-listen-port": free_port(ip),
+            "--dashboard-agent-grpc-port": free_port(ip),
+            "--runtime-env-agent-port": free_port(ip),
+            "--metrics-export-port": free_port(ip),
+        }
+        prefix = ["nice", "-n", str(self.start_nice)] if self.start_nice else []
+        cmd = [*prefix, ray, "start", *args, "--node-ip-address", ip, "--num-cpus", str(self.cpus)]
+        # no log monitor: one Python process fewer competing with the agents' start
+        cmd += [
+            "--temp-dir",
+            str(node.temp_dir),
+            "--disable-usage-stats",
+            "--include-log-monitor",
+            "false",
+        ]
+        for flag, port in ports.items():
+            cmd += [flag, str(port)]
+        with open(node.log, "w") as log:
+            proc = subprocess.Popen(
+                cmd,
+                env=self.env | env | {"RIGCAL_TEST_RAY_NODE": ip},
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
+            node.pgid = proc.pid
+            if self.start_nice:
+                _autogroup_nice(proc.pid, self.start_nice)
+            try:
+                code = proc.wait(timeout=240)
+            except subprocess.TimeoutExpired:
+                code = -1
+        return node, code
 
     def kill_node(self, node: Node) -> None:
         """End one node at once (SIGKILL), as a machine that dies."""
@@ -201,6 +236,13 @@ class LoopbackCluster:
         self.nodes.clear()
 
 
+def _autogroup_nice(pid: int, nice: int) -> None:
+    """The niceness of the scheduler autogroup (the session) of ``pid``, where the kernel
+    has autogroups and allows it."""
+    with contextlib.suppress(OSError):
+        Path(f"/proc/{pid}/autogroup").write_text(f"{nice}\n")
+
+
 def own_processes(marker: str, node_ip: str | None = None) -> list[int]:
     """Processes whose environment carries ``RIGCAL_TEST_RAY_CLUSTER=marker`` (and
     ``RIGCAL_TEST_RAY_NODE=node_ip`` when given)."""
@@ -219,6 +261,19 @@ def own_processes(marker: str, node_ip: str | None = None) -> list[int]:
         except OSError:
             continue
     return out
+
+
+def running_items(marker: str, node_ip: str | None = None) -> int:
+    """How many Ray workers of the cluster (of one node when given) run an item now (a
+    worker's process title names its task)."""
+    count = 0
+    for pid in own_processes(marker, node_ip):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                count += f.read().startswith(b"ray::run_item")
+        except OSError:
+            continue
+    return count
 
 
 def _signal(pid: int, sig: int) -> None:
@@ -293,3 +348,33 @@ def descendants(root: int) -> list[int]:
         out.append(pid)
         todo += children.get(pid, [])
     return out
+
+
+def solve_manifest(base: Path, n_items: int, seed: int) -> Path:
+    """``base/solves.yaml``: ``n_items`` solves of simulated sessions (a few seconds each)."""
+    items = []
+    for k in range(n_items):
+        write_session(generate_session(SessionSpec(n_captures=10, seed=seed + k)), base / f"s{k}", False)
+        items.append({"name": f"s{k}", "picks": f"s{k}/picks.yaml"})
+    doc = {"schema_version": 1, "command": "solve", "defaults": {"seed": 3}, "items": items}
+    (base / "solves.yaml").write_text(yaml.safe_dump(doc))
+    return base / "solves.yaml"
+
+
+def batch(
+    manifest: Path, out: Path, *args: str, env: dict[str, str] | None = None, timeout: float = 900
+) -> subprocess.CompletedProcess[str]:
+    """``rigcal batch MANIFEST -o OUT ARGS...``, its output captured."""
+    return subprocess.run(
+        [RIGCAL, "batch", str(manifest), "-o", str(out), *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+        check=False,
+    )
+
+
+def item_nodes(out: Path) -> dict[str, str | None]:
+    """Per item of a batch's summary: the Ray node that ran it."""
+    return {r["name"]: r["node"] for r in json.loads((out / "summary.json").read_text())["items"]}

@@ -11,47 +11,35 @@ Slow (each Ray node takes tens of seconds to start on a loaded machine):
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 import yaml
-from ray_nodes import HEAD_IP, NODE_IPS, LoopbackCluster, descendants, listening_sockets, own_processes
-
-from rigcal.sim.box_session import SessionSpec, generate_session, write_session
+from ray_nodes import (
+    HEAD_IP,
+    NODE_IPS,
+    RIGCAL,
+    TEST_NICE,
+    LoopbackCluster,
+    batch,
+    descendants,
+    item_nodes,
+    listening_sockets,
+    running_items,
+    solve_manifest,
+)
 
 pytest.importorskip("ray")
 pytestmark = pytest.mark.slow
 
-RIGCAL = str(Path(sys.executable).with_name("rigcal"))
 N_ITEMS = 6
 
 
 @pytest.fixture(scope="module")
 def manifest(tmp_path_factory) -> Path:
-    """Six solves of simulated sessions (a few seconds each)."""
-    base = tmp_path_factory.mktemp("sessions")
-    items = []
-    for k in range(N_ITEMS):
-        write_session(generate_session(SessionSpec(n_captures=10, seed=40 + k)), base / f"s{k}", False)
-        items.append({"name": f"s{k}", "picks": f"s{k}/picks.yaml"})
-    doc = {"schema_version": 1, "command": "solve", "defaults": {"seed": 3}, "items": items}
-    (base / "solves.yaml").write_text(yaml.safe_dump(doc))
-    return base / "solves.yaml"
-
-
-def batch(manifest: Path, out: Path, *args: str, env: dict[str, str] | None = None, timeout: float = 900):
-    return subprocess.run(
-        [RIGCAL, "batch", str(manifest), "-o", str(out), *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=timeout,
-        check=False,
-    )
+    return solve_manifest(tmp_path_factory.mktemp("sessions"), N_ITEMS, 40)
 
 
 def results(out: Path) -> dict[str, dict]:
@@ -65,16 +53,12 @@ def results(out: Path) -> dict[str, dict]:
     return keep
 
 
-def nodes(out: Path) -> dict[str, str | None]:
-    return {r["name"]: r["node"] for r in json.loads((out / "summary.json").read_text())["items"]}
-
-
 @pytest.fixture(scope="module")
 def reference(manifest, tmp_path_factory) -> dict[str, dict]:
     out = tmp_path_factory.mktemp("pool") / "out"
     done = batch(manifest, out, "-j", "2")
     assert done.returncode == 0, done.stderr
-    assert set(nodes(out).values()) == {None}
+    assert set(item_nodes(out).values()) == {None}
     return results(out)
 
 
@@ -105,43 +89,34 @@ def test_local_listens_on_loopback_only_and_cleans_up(manifest, reference, tmp_p
     assert len(seen) >= 4, seen  # the GCS, the raylet, the driver, a worker at least
     assert {a.rsplit(":", 1)[0] for a in seen} == {"127.0.0.1"}, seen
     assert results(tmp_path / "out") == reference
-    assert set(nodes(tmp_path / "out").values()) == {"127.0.0.1"}
+    assert set(item_nodes(tmp_path / "out").values()) == {"127.0.0.1"}
 
 
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
-    nice = -10 if os.geteuid() == 0 else 0  # see LoopbackCluster.start_nice
-    with LoopbackCluster(tmp_path_factory.mktemp("cluster"), workers=1, cpus=1, start_nice=nice) as c:
+    with LoopbackCluster(tmp_path_factory.mktemp("cluster"), workers=1, cpus=1, start_nice=TEST_NICE) as c:
         yield c
 
 
-def driver_env(cluster: LoopbackCluster, **extra: str) -> dict[str, str]:
-    """The driver's environment as the docs set it up: the token in ~/.ray/auth_token
-    (rigcal turns authentication on when it finds one), nothing else."""
-    env = cluster.env
-    env.pop("RAY_AUTH_MODE")
-    return env | extra
-
-
 def test_auto_joins_the_cluster_named_by_ray_address(cluster, manifest, reference, tmp_path):
-    env = driver_env(cluster, RAY_ADDRESS=cluster.address)
+    env = cluster.driver_env(RAY_ADDRESS=cluster.address)
     done = batch(manifest, tmp_path / "out", "--ray", "auto", env=env)
     assert done.returncode == 0, done.stderr
     assert f"Ray: joined {cluster.address}: 2 nodes, 2 CPUs" in done.stderr
     assert results(tmp_path / "out") == reference
-    assert set(nodes(tmp_path / "out").values()) == {HEAD_IP, NODE_IPS[0]}
+    assert set(item_nodes(tmp_path / "out").values()) == {HEAD_IP, NODE_IPS[0]}
 
 
 def test_the_client_address(cluster, manifest, reference, tmp_path):
-    done = batch(manifest, tmp_path / "out", "--ray", cluster.client_address, env=driver_env(cluster))
+    done = batch(manifest, tmp_path / "out", "--ray", cluster.client_address, env=cluster.driver_env())
     assert done.returncode == 0, done.stderr
     assert f"Ray: joined {cluster.client_address}: 2 nodes, 2 CPUs" in done.stderr
     assert results(tmp_path / "out") == reference
-    assert set(nodes(tmp_path / "out").values()) == {HEAD_IP, NODE_IPS[0]}
+    assert set(item_nodes(tmp_path / "out").values()) == {HEAD_IP, NODE_IPS[0]}
 
 
 def test_without_the_token_the_join_fails_in_one_line(cluster, manifest, tmp_path):
-    env = driver_env(cluster, HOME=str(tmp_path), RAY_AUTH_MODE="token")
+    env = cluster.driver_env(HOME=str(tmp_path), RAY_AUTH_MODE="token")
     done = batch(manifest, tmp_path / "out", "--ray", cluster.address, env=env, timeout=300)
     assert done.returncode == 3, done.stderr
     last = done.stderr.strip().splitlines()[-1]
@@ -154,7 +129,7 @@ def test_a_node_killed_mid_batch_has_its_items_run_elsewhere(cluster, manifest, 
     node and the batch succeeds, to the pool's results."""
     node = cluster.add_node(NODE_IPS[1])
     out = tmp_path / "out"
-    env = driver_env(cluster, RAY_ADDRESS=cluster.address)
+    env = cluster.driver_env(RAY_ADDRESS=cluster.address)
     proc = subprocess.Popen(
         [RIGCAL, "batch", str(manifest), "-o", str(out), "--ray", "auto"],
         env=env,
@@ -171,13 +146,13 @@ def test_a_node_killed_mid_batch_has_its_items_run_elsewhere(cluster, manifest, 
     assert proc.returncode == 0, err
     assert "3 nodes" in err
     assert results(out) == reference
-    assert set(nodes(out).values()) <= {HEAD_IP, NODE_IPS[0], NODE_IPS[1]}
+    assert set(item_nodes(out).values()) <= {HEAD_IP, NODE_IPS[0], NODE_IPS[1]}
 
 
 def _kill_when_busy(cluster: LoopbackCluster, node, proc: subprocess.Popen) -> None:
     """Kill ``node`` as soon as one of its workers runs an item."""
     deadline = time.monotonic() + 600
-    while not _running_task(cluster.marker, node.ip):
+    while not running_items(cluster.marker, node.ip):
         assert proc.poll() is None, "the batch ended before a task ran on the node"
         assert time.monotonic() < deadline, "no task ran on the node"
         time.sleep(0.2)
@@ -190,7 +165,7 @@ def test_a_node_killed_mid_batch(cluster, manifest, reference, tmp_path):
     last: it takes the second node away.)"""
     out = tmp_path / "out"
     node = next(n for n in cluster.nodes if n.ip == NODE_IPS[0])
-    env = driver_env(cluster, RAY_ADDRESS=cluster.address)
+    env = cluster.driver_env(RAY_ADDRESS=cluster.address)
     cmd = [RIGCAL, "batch", str(manifest), "-o", str(out), "--ray", "auto", "--ray-retries", "0"]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -210,17 +185,5 @@ def test_a_node_killed_mid_batch(cluster, manifest, reference, tmp_path):
     again = batch(manifest, out, "--ray", "auto", env=env)
     assert again.returncode == 0, again.stderr
     assert again.stderr.count("skipped, finished before") == N_ITEMS - len(failed)
-    assert {k: v for k, v in nodes(out).items() if k in failed} == dict.fromkeys(failed, HEAD_IP)
+    assert {k: v for k, v in item_nodes(out).items() if k in failed} == dict.fromkeys(failed, HEAD_IP)
     assert results(out) == reference
-
-
-def _running_task(marker: str, node_ip: str) -> bool:
-    """A Ray worker of the node is running an item (its process title names the task)."""
-    for pid in own_processes(marker, node_ip):
-        try:
-            with open(f"/proc/{pid}/cmdline", "rb") as f:
-                if f.read().startswith(b"ray::run_item"):
-                    return True
-        except OSError:
-            continue
-    return False

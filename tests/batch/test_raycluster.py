@@ -185,3 +185,107 @@ def test_items_are_submitted_a_window_at_a_time(tmp_path, monkeypatch):
     pool.shutdown()
     assert [o.record["status"] for o in outcomes] == ["ok"] * 25
     assert peak[0] == 3
+
+
+def _id(k: int) -> str:
+    """A node ID as Ray writes one (28 bytes in hex)."""
+    return f"{k:056x}"
+
+
+class _Ref:
+    def __init__(self, node, answer):
+        self.node, self.answer = node, answer
+
+
+class _FakeRay:
+    """What :func:`check_nodes` uses of ``ray``: nodes, pinned tasks, wait, get, cancel.
+    ``answers`` per node IP: a versions dict, an exception, or None (never answers)."""
+
+    def __init__(self, answers):
+        self.answers = answers
+        self.cancelled = []
+        self.nodes_ = [
+            {"NodeID": _id(k), "NodeManagerAddress": ip, "Alive": True} for k, ip in enumerate(answers)
+        ]
+        self.nodes_.append({"NodeID": _id(99), "NodeManagerAddress": "10.0.0.99", "Alive": False})
+
+    def nodes(self):
+        return self.nodes_
+
+    def remote(self, **options):
+        fake = self
+
+        class Task:
+            def __init__(self, fn, node=None):
+                self.fn, self.node = fn, node
+
+            def options(self, scheduling_strategy):
+                return Task(self.fn, scheduling_strategy.node_id)
+
+            def remote(self):
+                ip = next(n["NodeManagerAddress"] for n in fake.nodes_ if n["NodeID"] == self.node)
+                return _Ref(self.node, fake.answers[ip])
+
+        return lambda fn: Task(fn)
+
+    def wait(self, refs, num_returns, timeout):
+        return [r for r in refs if r.answer is not None], [r for r in refs if r.answer is None]
+
+    def get(self, ref):
+        if isinstance(ref.answer, Exception):
+            raise ref.answer
+        return ref.answer
+
+    def cancel(self, ref):
+        self.cancelled.append(ref.node)
+
+
+def test_nodes_with_other_versions_get_no_items():
+    from rigcal.batch.raycluster import check_nodes
+
+    same = versions()
+    old = {**same, "rigcal": "0.0.9"}
+    fake = _FakeRay(
+        {"10.0.0.5": same, "10.0.0.6": old, "10.0.0.7": None, "10.0.0.8": ImportError("no rigcal")}
+    )
+    lines: list[str] = []
+    options = check_nodes(fake, parse_address("10.0.0.5:6379"), 7.0, lines.append)
+    assert options == {"label_selector": {"ray.io/node-id": f"!in({_id(1)},{_id(3)})"}}
+    assert fake.cancelled == [_id(2)]
+    assert lines == [
+        "Ray: node 10.0.0.7 did not answer the version check within 7 s; its items are checked as they run",
+        f"Ray: node 10.0.0.6 runs rigcal 0.0.9 (driver: {same['rigcal']}); no items are sent there",
+        "Ray: node 10.0.0.8 cannot run rigcal's version check (ImportError: no rigcal); "
+        "no items are sent there",
+    ]
+    assert check_nodes(_FakeRay({"10.0.0.5": same}), parse_address("auto"), 7.0, lines.append) == {}
+
+
+def test_a_cluster_without_a_node_of_this_rigcal_is_one_line():
+    from rigcal.batch.raycluster import check_nodes
+
+    task_error = RuntimeError("\x1b[36mray::versions()\x1b[39m (pid=1)\nAttributeError: no versions\n")
+    fake = _FakeRay({"10.0.0.6": {**versions(), "rigcal": "0.0.9"}, "10.0.0.7": task_error})
+    with pytest.raises(InputError) as info:
+        check_nodes(fake, parse_address("ray://head:10001"), 7.0, print)
+    assert str(info.value) == (
+        f"--ray: got 'ray://head:10001'; expected a node running rigcal {versions()['rigcal']} on Python "
+        f"{versions()['python']} (node 10.0.0.6 runs rigcal 0.0.9 (driver: {versions()['rigcal']}); "
+        "node 10.0.0.7 cannot run rigcal's version check (AttributeError: no versions))"
+    )
+
+
+def test_rays_multiline_reasons_become_one_line():
+    from rigcal.batch.raycluster import _one_line
+
+    exc = RuntimeError(
+        "Version mismatch: The cluster was started with:\n    Ray: 2.60.0\n    Python: 3.13.0\n"
+        "This process on node 127.0.0.3 was started with:\n    Ray: 2.60.0\n    Python: 3.12.1\n"
+    )
+    assert _one_line(exc) == (
+        "RuntimeError: Version mismatch: The cluster was started with: Ray: 2.60.0 Python: 3.13.0 "
+        "This process on node 127.0.0.3 was started with: Ray: 2.60.0 Python: 3.12.1"
+    )
+    long = _one_line(ValueError("x" * 1000))
+    assert len(long) == 400
+    assert long.endswith("...")

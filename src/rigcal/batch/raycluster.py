@@ -11,7 +11,9 @@ Forms of ADDRESS:
 - ``ray://HOST:PORT``: connect through Ray Client, from any machine.
 
 A named address is first reached with a plain TCP connection within the connect timeout,
-so an unreachable or mistyped address is one line, not a wait.
+so an unreachable or mistyped address is one line, not a wait. Once joined, every node is
+asked for its rigcal and Python versions; items are kept off a node whose versions differ
+from the driver's (:func:`check_nodes`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import ipaddress
 import os
+import platform
 import re
 import secrets
 import shutil
@@ -26,15 +29,22 @@ import socket
 import sys
 import tempfile
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rigcal import __version__
 from rigcal.errors import InputError
 
 FORMS = "auto, local, HOST:PORT or ray://HOST:PORT"
 LOOPBACK = "127.0.0.1"
 _HOST_RE = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9-]*[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]*[A-Za-z0-9])?)*$")
+
+
+# How long the nodes' version check waits for every node to answer (a loaded node may
+# take tens of seconds to start a worker process); a node that has not answered by then
+# keeps its items, each checked as it runs.
+NODE_CHECK_TIMEOUT_S = 120.0
 
 
 @dataclass(frozen=True)
@@ -146,12 +156,26 @@ def _environ(changes: dict[str, str]) -> Iterator[None]:
             os.environ.pop(k, None)
 
 
+def versions() -> dict[str, str]:
+    """The rigcal and Python versions of this process, which every worker must share."""
+    return {"rigcal": __version__, "python": platform.python_version()}
+
+
+def differ(mine: dict[str, str], expect: dict[str, str]) -> str | None:
+    """``rigcal 0.0.9 (driver: 0.1.0)``: the versions in ``mine`` that are not the
+    driver's ``expect``, or None when all are the same."""
+    parts = [f"{k} {mine.get(k)} (driver: {v})" for k, v in expect.items() if mine.get(k) != v]
+    return ", ".join(parts) or None
+
+
 @dataclass
 class Session:
-    """A connected Ray: what the batch reports about it."""
+    """A connected Ray: what the batch reports about it, and the options its item tasks
+    take (``label_selector`` keeping them off nodes installed differently)."""
 
     description: str
     temp_dir: Path | None = None
+    task_options: dict[str, Any] = field(default_factory=dict)
 
 
 @contextlib.contextmanager
@@ -179,6 +203,8 @@ def connect(
     with cm as (ray, session):
         log(f"Ray: {session.description}")
         try:
+            if address.kind != "local":  # a local instance runs this very installation
+                session.task_options = check_nodes(ray, address, NODE_CHECK_TIMEOUT_S, log)
             yield ray, session
         finally:
             ray.shutdown()
@@ -235,7 +261,7 @@ def _init_local(ray: Any, cpus: int, temp: Path, log: Callable[[str], None]) -> 
         except Exception as exc:  # Ray's own errors: no common base class
             with contextlib.suppress(Exception):
                 ray.shutdown()
-            first = _first_line(exc)
+            first = _one_line(exc)
             if attempt == 2 or "timed out during startup" not in first:
                 raise InputError.at(
                     None, "--ray", "local", f"a Ray instance started here ({first})"
@@ -260,7 +286,7 @@ def _join_cluster(address: RayAddress) -> Iterator[tuple[Any, Session]]:
             if "uthentication" in str(exc) or "token" in str(exc):
                 hint = "; the cluster's token: RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token"
             raise InputError.at(
-                None, "--ray", address.text, f"a Ray cluster to join ({_first_line(exc)}{hint})"
+                None, "--ray", address.text, f"a Ray cluster to join ({_one_line(exc)}{hint})"
             ) from None
         nodes = [n for n in ray.nodes() if n.get("Alive")]
         n_cpus = int(ray.cluster_resources().get("CPU", 0))
@@ -268,9 +294,73 @@ def _join_cluster(address: RayAddress) -> Iterator[tuple[Any, Session]]:
         yield ray, Session(f"joined {where}: {len(nodes)} nodes, {n_cpus} CPUs")
 
 
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0] if text else ''}"
+def check_nodes(
+    ray: Any, address: RayAddress, timeout_s: float, log: Callable[[str], None]
+) -> dict[str, Any]:
+    """Ask every node of the cluster for the rigcal and Python versions its workers run
+    (one task pinned to each node, using no CPU, so that a busy node answers too).
+
+    A node whose versions differ from this process's gets one line on ``log`` and no
+    items: the returned task options select the other nodes by Ray's ``ray.io/node-id``
+    label. A node that has not answered within ``timeout_s`` keeps its items, each
+    checked by the worker as it runs (as on a node that joins during the batch).
+
+    Raises:
+        InputError: no node of the cluster runs this process's versions.
+    """
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    expect = versions()
+    nodes = {n["NodeID"]: n["NodeManagerAddress"] for n in ray.nodes() if n.get("Alive")}
+    task = ray.remote(num_cpus=0, max_retries=0)(versions)
+    pinned = {n: NodeAffinitySchedulingStrategy(n, soft=False) for n in nodes}
+    asked = {task.options(scheduling_strategy=pinned[n]).remote(): n for n in nodes}
+    answered, late = ray.wait(list(asked), num_returns=len(asked), timeout=timeout_s)
+    bad: dict[str, str] = {}
+    for ref in answered:
+        try:
+            reason = differ(ray.get(ref), expect)
+            reason = None if reason is None else f"runs {reason}"
+        except Exception as exc:  # a node whose rigcal cannot even run the check
+            reason = f"cannot run rigcal's version check ({_cause(exc)})"
+        if reason is not None:
+            bad[asked[ref]] = f"node {nodes[asked[ref]]} {reason}"
+    for ref in late:
+        ray.cancel(ref)
+        log(
+            f"Ray: node {nodes[asked[ref]]} did not answer the version check within {timeout_s:g} s; "
+            "its items are checked as they run"
+        )
+    if bad and len(bad) == len(nodes):
+        raise InputError.at(
+            None,
+            "--ray",
+            address.text,
+            f"a node running rigcal {expect['rigcal']} on Python {expect['python']} "
+            f"({'; '.join(bad.values())})",
+        )
+    for line in bad.values():
+        log(f"Ray: {line}; no items are sent there")
+    return {"label_selector": {"ray.io/node-id": f"!in({','.join(sorted(bad))})"}} if bad else {}
+
+
+def _cause(exc: BaseException) -> str:
+    """A failed task's reason: the last line of its text, where Ray's task errors put the
+    worker's own exception (``AttributeError: ... 'versions' on <module ...>``)."""
+    lines = [line.strip() for line in _ANSI.sub("", str(exc)).splitlines() if line.strip()]
+    if len(lines) > 1:
+        return lines[-1]
+    return f"{type(exc).__name__}: {lines[0] if lines else ''}"
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def _one_line(exc: BaseException, limit: int = 400) -> str:
+    """An exception as one line: Ray's multi-line reasons (a version mismatch names the
+    cluster's and this process's versions on lines of their own) joined, then shortened."""
+    text = f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def import_ray() -> Any:

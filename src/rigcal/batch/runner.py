@@ -26,7 +26,6 @@ import itertools
 import json
 import multiprocessing
 import os
-import platform
 import shlex
 import sys
 import time
@@ -36,9 +35,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rigcal import __version__
 from rigcal.batch.manifest import COMMANDS, Item
-from rigcal.batch.raycluster import RayAddress, connect, parse_address
+from rigcal.batch.raycluster import RayAddress, connect, differ, parse_address, versions
 from rigcal.errors import OutputError
 from rigcal.io.files import MARKER, atomic_write_text, check_apart
 
@@ -68,11 +66,6 @@ class BatchSettings:
     ray_retries: int = 1
 
 
-def versions() -> dict[str, str]:
-    """The rigcal and Python versions of this process, which every worker must share."""
-    return {"rigcal": __version__, "python": platform.python_version()}
-
-
 def run_item(item: Item, folder: Path, command: str, expect: dict[str, str] | None = None) -> dict[str, Any]:
     """Run one item in this process; never raises.
 
@@ -91,14 +84,13 @@ def run_item(item: Item, folder: Path, command: str, expect: dict[str, str] | No
         run as a Ray task, else None.
     """
     where = {"host": os.uname().nodename, "pid": os.getpid(), "node": _ray_node()}
-    mine = versions()
-    if expect is not None and expect != mine:
-        differ = ", ".join(f"{k} {mine.get(k)} (driver: {v})" for k, v in expect.items() if mine.get(k) != v)
+    other = None if expect is None else differ(versions(), expect)
+    if other is not None:
         return {
             "exit_code": 70,
             "stdout": "",
             "stderr": "",
-            "error": f"worker on {where['node'] or where['host']} runs {differ}; not run",
+            "error": f"worker on {where['node'] or where['host']} runs {other}; not run",
             "seconds": 0.0,
             **where,
         }
@@ -406,8 +398,9 @@ def _executor(
             yield (lambda t: pool.submit(run_item, t.item, t.folder, t.command)), 2 * workers
         return
     expect = versions()
-    with connect(address, settings.workers, settings.connect_timeout_s, log) as (ray, _):
+    with connect(address, settings.workers, settings.connect_timeout_s, log) as (ray, session):
         remote = ray.remote(num_cpus=1, max_retries=settings.ray_retries)(run_item)
+        remote = remote.options(**session.task_options) if session.task_options else remote
         # -j N on a cluster: at most N items at once (a share of a shared cluster)
         window = settings.workers or 2 * max(1, int(ray.cluster_resources().get("CPU", 1)))
         yield (lambda t: remote.remote(t.item, t.folder, t.command, expect).future()), window
