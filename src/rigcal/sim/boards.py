@@ -112,3 +112,17 @@ def board_views(
     )
     names = tuple(f"view{i:02d}.png" for i in range(n_views))
     return Detections(names, corners, (), (W, H))
+
+
+def solved_camera_model(
+    camera: Camera, n_views: int = 15, seed: int = 0, corner_sigma_px: float = 0.3, board: Any = None
+) -> Any:
+    """A mrcal camera model of ``camera`` as an intrinsics calibration leaves it: solved by
+    :func:`rigcal.calib.intrinsics.solve_intrinsics` (``mrcal.optimize``) from ``n_views``
+    simulated chessboard views (:func:`board_views`), so its intrinsics carry the solve's
+    error and it keeps the ``optimization_inputs`` its uncertainty comes from."""
+    from rigcal.calib.intrinsics import Board, solve_intrinsics
+
+    board = board or Board(9, 6, 0.04)
+    det = board_views(camera, board, n_views, np.random.default_rng(seed), corner_sigma_px, distance_m=(0.4, 0.9))
+    return solve_intrinsics(det, board, camera.lensmodel, focal_estimate_px=float(camera.intrinsics[0])).model
