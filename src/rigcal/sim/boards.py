@@ -124,5 +124,6 @@ def solved_camera_model(
     from rigcal.calib.intrinsics import Board, solve_intrinsics
 
     board = board or Board(9, 6, 0.04)
-    det = board_views(camera, board, n_views, np.random.default_rng(seed), corner_sigma_px, distance_m=(0.4, 0.9))
+    rng = np.random.default_rng(seed)
+    det = board_views(camera, board, n_views, rng, corner_sigma_px, distance_m=(0.4, 0.9))
     return solve_intrinsics(det, board, camera.lensmodel, focal_estimate_px=float(camera.intrinsics[0])).model
