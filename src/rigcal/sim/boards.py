@@ -59,7 +59,7 @@ def board_views(
     n_views: int,
     rng: np.random.Generator,
     corner_sigma_px: float = 0.3,
-    max_tilt_deg: float = 40.0,
+    max_tilt_deg: float | tuple[float, float] = 40.0,
     distance_m: tuple[float, float] = (0.8, 2.0),
     jitter: tuple[float, float] | None = None,
 ) -> Any:
@@ -67,7 +67,8 @@ def board_views(
     for an intrinsics solve with a known answer: each view's board is placed in front of the
     camera (tilted about both of its axes by up to ``max_tilt_deg``, at ``distance_m``, anywhere
     its corners stay inside the image) and its corners are projected through the full lens
-    model with Gaussian noise of ``corner_sigma_px``.
+    model with Gaussian noise of ``corner_sigma_px``. ``max_tilt_deg`` may be a pair: the
+    largest tilts about the board's x (horizontal) and y (vertical) axes.
 
     Args:
         jitter: (deg, m) when given, every view is the first one moved by up to these (a
@@ -82,7 +83,7 @@ def board_views(
     centre = P.mean(axis=0)
 
     def pose() -> FloatArray:
-        tilt = np.radians(rng.uniform(-max_tilt_deg, max_tilt_deg, size=2))
+        tilt = np.radians(rng.uniform(-1.0, 1.0, size=2) * np.broadcast_to(max_tilt_deg, (2,)))
         R = rotvec_to_R(np.array([tilt[0], tilt[1], rng.uniform(-0.3, 0.3)]))
         d = rng.uniform(*distance_m)
         ray = camera.bearings(np.array([[rng.uniform(0.25, 0.75) * W, rng.uniform(0.25, 0.75) * H]]))[0]
