@@ -18,7 +18,15 @@ from numpy.typing import NDArray
 
 from rigcal.calib.board_session import BoardSession, board_pose, plane_observation, read_board_session
 from rigcal.calib.noise import corner_sigma_from_rms
-from rigcal.calib.plane import LOSS, LOSS_SCALE, PlaneObservation, PlaneResult, refit_pose, solve_plane
+from rigcal.calib.plane import (
+    LOSS,
+    LOSS_SCALE,
+    PlaneObservation,
+    PlaneResult,
+    refit_pose,
+    solve_plane,
+    weak_normals_warning,
+)
 from rigcal.calib.report import (
     MAX_SIGMA_ROTATION_DEG,
     MAX_SIGMA_TRANSLATION_MM,
@@ -367,6 +375,11 @@ def board_report(
             f"{np.sqrt(result.few_poses_factor):.2f}x for that; capture at least {MIN_TRUSTED_POSES} "
             "poses, the board turned and tilted differently at each"
         )
+    weak = weak_normals_warning(
+        [o for o, k in zip(session.observations, result.inlier_captures, strict=True) if k]
+    )
+    if weak is not None:
+        warnings.append(weak)
     if np.degrees(sig[:3]).max() > MAX_SIGMA_ROTATION_DEG or 1000 * sig[3:].max() > MAX_SIGMA_TRANSLATION_MM:
         warnings.append("large uncertainty: add captures with the board turned and tilted more")
     warnings += uncertainty_warnings(result.spread, result.sensitivity, cov_model, "range and corner noise")

@@ -87,6 +87,9 @@ MIN_CAPTURES = 5
 # A set of planes whose normals span less than this (smallest singular value of the
 # stacked normals, relative to the largest) leaves the pose unobservable.
 MIN_NORMAL_SPREAD = 0.05
+# Below this the pose is observable but weak along the normals' least-covered direction
+# (a warning says which and what captures to add).
+WEAK_NORMAL_SPREAD = 0.1
 
 
 @dataclass(frozen=True)
@@ -1026,6 +1029,31 @@ def check_normals(observations: Sequence[PlaneObservation]) -> None:
             f"(normals' spread {spread:.3f} < {MIN_NORMAL_SPREAD}); tilt the board about "
             "both of its axes between captures"
         )
+
+
+def weak_normals_warning(observations: Sequence[PlaneObservation]) -> str | None:
+    """A warning when the boards' normals span 3D (:func:`check_normals`) but thinly
+    (spread under WEAK_NORMAL_SPREAD): which camera direction no board faces along, and how
+    to turn the board to cover it; None otherwise."""
+    normals = np.array([np.asarray(o.normal_cam, dtype=float) for o in observations]).reshape(-1, 3)
+    if len(normals) < 3:
+        return None
+    _, s, Vt = np.linalg.svd(normals)
+    spread = float(s[2] / s[0])
+    if spread >= WEAK_NORMAL_SPREAD:
+        return None
+    v = Vt[2] * np.sign(Vt[2][np.argmax(np.abs(Vt[2]))])
+    how = {
+        0: "turned left and right (about its vertical axis) by 20-45 deg",
+        1: "tilted forward and back (about its horizontal axis) by 20-45 deg",
+        2: "facing the camera more squarely in some captures",
+    }[int(np.argmax(np.abs(v)))]
+    return (
+        f"weak geometry: the board normals' spread is {spread:.3f} (under {WEAK_NORMAL_SPREAD}; "
+        f"{MIN_NORMAL_SPREAD} is refused): no board faces along camera direction "
+        f"({v[0]:+.2f}, {v[1]:+.2f}, {v[2]:+.2f}) (x right, y down, z forward), so the pose is weak "
+        f"there; add captures with the board {how}"
+    )
 
 
 def _check_observable(observations: Sequence[PlaneObservation]) -> None:
