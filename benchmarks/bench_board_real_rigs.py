@@ -16,10 +16,19 @@ every pose captured ``--repeats`` times, with ``--handheld`` 1-3 deg / 2-5 cm ap
   share of trials in which that capture is set aside, and the error of the answer;
 - **camera**: the camera intrinsics' share of T's variance (``--intrinsics-sigma``), and
   the spread of T over cameras drawn from the intrinsics' covariance against the
-  propagated sigma.
+  propagated sigma;
+- **mrcal camera** (``--mrcal-camera``): every session's camera file is a mrcal model solved
+  (``mrcal.optimize``) from 15 simulated chessboard views of the true camera, so its
+  intrinsics carry a real calibration error (drawn, in effect, from their covariance) while
+  the session's corners come from the true camera; its covariance comes from the model's
+  optimization_inputs with no ``--intrinsics-sigma``. Coverage then scores the camera's
+  uncertainty too, and the camera's share of T's variance is reported;
+- **capture order**: the largest change of T when the session's captures are permuted or
+  rotated, with and without their returns shuffled (0, and under 1e-9).
 
     .venv/bin/python benchmarks/bench_board_real_rigs.py                 # 8 seeds
     .venv/bin/python benchmarks/bench_board_real_rigs.py --seeds 3 --sizes 5
+    .venv/bin/python benchmarks/bench_board_real_rigs.py --mrcal-camera --seeds 6 --skip order unit camera
 """
 
 from __future__ import annotations
@@ -41,6 +50,7 @@ from rigcal.calib.report import truth_comparison
 from rigcal.errors import CalibrationError
 from rigcal.geometry import pose_error, tangent_delta
 from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
+from rigcal.sim.boards import solved_camera_model
 from rigcal.sim.noise import RealisticNoise
 
 CHI2_6_95 = 12.591587243743977
@@ -48,6 +58,7 @@ BOARD = Board(7, 5, 0.12)
 
 
 HANDHELD = False  # --handheld: repeats 1-3 deg / 2-5 cm apart
+MRCAL_CAMERA = False  # --mrcal-camera: the camera file is a mrcal model solved from simulated views
 
 
 def session(poses: int, seed: int, repeats: int, folder: Path):
@@ -55,7 +66,15 @@ def session(poses: int, seed: int, repeats: int, folder: Path):
         n_captures=poses, seed=seed, noise=RealisticNoise(), repeats=repeats, board=BOARD, handheld=HANDHELD
     )
     sim = generate_board_session(spec)
-    return sim, write_board_session(sim, folder) / "board_session.yaml"
+    path = write_board_session(sim, folder) / "board_session.yaml"
+    if MRCAL_CAMERA:
+        solved_camera_model(sim.camera, n_views=15, seed=1000 + seed).write(
+            str(folder / "camera.cameramodel")
+        )
+        doc = yaml.safe_load(path.read_text())
+        doc["camera"] = "camera.cameramodel"
+        path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return sim, path
 
 
 def subset(path: Path, names: list[str], out: Path) -> Path:
@@ -72,7 +91,7 @@ def d2(T: np.ndarray, cov: np.ndarray, T_ref: np.ndarray) -> float:
 
 
 def coverage(n: int, seeds: range, repeats: int) -> dict[str, object]:
-    nees, dd, small = [], [], []
+    nees, dd, small, share = [], [], [], []
     for seed in seeds:
         with tempfile.TemporaryDirectory() as tmp:
             sim, path = session(2 * n, seed, repeats, Path(tmp) / "s")
@@ -93,6 +112,8 @@ def coverage(n: int, seeds: range, repeats: int) -> dict[str, object]:
                 nees.append(truth_comparison(res.T_cam_laser, res.covariance, sim.T_cam_laser)["nees"])
                 dd.append(d2(res.T_cam_laser, res.covariance, full.result.T_cam_laser))
                 small.append(any("too small" in w for w in cal.report["warnings"]))
+                cam = cal.report["uncertainty"]["camera"]
+                share.append(float(np.mean(cam["variance_share"])) if cam["included"] else 0.0)
     a, b = np.array(nees), np.array(dd)
     return {
         "halves": len(a),
@@ -101,6 +122,7 @@ def coverage(n: int, seeds: range, repeats: int) -> dict[str, object]:
         "d2_in": float(np.mean(b <= CHI2_6_95)),
         "d2_max": float(np.max(b)),
         "warned_small": float(np.mean(small)),
+        "camera_share": float(np.mean(share)),
     }
 
 
@@ -123,6 +145,31 @@ def order(seeds: range) -> float:
                 for o in obs
             ]
             T = solve_plane(shuffled, fit_range_bias=True, uncertainty_checks=False).T_cam_laser
+            worst = max(worst, float(np.abs(T - base).max()))
+    return worst
+
+
+def capture_order(seeds: range) -> float:
+    """The largest change of T_cam_laser (with its uncertainty checks) when the captures are
+    listed in another order (permuted, or rotated), with and without every capture's
+    returns shuffled too."""
+    worst = 0.0
+    for seed in seeds:
+        with tempfile.TemporaryDirectory() as tmp:
+            _, path = session(8, seed, 1, Path(tmp) / "s")
+            obs = list(read_board_session(path).observations)
+        base = solve_plane(obs, fit_range_bias=True).T_cam_laser
+        rng = np.random.default_rng(seed)
+        C = len(obs)
+        for rotate, shuffle in ((False, False), (True, False), (False, True)):
+            order = np.roll(np.arange(C), int(rng.integers(1, C))) if rotate else rng.permutation(C)
+            given = [obs[i] for i in order]
+            if shuffle:
+                given = [
+                    replace(o, points_laser=o.points_laser[rng.permutation(len(o.points_laser))])
+                    for o in given
+                ]
+            T = solve_plane(given, fit_range_bias=True).T_cam_laser
             worst = max(worst, float(np.abs(T - base).max()))
     return worst
 
@@ -188,16 +235,20 @@ def main() -> None:
     ap.add_argument("--sizes", type=int, nargs="+", default=[5, 8, 10])
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--handheld", action="store_true", help="repeats of a hand-held board, not at one pose")
+    ap.add_argument(
+        "--mrcal-camera", action="store_true", help="camera files as mrcal models solved from views"
+    )
     ap.add_argument("--skip", nargs="*", default=[], choices=["coverage", "order", "unit", "camera"])
     ap.add_argument("--draws", type=int, default=8, help="cameras drawn per seed (camera section)")
     args = ap.parse_args()
-    global HANDHELD
+    global HANDHELD, MRCAL_CAMERA
     HANDHELD = args.handheld
+    MRCAL_CAMERA = args.mrcal_camera
     seeds = range(args.seeds)
     if "coverage" not in args.skip:
         print(
             f"{'poses':>6}{'halves':>8}{'NEES_mean':>11}{'NEES_in95':>11}{'d2_in95':>9}{'d2_max':>8}"
-            f"{'warned':>8}{'s/half':>8}"
+            f"{'warned':>8}{'cam_share':>10}{'s/half':>8}"
         )
         for n in args.sizes:
             t0 = time.perf_counter()
@@ -205,11 +256,12 @@ def main() -> None:
             dt = (time.perf_counter() - t0) / max(int(s["halves"]), 1)
             print(
                 f"{n:>6}{s['halves']:>8}{s['nees_mean']:>11.2f}{s['nees_in']:>11.0%}{s['d2_in']:>9.0%}"
-                f"{s['d2_max']:>8.1f}{s['warned_small']:>8.0%}{dt:>8.1f}",
+                f"{s['d2_max']:>8.1f}{s['warned_small']:>8.0%}{s['camera_share']:>10.0%}{dt:>8.1f}",
                 flush=True,
             )
     if "order" not in args.skip:
         print(f"order: largest |dT| over permuted and rotated returns: {order(seeds):.3g}", flush=True)
+        print(f"order: largest |dT| over reordered captures: {capture_order(seeds):.3g}", flush=True)
     if "unit" not in args.skip:
         for mistake in ("mm", "140m"):
             u = unit_mistake(seeds, mistake)

@@ -315,3 +315,67 @@ def _one_float(v: Any, path: str | Path | None, key: str) -> float:
     if not is_real(v):
         raise InputError.at(path, key, v, "a finite number")
     return float(v)
+
+
+def intrinsics_covariance(model: Any) -> FloatArray | None:
+    """(n, n) covariance of a mrcal model's intrinsics (its lens model's order: fx, fy, cx,
+    cy, distortion), from the calibration that solved it: mrcal's own propagation of the
+    calibration images' pixel noise (estimated from the solve's residuals) through the
+    solve, Var(b) = sigma^2 D inv(J*^T J*) ... D, the intrinsics' block (the board poses and
+    every other state marginalised out; mrcal's docs, "Projection uncertainty"). Intrinsics
+    the solve held fixed get no variance.
+
+    Returns:
+        None when the model carries no ``optimization_inputs`` (so no uncertainty).
+    """
+    import mrcal
+    from mrcal.model_analysis import _propagate_calibration_uncertainty
+
+    inputs = model.optimization_inputs()
+    if inputs is None:
+        return None
+    lensmodel, intr = model.intrinsics()
+    n = len(intr)
+    icam = int(model.icam_intrinsics())
+    has_core = bool(mrcal.lensmodel_metadata_and_config(lensmodel)["has_core"])
+    core = has_core and bool(inputs.get("do_optimize_intrinsics_core", True))
+    rest = bool(inputs.get("do_optimize_intrinsics_distortions", True))
+    # Which of the intrinsics the solve's state holds, in order (mrcal packs the core first).
+    first = 4 if has_core else 0
+    held = ([0, 1, 2, 3] if core else []) + (list(range(first, n)) if rest else [])
+    cov = np.zeros((n, n))
+    istate = mrcal.state_index_intrinsics(icam, **inputs)
+    if istate is None or not held:
+        return cov
+    dF_db = np.zeros((len(held), int(mrcal.num_states(**inputs))))
+    dF_db[np.arange(len(held)), istate + np.arange(len(held))] = 1.0
+    sub = np.asarray(
+        _propagate_calibration_uncertainty("covariance", dF_dbunpacked=dF_db, optimization_inputs=inputs),
+        dtype=float,
+    )
+    cov[np.ix_(held, held)] = 0.5 * (sub + sub.T)
+    return cov
+
+
+def read_intrinsics_covariance(path: str | Path) -> tuple[FloatArray | None, str]:
+    """The covariance of a camera file's intrinsics (:func:`intrinsics_covariance`), or
+    None and why it is missing: only a mrcal ``.cameramodel`` that keeps its
+    ``optimization_inputs`` carries it (OpenCV, ROS and rigcal camera files hold the
+    intrinsics alone).
+
+    Raises:
+        InputError: a missing or invalid camera model.
+    """
+    import mrcal
+
+    path = Path(path)
+    if path.suffix != ".cameramodel":
+        return (
+            None,
+            f"{path.name} (an OpenCV, ROS or rigcal camera file) carries no uncertainty of its intrinsics",
+        )
+    _read_cameramodel(path)  # validates, with the one-line errors
+    cov = intrinsics_covariance(mrcal.cameramodel(str(path)))
+    if cov is None:
+        return None, f"{path.name} keeps no optimization_inputs, so no uncertainty of its intrinsics"
+    return cov, f"{path.name}'s optimization_inputs (mrcal's uncertainty of the calibration that solved it)"

@@ -70,8 +70,11 @@ class Scan:
         valid.setflags(write=False)
         object.__setattr__(self, "_valid", valid)
         pts = np.full((len(r), 2), np.nan)
-        pts[valid, 0] = r[valid] * np.cos(a[valid])
-        pts[valid, 1] = r[valid] * np.sin(a[valid])
+        # The directions from angles in one range, -pi..pi, whichever range the scan lists
+        # them in (0..2pi, say): the same beam gives the same point.
+        w = np.where(a > np.pi, a - 2.0 * np.pi, np.where(a < -np.pi, a + 2.0 * np.pi, a))[valid]
+        pts[valid, 0] = r[valid] * np.cos(w)
+        pts[valid, 1] = r[valid] * np.sin(w)
         pts.setflags(write=False)
         object.__setattr__(self, "_points", pts)
 

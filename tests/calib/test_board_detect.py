@@ -98,7 +98,8 @@ def test_auto_error_names_file_key_and_what_was_tried(sim, session):
         read_board_session(session)
     message = str(info.value)
     assert message.startswith(f"{session}: captures[0].laser_side: got 'auto'; expected the board's returns")
-    assert "cut lengths 0.10-0.82 m allowed" in message
+    # The shortest cut allowed is the printed pattern's (a sheet size never narrows it).
+    assert "cut lengths 0.08-0.82 m allowed" in message
     seen, static = map(int, re.search(r"(\d+) line segments seen, (\d+) of them on static", message).groups())
     assert seen >= 10
     assert static == seen
@@ -111,7 +112,9 @@ def test_board_shape_from_size_and_from_pattern():
     assert pattern.max_cut_m == pytest.approx(np.hypot(0.54, 0.42))
     big = board_shape(BOARD, (0.8, 0.6))
     assert big.max_cut_m == pytest.approx(1.0)
-    assert big.min_cut_m == pytest.approx(0.12)
+    # The shortest cut stays the pattern's: a fifth of its smaller side (0.42 m).
+    assert big.min_cut_m == pytest.approx(0.084)
+    np.testing.assert_allclose(big.pattern_outline, pattern.outline)
     # The sheet is centred on the pattern.
     np.testing.assert_allclose(big.outline.mean(axis=0), [0.21, 0.15])
     np.testing.assert_allclose(np.ptp(big.outline, axis=0), [0.8, 0.6])

@@ -44,15 +44,18 @@ def test_propagated_covariance_of_a_linear_answer_is_exact():
     values, sigmas = np.array([1.0, 2.0]), np.array([0.5, 0.1])
     T = np.eye(4)
 
-    def changed(k: int, v: float) -> np.ndarray:
-        x = a[k] * (v - values[k])
+    def changed(v: np.ndarray) -> np.ndarray:
+        x = (v - values) @ a
         return make_T(rotvec_to_R(x[:3]), x[3:])
 
-    cov = propagated_covariance(changed, T, values, sigmas)
+    cov = propagated_covariance(changed, T, values, np.diag(sigmas**2))
     expect = sum(s**2 * np.outer(g, g) for g, s in zip(a, sigmas, strict=True))
     # The tangent delta is T -> changed, i.e. minus the move: the outer product is the same.
     assert np.allclose(cov, expect, atol=1e-8)
-    assert np.allclose(propagated_covariance(changed, T, values, np.zeros(2)), 0.0)
+    assert np.allclose(propagated_covariance(changed, T, values, np.zeros((2, 2))), 0.0)
+    # Correlated inputs: J cov J^T whatever the covariance's axes.
+    full = np.array([[0.25, 0.04], [0.04, 0.01]])
+    assert np.allclose(propagated_covariance(changed, T, values, full), a.T @ full @ a, atol=1e-8)
 
 
 @pytest.fixture(scope="module")

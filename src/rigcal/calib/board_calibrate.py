@@ -27,7 +27,15 @@ from rigcal.calib.level import (
     solve_level,
 )
 from rigcal.calib.noise import corner_sigma_from_rms
-from rigcal.calib.plane import LOSS, LOSS_SCALE, PlaneObservation, PlaneResult, refit_pose, solve_plane
+from rigcal.calib.plane import (
+    LOSS,
+    LOSS_SCALE,
+    PlaneObservation,
+    PlaneResult,
+    refit_pose,
+    solve_plane,
+    weak_normals_warning,
+)
 from rigcal.calib.report import (
     MAX_SIGMA_ROTATION_DEG,
     MAX_SIGMA_TRANSLATION_MM,
@@ -298,42 +306,50 @@ def camera_uncertainty(
 
     Every board plane comes from PnP through the camera's intrinsics, so an error in them
     moves all the planes together, and the answer with them; the solve itself takes the
-    intrinsics as exact. Each intrinsic is moved by +-1 sigma in turn, every board's pose
-    re-solved by PnP from its corners and T_cam_laser re-fitted on the same returns and
-    verdicts (:func:`rigcal.calib.spread.propagated_covariance`) by ``refit`` (the full
-    solve's, or the level solve's).
+    intrinsics as exact. The intrinsics' covariance is the one given by their 1-sigmas
+    (``intrinsics_sigma``, independent), else the one a mrcal camera model carries from the
+    calibration that solved it (:func:`rigcal.camera.read_intrinsics_covariance`). The
+    intrinsics are moved by +-1 sigma along each principal axis of that covariance, every
+    board's pose re-solved by PnP from its corners and T_cam_laser re-fitted on the same
+    returns and verdicts (:func:`rigcal.calib.spread.propagated_covariance`) by ``refit``
+    (the full solve's, or the level solve's).
 
     Returns:
         (the report's ``uncertainty.camera`` section, the (6, 6) covariance to add; None
-        when no sigmas were given: the section then says the uncertainty is missing).
+        when the camera's uncertainty is unknown: the section then says it is missing and
+        how to give it).
 
     Raises:
         InputError: a sigma list whose length is not the lens model's intrinsics count,
             or a sigma that is negative or not finite.
     """
+    from rigcal.camera import read_intrinsics_covariance
+
     camera = session.camera
-    if intrinsics_sigma is None:
-        why = (
-            "not included: the camera file gives no uncertainty of its intrinsics "
-            f"({camera.lensmodel}); give their 1-sigmas with --intrinsics-sigma"
-        )
-        return {"included": False, "note": why}, None
-    sig = np.asarray(list(intrinsics_sigma), dtype=float)
     n = len(camera.intrinsics)
-    if sig.shape != (n,) or not np.all(np.isfinite(sig)) or (sig < 0).any():
-        shown = ",".join(f"{x:g}" for x in sig.ravel())
-        raise InputError(
-            f"--intrinsics-sigma: got {shown!r}; expected {n} non-negative numbers, one per "
-            f"intrinsic of {camera.lensmodel} (fx, fy, cx, cy, then its distortion), in "
-            f"{session.camera_path}'s order"
-        )
+    if intrinsics_sigma is not None:
+        sig = np.asarray(list(intrinsics_sigma), dtype=float)
+        if sig.shape != (n,) or not np.all(np.isfinite(sig)) or (sig < 0).any():
+            shown = ",".join(f"{x:g}" for x in sig.ravel())
+            raise InputError(
+                f"--intrinsics-sigma: got {shown!r}; expected {n} non-negative numbers, one per "
+                f"intrinsic of {camera.lensmodel} (fx, fy, cx, cy, then its distortion), in "
+                f"{session.camera_path}'s order"
+            )
+        cov_in: FloatArray | None = np.diag(sig**2)
+        source = "--intrinsics-sigma (independent 1-sigmas)"
+    elif session.camera_path.is_file():
+        cov_in, source = read_intrinsics_covariance(session.camera_path)
+    else:  # a session built in memory, with no camera file
+        cov_in, source = None, "the session's camera carries no uncertainty of its intrinsics"
+    if cov_in is None:
+        why = f"not included: {source}; give the intrinsics' 1-sigmas with --intrinsics-sigma"
+        return {"included": False, "note": why}, None
     if not session.corners_px:
         raise ValueError("the session has no corners to re-solve the board poses from")
     used = [int(i) for i in np.flatnonzero(result.inlier_captures)]
 
-    def changed(k: int, value: float) -> FloatArray:
-        intr = camera.intrinsics.copy()
-        intr[k] = value
+    def changed(intr: FloatArray) -> FloatArray:
         cam = replace(camera, intrinsics=intr)
         moved = list(observations)
         for i in used:
@@ -347,11 +363,12 @@ def camera_uncertainty(
             )
         return refit(result, moved)
 
-    cov = propagated_covariance(changed, result.T_cam_laser, camera.intrinsics, sig)
+    cov = propagated_covariance(changed, result.T_cam_laser, np.array(camera.intrinsics), cov_in)
     s = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     doc: dict[str, Any] = {
         "included": True,
-        "intrinsics_sigma": [float(f"{x:.6g}") for x in sig],
+        "source": source,
+        "intrinsics_sigma": [float(f"{x:.6g}") for x in np.sqrt(np.clip(np.diag(cov_in), 0.0, None))],
         "sigma_rotation_deg": [round(float(x), 5) for x in np.degrees(s[:3])],
         "sigma_translation_mm": [round(float(x), 3) for x in 1000.0 * s[3:]],
     }
@@ -436,6 +453,11 @@ def board_report(
             f"{np.sqrt(result.few_poses_factor):.2f}x for that; capture at least {MIN_TRUSTED_POSES} "
             "poses, the board turned and tilted differently at each"
         )
+    weak = weak_normals_warning(
+        [o for o, k in zip(session.observations, result.inlier_captures, strict=True) if k]
+    )
+    if weak is not None:
+        warnings.append(weak)
     if np.degrees(sig[:3]).max() > MAX_SIGMA_ROTATION_DEG or 1000 * sig[3:].max() > MAX_SIGMA_TRANSLATION_MM:
         warnings.append("large uncertainty: add captures with the board turned and tilted more")
     warnings += uncertainty_warnings(result.spread, result.sensitivity, cov_model, "range and corner noise")
@@ -525,7 +547,7 @@ def board_report_table(report: dict[str, Any]) -> str:
     cam = report.get("uncertainty", {}).get("camera")
     if cam is not None and cam.get("included"):
         lines.append(
-            "camera intrinsics' 1-sigma share: rotation (deg) "
+            f"camera intrinsics' uncertainty from {cam['source']}; its 1-sigma share: rotation (deg) "
             + ", ".join(f"{x:.4f}" for x in cam["sigma_rotation_deg"])
             + "; translation (mm) "
             + ", ".join(f"{x:.2f}" for x in cam["sigma_translation_mm"])

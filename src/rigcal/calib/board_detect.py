@@ -12,9 +12,13 @@ stay put while the board moves. Two things set the board apart from the room:
    must cut the scan plane once a rough T_cam_laser is known. A RANSAC over captures and
    candidates gives that rough pose (:func:`rigcal.calib.plane.candidate_consensus`);
    then each capture's returns are re-picked near the cut its board's pose predicts
-   (:func:`predicted_cut`), the pose is re-solved from them by the closed form, and the
-   re-picking repeated with a tighter window. This finds a board that line extraction
-   cut into pieces, and keeps mixed pixels at its edges out.
+   (:func:`predicted_cut`, :func:`pick_near_cut`: the returns that fit one line within the
+   range noise, over the cut's full extent), the pose is re-solved from them by the closed
+   form, and the re-picking repeated with a tighter window. This finds a board that line
+   extraction cut into pieces, and keeps mixed pixels at its edges and clutter touching its
+   ends off its line out. A sheet size (``board.size_m``) widens the extent and the cut
+   lengths allowed; the returns along the printed pattern are taken too, so giving it never
+   leaves fewer.
 
 :func:`detect_board_returns` runs the steps; when a capture has nothing to offer it raises
 :class:`BoardNotFoundError` with what was tried, which the session reader turns into an error
@@ -31,7 +35,7 @@ from numpy.typing import NDArray
 
 from rigcal.calib.intrinsics import Board
 from rigcal.calib.lines import LineParams, extract_lines, fit_line, ring_order
-from rigcal.calib.noise import canonical_order
+from rigcal.calib.noise import MIN_COS_INCIDENCE, TRIM_SIGMAS, canonical_order, fit_line_robust, robust_scale
 from rigcal.calib.plane import PlaneObservation, candidate_consensus, closed_form
 from rigcal.errors import CalibrationError
 from rigcal.geometry import inv_T, transform_points
@@ -65,6 +69,16 @@ WINDOW_FLOOR_M = 0.05
 # the pose are not exact).
 END_MARGIN_M = 0.1
 REFINE_PASSES = 2
+# A floor on the range noise a board's returns are taken within (a noise-free simulator).
+MIN_RANGE_SIGMA_M = 0.002
+# Runs at the cut's ends whose median of END_RUN returns lies more than END_OFFSET_SIGMAS
+# range sigmas off the board's line are clutter touching the board, not the board.
+END_RUN = 7
+END_OFFSET_SIGMAS = 2.0
+# The board's line is the one with the least squared distances of its returns, each capped
+# at MSAC_SIGMAS range sigmas (tight, so clutter a few sigmas off costs the cap whatever
+# the line, and cannot tilt it).
+MSAC_SIGMAS = 2.0
 
 
 class BoardNotFoundError(Exception):
@@ -89,11 +103,15 @@ class BoardShape:
         outline: (4, 2) the sheet's corners in the board frame (x along the rows, y down
             the columns, origin at the first inner corner), metres.
         min_cut_m, max_cut_m: the lengths a cut of the sheet by the scan plane may have.
+        pattern_outline: (4, 2) the printed pattern's outline (inner corners plus one
+            square all round) when the sheet's size is given: returns are picked along
+            both, so that giving the size never leaves fewer (None: the outline is it).
     """
 
     outline: FloatArray
     min_cut_m: float
     max_cut_m: float
+    pattern_outline: FloatArray | None = None
 
 
 def board_shape(board: Board, size_m: tuple[float, float] | None = None) -> BoardShape:
@@ -103,10 +121,18 @@ def board_shape(board: Board, size_m: tuple[float, float] | None = None) -> Boar
     near its corner shows too few returns to fit) and at most its diagonal."""
     w0 = (board.width_n - 1) * board.spacing_m
     h0 = (board.height_n - 1) * board.spacing_m
-    W, H = size_m if size_m is not None else (w0 + 2 * board.spacing_m, h0 + 2 * board.spacing_m)
-    mx, my = 0.5 * (W - w0), 0.5 * (H - h0)
-    outline = np.array([[-mx, -my], [w0 + mx, -my], [w0 + mx, h0 + my], [-mx, h0 + my]])
-    return BoardShape(outline, 0.2 * min(W, H), float(np.hypot(W, H)))
+    pattern = (w0 + 2 * board.spacing_m, h0 + 2 * board.spacing_m)
+
+    def outline_of(W: float, H: float) -> FloatArray:
+        mx, my = 0.5 * (W - w0), 0.5 * (H - h0)
+        return np.array([[-mx, -my], [w0 + mx, -my], [w0 + mx, h0 + my], [-mx, h0 + my]])
+
+    W, H = size_m if size_m is not None else pattern
+    # The shortest cut allowed is the pattern's (a larger sheet must not turn away a
+    # candidate the pattern alone would take), the longest the larger one's diagonal.
+    shortest = 0.2 * min(min(W, H), min(pattern))
+    longest = float(max(np.hypot(W, H), np.hypot(*pattern)))
+    return BoardShape(outline_of(W, H), shortest, longest, None if size_m is None else outline_of(*pattern))
 
 
 def plane_cut(T_laser_board: FloatArray, outline: FloatArray) -> FloatArray | None:
@@ -255,26 +281,113 @@ def _line_inliers(p: FloatArray, seed_mask: NDArray[np.bool_]) -> NDArray[np.boo
 
 
 def pick_near_cut(
-    scan: Scan, moving: NDArray[np.bool_], cut: FloatArray, window_m: float, min_points: int
+    scan: Scan,
+    moving: NDArray[np.bool_],
+    cut: FloatArray,
+    window_m: float,
+    min_points: int,
+    range_sigma_m: float = 0.0,
 ) -> IntArray:
-    """Beams of the moving returns within ``window_m`` of the predicted cut's line and
-    within END_MARGIN_M of its ends, narrowed to those on their own fitted line; empty
-    when fewer than ``min_points``."""
+    """Beams of the board's returns near the cut its image pose predicts.
+
+    A board is flat, so its returns are those that fit one line within the range noise:
+    the moving returns within ``window_m`` of the predicted cut's line (and within
+    END_MARGIN_M of its ends) give the line (MSAC, :func:`_msac_line`, from a robust fit:
+    clutter touching the board's ends cannot tilt it); then every
+    moving return within TRIM_SIGMAS range sigmas of that line (its distance as a range
+    error, divided by the beam's incidence) over the full extent of the predicted cut is
+    taken: a board the rough pose puts a little askew is taken whole, and clutter touching
+    its ends off its line (hands, a body, a wall behind) is left out. The range sigma is
+    ``range_sigma_m`` (the session's), else the returns' own robust scatter. Empty when
+    fewer than ``min_points``."""
     beams = np.flatnonzero(moving & scan.valid)
+    beams = beams[canonical_order(scan.points[beams])]  # the same set, the same fit to the last bit
     p = scan.points[beams]
     d = cut[1] - cut[0]
     L = float(np.linalg.norm(d))
     u = d / L
     rel = p - cut[0]
-    across = np.abs(rel @ np.array([-u[1], u[0]]))
     along = rel @ u
-    keep = (across < window_m) & (along > -END_MARGIN_M) & (along < L + END_MARGIN_M)
-    if keep.sum() < min_points:
+    extent = (along > -END_MARGIN_M) & (along < L + END_MARGIN_M)
+    near = extent & (np.abs(rel @ np.array([-u[1], u[0]])) < window_m)
+    if near.sum() < min_points:
         return np.zeros(0, dtype=np.int64)
-    near = beams[keep]
-    near = near[canonical_order(scan.points[near])]  # the same set, the same fit to the last bit
-    on = _line_inliers(scan.points[near], np.ones(len(near), dtype=bool))
-    return near[on] if on.sum() >= min_points else np.zeros(0, dtype=np.int64)
+    fit = fit_line_robust(p[near])
+    if fit.kept.sum() < min_points:
+        return np.zeros(0, dtype=np.int64)
+    # The session's range noise (over every capture's candidates: clutter in this one
+    # cannot inflate it), else these returns' own robust scatter.
+    sigma = max(
+        range_sigma_m if range_sigma_m > 0 else robust_scale(fit.range_residuals_m), MIN_RANGE_SIGMA_M
+    )
+    centroid, normal = _msac_line(p[near], (fit.centroid, fit.normal), MSAC_SIGMAS * sigma)
+    r = (p - centroid) @ normal
+    rays = p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-12)
+    cos = np.maximum(np.abs(rays @ normal), MIN_COS_INCIDENCE)
+    on = extent & (np.abs(r / cos) <= TRIM_SIGMAS * sigma)
+    on[on] = _trim_offset_ends(((p[on] - centroid) @ np.array([normal[1], -normal[0]])), (r / cos)[on], sigma)
+    return beams[on] if on.sum() >= min_points else np.zeros(0, dtype=np.int64)
+
+
+def _trim_offset_ends(
+    along_m: FloatArray, range_residuals_m: FloatArray, sigma_m: float
+) -> NDArray[np.bool_]:
+    """(M,) the returns kept once runs at either end of the cut that lie off the line are
+    trimmed: going in from each end (by position along the line), returns are dropped while
+    the median of END_RUN consecutive ones is more than END_OFFSET_SIGMAS range sigmas off
+    the line (a hand or a body touching the board's end, 50-100 mm off its line, passes a
+    per-return band of a few sigmas but not this; a board's true end has median 0)."""
+    keep = np.ones(len(along_m), dtype=bool)
+    if len(along_m) < 3 * END_RUN:
+        return keep
+    order = np.argsort(along_m, kind="stable")
+    r = range_residuals_m[order]
+    med = np.array([np.median(r[max(0, k - END_RUN // 2) : k + END_RUN // 2 + 1]) for k in range(len(r))])
+    off = np.abs(med) > END_OFFSET_SIGMAS * sigma_m
+    lo, hi = 0, len(r)
+    while lo < hi and off[lo]:
+        lo += 1
+    while hi > lo and off[hi - 1]:
+        hi -= 1
+    keep[order[:lo]] = False
+    keep[order[hi:]] = False
+    return keep
+
+
+def _msac_line(
+    p: FloatArray, start: tuple[FloatArray, FloatArray], band_m: float, tries: int = 200
+) -> tuple[FloatArray, FloatArray]:
+    """The line through (M, 2) returns with the least truncated squared distances (MSAC:
+    each return costs min(r^2, band^2)), from ``start`` (centroid, unit normal) and lines
+    through pairs of returns drawn with a fixed seed, refitted on its returns within the
+    band. Unlike a least-squares fit, a stretch of clutter touching the board's end a
+    little off its line cannot tilt it (a tilted line costs the board's returns more than
+    it saves on the clutter's). Returns (a point of the line, its unit normal)."""
+    rng = np.random.default_rng(0)
+    b2 = band_m**2
+
+    def cost(c: FloatArray, n: FloatArray) -> float:
+        return float(np.minimum(((p - c) @ n) ** 2, b2).sum())
+
+    best = (cost(*start), start[0], start[1])
+    for _ in range(tries):
+        i, j = rng.choice(len(p), size=2, replace=False)
+        d = p[j] - p[i]
+        L = float(np.linalg.norm(d))
+        if L < 1e-6:
+            continue
+        n = np.array([-d[1], d[0]]) / L
+        k = cost(p[i], n)
+        if k < best[0]:
+            best = (k, p[i], n)
+    c, n = np.asarray(best[1], dtype=float), np.asarray(best[2], dtype=float)
+    for _ in range(3):
+        inl = np.abs((p - c) @ n) <= band_m
+        if inl.sum() < 2:
+            break
+        c, u, _ = fit_line(p[inl])
+        n = np.array([-u[1], u[0]])
+    return c, n
 
 
 def detect_board_returns(
@@ -313,7 +426,8 @@ def detect_board_returns(
             raise BoardNotFoundError(i, _nothing_found(scans[i], static[i], shape, params))
     usable = list(range(C))
     point_sets = [[given[i]] if i in given else [scans[i].points[b] for b in cands[i]] for i in usable]
-    threshold = max(LINE_TOLERANCE_M, LINE_SIGMAS * _noise_scale(point_sets))
+    noise = _noise_scale(point_sets)
+    threshold = max(LINE_TOLERANCE_M, LINE_SIGMAS * noise)
     T, chosen, _ = candidate_consensus([planes[i] for i in usable], point_sets, threshold_m=threshold)
     picks: dict[int, IntArray] = {
         i: cands[i][k] for i, k in zip(usable, chosen, strict=True) if i not in given
@@ -323,12 +437,14 @@ def detect_board_returns(
         for i in range(C):
             if i in given:
                 continue
-            cut = predicted_cut(T, T_cam_board[i], shape)
-            near = (
-                pick_near_cut(scans[i], moving[i], cut, window, params.min_points)
-                if cut is not None
-                else np.zeros(0, dtype=np.int64)
-            )
+            near = np.zeros(0, dtype=np.int64)
+            # Along the sheet and, when its size is given, along the printed pattern too:
+            # the size can only add returns.
+            for outline in (shape.outline, shape.pattern_outline):
+                cut = None if outline is None else plane_cut(inv_T(T) @ T_cam_board[i], outline)
+                if cut is not None:
+                    got = pick_near_cut(scans[i], moving[i], cut, window, params.min_points, noise)
+                    near = np.union1d(near, got).astype(np.int64)
             if len(near):
                 picks[i] = near
         obs = [

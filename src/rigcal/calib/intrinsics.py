@@ -47,6 +47,12 @@ MIN_TILT_SPREAD_DEG = 10.0
 SAME_VIEW_DEG, SAME_VIEW_FRACTION = 1.0, 0.01
 MAX_ASPECT_DEVIATION = 0.05
 MAX_CENTRE_UNCERTAINTY_PX = 1.0
+# Weak geometry: boards turned about one camera axis only (the normals' spread about the
+# other below MIN_TILT_SPREAD_DEG); a focal length whose 1-sigma (mrcal's, from the solve)
+# is over this fraction; fewer views than this (the noise and the sigmas are then
+# estimated from few views and may understate the error).
+MAX_FOCAL_REL_SIGMA = 0.005
+MIN_VIEWS = 10
 # Inner-corner grids of common chessboards (OpenCV's samples, calib.io, printed A4/A3 ones),
 # tried when the given board is not found.
 COMMON_BOARDS = ((9, 6), (8, 6), (7, 5), (7, 6), (8, 5), (6, 4), (5, 4), (10, 7), (11, 8), (9, 7),
@@ -489,6 +495,7 @@ def degeneracy_warnings(
             f"every board is seen within {spread:.1f} deg of one tilt: focal length and distortion are "
             "poorly separated; tilt the board (up to 45 deg) in some images"
         )
+    out += weak_geometry_warnings(result.model, normals, len(t))
     same = []
     for i in range(len(t)):
         for j in range(i + 1, len(t)):
@@ -509,6 +516,67 @@ def degeneracy_warnings(
             f"(over {MAX_CENTRE_UNCERTAINTY_PX:g}): take more images, nearer and covering the whole image"
         )
     return tuple(out)
+
+
+def weak_geometry_warnings(model: Any, normals_cam: FloatArray, n_views: int) -> list[str]:
+    """Which direction of the intrinsics a set of views leaves weak, and what views to add.
+
+    - Boards turned about one camera axis only (e.g. upright against a wall, only swung
+      left and right): the normals' spread about the other axis is under
+      MIN_TILT_SPREAD_DEG while the whole spread is not (that case is "one tilt");
+      the focal length is then fixed by one direction of foreshortening only.
+    - The focal length's 1-sigma from mrcal's own uncertainty of the solve
+      (:func:`rigcal.camera.intrinsics_covariance`) over MAX_FOCAL_REL_SIGMA, and the
+      principal point's over 1 % of the image.
+    - Fewer than MIN_VIEWS views: every sigma above is then estimated from few views.
+
+    Args:
+        model: the solved mrcal model (with its optimization_inputs).
+        normals_cam: (N, 3) the boards' unit normals in the camera frame.
+        n_views: the views used.
+    """
+    from rigcal.camera import intrinsics_covariance
+
+    out = []
+    n = np.asarray(normals_cam, dtype=float)
+    n = n * np.sign(n[:, 2:3] + 1e-300)
+    # Left-right turn (about the camera's y axis) and up-down tilt (about its x axis).
+    turn = np.degrees(np.arctan2(n[:, 0], n[:, 2]))
+    tilt = np.degrees(np.arctan2(n[:, 1], n[:, 2]))
+    spans = {"left-right": float(np.ptp(turn)), "up-down": float(np.ptp(tilt))}
+    weak = [k for k, v in spans.items() if v < MIN_TILT_SPREAD_DEG]
+    if len(weak) == 1:
+        other = (
+            "tilted forward and back (about its horizontal axis)"
+            if weak[0] == "up-down"
+            else ("turned left and right (about its vertical axis)")
+        )
+        out.append(
+            f"the boards are turned one way only: their normals span {spans[weak[0]]:.1f} deg {weak[0]} "
+            f"(and {spans['left-right' if weak[0] == 'up-down' else 'up-down']:.1f} deg the other way), so "
+            f"the focal length and principal point are fixed by one direction of foreshortening; add "
+            f"views with the board {other} by 20-45 deg"
+        )
+    _, intr = model.intrinsics()
+    cov = intrinsics_covariance(model)
+    if cov is not None:
+        s = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        rel = s[:2] / np.asarray(intr[:2], dtype=float)
+        W, H = model.imagersize()
+        if rel.max() > MAX_FOCAL_REL_SIGMA or s[2] > 0.01 * W or s[3] > 0.01 * H:
+            out.append(
+                f"weak geometry: the focal length is known to {100 * rel.max():.1f} % (fx {s[0]:.1f} px, "
+                f"fy {s[1]:.1f} px, 1-sigma) and the principal point to {s[2]:.1f}, {s[3]:.1f} px: the views "
+                "are too alike; add views with the board tilted 20-45 deg about both of its axes, near the "
+                "image's corners and edges, and nearer and farther"
+            )
+    if n_views < MIN_VIEWS:
+        out.append(
+            f"only {n_views} views: the corner noise and every uncertainty above are estimated from few "
+            f"views and may understate the error; take {MIN_VIEWS} or more (20 recommended), the board "
+            "tilted differently in each"
+        )
+    return out
 
 
 def other_board_sizes(images: list[Path], board: Board, max_images: int = 3) -> dict[str, tuple[int, int]]:

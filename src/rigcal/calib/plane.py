@@ -46,8 +46,9 @@ order they are given in.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -86,6 +87,9 @@ MIN_CAPTURES = 5
 # A set of planes whose normals span less than this (smallest singular value of the
 # stacked normals, relative to the largest) leaves the pose unobservable.
 MIN_NORMAL_SPREAD = 0.05
+# Below this the pose is observable but weak along the normals' least-covered direction
+# (a warning says which and what captures to add).
+WEAK_NORMAL_SPREAD = 0.1
 
 
 @dataclass(frozen=True)
@@ -308,6 +312,8 @@ def ransac_closed_form(
 LOSS = "cauchy"
 LOSS_SCALE = 3.0
 LOSSES = ("linear", "huber", "soft_l1", "cauchy")
+# The most reweighted Gauss-Newton steps that polish a robust fit (:func:`_polish`).
+POLISH_STEPS = 10
 # A capture is an outlier when its chi-square (2 dof) exceeds the 99.99 % point times the
 # robust scale of all captures' chi-squares (median over the chi-square median, at least 1).
 OUTLIER_GATE_CHI2 = 18.420680743952367
@@ -500,6 +506,79 @@ def solve_plane(
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, not {loss!r}")
     _check_observable(observations)
+    # The captures in a fixed order (their content's), so that the answer is the same to the
+    # last bit whatever order the session lists them in; the result in the order given.
+    order = capture_order(observations)
+    result = _solve_plane(
+        [observations[i] for i in order],
+        range_sigma_m,
+        use_ransac,
+        seed,
+        corner_sigma_px,
+        uncertainty_checks,
+        fit_range_bias,
+        loss,
+    )
+    return _in_given_order(result, order)
+
+
+def capture_order(observations: Sequence[PlaneObservation]) -> NDArray[np.int64]:
+    """(C,) a fixed order of the captures, from what they hold and not where they are
+    listed: by the board plane's distance and normal, then the board's origin, then the
+    returns (their count and sums, in :func:`rigcal.calib.noise.canonical_order`). Captures
+    equal in all of these are interchangeable."""
+    keys = []
+    for o in observations:
+        p = np.asarray(o.points_laser, dtype=float).reshape(-1, 2)
+        p = p[canonical_order(p)]
+        origin = np.zeros(3) if o.board_origin_cam is None else np.asarray(o.board_origin_cam, dtype=float)
+        keys.append([o.distance_m, *np.asarray(o.normal_cam, dtype=float), *origin, len(p), *p.sum(axis=0)])
+    k = np.array(keys, dtype=float).reshape(len(observations), -1)
+    return np.lexsort(k.T[::-1]).astype(np.int64)
+
+
+def _in_given_order(result: PlaneResult, order: NDArray[np.int64]) -> PlaneResult:
+    """A result solved on the captures in ``order`` ((C,): the given index of each), its
+    per-capture figures put back in the order given (pose groups numbered by first
+    appearance, the spread's captures listed in that order)."""
+    at = np.argsort(order)  # the solved position of each given capture
+
+    def per(x: NDArray[Any] | None) -> NDArray[Any] | None:
+        return None if x is None else np.asarray(x)[at]
+
+    _, first, labels = np.unique(result.pose_group[at], return_index=True, return_inverse=True)
+    rank = np.argsort(np.argsort(first))
+    spread = result.spread
+    if spread is not None:
+        used_given = order[np.flatnonzero(result.inlier_captures)]
+        by = np.argsort(used_given, kind="stable")
+        spread = replace(spread, captures=tuple(spread.captures[i] for i in by), shifts=spread.shifts[by])
+    return replace(
+        result,
+        residuals_m=tuple(result.residuals_m[i] for i in at),
+        inlier_captures=result.inlier_captures[at],
+        chi2=result.chi2[at],
+        weights=result.weights[at],
+        lines=tuple(result.lines[i] for i in at),
+        pose_group=rank[labels].astype(np.int64),
+        spread=spread,
+        screened_out=per(result.screened_out),
+        screen_rms_m=per(result.screen_rms_m),
+    )
+
+
+def _solve_plane(
+    observations: Sequence[PlaneObservation],
+    range_sigma_m: float | None,
+    use_ransac: bool,
+    seed: int,
+    corner_sigma_px: float | None,
+    uncertainty_checks: bool,
+    fit_range_bias: bool,
+    loss: str,
+) -> PlaneResult:
+    """:func:`solve_plane` on captures in a fixed order."""
+
     lines = tuple(capture_line(o.points_laser) for o in observations)
     screen = gross_outliers(observations, lines, seed)
     gross = screen.gross
@@ -939,8 +1018,37 @@ def _fit(
         )
 
     x0 = np.concatenate([np.zeros(3), T0[:3, 3], [noise.range_bias_m] if noise.fit_range_bias else []])
+    # Converged well below any noise (scipy's default tolerances, 1e-8, leave the answer to
+    # depend at ~1e-9 on where the iterations started and on rounding in the inputs).
     sol = least_squares(residuals, x0, method="trf", loss=noise.loss, f_scale=LOSS_SCALE, x_scale="jac")
-    return pose(sol.x), float(sol.x[6]) if noise.fit_range_bias else noise.range_bias_m
+    x = _polish(residuals, sol.x, noise.loss)
+    return pose(x), float(x[6]) if noise.fit_range_bias else noise.range_bias_m
+
+
+def _polish(residuals: Callable[[FloatArray], FloatArray], x: FloatArray, loss: str) -> FloatArray:
+    """The robust fit's minimum to the last bits: iteratively reweighted Gauss-Newton steps
+    (weights rho' of ``loss``, an exact least-squares solve each, central-difference
+    Jacobian) from scipy's answer until a step is below 1e-11 of the parameters. scipy stops
+    at its tolerances (1e-8), where the answer still depends at ~1e-9 on where its iterations
+    began and on rounding in the inputs; the minimum itself does not."""
+    x = np.array(x, dtype=float)
+    for _ in range(POLISH_STEPS):
+        r = residuals(x)
+        # Steps of 1e-4: rounding in the differences stays near 1e-12 (smaller steps
+        # leave the iterations wandering at 1e-9), the truncation only slows convergence.
+        h = 1e-4 * (1.0 + np.abs(x))
+        J = np.column_stack(
+            [
+                (residuals(x + h[k] * e) - residuals(x - h[k] * e)) / (2.0 * h[k])
+                for k, e in enumerate(np.eye(len(x)))
+            ]
+        )
+        w = np.sqrt(loss_weights(r, loss, LOSS_SCALE))
+        dx = np.linalg.lstsq(J * w[:, None], r * w, rcond=None)[0]
+        x = x - dx
+        if np.abs(dx).max() <= 1e-11 * (1.0 + np.abs(x).max()):
+            break
+    return x
 
 
 def _covariance(
@@ -1030,6 +1138,31 @@ def check_normals(observations: Sequence[PlaneObservation]) -> None:
         "pitch and the camera's height above the scan plane, each with its 1-sigma: the session's "
         "level: or `rigcal solve --level-prior`) for the reduced solve of the yaw and the "
         "horizontal translations"
+    )
+
+
+def weak_normals_warning(observations: Sequence[PlaneObservation]) -> str | None:
+    """A warning when the boards' normals span 3D (:func:`check_normals`) but thinly
+    (spread under WEAK_NORMAL_SPREAD): which camera direction no board faces along, and how
+    to turn the board to cover it; None otherwise."""
+    normals = np.array([np.asarray(o.normal_cam, dtype=float) for o in observations]).reshape(-1, 3)
+    if len(normals) < 3:
+        return None
+    _, s, Vt = np.linalg.svd(normals)
+    spread = float(s[2] / s[0])
+    if spread >= WEAK_NORMAL_SPREAD:
+        return None
+    v = Vt[2] * np.sign(Vt[2][np.argmax(np.abs(Vt[2]))])
+    how = {
+        0: "turned left and right (about its vertical axis) by 20-45 deg",
+        1: "tilted forward and back (about its horizontal axis) by 20-45 deg",
+        2: "facing the camera more squarely in some captures",
+    }[int(np.argmax(np.abs(v)))]
+    return (
+        f"weak geometry: the board normals' spread is {spread:.3f} (under {WEAK_NORMAL_SPREAD}; "
+        f"{MIN_NORMAL_SPREAD} is refused): no board faces along camera direction "
+        f"({v[0]:+.2f}, {v[1]:+.2f}, {v[2]:+.2f}) (x right, y down, z forward), so the pose is weak "
+        f"there; add captures with the board {how}"
     )
 
 

@@ -250,25 +250,33 @@ def honest_covariance(cov_model: FloatArray, spread: Spread | None) -> FloatArra
 
 
 def propagated_covariance(
-    changed: Callable[[int, float], FloatArray], T: FloatArray, values: FloatArray, sigmas: FloatArray
+    changed: Callable[[FloatArray], FloatArray], T: FloatArray, values: FloatArray, cov: FloatArray
 ) -> FloatArray:
     """(6, 6) the covariance an answer inherits from inputs it took as exact (a camera's
-    intrinsics, say), each with its own 1-sigma and independent of the others: first-order
-    propagation with central differences of a whole re-solve, one input moved by +-1 sigma
-    at a time.
+    intrinsics, say) whose own (P, P) covariance ``cov`` is known: first-order propagation
+    J cov J^T with central differences of a whole re-solve, the inputs moved by +-1 sigma
+    along each principal axis of ``cov`` in turn (cov = sum_k s_k s_k^T, so
+    J cov J^T = sum_k (J s_k)(J s_k)^T). Independent inputs are a diagonal ``cov``, each
+    then moved alone.
 
     Args:
-        changed: (index, value) -> the answer re-solved with input ``index`` set to ``value``.
+        changed: (P,) inputs -> the answer re-solved with them.
         T: (4, 4) the answer.
-        values: (P,) the inputs as used; sigmas: (P,) their 1-sigmas (0: exact, skipped).
+        values: (P,) the inputs as used; cov: (P, P) their covariance (zero rows: exact).
     """
-    cov = np.zeros((6, 6))
-    for k, (v, s) in enumerate(zip(values, sigmas, strict=True)):
-        if s <= 0:
-            continue
-        g = (tangent_delta(changed(k, v + s), T) - tangent_delta(changed(k, v - s), T)) / 2.0
-        cov += np.outer(g, g)
-    return cov
+    c = np.asarray(cov, dtype=float)
+    diagonal = not np.any(c - np.diag(np.diag(c)))
+    if diagonal:
+        steps = [np.sqrt(v) * e for v, e in zip(np.diag(c), np.eye(len(c)), strict=True) if v > 0]
+    else:
+        evals, evecs = np.linalg.eigh(0.5 * (c + c.T))
+        tiny = 1e-12 * max(float(evals[-1]), 0.0)
+        steps = [np.sqrt(v) * evecs[:, k] for k, v in enumerate(evals) if v > tiny]
+    out = np.zeros((6, 6))
+    for s in steps:
+        g = (tangent_delta(changed(values + s), T) - tangent_delta(changed(values - s), T)) / 2.0
+        out += np.outer(g, g)
+    return out
 
 
 def few_dof_factor(dof: int, params: int = 6, level: float = 0.95) -> float:

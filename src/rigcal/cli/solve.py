@@ -75,7 +75,8 @@ from rigcal.cli.types import option_type
     metavar="S1,S2,...",
     help="Board method: 1-sigma of each camera intrinsic, comma-separated in the lens model's "
     "order (fx,fy,cx,cy, then distortion); propagated into T's covariance and reported as the "
-    "camera's share. Without it the camera is taken as exact and the report says so.",
+    "camera's share. Without it, a mrcal .cameramodel that keeps its optimization_inputs gives "
+    "its own intrinsics covariance; other camera files are taken as exact and the report says so.",
 )
 @click.option(
     "--skip-unseen-boards",

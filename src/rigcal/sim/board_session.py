@@ -78,6 +78,10 @@ class BoardSpec:
         handheld: the repeats of a pose are of a hand-held board, not exactly at one
             pose: each after the first is turned by 1-3 deg about a random axis through
             the board's centre and moved by 2-5 cm in a random direction.
+        holder: a person holds the board in the scan plane, as on a real hand-held set: at
+            each end of its cut the scan goes on for 0.1-0.3 m along the board's line but
+            50-100 mm off it (hands, arms, the body, touching the board's ends), moving with
+            the board, so that auto's returns can take stretches off the board's line.
         spread: place the boards as a careful lab does, covering the ranges of distance,
             bearing, turn and tilt evenly (each capture in its own stratum of each, a
             Latin hypercube), instead of independently at random (False), which can
@@ -105,6 +109,7 @@ class BoardSpec:
     repeats: int = 1
     handheld: bool = False
     spread: bool = False
+    holder: bool = False
 
     @property
     def sheet_margin_m(self) -> float:
@@ -272,6 +277,8 @@ def _capture(
                     break
                 T_j, cut_j, px_j = moved
             segments = np.concatenate([scene, cut_j[None]])
+            if spec.holder:
+                segments = np.concatenate([segments, _holder(rng, cut_j)])
             capture = _noisy_capture(spec, rng, segments, len(scene), cut_j, px_j, T_j, params, name)
             if capture is None:
                 break
@@ -279,6 +286,20 @@ def _capture(
         if len(out) == len(names):
             return out
     raise InputError(f"cannot simulate {names[0]}: no board placement was visible and crossed the scan plane")
+
+
+def _holder(rng: np.random.Generator, cut: FloatArray) -> FloatArray:
+    """(2, 2, 2) the person holding a board (:class:`BoardSpec` ``holder``): at each end of
+    the cut a stretch 0.1-0.3 m long continuing the board's line, 50-100 mm off it (towards
+    or away from the scanner), its near end touching the board's end."""
+    u = (cut[1] - cut[0]) / np.linalg.norm(cut[1] - cut[0])
+    n = np.array([-u[1], u[0]])
+    out = []
+    for end, out_dir in ((cut[0], -u), (cut[1], u)):
+        off = rng.uniform(0.05, 0.1) * rng.choice([-1.0, 1.0]) * n
+        length = rng.uniform(0.1, 0.3)
+        out.append([end + off + 0.01 * out_dir, end + off + length * out_dir])
+    return np.array(out)
 
 
 def _handheld(
