@@ -63,11 +63,11 @@ def main() -> None:
         print(f"## rigcal batch: {args.items} {args.command} items; {os.cpu_count()} CPUs, load {load()}\n")
 
         # the work itself, in this process
-        run_item(batch[0].argv((root / "warm" / batch[0].name).resolve()))
+        run_item(batch[0], (root / "warm" / batch[0].name).resolve(), "bench")
         t0 = time.perf_counter()
         results = []
         for item in batch:
-            results.append(run_item(item.argv((root / "inline" / item.name).resolve())))
+            results.append(run_item(item, (root / "inline" / item.name).resolve(), "bench"))
             assert results[-1]["error"] is None, results[-1]["error"]
         t_item = (time.perf_counter() - t0) / len(batch)
 
@@ -76,7 +76,7 @@ def main() -> None:
         print(f"| one item, warm (in this process) | {t_item:.3f} |")
         bare = fresh("pass")
         imports = fresh("import rigcal.cli.main, rigcal.batch.runner") - bare
-        libs, first = fresh_first_item(batch[0].argv((root / "first" / batch[0].name).resolve()))
+        libs, first = fresh_first_item(root / "batch.yaml", (root / "first" / batch[0].name).resolve())
         print(f"| a fresh interpreter (python -c pass) | {bare:.2f} |")
         print(f"| imports of the CLI and the runner | {imports:.2f} |")
         print(
@@ -90,7 +90,7 @@ def main() -> None:
         argv = batch[0].argv(root / "x")
         t0 = time.perf_counter()
         for _ in range(1000):
-            pickle.loads(pickle.dumps((argv, versions())))
+            pickle.loads(pickle.dumps((batch[0], argv, versions())))
             pickle.loads(pickle.dumps(results[0]))
         ser = (time.perf_counter() - t0) / 1000
         print(
@@ -168,7 +168,7 @@ def fresh(code: str, repeat: int = 3) -> float:
     return best
 
 
-def fresh_first_item(argv: list[str]) -> tuple[float, float]:
+def fresh_first_item(manifest: Path, folder: Path) -> tuple[float, float]:
     """In a fresh interpreter, after the CLI's imports: the time to import every module a
     warm item has loaded (this process's ``sys.modules`` of the item's libraries), then
     the first item's time."""
@@ -180,12 +180,19 @@ def fresh_first_item(argv: list[str]) -> tuple[float, float]:
         "for m in os.environ['BENCH_MODULES'].split():\n"
         "    try: importlib.import_module(m)\n"
         "    except Exception: pass\n"
-        "t1 = time.perf_counter(); out = r.run_item(sys.argv[1:]); assert out['error'] is None, out\n"
+        "from pathlib import Path; from rigcal.batch.manifest import read_manifest\n"
+        "item = read_manifest(Path(sys.argv[1]))[0]\n"
+        "t1 = time.perf_counter(); out = r.run_item(item, Path(sys.argv[2]), 'bench')\n"
+        "assert out['error'] is None, out\n"
         "print(t1 - t0, time.perf_counter() - t1)\n"
     )
     env = os.environ | {"BENCH_MODULES": " ".join(mods)}
     done = subprocess.run(
-        [sys.executable, "-c", code, *argv], check=True, capture_output=True, text=True, env=env
+        [sys.executable, "-c", code, str(manifest), str(folder)],
+        check=True,
+        capture_output=True,
+        text=True,
+        env=env,
     )
     libs, first = (float(x) for x in done.stdout.strip().splitlines()[-1].split())
     return libs, first

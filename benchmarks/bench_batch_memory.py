@@ -22,6 +22,7 @@ import threading
 import time
 import tracemalloc
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -40,13 +41,13 @@ def main() -> None:
         t = base / "a.tum"
         xs = np.linspace(0, 1, 50)
         t.write_text("\n".join(f"{0.1 * i:.1f} {x:.3f} 0 0 0 0 0 1" for i, x in enumerate(xs)) + "\n")
-        answer = run_item(["evaluate", str(t), "--gt", str(t), "--json"])
+        answer = run_item(Item("warm", "evaluate", {"trajectory": t, "gt": t}), base / "warm", "bench")
         assert answer["exit_code"] == 0, answer["stderr"]
         items = [Item(f"i{k:06d}", "evaluate", {"trajectory": t, "gt": t}) for k in range(args.items)]
         live, peak, lock = [0], [0], threading.Lock()
         pool = cf.ThreadPoolExecutor(args.window)
 
-        def work(argv: list[str]) -> dict:
+        def work(task: Any) -> dict:
             with lock:
                 live[0] += 1
                 peak[0] = max(peak[0], live[0])
@@ -54,11 +55,11 @@ def main() -> None:
             with lock:
                 live[0] -= 1
             # each item's own stderr, as long as a record keeps (4000 characters)
-            return answer | {"stderr": (" ".join(argv) + "x" * 4000)[-4000:]}
+            return answer | {"stderr": (task.command + "x" * 4000)[-4000:]}
 
         @contextlib.contextmanager
         def executor(settings, address, n_items, log):  # type: ignore[no-untyped-def]
-            yield (lambda argv: pool.submit(work, argv)), args.window
+            yield (lambda task: pool.submit(work, task)), args.window
 
         runner._executor = executor  # type: ignore[assignment]
         tracemalloc.start()
