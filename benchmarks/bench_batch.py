@@ -39,7 +39,7 @@ import yaml
 
 from rigcal.batch.manifest import read_manifest
 from rigcal.batch.runner import BatchSettings, run_batch, run_item, versions
-from rigcal.calib.session import calibrate
+from rigcal.calib.box.session import calibrate
 from rigcal.rigfile import write_rig
 from rigcal.sim.box_session import SessionSpec, default_T_cam_laser, generate_session, write_session
 

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from rigcal.calib.board_calibrate import calibrate_board
-from rigcal.calib.board_session import read_board_session
+from rigcal.calib.board.calibrate import calibrate_board
+from rigcal.calib.board.session import read_board_session
 from rigcal.calib.intrinsics import Board
 from rigcal.errors import CalibrationError
 from rigcal.geometry import pose_error
@@ -55,7 +55,7 @@ def _line_distance(p: np.ndarray, cut: np.ndarray) -> np.ndarray:
 
 
 def run(seeds: range, poses: int) -> dict[str, dict[str, list[float]]]:
-    from rigcal.calib.board_detect import plane_cut
+    from rigcal.calib.board.detect import plane_cut
 
     stats: dict[str, dict[str, list[float]]] = {}
     for seed in seeds:

@@ -6,7 +6,7 @@ a still rig in a room with static boxes, cabinets and poles, a board sheet 5 cm 
 than its pattern on every side), 28 captures of about 1000 beams each (a Hokuyo-like
 270-degree scanner), several seeds and two amounts of clutter, and a 360-degree scanner
 (the room all round, the seam behind it). Every capture's ``laser_side`` is set to
-``auto`` and the session read with :func:`rigcal.calib.board_session.read_board_session`.
+``auto`` and the session read with :func:`rigcal.calib.board.session.read_board_session`.
 
 A capture is **correct** when at least 95 % of the chosen returns are returns whose true
 ray hits the board and they hold at least half of the board's valid returns. A chosen
@@ -29,11 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from rigcal.calib.board_detect import board_shape
-from rigcal.calib.board_session import read_board_session
-from rigcal.calib.lines import LineParams, extract_lines
-from rigcal.calib.plane import choose_candidates
+from rigcal.calib.board.detect import board_shape
+from rigcal.calib.board.plane import choose_candidates
+from rigcal.calib.board.session import read_board_session
 from rigcal.errors import CalibrationError, InputError
+from rigcal.lines import LineParams, extract_lines
 from rigcal.sim.board_session import BoardSpec, SimBoardSession, generate_board_session, write_board_session
 from rigcal.sim.noise import RealisticNoise
 from rigcal.sim.raycast import cast_scan

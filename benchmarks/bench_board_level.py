@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rigcal.calib.board_calibrate import calibrate_board
-from rigcal.calib.board_session import read_board_session
+from rigcal.calib.board.calibrate import calibrate_board
+from rigcal.calib.board.level import LevelPriors
+from rigcal.calib.board.session import read_board_session
 from rigcal.calib.intrinsics import Board
-from rigcal.calib.level import LevelPriors
 from rigcal.errors import CalibrationError
 from rigcal.scan import read_scan
 from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session

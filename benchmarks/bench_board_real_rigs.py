@@ -42,10 +42,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from rigcal.calib.board_calibrate import calibrate_board
-from rigcal.calib.board_session import board_pose, plane_observation, read_board_session
+from rigcal.calib.board.calibrate import calibrate_board
+from rigcal.calib.board.plane import solve_plane
+from rigcal.calib.board.session import board_pose, plane_observation, read_board_session
 from rigcal.calib.intrinsics import Board
-from rigcal.calib.plane import solve_plane
 from rigcal.calib.report import truth_comparison
 from rigcal.errors import CalibrationError
 from rigcal.geometry import pose_error, tangent_delta

@@ -20,13 +20,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from rigcal.calib.board_session import board_pose, plane_observation
-from rigcal.calib.lines import LineParams, extract_lines
-from rigcal.calib.plane import solve_plane
-from rigcal.calib.refine import NoiseModel
+from rigcal.calib.board.plane import solve_plane
+from rigcal.calib.board.session import board_pose, plane_observation
+from rigcal.calib.box.refine import NoiseModel
+from rigcal.calib.box.solve import CalibProblem, SolveSettings, solve
 from rigcal.calib.report import truth_comparison
-from rigcal.calib.solve import CalibProblem, SolveSettings, solve
 from rigcal.errors import CalibrationError
+from rigcal.lines import LineParams, extract_lines
 from rigcal.sim.board_session import BoardSpec, generate_board_session
 from rigcal.sim.box_session import SessionSpec, generate_session, session_observations
 

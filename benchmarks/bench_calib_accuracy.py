@@ -25,9 +25,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2
 
-from rigcal.calib.refine import NoiseModel, RefineParams
+from rigcal.calib.box.refine import NoiseModel, RefineParams
+from rigcal.calib.box.solve import CalibProblem, SolveSettings, solve
 from rigcal.calib.report import truth_comparison
-from rigcal.calib.solve import CalibProblem, SolveSettings, solve
 from rigcal.errors import CalibrationError
 from rigcal.sim.box_session import SessionSpec, generate_session, session_observations
 

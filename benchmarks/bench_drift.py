@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rigcal.calib.drift import DriftSettings, check_drift
-from rigcal.calib.picks import PickSession
-from rigcal.calib.refine import NoiseModel
-from rigcal.calib.solve import CalibProblem, SolveSettings, solve
+from rigcal.calib.box.picks import PickSession
+from rigcal.calib.box.refine import NoiseModel
+from rigcal.calib.box.solve import CalibProblem, SolveSettings, solve
+from rigcal.drift.target import DriftSettings, check_drift
 from rigcal.rig import Rig
 from rigcal.sim.box_session import (
     SessionSpec,

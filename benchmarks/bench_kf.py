@@ -29,9 +29,9 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from bench_tracks import seeds_of
+from rigcal.arrays import FloatArray
 from rigcal.geometry import pose_of, se2
 from rigcal.io.trajectory import read_tum
 from rigcal.localize import kalman
@@ -41,7 +41,6 @@ from rigcal.localize.streams import open_streams
 from rigcal.sim.drive import DriveSpec, write_drive
 from rigcal.sim.world import BUILTIN
 
-FloatArray = NDArray[np.float64]
 # The filters compared: the paper's fixed covariances, each step's own, and each step's
 # own matched to its input's innovations (the default).
 VARIANTS = {

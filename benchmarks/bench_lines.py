@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from bench_icp import hokuyo_loop_scans
-from rigcal.calib.lines import LineParams, extract_lines
+from rigcal.lines import LineParams, extract_lines
 from rigcal.scan import Scan
 from rigcal.sim.drive import DriveSpec
 from rigcal.sim.raycast import cast_scan

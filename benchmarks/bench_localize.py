@@ -148,7 +148,7 @@ def kernels(compiled: bool) -> Iterator[None]:
     """Within: the laser odometry (ICP's iterations, line extraction, carrying and fits),
     IASM's laser metric and its SAD matching use their compiled kernels or, when not
     ``compiled``, their numpy / Python references (the ``kernel`` keyword's default)."""
-    from rigcal.calib import lines
+    from rigcal import lines
     from rigcal.localize import iasm, icp, odometry
 
     functions = (

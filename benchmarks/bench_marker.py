@@ -36,9 +36,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from rigcal.calib.board_calibrate import calibrate_board
+from rigcal.calib.board.calibrate import calibrate_board
 from rigcal.calib.intrinsics import Board
-from rigcal.calib.marker_calibrate import calibrate_marker
+from rigcal.calib.marker.calibrate import calibrate_marker
 from rigcal.calib.report import truth_comparison
 from rigcal.errors import CalibrationError
 from rigcal.geometry import transform_points
@@ -107,7 +107,7 @@ def _corner_bias(sim, bias: list) -> None:
     """Outward corner errors (px) of ChArUco corners and of raw ArUco marker corners."""
     import cv2
 
-    from rigcal.calib.marker_detect import detect_target
+    from rigcal.calib.marker.detect import detect_target
     from rigcal.targets.marker import charuco_board
 
     t = sim.spec.target

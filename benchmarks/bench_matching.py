@@ -70,6 +70,7 @@ from typing import Any
 
 import numpy as np
 
+from rigcal.arrays import MAD_TO_SIGMA
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2, transform_points
 from rigcal.io.trajectory import Trajectory, read_tum
@@ -246,7 +247,7 @@ def correspondences(seq: Path, every: int) -> None:
         for key in errors:
             e = np.concatenate(errors[key])
             med = float(np.median(e))
-            mad = 1.4826 * float(np.median(np.abs(e - med)))
+            mad = MAD_TO_SIGMA * float(np.median(np.abs(e - med)))
             mo = np.array(motions[key])
             print(
                 f"| {seq.name} | {'snapped' if snap else 'raw'} | {key} | {np.mean(counts[key]):.0f} "

@@ -27,9 +27,9 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from rigcal.calib.autopick import PickSettings, auto_pick, pick_file_text
-from rigcal.calib.picks import read_pick_draft, read_picks
-from rigcal.calib.solve import CalibProblem, solve
+from rigcal.calib.box.autopick import PickSettings, auto_pick, pick_file_text
+from rigcal.calib.box.picks import read_pick_draft, read_picks
+from rigcal.calib.box.solve import CalibProblem, solve
 from rigcal.sim.box_session import SessionSpec, generate_session, moved_T_cam_laser, write_session
 
 

@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rigcal.calib.board_calibrate import calibrate_board
+from rigcal.calib.board.calibrate import calibrate_board
+from rigcal.calib.box.solve import CalibProblem, SolveSettings, solve
 from rigcal.calib.intrinsics import Board
 from rigcal.calib.report import truth_comparison
-from rigcal.calib.solve import CalibProblem, SolveSettings, solve
 from rigcal.errors import CalibrationError
 from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
 from rigcal.sim.box_session import SessionSpec, generate_session, session_observations

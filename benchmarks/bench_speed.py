@@ -1,7 +1,7 @@
 """Speed of the box-target calibration: P3P in a batch against OpenCV, and whole solves.
 
 1. P3P: the same random triples (points in front of a camera, uniformly random poses)
-   solved by ``rigcal.calib.p3p.p3p`` (the compiled kernel) and ``p3p_numpy`` (its
+   solved by ``rigcal.calib.box.p3p.p3p`` (the compiled kernel) and ``p3p_numpy`` (its
    numpy reference, vectorised over the batch) in one batch, and by ``cv2.solveP3P``
    called once per triple from Python, as RANSAC would call it. Both give every real
    solution; the figures are solutions per second and the ratio between the two, measured
@@ -31,10 +31,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from rigcal.calib.horn import horn_batch
-from rigcal.calib.p3p import p3p, p3p_numpy, p3p_poses
-from rigcal.calib.picks import read_picks
-from rigcal.calib.session import calibrate
+from rigcal.calib.box.horn import horn_batch
+from rigcal.calib.box.p3p import p3p, p3p_numpy, p3p_poses
+from rigcal.calib.box.picks import read_picks
+from rigcal.calib.box.session import calibrate
 from rigcal.geometry import random_rotation
 from rigcal.sim.box_session import SessionSpec, generate_session, write_session
 from rigcal.viz.report_dir import write_box_report

@@ -27,12 +27,12 @@ import sys
 import tempfile
 
 KERNELS = {
-    "P3P (rigcal.calib.p3p)": (
-        "import numpy as np; from rigcal.calib.p3p import p3p",
+    "P3P (rigcal.calib.box.p3p)": (
+        "import numpy as np; from rigcal.calib.box.p3p import p3p",
         "p3p(np.eye(3)[None] + 0.1, np.eye(3)[None] * 2.0)",
     ),
-    "P3P + Horn poses (rigcal.calib.p3p.p3p_poses, rigcal.calib.horn)": (
-        "import numpy as np; from rigcal.calib.p3p import p3p_poses",
+    "P3P + Horn poses (rigcal.calib.box.p3p.p3p_poses, rigcal.calib.box.horn)": (
+        "import numpy as np; from rigcal.calib.box.p3p import p3p_poses",
         "p3p_poses(np.eye(3)[None] + 0.1, np.eye(3)[None] * 2.0)",
     ),
     "ICP iterations and grid neighbours (rigcal.localize.icp, nearest)": (
@@ -40,8 +40,8 @@ KERNELS = {
         "t = np.linspace(0, 6, 200); m = np.vstack([np.c_[t, 0 * t + 1], np.c_[0 * t + 2, t - 3]])",
         "icp(m, m + 0.01, model_normals=np.tile([0.0, 1.0], (len(m), 1)))",
     ),
-    "Line extraction, carrying lines, line fits (rigcal.calib.lines, localize.odometry)": (
-        "import numpy as np; import rigcal.calib.lines_kernel; from rigcal.calib.lines import extract_lines; "
+    "Line extraction, carrying lines, line fits (rigcal.lines, localize.odometry)": (
+        "import numpy as np; import rigcal.lines_kernel; from rigcal.lines import extract_lines; "
         "from rigcal.scan import Scan; "
         "from rigcal.localize.odometry import carry_labels; a = np.linspace(-1, 1, 400); "
         "s = Scan(a, 2 / np.cos(a), 0.1, 30.0); p = s.points; k = np.arange(400)",

@@ -43,7 +43,7 @@ def box_target() -> rigcal.Rig:
 
 def checkerboard() -> rigcal.Rig:
     """The plane method from each board's corners in the image and its returns in the scan."""
-    from rigcal.calib.lines import extract_lines
+    from rigcal.lines import extract_lines
     from rigcal.sim.board_session import BoardSpec, generate_board_session
 
     spec = BoardSpec(n_captures=10, seed=2)

@@ -16,10 +16,10 @@ import pytest
 import yaml
 
 import rigcal
-from rigcal.calib.lines import LineParams, extract_lines
 from rigcal.camera import read_camera
 from rigcal.cli.main import main
 from rigcal.errors import ArgumentError, InputError, OutputError
+from rigcal.lines import LineParams, extract_lines
 from rigcal.scan import read_scan
 from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
 from rigcal.sim.box_session import SessionSpec, generate_session, write_session
@@ -57,7 +57,7 @@ def test_the_shared_option_rules_keep_the_command_line_light():
     line must not import the solver (``rigcal --help`` stays instant)."""
     code = (
         "import sys, rigcal.cli.main; "
-        "print(sorted(m for m in ('rigcal.calib.solve', 'rigcal.calib.refine', 'numpy', 'scipy') "
+        "print(sorted(m for m in ('rigcal.calib.box.solve', 'rigcal.calib.box.refine', 'numpy', 'scipy') "
         "if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

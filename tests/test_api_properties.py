@@ -48,7 +48,7 @@ def box():
 
 @functools.cache
 def board():
-    from rigcal.calib.lines import extract_lines
+    from rigcal.lines import extract_lines
     from rigcal.sim.board_session import BoardSpec, generate_board_session
 
     spec = BoardSpec(n_captures=3, seed=1)

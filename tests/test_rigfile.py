@@ -133,7 +133,7 @@ def test_singular_covariance_round_trips(tmp_path, rig):
 
 
 def test_solved_example_rig_round_trips(tmp_path):
-    from rigcal.calib.session import calibrate
+    from rigcal.calib.box.session import calibrate
 
     cal = calibrate(EXAMPLE / "picks.yaml")
     back = read_rig(write_rig(tmp_path / "rig.yaml", cal.rig))

@@ -2,8 +2,8 @@
 
 Everything here is importable from ``rigcal`` itself (``rigcal.solve_box``, ...). The
 functions call the library's own entry points, the ones ``rigcal solve`` and ``rigcal
-localize`` call (one solve path per method: :func:`rigcal.calib.session.calibrate_session`
-and :func:`rigcal.calib.board_calibrate.calibrate_board_session`), so a result is the same
+localize`` call (one solve path per method: :func:`rigcal.calib.box.session.calibrate_session`
+and :func:`rigcal.calib.board.calibrate.calibrate_board_session`), so a result is the same
 to the last digit whichever way it was asked for. Every argument is checked as the
 command line checks its option (the same objects, :mod:`rigcal.calib.options`), and a bad
 one raises :class:`~rigcal.errors.ArgumentError` naming the function, the argument and the
@@ -21,8 +21,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NotRequired, TypedDict, cast
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from rigcal.arrays import FloatArray
 from rigcal.calib.intrinsics import Board
 from rigcal.camera import Camera
 from rigcal.errors import ArgumentError, InputError
@@ -31,12 +32,11 @@ from rigcal.rig import Rig
 from rigcal.scan import Scan
 
 if TYPE_CHECKING:
-    from rigcal.calib.level import LevelPriors
-    from rigcal.calib.picks import BoxObservation
-    from rigcal.calib.plane import PlaneResult
-    from rigcal.calib.solve import CalibResult
+    from rigcal.calib.board.level import LevelPriors
+    from rigcal.calib.board.plane import PlaneResult
+    from rigcal.calib.box.picks import BoxObservation
+    from rigcal.calib.box.solve import CalibResult
 
-FloatArray = NDArray[np.float64]
 
 __all__ = [
     "Board",
@@ -185,8 +185,8 @@ class Solution[ReportT, ResultT]:
         rig: the calibrated rig (T_cam_laser, camera, covariance); :func:`write_rig` saves it.
         report: the report, as ``rigcal solve`` writes report.json (with ``T_truth``,
             the error against it under ``truth``).
-        result: the solver's own result (:class:`rigcal.calib.solve.CalibResult` or
-            :class:`rigcal.calib.plane.PlaneResult`): every measurement, inlier flags,
+        result: the solver's own result (:class:`rigcal.calib.box.solve.CalibResult` or
+            :class:`rigcal.calib.board.plane.PlaneResult`): every measurement, inlier flags,
             residuals.
     """
 
@@ -373,8 +373,8 @@ def solve_box(
         CalibrationError: too few captures, degenerate geometry, no consensus.
     """
     from rigcal.calib import options
-    from rigcal.calib.picks import PickSession
-    from rigcal.calib.session import calibrate, calibrate_session
+    from rigcal.calib.box.picks import PickSession
+    from rigcal.calib.box.session import calibrate, calibrate_session
     from rigcal.io.validate import flag
 
     where = "rigcal.solve_box"
@@ -428,7 +428,7 @@ def _with_truth(report: dict[str, Any], result: Any, truth: FloatArray | None) -
 
 
 def _unique_names(names: list[str], where: str) -> None:
-    from rigcal.calib.picks import check_unique_names
+    from rigcal.calib.box.picks import check_unique_names
 
     check_unique_names(where, names)  # type: ignore[arg-type]
 
@@ -438,9 +438,9 @@ def _box_observation(
 ) -> BoxObservation:
     """A capture given in memory as the picking file reader resolves one (a segment id
     numbered as for the file's ``laser.range_sigma_m``)."""
-    from rigcal.calib.lines import LineParams, extract_lines
-    from rigcal.calib.picks import side_observation
+    from rigcal.calib.box.picks import side_observation
     from rigcal.io.validate import finite_array
+    from rigcal.lines import LineParams, extract_lines
 
     key = f"captures[{i}]"
     scan = _instance(c.scan, Scan, where, f"{key}.scan", "a rigcal.Scan")
@@ -517,7 +517,7 @@ def solve_board(
         seed: RANSAC's seed (``--seed``).
         T_truth: (4, 4) a known T_cam_laser, compared with in the report.
         level: the reduced solve for boards that never tilt
-            (``rigcal.calib.level.LevelPriors``: roll, pitch and camera height priors;
+            (``rigcal.calib.board.level.LevelPriors``: roll, pitch and camera height priors;
             ``--level-prior``), over a session file's ``level:``.
 
     Raises:
@@ -527,8 +527,8 @@ def solve_board(
         CalibrationError: too few captures, boards too alike, no consensus.
     """
     from rigcal.calib import options
-    from rigcal.calib.board_calibrate import calibrate_board, calibrate_board_session
-    from rigcal.calib.level import LevelPriors
+    from rigcal.calib.board.calibrate import calibrate_board, calibrate_board_session
+    from rigcal.calib.board.level import LevelPriors
     from rigcal.io.validate import flag
 
     where = "rigcal.solve_board"
@@ -540,7 +540,7 @@ def solve_board(
         rng_seed = options.SEED.check(seed, where, "seed")
         truth = _truth(T_truth, where)
         if level is not None:
-            _instance(level, LevelPriors, where, "level", "a rigcal.calib.level.LevelPriors")
+            _instance(level, LevelPriors, where, "level", "a rigcal.calib.board.level.LevelPriors")
         if isinstance(captures, (str, os.PathLike)):
             path = _path(captures, where, "captures")
             for key, value in (("camera", camera), ("board", board)):
@@ -589,7 +589,7 @@ def _board_session(
 ) -> Any:
     """A board session from captures in memory, as :func:`read_board_session` builds one
     from a file: each board's pose by PnP on its corners, its plane, the laser returns."""
-    from rigcal.calib.board_session import BoardSession, board_pose, plane_observation
+    from rigcal.calib.board.session import BoardSession, board_pose, plane_observation
     from rigcal.io.validate import finite_array
 
     n = board.width_n * board.height_n

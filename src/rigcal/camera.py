@@ -19,11 +19,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, check_schema_version, load_yaml
 from rigcal.io.validate import is_real
-
-FloatArray = NDArray[np.float64]
 
 CAMERA_SCHEMA_VERSION = 1
 

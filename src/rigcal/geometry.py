@@ -10,10 +10,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
-FloatArray = NDArray[np.float64]
+from rigcal.arrays import FloatArray
 
 
 def se2(pose: FloatArray) -> FloatArray:

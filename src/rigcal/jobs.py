@@ -99,7 +99,7 @@ def solve_files(
 
     Args:
         command: the command line the rig's provenance records.
-        level: the reduced solve's priors (:class:`rigcal.calib.level.LevelPriors`, board
+        level: the reduced solve's priors (:class:`rigcal.calib.board.level.LevelPriors`, board
             sessions only), over the session's ``level:``.
 
     Raises:
@@ -108,8 +108,8 @@ def solve_files(
         CalibrationError: the data cannot determine a calibration.
         OutputError: an output exists and ``force`` is False, or overlaps an input.
     """
-    from rigcal.calib.board_session import is_board_session
-    from rigcal.calib.marker_session import is_marker_session
+    from rigcal.calib.board.session import is_board_session
+    from rigcal.calib.marker.session import is_marker_session
     from rigcal.calib.options import box_settings
     from rigcal.io.files import check_apart, check_folder_writable, check_writable, load_yaml
     from rigcal.rigfile import write_rig
@@ -157,8 +157,8 @@ def solve_files(
             f"--intrinsics-sigma: got {_sigmas(intrinsics_sigma)!r}; the box method does not take the "
             "camera's uncertainty yet (only board sessions, method: board)"
         )
+    from rigcal.calib.box.session import calibrate
     from rigcal.calib.report import report_table
-    from rigcal.calib.session import calibrate
     from rigcal.viz.report_dir import write_box_report
 
     settings = box_settings(
@@ -216,8 +216,8 @@ def _solve_plane(
 ) -> Solved:
     """A board session (``method: board``) or a marker session (``method: marker``): the
     plane method, then the same outputs."""
-    from rigcal.calib.board_calibrate import board_report_table, calibrate_board
-    from rigcal.calib.marker_calibrate import calibrate_marker, marker_report_table
+    from rigcal.calib.board.calibrate import board_report_table, calibrate_board
+    from rigcal.calib.marker.calibrate import calibrate_marker, marker_report_table
     from rigcal.rigfile import write_rig
     from rigcal.viz.report_dir import write_plane_report
 
@@ -290,7 +290,7 @@ def check_rig(
         InputError: not exactly one of picks, session and sequence; a bad value or input.
         OutputError: the log or the plot cannot be written.
     """
-    from rigcal.calib.driftlog import EXIT_CODES, append_record, default_log_path, read_log
+    from rigcal.drift.log import EXIT_CODES, append_record, default_log_path, read_log
     from rigcal.errors import OutputError
     from rigcal.io.files import check_apart, check_writable
     from rigcal.rigfile import read_rig
@@ -331,10 +331,10 @@ def _with_target(
     rig_path: Path, stored: Rig, source: Path, flag: str, level: float, min_captures: int
 ) -> dict[str, Any]:
     """A box or board session's check record."""
-    from rigcal.calib.board_session import is_board_session
-    from rigcal.calib.drift import DriftSettings, check_drift, check_drift_board
-    from rigcal.calib.driftlog import drift_record
-    from rigcal.calib.picks import read_picks
+    from rigcal.calib.board.session import is_board_session
+    from rigcal.calib.box.picks import read_picks
+    from rigcal.drift.log import drift_record
+    from rigcal.drift.target import DriftSettings, check_drift, check_drift_board
     from rigcal.io.files import load_yaml
 
     if stored.covariance is None:
@@ -358,7 +358,7 @@ def _targetless(
     rig_path: Path, stored: Rig, sequence: Path, level: float, progress: Progress | None
 ) -> dict[str, Any]:
     """A drive's targetless check record."""
-    from rigcal.calib.driftlog import targetless_record
+    from rigcal.drift.log import targetless_record
     from rigcal.drift.targetless import TargetlessSettings, check_targetless, same_camera
     from rigcal.localize.streams import open_streams
 

@@ -6,11 +6,9 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
-from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
-
-FloatArray = NDArray[np.float64]
 
 # Order and meaning of the covariance's parameters, written into every rig file.
 COVARIANCE_PARAMETERS = (

@@ -17,11 +17,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rigcal.arrays import MAD_TO_SIGMA, FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_write_text, check_keys, get_float, load_yaml
 from rigcal.io.validate import is_real, real
-
-FloatArray = NDArray[np.float64]
 
 # No scanner steps finer than this (a microradian); a smaller step is a broken file, and
 # its beams' angles would not increase in floating point.
@@ -317,7 +316,7 @@ def mean_scan(scans: list[Scan]) -> Scan:
     med[any_ok] = np.nanmedian(R[:, any_ok], axis=0)
     dev = np.abs(R - med)
     spread = dev[ok & (ok.sum(axis=0) >= 3)]
-    sigma = 1.4826 * float(np.median(spread)) if len(spread) else 0.0
+    sigma = MAD_TO_SIGMA * float(np.median(spread)) if len(spread) else 0.0
     keep = ok & (dev <= max(STILL_OUTLIER_SIGMAS * sigma, STILL_FLOOR_M))
     n = keep.sum(axis=0)
     mean = np.where(n > 0, np.where(keep, R, 0.0).sum(axis=0) / np.maximum(n, 1), np.nan)

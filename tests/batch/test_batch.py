@@ -16,7 +16,7 @@ import yaml
 
 from rigcal.batch.manifest import Item, read_manifest
 from rigcal.batch.runner import BatchSettings, run_batch, run_item
-from rigcal.calib.session import calibrate
+from rigcal.calib.box.session import calibrate
 from rigcal.cli.main import main
 from rigcal.rigfile import write_rig
 from rigcal.sim.box_session import (

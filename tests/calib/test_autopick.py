@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.calib.autopick import PickSettings, auto_pick, pick_file_text
-from rigcal.calib.picks import read_pick_draft, read_picks
+from rigcal.calib.box.autopick import PickSettings, auto_pick, pick_file_text
+from rigcal.calib.box.picks import read_pick_draft, read_picks
 from rigcal.cli.main import main
 from rigcal.errors import InputError
 from rigcal.sim.box_session import SessionSpec, generate_session, write_session

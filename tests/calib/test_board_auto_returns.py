@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigcal.calib.board_detect import board_shape, pick_near_cut
+from rigcal.calib.board.detect import board_shape, pick_near_cut
 from rigcal.calib.intrinsics import Board
 from rigcal.scan import Scan
 

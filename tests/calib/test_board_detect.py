@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.calib.board_detect import board_shape, line_candidates, plane_cut, static_returns
-from rigcal.calib.board_session import read_board_session
+from rigcal.calib.board.detect import board_shape, line_candidates, plane_cut, static_returns
+from rigcal.calib.board.session import read_board_session
 from rigcal.calib.intrinsics import Board
-from rigcal.calib.lines import LineParams, extract_lines
 from rigcal.errors import InputError
+from rigcal.lines import LineParams, extract_lines
 from rigcal.scan import Scan
 from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
 from rigcal.sim.noise import RealisticNoise

@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.calib.board_calibrate import board_report, board_report_table, calibrate_board
-from rigcal.calib.board_session import board_points, board_pose, read_board_session
+from rigcal.calib.board.calibrate import board_report, board_report_table, calibrate_board
+from rigcal.calib.board.plane import PlaneObservation, solve_plane
+from rigcal.calib.board.session import board_points, board_pose, read_board_session
 from rigcal.calib.intrinsics import Board
-from rigcal.calib.lines import LineParams, extract_lines
-from rigcal.calib.plane import PlaneObservation, solve_plane
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R, transform_points
+from rigcal.lines import LineParams, extract_lines
 from rigcal.sim.board_session import BoardSpec, T_cam_board, generate_board_session, write_board_session
 from rigcal.sim.box_session import default_camera
 
@@ -519,7 +519,7 @@ def test_auto_laser_side_finds_every_boards_segment(tmp_path):
     """`laser_side: auto` picks, in every capture, the segment the simulator put on the board."""
     import re
 
-    from rigcal.calib.lines import LineParams, extract_lines
+    from rigcal.lines import LineParams, extract_lines
     from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
 
     sim = generate_board_session(BoardSpec(n_captures=10, seed=5))

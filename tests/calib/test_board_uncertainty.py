@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2, f
 
-from rigcal.calib.board_calibrate import calibrate_board
-from rigcal.calib.board_session import board_pose, plane_observation
-from rigcal.calib.plane import solve_plane
+from rigcal.calib.board.calibrate import calibrate_board
+from rigcal.calib.board.plane import solve_plane
+from rigcal.calib.board.session import board_pose, plane_observation
 from rigcal.calib.spread import few_dof_factor, propagated_covariance
 from rigcal.errors import InputError
 from rigcal.geometry import make_T, rotvec_to_R, tangent_delta

@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigcal.calib.plane import MIN_NORMAL_SPREAD, WEAK_NORMAL_SPREAD, PlaneObservation, weak_normals_warning
+from rigcal.calib.board.plane import (
+    MIN_NORMAL_SPREAD,
+    WEAK_NORMAL_SPREAD,
+    PlaneObservation,
+    weak_normals_warning,
+)
 
 
 def _obs(normals: np.ndarray) -> list[PlaneObservation]:

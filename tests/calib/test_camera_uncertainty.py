@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.calib.board_calibrate import calibrate_board
+from rigcal.calib.board.calibrate import calibrate_board
 from rigcal.camera import intrinsics_covariance, read_intrinsics_covariance
 from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
 from rigcal.sim.boards import solved_camera_model
@@ -75,7 +75,7 @@ def test_a_mrcal_model_carries_its_uncertainty_into_t(sessions, model):
     assert np.linalg.eigvalsh(added)[0] > -1e-15
     shares = np.diag(added) / np.diag(cal.result.covariance)
     assert np.allclose(cam["variance_share"], shares, atol=1e-4)
-    from rigcal.calib.board_calibrate import board_report_table
+    from rigcal.calib.board.calibrate import board_report_table
 
     assert "optimization_inputs" in board_report_table(cal.report)
 

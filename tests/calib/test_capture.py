@@ -12,8 +12,8 @@ import yaml
 from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_typestore
 
+from rigcal.calib.box.picks import read_pick_draft, read_picks
 from rigcal.calib.capture import CaptureSettings, find_still_periods, still_runs
-from rigcal.calib.picks import read_pick_draft, read_picks
 from rigcal.cli.main import main
 from rigcal.errors import InputError
 from rigcal.io.bag import import_bag

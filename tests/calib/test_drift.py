@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rigcal.calib.drift import DriftResult, DriftSettings, check_drift, rig_noise_model
-from rigcal.calib.picks import PickSession
-from rigcal.calib.refine import NoiseModel
-from rigcal.calib.solve import CalibProblem, SolveSettings, solve
+from rigcal.calib.box.picks import PickSession
+from rigcal.calib.box.refine import NoiseModel
+from rigcal.calib.box.solve import CalibProblem, SolveSettings, solve
 from rigcal.camera import Camera
+from rigcal.drift.target import DriftResult, DriftSettings, check_drift, rig_noise_model
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec
 from rigcal.rig import Rig

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from rigcal.calib.drift import DRIFT_LOG_SCHEMA_VERSION, DriftResult
-from rigcal.calib.driftlog import RECORD_KEYS, append_record, default_log_path, drift_record, read_log
+from rigcal.drift.log import RECORD_KEYS, append_record, default_log_path, drift_record, read_log
+from rigcal.drift.target import DRIFT_LOG_SCHEMA_VERSION, DriftResult
 from rigcal.errors import InputError, OutputError
 
 RESIDUAL = {

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.calib.board_calibrate import calibrate_board
-from rigcal.calib.board_session import read_board_session
-from rigcal.calib.plane import capture_line, gross_outliers, solve_plane
+from rigcal.calib.board.calibrate import calibrate_board
+from rigcal.calib.board.plane import capture_line, gross_outliers, solve_plane
+from rigcal.calib.board.session import read_board_session
 from rigcal.geometry import pose_error
 from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
 from rigcal.sim.noise import RealisticNoise

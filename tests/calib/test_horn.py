@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rigcal.calib.horn import horn, horn_batch, horn_batch_compiled, horn_bearings, quaternion_to_R
+from rigcal.calib.box.horn import horn, horn_batch, horn_batch_compiled, horn_bearings, quaternion_to_R
 from rigcal.geometry import random_rotation
 
 REFLECT_Z = np.diag([1.0, 1.0, -1.0])
@@ -206,7 +206,7 @@ def test_quaternion_to_R_conventions():
 
 
 def test_closed_form_symmetric_eigenvalues_match_numpy():
-    from rigcal.calib.horn import sym3_eigvalsh
+    from rigcal.calib.box.horn import sym3_eigvalsh
 
     rng = np.random.default_rng(21)
     A = rng.normal(size=(500, 3, 3))
@@ -363,7 +363,7 @@ def test_compiled_with_two_equal_largest_eigenvalues_is_optimal():
 
 
 def test_jacobi_and_adjugate_eigenvectors():
-    from rigcal.calib.horn import _k_adjugate_column, _k_sym4_det, _k_top_eigenvector_jacobi
+    from rigcal.calib.box.horn import _k_adjugate_column, _k_sym4_det, _k_top_eigenvector_jacobi
 
     rng = np.random.default_rng(37)
     for _ in range(200):

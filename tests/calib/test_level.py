@@ -12,17 +12,17 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.calib.board_calibrate import calibrate_board
-from rigcal.calib.board_session import read_board_session
-from rigcal.calib.intrinsics import Board
-from rigcal.calib.level import (
+from rigcal.calib.board.calibrate import calibrate_board
+from rigcal.calib.board.level import (
     LevelFrame,
     LevelPriors,
     board_vertical,
     level_errors,
     solve_level,
 )
-from rigcal.calib.plane import check_normals
+from rigcal.calib.board.plane import check_normals
+from rigcal.calib.board.session import read_board_session
+from rigcal.calib.intrinsics import Board
 from rigcal.cli.main import main
 from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import make_T
@@ -69,7 +69,7 @@ def test_images_first_names_the_missing_tilt(wall: tuple[Path, np.ndarray], tmp_
 
 
 def test_boards_facing_one_way_are_told_to_turn() -> None:
-    from rigcal.calib.plane import PlaneObservation
+    from rigcal.calib.board.plane import PlaneObservation
 
     n = np.array([0.0, 0.0, 1.0])
     obs = [PlaneObservation(i, f"c{i}", n, 2.0, np.zeros((2, 2))) for i in range(5)]
@@ -307,6 +307,6 @@ def test_api_solve_board_takes_level_priors(wall: tuple[Path, np.ndarray]) -> No
     assert sol.rig.uncertainty["reduced"]["model"] == "level scanner, upright boards"
     assert sol.report["truth"]["nees"] < CHI2_6_999
     with pytest.raises(
-        InputError, match=r"rigcal.solve_board: level: got 'flat'; expected a rigcal.calib.level"
+        InputError, match=r"rigcal.solve_board: level: got 'flat'; expected a rigcal.calib.board.level"
     ):
         rigcal.solve_board(path, level="flat")  # type: ignore[arg-type]

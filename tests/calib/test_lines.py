@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from rigcal.calib.lines import LineParams, Segment, extract_lines, fit_line, segments_table
+from rigcal.lines import LineParams, Segment, extract_lines, fit_line, segments_table
 from rigcal.scan import Scan
 from rigcal.sim.raycast import cast_scan_hits
 
@@ -472,7 +472,7 @@ def test_a_wall_over_the_seam_comes_out_whole(angle_min_rad):
 def test_a_scan_short_of_the_full_circle_is_not_a_ring():
     step = np.radians(0.5)
     scan = Scan.from_uniform(-np.pi, step, np.ones(700), 0.1, 30.0)
-    from rigcal.calib.lines import is_full_circle
+    from rigcal.lines import is_full_circle
 
     assert not is_full_circle(scan)
     assert is_full_circle(Scan.from_uniform(-np.pi, step, np.ones(720), 0.1, 30.0))

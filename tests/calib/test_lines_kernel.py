@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rigcal.calib.lines import LineParams, Segment, extract_lines, is_full_circle, line_labels, return_labels
+from rigcal.lines import LineParams, Segment, extract_lines, is_full_circle, line_labels, return_labels
 from rigcal.scan import Scan, counter_clockwise
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans
 from rigcal.sim.raycast import cast_scan
@@ -156,7 +156,7 @@ def test_full_circle_of_a_uniform_scan_is_decided_as_by_the_median_step(n, extra
 def test_importing_lines_leaves_numba_for_the_first_compiled_call():
     """Calibration and plots import the module without paying for numba."""
     code = (
-        "import sys, numpy as np; from rigcal.calib.lines import extract_lines; "
+        "import sys, numpy as np; from rigcal.lines import extract_lines; "
         "from rigcal.scan import Scan; print('numba' in sys.modules); "
         "a = np.linspace(-1, 1, 200); s = Scan(a, 2 / np.cos(a), 0.1, 30.0); "
         "extract_lines(s, kernel=False); print('numba' in sys.modules); "

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.calib.marker_calibrate import calibrate_marker, weak_views
-from rigcal.calib.marker_session import read_marker_session
+from rigcal.calib.marker.calibrate import calibrate_marker, weak_views
+from rigcal.calib.marker.session import read_marker_session
 from rigcal.calib.report import truth_comparison
 from rigcal.cli.main import main
 from rigcal.errors import CalibrationError, InputError

@@ -14,10 +14,10 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from rigcal.calib.board_calibrate import calibrate_board
-from rigcal.calib.board_session import read_board_session
+from rigcal.calib.board.calibrate import calibrate_board
+from rigcal.calib.board.plane import capture_line, solve_plane
+from rigcal.calib.board.session import read_board_session
 from rigcal.calib.noise import fit_line_robust
-from rigcal.calib.plane import capture_line, solve_plane
 from rigcal.scan import Scan, read_scan, write_scan
 from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
 from rigcal.sim.noise import RealisticNoise

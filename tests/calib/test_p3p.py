@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from rigcal.calib.horn import horn_batch
-from rigcal.calib.p3p import P3PSolutions, p3p, p3p_poses
+from rigcal.calib.box.horn import horn_batch
+from rigcal.calib.box.p3p import P3PSolutions, p3p, p3p_poses
 from rigcal.geometry import make_T, random_rotation, rotvec_to_R
 
 PAIRS = ((0, 1), (0, 2), (1, 2))
@@ -283,7 +283,7 @@ def test_compiled_kernel_matches_the_numpy_reference(seed):
     same order, on generic and degenerate triples. Where two of the points coincide no
     true solution exists and the candidates sit at the acceptance threshold, so there the
     two may keep different ones, each satisfying the distance equations."""
-    from rigcal.calib.p3p import p3p_numpy
+    from rigcal.calib.box.p3p import p3p_numpy
 
     rng = np.random.default_rng(100 + seed)
     y, x = _degenerate_batch(rng) if seed % 2 else random_triples(rng, 2000)[:2]

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.calib.lines import extract_lines
-from rigcal.calib.picks import read_picks
+from rigcal.calib.box.picks import read_picks
 from rigcal.errors import InputError
+from rigcal.lines import extract_lines
 from rigcal.scan import read_scan
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "box-session"
@@ -417,8 +417,8 @@ def test_first_bad_capture_is_the_one_reported(session):
 
 
 def test_laser_range_noise_sets_the_line_thresholds(session):
-    from rigcal.calib.lines import LineParams
-    from rigcal.calib.picks import line_params_for
+    from rigcal.calib.box.picks import line_params_for
+    from rigcal.lines import LineParams
 
     assert line_params_for(session, {}) == LineParams()
     assert line_params_for(session, {"range_sigma_m": 0.02}) == LineParams.for_range_noise(0.02)

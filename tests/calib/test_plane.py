@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigcal.calib.plane import PlaneObservation, closed_form, point_to_plane, solve_plane
+from rigcal.calib.board.plane import PlaneObservation, closed_form, point_to_plane, solve_plane
 from rigcal.errors import CalibrationError
 from rigcal.geometry import pose_error, rotvec_to_R
 from rigcal.sim.box_session import default_T_cam_laser
@@ -179,7 +179,7 @@ def v_target_views(seed: int, n: int = 10, range_sigma_m: float = 0.002, keyed: 
     """n views of a two-faced V (faces at 90 deg through a common edge crossing the scan
     plane), each posed by one PnP whose error (0.3 deg, 3 mm) moves both faces' planes
     together; returns with small range noise, so the shared pose error dominates."""
-    from rigcal.calib.plane import PlaneObservation
+    from rigcal.calib.board.plane import PlaneObservation
 
     rng = np.random.default_rng(seed)
     C = np.diag([np.radians(0.3) ** 2] * 3 + [0.003**2] * 3)
@@ -225,7 +225,7 @@ def test_planes_of_one_pose_are_whitened_together_and_the_covariance_stays_hones
 
 
 def test_joint_covariance_couples_only_planes_of_one_pose():
-    from rigcal.calib.plane import PlaneNoise, _joint_cov, capture_cov, capture_line, pose_units
+    from rigcal.calib.board.plane import PlaneNoise, _joint_cov, capture_cov, capture_line, pose_units
 
     obs = v_target_views(7, n=3)
     assert [list(u) for u in pose_units(obs)] == [[0, 1], [2, 3], [4, 5]]

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import rigcal.calib.ransac as ransac_module
-from rigcal.calib.horn import horn_batch
-from rigcal.calib.p3p import P3PPoses, p3p
-from rigcal.calib.ransac import RansacParams, _iterations_needed, ransac_pose, reprojection_errors
+import rigcal.calib.box.ransac as ransac_module
+from rigcal.calib.box.horn import horn_batch
+from rigcal.calib.box.p3p import P3PPoses, p3p
+from rigcal.calib.box.ransac import RansacParams, _iterations_needed, ransac_pose, reprojection_errors
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError
 from rigcal.geometry import make_T, pose_error, rotvec_to_R
@@ -129,7 +129,7 @@ def test_compiled_poses_leave_ransac_unchanged(monkeypatch, seed, sigma_px, outl
 
 
 def test_compiled_poses_leave_the_box_calibration_unchanged(monkeypatch):
-    from rigcal.calib.solve import CalibProblem, SolveSettings, solve
+    from rigcal.calib.box.solve import CalibProblem, SolveSettings, solve
     from rigcal.sim.box_session import SessionSpec, generate_session, session_observations
 
     sess = generate_session(SessionSpec(n_captures=20, wrong_pick_fraction=0.2, seed=5))

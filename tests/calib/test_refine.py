@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigcal.calib.refine import (
+from rigcal.calib.box.refine import (
     EndpointSet,
     NoiseModel,
     RefineParams,

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from rigcal.calib.refine import NoiseModel, RefineParams
+from rigcal.calib.box.refine import NoiseModel, RefineParams
+from rigcal.calib.box.solve import CalibProblem, SolveSettings, solve
 from rigcal.calib.report import build_report, report_table
-from rigcal.calib.solve import CalibProblem, SolveSettings, solve
 from rigcal.errors import CalibrationError
 from rigcal.geometry import pose_error, tangent_delta
 from rigcal.sim.box_session import SessionSpec, generate_session, session_observations
@@ -128,7 +128,7 @@ def test_correct_picks_stay_inliers_by_their_own_covariance():
     # 40 captures with 20% wrong picks: every correct end must survive the Mahalanobis gate
     # (a fixed pixel threshold would drop far, steep ends whose laser uncertainty projects
     # to several pixels), and every wrong one must be caught.
-    from rigcal.calib.solve import INLIER_GATE_CHI2
+    from rigcal.calib.box.solve import INLIER_GATE_CHI2
 
     sess, prob = problem(SessionSpec(n_captures=40, wrong_pick_fraction=0.2, seed=11))
     res = solve(prob)

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.calib.driftlog import read_log
-from rigcal.calib.session import calibrate
+from rigcal.calib.box.session import calibrate
 from rigcal.cli.main import main
+from rigcal.drift.log import read_log
 from rigcal.rigfile import write_rig
 from rigcal.sim.box_session import (
     SessionSpec,

@@ -6,7 +6,7 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from rigcal.calib.picks import read_picks
+from rigcal.calib.box.picks import read_picks
 from rigcal.calib.truth import read_truth
 from rigcal.cli.main import cli, main
 from rigcal.sim.box_session import default_T_cam_laser

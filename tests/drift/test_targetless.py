@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rigcal.calib.driftlog import read_log
 from rigcal.camera import Camera
 from rigcal.cli.main import main
+from rigcal.drift.log import read_log
 from rigcal.drift.targetless import TargetlessSettings, check_targetless
 from rigcal.geometry import make_T, rotvec_to_R
 from rigcal.localize.streams import open_streams

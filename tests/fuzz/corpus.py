@@ -138,7 +138,7 @@ def build_template(root: Path) -> Path:
 
 def build_new_inputs(root: Path, png: bytes) -> None:
     """Inputs of import-laser, batch and a board session whose first board is a returns file."""
-    from rigcal.calib.board_session import read_board_session
+    from rigcal.calib.board.session import read_board_session
     from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
 
     (root / "laser.txt").write_text(

@@ -146,7 +146,7 @@ def test_camera_reader(valid, tmp_path_factory, data):
 @SETTINGS
 @given(data=st.data())
 def test_picks_reader(valid, tmp_path_factory, data):
-    from rigcal.calib.picks import read_picks
+    from rigcal.calib.box.picks import read_picks
 
     tmp = tmp_path_factory.mktemp("p")
     import shutil

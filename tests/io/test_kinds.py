@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rigcal.calib.picks import read_picks
+from rigcal.calib.box.picks import read_picks
 from rigcal.camera import read_camera
 from rigcal.cli.main import main
 from rigcal.errors import InputError

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from rigcal.calib.lines import extract_lines, return_labels
+from rigcal.lines import extract_lines, return_labels
 from rigcal.localize.icp import OPEN_SIGMA_M, IcpParams, icp, icp_covariance, line_normals
 from rigcal.localize.vo import ScaleEstimate, essential_covariance, run_covariance
 from rigcal.scan import Scan

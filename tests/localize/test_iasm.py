@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from corridor_views import CAM, T_CAM_LASER, corridor, view
 
-from rigcal.calib.lines import extract_lines
+from rigcal.lines import extract_lines
 from rigcal.localize.iasm import (
     IasmParams,
     iasm_step,

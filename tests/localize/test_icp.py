@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from rigcal.calib.lines import extract_lines, return_labels
 from rigcal.geometry import pose_of, se2
+from rigcal.lines import extract_lines, return_labels
 from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, _normals, _point_to_line, icp, line_normals
 from rigcal.localize.odometry import carry_labels, icp_odometry
 from rigcal.scan import Scan

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from rigcal.calib.lines import extract_lines, return_labels
+from rigcal.lines import extract_lines, return_labels
 from rigcal.localize.icp import IcpParams, icp, line_normals
 from rigcal.localize.nearest import Grid
 from rigcal.scan import Scan

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rigcal.calib.lines import line_labels
+from rigcal.lines import line_labels
 from rigcal.localize.icp import IcpParams, icp, line_fits, line_normals
 from rigcal.localize.odometry import carry_labels, icp_odometry
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rigcal.calib.plane import solve_plane
+from rigcal.calib.board.plane import solve_plane
 from rigcal.sim.board_session import BoardSpec, T_cam_board, generate_board_session
 
 
@@ -30,8 +30,8 @@ def test_one_repeat_is_the_session_of_old():
 
 
 def test_repeated_captures_get_one_verdict_in_a_solve():
-    from rigcal.calib.board_session import board_pose, plane_observation
-    from rigcal.calib.lines import extract_lines
+    from rigcal.calib.board.session import board_pose, plane_observation
+    from rigcal.lines import extract_lines
 
     sim = generate_board_session(BoardSpec(n_captures=8, repeats=2, seed=3))
     obs = []

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.calib.board_session import board_points, read_board_session
-from rigcal.calib.lines import LineParams, extract_lines
+from rigcal.calib.board.session import board_points, read_board_session
 from rigcal.calib.truth import read_truth
 from rigcal.camera import read_camera
 from rigcal.errors import OutputError
 from rigcal.geometry import transform_points
+from rigcal.lines import LineParams, extract_lines
 from rigcal.scan import read_scan
 from rigcal.sim.board_session import BoardSpec, T_cam_board, generate_board_session, write_board_session
 from rigcal.sim.box_session import default_T_cam_laser

@@ -8,12 +8,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rigcal.calib.lines import extract_lines
-from rigcal.calib.picks import read_picks
+from rigcal.calib.box.picks import read_picks
 from rigcal.calib.truth import read_truth
 from rigcal.camera import read_camera
 from rigcal.errors import OutputError
 from rigcal.geometry import transform_points
+from rigcal.lines import extract_lines
 from rigcal.scan import read_scan
 from rigcal.sim import box_session
 from rigcal.sim.box_session import (

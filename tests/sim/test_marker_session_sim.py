@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigcal.calib.board_detect import plane_cut
+from rigcal.calib.board.detect import plane_cut
 from rigcal.geometry import transform_points
 from rigcal.sim.marker_session import (
     TEXELS_PER_M,

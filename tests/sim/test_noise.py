@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.calib.board_session import read_board_session
-from rigcal.calib.picks import read_picks
+from rigcal.arrays import MAD_TO_SIGMA
+from rigcal.calib.board.session import read_board_session
+from rigcal.calib.box.picks import read_picks
 from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
 from rigcal.sim.box_session import SessionSpec, generate_session, write_session
 from rigcal.sim.noise import RealisticNoise, realistic_ranges
@@ -26,7 +27,7 @@ def test_range_noise_scatters_14_to_20_mm_with_heavy_tails():
     noise = RealisticNoise(dropout_fraction=0.0, incidence_bias_m=0.0)
     r, hit = realistic_ranges(rng, WALL, a, 30.0, noise)
     err = r - cast_scan(WALL, a, 30.0)
-    robust = 1.4826 * np.median(np.abs(err - np.median(err)))
+    robust = MAD_TO_SIGMA * np.median(np.abs(err - np.median(err)))
     assert 0.014 <= robust <= 0.020
     assert 0.014 <= noise.range_sigma_m <= 0.020
     # A Gaussian puts 0.006 % beyond 4 sigma; Student-t with 4 dof about 1 %.

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigcal.calib.session import calibrate
+from rigcal.calib.box.session import calibrate
 from rigcal.camera import Camera
 from rigcal.scan import Scan
 from rigcal.viz.overlay import draw_overlay
@@ -67,7 +67,7 @@ def test_overlay_has_a_legend_naming_what_is_drawn():
 
 
 def test_board_chart_bars_and_every_returns_distance(tmp_path):
-    from rigcal.calib.board_calibrate import calibrate_board
+    from rigcal.calib.board.calibrate import calibrate_board
     from rigcal.sim.board_session import BoardSpec, generate_board_session, write_board_session
     from rigcal.viz.residual_plot import board_residuals_figure
 

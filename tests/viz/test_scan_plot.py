@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from rigcal.calib.lines import extract_lines
 from rigcal.errors import OutputError
+from rigcal.lines import extract_lines
 from rigcal.scan import Scan
 from rigcal.sim.raycast import cast_scan
 from rigcal.viz.scan_plot import PALETTE, render_scan_segments, scan_figure

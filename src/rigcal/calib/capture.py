@@ -31,12 +31,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
 from rigcal.errors import InputError
 from rigcal.io.sequence import Sequence
 from rigcal.scan import Scan
-
-FloatArray = NDArray[np.float64]
 
 THUMB_WIDTH_PX = 160
 

@@ -32,10 +32,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import CalibrationError, InputError
 from rigcal.io.files import read_text
-
-FloatArray = NDArray[np.float64]
 
 MIN_IMAGES = 3
 # An image whose board has fewer non-outlier corners than this is reported as unusable.

@@ -30,12 +30,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import brentq
 
-from rigcal.calib.lines import fit_line
+from rigcal.arrays import MAD_TO_SIGMA, FloatArray
+from rigcal.lines import fit_line
 
-FloatArray = NDArray[np.float64]
-
-# 1.4826 * MAD is the standard deviation of a normal sample.
-MAD_TO_SIGMA = 1.482602218505602
+# MAD_TO_SIGMA * MAD is the standard deviation of a normal sample.
 # Returns farther than this many robust sigmas from the fitted line are not the target's
 # (mixed pixels at edges, stray returns); 3.5 keeps 99.95 % of normal noise.
 TRIM_SIGMAS = 3.5

@@ -5,7 +5,7 @@
 ``rigcal.solve_board``) checks its keywords with the same objects (their ``check``), so a
 value the command line refuses is refused by the API too, with the same limits.
 :func:`box_settings` turns the box method's options into the solver's
-:class:`~rigcal.calib.solve.SolveSettings` for both.
+:class:`~rigcal.calib.box.solve.SolveSettings` for both.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from rigcal.io.validate import OneOf, Real, Whole
 
 if TYPE_CHECKING:  # the solver is imported where used: ``rigcal --help`` stays instant
-    from rigcal.calib.solve import SolveSettings
+    from rigcal.calib.box.solve import SolveSettings
 
 # How the noise is set: "auto" estimates it from the session and uses the estimates (the
 # values given are reported beside them); "assumed" uses the values given.
@@ -52,9 +52,9 @@ def box_settings(
 ) -> SolveSettings:
     """The box method's solver settings from ``rigcal solve``'s options (checked by the
     caller: click for the command line, the types' ``check`` for the API)."""
-    from rigcal.calib.ransac import RansacParams
-    from rigcal.calib.refine import NoiseModel, RefineParams
-    from rigcal.calib.solve import SolveSettings
+    from rigcal.calib.box.ransac import RansacParams
+    from rigcal.calib.box.refine import NoiseModel, RefineParams
+    from rigcal.calib.box.solve import SolveSettings
 
     return SolveSettings(
         ransac=RansacParams(threshold_px=threshold_px, seed=seed),

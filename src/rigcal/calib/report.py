@@ -13,17 +13,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
-from rigcal.calib.ransac import reprojection_errors
-from rigcal.calib.solve import CalibResult
+from rigcal.arrays import FloatArray
+from rigcal.calib.box.ransac import reprojection_errors
+from rigcal.calib.box.solve import CalibResult
 from rigcal.calib.spread import Sensitivity, Spread, uncertainty_warnings
 from rigcal.geometry import tangent_delta
 
 if TYPE_CHECKING:
     from rigcal.calib.intrinsics import Detections, IntrinsicsResult
 
-FloatArray = NDArray[np.float64]
 
 # Thresholds of the weak-geometry warnings (docs/calibration.md explains each).
 RECOMMENDED_CAPTURES = 8

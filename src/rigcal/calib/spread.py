@@ -31,11 +31,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.geometry import tangent_delta
-
-FloatArray = NDArray[np.float64]
 
 # A spread more than this many times the stated 1-sigma (scale) is warned about.
 SPREAD_WARN_RATIO = 2.0

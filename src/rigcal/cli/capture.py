@@ -144,7 +144,7 @@ def capture(
         for k, c in enumerate(captures)
     ]
     if target is not None:
-        from rigcal.calib.marker_session import capture_markers
+        from rigcal.calib.marker.session import capture_markers
 
         for r in rows:
             r["markers"] = capture_markers(output / "images", str(r["name"]), camera, target)

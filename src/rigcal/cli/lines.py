@@ -31,8 +31,8 @@ def lines(scan: Path, png: Path | None, force: bool, as_json: bool, range_sigma_
       rigcal lines scan.yaml --png lines.png --force
       rigcal lines scan.yaml --json | jq '.[] | select(.length_m > 0.5)'
     """
-    from rigcal.calib.lines import LineParams, extract_lines, segments_table
     from rigcal.io.files import check_writable
+    from rigcal.lines import LineParams, extract_lines, segments_table
     from rigcal.scan import read_scan
 
     if png is not None:

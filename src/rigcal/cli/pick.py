@@ -12,7 +12,7 @@ from rigcal.cli.options import force_option, output_option
 from rigcal.cli.types import Real
 
 if TYPE_CHECKING:
-    from rigcal.calib.autopick import PickRun
+    from rigcal.calib.box.autopick import PickRun
 
 
 @click.command("pick")
@@ -71,8 +71,8 @@ def pick(
       rigcal pick session/picks.yaml -o picks-auto.yaml --json | jq '.captures[] | select(.review)'
       rigcal solve session/picks-auto.yaml -o rig.yaml
     """
-    from rigcal.calib.autopick import PickSettings, auto_pick, pick_file_text
-    from rigcal.calib.picks import read_pick_draft
+    from rigcal.calib.box.autopick import PickSettings, auto_pick, pick_file_text
+    from rigcal.calib.box.picks import read_pick_draft
     from rigcal.errors import CalibrationError
     from rigcal.io.files import atomic_write_text, check_apart, check_writable
     from rigcal.rigfile import read_rig

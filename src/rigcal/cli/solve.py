@@ -184,9 +184,9 @@ def _sigma_list(text: str) -> list[float]:
 
 
 def _level_priors(given: tuple[tuple[str, float, float], ...]) -> Any:
-    """--level-prior's triples as :class:`rigcal.calib.level.LevelPriors` (all three names,
+    """--level-prior's triples as :class:`rigcal.calib.board.level.LevelPriors` (all three names,
     once each, finite values, sigmas > 0)."""
-    from rigcal.calib.level import LevelPriors
+    from rigcal.calib.board.level import LevelPriors
     from rigcal.errors import InputError
 
     names = ("roll_deg", "pitch_deg", "camera_height_m")

@@ -1,2 +1,3 @@
-"""Drift checks that need more than a calibration method: the targetless check of a rig
-from an ordinary drive, built on the localization's laser odometry and IASM's projection."""
+"""Drift checks of a stored rig: against a new box or board session (:mod:`target`), the
+drift log they append to (:mod:`log`), and the targetless check of an ordinary drive
+(:mod:`targetless`), built on the localization's laser odometry and IASM's projection."""

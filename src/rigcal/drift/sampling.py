@@ -26,9 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.jit import njit
-
-FloatArray = NDArray[np.float64]
 
 GRAD_STEP_PX = 0.5
 """Half the span of the central differences, in the stack's pixels."""

@@ -51,17 +51,16 @@ from numpy.typing import NDArray
 from scipy.stats import f as f_dist
 from scipy.stats import ncx2, norm
 
-from rigcal.calib.lines import return_labels
+from rigcal.arrays import FloatArray
 from rigcal.drift.sampling import GREY_SCALE, project_sample
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R, se2
+from rigcal.lines import return_labels
 from rigcal.localize.iasm import snap_to_lines
 from rigcal.localize.icp import line_fits
 from rigcal.localize.odometry import DEGENERATE_BELOW
 from rigcal.localize.streams import Streams, nearest_index, pose_at
 from rigcal.rig import Rig
-
-FloatArray = NDArray[np.float64]
 
 AXES = ("rx", "ry", "rz", "tx", "ty", "tz")
 AXIS_WORDS = (

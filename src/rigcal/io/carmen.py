@@ -34,13 +34,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.validate import parse_real, parse_whole
 from rigcal.io.wheel_odometry import WheelOdometry, checked
 from rigcal.scan import Scan
-
-FloatArray = NDArray[np.float64]
 
 LASER_MESSAGES = ("FLASER", "ROBOTLASER1")
 # Returns at or beyond this are "no return" in FLASER lines (they carry no maximum range).

@@ -29,16 +29,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import inv_T, make_T, rt_from_T
 
 if TYPE_CHECKING:  # the rig is only named here; exports take one built elsewhere
     from rigcal.rig import Rig
 
-FloatArray = NDArray[np.float64]
 
 FORMATS = ("ros", "urdf", "xacro", "kalibr", "mrcal")
 

@@ -35,8 +35,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import read_text
 from rigcal.io.sequence import ImageFrame, write_sequence
@@ -44,8 +44,6 @@ from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.validate import file_inside
 from rigcal.io.wheel_odometry import read_odometry_tum
 from rigcal.scan import Scan
-
-FloatArray = NDArray[np.float64]
 
 # RADLOCC's range unit type for metres (what radlocc_collect writes for ROS scans).
 RADLOCC_METRES = 3.0

@@ -26,9 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-
-FloatArray = NDArray[np.float64]
 
 # The x, y, z of a 2D scan lie in its plane: |z| above this is a 3D cloud or a scan
 # moved into another frame.

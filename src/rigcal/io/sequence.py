@@ -27,15 +27,13 @@ from typing import Any
 
 import numpy as np
 import yaml
-from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text
 from rigcal.io.validate import finite_array, parse_real, real, relative_inside, whole
 from rigcal.io.wheel_odometry import WheelOdometry, odometry_tum, read_odometry_tum
 from rigcal.scan import Scan, counter_clockwise, laser_clockwise
-
-FloatArray = NDArray[np.float64]
 
 SEQUENCE_SCHEMA_VERSION = 1
 # Written when the folder keeps wheel odometry (its ``odometry`` mapping).

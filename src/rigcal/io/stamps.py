@@ -31,9 +31,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-
-FloatArray = NDArray[np.float64]
 
 STAMP_MODES = ("repair", "strict")
 # A stamp moved further than this (s) by the repair is a broken clock, not a glitch.

@@ -15,13 +15,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_write_text, read_text
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -17,12 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.trajectory import Trajectory, read_tum, tum_text
-
-FloatArray = NDArray[np.float64]
 
 # A TUM odometry file is planar: its poses may tilt by at most this (rad) off the floor.
 MAX_TILT_RAD = 0.2

@@ -17,9 +17,9 @@ IASM (:mod:`rigcal.localize.image_matching`).
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
 from rigcal.geometry import make_T, rotvec_to_R, transform_points
 from rigcal.localize.iasm import (
@@ -33,8 +33,6 @@ from rigcal.localize.iasm import (
 )
 from rigcal.localize.patches import sample_patches
 from rigcal.localize.polish import LaserReference, joint_polish
-
-FloatArray = NDArray[np.float64]
 
 
 def homography_predictions(

@@ -38,17 +38,17 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from rigcal.calib.lines import Segment, extract_lines, return_labels
+from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
 from rigcal.geometry import transform_points
 from rigcal.jit import njit
+from rigcal.lines import Segment, extract_lines, return_labels
 from rigcal.localize.icp import line_fits, point_to_point
 from rigcal.localize.nearest import Grid
 from rigcal.localize.patches import sample_patches
 from rigcal.localize.polish import LaserReference, joint_polish
 from rigcal.scan import Scan
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 Gray = NDArray[np.uint8]
 

@@ -44,11 +44,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from rigcal.arrays import MAD_TO_SIGMA, FloatArray
 from rigcal.jit import njit
 from rigcal.localize.nearest import GridArgs, build, knn, knn_one
-
-FloatArray = NDArray[np.float64]
-
 
 # Point-to-point steps before point-to-line, while they still move the scan by more than
 # COARSE_TOLERANCE (m, rad): from a good initial guess one closed-form step is all (more
@@ -603,7 +601,7 @@ def icp_covariance(
 
 def _mad_sigma(r: FloatArray) -> float:
     """1.4826 x the median absolute deviation: a robust 1-sigma."""
-    return 1.4826 * float(np.median(np.abs(r - np.median(r)))) if len(r) else 0.0
+    return MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r)))) if len(r) else 0.0
 
 
 def _residual_sigma(

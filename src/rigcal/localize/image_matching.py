@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.geometry import pose_of, se2
 from rigcal.localize.hiasm import camera_motion, hiasm_step, visual_fallback
 from rigcal.localize.iasm import Frame, IasmParams, Matches, StepResult, iasm_step, make_frame
@@ -34,8 +35,6 @@ from rigcal.localize.polish import LaserReference, joint_polish, keyframe_refere
 from rigcal.localize.streams import Streams, computed_ahead
 from rigcal.localize.tracks import FrameTracks, Tracker, common
 from rigcal.localize.vo import RelativePose, VoParams, planar_motion, relative_pose
-
-FloatArray = NDArray[np.float64]
 
 log = logging.getLogger("rigcal.localize")
 

@@ -43,10 +43,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.geometry import pose_of, se2
 from rigcal.localize.icp import OPEN_SIGMA_M
-
-FloatArray = NDArray[np.float64]
 
 # The paper's fixed covariances (weights="fixed"), as 1-sigma rate noise in the rig's
 # frame: forward (m/s), cross-track (m/s), yaw rate (rad/s); a step over dt seconds has

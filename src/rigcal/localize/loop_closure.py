@@ -55,12 +55,11 @@ from scipy.ndimage import distance_transform_edt, maximum_filter
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from rigcal.arrays import FloatArray
 from rigcal.jit import njit
 from rigcal.localize.icp import IcpParams, icp
 from rigcal.localize.pose_graph import PoseGraph, edge_errors, gtsam_available, optimise
 from rigcal.scan import Scan
-
-FloatArray = NDArray[np.float64]
 
 # A closure edge's weight in the graph of path lengths (a short cut; not 0, which the
 # sparse graph would read as no edge).

@@ -35,10 +35,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.geometry import pose_of, se2
-
-FloatArray = NDArray[np.float64]
-
 
 LOOP_GAP_FRACTION = 0.05
 

@@ -14,12 +14,9 @@ walls: a few of a cell's points are looked at).
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray, IntArray
 from rigcal.jit import njit
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 # Cells are at least this large (m), and the grid has at most MAX_CELLS_PER_SIDE cells a side.
 MIN_CELL_M = 0.1

@@ -1,7 +1,7 @@
 """Laser odometry: ICP between successive scans of a sequence, chained into a trajectory.
 
 Point-to-line ICP takes the model scan's normals from its lines (:mod:`rigcal.localize.icp`).
-The lines are extracted (``rigcal.calib.lines``) on every ``LINES_EVERY``-th scan only (in
+The lines are extracted (``rigcal.lines``) on every ``LINES_EVERY``-th scan only (in
 Python, a return at a time, the extraction cost about as much as the ICP step itself;
 compiled it costs about a tenth of one); the scans between carry them: a return of the
 new scan, moved by the step just estimated into the previous scan's frame, takes the line
@@ -24,9 +24,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from rigcal.calib.lines import Segment, extract_lines, line_labels, return_labels
+from rigcal.arrays import FloatArray, IntArray
 from rigcal.geometry import pose_of, se2
 from rigcal.jit import njit
+from rigcal.lines import Segment, extract_lines, line_labels, return_labels
 from rigcal.localize.icp import (
     MIN_LINE_FRACTION,
     IcpParams,
@@ -38,9 +39,6 @@ from rigcal.localize.icp import (
     pairing_normals,
 )
 from rigcal.scan import Scan
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 LINES_EVERY = 4
 # A carried return lies within this of its line (3 sigma of a Hokuyo-class scanner's

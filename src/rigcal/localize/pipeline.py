@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
 from rigcal.io.trajectory import Trajectory, read_tum
@@ -40,7 +40,6 @@ from rigcal.localize.vo import VoResult, visual_odometry
 
 log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 
 MIN_SCANS = 2
 

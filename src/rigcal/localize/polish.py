@@ -18,16 +18,14 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from rigcal.arrays import MAD_TO_SIGMA, FloatArray
 from rigcal.geometry import pose_of, se2
 from rigcal.localize.icp import pairing_normals
 
 if TYPE_CHECKING:
     from rigcal.localize.iasm import Frame, IasmParams
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -123,7 +121,7 @@ def match_weights(e: FloatArray, c: float) -> FloatArray:
     n = np.linalg.norm(e, axis=1)
     if c <= 0 or len(n) < 8:
         return np.ones(len(n))
-    s = max(1.4826 * float(np.median(n)), 1e-4)
+    s = max(MAD_TO_SIGMA * float(np.median(n)), 1e-4)
     out: FloatArray = 1.0 / np.sqrt(1.0 + (n / (c * s)) ** 2)
     return out
 

@@ -30,9 +30,8 @@ from numpy.typing import NDArray
 from scipy.sparse import csr_matrix, diags
 from scipy.sparse.linalg import spsolve
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-
-FloatArray = NDArray[np.float64]
 
 BACKENDS = ("scipy", "gtsam")
 # The Cauchy kernel's scale (whitened residual) and the iterations at most.

@@ -29,19 +29,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.lines import Segment, extract_lines
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
 from rigcal.io.images import read_grey
 from rigcal.io.sequence import Sequence, read_sequence
 from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
+from rigcal.lines import Segment, extract_lines
 from rigcal.localize.odometry import LASER_ODOMETRY, Odometry, icp_odometry
 from rigcal.localize.tracks import FrameTracks, TrackParams, equalized, track_sequence
 from rigcal.rig import Rig
 from rigcal.rigfile import read_rig
 from rigcal.scan import Scan
 
-FloatArray = NDArray[np.float64]
 Gray = NDArray[np.uint8]
 
 # Decoded images kept (least recently used out first): a whole 10 Hz VGA lap of several

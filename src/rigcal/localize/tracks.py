@@ -44,10 +44,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
 from rigcal.localize.patches import sample_patches
 
-FloatArray = NDArray[np.float64]
 Gray = NDArray[np.uint8]
 
 

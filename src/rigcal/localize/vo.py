@@ -38,13 +38,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import MAD_TO_SIGMA, FloatArray
 from rigcal.camera import Camera
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
 from rigcal.localize.icp import OPEN_SIGMA_M
 from rigcal.localize.patches import sample_patches
 from rigcal.localize.tracks import FrameTracks, common, gain_between
 
-FloatArray = NDArray[np.float64]
 Gray = NDArray[np.uint8]
 
 
@@ -371,7 +371,7 @@ def essential_covariance(
     x1, x2 = _homogeneous(b1), _homogeneous(b2)
     r = _sampson(R, t, x1, x2)
     J, _, _ = _sampson_jacobian(R, t, x1, x2, r)
-    sigma = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), MIN_PIXEL_SIGMA_PX / focal_px)
+    sigma = max(MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r)))), MIN_PIXEL_SIGMA_PX / focal_px)
     out: FloatArray = sigma**2 * np.linalg.pinv(J.T @ J)
     return out
 
@@ -408,7 +408,7 @@ class ScaleEstimate:
         # The agreeing votes: the ``used`` nearest the scale (their median).
         off = np.sort(np.abs(self.per_point - self.scale))[: self.used]
         mad = float(np.median(off)) if len(off) else 0.0
-        return max(1.253 * 1.4826 * mad / np.sqrt(self.used), quantum / np.sqrt(12.0))
+        return max(1.253 * MAD_TO_SIGMA * mad / np.sqrt(self.used), quantum / np.sqrt(12.0))
 
 
 def laser_scale(

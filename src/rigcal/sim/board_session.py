@@ -25,14 +25,15 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from rigcal.calib.board_detect import plane_cut
-from rigcal.calib.board_session import board_points
+from rigcal.arrays import FloatArray
+from rigcal.calib.board.detect import plane_cut
+from rigcal.calib.board.session import board_points
 from rigcal.calib.intrinsics import Board
-from rigcal.calib.lines import LineParams
 from rigcal.camera import Camera
 from rigcal.errors import InputError
 from rigcal.geometry import make_T, rotvec_to_R, transform_points
 from rigcal.io.files import atomic_folder
+from rigcal.lines import LineParams
 from rigcal.scan import Scan, write_scan
 from rigcal.sim.box_session import (
     FACE_TOLERANCE_M,
@@ -46,8 +47,6 @@ from rigcal.sim.box_session import (
 from rigcal.sim.noise import RealisticNoise, realistic_ranges, static_scene
 from rigcal.sim.raycast import beam_angles, cast_scan_hits, noisy_ranges
 from rigcal.sim.render import Room
-
-FloatArray = NDArray[np.float64]
 
 _MAX_ATTEMPTS = 500
 
@@ -380,7 +379,7 @@ def _segments_on(
 ) -> tuple[int, ...] | None:
     """The ids of the segments a user would list for the board (most of their returns
     within 3 sigma of the true cut), if they hold most of the board's returns; else None."""
-    from rigcal.calib.lines import extract_lines
+    from rigcal.lines import extract_lines
     from rigcal.sim.box_session import distance_to_segment
 
     board = board_beams[scan.valid[board_beams]]

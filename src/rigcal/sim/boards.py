@@ -13,10 +13,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
 from rigcal.geometry import inv_T
-
-FloatArray = NDArray[np.float64]
 
 
 def render_board(

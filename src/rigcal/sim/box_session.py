@@ -8,7 +8,7 @@ box's face, and the two box ends picked in the image. Here everything is simulat
    box inside the image, its face seen within about +/-50 deg of incidence);
 2. the scan is ray-cast against the walls and the box's footprint, with Gaussian range
    noise and random dropouts (:mod:`rigcal.sim.raycast`);
-3. the scan's lines are extracted (:func:`rigcal.calib.lines.extract_lines`) and the
+3. the scan's lines are extracted (:func:`rigcal.lines.extract_lines`) and the
    segment lying on the true face is found (if none does, the placement is redrawn);
 4. the true box ends are projected through T_cam_laser and the camera; the picks are those
    pixels plus Gaussian noise, and a chosen fraction of captures get gross pick errors;
@@ -27,22 +27,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
-from rigcal.calib.lines import LineParams, Segment, extract_lines
-from rigcal.calib.picks import BoxObservation, extended_ends, side_observation
+from rigcal.arrays import FloatArray
+from rigcal.calib.box.picks import BoxObservation, extended_ends, side_observation
 from rigcal.camera import Camera
 from rigcal.errors import InputError, OutputError
 from rigcal.geometry import inv_T, make_T, transform_points
 from rigcal.io.files import atomic_folder
+from rigcal.lines import LineParams, Segment, extract_lines
 from rigcal.scan import Scan
 from rigcal.sim.noise import RealisticNoise, realistic_ranges, static_scene
 from rigcal.sim.raycast import beam_angles, cast_scan_hits, noisy_ranges
 from rigcal.sim.render import Room, Scene
 from rigcal.targets.box import FRONT_FACE_SEGMENT, BoxTarget
-
-FloatArray = NDArray[np.float64]
 
 # A laser return belongs to the box face when it lies within this distance of it (or
 # within FACE_TOLERANCE_SIGMAS range sigmas, for noisier scanners).
@@ -568,7 +567,7 @@ def _shifted_inside(camera: Camera, rng: np.random.Generator, px: FloatArray) ->
 def session_observations(
     session: BoxSession, line_params: LineParams | None = None, folder: str | Path | None = None
 ) -> list[BoxObservation]:
-    """The solver's input, exactly as :func:`rigcal.calib.picks.read_picks` would build it
+    """The solver's input, exactly as :func:`rigcal.calib.box.picks.read_picks` would build it
     from the written session, without writing files (for fast Monte-Carlo benchmarks).
 
     Args:

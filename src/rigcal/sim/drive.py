@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.scan import Scan
 from rigcal.sim.raycast import beam_angles, cast_scan, noisy_ranges
@@ -34,8 +35,6 @@ from rigcal.sim.world import World
 if TYPE_CHECKING:
     from rigcal.io.sequence import ImageFrame
     from rigcal.rig import Rig
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

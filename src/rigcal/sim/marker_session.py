@@ -28,8 +28,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from rigcal.calib.board_detect import plane_cut
-from rigcal.calib.marker_session import MARKER_SESSION_SCHEMA_VERSION
+from rigcal.arrays import FloatArray
+from rigcal.calib.board.detect import plane_cut
+from rigcal.calib.marker.session import MARKER_SESSION_SCHEMA_VERSION
 from rigcal.camera import Camera
 from rigcal.errors import InputError, OutputError
 from rigcal.geometry import inv_T, make_T, rotvec_to_R, transform_points
@@ -43,8 +44,6 @@ from rigcal.sim.render import Room, Scene, pixel_bearings, ray_rectangle, render
 from rigcal.sim.textures import MipImage, mips, sample
 from rigcal.sim.world_render import CameraEffects, apply_effects
 from rigcal.targets.marker import MarkerTarget, default_target, face_image, targets_text
-
-FloatArray = NDArray[np.float64]
 
 _MAX_ATTEMPTS = 500
 # The target stands within this bearing of the laser's +x (radians).

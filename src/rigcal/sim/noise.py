@@ -30,10 +30,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.sim.raycast import cast_scan_hits
 from rigcal.sim.render import Room
-
-FloatArray = NDArray[np.float64]
 
 NOISE_MODELS = ("clean", "realistic")
 

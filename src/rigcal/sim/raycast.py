@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-FloatArray = NDArray[np.float64]
+from rigcal.arrays import FloatArray
 
 # Beams closer to parallel with a segment than this (|sin| of the angle between them)
 # graze it and do not return from it.

@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
 from rigcal.geometry import inv_T
 from rigcal.targets.box import BoxTarget
 
-FloatArray = NDArray[np.float64]
 Image = NDArray[np.uint8]
 
 # Surface labels of render_scene's label image.

@@ -30,7 +30,6 @@ from numpy.typing import NDArray
 from rigcal.sim.render import hash01, hue_bgr
 from rigcal.sim.world import World
 
-FloatArray = NDArray[np.float64]
 F32 = NDArray[np.float32]
 Image = NDArray[np.uint8]
 

@@ -20,13 +20,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, check_schema_version, get_float, load_yaml
 from rigcal.io.validate import is_real
-
-FloatArray = NDArray[np.float64]
 
 WORLD_SCHEMA_VERSION = 1
 TEXTURES = ("plain", "posters", "bricks", "doors", "noise", "repeating", "signs")

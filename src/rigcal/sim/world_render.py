@@ -26,12 +26,12 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
 from rigcal.sim.render import pixel_bearings
 from rigcal.sim.textures import WorldTextures, sample, world_textures
 from rigcal.sim.world import World
 
-FloatArray = NDArray[np.float64]
 F32 = NDArray[np.float32]
 Image = NDArray[np.uint8]
 

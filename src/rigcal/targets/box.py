@@ -16,9 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from rigcal.arrays import FloatArray
 
 # Face names, in the order of BoxTarget.faces().
 FACE_NAMES = ("front", "back", "right", "left", "bottom", "top")

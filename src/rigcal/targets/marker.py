@@ -30,12 +30,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import make_T
 from rigcal.io.files import check_keys, load_yaml
 from rigcal.io.validate import real, whole
-
-FloatArray = NDArray[np.float64]
 
 TARGETS_SCHEMA_VERSION = 1
 CORNERS = ("concave", "convex")

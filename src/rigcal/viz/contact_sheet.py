@@ -15,9 +15,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.io.files import atomic_write_bytes
-
-FloatArray = NDArray[np.float64]
 
 TILE_W = 320
 ZOOM = 4

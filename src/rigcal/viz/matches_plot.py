@@ -15,12 +15,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.viz.charts import figure
 
 if TYPE_CHECKING:
     from rigcal.localize.image_matching import StepMatches
 
-FloatArray = NDArray[np.float64]
 
 INLIER = "#28aa28"
 OUTLIER = "#e62828"

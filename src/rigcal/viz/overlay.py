@@ -13,12 +13,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
 from rigcal.geometry import transform_points
 from rigcal.io.files import atomic_write_bytes
 from rigcal.scan import Scan
-
-FloatArray = NDArray[np.float64]
 
 SCAN_BGR = (255, 120, 0)  # blue, as in Fig. 2a
 PICK_BGR = (0, 200, 0)

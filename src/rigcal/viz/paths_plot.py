@@ -15,11 +15,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.viz.charts import METHODS, TRUTH, figure, style
-
-FloatArray = NDArray[np.float64]
 
 # (dash pattern, marker) per method, in order; the markers sit along each path.
 LINES = (("-", "o"), ("--", "s"), ("-.", "^"), (":", "D"), ((0, (5, 1, 1, 1)), "v"), ((0, (1, 2)), "P"))

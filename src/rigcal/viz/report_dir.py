@@ -18,9 +18,9 @@ import yaml
 from rigcal.io.files import atomic_folder, check_folder_writable
 
 if TYPE_CHECKING:
-    from rigcal.calib.board_calibrate import BoardCalibration
-    from rigcal.calib.marker_calibrate import MarkerCalibration
-    from rigcal.calib.session import Calibration
+    from rigcal.calib.board.calibrate import BoardCalibration
+    from rigcal.calib.box.session import Calibration
+    from rigcal.calib.marker.calibrate import MarkerCalibration
 
 
 def _write_texts(tmp: Path, report: dict[str, Any], title: str, table: str) -> None:
@@ -89,8 +89,8 @@ def write_plane_report(
     Raises:
         OutputError: ``folder`` exists and ``force`` is False, or cannot be written.
     """
-    from rigcal.calib.board_calibrate import board_report_table
-    from rigcal.calib.marker_calibrate import MarkerCalibration, marker_report_table
+    from rigcal.calib.board.calibrate import board_report_table
+    from rigcal.calib.marker.calibrate import MarkerCalibration, marker_report_table
     from rigcal.viz.residual_plot import board_residuals_figure
 
     marker = isinstance(cal, MarkerCalibration)

@@ -17,9 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.viz.charts import DRIFTED, OK, figure, style
-
-FloatArray = NDArray[np.float64]
 
 
 def residuals_figure(

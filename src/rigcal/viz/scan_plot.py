@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from rigcal.calib.lines import Segment
 from rigcal.io.files import atomic_write_bytes
+from rigcal.lines import Segment
 from rigcal.scan import Scan
 from rigcal.viz.charts import figure, figure_bytes, style
 

@@ -2,7 +2,7 @@
 
 A common course procedure stands the board upright (against a wall, say) and turns it
 between captures, with the scanner level. Every board normal is then horizontal, and the
-point-on-plane equations of :mod:`rigcal.calib.plane` (n_i^T (R p + t) = d_i) say nothing
+point-on-plane equations of :mod:`rigcal.calib.board.plane` (n_i^T (R p + t) = d_i) say nothing
 about three of T_cam_laser's six degrees of freedom: with n_i and the laser plane both
 perpendicular to the vertical u, a rotation w moves a residual by w . (R p x n_i), and
 R p x n_i is parallel to u, so only the rotation about u (yaw) shows; a translation moves it
@@ -30,7 +30,7 @@ Frames and parameters (docs/calibration.md, "Boards that never tilt"):
   camera sits in the scan plane's axes (observed), h its height above the scan plane
   along the laser's z axis (a prior).
 
-The solve is :mod:`rigcal.calib.plane`'s (each capture reduced to its cut's two ends,
+The solve is :mod:`rigcal.calib.board.plane`'s (each capture reduced to its cut's two ends,
 whitened by the range noise, the board pose's covariance and a per-capture error; the
 robust loss on the data, not on the priors; one verdict per same-pose group; a range bias
 by incidence when asked) on these six parameters plus three prior residuals, so a
@@ -49,8 +49,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from rigcal.calib.noise import CLIP_CHI2, grouped_verdicts
-from rigcal.calib.plane import (
+from rigcal.arrays import FloatArray
+from rigcal.calib.board.plane import (
     LOSS,
     LOSS_SCALE,
     LOSSES,
@@ -68,12 +68,11 @@ from rigcal.calib.plane import (
     same_pose_groups,
     start_noise,
 )
-from rigcal.calib.refine import loss_weights, robust_cost
+from rigcal.calib.box.refine import loss_weights, robust_cost
+from rigcal.calib.noise import CLIP_CHI2, grouped_verdicts
 from rigcal.calib.spread import few_dof_factor
 from rigcal.errors import CalibrationError
 from rigcal.geometry import make_T
-
-FloatArray = NDArray[np.float64]
 
 # The reduced solve needs captures whose normals span the horizontal plane (yaw and the
 # two horizontal translations): the second singular value of the stacked normals, relative
@@ -281,7 +280,7 @@ def solve_level(
         loss: the robust loss on the data (LOSSES); the priors are always quadratic.
 
     Returns:
-        (the result in :func:`rigcal.calib.plane.solve_plane`'s form, its T covariance
+        (the result in :func:`rigcal.calib.board.plane.solve_plane`'s form, its T covariance
         carrying the priors' uncertainty; the reduced solve's own account).
 
     Raises:
@@ -501,7 +500,7 @@ def _robust_level_fit(
     noise: PlaneNoise,
     groups: NDArray[np.int64],
 ) -> tuple[FloatArray, PlaneNoise, NDArray[np.bool_], float]:
-    """As :func:`rigcal.calib.plane._robust_fit`: fit, per-capture error, verdicts by
+    """As :func:`rigcal.calib.board.plane._robust_fit`: fit, per-capture error, verdicts by
     same-pose group, until the verdicts settle. Returns (x, noise, inliers, robust cost)."""
     C = len(observations)
     mask = np.ones(C, dtype=bool)

@@ -18,7 +18,7 @@ are flagged ``ok = False`` rather than given an arbitrary rotation.
 :func:`horn_batch` is vectorised over a batch with ``numpy.linalg.eigh`` and is the
 reference; :func:`horn_batch_compiled` runs the same steps one set at a time in a compiled
 kernel (:mod:`rigcal.jit`), and :func:`horn_bearings` runs that kernel on P3P's solutions
-as they come (depths along bearings), so :func:`rigcal.calib.p3p.p3p_poses` gives the
+as they come (depths along bearings), so :func:`rigcal.calib.box.p3p.p3p_poses` gives the
 RANSAC full poses without a Python step per hypothesis. The kernel takes step 3 as Horn's
 section 4 describes it: N's largest eigenvalue is the largest root of the characteristic
 quartic lambda^4 + c2 lambda^2 + c1 lambda + c0 (c2 = -2 tr(S^T S), c1 = -8 det S,
@@ -40,9 +40,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from rigcal.arrays import FloatArray
 from rigcal.jit import njit
-
-FloatArray = NDArray[np.float64]
 
 # Sets whose second singular value is below this fraction of the first are collinear.
 MIN_SPREAD_RATIO = 1e-3

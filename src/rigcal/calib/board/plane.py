@@ -32,7 +32,7 @@ Every such return, mapped into the camera frame, must lie on the plane (Zhang an
    threshold while it pulls; the explicit verdict is a chi-square
    gate (99.99 %, 2 dof, times the captures' robust scale) on each same-pose group's
    median, so captures taken at one pose share it. The covariance is the box method's
-   (``rigcal.calib.refine``'s tangent space), checked against the spread over captures
+   (``rigcal.calib.box.refine``'s tangent space), checked against the spread over captures
    and the sensitivity to the noise settings (:mod:`rigcal.calib.spread`), and widened
    for the noise scale being estimated from few board poses (F instead of chi-square:
    :func:`rigcal.calib.spread.few_dof_factor`, with 2 dof per pose less the fitted
@@ -54,6 +54,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from rigcal.arrays import FloatArray
+from rigcal.calib.box.refine import loss_weights, robust_cost
 from rigcal.calib.noise import (
     CLIP_CHI2,
     MIN_COS_INCIDENCE,
@@ -68,7 +70,6 @@ from rigcal.calib.noise import (
     range_noise_from_lines,
     robust_scale,
 )
-from rigcal.calib.refine import loss_weights, robust_cost
 from rigcal.calib.spread import (
     Sensitivity,
     Spread,
@@ -80,8 +81,6 @@ from rigcal.calib.spread import (
 )
 from rigcal.errors import CalibrationError
 from rigcal.geometry import make_T, rotvec_to_R
-
-FloatArray = NDArray[np.float64]
 
 MIN_CAPTURES = 5
 # A set of planes whose normals span less than this (smallest singular value of the

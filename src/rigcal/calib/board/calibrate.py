@@ -1,7 +1,7 @@
 """A board session, solved: the plane method from file to rig and report.
 
-The counterpart of :func:`rigcal.calib.session.calibrate` for sessions with
-``method: board`` (:mod:`rigcal.calib.board_session`, :mod:`rigcal.calib.plane`). The
+The counterpart of :func:`rigcal.calib.box.session.calibrate` for sessions with
+``method: board`` (:mod:`rigcal.calib.board.session`, :mod:`rigcal.calib.board.plane`). The
 report has the same shape as the box method's where it can (summary, per capture,
 warnings, truth) with point-to-plane residuals in millimetres.
 """
@@ -14,10 +14,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
-from rigcal.calib.board_session import BoardSession, board_pose, plane_observation, read_board_session
-from rigcal.calib.level import (
+from rigcal.arrays import FloatArray
+from rigcal.calib.board.level import (
     LevelPriors,
     LevelSolution,
     level_errors,
@@ -26,8 +25,7 @@ from rigcal.calib.level import (
     refit_level,
     solve_level,
 )
-from rigcal.calib.noise import corner_sigma_from_rms
-from rigcal.calib.plane import (
+from rigcal.calib.board.plane import (
     LOSS,
     LOSS_SCALE,
     PlaneObservation,
@@ -36,6 +34,8 @@ from rigcal.calib.plane import (
     solve_plane,
     weak_normals_warning,
 )
+from rigcal.calib.board.session import BoardSession, board_pose, plane_observation, read_board_session
+from rigcal.calib.noise import corner_sigma_from_rms
 from rigcal.calib.report import (
     MAX_SIGMA_ROTATION_DEG,
     MAX_SIGMA_TRANSLATION_MM,
@@ -51,8 +51,6 @@ from rigcal.calib.truth import read_truth
 from rigcal.errors import InputError
 from rigcal.rig import Rig
 from rigcal.rigfile import provenance
-
-FloatArray = NDArray[np.float64]
 
 DEFAULT_RANGE_SIGMA_M = 0.01
 # Fewer board poses than this are too few to trust the noise estimated from them (the
@@ -86,7 +84,7 @@ def calibrate_board(
 ) -> BoardCalibration:
     """Read a board session, solve, build the report and the rig
     (:func:`calibrate_board_session` on the file's session); ``level`` (over the session's
-    ``level:``) asks for the reduced solve of :mod:`rigcal.calib.level`.
+    ``level:``) asks for the reduced solve of :mod:`rigcal.calib.board.level`.
 
     Raises:
         InputError: a bad session or truth file.
@@ -138,8 +136,8 @@ def calibrate_board_session(
             corner noise from the corners' reprojection residuals, and uses the estimates
             (the assumed values are reported beside them); "assumed" uses the assumed ones.
         range_bias: estimate the scanner's range bias by incidence with the pose
-            (:class:`rigcal.calib.plane.PlaneNoise`).
-        loss: the refinement's robust loss (``rigcal.calib.plane.LOSSES``; "linear" for
+            (:class:`rigcal.calib.board.plane.PlaneNoise`).
+        loss: the refinement's robust loss (``rigcal.calib.board.plane.LOSSES``; "linear" for
             plain least squares).
         intrinsics_sigma: 1-sigma of each of the camera's intrinsics (its lens model's
             order: fx, fy, cx, cy, distortion...), independent; their effect on the board
@@ -477,7 +475,7 @@ def board_report(
 
 
 def _screen_warnings(session: BoardSession, result: PlaneResult, screened: Any) -> list[str]:
-    """One warning per capture set aside before the solve (:func:`rigcal.calib.plane.gross_outliers`),
+    """One warning per capture set aside before the solve (:func:`rigcal.calib.board.plane.gross_outliers`),
     saying "millimetres read as metres?" when its returns are 500-2000 times as far as its
     board is from the camera."""
     out = []

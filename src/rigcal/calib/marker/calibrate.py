@@ -3,7 +3,7 @@
 Each kept capture gives two planes (the target's faces, each posed by the camera from its
 own ChArUco corners, so the two poses' errors are independent) and the laser's returns on
 each, the two arms of a V. The solve is the board method's
-(:func:`rigcal.calib.plane.solve_plane`: point-to-plane on each face's cut, whitened by the
+(:func:`rigcal.calib.board.plane.solve_plane`: point-to-plane on each face's cut, whitened by the
 range noise, the face pose's covariance and a per-face error estimated from the data,
 Cauchy loss, chi-square verdicts, covariance, leave-one-out spread, sensitivity), on the
 2 x captures face observations. The apex, where the V's arms meet in the scan, must lie
@@ -25,9 +25,9 @@ from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
-from numpy.typing import NDArray
 
-from rigcal.calib.board_calibrate import (
+from rigcal.arrays import FloatArray
+from rigcal.calib.board.calibrate import (
     DEFAULT_RANGE_SIGMA_M,
     NOISE_MODES,
     RIG_RESIDUAL_KEYS,
@@ -35,14 +35,12 @@ from rigcal.calib.board_calibrate import (
     board_report_table,
     plane_rig,
 )
-from rigcal.calib.marker_session import MarkerSession, fit_scale, read_marker_session, with_corner_scale
+from rigcal.calib.board.plane import LOSS, PlaneResult, solve_plane
+from rigcal.calib.marker.session import MarkerSession, fit_scale, read_marker_session, with_corner_scale
 from rigcal.calib.noise import corner_sigma_from_rms
-from rigcal.calib.plane import LOSS, PlaneResult, solve_plane
 from rigcal.calib.report import noise_section
 from rigcal.calib.truth import read_truth
 from rigcal.rig import Rig
-
-FloatArray = NDArray[np.float64]
 
 # The views are weak in a direction when the face normals' (laser frame) smallest
 # singular value is under this share of the largest.
@@ -75,7 +73,7 @@ def calibrate_marker(
 ) -> MarkerCalibration:
     """Read a marker session, detect, solve, build the report and the rig.
 
-    The arguments are :func:`rigcal.calib.board_calibrate.calibrate_board`'s; with
+    The arguments are :func:`rigcal.calib.board.calibrate.calibrate_board`'s; with
     ``noise="auto"`` the corner noise is estimated from the faces' corner reprojection
     residuals and the range noise from the cuts' line fits.
 

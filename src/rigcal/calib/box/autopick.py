@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.lines import Segment, extract_lines
-from rigcal.calib.picks import (
+from rigcal.arrays import MAD_TO_SIGMA, FloatArray
+from rigcal.calib.box.picks import (
     BoxObservation,
     CaptureDraft,
     PickDraft,
@@ -39,12 +39,11 @@ from rigcal.calib.picks import (
     resolve_capture,
     side_ends,
 )
-from rigcal.calib.solve import CalibProblem, CalibResult, SolveSettings, solve
+from rigcal.calib.box.solve import CalibProblem, CalibResult, SolveSettings, solve
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import transform_points
-
-FloatArray = NDArray[np.float64]
+from rigcal.lines import Segment, extract_lines
 
 # Profile sampling step along the search line, px.
 STEP_PX = 0.25
@@ -399,7 +398,7 @@ def height_fraction(
     off = np.abs(f - mean) * h
     if float(np.median(off)) > HEIGHT_AGREEMENT_PX:
         return None
-    keep = off <= max(3.0 * 1.4826 * float(np.median(off)), HEIGHT_AGREEMENT_PX)
+    keep = off <= max(3.0 * MAD_TO_SIGMA * float(np.median(off)), HEIGHT_AGREEMENT_PX)
     return weighted(keep)
 
 

@@ -23,13 +23,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from rigcal.arrays import FloatArray
+from rigcal.calib.box.picks import BoxObservation
 from rigcal.calib.options import LOSSES
-from rigcal.calib.picks import BoxObservation
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError
 from rigcal.geometry import make_T, rotvec_to_R
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """From a picking file to a rig and its report: the library side of ``rigcal solve``.
 
-Data flow: picking file -> :func:`rigcal.calib.picks.read_picks` -> :class:`CalibProblem`
--> :func:`rigcal.calib.solve.solve` -> report + :class:`~rigcal.rig.Rig` -> writers
+Data flow: picking file -> :func:`rigcal.calib.box.picks.read_picks` -> :class:`CalibProblem`
+-> :func:`rigcal.calib.box.solve.solve` -> report + :class:`~rigcal.rig.Rig` -> writers
 (:mod:`rigcal.viz.report_dir`, :func:`rigcal.rigfile.write_rig`).
 """
 
@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from rigcal.calib.picks import BoxObservation, PickSession, read_picks
+from rigcal.calib.box.picks import BoxObservation, PickSession, read_picks
+from rigcal.calib.box.solve import CalibProblem, CalibResult, FloatArray, SolveSettings, solve
 from rigcal.calib.report import build_report, rig_uncertainty
-from rigcal.calib.solve import CalibProblem, CalibResult, FloatArray, SolveSettings, solve
 from rigcal.calib.truth import read_truth
 from rigcal.rig import Rig
 from rigcal.rigfile import provenance
@@ -75,7 +75,7 @@ def calibrate_session(
 
     The laser's range noise is ``range_sigma_m`` when given, else the session's
     ``laser.range_sigma_m`` when it has one, else ``settings.noise.range_sigma_m`` (the
-    board method's rule, :func:`rigcal.calib.board_calibrate.calibrate_board`).
+    board method's rule, :func:`rigcal.calib.board.calibrate.calibrate_board`).
 
     Args:
         inputs, base: the files the session was read from and their folder, for the

@@ -16,12 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.p3p import p3p_poses
+from rigcal.arrays import FloatArray
+from rigcal.calib.box.p3p import p3p_poses
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError
 from rigcal.geometry import make_T
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ dropped; the others are numbered 0, 1, ... in beam order: these are the ids that
 ``rigcal lines`` prints and picking files use. This module is shared with the
 localization methods (IASM's line-angle histogram, H-IASM's plane normals).
 
-The steps run in one compiled kernel (:mod:`rigcal.calib.lines_kernel`), a loop per
+The steps run in one compiled kernel (:mod:`rigcal.lines_kernel`), a loop per
 return on index ranges; the Python functions below (``extract_lines(...,
 kernel=False)``) are its reference, which the tests hold it to (the same segments, fits
 to 1e-12).
@@ -41,13 +41,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from rigcal.arrays import MAD_TO_SIGMA, FloatArray, IntArray
 from rigcal.scan import Scan
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-
 
 # An end return farther than this many robust sigmas (median absolute residual * 1.4826,
 # at least END_TRIM_FLOOR_M) from the line of the other returns is trimmed.
@@ -237,7 +234,7 @@ def extract_lines(scan: Scan, params: LineParams | None = None, *, kernel: bool 
     Args:
         scan: the scan; invalid returns are skipped.
         params: thresholds (defaults: :class:`LineParams`).
-        kernel: run the compiled kernel (:mod:`rigcal.calib.lines_kernel`); False runs the Python
+        kernel: run the compiled kernel (:mod:`rigcal.lines_kernel`); False runs the Python
             region growing, its reference in the tests.
 
     Returns:
@@ -419,7 +416,7 @@ def _trim_ends(pts: FloatArray, members: IntArray, params: LineParams) -> IntArr
             centroid, direction, _ = fit_line(pts[rest])
             q = pts[rest] - centroid
             d = np.abs(q[:, 0] * direction[1] - q[:, 1] * direction[0])
-            sigma = max(1.4826 * float(np.median(d)), END_TRIM_FLOOR_M)
+            sigma = max(MAD_TO_SIGMA * float(np.median(d)), END_TRIM_FLOOR_M)
             if _distance(pts[members[end]], centroid, direction) > END_TRIM_SIGMAS * sigma:
                 members = rest
                 trimmed = True
@@ -467,8 +464,8 @@ def _extract_compiled(pts: FloatArray, params: LineParams) -> tuple[IntArray, In
     """The kept segments of the returns ``pts`` (N, 2), in the order the growing finds them:
     (members, bounds, fits): segment k's returns are ``members[bounds[k]:bounds[k + 1]]``
     (indices into pts), ``fits[k]`` its centroid, direction, start, end (2 each) and RMS
-    residual, as :func:`_segment` computes them (:mod:`rigcal.calib.lines_kernel`)."""
-    from rigcal.calib.lines_kernel import extract_kernel  # imports numba: on first use
+    residual, as :func:`_segment` computes them (:mod:`rigcal.lines_kernel`)."""
+    from rigcal.lines_kernel import extract_kernel  # imports numba: on first use
 
     n = len(pts)
     members = np.empty(n, dtype=np.int64)

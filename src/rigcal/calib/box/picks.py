@@ -17,14 +17,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.lines import LineParams, Segment, extract_lines, fit_line
+from rigcal.arrays import FloatArray
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, get_float, load_yaml
 from rigcal.io.validate import is_real, path_component
+from rigcal.lines import LineParams, Segment, extract_lines, fit_line
 from rigcal.scan import Scan, mean_scan, read_scan
-
-FloatArray = NDArray[np.float64]
 
 PICKS_SCHEMA_VERSION = 2
 # The forms of a capture's laser_side (segments: a side line extraction split, schema 2).

@@ -14,18 +14,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.noise import (
-    RangeNoise,
-    connected_groups,
-    fit_line_robust,
-    grouped_verdicts,
-    matching_noise,
-    range_noise_from_lines,
-)
-from rigcal.calib.options import NOISE_MODES
-from rigcal.calib.picks import BoxObservation
-from rigcal.calib.ransac import RansacParams, RansacResult, ransac_pose, reprojection_errors
-from rigcal.calib.refine import (
+from rigcal.arrays import FloatArray
+from rigcal.calib.box.picks import BoxObservation
+from rigcal.calib.box.ransac import RansacParams, RansacResult, ransac_pose, reprojection_errors
+from rigcal.calib.box.refine import (
     EndpointSet,
     NoiseModel,
     RefineParams,
@@ -35,6 +27,15 @@ from rigcal.calib.refine import (
     refine_pose,
     whitening,
 )
+from rigcal.calib.noise import (
+    RangeNoise,
+    connected_groups,
+    fit_line_robust,
+    grouped_verdicts,
+    matching_noise,
+    range_noise_from_lines,
+)
+from rigcal.calib.options import NOISE_MODES
 from rigcal.calib.spread import (
     Sensitivity,
     Spread,
@@ -45,8 +46,6 @@ from rigcal.calib.spread import (
 )
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError
-
-FloatArray = NDArray[np.float64]
 
 MIN_CAPTURES = 3
 # After refinement a box end is an inlier when its squared whitened reprojection error
@@ -106,7 +105,7 @@ class CalibResult:
     Attributes:
         problem: the input.
         T_cam_laser: (4, 4) refined pose.
-        covariance: (6, 6) see :mod:`rigcal.calib.refine`.
+        covariance: (6, 6) see :mod:`rigcal.calib.box.refine`.
         measurements: every box end (inliers and outliers).
         inliers: (P,) bool over ``measurements``.
         errors_px: (P,) reprojection error of every box end under the final pose.

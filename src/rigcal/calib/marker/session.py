@@ -4,7 +4,7 @@ A marker session file (docs/formats/marker-session.md) names the camera, the tar
 (:mod:`rigcal.targets.marker`) and per capture a scan and an image. :func:`read_marker_session`
 validates it and, for every capture:
 
-1. reads the target in the image (:func:`rigcal.calib.marker_detect.detect_target`): the
+1. reads the target in the image (:func:`rigcal.calib.marker.detect.detect_target`): the
    target's pose by one PnP over the ChArUco corners of both faces, with its covariance,
    each face's own pose checked against it; markers of other targets are ignored and
    counted;
@@ -12,11 +12,11 @@ validates it and, for every capture:
    captures, straight pieces of the moving returns that meet at an apex are candidate
    Vs, a RANSAC over captures and candidate arms gives a rough pose, and each face's
    returns are re-picked near the cut its pose predicts, as the board method re-picks a
-   board's (:mod:`rigcal.calib.board_detect`).
+   board's (:mod:`rigcal.calib.board.detect`).
 
 A capture whose target pose is not read, or whose V is not found in the scan, is set
 aside with the reason, and the others go on. Each kept capture becomes two
-:class:`~rigcal.calib.plane.PlaneObservation` (one per face, named ``CAPTURE/FACE``) that
+:class:`~rigcal.calib.board.plane.PlaneObservation` (one per face, named ``CAPTURE/FACE``) that
 share the target's pose (``pose_key``: the plane solve whitens them together, their errors
 from the one pose being one error), so the board method's solve takes them as they are.
 
@@ -35,11 +35,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.board_detect import BoardShape
-from rigcal.calib.board_session import plane_observation
-from rigcal.calib.lines import LineParams, fit_line
-from rigcal.calib.marker_detect import MIN_FACE_CORNERS, TargetView, detect_target
-from rigcal.calib.picks import (
+from rigcal.arrays import MAD_TO_SIGMA, FloatArray
+from rigcal.calib.board.detect import BoardShape
+from rigcal.calib.board.plane import MIN_CAPTURES, PlaneObservation
+from rigcal.calib.board.session import plane_observation
+from rigcal.calib.box.picks import (
     capture_name,
     check_image,
     check_unique_names,
@@ -47,14 +47,13 @@ from rigcal.calib.picks import (
     read_session_header,
     session_file,
 )
-from rigcal.calib.plane import MIN_CAPTURES, PlaneObservation
+from rigcal.calib.marker.detect import MIN_FACE_CORNERS, TargetView, detect_target
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError, InputError
 from rigcal.io.files import check_keys, get_float
+from rigcal.lines import LineParams, fit_line
 from rigcal.scan import Scan
 from rigcal.targets.marker import MarkerTarget, read_targets
-
-FloatArray = NDArray[np.float64]
 
 MARKER_SESSION_SCHEMA_VERSION = 2
 # Versions read: 2 adds a capture's ``scans`` (the scans of one still moment).
@@ -365,7 +364,7 @@ def _returns_scale(
 ) -> float:
     """The factor on the faces' distances that best puts the found returns on their
     planes (:func:`fit_scale` from the closed-form pose at ``scale``)."""
-    from rigcal.calib.plane import closed_form
+    from rigcal.calib.board.plane import closed_form
 
     planes = [_plane(views[i][k]) for i, pair in enumerate(found) if pair is not None for k in range(2)]
     points = [p for pair in found if pair is not None for p in pair]
@@ -384,7 +383,7 @@ def _misfit(views: list[Any], found: list[tuple[FloatArray, FloatArray] | None],
     """How far the found returns lie off their faces' planes, under the closed-form pose
     with the faces' distances scaled by ``scale``, in units of what the returns' own
     scatter allows (at most 1: as expected; see :func:`_find_v`)."""
-    from rigcal.calib.plane import closed_form, point_to_plane
+    from rigcal.calib.board.plane import closed_form, point_to_plane
 
     obs: list[PlaneObservation] = []
     for i, pair in enumerate(found):
@@ -414,20 +413,20 @@ def _search_v(
 ) -> list[tuple[FloatArray, FloatArray] | None]:
     """The V search with the faces' distances scaled by ``scale``.
 
-    1. The moving returns (:func:`rigcal.calib.board_detect.static_returns` drops the
+    1. The moving returns (:func:`rigcal.calib.board.detect.static_returns` drops the
        background seen in most captures) give straight pieces as long as a cut of a face
-       may be (:func:`rigcal.calib.board_detect.line_candidates`); two pieces whose lines
+       may be (:func:`rigcal.calib.board.detect.line_candidates`); two pieces whose lines
        cross within APEX_GAP_M of an end of each, at more than MIN_V_DEG, are a candidate
        V, its left arm (as seen from the sensors: the larger bearing) on the left face.
        A capture with no candidate V is set aside.
     2. A RANSAC over captures and their candidate arms (each face of each capture one
-       plane, :func:`rigcal.calib.plane.candidate_consensus`) gives a rough T_cam_laser.
+       plane, :func:`rigcal.calib.board.plane.candidate_consensus`) gives a rough T_cam_laser.
     3. Each face's returns are re-picked near the cut its pose predicts under that pose
-       (:func:`rigcal.calib.board_detect.pick_near_cut`), the pose re-solved by the closed
+       (:func:`rigcal.calib.board.detect.pick_near_cut`), the pose re-solved by the closed
        form and the re-picking repeated with a tighter window, as for a board.
     """
-    from rigcal.calib import board_detect as bd
-    from rigcal.calib.plane import candidate_consensus, closed_form
+    from rigcal.calib.board import detect as bd
+    from rigcal.calib.board.plane import candidate_consensus, closed_form
 
     static = bd.static_returns(scans)
     moving = [sc.valid & ~st for sc, st in zip(scans, static, strict=True)]
@@ -542,7 +541,7 @@ def _scatter(point_sets: list[FloatArray]) -> float:
     for p in point_sets:
         if len(p) >= 3:
             c, u, _ = fit_line(p)
-            sig.append(1.4826 * float(np.median(np.abs((p - c) @ np.array([-u[1], u[0]])))))
+            sig.append(MAD_TO_SIGMA * float(np.median(np.abs((p - c) @ np.array([-u[1], u[0]])))))
     return float(np.median(sig)) if sig else 0.0
 
 

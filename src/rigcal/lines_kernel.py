@@ -1,14 +1,14 @@
-"""The compiled line extraction: :func:`rigcal.calib.lines.extract_lines`' steps in numba
+"""The compiled line extraction: :func:`rigcal.lines.extract_lines`' steps in numba
 kernels (:mod:`rigcal.jit`), combined least-squares region growing after the paper's
-Section III-B as :mod:`rigcal.calib.lines` describes it.
+Section III-B as :mod:`rigcal.lines` describes it.
 
 The runs of returns without gaps, the region growing (:func:`grow`, with the running
 sums of an O(1) refit per return), the joining of pieces of one line (:func:`merge`),
 the end trimming (:func:`trim`), the size filter and the segments' fits
 (:func:`fit`) run in one call (:func:`extract_kernel`) over index ranges into buffers,
-each step following its Python reference in :mod:`rigcal.calib.lines`, which the tests
-hold it to. A module apart so that importing :mod:`rigcal.calib.lines` (calibration,
-plots) does not import numba; :func:`rigcal.calib.lines.extract_lines` imports it on
+each step following its Python reference in :mod:`rigcal.lines`, which the tests
+hold it to. A module apart so that importing :mod:`rigcal.lines` (calibration,
+plots) does not import numba; :func:`rigcal.lines.extract_lines` imports it on
 its first compiled call.
 """
 
@@ -17,12 +17,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 
+from rigcal.arrays import MAD_TO_SIGMA, FloatArray, IntArray
 from rigcal.jit import njit
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 @njit
@@ -293,7 +290,7 @@ def trim(
             cx, cy, ux, uy, _ = fit(pts, idx, ra, rb)
             for k in range(ra, rb):
                 scratch[k - ra] = abs((pts[idx[k], 0] - cx) * uy - (pts[idx[k], 1] - cy) * ux)
-            sigma = max(1.4826 * np.median(scratch[: rb - ra]), floor_m)
+            sigma = max(MAD_TO_SIGMA * np.median(scratch[: rb - ra]), floor_m)
             e = idx[a] if end == 0 else idx[b - 1]
             if abs((pts[e, 0] - cx) * uy - (pts[e, 1] - cy) * ux) > sigmas * sigma:
                 a, b = ra, rb

@@ -10,7 +10,7 @@ stay put while the board moves. Two things set the board apart from the room:
    when known, else the printed pattern's) are the candidates (:func:`line_candidates`).
 2. **Its plane is known from the image.** The board's pose by PnP fixes where the board
    must cut the scan plane once a rough T_cam_laser is known. A RANSAC over captures and
-   candidates gives that rough pose (:func:`rigcal.calib.plane.candidate_consensus`);
+   candidates gives that rough pose (:func:`rigcal.calib.board.plane.candidate_consensus`);
    then each capture's returns are re-picked near the cut its board's pose predicts
    (:func:`predicted_cut`, :func:`pick_near_cut`: the returns that fit one line within the
    range noise, over the cut's full extent), the pose is re-solved from them by the closed
@@ -33,16 +33,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from rigcal.arrays import MAD_TO_SIGMA, FloatArray, IntArray
+from rigcal.calib.board.plane import PlaneObservation, candidate_consensus, closed_form
 from rigcal.calib.intrinsics import Board
-from rigcal.calib.lines import LineParams, extract_lines, fit_line, ring_order
 from rigcal.calib.noise import MIN_COS_INCIDENCE, TRIM_SIGMAS, canonical_order, fit_line_robust, robust_scale
-from rigcal.calib.plane import PlaneObservation, candidate_consensus, closed_form
 from rigcal.errors import CalibrationError
 from rigcal.geometry import inv_T, transform_points
+from rigcal.lines import LineParams, extract_lines, fit_line, ring_order
 from rigcal.scan import Scan
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 # A return is background when another capture has a return within STATIC_TOLERANCE_M
 # (or STATIC_SIGMAS range sigmas) of it, within STATIC_BEAMS beams of its angle, in at
@@ -204,7 +202,7 @@ def line_candidates(
     a candidate.
 
     The returns are taken round the scan as line extraction takes them (a 360-degree scan
-    from its widest gap, :func:`rigcal.calib.lines.extract_lines`), so a board behind the
+    from its widest gap, :func:`rigcal.lines.extract_lines`), so a board behind the
     scanner, over the seam between its last and first beams, is one cluster, and the same
     returns with the angles written -pi..pi or 0..2pi give the same candidates.
 
@@ -275,7 +273,7 @@ def _line_inliers(p: FloatArray, seed_mask: NDArray[np.bool_]) -> NDArray[np.boo
     fitted to ``p[seed_mask]``."""
     c, u, _ = fit_line(p[seed_mask])
     r = np.abs((p - c) @ np.array([-u[1], u[0]]))
-    sigma = 1.4826 * float(np.median(r[seed_mask]))
+    sigma = MAD_TO_SIGMA * float(np.median(r[seed_mask]))
     out: NDArray[np.bool_] = r < max(LINE_TOLERANCE_M, LINE_SIGMAS * sigma)
     return out
 
@@ -476,7 +474,7 @@ def _noise_scale(point_sets: Sequence[Sequence[FloatArray]]) -> float:
         for p in cands:
             if len(p) >= 3:
                 c, u, _ = fit_line(p)
-                sigmas.append(1.4826 * float(np.median(np.abs((p - c) @ np.array([-u[1], u[0]])))))
+                sigmas.append(MAD_TO_SIGMA * float(np.median(np.abs((p - c) @ np.array([-u[1], u[0]])))))
     return float(np.median(sigmas)) if sigmas else 0.0
 
 

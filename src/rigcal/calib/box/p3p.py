@@ -19,15 +19,15 @@ Where Lambda Twist solves a 2x2 quadratic for a ratio, we parametrise the plane 
 orthonormal basis and solve for an angle, which has no division by a small plane
 coefficient; the cubic's real roots come from batched companion-matrix eigenvalues, and
 of them the one whose plane pair is best conditioned is used. The pose follows from the
-camera-frame points lambda_i y_i by Horn's method (:mod:`rigcal.calib.horn`), as the
+camera-frame points lambda_i y_i by Horn's method (:mod:`rigcal.calib.box.horn`), as the
 paper's step 6 does.
 
 :func:`p3p` runs a compiled kernel (:mod:`rigcal.jit`) that solves one triple at a time
 in scalar arithmetic, with no temporary arrays; :func:`p3p_numpy`, the same steps
 vectorised over the batch in numpy, is its reference in the tests. :func:`p3p_poses`
-follows the kernel with Horn's method compiled (:func:`rigcal.calib.horn.horn_bearings`)
+follows the kernel with Horn's method compiled (:func:`rigcal.calib.box.horn.horn_bearings`)
 on each solution, so a batch of triples gives full poses without a Python step per solution; its
-reference is :func:`p3p` followed by :func:`rigcal.calib.horn.horn_batch`.
+reference is :func:`p3p` followed by :func:`rigcal.calib.box.horn.horn_batch`.
 """
 
 from __future__ import annotations
@@ -37,10 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from rigcal.calib.horn import MIN_SPREAD_RATIO, horn_bearings
+from rigcal.arrays import FloatArray
+from rigcal.calib.box.horn import MIN_SPREAD_RATIO, horn_bearings
 from rigcal.jit import njit
-
-FloatArray = NDArray[np.float64]
 
 _GAUSS_NEWTON_STEPS = 2
 # A solution is kept when its three distance equations hold to this relative error.
@@ -93,11 +92,11 @@ def p3p_poses(bearings: ArrayLike, points: ArrayLike, min_spread_ratio: float = 
         bearings: (n, 3, 3) unit bearings, camera frame: ``bearings[k, i]`` sees point i.
         points: (n, 3, 3) the points, metres, in any frame.
         min_spread_ratio: Horn's collinearity flag, as in
-            :func:`rigcal.calib.horn.horn_batch`.
+            :func:`rigcal.calib.box.horn.horn_batch`.
 
     Returns:
         Every real solution with positive depths and its pose: the same as :func:`p3p`
-        followed by :func:`rigcal.calib.horn.horn_batch` (to ~1e-15 on well-spread sets).
+        followed by :func:`rigcal.calib.box.horn.horn_batch` (to ~1e-15 on well-spread sets).
     """
     y = np.ascontiguousarray(bearings, dtype=float)
     x = np.ascontiguousarray(points, dtype=float)

@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rigcal.calib.drift import DRIFT_LOG_SCHEMA_VERSION, DriftResult
+from rigcal.drift.target import DRIFT_LOG_SCHEMA_VERSION, DriftResult
 from rigcal.errors import InputError, OutputError
 from rigcal.io.files import read_text, sha256_file
 

@@ -17,7 +17,7 @@ The target is rigid, so its pose is read from every corner of every face at once
 through the full lens model over all the corners found, each placed in the target frame
 by the targets file's geometry (:meth:`rigcal.targets.marker.MarkerTarget.T_target_face`),
 with its covariance from the corners' reprojection Jacobian
-(:func:`rigcal.calib.board_session.points_pose`). Both faces' planes follow from that one
+(:func:`rigcal.calib.board.session.points_pose`). Both faces' planes follow from that one
 pose, so a capture in which one face shows only a few corners (or none) still gives both,
 and the corners of the two faces, far apart and on two planes, fix the pose better than
 either face alone. A face with corners enough for its own pose is checked against the
@@ -35,12 +35,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rigcal.calib.board_session import points_pose
+from rigcal.arrays import MAD_TO_SIGMA, FloatArray
+from rigcal.calib.board.session import points_pose
 from rigcal.camera import Camera
 from rigcal.geometry import inv_T
 from rigcal.targets.marker import MarkerTarget, charuco_board
-
-FloatArray = NDArray[np.float64]
 
 # The target's pose is read when this many ChArUco corners are found over its faces (PnP
 # on fewer is fragile), not all on one row or one column of one face; a face gets a pose
@@ -250,7 +249,7 @@ def robust_pose(
         return None
     T, cov, rms = points_pose(camera, P, px, corner_sigma_px, T_init)
     err = np.linalg.norm(camera.project(P @ T[:3, :3].T + T[:3, 3]) - px, axis=1)
-    keep = err <= max(OUTLIER_FLOOR_PX, OUTLIER_SIGMAS * 1.4826 * float(np.median(err)))
+    keep = err <= max(OUTLIER_FLOOR_PX, OUTLIER_SIGMAS * MAD_TO_SIGMA * float(np.median(err)))
     if not keep.all():
         if not enough(keep):
             return None

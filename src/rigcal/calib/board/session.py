@@ -5,8 +5,8 @@ A board session file (docs/formats/board-session.md) is a picking file with
 a scan, the board's corners in the image (listed, or detected in an image), and the
 board's returns in the scan (a segment id as ``rigcal lines`` prints it, several ids for
 a cut that line extraction split, two laser points, or ``auto``: found by
-:mod:`rigcal.calib.board_detect`). :func:`read_board_session` validates it and turns each capture into a
-:class:`~rigcal.calib.plane.PlaneObservation`: the board's pose by PnP from its corners
+:mod:`rigcal.calib.board.detect`). :func:`read_board_session` validates it and turns each capture into a
+:class:`~rigcal.calib.board.plane.PlaneObservation`: the board's pose by PnP from its corners
 (through the full lens model: bearings, then PnP on normalised coordinates), its plane in
 the camera frame, and the pose's covariance from the corners' reprojection Jacobian.
 """
@@ -18,13 +18,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
-from rigcal.calib.board_detect import BoardNotFoundError, BoardShape, board_shape, detect_board_returns
-from rigcal.calib.intrinsics import Board, detect_corners, read_corners_vnl
-from rigcal.calib.level import LevelPriors, board_vertical, check_level_geometry
-from rigcal.calib.lines import LineParams
-from rigcal.calib.picks import (
+from rigcal.arrays import FloatArray
+from rigcal.calib.board.detect import BoardNotFoundError, BoardShape, board_shape, detect_board_returns
+from rigcal.calib.board.level import LevelPriors, board_vertical, check_level_geometry
+from rigcal.calib.board.plane import PlaneObservation, check_normals
+from rigcal.calib.box.picks import (
     beams_near,
     capture_name,
     check_image,
@@ -35,14 +34,13 @@ from rigcal.calib.picks import (
     segments_by_ids,
     session_file,
 )
-from rigcal.calib.plane import PlaneObservation, check_normals
+from rigcal.calib.intrinsics import Board, detect_corners, read_corners_vnl
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
 from rigcal.io.files import check_keys, get_float
+from rigcal.lines import LineParams
 from rigcal.scan import Scan, read_scan
-
-FloatArray = NDArray[np.float64]
 
 BOARD_SESSION_SCHEMA_VERSION = 1
 # Versions read: 2 adds board.size_m and laser_side: {segments: [...]}; 3 adds level: (the
@@ -69,7 +67,7 @@ class BoardSession:
             board poses under other intrinsics).
         skipped: the captures left out because their image shows no board (with
             ``skip_unseen_boards``), each as "name (image): why".
-        level: the priors of the reduced solve (:mod:`rigcal.calib.level`: the session's
+        level: the priors of the reduced solve (:mod:`rigcal.calib.board.level`: the session's
             ``level:`` or the caller's), None for the full 6-dof solve.
     """
 

@@ -6,7 +6,7 @@ rig in up to two ways:
 1. **Residual test.** The new box ends are projected with the stored T_cam_laser. Their
    reprojection errors e (2P,) should be explained by the measurement noise and by the
    stored calibration's own uncertainty: e ~ N(0, S), S = S_pix + J C_rig J^T, with S_pix
-   the ends' pixel covariance (:func:`rigcal.calib.refine.pixel_covariance`), J the
+   the ends' pixel covariance (:func:`rigcal.calib.box.refine.pixel_covariance`), J the
    derivative of the pixels with respect to the pose and C_rig the rig's covariance. So
    e^T S^-1 e is chi-square with 2P degrees of freedom when nothing moved.
 2. **Pose test** (when the new session has at least ``min_captures_for_solve`` captures):
@@ -28,11 +28,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.stats import chi2
 
-from rigcal.calib.picks import PickSession
-from rigcal.calib.refine import (
+from rigcal.arrays import FloatArray
+from rigcal.calib.box.picks import PickSession
+from rigcal.calib.box.refine import (
     EndpointSet,
     NoiseModel,
     endpoint_set,
@@ -40,12 +40,10 @@ from rigcal.calib.refine import (
     whitened_residuals_and_jacobian,
     whitening,
 )
-from rigcal.calib.solve import INLIER_GATE_CHI2, CalibProblem, CalibResult, SolveSettings, solve
+from rigcal.calib.box.solve import INLIER_GATE_CHI2, CalibProblem, CalibResult, SolveSettings, solve
 from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import tangent_delta
 from rigcal.rig import Rig
-
-FloatArray = NDArray[np.float64]
 
 DRIFT_LOG_SCHEMA_VERSION = 2
 
@@ -172,7 +170,7 @@ def check_drift_board(
     method the rig was solved with: what is tested is the rig's T_cam_laser.
 
     1. **Residual test.** The cut ends of each capture's board returns (the solve's
-       reduction of a capture to its line, :class:`rigcal.calib.plane.CaptureLine`) lie on
+       reduction of a capture to its line, :class:`rigcal.calib.board.plane.CaptureLine`) lie on
        the board's plane (from the corners' PnP) under the stored T: their point-to-plane
        distances e (2C,) ~ N(0, S), S = the capture covariances of the fresh solve's noise
        model (range noise, the board poses' covariances, the per-capture error) + J C_rig
@@ -183,7 +181,7 @@ def check_drift_board(
         InputError: a bad session file; the rig has no covariance.
         CalibrationError: the session cannot be solved (too few captures, parallel boards).
     """
-    from rigcal.calib.board_calibrate import calibrate_board
+    from rigcal.calib.board.calibrate import calibrate_board
 
     settings = settings or DriftSettings()
     if rig.covariance is None:
@@ -217,7 +215,7 @@ def check_drift_board(
 
 def _board_residual_test(rig: Rig, fresh: Any, observations: Any) -> dict[str, Any]:
     """Point-to-plane distances of the kept captures' cut ends under the stored T."""
-    from rigcal.calib.plane import capture_cov, end_residuals
+    from rigcal.calib.board.plane import capture_cov, end_residuals
 
     T = rig.T_cam_laser
     noise = fresh.noise
