@@ -138,7 +138,14 @@ def test_solve_board_in_memory_equals_the_file_solve_and_the_command_line(tmp_pa
     from_file = rigcal.solve_board(session, T_truth=sim.T_cam_laser)
     np.testing.assert_array_equal(mem.rig.T_cam_laser, from_file.rig.T_cam_laser)
     np.testing.assert_array_equal(mem.rig.covariance, from_file.rig.covariance)
-    assert plain(mem.report) == plain(from_file.report)
+    # The same report, but for the note on the camera's uncertainty, which names the camera
+    # file where there is one (the in-memory camera has none).
+    mem_doc, file_doc = plain(mem.report), plain(from_file.report)
+    mem_cam, file_cam = mem_doc["uncertainty"].pop("camera"), file_doc["uncertainty"].pop("camera")
+    assert mem_doc == file_doc
+    assert mem_cam["included"] is file_cam["included"] is False
+    assert "camera.yaml" in file_cam["note"]
+    assert "--intrinsics-sigma" in mem_cam["note"]
     # The data's own noise estimates and the uncertainty block, as the command line's.
     assert mem.report["noise"]["range_sigma_m"]["estimated"] is not None
     assert "spread" in mem.report["uncertainty"] or mem.report["uncertainty"]
@@ -147,7 +154,9 @@ def test_solve_board_in_memory_equals_the_file_solve_and_the_command_line(tmp_pa
     cli = json.loads(capsys.readouterr().out)
     assert cli["rig"]["T_cam_laser"] == mem.rig.T_cam_laser.tolist()
     assert cli["rig"]["covariance"] == mem.rig.covariance.tolist()
-    for key in ("summary", "noise", "uncertainty", "per_capture", "warnings"):
+    assert cli["uncertainty"]["camera"] == file_cam
+    assert cli["uncertainty"] == mem_doc["uncertainty"] | {"camera": file_cam}
+    for key in ("summary", "noise", "per_capture", "warnings"):
         assert cli[key] == plain(mem.report[key]), key
     # --noise assumed and --no-range-bias, from the API.
     fixed = rigcal.solve_board(caps, camera, board, range_sigma_m=sigma, noise="assumed", range_bias=False)

@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 
 import rigcal
 from rigcal.calib import options
+from rigcal.cli.types import option_type
 from rigcal.errors import ArgumentError, InputError
 
 # The suite's hypothesis profile (tests/conftest.py), without the function-scoped
@@ -78,7 +79,7 @@ def test_a_keyword_is_refused_exactly_when_the_option_refuses_its_text(rule, dat
     strategy = {id(r): s for r, s in OPTION_RULES}[id(rule)]
     value = data.draw(st.one_of(strategy, st.integers(min_value=-5, max_value=5)))
     try:
-        cli: Any = rule.convert(repr(value), None, None)
+        cli: Any = option_type(rule).convert(repr(value), None, None)
     except click.BadParameter:
         cli = None
     message = ""
