@@ -43,15 +43,23 @@ N_ITEMS = 4
 
 
 def other_python() -> str | None:
-    """An interpreter of the other supported Python minor version, or None."""
-    named = os.environ.get("RIGCAL_OTHER_PYTHON") or shutil.which(f"python{OTHER_MINOR}")
-    if named:
-        return named
+    """An interpreter of the other supported Python minor version that runs, or None (a
+    pyenv shim of a version that is installed but not selected is on PATH yet fails)."""
+    candidates = [os.environ.get("RIGCAL_OTHER_PYTHON"), shutil.which(f"python{OTHER_MINOR}")]
     if shutil.which("pyenv"):
         done = subprocess.run(["pyenv", "prefix", OTHER_MINOR], capture_output=True, text=True, check=False)
-        exe = Path(done.stdout.strip().splitlines()[-1] if done.stdout.strip() else "") / "bin" / "python3"
-        if done.returncode == 0 and exe.is_file():
-            return str(exe)
+        if done.returncode == 0 and done.stdout.strip():
+            candidates.append(str(Path(done.stdout.strip().splitlines()[-1]) / "bin" / "python3"))
+    want = tuple(int(x) for x in OTHER_MINOR.split("."))
+    for exe in filter(None, candidates):
+        done = subprocess.run(
+            [exe, "-c", "import sys; print(*sys.version_info[:2])"],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        if done.returncode == 0 and tuple(int(x) for x in done.stdout.split()) == want:
+            return exe
     return None
 
 
