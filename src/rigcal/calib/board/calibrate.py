@@ -36,6 +36,7 @@ from rigcal.calib.board.plane import (
 )
 from rigcal.calib.board.session import BoardSession, board_pose, plane_observation, read_board_session
 from rigcal.calib.noise import corner_sigma_from_rms
+from rigcal.calib.options import NOISE_MODES
 from rigcal.calib.report import (
     MAX_SIGMA_ROTATION_DEG,
     MAX_SIGMA_TRANSLATION_MM,
@@ -56,7 +57,6 @@ DEFAULT_RANGE_SIGMA_M = 0.01
 # Fewer board poses than this are too few to trust the noise estimated from them (the
 # covariance is widened for it at any size; below this the report says so in words).
 MIN_TRUSTED_POSES = 8
-NOISE_MODES = ("auto", "assumed")
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,6 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.calib.board.calibrate import (
     DEFAULT_RANGE_SIGMA_M,
-    NOISE_MODES,
     RIG_RESIDUAL_KEYS,
     board_report,
     board_report_table,
@@ -38,6 +37,7 @@ from rigcal.calib.board.calibrate import (
 from rigcal.calib.board.plane import LOSS, PlaneResult, solve_plane
 from rigcal.calib.marker.session import MarkerSession, fit_scale, read_marker_session, with_corner_scale
 from rigcal.calib.noise import corner_sigma_from_rms
+from rigcal.calib.options import NOISE_MODES
 from rigcal.calib.report import noise_section
 from rigcal.calib.truth import read_truth
 from rigcal.rig import Rig
