@@ -13,6 +13,7 @@ the camera frame, and the pose's covariance from the corners' reprojection Jacob
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -118,7 +119,7 @@ class BoardSessionFile:
     shape: BoardShape
     laser: dict[str, Any]
     params: LineParams
-    captures: tuple[tuple[dict[str, Any], str], ...]
+    captures: tuple[tuple[Mapping[str, Any], str], ...]
     corners_vnl: dict[str, FloatArray] | None
     corner_sigma_px: float
     level: LevelPriors | None
@@ -129,8 +130,8 @@ class _SeenBoard(NamedTuple):
     """A capture whose corners were found: its index in the file, entry and name, the
     board's pose by PnP, the pose's (6, 6) covariance and the corners' RMS error (px)."""
 
-    index: int
-    entry: dict[str, Any]
+    capture: int
+    entry: Mapping[str, Any]
     name: str
     T_cam_board: FloatArray
     pose_cov: FloatArray
@@ -179,7 +180,7 @@ def read_board_session(
             "--skip-unseen-boards` leaves them out with a warning)"
         )
     none = np.zeros((0, 2))
-    planes = [(s.name, plane_observation(s.index, s.name, s.T_cam_board, s.pose_cov, none)) for s in seen]
+    planes = [(s.name, plane_observation(s.capture, s.name, s.T_cam_board, s.pose_cov, none)) for s in seen]
     _check_board_normals(f.path, planes, f.level)
     obs, scans, auto = _laser_returns(f, seen, files)
     if auto:
@@ -338,7 +339,7 @@ def _auto_returns(
     """The ``laser_side: auto`` captures' returns, detected (:func:`_detect`): the full
     solve only, and every capture's scan is needed."""
     path = f.path
-    index = [s.index for s in seen]
+    index = [s.capture for s in seen]
     if f.level is not None:
         raise InputError.at(
             path,
