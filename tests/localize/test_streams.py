@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rigcal.errors import InputError
-from rigcal.io.sequence import ImageFrame, write_sequence
+from rigcal.recordings.sequence import ImageFrame, write_sequence
 from rigcal.localize.streams import nearest_index, open_streams, pose_at
 from rigcal.rig import Rig
 from rigcal.rigfile import rig_to_text

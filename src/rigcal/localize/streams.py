@@ -33,7 +33,7 @@ from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
 from rigcal.io.images import read_grey
-from rigcal.io.sequence import Sequence, read_sequence
+from rigcal.recordings.sequence import Sequence, read_sequence
 from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
 from rigcal.lines import Segment, extract_lines
 from rigcal.localize.odometry import LASER_ODOMETRY, Odometry, icp_odometry

@@ -420,7 +420,7 @@ def _size_m(path: Path, b: Any, board: Board, version: int) -> tuple[float, floa
 def _listed_returns(path: Path, key: str, side: Any, files: list[Path], version: int) -> FloatArray:
     """The board's returns listed in a text file (``laser_side: {returns_file: FILE}``), as
     MATLAB laser-camera toolboxes save a capture's points on the board."""
-    from rigcal.io.laser_text import read_board_points
+    from rigcal.recordings.laser_text import read_board_points
 
     if len(side) != 1:
         raise InputError.at(path, key, side, "{returns_file: FILE} alone")
