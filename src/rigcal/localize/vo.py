@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from rigcal.arrays import MAD_TO_SIGMA, FloatArray
 from rigcal.camera import Camera
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
-from rigcal.localize.icp import OPEN_SIGMA_M
+from rigcal.localize.icp_covariance import OPEN_SIGMA_M
 from rigcal.localize.patches import sample_patches
 from rigcal.localize.tracks import FrameTracks, common, gain_between
 
