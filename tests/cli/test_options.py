@@ -107,3 +107,11 @@ def test_the_board_commands_share_one_board_declaration():
     assert isinstance(options["charuco"].type, GridSize)
     assert options["square_m"].required
 
+
+def test_every_simulate_command_has_the_seed_and_json_options():
+    for name, cmd in COMMANDS.items():
+        if name.startswith("simulate "):
+            opts = {o.name: o for o in cmd.params}
+            assert opts["seed"].default == 0, name
+            assert opts["seed"].type.min == 0, name
+            assert opts["as_json"].is_flag, name
