@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from rigcal.io.images import read_grey
-from rigcal.io.sequence import read_sequence
+from rigcal.recordings.sequence import read_sequence
 from rigcal.sim.drive import DriveSpec, write_drive
 from rigcal.sim.world import BUILTIN
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from rigcal.io.images import read_grey
-from rigcal.io.sequence import read_sequence
+from rigcal.recordings.sequence import read_sequence
 
 FORMATS = ("png", "png-grey", "jpg")
 

@@ -31,10 +31,10 @@ from kiss_icp.config.parser import KISSConfig
 from kiss_icp.kiss_icp import KissICP
 
 from rigcal.geometry import pose_of, se2
-from rigcal.io.carmen import read_carmen
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import icp_odometry
+from rigcal.recordings.carmen import read_carmen
 from rigcal.scan import Scan
 
 FloatArray = np.ndarray

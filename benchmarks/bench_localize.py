@@ -149,12 +149,12 @@ def kernels(compiled: bool) -> Iterator[None]:
     IASM's laser metric and its SAD matching use their compiled kernels or, when not
     ``compiled``, their numpy / Python references (the ``kernel`` keyword's default)."""
     from rigcal import lines
-    from rigcal.localize import iasm, icp, odometry
+    from rigcal.localize import iasm, icp, line_normals, odometry
 
     functions = (
         icp.icp,
-        icp.line_fits,
-        icp.line_normals,
+        line_normals.line_fits,
+        line_normals.line_normals,
         odometry.icp_odometry,
         odometry.carry_labels,
         lines.extract_lines,

@@ -34,13 +34,13 @@ from pathlib import Path
 
 import numpy as np
 
-from rigcal.io.carmen import carmen_odometry, read_carmen
 from rigcal.io.wheel_odometry import laser_motions
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.loop_closure import LoopParams, close_loops
 from rigcal.localize.metrics import anchored, evaluate, relation_error, rpe_pairs
 from rigcal.localize.odometry import icp_odometry
 from rigcal.localize.pose_graph import gtsam_available
+from rigcal.recordings.carmen import carmen_odometry, read_carmen
 
 
 def _row(name: str, est: np.ndarray, gt: np.ndarray, speed: str) -> str:

@@ -3,7 +3,7 @@ sparse simulated loops.
 
 Killian Court (the rtb-data package's g2o file, 3873 ROBOTLASER1 scans, ~0.5 m apart):
 imported as ``rigcal import-carmen`` does (the g2o's sequential edges as the odometry,
-rigcal.io.carmen.carmen_odometry); each method is scored against the g2o's vertices (the
+rigcal.recordings.carmen.carmen_odometry); each method is scored against the g2o's vertices (the
 SLAM-optimised poses) by ATE (evo's, SE(2)-aligned) and the relation error of Kuemmerle
 et al. 2009 over consecutive scans (mean +- std, m and deg; rigcal.localize.metrics.
 relation_error; the relations are the optimised poses' own, not the hand-verified
@@ -32,12 +32,12 @@ from pathlib import Path
 import numpy as np
 
 from rigcal.geometry import pose_of, se2
-from rigcal.io.carmen import carmen_odometry, read_carmen
 from rigcal.io.wheel_odometry import laser_motions
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.loop_closure import close_loops
 from rigcal.localize.metrics import anchored, evaluate, relation_error
 from rigcal.localize.odometry import icp_odometry
+from rigcal.recordings.carmen import carmen_odometry, read_carmen
 
 FloatArray = np.ndarray
 
@@ -89,9 +89,9 @@ def killian(n: int | None) -> None:
 
 
 def simulated(rate_hz: float) -> None:
-    from rigcal.io.sequence import read_sequence
     from rigcal.io.trajectory import read_tum
     from rigcal.localize.pipeline import planar_at
+    from rigcal.recordings.sequence import read_sequence
     from rigcal.sim.drive import DriveSpec
     from rigcal.sim.world import world_named
 

@@ -12,10 +12,17 @@ The Python API (docs/api.md)::
 
 The names are loaded on first use, so ``import rigcal`` (and the ``rigcal`` command's
 ``--help``) stays fast.
+
+``rigcal.localize`` is both the subpackage and :func:`rigcal.api.localize`: importing a
+submodule makes Python bind the subpackage to the name, so this package makes the
+subpackage callable as it is bound, and a call runs the function (the subpackage itself
+knows nothing of the API above it).
 """
 
 from __future__ import annotations
 
+import sys
+import types
 from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
@@ -96,3 +103,22 @@ def __getattr__(name: str) -> Any:
 
 def __dir__() -> list[str]:
     return sorted(__all__)
+
+
+class _CallableLocalize(types.ModuleType):
+    """``rigcal.localize``, the subpackage, as the API's function."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return __getattr__("localize")(*args, **kwargs)
+
+
+class _Package(types.ModuleType):
+    """This package: the subpackage ``rigcal.localize`` is made callable as Python binds it."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name == "localize" and isinstance(value, types.ModuleType):
+            value.__class__ = _CallableLocalize
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

@@ -818,7 +818,7 @@ def read_scans(sequence: str | Path) -> tuple[Scan, ...]:
         ArgumentError: ``sequence`` is not a path.
         InputError: a missing or invalid sequence.
     """
-    from rigcal.io.sequence import read_sequence
+    from rigcal.recordings.sequence import read_sequence
 
     with _arguments():
         folder = _path(sequence, "rigcal.read_scans", "sequence")

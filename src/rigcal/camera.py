@@ -217,7 +217,7 @@ def read_camera(path: str | Path) -> Camera:
     Raises:
         InputError: missing, unreadable or invalid file.
     """
-    from rigcal.io import camera_formats
+    from rigcal import camera_formats
 
     path = Path(path)
     if path.suffix == ".cameramodel":

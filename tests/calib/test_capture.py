@@ -16,8 +16,8 @@ from rigcal.calib.box.picks import read_pick_draft, read_picks
 from rigcal.calib.capture import CaptureSettings, find_still_periods, still_runs
 from rigcal.cli.main import main
 from rigcal.errors import InputError
-from rigcal.io.bag import import_bag
-from rigcal.io.sequence import read_sequence
+from rigcal.recordings.bag import import_bag
+from rigcal.recordings.sequence import read_sequence
 from rigcal.rig import Rig
 from rigcal.rigfile import write_rig
 from rigcal.sim.box_session import SessionSpec, generate_session

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 from rigcal.cli.main import main
-from rigcal.io.sequence import read_sequence
+from rigcal.recordings.sequence import read_sequence
 
 
 def test_json_names_the_folder_the_format_and_the_counts(tmp_path, capsys):

@@ -4,6 +4,7 @@ a result is written."""
 from __future__ import annotations
 
 import click
+import pytest
 
 from rigcal.cli.main import cli
 
@@ -85,3 +86,32 @@ def test_option_types_apply_the_rules_the_api_checks():
             except click.BadParameter:
                 by_option = None
             assert by_option == by_rule, (rule, v)
+
+
+def test_a_grid_size_is_two_whole_numbers_from_2():
+    from rigcal.cli.types import GridSize
+
+    size = GridSize()
+    assert size.convert("9x6", None, None) == (9, 6)
+    assert size.convert((9, 6), None, None) == (9, 6)
+    for bad in ("9", "1x6", "9x1", "9x6x2", "9X6", "-9x6", "123456x2", ""):
+        with pytest.raises(click.BadParameter, match="expected WxH"):
+            size.convert(bad, None, None)
+
+
+def test_the_board_commands_share_one_board_declaration():
+    from rigcal.cli.types import GridSize
+
+    options = {o.name: o for o in COMMANDS["intrinsics"].params}
+    assert isinstance(options["board"].type, GridSize)
+    assert isinstance(options["charuco"].type, GridSize)
+    assert options["square_m"].required
+
+
+def test_every_simulate_command_has_the_seed_and_json_options():
+    for name, cmd in COMMANDS.items():
+        if name.startswith("simulate "):
+            opts = {o.name: o for o in cmd.params}
+            assert opts["seed"].default == 0, name
+            assert opts["seed"].type.min == 0, name
+            assert opts["as_json"].is_flag, name

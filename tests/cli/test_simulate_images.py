@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from rigcal.cli.main import cli
 from rigcal.io.images import read_grey
-from rigcal.io.sequence import read_sequence
+from rigcal.recordings.sequence import read_sequence
 
 ARGS = [
     "simulate",

@@ -68,7 +68,7 @@ class Outcome:
 def build_template(root: Path) -> Path:
     """Small valid inputs for every command, in ``root`` (a few seconds, once)."""
     from rigcal.cli.main import main
-    from rigcal.io.sequence import ImageFrame, write_sequence
+    from rigcal.recordings.sequence import ImageFrame, write_sequence
     from rigcal.scan import Scan, write_scan
     from rigcal.sim.box_session import SessionSpec, generate_session, write_session
 
@@ -1306,13 +1306,13 @@ def smaller_cases() -> list[Case]:
         )
 
     def no_images(p: Path) -> None:
-        from rigcal.io.sequence import read_sequence, write_sequence
+        from rigcal.recordings.sequence import read_sequence, write_sequence
 
         seq = read_sequence(p / "seq")
         write_sequence(p / "noimg", "room", list(seq.scans), [], None, {"made": "corpus"})
 
     def one_image(p: Path) -> None:
-        from rigcal.io.sequence import ImageFrame, read_sequence, write_sequence
+        from rigcal.recordings.sequence import ImageFrame, read_sequence, write_sequence
 
         seq = read_sequence(p / "seq")
         frame = ImageFrame(10.05, "f000.png", (p / "seq" / "images" / "f000.png").read_bytes())

@@ -195,7 +195,7 @@ tokens = st.sampled_from(
 @SETTINGS
 @given(lines=st.lists(st.lists(tokens, min_size=1, max_size=30), min_size=1, max_size=6))
 def test_carmen_reader(tmp_path_factory, lines):
-    from rigcal.io.carmen import read_carmen
+    from rigcal.recordings.carmen import read_carmen
 
     p = tmp_path_factory.mktemp("k") / "log"
     p.write_text("\n".join(" ".join(x) for x in lines) + "\n")
@@ -215,7 +215,7 @@ def test_carmen_reader(tmp_path_factory, lines):
 def test_sequence_reader(valid, tmp_path_factory, data):
     import shutil
 
-    from rigcal.io.sequence import SCAN_KEYS, read_sequence
+    from rigcal.recordings.sequence import SCAN_KEYS, read_sequence
 
     tmp = tmp_path_factory.mktemp("q")
     shutil.copytree(valid / "seq", tmp / "seq")

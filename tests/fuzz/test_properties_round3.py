@@ -17,7 +17,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from rigcal.errors import InputError
-from rigcal.io.bag import RAW_ENCODINGS, _camera_yaml, _image_bytes, _scan
+from rigcal.recordings.bag import RAW_ENCODINGS, _camera_yaml, _image_bytes, _scan
 
 SETTINGS = settings()
 WHERE = "run.bag: /image message 3"

@@ -175,7 +175,7 @@ WRITE = textwrap.dedent(
             from rigcal.io.trajectory import Trajectory, write_tum
             write_tum(target, Trajectory(np.tile(np.eye(4), (5, 1, 1)), np.arange(5.0)), force=True)
         elif writer == "sequence":
-            from rigcal.io.sequence import write_sequence
+            from rigcal.recordings.sequence import write_sequence
             write_sequence(target, "s", [scan] * 3, [], None, {}, force=True)
         elif writer == "session":
             from rigcal.sim.box_session import SessionSpec, generate_session, write_session

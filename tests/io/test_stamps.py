@@ -4,13 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from rigcal.cli.main import cli, main
 from rigcal.errors import InputError
-from rigcal.io.laser_text import read_csv_laser, read_radlocc_laser
-from rigcal.io.sequence import read_sequence
 from rigcal.io.stamps import repair_stamps
+from rigcal.recordings.laser_text import read_csv_laser, read_radlocc_laser
 
 
 def test_increasing_stamps_are_left_alone():
@@ -86,25 +83,3 @@ def test_radlocc_and_csv_logs_repair_or_refuse(tmp_path):
     assert [s.stamp_s for s in read_csv_laser(c)] == pytest.approx([1.0, 1.1, 1.2, 1.3])
     with pytest.raises(InputError, match=r"l.csv: stamp: line 6: got stamp 0.95"):
         read_csv_laser(c, stamps="strict")
-
-
-def test_import_carmen_warns_once_and_records_the_repair(tmp_path, capsys):
-    from test_carmen import robotlaser1
-
-    ranges = np.linspace(1.0, 3.0, 20)
-    lines = [robotlaser1(ranges, (0.1 * k, 0, 0), t) for k, t in enumerate((1.0, 1.1, 1.1, 1.05, 1.4))]
-    log = tmp_path / "run.log"
-    log.write_text("\n".join(lines) + "\n")
-    res = CliRunner().invoke(cli, ["import-carmen", str(log), "-o", str(tmp_path / "seq")])
-    assert res.exit_code == 0, res.output
-    warnings = [ln for ln in res.stderr.splitlines() if ln.startswith("warning:")]
-    assert len(warnings) == 1
-    assert "repaired 2 scan stamps (1 equal to the previous one, 1 stepping back)" in warnings[0]
-    seq = read_sequence(tmp_path / "seq")
-    assert [s.stamp_s for s in seq.scans] == pytest.approx([1.0, 1.1, 1.2, 1.3, 1.4])
-    assert seq.source["stamps"]["equal_spread"] == 1
-    assert seq.source["stamps"]["backward_placed"] == 1
-    assert main(["import-carmen", str(log), "-o", str(tmp_path / "s2"), "--stamps", "strict"]) == 3
-    err = capsys.readouterr().err
-    assert "run.log: laser ipc_timestamp: line 3: got stamp 1.1; expected a stamp after" in err
-    assert not (tmp_path / "s2").exists()

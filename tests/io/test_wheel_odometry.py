@@ -10,9 +10,9 @@ from click.testing import CliRunner
 from rigcal.cli.main import cli, main
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
-from rigcal.io.carmen import carmen_odometry, read_carmen
-from rigcal.io.sequence import read_sequence
 from rigcal.io.wheel_odometry import checked, laser_motions, parse_mounting
+from rigcal.recordings.carmen import carmen_odometry, read_carmen
+from rigcal.recordings.sequence import read_sequence
 
 
 def flaser(pose, odom, stamp):

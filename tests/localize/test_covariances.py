@@ -8,7 +8,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from rigcal.lines import extract_lines, return_labels
-from rigcal.localize.icp import OPEN_SIGMA_M, IcpParams, icp, icp_covariance, line_normals
+from rigcal.localize.icp import IcpParams, icp
+from rigcal.localize.icp_covariance import OPEN_SIGMA_M, icp_covariance
+from rigcal.localize.line_normals import line_normals
 from rigcal.localize.vo import ScaleEstimate, essential_covariance, run_covariance
 from rigcal.scan import Scan
 from rigcal.sim.raycast import cast_scan

@@ -8,7 +8,9 @@ from scipy.spatial import cKDTree
 
 from rigcal.geometry import pose_of, se2
 from rigcal.lines import extract_lines, return_labels
-from rigcal.localize.icp import MIN_LINE_FRACTION, IcpParams, _normals, _point_to_line, icp, line_normals
+from rigcal.localize.icp import IcpParams, icp
+from rigcal.localize.icp_steps import point_to_line
+from rigcal.localize.line_normals import MIN_LINE_FRACTION, _normals, line_normals
 from rigcal.localize.odometry import carry_labels, icp_odometry
 from rigcal.scan import Scan
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans
@@ -192,7 +194,7 @@ def test_point_to_line_closed_form_step_matches_the_eigenvector_solve():
     w, V = np.linalg.eigh(J.T @ J)
     assert w[0] > 0.01 * w[-1]  # well-posed: the closed form is used
     expected = -(V @ ((V.T @ (J.T @ r)) / w))
-    np.testing.assert_allclose(_point_to_line(src, lines), expected, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(point_to_line(src, lines), expected, rtol=1e-9, atol=1e-12)
 
 
 def test_point_to_line_takes_a_turn_from_a_zero_initial_guess():

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from rigcal.cli.main import main
-from rigcal.io.sequence import read_sequence
 from rigcal.localize.odometry import agrees_with_wheels
+from rigcal.recordings.sequence import read_sequence
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from rigcal.lines import extract_lines, return_labels
-from rigcal.localize.icp import IcpParams, icp, line_normals
+from rigcal.localize.icp import IcpParams, icp
+from rigcal.localize.line_normals import line_normals
 from rigcal.localize.nearest import Grid
 from rigcal.scan import Scan
 from rigcal.sim.raycast import cast_scan
@@ -61,7 +62,7 @@ def test_grid_needs_a_point():
 
 @pytest.mark.parametrize("seed", range(5))
 def test_kernel_median_is_numpys_partition(seed):
-    from rigcal.localize.icp import _median
+    from rigcal.localize.icp_compiled import _median
 
     rng = np.random.default_rng(seed)
     for n in (1, 2, 3, 10, 101, 1064):

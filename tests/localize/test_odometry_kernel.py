@@ -11,7 +11,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from rigcal.lines import line_labels
-from rigcal.localize.icp import IcpParams, icp, line_fits, line_normals
+from rigcal.localize.icp import IcpParams, icp
+from rigcal.localize.line_normals import line_fits, line_normals
 from rigcal.localize.odometry import carry_labels, icp_odometry
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans
 from rigcal.sim.world import BUILTIN

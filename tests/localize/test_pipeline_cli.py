@@ -229,7 +229,7 @@ def test_icp_steps_flag_a_featureless_corridor(tmp_path):
     corridor's steps are flagged degenerate in icp/steps.csv and counted in the summary."""
     import numpy as np
 
-    from rigcal.io.sequence import write_sequence
+    from rigcal.recordings.sequence import write_sequence
     from rigcal.scan import Scan
     from rigcal.sim.raycast import beam_angles, cast_scan
 

@@ -9,7 +9,7 @@ import pytest
 
 from rigcal.geometry import pose_of, se2
 from rigcal.localize.iasm import Frame, IasmParams
-from rigcal.localize.icp import line_normals
+from rigcal.localize.line_normals import line_normals
 from rigcal.localize.polish import joint_polish, keyframe_reference, match_weights, new_keyframe
 
 

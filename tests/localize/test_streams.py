@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from rigcal.errors import InputError
-from rigcal.io.sequence import ImageFrame, write_sequence
-from rigcal.localize.streams import nearest_index, open_streams, pose_at
+from rigcal.localize.streams import open_streams
+from rigcal.localize.time_pairing import nearest_index, pose_at
+from rigcal.recordings.sequence import ImageFrame, write_sequence
 from rigcal.rig import Rig
 from rigcal.rigfile import rig_to_text
 from rigcal.scan import Scan
@@ -145,14 +146,14 @@ def test_a_failed_run_stops_the_background_laser_odometry(seq):
 
 
 def test_the_image_cache_keeps_what_its_byte_budget_allows(seq, monkeypatch):
-    import rigcal.localize.streams as streams_module
+    import rigcal.localize.image_cache as image_cache_module
 
     st = open_streams(seq)
     one = st.image(0).nbytes
-    monkeypatch.setattr(streams_module, "_IMAGE_CACHE_BYTES", 2 * one)
+    monkeypatch.setattr(image_cache_module, "_IMAGE_CACHE_BYTES", 2 * one)
     for i in range(1, 5):
         st.image(i)
-    assert list(st._images) == [3, 4]  # the least recently used went first
+    assert st._image_cache.indices() == [3, 4]  # the least recently used went first
     assert st.timings_s["read_images_s"] > 0
 
 
@@ -186,7 +187,7 @@ def test_a_broken_image_ahead_stops_the_ordered_reading_with_its_name(seq):
 
 
 def test_computed_ahead_keeps_the_order_and_raises_where_the_item_would_be():
-    from rigcal.localize.streams import computed_ahead
+    from rigcal.localize.prefetch import computed_ahead
 
     started = []
 

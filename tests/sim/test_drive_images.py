@@ -9,8 +9,8 @@ import yaml
 
 from rigcal.cli.main import main
 from rigcal.errors import InputError
-from rigcal.io.sequence import read_sequence
 from rigcal.io.trajectory import read_tum
+from rigcal.recordings.sequence import read_sequence
 from rigcal.rig import Rig
 from rigcal.rigfile import read_rig, write_rig
 from rigcal.sim.box_session import default_camera

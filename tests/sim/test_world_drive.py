@@ -8,8 +8,8 @@ import yaml
 
 from rigcal.cli.main import main
 from rigcal.errors import InputError
-from rigcal.io.sequence import read_sequence
 from rigcal.io.trajectory import read_tum
+from rigcal.recordings.sequence import read_sequence
 from rigcal.sim.drive import DriveSpec, Motion, laser_stamps, simulate_scans
 from rigcal.sim.world import BUILTIN, read_world
 

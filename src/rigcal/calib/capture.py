@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
 from rigcal.errors import InputError
-from rigcal.io.sequence import Sequence
+from rigcal.recordings.sequence import Sequence
 from rigcal.scan import Scan
 
 THUMB_WIDTH_PX = 160

@@ -90,7 +90,7 @@ def capture(
     from rigcal.camera import read_camera
     from rigcal.errors import InputError
     from rigcal.io.files import check_folder_writable
-    from rigcal.io.sequence import read_sequence
+    from rigcal.recordings.sequence import read_sequence
 
     inputs = [
         source,
@@ -110,7 +110,7 @@ def capture(
         if (source / "sequence.yaml").is_file():
             folder = source
         else:
-            from rigcal.io.bag import import_bag
+            from rigcal.recordings.bag import import_bag
 
             if scan_topic is None or image_topic is None:
                 raise InputError.at(

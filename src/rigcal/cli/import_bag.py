@@ -65,9 +65,9 @@ def import_bag(
       rigcal import-bag run3/ --scan-topic /scan --image-topic /cam/image --odometry-topic /tf -o run3/
     """
     from rigcal.errors import InputError
-    from rigcal.io.bag import import_bag as run
     from rigcal.io.files import check_folder_writable
     from rigcal.io.wheel_odometry import parse_mounting
+    from rigcal.recordings.bag import import_bag as run
 
     mounting = parse_mounting(laser_offset) if laser_offset is not None else None
     frames = tuple(f.strip().lstrip("/") for f in odometry_frames.split(","))

@@ -55,11 +55,11 @@ def import_carmen(
     import numpy as np
 
     from rigcal.geometry import make_T, rotvec_to_R
-    from rigcal.io.carmen import carmen_odometry, read_carmen
     from rigcal.io.files import check_folder_writable
-    from rigcal.io.sequence import write_sequence
     from rigcal.io.trajectory import Trajectory, tum_text
     from rigcal.io.wheel_odometry import parse_mounting
+    from rigcal.recordings.carmen import carmen_odometry, read_carmen
+    from rigcal.recordings.sequence import write_sequence
 
     mounting = parse_mounting(laser_offset) if laser_offset is not None else None
     check_folder_writable(output, force, [log])

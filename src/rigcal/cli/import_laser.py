@@ -78,8 +78,8 @@ def import_laser(
     """
     from rigcal.errors import InputError
     from rigcal.io.files import check_folder_writable
-    from rigcal.io.laser_text import import_laser_text
     from rigcal.io.wheel_odometry import parse_mounting
+    from rigcal.recordings.laser_text import import_laser_text
 
     mounting = parse_mounting(laser_offset) if laser_offset is not None else None
     check_folder_writable(output, force, [p for p in (log, images, camera, odometry) if p is not None])

@@ -3,23 +3,12 @@
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 
 import click
 
-from rigcal.cli.options import force_option, json_option, output_option
-from rigcal.cli.types import Real
-
-
-def _board(value: str, option: str) -> tuple[int, int]:
-    m = re.fullmatch(r"([0-9]{1,5})x([0-9]{1,5})", value)
-    if not m or int(m[1]) < 2 or int(m[2]) < 2:
-        shown = value if len(value) < 40 else value[:37] + "..."
-        raise click.BadParameter(
-            f"{shown!r}: expected WxH with whole numbers from 2 to 99999, e.g. 9x6", param_hint=option
-        )
-    return int(m[1]), int(m[2])
+from rigcal.cli.options import board_options, force_option, json_option, output_option
+from rigcal.cli.types import GridSize, Real
 
 
 def _lensmodel(ctx: click.Context, param: click.Parameter, value: str) -> str:
@@ -35,16 +24,7 @@ def _lensmodel(ctx: click.Context, param: click.Parameter, value: str) -> str:
 
 @click.command("intrinsics")
 @click.argument("images", nargs=-1, type=click.Path(path_type=Path))
-@click.option("--board", help="Chessboard: inner corners per row x per column, e.g. 9x6.")
-@click.option("--charuco", help="ChArUco board instead: squares per row x per column, e.g. 8x6.")
-@click.option("--marker-m", type=Real(min=0.0, min_open=True), help="ChArUco marker size, metres.")
-@click.option(
-    "--dictionary",
-    default="DICT_5X5_100",
-    show_default=True,
-    help="ChArUco's ArUco dictionary (cv2.aruco name).",
-)
-@click.option("--square-m", required=True, type=Real(min=0.0, min_open=True), help="Square size, metres.")
+@board_options
 @click.option(
     "--corners",
     "corners_file",
@@ -53,6 +33,7 @@ def _lensmodel(ctx: click.Context, param: click.Parameter, value: str) -> str:
 )
 @click.option(
     "--imagersize",
+    type=GridSize("640x480"),
     help="WxH of the images, with --corners when the images are not given (e.g. 640x480).",
 )
 @click.option(
@@ -72,13 +53,13 @@ def _lensmodel(ctx: click.Context, param: click.Parameter, value: str) -> str:
 @json_option("Print the result as JSON on stdout.")
 def intrinsics(
     images: tuple[Path, ...],
-    board: str | None,
-    charuco: str | None,
+    board: tuple[int, int] | None,
+    charuco: tuple[int, int] | None,
     marker_m: float | None,
     dictionary: str,
     square_m: float,
     corners_file: Path | None,
-    imagersize: str | None,
+    imagersize: tuple[int, int] | None,
     lensmodel: str,
     focal_px: float | None,
     output: Path,
@@ -116,11 +97,12 @@ def intrinsics(
 
     if (board is None) == (charuco is None):
         raise click.UsageError("give exactly one of --board WxH (chessboard) and --charuco WxH (ChArUco)")
+    wxh = "x".join(map(str, board or charuco or ()))  # the board's size as given, for the messages
     charuco_board = None
     if charuco is not None:
         if marker_m is None:
             raise click.UsageError("--charuco needs --marker-m")
-        sx, sy = _board(charuco, "--charuco")
+        sx, sy = charuco
         try:
             charuco_board = CharucoBoard(sx, sy, square_m, marker_m, dictionary)
         except ValueError as exc:
@@ -129,7 +111,7 @@ def intrinsics(
         spec = charuco_board.grid
     else:
         assert board is not None
-        w_n, h_n = _board(board, "--board")
+        w_n, h_n = board
         spec = Board(w_n, h_n, square_m)
     sources = [*images, *([corners_file] if corners_file else [])]
     check_writable(output, force, sources)
@@ -137,7 +119,7 @@ def intrinsics(
         check_writable(save_corners, force, [*sources, output])
     if corners_file is not None:
         if imagersize is not None:
-            size = _board(imagersize, "--imagersize")
+            size = imagersize
         elif images:
             from rigcal.io.images import image_size
 
@@ -163,16 +145,16 @@ def intrinsics(
             hint = (
                 f"a {w}x{h} chessboard is detected in {name} (--board counts inner corners per row x column)"
             )
-            click.echo(f"board {board} not found in {len(det.missing)} images; {hint}", err=True)
+            click.echo(f"board {wxh} not found in {len(det.missing)} images; {hint}", err=True)
     from rigcal.calib.intrinsics import MIN_IMAGES
     from rigcal.errors import CalibrationError
 
     if len(det.paths) < MIN_IMAGES and hint:
         raise CalibrationError(
-            f"the {board} board was found in {len(det.paths)} image(s), {MIN_IMAGES} are needed; {hint}"
+            f"the {wxh} board was found in {len(det.paths)} image(s), {MIN_IMAGES} are needed; {hint}"
         )
     result = solve_intrinsics(det, spec, lensmodel, focal_px)
-    what = f"board {board}" if board else f"ChArUco {charuco} ({dictionary})"
+    what = f"board {wxh}" if board else f"ChArUco {wxh} ({dictionary})"
     text = _model_text(result.model, f"rigcal intrinsics: {len(det.paths)} images, {what}, {square_m:g} m")
     atomic_write_text(output, text, force=force)
     if save_corners is not None:

@@ -37,3 +37,39 @@ def force_option(help: str) -> Callable[[Any], Any]:
 def json_option(help: str) -> Callable[[Any], Any]:
     """``--json``: the result as JSON on stdout (``as_json``), for scripts."""
     return click.option("--json", "as_json", is_flag=True, help=help)
+
+
+def board_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    """The board a command detects: ``--board WxH`` (a chessboard's inner corners) or
+    ``--charuco WxH`` (squares) with ``--marker-m`` and ``--dictionary``, and ``--square-m``.
+    The sizes arrive as (W, H) (:class:`rigcal.cli.types.GridSize`)."""
+    from rigcal.cli.types import GridSize, Real
+
+    for option in reversed(
+        [
+            click.option(
+                "--board",
+                type=GridSize("9x6"),
+                help="Chessboard: inner corners per row x per column, e.g. 9x6.",
+            ),
+            click.option(
+                "--charuco",
+                type=GridSize("8x6"),
+                help="ChArUco board instead: squares per row x per column, e.g. 8x6.",
+            ),
+            click.option(
+                "--marker-m", type=Real(min=0.0, min_open=True), help="ChArUco marker size, metres."
+            ),
+            click.option(
+                "--dictionary",
+                default="DICT_5X5_100",
+                show_default=True,
+                help="ChArUco's ArUco dictionary (cv2.aruco name).",
+            ),
+            click.option(
+                "--square-m", required=True, type=Real(min=0.0, min_open=True), help="Square size, metres."
+            ),
+        ]
+    ):
+        f = option(f)
+    return f

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from rigcal.cli.options import force_option, output_option
+from rigcal.cli.options import force_option, json_option, output_option
 from rigcal.cli.types import Real
 
 
@@ -33,6 +33,12 @@ _noise_option = click.option(
     "rigcal.sim.noise.RealisticNoise; --range-sigma-m is then ignored).",
 )
 
+# Every subcommand's seed and --json, declared once.
+_seed_option = click.option(
+    "--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed."
+)
+_json_option = json_option("Print what was written (and the true T_cam_laser) as JSON on stdout.")
+
 
 @simulate.command("box-session")
 @output_option("Session folder to create.", "DIR")
@@ -43,7 +49,7 @@ _noise_option = click.option(
     type=click.IntRange(min=1, max=999),
     help="Number of captures (scan + image).",
 )
-@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
+@_seed_option
 @click.option(
     "--pick-sigma-px",
     default=1.0,
@@ -82,12 +88,7 @@ _noise_option = click.option(
 @_noise_option
 @click.option("--no-images", is_flag=True, help="Write flat grey placeholder images instead of renders.")
 @force_option("Replace an existing session folder.")
-@click.option(
-    "--json",
-    "as_json",
-    is_flag=True,
-    help="Print what was written (and the true T_cam_laser) as JSON on stdout.",
-)
+@_json_option
 def box_session(
     output: Path,
     captures: int,
@@ -181,7 +182,7 @@ simulate.add_command(calib_session, "calib-session")
     type=click.IntRange(min=1, max=999),
     help="Board captures.  [default: 20 for a good session, 12 for a weak one]",
 )
-@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
+@_seed_option
 @click.option(
     "--corner-sigma-px",
     default=0.3,
@@ -198,12 +199,7 @@ simulate.add_command(calib_session, "calib-session")
 )
 @_noise_option
 @force_option("Replace an existing folder.")
-@click.option(
-    "--json",
-    "as_json",
-    is_flag=True,
-    help="Print what was written (and the true T_cam_laser) as JSON on stdout.",
-)
+@_json_option
 def board_session(
     output: Path,
     kind: str,
@@ -262,7 +258,7 @@ def board_session(
     type=click.IntRange(min=1, max=999),
     help="Views of the target.",
 )
-@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
+@_seed_option
 @click.option(
     "--range-sigma-m", default=0.01, show_default=True, type=Real(min=0.0, max=0.05), help="Range noise."
 )
@@ -287,12 +283,7 @@ def board_session(
 )
 @_noise_option
 @force_option("Replace an existing folder.")
-@click.option(
-    "--json",
-    "as_json",
-    is_flag=True,
-    help="Print what was written (and the true T_cam_laser) as JSON on stdout.",
-)
+@_json_option
 def marker_session(
     output: Path,
     captures: int,
@@ -355,7 +346,7 @@ WEAK_BOARD_CAPTURES = 12
     help="corridor-loop (60 m), cubicle-loop (35 m), calibration-room, or a world file (.yaml).",
 )
 @output_option("Sequence folder.", "DIR")
-@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Random seed.")
+@_seed_option
 @click.option(
     "--range-sigma-m",
     default=0.01,
@@ -442,12 +433,7 @@ WEAK_BOARD_CAPTURES = 12
     "0.5 deg/m heading drift; docs/formats/sequence.md).",
 )
 @force_option("Replace an existing folder.")
-@click.option(
-    "--json",
-    "as_json",
-    is_flag=True,
-    help="Print what was written (and the true T_cam_laser) as JSON on stdout.",
-)
+@_json_option
 def world(
     world_name: str,
     output: Path,

@@ -5,6 +5,7 @@ its click type. A bad value is click's usage error (exit code 2)."""
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 import click
@@ -28,6 +29,27 @@ class Real(click.FloatRange):
         if not math.isfinite(out):
             self.fail(f"{value!r} is not a finite number.", param, ctx)
         return out
+
+
+class GridSize(click.ParamType):
+    """A ``WxH`` option (a board's inner corners or squares, an image's pixels): two whole
+    numbers from 2 to 99999, as (W, H)."""
+
+    name = "WxH"
+
+    def __init__(self, example: str = "9x6") -> None:
+        self.example = example
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, tuple):
+            return value
+        m = re.fullmatch(r"([0-9]{1,5})x([0-9]{1,5})", value)
+        if not m or int(m[1]) < 2 or int(m[2]) < 2:
+            shown = value if len(value) < 40 else value[:37] + "..."
+            self.fail(
+                f"{shown!r}: expected WxH with whole numbers from 2 to 99999, e.g. {self.example}", param, ctx
+            )
+        return int(m[1]), int(m[2])
 
 
 def option_type(rule: validate.Real | validate.Whole | validate.OneOf) -> click.ParamType:

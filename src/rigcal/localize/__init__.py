@@ -1,22 +1,5 @@
 """Localization: laser odometry, visual odometry, the Kalman filter, IASM and H-IASM.
 
-``rigcal.localize`` is both this package and the API function
-:func:`rigcal.api.localize`: importing a submodule makes Python bind the package to the
-name ``rigcal.localize``, so the package is made callable and a call runs the function.
+``rigcal.localize`` is also callable, a shortcut to :func:`rigcal.api.localize`; the
+package ``rigcal`` makes it so (``rigcal/__init__.py``), so nothing here imports the API.
 """
-
-from __future__ import annotations
-
-import sys
-import types
-from typing import Any
-
-
-class _CallablePackage(types.ModuleType):
-    def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        from rigcal.api import localize
-
-        return localize(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallablePackage

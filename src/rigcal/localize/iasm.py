@@ -43,7 +43,8 @@ from rigcal.camera import Camera
 from rigcal.geometry import transform_points
 from rigcal.jit import njit
 from rigcal.lines import Segment, extract_lines, return_labels
-from rigcal.localize.icp import line_fits, point_to_point
+from rigcal.localize.icp_steps import point_to_point
+from rigcal.localize.line_normals import line_fits
 from rigcal.localize.nearest import Grid
 from rigcal.localize.patches import sample_patches
 from rigcal.localize.polish import LaserReference, joint_polish

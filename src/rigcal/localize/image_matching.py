@@ -32,7 +32,8 @@ from rigcal.localize.hiasm import camera_motion, hiasm_step, visual_fallback
 from rigcal.localize.iasm import Frame, IasmParams, Matches, StepResult, iasm_step, make_frame
 from rigcal.localize.odometry import DEGENERATE_BELOW
 from rigcal.localize.polish import LaserReference, joint_polish, keyframe_reference, new_keyframe
-from rigcal.localize.streams import Streams, computed_ahead
+from rigcal.localize.prefetch import computed_ahead
+from rigcal.localize.streams import Streams
 from rigcal.localize.tracks import FrameTracks, Tracker, common
 from rigcal.localize.vo import RelativePose, VoParams, planar_motion, relative_pose
 

@@ -24,7 +24,7 @@ Covariances: the paper gives each input a fixed one (ICP's forward translation a
 rotation weigh less than VO's, VO's cross-track less than ICP's). Beyond the paper each
 step carries its own (``weights="covariance"``, the default): ICP's from its Hessian at
 the solution, inflated along directions the walls do not constrain
-(:func:`rigcal.localize.icp.icp_covariance`); VO's from its tracks' fit and the scale's
+(:func:`rigcal.localize.icp_covariance.icp_covariance`); VO's from its tracks' fit and the scale's
 votes (:func:`rigcal.localize.vo.run_covariance`); the wheel odometry's from its fixed
 noise model (:data:`WHEEL_SIGMAS`, a rate noise over the step's time). A well-constrained
 ICP step then pins the pose and VO takes over along a corridor. ``weights="fixed"`` gives
@@ -45,7 +45,7 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.geometry import pose_of, se2
-from rigcal.localize.icp import OPEN_SIGMA_M
+from rigcal.localize.icp_covariance import OPEN_SIGMA_M
 
 # The paper's fixed covariances (weights="fixed"), as 1-sigma rate noise in the rig's
 # frame: forward (m/s), cross-track (m/s), yaw rate (rad/s); a step over dt seconds has
@@ -56,7 +56,7 @@ VO_SIGMAS = (0.03, 0.15, 0.02)
 # good to a few percent of a walking pace, a wheeled base barely slides sideways, and its
 # heading drifts most (wheel slip in turns).
 WHEEL_SIGMAS = (0.05, 0.02, 0.08)
-# OPEN_SIGMA_M (icp.py): 1-sigma (m) of a step's translation along a direction its input
+# OPEN_SIGMA_M (icp_covariance.py): 1-sigma (m) of a step's translation along a direction its input
 # does not measure (an ICP step along a corridor whose ends are out of reach, a VO run
 # without a scale).
 # Kept for the rate form: forward rate noise (m/s) of a step that measures no forward speed.

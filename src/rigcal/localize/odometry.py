@@ -1,6 +1,6 @@
 """Laser odometry: ICP between successive scans of a sequence, chained into a trajectory.
 
-Point-to-line ICP takes the model scan's normals from its lines (:mod:`rigcal.localize.icp`).
+Point-to-line ICP takes the model scan's normals from its lines (:mod:`rigcal.localize.line_normals`).
 The lines are extracted (``rigcal.lines``) on every ``LINES_EVERY``-th scan only (in
 Python, a return at a time, the extraction cost about as much as the ICP step itself;
 compiled it costs about a tenth of one); the scans between carry them: a return of the
@@ -28,16 +28,9 @@ from rigcal.arrays import FloatArray, IntArray
 from rigcal.geometry import pose_of, se2
 from rigcal.jit import njit
 from rigcal.lines import Segment, extract_lines, line_labels, return_labels
-from rigcal.localize.icp import (
-    MIN_LINE_FRACTION,
-    IcpParams,
-    IcpResult,
-    icp,
-    icp_covariance,
-    label_runs,
-    line_normals,
-    pairing_normals,
-)
+from rigcal.localize.icp import IcpParams, IcpResult, icp
+from rigcal.localize.icp_covariance import icp_covariance
+from rigcal.localize.line_normals import MIN_LINE_FRACTION, label_runs, line_normals, pairing_normals
 from rigcal.scan import Scan
 
 LINES_EVERY = 4
@@ -80,7 +73,7 @@ class Odometry:
     how many were tried again from zero motion (a poor fit from the previous motion), and
     how many ICP steps the wheel odometry overruled (a fit beyond its error bound).
     ``covariance`` (N, 3, 3): each step's T_prev_cur covariance (x, y, yaw; the one ending
-    at scan k at index k, :func:`rigcal.localize.icp.icp_covariance`), NaN where ICP did
+    at scan k at index k, :func:`rigcal.localize.icp_covariance.icp_covariance`), NaN where ICP did
     not measure the step (index 0, skipped and overruled steps: a guess)."""
 
     poses: FloatArray

@@ -34,7 +34,8 @@ from rigcal.localize.image_matching import scan_matching
 from rigcal.localize.loop_closure import LoopParams, LoopResult, close_loops
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import DEGENERATE_BELOW, LASER_ODOMETRY, Odometry, icp_odometry
-from rigcal.localize.streams import Streams, nearest_index, open_streams
+from rigcal.localize.streams import Streams, open_streams
+from rigcal.localize.time_pairing import nearest_index
 from rigcal.localize.tracks import TrackParams
 from rigcal.localize.vo import VoResult, visual_odometry
 

@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 
 from rigcal.arrays import MAD_TO_SIGMA, FloatArray
 from rigcal.geometry import pose_of, se2
-from rigcal.localize.icp import pairing_normals
+from rigcal.localize.line_normals import pairing_normals
 
 if TYPE_CHECKING:
     from rigcal.localize.iasm import Frame, IasmParams
@@ -61,7 +61,7 @@ def joint_polish(
     corridor), each weighted by its noise (``sigma_laser_m``, ``sigma_match_m``).
 
     ``normals1``: scan 1's normals from its lines (NaN off a line: such returns are not
-    paired), as the laser odometry uses them (:mod:`rigcal.localize.icp`); without it, or
+    paired), as the laser odometry uses them (:mod:`rigcal.localize.line_normals`); without it, or
     with too few returns on a line, nearest-neighbour normals. ``prior``: a motion the
     result is held to within ``fallback_sigma_m`` and ``fallback_sigma_deg`` (the laser
     odometry's, when a step falls back to it).

@@ -8,16 +8,16 @@ frame at the image's stamp with the laser odometry between the two stamps, inter
 speed is not left as a centimetre of error.
 
 Images are read from disk when asked for (grey, uint8, :func:`rigcal.io.images.read_grey`)
-and kept, up to 768 MiB (the least recently used go first). The feature tracks read them
-in order, decoded a few frames ahead on a second thread (:meth:`Streams.images_in_order`),
-so that decoding overlaps the tracking.
+and kept, up to 768 MiB (the least recently used go first; :mod:`rigcal.localize.image_cache`).
+The feature tracks read them in order, decoded a few frames ahead on a second thread
+(:meth:`Streams.images_in_order`, :mod:`rigcal.localize.prefetch`), so that decoding
+overlaps the tracking. The pairing in time is :mod:`rigcal.localize.time_pairing`'s.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator
 from collections.abc import Sequence as PySequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -27,27 +27,22 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
 from rigcal.io.images import read_grey
-from rigcal.io.sequence import Sequence, read_sequence
 from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
 from rigcal.lines import Segment, extract_lines
+from rigcal.localize.image_cache import Gray, ImageCache
 from rigcal.localize.odometry import LASER_ODOMETRY, Odometry, icp_odometry
+from rigcal.localize.prefetch import computed_ahead
+from rigcal.localize.time_pairing import nearest_index, pose_at
 from rigcal.localize.tracks import FrameTracks, TrackParams, equalized, track_sequence
+from rigcal.recordings.sequence import Sequence, read_sequence
 from rigcal.rig import Rig
 from rigcal.rigfile import read_rig
 from rigcal.scan import Scan
-
-Gray = NDArray[np.uint8]
-
-# Decoded images kept (least recently used out first): a whole 10 Hz VGA lap of several
-# minutes fits, so methods that pass over the images twice (H-IASM: tracking, then
-# matching) decode each PNG once.
-_IMAGE_CACHE_BYTES = 768 * 2**20
 
 
 class _StoppedError(Exception):
@@ -70,8 +65,7 @@ class Streams:
     sequence: Sequence
     rig: Rig | None
     timings_s: dict[str, float] = field(default_factory=dict)
-    _images: OrderedDict[int, Gray] = field(default_factory=OrderedDict, repr=False)
-    _cached_bytes: int = field(default=0, repr=False)
+    _image_cache: ImageCache = field(default_factory=ImageCache, repr=False)
     _laser_odometry: Odometry | None = field(default=None, repr=False)
     _background: Future[Odometry] | None = field(default=None, repr=False)
     _stop: threading.Event = field(default_factory=threading.Event, repr=False)
@@ -157,8 +151,7 @@ class Streams:
             yield self._keep(indices[k], g)
 
     def _kept_or_decoded(self, i: int) -> Gray:
-        with self._lock:
-            hit = self._images.get(i)
+        hit = self._image_cache.get(i)
         return self._decode(i) if hit is None else hit
 
     def _decode(self, i: int) -> Gray:
@@ -175,15 +168,7 @@ class Streams:
 
     def _keep(self, i: int, g: Gray) -> Gray:
         """Keep frame i (the least recently used frames go when over the budget)."""
-        with self._lock:
-            if i in self._images:
-                self._images.move_to_end(i)
-            else:
-                self._images[i] = g
-                self._cached_bytes += g.nbytes
-                while self._cached_bytes > _IMAGE_CACHE_BYTES and len(self._images) > 1:
-                    self._cached_bytes -= self._images.popitem(last=False)[1].nbytes
-        return g
+        return self._image_cache.keep(i, g)
 
     def laser_odometry(self) -> Odometry:
         """Point-to-line ICP over all scans (computed once; several methods share it)."""
@@ -301,38 +286,3 @@ def open_streams(folder: str | Path, rig_file: str | Path | None = None) -> Stre
     elif seq.rig_file is not None:
         rig = read_rig(Path(folder) / seq.rig_file)
     return Streams(seq, rig, {"read_s": time.perf_counter() - t0})
-
-
-def computed_ahead[T](compute: Callable[[int], T], n: int, ahead: int) -> Iterator[tuple[int, T]]:
-    """``(i, compute(i))`` for i = 0 .. n-1 in order, each computed up to ``ahead`` items in
-    advance on a second thread, so the work overlaps what the caller does with the items
-    before (for work that releases the interpreter: OpenCV, numpy, compiled kernels).
-    An error raised by ``compute`` comes out where its item would have; the items not yet
-    started are then dropped."""
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ahead")
-    pending: deque[Future[T]] = deque()
-    try:
-        for i in range(n):
-            while len(pending) < max(ahead, 1) and i + len(pending) < n:
-                pending.append(pool.submit(compute, i + len(pending)))
-            yield i, pending.popleft().result()
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-
-
-def nearest_index(stamps: FloatArray, t: float) -> int:
-    """Index of the stamp nearest t (stamps increasing)."""
-    k = int(np.searchsorted(stamps, t))
-    if k == 0:
-        return 0
-    if k >= len(stamps):
-        return len(stamps) - 1
-    return k if stamps[k] - t < t - stamps[k - 1] else k - 1
-
-
-def pose_at(stamps: FloatArray, poses: FloatArray, t: float) -> FloatArray:
-    """A planar pose (x, y, yaw) interpolated linearly at t (yaw unwrapped), held at the ends."""
-    yaw = np.unwrap(poses[:, 2])
-    return np.array(
-        [np.interp(t, stamps, poses[:, 0]), np.interp(t, stamps, poses[:, 1]), np.interp(t, stamps, yaw)]
-    )

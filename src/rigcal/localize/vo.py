@@ -30,6 +30,7 @@ camera's, ``x2 = R x1 + t`` (OpenCV's). Laser-frame points are (x, y, 0).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -41,7 +42,7 @@ from numpy.typing import NDArray
 from rigcal.arrays import MAD_TO_SIGMA, FloatArray
 from rigcal.camera import Camera
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
-from rigcal.localize.icp import OPEN_SIGMA_M
+from rigcal.localize.icp_covariance import OPEN_SIGMA_M
 from rigcal.localize.patches import sample_patches
 from rigcal.localize.tracks import FrameTracks, common, gain_between
 
@@ -647,89 +648,141 @@ def visual_odometry(
     moves along its own direction at the last measured speed ("no-scale"). A failed run
     (too few inliers) keeps the previous run's velocity (a constant-velocity guess). Each
     run's status is reported in ``steps``.
+
+    The steps: the runs (:func:`_runs`), each measured (:func:`_measure`: its relative pose,
+    Eq. (5), and its laser scale, Eq. (6)), chained in order (:func:`_chained_run`), the
+    runs left without a scale given one back from the run after (:func:`_carry_back`),
+    and the chain integrated into the laser's poses (:func:`_integrated`).
     """
     params = params or VoParams()
     focal = float(np.mean(camera.intrinsics[:2]))
     forward = T_cam_laser[:3, 0]  # the laser's x axis (the rig's travel) in the camera frame
-    runs = _runs(tracks, params)
-
-    def measure(run: tuple[int, int, NDArray[np.intp], NDArray[np.intp]]) -> _Measured:
-        kf, j, ia, ib = run
-        dt = float(stamps_s[j] - stamps_s[kf])
-        rel = relative_pose(tracks[kf].bearings[ia], tracks[j].bearings[ib], focal, params, forward)
-        if rel is None:
-            return _Measured(kf, j, dt, rel, None)
-        P1 = _to_cam(T_cam_laser, laser_points(kf))
-        if rel.still:
-            depth = float(np.median(np.linalg.norm(P1, axis=1))) if len(P1) else float("nan")
-            return _Measured(kf, j, dt, rel, None, depth)
-        g1, g2 = image(kf), image(j)
-        gain = gain_between(g1, tracks[kf].pixels[ia], g2, tracks[j].pixels[ib]) if gain_compensation else 1.0
-        est = laser_scale(g1, g2, camera, rel.R, rel.t_unit, P1, params.max_speed_mps * dt, params, gain)
-        return _Measured(kf, j, dt, rel, est)
-
-    last_velocity: tuple[FloatArray, FloatArray] | None = None  # (rotvec/s, translation/s) camera
-    speed = 0.0  # m/s, of the last run with a scale
-    # The last run with a scale, (first frame, R, t) up to this run's first frame.
-    scaled: tuple[int, FloatArray, FloatArray] | None = None
+    inputs = _VoInputs(
+        tracks, image, stamps_s, camera, T_cam_laser, laser_points, params, focal, forward, gain_compensation
+    )
+    state = _ChainState()
     chain: list[_Chained] = []
     # The runs are measured independently (OpenCV and numpy release the interpreter), on
     # ``workers`` threads, in order; giving them their scales is sequential.
     with ThreadPoolExecutor(max_workers=max(workers, 1), thread_name_prefix="vo-run") as pool:
-        for m in pool.map(measure, runs):
-            kf, j, dt, rel = m.first, m.last, m.dt, m.rel
+        for m in pool.map(functools.partial(_measure, inputs), _runs(tracks, params)):
             if progress is not None:
-                progress(j + 1)
-            status, scale_pts = "ok", 0
-            # The run's length's 1-sigma (m): the scale search's sample spacing at least.
-            quantum = params.max_speed_mps * dt / max(params.scale_steps - 1, 1)
-            scale_sigma = OPEN_SIGMA_M
-            if rel is None:
-                status = "failed"
-            elif rel.still:
-                status = "still"
-                R, t = rel.R, np.zeros(3)
-            else:
-                assert m.scale is not None
-                est = m.scale
-                if est.used < params.min_scale_votes or not np.isfinite(est.scale):
-                    status = "no-scale"
-                    if scaled is not None:
-                        b0, b1, b2 = tracks[scaled[0]], tracks[kf], tracks[j]
-                        carried = carried_scale(b0, b1, b2, scaled[1:], (rel.R, rel.t_unit), focal, params)
-                        if _within_reach(carried, params, dt):
-                            status, est = "carried", carried
-                scale_pts = est.used
-                if status != "no-scale":
-                    scale_sigma = est.sigma(quantum)
-                R, t = rel.R, est.scale * rel.t_unit
-            if status == "failed":
-                # Constant velocity: the previous run's motion rates over this run's time.
-                R = np.eye(3) if last_velocity is None else rotvec_to_R(last_velocity[0] * dt)
-                t = np.zeros(3) if last_velocity is None else last_velocity[1] * dt
-            elif status == "no-scale":
-                # The direction is known, the length not: the last measured speed (a moving
-                # run's, so that a stop does not leave the rig standing still ever after).
-                assert rel is not None
-                R, t = rel.R, speed * dt * rel.t_unit
-            else:
-                last_velocity = (R_to_rotvec(R) / max(dt, 1e-6), t / max(dt, 1e-6))
-                if status in ("ok", "carried"):
-                    speed = float(np.linalg.norm(t)) / max(dt, 1e-6)
-            if status in ("ok", "carried"):
-                scaled = (kf, R, t)
-            elif status == "still" and scaled is not None:
-                # A turn on the spot keeps each point's distance: the run before still
-                # carries its scale, through this run's rotation.
-                scaled = (scaled[0], R @ scaled[1], R @ scaled[2])
-            else:
-                scaled = None
-            if status == "still":
-                # What the still test lets through: still_px at the laser points' distance.
-                scale_sigma = params.still_px / focal * (m.depth_m if np.isfinite(m.depth_m) else 1.0)
-            chain.append(_Chained(kf, j, dt, rel, status, R, t, scale_pts, scale_sigma))
-    # Runs left without a scale before one that has it (after a stop, say, nothing carried
-    # the scale into them) take it back from the run after, last first.
+                progress(m.last + 1)
+            chain.append(_chained_run(m, inputs, state))
+    _carry_back(chain, inputs)
+    return _integrated(chain, T_cam_laser)
+
+
+@dataclass(frozen=True)
+class _VoInputs:
+    """What :func:`visual_odometry` measures and chains its runs with (its arguments, the
+    camera's mean focal length in px and the laser's x axis in the camera frame)."""
+
+    tracks: list[FrameTracks]
+    image: Callable[[int], Gray]
+    stamps_s: FloatArray
+    camera: Camera
+    T_cam_laser: FloatArray
+    laser_points: Callable[[int], FloatArray]
+    params: VoParams
+    focal: float
+    forward: FloatArray
+    gain_compensation: bool
+
+
+@dataclass
+class _ChainState:
+    """What the chaining carries from one run to the next."""
+
+    # (rotvec/s, translation/s) camera, of the last run that did not fail.
+    last_velocity: tuple[FloatArray, FloatArray] | None = None
+    speed: float = 0.0  # m/s, of the last run with a scale
+    # The last run with a scale, (first frame, R, t) up to this run's first frame.
+    scaled: tuple[int, FloatArray, FloatArray] | None = None
+
+
+def _measure(inp: _VoInputs, run: tuple[int, int, NDArray[np.intp], NDArray[np.intp]]) -> _Measured:
+    """One run measured on its own: the relative pose of its last frame to its first from
+    the common tracks (Eq. (5)) and, when it moved, the laser scale (Eq. (6)); a still run's
+    laser points' median distance."""
+    tracks, params, T_cam_laser = inp.tracks, inp.params, inp.T_cam_laser
+    kf, j, ia, ib = run
+    dt = float(inp.stamps_s[j] - inp.stamps_s[kf])
+    rel = relative_pose(tracks[kf].bearings[ia], tracks[j].bearings[ib], inp.focal, params, inp.forward)
+    if rel is None:
+        return _Measured(kf, j, dt, rel, None)
+    P1 = _to_cam(T_cam_laser, inp.laser_points(kf))
+    if rel.still:
+        depth = float(np.median(np.linalg.norm(P1, axis=1))) if len(P1) else float("nan")
+        return _Measured(kf, j, dt, rel, None, depth)
+    g1, g2 = inp.image(kf), inp.image(j)
+    gain = gain_between(g1, tracks[kf].pixels[ia], g2, tracks[j].pixels[ib]) if inp.gain_compensation else 1.0
+    est = laser_scale(g1, g2, inp.camera, rel.R, rel.t_unit, P1, params.max_speed_mps * dt, params, gain)
+    return _Measured(kf, j, dt, rel, est)
+
+
+def _chained_run(m: _Measured, inp: _VoInputs, state: _ChainState) -> _Chained:
+    """A measured run's status, metric motion and scale's 1-sigma, given what the runs
+    before left in ``state`` (which it updates): a scale carried from the run before when
+    its own laser points give none, a constant-velocity guess for a failed run, the last
+    speed for a run with no scale."""
+    tracks, params, focal = inp.tracks, inp.params, inp.focal
+    kf, j, dt, rel = m.first, m.last, m.dt, m.rel
+    status, scale_pts = "ok", 0
+    # The run's length's 1-sigma (m): the scale search's sample spacing at least.
+    quantum = params.max_speed_mps * dt / max(params.scale_steps - 1, 1)
+    scale_sigma = OPEN_SIGMA_M
+    if rel is None:
+        status = "failed"
+    elif rel.still:
+        status = "still"
+        R, t = rel.R, np.zeros(3)
+    else:
+        assert m.scale is not None
+        est = m.scale
+        if est.used < params.min_scale_votes or not np.isfinite(est.scale):
+            status = "no-scale"
+            if state.scaled is not None:
+                b0, b1, b2 = tracks[state.scaled[0]], tracks[kf], tracks[j]
+                carried = carried_scale(b0, b1, b2, state.scaled[1:], (rel.R, rel.t_unit), focal, params)
+                if _within_reach(carried, params, dt):
+                    status, est = "carried", carried
+        scale_pts = est.used
+        if status != "no-scale":
+            scale_sigma = est.sigma(quantum)
+        R, t = rel.R, est.scale * rel.t_unit
+    if status == "failed":
+        # Constant velocity: the previous run's motion rates over this run's time.
+        last_velocity = state.last_velocity
+        R = np.eye(3) if last_velocity is None else rotvec_to_R(last_velocity[0] * dt)
+        t = np.zeros(3) if last_velocity is None else last_velocity[1] * dt
+    elif status == "no-scale":
+        # The direction is known, the length not: the last measured speed (a moving
+        # run's, so that a stop does not leave the rig standing still ever after).
+        assert rel is not None
+        R, t = rel.R, state.speed * dt * rel.t_unit
+    else:
+        state.last_velocity = (R_to_rotvec(R) / max(dt, 1e-6), t / max(dt, 1e-6))
+        if status in ("ok", "carried"):
+            state.speed = float(np.linalg.norm(t)) / max(dt, 1e-6)
+    if status in ("ok", "carried"):
+        state.scaled = (kf, R, t)
+    elif status == "still" and state.scaled is not None:
+        # A turn on the spot keeps each point's distance: the run before still
+        # carries its scale, through this run's rotation.
+        state.scaled = (state.scaled[0], R @ state.scaled[1], R @ state.scaled[2])
+    else:
+        state.scaled = None
+    if status == "still":
+        # What the still test lets through: still_px at the laser points' distance.
+        scale_sigma = params.still_px / focal * (m.depth_m if np.isfinite(m.depth_m) else 1.0)
+    return _Chained(kf, j, dt, rel, status, R, t, scale_pts, scale_sigma)
+
+
+def _carry_back(chain: list[_Chained], inp: _VoInputs) -> None:
+    """Runs left without a scale before one that has it (after a stop, say, nothing carried
+    the scale into them) take it back from the run after, last first (in place)."""
+    tracks, params, focal = inp.tracks, inp.params, inp.focal
     for k in range(len(chain) - 2, -1, -1):
         c, nxt = chain[k], chain[k + 1]
         if c.status != "no-scale" or nxt.status not in ("ok", "carried"):
@@ -753,6 +806,11 @@ def visual_odometry(
                 scale_points=back.used,
                 scale_sigma_m=back.sigma(quantum),
             )
+
+
+def _integrated(chain: list[_Chained], T_cam_laser: FloatArray) -> VoResult:
+    """The chained runs' camera motions as the laser's planar poses from the first (the
+    origin), with each run's covariance (:func:`run_covariance`)."""
     T_w_c = np.linalg.inv(T_cam_laser)  # the first laser pose is the origin
     frames = [0]
     poses = [_planar(T_w_c @ T_cam_laser)]

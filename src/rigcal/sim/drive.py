@@ -33,7 +33,7 @@ from rigcal.sim.raycast import beam_angles, cast_scan, noisy_ranges
 from rigcal.sim.world import World
 
 if TYPE_CHECKING:
-    from rigcal.io.sequence import ImageFrame
+    from rigcal.recordings.sequence import ImageFrame
     from rigcal.rig import Rig
 
 
@@ -316,8 +316,8 @@ def write_drive(
         Figures of the drive: lap length (m), drive duration (s), scans, images, and the
         generation time (s, wall clock).
     """
-    from rigcal.io.sequence import write_sequence
     from rigcal.io.trajectory import Trajectory, tum_text
+    from rigcal.recordings.sequence import write_sequence
     from rigcal.rigfile import rig_to_text
 
     start = time.perf_counter()
@@ -388,7 +388,7 @@ def _images(
     if not len(stamps):
         return
     from rigcal.geometry import inv_T
-    from rigcal.io.sequence import ImageFrame
+    from rigcal.recordings.sequence import ImageFrame
     from rigcal.sim.textures import world_textures
     from rigcal.sim.world_render import CameraEffects, apply_effects, render_world
 

@@ -13,9 +13,10 @@ the camera frame, and the pose's covariance from the corners' reprojection Jacob
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -91,6 +92,52 @@ def is_board_session(data: Any) -> bool:
     return isinstance(data, dict) and data.get("method") == "board"
 
 
+@dataclass(frozen=True)
+class BoardSessionFile:
+    """A board session file as written, checked, before any image is searched or any pose
+    computed (:func:`parse_board_session`).
+
+    Attributes:
+        path, version: the file and its ``schema_version``.
+        camera, camera_path: the camera and its file.
+        board, shape: the board and its outline for the returns' detection (the sheet's
+            ``size_m`` when given).
+        laser, params: the scanner's description and its line extraction settings.
+        captures: per capture, in file order, its entry (keys checked) and its name.
+        corners_vnl: the session's corners file by image name (None without ``corners_vnl``).
+        corner_sigma_px: the corner noise: the file's ``board.corner_sigma_px``, else the
+            caller's.
+        level: the reduced solve's priors: the caller's, else the file's ``level:``, else None.
+        files: the files read (the session, the camera, the corners file).
+    """
+
+    path: Path
+    version: int
+    camera: Camera
+    camera_path: Path
+    board: Board
+    shape: BoardShape
+    laser: dict[str, Any]
+    params: LineParams
+    captures: tuple[tuple[Mapping[str, Any], str], ...]
+    corners_vnl: dict[str, FloatArray] | None
+    corner_sigma_px: float
+    level: LevelPriors | None
+    files: tuple[Path, ...]
+
+
+class _SeenBoard(NamedTuple):
+    """A capture whose corners were found: its index in the file, entry and name, the
+    board's pose by PnP, the pose's (6, 6) covariance and the corners' RMS error (px)."""
+
+    capture: int
+    entry: Mapping[str, Any]
+    name: str
+    T_cam_board: FloatArray
+    pose_cov: FloatArray
+    corner_rms_px: float
+
+
 def read_board_session(
     path: str | Path,
     corner_sigma_px: float = 0.5,
@@ -98,6 +145,10 @@ def read_board_session(
     level: LevelPriors | None = None,
 ) -> BoardSession:
     """Read and validate a board session and every file it names.
+
+    The steps: :func:`parse_board_session` (the file), the boards' poses from their corners
+    (listed, or detected in the images), the images-first check of the boards' normals, then
+    each capture's scan and returns on the board (given, or detected: ``laser_side: auto``).
 
     Args:
         path: the session file.
@@ -113,6 +164,60 @@ def read_board_session(
         CalibrationError: the boards' normals (from the images alone, checked before any
             laser return is looked at) cannot fix the pose: for the full solve they must
             span 3D, for the level solve two horizontal directions.
+    """
+    f = parse_board_session(path, corner_sigma_px, level)
+    files = list(f.files)
+    # What the images alone show comes first: the boards' poses, and whether their planes
+    # can fix the pose at all, before any laser return is looked for.
+    seen, unseen, corner_sets = _board_poses(f, files)
+    board = f.board
+    if unseen and not skip_unseen_boards:
+        keys = ", ".join(f"captures[{i}].image" for i, _, _ in unseen)
+        shown = ", ".join(repr(str(v)) for _, _, v in unseen)
+        raise InputError(
+            f"{f.path}: {keys}: got {shown}; expected images showing the {board.width_n}x{board.height_n} "
+            f"board ({len(unseen)} of {len(f.captures)} captures show none; `rigcal solve "
+            "--skip-unseen-boards` leaves them out with a warning)"
+        )
+    none = np.zeros((0, 2))
+    planes = [(s.name, plane_observation(s.capture, s.name, s.T_cam_board, s.pose_cov, none)) for s in seen]
+    _check_board_normals(f.path, planes, f.level)
+    obs, scans, auto = _laser_returns(f, seen, files)
+    if auto:
+        obs = _auto_returns(f, obs, auto, scans, seen)
+    check_unique_names(f.path, [o.name for o in obs])
+    return BoardSession(
+        f.path,
+        f.camera,
+        f.camera_path,
+        board,
+        dict(f.laser),
+        tuple(obs),
+        np.array([s.T_cam_board for s in seen]),
+        np.array([s.corner_rms_px for s in seen]),
+        tuple(files),
+        corner_sigma_px=f.corner_sigma_px,
+        corners_px=tuple(corner_sets),
+        skipped=tuple(
+            f"{name} ({value}): no {board.width_n}x{board.height_n} board found" for _, name, value in unseen
+        ),
+        level=f.level,
+    )
+
+
+def parse_board_session(
+    path: str | Path, corner_sigma_px: float = 0.5, level: LevelPriors | None = None
+) -> BoardSessionFile:
+    """Read and check a board session file and its camera (and corners file), no image or
+    scan yet: the top level, ``board``, ``level`` and each capture's keys and name.
+
+    Args:
+        path: the session file.
+        corner_sigma_px: the corner noise, unless the file's ``board.corner_sigma_px`` gives it.
+        level: the reduced solve's priors, over the file's ``level:``.
+
+    Raises:
+        InputError: anything missing or invalid, naming the file, key and value.
     """
     path = Path(path)
     head = read_session_header(
@@ -138,12 +243,6 @@ def read_board_session(
             raise InputError.at(path, f"board.{key}", v, "an integer >= 2 (inner corners)")
     board = Board(b["corners_x"], b["corners_y"], get_float(b, "spacing_m", path, "board", positive=True))
     size_m = _size_m(path, b, board, version) if "size_m" in b else None
-    shape = board_shape(board, size_m)
-    laser, params, captures = head.laser, head.params, head.captures
-    obs: list[PlaneObservation] = []
-    poses: list[FloatArray] = []
-    rms: list[float] = []
-    corner_sets: list[FloatArray] = []
     files = [path, camera_path]
     vnl: dict[str, FloatArray] | None = None
     if "corners_vnl" in d:
@@ -151,38 +250,59 @@ def read_board_session(
         files.append(vnl_path)
         det = read_corners_vnl(vnl_path, board, (camera.width_px, camera.height_px))
         vnl = {Path(p).name: g for p, g in zip(det.paths, det.corners, strict=True)}
-    auto: list[int] = []
-    scans: list[Scan | None] = []
-    index: list[int] = []  # each kept capture's index in the file
-    unseen: list[tuple[int, str, Any]] = []
-    # What the images alone show comes first: the boards' poses, and whether their planes
-    # can fix the pose at all, before any laser return is looked for.
-    seen: list[tuple[int, Any, str, FloatArray, FloatArray, float]] = []
-    for i, c in enumerate(captures):
+    captures = []
+    for i, c in enumerate(head.captures):
         kp = f"captures[{i}]"
         c = check_keys(c, path, kp, ["laser_side"], ["scan", "name", "corners_px", "image"])
-        name = capture_name(path, kp, c, i)
-        corners = _corners(path, kp, c, board, camera, files, vnl)
+        captures.append((c, capture_name(path, kp, c, i)))
+    return BoardSessionFile(
+        path,
+        version,
+        camera,
+        camera_path,
+        board,
+        board_shape(board, size_m),
+        head.laser,
+        head.params,
+        tuple(captures),
+        vnl,
+        corner_sigma_px,
+        level,
+        tuple(files),
+    )
+
+
+def _board_poses(
+    f: BoardSessionFile, files: list[Path]
+) -> tuple[list[_SeenBoard], list[tuple[int, str, Any]], list[FloatArray]]:
+    """Each capture's board corners (listed, from the corners file, or detected in its image,
+    which ``files`` gains) and the board's pose by PnP: the captures seen, those whose image
+    shows no board (index, name, image) and the corners of each seen one."""
+    seen: list[_SeenBoard] = []
+    unseen: list[tuple[int, str, Any]] = []
+    corner_sets: list[FloatArray] = []
+    for i, (c, name) in enumerate(f.captures):
+        corners = _corners(f.path, f"captures[{i}]", c, f.board, f.camera, files, f.corners_vnl)
         if corners is None:
             unseen.append((i, name, c["image"]))
             continue
         corner_sets.append(corners)
-        T, cov, err = board_pose(camera, board, corners, corner_sigma_px)
-        seen.append((i, c, name, T, cov, err))
-    if unseen and not skip_unseen_boards:
-        keys = ", ".join(f"captures[{i}].image" for i, _, _ in unseen)
-        shown = ", ".join(repr(str(v)) for _, _, v in unseen)
-        raise InputError(
-            f"{path}: {keys}: got {shown}; expected images showing the {board.width_n}x{board.height_n} "
-            f"board ({len(unseen)} of {len(captures)} captures show none; `rigcal solve "
-            "--skip-unseen-boards` leaves them out with a warning)"
-        )
-    _check_board_normals(
-        path,
-        [(name, plane_observation(i, name, T, cov, np.zeros((0, 2)))) for i, _, name, T, cov, _ in seen],
-        level,
-    )
-    for i, c, name, T, cov, err in seen:
+        T, cov, err = board_pose(f.camera, f.board, corners, f.corner_sigma_px)
+        seen.append(_SeenBoard(i, c, name, T, cov, err))
+    return seen, unseen, corner_sets
+
+
+def _laser_returns(
+    f: BoardSessionFile, seen: list[_SeenBoard], files: list[Path]
+) -> tuple[list[PlaneObservation], list[Scan | None], list[int]]:
+    """Each seen capture's scan (``files`` gains it) and the board's returns in it, as a
+    plane observation: given (segments, points, a returns file) or left empty for
+    ``laser_side: auto``; also the scans and the positions of the auto captures."""
+    path = f.path
+    obs: list[PlaneObservation] = []
+    scans: list[Scan | None] = []
+    auto: list[int] = []
+    for i, c, name, T, cov, _ in seen:
         kp = f"captures[{i}]"
         side = c["laser_side"]
         listed = isinstance(side, dict) and "returns_file" in side
@@ -197,19 +317,30 @@ def read_board_session(
             files.append(scan_path)
             scan = read_scan(scan_path)
         scans.append(scan)
-        index.append(i)
         if side == "auto":
             auto.append(len(obs))
             pts = np.zeros((0, 2))
         elif listed:
-            pts = _listed_returns(path, f"{kp}.laser_side", side, files, version)
+            pts = _listed_returns(path, f"{kp}.laser_side", side, files, f.version)
         else:
             assert scan is not None
-            pts = _given_returns(path, f"{kp}.laser_side", side, scan, scan_path, params, version)
+            pts = _given_returns(path, f"{kp}.laser_side", side, scan, scan_path, f.params, f.version)
         obs.append(plane_observation(i, name, T, cov, pts))
-        poses.append(T)
-        rms.append(err)
-    if auto and level is not None:
+    return obs, scans, auto
+
+
+def _auto_returns(
+    f: BoardSessionFile,
+    obs: list[PlaneObservation],
+    auto: list[int],
+    scans: list[Scan | None],
+    seen: list[_SeenBoard],
+) -> list[PlaneObservation]:
+    """The ``laser_side: auto`` captures' returns, detected (:func:`_detect`): the full
+    solve only, and every capture's scan is needed."""
+    path = f.path
+    index = [s.capture for s in seen]
+    if f.level is not None:
         raise InputError.at(
             path,
             f"captures[{index[auto[0]]}].laser_side",
@@ -217,32 +348,15 @@ def read_board_session(
             "the board's segment ids (`rigcal lines`), returns_file or points: laser_side auto "
             "finds the returns with the full solve, which upright boards cannot support",
         )
-    if auto:
-        missing = [index[k] for k, sc in enumerate(scans) if sc is None]
-        if missing:
-            raise InputError(
-                f"{path}: captures[{missing[0]}].scan: missing; laser_side auto compares every "
-                "capture's scan, so each capture needs its scan"
-            )
-        obs = _detect(path, obs, auto, [sc for sc in scans if sc is not None], poses, shape, params, index)
-    check_unique_names(path, [o.name for o in obs])
-    return BoardSession(
-        path,
-        camera,
-        camera_path,
-        board,
-        dict(laser),
-        tuple(obs),
-        np.array(poses),
-        np.array(rms),
-        tuple(files),
-        corner_sigma_px=corner_sigma_px,
-        corners_px=tuple(corner_sets),
-        skipped=tuple(
-            f"{name} ({value}): no {board.width_n}x{board.height_n} board found" for _, name, value in unseen
-        ),
-        level=level,
-    )
+    missing = [index[k] for k, sc in enumerate(scans) if sc is None]
+    if missing:
+        raise InputError(
+            f"{path}: captures[{missing[0]}].scan: missing; laser_side auto compares every "
+            "capture's scan, so each capture needs its scan"
+        )
+    poses = [s.T_cam_board for s in seen]
+    present = [sc for sc in scans if sc is not None]
+    return _detect(path, obs, auto, present, poses, f.shape, f.params, index)
 
 
 def _check_board_normals(
@@ -306,7 +420,7 @@ def _size_m(path: Path, b: Any, board: Board, version: int) -> tuple[float, floa
 def _listed_returns(path: Path, key: str, side: Any, files: list[Path], version: int) -> FloatArray:
     """The board's returns listed in a text file (``laser_side: {returns_file: FILE}``), as
     MATLAB laser-camera toolboxes save a capture's points on the board."""
-    from rigcal.io.laser_text import read_board_points
+    from rigcal.recordings.laser_text import read_board_points
 
     if len(side) != 1:
         raise InputError.at(path, key, side, "{returns_file: FILE} alone")

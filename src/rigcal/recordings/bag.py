@@ -19,9 +19,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
-from rigcal.io.sequence import ImageFrame, write_sequence
 from rigcal.io.validate import real
 from rigcal.io.wheel_odometry import WheelOdometry, checked
+from rigcal.recordings.sequence import ImageFrame, write_sequence
 from rigcal.scan import Scan
 
 log = logging.getLogger(__name__)
@@ -450,7 +450,7 @@ def _camera_yaml(info: Any, where: str) -> str:
     plumb_bob with 5 or rational_polynomial with 8 coefficients, or none), so that what is
     written can be read back."""
     from rigcal.camera import Camera, camera_to_opencv_yaml
-    from rigcal.io.camera_formats import ROS_DISTORTION_MODELS, check_pinhole_K
+    from rigcal.camera_formats import ROS_DISTORTION_MODELS, check_pinhole_K
 
     # ROS 2 names the fields k, d; ROS 1 names them K, D.
     K = np.asarray(info.k if hasattr(info, "k") else info.K, dtype=float).reshape(3, 3)

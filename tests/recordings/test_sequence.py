@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from rigcal.errors import InputError
-from rigcal.io.sequence import read_sequence, write_sequence
+from rigcal.recordings.sequence import read_sequence, write_sequence
 from rigcal.scan import Scan
 
 

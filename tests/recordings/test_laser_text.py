@@ -12,8 +12,8 @@ import pytest
 
 from rigcal.cli.main import main
 from rigcal.errors import InputError
-from rigcal.io.laser_text import read_csv_laser, read_image_list, read_radlocc_laser
-from rigcal.io.sequence import read_sequence
+from rigcal.recordings.laser_text import read_csv_laser, read_image_list, read_radlocc_laser
+from rigcal.recordings.sequence import read_sequence
 
 CAMERA = """schema_version: 1
 image_width_px: 64

@@ -10,8 +10,8 @@ from test_bag import TS1, TS2, _msgs, write_bag
 
 from rigcal.cli.main import main
 from rigcal.errors import InputError
-from rigcal.io.bag import import_bag
-from rigcal.io.sequence import read_sequence
+from rigcal.recordings.bag import import_bag
+from rigcal.recordings.sequence import read_sequence
 
 
 def _odometry_bag(

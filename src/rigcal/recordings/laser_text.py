@@ -39,10 +39,10 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import read_text
-from rigcal.io.sequence import ImageFrame, write_sequence
 from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.validate import file_inside
 from rigcal.io.wheel_odometry import read_odometry_tum
+from rigcal.recordings.sequence import ImageFrame, write_sequence
 from rigcal.scan import Scan
 
 # RADLOCC's range unit type for metres (what radlocc_collect writes for ROS scans).

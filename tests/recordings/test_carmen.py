@@ -10,9 +10,9 @@ from click.testing import CliRunner
 
 from rigcal.cli.main import cli, main
 from rigcal.errors import InputError
-from rigcal.io.carmen import read_carmen
-from rigcal.io.sequence import read_sequence
 from rigcal.io.trajectory import read_tum
+from rigcal.recordings.carmen import read_carmen
+from rigcal.recordings.sequence import read_sequence
 
 
 def robotlaser1(ranges, pose=(1.0, 2.0, 0.5), stamp=100.0, remissions=(), start=-1.570796, step=0.017453):
@@ -151,3 +151,23 @@ def test_import_carmen_writes_a_sequence_with_ground_truth(tmp_path):
         main(["import-carmen", str(write(tmp_path, ["FLASER 2 1"], "bad.log")), "-o", str(tmp_path / "b")])
         == 3
     )
+
+
+def test_import_carmen_warns_once_and_records_the_repair(tmp_path, capsys):
+    ranges = np.linspace(1.0, 3.0, 20)
+    lines = [robotlaser1(ranges, (0.1 * k, 0, 0), t) for k, t in enumerate((1.0, 1.1, 1.1, 1.05, 1.4))]
+    log = tmp_path / "run.log"
+    log.write_text("\n".join(lines) + "\n")
+    res = CliRunner().invoke(cli, ["import-carmen", str(log), "-o", str(tmp_path / "seq")])
+    assert res.exit_code == 0, res.output
+    warnings = [ln for ln in res.stderr.splitlines() if ln.startswith("warning:")]
+    assert len(warnings) == 1
+    assert "repaired 2 scan stamps (1 equal to the previous one, 1 stepping back)" in warnings[0]
+    seq = read_sequence(tmp_path / "seq")
+    assert [s.stamp_s for s in seq.scans] == pytest.approx([1.0, 1.1, 1.2, 1.3, 1.4])
+    assert seq.source["stamps"]["equal_spread"] == 1
+    assert seq.source["stamps"]["backward_placed"] == 1
+    assert main(["import-carmen", str(log), "-o", str(tmp_path / "s2"), "--stamps", "strict"]) == 3
+    err = capsys.readouterr().err
+    assert "run.log: laser ipc_timestamp: line 3: got stamp 1.1; expected a stamp after" in err
+    assert not (tmp_path / "s2").exists()

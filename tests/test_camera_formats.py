@@ -10,10 +10,10 @@ import pytest
 import yaml
 
 from rigcal.camera import Camera, read_camera
+from rigcal.camera_formats import camera_to_ros_camera_info, is_opencv_storage
 from rigcal.errors import InputError
-from rigcal.io.camera_formats import camera_to_ros_camera_info, is_opencv_storage
 
-EXAMPLE_CAMERA = Path(__file__).resolve().parents[2] / "examples" / "box-session" / "camera.yaml"
+EXAMPLE_CAMERA = Path(__file__).resolve().parents[1] / "examples" / "box-session" / "camera.yaml"
 
 K = np.array([[612.5, 0.0, 321.75], [0.0, 608.25, 238.5], [0.0, 0.0, 1.0]])
 DIST5 = [-0.21, 0.07, 0.0011, -0.0007, -0.012]

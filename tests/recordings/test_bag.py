@@ -15,8 +15,8 @@ from rosbags.typesys import Stores, get_typestore
 from rigcal.camera import read_camera
 from rigcal.cli.main import main
 from rigcal.errors import InputError
-from rigcal.io.bag import import_bag
-from rigcal.io.sequence import read_sequence
+from rigcal.recordings.bag import import_bag
+from rigcal.recordings.sequence import read_sequence
 
 TS2 = get_typestore(Stores.ROS2_HUMBLE)
 TS1 = get_typestore(Stores.ROS1_NOETIC)
@@ -189,7 +189,7 @@ def test_cli(tmp_path, capsys):
     assert err == ""  # -q: no progress lines
     assert main(["-v", *argv[:-2], "-o", str(tmp_path / "v")]) == 0
     err = capsys.readouterr().err
-    assert "INFO: rigcal.io.bag: " in err
+    assert "INFO: rigcal.recordings.bag: " in err
     assert "2 scans, 1 images read from 3 messages" in err
     assert "reading: 3/3 in " in err  # stderr is not a terminal: one line when a stage ends
 
@@ -197,7 +197,7 @@ def test_cli(tmp_path, capsys):
 def test_a_negative_angle_increment_gives_the_same_points_in_increasing_order():
     from types import SimpleNamespace
 
-    from rigcal.io.bag import _scan
+    from rigcal.recordings.bag import _scan
 
     ranges = [1.0, 2.0, 3.0, 4.0]
     up = _scan(
