@@ -13,7 +13,7 @@ the camera frame, and the pose's covariance from the corners' reprojection Jacob
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,7 @@ from rigcal.calib.box.picks import (
     check_image,
     check_unique_names,
     point_pairs,
+    read_capture_scans,
     read_session_header,
     segment_by_id,
     segments_by_ids,
@@ -40,12 +41,15 @@ from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
 from rigcal.io.files import check_keys, get_float
 from rigcal.lines import LineParams
-from rigcal.scan import Scan, read_scan
+from rigcal.scan import Scan
+from rigcal.targets.board import sheet_size_m
 
 BOARD_SESSION_SCHEMA_VERSION = 1
 # Versions read: 2 adds board.size_m and laser_side: {segments: [...]}; 3 adds level: (the
-# priors of the reduced solve for a level scanner and upright boards).
-BOARD_SESSION_SCHEMA_VERSIONS = (1, 2, 3)
+# priors of the reduced solve for a level scanner and upright boards); 4 a capture's
+# ``scans`` (the scans of one still moment, as marker sessions' version 2).
+BOARD_SESSION_SCHEMA_VERSIONS = (1, 2, 3, 4)
+BOARD_SESSION_SCANS_VERSION = 4
 LEVEL_KEYS = ("roll_deg", "pitch_deg", "camera_height_m")
 
 
@@ -69,6 +73,8 @@ class BoardSession:
             ``skip_unseen_boards``), each as "name (image): why".
         level: the priors of the reduced solve (:mod:`rigcal.calib.board.level`: the session's
             ``level:`` or the caller's), None for the full 6-dof solve.
+        scans_per_capture: per capture name, how many scans its laser side is the mean of
+            (captures with a scan file or scans).
     """
 
     path: Path
@@ -84,6 +90,7 @@ class BoardSession:
     corners_px: tuple[FloatArray, ...] = ()
     skipped: tuple[str, ...] = ()
     level: LevelPriors | None = None
+    scans_per_capture: dict[str, int] = field(default_factory=dict)
 
 
 def is_board_session(data: Any) -> bool:
@@ -152,6 +159,7 @@ def read_board_session(
         det = read_corners_vnl(vnl_path, board, (camera.width_px, camera.height_px))
         vnl = {Path(p).name: g for p, g in zip(det.paths, det.corners, strict=True)}
     auto: list[int] = []
+    n_scans: dict[str, int] = {}
     scans: list[Scan | None] = []
     index: list[int] = []  # each kept capture's index in the file
     unseen: list[tuple[int, str, Any]] = []
@@ -160,7 +168,8 @@ def read_board_session(
     seen: list[tuple[int, Any, str, FloatArray, FloatArray, float]] = []
     for i, c in enumerate(captures):
         kp = f"captures[{i}]"
-        c = check_keys(c, path, kp, ["laser_side"], ["scan", "name", "corners_px", "image"])
+        many = ["scans"] if version >= BOARD_SESSION_SCANS_VERSION else []
+        c = check_keys(c, path, kp, ["laser_side"], ["scan", *many, "name", "corners_px", "image"])
         name = capture_name(path, kp, c, i)
         corners = _corners(path, kp, c, board, camera, files, vnl)
         if corners is None:
@@ -186,16 +195,18 @@ def read_board_session(
         kp = f"captures[{i}]"
         side = c["laser_side"]
         listed = isinstance(side, dict) and "returns_file" in side
-        if "scan" not in c and not listed:
+        if "scan" not in c and "scans" not in c and not listed:
             raise InputError(
                 f"{path}: {kp}.scan: missing; this key is required (unless laser_side lists "
                 "the board's returns in a returns_file)"
             )
         scan = None
-        if "scan" in c:
-            scan_path = session_file(path, f"{kp}.scan", c["scan"])
-            files.append(scan_path)
-            scan = read_scan(scan_path)
+        if "scan" in c or "scans" in c:
+            # One scan, or the per-beam robust mean of a still moment's scans.
+            scan, scan_files = read_capture_scans(path, kp, c, version >= BOARD_SESSION_SCANS_VERSION)
+            scan_path = scan_files[0]
+            files += scan_files
+            n_scans[name] = len(scan_files)
         scans.append(scan)
         index.append(i)
         if side == "auto":
@@ -242,6 +253,7 @@ def read_board_session(
             f"{name} ({value}): no {board.width_n}x{board.height_n} board found" for _, name, value in unseen
         ),
         level=level,
+        scans_per_capture=n_scans,
     )
 
 
@@ -289,18 +301,7 @@ def _size_m(path: Path, b: Any, board: Board, version: int) -> tuple[float, floa
     v = b["size_m"]
     if version < 2:
         raise InputError.at(path, "board.size_m", v, "no size_m in schema_version 1 (size_m needs 2)")
-    ok = isinstance(v, list) and len(v) == 2
-    ok = ok and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)
-    pattern = ((board.width_n + 1) * board.spacing_m, (board.height_n + 1) * board.spacing_m)
-    if not ok or not all(x >= p - 1e-9 for x, p in zip(v, pattern, strict=True)):
-        raise InputError.at(
-            path,
-            "board.size_m",
-            v,
-            f"[width, height] of the board's sheet in metres, at least the printed pattern's "
-            f"[{pattern[0]:g}, {pattern[1]:g}] (width along the rows of corners_x)",
-        )
-    return float(v[0]), float(v[1])
+    return sheet_size_m(v, path, board.width_n, board.height_n, board.spacing_m)
 
 
 def _listed_returns(path: Path, key: str, side: Any, files: list[Path], version: int) -> FloatArray:
