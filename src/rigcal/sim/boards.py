@@ -25,6 +25,7 @@ def render_board(
     T_cam_board: FloatArray,
     origin_m: tuple[float, float] = (0.0, 0.0),
     background: NDArray[np.uint8] | None = None,
+    rays: FloatArray | None = None,
 ) -> NDArray[np.uint8]:
     """The camera's image of a board lying in its frame's z = 0 plane.
 
@@ -37,6 +38,8 @@ def render_board(
         origin_m: (x, y) the picture's top-left corner in the board frame.
         background: (height_px, width_px[, 3]) what pixels that miss the board show
             (the texture's channels); None: white.
+        rays: (height_px * width_px, 3) every pixel's bearing, row-major, when the caller
+            has them (:func:`rigcal.sim.render.pixel_bearings`); None: computed here.
 
     Returns:
         (height_px, width_px[, 3]) uint8.
@@ -44,8 +47,9 @@ def render_board(
     import cv2
 
     W, H = camera.width_px, camera.height_px
-    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
-    rays = camera.bearings(np.column_stack([u.ravel(), v.ravel()]))
+    if rays is None:
+        u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+        rays = camera.bearings(np.column_stack([u.ravel(), v.ravel()]))
     T_board_cam = inv_T(T_cam_board)
     d = rays @ T_board_cam[:3, :3].T
     o = T_board_cam[:3, 3]

@@ -52,6 +52,7 @@ def board_moments(session: SimBoardSession, seed: int = 0) -> list[StillMoment]:
     does not move), shaded by incidence, with the realistic camera's blur and noise when
     the session's noise is realistic."""
     from rigcal.sim.boards import chessboard_sheet, render_board
+    from rigcal.sim.render import pixel_bearings
 
     spec = session.spec
     rng = np.random.default_rng(seed)
@@ -59,6 +60,7 @@ def board_moments(session: SimBoardSession, seed: int = 0) -> list[StillMoment]:
     texture, origin = chessboard_sheet(b.width_n, b.height_n, b.spacing_m, spec.size_m, SHEET_PX_PER_M)
     background = _background(session.camera, rng)
     effects = CameraEffects(3.0, 0.8) if spec.noise is not None else CameraEffects(1.0, 0.0)
+    rays = pixel_bearings(session.camera).astype(float)
     out = []
     k = spec.repeats
     for p in range(len(session.captures) // k):
@@ -66,7 +68,7 @@ def board_moments(session: SimBoardSession, seed: int = 0) -> list[StillMoment]:
         T = T_cam_board(session, group[0])
         # Matte paper lit from near the rig: brighter head-on (as the marker target's faces).
         lit = (texture.astype(np.float32) * (0.55 + 0.4 * abs(float(T[2, 2])))).astype(np.uint8)
-        grey = render_board(session.camera, lit, spec.size_m, T, origin, background)
+        grey = render_board(session.camera, lit, spec.size_m, T, origin, background, rays)
         image = apply_effects(np.repeat(grey[:, :, None], 3, axis=2), effects, rng)
         out.append(StillMoment(tuple(c.scan for c in group), image))
     return out

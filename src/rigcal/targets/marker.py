@@ -153,6 +153,13 @@ def read_targets(path: str | Path) -> MarkerTarget:
 
 def parse_targets(data: Any, path: Path | None) -> MarkerTarget:
     """Validate a parsed targets file (see :func:`read_targets`)."""
+    if isinstance(data, dict) and data.get("kind", "marker") != "marker":
+        raise InputError.at(
+            path,
+            "kind",
+            data["kind"],
+            "marker (a V of two ChArUco faces; kind: board describes a chessboard, for rigcal capture)",
+        )
     d = check_keys(
         data,
         path,
@@ -163,15 +170,8 @@ def parse_targets(data: Any, path: Path | None) -> MarkerTarget:
     version = d["schema_version"]
     if type(version) is not int or version not in TARGETS_SCHEMA_VERSIONS:
         raise InputError.at(path, "schema_version", version, "1 or 2 (the versions this rigcal reads)")
-    if "kind" in d and (version < 2 or d["kind"] != "marker"):
-        raise InputError.at(
-            path,
-            "kind",
-            d["kind"],
-            "no kind in schema_version 1 (kind needs 2)"
-            if version < 2
-            else "marker (a V of two ChArUco faces; kind: board describes a chessboard, for rigcal capture)",
-        )
+    if "kind" in d and version < 2:
+        raise InputError.at(path, "kind", d["kind"], "no kind in schema_version 1 (kind needs 2)")
     dictionary = d["dictionary"]
     if dictionary not in DICTIONARIES:
         raise InputError.at(
