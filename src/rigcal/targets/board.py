@@ -14,11 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, load_yaml
-from rigcal.io.validate import real, whole
+from rigcal.io.validate import is_real, real, whole
 from rigcal.targets.marker import TARGETS_SCHEMA_VERSIONS, MarkerTarget, parse_targets
 
 KINDS = ("marker", "board")
@@ -98,7 +96,7 @@ def sheet_size_m(
     """
     pattern = ((corners_x + 1) * spacing_m, (corners_y + 1) * spacing_m)
     ok = isinstance(v, list) and len(v) == 2
-    ok = ok and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)
+    ok = ok and all(is_real(x) for x in v)
     if not ok or not all(x >= p - 1e-9 for x, p in zip(v, pattern, strict=True)):
         raise InputError.at(
             path,
