@@ -339,3 +339,23 @@ def test_scans_of_another_scanner_in_one_capture_are_refused(board_captured, tmp
         InputError, match=r"captures\[0\]\.scans\[1\]: got .*; expected a scan with the beams of"
     ):
         read_board_session(path)
+
+
+def test_a_scan_change_counts_beams_that_change_together():
+    """Noise and mixed pixels move beams one by one; what moves, moves neighbours together."""
+    from rigcal.calib.capture import scan_change
+
+    rng = np.random.default_rng(0)
+    flat = np.full(1000, 2.0)
+    a = Scan.from_uniform(-1.0, 0.002, flat, 0.1, 30.0)
+    # Heavy-tailed noise (Student t, 4 dof, 1.4 cm scale) moves ~8 % of the beams by 5 cm.
+    noisy = [
+        Scan.from_uniform(-1.0, 0.002, flat + 0.014 * rng.standard_t(4, 1000), 0.1, 30.0) for _ in range(2)
+    ]
+    raw = np.mean(np.abs(noisy[0].ranges_m - noisy[1].ranges_m) > 0.05)
+    assert raw > 0.05
+    assert scan_change(noisy[0], noisy[1], 0.05) < 0.01
+    # A board 30 beams wide moved by 20 cm: 3 % of the beams, every one counted.
+    moved = flat.copy()
+    moved[400:430] += 0.2
+    assert scan_change(a, Scan.from_uniform(-1.0, 0.002, moved, 0.1, 30.0), 0.05) == pytest.approx(0.03)

@@ -51,7 +51,8 @@ from rigcal.cli.types import Real
 @click.option(
     "--changed-fraction", default=0.01, show_default=True,
     type=Real(0.0, 1.0, min_open=True, max_open=True),
-    help="Two frames are still when under this fraction of beams / pixels moved.",
+    help="Two frames are still when under this fraction of beams / pixels moved (beams: "
+    "those that moved with their neighbours, in runs of 3).",
 )  # fmt: skip
 @click.option(
     "--max-offset-s", default=0.5, show_default=True, type=Real(min=0.0, min_open=True),
