@@ -345,9 +345,9 @@ def test_a_capture_with_wrong_returns_is_rejected_and_reported(calibrated):
 
 
 # --- rejected files ------------------------------------------------------------------------------
-def test_schema_version_other_than_1_2_or_3(session):
-    edit(session, lambda d: d.update(schema_version=4))
-    assert "expected 1, 2 or 3" in expect_error(session, "schema_version", "4")
+def test_schema_version_other_than_1_to_4(session):
+    edit(session, lambda d: d.update(schema_version=5))
+    assert "expected 1, 2, 3 or 4" in expect_error(session, "schema_version", "5")
 
 
 def test_unknown_top_level_key(session):

@@ -309,3 +309,37 @@ def test_every_float_option_is_finite():
                     with pytest.raises(click.BadParameter):
                         p.type.convert(bad, p, None)
     assert len(floats) >= 20
+
+
+BOARD_TARGET = {
+    "schema_version": 2,
+    "kind": "board",
+    "name": "b",
+    "board": {
+        "corners_x": 8,
+        "corners_y": 6,
+        "spacing_m": 0.06,
+        "size_m": [0.6, 0.5],
+        "corner_sigma_px": 0.4,
+    },
+}
+
+
+@SETTINGS
+@given(data=st.data())
+def test_board_targets_reader(tmp_path_factory, data):
+    from rigcal.targets.board import BoardTarget, read_target
+
+    keys = data.draw(st.sampled_from(leaves(BOARD_TARGET)))
+    p = dump(tmp_path_factory.mktemp("bt") / "b.yaml", replaced(BOARD_TARGET, keys, data.draw(values)))
+    t = parsed(read_target, p)
+    if t is None or not isinstance(t, BoardTarget):
+        return
+    assert t.corners_x >= 2
+    assert t.corners_y >= 2
+    assert math.isfinite(t.spacing_m)
+    assert t.spacing_m > 0
+    if t.size_m is not None:
+        assert finite(t.size_m)
+        assert t.size_m[0] >= (t.corners_x + 1) * t.spacing_m - 1e-9
+    assert t.corner_sigma_px is None or (math.isfinite(t.corner_sigma_px) and t.corner_sigma_px > 0)

@@ -78,7 +78,9 @@ def test_faces_meet_on_the_edge():
             r"faces\[0\]\.marker_m: got 0.12; expected a marker side",
         ),
         (lambda d: d.update(corner="flat"), r"corner: got 'flat'"),
-        (lambda d: d.update(schema_version=2), r"schema_version: got 2"),
+        (lambda d: d.update(schema_version=3), r"schema_version: got 3; expected 1 or 2"),
+        (lambda d: d.update(kind="marker"), r"kind: got 'marker'; expected no kind in schema_version 1"),
+        (lambda d: d.update(schema_version=2, kind="board"), r"kind: got 'board'; expected marker"),
         (lambda d: d.update(colour="red"), r"colour: got 'red'; expected no such key"),
         (lambda d: d["faces"][1].update(name="left"), r"faces\[1\]\.name: got 'left'"),
         (lambda d: d["faces"][0].update(squares=[4]), r"faces\[0\]\.squares: got \[4\]"),
@@ -93,6 +95,12 @@ def test_errors_name_file_key_and_value(tmp_path, edit, match):
         read_targets(p)
     assert str(p) in str(e.value)
     assert "\n" not in str(e.value)
+
+
+def test_version_2_says_its_kind():
+    d = _doc()
+    d.update(schema_version=2, kind="marker")
+    assert parse_targets(d, None) == parse_targets(_doc(), None)
 
 
 def test_explicit_ids():

@@ -5,8 +5,12 @@ to calibrate from are those where nothing moves: there the scan and the image se
 same scene even though their stamps differ. :func:`find_still_periods`:
 
 1. scan-to-scan change: the fraction of beams (valid in both scans) whose range changed by
-   more than ``scan_threshold_m``; a pair of scans is still when it is under
-   ``max_changed_fraction``;
+   more than ``scan_threshold_m`` together with their neighbours, in runs of at least
+   MIN_CHANGED_RUN beams; a pair of scans is still when it is under
+   ``max_changed_fraction``. Something that moves changes neighbouring beams together;
+   range noise and mixed pixels change beams one by one (a scanner with heavy-tailed
+   noise of 1.4 cm scale moves 8 % of its beams by more than 5 cm from scan to scan, and
+   almost none in runs of three);
 2. image-to-image change: the fraction of pixels (grey, downscaled to at most 160 px wide)
    whose level changed by more than ``image_threshold``; still under the same fraction;
 3. a still run is a maximal run of consecutive still pairs spanning at least
@@ -86,14 +90,24 @@ class StillCapture:
 
 
 def scan_change(a: Scan, b: Scan, threshold_m: float) -> float:
-    """Fraction of beams valid in both scans whose range moved by more than ``threshold_m``
-    (1.0 when the scans have different beams)."""
+    """Fraction of beams valid in both scans whose range moved by more than ``threshold_m``,
+    counting only runs of at least MIN_CHANGED_RUN neighbouring such beams (1.0 when the
+    scans have different beams)."""
     if len(a.ranges_m) != len(b.ranges_m) or not np.allclose(a.angles_rad, b.angles_rad):
         return 1.0
     both = a.valid & b.valid
     if not both.any():
         return 1.0
-    return float(np.mean(np.abs(a.ranges_m[both] - b.ranges_m[both]) > threshold_m))
+    moved = both & (np.abs(np.where(both, a.ranges_m - b.ranges_m, 0.0)) > threshold_m)
+    # A beam is in a run when MIN_CHANGED_RUN consecutive moved beams cover it.
+    k = MIN_CHANGED_RUN
+    full = np.convolve(moved.astype(np.int64), np.ones(k, dtype=np.int64), mode="valid") == k
+    in_run = np.convolve(full.astype(np.int64), np.ones(k, dtype=np.int64), mode="full") > 0
+    return float(np.sum(in_run) / np.sum(both))
+
+
+# Beams that change together (a run at least this long) are a change of the scene.
+MIN_CHANGED_RUN = 3
 
 
 def image_change(a: NDArray[np.float32], b: NDArray[np.float32], threshold: float) -> float:
@@ -205,7 +219,7 @@ def _check_image_sizes(
     from rigcal.io.images import read_image_file
 
     for c in captures:
-        path = _images_dir(seq) / seq.image_files[c.image_index]
+        path = image_path(seq, c)
         img = read_image_file(path, cv2.IMREAD_UNCHANGED)
         if img is None:
             raise InputError(
@@ -227,6 +241,11 @@ def _check_image_sizes(
 def _images_dir(seq: Sequence) -> Path:
     assert seq.folder is not None
     return seq.folder / "images"
+
+
+def image_path(seq: Sequence, capture: StillCapture) -> Path:
+    """The file of a still moment's image."""
+    return _images_dir(seq) / seq.image_files[capture.image_index]
 
 
 def _same_placement(
@@ -254,12 +273,15 @@ def write_capture_session(
     force: bool = False,
     origin: str | Path | None = None,
     targets_file: Path | None = None,
+    max_scans: int | None = None,
 ) -> Path:
     """Write the session folder: ``camera.*``, ``scans/capNN.yaml``, ``images/capNN.*``
     and ``picks.yaml`` (schema 2, captures not picked yet), atomically; with a marker
     target's ``targets_file``, that file (as ``targets.yaml``) and ``marker_session.yaml``
-    (docs/formats/marker-session.md, ready for ``rigcal solve``) instead of the picking file.
-    ``origin`` is what messages name, as in :func:`find_still_periods`.
+    (docs/formats/marker-session.md, ready for ``rigcal solve``) instead of the picking
+    file, each capture with the scans of its still moment (:func:`still_scan_indices`,
+    at most ``max_scans``). ``origin`` is what messages name, as in
+    :func:`find_still_periods`. (A board target's session: :mod:`rigcal.calib.board.capture`.)
 
     Raises:
         InputError: no still period was found, or a captured image's size is not the
@@ -268,50 +290,13 @@ def write_capture_session(
     """
     import yaml
 
-    from rigcal.camera import read_camera
     from rigcal.io.files import atomic_folder
-    from rigcal.scan import scan_to_text
 
     origin = origin or seq.folder
-    if not captures:
-        raise InputError(
-            f"{origin}: still periods: got none; expected moments where the scans and images stay "
-            "still for the given number of frames (see rigcal capture --help for the thresholds)"
-        )
-    for k, c in enumerate(captures):
-        for s in still_scan_indices(seq, c) if targets_file is not None else [c.scan_index]:
-            r = seq.scans[s].ranges_m
-            if np.any(r < 0):
-                raise InputError.at(
-                    origin,
-                    f"scans[{s}].ranges_m",
-                    float(r[r < 0][0]),
-                    f"ranges >= 0 (0, NaN or inf for no return) in the scan of capture {k}",
-                )
-    _check_image_sizes(seq, captures, read_camera(camera_file), origin)
+    many = targets_file is not None
+    check_capture_inputs(seq, captures, camera_file, origin, max_scans if many else 1)
     with atomic_folder(output, force) as tmp:
-        (tmp / "scans").mkdir()
-        (tmp / "images").mkdir()
-        camera_name = "camera" + "".join(camera_file.suffixes[-1:]) if camera_file.suffix else "camera.yaml"
-        shutil.copyfile(camera_file, tmp / camera_name)
-        entries: list[dict[str, object]] = []
-        for k, c in enumerate(captures):
-            name = f"cap{k:02d}"
-            src = _images_dir(seq) / seq.image_files[c.image_index]
-            image_rel = f"images/{name}{src.suffix.lower()}"
-            shutil.copyfile(src, tmp / image_rel)
-            if targets_file is None:
-                (tmp / "scans" / f"{name}.yaml").write_text(
-                    scan_to_text(seq.scans[c.scan_index]), encoding="utf-8"
-                )
-                entries.append({"name": name, "scan": f"scans/{name}.yaml", "image": image_rel})
-                continue
-            # A marker session keeps every scan of the still moment (the solve averages them).
-            files = []
-            for j, s in enumerate(still_scan_indices(seq, c)):
-                files.append(f"scans/{name}_{j:02d}.yaml")
-                (tmp / files[-1]).write_text(scan_to_text(seq.scans[s]), encoding="utf-8")
-            entries.append({"name": name, "image": image_rel, "scans": files})
+        camera_name, entries = write_capture_files(tmp, seq, captures, camera_file, max_scans if many else 1)
         if targets_file is not None:
             _write_marker_session(tmp, seq, captures, camera_name, targets_file, entries)
             return Path(output)
@@ -344,19 +329,93 @@ def write_capture_session(
     return Path(output)
 
 
-def still_scan_indices(seq: Sequence, capture: StillCapture) -> list[int]:
+def check_capture_inputs(
+    seq: Sequence,
+    captures: Seq[StillCapture],
+    camera_file: Path,
+    origin: str | Path | None,
+    max_scans: int | None = 1,
+) -> None:
+    """What a captured session needs before anything is written: a still period, scans
+    with no negative range (each capture's kept scans, :func:`still_scan_indices` with
+    ``max_scans``; 1: the scan paired with the image), images of the camera's size.
+
+    Raises:
+        InputError: no still period, a negative range, an image of another size.
+    """
+    from rigcal.camera import read_camera
+
+    if not captures:
+        raise InputError(
+            f"{origin}: still periods: got none; expected moments where the scans and images stay "
+            "still for the given number of frames (see rigcal capture --help for the thresholds)"
+        )
+    for k, c in enumerate(captures):
+        for s in still_scan_indices(seq, c, max_scans):
+            r = seq.scans[s].ranges_m
+            if np.any(r < 0):
+                raise InputError.at(
+                    origin,
+                    f"scans[{s}].ranges_m",
+                    float(r[r < 0][0]),
+                    f"ranges >= 0 (0, NaN or inf for no return) in the scan of capture {k}",
+                )
+    _check_image_sizes(seq, captures, read_camera(camera_file), origin)
+
+
+def write_capture_files(
+    tmp: Path, seq: Sequence, captures: Seq[StillCapture], camera_file: Path, max_scans: int | None = 1
+) -> tuple[str, list[dict[str, object]]]:
+    """A captured session's files in the folder ``tmp``: the camera file, each capture's
+    image (``images/capNN.*``) and scans: with ``max_scans`` 1 the scan paired with the
+    image (``scans/capNN.yaml``), else those of its still moment (``scans/capNN_JJ.yaml``,
+    :func:`still_scan_indices`). Returns the camera file's name and one session entry
+    per capture (``name``, ``image``, and ``scan`` or ``scans``)."""
+    from rigcal.scan import scan_to_text
+
+    (tmp / "scans").mkdir()
+    (tmp / "images").mkdir()
+    camera_name = "camera" + "".join(camera_file.suffixes[-1:]) if camera_file.suffix else "camera.yaml"
+    shutil.copyfile(camera_file, tmp / camera_name)
+    entries: list[dict[str, object]] = []
+    for k, c in enumerate(captures):
+        name = f"cap{k:02d}"
+        src = image_path(seq, c)
+        image_rel = f"images/{name}{src.suffix.lower()}"
+        shutil.copyfile(src, tmp / image_rel)
+        if max_scans == 1:
+            (tmp / "scans" / f"{name}.yaml").write_text(
+                scan_to_text(seq.scans[c.scan_index]), encoding="utf-8"
+            )
+            entries.append({"name": name, "scan": f"scans/{name}.yaml", "image": image_rel})
+            continue
+        # A session of a plane method keeps every scan of the still moment (the solve averages them).
+        files = []
+        for j, s in enumerate(still_scan_indices(seq, c, max_scans)):
+            files.append(f"scans/{name}_{j:02d}.yaml")
+            (tmp / files[-1]).write_text(scan_to_text(seq.scans[s]), encoding="utf-8")
+        entries.append({"name": name, "image": image_rel, "scans": files})
+    return camera_name, entries
+
+
+def still_scan_indices(seq: Sequence, capture: StillCapture, max_scans: int | None = None) -> list[int]:
     """The scans of a still moment: those stamped within its period (at least the one
-    paired with its image), in time order, at most MAX_STILL_SCANS spread evenly over it."""
+    paired with its image), in time order, at most ``max_scans`` (default
+    MAX_STILL_SCANS) spread evenly over it; with ``max_scans`` 1, the one paired with
+    its image."""
+    if max_scans == 1:
+        return [capture.scan_index]
+    max_scans = max_scans or MAX_STILL_SCANS
     t = np.array([s.stamp_s for s in seq.scans], dtype=float)
     idx = np.flatnonzero((t >= capture.start_s) & (t <= capture.end_s))
     if capture.scan_index not in idx:
         idx = np.sort(np.append(idx, capture.scan_index))
-    if len(idx) > MAX_STILL_SCANS:
-        idx = idx[np.round(np.linspace(0, len(idx) - 1, MAX_STILL_SCANS)).astype(int)]
+    if len(idx) > max_scans:
+        idx = idx[np.round(np.linspace(0, len(idx) - 1, max_scans)).astype(int)]
     return [int(i) for i in idx]
 
 
-# A still moment's scans kept for a marker session: independent noise averages down as
+# A still moment's scans kept for a marker or board session: independent noise averages down as
 # 1/sqrt(K), so beyond this many more scans buy little (a 1.7x smaller sigma from 10 to
 # 30) and cost files.
 MAX_STILL_SCANS = 30

@@ -19,37 +19,72 @@ from rigcal.geometry import inv_T
 
 
 def render_board(
-    camera: Camera, texture: NDArray[np.uint8], board_size_m: tuple[float, float], T_cam_board: FloatArray
+    camera: Camera,
+    texture: NDArray[np.uint8],
+    board_size_m: tuple[float, float],
+    T_cam_board: FloatArray,
+    origin_m: tuple[float, float] = (0.0, 0.0),
+    background: NDArray[np.uint8] | None = None,
+    rays: FloatArray | None = None,
 ) -> NDArray[np.uint8]:
-    """The camera's grey image of a board lying in its frame's z = 0 plane.
+    """The camera's image of a board lying in its frame's z = 0 plane.
 
     Args:
         camera: the camera model.
-        texture: the board's picture (grey), its top-left at the board frame's origin, x
-            to the right and y down, covering ``board_size_m``.
+        texture: the board's picture (grey or BGR), its top-left at ``origin_m`` in the
+            board frame, x to the right and y down, covering ``board_size_m``.
         board_size_m: (width, height) of the picture on the board, metres.
         T_cam_board: (4, 4) the board's pose in the camera frame.
+        origin_m: (x, y) the picture's top-left corner in the board frame.
+        background: (height_px, width_px[, 3]) what pixels that miss the board show
+            (the texture's channels); None: white.
+        rays: (height_px * width_px, 3) every pixel's bearing, row-major, when the caller
+            has them (:func:`rigcal.sim.render.pixel_bearings`); None: computed here.
 
     Returns:
-        (height_px, width_px) uint8; pixels that miss the board are white.
+        (height_px, width_px[, 3]) uint8.
     """
     import cv2
 
     W, H = camera.width_px, camera.height_px
-    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
-    rays = camera.bearings(np.column_stack([u.ravel(), v.ravel()]))
+    if rays is None:
+        u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+        rays = camera.bearings(np.column_stack([u.ravel(), v.ravel()]))
     T_board_cam = inv_T(T_cam_board)
     d = rays @ T_board_cam[:3, :3].T
     o = T_board_cam[:3, 3]
     with np.errstate(divide="ignore", invalid="ignore"):
         s = -o[2] / d[:, 2]
-    p = o[None, :2] + s[:, None] * d[:, :2]
+    p = o[None, :2] + s[:, None] * d[:, :2] - np.asarray(origin_m)
     p[~(s > 0)] = -1e6
     th, tw = texture.shape[:2]
     map_x = (p[:, 0] / board_size_m[0] * tw - 0.5).reshape(H, W).astype(np.float32)
     map_y = (p[:, 1] / board_size_m[1] * th - 0.5).reshape(H, W).astype(np.float32)
-    out = cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR, borderValue=255)
+    if background is None:
+        out = cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR, borderValue=255)
+    else:
+        out = cv2.remap(
+            texture, map_x, map_y, cv2.INTER_LINEAR, dst=background.copy(), borderMode=cv2.BORDER_TRANSPARENT
+        )
     return np.asarray(out, dtype=np.uint8)
+
+
+def chessboard_sheet(
+    corners_x: int, corners_y: int, spacing_m: float, size_m: tuple[float, float], px_per_m: float
+) -> tuple[NDArray[np.uint8], tuple[float, float]]:
+    """A chessboard's sheet as printed: (H, W) uint8, white, the pattern (inner corners
+    plus one square all round) centred on it; and the sheet's top-left corner in the
+    board frame (origin at the first inner corner, x along the rows, y down)."""
+    w0, h0 = (corners_x - 1) * spacing_m, (corners_y - 1) * spacing_m
+    x0, y0 = -0.5 * (size_m[0] - w0), -0.5 * (size_m[1] - h0)
+    W, H = round(size_m[0] * px_per_m), round(size_m[1] * px_per_m)
+    x = x0 + (np.arange(W) + 0.5) / px_per_m
+    y = y0 + (np.arange(H) + 0.5) / px_per_m
+    i = np.floor(x / spacing_m).astype(int)
+    j = np.floor(y / spacing_m).astype(int)
+    inside = (i[None, :] >= -1) & (i[None, :] < corners_x) & (j[:, None] >= -1) & (j[:, None] < corners_y)
+    black = inside & ((i[None, :] + j[:, None]) % 2 == 0)
+    return np.where(black, 0, 255).astype(np.uint8), (x0, y0)
 
 
 def board_views(

@@ -37,6 +37,9 @@ from rigcal.io.files import check_keys, load_yaml
 from rigcal.io.validate import real, whole
 
 TARGETS_SCHEMA_VERSION = 1
+# Versions read: 2 adds ``kind`` (``marker``, or ``board``: rigcal.targets.board). A marker
+# target is written as version 1, which holds all of it.
+TARGETS_SCHEMA_VERSIONS = (1, 2)
 CORNERS = ("concave", "convex")
 # A V narrower or wider than this is too close to one plane (or folded flat) for the
 # laser to tell its faces apart.
@@ -150,18 +153,25 @@ def read_targets(path: str | Path) -> MarkerTarget:
 
 def parse_targets(data: Any, path: Path | None) -> MarkerTarget:
     """Validate a parsed targets file (see :func:`read_targets`)."""
+    if isinstance(data, dict) and data.get("kind", "marker") != "marker":
+        raise InputError.at(
+            path,
+            "kind",
+            data["kind"],
+            "marker (a V of two ChArUco faces; kind: board describes a chessboard, for rigcal capture)",
+        )
     d = check_keys(
         data,
         path,
         "",
         ["schema_version", "dictionary", "angle_deg", "edge_m", "faces"],
-        ["name", "corner"],
+        ["name", "corner", "kind"],
     )
     version = d["schema_version"]
-    if type(version) is not int or version != TARGETS_SCHEMA_VERSION:
-        raise InputError.at(
-            path, "schema_version", version, f"{TARGETS_SCHEMA_VERSION} (the version this rigcal reads)"
-        )
+    if type(version) is not int or version not in TARGETS_SCHEMA_VERSIONS:
+        raise InputError.at(path, "schema_version", version, "1 or 2 (the versions this rigcal reads)")
+    if "kind" in d and version < 2:
+        raise InputError.at(path, "kind", d["kind"], "no kind in schema_version 1 (kind needs 2)")
     dictionary = d["dictionary"]
     if dictionary not in DICTIONARIES:
         raise InputError.at(

@@ -412,6 +412,9 @@ def board_report(
                 "inlier": bool(keep),
             }
         )
+        if o.name in session.scans_per_capture:
+            # A marker session counts scans per capture, not per face: it adds its own.
+            per[-1]["scans"] = session.scans_per_capture[o.name]
         if keep:
             used.append(res)
     allr = np.concatenate(used)

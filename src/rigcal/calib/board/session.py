@@ -14,7 +14,7 @@ the camera frame, and the pose's covariance from the corners' reprojection Jacob
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -30,6 +30,7 @@ from rigcal.calib.box.picks import (
     check_image,
     check_unique_names,
     point_pairs,
+    read_capture_scans,
     read_session_header,
     segment_by_id,
     segments_by_ids,
@@ -41,12 +42,15 @@ from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
 from rigcal.io.files import check_keys, get_float
 from rigcal.lines import LineParams
-from rigcal.scan import Scan, read_scan
+from rigcal.scan import Scan
+from rigcal.targets.board import sheet_size_m
 
 BOARD_SESSION_SCHEMA_VERSION = 1
 # Versions read: 2 adds board.size_m and laser_side: {segments: [...]}; 3 adds level: (the
-# priors of the reduced solve for a level scanner and upright boards).
-BOARD_SESSION_SCHEMA_VERSIONS = (1, 2, 3)
+# priors of the reduced solve for a level scanner and upright boards); 4 a capture's
+# ``scans`` (the scans of one still moment, as marker sessions' version 2).
+BOARD_SESSION_SCHEMA_VERSIONS = (1, 2, 3, 4)
+BOARD_SESSION_SCANS_VERSION = 4
 LEVEL_KEYS = ("roll_deg", "pitch_deg", "camera_height_m")
 
 
@@ -70,6 +74,8 @@ class BoardSession:
             ``skip_unseen_boards``), each as "name (image): why".
         level: the priors of the reduced solve (:mod:`rigcal.calib.board.level`: the session's
             ``level:`` or the caller's), None for the full 6-dof solve.
+        scans_per_capture: per capture name, how many scans its laser side is the mean of
+            (captures with a scan file or scans).
     """
 
     path: Path
@@ -85,6 +91,7 @@ class BoardSession:
     corners_px: tuple[FloatArray, ...] = ()
     skipped: tuple[str, ...] = ()
     level: LevelPriors | None = None
+    scans_per_capture: dict[str, int] = field(default_factory=dict)
 
 
 def is_board_session(data: Any) -> bool:
@@ -182,7 +189,7 @@ def read_board_session(
     none = np.zeros((0, 2))
     planes = [(s.name, plane_observation(s.capture, s.name, s.T_cam_board, s.pose_cov, none)) for s in seen]
     _check_board_normals(f.path, planes, f.level)
-    obs, scans, auto = _laser_returns(f, seen, files)
+    obs, scans, auto, n_scans = _laser_returns(f, seen, files)
     if auto:
         obs = _auto_returns(f, obs, auto, scans, seen)
     check_unique_names(f.path, [o.name for o in obs])
@@ -202,6 +209,7 @@ def read_board_session(
             f"{name} ({value}): no {board.width_n}x{board.height_n} board found" for _, name, value in unseen
         ),
         level=f.level,
+        scans_per_capture=n_scans,
     )
 
 
@@ -253,7 +261,8 @@ def parse_board_session(
     captures = []
     for i, c in enumerate(head.captures):
         kp = f"captures[{i}]"
-        c = check_keys(c, path, kp, ["laser_side"], ["scan", "name", "corners_px", "image"])
+        many = ["scans"] if version >= BOARD_SESSION_SCANS_VERSION else []
+        c = check_keys(c, path, kp, ["laser_side"], ["scan", *many, "name", "corners_px", "image"])
         captures.append((c, capture_name(path, kp, c, i)))
     return BoardSessionFile(
         path,
@@ -294,28 +303,32 @@ def _board_poses(
 
 def _laser_returns(
     f: BoardSessionFile, seen: list[_SeenBoard], files: list[Path]
-) -> tuple[list[PlaneObservation], list[Scan | None], list[int]]:
+) -> tuple[list[PlaneObservation], list[Scan | None], list[int], dict[str, int]]:
     """Each seen capture's scan (``files`` gains it) and the board's returns in it, as a
     plane observation: given (segments, points, a returns file) or left empty for
-    ``laser_side: auto``; also the scans and the positions of the auto captures."""
+    ``laser_side: auto``; also the scans, the positions of the auto captures and, per
+    capture name, how many scans its scan is the mean of."""
     path = f.path
     obs: list[PlaneObservation] = []
     scans: list[Scan | None] = []
     auto: list[int] = []
+    n_scans: dict[str, int] = {}
     for i, c, name, T, cov, _ in seen:
         kp = f"captures[{i}]"
         side = c["laser_side"]
         listed = isinstance(side, dict) and "returns_file" in side
-        if "scan" not in c and not listed:
+        if "scan" not in c and "scans" not in c and not listed:
             raise InputError(
                 f"{path}: {kp}.scan: missing; this key is required (unless laser_side lists "
                 "the board's returns in a returns_file)"
             )
         scan = None
-        if "scan" in c:
-            scan_path = session_file(path, f"{kp}.scan", c["scan"])
-            files.append(scan_path)
-            scan = read_scan(scan_path)
+        if "scan" in c or "scans" in c:
+            # One scan, or the per-beam robust mean of a still moment's scans.
+            scan, scan_files = read_capture_scans(path, kp, c, f.version >= BOARD_SESSION_SCANS_VERSION)
+            scan_path = scan_files[0]
+            files += scan_files
+            n_scans[name] = len(scan_files)
         scans.append(scan)
         if side == "auto":
             auto.append(len(obs))
@@ -326,7 +339,7 @@ def _laser_returns(
             assert scan is not None
             pts = _given_returns(path, f"{kp}.laser_side", side, scan, scan_path, f.params, f.version)
         obs.append(plane_observation(i, name, T, cov, pts))
-    return obs, scans, auto
+    return obs, scans, auto, n_scans
 
 
 def _auto_returns(
@@ -403,18 +416,7 @@ def _size_m(path: Path, b: Any, board: Board, version: int) -> tuple[float, floa
     v = b["size_m"]
     if version < 2:
         raise InputError.at(path, "board.size_m", v, "no size_m in schema_version 1 (size_m needs 2)")
-    ok = isinstance(v, list) and len(v) == 2
-    ok = ok and all(isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)
-    pattern = ((board.width_n + 1) * board.spacing_m, (board.height_n + 1) * board.spacing_m)
-    if not ok or not all(x >= p - 1e-9 for x, p in zip(v, pattern, strict=True)):
-        raise InputError.at(
-            path,
-            "board.size_m",
-            v,
-            f"[width, height] of the board's sheet in metres, at least the printed pattern's "
-            f"[{pattern[0]:g}, {pattern[1]:g}] (width along the rows of corners_x)",
-        )
-    return float(v[0]), float(v[1])
+    return sheet_size_m(v, path, board.width_n, board.height_n, board.spacing_m)
 
 
 def _listed_returns(path: Path, key: str, side: Any, files: list[Path], version: int) -> FloatArray:
