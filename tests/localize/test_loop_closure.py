@@ -25,6 +25,7 @@ from rigcal.localize.loop_closure import (
     relative,
     scans_at,
     search_window,
+    step_covariances,
 )
 from rigcal.localize.pose_graph import PoseGraph, gtsam_available, optimise
 
@@ -308,7 +309,12 @@ def test_chained_covariances_compound_the_steps_as_a_monte_carlo_does(rng):
     scale = np.sqrt(np.outer(np.diag(mc), np.diag(mc)))
     # Within the Monte Carlo's own spread (1/sqrt(40000) of a correlation: 0.005).
     assert np.abs((out[2] - mc) / scale).max() < 0.03
-    assert np.isnan(chained_covariances(t, poses, cov, np.array([0.3, 0.31]))[1]).all()
+    # A tenth of a step (an image's stamp and its scan's): a tenth of its covariance, and
+    # the two pieces of a step split at an image add up to the step.
+    np.testing.assert_allclose(chained_covariances(t, poses, cov, np.array([0.3, 0.31]))[1], 0.1 * cov[4])
+    halves = chained_covariances(t, poses, cov, np.array([0.3, 0.35, 0.4]))
+    np.testing.assert_allclose(halves[1] + halves[2], cov[4], rtol=1e-2)
+    assert np.isnan(chained_covariances(t, poses, cov, np.array([0.3, 0.3]))[1]).all()
 
 
 def test_scans_at_moves_each_scan_to_its_stamp():
@@ -377,3 +383,18 @@ def test_a_precise_odometry_is_not_made_worse_by_a_coarser_closure(rng):
 
     assert ate(own) <= 1.05 * ate(odo)
     assert ate(fixed) > 2 * ate(odo)
+
+
+def test_a_methods_step_covariance_opens_where_it_left_the_laser_odometry(rng):
+    t = np.arange(20) * 0.025
+    laser = np.column_stack([t, np.zeros(20), np.zeros(20)])
+    cov = np.concatenate([np.full((1, 3, 3), np.nan), _correlated(rng, 19)])
+    # ICP's own poses: its step covariances as they are.
+    np.testing.assert_allclose(step_covariances(t, laser, cov, t, laser)[1:], cov[1:])
+    # A method that jumped 0.3 m forward between scans 9 and 10 (visual odometry at a
+    # stop): that step, and only that one, is opened by the jump.
+    method = laser.copy()
+    method[10:, 0] += 0.3
+    out = step_covariances(t, laser, cov, t, method)
+    np.testing.assert_allclose(out[10], cov[10] + np.diag([0.09, 0.0, 0.0]), atol=1e-12)
+    np.testing.assert_allclose(np.delete(out, 10, axis=0)[1:], np.delete(cov, 10, axis=0)[1:], atol=1e-12)

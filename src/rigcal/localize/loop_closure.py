@@ -581,6 +581,35 @@ def nearest_scans(scan_stamps_s: FloatArray, stamps_s: FloatArray) -> NDArray[np
     return np.where(stamps_s - scan_stamps_s[k - 1] <= scan_stamps_s[k] - stamps_s, k - 1, k).astype(np.intp)
 
 
+def laser_at(scan_stamps_s: FloatArray, laser_poses: FloatArray, stamps_s: FloatArray) -> FloatArray:
+    """(M, 3) the laser odometry's poses (N, 3) at ``scan_stamps_s`` interpolated at the
+    stamps (yaw unwrapped), held at the ends."""
+    yaw = np.unwrap(laser_poses[:, 2])
+    return np.column_stack([np.interp(stamps_s, scan_stamps_s, v) for v in (*laser_poses[:, :2].T, yaw)])
+
+
+def step_covariances(
+    scan_stamps_s: FloatArray,
+    laser_poses: FloatArray,
+    laser_covariances: FloatArray,
+    stamps_s: FloatArray,
+    poses: FloatArray,
+) -> FloatArray:
+    """(M, 3, 3) a method's step covariances for the pose graph: for each step of its
+    poses (M, 3) at ``stamps_s`` (index k: from k - 1 to k; index 0 NaN), the laser
+    odometry's covariance over the step (:func:`chained_covariances`) plus d d^T, d the
+    step's departure from the laser odometry's motion over the same time (x, y, yaw):
+    where a method left the laser's motion (a Kalman filter pulled by visual odometry at
+    a stop), the two disagree by d and the step is no more certain than that; for ICP
+    itself d = 0."""
+    cov = chained_covariances(scan_stamps_s, laser_poses, laser_covariances, stamps_s)
+    laser = laser_at(scan_stamps_s, laser_poses, stamps_s)
+    d = relative(poses[:-1], poses[1:]) - relative(laser[:-1], laser[1:])
+    d[:, 2] = np.angle(np.exp(1j * d[:, 2]))
+    cov[1:] += np.einsum("mi,mj->mij", d, d)
+    return cov
+
+
 def scans_at(
     scans: Sequence[Scan], scan_stamps_s: FloatArray, laser_poses: FloatArray, stamps_s: FloatArray
 ) -> list[FloatArray]:
@@ -589,9 +618,8 @@ def scans_at(
     ``scan_stamps_s``, interpolated) over the time between (a 10 Hz image's pose and its
     nearest 40 Hz scan are up to 12.5 ms, a centimetre of walking, apart)."""
     k = nearest_scans(scan_stamps_s, stamps_s)
-    yaw = np.unwrap(laser_poses[:, 2])
-    at = np.column_stack([np.interp(stamps_s, scan_stamps_s, v) for v in (*laser_poses[:, :2].T, yaw)])
-    T = relative(at, np.column_stack([laser_poses[k, :2], yaw[k]]))  # the scan's pose at each stamp
+    at = laser_at(scan_stamps_s, laser_poses, stamps_s)
+    T = relative(at, laser_at(scan_stamps_s, laser_poses, scan_stamps_s[k]))  # each scan's pose at its stamp
     out = []
     for kk, (x, y, a) in zip(k, T, strict=True):
         pts = scans[kk].points[scans[kk].valid]
@@ -605,24 +633,34 @@ def chained_covariances(
 ) -> FloatArray:
     """(M, 3, 3) the covariance of the laser odometry's motion between consecutive stamps
     (index k: from stamp k - 1 to k; index 0 NaN): its steps' covariances
-    (``laser_covariances`` (N, 3, 3), the step ending at scan k at index k) between the
-    scans nearest the two stamps, compounded to first order (p = p1 + p2 on SE(2):
-    Sigma = J1 Sigma1 J1^T + J2 Sigma2 J2^T). NaN where the two stamps share their nearest
-    scan or a step between them has no covariance (the fixed sigmas then)."""
-    k = nearest_scans(scan_stamps_s, stamps_s)
+    (``laser_covariances`` (N, 3, 3), the step ending at scan k at index k) over the time
+    between the two stamps, compounded to first order (p = p1 + p2 on SE(2): Sigma = J1
+    Sigma1 J1^T + J2 Sigma2 J2^T). A step the interval covers in part counts with that
+    fraction of its motion and of its covariance (a random walk within the step), so that
+    the pieces of a step between a scan and an image add up to the step. NaN where a step
+    it covers has no covariance, or where the interval is empty (the fixed sigmas then)."""
     steps = np.full((len(laser_poses), 3), np.nan)
     steps[1:] = relative(laser_poses[:-1], laser_poses[1:])
     out = np.full((len(stamps_s), 3, 3), np.nan)
-    for m in range(1, len(stamps_s)):
-        if k[m] <= k[m - 1]:
+    t = np.clip(stamps_s, scan_stamps_s[0], scan_stamps_s[-1])
+    first = np.searchsorted(scan_stamps_s, t, side="right")  # the step that covers t (ends after it)
+    for m in range(1, len(t)):
+        if not t[m] > t[m - 1]:
             continue
         p, cov = np.zeros(3), np.zeros((3, 3))
-        for q in range(k[m - 1] + 1, k[m] + 1):
+        for q in range(first[m - 1], min(first[m], len(steps) - 1) + 1):
+            span = scan_stamps_s[q] - scan_stamps_s[q - 1]
+            covered = min(t[m], scan_stamps_s[q]) - max(t[m - 1], scan_stamps_s[q - 1])
+            if covered <= 0:
+                continue
+            frac = covered / span if span > 0 else 1.0
+            step = frac * steps[q]
             c, s = np.cos(p[2]), np.sin(p[2])
-            dx, dy = steps[q, 0], steps[q, 1]
-            J1 = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
+            J1 = np.array(
+                [[1.0, 0.0, -s * step[0] - c * step[1]], [0.0, 1.0, c * step[0] - s * step[1]], [0, 0, 1]]
+            )
             J2 = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            cov = J1 @ cov @ J1.T + J2 @ laser_covariances[q] @ J2.T
-            p = compose(p[None], steps[q][None])[0]
+            cov = J1 @ cov @ J1.T + frac * (J2 @ laser_covariances[q] @ J2.T)
+            p = compose(p[None], step[None])[0]
         out[m] = cov
     return out
