@@ -20,7 +20,7 @@ each with closure off and on, and the closures' counts.
 
     uv sync --group bench --extra gtsam     # rtb-data, GTSAM
     .venv/bin/python benchmarks/bench_loop_closure.py [--scans N] [--backend scipy|gtsam|both]
-    .venv/bin/python benchmarks/bench_loop_closure.py --sim [--methods icp,kf,iasm,hiasm]
+    .venv/bin/python benchmarks/bench_loop_closure.py --sim [--methods icp,kf,iasm,hiasm] [--drives DIR]
 """
 
 from __future__ import annotations
@@ -115,7 +115,7 @@ def killian(n: int | None, backends: list[str]) -> None:
     print(f"| Cartographer (published) {cartographer}")
 
 
-def simulated(methods: list[str]) -> None:
+def simulated(methods: list[str], drives: str | None = None) -> None:
     from rigcal.localize.pipeline import run
     from rigcal.sim.drive import DriveSpec, write_drive
     from rigcal.sim.world import world_named
@@ -127,8 +127,10 @@ def simulated(methods: list[str]) -> None:
     print("|---|---|---|---|---|---|---|")
     for world in ("cubicle-loop", "corridor-loop"):
         with tempfile.TemporaryDirectory() as tmp:
-            write_drive(world_named(world), DriveSpec(), f"{tmp}/seq")
-            r = run(f"{tmp}/seq", methods, f"{tmp}/out", loop_closure=LoopParams())
+            seq = Path(drives or tmp) / world
+            if not (seq / "sequence.yaml").exists():
+                write_drive(world_named(world), DriveSpec(), str(seq))
+            r = run(seq, methods, loop_closure=LoopParams())
             by = {m.method: m for m in r.methods}
             for name in methods:
                 off, on = by[name], by[f"{name}+lc"]
@@ -148,11 +150,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sim", action="store_true", help="the simulated loops instead of Killian Court")
     ap.add_argument("--methods", default="icp,kf,iasm,hiasm", help="--sim: the methods")
+    ap.add_argument("--drives", default=None, help="--sim: keep the drives in (and reuse them from) DIR")
     ap.add_argument("--scans", type=int, default=None, help="only the log's first N scans")
     ap.add_argument("--backend", default="both", choices=["scipy", "gtsam", "both"])
     a = ap.parse_args()
     if a.sim:
-        simulated(a.methods.split(","))
+        simulated(a.methods.split(","), a.drives)
         return
     backends = ["scipy", "gtsam"] if a.backend == "both" else [a.backend]
     if not gtsam_available() and "gtsam" in backends:
