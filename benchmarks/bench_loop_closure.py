@@ -20,6 +20,7 @@ each with closure off and on, and the closures' counts.
 
     uv sync --group bench --extra gtsam     # rtb-data, GTSAM
     .venv/bin/python benchmarks/bench_loop_closure.py [--scans N] [--backend scipy|gtsam|both]
+        [--steps own|fixed]
     .venv/bin/python benchmarks/bench_loop_closure.py --sim [--methods icp,kf,iasm,hiasm] [--drives DIR]
 """
 
@@ -58,7 +59,7 @@ def _row(name: str, est: np.ndarray, gt: np.ndarray, speed: str) -> str:
     )
 
 
-def killian(n: int | None, backends: list[str]) -> None:
+def killian(n: int | None, backends: list[str], own_steps: bool = True) -> None:
     archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
     with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
         z.extract("killian.g2o", tmp)
@@ -91,7 +92,7 @@ def killian(n: int | None, backends: list[str]) -> None:
     ]
     for backend in backends:
         w0, c0 = time.perf_counter(), time.process_time()
-        lc = close_loops(scans, od.poses, LoopParams(backend=backend), od.covariance)
+        lc = close_loops(scans, od.poses, LoopParams(backend=backend), od.covariance if own_steps else None)
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         load.append(os.getloadavg()[0])
         c = lc.counts
@@ -153,6 +154,12 @@ def main() -> None:
     ap.add_argument("--drives", default=None, help="--sim: keep the drives in (and reuse them from) DIR")
     ap.add_argument("--scans", type=int, default=None, help="only the log's first N scans")
     ap.add_argument("--backend", default="both", choices=["scipy", "gtsam", "both"])
+    ap.add_argument(
+        "--steps",
+        default="own",
+        choices=["own", "fixed"],
+        help="the odometry edges' covariance: ICP's own (default) or the fixed sigmas",
+    )
     a = ap.parse_args()
     if a.sim:
         simulated(a.methods.split(","), a.drives)
@@ -161,7 +168,7 @@ def main() -> None:
     if not gtsam_available() and "gtsam" in backends:
         print("GTSAM is not installed (uv sync --extra gtsam): scipy only")
         backends = ["scipy"]
-    killian(a.scans, backends)
+    killian(a.scans, backends, a.steps == "own")
 
 
 if __name__ == "__main__":
