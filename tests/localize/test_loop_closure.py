@@ -15,12 +15,17 @@ from rigcal.localize.loop_closure import (
     Closure,
     LoopParams,
     build_graph,
+    chained_covariances,
+    closure_covariance,
+    compose,
     correlative_match,
     graph_path,
     keyframes,
     path_along,
     relative,
+    scans_at,
     search_window,
+    step_covariances,
 )
 from rigcal.localize.pose_graph import PoseGraph, gtsam_available, optimise
 
@@ -209,8 +214,15 @@ def test_localize_with_loop_closure_reports_closures_and_draws_the_graph(corrido
         lc["metrics"]["loop_closure_error_m"] < 0.5 * s["methods"]["icp"]["metrics"]["loop_closure_error_m"]
     )
     rows = (out / "icp+lc" / "closures.csv").read_text().splitlines()
-    assert rows[0] == "i,j,stamp_i_s,stamp_j_s,status,inliers,rms_m,why_not"
+    assert rows[0] == "i,j,stamp_i_s,stamp_j_s,status,inliers,rms_m,sigma_x_m,sigma_y_m,sigma_yaw_rad,why_not"
     assert len(rows) == counts["proposed"] + 1
+    # An accepted closure's 1-sigma: its fit's on the floor's (2 mm, 0.5 mrad), not the
+    # fixed 5 cm and 0.02 rad.
+    fields = next(r for r in rows[1:] if ",accepted," in r).split(",")
+    sx, sy, syaw = (float(v) for v in fields[7:10])
+    assert min(sx, sy) >= 0.002
+    assert max(sx, sy) < 0.02
+    assert 0.0005 <= syaw < 0.01
     assert (out / "icp+lc" / "graph.png").stat().st_size > 1000
 
 
@@ -233,3 +245,163 @@ def test_the_compiled_search_matches_its_numpy_reference(rng):
     np.testing.assert_allclose(compiled[0], reference[0], atol=1e-12)
     assert compiled[1] == pytest.approx(reference[1], abs=1e-12)
     assert compiled[2] == pytest.approx(reference[2], abs=1e-12)
+
+
+def _correlated(rng, n):
+    """n random positive definite covariances (n, 3, 3), millimetres and milliradians."""
+    A = rng.normal(0, 1, (n, 3, 3)) * np.array([0.003, 0.003, 0.001])[None, :, None]
+    return np.einsum("nij,nkj->nik", A, A) + np.diag([1e-6, 1e-6, 1e-7])
+
+
+def test_full_covariances_whiten_each_edge_and_both_back_ends_agree(rng):
+    g, _ = _noisy_square_graph(rng, False)
+    # Diagonal covariances are the sigmas themselves.
+    diag = np.einsum("mi,ij->mij", g.sigmas**2, np.eye(3))
+    same = PoseGraph(g.poses, g.a, g.b, g.z, g.sigmas, g.robust, diag)
+    np.testing.assert_allclose(optimise(same)[0], optimise(g)[0], atol=1e-9)
+    # Correlated covariances, the measurements drawn from them; U^T U is the information,
+    # and a non-finite covariance falls back to the sigmas.
+    truth = _square()
+    cov = _correlated(rng, len(g.a))
+    z = relative(truth[g.a], truth[g.b])
+    z += np.array([rng.multivariate_normal(np.zeros(3), c) for c in cov])
+    cov[3] = np.nan
+    full = PoseGraph(g.poses, g.a, g.b, z, g.sigmas, g.robust, cov)
+    U = full.whiteners()
+    np.testing.assert_allclose(np.einsum("mji,mjk->mik", U[:3], U[:3]), np.linalg.inv(cov[:3]), rtol=1e-8)
+    np.testing.assert_allclose(U[3], np.diag(1.0 / g.sigmas[3]))
+    a, _ = optimise(full, "scipy")
+
+    def cost(p):
+        e = np.einsum("mij,mj->mi", U, edge_errors_of(p, full))
+        r2 = np.sum(e**2, axis=1)
+        return float(np.sum(np.where(full.robust, 4.5 * np.log1p(r2 / 9.0), r2 / 2)))
+
+    # The optimum: no small move of a pose lowers the cost.
+    base = cost(a)
+    for k in (5, 80, 150):
+        for d in range(3):
+            for h in (1e-5, -1e-5):
+                moved = a.copy()
+                moved[k, d] += h
+                assert cost(moved) >= base - 1e-12
+    if gtsam_available():
+        b, _ = optimise(full, "gtsam")
+        assert np.abs(a[:, :2] - b[:, :2]).max() < 1e-3
+
+
+def edge_errors_of(p, g):
+    from rigcal.localize.pose_graph import edge_errors
+
+    return edge_errors(p[g.a], p[g.b], g.z)
+
+
+def test_chained_covariances_compound_the_steps_as_a_monte_carlo_does(rng):
+    # A laser odometry of 9 steps, each with its own covariance; stamps at every scan,
+    # then at every third scan, then two stamps sharing their nearest scan.
+    steps = np.column_stack([rng.uniform(0.2, 0.5, 9), rng.normal(0, 0.05, 9), rng.normal(0, 0.2, 9)])
+    poses = [np.zeros(3)]
+    for st in steps:
+        poses.append(compose(poses[-1][None], st[None])[0])
+    poses = np.array(poses)
+    cov = np.concatenate([np.full((1, 3, 3), np.nan), _correlated(rng, 9)])
+    t = np.arange(10) * 0.1
+    np.testing.assert_allclose(chained_covariances(t, poses, cov, t)[1:], cov[1:], atol=1e-15)
+    out = chained_covariances(t, poses, cov, t[[0, 3, 6, 9]])
+    assert np.isnan(out[0]).all()
+    # Monte Carlo of the steps 4..6 chained (stamps 3 -> 6).
+    draws = np.array([rng.multivariate_normal(steps[q - 1], cov[q], 40000) for q in (4, 5, 6)])
+    p = compose(compose(draws[0], draws[1]), draws[2])
+    mc = np.cov(p.T)
+    scale = np.sqrt(np.outer(np.diag(mc), np.diag(mc)))
+    # Within the Monte Carlo's own spread (1/sqrt(40000) of a correlation: 0.005).
+    assert np.abs((out[2] - mc) / scale).max() < 0.03
+    # A tenth of a step (an image's stamp and its scan's): a tenth of its covariance, and
+    # the two pieces of a step split at an image add up to the step.
+    np.testing.assert_allclose(chained_covariances(t, poses, cov, np.array([0.3, 0.31]))[1], 0.1 * cov[4])
+    halves = chained_covariances(t, poses, cov, np.array([0.3, 0.35, 0.4]))
+    np.testing.assert_allclose(halves[1] + halves[2], cov[4], rtol=1e-2)
+    assert np.isnan(chained_covariances(t, poses, cov, np.array([0.3, 0.3]))[1]).all()
+
+
+def test_scans_at_moves_each_scan_to_its_stamp():
+    # A laser on an arc, scanned at 40 Hz; three fixed world points seen from each pose.
+    t = np.arange(0, 1.0, 0.025)
+    poses = np.column_stack([np.sin(0.5 * t) / 0.5, (1 - np.cos(0.5 * t)) / 0.5, 0.5 * t])
+    world = np.array([[3.0, 1.0], [2.0, -2.0], [4.0, 0.5]])
+
+    class _Returns:
+        def __init__(self, points):
+            self.points = points
+            self.valid = np.ones(len(points), dtype=bool)
+
+    stamps = np.array([0.0123, 0.5, 0.61, 0.9874])
+    out = scans_at([_Returns(_moved(world, p)) for p in poses], t, poses, stamps)
+    for s, o in zip(stamps, out, strict=True):
+        # Each stamp's returns, placed by the odometry interpolated there, are the world's.
+        at = np.array([np.interp(s, t, poses[:, k]) for k in range(3)])
+        c, sn = np.cos(at[2]), np.sin(at[2])
+        np.testing.assert_allclose(o @ np.array([[c, sn], [-sn, c]]) + at[:2], world, atol=1e-9)
+
+
+def test_a_closure_covariance_covers_its_fits_spread(rng):
+    model = _room(rng, 300)
+    T = np.array([0.4, -0.3, np.radians(4.0)])
+    params = LoopParams()
+    from rigcal.localize.icp import IcpParams, icp
+
+    errs, covs = [], []
+    for _ in range(30):
+        submap = model + rng.normal(0, 0.01, model.shape)
+        data = _moved(model[::2], T) + rng.normal(0, 0.01, (len(model[::2]), 2))
+        start = T + np.array([0.05, -0.05, 0.01])
+        res = icp(submap, data, initial=start, params=IcpParams(method="point-to-line"))
+        errs.append(res.pose - T)
+        covs.append(closure_covariance(submap, data, res.pose, params))
+    nees = np.mean([e @ np.linalg.solve(c, e) for e, c in zip(errs, covs, strict=True)])
+    # Consistent or conservative (3 for a consistent 3-dof estimate), and not vacuous:
+    # the fit's own part is sub-millimetre, the floor's 2 mm and 0.5 mrad on top.
+    assert 0.3 < nees < 6.0
+    assert np.sqrt(covs[0][0, 0]) < 0.005
+
+
+def test_a_precise_odometry_is_not_made_worse_by_a_coarser_closure(rng):
+    # An odometry 10 times more precise than the closure: its covariance keeps the closure
+    # from bending it, where the fixed sigmas let the closure's error spread over the lap.
+    truth = _square()
+    n = len(truth) - 1
+    steps = relative(truth[:-1], truth[1:])
+    step_cov = np.diag([1e-4, 1e-4, 2e-5]) ** 2
+    noisy = steps + rng.normal(0, 1, steps.shape) * np.array([1e-4, 1e-4, 2e-5])
+    odo = [truth[0]]
+    for st in noisy:
+        odo.append(compose(odo[-1][None], st[None])[0])
+    odo = np.array(odo)
+    closure_cov = np.diag([0.01, 0.01, 0.003]) ** 2
+    z = relative(truth[[0]], truth[[n]])[0] + np.array([0.01, -0.01, 0.003])  # 1 sigma off
+    c = Closure(n, 0, z, covariance=closure_cov)
+    covs = np.concatenate([np.full((1, 3, 3), np.nan), np.tile(step_cov, (n, 1, 1))])
+    params = LoopParams()
+    own, _ = optimise(build_graph(odo, odo, [c], n, params, covs))
+    fixed, _ = optimise(build_graph(odo, odo, [Closure(n, 0, z)], n, params))
+
+    def ate(p):
+        return float(np.sqrt(np.mean(np.sum((p[:, :2] - truth[:, :2]) ** 2, axis=1))))
+
+    assert ate(own) <= 1.05 * ate(odo)
+    assert ate(fixed) > 2 * ate(odo)
+
+
+def test_a_methods_step_covariance_opens_where_it_left_the_laser_odometry(rng):
+    t = np.arange(20) * 0.025
+    laser = np.column_stack([t, np.zeros(20), np.zeros(20)])
+    cov = np.concatenate([np.full((1, 3, 3), np.nan), _correlated(rng, 19)])
+    # ICP's own poses: its step covariances as they are.
+    np.testing.assert_allclose(step_covariances(t, laser, cov, t, laser)[1:], cov[1:])
+    # A method that jumped 0.3 m forward between scans 9 and 10 (visual odometry at a
+    # stop): that step, and only that one, is opened by the jump.
+    method = laser.copy()
+    method[10:, 0] += 0.3
+    out = step_covariances(t, laser, cov, t, method)
+    np.testing.assert_allclose(out[10], cov[10] + np.diag([0.09, 0.0, 0.0]), atol=1e-12)
+    np.testing.assert_allclose(np.delete(out, 10, axis=0)[1:], np.delete(cov, 10, axis=0)[1:], atol=1e-12)

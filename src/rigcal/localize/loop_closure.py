@@ -33,10 +33,14 @@ starts from a map whose earlier loops are already closed:
    at least ``min_inliers`` of the scan's points as inliers with an RMS below
    ``max_rms_m``; and the scans constrain every direction (degeneracy indicator above
    ``min_degeneracy``: a corridor's length is not a closure).
-3. **Pose graph.** The odometry steps between consecutive scans (1-sigma
-   ``step_sigmas`` plus ``step_sigma_per_m`` per metre of step) and the accepted closures
-   (``closure_sigmas``, under the Cauchy kernel) are the edges
-   (:mod:`rigcal.localize.pose_graph`, on scipy or GTSAM). A closure that disagrees with
+3. **Pose graph.** The odometry steps between consecutive poses and the accepted
+   closures (under the Cauchy kernel) are the edges (:mod:`rigcal.localize.pose_graph`,
+   on scipy or GTSAM), each with a full covariance: a closure's from its ICP fit's
+   Hessian (:func:`closure_covariance`, ``closure_sigmas`` where the fit has too few
+   pairs), a step's the odometry's own where given (``step_covariances``: the laser
+   odometry's over the step and the step's departure from it,
+   :func:`step_covariances`), else 1-sigma ``step_sigmas`` plus ``step_sigma_per_m`` per
+   metre of step. A precise odometry is then not bent by a coarser closure. A closure that disagrees with
    the current poses by more than ``reoptimise_whitened`` (whitened) corrects them at
    once (the graph up to keyframe i; the later poses follow it rigidly); the whole graph
    is optimised at the end, and a closure whose whitened residual stays above
@@ -46,18 +50,21 @@ starts from a map whose earlier loops are already closed:
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import distance_transform_edt, maximum_filter
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
 
 from rigcal.arrays import FloatArray
 from rigcal.jit import njit
 from rigcal.localize.icp import IcpParams, icp
+from rigcal.localize.icp_covariance import icp_covariance
+from rigcal.localize.line_normals import pairing_normals
 from rigcal.localize.pose_graph import PoseGraph, edge_errors, gtsam_available, optimise
 from rigcal.scan import Scan
 
@@ -97,7 +104,8 @@ class LoopParams:
     min_degeneracy: float = 0.05
     step_sigmas: tuple[float, float, float] = (0.002, 0.002, 0.001)  # m, m, rad (floor)
     step_sigma_per_m: float = 0.02
-    closure_sigmas: tuple[float, float, float] = (0.05, 0.05, 0.02)
+    closure_sigmas: tuple[float, float, float] = (0.05, 0.05, 0.02)  # where the fit has none
+    closure_floor_sigmas: tuple[float, float, float] = (0.002, 0.002, 0.0005)
     reoptimise_whitened: float = 3.0
     reject_whitened: float = 5.0
     backend: str = "auto"
@@ -123,7 +131,8 @@ class LoopParams:
 class Closure:
     """A proposed closure: keyframe scan i matched to scan j; T_j_i (x, y, yaw) when it
     passed the verification, and why not otherwise. ``score``: the correlative search's
-    best score; ``window_m``: the translation window it searched."""
+    best score; ``window_m``: the translation window it searched; ``covariance`` (3, 3):
+    T_j_i's, from the ICP fit's Hessian (:func:`closure_covariance`)."""
 
     i: int
     j: int
@@ -134,6 +143,7 @@ class Closure:
     kernel_rejected: bool = False
     score: float = float("nan")
     window_m: float = float("nan")
+    covariance: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -156,11 +166,23 @@ class LoopResult:
 
 
 def close_loops(
-    scans: list[Scan] | tuple[Scan, ...], poses: FloatArray, params: LoopParams | None = None
+    scans: Sequence[Scan | FloatArray],
+    poses: FloatArray,
+    params: LoopParams | None = None,
+    step_covariances: FloatArray | None = None,
 ) -> LoopResult:
-    """Loop closure over an odometry's poses (N, 3) of the scans (module docstring)."""
+    """Loop closure over an odometry's poses (N, 3) of the scans (module docstring).
+
+    ``scans``: each pose's scan, or its valid returns (P, 2) in the laser frame at the
+    pose (a scan moved to the pose's stamp). ``step_covariances`` (N, 3, 3): the
+    odometry's own covariance of each step T_k-1_k at index k (x, y, yaw), NaN where it has
+    none; those steps, and all without it, take ``step_sigmas`` and ``step_sigma_per_m``."""
     params = params or LoopParams()
+    if step_covariances is not None and np.shape(step_covariances) != (len(poses), 3, 3):
+        shape = np.shape(step_covariances)
+        raise ValueError(f"step_covariances of shape {shape}, expected ({len(poses)}, 3, 3)")
     backend = params.pose_graph
+    points = [s if isinstance(s, np.ndarray) else s.points[s.valid] for s in scans]
     along = path_along(poses)
     keys = keyframes(along, params.keyframe_m)
     est = poses.copy()
@@ -179,7 +201,7 @@ def close_loops(
             continue
         c = near[np.argmin(d[near])]
         j = int(earlier[c])
-        closure = verify(scans, est, along, int(i), j, float(window_m[c]), float(window_rad[c]), params)
+        closure = verify(points, est, along, int(i), j, float(window_m[c]), float(window_rad[c]), params)
         closures.append(closure)
         if closure.T_j_i is None:
             continue
@@ -187,28 +209,19 @@ def close_loops(
         accepted = [x for x in closures if x.T_j_i is not None]
         innovation = _whitened(est, [closure], params)[0]
         if innovation > params.reoptimise_whitened:
-            est = _corrected(poses, est, accepted, int(i), params, backend)
+            est = _corrected(poses, est, accepted, int(i), params, backend, step_covariances)
     accepted = [x for x in closures if x.T_j_i is not None]
     if not accepted:
         return LoopResult(poses.copy(), closures, backend)
-    graph = build_graph(poses, est, accepted, len(poses) - 1, params)
+    graph = build_graph(poses, est, accepted, len(poses) - 1, params, step_covariances)
     optimised, whitened = optimise(graph, backend)
     flags = iter(whitened[len(poses) - 1 :] > params.reject_whitened)
-    out = []
-    for x in closures:
-        if x.T_j_i is not None and next(flags):
-            x = Closure(
-                x.i,
-                x.j,
-                x.T_j_i,
-                x.inliers,
-                x.rms_m,
-                "contradicts the other edges",
-                True,
-                x.score,
-                x.window_m,
-            )
-        out.append(x)
+    out = [
+        replace(x, why_not="contradicts the other edges", kernel_rejected=True)
+        if x.T_j_i is not None and next(flags)
+        else x
+        for x in closures
+    ]
     return LoopResult(optimised, out, backend)
 
 
@@ -257,7 +270,7 @@ def search_window(path_m: FloatArray, params: LoopParams) -> tuple[FloatArray, F
 
 
 def verify(
-    scans: list[Scan] | tuple[Scan, ...],
+    scans: Sequence[FloatArray],
     poses: FloatArray,
     along: FloatArray,
     i: int,
@@ -267,7 +280,7 @@ def verify(
     params: LoopParams,
 ) -> Closure:
     """Match scan i to scan j's submap within the window; the closure T_j_i when the fit
-    passes the test (module docstring, step 2)."""
+    passes the test (module docstring, step 2). ``scans``: each pose's valid returns (P, 2)."""
     submap = local_map(scans, poses, j, np.flatnonzero(np.abs(along - along[j]) <= params.submap_m), params)
     # The search matches keyframe i's context: its scan and those of the last 2 x submap_m
     # of path before it (the odometry is locally right), so that a corridor's repeated
@@ -275,7 +288,7 @@ def verify(
     # i's scan alone, the part that overlaps j's submap, and its fit is the test.
     behind = np.flatnonzero((along <= along[i]) & (along >= along[i] - 2 * params.submap_m))
     context = local_map(scans, poses, i, behind[behind <= i], params)
-    data = voxel_filter(scans[i].points[scans[i].valid], params.voxel_m)
+    data = voxel_filter(scans[i], params.voxel_m)
     if len(submap) < 20 or len(data) < 20:
         return Closure(i, j, None, why_not="too few returns", window_m=window_m)
     guess = relative(poses[j][None], poses[i][None])[0]
@@ -301,12 +314,14 @@ def verify(
     elif res.degeneracy < params.min_degeneracy:
         why = f"degenerate ({res.degeneracy:.3f})"
     else:
-        return Closure(i, j, res.pose, res.inlier_fraction, res.rms_m, score=score, window_m=window_m)
+        cov = closure_covariance(submap, data, res.pose, params)
+        fit = (res.inlier_fraction, res.rms_m)
+        return Closure(i, j, res.pose, *fit, score=score, window_m=window_m, covariance=cov)
     return Closure(i, j, None, res.inlier_fraction, res.rms_m, why, score=score, window_m=window_m)
 
 
 def local_map(
-    scans: list[Scan] | tuple[Scan, ...],
+    scans: Sequence[FloatArray],
     poses: FloatArray,
     at: int,
     which: NDArray[np.intp],
@@ -317,7 +332,7 @@ def local_map(
     rel = relative(np.repeat(poses[at][None], len(which), 0), poses[which])
     parts = [np.zeros((0, 2))]
     for k, T in zip(which, rel, strict=True):
-        pts = scans[k].points[scans[k].valid]
+        pts = scans[k]
         c, s = np.cos(T[2]), np.sin(T[2])
         parts.append(pts @ np.array([[c, s], [-s, c]]) + T[:2])
     return voxel_filter(np.vstack(parts), params.voxel_m)
@@ -481,14 +496,48 @@ def compose(pa: FloatArray, rel: FloatArray) -> FloatArray:
     )
 
 
+def closure_covariance(
+    submap: FloatArray, data: FloatArray, pose: FloatArray, params: LoopParams
+) -> FloatArray:
+    """T_j_i's covariance (3, 3) from the closure's fit of the scan ``data`` (P, 2) to the
+    ``submap`` (M, 2) at ``pose``: the point-to-line Hessian of ICP's cost (Eq. (4)),
+    sigma^2 (J^T J)^-1 with sigma the residuals' robust spread
+    (:func:`rigcal.localize.icp.icp_covariance`, normals from the submap's nearest
+    neighbours), plus ``closure_floor_sigmas`` squared on its diagonal: the submap's own
+    placement error, which the fit's residuals see only in part. ``closure_sigmas`` where
+    the fit has too few pairs."""
+    tree = cKDTree(submap)
+    ip = IcpParams(method="point-to-line")
+    normals, _ = pairing_normals(submap, tree, ip.normal_neighbours, None)
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    _, nearest = tree.query(data @ np.array([[c, s], [-s, c]]) + pose[:2])
+    cov = icp_covariance(submap, data, pose, nearest, normals, ip.reject_m, params.min_degeneracy)
+    if not np.isfinite(cov).all():
+        return np.diag(np.square(params.closure_sigmas))
+    return np.asarray(cov + np.diag(np.square(params.closure_floor_sigmas)), dtype=float)
+
+
 def build_graph(
-    odometry: FloatArray, start: FloatArray, closures: list[Closure], last: int, params: LoopParams
+    odometry: FloatArray,
+    start: FloatArray,
+    closures: list[Closure],
+    last: int,
+    params: LoopParams,
+    step_covariances: FloatArray | None = None,
 ) -> PoseGraph:
-    """The graph of poses 0..last: the odometry's steps and the closures, started at ``start``."""
+    """The graph of poses 0..last: the odometry's steps (each with its own covariance where
+    ``step_covariances`` has one, else the fixed sigmas) and the closures (each with its
+    fit's covariance where it has one, else ``closure_sigmas``), started at ``start``."""
     steps = relative(odometry[:last], odometry[1 : last + 1])
     length = np.hypot(steps[:, 0], steps[:, 1])
     step_sig = np.array(params.step_sigmas)[None, :] + params.step_sigma_per_m * length[:, None]
     measured = np.array([c.T_j_i for c in closures], dtype=float).reshape(-1, 3)
+    covariances = None
+    if step_covariances is not None or any(c.covariance is not None for c in closures):
+        own = np.full((last, 3, 3), np.nan) if step_covariances is None else step_covariances[1 : last + 1]
+        fixed = np.diag(np.square(params.closure_sigmas))
+        of_closures = [fixed if c.covariance is None else c.covariance for c in closures]
+        covariances = np.concatenate([own, np.array(of_closures).reshape(-1, 3, 3)])
     return PoseGraph(
         poses=start[: last + 1].copy(),
         a=np.r_[np.arange(last), [c.j for c in closures]].astype(np.intp),
@@ -496,28 +545,128 @@ def build_graph(
         z=np.vstack([steps, measured]),
         sigmas=np.vstack([step_sig, np.tile(params.closure_sigmas, (len(closures), 1))]),
         robust=np.r_[np.zeros(last, dtype=bool), np.ones(len(closures), dtype=bool)],
+        covariances=covariances,
     )
 
 
 def _whitened(est: FloatArray, closures: list[Closure], params: LoopParams) -> FloatArray:
     """Each closure's whitened disagreement with the poses ``est``."""
     z = np.array([c.T_j_i for c in closures], dtype=float)
-    e = edge_errors(est[[c.j for c in closures]], est[[c.i for c in closures]], z) / np.array(
-        params.closure_sigmas
-    )
-    return np.asarray(np.linalg.norm(e, axis=1), dtype=float)
+    fixed = np.diag(np.square(params.closure_sigmas))
+    cov = np.array([fixed if c.covariance is None else c.covariance for c in closures])
+    e = edge_errors(est[[c.j for c in closures]], est[[c.i for c in closures]], z)
+    return np.sqrt(np.einsum("mi,mi->m", e, np.linalg.solve(cov, e[:, :, None])[:, :, 0]))
 
 
 def _corrected(
-    odometry: FloatArray, est: FloatArray, closures: list[Closure], i: int, params: LoopParams, backend: str
+    odometry: FloatArray,
+    est: FloatArray,
+    closures: list[Closure],
+    i: int,
+    params: LoopParams,
+    backend: str,
+    step_covariances: FloatArray | None = None,
 ) -> FloatArray:
     """The poses with the graph of poses 0..i optimised and the later poses moved with
     pose i along the odometry."""
-    head, _ = optimise(build_graph(odometry, est, closures, i, params), backend)
+    head, _ = optimise(build_graph(odometry, est, closures, i, params, step_covariances), backend)
     out = est.copy()
     out[: i + 1] = head
     if i + 1 < len(est):
         tail = relative(np.repeat(odometry[i][None], len(est) - i - 1, 0), odometry[i + 1 :])
         out[i + 1 :] = compose(np.repeat(head[i][None], len(tail), 0), tail)
         out[i + 1 :, 2] = head[i, 2] + odometry[i + 1 :, 2] - odometry[i, 2]  # yaw kept continuous
+    return out
+
+
+def nearest_scans(scan_stamps_s: FloatArray, stamps_s: FloatArray) -> NDArray[np.intp]:
+    """(M,) the index of the scan stamp nearest each stamp (scan stamps increasing)."""
+    if len(scan_stamps_s) == 1:
+        return np.zeros(len(stamps_s), dtype=np.intp)
+    k = np.clip(np.searchsorted(scan_stamps_s, stamps_s), 1, len(scan_stamps_s) - 1)
+    return np.where(stamps_s - scan_stamps_s[k - 1] <= scan_stamps_s[k] - stamps_s, k - 1, k).astype(np.intp)
+
+
+def laser_at(scan_stamps_s: FloatArray, laser_poses: FloatArray, stamps_s: FloatArray) -> FloatArray:
+    """(M, 3) the laser odometry's poses (N, 3) at ``scan_stamps_s`` interpolated at the
+    stamps (yaw unwrapped), held at the ends."""
+    yaw = np.unwrap(laser_poses[:, 2])
+    return np.column_stack([np.interp(stamps_s, scan_stamps_s, v) for v in (*laser_poses[:, :2].T, yaw)])
+
+
+def step_covariances(
+    scan_stamps_s: FloatArray,
+    laser_poses: FloatArray,
+    laser_covariances: FloatArray,
+    stamps_s: FloatArray,
+    poses: FloatArray,
+) -> FloatArray:
+    """(M, 3, 3) a method's step covariances for the pose graph: for each step of its
+    poses (M, 3) at ``stamps_s`` (index k: from k - 1 to k; index 0 NaN), the laser
+    odometry's covariance over the step (:func:`chained_covariances`) plus d d^T, d the
+    step's departure from the laser odometry's motion over the same time (x, y, yaw):
+    where a method left the laser's motion (a Kalman filter pulled by visual odometry at
+    a stop), the two disagree by d and the step is no more certain than that; for ICP
+    itself d = 0."""
+    cov = chained_covariances(scan_stamps_s, laser_poses, laser_covariances, stamps_s)
+    laser = laser_at(scan_stamps_s, laser_poses, stamps_s)
+    d = relative(poses[:-1], poses[1:]) - relative(laser[:-1], laser[1:])
+    d[:, 2] = np.angle(np.exp(1j * d[:, 2]))
+    cov[1:] += np.einsum("mi,mj->mij", d, d)
+    return cov
+
+
+def scans_at(
+    scans: Sequence[Scan], scan_stamps_s: FloatArray, laser_poses: FloatArray, stamps_s: FloatArray
+) -> list[FloatArray]:
+    """Each stamp's laser returns (P, 2), in the laser frame at that stamp: the valid
+    returns of the scan nearest it, moved by the laser odometry (``laser_poses`` (N, 3) at
+    ``scan_stamps_s``, interpolated) over the time between (a 10 Hz image's pose and its
+    nearest 40 Hz scan are up to 12.5 ms, a centimetre of walking, apart)."""
+    k = nearest_scans(scan_stamps_s, stamps_s)
+    at = laser_at(scan_stamps_s, laser_poses, stamps_s)
+    T = relative(at, laser_at(scan_stamps_s, laser_poses, scan_stamps_s[k]))  # each scan's pose at its stamp
+    out = []
+    for kk, (x, y, a) in zip(k, T, strict=True):
+        pts = scans[kk].points[scans[kk].valid]
+        c, s = np.cos(a), np.sin(a)
+        out.append(pts @ np.array([[c, s], [-s, c]]) + np.array([x, y]))
+    return out
+
+
+def chained_covariances(
+    scan_stamps_s: FloatArray, laser_poses: FloatArray, laser_covariances: FloatArray, stamps_s: FloatArray
+) -> FloatArray:
+    """(M, 3, 3) the covariance of the laser odometry's motion between consecutive stamps
+    (index k: from stamp k - 1 to k; index 0 NaN): its steps' covariances
+    (``laser_covariances`` (N, 3, 3), the step ending at scan k at index k) over the time
+    between the two stamps, compounded to first order (p = p1 + p2 on SE(2): Sigma = J1
+    Sigma1 J1^T + J2 Sigma2 J2^T). A step the interval covers in part counts with that
+    fraction of its motion and of its covariance (a random walk within the step), so that
+    the pieces of a step between a scan and an image add up to the step. NaN where a step
+    it covers has no covariance, or where the interval is empty (the fixed sigmas then)."""
+    steps = np.full((len(laser_poses), 3), np.nan)
+    steps[1:] = relative(laser_poses[:-1], laser_poses[1:])
+    out = np.full((len(stamps_s), 3, 3), np.nan)
+    t = np.clip(stamps_s, scan_stamps_s[0], scan_stamps_s[-1])
+    first = np.searchsorted(scan_stamps_s, t, side="right")  # the step that covers t (ends after it)
+    for m in range(1, len(t)):
+        if not t[m] > t[m - 1]:
+            continue
+        p, cov = np.zeros(3), np.zeros((3, 3))
+        for q in range(first[m - 1], min(first[m], len(steps) - 1) + 1):
+            span = scan_stamps_s[q] - scan_stamps_s[q - 1]
+            covered = min(t[m], scan_stamps_s[q]) - max(t[m - 1], scan_stamps_s[q - 1])
+            if covered <= 0:
+                continue
+            frac = covered / span if span > 0 else 1.0
+            step = frac * steps[q]
+            c, s = np.cos(p[2]), np.sin(p[2])
+            J1 = np.array(
+                [[1.0, 0.0, -s * step[0] - c * step[1]], [0.0, 1.0, c * step[0] - s * step[1]], [0, 0, 1]]
+            )
+            J2 = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            cov = J1 @ cov @ J1.T + frac * (J2 @ laser_covariances[q] @ J2.T)
+            p = compose(p[None], step[None])[0]
+        out[m] = cov
     return out

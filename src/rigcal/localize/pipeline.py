@@ -31,11 +31,10 @@ from rigcal.localize import kalman
 from rigcal.localize.iasm import IasmParams
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.image_matching import scan_matching
-from rigcal.localize.loop_closure import LoopParams, LoopResult, close_loops
+from rigcal.localize.loop_closure import LoopParams, LoopResult, close_loops, scans_at, step_covariances
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import DEGENERATE_BELOW, LASER_ODOMETRY, Odometry, icp_odometry
 from rigcal.localize.streams import Streams, open_streams
-from rigcal.localize.time_pairing import nearest_index
 from rigcal.localize.tracks import TrackParams
 from rigcal.localize.vo import VoResult, visual_odometry
 
@@ -64,10 +63,16 @@ LOOP_CLOSURE_METHODS = ("icp", "icp-p2p", "kf", "iasm", "hiasm")
 
 def _loop_closed(streams: Streams, est: Estimate, params: LoopParams) -> Estimate:
     """The estimate with loop closure (rigcal.localize.loop_closure): each pose takes the
-    scan nearest its stamp."""
+    scan nearest its stamp, moved to the stamp by the laser odometry, and each step the
+    laser odometry's covariance over it (ICP's Hessian, compounded) and the step's
+    departure from it (:func:`rigcal.localize.loop_closure.step_covariances`)."""
     t0 = time.perf_counter()
-    idx = [nearest_index(streams.scan_stamps_s, float(t)) for t in est.stamps_s]
-    res = close_loops([streams.scans[k] for k in idx], est.poses, params)
+    od = streams.laser_odometry()
+    points = scans_at(streams.scans, streams.scan_stamps_s, od.poses, est.stamps_s)
+    cov = None
+    if od.covariance is not None:
+        cov = step_covariances(streams.scan_stamps_s, od.poses, od.covariance, est.stamps_s, est.poses)
+    res = close_loops(points, est.poses, params, cov)
     seconds = time.perf_counter() - t0
     streams.timings_s["loop_closure_s"] = streams.timings_s.get("loop_closure_s", 0.0) + seconds
     stats = {"closures": res.counts, "pose_graph": res.backend, "loop_closure_s": round(seconds, 3)}

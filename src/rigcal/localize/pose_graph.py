@@ -1,9 +1,11 @@
 """A 2D pose graph and its robust optimum, on scipy (the default) or on GTSAM.
 
 The nodes are laser poses (x, y, yaw) in the world frame; each edge measures T_a_b, the
-pose of node b in node a's frame, with a 1-sigma per component. The error of an edge is
-the components of z^-1 a^-1 b (x, y in z's frame, the yaw difference wrapped), whitened
-by its sigmas; edges marked robust (loop closures) are weighed by the Cauchy kernel,
+pose of node b in node a's frame, with a 1-sigma per component or a full covariance
+(ICP's from its Hessian; :func:`rigcal.localize.icp.icp_covariance`). The error of an
+edge is the components of z^-1 a^-1 b (x, y in z's frame, the yaw difference wrapped),
+whitened by its covariance (e -> U e with U^T U = Sigma^-1, U the upper Cholesky factor
+of the information); edges marked robust (loop closures) are weighed by the Cauchy kernel,
 rho(r) = c^2/2 log(1 + |r|^2/c^2), so that a false closure that passed the verification
 is down-weighted instead of bending the map (Sunderhauf and Protzel 2012; Agarwal et al.
 2013 compare it with switchable constraints). The first pose is held.
@@ -51,6 +53,9 @@ class PoseGraph:
         z: (M, 3) each edge's measurement T_a_b (x, y, yaw).
         sigmas: (M, 3) its 1-sigma (m, m, rad).
         robust: (M,) bool, the edges under the Cauchy kernel.
+        covariances: (M, 3, 3) each edge's full covariance of (x, y, yaw), or None; an
+            edge whose covariance is not finite (or not positive definite) takes
+            ``sigmas`` instead.
     """
 
     poses: FloatArray
@@ -59,6 +64,22 @@ class PoseGraph:
     z: FloatArray
     sigmas: FloatArray
     robust: NDArray[np.bool_]
+    covariances: FloatArray | None = None
+
+    def whiteners(self) -> FloatArray:
+        """(M, 3, 3) each edge's square-root information U (U^T U = Sigma^-1): the
+        whitened error is U e."""
+        out = np.zeros((len(self.a), 3, 3))
+        idx = np.arange(3)
+        out[:, idx, idx] = 1.0 / self.sigmas
+        if self.covariances is None:
+            return out
+        cov = self.covariances
+        ok = np.flatnonzero(np.isfinite(cov).all(axis=(1, 2)))
+        ok = ok[np.linalg.eigvalsh(cov[ok])[:, 0] > 0]
+        # Sigma = L L^T -> Sigma^-1 = L^-T L^-1: U = L^-1.
+        out[ok] = np.linalg.inv(np.linalg.cholesky(cov[ok]))
+        return out
 
 
 def gtsam_available() -> bool:
@@ -90,13 +111,13 @@ def optimise(graph: PoseGraph, backend: str = "scipy") -> tuple[FloatArray, Floa
         out = _gtsam_optimum(graph)
     else:
         raise InputError.at(None, "--pose-graph", backend, f"one of {', '.join(BACKENDS)}")
-    r = edge_errors(out[graph.a], out[graph.b], graph.z) / graph.sigmas
+    r = np.einsum("mij,mj->mi", graph.whiteners(), edge_errors(out[graph.a], out[graph.b], graph.z))
     return out, np.linalg.norm(r, axis=1)
 
 
 def _scipy_optimum(g: PoseGraph) -> FloatArray:
     n, m = len(g.poses), len(g.a)
-    w = 1.0 / g.sigmas  # (M, 3) whitening
+    W = g.whiteners()  # (M, 3, 3)
     rows3 = np.repeat(np.arange(3 * m).reshape(-1, 3, 1), 3, axis=2)  # (M, 3, 3) row index
 
     def jacobian(p: FloatArray) -> csr_matrix:
@@ -107,14 +128,14 @@ def _scipy_optimum(g: PoseGraph) -> FloatArray:
             keep = np.broadcast_to((v > 0)[:, None, None], J.shape)
             rows.append(rows3[keep])
             cols.append(np.broadcast_to(c, J.shape)[keep])
-            vals.append((J * w[:, :, None])[keep])
+            vals.append(np.einsum("mij,mjk->mik", W, J)[keep])
         return csr_matrix(
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * m, 3 * (n - 1))
         )
 
     p = g.poses.copy()
     for _ in range(MAX_ITERATIONS):
-        r = edge_errors(p[g.a], p[g.b], g.z) * w
+        r = np.einsum("mij,mj->mi", W, edge_errors(p[g.a], p[g.b], g.z))
         weight = np.where(g.robust, 1.0 / (1.0 + np.sum(r**2, axis=1) / KERNEL_SCALE**2), 1.0)
         J = jacobian(p)
         wr = np.repeat(weight, 3)
@@ -137,8 +158,8 @@ def _gtsam_optimum(g: PoseGraph) -> FloatArray:
         gtsam.PriorFactorPose2(0, gtsam.Pose2(*g.poses[0]), gtsam.noiseModel.Isotropic.Sigma(3, _HELD_SIGMA))
     )
     cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(KERNEL_SCALE)
-    for a, b, z, s, robust in zip(g.a, g.b, g.z, g.sigmas, g.robust, strict=True):
-        noise: Any = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(s, dtype=float))
+    for a, b, z, U, robust in zip(g.a, g.b, g.z, g.whiteners(), g.robust, strict=True):
+        noise: Any = gtsam.noiseModel.Gaussian.Information(U.T @ U)
         if robust:
             noise = gtsam.noiseModel.Robust.Create(cauchy, noise)
         graph.add(gtsam.BetweenFactorPose2(int(a), int(b), gtsam.Pose2(*z), noise))
