@@ -140,19 +140,19 @@ def main() -> None:
 
 
 def lap(seq: Path, reuse: bool = False) -> dict[str, float]:
-    """One lap's ATEs, NEES means and the filter's time. ``reuse``: take the visual
-    odometry from an earlier run's ``vo-result.pkl`` in the lap's folder (written by every
-    run), to try the filter's settings without tracking the images again (the laser
-    odometry is computed again)."""
+    """One lap's ATEs, NEES means and the filter's time. ``reuse``: take the laser and
+    visual odometry from an earlier run's ``odometries.pkl`` in the lap's folder (written
+    by every run), to try the filter's settings without computing them again."""
     streams = open_streams(seq)
-    cache = seq / "vo-result.pkl"
+    cache = seq / "odometries.pkl"
     if reuse and cache.exists():
-        streams.results["vo"] = pickle.loads(cache.read_bytes())
+        od, res = pickle.loads(cache.read_bytes())
+        streams.results["vo"] = res
     else:
         streams.start_laser_odometry()
         streams.feature_tracks()
-    od, res = kf_inputs(streams)
-    cache.write_bytes(pickle.dumps(res))
+        od, res = kf_inputs(streams)
+        cache.write_bytes(pickle.dumps((od, res)))
     assert streams.sequence.groundtruth_file is not None
     truth = read_tum(seq / streams.sequence.groundtruth_file)
     assert truth.stamps_s is not None

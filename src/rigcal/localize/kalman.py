@@ -101,6 +101,15 @@ class KfParams:
             raise ValueError("accel_sigma and yaw_accel_sigma must be > 0")
 
 
+# ``rigcal localize --kf``: the filter by name. "weighted": each step's own covariance,
+# matched to its input's innovations (the default); "fixed": the paper's filter, every
+# step with its input's fixed covariance (Section VI), nothing adapted.
+KF_MODES = {
+    "weighted": KfParams(),
+    "fixed": KfParams(weights="fixed", adapt=False),
+}
+
+
 @dataclass(frozen=True)
 class KfResult:
     """The filtered path: stamps (M,), poses (M, 3) after each update (the first: the

@@ -273,6 +273,7 @@ class Run:
     cpu_s: float = 0.0  # CPU seconds over the same span as wall_s, all threads
     tracks: TrackParams = field(default_factory=TrackParams)
     wheel_odometry: str = "none"  # "used", "ignored" or "none" (the sequence has none)
+    kf: kalman.KfParams = field(default_factory=kalman.KfParams)
 
 
 def _shared_stages(streams: Streams, methods: list[str]) -> None:
@@ -366,13 +367,15 @@ def run(
     tracks: TrackParams | None = None,
     wheel_odometry: bool = True,
     loop_closure: LoopParams | None = None,
+    kf: kalman.KfParams | None = None,
 ) -> Run:
     """Localize a sequence with each method; :func:`rigcal.viz.localize_output.write_run`
     writes the output folder. ``iasm``: IASM's and H-IASM's settings, ``tracks`` the
     feature tracks' (the defaults unless given). ``wheel_odometry``: start ICP from the
     sequence's wheel odometry (when it has one) and fuse it in the Kalman filter; False
     ignores it. ``loop_closure``: also run each of :data:`LOOP_CLOSURE_METHODS` chosen with
-    loop closure, as ``METHOD+lc``.
+    loop closure, as ``METHOD+lc``. ``kf``: the Kalman filter's settings
+    (:data:`rigcal.localize.kalman.KF_MODES`; the weighted filter unless given).
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -381,6 +384,7 @@ def run(
         if m not in METHODS:
             raise InputError.at(None, "--method", m, f"one of {sorted(METHODS)}")
     iasm = iasm or IasmParams()
+    kf = kf or kalman.KfParams()
     streams = open_streams(sequence, rig_file)
     streams.progress = progress
     streams.track_params = tracks or TrackParams()
@@ -398,7 +402,7 @@ def run(
             shared = SHARED_STAGES[name]
             before = {k: streams.timings_s.get(k, 0.0) for k in shared}
             t0 = time.perf_counter()
-            est = METHODS[name](streams, iasm)
+            est = _kf_estimate(streams, kf) if name == "kf" else METHODS[name](streams, iasm)
             seconds = time.perf_counter() - t0
             # A shared stage first needed here ran inside this method's time: not its own.
             seconds -= sum(streams.timings_s.get(k, 0.0) - before[k] for k in shared)
@@ -443,7 +447,7 @@ def run(
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
     wheel = "none" if streams.sequence.odometry is None else "used" if wheel_odometry else "ignored"
     return Run(
-        results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params, wheel
+        results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params, wheel, kf
     )
 
 
@@ -453,7 +457,7 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
         "config": {
             "sequence": str(sequence.resolve()),
             "methods": [m.method for m in r.methods],
-            "settings": settings(r.iasm, r.tracks),
+            "settings": settings(r.iasm, r.tracks, r.kf),
             "wheel_odometry": r.wheel_odometry,
         },
         "duration_s": round(r.duration_s, 3),
@@ -474,9 +478,12 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
     }
 
 
-def settings(iasm: IasmParams | None = None, tracks: TrackParams | None = None) -> dict[str, Any]:
+def settings(
+    iasm: IasmParams | None = None, tracks: TrackParams | None = None, kf: kalman.KfParams | None = None
+) -> dict[str, Any]:
     """The methods' effective settings (the defaults, as docs/localization.md describes
-    them, with IASM's and H-IASM's ``iasm`` and the feature tracks' ``tracks`` when given)."""
+    them, with IASM's and H-IASM's ``iasm``, the feature tracks' ``tracks`` and the Kalman
+    filter's ``kf`` when given)."""
     from dataclasses import asdict
 
     from rigcal.localize.vo import VoParams
@@ -485,7 +492,7 @@ def settings(iasm: IasmParams | None = None, tracks: TrackParams | None = None) 
         "icp": asdict(IcpParams(method="point-to-line")),
         "vo": asdict(VoParams()),
         "kf": {
-            **asdict(kalman.KfParams()),
+            **asdict(kf or kalman.KfParams()),
             "icp_sigmas_forward_cross_yawrate": list(kalman.ICP_SIGMAS),
             "vo_sigmas_forward_cross_yawrate": list(kalman.VO_SIGMAS),
             "wheel_sigmas_forward_cross_yawrate": list(kalman.WHEEL_SIGMAS),
