@@ -36,7 +36,7 @@ from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import DEGENERATE_BELOW, LASER_ODOMETRY, Odometry, icp_odometry
 from rigcal.localize.streams import Streams, nearest_index, open_streams
 from rigcal.localize.tracks import TrackParams
-from rigcal.localize.vo import VoResult, visual_odometry
+from rigcal.localize.vo import VoResult, VoStep, still_rotation_covariance, visual_odometry
 
 log = logging.getLogger(__name__)
 
@@ -169,14 +169,24 @@ def kf_measurements(
     else:
         # The covariance already opens a degenerate step along the corridor only.
         ms = kalman.increments(icp.stamps_s, icp.poses, od.covariance, source="icp")
-        vo_cov = np.array(
-            [np.full((3, 3), np.nan) if s.covariance is None else s.covariance for s in res.steps]
-        )
+        rig = streams.require_rig("kf")
+        focal = float(np.mean(rig.camera.intrinsics[:2]))
+        vo_cov = np.array([_run_covariance(s, focal) for s in res.steps])
         ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses, vo_cov.reshape(-1, 3, 3))
     if streams.wheel_odometry is not None:
         wheel = _wheel_estimate(streams)
         ms += kalman.increments(wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS, source="wheel")
     return ms
+
+
+def _run_covariance(step: VoStep, focal_px: float) -> FloatArray:
+    """A VO run's covariance as the filter takes it: a still run's with the rotation its
+    still test lets through (:func:`rigcal.localize.vo.still_rotation_covariance`)."""
+    if step.covariance is None:
+        return np.full((3, 3), np.nan)
+    if step.status == "still":
+        return still_rotation_covariance(step.covariance, focal_px)
+    return step.covariance
 
 
 def _wheel_estimate(streams: Streams) -> Estimate:
