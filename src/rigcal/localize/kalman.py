@@ -32,7 +32,11 @@ every step the paper's fixed covariance (:data:`ICP_SIGMAS`, :data:`VO_SIGMAS`),
 ICP's degenerate steps and VO's runs without a scale open forward as before. With
 ``adapt`` (the default) each input's covariances are matched to its innovations (Mehra's
 covariance matching, one scale factor per input), as a fit's covariance leaves out what
-the fit cannot see.
+the fit cannot see. Three more remedies answer what the inputs' consistency against the
+simulated truth showed (docs/localization.md, "Consistency of the inputs"): ICP's
+consecutive steps share their common scan's error (``icp_shared``, :func:`_update`), a VO
+run failing a chi-square innovation test is left out (``gate``), and a VO run is fused
+only along directions where the filter knows the motion less well (``vo_weak_only``).
 """
 
 from __future__ import annotations
