@@ -390,6 +390,7 @@ def localize_sequence(
     wheel_odometry: bool = True,
     loop_closure: bool = False,
     pose_graph: str = "auto",
+    kf: str = "weighted",
     force: bool = False,
     progress: Progress | None = None,
 ) -> Localized:
@@ -400,6 +401,8 @@ def localize_sequence(
         iasm, tracks: ``KEY=VALUE`` settings of IASM and H-IASM, and of the feature tracks.
         pose_graph: the loop closures' pose-graph back end: ``auto`` (GTSAM where
             installed, else scipy), ``scipy`` or ``gtsam``.
+        kf: the Kalman filter: ``weighted`` (each step's own covariance) or ``fixed``
+            (the paper's fixed covariances), :data:`rigcal.localize.kalman.KF_MODES`.
 
     Raises:
         ArgumentError: an unknown method or setting (the command line's usage errors).
@@ -407,6 +410,7 @@ def localize_sequence(
         OutputError: ``output`` exists and ``force`` is False.
     """
     from rigcal.io.files import check_folder_writable
+    from rigcal.localize.kalman import KF_MODES
     from rigcal.localize.loop_closure import LoopParams
     from rigcal.localize.pipeline import (
         parse_iasm_settings,
@@ -427,6 +431,8 @@ def localize_sequence(
                 pose_graph,
                 "auto or scipy: GTSAM is not installed (pip install rigcal[gtsam])",
             )
+        if kf not in KF_MODES:
+            raise InputError.at(None, "--kf", kf, f"one of {', '.join(KF_MODES)}")
         names = parse_methods(methods)
         iasm_params = parse_iasm_settings(list(iasm))
         track_params = parse_track_settings(list(tracks))
@@ -440,6 +446,7 @@ def localize_sequence(
         tracks=track_params,
         wheel_odometry=wheel_odometry,
         loop_closure=lc_params if loop_closure else None,
+        kf=KF_MODES[kf],
     )
     write_run(r, sequence, output, force=force, kitti=kitti)
     return Localized(r, summary(r, sequence))

@@ -199,8 +199,109 @@ def test_an_input_whose_covariance_is_too_small_is_matched_to_its_innovations():
     ms += kalman.increments(t[::4], vo, _own(t[::4], (2e-3, 2e-3, 1e-4)), source="vo")
     errors = {}
     for adapt in (False, True):
-        res = kalman.run_filter(ms, kalman.KfParams(adapt=adapt))
+        params = kalman.KfParams(adapt=adapt, icp_shared=0.0, gate=0.0, vo_weak_only=0.0)
+        res = kalman.run_filter(ms, params)
         errors[adapt] = np.sqrt(np.mean(np.sum((res.poses[:, :2] - poses[:, :2]) ** 2, axis=1)))
     icp_error = np.sqrt(np.mean(np.sum((icp[:, :2] - poses[:, :2]) ** 2, axis=1)))
     assert errors[True] < 0.5 * errors[False]
     assert errors[True] < 2.0 * icp_error + 1e-3
+
+
+def _shared_noise_steps(poses, rng, cov, rho):
+    """ICP-like steps (N - 1, 3) whose errors are e_k = s_k - s_(k-1) + w_k: s (per
+    scan) of covariance rho x ``cov`` (3, 3), w (per step) of ``cov``."""
+    s = rng.multivariate_normal(np.zeros(3), rho * cov, len(poses))
+    w = rng.multivariate_normal(np.zeros(3), cov, len(poses))
+    steps = [
+        kalman.pose_of(np.linalg.inv(kalman.se2(poses[k - 1])) @ kalman.se2(poses[k]))
+        + s[k]
+        - s[k - 1]
+        + w[k]
+        for k in range(1, len(poses))
+    ]
+    out = [poses[0]]
+    for step in steps:
+        out.append(kalman.pose_of(kalman.se2(out[-1]) @ kalman.se2(step)))
+    return np.array(out)
+
+
+def test_icp_steps_sharing_their_scans_errors_keep_the_filter_consistent():
+    """Consecutive steps sharing a scan: each step errs by (1 + 2 rho) times its
+    covariance, a chain by the sum of its steps' only. With ``icp_shared`` = rho the
+    filter's end pose is consistent (NEES near 3) whether its steps are read one by one
+    or chained; taking the steps as independent with their whole error's covariance,
+    it overstates the chain's (NEES well under 3)."""
+    rng = np.random.default_rng(3)
+    t, poses = _arc(n=81, dt=0.025, v=0.5, w=0.3)
+    cov, rho = np.diag([1e-6, 1e-6, 1e-8]), 0.75
+    nees = {"shared": [], "independent": []}
+    for _ in range(60):
+        icp = _shared_noise_steps(poses, rng, cov, rho)
+        for key, params, step_cov in (
+            ("shared", kalman.KfParams(adapt=False, icp_shared=rho), cov),
+            ("independent", kalman.KfParams(adapt=False, icp_shared=0.0), (1 + 2 * rho) * cov),
+        ):
+            ms = kalman.increments(t, icp, np.stack([step_cov] * len(t)), source="icp")
+            res = kalman.run_filter(ms, params)
+            e = res.poses[-1] - poses[-1]
+            nees[key].append(float(e @ np.linalg.solve(res.covariances[-1], e)))
+    assert 2.0 < np.mean(nees["shared"]) < 4.2
+    assert np.mean(nees["independent"]) < 0.6 * np.mean(nees["shared"])
+
+
+def test_a_vo_run_far_from_a_precise_icp_is_gated_out():
+    """One VO run 10 cm off among runs that agree with ICP: the innovation test leaves it
+    out, so the path is the one without it; without the gate it pulls the path off."""
+    t, poses = _arc(n=201, dt=0.025, w=0.3)
+    icp = kalman.increments(t, poses, _own(t, (1e-3, 1e-3, 1e-4)), source="icp")
+    vo = kalman.increments(t[::4], poses[::4], _own(t[::4], (1e-3, 1e-3, 1e-4)), source="vo")
+    bad = vo[20]
+    vo_bad = [
+        *vo[:20],
+        kalman.Increment(bad.t0, bad.t1, bad.motion + np.array([0.1, 0.0, 0.0]), bad.covariance, "vo"),
+        *vo[21:],
+    ]
+    params = kalman.KfParams(adapt=False, vo_weak_only=0.0)
+    without = kalman.run_filter(icp + vo[:20] + vo[21:], params).poses
+    gated = kalman.run_filter(icp + vo_bad, params).poses
+    ungated = kalman.run_filter(icp + vo_bad, kalman.KfParams(adapt=False, vo_weak_only=0.0, gate=0.0)).poses
+    assert np.max(np.abs(gated - without)) < 1e-9
+    assert np.max(np.linalg.norm(ungated[:, :2] - poses[:, :2], axis=1)) > 0.02
+
+
+def test_vo_enters_only_where_the_filter_is_weaker():
+    """ICP precise in every direction: VO runs 20 % long change nothing. ICP open along a
+    corridor: VO carries the forward motion there."""
+    t, poses = _arc(n=201, dt=0.025, w=1e-6)
+    vo = kalman.increments(
+        t[::4], _scaled(poses[::4], 1.2, 0.0), _own(t[::4], (0.01, 0.05, 0.01)), source="vo"
+    )
+    params = kalman.KfParams(adapt=False, gate=0.0)
+    precise = kalman.increments(t, poses, _own(t, (1e-4, 1e-4, 1e-5)), source="icp")
+    alone = kalman.run_filter(precise, params).poses
+    assert np.max(np.abs(kalman.run_filter(precise + vo, params).poses[-1] - alone[-1])) < 1e-9
+    every_direction = kalman.run_filter(
+        precise + vo, kalman.KfParams(adapt=False, gate=0.0, vo_weak_only=0.0)
+    )
+    assert np.max(np.abs(every_direction.poses[-1] - alone[-1])) > 1e-6
+    open_icp = kalman.increments(
+        t, _scaled(poses, 0.5, 0.0), _own(t, (kalman.OPEN_SIGMA_M, 1e-4, 1e-5)), source="icp"
+    )
+    res = kalman.run_filter(open_icp + vo, params)
+    assert res.poses[-1, 0] == pytest.approx(1.2 * poses[-1, 0], rel=0.02)  # VO's forward, not ICP's guess
+
+
+def test_the_papers_filter_by_name_has_none_of_the_additions():
+    fixed = kalman.KF_MODES["fixed"]
+    assert (fixed.weights, fixed.adapt, fixed.icp_shared, fixed.gate, fixed.vo_weak_only) == (
+        "fixed",
+        False,
+        0,
+        0,
+        0,
+    )
+    weighted = kalman.KF_MODES["weighted"]
+    assert weighted == kalman.KfParams()
+    assert weighted.icp_shared == kalman.ICP_SHARED > 0
+    assert weighted.gate > 0
+    assert weighted.vo_weak_only > 0

@@ -335,3 +335,15 @@ def test_laser_scale_divides_out_the_second_images_exposure_gain(texture, wall_i
     assert fixed.used > 20
     assert fixed.scale == pytest.approx(np.linalg.norm(t), rel=0.03)
     assert fixed.used > 2 * raw.used or not np.isfinite(raw.scale)
+
+
+def test_a_still_runs_yaw_takes_the_rotation_its_still_test_lets_through():
+    from rigcal.localize.vo import VoParams, still_rotation_covariance
+
+    cov = np.diag([1e-6, 1e-6, 1e-10])
+    out = still_rotation_covariance(cov, 520.0)
+    assert out[2, 2] == pytest.approx(1e-10 + (VoParams().still_px / 520.0) ** 2 / 3.0)
+    assert np.array_equal(out[:2], cov[:2])  # the rest kept
+    assert cov[2, 2] == 1e-10  # the input untouched
+    # A stricter still test lets less through.
+    assert still_rotation_covariance(cov, 520.0, VoParams(still_px=0.3))[2, 2] < out[2, 2]

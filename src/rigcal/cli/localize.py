@@ -83,6 +83,14 @@ rig_option = click.option(
     help="The loop closure's pose-graph back end: gtsam (the optional extra rigcal[gtsam]), "
     "scipy, or auto (gtsam where installed, scipy otherwise).",
 )
+@click.option(
+    "--kf",
+    type=click.Choice(["weighted", "fixed"]),
+    default="weighted",
+    show_default=True,
+    help="The Kalman filter (method kf): weighted (each step by its own covariance, matched to its "
+    "input's innovations) or fixed (the paper's filter: fixed covariances per input, Section VI).",
+)
 def localize(
     sequence: Path,
     methods: str,
@@ -96,6 +104,7 @@ def localize(
     wheel_odometry: str,
     loop_closure: bool,
     pose_graph: str,
+    kf: str,
 ) -> None:
     """Estimate the laser's trajectory through SEQUENCE (a sequence folder) with one or
     more methods, run on the same data in the same process.
@@ -111,6 +120,7 @@ def localize(
       rigcal localize corridor/ --method icp,vo,kf -o out/
       rigcal localize corridor/ --method iasm,hiasm --iasm snap_max_m=0 -o out-raw/
       rigcal localize corridor/ --method vo,kf --tracks detector=sift -o out-sift/
+      rigcal localize corridor/ --method icp,vo,kf --kf fixed -o out-paper/
     """
     from rigcal.cli.progress import Progress
     from rigcal.errors import ArgumentError
@@ -130,6 +140,7 @@ def localize(
                 wheel_odometry=wheel_odometry == "use",
                 loop_closure=loop_closure,
                 pose_graph=pose_graph,
+                kf=kf,
                 force=force,
                 progress=bars,
             )

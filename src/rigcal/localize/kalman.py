@@ -32,7 +32,11 @@ every step the paper's fixed covariance (:data:`ICP_SIGMAS`, :data:`VO_SIGMAS`),
 ICP's degenerate steps and VO's runs without a scale open forward as before. With
 ``adapt`` (the default) each input's covariances are matched to its innovations (Mehra's
 covariance matching, one scale factor per input), as a fit's covariance leaves out what
-the fit cannot see.
+the fit cannot see. Three more remedies answer what the inputs' consistency against the
+simulated truth showed (docs/localization.md, "Consistency of the inputs"): ICP's
+consecutive steps share their common scan's error (``icp_shared``, :func:`_update`), a VO
+run failing a chi-square innovation test is left out (``gate``), and a VO run is fused
+only along directions where the filter knows the motion less well (``vo_weak_only``).
 """
 
 from __future__ import annotations
@@ -67,6 +71,20 @@ WEIGHTS = ("covariance", "fixed")
 # that exceeds 1; a single innovation counts at most NIS_CAP (an outlier step).
 ADAPT_WINDOW = 50
 NIS_CAP = 25.0
+# ICP's consecutive steps share a scan (``KfParams.icp_shared``, :func:`_update`): the
+# shared error's variance per scan as a fraction of a step's own covariance. Measured on
+# the simulated laps (benchmarks/bench_kf.py): the steps' errors over their 1-sigma had an
+# rms of 1.5 in translation and 1.0 in yaw, chains of 4 and 40 steps (taken as
+# independent) 0.9-1.3, and consecutive steps' errors a correlation of -0.21 to -0.38;
+# 0.75 gives a step (1 + 2 x 0.75) = 2.5 times its covariance, a chain the sum of its
+# steps', and consecutive steps a correlation of -0.3.
+ICP_SHARED = 0.75
+# A VO run whose innovation's squared Mahalanobis distance exceeds this (chi-square, 3
+# degrees of freedom, 0.999) is left out (``KfParams.gate``): a wrong scale or track set.
+VO_GATE = 16.27
+# VO is fused only along directions where the filter's own prediction of the run's motion
+# is less certain than the run (generalised eigenvalue above this; ``KfParams.vo_weak_only``).
+VO_WEAK_ONLY = 1.0
 
 
 @dataclass(frozen=True)
@@ -93,12 +111,24 @@ class KfParams:
     yaw_accel_sigma: float = 1.0
     weights: str = "covariance"
     adapt: bool = True
+    icp_shared: float = ICP_SHARED
+    gate: float = VO_GATE
+    vo_weak_only: float = VO_WEAK_ONLY
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
             raise ValueError(f"weights {self.weights!r}: expected one of {', '.join(WEIGHTS)}")
         if not (self.accel_sigma > 0 and self.yaw_accel_sigma > 0):
             raise ValueError("accel_sigma and yaw_accel_sigma must be > 0")
+
+
+# ``rigcal localize --kf``: the filter by name. "weighted": each step's own covariance,
+# matched to its input's innovations (the default); "fixed": the paper's filter, every
+# step with its input's fixed covariance (Section VI), nothing adapted.
+KF_MODES = {
+    "weighted": KfParams(),
+    "fixed": KfParams(weights="fixed", adapt=False, icp_shared=0.0, gate=0.0, vo_weak_only=0.0),
+}
 
 
 @dataclass(frozen=True)
@@ -194,7 +224,9 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
 
     Each increment clones the pose at its start t0 and updates at its end t1 (module
     docstring); at equal stamps updates come before clones, so that a step starting where
-    another ends starts from the updated pose.
+    another ends starts from the updated pose. With ``params.icp_shared`` each ICP step's
+    error shares a part with the step before (their common scan, :func:`_update`); with
+    ``params.gate`` a VO run whose innovation fails the chi-square test is left out.
 
     Returns:
         the filtered pose after each update, starting with the origin at the earliest
@@ -210,7 +242,9 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     pending: dict[float, int] = {}  # clone stamp -> increments still to use it
     for m in ms:
         pending[m.t0] = pending.get(m.t0, 0) + 1
-    clones: list[float] = []  # the stamps of the state's clones, in state order
+    # The state's blocks of three after the pose and velocity, in state order: the pose
+    # clones ("clone", t0) and the last ICP scan's shared error ("scan", its stamp).
+    blocks: list[tuple[str, float]] = []
     mean_nis: dict[str, float] = {}  # per input: its innovations' NIS per dimension, running mean
     t = events[0][0]
     x = np.zeros(6)
@@ -222,21 +256,37 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             t = when
         m = ms[i]
         if kind == 1:
-            if m.t0 not in clones:
+            if ("clone", m.t0) not in blocks:
                 x, P = _clone(x, P)
-                clones.append(m.t0)
+                blocks.append(("clone", m.t0))
             continue
-        c = 6 + 3 * clones.index(m.t0)
-        x, P, nis = _update(x, P, c, m, max(1.0, mean_nis.get(m.source, 1.0)) if params.adapt else 1.0)
-        # Covariance matching: each input's recent innovations against its covariance.
-        mean_nis[m.source] = (
-            mean_nis.get(m.source, 1.0) + (min(nis, NIS_CAP) - mean_nis.get(m.source, 1.0)) / ADAPT_WINDOW
+        c = 6 + 3 * blocks.index(("clone", m.t0))
+        scale = max(1.0, mean_nis.get(m.source, 1.0)) if params.adapt else 1.0
+        shared: int | None = None
+        if m.source == "icp" and params.icp_shared > 0:
+            old = [b for b in blocks if b[0] == "scan"]
+            D_new = params.icp_shared * _finite_part(m.covariance)
+            x, P = _append(x, P, D_new)
+            blocks.append(("scan", m.t1))
+            prev = 6 + 3 * blocks.index(old[-1]) if old and old[-1][1] == m.t0 else -1
+            shared = prev
+        vo = m.source == "vo"
+        x, P, nis = _update(
+            x, P, c, m, scale, shared, params.gate if vo else 0.0, params.vo_weak_only if vo else 0.0
         )
+        if shared is not None:  # the step's shared error is in; the scan before is done with
+            for b in [b for b in blocks if b[0] == "scan" and b[1] != m.t1]:
+                x, P = _drop(x, P, 6 + 3 * blocks.index(b))
+                blocks.remove(b)
+        if np.isfinite(nis):
+            # Covariance matching: each input's recent innovations against its covariance.
+            mean_nis[m.source] = (
+                mean_nis.get(m.source, 1.0) + (min(nis, NIS_CAP) - mean_nis.get(m.source, 1.0)) / ADAPT_WINDOW
+            )
         pending[m.t0] -= 1
         if not pending[m.t0]:
-            keep = np.r_[0:c, c + 3 : len(x)]
-            x, P = x[keep], P[np.ix_(keep, keep)]
-            clones.remove(m.t0)
+            x, P = _drop(x, P, 6 + 3 * blocks.index(("clone", m.t0)))
+            blocks.remove(("clone", m.t0))
         if stamps[-1] == t:
             poses[-1], covs[-1] = x[:3].copy(), P[:3, :3].copy()
         else:
@@ -254,13 +304,61 @@ def _clone(x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
     return np.concatenate([x, x[:3]]), J @ P @ J.T
 
 
+def _append(x: FloatArray, P: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The state with a zero-mean block of three appended, of covariance ``cov`` (3, 3),
+    independent of the rest."""
+    n = len(x)
+    out = np.zeros((n + 3, n + 3))
+    out[:n, :n], out[n:, n:] = P, cov
+    return np.concatenate([x, np.zeros(3)]), out
+
+
+def _drop(x: FloatArray, P: FloatArray, at: int) -> tuple[FloatArray, FloatArray]:
+    """The state without its block of three at index ``at`` (marginalised out)."""
+    keep = np.r_[0:at, at + 3 : len(x)]
+    return x[keep], P[np.ix_(keep, keep)]
+
+
+def _finite_part(cov: FloatArray) -> FloatArray:
+    """A step's covariance (3, 3) without the directions it leaves open (variance above
+    (OPEN_SIGMA_M / 10)^2: ICP along a corridor), which are no measurement error shared
+    with the next step."""
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    w = np.where(w > (OPEN_SIGMA_M / 10.0) ** 2, 0.0, np.maximum(w, 0.0))
+    out: FloatArray = (v * w) @ v.T
+    return out
+
+
 def _update(
-    x: FloatArray, P: FloatArray, c: int, m: Increment, scale: float = 1.0
+    x: FloatArray,
+    P: FloatArray,
+    c: int,
+    m: Increment,
+    scale: float = 1.0,
+    shared: int | None = None,
+    gate: float = 0.0,
+    weak_only: float = 0.0,
 ) -> tuple[FloatArray, FloatArray, float]:
     """The EKF update with increment ``m`` (its covariance times ``scale``) against the
     clone at state index ``c``: h(S) is the motion from the clone's pose to the current
     one in the clone's frame. Also returns the innovation's NIS per dimension under the
-    increment's own covariance (unscaled)."""
+    increment's own covariance (unscaled).
+
+    ``shared`` (an index): an ICP step's error is e_k = s_k - s_(k-1) + w_k, s_j the
+    error scan j's noise brings into both steps it is part of (data of step j, model of
+    step j + 1, with opposite signs: chained, they cancel), w_k the step's own. w_k has
+    the step's covariance; s_k is the state's last block (covariance rho = ``icp_shared`` times the
+    step's, :func:`_finite_part`), s_(k-1) the block at ``shared`` (-1: none, the step
+    before was not ICP's). A step's error then has (1 + 2 rho) times its covariance, a
+    chain of steps grows by w alone (measurement noise correlated in time, modelled by
+    augmenting the state; Bar-Shalom, Li and Kirubarajan 2001, Section 8.2; the small
+    turn between the two steps' frames, under a degree at the laser's rate, is
+    neglected).
+
+    ``gate`` > 0: when the innovation's squared Mahalanobis distance under the scaled
+    covariance exceeds it, nothing is updated (the state comes back as it was) and the NIS
+    is NaN.
+    """
     cyaw, syaw = np.cos(x[c + 2]), np.sin(x[c + 2])
     Rt = np.array([[cyaw, syaw], [-syaw, cyaw]])  # R(yaw_t0)^T
     d = x[:2] - x[c : c + 2]
@@ -270,12 +368,33 @@ def _update(
     H[:2, c : c + 2] = -Rt
     H[:2, c + 2] = np.array([[-syaw, cyaw], [-cyaw, -syaw]]) @ d  # d(R^T d) / d yaw_t0
     H[2, 2], H[2, c + 2] = 1.0, -1.0
+    own = m.covariance
+    if shared is not None:
+        prev = shared
+        H[:, len(x) - 3 :] = np.eye(3)
+        if prev >= 0:
+            H[:, prev : prev + 3] = -np.eye(3)
+        h = h + x[len(x) - 3 :] - (x[prev : prev + 3] if prev >= 0 else 0.0)
     y = m.motion - h
     y[2] = np.angle(np.exp(1j * y[2]))
     HPH = H @ P @ H.T
-    nis = float(y @ np.linalg.solve(HPH + m.covariance, y)) / 3.0
-    Rm = scale * m.covariance
+    if weak_only > 0:
+        # Only the directions along which the filter knows the motion less well than
+        # the step does (generalised eigenvectors of the two covariances, ratio above
+        # ``weak_only``): elsewhere the step would add little and bring its own errors.
+        L = np.linalg.cholesky(own)
+        Li = np.linalg.inv(L)
+        lam, V = np.linalg.eigh(Li @ HPH @ Li.T)
+        keep = lam > weak_only
+        if not keep.any():
+            return x, P, float("nan")
+        T = (Li.T @ V[:, keep]).T  # rows: the kept directions, whitened by the step's covariance
+        H, y, own, HPH = T @ H, T @ y, T @ own @ T.T, T @ HPH @ T.T
+    nis = float(y @ np.linalg.solve(HPH + own, y)) / len(y)
+    Rm = scale * own
     S = HPH + Rm
+    if gate > 0 and float(y @ np.linalg.solve(S, y)) > gate:
+        return x, P, float("nan")
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
     x = x + K @ y
     A = np.eye(len(x)) - K @ H

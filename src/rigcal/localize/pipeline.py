@@ -36,7 +36,7 @@ from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import DEGENERATE_BELOW, LASER_ODOMETRY, Odometry, icp_odometry
 from rigcal.localize.streams import Streams, open_streams
 from rigcal.localize.tracks import TrackParams
-from rigcal.localize.vo import VoResult, visual_odometry
+from rigcal.localize.vo import VoResult, VoStep, still_rotation_covariance, visual_odometry
 
 log = logging.getLogger(__name__)
 
@@ -175,14 +175,24 @@ def kf_measurements(
     else:
         # The covariance already opens a degenerate step along the corridor only.
         ms = kalman.increments(icp.stamps_s, icp.poses, od.covariance, source="icp")
-        vo_cov = np.array(
-            [np.full((3, 3), np.nan) if s.covariance is None else s.covariance for s in res.steps]
-        )
+        rig = streams.require_rig("kf")
+        focal = float(np.mean(rig.camera.intrinsics[:2]))
+        vo_cov = np.array([_run_covariance(s, focal) for s in res.steps])
         ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses, vo_cov.reshape(-1, 3, 3))
     if streams.wheel_odometry is not None:
         wheel = _wheel_estimate(streams)
         ms += kalman.increments(wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS, source="wheel")
     return ms
+
+
+def _run_covariance(step: VoStep, focal_px: float) -> FloatArray:
+    """A VO run's covariance as the filter takes it: a still run's with the rotation its
+    still test lets through (:func:`rigcal.localize.vo.still_rotation_covariance`)."""
+    if step.covariance is None:
+        return np.full((3, 3), np.nan)
+    if step.status == "still":
+        return still_rotation_covariance(step.covariance, focal_px)
+    return step.covariance
 
 
 def _wheel_estimate(streams: Streams) -> Estimate:
@@ -279,6 +289,7 @@ class Run:
     cpu_s: float = 0.0  # CPU seconds over the same span as wall_s, all threads
     tracks: TrackParams = field(default_factory=TrackParams)
     wheel_odometry: str = "none"  # "used", "ignored" or "none" (the sequence has none)
+    kf: kalman.KfParams = field(default_factory=kalman.KfParams)
 
 
 def _shared_stages(streams: Streams, methods: list[str]) -> None:
@@ -372,13 +383,15 @@ def run(
     tracks: TrackParams | None = None,
     wheel_odometry: bool = True,
     loop_closure: LoopParams | None = None,
+    kf: kalman.KfParams | None = None,
 ) -> Run:
     """Localize a sequence with each method; :func:`rigcal.viz.localize_output.write_run`
     writes the output folder. ``iasm``: IASM's and H-IASM's settings, ``tracks`` the
     feature tracks' (the defaults unless given). ``wheel_odometry``: start ICP from the
     sequence's wheel odometry (when it has one) and fuse it in the Kalman filter; False
     ignores it. ``loop_closure``: also run each of :data:`LOOP_CLOSURE_METHODS` chosen with
-    loop closure, as ``METHOD+lc``.
+    loop closure, as ``METHOD+lc``. ``kf``: the Kalman filter's settings
+    (:data:`rigcal.localize.kalman.KF_MODES`; the weighted filter unless given).
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -387,6 +400,7 @@ def run(
         if m not in METHODS:
             raise InputError.at(None, "--method", m, f"one of {sorted(METHODS)}")
     iasm = iasm or IasmParams()
+    kf = kf or kalman.KfParams()
     streams = open_streams(sequence, rig_file)
     streams.progress = progress
     streams.track_params = tracks or TrackParams()
@@ -404,7 +418,7 @@ def run(
             shared = SHARED_STAGES[name]
             before = {k: streams.timings_s.get(k, 0.0) for k in shared}
             t0 = time.perf_counter()
-            est = METHODS[name](streams, iasm)
+            est = _kf_estimate(streams, kf) if name == "kf" else METHODS[name](streams, iasm)
             seconds = time.perf_counter() - t0
             # A shared stage first needed here ran inside this method's time: not its own.
             seconds -= sum(streams.timings_s.get(k, 0.0) - before[k] for k in shared)
@@ -449,7 +463,7 @@ def run(
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
     wheel = "none" if streams.sequence.odometry is None else "used" if wheel_odometry else "ignored"
     return Run(
-        results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params, wheel
+        results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params, wheel, kf
     )
 
 
@@ -459,7 +473,7 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
         "config": {
             "sequence": str(sequence.resolve()),
             "methods": [m.method for m in r.methods],
-            "settings": settings(r.iasm, r.tracks),
+            "settings": settings(r.iasm, r.tracks, r.kf),
             "wheel_odometry": r.wheel_odometry,
         },
         "duration_s": round(r.duration_s, 3),
@@ -480,9 +494,12 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
     }
 
 
-def settings(iasm: IasmParams | None = None, tracks: TrackParams | None = None) -> dict[str, Any]:
+def settings(
+    iasm: IasmParams | None = None, tracks: TrackParams | None = None, kf: kalman.KfParams | None = None
+) -> dict[str, Any]:
     """The methods' effective settings (the defaults, as docs/localization.md describes
-    them, with IASM's and H-IASM's ``iasm`` and the feature tracks' ``tracks`` when given)."""
+    them, with IASM's and H-IASM's ``iasm``, the feature tracks' ``tracks`` and the Kalman
+    filter's ``kf`` when given)."""
     from dataclasses import asdict
 
     from rigcal.localize.vo import VoParams
@@ -491,7 +508,7 @@ def settings(iasm: IasmParams | None = None, tracks: TrackParams | None = None) 
         "icp": asdict(IcpParams(method="point-to-line")),
         "vo": asdict(VoParams()),
         "kf": {
-            **asdict(kalman.KfParams()),
+            **asdict(kf or kalman.KfParams()),
             "icp_sigmas_forward_cross_yawrate": list(kalman.ICP_SIGMAS),
             "vo_sigmas_forward_cross_yawrate": list(kalman.VO_SIGMAS),
             "wheel_sigmas_forward_cross_yawrate": list(kalman.WHEEL_SIGMAS),
