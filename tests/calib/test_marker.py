@@ -138,6 +138,20 @@ def test_a_capture_with_one_face_hidden_still_gives_both_planes(sim, folder, tmp
         assert abs(o.distance_m - float(n_true @ T_true[:3, 3])) < 0.01
 
 
+def test_one_pose_per_face_when_asked(folder, sim):
+    """joint=False poses each face from its own corners (the joint pose's comparison): no
+    warning that the faces disagree with the targets file, a pose fit per face."""
+    cal = calibrate_marker(folder / "marker_session.yaml", joint=False)
+    s = cal.session
+    assert not s.rigid
+    assert not s.joint
+    assert len(s.pose_fits) == 2 * len(s.found)
+    assert all(o.pose_key is None for o in s.observations)
+    assert not [w for w in cal.report["warnings"] if "disagree with the targets file" in w]
+    t = truth_comparison(cal.result.T_cam_laser, cal.result.covariance, sim.T_cam_laser)
+    assert t["rotation_error_deg"] < 1.0
+
+
 def test_a_capture_carries_the_scans_of_its_still_moment(sim, folder):
     doc = yaml.safe_load((folder / "marker_session.yaml").read_text())
     assert doc["schema_version"] == 2
