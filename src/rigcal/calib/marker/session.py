@@ -435,7 +435,8 @@ def _search_v(
        V, its left arm (as seen from the sensors: the larger bearing) on the left face.
     2. A RANSAC over the captures with a candidate V and their candidate arms (each face
        of each capture one plane, :func:`rigcal.calib.board.plane.candidate_consensus`)
-       gives a rough T_cam_laser; it needs MIN_SEED_CAPTURES such captures.
+       gives a rough T_cam_laser; it needs MIN_SEED_CAPTURES such captures (when fewer
+       show one, the others' candidates are sought among all their valid returns).
     3. In every capture, with a candidate V or not, each face's returns are picked near
        the cut its pose predicts under that pose
        (:func:`rigcal.calib.board.detect.pick_near_cut`; among all valid returns when the
@@ -464,6 +465,14 @@ def _search_v(
                 f"({int(moving[i].sum())} moving returns)"
             )
     seeded = [i for i in range(len(scans)) if pairs[i]]
+    if len(seeded) < MIN_SEED_CAPTURES:
+        # Too few captures show a V among the moving returns: the background was not told
+        # apart (few captures, a target standing where others stood). Their candidates
+        # are then sought among all valid returns; the consensus sorts them out.
+        for i in [i for i in range(len(scans)) if not pairs[i]]:
+            sc = scans[i]
+            pairs[i] = v_candidates(sc, bd.line_candidates(sc, sc.valid, either, params, seed=i))
+        seeded = [i for i in range(len(scans)) if pairs[i]]
     if len(seeded) < MIN_SEED_CAPTURES:
         dropped.update({names[i]: r for i, r in reasons.items()})
         _too_few(path, dropped, names, len(scans), len(seeded), MIN_SEED_CAPTURES, "a rough pose")
