@@ -99,7 +99,8 @@ def marker_runs(
         try:
             cal = calibrate_marker(path, joint=joint)
         except CalibrationError as exc:
-            out[name] = {"failed": str(exc)[:300], "found": np.nan}
+            # A session that stops counts as none found (the reason says which step stopped it).
+            out[name] = {"failed": str(exc)[:300], "found": 0.0}
             continue
         r = cal.result
         row = _scores(r.T_cam_laser, r.covariance, T_truth)
