@@ -138,6 +138,20 @@ def test_a_capture_with_one_face_hidden_still_gives_both_planes(sim, folder, tmp
         assert abs(o.distance_m - float(n_true @ T_true[:3, 3])) < 0.01
 
 
+def test_one_pose_per_face_when_asked(folder, sim):
+    """joint=False poses each face from its own corners (the joint pose's comparison): no
+    warning that the faces disagree with the targets file, a pose fit per face."""
+    cal = calibrate_marker(folder / "marker_session.yaml", joint=False)
+    s = cal.session
+    assert not s.rigid
+    assert not s.joint
+    assert len(s.pose_fits) == 2 * len(s.found)
+    assert all(o.pose_key is None for o in s.observations)
+    assert not [w for w in cal.report["warnings"] if "disagree with the targets file" in w]
+    t = truth_comparison(cal.result.T_cam_laser, cal.result.covariance, sim.T_cam_laser)
+    assert t["rotation_error_deg"] < 1.0
+
+
 def test_a_capture_carries_the_scans_of_its_still_moment(sim, folder):
     doc = yaml.safe_load((folder / "marker_session.yaml").read_text())
     assert doc["schema_version"] == 2
@@ -154,6 +168,80 @@ def test_too_few_captures_found(folder, tmp_path):
         CalibrationError, match=r"the target was found in \d of 8 captures; the marker method needs 5"
     ):
         read_marker_session(s / "marker_session.yaml")
+
+
+@pytest.mark.parametrize("swallowed", [(3,), (0, 1, 2, 3, 4, 5)])
+def test_a_v_taken_for_background_is_found_where_its_pose_predicts(sim, folder, monkeypatch, swallowed):
+    """With few captures the static background is not told apart reliably: a target
+    standing where others stood can be dropped with it. The V is then picked where the
+    image pose and the rough pose from the other captures predict its cut; when too few
+    captures show a V among the moving returns for a rough pose (here 2 of 8), the
+    candidates are sought among all returns."""
+    from rigcal.calib.board import detect as bd
+
+    static_returns = bd.static_returns
+
+    def swallowing(scans, *a, **k):
+        out = static_returns(scans, *a, **k)
+        for i in swallowed:
+            for beams in sim.captures[i].face_beams:
+                out[i][beams] = True
+        return out
+
+    monkeypatch.setattr(bd, "static_returns", swallowing)
+    session = read_marker_session(folder / "marker_session.yaml")
+    assert set(session.found) >= {f"cap{i:02d}" for i in swallowed}
+    for i in swallowed:
+        j = session.found.index(f"cap{i:02d}")
+        for k in range(2):
+            beams = set(sim.captures[i].face_beams[k].tolist())
+            pts = session.observations[2 * j + k].points_laser
+            # The face's own returns: the true hits, with at most a few at the apex taken by the other.
+            assert len(pts) >= len(beams) - 3
+
+
+def test_a_scan_without_the_v_is_set_aside_with_the_reason(folder, tmp_path):
+    s = _copy(folder, tmp_path)
+    d = yaml.safe_load((s / "marker_session.yaml").read_text())
+    # Capture 5's scans are capture 4's: the target is not where cap05's image puts it.
+    d["captures"][5]["scans"] = d["captures"][4]["scans"]
+    (s / "marker_session.yaml").write_text(yaml.safe_dump(d))
+    session = read_marker_session(s / "marker_session.yaml")
+    assert "cap05" not in session.found
+    assert dict(session.dropped)["cap05"].startswith("the V in the scan: ")
+    assert len(session.found) == N - 1
+
+
+def test_check_v_against_the_targets_geometry(sim):
+    """The V check under the true pose: the true arms pass; arms at the wrong angle, off
+    the apex, or too short are refused with the reason."""
+    from rigcal.calib.marker.session import check_v, face_shape
+    from rigcal.geometry import make_T, rotvec_to_R
+    from rigcal.sim.marker_session import T_laser_face
+
+    t = sim.spec.target
+    c = sim.captures[1]
+    poses = tuple(sim.T_cam_laser @ T_laser_face(t, c.T_laser_target, k) for k in range(2))
+    shapes = [face_shape(t, k) for k in range(2)]
+    arms = tuple(c.scan.points[b[c.scan.valid[b]]] for b in c.face_beams)
+    assert check_v(sim.T_cam_laser, poses, shapes, arms, 5, 0.01) is None
+    # The left arm turned by 20 degrees about the apex's end of it.
+    a = arms[0]
+    end = a[np.argmin(np.linalg.norm(a - arms[1].mean(axis=0), axis=1))]
+    turned = (a - end) @ rotvec_to_R([0, 0, np.radians(20)])[:2, :2].T + end
+    assert "the arms meet at" in check_v(sim.T_cam_laser, poses, shapes, (turned, arms[1]), 5, 0.01)
+    # Both arms 15 cm away along the laser's x.
+    moved = tuple(x + np.array([0.15, 0.0]) for x in arms)
+    why = check_v(sim.T_cam_laser, poses, shapes, moved, 5, 0.01)
+    assert "from the apex the faces' pose predicts" in why
+    # An arm of a few returns only, or none.
+    assert "spans" in check_v(sim.T_cam_laser, poses, shapes, (a[:6], arms[1]), 5, 0.01)
+    assert check_v(sim.T_cam_laser, poses, shapes, (None, arms[1]), 5, 0.01).startswith(
+        "0 returns near the left"
+    )
+    # The faces' pose under a laser 2 m away: off the scan plane.
+    far = sim.T_cam_laser @ make_T(np.eye(3), [0.0, 0.0, 2.0])
+    assert "off the scan plane" in check_v(far, poses, shapes, arms, 5, 0.01)
 
 
 def test_weak_views():

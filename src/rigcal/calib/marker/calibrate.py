@@ -70,12 +70,14 @@ def calibrate_marker(
     noise: str = "auto",
     range_bias: bool = True,
     loss: str = LOSS,
+    joint: bool = True,
 ) -> MarkerCalibration:
     """Read a marker session, detect, solve, build the report and the rig.
 
     The arguments are :func:`rigcal.calib.board.calibrate.calibrate_board`'s; with
     ``noise="auto"`` the corner noise is estimated from the faces' corner reprojection
-    residuals and the range noise from the cuts' line fits.
+    residuals and the range noise from the cuts' line fits. ``joint``:
+    :func:`read_marker_session`'s (False: each face posed on its own).
 
     Raises:
         InputError: a bad session, targets or truth file.
@@ -84,7 +86,7 @@ def calibrate_marker(
     if noise not in NOISE_MODES:
         raise ValueError(f"noise must be one of {NOISE_MODES}")
     T_truth = read_truth(truth_path) if truth_path is not None else None
-    session = read_marker_session(path)
+    session = read_marker_session(path, joint)
     assumed = max(range_sigma_m or float(session.laser.get("range_sigma_m", DEFAULT_RANGE_SIGMA_M)), 1e-4)
     # Pooled over the poses the planes came from, with their own corner counts
     # (corner_sigma_from_rms per pose: 2 n - 6 degrees of freedom).
@@ -175,7 +177,7 @@ def marker_report(
         warnings.append(f"capture {n}: target not found ({r}); set aside")
     for n, r in session.disagreements:
         warnings.append(f"capture {n}: {r}")
-    if not session.rigid:
+    if not session.rigid and session.joint:
         warnings.append(
             f"the faces disagree with the targets file's geometry in {len(session.disagreements)} of "
             f"{len(session.found)} captures: each face was posed on its own from its own corners; check the "

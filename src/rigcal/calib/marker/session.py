@@ -85,7 +85,10 @@ class MarkerSession:
             with the target's.
         scans_per_capture: per capture name, how many scans its laser side is the mean of.
         rigid: the faces were posed as one target (False: they disagreed with the targets
-            file in most captures, :func:`faces_agree`, and each face was posed on its own).
+            file in most captures, :func:`faces_agree`, or one pose per face was asked for,
+            and each face was posed on its own).
+        joint: one pose for the whole target was asked for (``read_marker_session``'s
+            ``joint``).
         pose_fits: (RMS reprojection error px, corners) of every pose the planes came from.
     """
 
@@ -107,6 +110,7 @@ class MarkerSession:
     scans_per_capture: dict[str, int] = field(default_factory=dict)
     rigid: bool = True
     pose_fits: tuple[tuple[float, int], ...] = ()
+    joint: bool = True
     # The board report's "left out" list; a marker session's set-aside captures are ``dropped``.
     skipped: tuple[str, ...] = ()
 
@@ -116,8 +120,13 @@ def is_marker_session(data: Any) -> bool:
     return isinstance(data, dict) and data.get("method") == "marker"
 
 
-def read_marker_session(path: str | Path) -> MarkerSession:
+def read_marker_session(path: str | Path, joint: bool = True) -> MarkerSession:
     """Read and validate a marker session, detect the target in every capture.
+
+    ``joint``: pose the target as one rigid body from both faces' corners (unless the
+    faces disagree with the targets file, :func:`faces_agree`); False poses each face on
+    its own from its own corners, as a target whose faces' placement is not known would
+    be (a capture without both faces' own poses is then set aside).
 
     Raises:
         InputError: anything missing, unreadable or invalid, naming the file, key and value.
@@ -175,15 +184,20 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         else:
             views.append(view)
     check_unique_names(path, names)
-    rigid = faces_agree(views)
+    rigid = joint and faces_agree(views)
     if not rigid:
         for i, v in enumerate(views):
             lacking = (
                 [] if v is None else [k for k, f in enumerate(v.faces) if f is None or f.T_cam_face is None]
             )
             if lacking:
+                need = (
+                    "the faces disagree with the targets file, so each needs a pose of its own"
+                    if joint
+                    else "one pose per face was asked for"
+                )
                 dropped[names[i]] = (
-                    "markers: the faces disagree with the targets file, so each needs a pose of its own, "
+                    f"markers: {need}, "
                     f"and face {target.faces[lacking[0]].name} has fewer than {MIN_FACE_CORNERS} corners "
                     "on two rows and columns"
                 )
@@ -243,6 +257,7 @@ def read_marker_session(path: str | Path) -> MarkerSession:
         n_scans,
         rigid,
         tuple(_pose_fits(kept_views, rigid)),
+        joint,
     )
 
 
@@ -418,12 +433,20 @@ def _search_v(
        may be (:func:`rigcal.calib.board.detect.line_candidates`); two pieces whose lines
        cross within APEX_GAP_M of an end of each, at more than MIN_V_DEG, are a candidate
        V, its left arm (as seen from the sensors: the larger bearing) on the left face.
-       A capture with no candidate V is set aside.
-    2. A RANSAC over captures and their candidate arms (each face of each capture one
-       plane, :func:`rigcal.calib.board.plane.candidate_consensus`) gives a rough T_cam_laser.
-    3. Each face's returns are re-picked near the cut its pose predicts under that pose
-       (:func:`rigcal.calib.board.detect.pick_near_cut`), the pose re-solved by the closed
-       form and the re-picking repeated with a tighter window, as for a board.
+    2. A RANSAC over the captures with a candidate V and their candidate arms (each face
+       of each capture one plane, :func:`rigcal.calib.board.plane.candidate_consensus`)
+       gives a rough T_cam_laser; it needs MIN_SEED_CAPTURES such captures (when fewer
+       show one, the others' candidates are sought among all their valid returns).
+    3. In every capture, with a candidate V or not, each face's returns are picked near
+       the cut its pose predicts under that pose
+       (:func:`rigcal.calib.board.detect.pick_near_cut`; among all valid returns when the
+       moving ones have too few there: with few captures the background is not told
+       apart reliably, and a target standing where others stood can be taken for it).
+       The V so found is checked against the target (:func:`check_v`); the pose is
+       re-solved by the closed form from the captures that pass and the picking
+       repeated with a tighter window, as for a board.
+
+    A capture whose V fails the check under the final pose is set aside with the reason.
     """
     from rigcal.calib.board import detect as bd
     from rigcal.calib.board.plane import candidate_consensus, closed_form
@@ -433,47 +456,63 @@ def _search_v(
     shapes = [face_shape(target, k) for k in range(2)]
     either = BoardShape(shapes[0].outline, min(x.min_cut_m for x in shapes), max(x.max_cut_m for x in shapes))
     pairs: dict[int, list[tuple[NDArray[np.int64], NDArray[np.int64]]]] = {}
+    reasons: dict[int, str] = {}
     for i, sc in enumerate(scans):
         pairs[i] = v_candidates(sc, bd.line_candidates(sc, moving[i], either, params, seed=i))
         if not pairs[i]:
-            dropped[names[i]] = (
+            reasons[i] = (
                 "the V in the scan: no two straight pieces of the moving returns meet at an apex "
                 f"({int(moving[i].sum())} moving returns)"
             )
-    alive = [i for i in range(len(scans)) if pairs[i]]
-    if len(alive) < MIN_CAPTURES:
-        why = "; ".join(f"{n}: {r}" for n, r in dropped.items())
-        raise CalibrationError(
-            f"{path}: the target was found in {len(alive)} of {len(scans) + _early(dropped, names)} "
-            f"captures; the marker method needs {MIN_CAPTURES} ({why})"
-        )
-    poses = {(i, k): _scaled(views[i][k], scale) for i in alive for k in range(2)}
-    planes = [_plane(poses[i, k]) for i in alive for k in range(2)]
-    arms = [
-        _unique([sc_pts[p[k]] for p in pairs[i]])
-        for i in alive
-        for k in range(2)
-        for sc_pts in [scans[i].points]
-    ]
+    seeded = [i for i in range(len(scans)) if pairs[i]]
+    if len(seeded) < MIN_SEED_CAPTURES:
+        # Too few captures show a V among the moving returns: the background was not told
+        # apart (few captures, a target standing where others stood). Their candidates
+        # are then sought among all valid returns; the consensus sorts them out.
+        for i in [i for i in range(len(scans)) if not pairs[i]]:
+            sc = scans[i]
+            pairs[i] = v_candidates(sc, bd.line_candidates(sc, sc.valid, either, params, seed=i))
+        seeded = [i for i in range(len(scans)) if pairs[i]]
+    if len(seeded) < MIN_SEED_CAPTURES:
+        dropped.update({names[i]: r for i, r in reasons.items()})
+        _too_few(path, dropped, names, len(scans), len(seeded), MIN_SEED_CAPTURES, "a rough pose")
+    poses = {(i, k): _scaled(views[i][k], scale) for i in range(len(scans)) for k in range(2)}
+    planes = [_plane(poses[i, k]) for i in seeded for k in range(2)]
+    arms = [_unique([scans[i].points[p[k]] for p in pairs[i]]) for i in seeded for k in range(2)]
     threshold = max(bd.LINE_TOLERANCE_M, bd.LINE_SIGMAS * _scatter([a for c in arms for a in c]))
     try:
-        T, chosen, _ = candidate_consensus(planes, arms, threshold_m=threshold)
+        T, chosen, agree = candidate_consensus(planes, arms, threshold_m=threshold)
     except CalibrationError as exc:
         raise CalibrationError(f"{path}: finding the V in the scans: {exc}") from None
-    picked = {(i, k): arms[2 * j + k][chosen[2 * j + k]] for j, i in enumerate(alive) for k in range(2)}
+    picked: dict[tuple[int, int], FloatArray] = {}
+    for j, i in enumerate(seeded):
+        if agree[2 * j] and agree[2 * j + 1]:
+            for k in range(2):
+                picked[i, k] = arms[2 * j + k][chosen[2 * j + k]]
     window = bd.FIRST_WINDOW_M
+    sigma = max(_scatter([a for c in arms for a in c]), bd.MIN_RANGE_SIGMA_M)
     for _ in range(bd.REFINE_PASSES):
-        for i in alive:
+        for i in range(len(scans)):
             for k in range(2):
                 cut = bd.predicted_cut(T, poses[i, k], shapes[k])
                 if cut is None:
                     continue
                 near = bd.pick_near_cut(scans[i], moving[i], cut, window, params.min_points)
+                if not len(near):
+                    near = bd.pick_near_cut(scans[i], scans[i].valid, cut, window, params.min_points)
                 if len(near):
                     picked[i, k] = scans[i].points[near]
+        good = [
+            i
+            for i in range(len(scans))
+            if check_v(T, (poses[i, 0], poses[i, 1]), shapes, _pair(picked, i), params.min_points, sigma)
+            is None
+        ]
+        if len(good) < MIN_SEED_CAPTURES:
+            break
         obs = [
-            PlaneObservation(2 * j + k, "", *_plane(poses[i, k]), picked[i, k])
-            for j, i in enumerate(alive)
+            PlaneObservation(len(good), "", *_plane(poses[i, k]), picked[i, k])
+            for i in good
             for k in range(2)
         ]
         try:
@@ -482,9 +521,127 @@ def _search_v(
             break
         window = max(bd.WINDOW_FLOOR_M, bd.WINDOW_SIGMAS * threshold / bd.LINE_SIGMAS)
     out: list[tuple[FloatArray, FloatArray] | None] = [None] * len(scans)
-    for i in alive:
-        out[i] = split_faces(picked[i, 0], picked[i, 1])
+    for i in range(len(scans)):
+        pair = _pair(picked, i)
+        why = check_v(T, (poses[i, 0], poses[i, 1]), shapes, pair, params.min_points, sigma)
+        if why is not None:
+            dropped[names[i]] = f"the V in the scan: {why}" + (
+                f" (and {reasons[i].removeprefix('the V in the scan: ')})" if i in reasons else ""
+            )
+            continue
+        assert pair[0] is not None
+        assert pair[1] is not None
+        out[i] = split_faces(pair[0], pair[1])
+    found = sum(o is not None for o in out)
+    if found < MIN_CAPTURES:
+        _too_few(path, dropped, names, len(scans), found, MIN_CAPTURES, "the marker method")
     return out
+
+
+# The captures with a candidate V a rough pose is sought from (two face planes each: the
+# closed form needs five planes of different orientations).
+MIN_SEED_CAPTURES = 3
+# A V found near its predicted cut is the target's when its arms meet where and at the
+# angle the faces' poses predict: the apex within APEX_OFF_M, the angle within
+# V_ANGLE_FLOOR_DEG or V_ANGLE_SIGMAS of the arms' own direction uncertainty, and each arm
+# at least MIN_ARM_SHARE of the cut its face's pose predicts.
+APEX_OFF_M = 0.05
+V_ANGLE_FLOOR_DEG = 5.0
+V_ANGLE_SIGMAS = 4.0
+MIN_ARM_SHARE = 0.3
+
+
+def _pair(picked: dict[tuple[int, int], FloatArray], i: int) -> tuple[FloatArray | None, FloatArray | None]:
+    return picked.get((i, 0)), picked.get((i, 1))
+
+
+def _too_few(
+    path: Path, dropped: dict[str, str], names: list[str], n: int, found: int, need: int, what: str
+) -> None:
+    why = "; ".join(f"{k}: {r}" for k, r in dropped.items())
+    raise CalibrationError(
+        f"{path}: the target was found in {found} of {n + _early(dropped, names)} captures; "
+        f"{what} needs {need} ({why})"
+    )
+
+
+def check_v(
+    T_cam_laser: FloatArray,
+    T_cam_faces: tuple[FloatArray, FloatArray],
+    shapes: list[BoardShape],
+    arms: tuple[FloatArray | None, FloatArray | None],
+    min_points: int,
+    sigma_m: float,
+) -> str | None:
+    """Whether two arms of returns are the target's V under a (rough) T_cam_laser: None
+    when they are, else why not.
+
+    Under the pose the faces' poses predict each face's cut in the scan plane
+    (:func:`rigcal.calib.board.detect.predicted_cut`), hence the V's apex (where the
+    scan plane crosses the faces' common edge) and the angle at which its arms meet
+    (the targets file's face angle, as the scan plane cuts it). The arms must have
+    ``min_points`` returns each, span at least MIN_ARM_SHARE of their predicted cuts,
+    meet within APEX_OFF_M of the predicted apex, and at the predicted angle within
+    V_ANGLE_FLOOR_DEG or V_ANGLE_SIGMAS of their fitted directions' uncertainty
+    (``sigma_m`` across each line).
+    """
+    from rigcal.calib.board.detect import predicted_cut
+
+    fits = []
+    for k in range(2):
+        side = "left" if k == 0 else "right"
+        pts = arms[k]
+        cut = predicted_cut(T_cam_laser, T_cam_faces[k], shapes[k])
+        if cut is None:
+            return f"the {side} face's pose puts it off the scan plane"
+        n = 0 if pts is None else len(pts)
+        if pts is None or n < min_points:
+            return f"{n} returns near the {side} face's predicted cut (at least {min_points} needed)"
+        c, u, _ = fit_line(pts)
+        along = (pts - c) @ u
+        length = float(np.linalg.norm(cut[1] - cut[0]))
+        if np.ptp(along) < MIN_ARM_SHARE * length:
+            return (
+                f"the {side} arm spans {100 * np.ptp(along):.0f} cm of the {100 * length:.0f} cm its face's "
+                f"pose predicts (at least {100 * MIN_ARM_SHARE:.0f} %)"
+            )
+        sigma_dir = sigma_m / max(float(np.sqrt(np.sum((along - along.mean()) ** 2))), 1e-9)
+        fits.append((c, u, cut, sigma_dir))
+    (ca, ua, cut_a, sa), (cb, ub, cut_b, sb) = fits
+    apex, angle = _meet(ca, ua, cb, ub)
+    da, db = cut_a[1] - cut_a[0], cut_b[1] - cut_b[0]
+    apex_pred, angle_pred = _meet(
+        cut_a.mean(axis=0), da / np.linalg.norm(da), cut_b.mean(axis=0), db / np.linalg.norm(db)
+    )
+    if apex is None or apex_pred is None:
+        return "the arms are parallel"
+    off = float(np.linalg.norm(apex - apex_pred))
+    if off > APEX_OFF_M:
+        return (
+            f"the arms meet {100 * off:.0f} cm from the apex the faces' pose predicts "
+            f"(at most {100 * APEX_OFF_M:.0f} cm)"
+        )
+    tol = max(V_ANGLE_FLOOR_DEG, V_ANGLE_SIGMAS * float(np.degrees(np.hypot(sa, sb))))
+    if abs(angle - angle_pred) > tol:
+        return (
+            f"the arms meet at {angle:.0f} deg where the faces' pose predicts {angle_pred:.0f} deg "
+            f"(tolerance {tol:.0f} deg)"
+        )
+    return None
+
+
+def _meet(ca: FloatArray, ua: FloatArray, cb: FloatArray, ub: FloatArray) -> tuple[FloatArray | None, float]:
+    """Where two arms' lines (a point of the arm, the line's unit direction) cross in the
+    plane, and the angle between the arms there (degrees, 0-180: from the crossing towards
+    each arm's point); (None, 0) when parallel."""
+    A = np.column_stack([ua, -ub])
+    if abs(float(np.linalg.det(A))) < 1e-9:
+        return None, 0.0
+    s = np.linalg.solve(A, cb - ca)
+    apex = ca + s[0] * ua
+    a, b = ca - apex, cb - apex
+    cos = float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12)
+    return apex, float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 # Two straight pieces are a candidate V when their lines cross within APEX_GAP_M of an
