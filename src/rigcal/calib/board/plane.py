@@ -172,6 +172,7 @@ def candidate_consensus(
     iterations: int = 20000,
     seed: int = 0,
     confidence: float = 0.999,
+    advice: str = "give the board's segment ids (`rigcal lines`)",
 ) -> tuple[FloatArray, list[int], NDArray[np.bool_]]:
     """RANSAC over captures and candidates: draw MIN_CAPTURES captures and one candidate of
     each, solve the closed form, and count the captures that have a candidate within
@@ -187,6 +188,7 @@ def candidate_consensus(
     Args:
         planes: per capture, (unit normal (3,), distance m) of its board in the camera frame.
         candidates: per capture, a non-empty list of (M, 2) laser point sets.
+        advice: what the error tells the user to do when no hypothesis holds.
 
     Returns:
         (the hypothesis' T_cam_laser, per capture the index of the chosen candidate,
@@ -252,8 +254,7 @@ def candidate_consensus(
             break
     if best_T is None or best[0] < MIN_CAPTURES:
         raise CalibrationError(
-            f"no calibration puts the returns of {MIN_CAPTURES} or more captures on their boards; "
-            "give the board's segment ids (`rigcal lines`)"
+            f"no calibration puts the returns of {MIN_CAPTURES} or more captures on their planes; {advice}"
         )
     rms_all = rms_per_candidate(best_T)
     chosen = []

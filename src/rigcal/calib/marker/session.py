@@ -481,7 +481,13 @@ def _search_v(
     arms = [_unique([scans[i].points[p[k]] for p in pairs[i]]) for i in seeded for k in range(2)]
     threshold = max(bd.LINE_TOLERANCE_M, bd.LINE_SIGMAS * _scatter([a for c in arms for a in c]))
     try:
-        T, chosen, agree = candidate_consensus(planes, arms, threshold_m=threshold)
+        T, chosen, agree = candidate_consensus(
+            planes,
+            arms,
+            threshold_m=threshold,
+            advice="take more views with the target's V in the scanner's plane, or check the targets "
+            "file's face sizes and angle",
+        )
     except CalibrationError as exc:
         raise CalibrationError(f"{path}: finding the V in the scans: {exc}") from None
     picked: dict[tuple[int, int], FloatArray] = {}
