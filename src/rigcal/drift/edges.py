@@ -223,9 +223,12 @@ def edge_residuals(
     interior = (m >= 1) & (m <= len(mid) - 2)
     usable = finite & interior & (peak >= MIN_CONTRAST) & (second <= MAX_SECOND_PEAK * peak)
     mc = np.clip(m, 1, len(mid) - 2)
-    y0 = np.take_along_axis(prof, (mc - 1)[..., None], axis=-1)[..., 0]
-    y1 = np.take_along_axis(prof, mc[..., None], axis=-1)[..., 0]
-    y2 = np.take_along_axis(prof, (mc + 1)[..., None], axis=-1)[..., 0]
+    # The peak to a fraction of a sample: a parabola through the logarithms of the three
+    # samples around it (exact for a blurred step, whose gradient is a Gaussian).
+    y0, y1, y2 = (
+        np.log(np.maximum(np.take_along_axis(prof, (mc + k)[..., None], axis=-1)[..., 0], 1e-6))
+        for k in (-1, 0, 1)
+    )
     den = y0 - 2.0 * y1 + y2
     frac = np.where(den < 0.0, 0.5 * (y0 - y2) / np.where(den < 0.0, den, -1.0), 0.0)
     r = mid[mc] + np.clip(frac, -0.5, 0.5) * STEP_PX

@@ -19,8 +19,13 @@ that into a measurement of T:
    laser frame. The residual is the difference of the zero-mean patches, frame j's scaled
    by the pair's exposure gain (the camera's automatic exposure moves; the gain is
    re-measured at every iteration), on blurred images (coarse to fine).
-4. Gauss-Newton on xi with image gradients, robust (Cauchy) weights per patch, restricted
-   to the directions the drive determines.
+3b. The scans' depth discontinuities (corners, occluding line ends) projected onto the
+   images' edges (:mod:`rigcal.drift.edges`, after Levinson & Thrun, RSS 2013): one frame
+   observes the camera's translation across the view and its yaw, free of the odometry.
+4. Gauss-Newton on xi with image gradients, robust (Cauchy) weights per patch and per
+   edge band, each term weighed by its own noise; when edges are seen they alone
+   estimate the yaw and the translations (the photometric term's are confounded with
+   the odometry's crab angle and pivot), the photometric term the roll and pitch.
 5. The covariance of xi: the sandwich H^-1 B H^-1 with B summed over blocks of
    ``block_s`` seconds (neighbouring frames share odometry and images; blocks are nearly
    independent), so model errors (odometry drift, rendering, range noise) count as they
@@ -29,9 +34,11 @@ that into a measurement of T:
    cm by default) over the detection factor (a change of one resolution is then detected
    95 % of the time at the level). A 2D laser moving in its scan plane never observes the
    camera's height above the laser (laser z): lifting every return along its wall keeps it
-   on the same surface point in every frame. A drive that keeps one heading (a straight
-   corridor) does not observe a shift along the travel nor a roll about it (both slide the
-   returns along their walls, alike in every frame).
+   on the same surface point in every frame, and slides a vertical edge's projection
+   along itself. Edges at several depths observe the translations across the plane. A
+   drive that keeps one heading (a straight corridor) and sees no edge does not observe
+   a shift along the travel nor a roll about it (both slide the returns along their
+   walls, alike in every frame).
 7. The test: the correction on the observed directions against its covariance plus the
    stored calibration's (Hotelling's T^2 with the blocks' count: an F test that tends to
    the chi-square with k dof as the blocks grow). Drifted when p < level. When the drive
@@ -103,9 +110,14 @@ class TargetlessSettings:
         floor_deg, floor_m: a systematic floor added to every direction's variance: what
             no drive averages out (the image model, the lens model, the odometry's errors
             beyond those estimated). Measured on simulated drives (docs/benchmarks.md):
-            the rotations' errors stay within 0.05 deg, but the translations' reach 1-1.5
-            cm (the odometry's crab angle and pivot take up a shifted camera), so with the
-            default resolution (2 cm) no translation counts as observed.
+            the rotations' errors stay within 0.05 deg, but the photometric term's
+            translations reach 1-1.5 cm (the odometry's crab angle and pivot take up a
+            shifted camera), so without edges no translation counts as observed at 2 cm.
+        edge_floor_m: the translations' floor when the edges estimate them (their
+            errors on simulated drives: within 4 mm, RMS 2 mm).
+        edges: use the depth discontinuities against the image edges.
+        edge_window_px: the image's edge is searched this far either side of each
+            projected edge, per stage (coarse to fine).
     """
 
     level: float = 0.01
