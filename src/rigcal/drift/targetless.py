@@ -749,7 +749,7 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     T0 = rig.T_cam_laser
     free = [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11]  # rx ry rz tx ty, the odometry's errors; laser z (5) held
     D = np.diag(np.r_[s.scale, _NUISANCE_UNITS])[np.ix_(free, free)]
-    n_blocks = int(patches.block.max()) + 1
+    n_blocks = len(np.unique(np.r_[patches.block, patches.edges.block if patches.edges is not None else []]))
     T = T0.copy()
     nuis = np.zeros(6)
     rows = _rows(rig, patches)
