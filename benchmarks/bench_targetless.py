@@ -112,9 +112,16 @@ def main() -> None:
                     label = "full" if length is None else f"{length:g}"
                     rig = full.rig
                     assert rig is not None
-                    trials = [(None, 0.0, 0.0)] + [
-                        (a, s_deg, s_mm) for s_deg, s_mm in sizes for a in range(6) if AXES[a] in axes
-                    ]
+                    # One trial per axis and size (a translation's size repeats across
+                    # the rotations' sizes: tried once).
+                    trials = [(None, 0.0, 0.0)] + list(
+                        {
+                            (a, s_deg if a < 3 else s_mm): (a, s_deg, s_mm)
+                            for s_deg, s_mm in sizes
+                            for a in range(6)
+                            if AXES[a] in axes
+                        }.values()
+                    )
                     for n_trial, (axis, s_deg, s_mm) in enumerate(trials):
                         size = 0.0 if axis is None else (math.radians(s_deg) if axis < 3 else s_mm / 1000.0)
                         stored = rig if axis is None else perturbed(rig, axis, size)
