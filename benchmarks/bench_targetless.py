@@ -114,14 +114,13 @@ def main() -> None:
                     assert rig is not None
                     # One trial per axis and size (a translation's size repeats across
                     # the rotations' sizes: tried once).
-                    trials = [(None, 0.0, 0.0)] + list(
-                        {
-                            (a, s_deg if a < 3 else s_mm): (a, s_deg, s_mm)
-                            for s_deg, s_mm in sizes
-                            for a in range(6)
-                            if AXES[a] in axes
-                        }.values()
-                    )
+                    once = {
+                        (a, s_deg if a < 3 else s_mm): (a, s_deg, s_mm)
+                        for s_deg, s_mm in sizes
+                        for a in range(6)
+                        if AXES[a] in axes
+                    }
+                    trials = [(None, 0.0, 0.0), *once.values()]
                     for n_trial, (axis, s_deg, s_mm) in enumerate(trials):
                         size = 0.0 if axis is None else (math.radians(s_deg) if axis < 3 else s_mm / 1000.0)
                         stored = rig if axis is None else perturbed(rig, axis, size)
