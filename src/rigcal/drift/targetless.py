@@ -116,10 +116,12 @@ class TargetlessSettings:
             shifted camera), so without edges no translation counts as observed at 2 cm.
         edge_floor_m: the translations' floor when the edges estimate them (their
             errors on simulated drives: within 4 mm, RMS 2 mm).
-        scan_rate_hz: the check's own laser odometry runs on the scans thinned to about
-            this rate (every k-th scan; 40 Hz to 10 Hz: a quarter of the ICP's cost, steps
-            of a few centimetres); None: on every scan (and reuse the odometry the
-            streams have computed, as a pipeline that ran ``localize`` has).
+        scan_rate_hz: with edges, the check's own laser odometry runs on the scans
+            thinned to about this rate (every k-th scan; 40 Hz to 10 Hz: a quarter of
+            the ICP's cost, steps of a few centimetres); a drive showing fewer than
+            :data:`MIN_EDGE_BANDS` edges is checked on every scan's odometry. None: on
+            every scan (and reuse the odometry the streams have computed, as after a
+            ``localize`` run).
         edges: use the depth discontinuities against the image edges.
         edge_window_px: the image's edge is searched this far either side of each
             projected edge, per stage (coarse to fine).
@@ -237,15 +239,21 @@ def check_targetless(
         )
     streams.rig = rig
     streams.require_images("targetless check")
-    streams = thinned(streams, settings.scan_rate_hz)
     reasons: list[str] = []
     nan6 = np.full(6, np.nan)
     duration = float(streams.image_stamps_s[-1] - streams.image_stamps_s[0])
     base: dict[str, Any] = {"duration_s": round(duration, 3), "images": streams.n_images}
     try:
-        patches = _build_patches(rig, streams, settings)
+        # The odometry of the thinned scans serves where the edges estimate the yaw and
+        # the translations; the photometric term alone needs the odometry of every scan
+        # (its yaw trades off against the odometry's errors).
+        thin = thinned(streams, settings.scan_rate_hz) if settings.edges else streams
+        patches = _build_patches(rig, thin, settings)
+        if thin is not streams and (patches.edges is None or len(patches.edges.img) < MIN_EDGE_BANDS):
+            thin = streams
+            patches = _build_patches(rig, thin, settings)
         base.update(patches.info)
-        est = _estimate(rig, streams, patches, settings)
+        est = _estimate(rig, thin, patches, settings)
     except _CannotTellError as exc:
         reasons.append(str(exc))
         rec = base | {"check_s": round(time.perf_counter() - t_start, 3)}
@@ -538,6 +546,8 @@ def _frame_edges(streams: Streams, i: int, T0: FloatArray, cam: Any, s: Targetle
     feet = feet @ T_img_scan[:2, :2].T + T_img_scan[:2, 2]
     r = np.linalg.norm(feet, axis=1)
     feet = feet[(r >= s.min_range_m) & (r <= s.max_range_m)]
+    if not len(feet):
+        return feet
     X = band_points(feet)
     P = X.reshape(-1, 3) @ T0[:3, :3].T + T0[:3, 3]
     q = cam.project(P)
