@@ -1,8 +1,9 @@
 """False alarms of the targetless check on unmoved rigs, and whether its statistic is
 calibrated: many short simulated drives, one check each, no perturbation.
 
-Each drive is simulated with its own seed (``rigcal simulate world``, realistic camera:
-exposure walk, blur, noise; both worlds in turn; a smaller camera than the benchmark's
+Each drive is simulated with its own seed (``rigcal simulate world``; the world by the
+seed: even the corridor, odd the cubicles; realistic camera:
+exposure walk, blur, noise; a smaller camera than the benchmark's
 laps so that many drives fit the time: 320 x 240 at 5 Hz) and checked once against the
 true rig: the drives share no noise, so the checks are independent trials. Printed: the
 false alarms with their Clopper-Pearson 95 % interval, and the calibration of the test
@@ -133,8 +134,8 @@ def main() -> None:
         args.cache.mkdir(parents=True, exist_ok=True)
         rig = small_rig(args.cache)
         worlds = args.worlds.split(",")
-        for n, seed in enumerate(seeds_of(args.seeds)):
-            world = worlds[n % len(worlds)]
+        for seed in seeds_of(args.seeds):
+            world = worlds[seed % len(worlds)]
             folder = simulate(args.cache, rig, world, seed, args.duration_s)
             row = {"world": world, "seed": seed, "duration_s": args.duration_s} | check(folder, rig)
             with args.out.open("a") as f:
