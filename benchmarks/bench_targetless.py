@@ -215,8 +215,7 @@ def report(rows: list[dict], sizes: list[tuple[float, ...]]) -> None:  # type: i
     print("|---|---|---|---|---|---|")
     for length in ("30", "60", "full"):
         for axis in AXES:
-            for s_deg, s_mm in sizes:
-                size = s_deg if axis.startswith("r") else s_mm
+            for size in dict.fromkeys(s_deg if axis.startswith("r") else s_mm for s_deg, s_mm in sizes):
                 rs = [r for r in rows if r["length"] == length and r["axis"] == axis and r["size"] == size]
                 if not rs:
                     continue
