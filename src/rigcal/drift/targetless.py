@@ -751,7 +751,6 @@ class _Estimate:
     blocks: int
     determined: FloatArray  # (6, m) basis, resolution units
     edge_stats: dict[str, Any] = field(default_factory=dict)  # the edge term's at the estimate
-    edge_cov_z: FloatArray = field(default_factory=lambda: np.zeros((6, 6)))  # its errors per block
 
 
 def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettings) -> _Estimate:
@@ -767,7 +766,6 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     edge_rows = _edge_rows(rig, patches.edges)
     edge_stats: dict[str, Any] = {}
     use_edges = patches.edges is not None
-    edge_H, edge_per_block = np.zeros((len(free), len(free))), 0.0
     for stage, blur in enumerate(s.blur_px):
         images = _Images(streams, patches, rows, blur, s.native_blur_px)
         edge_images = (
@@ -808,7 +806,6 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
                     g = np.where(keep, g, 0.0) + term[1]
                     g_blocks = np.where(keep[None, :], g_blocks, 0.0) + term[2]
                     edge_stats = term[3]
-                    edge_H, edge_per_block = term[0], float(term[3]["bands_per_block"])
             # A weak prior (PRIOR_UNITS resolutions, or odometry error units) keeps the
             # directions the drive leaves open where they were instead of wandering.
             A = D @ H @ D + np.eye(len(free)) / PRIOR_UNITS**2
@@ -848,17 +845,8 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     C_free = A_inv @ (Bg @ Bg.T) * (G / max(G - 1, 1)) @ A_inv.T  # over the free parameters, units
     cov_z = np.zeros((6, 6))
     cov_z[np.ix_(free[:5], free[:5])] = C_free[:5, :5]  # the odometry's errors marginalised out
-    # The edges' errors as if alike within a block (the same corners, seen from nearly the
-    # same place): their naive covariance times the bands per block. A drive sees few
-    # corners, in few blocks, so the sandwich alone, from those few, can fall short along
-    # the directions only the edges determine (a yaw against a sideways shift, when the
-    # edges stand at one depth).
-    edge_cov_z = np.zeros((6, 6))
-    if use_edges:
-        C_edge = A_inv @ (edge_per_block * (D @ edge_H @ D)) @ A_inv.T
-        edge_cov_z[np.ix_(free[:5], free[:5])] = C_edge[:5, :5]
     sig = np.sqrt(np.clip(np.diag(C_free)[5:], 0.0, None)) * np.array(_NUISANCE_UNITS)
-    return _Estimate(xi, cov_z, nuis, sig, G, determined, edge_stats if use_edges else {}, edge_cov_z)
+    return _Estimate(xi, cov_z, nuis, sig, G, determined, edge_stats if use_edges else {})
 
 
 _EDGE_ONLY = (2, 3, 4)
@@ -888,12 +876,7 @@ def _edge_term(
     B = r.size // len(edges.img)
     H, g, g_blocks, var = _normal(r[:, None], J[:, None, free], w, np.repeat(edges.block, B), n_blocks)
     v = max(var, 1e-12)
-    used_blocks = len(np.unique(np.repeat(edges.block, B)[usable]))
-    stats = {
-        "edge_bands": int(usable.sum()),
-        "edge_rms_px": _r(math.sqrt(var), 3),
-        "bands_per_block": _r(usable.sum() / max(used_blocks, 1), 2),
-    }
+    stats = {"edge_bands": int(usable.sum()), "edge_rms_px": _r(math.sqrt(var), 3)}
     return H / v, g / v, g_blocks / v, stats
 
 
@@ -940,7 +923,7 @@ def _observed_basis(est: _Estimate, s: TargetlessSettings) -> FloatArray:
     plus the floor) is under one resolution over the detection factor, among those the
     drive determines once the odometry's errors are free."""
     Q6 = est.determined
-    Cq = Q6.T @ (est.cov_z + est.edge_cov_z + _floor_z(s, _floor_m(s, est))) @ Q6
+    Cq = Q6.T @ (est.cov_z + _floor_z(s, _floor_m(s, est))) @ Q6
     ev, U = np.linalg.eigh(Cq)
     keep = ev < (1.0 / s.detection_factor()) ** 2
     out: FloatArray = Q6 @ U[:, keep]
@@ -989,7 +972,7 @@ def _test(
     # In the observed basis (resolution units): the blocks' sandwich, plus the known
     # parts (the floor, the stored calibration's covariance).
     Ck_est = V_obs.T @ est.cov_z @ V_obs
-    Ck = Ck_est + V_obs.T @ (_floor_z(s, _floor_m(s, est)) + est.edge_cov_z) @ V_obs
+    Ck = Ck_est + V_obs.T @ _floor_z(s, _floor_m(s, est)) @ V_obs
     z = V_obs.T @ np.linalg.solve(D, est.xi)
     Ck_total = Ck + V_obs.T @ _rig_cov_z(rig, D) @ V_obs
     t2 = float(z @ np.linalg.solve(Ck_total, z))
