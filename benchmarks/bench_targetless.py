@@ -112,9 +112,15 @@ def main() -> None:
                     label = "full" if length is None else f"{length:g}"
                     rig = full.rig
                     assert rig is not None
-                    trials = [(None, 0.0, 0.0)] + [
-                        (a, s_deg, s_mm) for s_deg, s_mm in sizes for a in range(6) if AXES[a] in axes
-                    ]
+                    # One trial per axis and size (a translation's size repeats across
+                    # the rotations' sizes: tried once).
+                    once = {
+                        (a, s_deg if a < 3 else s_mm): (a, s_deg, s_mm)
+                        for s_deg, s_mm in sizes
+                        for a in range(6)
+                        if AXES[a] in axes
+                    }
+                    trials = [(None, 0.0, 0.0), *once.values()]
                     for n_trial, (axis, s_deg, s_mm) in enumerate(trials):
                         size = 0.0 if axis is None else (math.radians(s_deg) if axis < 3 else s_mm / 1000.0)
                         stored = rig if axis is None else perturbed(rig, axis, size)
@@ -209,8 +215,7 @@ def report(rows: list[dict], sizes: list[tuple[float, ...]]) -> None:  # type: i
     print("|---|---|---|---|---|---|")
     for length in ("30", "60", "full"):
         for axis in AXES:
-            for s_deg, s_mm in sizes:
-                size = s_deg if axis.startswith("r") else s_mm
+            for size in dict.fromkeys(s_deg if axis.startswith("r") else s_mm for s_deg, s_mm in sizes):
                 rs = [r for r in rows if r["length"] == length and r["axis"] == axis and r["size"] == size]
                 if not rs:
                     continue

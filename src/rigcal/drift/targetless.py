@@ -19,8 +19,13 @@ that into a measurement of T:
    laser frame. The residual is the difference of the zero-mean patches, frame j's scaled
    by the pair's exposure gain (the camera's automatic exposure moves; the gain is
    re-measured at every iteration), on blurred images (coarse to fine).
-4. Gauss-Newton on xi with image gradients, robust (Cauchy) weights per patch, restricted
-   to the directions the drive determines.
+3b. The scans' depth discontinuities (corners, occluding line ends) projected onto the
+   images' edges (:mod:`rigcal.drift.edges`, after Levinson & Thrun, RSS 2013): one frame
+   observes the camera's translation across the view and its yaw, free of the odometry.
+4. Gauss-Newton on xi with image gradients, robust (Cauchy) weights per patch and per
+   edge band, each term weighed by its own noise; when edges are seen they alone
+   estimate the yaw and the translations (the photometric term's are confounded with
+   the odometry's crab angle and pivot), the photometric term the roll and pitch.
 5. The covariance of xi: the sandwich H^-1 B H^-1 with B summed over blocks of
    ``block_s`` seconds (neighbouring frames share odometry and images; blocks are nearly
    independent), so model errors (odometry drift, rendering, range noise) count as they
@@ -29,9 +34,11 @@ that into a measurement of T:
    cm by default) over the detection factor (a change of one resolution is then detected
    95 % of the time at the level). A 2D laser moving in its scan plane never observes the
    camera's height above the laser (laser z): lifting every return along its wall keeps it
-   on the same surface point in every frame. A drive that keeps one heading (a straight
-   corridor) does not observe a shift along the travel nor a roll about it (both slide the
-   returns along their walls, alike in every frame).
+   on the same surface point in every frame, and slides a vertical edge's projection
+   along itself. Edges at several depths observe the translations across the plane. A
+   drive that keeps one heading (a straight corridor) and sees no edge does not observe
+   a shift along the travel nor a roll about it (both slide the returns along their
+   walls, alike in every frame).
 7. The test: the correction on the observed directions against its covariance plus the
    stored calibration's (Hotelling's T^2 with the blocks' count: an F test that tends to
    the chi-square with k dof as the blocks grow). Drifted when p < level. When the drive
@@ -40,6 +47,7 @@ that into a measurement of T:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -52,14 +60,16 @@ from scipy.stats import f as f_dist
 from scipy.stats import ncx2, norm
 
 from rigcal.arrays import FloatArray
+from rigcal.drift.edges import EdgeImages, Edges, band_points, edge_residuals, scan_discontinuities
 from rigcal.drift.sampling import GREY_SCALE, project_sample
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R, se2
 from rigcal.lines import return_labels
 from rigcal.localize.iasm import snap_to_lines
-from rigcal.localize.icp import line_fits
+from rigcal.localize.line_normals import line_fits
 from rigcal.localize.odometry import DEGENERATE_BELOW
-from rigcal.localize.streams import Streams, nearest_index, pose_at
+from rigcal.localize.streams import Streams
+from rigcal.localize.time_pairing import nearest_index, pose_at
 from rigcal.rig import Rig
 
 AXES = ("rx", "ry", "rz", "tx", "ty", "tz")
@@ -102,9 +112,20 @@ class TargetlessSettings:
         floor_deg, floor_m: a systematic floor added to every direction's variance: what
             no drive averages out (the image model, the lens model, the odometry's errors
             beyond those estimated). Measured on simulated drives (docs/benchmarks.md):
-            the rotations' errors stay within 0.05 deg, but the translations' reach 1-1.5
-            cm (the odometry's crab angle and pivot take up a shifted camera), so with the
-            default resolution (2 cm) no translation counts as observed.
+            the rotations' errors stay within 0.05 deg, but the photometric term's
+            translations reach 1-1.5 cm (the odometry's crab angle and pivot take up a
+            shifted camera), so without edges no translation counts as observed at 2 cm.
+        edge_floor_m: the translations' floor when the edges estimate them (their
+            errors on simulated drives: within 4 mm, RMS 2 mm).
+        scan_rate_hz: with edges, the check's own laser odometry runs on the scans
+            thinned to about this rate (every k-th scan; 40 Hz to 10 Hz: a quarter of
+            the ICP's cost, steps of a few centimetres); a drive showing fewer than
+            :data:`MIN_EDGE_BANDS` edges is checked on every scan's odometry. None: on
+            every scan (and reuse the odometry the streams have computed, as after a
+            ``localize`` run).
+        edges: use the depth discontinuities against the image edges.
+        edge_window_px: the image's edge is searched this far either side of each
+            projected edge, per stage (coarse to fine).
     """
 
     level: float = 0.01
@@ -127,6 +148,10 @@ class TargetlessSettings:
     native_blur_px: float = 0.8
     floor_deg: float = 0.05
     floor_m: float = 0.01
+    edge_floor_m: float = 0.003
+    scan_rate_hz: float | None = 10.0
+    edges: bool = True
+    edge_window_px: tuple[float, ...] = (12.0, 6.0)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.level < 1.0:
@@ -186,6 +211,8 @@ class _Patches:
     block: NDArray[np.int64]  # (P,) block index
     n_pairs: int
     info: dict[str, Any] = field(default_factory=dict)
+    edges: Edges | None = None  # the scans' depth discontinuities (module docstring, step 3b)
+    gray_of: dict[int, NDArray[np.uint8]] = field(default_factory=dict)  # the edges' frames
 
 
 class _CannotTellError(Exception):
@@ -218,9 +245,16 @@ def check_targetless(
     duration = float(streams.image_stamps_s[-1] - streams.image_stamps_s[0])
     base: dict[str, Any] = {"duration_s": round(duration, 3), "images": streams.n_images}
     try:
-        patches = _build_patches(rig, streams, settings)
+        # The odometry of the thinned scans serves where the edges estimate the yaw and
+        # the translations; the photometric term alone needs the odometry of every scan
+        # (its yaw trades off against the odometry's errors).
+        thin = thinned(streams, settings.scan_rate_hz) if settings.edges else streams
+        patches = _build_patches(rig, thin, settings)
+        if thin is not streams and (patches.edges is None or len(patches.edges.img) < MIN_EDGE_BANDS):
+            thin = streams
+            patches = _build_patches(rig, thin, settings)
         base.update(patches.info)
-        est = _estimate(rig, streams, patches, settings)
+        est = _estimate(rig, thin, patches, settings)
     except _CannotTellError as exc:
         reasons.append(str(exc))
         rec = base | {"check_s": round(time.perf_counter() - t_start, 3)}
@@ -263,6 +297,28 @@ def same_camera(rig: Rig, streams: Streams, rig_path: Any = None) -> None:
                 f"{cam.width_px}x{cam.height_px}",
                 f"{theirs.width_px}x{theirs.height_px}, {where}: a drive of another rig?",
             )
+
+
+def thinned(streams: Streams, rate_hz: float | None) -> Streams:
+    """The streams with every k-th scan, k the largest that keeps ``rate_hz`` or more
+    (the same streams when None or already that slow). Made once per streams (kept in
+    its ``results``), so that repeated checks of one drive share its odometry and
+    decoded images."""
+    t = streams.scan_stamps_s
+    if rate_hz is None or len(t) < 3:
+        return streams
+    key = f"targetless: scans at {rate_hz:g} Hz"
+    if key in streams.results:
+        out: Streams = streams.results[key]
+        out.rig = streams.rig
+        return out
+    k = int((len(t) - 1) / max(float(t[-1] - t[0]), 1e-9) // rate_hz)
+    if k <= 1:
+        return streams
+    seq = dataclasses.replace(streams.sequence, scans=streams.sequence.scans[::k])
+    out = Streams(seq, streams.rig, progress=streams.progress, use_wheel_odometry=streams.use_wheel_odometry)
+    streams.results[key] = out
+    return out
 
 
 # --- the problem ----------------------------------------------------------------------
@@ -317,6 +373,10 @@ def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patche
     n_pairs = 0
     n_degenerate = 0
     seen_returns = 0
+    feet_all: list[FloatArray] = []
+    feet_img: list[NDArray[np.int64]] = []
+    feet_block: list[NDArray[np.int64]] = []
+    gray_of: dict[int, NDArray[np.uint8]] = {}
     # The used frames decoded ahead on a second thread (their decoding overlaps the work).
     for k, (i, gray) in enumerate(zip(frames, streams.images_at(frames), strict=True)):
         streams.report("targetless check: frames", k + 1, len(frames))
@@ -331,6 +391,13 @@ def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patche
                 n_degenerate += 1
                 continue
             partners.append(j)
+        if s.edges:
+            feet = _frame_edges(streams, i, T0, cam, s)
+            if len(feet):
+                feet_all.append(feet)
+                feet_img.append(np.full(len(feet), i))
+                feet_block.append(np.full(len(feet), int((t_i - float(img_t[frames[0]])) // s.block_s)))
+                gray_of[i] = gray
         if not partners:
             continue
         X = _frame_grid(streams, i, gray, T0, cam, s, f_mean, ga, gb)
@@ -374,8 +441,9 @@ def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patche
             )
         )
     block_of = np.concatenate(blocks)
-    used_blocks = np.unique(block_of)
-    info |= {"patches": len(block_of), "blocks": len(used_blocks)}
+    edge_block = np.concatenate(feet_block) if feet_block else np.zeros(0, np.int64)
+    used_blocks = np.unique(np.r_[block_of, edge_block])
+    info |= {"patches": len(block_of), "blocks": len(used_blocks), "edges": len(edge_block)}
     if len(used_blocks) < s.min_blocks:
         raise _CannotTellError(
             f"too short: {len(used_blocks)} blocks of {s.block_s:g} s with usable frame pairs; at least "
@@ -395,6 +463,14 @@ def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patche
         np.array([remap[b] for b in block_of], dtype=np.int64),
         n_pairs,
         info,
+        Edges(
+            band_points(np.concatenate(feet_all)),
+            np.concatenate(feet_img),
+            np.array([remap[b] for b in edge_block], dtype=np.int64),
+        )
+        if feet_all
+        else None,
+        gray_of,
     )
 
 
@@ -457,6 +533,27 @@ def _frame_grid(
     if len(X) > s.returns_per_frame:
         X = X[np.linspace(0, len(X) - 1, s.returns_per_frame).round().astype(int)]
     out: FloatArray = X
+    return out
+
+
+def _frame_edges(streams: Streams, i: int, T0: FloatArray, cam: Any, s: TargetlessSettings) -> FloatArray:
+    """(N, 2) the feet of the vertical edges in image i's scan (laser frame at the image's
+    stamp) with a height band projecting inside the image under the stored T, with room
+    for the edge's search window (:func:`rigcal.drift.edges.scan_discontinuities`)."""
+    k, T_img_scan = streams.scan_to_image(i)
+    feet = scan_discontinuities(streams.scans[k], streams.lines(k))
+    if not len(feet):
+        return feet
+    feet = feet @ T_img_scan[:2, :2].T + T_img_scan[:2, 2]
+    r = np.linalg.norm(feet, axis=1)
+    feet = feet[(r >= s.min_range_m) & (r <= s.max_range_m)]
+    if not len(feet):
+        return feet
+    X = band_points(feet)
+    P = X.reshape(-1, 3) @ T0[:3, :3].T + T0[:3, 3]
+    q = cam.project(P)
+    ok = (P[:, 2] > 0.2) & cam.in_image(q, margin_px=max(s.edge_window_px) + BAND_MARGIN_PX)
+    out: FloatArray = feet[ok.reshape(len(feet), -1).any(axis=1)]
     return out
 
 
@@ -654,6 +751,7 @@ class _Estimate:
     odometry_sigma: FloatArray
     blocks: int
     determined: FloatArray  # (6, m) basis, resolution units
+    edge_stats: dict[str, Any] = field(default_factory=dict)  # the edge term's at the estimate
 
 
 def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettings) -> _Estimate:
@@ -662,12 +760,20 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     T0 = rig.T_cam_laser
     free = [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11]  # rx ry rz tx ty, the odometry's errors; laser z (5) held
     D = np.diag(np.r_[s.scale, _NUISANCE_UNITS])[np.ix_(free, free)]
-    n_blocks = int(patches.block.max()) + 1
+    n_blocks = len(np.unique(np.r_[patches.block, patches.edges.block if patches.edges is not None else []]))
     T = T0.copy()
     nuis = np.zeros(6)
     rows = _rows(rig, patches)
+    edge_rows = _edge_rows(rig, patches.edges)
+    edge_stats: dict[str, Any] = {}
+    use_edges = patches.edges is not None
     for stage, blur in enumerate(s.blur_px):
         images = _Images(streams, patches, rows, blur, s.native_blur_px)
+        edge_images = (
+            EdgeImages(patches.gray_of, patches.edges.img, math.hypot(blur, s.native_blur_px), edge_rows)
+            if use_edges and patches.edges is not None
+            else None
+        )
         last = stage == len(s.blur_px) - 1
         converged = False
         for it in range(s.iterations + (1 if last else 0)):
@@ -679,9 +785,31 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
                 )
             w = _weights(r, usable)
             H, g, g_blocks, var = _normal(r, J12[:, :, free], w, patches.block, n_blocks)
+            # Each term weighed by its own noise (its weighted residual variance): the
+            # photometric one in grey levels, the edges' in pixels.
+            H, g, g_blocks = H / max(var, 1e-12), g / max(var, 1e-12), g_blocks / max(var, 1e-12)
+            H_sym = H
+            if edge_images is not None and patches.edges is not None:
+                window = s.edge_window_px[min(stage, len(s.edge_window_px) - 1)]
+                term = _edge_term(rig, T, patches.edges, edge_images, window, free, n_blocks)
+                if term is None and stage == 0 and it == 0:
+                    use_edges = False  # too few edges seen clearly: the photometric term alone
+                elif term is not None:
+                    # The edges alone estimate the yaw and the translations: the photometric
+                    # term's are confounded with the odometry's errors (its crab angle and
+                    # pivot take up a shifted or turned camera). Its equations for them are
+                    # dropped; its dependence on them stays (A is not symmetric), so the
+                    # sandwich counts how the edges' errors move its roll and pitch.
+                    keep = np.ones(len(free), dtype=bool)
+                    keep[list(_EDGE_ONLY)] = False
+                    H = np.where(keep[:, None], H, 0.0) + term[0]
+                    H_sym = np.where(keep[:, None] & keep[None, :], H_sym, 0.0) + term[0]
+                    g = np.where(keep, g, 0.0) + term[1]
+                    g_blocks = np.where(keep[None, :], g_blocks, 0.0) + term[2]
+                    edge_stats = term[3]
             # A weak prior (PRIOR_UNITS resolutions, or odometry error units) keeps the
             # directions the drive leaves open where they were instead of wandering.
-            A = D @ H @ D + max(var, 1e-12) / PRIOR_UNITS**2 * np.eye(len(free))
+            A = D @ H @ D + np.eye(len(free)) / PRIOR_UNITS**2
             if last and (it == s.iterations or converged):
                 break  # H and the blocks' gradients at the estimate: the covariance's
             dz = -np.linalg.solve(A, D @ g)
@@ -700,7 +828,7 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     xi = np.concatenate([R_to_rotvec(Delta[:3, :3]), Delta[:3, 3]])
     # What the drive determines of xi once the odometry's errors are free: the Schur
     # complement of their block in the (naive) information, in resolution units.
-    info = (D @ H @ D) / max(var, 1e-12)
+    info = D @ H_sym @ D
     nn = info[5:, 5:] + np.eye(len(free) - 5) / PRIOR_UNITS**2
     schur = info[:5, :5] - info[:5, 5:] @ np.linalg.solve(nn, info[5:, :5])
     ev, U = np.linalg.eigh(schur)
@@ -715,27 +843,77 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     G = n_blocks
     A_inv = np.linalg.inv(A)
     Bg = D @ g_blocks.T
-    C_free = A_inv @ (Bg @ Bg.T) * (G / max(G - 1, 1)) @ A_inv  # over the free parameters, units
+    C_free = A_inv @ (Bg @ Bg.T) * (G / max(G - 1, 1)) @ A_inv.T  # over the free parameters, units
     cov_z = np.zeros((6, 6))
     cov_z[np.ix_(free[:5], free[:5])] = C_free[:5, :5]  # the odometry's errors marginalised out
     sig = np.sqrt(np.clip(np.diag(C_free)[5:], 0.0, None)) * np.array(_NUISANCE_UNITS)
-    return _Estimate(xi, cov_z, nuis, sig, G, determined)
+    return _Estimate(xi, cov_z, nuis, sig, G, determined, edge_stats if use_edges else {})
 
 
-def _floor_limited(s: TargetlessSettings) -> set[int]:
+_EDGE_ONLY = (2, 3, 4)
+"""Rows of the free parameters (rz, tx, ty) the edges alone estimate when they are seen."""
+MIN_EDGE_BANDS = 10
+"""Fewer usable edge bands: the edge term is left out of that step."""
+
+
+def _edge_term(
+    rig: Rig,
+    T: FloatArray,
+    edges: Edges,
+    images: EdgeImages,
+    window_px: float,
+    free: list[int],
+    n_blocks: int,
+) -> tuple[FloatArray, FloatArray, FloatArray, dict[str, Any]] | None:
+    """The edges' normal equations over the free parameters (their Jacobian is zero on the
+    odometry's errors: one frame, no motion), each band weighed by Cauchy weights and
+    the term by its own residual variance; None when too few bands are usable."""
+    r, J6, usable = edge_residuals(rig.camera, T, edges, images, window_px)
+    if int(usable.sum()) < MIN_EDGE_BANDS:
+        return None
+    J = np.zeros((len(r), 12))
+    J[:, :6] = J6
+    w = _weights(r[:, None], usable)
+    B = r.size // len(edges.img)
+    H, g, g_blocks, var = _normal(r[:, None], J[:, None, free], w, np.repeat(edges.block, B), n_blocks)
+    v = max(var, 1e-12)
+    stats = {"edge_bands": int(usable.sum()), "edge_rms_px": _r(math.sqrt(var), 3)}
+    return H / v, g / v, g_blocks / v, stats
+
+
+def _edge_rows(rig: Rig, edges: Edges | None) -> tuple[float, float]:
+    """The image rows the edges' bands fall in under the stored T, with room for a
+    correction (:data:`BAND_MARGIN_PX`)."""
+    if edges is None:
+        return (0.0, 0.0)
+    T = rig.T_cam_laser
+    q = rig.camera.project(edges.X.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3])
+    v = q[np.isfinite(q[:, 1]), 1]
+    if not len(v):
+        return (0.0, float(rig.camera.height_px))
+    return (float(v.min()) - BAND_MARGIN_PX, float(v.max()) + BAND_MARGIN_PX)
+
+
+def _floor_m(s: TargetlessSettings, est: _Estimate) -> float:
+    """The translations' floor: the edges' when they estimated them, else the
+    photometric term's."""
+    return s.edge_floor_m if est.edge_stats else s.floor_m
+
+
+def _floor_limited(s: TargetlessSettings, floor_m: float) -> set[int]:
     """Axes whose floor alone is above the observed threshold."""
     limit = 1.0 / s.detection_factor()
     out = set()
     if s.floor_deg / s.resolution_deg >= limit:
         out |= {0, 1, 2}
-    if s.floor_m / s.resolution_m >= limit:
+    if floor_m / s.resolution_m >= limit:
         out |= {3, 4}
     return out
 
 
-def _floor_z(s: TargetlessSettings) -> FloatArray:
+def _floor_z(s: TargetlessSettings, floor_m: float) -> FloatArray:
     """(6, 6) the systematic floor in resolution units (laser z's row and column zero)."""
-    f = np.array([math.radians(s.floor_deg)] * 3 + [s.floor_m] * 3) / s.scale
+    f = np.array([math.radians(s.floor_deg)] * 3 + [floor_m] * 3) / s.scale
     f[_FIXED] = 0.0
     out: FloatArray = np.diag(f**2)
     return out
@@ -746,7 +924,7 @@ def _observed_basis(est: _Estimate, s: TargetlessSettings) -> FloatArray:
     plus the floor) is under one resolution over the detection factor, among those the
     drive determines once the odometry's errors are free."""
     Q6 = est.determined
-    Cq = Q6.T @ (est.cov_z + _floor_z(s)) @ Q6
+    Cq = Q6.T @ (est.cov_z + _floor_z(s, _floor_m(s, est))) @ Q6
     ev, U = np.linalg.eigh(Cq)
     keep = ev < (1.0 / s.detection_factor()) ** 2
     out: FloatArray = Q6 @ U[:, keep]
@@ -763,8 +941,8 @@ def _test(
     G = est.blocks
     V_obs = _observed_basis(est, s)
     k = V_obs.shape[1]
-    unobserved = _unobserved_words(V_obs, patches.info, _floor_limited(s))
-    record: dict[str, Any] = {
+    unobserved = _unobserved_words(V_obs, patches.info, _floor_limited(s, _floor_m(s, est)))
+    record: dict[str, Any] = est.edge_stats | {
         "unobserved": unobserved,
         "odometry_errors": {
             "scale_pct": [_r(100.0 * est.odometry[0], 4), _r(100.0 * est.odometry_sigma[0], 4)],
@@ -795,7 +973,7 @@ def _test(
     # In the observed basis (resolution units): the blocks' sandwich, plus the known
     # parts (the floor, the stored calibration's covariance).
     Ck_est = V_obs.T @ est.cov_z @ V_obs
-    Ck = Ck_est + V_obs.T @ _floor_z(s) @ V_obs
+    Ck = Ck_est + V_obs.T @ _floor_z(s, _floor_m(s, est)) @ V_obs
     z = V_obs.T @ np.linalg.solve(D, est.xi)
     Ck_total = Ck + V_obs.T @ _rig_cov_z(rig, D) @ V_obs
     t2 = float(z @ np.linalg.solve(Ck_total, z))
@@ -920,6 +1098,11 @@ def _unobserved_words(
                 "the laser odometry's own errors (its crab angle, its pivot in turns) and the image model "
                 "leave it uncertain by the systematic floor, more than the resolution allows"
             )
+            if main in (3, 4):
+                why += (
+                    "; the drive shows no corner, pillar or wall end clearly enough in the images to "
+                    "measure it by their edges"
+                )
         elif straight and main in (0, 3, 4):
             why = (
                 f"the drive keeps one heading (within {info.get('heading_range_deg', 0):.0f} deg): "

@@ -52,10 +52,6 @@ from rigcal.localize.icp_compiled import icp_kernel
 from rigcal.localize.icp_steps import DEGENERATE_EIGEN_RATIO, point_to_line, point_to_point
 from rigcal.localize.line_normals import MIN_LINE_FRACTION, pairing_normals
 
-# The line fits' home is rigcal.localize.line_normals; rigcal.drift.targetless still takes
-# them from here.
-from rigcal.localize.line_normals import line_fits as line_fits
-
 # Point-to-point steps before point-to-line, while they still move the scan by more than
 # COARSE_TOLERANCE (m, rad): from a good initial guess one closed-form step is all (more
 # would pull the scan towards point-to-point's bias, and along a corridor away from the

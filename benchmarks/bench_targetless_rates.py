@@ -1,0 +1,160 @@
+"""False alarms of the targetless check on unmoved rigs, and whether its statistic is
+calibrated: many short simulated drives, one check each, no perturbation.
+
+Each drive is simulated with its own seed (``rigcal simulate world``; the world by the
+seed: even the corridor, odd the cubicles; realistic camera:
+exposure walk, blur, noise; a smaller camera than the benchmark's
+laps so that many drives fit the time: 320 x 240 at 5 Hz) and checked once against the
+true rig: the drives share no noise, so the checks are independent trials. Printed: the
+false alarms with their Clopper-Pearson 95 % interval, and the calibration of the test
+under no change: its p-values against the uniform distribution (Kolmogorov-Smirnov,
+quantiles) and Hotelling's statistic, scaled to F(k, n - k), against its mean. Rows are
+appended to ``--out`` (JSON lines) as they come, so a run stopped early keeps its checks
+and ``--report`` prints them.
+
+    .venv/bin/python benchmarks/bench_targetless_rates.py --seeds 100-139 --out /tmp/rates.jsonl
+    .venv/bin/python benchmarks/bench_targetless_rates.py --report --out /tmp/rates.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench_targetless import REALISTIC, WORLDS, clopper_pearson
+
+CAMERA = {
+    "K": [[260.0, 0.0, 159.5], [0.0, 260.0, 119.5], [0.0, 0.0, 1.0]],
+    "dist": [-0.15, 0.05, 0.0005, -0.0003, 0.0],
+}
+
+
+def small_rig(cache: Path) -> Path:
+    """The simulated rig with a 320 x 240 camera (the simulated camera at half size)."""
+    from rigcal.camera import Camera
+    from rigcal.rig import Rig
+    from rigcal.rigfile import write_rig
+    from rigcal.sim.box_session import default_T_cam_laser
+
+    path = cache / "rig-320.yaml"
+    if not path.exists():
+        cam = Camera.from_opencv(np.array(CAMERA["K"]), CAMERA["dist"], 320, 240, source="simulated")
+        write_rig(path, Rig(default_T_cam_laser(), cam, laser={"name": "simulated 2D scanner"}))
+    return path
+
+
+def simulate(cache: Path, rig: Path, world: str, seed: int, duration_s: float) -> Path | None:
+    from rigcal.cli.main import main
+
+    out = cache / f"{world}-320-s{seed}-{duration_s:g}s"
+    if not (out / "sequence.yaml").exists():
+        args = ["simulate", "world", "--world", world, "-o", str(out), "--seed", str(seed), "--rig", str(rig)]
+        args += [*REALISTIC, "--duration-s", f"{duration_s:g}", "--camera-rate-hz", "5", "--force"]
+        try:
+            code = main(args)
+        except Exception as exc:  # a seed the simulator cannot render is skipped, and said
+            print(f"seed {seed}: simulate failed ({exc!r}); skipped", file=sys.stderr)
+            return None
+        if code != 0:
+            return None
+    return out
+
+
+def check(folder: Path, rig: Path) -> dict:  # type: ignore[type-arg]
+    from rigcal.drift.targetless import check_targetless
+    from rigcal.localize.streams import open_streams
+
+    streams = open_streams(folder, rig_file=rig)
+    assert streams.rig is not None
+    c = time.process_time()
+    res = check_targetless(streams.rig, streams)
+    rec = res.record
+    return {
+        "verdict": res.verdict,
+        "p_value": rec.get("p_value"),
+        "t2": rec.get("t2"),
+        "dof": rec.get("dof"),
+        "effective_blocks": rec.get("effective_blocks"),
+        "observed": rec.get("observed_axes"),
+        "correction_deg": rec.get("correction_rotation_deg"),
+        "correction_mm": rec.get("correction_translation_mm"),
+        "edges": rec.get("edges"),
+        "cpu_s": round(time.process_time() - c, 2),
+    }
+
+
+def seeds_of(text: str) -> list[int]:
+    a, _, b = text.partition("-")
+    return list(range(int(a), int(b or a) + 1))
+
+
+def report(rows: list[dict]) -> None:  # type: ignore[type-arg]
+    from scipy.stats import f as f_dist
+    from scipy.stats import kstest
+
+    judged = [r for r in rows if r["verdict"] != "cannot_tell"]
+    fa = sum(r["verdict"] == "drifted" for r in judged)
+    lo, hi = clopper_pearson(fa, len(judged))
+    print(f"checks: {len(rows)} ({len(rows) - len(judged)} cannot tell)")
+    print(f"false alarms at 1 %: {fa}/{len(judged)} (Clopper-Pearson 95 %: {100 * lo:.1f}-{100 * hi:.1f} %)")
+    if not judged:
+        return
+    p = np.array([r["p_value"] for r in judged])
+    ks = kstest(p, "uniform")
+    qs = [0.1, 0.25, 0.5, 0.75, 0.9]
+    print(f"p-values against uniform: KS D = {ks.statistic:.3f}, p = {ks.pvalue:.3g}; quantiles", end=" ")
+    print(", ".join(f"{q:g}: {float(np.quantile(p, q)):.3f}" for q in qs))
+    print(f"p < 0.05: {int((p < 0.05).sum())}/{len(p)}, p < 0.1: {int((p < 0.1).sum())}/{len(p)}")
+    # T^2 scaled to F(k, n - k), whose mean is (n - k) / (n - k - 2).
+    F, mean_F = [], []
+    for r in judged:
+        k, n = r["dof"], r["effective_blocks"]
+        F.append(r["t2"] * (n - k) / (k * (n - 1)))
+        mean_F.append(f_dist.mean(k, n - k) if n - k > 2 else math.nan)
+    dofs = sorted({r["dof"] for r in judged})
+    print(f"F statistic: mean {np.mean(F):.3f} against its expected {np.nanmean(mean_F):.3f}; dof {dofs}")
+    cpu = [r["cpu_s"] for r in rows]
+    print(f"check CPU s: median {np.median(cpu):.2f}, max {max(cpu):.2f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/rigcal-bench-targetless"))
+    ap.add_argument("--seeds", default="100-109", help="a range of seeds, a-b")
+    ap.add_argument("--duration-s", type=float, default=24.0)
+    ap.add_argument("--worlds", default=",".join(WORLDS))
+    ap.add_argument("--out", type=Path, required=True, help="JSON lines, appended")
+    ap.add_argument("--report", action="store_true", help="only print the report of --out")
+    ap.add_argument(
+        "--keep", action="store_true", help="keep the simulated drives (else removed after their check)"
+    )
+    args = ap.parse_args()
+    if not args.report:
+        args.cache.mkdir(parents=True, exist_ok=True)
+        rig = small_rig(args.cache)
+        worlds = args.worlds.split(",")
+        for seed in seeds_of(args.seeds):
+            world = worlds[seed % len(worlds)]
+            folder = simulate(args.cache, rig, world, seed, args.duration_s)
+            if folder is None:
+                continue
+            row = {"world": world, "seed": seed, "duration_s": args.duration_s} | check(folder, rig)
+            with args.out.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+            print(json.dumps(row), file=sys.stderr, flush=True)
+            if not args.keep:
+                import shutil
+
+                shutil.rmtree(folder)
+    rows = [json.loads(line) for line in args.out.read_text().splitlines() if line.strip()]
+    report(rows)
+
+
+if __name__ == "__main__":
+    main()

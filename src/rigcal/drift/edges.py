@@ -1,0 +1,251 @@
+"""The laser's depth discontinuities against the image's edges (targetless check, edge term).
+
+Where a scan's lines meet at a corner, or a line ends in front of a farther surface (a
+pillar's side, a wall's end), the world has a vertical edge: two surfaces of different
+texture or lighting meet, or one occludes the other. The scan locates that edge's
+foot in the laser plane; the image shows the edge as a line of strong gradient. Projected
+with the right T_cam_laser, the vertical line through the scan's discontinuity lands on
+the image's edge in every frame, whatever the odometry says: one frame observes the
+camera's translation across the view (a shift of t moves the projection by f t / depth,
+different at different depths, unlike a turn) and its roll and pitch (they tilt the
+projected line). This is the depth-discontinuity to image-edge alignment of Levinson &
+Thrun (RSS 2013, Section III), posed as least squares: for each discontinuity and each of
+a few height bands, the residual is the offset (pixels, across the projected line) from
+the projection to the image's edge, re-measured at every Gauss-Newton step as ICP
+re-pairs its points; the edge is the peak of the image gradient across the line, summed
+along the band (a vertical edge adds up, texture does not).
+
+Vertical edges say nothing of the camera's height: a shift along the laser's z slides the
+projection along the edge itself. The edge term, like the photometric one, leaves laser z
+unobserved.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.arrays import FloatArray, IntArray
+from rigcal.lines import Segment
+from rigcal.scan import Scan
+
+BAND_HEIGHTS_M = (-0.15, 0.3, 0.75)
+"""The centres of the height bands (laser frame z, metres) along each discontinuity's
+vertical line: below the laser plane, at the camera's height, above it (the cubicles'
+partitions stand 1.1 m above the laser)."""
+BAND_SPAN_M = 0.3
+"""Each band's extent along the edge, metres."""
+BAND_SAMPLES = 5
+"""Points per band along the edge (their gradients across the line are summed)."""
+STEP_PX = 0.5
+"""Spacing of the samples across the projected line, pixels."""
+MIN_CORNER_DEG = 25.0
+"""Two consecutive lines meeting at less than this are one wall (not a corner)."""
+MAX_CORNER_GAP_M = 0.15
+"""Two consecutive lines whose ends are farther apart than this do not meet at a corner."""
+MIN_JUMP_M = 0.3
+"""A line's end with the next return at least this much farther is an occluding edge."""
+MIN_CONTRAST = 1.0
+"""An edge's gradient across the line, grey levels per pixel (mean over the band), below
+which the band is not used."""
+MAX_SECOND_PEAK = 0.7
+"""A band whose second-highest gradient peak (2 px or more from the first) is above this
+fraction of the highest is ambiguous (a textured wall beside the edge) and not used."""
+
+
+def scan_discontinuities(scan: Scan, segments: list[Segment]) -> FloatArray:
+    """(N, 2) the feet of the world's vertical edges the scan shows, laser frame, metres.
+
+    Corners: consecutive lines (beam order) whose ends are within
+    :data:`MAX_CORNER_GAP_M` and whose directions differ by :data:`MIN_CORNER_DEG` or
+    more meet at their lines' intersection (more accurate than either end: the fits
+    average the range noise). Occluding edges: a line's end whose next beam returns from
+    :data:`MIN_JUMP_M` or farther; the edge lies between the two beams, so its foot is
+    the line's point on the bisecting ray (within half a beam step either way, unbiased,
+    where the last return would fall short by half a step on average).
+    """
+    out: list[FloatArray] = []
+    segs = sorted(segments, key=lambda s: int(s.indices[0]))
+    r = scan.ranges_m
+    valid = scan.valid
+    n = len(r)
+    for a, b in itertools.pairwise(segs):
+        cos = abs(float(a.direction @ b.direction))
+        if np.linalg.norm(a.end - b.start) <= MAX_CORNER_GAP_M and cos <= math.cos(
+            math.radians(MIN_CORNER_DEG)
+        ):
+            p = _intersect(a.centroid, a.direction, b.centroid, b.direction)
+            if (
+                p is not None
+                and min(np.linalg.norm(p - a.end), np.linalg.norm(p - b.start)) <= MAX_CORNER_GAP_M
+            ):
+                out.append(p)
+    for s in segs:
+        for end, beam, step in ((s.start, int(s.indices[0]), -1), (s.end, int(s.indices[-1]), 1)):
+            nb = beam + step
+            if not 0 <= nb < n or not valid[nb] or r[nb] - r[beam] < MIN_JUMP_M:
+                continue
+            mid = 0.5 * (scan.angles_rad[beam] + scan.angles_rad[nb])
+            ray = np.array([math.cos(mid), math.sin(mid)])
+            p = _intersect(np.zeros(2), ray, s.centroid, s.direction)
+            if p is not None and np.linalg.norm(p - end) <= 0.1:
+                out.append(p)
+    return np.array(out).reshape(-1, 2)
+
+
+def _intersect(p: FloatArray, u: FloatArray, q: FloatArray, v: FloatArray) -> FloatArray | None:
+    """The point where the lines p + s u and q + s v meet (None when nearly parallel)."""
+    den = u[0] * v[1] - u[1] * v[0]
+    if abs(den) < 1e-6:
+        return None
+    d = q - p
+    s = (d[0] * v[1] - d[1] * v[0]) / den
+    out: FloatArray = p + s * u
+    return out
+
+
+def band_points(feet: FloatArray) -> FloatArray:
+    """(N, B, K, 3) points on the vertical lines through the feet (laser frame): B height
+    bands of K points each."""
+    z = np.array(
+        [
+            [c + BAND_SPAN_M * (k / (BAND_SAMPLES - 1) - 0.5) for k in range(BAND_SAMPLES)]
+            for c in BAND_HEIGHTS_M
+        ]
+    )
+    out = np.empty((len(feet), *z.shape, 3))
+    out[..., 0] = feet[:, 0, None, None]
+    out[..., 1] = feet[:, 1, None, None]
+    out[..., 2] = z[None]
+    return out
+
+
+@dataclass
+class Edges:
+    """Every discontinuity's height bands, and the frame each was seen in."""
+
+    X: FloatArray  # (E, B, K, 3) band points, laser frame at the frame's stamp
+    img: IntArray  # (E,) image index
+    block: IntArray  # (E,) block index
+
+
+class EdgeImages:
+    """The frames the edges are seen in, blurred for one stage, in one uint16 stack (grey
+    levels x 64) of the band of rows the edges fall in."""
+
+    GREY_SCALE = 64.0
+
+    def __init__(
+        self,
+        gray_of: dict[int, NDArray[np.uint8]],
+        frames: IntArray,
+        blur_px: float,
+        rows: tuple[float, float],
+    ) -> None:
+        self.frames = np.unique(frames)
+        self.key = np.searchsorted(self.frames, frames)
+        first = gray_of[int(self.frames[0])]
+        pad = math.ceil(4.0 * blur_px) + 1
+        self.row0 = max(math.floor(rows[0]), 0)
+        hi = min(math.ceil(rows[1]) + 1, first.shape[0])
+        a = max(self.row0 - pad, 0)
+        self.stack = np.empty((len(self.frames), hi - self.row0, first.shape[1]), dtype=np.uint16)
+        for n, f in enumerate(self.frames):
+            g = gray_of[int(f)][a : min(hi + pad, first.shape[0])].astype(np.uint16) * np.uint16(
+                self.GREY_SCALE
+            )
+            self.stack[n] = cv2.GaussianBlur(g, (0, 0), blur_px)[
+                self.row0 - a : self.row0 - a + hi - self.row0
+            ]
+
+    def sample(self, which: IntArray, q: FloatArray) -> FloatArray:
+        """Bilinear grey levels at full-size pixels q (..., 2) of the stack's images
+        ``which`` (broadcast against q's leading axes); NaN outside the band."""
+        H, W = self.stack.shape[1:]
+        u = q[..., 0]
+        v = q[..., 1] - self.row0
+        inside = (u >= 0.0) & (u <= W - 1.0) & (v >= 0.0) & (v <= H - 1.0)
+        u = np.clip(np.nan_to_num(u, nan=0.0), 0.0, W - 1.0)
+        v = np.clip(np.nan_to_num(v, nan=0.0), 0.0, H - 1.0)
+        u0 = np.minimum(u.astype(np.int64), W - 2)
+        v0 = np.minimum(v.astype(np.int64), H - 2)
+        fu, fv = u - u0, v - v0
+        k = np.broadcast_to(which, u.shape)
+        s = self.stack
+        top = s[k, v0, u0] * (1.0 - fu) + s[k, v0, u0 + 1] * fu
+        bottom = s[k, v0 + 1, u0] * (1.0 - fu) + s[k, v0 + 1, u0 + 1] * fu
+        out: FloatArray = np.where(inside, (top * (1.0 - fv) + bottom * fv) / self.GREY_SCALE, np.nan)
+        return out
+
+
+def edge_residuals(
+    camera: object, T: FloatArray, edges: Edges, images: EdgeImages, window_px: float
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Offsets from the projected edges to the image's edges, and their derivatives.
+
+    Args:
+        camera: the :class:`rigcal.camera.Camera`.
+        T: (4, 4) T_cam_laser.
+        window_px: the image's edge is searched this far either side of the projection.
+
+    Returns:
+        r: (E * B,) per edge and band: the image edge's offset from the projected line,
+            pixels, across the line (0 where not usable).
+        J: (E * B, 6) d r / d xi for a right update T Exp(w, v) (laser frame).
+        usable: (E * B,) bands whose edge was found: inside the image, a clear single
+            peak of the gradient inside the window.
+    """
+    E, B, K, _ = edges.X.shape
+    R, t = T[:3, :3], T[:3, 3]
+    P = edges.X.reshape(-1, 3) @ R.T + t
+    q = camera.project(P).reshape(E, B, K, 2)  # type: ignore[attr-defined]
+    d = q[:, :, -1] - q[:, :, 0]
+    d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-9)
+    nrm = np.stack([d[..., 1], -d[..., 0]], axis=-1)  # (E, B, 2) across the line
+    off = np.arange(-window_px, window_px + 0.5 * STEP_PX, STEP_PX)
+    s = q[:, :, :, None, :] + off[None, None, None, :, None] * nrm[:, :, None, None, :]
+    which = images.key[:, None, None, None]
+    grey = images.sample(which, s)  # (E, B, K, O)
+    grad = np.diff(grey, axis=-1) / STEP_PX  # at the offsets' midpoints
+    prof = np.abs(np.sum(grad, axis=2)) / K  # (E, B, O - 1): a vertical edge adds up along the band
+    finite = np.isfinite(prof).all(axis=-1)
+    prof = np.nan_to_num(prof, nan=0.0)
+    mid = 0.5 * (off[1:] + off[:-1])
+    m = np.argmax(prof, axis=-1)
+    peak = np.take_along_axis(prof, m[..., None], axis=-1)[..., 0]
+    far = np.abs(mid[None, None, :] - mid[m][..., None]) >= 2.0
+    second = np.max(np.where(far, _local_max(prof), 0.0), axis=-1)
+    interior = (m >= 1) & (m <= len(mid) - 2)
+    usable = finite & interior & (peak >= MIN_CONTRAST) & (second <= MAX_SECOND_PEAK * peak)
+    mc = np.clip(m, 1, len(mid) - 2)
+    # The peak to a fraction of a sample: a parabola through the logarithms of the three
+    # samples around it (exact for a blurred step, whose gradient is a Gaussian).
+    y0, y1, y2 = (
+        np.log(np.maximum(np.take_along_axis(prof, (mc + k)[..., None], axis=-1)[..., 0], 1e-6))
+        for k in (-1, 0, 1)
+    )
+    den = y0 - 2.0 * y1 + y2
+    frac = np.where(den < 0.0, 0.5 * (y0 - y2) / np.where(den < 0.0, den, -1.0), 0.0)
+    r = mid[mc] + np.clip(frac, -0.5, 0.5) * STEP_PX
+    # r(xi) = n . (q_edge - q(T Exp(xi) x)) at the band's middle point x.
+    Xc = edges.X[:, :, K // 2].reshape(-1, 3)
+    _, dq = camera.project_with_gradient(Xc @ R.T + t)  # type: ignore[attr-defined]
+    a = -np.einsum("ni,nij->nj", nrm.reshape(-1, 2), dq) @ R  # d r / d x (laser frame)
+    J = np.concatenate([np.cross(Xc, a), a], axis=1)
+    usable = usable.ravel() & np.isfinite(J).all(axis=1)
+    r = np.where(usable, r.ravel(), 0.0)
+    J = np.where(usable[:, None], J, 0.0)
+    return r, J, usable
+
+
+def _local_max(p: FloatArray) -> FloatArray:
+    """p where it is a local maximum along the last axis, 0 elsewhere."""
+    left = np.concatenate([np.full((*p.shape[:-1], 1), -np.inf), p[..., :-1]], axis=-1)
+    right = np.concatenate([p[..., 1:], np.full((*p.shape[:-1], 1), -np.inf)], axis=-1)
+    out: FloatArray = np.where((p >= left) & (p >= right), p, 0.0)
+    return out

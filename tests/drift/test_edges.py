@@ -1,0 +1,127 @@
+"""The targetless check's edge term: the scans' depth discontinuities and their offsets
+from the images' edges."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from rigcal.camera import Camera
+from rigcal.drift.edges import EdgeImages, Edges, band_points, edge_residuals, scan_discontinuities
+from rigcal.geometry import make_T, rotvec_to_R
+from rigcal.lines import extract_lines
+from rigcal.scan import Scan
+from rigcal.sim.box_session import default_T_cam_laser
+
+STEP = math.radians(0.25)
+K = np.array([[520.0, 0.0, 319.5], [0.0, 515.0, 239.5], [0.0, 0.0, 1.0]])
+CAMERA = Camera.from_opencv(K, [], 640, 480)
+
+
+def cast(segments: list[tuple[tuple[float, float], tuple[float, float]]], rng: np.random.Generator) -> Scan:
+    """A scan of the segments from the origin, 0.25 deg steps over +-60 deg, 3 mm noise;
+    no return (range 0) where no segment is hit."""
+    angles = np.arange(-60.0, 60.0, 0.25)
+    out = np.zeros(len(angles))
+    for n, a in enumerate(np.radians(angles)):
+        d = np.array([math.cos(a), math.sin(a)])
+        best = np.inf
+        for p, q in segments:
+            p_, e = np.array(p), np.array(q) - np.array(p)
+            den = d[0] * -e[1] - d[1] * -e[0]
+            if abs(den) < 1e-12:
+                continue
+            t = (p_[0] * -e[1] - p_[1] * -e[0]) / den
+            s = (d[0] * p_[1] - d[1] * p_[0]) / den
+            if t > 0 and 0 <= s <= 1:
+                best = min(best, t)
+        out[n] = best + rng.normal(0, 0.003) if np.isfinite(best) else 0.0
+    return Scan.from_uniform(math.radians(-60.0), STEP, out, 0.05, 30.0)
+
+
+def test_corners_and_occluding_ends_are_found_where_the_world_has_edges():
+    rng = np.random.default_rng(3)
+    # A wall ahead (x = 4) meeting a wall on the left (y = 1) at a corner, and a square
+    # pillar 0.3 m wide in front of the wall ahead.
+    pillar = np.array([[2.35, -1.65], [2.65, -1.65], [2.65, -1.35], [2.35, -1.35]])
+    walls = [((4.0, -3.0), (4.0, 1.0)), ((4.0, 1.0), (1.0, 1.0))]
+    walls += [(tuple(pillar[k]), tuple(pillar[(k + 1) % 4])) for k in range(4)]
+    scan = cast(walls, rng)  # type: ignore[arg-type]
+    feet = scan_discontinuities(scan, extract_lines(scan))
+    truth = np.array([[4.0, 1.0], *pillar])
+    # Every foot is at one of the world's vertical edges (a wall's end into nothing is not).
+    d = np.linalg.norm(feet[:, None, :] - truth[None], axis=2)
+    assert d.min(axis=1).max() < 0.012
+    # The corner of the walls (lines' intersection): to millimetres.
+    assert d[:, 0].min() < 0.005
+    # The pillar's near corner (two faces meet) and its two silhouette edges seen from
+    # the laser (occluding line ends: within half a beam step, 6 mm at 2.7 m); its far
+    # corner (2.65, -1.65) is hidden.
+    assert d[:, 4].min() < 0.005
+    assert d[:, 1].min() < 0.012
+    assert d[:, 3].min() < 0.012
+
+
+def render_edge(foot: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(480, 640) uint8: a vertical edge through the foot (laser frame), dark to its left
+    in the image, bright to its right (4 x 4 samples a pixel), with blur and noise."""
+    X = np.array([[*foot, -1.0], [*foot, 1.0]]) @ T[:3, :3].T + T[:3, 3]
+    n = np.cross(X[0], X[1])
+    ss = 4
+    v, u = np.mgrid[0 : 480 * ss, 0 : 640 * ss]
+    rays = (
+        np.stack([(u + 0.5) / ss - 0.5, (v + 0.5) / ss - 0.5, np.ones(u.shape)], axis=-1) @ np.linalg.inv(K).T
+    )
+    side = (rays @ n > 0).astype(np.float32)
+    img = cv2.resize(90.0 + 70.0 * side, (640, 480), interpolation=cv2.INTER_AREA)
+    img = cv2.GaussianBlur(img, (0, 0), 0.7) + np.random.default_rng(1).normal(0, 1.0, img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    T = default_T_cam_laser()
+    feet = np.array([[3.0, 0.2], [2.0, -0.5], [5.0, 1.1], [2.5, 0.6]])
+    gray_of = {k: render_edge(f, T) for k, f in enumerate(feet)}
+    edges = Edges(band_points(feet), np.arange(len(feet)), np.zeros(len(feet), dtype=np.int64))
+    images = EdgeImages(gray_of, edges.img, 1.2, (0.0, 480.0))
+    return T, edges, images
+
+
+def test_the_right_T_puts_the_projections_on_the_edges(scene):
+    T, edges, images = scene
+    r, _, usable = edge_residuals(CAMERA, T, edges, images, 6.0)
+    assert usable.sum() >= 8
+    # Bilinear sampling locks a peak a little towards pixel centres (up to about 0.2 px,
+    # as many ways as the other: it averages out over edges at all sub-pixel phases).
+    assert np.abs(r[usable]).max() < 0.25
+    assert np.sqrt(np.mean(r[usable] ** 2)) < 0.1
+
+
+@pytest.mark.parametrize("axis", range(6))
+def test_the_offsets_move_as_their_derivatives_say(scene, axis):
+    """r(T Exp(xi)) - r(T) against J xi, for a change of 0.2 deg or 2 cm along one axis;
+    laser z (a shift along the edges) moves nothing."""
+    T, edges, images = scene
+    r0, J, u0 = edge_residuals(CAMERA, T, edges, images, 8.0)
+    xi = np.zeros(6)
+    xi[axis] = 0.004 if axis < 3 else 0.02
+    r1, _, u1 = edge_residuals(CAMERA, T @ make_T(rotvec_to_R(xi[:3]), xi[3:]), edges, images, 8.0)
+    ok = u0 & u1
+    assert ok.sum() >= 6
+    pred = J[ok] @ xi
+    if axis == 5:
+        assert np.abs(pred).max() < 0.2
+    elif axis != 1:  # a pitch moves a vertical edge mostly along itself
+        assert np.abs(pred).max() > 0.5
+    np.testing.assert_allclose(r1[ok] - r0[ok], pred, atol=0.1 + 0.1 * np.abs(pred).max())
+
+
+def test_no_edge_in_the_window_is_not_usable(scene):
+    T, edges, images = scene
+    far = T @ make_T(np.eye(3), [0.0, 0.15, 0.0])  # 15 cm: the edges 15-40 px away
+    _, _, usable = edge_residuals(CAMERA, far, edges, images, 6.0)
+    assert not usable.any()
