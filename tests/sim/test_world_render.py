@@ -149,6 +149,16 @@ def _generate(name, seed=1, length_m=4.0, height_m=2.5):
     return _GENERATORS[name](np.random.default_rng(seed), int(height_m * ppm), int(length_m * ppm), ppm)
 
 
+@pytest.mark.parametrize("name", sorted(TEXTURES))
+def test_every_texture_fills_walls_of_any_length(name):
+    """Whatever falls near a wall's end (a notice board wider than what is left) is cut at
+    the end, for every seed: the wall's texture has the wall's size."""
+    for seed in range(40):
+        for length_m in (0.6, 1.3, 2.9):
+            img = _generate(name, seed=seed, length_m=length_m)
+            assert img.shape[:2] == (int(2.5 * TEXELS_PER_M), int(length_m * TEXELS_PER_M))
+
+
 def test_repeating_is_exactly_periodic_and_plain_is_texture_poor():
     rep = _generate("repeating")
     p = int(REPEAT_PERIOD_M * TEXELS_PER_M)

@@ -532,8 +532,11 @@ def _signs(rng: np.random.Generator, h: int, w: int, ppm: float) -> Image:
             y1 = int(h - 0.95 * ppm)
             y0 = int(y1 - bh)
             cork = _fbm(rng, y1 - y0, int(bw), (1.5, 4.0))
-            img[y0:y1, int(x) : int(x) + int(bw)] = _to_u8(
-                np.array([70, 120, 165], dtype=np.float32) * (1 + 0.15 * cork)[:, :, None]
+            # A board near the wall's end is cut at the end (the texture is drawn whole, so
+            # the random stream, and every other wall, is as for a board that fits).
+            x0, x1 = int(x), min(int(x) + int(bw), w)
+            img[y0:y1, x0:x1] = _to_u8(
+                np.array([70, 120, 165], dtype=np.float32) * (1 + 0.15 * cork[:, : x1 - x0])[:, :, None]
             )
             for _ in range(int(rng.integers(3, 8))):
                 px, py = int(x + rng.uniform(0, 0.75) * bw), int(y0 + rng.uniform(0, 0.6) * bh)
