@@ -48,7 +48,9 @@ from rigcal.sim.world import BUILTIN
 # where the filter is weaker).
 VARIANTS = {
     "kf-fixed": kalman.KF_MODES["fixed"],
-    "kf-own": kalman.KfParams(icp_shared=0.0, gate=0.0, vo_weak_only=0.0),
+    "kf-own": kalman.KfParams(
+        icp_own=1.0, icp_shared=0.0, vo_own=1.0, vo_shared=0.0, gate=0.0, gate_window=1, vo_weak_only=0.0
+    ),
     "kf": kalman.KF_MODES["weighted"],
 }
 
