@@ -234,28 +234,45 @@ def _shared_noise_steps(poses, rng, cov, rho, sign=-1.0):
     return np.array(out)
 
 
+def _end_nees(source, sign, dt, cov, rho, seed):
+    """The filter's end pose NEES over 60 drives whose steps of ``source`` share errors
+    (:func:`_shared_noise_steps`), with the shared error modelled ("shared") and with the
+    steps taken as independent under their whole error's covariance ("independent")."""
+    rng = np.random.default_rng(seed)
+    t, poses = _arc(n=round(2.0 / dt) + 1, dt=dt, v=0.5, w=0.3)
+    nees = {"shared": [], "independent": []}
+    for _ in range(60):
+        steps = _shared_noise_steps(poses, rng, cov, rho, sign)
+        for key, params, step_cov in (
+            ("shared", _plain(adapt=False, **{f"{source}_shared": rho}), cov),
+            ("independent", _plain(adapt=False), (1 + 2 * rho) * cov),
+        ):
+            ms = kalman.increments(t, steps, np.stack([step_cov] * len(t)), source=source)
+            res = kalman.run_filter(ms, params)
+            e = res.poses[-1] - poses[-1]
+            nees[key].append(float(e @ np.linalg.solve(res.covariances[-1], e)))
+    return {k: float(np.mean(v)) for k, v in nees.items()}
+
+
 def test_icp_steps_sharing_their_scans_errors_keep_the_filter_consistent():
     """Consecutive steps sharing a scan: each step errs by (1 + 2 rho) times its
     covariance, a chain by the sum of its steps' only. With ``icp_shared`` = rho the
     filter's end pose is consistent (NEES near 3) whether its steps are read one by one
     or chained; taking the steps as independent with their whole error's covariance,
     it overstates the chain's (NEES well under 3)."""
-    rng = np.random.default_rng(3)
-    t, poses = _arc(n=81, dt=0.025, v=0.5, w=0.3)
-    cov, rho = np.diag([1e-6, 1e-6, 1e-8]), 0.75
-    nees = {"shared": [], "independent": []}
-    for _ in range(60):
-        icp = _shared_noise_steps(poses, rng, cov, rho)
-        for key, params, step_cov in (
-            ("shared", _plain(adapt=False, icp_shared=rho), cov),
-            ("independent", _plain(adapt=False), (1 + 2 * rho) * cov),
-        ):
-            ms = kalman.increments(t, icp, np.stack([step_cov] * len(t)), source="icp")
-            res = kalman.run_filter(ms, params)
-            e = res.poses[-1] - poses[-1]
-            nees[key].append(float(e @ np.linalg.solve(res.covariances[-1], e)))
-    assert 2.0 < np.mean(nees["shared"]) < 4.2
-    assert np.mean(nees["independent"]) < 0.6 * np.mean(nees["shared"])
+    nees = _end_nees("icp", -1.0, 0.025, np.diag([1e-6, 1e-6, 1e-8]), 0.75, seed=3)
+    assert 2.0 < nees["shared"] < 4.2
+    assert nees["independent"] < 0.6 * nees["shared"]
+
+
+def test_vo_runs_sharing_their_frames_errors_keep_the_filter_consistent():
+    """Consecutive VO runs err together (e_k = w_k + s_k + s_(k-1)): a chain of runs errs
+    more than its runs' covariances summed. With ``vo_shared`` = rho the filter's end pose
+    is consistent (NEES near 3); taking the runs as independent with each run's whole
+    error covariance, it understates the chain's (NEES well over 3)."""
+    nees = _end_nees("vo", 1.0, 0.1, np.diag([1e-5, 1e-5, 1e-7]), 1.0, seed=5)
+    assert 2.0 < nees["shared"] < 4.2
+    assert nees["independent"] > 1.4 * nees["shared"]
 
 
 def test_a_vo_run_far_from_a_precise_icp_is_gated_out():
@@ -333,29 +350,6 @@ def test_the_error_models_fractions_come_from_the_measured_nees_and_correlation(
 def test_the_error_models_settings_are_checked(bad, match):
     with pytest.raises(ValueError, match=match):
         kalman.KfParams(**bad)
-
-
-def test_vo_runs_sharing_their_frames_errors_keep_the_filter_consistent():
-    """Consecutive VO runs err together (e_k = w_k + s_k + s_(k-1)): a chain of runs errs
-    more than its runs' covariances summed. With ``vo_shared`` = rho the filter's end pose
-    is consistent (NEES near 3); taking the runs as independent with each run's whole
-    error covariance, it understates the chain's (NEES well over 3)."""
-    rng = np.random.default_rng(5)
-    t, poses = _arc(n=41, dt=0.1, v=0.5, w=0.3)
-    cov, rho = np.diag([1e-5, 1e-5, 1e-7]), 1.0
-    nees = {"shared": [], "independent": []}
-    for _ in range(60):
-        vo = _shared_noise_steps(poses, rng, cov, rho, sign=1.0)
-        for key, params, step_cov in (
-            ("shared", _plain(adapt=False, vo_shared=rho), cov),
-            ("independent", _plain(adapt=False), (1 + 2 * rho) * cov),
-        ):
-            ms = kalman.increments(t, vo, np.stack([step_cov] * len(t)), source="vo")
-            res = kalman.run_filter(ms, params)
-            e = res.poses[-1] - poses[-1]
-            nees[key].append(float(e @ np.linalg.solve(res.covariances[-1], e)))
-    assert 2.0 < np.mean(nees["shared"]) < 4.2
-    assert np.mean(nees["independent"]) > 1.4 * np.mean(nees["shared"])
 
 
 def test_vo_runs_each_within_the_gate_but_off_together_fail_the_windowed_gate():
