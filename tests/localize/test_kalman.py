@@ -326,26 +326,49 @@ def test_the_papers_filter_by_name_has_none_of_the_additions():
     )
     weighted = kalman.KF_MODES["weighted"]
     assert weighted == kalman.KfParams()
-    assert weighted.icp_shared == kalman.ICP_SHARED > 0
+    assert weighted.icp_shared == kalman.ICP_SHARED
+    assert min(kalman.ICP_SHARED) > 0
+    assert min(kalman.VO_SHARED) > 0
     assert weighted.gate > 0
     assert weighted.vo_weak_only > 0
 
 
-def test_the_error_models_fractions_come_from_the_measured_nees_and_correlation():
-    own, shared = kalman.shared_error_fractions(6.0, 0.25)
-    assert own + 2 * shared == pytest.approx(2.0)  # NEES 6 over 3 dof
-    assert shared / (own + 2 * shared) == pytest.approx(0.25)
-    assert kalman.shared_error_fractions(6.0, -0.25) == pytest.approx((own, shared))
-    icp, vo = (kalman.ICP_NEES, kalman.ICP_LAG1), (kalman.VO_NEES, kalman.VO_LAG1)
+def test_the_error_models_fractions_come_from_the_measured_ratios_and_correlations():
+    own, shared = np.array(kalman.shared_error_fractions((2.0, 1.0, 0.5), (-0.25, 0.1, 0.3)))
+    assert own + 2 * shared == pytest.approx([2.0, 1.0, 0.5])  # each axis's variance ratio
+    assert shared / (own + 2 * shared) == pytest.approx([0.25, 0.1, 0.3])
+    # A correlation beyond a two-step share's reach is taken at MAX_LAG1.
+    own, shared = np.array(kalman.shared_error_fractions((1.0, 1.0, 1.0), (0.6, -0.7, 0.0)))
+    assert shared == pytest.approx([kalman.MAX_LAG1, kalman.MAX_LAG1, 0.0])
+    assert (own > 0).all()
+    icp, vo = (kalman.ICP_VARIANCE_RATIO, kalman.ICP_LAG1), (kalman.VO_VARIANCE_RATIO, kalman.VO_LAG1)
     assert kalman.shared_error_fractions(*icp) == (kalman.ICP_OWN, kalman.ICP_SHARED)
     assert kalman.shared_error_fractions(*vo) == (kalman.VO_OWN, kalman.VO_SHARED)
-    with pytest.raises(ValueError, match="lag-1"):
-        kalman.shared_error_fractions(6.0, 0.5)
+    with pytest.raises(ValueError, match="ratios > 0"):
+        kalman.shared_error_fractions((1.0, 0.0, 1.0), (0.1, 0.1, 0.1))
+
+
+def test_an_axis_fraction_scales_that_axis_only():
+    """icp_own per axis: a step's x standard deviation doubled, its y and yaw kept, moves
+    the filter as a step given that covariance outright."""
+    t, poses = _arc(n=41, dt=0.1)
+    cov = np.diag([1e-4, 4e-4, 1e-6])
+    vo = kalman.increments(t, _scaled(poses, 1.1, 0.0), np.stack([cov] * len(t)), source="vo")
+    icp = kalman.increments(t, poses, np.stack([cov] * len(t)), source="icp")
+    wide = kalman.increments(t, poses, np.stack([np.diag([4e-4, 4e-4, 1e-6])] * len(t)), source="icp")
+    by_axis = kalman.run_filter(icp + vo, _plain(adapt=False, icp_own=(4.0, 1.0, 1.0))).poses
+    outright = kalman.run_filter(wide + vo, _plain(adapt=False)).poses
+    assert np.max(np.abs(by_axis - outright)) < 1e-9
 
 
 @pytest.mark.parametrize(
     ("bad", "match"),
-    [({"icp_own": 0.0}, "icp_own"), ({"vo_shared": -0.1}, "vo_shared"), ({"gate_window": 0}, "gate_window")],
+    [
+        ({"icp_own": 0.0}, "icp_own"),
+        ({"vo_own": (1.0, 0.0, 1.0)}, "vo_own"),
+        ({"vo_shared": -0.1}, "vo_shared"),
+        ({"gate_window": 0}, "gate_window"),
+    ],
 )
 def test_the_error_models_settings_are_checked(bad, match):
     with pytest.raises(ValueError, match=match):

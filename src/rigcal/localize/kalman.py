@@ -74,33 +74,55 @@ ADAPT_WINDOW = 50
 NIS_CAP = 25.0
 # Each input's error model (``KfParams.icp_own`` ... ``vo_shared``, :func:`_update`): a
 # step's error e_k = w_k + s_k -/+ s_(k-1), w_k its own, s_j the part two consecutive steps
-# share, both as fractions of the step's covariance C_k. Then e_k has (own + 2 shared) C_k
-# and consecutive steps correlate by -/+ shared / (own + 2 shared). Both fractions come
-# from two figures of each input measured on laps 1-2 of each loop (benchmarks/bench_kf.py,
-# docs/benchmarks.md): its steps' NEES against the truth (mean; 3 if C_k were honest) and
-# consecutive steps' error correlation. ICP (:data:`ICP_NEES` 5.0, :data:`ICP_LAG1` -0.30):
-# consecutive steps share a scan, as data of one and model of the next, so with opposite
-# signs. VO (runs passing :data:`VO_GATE`: NEES 7.2, lag-1 +0.39): consecutive runs share
-# the frame between them, its tracks and the scale a run carries from the one before, so
-# with the same sign; at lag 2 the runs' errors correlate by 0.1-0.2 and by lag 3 not at
-# all, the two-step share this models.
-ICP_NEES, ICP_LAG1 = 5.0, -0.30
-VO_NEES, VO_LAG1 = 7.2, 0.39
+# share, both per axis (x or forward, y or cross-track, yaw in the step's frame) as
+# fractions of the step's covariance C_k (each axis's standard deviation scaled by the
+# fraction's square root). Then e_k has (own + 2 shared) C_k and consecutive steps
+# correlate by -/+ shared / (own + 2 shared). Both come from two figures per axis of each
+# input measured on laps 1-2 of each loop (benchmarks/bench_kf.py --consistency,
+# docs/benchmarks.md): its steps' squared errors over their variance against the truth
+# (mean; 1 if C_k were honest) and consecutive steps' error correlation. ICP: its
+# translation errs by 2.3 times its Hessian's variance, its yaw by 0.9; consecutive steps
+# share a scan, as data of one and model of the next, so with opposite signs. VO (runs
+# passing :data:`VO_GATE`): forward 0.7 (its scale's votes are pessimistic), cross-track
+# 3.1, yaw 2.7; consecutive runs share the frame between them, its tracks and the scale a
+# run carries from the one before, so with the same sign (forward +0.57, beyond the 0.5 a
+# two-step share can give, taken as :data:`MAX_LAG1`).
+ICP_VARIANCE_RATIO, ICP_LAG1 = (2.29, 2.28, 0.92), (-0.37, -0.26, -0.27)
+VO_VARIANCE_RATIO, VO_LAG1 = (0.72, 3.07, 2.74), (0.57, 0.28, 0.34)
+# A two-step share gives consecutive errors a correlation of at most 0.5 (own error 0);
+# beyond this the share is taken at it, leaving the step a tenth of its error its own.
+MAX_LAG1 = 0.45
+Axes = tuple[float, float, float]
 
 
-def shared_error_fractions(nees: float, lag1: float) -> tuple[float, float]:
-    """An input's (own, shared) fractions of its steps' covariance from its steps' measured
-    NEES (3 dof) and consecutive steps' error correlation ``lag1`` (|lag1| < 1/2):
-    own + 2 shared = nees / 3, shared = |lag1| (own + 2 shared)."""
-    if not abs(lag1) < 0.5:
-        raise ValueError(f"lag-1 correlation {lag1}: a share of two steps gives |lag1| < 0.5")
-    total = nees / 3.0
-    shared = abs(lag1) * total
-    return total - 2.0 * shared, shared
+def shared_error_fractions(ratio: Axes, lag1: Axes) -> tuple[Axes, Axes]:
+    """An input's (own, shared) fractions per axis of its steps' covariance from its steps'
+    measured variance ratio (squared error over the covariance's variance, per axis) and
+    consecutive steps' error correlation ``lag1`` per axis (|lag1| at most
+    :data:`MAX_LAG1`): own + 2 shared = ratio, shared = |lag1| ratio."""
+    r = np.asarray(ratio, dtype=float)
+    rho = np.minimum(np.abs(np.asarray(lag1, dtype=float)), MAX_LAG1)
+    if r.shape != (3,) or rho.shape != (3,) or not (r > 0).all():
+        raise ValueError(
+            f"variance ratios {ratio} and lag-1 correlations {lag1}: expected three each, ratios > 0"
+        )
+    shared = rho * r
+    own = r - 2.0 * shared
+    return (float(own[0]), float(own[1]), float(own[2])), (
+        float(shared[0]),
+        float(shared[1]),
+        float(shared[2]),
+    )
 
 
-ICP_OWN, ICP_SHARED = shared_error_fractions(ICP_NEES, ICP_LAG1)
-VO_OWN, VO_SHARED = shared_error_fractions(VO_NEES, VO_LAG1)
+def _per_axis(v: float | Axes | FloatArray) -> FloatArray:
+    """A fraction for every axis, or one per axis, as (3,)."""
+    out: FloatArray = np.broadcast_to(np.asarray(v, dtype=float), (3,))
+    return out
+
+
+ICP_OWN, ICP_SHARED = shared_error_fractions(ICP_VARIANCE_RATIO, ICP_LAG1)
+VO_OWN, VO_SHARED = shared_error_fractions(VO_VARIANCE_RATIO, VO_LAG1)
 # A VO run whose innovation's squared Mahalanobis distance (shared error included) exceeds
 # this (chi-square, 3 degrees of freedom, 0.999) is left out (``KfParams.gate``): a wrong
 # scale or track set.
@@ -139,10 +161,10 @@ class KfParams:
     yaw_accel_sigma: float = 1.0
     weights: str = "covariance"
     adapt: bool = True
-    icp_own: float = ICP_OWN
-    icp_shared: float = ICP_SHARED
-    vo_own: float = VO_OWN
-    vo_shared: float = VO_SHARED
+    icp_own: float | Axes = ICP_OWN
+    icp_shared: float | Axes = ICP_SHARED
+    vo_own: float | Axes = VO_OWN
+    vo_shared: float | Axes = VO_SHARED
     gate: float = VO_GATE
     gate_window: int = VO_WINDOW
     vo_weak_only: float = VO_WEAK_ONLY
@@ -152,8 +174,12 @@ class KfParams:
             raise ValueError(f"weights {self.weights!r}: expected one of {', '.join(WEIGHTS)}")
         if not (self.accel_sigma > 0 and self.yaw_accel_sigma > 0):
             raise ValueError("accel_sigma and yaw_accel_sigma must be > 0")
-        if not (self.icp_own > 0 and self.vo_own > 0 and self.icp_shared >= 0 and self.vo_shared >= 0):
-            raise ValueError("icp_own and vo_own must be > 0, icp_shared and vo_shared >= 0")
+        for name in ("icp_own", "icp_shared", "vo_own", "vo_shared"):
+            v = _per_axis(getattr(self, name))
+            if not ((v > 0).all() if name.endswith("own") else (v >= 0).all()):
+                raise ValueError(
+                    f"{name} {getattr(self, name)}: expected {'> 0' if name.endswith('own') else '>= 0'}"
+                )
         if self.gate_window < 1:
             raise ValueError(f"gate_window {self.gate_window}: expected at least 1 run")
 
@@ -314,10 +340,10 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
         scale = max(1.0, mean_nis.get(m.source, 1.0)) if params.adapt else 1.0
         own, share = _error_model(m.source, params)
         shared: int | None = None
-        if share > 0:  # m.source is "icp" or "vo": its shared error enters the state
+        if share.any():  # m.source is "icp" or "vo": its shared error enters the state
             kind_of = SHARED_BLOCK[m.source]
             old = [b for b in blocks if b[0] == kind_of]
-            x, P = _append(x, P, share * _finite_part(m.covariance))
+            x, P = _append(x, P, _finite_part(_scaled(m.covariance, share)))
             blocks.append((kind_of, m.t1))
             shared = 6 + 3 * blocks.index(old[-1]) if old and old[-1][1] == m.t0 else -1
         vo = m.source == "vo"
@@ -326,7 +352,8 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             P,
             c,
             m,
-            scale * own,
+            own,
+            scale,
             shared,
             SHARED_SIGN.get(m.source, -1.0),
             gate=params.gate if vo else 0.0,
@@ -366,13 +393,20 @@ SHARED_BLOCK = {"icp": "scan", "vo": "frame"}
 SHARED_SIGN = {"icp": -1.0, "vo": 1.0}
 
 
-def _error_model(source: str, params: KfParams) -> tuple[float, float]:
-    """An input's (own, shared) fractions of its steps' covariance (module constants)."""
-    if source not in SHARED_BLOCK:
-        return 1.0, 0.0
-    if source == "icp":
-        return params.icp_own, params.icp_shared
-    return params.vo_own, params.vo_shared
+def _error_model(source: str, params: KfParams) -> tuple[FloatArray, FloatArray]:
+    """An input's (own, shared) fractions per axis (3,) of its steps' covariance."""
+    own, shared = {"icp": (params.icp_own, params.icp_shared), "vo": (params.vo_own, params.vo_shared)}.get(
+        source, (1.0, 0.0)
+    )
+    return _per_axis(own), _per_axis(shared)
+
+
+def _scaled(cov: FloatArray, fractions: FloatArray) -> FloatArray:
+    """A covariance (3, 3) with each axis's standard deviation scaled by the square root of
+    its fraction (3,)."""
+    d = np.sqrt(fractions)
+    out: FloatArray = d[:, None] * cov * d[None, :]
+    return out
 
 
 def _clone(x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -413,27 +447,28 @@ def _update(
     P: FloatArray,
     c: int,
     m: Increment,
-    scale: float = 1.0,
+    own: float | FloatArray = 1.0,
+    adapt: float = 1.0,
     shared: int | None = None,
     sign: float = -1.0,
     gate: float = 0.0,
     weak_only: float = 0.0,
     window: tuple[float, float] | None = None,
 ) -> tuple[FloatArray, FloatArray, float, float]:
-    """The EKF update with increment ``m`` (its covariance times ``scale``) against the
-    clone at state index ``c``: h(S) is the motion from the clone's pose to the current
-    one in the clone's frame. Also returns the innovation's NIS per dimension under the
-    increment's modelled covariance (scaled by ``scale``'s model part only: ``scale``
-    without the covariance matching is the caller's) and its squared Mahalanobis distance
-    over all three dimensions (NaN where not computed).
+    """The EKF update with increment ``m`` against the clone at state index ``c``: h(S) is
+    the motion from the clone's pose to the current one in the clone's frame. The step's
+    own error has its covariance scaled per axis by ``own`` (:func:`_scaled`), times
+    ``adapt`` (the covariance matching's factor). Also returns the innovation's NIS per
+    dimension without ``adapt`` (what the matching follows) and its squared Mahalanobis
+    distance over all three dimensions (NaN where not computed).
 
     ``shared`` (an index): the step's error is e_k = w_k + s_k + ``sign`` s_(k-1), w_k its
-    own (the step's covariance times ``scale``), s_j the error the step boundary j brings
+    own, s_j the error the step boundary j brings
     into both steps it is part of: for ICP (sign -1) scan j's noise, data of step j and
     model of step j + 1, with opposite signs (chained, they cancel); for VO (sign +1) frame
     j's tracks and the scale run j + 1 carries from run j, with the same sign. s_k is the
-    state's last block (:data:`ICP_SHARED`, :data:`VO_SHARED` times the step's
-    covariance, :func:`_finite_part`), s_(k-1) the block at ``shared`` (-1: none, the step
+    state's last block (the step's covariance scaled by :data:`ICP_SHARED` or
+    :data:`VO_SHARED`, :func:`_finite_part`), s_(k-1) the block at ``shared`` (-1: none, the step
     before was another input's). Measurement noise correlated in time, modelled by
     augmenting the state (Bar-Shalom, Li and Kirubarajan 2001, Section 8.2; the small turn
     between the two steps' frames is neglected).
@@ -455,7 +490,8 @@ def _update(
     H[:2, c : c + 2] = -Rt
     H[:2, c + 2] = np.array([[-syaw, cyaw], [-cyaw, -syaw]]) @ d  # d(R^T d) / d yaw_t0
     H[2, 2], H[2, c + 2] = 1.0, -1.0
-    Rm = scale * m.covariance
+    R0 = _scaled(m.covariance, _per_axis(own))
+    Rm = adapt * R0
     Hs = np.zeros_like(H)  # the shared error's part of H
     if shared is not None:
         n = len(x)
@@ -483,9 +519,9 @@ def _update(
         if not keep.any():
             return x, P, float("nan"), d2
         T = (Li.T @ V[:, keep]).T  # rows: the kept directions, whitened by the step's error
-        H, y, Rm, HPH = T @ H, T @ y, T @ Rm @ T.T, T @ HPH @ T.T
+        H, y, R0, Rm, HPH = T @ H, T @ y, T @ R0 @ T.T, T @ Rm @ T.T, T @ HPH @ T.T
         S = HPH + Rm
-    nis = float(y @ np.linalg.solve(S, y)) / len(y)
+    nis = float(y @ np.linalg.solve(HPH + R0, y)) / len(y)
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
     x = x + K @ y
     A = np.eye(len(x)) - K @ H
