@@ -33,10 +33,14 @@ ICP's degenerate steps and VO's runs without a scale open forward as before. Wit
 ``adapt`` (the default) each input's covariances are matched to its innovations (Mehra's
 covariance matching, one scale factor per input), as a fit's covariance leaves out what
 the fit cannot see. Three more remedies answer what the inputs' consistency against the
-simulated truth showed (docs/localization.md, "Consistency of the inputs"): ICP's
-consecutive steps share their common scan's error (``icp_shared``, :func:`_update`), a VO
-run failing a chi-square innovation test is left out (``gate``), and a VO run is fused
-only along directions where the filter knows the motion less well (``vo_weak_only``).
+simulated truth showed (docs/localization.md, "Consistency of the inputs"): each of ICP's
+and VO's steps has its own error and one it shares with the step before (ICP's steps a
+scan, VO's runs a frame and a carried scale), both per axis from its measured variance
+ratio and lag-1 correlation (``icp_own`` ... ``vo_shared``, :func:`_update`); a VO run
+failing a chi-square innovation test, alone or with the runs before it (``gate``,
+``gate_window``), is left out; and a VO run is fused only along directions where the
+filter knows the motion less well than the run's error, shared part included
+(``vo_weak_only``).
 """
 
 from __future__ import annotations
