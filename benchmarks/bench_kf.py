@@ -194,8 +194,8 @@ def main() -> None:
 def consistency(args: argparse.Namespace) -> None:
     """Each input's error model's figures per lap (:func:`axis_consistency`; VO trimmed)
     from the kept odometries, and their mean over the laps."""
-    print("| world | seed | input | variance ratio x / y / yaw | lag-1 corr x / y / yaw |")
-    print("|---|---|---|---|---|")
+    print("| world | seed | input | variance ratio x / y / yaw | lag-1 corr x / y / yaw | NEES modelled |")
+    print("|---|---|---|---|---|---|")
     sums: dict[str, list[FloatArray]] = defaultdict(list)
     for seed in seeds_of(args.seeds):
         for name in args.worlds.split(","):
@@ -209,17 +209,27 @@ def consistency(args: argparse.Namespace) -> None:
             gt = planar_at(truth, truth.stamps_s)
             ms = kf_measurements(streams, od, res, kalman.KF_MODES["weighted"])
             for src in ("icp", "vo"):
-                ratio, lag1 = axis_consistency(
-                    [m for m in ms if m.source == src], gt, truth.stamps_s, src == "vo"
-                )
-                sums[src].append(np.concatenate([ratio, lag1]))
+                mine = [m for m in ms if m.source == src]
+                ratio, lag1 = axis_consistency(mine, gt, truth.stamps_s, trim=src == "vo")
+                # Each step's NEES under the filter's model of its error (own and twice the
+                # shared part, kalman.shared_error_fractions): 3 where the model is honest.
+                own, shared = kalman._error_model(src, kalman.KF_MODES["weighted"])
+                total = own + 2 * shared
+                modelled = [
+                    kalman.Increment(m.t0, m.t1, m.motion, kalman._scaled(m.covariance, total), src)
+                    for m in mine
+                ]
+                nees = step_nees(modelled, gt, truth.stamps_s)
+                if src == "vo":
+                    nees = nees[nees < chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)]
+                sums[src].append(np.concatenate([ratio, lag1, [nees.mean()]]))
                 r, c = " / ".join(f"{v:.2f}" for v in ratio), " / ".join(f"{v:+.2f}" for v in lag1)
-                print(f"| {name} | {seed} | {src} | {r} | {c} |", flush=True)
+                print(f"| {name} | {seed} | {src} | {r} | {c} | {nees.mean():.2f} |", flush=True)
             streams.stop_background()
     for src, rows in sums.items():
         m = np.mean(rows, axis=0)
-        r, c = " / ".join(f"{v:.2f}" for v in m[:3]), " / ".join(f"{v:+.2f}" for v in m[3:])
-        print(f"| mean | {args.seeds} | {src} | {r} | {c} |")
+        r, c = " / ".join(f"{v:.2f}" for v in m[:3]), " / ".join(f"{v:+.2f}" for v in m[3:6])
+        print(f"| mean | {args.seeds} | {src} | {r} | {c} | {m[6]:.2f} |")
 
 
 def lap(seq: Path, reuse: bool = False) -> dict[str, float]:
