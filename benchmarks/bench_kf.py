@@ -16,7 +16,11 @@ estimate): each input's steps against the truth's motion over the same interval
 against the truth with the filter's covariance. The mean over a lap is printed.
 
     .venv/bin/python benchmarks/bench_kf.py [--worlds cubicle-loop,corridor-loop]
-        [--seeds 1-10] [--duration-s 40] [--wheel-odometry] [--keep DIR]
+        [--seeds 1-10] [--duration-s 40] [--wheel-odometry] [--keep DIR] [--reuse]
+    .venv/bin/python benchmarks/bench_kf.py --seeds 1-2 --keep DIR --reuse --consistency
+
+``--consistency`` prints, per lap and input, the figures the filter's error model is made
+of (kalman.ICP_VARIANCE_RATIO, ICP_LAG1, VO_VARIANCE_RATIO, VO_LAG1: laps 1-2 of each loop).
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import chi2
 
 from bench_tracks import seeds_of
 from rigcal.arrays import FloatArray
@@ -48,7 +53,9 @@ from rigcal.sim.world import BUILTIN
 # where the filter is weaker).
 VARIANTS = {
     "kf-fixed": kalman.KF_MODES["fixed"],
-    "kf-own": kalman.KfParams(icp_shared=0.0, gate=0.0, vo_weak_only=0.0),
+    "kf-own": kalman.KfParams(
+        icp_own=1.0, icp_shared=0.0, vo_own=1.0, vo_shared=0.0, gate=0.0, gate_window=1, vo_weak_only=0.0
+    ),
     "kf": kalman.KF_MODES["weighted"],
 }
 
@@ -74,10 +81,27 @@ def step_errors(ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArra
 def lag1_correlation(ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArray) -> float:
     """The correlation of consecutive steps' errors, each over its 1-sigma (x, y and yaw
     pooled); negative where consecutive steps share an error with opposite signs."""
+    return float(np.mean(axis_consistency(ms, truth, stamps)[1]))
+
+
+def axis_consistency(
+    ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArray, trim: bool = False
+) -> tuple[FloatArray, FloatArray]:
+    """Per axis (x, y, yaw in the step's frame): the steps' squared errors over their
+    variance (mean; 1 for an honest covariance) and consecutive steps' error correlation
+    (kalman.shared_error_fractions). ``trim``: only steps whose NEES is within the
+    chi-square 0.999 point (3 dof) times the lap's median NEES over the chi-square median
+    (the runs a gate passes once their covariance is scaled to the median: VO's runs with
+    a wrong carried scale left out)."""
     z = step_errors(ms, truth, stamps) / np.sqrt([np.diag(m.covariance) for m in ms])
-    chained = np.array([ms[k].t0 == ms[k - 1].t1 for k in range(1, len(ms))])
-    a, b = z[:-1][chained], z[1:][chained]
-    return float(np.mean([np.corrcoef(a[:, i], b[:, i])[0, 1] for i in range(3)]))
+    keep = np.ones(len(ms), dtype=bool)
+    if trim:
+        nees = step_nees(ms, truth, stamps)
+        keep = nees < chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)
+    pairs = np.array([ms[k].t0 == ms[k - 1].t1 for k in range(1, len(ms))]) & keep[1:] & keep[:-1]
+    a, b = z[:-1][pairs], z[1:][pairs]
+    ratio = np.mean(z[keep] ** 2, axis=0)
+    return ratio, np.array([np.corrcoef(a[:, i], b[:, i])[0, 1] for i in range(3)])
 
 
 def planar_at_stamps(truth: FloatArray, stamps: FloatArray, at: FloatArray) -> FloatArray:
@@ -104,7 +128,16 @@ def main() -> None:
     ap.add_argument("--wheel-odometry", action="store_true", help="Simulate and fuse wheel odometry.")
     ap.add_argument("--keep", type=Path, help="Keep (and reuse) the sequences in this folder.")
     ap.add_argument("--reuse", action="store_true", help="Reuse each lap's odometries of an earlier run.")
+    ap.add_argument(
+        "--consistency",
+        action="store_true",
+        help="Print each input's variance ratio and lag-1 correlation per axis instead "
+        "(kalman.ICP_VARIANCE_RATIO ...: laps 1-2); needs --reuse.",
+    )
     args = ap.parse_args()
+    if args.consistency:
+        consistency(args)
+        return
     duration = args.duration_s or None
     scores: dict[tuple[str, str], list[float]] = defaultdict(list)
     wins: dict[str, list[bool]] = defaultdict(list)
@@ -156,6 +189,47 @@ def main() -> None:
             f"| {s['kf'].max():.4f} "
             f"| {sum(wins[name])} of {len(wins[name])} |"
         )
+
+
+def consistency(args: argparse.Namespace) -> None:
+    """Each input's error model's figures per lap (:func:`axis_consistency`; VO trimmed)
+    from the kept odometries, and their mean over the laps."""
+    print("| world | seed | input | variance ratio x / y / yaw | lag-1 corr x / y / yaw | NEES modelled |")
+    print("|---|---|---|---|---|---|")
+    sums: dict[str, list[FloatArray]] = defaultdict(list)
+    for seed in seeds_of(args.seeds):
+        for name in args.worlds.split(","):
+            seq = args.keep / f"{name}-seed{seed}-{args.duration_s:g}s"
+            streams = open_streams(seq)
+            od, res = pickle.loads((seq / "odometries.pkl").read_bytes())
+            streams.results["vo"] = res
+            assert streams.sequence.groundtruth_file is not None
+            truth = read_tum(seq / streams.sequence.groundtruth_file)
+            assert truth.stamps_s is not None
+            gt = planar_at(truth, truth.stamps_s)
+            ms = kf_measurements(streams, od, res, kalman.KF_MODES["weighted"])
+            for src in ("icp", "vo"):
+                mine = [m for m in ms if m.source == src]
+                ratio, lag1 = axis_consistency(mine, gt, truth.stamps_s, trim=src == "vo")
+                # Each step's NEES under the filter's model of its error (own and twice the
+                # shared part, kalman.shared_error_fractions): 3 where the model is honest.
+                own, shared = kalman._error_model(src, kalman.KF_MODES["weighted"])
+                total = own + 2 * shared
+                modelled = [
+                    kalman.Increment(m.t0, m.t1, m.motion, kalman._scaled(m.covariance, total), src)
+                    for m in mine
+                ]
+                nees = step_nees(modelled, gt, truth.stamps_s)
+                if src == "vo":
+                    nees = nees[nees < chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)]
+                sums[src].append(np.concatenate([ratio, lag1, [nees.mean()]]))
+                r, c = " / ".join(f"{v:.2f}" for v in ratio), " / ".join(f"{v:+.2f}" for v in lag1)
+                print(f"| {name} | {seed} | {src} | {r} | {c} | {nees.mean():.2f} |", flush=True)
+            streams.stop_background()
+    for src, rows in sums.items():
+        m = np.mean(rows, axis=0)
+        r, c = " / ".join(f"{v:.2f}" for v in m[:3]), " / ".join(f"{v:+.2f}" for v in m[3:6])
+        print(f"| mean | {args.seeds} | {src} | {r} | {c} | {m[6]:.2f} |")
 
 
 def lap(seq: Path, reuse: bool = False) -> dict[str, float]:

@@ -8,6 +8,14 @@ import pytest
 from rigcal.localize import kalman
 
 
+def _plain(**changes):
+    """The weighted filter without the remedies (each step's own covariance as it is),
+    with ``changes``."""
+    base = {"icp_own": 1.0, "icp_shared": 0.0, "vo_own": 1.0, "vo_shared": 0.0}
+    base |= {"gate": 0.0, "gate_window": 1, "vo_weak_only": 0.0}
+    return kalman.KfParams(**{**base, **changes})
+
+
 def _arc(n=200, dt=0.1, v=1.0, w=0.2):
     t = np.arange(n) * dt
     yaw = w * t
@@ -199,7 +207,7 @@ def test_an_input_whose_covariance_is_too_small_is_matched_to_its_innovations():
     ms += kalman.increments(t[::4], vo, _own(t[::4], (2e-3, 2e-3, 1e-4)), source="vo")
     errors = {}
     for adapt in (False, True):
-        params = kalman.KfParams(adapt=adapt, icp_shared=0.0, gate=0.0, vo_weak_only=0.0)
+        params = _plain(adapt=adapt)
         res = kalman.run_filter(ms, params)
         errors[adapt] = np.sqrt(np.mean(np.sum((res.poses[:, :2] - poses[:, :2]) ** 2, axis=1)))
     icp_error = np.sqrt(np.mean(np.sum((icp[:, :2] - poses[:, :2]) ** 2, axis=1)))
@@ -207,15 +215,16 @@ def test_an_input_whose_covariance_is_too_small_is_matched_to_its_innovations():
     assert errors[True] < 2.0 * icp_error + 1e-3
 
 
-def _shared_noise_steps(poses, rng, cov, rho):
-    """ICP-like steps (N - 1, 3) whose errors are e_k = s_k - s_(k-1) + w_k: s (per
-    scan) of covariance rho x ``cov`` (3, 3), w (per step) of ``cov``."""
+def _shared_noise_steps(poses, rng, cov, rho, sign=-1.0):
+    """Steps (N - 1, 3) whose errors are e_k = s_k + sign s_(k-1) + w_k: s (per step
+    boundary) of covariance rho x ``cov`` (3, 3), w (per step) of ``cov``; sign -1 as
+    ICP's scans, +1 as VO's frames."""
     s = rng.multivariate_normal(np.zeros(3), rho * cov, len(poses))
     w = rng.multivariate_normal(np.zeros(3), cov, len(poses))
     steps = [
         kalman.pose_of(np.linalg.inv(kalman.se2(poses[k - 1])) @ kalman.se2(poses[k]))
         + s[k]
-        - s[k - 1]
+        + sign * s[k - 1]
         + w[k]
         for k in range(1, len(poses))
     ]
@@ -225,28 +234,45 @@ def _shared_noise_steps(poses, rng, cov, rho):
     return np.array(out)
 
 
+def _end_nees(source, sign, dt, cov, rho, seed):
+    """The filter's end pose NEES over 60 drives whose steps of ``source`` share errors
+    (:func:`_shared_noise_steps`), with the shared error modelled ("shared") and with the
+    steps taken as independent under their whole error's covariance ("independent")."""
+    rng = np.random.default_rng(seed)
+    t, poses = _arc(n=round(2.0 / dt) + 1, dt=dt, v=0.5, w=0.3)
+    nees = {"shared": [], "independent": []}
+    for _ in range(60):
+        steps = _shared_noise_steps(poses, rng, cov, rho, sign)
+        for key, params, step_cov in (
+            ("shared", _plain(adapt=False, **{f"{source}_shared": rho}), cov),
+            ("independent", _plain(adapt=False), (1 + 2 * rho) * cov),
+        ):
+            ms = kalman.increments(t, steps, np.stack([step_cov] * len(t)), source=source)
+            res = kalman.run_filter(ms, params)
+            e = res.poses[-1] - poses[-1]
+            nees[key].append(float(e @ np.linalg.solve(res.covariances[-1], e)))
+    return {k: float(np.mean(v)) for k, v in nees.items()}
+
+
 def test_icp_steps_sharing_their_scans_errors_keep_the_filter_consistent():
     """Consecutive steps sharing a scan: each step errs by (1 + 2 rho) times its
     covariance, a chain by the sum of its steps' only. With ``icp_shared`` = rho the
     filter's end pose is consistent (NEES near 3) whether its steps are read one by one
     or chained; taking the steps as independent with their whole error's covariance,
     it overstates the chain's (NEES well under 3)."""
-    rng = np.random.default_rng(3)
-    t, poses = _arc(n=81, dt=0.025, v=0.5, w=0.3)
-    cov, rho = np.diag([1e-6, 1e-6, 1e-8]), 0.75
-    nees = {"shared": [], "independent": []}
-    for _ in range(60):
-        icp = _shared_noise_steps(poses, rng, cov, rho)
-        for key, params, step_cov in (
-            ("shared", kalman.KfParams(adapt=False, icp_shared=rho), cov),
-            ("independent", kalman.KfParams(adapt=False, icp_shared=0.0), (1 + 2 * rho) * cov),
-        ):
-            ms = kalman.increments(t, icp, np.stack([step_cov] * len(t)), source="icp")
-            res = kalman.run_filter(ms, params)
-            e = res.poses[-1] - poses[-1]
-            nees[key].append(float(e @ np.linalg.solve(res.covariances[-1], e)))
-    assert 2.0 < np.mean(nees["shared"]) < 4.2
-    assert np.mean(nees["independent"]) < 0.6 * np.mean(nees["shared"])
+    nees = _end_nees("icp", -1.0, 0.025, np.diag([1e-6, 1e-6, 1e-8]), 0.75, seed=3)
+    assert 2.0 < nees["shared"] < 4.2
+    assert nees["independent"] < 0.6 * nees["shared"]
+
+
+def test_vo_runs_sharing_their_frames_errors_keep_the_filter_consistent():
+    """Consecutive VO runs err together (e_k = w_k + s_k + s_(k-1)): a chain of runs errs
+    more than its runs' covariances summed. With ``vo_shared`` = rho the filter's end pose
+    is consistent (NEES near 3); taking the runs as independent with each run's whole
+    error covariance, it understates the chain's (NEES well over 3)."""
+    nees = _end_nees("vo", 1.0, 0.1, np.diag([1e-5, 1e-5, 1e-7]), 1.0, seed=5)
+    assert 2.0 < nees["shared"] < 4.2
+    assert nees["independent"] > 1.4 * nees["shared"]
 
 
 def test_a_vo_run_far_from_a_precise_icp_is_gated_out():
@@ -261,10 +287,10 @@ def test_a_vo_run_far_from_a_precise_icp_is_gated_out():
         kalman.Increment(bad.t0, bad.t1, bad.motion + np.array([0.1, 0.0, 0.0]), bad.covariance, "vo"),
         *vo[21:],
     ]
-    params = kalman.KfParams(adapt=False, vo_weak_only=0.0)
+    params = _plain(adapt=False, gate=kalman.VO_GATE)
     without = kalman.run_filter(icp + vo[:20] + vo[21:], params).poses
     gated = kalman.run_filter(icp + vo_bad, params).poses
-    ungated = kalman.run_filter(icp + vo_bad, kalman.KfParams(adapt=False, vo_weak_only=0.0, gate=0.0)).poses
+    ungated = kalman.run_filter(icp + vo_bad, _plain(adapt=False)).poses
     assert np.max(np.abs(gated - without)) < 1e-9
     assert np.max(np.linalg.norm(ungated[:, :2] - poses[:, :2], axis=1)) > 0.02
 
@@ -276,13 +302,11 @@ def test_vo_enters_only_where_the_filter_is_weaker():
     vo = kalman.increments(
         t[::4], _scaled(poses[::4], 1.2, 0.0), _own(t[::4], (0.01, 0.05, 0.01)), source="vo"
     )
-    params = kalman.KfParams(adapt=False, gate=0.0)
+    params = _plain(adapt=False, vo_weak_only=kalman.VO_WEAK_ONLY)
     precise = kalman.increments(t, poses, _own(t, (1e-4, 1e-4, 1e-5)), source="icp")
     alone = kalman.run_filter(precise, params).poses
     assert np.max(np.abs(kalman.run_filter(precise + vo, params).poses[-1] - alone[-1])) < 1e-9
-    every_direction = kalman.run_filter(
-        precise + vo, kalman.KfParams(adapt=False, gate=0.0, vo_weak_only=0.0)
-    )
+    every_direction = kalman.run_filter(precise + vo, _plain(adapt=False))
     assert np.max(np.abs(every_direction.poses[-1] - alone[-1])) > 1e-6
     open_icp = kalman.increments(
         t, _scaled(poses, 0.5, 0.0), _own(t, (kalman.OPEN_SIGMA_M, 1e-4, 1e-5)), source="icp"
@@ -302,6 +326,71 @@ def test_the_papers_filter_by_name_has_none_of_the_additions():
     )
     weighted = kalman.KF_MODES["weighted"]
     assert weighted == kalman.KfParams()
-    assert weighted.icp_shared == kalman.ICP_SHARED > 0
+    assert weighted.icp_shared == kalman.ICP_SHARED
+    assert min(kalman.ICP_SHARED) > 0
+    assert min(kalman.VO_SHARED) > 0
     assert weighted.gate > 0
     assert weighted.vo_weak_only > 0
+
+
+def test_the_error_models_fractions_come_from_the_measured_ratios_and_correlations():
+    own, shared = np.array(kalman.shared_error_fractions((2.0, 1.0, 0.5), (-0.25, 0.1, 0.3)))
+    assert own + 2 * shared == pytest.approx([2.0, 1.0, 0.5])  # each axis's variance ratio
+    assert shared / (own + 2 * shared) == pytest.approx([0.25, 0.1, 0.3])
+    # A correlation beyond a two-step share's reach is taken at MAX_LAG1.
+    own, shared = np.array(kalman.shared_error_fractions((1.0, 1.0, 1.0), (0.6, -0.7, 0.0)))
+    assert shared == pytest.approx([kalman.MAX_LAG1, kalman.MAX_LAG1, 0.0])
+    assert (own > 0).all()
+    icp, vo = (kalman.ICP_VARIANCE_RATIO, kalman.ICP_LAG1), (kalman.VO_VARIANCE_RATIO, kalman.VO_LAG1)
+    assert kalman.shared_error_fractions(*icp) == (kalman.ICP_OWN, kalman.ICP_SHARED)
+    assert kalman.shared_error_fractions(*vo) == (kalman.VO_OWN, kalman.VO_SHARED)
+    with pytest.raises(ValueError, match="ratios > 0"):
+        kalman.shared_error_fractions((1.0, 0.0, 1.0), (0.1, 0.1, 0.1))
+
+
+def test_an_axis_fraction_scales_that_axis_only():
+    """icp_own per axis: a step's x standard deviation doubled, its y and yaw kept, moves
+    the filter as a step given that covariance outright."""
+    t, poses = _arc(n=41, dt=0.1)
+    cov = np.diag([1e-4, 4e-4, 1e-6])
+    vo = kalman.increments(t, _scaled(poses, 1.1, 0.0), np.stack([cov] * len(t)), source="vo")
+    icp = kalman.increments(t, poses, np.stack([cov] * len(t)), source="icp")
+    wide = kalman.increments(t, poses, np.stack([np.diag([4e-4, 4e-4, 1e-6])] * len(t)), source="icp")
+    by_axis = kalman.run_filter(icp + vo, _plain(adapt=False, icp_own=(4.0, 1.0, 1.0))).poses
+    outright = kalman.run_filter(wide + vo, _plain(adapt=False)).poses
+    assert np.max(np.abs(by_axis - outright)) < 1e-9
+
+
+@pytest.mark.parametrize(
+    ("bad", "match"),
+    [
+        ({"icp_own": 0.0}, "icp_own"),
+        ({"vo_own": (1.0, 0.0, 1.0)}, "vo_own"),
+        ({"vo_shared": -0.1}, "vo_shared"),
+        ({"gate_window": 0}, "gate_window"),
+    ],
+)
+def test_the_error_models_settings_are_checked(bad, match):
+    with pytest.raises(ValueError, match=match):
+        kalman.KfParams(**bad)
+
+
+def test_vo_runs_each_within_the_gate_but_off_together_fail_the_windowed_gate():
+    """Eight VO runs in a row each off by 3 sigma (squared distance about 10, under the
+    single gate's 16.3) among runs that agree with ICP: once four runs' distances summed
+    fail their test (the fourth run on) the rest are left out, and the path ends less
+    than half as far off as with the single-run test alone, which lets all eight in."""
+    t, poses = _arc(n=201, dt=0.025, w=0.3)
+    # 7 mm off: about 3.1 sigma of the innovation (the filter's prediction from ICP and
+    # the runs before, and the run's own), a squared distance of about 9.7.
+    icp = kalman.increments(t, poses, _own(t, (5e-4, 5e-4, 5e-5)), source="icp")
+    vo = kalman.increments(t[::4], poses[::4], _own(t[::4], (1e-3, 1e-3, 1e-4)), source="vo")
+    step = np.array([7e-3, 0.0, 0.0])
+    off = [
+        kalman.Increment(m.t0, m.t1, m.motion + step, m.covariance, "vo") if 20 <= k < 28 else m
+        for k, m in enumerate(vo)
+    ]
+    clean = kalman.run_filter(icp + vo, _plain(adapt=False)).poses
+    single = kalman.run_filter(icp + off, _plain(adapt=False, gate=kalman.VO_GATE)).poses
+    window = kalman.run_filter(icp + off, _plain(adapt=False, gate=kalman.VO_GATE, gate_window=4)).poses
+    assert np.linalg.norm(single[-1, :2] - clean[-1, :2]) > 2 * np.linalg.norm(window[-1, :2] - clean[-1, :2])

@@ -33,10 +33,14 @@ ICP's degenerate steps and VO's runs without a scale open forward as before. Wit
 ``adapt`` (the default) each input's covariances are matched to its innovations (Mehra's
 covariance matching, one scale factor per input), as a fit's covariance leaves out what
 the fit cannot see. Three more remedies answer what the inputs' consistency against the
-simulated truth showed (docs/localization.md, "Consistency of the inputs"): ICP's
-consecutive steps share their common scan's error (``icp_shared``, :func:`_update`), a VO
-run failing a chi-square innovation test is left out (``gate``), and a VO run is fused
-only along directions where the filter knows the motion less well (``vo_weak_only``).
+simulated truth showed (docs/localization.md, "Consistency of the inputs"): each of ICP's
+and VO's steps has its own error and one it shares with the step before (ICP's steps a
+scan, VO's runs a frame and a carried scale), both per axis from its measured variance
+ratio and lag-1 correlation (``icp_own`` ... ``vo_shared``, :func:`_update`); a VO run
+failing a chi-square innovation test, alone or with the runs before it (``gate``,
+``gate_window``), is left out; and a VO run is fused only along directions where the
+filter knows the motion less well than the run's error, shared part included
+(``vo_weak_only``).
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2
 
 from rigcal.arrays import FloatArray
 from rigcal.geometry import pose_of, se2
@@ -71,17 +76,66 @@ WEIGHTS = ("covariance", "fixed")
 # that exceeds 1; a single innovation counts at most NIS_CAP (an outlier step).
 ADAPT_WINDOW = 50
 NIS_CAP = 25.0
-# ICP's consecutive steps share a scan (``KfParams.icp_shared``, :func:`_update`): the
-# shared error's variance per scan as a fraction of a step's own covariance. Measured on
-# the simulated laps (benchmarks/bench_kf.py): the steps' errors over their 1-sigma had an
-# rms of 1.5 in translation and 1.0 in yaw, chains of 4 and 40 steps (taken as
-# independent) 0.9-1.3, and consecutive steps' errors a correlation of -0.21 to -0.38;
-# 0.75 gives a step (1 + 2 x 0.75) = 2.5 times its covariance, a chain the sum of its
-# steps', and consecutive steps a correlation of -0.3.
-ICP_SHARED = 0.75
-# A VO run whose innovation's squared Mahalanobis distance exceeds this (chi-square, 3
-# degrees of freedom, 0.999) is left out (``KfParams.gate``): a wrong scale or track set.
+# Each input's error model (``KfParams.icp_own`` ... ``vo_shared``, :func:`_update`): a
+# step's error e_k = w_k + s_k -/+ s_(k-1), w_k its own, s_j the part two consecutive steps
+# share, both per axis (x or forward, y or cross-track, yaw in the step's frame) as
+# fractions of the step's covariance C_k (each axis's standard deviation scaled by the
+# fraction's square root). Then e_k has (own + 2 shared) C_k and consecutive steps
+# correlate by -/+ shared / (own + 2 shared). Both come from two figures per axis of each
+# input measured on laps 1-2 of each loop (benchmarks/bench_kf.py --consistency,
+# docs/benchmarks.md): its steps' squared errors over their variance against the truth
+# (mean; 1 if C_k were honest) and consecutive steps' error correlation. ICP: its
+# translation errs by 2.3 times its Hessian's variance, its yaw by 0.9; consecutive steps
+# share a scan, as data of one and model of the next, so with opposite signs. VO (runs
+# passing :data:`VO_GATE`): forward 0.7 (its scale's votes are pessimistic), cross-track
+# 3.1, yaw 2.7; consecutive runs share the frame between them, its tracks and the scale a
+# run carries from the one before, so with the same sign (forward +0.57, beyond the 0.5 a
+# two-step share can give, taken as :data:`MAX_LAG1`).
+ICP_VARIANCE_RATIO, ICP_LAG1 = (2.29, 2.28, 0.92), (-0.37, -0.26, -0.27)
+VO_VARIANCE_RATIO, VO_LAG1 = (0.72, 3.06, 2.74), (0.57, 0.28, 0.34)
+# A two-step share gives consecutive errors a correlation of at most 0.5 (own error 0);
+# beyond this the share is taken at it, leaving the step a tenth of its error its own.
+MAX_LAG1 = 0.45
+Axes = tuple[float, float, float]
+
+
+def shared_error_fractions(ratio: Axes, lag1: Axes) -> tuple[Axes, Axes]:
+    """An input's (own, shared) fractions per axis of its steps' covariance from its steps'
+    measured variance ratio (squared error over the covariance's variance, per axis) and
+    consecutive steps' error correlation ``lag1`` per axis (|lag1| at most
+    :data:`MAX_LAG1`): own + 2 shared = ratio, shared = |lag1| ratio."""
+    r = np.asarray(ratio, dtype=float)
+    rho = np.minimum(np.abs(np.asarray(lag1, dtype=float)), MAX_LAG1)
+    if r.shape != (3,) or rho.shape != (3,) or not (r > 0).all():
+        raise ValueError(
+            f"variance ratios {ratio} and lag-1 correlations {lag1}: expected three each, ratios > 0"
+        )
+    shared = rho * r
+    own = r - 2.0 * shared
+    return (float(own[0]), float(own[1]), float(own[2])), (
+        float(shared[0]),
+        float(shared[1]),
+        float(shared[2]),
+    )
+
+
+def _per_axis(v: float | Axes | FloatArray) -> FloatArray:
+    """A fraction for every axis, or one per axis, as (3,)."""
+    out: FloatArray = np.broadcast_to(np.asarray(v, dtype=float), (3,))
+    return out
+
+
+ICP_OWN, ICP_SHARED = shared_error_fractions(ICP_VARIANCE_RATIO, ICP_LAG1)
+VO_OWN, VO_SHARED = shared_error_fractions(VO_VARIANCE_RATIO, VO_LAG1)
+# A VO run whose innovation's squared Mahalanobis distance (shared error included) exceeds
+# this (chi-square, 3 degrees of freedom, 0.999) is left out (``KfParams.gate``): a wrong
+# scale or track set.
 VO_GATE = 16.27
+# The same test on the last VO_WINDOW runs' distances summed (chi-square, 3 x VO_WINDOW
+# degrees of freedom, 0.999; ``KfParams.gate_window``): runs each within the gate that err
+# together. The window spans the runs whose errors correlate (lags 1-3 on laps 1-2).
+VO_WINDOW = 4
+VO_WINDOW_GATE = 32.91
 # VO is fused only along directions where the filter's own prediction of the run's motion
 # is less certain than the run (generalised eigenvalue above this; ``KfParams.vo_weak_only``).
 VO_WEAK_ONLY = 1.0
@@ -111,8 +165,12 @@ class KfParams:
     yaw_accel_sigma: float = 1.0
     weights: str = "covariance"
     adapt: bool = True
-    icp_shared: float = ICP_SHARED
+    icp_own: float | Axes = ICP_OWN
+    icp_shared: float | Axes = ICP_SHARED
+    vo_own: float | Axes = VO_OWN
+    vo_shared: float | Axes = VO_SHARED
     gate: float = VO_GATE
+    gate_window: int = VO_WINDOW
     vo_weak_only: float = VO_WEAK_ONLY
 
     def __post_init__(self) -> None:
@@ -120,6 +178,14 @@ class KfParams:
             raise ValueError(f"weights {self.weights!r}: expected one of {', '.join(WEIGHTS)}")
         if not (self.accel_sigma > 0 and self.yaw_accel_sigma > 0):
             raise ValueError("accel_sigma and yaw_accel_sigma must be > 0")
+        for name in ("icp_own", "icp_shared", "vo_own", "vo_shared"):
+            v = _per_axis(getattr(self, name))
+            if not ((v > 0).all() if name.endswith("own") else (v >= 0).all()):
+                raise ValueError(
+                    f"{name} {getattr(self, name)}: expected {'> 0' if name.endswith('own') else '>= 0'}"
+                )
+        if self.gate_window < 1:
+            raise ValueError(f"gate_window {self.gate_window}: expected at least 1 run")
 
 
 # ``rigcal localize --kf``: the filter by name. "weighted": each step's own covariance,
@@ -127,7 +193,17 @@ class KfParams:
 # step with its input's fixed covariance (Section VI), nothing adapted.
 KF_MODES = {
     "weighted": KfParams(),
-    "fixed": KfParams(weights="fixed", adapt=False, icp_shared=0.0, gate=0.0, vo_weak_only=0.0),
+    "fixed": KfParams(
+        weights="fixed",
+        adapt=False,
+        icp_own=1.0,
+        icp_shared=0.0,
+        vo_own=1.0,
+        vo_shared=0.0,
+        gate=0.0,
+        gate_window=1,
+        vo_weak_only=0.0,
+    ),
 }
 
 
@@ -243,9 +319,13 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     for m in ms:
         pending[m.t0] = pending.get(m.t0, 0) + 1
     # The state's blocks of three after the pose and velocity, in state order: the pose
-    # clones ("clone", t0) and the last ICP scan's shared error ("scan", its stamp).
+    # clones ("clone", t0), the last ICP scan's shared error ("scan", its stamp) and the
+    # last VO frame's ("frame", its stamp).
     blocks: list[tuple[str, float]] = []
     mean_nis: dict[str, float] = {}  # per input: its innovations' NIS per dimension, running mean
+    recent: list[float] = []  # the last VO runs' squared distances (the windowed gate)
+    # The windowed gate: the chi-square point of 3 x gate_window dof at the single gate's tail.
+    window_gate = float(chi2.isf(chi2.sf(params.gate, 3), 3 * params.gate_window)) if params.gate > 0 else 0.0
     t = events[0][0]
     x = np.zeros(6)
     P = np.diag([1e-12, 1e-12, 1e-12, 1.0, 1.0, 1.0])
@@ -262,20 +342,35 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             continue
         c = 6 + 3 * blocks.index(("clone", m.t0))
         scale = max(1.0, mean_nis.get(m.source, 1.0)) if params.adapt else 1.0
+        own, share = _error_model(m.source, params)
         shared: int | None = None
-        if m.source == "icp" and params.icp_shared > 0:
-            old = [b for b in blocks if b[0] == "scan"]
-            D_new = params.icp_shared * _finite_part(m.covariance)
-            x, P = _append(x, P, D_new)
-            blocks.append(("scan", m.t1))
-            prev = 6 + 3 * blocks.index(old[-1]) if old and old[-1][1] == m.t0 else -1
-            shared = prev
+        if share.any():  # m.source is "icp" or "vo": its shared error enters the state
+            kind_of = SHARED_BLOCK[m.source]
+            old = [b for b in blocks if b[0] == kind_of]
+            x, P = _append(x, P, _finite_part(_scaled(m.covariance, share)))
+            blocks.append((kind_of, m.t1))
+            shared = 6 + 3 * blocks.index(old[-1]) if old and old[-1][1] == m.t0 else -1
         vo = m.source == "vo"
-        x, P, nis = _update(
-            x, P, c, m, scale, shared, params.gate if vo else 0.0, params.vo_weak_only if vo else 0.0
+        x, P, nis, d2 = _update(
+            x,
+            P,
+            c,
+            m,
+            own,
+            scale,
+            shared,
+            SHARED_SIGN.get(m.source, -1.0),
+            gate=params.gate if vo else 0.0,
+            weak_only=params.vo_weak_only if vo else 0.0,
+            window=(sum(recent), window_gate) if vo and params.gate_window > 1 else None,
         )
-        if shared is not None:  # the step's shared error is in; the scan before is done with
-            for b in [b for b in blocks if b[0] == "scan" and b[1] != m.t1]:
+        if vo and np.isfinite(d2):
+            # The windowed test's last runs, each counted at most at the single gate (a lone
+            # outlier is the single test's, not the window's).
+            recent.append(min(d2, params.gate) if params.gate > 0 else d2)
+            del recent[: max(0, len(recent) - (params.gate_window - 1))]
+        if shared is not None:  # the step's shared error is in; the one before is done with
+            for b in [b for b in blocks if b[0] == SHARED_BLOCK[m.source] and b[1] != m.t1]:
                 x, P = _drop(x, P, 6 + 3 * blocks.index(b))
                 blocks.remove(b)
         if np.isfinite(nis):
@@ -294,6 +389,28 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             poses.append(x[:3].copy())
             covs.append(P[:3, :3].copy())
     return KfResult(np.array(stamps), np.array(poses), np.array(covs))
+
+
+# The state block holding each input's shared error, and the sign it enters the step after
+# with (:func:`_update`).
+SHARED_BLOCK = {"icp": "scan", "vo": "frame"}
+SHARED_SIGN = {"icp": -1.0, "vo": 1.0}
+
+
+def _error_model(source: str, params: KfParams) -> tuple[FloatArray, FloatArray]:
+    """An input's (own, shared) fractions per axis (3,) of its steps' covariance."""
+    own, shared = {"icp": (params.icp_own, params.icp_shared), "vo": (params.vo_own, params.vo_shared)}.get(
+        source, (1.0, 0.0)
+    )
+    return _per_axis(own), _per_axis(shared)
+
+
+def _scaled(cov: FloatArray, fractions: FloatArray) -> FloatArray:
+    """A covariance (3, 3) with each axis's standard deviation scaled by the square root of
+    its fraction (3,)."""
+    d = np.sqrt(fractions)
+    out: FloatArray = d[:, None] * cov * d[None, :]
+    return out
 
 
 def _clone(x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -334,30 +451,39 @@ def _update(
     P: FloatArray,
     c: int,
     m: Increment,
-    scale: float = 1.0,
+    own: float | FloatArray = 1.0,
+    adapt: float = 1.0,
     shared: int | None = None,
+    sign: float = -1.0,
     gate: float = 0.0,
     weak_only: float = 0.0,
-) -> tuple[FloatArray, FloatArray, float]:
-    """The EKF update with increment ``m`` (its covariance times ``scale``) against the
-    clone at state index ``c``: h(S) is the motion from the clone's pose to the current
-    one in the clone's frame. Also returns the innovation's NIS per dimension under the
-    increment's own covariance (unscaled).
+    window: tuple[float, float] | None = None,
+) -> tuple[FloatArray, FloatArray, float, float]:
+    """The EKF update with increment ``m`` against the clone at state index ``c``: h(S) is
+    the motion from the clone's pose to the current one in the clone's frame. The step's
+    own error has its covariance scaled per axis by ``own`` (:func:`_scaled`), times
+    ``adapt`` (the covariance matching's factor). Also returns the innovation's NIS per
+    dimension without ``adapt`` (what the matching follows) and its squared Mahalanobis
+    distance over all three dimensions (NaN where not computed).
 
-    ``shared`` (an index): an ICP step's error is e_k = s_k - s_(k-1) + w_k, s_j the
-    error scan j's noise brings into both steps it is part of (data of step j, model of
-    step j + 1, with opposite signs: chained, they cancel), w_k the step's own. w_k has
-    the step's covariance; s_k is the state's last block (covariance rho = ``icp_shared`` times the
-    step's, :func:`_finite_part`), s_(k-1) the block at ``shared`` (-1: none, the step
-    before was not ICP's). A step's error then has (1 + 2 rho) times its covariance, a
-    chain of steps grows by w alone (measurement noise correlated in time, modelled by
-    augmenting the state; Bar-Shalom, Li and Kirubarajan 2001, Section 8.2; the small
-    turn between the two steps' frames, under a degree at the laser's rate, is
-    neglected).
+    ``shared`` (an index): the step's error is e_k = w_k + s_k + ``sign`` s_(k-1), w_k its
+    own, s_j the error the step boundary j brings
+    into both steps it is part of: for ICP (sign -1) scan j's noise, data of step j and
+    model of step j + 1, with opposite signs (chained, they cancel); for VO (sign +1) frame
+    j's tracks and the scale run j + 1 carries from run j, with the same sign. s_k is the
+    state's last block (the step's covariance scaled by :data:`ICP_SHARED` or
+    :data:`VO_SHARED`, :func:`_finite_part`), s_(k-1) the block at ``shared`` (-1: none, the step
+    before was another input's). Measurement noise correlated in time, modelled by
+    augmenting the state (Bar-Shalom, Li and Kirubarajan 2001, Section 8.2; the small turn
+    between the two steps' frames is neglected).
 
-    ``gate`` > 0: when the innovation's squared Mahalanobis distance under the scaled
-    covariance exceeds it, nothing is updated (the state comes back as it was) and the NIS
-    is NaN.
+    ``gate`` > 0: when the innovation's squared Mahalanobis distance d2 (shared error
+    included) exceeds it, or ``window`` = (the last runs' d2 summed, its gate) and that sum
+    with d2 exceeds its gate, nothing is updated (the state comes back as it was).
+
+    ``weak_only`` > 0: only the directions along which the filter's own prediction of the
+    motion (pose and clone, without the shared error) is less certain than the step's error
+    (own and shared) by more than that ratio are updated.
     """
     cyaw, syaw = np.cos(x[c + 2]), np.sin(x[c + 2])
     Rt = np.array([[cyaw, syaw], [-syaw, cyaw]])  # R(yaw_t0)^T
@@ -368,38 +494,43 @@ def _update(
     H[:2, c : c + 2] = -Rt
     H[:2, c + 2] = np.array([[-syaw, cyaw], [-cyaw, -syaw]]) @ d  # d(R^T d) / d yaw_t0
     H[2, 2], H[2, c + 2] = 1.0, -1.0
-    own = m.covariance
+    R0 = _scaled(m.covariance, _per_axis(own))
+    Rm = adapt * R0
+    Hs = np.zeros_like(H)  # the shared error's part of H
     if shared is not None:
-        prev = shared
-        H[:, len(x) - 3 :] = np.eye(3)
-        if prev >= 0:
-            H[:, prev : prev + 3] = -np.eye(3)
-        h = h + x[len(x) - 3 :] - (x[prev : prev + 3] if prev >= 0 else 0.0)
+        n = len(x)
+        Hs[:, n - 3 :] = np.eye(3)
+        if shared >= 0:
+            Hs[:, shared : shared + 3] = sign * np.eye(3)
+        h = h + Hs @ x
+        H = H + Hs
     y = m.motion - h
     y[2] = np.angle(np.exp(1j * y[2]))
     HPH = H @ P @ H.T
+    S = HPH + Rm
+    d2 = float(y @ np.linalg.solve(S, y))
+    if gate > 0 and (d2 > gate or (window is not None and window[0] + d2 > window[1])):
+        return x, P, float("nan"), d2
     if weak_only > 0:
-        # Only the directions along which the filter knows the motion less well than
-        # the step does (generalised eigenvectors of the two covariances, ratio above
+        # Only the directions along which the filter knows the motion less well than the
+        # step does (generalised eigenvectors of the two covariances, ratio above
         # ``weak_only``): elsewhere the step would add little and bring its own errors.
-        L = np.linalg.cholesky(own)
-        Li = np.linalg.inv(L)
-        lam, V = np.linalg.eigh(Li @ HPH @ Li.T)
+        Hp = H - Hs
+        err = Rm + Hs @ P @ Hs.T  # the step's error: its own and the shared part
+        Li = np.linalg.inv(np.linalg.cholesky(err))
+        lam, V = np.linalg.eigh(Li @ Hp @ P @ Hp.T @ Li.T)
         keep = lam > weak_only
         if not keep.any():
-            return x, P, float("nan")
-        T = (Li.T @ V[:, keep]).T  # rows: the kept directions, whitened by the step's covariance
-        H, y, own, HPH = T @ H, T @ y, T @ own @ T.T, T @ HPH @ T.T
-    nis = float(y @ np.linalg.solve(HPH + own, y)) / len(y)
-    Rm = scale * own
-    S = HPH + Rm
-    if gate > 0 and float(y @ np.linalg.solve(S, y)) > gate:
-        return x, P, float("nan")
+            return x, P, float("nan"), d2
+        T = (Li.T @ V[:, keep]).T  # rows: the kept directions, whitened by the step's error
+        H, y, R0, Rm, HPH = T @ H, T @ y, T @ R0 @ T.T, T @ Rm @ T.T, T @ HPH @ T.T
+        S = HPH + Rm
+    nis = float(y @ np.linalg.solve(HPH + R0, y)) / len(y)
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
     x = x + K @ y
     A = np.eye(len(x)) - K @ H
     P = A @ P @ A.T + K @ Rm @ K.T  # Joseph form: stays symmetric, positive
-    return x, P, nis
+    return x, P, nis, d2
 
 
 def _predict(x: FloatArray, P: FloatArray, dt: float, params: KfParams) -> tuple[FloatArray, FloatArray]:
