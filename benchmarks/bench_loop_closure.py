@@ -20,7 +20,7 @@ each with closure off and on, and the closures' counts.
 
     uv sync --group bench --extra gtsam     # rtb-data, GTSAM
     .venv/bin/python benchmarks/bench_loop_closure.py [--scans N] [--backend scipy|gtsam|both]
-        [--steps own|fixed]
+        [--steps own|own+drift|fixed] [--global-every N]
     .venv/bin/python benchmarks/bench_loop_closure.py --sim [--methods icp,kf,iasm,hiasm] [--drives DIR]
 """
 
@@ -59,7 +59,7 @@ def _row(name: str, est: np.ndarray, gt: np.ndarray, speed: str) -> str:
     )
 
 
-def killian(n: int | None, backends: list[str], own_steps: bool = True) -> None:
+def killian(n: int | None, backends: list[str], steps: str = "own", global_every: int = 5) -> None:
     archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
     with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
         z.extract("killian.g2o", tmp)
@@ -92,7 +92,8 @@ def killian(n: int | None, backends: list[str], own_steps: bool = True) -> None:
     ]
     for backend in backends:
         w0, c0 = time.perf_counter(), time.process_time()
-        lc = close_loops(scans, od.poses, LoopParams(backend=backend), od.covariance if own_steps else None)
+        params = LoopParams(backend=backend, global_every=global_every, step_drift=steps == "own+drift")
+        lc = close_loops(scans, od.poses, params, None if steps == "fixed" else od.covariance)
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         load.append(os.getloadavg()[0])
         c = lc.counts
@@ -157,8 +158,15 @@ def main() -> None:
     ap.add_argument(
         "--steps",
         default="own",
-        choices=["own", "fixed"],
-        help="the odometry edges' covariance: ICP's own (default) or the fixed sigmas",
+        choices=["own", "own+drift", "fixed"],
+        help="the odometry edges' covariance: ICP's own (default), ICP's own plus the drift "
+        "model's (LoopParams.step_drift), or the fixed sigmas",
+    )
+    ap.add_argument(
+        "--global-every",
+        type=int,
+        default=LoopParams().global_every,
+        help="the global search at most every N keyframes (0: off, the local search only)",
     )
     a = ap.parse_args()
     if a.sim:
@@ -168,7 +176,7 @@ def main() -> None:
     if not gtsam_available() and "gtsam" in backends:
         print("GTSAM is not installed (uv sync --extra gtsam): scipy only")
         backends = ["scipy"]
-    killian(a.scans, backends, a.steps == "own")
+    killian(a.scans, backends, a.steps, a.global_every)
 
 
 if __name__ == "__main__":
