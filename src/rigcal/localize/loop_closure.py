@@ -16,6 +16,14 @@ starts from a map whose earlier loops are already closed:
    ``n_sigma``, plus ``search_m``, at most ``max_search_m`` / ``max_search_rad``. L is
    the shortest path between them in the graph, where an accepted closure is a short cut:
    once a loop is closed, the places it joined are close in the graph again.
+1b. **Global search.** A keyframe whose local search proposed nothing or failed the
+   verification, at most every ``global_every`` keyframes and not within as many of the
+   last closure, searches the earlier keyframes beyond their window but within
+   ``search_m`` plus ``global_per_m`` of the graph path (at most ``max_global_m``),
+   nearest first, at most ``global_candidates`` (:func:`global_search`), each by a
+   coarse-to-fine correlative search over the submap (:func:`coarse_to_fine_match`,
+   ``global_grid_m``, ``global_yaw_step_rad``, within ``global_rad``), then step 2's fit
+   and test; the robust kernel (step 3) catches what that lets through.
 2. **Verification.** Keyframe i is matched to the submap of j (the scans within
    ``submap_m`` of path of j, moved into j's frame by the current poses). First i's
    context (its scan and those of the 2 ``submap_m`` of path before it, placed by the
@@ -39,10 +47,11 @@ starts from a map whose earlier loops are already closed:
    Hessian (:func:`closure_covariance`, ``closure_sigmas`` where the fit has too few
    pairs), a step's the odometry's own where given (``step_covariances``: the laser
    odometry's over the step and the step's departure from it,
-   :func:`step_covariances`), else 1-sigma ``step_sigmas`` plus ``step_sigma_per_m`` per
-   metre of step. A precise odometry is then not bent by a coarser closure. A closure that disagrees with
-   the current poses by more than ``reoptimise_whitened`` (whitened) corrects them at
-   once (the graph up to keyframe i; the later poses follow it rigidly); the whole graph
+   :func:`step_covariances`; with ``step_drift`` plus step 1's drift model over the
+   step: (a l)^2 on x and y, b^2 l on yaw), else 1-sigma ``step_sigmas`` plus
+   ``step_sigma_per_m`` per metre of step. A precise odometry is then not bent by a
+   coarser closure. A closure that disagrees with the current poses by more than
+   ``reoptimise_whitened`` (whitened) corrects them at once (the graph up to keyframe i; the later poses follow it rigidly); the whole graph
    is optimised at the end, and a closure whose whitened residual stays above
    ``reject_whitened`` there contradicts the others and is reported as rejected by the
    kernel.
