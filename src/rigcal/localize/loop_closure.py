@@ -41,18 +41,18 @@ starts from a map whose earlier loops are already closed:
    at least ``min_inliers`` of the scan's points as inliers with an RMS below
    ``max_rms_m``; and the scans constrain every direction (degeneracy indicator above
    ``min_degeneracy``: a corridor's length is not a closure).
-3. **Pose graph.** The odometry steps between consecutive poses and the accepted
-   closures (under the Cauchy kernel) are the edges (:mod:`rigcal.localize.pose_graph`,
-   on scipy or GTSAM), each with a full covariance: a closure's from its ICP fit's
-   Hessian (:func:`closure_covariance`, ``closure_sigmas`` where the fit has too few
-   pairs), a step's the odometry's own where given (``step_covariances``: the laser
-   odometry's over the step and the step's departure from it,
-   :func:`step_covariances`; with ``step_drift`` plus step 1's drift model over the
-   step: (a l)^2 on x and y, b^2 l on yaw), else 1-sigma ``step_sigmas`` plus
-   ``step_sigma_per_m`` per metre of step. A precise odometry is then not bent by a
-   coarser closure. A closure that disagrees with the current poses by more than
-   ``reoptimise_whitened`` (whitened) corrects them at once (the graph up to keyframe i; the later poses follow it rigidly); the whole graph
-   is optimised at the end, and a closure whose whitened residual stays above
+3. **Pose graph.** The odometry steps between consecutive poses and the accepted closures
+   (under the Cauchy kernel) are the edges (:mod:`rigcal.localize.pose_graph`, on scipy or
+   GTSAM), each with a full covariance: a closure's from its ICP fit's Hessian
+   (:func:`closure_covariance`, ``closure_sigmas`` where the fit has too few pairs), a
+   step's the odometry's own where given (``step_covariances``: the laser odometry's over
+   the step and the step's departure from it, :func:`step_covariances`; with
+   ``step_drift`` plus step 1's drift model over the step: (a l)^2 on x and y, b^2 l on
+   yaw), else 1-sigma ``step_sigmas`` plus ``step_sigma_per_m`` per metre of step. A
+   precise odometry is then not bent by a coarser closure. A closure that disagrees with
+   the current poses by more than ``reoptimise_whitened`` (whitened) corrects them at once
+   (the graph up to keyframe i; the later poses follow it rigidly); the whole graph is
+   optimised at the end, and a closure whose whitened residual stays above
    ``reject_whitened`` there contradicts the others and is reported as rejected by the
    kernel.
 """
