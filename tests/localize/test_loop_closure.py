@@ -481,3 +481,29 @@ def test_the_global_search_rejects_a_false_candidate(rng):
     c = verify(scans, est, along, i, j, 10.0, params.global_rad, params, coarse=True)
     assert c.T_j_i is None
     assert c.why_not
+
+
+def test_step_drift_adds_the_search_windows_drift_model_to_the_steps_own_covariances():
+    # Compounded over the steps, the added variance is the window's: (a L)^2-ish on x, b^2 L
+    # on yaw; the fit's own covariance is kept under it.
+    truth = _square()
+    n = len(truth) - 1
+    own = np.concatenate([np.full((1, 3, 3), np.nan), np.tile(np.diag([1e-6, 1e-6, 1e-8]), (n, 1, 1))])
+    params = LoopParams(step_drift=True)
+    plain = build_graph(truth, truth, [], n, replace(params, step_drift=False), own).covariances
+    drift = build_graph(truth, truth, [], n, params, own).covariances
+    assert plain is not None
+    assert drift is not None
+    step_m = 10.0 / 40
+    np.testing.assert_allclose(drift[:, 2, 2] - plain[:, 2, 2], params.drift_rad_per_sqrt_m**2 * step_m)
+    np.testing.assert_allclose(drift[:, 0, 0] - plain[:, 0, 0], (params.drift_per_m * step_m) ** 2)
+    np.testing.assert_allclose(drift[:, 0, 1], plain[:, 0, 1])
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [{"global_every": -1}, {"global_candidates": 0}, {"global_grid_m": 0.0}, {"global_yaw_step_rad": -0.1}],
+)
+def test_the_global_search_settings_are_checked(bad):
+    with pytest.raises(ValueError, match="global"):
+        LoopParams(**bad)
