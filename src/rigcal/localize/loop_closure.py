@@ -153,7 +153,8 @@ class Closure:
     """A proposed closure: keyframe scan i matched to scan j; T_j_i (x, y, yaw) when it
     passed the verification, and why not otherwise. ``score``: the correlative search's
     best score; ``window_m``: the translation window it searched; ``covariance`` (3, 3):
-    T_j_i's, from the ICP fit's Hessian (:func:`closure_covariance`)."""
+    T_j_i's, from the ICP fit's Hessian (:func:`closure_covariance`); ``wide``: proposed
+    by the global search (module docstring, step 1b)."""
 
     i: int
     j: int
@@ -165,6 +166,7 @@ class Closure:
     score: float = float("nan")
     window_m: float = float("nan")
     covariance: FloatArray | None = None
+    wide: bool = False
 
 
 @dataclass(frozen=True)
@@ -400,7 +402,7 @@ def global_search(
         closure = verify(
             scans, poses, along, i, int(earlier[c]), float(reach[c]), params.global_rad, params, coarse=True
         )
-        out.append(closure)
+        out.append(replace(closure, wide=True))
         if closure.T_j_i is not None:
             break
     return out
