@@ -180,8 +180,8 @@ def main() -> None:
     ap.add_argument(
         "--global-every",
         type=int,
-        default=LoopParams().global_every,
-        help="the global search at most every N keyframes (0: off, the local search only)",
+        default=5,
+        help="the global search at most every N keyframes (default 5; 0: off, the local search only)",
     )
     ap.add_argument(
         "--global-per-m",

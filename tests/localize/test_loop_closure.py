@@ -451,7 +451,7 @@ def test_the_global_search_closes_a_return_beyond_the_local_window(rng):
     truth = np.vstack([lap, lap[1:61] + np.array([0.0, 0.0, 2 * np.pi])])
     odo = _drifted(truth, yaw_per_step=0.002)
     scans = _scans_of(_square_world(rng), truth)
-    params = LoopParams(max_search_m=1.0, global_per_m=0.15, backend="scipy")
+    params = LoopParams(max_search_m=1.0, global_every=5, global_per_m=0.15, backend="scipy")
     assert np.hypot(*(odo[160, :2] - odo[0, :2])) > 2 * params.max_search_m
     local = close_loops(scans, odo, replace(params, global_every=0))
     assert local.counts["accepted"] == 0

@@ -16,14 +16,15 @@ starts from a map whose earlier loops are already closed:
    ``n_sigma``, plus ``search_m``, at most ``max_search_m`` / ``max_search_rad``. L is
    the shortest path between them in the graph, where an accepted closure is a short cut:
    once a loop is closed, the places it joined are close in the graph again.
-1b. **Global search.** A keyframe whose local search proposed nothing or failed the
-   verification, at most every ``global_every`` keyframes and not within as many of the
-   last closure, searches the earlier keyframes beyond their window but within
-   ``search_m`` plus ``global_per_m`` of the graph path (at most ``max_global_m``),
-   nearest first, at most ``global_candidates`` (:func:`global_search`), each by a
-   coarse-to-fine correlative search over the submap (:func:`coarse_to_fine_match`,
-   ``global_grid_m``, ``global_yaw_step_rad``, within ``global_rad``), then step 2's fit
-   and test; the robust kernel (step 3) catches what that lets through.
+1b. **Global search** (with ``global_every`` > 0; off by default). A keyframe whose local
+   search proposed nothing or failed the verification, at most every ``global_every``
+   keyframes and not within as many of the last closure, searches the earlier keyframes
+   beyond their window but within ``search_m`` plus ``global_per_m`` of the graph path (at
+   most ``max_global_m``), nearest first, at most ``global_candidates``
+   (:func:`global_search`), each by a coarse-to-fine correlative search over the submap
+   (:func:`coarse_to_fine_match`, ``global_grid_m``, ``global_yaw_step_rad``, within
+   ``global_rad``), then step 2's fit and test; the robust kernel (step 3) catches what
+   that lets through.
 2. **Verification.** Keyframe i is matched to the submap of j (the scans within
    ``submap_m`` of path of j, moved into j's frame by the current poses). First i's
    context (its scan and those of the 2 ``submap_m`` of path before it, placed by the
@@ -117,7 +118,7 @@ class LoopParams:
     closure_floor_sigmas: tuple[float, float, float] = (0.002, 0.002, 0.0005)
     reoptimise_whitened: float = 3.0
     reject_whitened: float = 5.0
-    global_every: int = 5
+    global_every: int = 0  # off: on Killian it did not help (docs/benchmarks.md, round 4)
     global_per_m: float = 0.05
     max_global_m: float = 40.0
     global_rad: float = 0.6
