@@ -20,7 +20,7 @@ each with closure off and on, and the closures' counts.
 
     uv sync --group bench --extra gtsam     # rtb-data, GTSAM
     .venv/bin/python benchmarks/bench_loop_closure.py [--scans N] [--backend scipy|gtsam|both]
-        [--steps own|fixed]
+        [--steps own|own+drift|fixed] [--global-every N] [--global-per-m F]
     .venv/bin/python benchmarks/bench_loop_closure.py --sim [--methods icp,kf,iasm,hiasm] [--drives DIR]
 """
 
@@ -31,6 +31,7 @@ import os
 import tempfile
 import time
 import zipfile
+from collections import Counter
 from importlib import resources
 from pathlib import Path
 
@@ -59,7 +60,9 @@ def _row(name: str, est: np.ndarray, gt: np.ndarray, speed: str) -> str:
     )
 
 
-def killian(n: int | None, backends: list[str], own_steps: bool = True) -> None:
+def killian(
+    n: int | None, backends: list[str], steps: str = "own", global_every: int = 5, global_per_m: float = 0.05
+) -> None:
     archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
     with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
         z.extract("killian.g2o", tmp)
@@ -92,7 +95,13 @@ def killian(n: int | None, backends: list[str], own_steps: bool = True) -> None:
     ]
     for backend in backends:
         w0, c0 = time.perf_counter(), time.process_time()
-        lc = close_loops(scans, od.poses, LoopParams(backend=backend), od.covariance if own_steps else None)
+        params = LoopParams(
+            backend=backend,
+            global_every=global_every,
+            global_per_m=global_per_m,
+            step_drift=steps == "own+drift",
+        )
+        lc = close_loops(scans, od.poses, params, None if steps == "fixed" else od.covariance)
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         load.append(os.getloadavg()[0])
         c = lc.counts
@@ -101,6 +110,13 @@ def killian(n: int | None, backends: list[str], own_steps: bool = True) -> None:
             f"verification {c['rejected_by_verification']}, by the kernel {c['rejected_by_kernel']}; "
             f"loop closure {wall:.1f} s wall ({wall / icp_wall:.2f}x ICP's), "
             f"{cpu:.1f} s CPU ({cpu / icp_cpu:.2f}x ICP's)"
+        )
+        wide = [x for x in lc.closures if x.wide]
+        why = Counter(x.why_not.split(" ")[0] for x in wide if x.T_j_i is None)
+        print(
+            f"  of them by the global search: proposed {len(wide)}, accepted "
+            f"{sum(1 for x in wide if x.T_j_i is not None and not x.kernel_rejected)}, rejected by the "
+            f"kernel {sum(1 for x in wide if x.kernel_rejected)}; its rejections {dict(why.most_common())}"
         )
         speed = (
             f"{duration / (icp_wall + wall):.0f}x real time wall, {duration / (icp_cpu + cpu):.0f}x CPU; "
@@ -157,8 +173,21 @@ def main() -> None:
     ap.add_argument(
         "--steps",
         default="own",
-        choices=["own", "fixed"],
-        help="the odometry edges' covariance: ICP's own (default) or the fixed sigmas",
+        choices=["own", "own+drift", "fixed"],
+        help="the odometry edges' covariance: ICP's own (default), ICP's own plus the drift "
+        "model's (LoopParams.step_drift), or the fixed sigmas",
+    )
+    ap.add_argument(
+        "--global-every",
+        type=int,
+        default=5,
+        help="the global search at most every N keyframes (default 5; 0: off, the local search only)",
+    )
+    ap.add_argument(
+        "--global-per-m",
+        type=float,
+        default=LoopParams().global_per_m,
+        help="the global search's reach grows by this fraction of the graph path",
     )
     a = ap.parse_args()
     if a.sim:
@@ -168,7 +197,7 @@ def main() -> None:
     if not gtsam_available() and "gtsam" in backends:
         print("GTSAM is not installed (uv sync --extra gtsam): scipy only")
         backends = ["scipy"]
-    killian(a.scans, backends, a.steps == "own")
+    killian(a.scans, backends, a.steps, a.global_every, a.global_per_m)
 
 
 if __name__ == "__main__":

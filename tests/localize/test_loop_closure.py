@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from rigcal.localize.loop_closure import (
     LoopParams,
     build_graph,
     chained_covariances,
+    close_loops,
     closure_covariance,
     compose,
     correlative_match,
@@ -26,6 +28,7 @@ from rigcal.localize.loop_closure import (
     scans_at,
     search_window,
     step_covariances,
+    verify,
 )
 from rigcal.localize.pose_graph import PoseGraph, gtsam_available, optimise
 
@@ -405,3 +408,102 @@ def test_a_methods_step_covariance_opens_where_it_left_the_laser_odometry(rng):
     out = step_covariances(t, laser, cov, t, method)
     np.testing.assert_allclose(out[10], cov[10] + np.diag([0.09, 0.0, 0.0]), atol=1e-12)
     np.testing.assert_allclose(np.delete(out, 10, axis=0)[1:], np.delete(cov, 10, axis=0)[1:], atol=1e-12)
+
+
+def _square_world(rng):
+    """A 10 m square corridor loop (walls 1.5 m either side of the path, with gaps for
+    doors at random) and pillars at random along it (M, 2): places that look alike only
+    where they are the same."""
+
+    def outline(lo, hi):
+        t = np.linspace(lo, hi, int((hi - lo) / 0.03))
+        return np.vstack(
+            [np.column_stack(p) for p in ((t, t * 0 + lo), (t, t * 0 + hi), (t * 0 + lo, t), (t * 0 + hi, t))]
+        )
+
+    walls = np.vstack([outline(1.5, 8.5), outline(-1.5, 11.5)])
+    doors = rng.uniform(-1.5, 11.5, (12, 2))
+    keep = np.all(np.max(np.abs(walls[:, None, :] - doors[None]), axis=2) > 0.4, axis=1)
+    parts = [walls[keep]]
+    a = np.linspace(0, 2 * np.pi, 40)
+    for _ in range(40):
+        side, s = rng.integers(4), rng.uniform(0, 10)
+        centre = np.array([[s, 0], [10, s], [s, 10], [0, s]][side], dtype=float)
+        centre[(side + 1) % 2] += rng.choice([-1.0, 1.0]) * rng.uniform(0.6, 1.1)
+        parts.append(centre + rng.uniform(0.05, 0.25) * np.column_stack([np.cos(a), np.sin(a)]))
+    return np.vstack(parts)
+
+
+def _scans_of(world, truth, range_m=8.0):
+    """Each pose's returns (P, 2) in its frame: the world's points within range (no
+    occlusion; the matching sees the same structure either way)."""
+    out = []
+    for p in truth:
+        local = _moved(world, p)
+        out.append(local[np.hypot(*local.T) < range_m])
+    return out
+
+
+def test_the_global_search_closes_a_return_beyond_the_local_window(rng):
+    # A lap and a half of the square: the heading drift puts the return metres from the
+    # start, beyond a local window capped at 1 m.
+    lap = _square()
+    truth = np.vstack([lap, lap[1:61] + np.array([0.0, 0.0, 2 * np.pi])])
+    odo = _drifted(truth, yaw_per_step=0.002)
+    scans = _scans_of(_square_world(rng), truth)
+    params = LoopParams(max_search_m=1.0, global_every=5, global_per_m=0.15, backend="scipy")
+    assert np.hypot(*(odo[160, :2] - odo[0, :2])) > 2 * params.max_search_m
+    local = close_loops(scans, odo, replace(params, global_every=0))
+    assert local.counts["accepted"] == 0
+    found = close_loops(scans, odo, params)
+    accepted = [c for c in found.closures if c.T_j_i is not None and not c.kernel_rejected]
+    assert any(c.wide and c.window_m > params.max_search_m for c in accepted)  # the global search's
+    for c in accepted:  # each closure is the truth's relative pose
+        true = relative(truth[[c.j]], truth[[c.i]])[0]
+        assert np.hypot(*(c.T_j_i[:2] - true[:2])) < 0.05
+        assert abs(c.T_j_i[2] - true[2]) < 0.02
+    end = float(np.hypot(*(found.poses[-1, :2] - truth[-1, :2])))
+    assert end < 0.25 * float(np.hypot(*(odo[-1, :2] - truth[-1, :2])))
+
+
+def test_the_global_search_rejects_a_false_candidate(rng):
+    # The poses put keyframe i (the square's third corner) next to j (its first): the
+    # coarse-to-fine search over the whole window finds no match that passes the test.
+    truth = _square()
+    scans = _scans_of(_square_world(rng), truth)
+    est = truth.copy()
+    i, j = 80, 5
+    est[i - 40 : i + 1] = compose(
+        np.repeat(truth[j][None], 41, 0), relative(np.repeat(truth[i][None], 41, 0), truth[i - 40 : i + 1])
+    )
+    along = path_along(truth)
+    params = LoopParams(backend="scipy")
+    c = verify(scans, est, along, i, j, 10.0, params.global_rad, params, coarse=True)
+    assert c.T_j_i is None
+    assert c.why_not
+
+
+def test_step_drift_adds_the_search_windows_drift_model_to_the_steps_own_covariances():
+    # Compounded over the steps, the added variance is the window's: (a L)^2-ish on x, b^2 L
+    # on yaw; the fit's own covariance is kept under it.
+    truth = _square()
+    n = len(truth) - 1
+    own = np.concatenate([np.full((1, 3, 3), np.nan), np.tile(np.diag([1e-6, 1e-6, 1e-8]), (n, 1, 1))])
+    params = LoopParams(step_drift=True)
+    plain = build_graph(truth, truth, [], n, replace(params, step_drift=False), own).covariances
+    drift = build_graph(truth, truth, [], n, params, own).covariances
+    assert plain is not None
+    assert drift is not None
+    step_m = 10.0 / 40
+    np.testing.assert_allclose(drift[:, 2, 2] - plain[:, 2, 2], params.drift_rad_per_sqrt_m**2 * step_m)
+    np.testing.assert_allclose(drift[:, 0, 0] - plain[:, 0, 0], (params.drift_per_m * step_m) ** 2)
+    np.testing.assert_allclose(drift[:, 0, 1], plain[:, 0, 1])
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [{"global_every": -1}, {"global_candidates": 0}, {"global_grid_m": 0.0}, {"global_yaw_step_rad": -0.1}],
+)
+def test_the_global_search_settings_are_checked(bad):
+    with pytest.raises(ValueError, match="global"):
+        LoopParams(**bad)

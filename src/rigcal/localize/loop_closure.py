@@ -16,6 +16,15 @@ starts from a map whose earlier loops are already closed:
    ``n_sigma``, plus ``search_m``, at most ``max_search_m`` / ``max_search_rad``. L is
    the shortest path between them in the graph, where an accepted closure is a short cut:
    once a loop is closed, the places it joined are close in the graph again.
+1b. **Global search** (with ``global_every`` > 0; off by default). A keyframe whose local
+   search proposed nothing or failed the verification, at most every ``global_every``
+   keyframes and not within as many of the last closure, searches the earlier keyframes
+   beyond their window but within ``search_m`` plus ``global_per_m`` of the graph path (at
+   most ``max_global_m``), nearest first, at most ``global_candidates``
+   (:func:`global_search`), each by a coarse-to-fine correlative search over the submap
+   (:func:`coarse_to_fine_match`, ``global_grid_m``, ``global_yaw_step_rad``, within
+   ``global_rad``), then step 2's fit and test; the robust kernel (step 3) catches what
+   that lets through.
 2. **Verification.** Keyframe i is matched to the submap of j (the scans within
    ``submap_m`` of path of j, moved into j's frame by the current poses). First i's
    context (its scan and those of the 2 ``submap_m`` of path before it, placed by the
@@ -33,17 +42,18 @@ starts from a map whose earlier loops are already closed:
    at least ``min_inliers`` of the scan's points as inliers with an RMS below
    ``max_rms_m``; and the scans constrain every direction (degeneracy indicator above
    ``min_degeneracy``: a corridor's length is not a closure).
-3. **Pose graph.** The odometry steps between consecutive poses and the accepted
-   closures (under the Cauchy kernel) are the edges (:mod:`rigcal.localize.pose_graph`,
-   on scipy or GTSAM), each with a full covariance: a closure's from its ICP fit's
-   Hessian (:func:`closure_covariance`, ``closure_sigmas`` where the fit has too few
-   pairs), a step's the odometry's own where given (``step_covariances``: the laser
-   odometry's over the step and the step's departure from it,
-   :func:`step_covariances`), else 1-sigma ``step_sigmas`` plus ``step_sigma_per_m`` per
-   metre of step. A precise odometry is then not bent by a coarser closure. A closure that disagrees with
-   the current poses by more than ``reoptimise_whitened`` (whitened) corrects them at
-   once (the graph up to keyframe i; the later poses follow it rigidly); the whole graph
-   is optimised at the end, and a closure whose whitened residual stays above
+3. **Pose graph.** The odometry steps between consecutive poses and the accepted closures
+   (under the Cauchy kernel) are the edges (:mod:`rigcal.localize.pose_graph`, on scipy or
+   GTSAM), each with a full covariance: a closure's from its ICP fit's Hessian
+   (:func:`closure_covariance`, ``closure_sigmas`` where the fit has too few pairs), a
+   step's the odometry's own where given (``step_covariances``: the laser odometry's over
+   the step and the step's departure from it, :func:`step_covariances`; with
+   ``step_drift`` plus step 1's drift model over the step: (a l)^2 on x and y, b^2 l on
+   yaw), else 1-sigma ``step_sigmas`` plus ``step_sigma_per_m`` per metre of step. A
+   precise odometry is then not bent by a coarser closure. A closure that disagrees with
+   the current poses by more than ``reoptimise_whitened`` (whitened) corrects them at once
+   (the graph up to keyframe i; the later poses follow it rigidly); the whole graph is
+   optimised at the end, and a closure whose whitened residual stays above
    ``reject_whitened`` there contradicts the others and is reported as rejected by the
    kernel.
 """
@@ -108,6 +118,14 @@ class LoopParams:
     closure_floor_sigmas: tuple[float, float, float] = (0.002, 0.002, 0.0005)
     reoptimise_whitened: float = 3.0
     reject_whitened: float = 5.0
+    global_every: int = 0  # off: on Killian it did not help (docs/benchmarks.md, round 4)
+    global_per_m: float = 0.05
+    max_global_m: float = 40.0
+    global_rad: float = 0.6
+    global_candidates: int = 3
+    global_grid_m: float = 0.4
+    global_yaw_step_rad: float = 0.02
+    step_drift: bool = False
     backend: str = "auto"
 
     def __post_init__(self) -> None:
@@ -118,6 +136,10 @@ class LoopParams:
                 raise ValueError(f"{name} must be positive")
         if self.coarse < 1 or self.match_points < 3:
             raise ValueError("coarse must be at least 1 and match_points at least 3")
+        if self.global_every < 0 or self.global_candidates < 1:
+            raise ValueError("global_every must be at least 0 and global_candidates at least 1")
+        if not (self.global_grid_m > 0 and self.global_yaw_step_rad > 0):
+            raise ValueError("global_grid_m and global_yaw_step_rad must be positive")
 
     @property
     def pose_graph(self) -> str:
@@ -132,7 +154,8 @@ class Closure:
     """A proposed closure: keyframe scan i matched to scan j; T_j_i (x, y, yaw) when it
     passed the verification, and why not otherwise. ``score``: the correlative search's
     best score; ``window_m``: the translation window it searched; ``covariance`` (3, 3):
-    T_j_i's, from the ICP fit's Hessian (:func:`closure_covariance`)."""
+    T_j_i's, from the ICP fit's Hessian (:func:`closure_covariance`); ``wide``: proposed
+    by the global search (module docstring, step 1b)."""
 
     i: int
     j: int
@@ -144,6 +167,7 @@ class Closure:
     score: float = float("nan")
     window_m: float = float("nan")
     covariance: FloatArray | None = None
+    wide: bool = False
 
 
 @dataclass(frozen=True)
@@ -189,6 +213,7 @@ def close_loops(
     closures: list[Closure] = []
     short_cuts: list[tuple[int, int]] = []  # keyframe positions joined by a closure
     position = {int(k): a for a, k in enumerate(keys)}
+    last_found, last_global = 0, 0  # keyframe positions of the last closure and global search
     for a, i in enumerate(keys):
         earlier = keys[:a][along[i] - along[keys[:a]] >= params.min_loop_m]
         if not len(earlier):
@@ -197,15 +222,21 @@ def close_loops(
         window_m, window_rad = search_window(path, params)
         d = np.hypot(*(est[earlier, :2] - est[i, :2]).T)
         near = np.flatnonzero(d <= window_m)
-        if not len(near):
+        closure = None
+        if len(near):
+            c = near[np.argmin(d[near])]
+            j = int(earlier[c])
+            closure = verify(points, est, along, int(i), j, float(window_m[c]), float(window_rad[c]), params)
+            closures.append(closure)
+        if (closure is None or closure.T_j_i is None) and _global_due(a, last_found, last_global, params):
+            last_global = a
+            tried = global_search(points, est, along, int(i), earlier, d, window_m, path, params)
+            closures.extend(tried)
+            closure = tried[-1] if tried else None
+        if closure is None or closure.T_j_i is None:
             continue
-        c = near[np.argmin(d[near])]
-        j = int(earlier[c])
-        closure = verify(points, est, along, int(i), j, float(window_m[c]), float(window_rad[c]), params)
-        closures.append(closure)
-        if closure.T_j_i is None:
-            continue
-        short_cuts.append((a, position[j]))
+        last_found = a
+        short_cuts.append((a, position[closure.j]))
         accepted = [x for x in closures if x.T_j_i is not None]
         innovation = _whitened(est, [closure], params)[0]
         if innovation > params.reoptimise_whitened:
@@ -278,9 +309,13 @@ def verify(
     window_m: float,
     window_rad: float,
     params: LoopParams,
+    *,
+    coarse: bool = False,
 ) -> Closure:
     """Match scan i to scan j's submap within the window; the closure T_j_i when the fit
-    passes the test (module docstring, step 2). ``scans``: each pose's valid returns (P, 2)."""
+    passes the test (module docstring, step 2). ``scans``: each pose's valid returns (P, 2).
+    ``coarse``: search the window coarse to fine (:func:`coarse_to_fine_match`, the
+    global search) instead of by :func:`correlative_match`."""
     submap = local_map(scans, poses, j, np.flatnonzero(np.abs(along - along[j]) <= params.submap_m), params)
     # The search matches keyframe i's context: its scan and those of the last 2 x submap_m
     # of path before it (the odometry is locally right), so that a corridor's repeated
@@ -293,9 +328,8 @@ def verify(
         return Closure(i, j, None, why_not="too few returns", window_m=window_m)
     guess = relative(poses[j][None], poses[i][None])[0]
     stride = max(1, int(np.ceil(len(context) / params.match_points)))
-    start, score, elsewhere = correlative_match(
-        submap, context[::stride], guess, window_m, window_rad, params
-    )
+    match = coarse_to_fine_match if coarse else correlative_match
+    start, score, elsewhere = match(submap, context[::stride], guess, window_m, window_rad, params)
     if score < params.min_score:
         return Closure(
             i, j, None, why_not=f"score {score:.2f} < {params.min_score:g}", score=score, window_m=window_m
@@ -303,6 +337,16 @@ def verify(
     if elsewhere > params.max_ambiguity * score:
         why = f"ambiguous (score {elsewhere:.2f} {params.ambiguity_m:g} m away, {score:.2f} at best)"
         return Closure(i, j, None, why_not=why, score=score, window_m=window_m)
+    return fitted(submap, data, start, Closure(i, j, None, score=score, window_m=window_m), params)
+
+
+def fitted(
+    submap: FloatArray, data: FloatArray, start: FloatArray, proposal: Closure, params: LoopParams
+) -> Closure:
+    """The proposal with scan ``data`` (P, 2) fitted to the ``submap`` (M, 2) by
+    point-to-line ICP from the search's match ``start`` (x, y, yaw), accepted when the fit
+    passes the test (module docstring, step 2), with its covariance."""
+    i, j, score, window_m = proposal.i, proposal.j, proposal.score, proposal.window_m
     res = icp(submap, data, initial=start, params=IcpParams(method="point-to-line"))
     slid = float(np.hypot(*(res.pose[:2] - start[:2])))
     if slid > params.max_refine_m:
@@ -318,6 +362,120 @@ def verify(
         fit = (res.inlier_fraction, res.rms_m)
         return Closure(i, j, res.pose, *fit, score=score, window_m=window_m, covariance=cov)
     return Closure(i, j, None, res.inlier_fraction, res.rms_m, why, score=score, window_m=window_m)
+
+
+def _global_due(a: int, last_found: int, last_global: int, params: LoopParams) -> bool:
+    """Whether keyframe position ``a``, whose local search found nothing, runs the global
+    search: at most every ``global_every`` keyframes, and not within ``global_every`` of
+    the last closure found (the local search is then still on track)."""
+    every = params.global_every
+    return every > 0 and a - last_found >= every and a - last_global >= every
+
+
+def global_search(
+    scans: Sequence[FloatArray],
+    poses: FloatArray,
+    along: FloatArray,
+    i: int,
+    earlier: NDArray[np.intp],
+    dist_m: FloatArray,
+    window_m: FloatArray,
+    path_m: FloatArray,
+    params: LoopParams,
+) -> list[Closure]:
+    """The global search for keyframe i when the local one found nothing (module
+    docstring, step 1b): the earlier keyframes ``earlier`` beyond their local window
+    (``window_m``, at ``dist_m`` from i by the poses) but within ``search_m`` plus
+    ``global_per_m`` of the graph path ``path_m`` (at most ``max_global_m``), nearest
+    first, at most ``global_candidates`` of them ``2 submap_m`` of path apart, are each
+    matched by :func:`coarse_to_fine_match` and verified; the closures tried, the last the
+    accepted one if any."""
+    reach = np.minimum(params.search_m + params.global_per_m * path_m, params.max_global_m)
+    far = np.flatnonzero((dist_m > window_m) & (dist_m <= reach))
+    picked: list[int] = []
+    for c in far[np.argsort(dist_m[far])]:
+        if all(abs(along[earlier[c]] - along[earlier[p]]) >= 2 * params.submap_m for p in picked):
+            picked.append(int(c))
+        if len(picked) == params.global_candidates:
+            break
+    out = []
+    for c in picked:
+        closure = verify(
+            scans, poses, along, i, int(earlier[c]), float(reach[c]), params.global_rad, params, coarse=True
+        )
+        out.append(replace(closure, wide=True))
+        if closure.T_j_i is not None:
+            break
+    return out
+
+
+def coarse_to_fine_match(
+    model: FloatArray,
+    data: FloatArray,
+    guess: FloatArray,
+    window_m: float,
+    window_rad: float,
+    params: LoopParams,
+) -> tuple[FloatArray, float, float]:
+    """:func:`correlative_match` over a wide window, coarse to fine: every pose on a
+    ``global_grid_m`` / ``global_yaw_step_rad`` grid within ``window_m`` / ``window_rad``
+    of ``guess`` whose position lies on the model (its bounding box plus ``submap_m``)
+    is scored against the model's likelihood at the coarse cell size (Olson 2009's
+    multi-resolution search); the best is refined by :func:`correlative_match` within two
+    coarse cells and yaw steps, and so is the best coarse pose farther than
+    ``ambiguity_m`` from it. Returns the pose, its fine score and the best fine score
+    farther than ``ambiguity_m`` from it."""
+    R = params.global_grid_m
+    lo_m = model.min(axis=0) - params.submap_m
+    hi_m = model.max(axis=0) + params.submap_m
+    lo_t = np.maximum(guess[:2] - window_m, lo_m)
+    hi_t = np.minimum(guess[:2] + window_m, hi_m)
+    if np.any(hi_t <= lo_t):
+        return guess.copy(), 0.0, 0.0
+    like, lo, hi = likelihood_grid(model, R, 1)
+    n_y = int(np.ceil(window_rad / params.global_yaw_step_rad))
+    yaws = guess[2] + np.arange(-n_y, n_y + 1) * params.global_yaw_step_rad
+    c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
+    qx = c * data[:, 0] - s * data[:, 1] + lo_t[0]
+    qy = s * data[:, 0] + c * data[:, 1] + lo_t[1]
+    bases = np.stack([np.floor((qx - lo[0]) / R), np.floor((qy - lo[1]) / R)]).astype(np.int64)
+    su = np.arange(int(np.ceil((hi_t[0] - lo_t[0]) / R)) + 1, dtype=np.int64)
+    sv = np.arange(int(np.ceil((hi_t[1] - lo_t[1]) / R)) + 1, dtype=np.int64)
+    scores = _block_scores(like, bases[0], bases[1], su, sv, int(hi[0]), int(hi[1]))  # (Y, U, V)
+    y, u, v = np.unravel_index(np.argmax(scores), scores.shape)
+    if scores[y, u, v] <= 0.0:
+        return guess.copy(), 0.0, 0.0
+    # The best coarse pose farther than ambiguity_m is refined too: the coarse scores are
+    # smooth, so the fine scores of the two decide whether the match is ambiguous.
+    uu, vv = np.meshgrid(su, sv, indexing="ij")
+    away = np.hypot(uu - u, vv - v) * R > params.ambiguity_m
+
+    def refined(y: int, u: int, v: int) -> tuple[FloatArray, float, float]:
+        start = np.array([lo_t[0] + u * R, lo_t[1] + v * R, yaws[y]])
+        return correlative_match(model, data, start, 2 * R, 2 * params.global_yaw_step_rad, params)
+
+    pose, score, elsewhere = refined(int(y), int(u), int(v))
+    if away.any():
+        masked = np.where(away[None], scores, -1.0)
+        y2, u2, v2 = np.unravel_index(np.argmax(masked), masked.shape)
+        other, other_score, _ = refined(int(y2), int(u2), int(v2))
+        if np.hypot(*(other[:2] - pose[:2])) > params.ambiguity_m:
+            elsewhere = max(elsewhere, other_score)
+    return pose, score, elsewhere
+
+
+def likelihood_grid(model: FloatArray, r: float, pad: int) -> tuple[FloatArray, FloatArray, NDArray[np.int_]]:
+    """The model's (M, 2) likelihood grid of cell ``r``: exp(-d^2 / 2 r^2), d the distance
+    to the nearest occupied cell (Olson 2009), 0 on a border of ``pad`` cells; its lower
+    corner (2,) and last cell index (2,)."""
+    lo = model.min(axis=0) - pad * r
+    shape = tuple(np.ceil((model.max(axis=0) + pad * r - lo) / r).astype(int) + 1)
+    occupied = np.zeros(shape, dtype=bool)
+    cells = np.floor((model - lo) / r).astype(int)
+    occupied[cells[:, 0], cells[:, 1]] = True
+    like = np.exp(-0.5 * distance_transform_edt(~occupied) ** 2)
+    like[:pad], like[-pad:], like[:, :pad], like[:, -pad:] = 0.0, 0.0, 0.0, 0.0
+    return like, lo, np.array(shape) - 1
 
 
 def local_map(
@@ -355,14 +513,7 @@ def correlative_match(
     ``ambiguity_m`` from it. Branch and bound over one coarse level (module docstring).
     ``kernel=False`` scores the shifts with numpy (the compiled kernel's reference)."""
     r, k = params.grid_m, params.coarse
-    pad = k + 1
-    lo = model.min(axis=0) - pad * r
-    shape = tuple(np.ceil((model.max(axis=0) + pad * r - lo) / r).astype(int) + 1)
-    occupied = np.zeros(shape, dtype=bool)
-    cells = np.floor((model - lo) / r).astype(int)
-    occupied[cells[:, 0], cells[:, 1]] = True
-    like = np.exp(-0.5 * distance_transform_edt(~occupied) ** 2)
-    like[:pad], like[-pad:], like[:, :pad], like[:, -pad:] = 0.0, 0.0, 0.0, 0.0
+    like, lo, hi = likelihood_grid(model, r, k + 1)
     # Block (u, v) of the coarse grid holds the best fine cell among u..u+k-1, v..v+k-1:
     # an upper bound of the score of any shift inside the block.
     bound = maximum_filter(like, size=k, origin=-(k // 2), mode="constant")
@@ -370,7 +521,6 @@ def correlative_match(
     shifts = np.arange(-n_t, n_t, dtype=np.int64) * k  # coarse blocks, in fine cells
     n_y = int(np.ceil(window_rad / params.yaw_step_rad))
     yaws = guess[2] + np.arange(-n_y, n_y + 1) * params.yaw_step_rad
-    hi = np.array(shape) - 1
     c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
     qx = c * data[:, 0] - s * data[:, 1] + guess[0]  # (Y, P) the points at each yaw
     qy = s * data[:, 0] + c * data[:, 1] + guess[1]
@@ -535,6 +685,16 @@ def build_graph(
     covariances = None
     if step_covariances is not None or any(c.covariance is not None for c in closures):
         own = np.full((last, 3, 3), np.nan) if step_covariances is None else step_covariances[1 : last + 1]
+        if params.step_drift:
+            # The drift the search window assumes (step 1), per step: a scale error
+            # drift_per_m and a heading random walk drift_rad_per_sqrt_m, which the fit's
+            # own covariance does not see; compounded over L metres they give the window's
+            # position and heading sigmas.
+            a, b = params.drift_per_m, params.drift_rad_per_sqrt_m
+            drift = np.zeros((last, 3, 3))
+            drift[:, 0, 0] = drift[:, 1, 1] = (a * length) ** 2
+            drift[:, 2, 2] = b**2 * length
+            own = own + drift
         fixed = np.diag(np.square(params.closure_sigmas))
         of_closures = [fixed if c.covariance is None else c.covariance for c in closures]
         covariances = np.concatenate([own, np.array(of_closures).reshape(-1, 3, 3)])
