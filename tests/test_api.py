@@ -139,9 +139,12 @@ def test_solve_board_in_memory_equals_the_file_solve_and_the_command_line(tmp_pa
     np.testing.assert_array_equal(mem.rig.T_cam_laser, from_file.rig.T_cam_laser)
     np.testing.assert_array_equal(mem.rig.covariance, from_file.rig.covariance)
     # The same report, but for the note on the camera's uncertainty, which names the camera
-    # file where there is one (the in-memory camera has none).
+    # file where there is one (the in-memory camera has none), and each capture's count of
+    # scans, which only a capture read from scan files has (one scan each here).
     mem_doc, file_doc = plain(mem.report), plain(from_file.report)
     mem_cam, file_cam = mem_doc["uncertainty"].pop("camera"), file_doc["uncertainty"].pop("camera")
+    assert [c.pop("scans") for c in file_doc["per_capture"]] == [1] * len(caps)
+    assert not any("scans" in c for c in mem_doc["per_capture"])
     assert mem_doc == file_doc
     assert mem_cam["included"] is file_cam["included"] is False
     assert "camera.yaml" in file_cam["note"]
@@ -156,8 +159,10 @@ def test_solve_board_in_memory_equals_the_file_solve_and_the_command_line(tmp_pa
     assert cli["rig"]["covariance"] == mem.rig.covariance.tolist()
     assert cli["uncertainty"]["camera"] == file_cam
     assert cli["uncertainty"] == mem_doc["uncertainty"] | {"camera": file_cam}
-    for key in ("summary", "noise", "per_capture", "warnings"):
+    for key in ("summary", "noise", "warnings"):
         assert cli[key] == plain(mem.report[key]), key
+    assert [c.pop("scans") for c in cli["per_capture"]] == [1] * len(caps)
+    assert cli["per_capture"] == mem_doc["per_capture"]
     # --noise assumed and --no-range-bias, from the API.
     fixed = rigcal.solve_board(caps, camera, board, range_sigma_m=sigma, noise="assumed", range_bias=False)
     assert fixed.rig.provenance["noise"]["mode"] == "assumed"
