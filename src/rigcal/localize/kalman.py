@@ -131,11 +131,12 @@ VO_OWN, VO_SHARED = shared_error_fractions(VO_VARIANCE_RATIO, VO_LAG1)
 # this (chi-square, 3 degrees of freedom, 0.999) is left out (``KfParams.gate``): a wrong
 # scale or track set.
 VO_GATE = 16.27
-# The same test on the last VO_WINDOW runs' distances summed (chi-square, 3 x VO_WINDOW
-# degrees of freedom, 0.999; ``KfParams.gate_window``): runs each within the gate that err
-# together. The window spans the runs whose errors correlate (lags 1-3 on laps 1-2).
+# The same test on the last VO_WINDOW runs' distances summed (``KfParams.gate_window``;
+# the chi-square point of 3 x VO_WINDOW degrees of freedom at the single gate's tail,
+# 32.91 for 4 runs, derived in :func:`run_filter` from ``gate``): runs each within the
+# gate that err together. The window spans the runs whose errors correlate (lags 1-3 on
+# laps 1-2).
 VO_WINDOW = 4
-VO_WINDOW_GATE = 32.91
 # VO is fused only along directions where the filter's own prediction of the run's motion
 # is less certain than the run (generalised eigenvalue above this; ``KfParams.vo_weak_only``).
 VO_WEAK_ONLY = 1.0
