@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 from rigcal.geometry import (
     R_to_rotvec,
     inv_T,
+    line_intersection,
     make_T,
     pose_error,
     pose_of,
@@ -162,3 +163,21 @@ def test_se2_and_pose_of_round_trip(x, y, yaw):
     p = pose_of(T)
     assert np.allclose(p[:2], [x, y])
     assert abs(math.remainder(p[2] - yaw, 2 * math.pi)) < 1e-12
+
+
+def test_line_intersection_meets_both_lines_and_refuses_parallel_ones():
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        p, q = rng.normal(size=2), rng.normal(size=2)
+        a, b = rng.uniform(0, np.pi, 2)
+        u, v = np.array([np.cos(a), np.sin(a)]), np.array([np.cos(b), np.sin(b)])
+        x = line_intersection(p, u, q, v)
+        if abs(np.sin(a - b)) < 1e-6:
+            assert x is None
+            continue
+        assert x is not None
+        for c, d in ((p, u), (q, v)):  # on each line: no part across it
+            assert abs((x - c)[0] * d[1] - (x - c)[1] * d[0]) < 1e-9 * max(1.0, float(np.abs(x).max()))
+    u = np.array([1.0, 0.0])
+    assert line_intersection(np.zeros(2), u, np.ones(2), u) is None
+    assert line_intersection(np.zeros(2), u, np.ones(2), np.array([1.0, 1e-7]), parallel_below=1e-6) is None

@@ -28,6 +28,20 @@ def pose_of(M: FloatArray) -> FloatArray:
     return np.array([M[0, 2], M[1, 2], np.arctan2(M[1, 0], M[0, 0])])
 
 
+def line_intersection(
+    p: FloatArray, u: FloatArray, q: FloatArray, v: FloatArray, parallel_below: float = 1e-6
+) -> FloatArray | None:
+    """(2,) where the plane's lines p + s u and q + t v cross; None when |u x v| is below
+    ``parallel_below`` (nearly parallel; u and v unit directions)."""
+    den = u[0] * v[1] - u[1] * v[0]
+    if abs(den) < parallel_below:
+        return None
+    d = q - p
+    s = (d[0] * v[1] - d[1] * v[0]) / den
+    out: FloatArray = p + s * u
+    return out
+
+
 def make_T(R: ArrayLike, t: ArrayLike) -> FloatArray:
     """Homogeneous 4x4 transform from a (3, 3) rotation and a (3,) translation."""
     T = np.eye(4)

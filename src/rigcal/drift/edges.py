@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray, IntArray
+from rigcal.geometry import line_intersection
 from rigcal.lines import Segment
 from rigcal.scan import Scan
 
@@ -79,7 +80,7 @@ def scan_discontinuities(scan: Scan, segments: list[Segment]) -> FloatArray:
         if np.linalg.norm(a.end - b.start) <= MAX_CORNER_GAP_M and cos <= math.cos(
             math.radians(MIN_CORNER_DEG)
         ):
-            p = _intersect(a.centroid, a.direction, b.centroid, b.direction)
+            p = line_intersection(a.centroid, a.direction, b.centroid, b.direction)
             if (
                 p is not None
                 and min(np.linalg.norm(p - a.end), np.linalg.norm(p - b.start)) <= MAX_CORNER_GAP_M
@@ -92,21 +93,10 @@ def scan_discontinuities(scan: Scan, segments: list[Segment]) -> FloatArray:
                 continue
             mid = 0.5 * (scan.angles_rad[beam] + scan.angles_rad[nb])
             ray = np.array([math.cos(mid), math.sin(mid)])
-            p = _intersect(np.zeros(2), ray, s.centroid, s.direction)
+            p = line_intersection(np.zeros(2), ray, s.centroid, s.direction)
             if p is not None and np.linalg.norm(p - end) <= 0.1:
                 out.append(p)
     return np.array(out).reshape(-1, 2)
-
-
-def _intersect(p: FloatArray, u: FloatArray, q: FloatArray, v: FloatArray) -> FloatArray | None:
-    """The point where the lines p + s u and q + s v meet (None when nearly parallel)."""
-    den = u[0] * v[1] - u[1] * v[0]
-    if abs(den) < 1e-6:
-        return None
-    d = q - p
-    s = (d[0] * v[1] - d[1] * v[0]) / den
-    out: FloatArray = p + s * u
-    return out
 
 
 def band_points(feet: FloatArray) -> FloatArray:

@@ -50,6 +50,7 @@ from rigcal.calib.box.picks import (
 from rigcal.calib.marker.detect import MIN_FACE_CORNERS, TargetView, detect_target
 from rigcal.camera import Camera
 from rigcal.errors import CalibrationError, InputError
+from rigcal.geometry import line_intersection
 from rigcal.io.files import check_keys, get_float
 from rigcal.lines import LineParams, fit_line
 from rigcal.scan import Scan
@@ -640,11 +641,9 @@ def _meet(ca: FloatArray, ua: FloatArray, cb: FloatArray, ub: FloatArray) -> tup
     """Where two arms' lines (a point of the arm, the line's unit direction) cross in the
     plane, and the angle between the arms there (degrees, 0-180: from the crossing towards
     each arm's point); (None, 0) when parallel."""
-    A = np.column_stack([ua, -ub])
-    if abs(float(np.linalg.det(A))) < 1e-9:
+    apex = line_intersection(ca, ua, cb, ub, parallel_below=1e-9)
+    if apex is None:
         return None, 0.0
-    s = np.linalg.solve(A, cb - ca)
-    apex = ca + s[0] * ua
     a, b = ca - apex, cb - apex
     cos = float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12)
     return apex, float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
