@@ -193,6 +193,13 @@ class Streams:
                 self._laser_odometry = self._compute_laser_odometry()
         return self._laser_odometry
 
+    def use_laser_odometry(self, od: Odometry) -> None:
+        """Take ``od`` (one pose per scan, e.g. a trajectory computed before) as the laser
+        odometry instead of computing it."""
+        if len(od.poses) != len(self.scans):
+            raise ValueError(f"use_laser_odometry: {len(od.poses)} poses for {len(self.scans)} scans")
+        self._laser_odometry = od
+
     def start_laser_odometry(self) -> None:
         """Start the laser odometry on a second thread, so that it overlaps the image
         stages (feature tracking spends its time in OpenCV, which releases the
