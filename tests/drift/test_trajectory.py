@@ -126,6 +126,24 @@ def test_a_trajectory_that_does_not_cover_the_images_is_bad_input(drive, tmp_pat
     assert "expected a span covering the sequence's images" in err
 
 
+def test_a_trajectory_may_end_a_little_before_the_last_image(drive, tmp_path, capsys):
+    """`localize`'s icp trajectory ends at the last scan, a few milliseconds before the
+    last image at most: within 0.05 s the end segment's velocity carries it on."""
+    streams = open_streams(drive["drive"], rig_file=drive["rig"])
+    truth = read_tum(drive["truth"])
+    assert truth.stamps_s is not None
+    last = float(streams.image_stamps_s[-1])
+    keep = truth.stamps_s <= last - 0.03
+    near = written(tmp_path / "near.tum", Trajectory(truth.poses[keep], truth.stamps_s[keep]))
+    od = trajectory_odometry(near, streams)
+    full = trajectory_odometry(drive["truth"], streams)
+    assert np.abs(od.poses[:, :2] - full.poses[:, :2]).max() < 0.002
+    keep = truth.stamps_s <= last - 0.1
+    far = written(tmp_path / "far.tum", Trajectory(truth.poses[keep], truth.stamps_s[keep]))
+    err = _check_err(capsys, drive, far)
+    assert "to within 0.05 s" in err
+
+
 def test_stamps_out_of_order_are_bad_input(drive, tmp_path, capsys):
     lines = drive["truth"].read_text().splitlines()
     lines[10], lines[11] = lines[11], lines[10]

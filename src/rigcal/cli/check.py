@@ -90,7 +90,7 @@ def check(
     (IASM's projection, paper Section III); the correction is tested on the directions the
     drive observes, and those it does not are named with why. The laser's motion comes
     from the check's own laser odometry, or with --trajectory from a TUM file of the
-    laser's poses covering the drive's images (a `rigcal localize` run's; its stamps must
+    laser's poses covering the drive's images to within 0.05 s (a `rigcal localize` run's; its stamps must
     increase, with no gap over 0.5 s).
 
     Exit code 0 when the rig is ok, 1 when it has drifted, 6 when the drive cannot tell

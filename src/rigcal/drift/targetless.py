@@ -556,7 +556,7 @@ def _frame_grid(
     )
     # Texture: the grid's grey levels in image i under the stored T.
     qs = cam.project((X @ T0[:3, :3].T + T0[:3, 3]).reshape(-1, 3))
-    v = _sample(gray.astype(np.float32), qs).reshape(len(X), -1)
+    v = _sample_grey(gray, qs).reshape(len(X), -1)
     textured = np.nanstd(v, axis=1) >= s.min_texture
     X = X[textured]
     if len(X) == 0:
@@ -586,6 +586,21 @@ def _frame_edges(streams: Streams, i: int, T0: FloatArray, cam: Any, s: Targetle
     ok = (P[:, 2] > 0.2) & cam.in_image(q, margin_px=max(s.edge_window_px) + BAND_MARGIN_PX)
     out: FloatArray = feet[ok.reshape(len(feet), -1).any(axis=1)]
     return out
+
+
+def _sample_grey(gray: NDArray[np.uint8], q: FloatArray) -> FloatArray:
+    """:func:`_sample` of an 8-bit image at q, the image cut to the points' rows and
+    columns first (2 px around them: every pixel the bilinear reads) so that only those
+    are made float; the same values as sampling the whole image."""
+    ok = np.isfinite(q).all(axis=1)
+    if not ok.any():
+        return np.full(len(q), np.nan)
+    h, w = gray.shape
+    u0, v0 = np.clip(np.floor(q[ok].min(axis=0)).astype(int) - 2, 0, [w, h])
+    u1, v1 = np.clip(np.ceil(q[ok].max(axis=0)).astype(int) + 3, 0, [w, h])
+    if u1 - u0 < 2 or v1 - v0 < 2:
+        return _sample(gray.astype(np.float32), q)
+    return _sample(gray[v0:v1, u0:u1].astype(np.float32), q - [u0, v0])
 
 
 def _sample(img: NDArray[np.float32], q: FloatArray) -> FloatArray:

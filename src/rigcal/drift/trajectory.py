@@ -6,10 +6,10 @@ each (:mod:`rigcal.drift.targetless`, step 1). A TUM file of the laser's poses (
 with stamps, as ``localize`` writes for every method: ``icp`` at the scans' stamps, the
 image methods at the images') is interpolated at the sequence's scan stamps (x, y and the
 unwrapped yaw, linearly), which the check then reads as it reads its own odometry. The
-file must cover the sequence's images: the first image's stamp to the last's, with poses
-at most :data:`MAX_GAP_S` apart; the few scans just outside the file's span (a scan
-nearest the first image may come a few milliseconds before it) take the end segment's
-velocity.
+file must cover the sequence's images: the first image's stamp to the last's, to within
+:data:`MAX_EXTRAPOLATION_S` (``localize``'s ``icp`` trajectory ends at the last scan, which
+may come a few milliseconds before the last image), with poses at most :data:`MAX_GAP_S`
+apart; the stamps just outside the file's span take the end segment's velocity.
 
 A TUM file says nothing of where the laser odometry was degenerate (a featureless
 corridor), so no pair of frames is left out for it: reuse the trajectory of a method that
@@ -32,6 +32,9 @@ from rigcal.localize.streams import Streams
 MAX_GAP_S = 0.5
 """Poses further apart than this within the drive's images are a gap: the motion between
 them is not known."""
+MAX_EXTRAPOLATION_S = 0.05
+"""The file may end this much before the last image (or start after the first): the pose
+there is the end segment's, moved on at its velocity."""
 MAX_TILT_DEG = 5.0
 """A pose whose z axis tilts more than this from the world's is not a planar laser's (a
 camera's trajectory, whose z axis looks forward, is the usual mistake)."""
@@ -61,12 +64,13 @@ def trajectory_odometry(path: str | Path, streams: Streams) -> Odometry:
             f"the planar laser's poses (z up, within {MAX_TILT_DEG:g} deg), as `rigcal localize` writes them",
         )
     img = streams.image_stamps_s
-    if len(t) < 2 or t[0] > img[0] or t[-1] < img[-1]:
+    if len(t) < 2 or t[0] > img[0] + MAX_EXTRAPOLATION_S or t[-1] < img[-1] - MAX_EXTRAPOLATION_S:
         raise InputError.at(
             path,
             "stamps",
             f"{t[0]:.3f} to {t[-1]:.3f} s",
-            f"a span covering the sequence's images, {img[0]:.3f} to {img[-1]:.3f} s ({streams._yaml()})",
+            f"a span covering the sequence's images, {img[0]:.3f} to {img[-1]:.3f} s, to within "
+            f"{MAX_EXTRAPOLATION_S:g} s ({streams._yaml()})",
         )
     # The poses from the last at or before the first image to the first at or after the last.
     lo = max(int(np.searchsorted(t, img[0], side="right")) - 1, 0)
@@ -96,14 +100,14 @@ def _yaw(T: FloatArray) -> FloatArray:
 
 def _planar_at(t: FloatArray, planar: FloatArray, at: FloatArray) -> FloatArray:
     """(M, 3) planar poses (x, y, unwrapped yaw) at the times ``at``: linear between the
-    poses, the end segments' velocity for at most MAX_GAP_S beyond either end (held further
-    on, where the check never reads them)."""
+    poses, the end segments' velocity for at most MAX_EXTRAPOLATION_S beyond either end
+    (held further on, where the check never reads them)."""
     out = np.column_stack([np.interp(at, t, planar[:, a]) for a in range(3)])
     for end, nb, sign in ((0, 1, -1.0), (len(t) - 1, len(t) - 2, 1.0)):
         beyond = sign * (at - t[end]) > 0.0
         if beyond.any():
             v = (planar[end] - planar[nb]) / (t[end] - t[nb])
-            dt = np.clip(at[beyond] - t[end], -MAX_GAP_S, MAX_GAP_S)
+            dt = np.clip(at[beyond] - t[end], -MAX_EXTRAPOLATION_S, MAX_EXTRAPOLATION_S)
             out[beyond] = planar[end] + dt[:, None] * v
     result: FloatArray = out
     return result
