@@ -19,6 +19,16 @@ over the time) and as the check's time over the odometry's.
 
     .venv/bin/python benchmarks/bench_targetless_speed.py --world corridor-loop --length 60
     .venv/bin/python benchmarks/bench_targetless_speed.py --world cubicle-loop --length 30
+
+With ``--sequence DIR`` (a sequence folder with its rig, e.g. ``rigcal simulate world
+--duration-s 60``), the command itself instead: ``rigcal -q check DIR/rig.yaml --sequence
+DIR --no-log --json`` in a new process (starting Python, imports, loading the compiled
+kernels from their cache, reading the sequence, the check), without and with
+``--trajectory`` (the reference odometry written as a TUM file), each timed by the wall
+clock and the child process's CPU time, against the laser odometry of every scan of the
+same sequence in this process:
+
+    .venv/bin/python benchmarks/bench_targetless_speed.py --sequence /tmp/c60
 """
 
 from __future__ import annotations
@@ -26,6 +36,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -51,6 +64,65 @@ def reused(streams, path: Path):  # type: ignore[no-untyped-def]
     return check_targetless(streams.rig, streams, TargetlessSettings(scan_rate_hz=None))
 
 
+def command(argv: list[str]) -> tuple[dict, float, float]:  # type: ignore[type-arg]
+    """(the JSON printed, wall s, CPU s of the child) of ``rigcal ARGV``."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    done = subprocess.run(
+        [str(Path(sys.executable).parent / "rigcal"), "-q", *argv],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    if done.returncode not in (0, 1, 6):
+        raise SystemExit(done.stderr)
+    return json.loads(done.stdout), wall, cpu
+
+
+def main_command(seq: Path) -> None:
+    """The --sequence mode (module docstring)."""
+    streams = open_streams(seq)
+    dur = float(streams.image_stamps_s[-1] - streams.image_stamps_s[0])
+    load0 = os.getloadavg()[0]
+    _, icp_wall, icp_cpu = timed(streams.laser_odometry)
+    tum = Path(tempfile.mkdtemp()) / "trajectory.tum"
+    write_tum(tum, planar_trajectory(streams.scan_stamps_s, streams.laser_odometry().poses))
+    base = ["check", str(seq / "rig.yaml"), "--sequence", str(seq), "--no-log", "--json"]
+    rec, wall, cpu = command(base)
+    rec2, wall2, cpu2 = command([*base, "--trajectory", str(tum)])
+    row = {
+        "sequence": str(seq),
+        "drive_s": round(dur, 1),
+        "load": [round(load0, 1), round(os.getloadavg()[0], 1)],
+        "odometry_s": {"wall": round(icp_wall, 2), "cpu": round(icp_cpu, 2)},
+        "rigcal_check_s": {"wall": round(wall, 2), "cpu": round(cpu, 2), "verdict": rec["verdict"]},
+        "rigcal_check_trajectory_s": {
+            "wall": round(wall2, 2),
+            "cpu": round(cpu2, 2),
+            "verdict": rec2["verdict"],
+        },
+        "over_odometry": {
+            "check": {"wall": round(wall / icp_wall, 3), "cpu": round(cpu / icp_cpu, 3)},
+            "check_trajectory": {"wall": round(wall2 / icp_wall, 3), "cpu": round(cpu2 / icp_cpu, 3)},
+        },
+        "x_real_time_wall": {"check": round(dur / wall, 2), "check_trajectory": round(dur / wall2, 2)},
+        "corrections": {
+            "check": [
+                rec["targetless"].get("correction_rotation_deg"),
+                rec["targetless"].get("correction_translation_mm"),
+            ],
+            "check_trajectory": [
+                rec2["targetless"].get("correction_rotation_deg"),
+                rec2["targetless"].get("correction_translation_mm"),
+            ],
+        },
+    }
+    print(json.dumps(row, indent=1))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/rigcal-bench-targetless"))
@@ -58,7 +130,11 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--start-s", type=float, default=0.0)
     ap.add_argument("--length", type=float, default=60.0)
+    ap.add_argument("--sequence", type=Path, help="time `rigcal check` on this sequence folder instead")
     args = ap.parse_args()
+    if args.sequence is not None:
+        main_command(args.sequence)
+        return
     full = open_streams(drive(args.cache, args.world, args.seed))
     w = window(full, args.start_s, args.length)
     dur = float(w.scan_stamps_s[-1] - w.scan_stamps_s[0])
