@@ -21,8 +21,8 @@ over the time) and as the check's time over the odometry's.
     .venv/bin/python benchmarks/bench_targetless_speed.py --world cubicle-loop --length 30
 
 With ``--sequence DIR`` (a sequence folder with its rig, e.g. ``rigcal simulate world
---duration-s 60``), the command itself instead: ``rigcal -q check DIR/rig.yaml --sequence
-DIR --no-log --json`` in a new process (starting Python, imports, loading the compiled
+--duration-s 60``), the command itself instead: ``rigcal -q check RIG --sequence DIR --no-log
+--json`` (RIG a copy of DIR/rig.yaml) in a new process (starting Python, imports, loading the compiled
 kernels from their cache, reading the sequence, the check), without and with
 ``--trajectory`` (the reference odometry written as a TUM file), each timed by the wall
 clock and the child process's CPU time, against the laser odometry of every scan of the
@@ -88,9 +88,12 @@ def main_command(seq: Path) -> None:
     dur = float(streams.image_stamps_s[-1] - streams.image_stamps_s[0])
     load0 = os.getloadavg()[0]
     _, icp_wall, icp_cpu = timed(streams.laser_odometry)
-    tum = Path(tempfile.mkdtemp()) / "trajectory.tum"
+    tmp = Path(tempfile.mkdtemp())
+    tum = tmp / "trajectory.tum"
     write_tum(tum, planar_trajectory(streams.scan_stamps_s, streams.laser_odometry().poses))
-    base = ["check", str(seq / "rig.yaml"), "--sequence", str(seq), "--no-log", "--json"]
+    rig = tmp / "rig.yaml"  # outside the sequence (a check's outputs may not go inside an input)
+    rig.write_bytes((seq / "rig.yaml").read_bytes())
+    base = ["check", str(rig), "--sequence", str(seq), "--no-log", "--json"]
     rec, wall, cpu = command(base)
     rec2, wall2, cpu2 = command([*base, "--trajectory", str(tum)])
     row = {
