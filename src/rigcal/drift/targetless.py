@@ -591,7 +591,8 @@ def _frame_edges(streams: Streams, i: int, T0: FloatArray, cam: Any, s: Targetle
 def _sample_grey(gray: NDArray[np.uint8], q: FloatArray) -> FloatArray:
     """:func:`_sample` of an 8-bit image at q, the image cut to the points' rows and
     columns first (2 px around them: every pixel the bilinear reads) so that only those
-    are made float; the same values as sampling the whole image."""
+    are made float; the same values as sampling the whole image but for the float32
+    rounding of the shifted coordinates (under 0.01 grey level)."""
     ok = np.isfinite(q).all(axis=1)
     if not ok.any():
         return np.full(len(q), np.nan)
