@@ -273,6 +273,7 @@ def check_rig(
     picks: Path | None = None,
     session: Path | None = None,
     sequence: Path | None = None,
+    trajectory: Path | None = None,
     level: float = 0.01,
     min_captures: int = 5,
     log: Path | None = None,
@@ -284,7 +285,8 @@ def check_rig(
     """``rigcal check``: test the rig against one new box session (``picks``), board or
     box session (``session``) or drive (``sequence``); append the record to the drift log
     (``log``, by default beside the rig) unless ``no_log``, and draw the history with
-    ``plot``.
+    ``plot``. ``trajectory``: with ``sequence``, a TUM file of the laser's poses (a
+    ``rigcal localize`` run's) that the check uses instead of its own laser odometry.
 
     Raises:
         InputError: not exactly one of picks, session and sequence; a bad value or input.
@@ -302,18 +304,21 @@ def check_rig(
         level = LEVEL.check(level, None, "--level")
         min_captures = MIN_CAPTURES.check(min_captures, None, "--min-captures")
     kind_flag, source = given[0]
+    if trajectory is not None and kind_flag != "--sequence":
+        raise InputError.at(None, "--trajectory", str(trajectory), "a drive's check: give it with --sequence")
+    inputs = [rig, source, *([trajectory] if trajectory is not None else [])]
     log = log or default_log_path(rig)
-    check_apart(log, [rig, source])
+    check_apart(log, inputs)
     if (plot is not None or not no_log) and log.is_dir():  # an output where a file goes: exit 5
         raise OutputError(f"{log}: is a folder; expected the drift log's file path (--log)")
     if plot is not None:
         from rigcal.viz.charts import check_chart_name
 
-        check_writable(plot, force, [rig, source, log])
+        check_writable(plot, force, [*inputs, log])
         check_chart_name(plot)
     stored = read_rig(rig)
     if kind_flag == "--sequence":
-        record = _targetless(rig, stored, source, level, progress)
+        record = _targetless(rig, stored, source, trajectory, level, progress)
     else:
         record = _with_target(rig, stored, source, kind_flag, level, min_captures)
     # The plot (the history and this check) first: a failure there leaves the log as it was.
@@ -355,18 +360,32 @@ def _with_target(
 
 
 def _targetless(
-    rig_path: Path, stored: Rig, sequence: Path, level: float, progress: Progress | None
+    rig_path: Path,
+    stored: Rig,
+    sequence: Path,
+    trajectory: Path | None,
+    level: float,
+    progress: Progress | None,
 ) -> dict[str, Any]:
-    """A drive's targetless check record."""
+    """A drive's targetless check record (with ``trajectory``: its laser motion from that
+    TUM file instead of the check's own odometry)."""
+    import dataclasses
+
     from rigcal.drift.log import targetless_record
     from rigcal.drift.targetless import TargetlessSettings, check_targetless, same_camera
+    from rigcal.drift.trajectory import trajectory_odometry
     from rigcal.localize.streams import open_streams
 
     streams = open_streams(sequence, rig_file=rig_path)
     same_camera(stored, streams, rig_path)
     streams.progress = progress
-    result = check_targetless(stored, streams, TargetlessSettings(level=level))
-    return targetless_record(result, sequence)
+    streams.odometry_covariance = False  # the check uses the odometry's poses only
+    settings = TargetlessSettings(level=level)
+    if trajectory is not None:
+        streams.use_laser_odometry(trajectory_odometry(trajectory, streams))
+        settings = dataclasses.replace(settings, scan_rate_hz=None)  # every scan's pose is known
+    result = check_targetless(stored, streams, settings)
+    return targetless_record(result, sequence, trajectory)
 
 
 @dataclass(frozen=True)

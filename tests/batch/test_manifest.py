@@ -203,3 +203,19 @@ def test_check_items_take_drives_and_board_sessions(tmp_path, monkeypatch):
     a, b = read_manifest(manifest)
     assert (a.name, b.name) == ("fleet_r01_drive", "r02_board_session")
     assert "--session" in b.argv(tmp_path)
+
+
+def test_a_drives_check_takes_a_trajectory(tmp_path):
+    p = write(
+        tmp_path,
+        {
+            "schema_version": 1,
+            "command": "check",
+            "items": [{"rig": "rig.yaml", "sequence": "d1", "trajectory": "runs/d1/kf/trajectory.tum"}],
+        },
+    )
+    (item,) = read_manifest(p)
+    assert item.options["trajectory"] == tmp_path / "runs/d1/kf/trajectory.tum"
+    assert item.argv(tmp_path / "out")[2:6] == [
+        "--sequence", str(tmp_path / "d1"), "--trajectory", str(tmp_path / "runs/d1/kf/trajectory.tum"),
+    ]  # fmt: skip

@@ -102,3 +102,37 @@ def test_a_band_of_rows_reads_as_the_whole_image_inside_it_and_nan_outside(down)
     v = (q[:, 1] if down == 1 else (q[:, 1] - 0.5) / down) - row0
     expect = np.isfinite(whole[0]) & (v >= 1.0) & (v <= rows - 2.0)
     np.testing.assert_array_equal(inside, expect)
+
+
+def test_grey_levels_at_points_of_an_image_cut_to_them_are_the_whole_images():
+    """The texture test's samples (targetless._sample_grey) read the image cut to the
+    points: the same NaN outside the image and the same levels (to the float32 rounding of
+    the coordinates) as reading it whole."""
+    from rigcal.drift.targetless import _sample, _sample_grey
+
+    rng = np.random.default_rng(3)
+    gray = rng.integers(0, 256, (480, 640)).astype(np.uint8)
+    for trial in range(200):
+        q = rng.uniform([-5, -5], [645, 485]) + rng.normal(
+            0.0, rng.uniform(0.5, 60.0), (rng.integers(1, 50), 2)
+        )
+        if trial % 7 == 0:
+            q[0] = np.nan
+        whole, cut = _sample(gray.astype(np.float32), q), _sample_grey(gray, q)
+        np.testing.assert_array_equal(np.isnan(cut), np.isnan(whole))
+        np.testing.assert_allclose(cut[~np.isnan(cut)], whole[~np.isnan(whole)], atol=0.01, rtol=0.0)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_many_points_sampled_in_two_halves_side_by_side_read_as_in_one_pass(monkeypatch, compiled):
+    cam = CAMERAS["opencv5"]
+    T = default_T_cam_laser()
+    pts, stack, which = problem(1, 5001)
+    if not compiled:
+        monkeypatch.setattr(sampling, "compiled_model", lambda lensmodel: False)
+    monkeypatch.setattr(sampling, "SPLIT_ABOVE", 10**9)
+    whole = project_sample(pts, T[:3, :3], T[:3, 3], cam, stack, which, 1)
+    monkeypatch.setattr(sampling, "SPLIT_ABOVE", 1000)
+    halves = project_sample(pts, T[:3, :3], T[:3, 3], cam, stack, which, 1)
+    for a, b in zip(whole, halves, strict=True):
+        np.testing.assert_array_equal(a, b)

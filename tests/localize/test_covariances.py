@@ -142,3 +142,17 @@ def test_laser_odometry_carries_each_steps_covariance():
     assert np.isnan(od.covariance[0]).all()  # the first scan ends no step
     sigmas = np.sqrt(np.diagonal(od.covariance[1:], axis1=1, axis2=2))
     assert np.all((sigmas > 1e-5) & (sigmas < 5e-3))
+
+
+def test_laser_odometry_without_the_covariances_has_the_same_poses():
+    """``covariance=False`` (the targetless check's odometry) leaves the steps' covariances
+    out (NaN) and changes nothing else."""
+    from rigcal.localize.odometry import icp_odometry
+
+    rng = np.random.default_rng(7)
+    scans = [_scan(ROOM, np.array([0.02 * k, 0.01 * k, 0.005 * k]), rng) for k in range(4)]
+    with_cov, without = icp_odometry(scans), icp_odometry(scans, covariance=False)
+    np.testing.assert_array_equal(without.poses, with_cov.poses)
+    np.testing.assert_array_equal(without.degeneracy, with_cov.degeneracy)
+    assert without.covariance is not None
+    assert np.isnan(without.covariance).all()

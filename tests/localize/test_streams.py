@@ -204,6 +204,35 @@ def test_computed_ahead_keeps_the_order_and_raises_where_the_item_would_be():
     assert max(started) <= 8  # never more than `ahead` items beyond the one asked for
 
 
+def test_ahead_starts_its_first_items_at_once_and_stops_when_closed():
+    import threading
+
+    from rigcal.localize.prefetch import Ahead
+
+    started: list[int] = []
+    three = threading.Event()
+
+    def item(i):
+        started.append(i)
+        if len(started) == 3:
+            three.set()
+        return i
+
+    with Ahead(item, 100, ahead=3) as work:
+        assert three.wait(10.0)  # under way before any item is asked for
+        assert sorted(started) == [0, 1, 2]
+        assert [next(iter(work))] == [(0, 0)]
+    assert len(started) <= 4  # closed: the rest never started
+
+
+def test_images_ahead_are_the_frames_in_order(seq):
+    st = open_streams(seq)
+    with st.images_ahead([3, 1, 2], ahead=2) as frames:
+        got = list(frames)
+    for i, g in zip([3, 1, 2], got, strict=True):
+        np.testing.assert_array_equal(g, open_streams(seq).image(i))
+
+
 def test_feature_tracks_read_the_frames_in_order_ahead(seq):
     from rigcal.localize.tracks import track_sequence
 

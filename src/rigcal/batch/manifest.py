@@ -51,6 +51,7 @@ COMMANDS: dict[str, Command] = {
             "picks": Option("--picks", "path"),
             "session": Option("--session", "path"),
             "sequence": Option("--sequence", "path"),
+            "trajectory": Option("--trajectory", "path"),  # with sequence: the laser's poses
             "level": Option("--level", "float"),
             "min_captures": Option("--min-captures", "int"),
             "log": Option("--log", "path"),

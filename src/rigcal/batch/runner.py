@@ -156,6 +156,7 @@ def _run_job(item: Item, folder: Path, command: str) -> tuple[int, Any]:
             picks=path("picks"),
             session=path("session"),
             sequence=path("sequence"),
+            trajectory=path("trajectory"),
             log=path("log"),
             no_log=bool(o.get("no_log", False)),
             **{k: o[k] for k in ("level", "min_captures") if k in o},

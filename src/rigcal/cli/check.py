@@ -29,6 +29,12 @@ from rigcal.jobs import LEVEL, MIN_CAPTURES
     help="A drive (sequence folder with images): the targetless check.",
 )
 @click.option(
+    "--trajectory",
+    type=click.Path(path_type=Path),
+    help="With --sequence: the laser's poses over the drive (a TUM file, e.g. a `rigcal localize` "
+    "run's METHOD/trajectory.tum) instead of the check's own laser odometry.",
+)
+@click.option(
     "--level",
     default=0.01,
     show_default=True,
@@ -61,6 +67,7 @@ def check(
     picks: Path | None,
     session: Path | None,
     sequence: Path | None,
+    trajectory: Path | None,
     level: float,
     min_captures: int,
     log_path: Path | None,
@@ -81,7 +88,10 @@ def check(
     With --sequence, no target: the drive's laser returns are projected into the frames
     that see them and T_cam_laser is corrected to make them photometrically consistent
     (IASM's projection, paper Section III); the correction is tested on the directions the
-    drive observes, and those it does not are named with why.
+    drive observes, and those it does not are named with why. The laser's motion comes
+    from the check's own laser odometry, or with --trajectory from a TUM file of the
+    laser's poses covering the drive's images to within 0.05 s (a `rigcal localize` run's; its stamps must
+    increase, with no gap over 0.5 s).
 
     Exit code 0 when the rig is ok, 1 when it has drifted, 6 when the drive cannot tell
     (too short, no camera-laser overlap, no motion that observes the rig), 2 for usage
@@ -92,6 +102,7 @@ def check(
       rigcal check rig.yaml --picks today/picks.yaml
       rigcal check rig.yaml --session today/board_session.yaml --json --no-log
       rigcal check rig.yaml --sequence drives/2026-11-26/ --plot drift.png --force
+      rigcal check rig.yaml --sequence drives/today/ --trajectory runs/today/kf/trajectory.tum
       rigcal check rig.yaml --sequence drives/today/ || echo "recalibrate, or drive more"
     """
     from rigcal.cli.progress import Progress
@@ -101,12 +112,15 @@ def check(
     given = [p for p in (picks, session, sequence) if p]
     if len(given) != 1:
         raise click.UsageError("give one of --picks, --session or --sequence")
+    if trajectory is not None and sequence is None:
+        raise click.UsageError("--trajectory goes with --sequence (a drive's laser poses)")
     with Progress("frame") as bars:
         done = check_rig(
             rig,
             picks=picks,
             session=session,
             sequence=sequence,
+            trajectory=trajectory,
             level=level,
             min_captures=min_captures,
             log=log_path,

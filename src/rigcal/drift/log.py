@@ -75,9 +75,13 @@ def drift_record(result: DriftResult, session_path: str | Path, kind: str = "box
     }
 
 
-def targetless_record(result: TargetlessResult, sequence: str | Path) -> dict[str, Any]:
+def targetless_record(
+    result: TargetlessResult, sequence: str | Path, trajectory: str | Path | None = None
+) -> dict[str, Any]:
     """The log record of one targetless check of a drive (a sequence folder); its hash is
-    over the sequence's index files (sequence.yaml, images.csv, scans.npz)."""
+    over the sequence's index files (sequence.yaml, images.csv, scans.npz). ``trajectory``:
+    the TUM file the check took the laser's motion from (its path and hash in the
+    ``targetless`` block), None when it ran its own laser odometry."""
     import hashlib
 
     folder = Path(sequence)
@@ -95,9 +99,14 @@ def targetless_record(result: TargetlessResult, sequence: str | Path) -> dict[st
         "level": result.level,
         "residual": None,
         "pose": None,
-        "targetless": _json_safe(result.record),
+        "targetless": _json_safe(result.record)
+        | ({"trajectory": _file_entry(Path(trajectory))} if trajectory is not None else {}),
         "reasons": result.reasons,
     }
+
+
+def _file_entry(path: Path) -> dict[str, str]:
+    return {"file": str(path.resolve()), "sha256": sha256_file(path)}
 
 
 def _now() -> str:

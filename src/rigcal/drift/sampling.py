@@ -21,6 +21,7 @@ is the mean of full-size pixels (2u, 2v) to (2u + 1, 2v + 1), centred at (2u + 0
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -93,11 +94,27 @@ def project_sample(
         code = -1
         q, dq = camera.project_with_gradient(pts @ R.T + t)
     size = (camera.width_px, camera.height_px)
-    _project_sample_kernel(
-        pts, R, t, intr, code, np.ascontiguousarray(q), np.ascontiguousarray(dq), stack, which, down, row0,
-        *size, value, d_point, d_rot,
-    )  # fmt: skip
+    q, dq = np.ascontiguousarray(q), np.ascontiguousarray(dq)
+    which = np.ascontiguousarray(which)
+
+    def part(a: int, b: int) -> None:
+        """Points a to b (the kernel releases the interpreter: parts run side by side)."""
+        qa, dqa = (q[a:b], dq[a:b]) if code < 0 else (q, dq)
+        _project_sample_kernel(
+            pts[a:b], R, t, intr, code, qa, dqa, stack, which[a:b], down, row0, *size,
+            value[a:b], d_point[a:b], d_rot[a:b],
+        )  # fmt: skip
+
+    if n < SPLIT_ABOVE:
+        part(0, n)
+    else:
+        with ThreadPoolExecutor(max_workers=2, thread_name_prefix="sample") as pool:
+            list(pool.map(lambda ab: part(*ab), ((0, n // 2), (n // 2, n))))
     return value, d_point, d_rot
+
+
+SPLIT_ABOVE = 20000
+"""More points than this are projected and sampled in two halves on two threads."""
 
 
 @njit

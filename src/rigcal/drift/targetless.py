@@ -50,6 +50,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -69,7 +71,7 @@ from rigcal.localize.iasm import snap_to_lines
 from rigcal.localize.line_normals import line_fits
 from rigcal.localize.odometry import DEGENERATE_BELOW
 from rigcal.localize.streams import Streams
-from rigcal.localize.time_pairing import nearest_index, pose_at
+from rigcal.localize.time_pairing import nearest_index, poses_at
 from rigcal.rig import Rig
 
 AXES = ("rx", "ry", "rz", "tx", "ty", "tz")
@@ -213,6 +215,8 @@ class _Patches:
     info: dict[str, Any] = field(default_factory=dict)
     edges: Edges | None = None  # the scans' depth discontinuities (module docstring, step 3b)
     gray_of: dict[int, NDArray[np.uint8]] = field(default_factory=dict)  # the edges' frames
+    rows: tuple[float, float] | None = None  # _rows's, made once
+    stacks_ahead: dict[tuple[Any, ...], Future[_Stack]] = field(default_factory=dict)  # _stacks_ahead's
 
 
 class _CannotTellError(Exception):
@@ -254,7 +258,9 @@ def check_targetless(
             thin = streams
             patches = _build_patches(rig, thin, settings)
         base.update(patches.info)
-        est = _estimate(rig, thin, patches, settings)
+        # The later stages' images blur on a second thread while the first stage iterates.
+        with _stacks_ahead(rig, thin, patches, settings):
+            est = _estimate(rig, thin, patches, settings)
     except _CannotTellError as exc:
         reasons.append(str(exc))
         rec = base | {"check_s": round(time.perf_counter() - t_start, 3)}
@@ -316,7 +322,16 @@ def thinned(streams: Streams, rate_hz: float | None) -> Streams:
     if k <= 1:
         return streams
     seq = dataclasses.replace(streams.sequence, scans=streams.sequence.scans[::k])
-    out = Streams(seq, streams.rig, progress=streams.progress, use_wheel_odometry=streams.use_wheel_odometry)
+    # The same images (one cache); the odometry's poses only (the steps' covariances are
+    # most of its cost, and the check does not use them).
+    out = Streams(
+        seq,
+        streams.rig,
+        progress=streams.progress,
+        use_wheel_odometry=streams.use_wheel_odometry,
+        odometry_covariance=False,
+        _image_cache=streams._image_cache,
+    )
     streams.results[key] = out
     return out
 
@@ -344,12 +359,29 @@ def _se3_of_se2(T2: FloatArray) -> FloatArray:
 
 def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patches:
     cam = rig.camera
-    T0 = rig.T_cam_laser
     frames = _used_frames(streams, s.frame_rate_hz)
+    # The used frames decode on a second thread from here on, while the laser odometry
+    # runs (its compiled ICP releases the interpreter), as far ahead as FRAMES_AHEAD_BYTES
+    # allows; then while each frame's grids are made.
+    cam_bytes = cam.width_px * cam.height_px
+    with streams.images_ahead(frames, max(8, FRAMES_AHEAD_BYTES // cam_bytes)) as decoded:
+        return _patches_of(rig, streams, s, frames, decoded)
+
+
+FRAMES_AHEAD_BYTES = 256 * 2**20
+"""Decoded frames held ahead of the check's use at most (8-bit grey)."""
+
+
+def _patches_of(
+    rig: Rig, streams: Streams, s: TargetlessSettings, frames: list[int], decoded: Iterator[NDArray[np.uint8]]
+) -> _Patches:
+    """The patches of the used ``frames`` (decoded, in order, by ``decoded``)."""
+    cam = rig.camera
+    T0 = rig.T_cam_laser
     od = streams.laser_odometry()
     scan_t = streams.scan_stamps_s
     img_t = streams.image_stamps_s
-    poses = np.array([pose_at(scan_t, od.poses, float(img_t[i])) for i in frames])
+    poses = poses_at(scan_t, od.poses, img_t[frames])
     travel = float(np.sum(np.linalg.norm(np.diff(poses[:, :2], axis=0), axis=1))) if len(frames) > 1 else 0.0
     heading = np.unwrap(poses[:, 2]) if len(frames) else np.zeros(0)
     info: dict[str, Any] = {
@@ -377,8 +409,7 @@ def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patche
     feet_img: list[NDArray[np.int64]] = []
     feet_block: list[NDArray[np.int64]] = []
     gray_of: dict[int, NDArray[np.uint8]] = {}
-    # The used frames decoded ahead on a second thread (their decoding overlaps the work).
-    for k, (i, gray) in enumerate(zip(frames, streams.images_at(frames), strict=True)):
+    for k, (i, gray) in enumerate(zip(frames, decoded, strict=True)):
         streams.report("targetless check: frames", k + 1, len(frames))
         t_i = float(img_t[i])
         partners = []
@@ -525,7 +556,7 @@ def _frame_grid(
     )
     # Texture: the grid's grey levels in image i under the stored T.
     qs = cam.project((X @ T0[:3, :3].T + T0[:3, 3]).reshape(-1, 3))
-    v = _sample(gray.astype(np.float32), qs).reshape(len(X), -1)
+    v = _sample_grey(gray, qs).reshape(len(X), -1)
     textured = np.nanstd(v, axis=1) >= s.min_texture
     X = X[textured]
     if len(X) == 0:
@@ -555,6 +586,22 @@ def _frame_edges(streams: Streams, i: int, T0: FloatArray, cam: Any, s: Targetle
     ok = (P[:, 2] > 0.2) & cam.in_image(q, margin_px=max(s.edge_window_px) + BAND_MARGIN_PX)
     out: FloatArray = feet[ok.reshape(len(feet), -1).any(axis=1)]
     return out
+
+
+def _sample_grey(gray: NDArray[np.uint8], q: FloatArray) -> FloatArray:
+    """:func:`_sample` of an 8-bit image at q, the image cut to the points' rows and
+    columns first (2 px around them: every pixel the bilinear reads) so that only those
+    are made float; the same values as sampling the whole image but for the float32
+    rounding of the shifted coordinates (under 0.01 grey level)."""
+    ok = np.isfinite(q).all(axis=1)
+    if not ok.any():
+        return np.full(len(q), np.nan)
+    h, w = gray.shape
+    u0, v0 = np.clip(np.floor(q[ok].min(axis=0)).astype(int) - 2, 0, [w, h])
+    u1, v1 = np.clip(np.ceil(q[ok].max(axis=0)).astype(int) + 3, 0, [w, h])
+    if u1 - u0 < 2 or v1 - v0 < 2:
+        return _sample(gray.astype(np.float32), q)
+    return _sample(gray[v0:v1, u0:u1].astype(np.float32), q - [u0, v0])
 
 
 def _sample(img: NDArray[np.float32], q: FloatArray) -> FloatArray:
@@ -604,44 +651,84 @@ class _Images:
     """The blurred images of a stage: every (image, blur level) the patches read, made
     once, in one stack (:mod:`rigcal.drift.sampling`), grey levels x 64 as uint16 (an
     eighth of float64's memory, 1/64 grey level steps), the band of rows the patches
-    fall in only; half size when the stage's blur is wide."""
+    fall in only; half size when the stage's blur is wide. A stage's stack made ahead
+    (:func:`_stacks_ahead`) is taken as it is."""
 
     def __init__(
         self, streams: Streams, patches: _Patches, rows: tuple[float, float], blur_px: float, native_px: float
     ) -> None:
-        total = math.hypot(blur_px, native_px)
-        self.down = down = 2 if total >= DOWNSAMPLE_BLUR_PX else 1
-        li, lj = _levels(patches.ratio)
-        keys = np.unique(np.r_[patches.img_i * LEVELS + li, patches.img_j * LEVELS + lj])
-        self.key_i = np.searchsorted(keys, patches.img_i * LEVELS + li)
-        self.key_j = np.searchsorted(keys, patches.img_j * LEVELS + lj)
-        # A pixel (u, v) of a half-size image is the mean of full-size pixels (2u, 2v) to
-        # (2u + 1, 2v + 1): a box of 2 pixels adds a variance of 0.25 pixel^2 to the blur.
-        base = native_px**2 + (0.25 if down > 1 else 0.0)
-        sigmas = [math.sqrt(max((total * LEVEL_STEP**k) ** 2 - base, 0.04)) / down for k in range(LEVELS)]
-        height = streams.rig.camera.height_px // down if streams.rig is not None else 0
-        lo = max(math.floor((rows[0] - BAND_MARGIN_PX - 0.5) / down), 0)
-        hi = min(math.ceil((rows[1] + BAND_MARGIN_PX - 0.5) / down) + 1, height)
-        pad = math.ceil(4.0 * max(sigmas)) + 1  # rows beyond the band the blur reads
-        self.row0 = lo
-        self.stack: NDArray[np.uint16] | None = None
-        for n, key in enumerate(keys):
-            img, level = divmod(int(key), LEVELS)
-            if n == 0 or img != int(keys[n - 1]) // LEVELS:
-                g = np.asarray(streams.image(img), dtype=np.uint16) * np.uint16(GREY_SCALE)
-                if down > 1:
-                    half = (g.shape[1] // 2, g.shape[0] // 2)
-                    g = np.asarray(cv2.resize(g, half, interpolation=cv2.INTER_AREA), dtype=np.uint16)
-                a = max(lo - pad, 0)
-                g = g[a : min(hi + pad, g.shape[0])]
-            b = cv2.GaussianBlur(g, (0, 0), sigmas[level])[lo - a : hi - a]
-            if self.stack is None:
-                self.stack = np.empty((len(keys), *b.shape), dtype=np.uint16)
-            self.stack[n] = b
+        ahead = patches.stacks_ahead.pop((rows, blur_px, native_px), None)
+        made = ahead.result() if ahead is not None else _stack(streams, patches, rows, blur_px, native_px)
+        self.down, self.key_i, self.key_j, self.row0, self.stack = made
+
+
+_Stack = tuple[int, NDArray[np.int64], NDArray[np.int64], int, NDArray[np.uint16] | None]
+
+
+def _stack(
+    streams: Streams, patches: _Patches, rows: tuple[float, float], blur_px: float, native_px: float
+) -> _Stack:
+    """A stage's stack (:class:`_Images`): (downsampling, key of frame i and of frame j of
+    each patch, first row, the stack); its images are blurred on two threads (OpenCV
+    releases the interpreter)."""
+    total = math.hypot(blur_px, native_px)
+    down = 2 if total >= DOWNSAMPLE_BLUR_PX else 1
+    li, lj = _levels(patches.ratio)
+    keys = np.unique(np.r_[patches.img_i * LEVELS + li, patches.img_j * LEVELS + lj])
+    key_i = np.searchsorted(keys, patches.img_i * LEVELS + li)
+    key_j = np.searchsorted(keys, patches.img_j * LEVELS + lj)
+    # A pixel (u, v) of a half-size image is the mean of full-size pixels (2u, 2v) to
+    # (2u + 1, 2v + 1): a box of 2 pixels adds a variance of 0.25 pixel^2 to the blur.
+    base = native_px**2 + (0.25 if down > 1 else 0.0)
+    sigmas = [math.sqrt(max((total * LEVEL_STEP**k) ** 2 - base, 0.04)) / down for k in range(LEVELS)]
+    height = streams.rig.camera.height_px // down if streams.rig is not None else 0
+    lo = max(math.floor((rows[0] - BAND_MARGIN_PX - 0.5) / down), 0)
+    hi = min(math.ceil((rows[1] + BAND_MARGIN_PX - 0.5) / down) + 1, height)
+    pad = math.ceil(4.0 * max(sigmas)) + 1  # rows beyond the band the blur reads
+    if not len(keys):
+        return down, key_i, key_j, lo, None
+    imgs, first = np.unique(keys // LEVELS, return_index=True)
+    width = streams.image(int(imgs[0])).shape[1] // down
+    stack = np.empty((len(keys), hi - lo, width), dtype=np.uint16)
+
+    def blur_image(n: int) -> None:
+        """Image imgs[n]'s levels into the stack."""
+        g = np.asarray(streams.image(int(imgs[n])), dtype=np.uint16) * np.uint16(GREY_SCALE)
+        if down > 1:
+            half = (g.shape[1] // 2, g.shape[0] // 2)
+            g = np.asarray(cv2.resize(g, half, interpolation=cv2.INTER_AREA), dtype=np.uint16)
+        a = max(lo - pad, 0)
+        g = g[a : min(hi + pad, g.shape[0])]
+        last = first[n + 1] if n + 1 < len(first) else len(keys)
+        for m in range(int(first[n]), int(last)):
+            stack[m] = cv2.GaussianBlur(g, (0, 0), sigmas[int(keys[m]) % LEVELS])[lo - a : hi - a]
+
+    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="stack") as pool:
+        list(pool.map(blur_image, range(len(imgs))))
+    return down, key_i, key_j, lo, stack
+
+
+def _stacks_ahead(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettings) -> ThreadPoolExecutor:
+    """Start making the stacks of the stages after the first on a second thread, so that
+    they blur while the first stage iterates (returns the pool, to shut down after the
+    estimate)."""
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stages")
+    rows = _rows(rig, patches)
+    for blur in s.blur_px[1:]:
+        key = (rows, blur, s.native_blur_px)
+        patches.stacks_ahead[key] = pool.submit(_stack, streams, patches, rows, blur, s.native_blur_px)
+    return pool
 
 
 def _rows(rig: Rig, patches: _Patches) -> tuple[float, float]:
-    """The image rows the patches fall in, in both frames, under the stored T."""
+    """The image rows the patches fall in, in both frames, under the stored T (made once
+    per patches)."""
+    if patches.rows is None:
+        patches.rows = _rows_of(rig, patches)
+    return patches.rows
+
+
+def _rows_of(rig: Rig, patches: _Patches) -> tuple[float, float]:
     T = rig.T_cam_laser
     X = patches.X.reshape(-1, 3)
     Y = patches.X @ patches.M[:, :3, :3].transpose(0, 2, 1) + patches.M[:, None, :3, 3]

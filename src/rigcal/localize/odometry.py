@@ -93,6 +93,7 @@ def icp_odometry(
     *,
     kernel: bool = True,
     guess: FloatArray | None = None,
+    covariance: bool = True,
 ) -> Odometry:
     """Chain ICP increments T_prev_cur over the scans (:class:`ScanOdometry` fed every
     scan in turn), each started from ``guess[k]`` (N - 1, 3: the wheel odometry's motion
@@ -100,12 +101,14 @@ def icp_odometry(
     (constant velocity); ``progress`` is called with the scans done so far. ``lines(k)``:
     scan k's segments, to share them with other stages (by default extracted here).
     ``kernel=False`` runs the line extraction, the carrying of the lines and ICP in their
-    Python/numpy references instead of the compiled kernels."""
+    Python/numpy references instead of the compiled kernels. ``covariance=False`` leaves
+    the steps' covariances out (NaN): most of the cost of a step, for callers that use the
+    poses only (the targetless drift check)."""
     if not scans:
         raise ValueError("icp_odometry needs at least one scan")
     if guess is not None and np.shape(guess) != (len(scans) - 1, 3):
         raise ValueError(f"icp_odometry: guess of shape {np.shape(guess)}, expected ({len(scans) - 1}, 3)")
-    od = ScanOdometry(params, lines, kernel=kernel)
+    od = ScanOdometry(params, lines, kernel=kernel, covariance=covariance)
     for k, scan in enumerate(scans):
         if k and progress is not None:
             progress(k + 1)
@@ -129,7 +132,8 @@ class ScanOdometry:
     skipped. Point-to-line
     with ``params.normals == "lines"`` takes the model scan's normals from its lines,
     extracted every ``LINES_EVERY`` scans (``lines(k)``: scan k's segments when given)
-    and carried between.
+    and carried between. Each measured step's covariance is computed unless
+    ``covariance=False`` (then NaN).
     """
 
     def __init__(
@@ -138,8 +142,10 @@ class ScanOdometry:
         lines: Callable[[int], list[Segment]] | None = None,
         *,
         kernel: bool = True,
+        covariance: bool = True,
     ) -> None:
         self.params = params or IcpParams()
+        self._with_covariance = covariance
         self._lines = lines
         self._kernel = kernel
         self._use_lines = self.params.method == "point-to-line" and self.params.normals == "lines"
@@ -200,7 +206,7 @@ class ScanOdometry:
                     res = again
                 self._restarts += 1
             step, d, r, self._nearest = res.pose, res.degeneracy, res.rms_m, res.nearest
-            if measured and res.nearest is not None:
+            if measured and res.nearest is not None and self._with_covariance:
                 cov = self._covariance(prev, cur, res)
         self._T = self._T @ se2(step)
         self._poses.append(pose_of(self._T))

@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable, Iterator
 from collections.abc import Sequence as PySequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -36,7 +37,7 @@ from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
 from rigcal.lines import Segment, extract_lines
 from rigcal.localize.image_cache import Gray, ImageCache
 from rigcal.localize.odometry import LASER_ODOMETRY, Odometry, icp_odometry
-from rigcal.localize.prefetch import computed_ahead
+from rigcal.localize.prefetch import Ahead, computed_ahead
 from rigcal.localize.time_pairing import nearest_index, pose_at
 from rigcal.localize.tracks import FrameTracks, TrackParams, equalized, track_sequence
 from rigcal.recordings.sequence import Sequence, read_sequence
@@ -60,6 +61,8 @@ class Streams:
         results: stage results shared by methods (visual odometry for ``vo`` and ``kf``).
         progress: called with (stage, done, total) as long stages go on (the CLI's bars).
         track_params: the feature tracks' settings.
+        odometry_covariance: whether the laser odometry computes each step's covariance
+            (the Kalman filter and loop closure use them; the targetless check does not).
     """
 
     sequence: Sequence
@@ -75,6 +78,8 @@ class Streams:
     progress: Callable[[str, int, int], None] | None = field(default=None, repr=False)
     track_params: TrackParams = field(default_factory=TrackParams)
     use_wheel_odometry: bool = True
+    odometry_covariance: bool = True
+    _unwrapped: tuple[Odometry, FloatArray] | None = field(default=None, repr=False)
 
     @property
     def wheel_odometry(self) -> WheelOdometry | None:
@@ -150,6 +155,15 @@ class Streams:
         for k, g in computed_ahead(lambda k: self._kept_or_decoded(indices[k]), len(indices), ahead):
             yield self._keep(indices[k], g)
 
+    @contextmanager
+    def images_ahead(self, indices: PySequence[int], ahead: int) -> Iterator[Iterator[Gray]]:
+        """The frames ``indices`` in that order, as :meth:`images_at`, but the first
+        ``ahead`` start decoding at once, on entering the context (so they decode while the
+        caller does other work first, e.g. the laser odometry); leaving it stops the
+        decoding."""
+        with Ahead(lambda k: self._kept_or_decoded(indices[k]), len(indices), ahead) as work:
+            yield (self._keep(indices[k], g) for k, g in work)
+
     def _kept_or_decoded(self, i: int) -> Gray:
         hit = self._image_cache.get(i)
         return self._decode(i) if hit is None else hit
@@ -179,6 +193,13 @@ class Streams:
                 self._laser_odometry = self._compute_laser_odometry()
         return self._laser_odometry
 
+    def use_laser_odometry(self, od: Odometry) -> None:
+        """Take ``od`` (one pose per scan, e.g. a trajectory computed before) as the laser
+        odometry instead of computing it."""
+        if len(od.poses) != len(self.scans):
+            raise ValueError(f"use_laser_odometry: {len(od.poses)} poses for {len(self.scans)} scans")
+        self._laser_odometry = od
+
     def start_laser_odometry(self) -> None:
         """Start the laser odometry on a second thread, so that it overlaps the image
         stages (feature tracking spends its time in OpenCV, which releases the
@@ -201,7 +222,14 @@ class Streams:
                 raise _StoppedError
             self.report("laser odometry", k, n)
 
-        od = icp_odometry(self.scans, LASER_ODOMETRY["icp"], progress, self.lines, guess=self.wheel_guess())
+        od = icp_odometry(
+            self.scans,
+            LASER_ODOMETRY["icp"],
+            progress,
+            self.lines,
+            guess=self.wheel_guess(),
+            covariance=self.odometry_covariance,
+        )
         self.timings_s["icp_s"] = time.perf_counter() - t0
         return od
 
@@ -265,8 +293,18 @@ class Streams:
     def odometry_motion(self, t0: float, t1: float) -> FloatArray:
         """The laser's pose at t1 in its frame at t0 (x, y, yaw), from the point-to-line
         laser odometry interpolated at both stamps."""
-        stamps, od = self.scan_stamps_s, self.laser_odometry().poses
-        return pose_of(np.linalg.inv(se2(pose_at(stamps, od, t0))) @ se2(pose_at(stamps, od, t1)))
+        stamps, od = self.scan_stamps_s, self._odometry_unwrapped()
+        a, b = pose_at(stamps, od, t0, unwrapped=True), pose_at(stamps, od, t1, unwrapped=True)
+        return pose_of(np.linalg.inv(se2(a)) @ se2(b))
+
+    def _odometry_unwrapped(self) -> FloatArray:
+        """(N, 3) the laser odometry's poses with their yaw unwrapped (made once per odometry)."""
+        od = self.laser_odometry()
+        if self._unwrapped is None or self._unwrapped[0] is not od:
+            poses = od.poses.copy()
+            poses[:, 2] = np.unwrap(poses[:, 2])
+            self._unwrapped = (od, poses)
+        return self._unwrapped[1]
 
     def _yaml(self) -> Path | None:
         return None if self.sequence.folder is None else self.sequence.folder / "sequence.yaml"
