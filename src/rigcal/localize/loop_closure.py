@@ -217,7 +217,7 @@ class LoopResult:
     @property
     def counts_by_source(self) -> dict[str, dict[str, int]]:
         """:attr:`counts` of each source's closures ("scan", "images", ...)."""
-        sources = sorted({c.source for c in self.closures})
+        sources = sorted({c.source for c in self.closures}, key=lambda s: (s != "scan", s))
         return {
             s: replace(self, closures=[c for c in self.closures if c.source == s]).counts for s in sources
         }
