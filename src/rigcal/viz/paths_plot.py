@@ -73,7 +73,7 @@ def graph_figure(
 ) -> Any:
     """A loop-closed path and its closures seen from above: the optimised path, each
     accepted closure as a segment between its two poses (green from the scan search,
-    blue from another source such as images), each closure rejected (by the verification
+    purple from another source such as images), each closure rejected (by the verification
     or the robust kernel) as a dashed one (red, orange); the legend counts each.
 
     Args:
@@ -86,7 +86,7 @@ def graph_figure(
     sources = sorted({s for _, _, s in accepted + rejected}, key=lambda s: (s != "scan", s))
     for n, source in enumerate(sources):
         for pairs, colours, dash, label in (
-            (accepted, ("tab:green", "tab:blue", "tab:purple"), "-", "accepted"),
+            (accepted, ("tab:green", "tab:purple", "tab:olive"), "-", "accepted"),
             (rejected, ("tab:red", "tab:orange", "tab:brown"), "--", "rejected"),
         ):
             mine = [(i, j) for i, j, s in pairs if s == source]
