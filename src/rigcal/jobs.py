@@ -410,6 +410,7 @@ def localize_sequence(
     loop_closure: bool = False,
     pose_graph: str = "auto",
     kf: str = "weighted",
+    place_recognition: str = "images",
     force: bool = False,
     progress: Progress | None = None,
 ) -> Localized:
@@ -422,6 +423,8 @@ def localize_sequence(
             installed, else scipy), ``scipy`` or ``gtsam``.
         kf: the Kalman filter: ``weighted`` (each step's own covariance) or ``fixed``
             (the paper's fixed covariances), :data:`rigcal.localize.kalman.KF_MODES`.
+        place_recognition: loop closure's proposals from the keyframes' images
+            (``images``, where the sequence has them) or none (``none``).
 
     Raises:
         ArgumentError: an unknown method or setting (the command line's usage errors).
@@ -438,6 +441,7 @@ def localize_sequence(
         run,
         summary,
     )
+    from rigcal.localize.place_recognition import PlaceParams
     from rigcal.localize.pose_graph import gtsam_available
     from rigcal.viz.localize_output import write_run
 
@@ -450,6 +454,8 @@ def localize_sequence(
                 pose_graph,
                 "auto or scipy: GTSAM is not installed (pip install rigcal[gtsam])",
             )
+        if place_recognition not in ("images", "none"):
+            raise InputError.at(None, "--place-recognition", place_recognition, "images or none")
         if kf not in KF_MODES:
             raise InputError.at(None, "--kf", kf, f"one of {', '.join(KF_MODES)}")
         names = parse_methods(methods)
@@ -466,6 +472,7 @@ def localize_sequence(
         wheel_odometry=wheel_odometry,
         loop_closure=lc_params if loop_closure else None,
         kf=KF_MODES[kf],
+        place_recognition=PlaceParams() if place_recognition == "images" else None,
     )
     write_run(r, sequence, output, force=force, kitti=kitti)
     return Localized(r, summary(r, sequence))

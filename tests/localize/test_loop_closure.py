@@ -217,12 +217,15 @@ def test_localize_with_loop_closure_reports_closures_and_draws_the_graph(corrido
         lc["metrics"]["loop_closure_error_m"] < 0.5 * s["methods"]["icp"]["metrics"]["loop_closure_error_m"]
     )
     rows = (out / "icp+lc" / "closures.csv").read_text().splitlines()
-    assert rows[0] == "i,j,stamp_i_s,stamp_j_s,status,inliers,rms_m,sigma_x_m,sigma_y_m,sigma_yaw_rad,why_not"
+    assert (
+        rows[0]
+        == "i,j,stamp_i_s,stamp_j_s,status,source,inliers,rms_m,sigma_x_m,sigma_y_m,sigma_yaw_rad,why_not"
+    )
     assert len(rows) == counts["proposed"] + 1
     # An accepted closure's 1-sigma: its fit's on the floor's (2 mm, 0.5 mrad), not the
     # fixed 5 cm and 0.02 rad.
     fields = next(r for r in rows[1:] if ",accepted," in r).split(",")
-    sx, sy, syaw = (float(v) for v in fields[7:10])
+    sx, sy, syaw = (float(v) for v in fields[8:11])
     assert min(sx, sy) >= 0.002
     assert max(sx, sy) < 0.02
     assert 0.0005 <= syaw < 0.01

@@ -29,6 +29,19 @@ def test_a_lap_closes_and_turns_once():
     assert m.duration_s > w.path_length_m / DriveSpec().speed_mps
 
 
+def test_two_laps_drive_the_loop_twice_and_revisit_every_place():
+    w = BUILTIN["cubicle-loop"]()
+    one, two = Motion(w, DriveSpec(stops=0)), Motion(w, DriveSpec(stops=0, laps=2))
+    assert two.duration_s == pytest.approx(2 * one.duration_s, rel=1e-3)
+    t = np.linspace(0.0, one.duration_s - 0.5, 50)  # the seam moves the last samples by millimetres
+    first, second = two.poses(t), two.poses(t + one.duration_s)
+    np.testing.assert_allclose(second[:, :2], first[:, :2], atol=0.01)
+    np.testing.assert_allclose(second[:, 2] - first[:, 2], 2 * np.pi, atol=0.01)
+    np.testing.assert_allclose(first, one.poses(t), atol=1e-9)
+    with pytest.raises(InputError, match="laps: got 0; expected a whole number of laps"):
+        DriveSpec(laps=0)
+
+
 def test_noiseless_scans_lie_on_the_worlds_walls():
     w = BUILTIN["cubicle-loop"]()
     spec = DriveSpec(range_sigma_m=0.0, dropout_fraction=0.0)

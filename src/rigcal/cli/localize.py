@@ -84,6 +84,15 @@ rig_option = click.option(
     "scipy, or auto (gtsam where installed, scipy otherwise).",
 )
 @click.option(
+    "--place-recognition",
+    type=click.Choice(["images", "none"]),
+    default="images",
+    show_default=True,
+    help="With --loop-closure: images (the keyframes' images also propose closures, by a bag of "
+    "ORB words and an essential matrix, verified by the scans as the scan search's; where the "
+    "sequence has images) or none (the scan search alone).",
+)
+@click.option(
     "--kf",
     type=click.Choice(["weighted", "fixed"]),
     default="weighted",
@@ -104,6 +113,7 @@ def localize(
     wheel_odometry: str,
     loop_closure: bool,
     pose_graph: str,
+    place_recognition: str,
     kf: str,
 ) -> None:
     """Estimate the laser's trajectory through SEQUENCE (a sequence folder) with one or
@@ -140,6 +150,7 @@ def localize(
                 wheel_odometry=wheel_odometry == "use",
                 loop_closure=loop_closure,
                 pose_graph=pose_graph,
+                place_recognition=place_recognition,
                 kf=kf,
                 force=force,
                 progress=bars,
@@ -161,6 +172,7 @@ def localize(
                 f"{c['rejected_by_kernel']} by the robust kernel (pose graph on {m.closures.backend})",
                 err=True,
             )
+            click.echo(f"{m.method}: {source_line(m)}", err=True)
     shared = ", ".join(f"{k.removesuffix('_s')} {v:.1f} s" for k, v in r.timings_s.items())
     click.echo(f"stages: {shared}", err=True)
     ratio = r.duration_s / r.wall_s if r.wall_s > 0 else float("inf")
@@ -168,6 +180,27 @@ def localize(
         f"{r.duration_s:.1f} s of data in {r.wall_s:.1f} s ({ratio:.2f}x real time); wrote {output}/",
         err=True,
     )
+
+
+def source_line(m: MethodRun) -> str:
+    """The closures by source (scan search, images) and what place recognition did."""
+    assert m.closures is not None
+    parts = [
+        f"{source} {c['proposed']} proposed, {c['accepted']} accepted"
+        for source, c in m.closures.counts_by_source.items()
+    ]
+    place = m.stats.get("place_recognition", {})
+    if place.get("used") == "none":
+        note = "place recognition off"
+    elif "note" in place:
+        note = f"place recognition: {place['note']}"
+    else:
+        note = (
+            f"place recognition: {place['keyframes_with_images']} keyframes with images, "
+            f"{place['candidates']} candidates, {place['rejected_by_geometry']} rejected by the "
+            f"essential matrix, {place['proposed']} proposed"
+        )
+    return "by source: " + ("; ".join(parts) or "none") + f" ({note})"
 
 
 def method_line(m: MethodRun) -> str:

@@ -56,6 +56,15 @@ starts from a map whose earlier loops are already closed:
    optimised at the end, and a closure whose whitened residual stays above
    ``reject_whitened`` there contradicts the others and is reported as rejected by the
    kernel.
+
+Closures proposed by other sources (``proposals``: image place recognition,
+:mod:`rigcal.localize.place_recognition`) go through step 2's verification and step 3's
+kernel as the scan search's own, each keyframe's after its scan search; each
+:class:`Closure` records its ``source``, and :attr:`LoopResult.counts_by_source` counts
+them apart. A proposal whose pair the current poses put within the search window (and
+whose yaw agrees within it) is searched there; otherwise, as where the drift has carried
+the poses beyond the window, around the proposal's own guess (its yaw, no translation)
+within its ``window_m`` / ``window_rad``, coarse to fine as the global search.
 """
 
 from __future__ import annotations
@@ -155,7 +164,8 @@ class Closure:
     passed the verification, and why not otherwise. ``score``: the correlative search's
     best score; ``window_m``: the translation window it searched; ``covariance`` (3, 3):
     T_j_i's, from the ICP fit's Hessian (:func:`closure_covariance`); ``wide``: proposed
-    by the global search (module docstring, step 1b)."""
+    by the global search (module docstring, step 1b); ``source``: who proposed it,
+    "scan" (the scan search, local or global) or a :class:`Proposal`'s source."""
 
     i: int
     j: int
@@ -168,6 +178,22 @@ class Closure:
     window_m: float = float("nan")
     covariance: FloatArray | None = None
     wide: bool = False
+    source: str = "scan"
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """A closure proposed from outside the scan search (module docstring): keyframe pose
+    i as a revisit of earlier keyframe pose j (indices of the poses; both keyframes of
+    :func:`keyframes`, at least ``min_loop_m`` of path apart), with the source's guess of
+    T_j_i's yaw (rad) and the window it vouches for around it (m, rad)."""
+
+    i: int
+    j: int
+    source: str
+    yaw_rad: float
+    window_m: float
+    window_rad: float
 
 
 @dataclass(frozen=True)
@@ -188,19 +214,33 @@ class LoopResult:
             "rejected_by_kernel": sum(1 for c in verified if c.kernel_rejected),
         }
 
+    @property
+    def counts_by_source(self) -> dict[str, dict[str, int]]:
+        """:attr:`counts` of each source's closures ("scan", "images", ...)."""
+        sources = sorted({c.source for c in self.closures}, key=lambda s: (s != "scan", s))
+        return {
+            s: replace(self, closures=[c for c in self.closures if c.source == s]).counts for s in sources
+        }
+
 
 def close_loops(
     scans: Sequence[Scan | FloatArray],
     poses: FloatArray,
     params: LoopParams | None = None,
     step_covariances: FloatArray | None = None,
+    proposals: Sequence[Proposal] = (),
 ) -> LoopResult:
     """Loop closure over an odometry's poses (N, 3) of the scans (module docstring).
 
     ``scans``: each pose's scan, or its valid returns (P, 2) in the laser frame at the
     pose (a scan moved to the pose's stamp). ``step_covariances`` (N, 3, 3): the
     odometry's own covariance of each step T_k-1_k at index k (x, y, yaw), NaN where it has
-    none; those steps, and all without it, take ``step_sigmas`` and ``step_sigma_per_m``."""
+    none; those steps, and all without it, take ``step_sigmas`` and ``step_sigma_per_m``.
+    ``proposals``: closures proposed by other sources (module docstring).
+
+    Raises:
+        ValueError: a proposal that is not a pair of keyframes ``min_loop_m`` apart.
+    """
     params = params or LoopParams()
     if step_covariances is not None and np.shape(step_covariances) != (len(poses), 3, 3):
         shape = np.shape(step_covariances)
@@ -213,6 +253,7 @@ def close_loops(
     closures: list[Closure] = []
     short_cuts: list[tuple[int, int]] = []  # keyframe positions joined by a closure
     position = {int(k): a for a, k in enumerate(keys)}
+    extra = _proposals_by_key(proposals, position, along, params)
     last_found, last_global = 0, 0  # keyframe positions of the last closure and global search
     for a, i in enumerate(keys):
         earlier = keys[:a][along[i] - along[keys[:a]] >= params.min_loop_m]
@@ -233,12 +274,18 @@ def close_loops(
             tried = global_search(points, est, along, int(i), earlier, d, window_m, path, params)
             closures.extend(tried)
             closure = tried[-1] if tried else None
-        if closure is None or closure.T_j_i is None:
+        found = [] if closure is None or closure.T_j_i is None else [closure]
+        for p in extra.get(int(i), []):
+            path_j = graph_path(along, keys, short_cuts, a, [position[p.j]])
+            proposed = _verified_proposal(points, est, along, p, *search_window(path_j, params), params)
+            closures.append(proposed)
+            found += [proposed] if proposed.T_j_i is not None else []
+        if not found:
             continue
         last_found = a
-        short_cuts.append((a, position[closure.j]))
+        short_cuts += [(a, position[x.j]) for x in found]
         accepted = [x for x in closures if x.T_j_i is not None]
-        innovation = _whitened(est, [closure], params)[0]
+        innovation = np.max(_whitened(est, found, params))
         if innovation > params.reoptimise_whitened:
             est = _corrected(poses, est, accepted, int(i), params, backend, step_covariances)
     accepted = [x for x in closures if x.T_j_i is not None]
@@ -254,6 +301,44 @@ def close_loops(
         for x in closures
     ]
     return LoopResult(optimised, out, backend)
+
+
+def _proposals_by_key(
+    proposals: Sequence[Proposal], position: dict[int, int], along: FloatArray, params: LoopParams
+) -> dict[int, list[Proposal]]:
+    """The proposals by their keyframe i, checked to be keyframe pairs ``min_loop_m`` apart."""
+    out: dict[int, list[Proposal]] = {}
+    for p in proposals:
+        if p.i not in position or p.j not in position or along[p.i] - along[p.j] < params.min_loop_m:
+            raise ValueError(
+                f"proposal ({p.i}, {p.j}) from {p.source}: expected keyframes at least "
+                f"{params.min_loop_m:g} m of path apart, the later first"
+            )
+        out.setdefault(p.i, []).append(p)
+    return out
+
+
+def _verified_proposal(
+    scans: Sequence[FloatArray],
+    poses: FloatArray,
+    along: FloatArray,
+    p: Proposal,
+    window_m: FloatArray,
+    window_rad: FloatArray,
+    params: LoopParams,
+) -> Closure:
+    """A proposal through step 2's verification (module docstring): within the search
+    window where the poses put its pair there, else around its own yaw, coarse to fine."""
+    by_poses = relative(poses[p.j][None], poses[p.i][None])[0]
+    yaw_off = abs(np.angle(np.exp(1j * (by_poses[2] - p.yaw_rad))))
+    if np.hypot(*by_poses[:2]) <= window_m[0] and yaw_off <= window_rad[0]:
+        closure = verify(scans, poses, along, p.i, p.j, float(window_m[0]), float(window_rad[0]), params)
+    else:
+        guess = np.array([0.0, 0.0, p.yaw_rad])
+        closure = verify(
+            scans, poses, along, p.i, p.j, p.window_m, p.window_rad, params, coarse=True, guess=guess
+        )
+    return replace(closure, source=p.source)
 
 
 def path_along(poses: FloatArray) -> FloatArray:
@@ -311,11 +396,13 @@ def verify(
     params: LoopParams,
     *,
     coarse: bool = False,
+    guess: FloatArray | None = None,
 ) -> Closure:
     """Match scan i to scan j's submap within the window; the closure T_j_i when the fit
     passes the test (module docstring, step 2). ``scans``: each pose's valid returns (P, 2).
     ``coarse``: search the window coarse to fine (:func:`coarse_to_fine_match`, the
-    global search) instead of by :func:`correlative_match`."""
+    global search) instead of by :func:`correlative_match`. ``guess``: the window's centre
+    T_j_i (x, y, yaw); the poses' T_j_i when None."""
     submap = local_map(scans, poses, j, np.flatnonzero(np.abs(along - along[j]) <= params.submap_m), params)
     # The search matches keyframe i's context: its scan and those of the last 2 x submap_m
     # of path before it (the odometry is locally right), so that a corridor's repeated
@@ -326,7 +413,7 @@ def verify(
     data = voxel_filter(scans[i], params.voxel_m)
     if len(submap) < 20 or len(data) < 20:
         return Closure(i, j, None, why_not="too few returns", window_m=window_m)
-    guess = relative(poses[j][None], poses[i][None])[0]
+    guess = relative(poses[j][None], poses[i][None])[0] if guess is None else guess
     stride = max(1, int(np.ceil(len(context) / params.match_points)))
     match = coarse_to_fine_match if coarse else correlative_match
     start, score, elsewhere = match(submap, context[::stride], guess, window_m, window_rad, params)

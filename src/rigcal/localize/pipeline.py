@@ -31,9 +31,20 @@ from rigcal.localize import kalman
 from rigcal.localize.iasm import IasmParams
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.image_matching import scan_matching
-from rigcal.localize.loop_closure import LoopParams, LoopResult, close_loops, scans_at, step_covariances
+from rigcal.localize.loop_closure import (
+    LoopParams,
+    LoopResult,
+    Proposal,
+    close_loops,
+    keyframes,
+    nearest_scans,
+    path_along,
+    scans_at,
+    step_covariances,
+)
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.odometry import DEGENERATE_BELOW, LASER_ODOMETRY, Odometry, icp_odometry
+from rigcal.localize.place_recognition import Features, PlaceParams, orb_features, recognise
 from rigcal.localize.streams import Streams, open_streams
 from rigcal.localize.tracks import TrackParams
 from rigcal.localize.vo import VoResult, VoStep, still_rotation_covariance, visual_odometry
@@ -59,24 +70,71 @@ class Estimate:
 # Methods whose poses are laser poses that loop closure can take (at scan stamps; the
 # Kalman filter's also at image stamps, each matched with the scan nearest it).
 LOOP_CLOSURE_METHODS = ("icp", "icp-p2p", "kf", "iasm", "hiasm")
+# Loop closure's image place recognition unless told otherwise (``--place-recognition``).
+DEFAULT_PLACE = PlaceParams()
 
 
-def _loop_closed(streams: Streams, est: Estimate, params: LoopParams) -> Estimate:
+def _loop_closed(
+    streams: Streams, est: Estimate, params: LoopParams, place: PlaceParams | None = DEFAULT_PLACE
+) -> Estimate:
     """The estimate with loop closure (rigcal.localize.loop_closure): each pose takes the
     scan nearest its stamp, moved to the stamp by the laser odometry, and each step the
     laser odometry's covariance over it (ICP's Hessian, compounded) and the step's
-    departure from it (:func:`rigcal.localize.loop_closure.step_covariances`)."""
+    departure from it (:func:`rigcal.localize.loop_closure.step_covariances`). With
+    ``place``, the keyframes' images propose closures too (:func:`image_proposals`)."""
     t0 = time.perf_counter()
+    proposals, place_stats = image_proposals(streams, est, params, place)
     od = streams.laser_odometry()
     points = scans_at(streams.scans, streams.scan_stamps_s, od.poses, est.stamps_s)
     cov = None
     if od.covariance is not None:
         cov = step_covariances(streams.scan_stamps_s, od.poses, od.covariance, est.stamps_s, est.poses)
-    res = close_loops(points, est.poses, params, cov)
+    res = close_loops(points, est.poses, params, cov, proposals)
     seconds = time.perf_counter() - t0
     streams.timings_s["loop_closure_s"] = streams.timings_s.get("loop_closure_s", 0.0) + seconds
-    stats = {"closures": res.counts, "pose_graph": res.backend, "loop_closure_s": round(seconds, 3)}
+    stats = {
+        "closures": res.counts,
+        "closures_by_source": res.counts_by_source,
+        "place_recognition": place_stats,
+        "pose_graph": res.backend,
+        "loop_closure_s": round(seconds, 3),
+    }
     return Estimate(est.stamps_s, res.poses, stats, None, res)
+
+
+def image_proposals(
+    streams: Streams, est: Estimate, params: LoopParams, place: PlaceParams | None
+) -> tuple[list[Proposal], dict[str, Any]]:
+    """Closures proposed by image place recognition (rigcal.localize.place_recognition)
+    over the estimate's keyframes (those loop closure takes), each keyframe with the
+    image nearest its stamp (within ``place.max_image_gap_s``), and what it did: the
+    report's ``place_recognition`` entry. No images, or no rig, gives no proposals and
+    says so there. Each image's features are computed once per run (the methods share
+    them)."""
+    if place is None:
+        return [], {"used": "none"}
+    if streams.n_images == 0 or streams.rig is None:
+        why = "the sequence has no images" if streams.n_images == 0 else "the sequence has no rig (camera)"
+        return [], {"used": "images", "note": f"{why}: no image proposals"}
+    t0 = time.perf_counter()
+    along = path_along(est.poses)
+    keys = keyframes(along, params.keyframe_m)
+    frames = nearest_scans(streams.image_stamps_s, est.stamps_s[keys])
+    near = np.abs(streams.image_stamps_s[frames] - est.stamps_s[keys]) <= place.max_image_gap_s
+    cache: dict[tuple[int, int], Features] = streams.results.setdefault("place_features", {})
+    features: list[Features | None] = []
+    for f, ok in zip(frames, near, strict=True):
+        if ok and (int(f), place.n_features) not in cache:
+            cache[int(f), place.n_features] = orb_features(streams.image(int(f)), place)
+        features.append(cache[int(f), place.n_features] if ok else None)
+    rig = streams.rig
+    res = recognise(features, along[keys], rig.camera, rig.T_cam_laser, place, params.min_loop_m)
+    proposals = [
+        Proposal(int(keys[p.a]), int(keys[p.b]), "images", p.yaw_rad, place.window_m, place.window_rad)
+        for p in res.proposals
+    ]
+    seconds = time.perf_counter() - t0
+    return proposals, {"used": "images", **res.stats, "place_recognition_s": round(seconds, 3)}
 
 
 def _icp_estimate(streams: Streams, od: Odometry) -> Estimate:
@@ -384,6 +442,7 @@ def run(
     wheel_odometry: bool = True,
     loop_closure: LoopParams | None = None,
     kf: kalman.KfParams | None = None,
+    place_recognition: PlaceParams | None = DEFAULT_PLACE,
 ) -> Run:
     """Localize a sequence with each method; :func:`rigcal.viz.localize_output.write_run`
     writes the output folder. ``iasm``: IASM's and H-IASM's settings, ``tracks`` the
@@ -392,6 +451,8 @@ def run(
     ignores it. ``loop_closure``: also run each of :data:`LOOP_CLOSURE_METHODS` chosen with
     loop closure, as ``METHOD+lc``. ``kf``: the Kalman filter's settings
     (:data:`rigcal.localize.kalman.KF_MODES`; the weighted filter unless given).
+    ``place_recognition``: loop closure's image place recognition's settings, None for
+    the scan search alone.
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -436,7 +497,7 @@ def run(
             log.info("%s: %d poses in %.1f s of its own", name, len(est.stamps_s), seconds)
             if loop_closure is not None and name in LOOP_CLOSURE_METHODS:
                 t0 = time.perf_counter()
-                lc = _loop_closed(streams, est, loop_closure)
+                lc = _loop_closed(streams, est, loop_closure, place_recognition)
                 seconds += time.perf_counter() - t0
                 poses, metrics = lc.poses, None
                 if truth is not None:

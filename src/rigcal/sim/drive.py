@@ -48,6 +48,9 @@ class DriveSpec:
     writes no images; ``image_format`` is how they are stored (:data:`IMAGE_FORMATS`).
     ``duration_s`` drives only the lap's first seconds (None: the lap).
     ``wheel_odometry`` also writes the base's wheel odometry (:func:`wheel_odometry`).
+    ``laps``: how many times the loop is driven, one lap after the other (the stops fall
+    anywhere in the drive); a second lap revisits every place of the first, as loop
+    closure's place recognition is measured on.
     """
 
     speed_mps: float = 1.0
@@ -71,6 +74,7 @@ class DriveSpec:
     duration_s: float | None = None
     image_format: str = "png"
     wheel_odometry: bool = False
+    laps: int = 1
 
     def __post_init__(self) -> None:
         checks = [
@@ -106,6 +110,8 @@ class DriveSpec:
         for key, value, ok, expected in checks:
             if not ok or (value is not None and not np.isfinite(value)):
                 raise InputError.at(None, key, value, expected)
+        if not (isinstance(self.laps, int) and 1 <= self.laps <= 100):
+            raise InputError.at(None, "laps", self.laps, "a whole number of laps, 1 to 100")
         if self.image_format not in IMAGE_FORMATS:
             raise InputError.at(None, "image_format", self.image_format, f"one of {list(IMAGE_FORMATS)}")
 
@@ -122,15 +128,18 @@ IMAGE_FORMATS = {
 
 
 class Motion:
-    """The rig's pose as a function of time along a world's loop (one lap)."""
+    """The rig's pose as a function of time along a world's loop (``spec.laps`` laps)."""
 
     def __init__(self, world: World, spec: DriveSpec) -> None:
         pts, speeds = _rounded_path(world.path, spec.turn_radius_m, spec.speed_mps, spec.turn_speed_mps)
+        # The path is closed (its last sample is its first): laps follow on.
+        pts = np.vstack([np.tile(pts[:-1], (spec.laps, 1)), pts[-1:]])
+        speeds = np.r_[np.tile(speeds[:-1], spec.laps), speeds[-1:]]
         seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         dt = seg / (0.5 * (speeds[:-1] + speeds[1:]))
         t = np.concatenate([[0.0], np.cumsum(dt)])
         rng = np.random.default_rng(spec.seed)
-        # Stops: hold the pose for stop_s at random points of the lap (not at the start).
+        # Stops: hold the pose for stop_s at random points of the drive (not at the start).
         for at in np.sort(rng.uniform(0.1, 0.9, spec.stops)) * t[-1]:
             k = int(np.searchsorted(t, at))
             t = np.concatenate([t[:k], [t[k - 1] + 1e-6], t[k:] + spec.stop_s])
@@ -340,6 +349,8 @@ def write_drive(
         "image_blur_sigma_px": spec.image_blur_sigma_px,
         "exposure_walk": spec.exposure_walk,
     }
+    if spec.laps != 1:
+        source["laps"] = spec.laps
     if spec.images and spec.image_format != "png":
         source["image_format"] = spec.image_format
     odometry = None

@@ -61,16 +61,16 @@ def _write_closures(folder: Path, m: MethodRun) -> None:
     """METHOD+lc/closures.csv (every closure proposed, and what became of it) and
     graph.png/.svg (the optimised path and its closures)."""
     assert m.closures is not None
-    rows = ["i,j,stamp_i_s,stamp_j_s,status,inliers,rms_m,sigma_x_m,sigma_y_m,sigma_yaw_rad,why_not"]
-    accepted: list[tuple[int, int]] = []
-    rejected: list[tuple[int, int]] = []
+    rows = ["i,j,stamp_i_s,stamp_j_s,status,source,inliers,rms_m,sigma_x_m,sigma_y_m,sigma_yaw_rad,why_not"]
+    accepted: list[tuple[int, int, str]] = []
+    rejected: list[tuple[int, int, str]] = []
     for c in m.closures.closures:
         status = "accepted" if c.T_j_i is not None and not c.kernel_rejected else "rejected"
-        (accepted if status == "accepted" else rejected).append((c.i, c.j))
+        (accepted if status == "accepted" else rejected).append((c.i, c.j, c.source))
         # The closure edge's 1-sigma (its fit's covariance; empty where it was not fitted).
         sig = "" if c.covariance is None else ",".join(f"{v:.3g}" for v in np.sqrt(np.diag(c.covariance)))
         rows.append(
-            f"{c.i},{c.j},{float(m.stamps_s[c.i])!r},{float(m.stamps_s[c.j])!r},{status},"
+            f"{c.i},{c.j},{float(m.stamps_s[c.i])!r},{float(m.stamps_s[c.j])!r},{status},{c.source},"
             f"{c.inliers:.3f},{c.rms_m:.4f},{sig or ',,'},{c.why_not}"
         )
     (folder / "closures.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")

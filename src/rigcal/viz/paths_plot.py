@@ -68,27 +68,34 @@ def _ends(ax: Any, p: FloatArray, colour: str, zorder: int) -> None:
     ax.plot(p[-1, 0], p[-1, 1], "x", color=colour, markersize=8, zorder=zorder)
 
 
-def graph_figure(poses: FloatArray, accepted: list[tuple[int, int]], rejected: list[tuple[int, int]]) -> Any:
+def graph_figure(
+    poses: FloatArray, accepted: list[tuple[int, int, str]], rejected: list[tuple[int, int, str]]
+) -> Any:
     """A loop-closed path and its closures seen from above: the optimised path, each
-    accepted closure as a green segment between its two poses, each closure rejected
-    (by the verification or the robust kernel) as a dashed red one.
+    accepted closure as a segment between its two poses (green from the scan search,
+    purple from another source such as images), each closure rejected (by the verification
+    or the robust kernel) as a dashed one (red, orange); the legend counts each.
 
     Args:
         poses: (N, 2+) the optimised positions.
-        accepted, rejected: (i, j) pose index pairs.
+        accepted, rejected: (i, j, source) pose index pairs and who proposed them.
     """
     fig = figure(8.0, 8.0)
     ax = fig.subplots()
     ax.plot(poses[:, 0], poses[:, 1], color=TRUTH, linewidth=1.0, label="optimised path")
-    for pairs, colour, dash, label in (
-        (accepted, "tab:green", "-", "accepted"),
-        (rejected, "tab:red", "--", "rejected"),
-    ):
-        for k, (i, j) in enumerate(pairs):
-            ax.plot(
-                [poses[i, 0], poses[j, 0]], [poses[i, 1], poses[j, 1]], dash, color=colour, linewidth=1.5,
-                label=f"{label} closures ({len(pairs)})" if k == 0 else None,
-            )  # fmt: skip
+    sources = sorted({s for _, _, s in accepted + rejected}, key=lambda s: (s != "scan", s))
+    for n, source in enumerate(sources):
+        for pairs, colours, dash, label in (
+            (accepted, ("tab:green", "tab:purple", "tab:olive"), "-", "accepted"),
+            (rejected, ("tab:red", "tab:orange", "tab:brown"), "--", "rejected"),
+        ):
+            mine = [(i, j) for i, j, s in pairs if s == source]
+            for k, (i, j) in enumerate(mine):
+                ax.plot(
+                    [poses[i, 0], poses[j, 0]], [poses[i, 1], poses[j, 1]], dash,
+                    color=colours[min(n, 2)], linewidth=1.5,
+                    label=f"{label} closures, {source} ({len(mine)})" if k == 0 else None,
+                )  # fmt: skip
     ax.set_aspect("equal", adjustable="datalim")
     style(ax, "pose graph: loop closures", "x (m)", "y (m)")
     ax.legend(loc="best", fontsize=9)
