@@ -191,3 +191,48 @@ def test_one_source_only(drives, capsys):
 def test_settings_reject_a_bad_level():
     with pytest.raises(ValueError, match="level"):
         TargetlessSettings(level=1.5)
+
+
+def test_an_estimate_that_does_not_settle_or_runs_off_its_pairing_cannot_tell():
+    """The estimate's region of trust: a last step still large, or a correction that
+    moves the edges' projections beyond the window their image edges were paired in,
+    is "cannot tell" with the reason, never a verdict."""
+    from types import SimpleNamespace
+
+    from rigcal.drift.edges import Edges, band_points
+    from rigcal.drift.targetless import RUNAWAY_UNITS, _CannotTellError, _runaway
+
+    rig = Rig(default_T_cam_laser(), small_camera())
+    feet = np.array([[2.5, 0.3], [3.0, -0.4], [4.0, 0.8]])
+    n = len(feet)
+    edges = Edges(band_points(feet), np.arange(n), np.zeros(n, np.int64), np.arange(n), np.hypot(*feet.T))
+    patches = SimpleNamespace(edges=edges)
+    s = TargetlessSettings()
+    T0 = rig.T_cam_laser
+    near = T0 @ make_T(rotvec_to_R([0.0, 0.0, math.radians(0.5)]), [0.0, 0.0, 0.0])
+    _runaway(rig, T0, near, patches, 0.005, s)  # settled, within the window: no objection
+    with pytest.raises(_CannotTellError, match="did not settle"):
+        _runaway(rig, T0, near, patches, 2 * RUNAWAY_UNITS, s)
+    # 3 deg of yaw: the edges' projections move about 14 px at 260 px focal length.
+    far = T0 @ make_T(rotvec_to_R([0.0, 0.0, math.radians(3.0)]), [0.0, 0.0, 0.0])
+    with pytest.raises(_CannotTellError, match=r"ran away: the correction \(3.00 deg"):
+        _runaway(rig, T0, far, patches, 0.005, s)
+
+
+def test_edges_at_one_depth_are_said_to_leave_yaw_and_a_sideways_shift_apart():
+    from rigcal.drift.targetless import _unobserved_words
+
+    # Observed: roll, pitch, and yaw + sideways shift together; not: their difference
+    # (and laser z, x).
+    u = np.array([0.0, 0.0, 0.6, 0.0, 0.8, 0.0])
+    w = np.array([0.0, 0.0, 0.8, 0.0, -0.6, 0.0])
+    V = np.column_stack([np.eye(6)[:, 0], np.eye(6)[:, 1], u])
+    info = {"edge_corners": 3, "edge_depth_m": [2.4, 2.7], "heading_range_deg": 90.0}
+    words = _unobserved_words(V, info)
+    mixed = [x for x in words if set(x["components"]) == {"rz", "ty"}]
+    assert len(mixed) == 1
+    assert "one depth (2.4-2.7 m)" in mixed[0]["why"]
+    assert "not told apart" in mixed[0]["why"]
+    assert abs(abs(mixed[0]["components"]["rz"]) - abs(w[2])) < 1e-3
+    shift = [x for x in words if set(x["components"]) == {"tx"}]
+    assert "3 corners" in shift[0]["why"]
