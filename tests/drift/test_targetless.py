@@ -236,3 +236,27 @@ def test_edges_at_one_depth_are_said_to_leave_yaw_and_a_sideways_shift_apart():
     assert abs(abs(mixed[0]["components"]["rz"]) - abs(w[2])) < 1e-3
     shift = [x for x in words if set(x["components"]) == {"tx"}]
     assert "3 corners" in shift[0]["why"]
+
+
+@pytest.mark.parametrize(
+    ("corners", "want"), [(2, {"rx", "ry"}), (3, {"rx", "ry"}), (6, {"rx", "ry", "rz", "tx", "ty"})]
+)
+def test_the_edges_directions_need_more_corners_than_they_estimate(corners, want):
+    """With the edge term used, the yaw and the translations across the plane are tested
+    only when at least 4 physical corners carry them (a jackknife over fewer has no
+    spread to judge three directions by)."""
+    from rigcal.drift.targetless import AXES, _axis_observed, _Estimate, _observed_basis
+
+    est = _Estimate(
+        xi=np.zeros(6),
+        cov_z=np.diag([1e-3] * 5 + [0.0]),
+        odometry=np.zeros(6),
+        odometry_sigma=np.zeros(6),
+        blocks=12,
+        corners=corners,
+        moves=np.zeros((12 + corners, 6)),
+        determined=np.eye(6)[:, :5],
+        edge_stats={"edge_bands": 100},
+    )
+    V = _observed_basis(est, TargetlessSettings())
+    assert {AXES[a] for a in range(6) if _axis_observed(V, a)} == want

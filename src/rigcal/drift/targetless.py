@@ -117,14 +117,20 @@ class TargetlessSettings:
         min_travel_m: a drive shorter than this: "cannot tell" (no parallax).
         native_blur_px: the camera's own blur (1 sigma) assumed when matching the blur of
             two frames.
-        floor_deg, floor_m: a systematic floor added to every direction's variance: what
-            no drive averages out (the image model, the lens model, the odometry's errors
-            beyond those estimated). Measured on simulated drives (docs/benchmarks.md):
-            the rotations' errors stay within 0.05 deg, but the photometric term's
-            translations reach 1-1.5 cm (the odometry's crab angle and pivot take up a
-            shifted camera), so without edges no translation counts as observed at 2 cm.
-        edge_floor_m: the translations' floor when the edges estimate them (their
-            errors on simulated drives: within 4 mm, RMS 2 mm).
+        floor_deg: the systematic floor of the roll, pitch and yaw (1-sigma, added to
+            each one's variance): what no drive's own spread shows (errors common to
+            all of its blocks and corners: the image model, the lens model, the
+            odometry's errors beyond those estimated). Derived on simulated
+            development drives (seeds 100-121, docs/benchmarks.md, round 4): the root
+            mean square of the unperturbed corrections less the mean of their
+            jackknife variances, per axis (0.013-0.020, 0.018-0.029, 0.030-0.038
+            deg), rounded up.
+        floor_m: the translations' floor when the photometric term estimates them (no
+            edges): its translations reach 1-1.5 cm on simulated drives (the
+            odometry's crab angle and pivot take up a shifted camera), so without
+            edges no translation counts as observed at 2 cm.
+        edge_floor_m: the translations' floor when the edges estimate them, derived as
+            the rotations' (0.8-1.5 mm), rounded up.
         scan_rate_hz: with edges, the check's own laser odometry runs on the scans
             thinned to about this rate (every k-th scan; 40 Hz to 10 Hz: a quarter of
             the ICP's cost, steps of a few centimetres); a drive showing fewer than
@@ -154,9 +160,9 @@ class TargetlessSettings:
     min_returns: int = 200
     min_travel_m: float = 1.0
     native_blur_px: float = 0.8
-    floor_deg: float = 0.05
+    floor_deg: tuple[float, float, float] = (0.02, 0.03, 0.04)
     floor_m: float = 0.01
-    edge_floor_m: float = 0.003
+    edge_floor_m: float = 0.0015
     scan_rate_hz: float | None = 10.0
     edges: bool = True
     edge_window_px: tuple[float, ...] = (12.0, 6.0)
@@ -1059,6 +1065,10 @@ _EDGE_ONLY = (2, 3, 4)
 """Rows of the free parameters (rz, tx, ty) the edges alone estimate when they are seen."""
 MIN_EDGE_BANDS = 10
 """Fewer usable edge bands: the edge term is left out of that step."""
+MIN_CORNERS = len(_EDGE_ONLY) + 1
+"""Fewer physical corners than the directions the edges alone estimate (the yaw and the
+translations across the laser plane) plus one: their jackknife has no spread to judge
+them by, and they count as not observed."""
 
 
 def _edge_rows(rig: Rig, edges: Edges | None) -> tuple[float, float]:
@@ -1083,9 +1093,7 @@ def _floor_m(s: TargetlessSettings, est: _Estimate) -> float:
 def _floor_limited(s: TargetlessSettings, floor_m: float) -> set[int]:
     """Axes whose floor alone is above the observed threshold."""
     limit = 1.0 / s.detection_factor()
-    out = set()
-    if s.floor_deg / s.resolution_deg >= limit:
-        out |= {0, 1, 2}
+    out = {a for a in range(3) if s.floor_deg[a] / s.resolution_deg >= limit}
     if floor_m / s.resolution_m >= limit:
         out |= {3, 4}
     return out
@@ -1093,7 +1101,7 @@ def _floor_limited(s: TargetlessSettings, floor_m: float) -> set[int]:
 
 def _floor_z(s: TargetlessSettings, floor_m: float) -> FloatArray:
     """(6, 6) the systematic floor in resolution units (laser z's row and column zero)."""
-    f = np.array([math.radians(s.floor_deg)] * 3 + [floor_m] * 3) / s.scale
+    f = np.array([math.radians(x) for x in s.floor_deg] + [floor_m] * 3) / s.scale
     f[_FIXED] = 0.0
     out: FloatArray = np.diag(f**2)
     return out
@@ -1104,6 +1112,15 @@ def _observed_basis(est: _Estimate, s: TargetlessSettings) -> FloatArray:
     plus the floor) is under one resolution over the detection factor, among those the
     drive determines once the odometry's errors are free."""
     Q6 = est.determined
+    if est.edge_stats and est.corners < MIN_CORNERS:
+        # The edges alone estimate the yaw and the translations; from fewer corners than
+        # those three directions plus one, their spread says nothing of them (a
+        # corner's own error, its foot or its image edge, is indistinguishable from a
+        # change): only what the drive determines of the roll and the pitch is tested.
+        P = np.zeros((6, 6))
+        P[[0, 1], [0, 1]] = 1.0
+        U, sv, _ = np.linalg.svd(P @ Q6, full_matrices=False)
+        Q6 = U[:, sv > 0.5]
     Cq = Q6.T @ (est.cov_z + _floor_z(s, _floor_m(s, est))) @ Q6
     ev, U = np.linalg.eigh(Cq)
     keep = ev < (1.0 / s.detection_factor()) ** 2
@@ -1120,7 +1137,8 @@ def _test(
     D = np.diag(s.scale)
     V_obs = _observed_basis(est, s)
     k = V_obs.shape[1]
-    unobserved = _unobserved_words(V_obs, patches.info, _floor_limited(s, _floor_m(s, est)))
+    info = patches.info | ({"edge_corners": est.corners} if est.edge_stats else {})
+    unobserved = _unobserved_words(V_obs, info, _floor_limited(s, _floor_m(s, est)))
     record: dict[str, Any] = (
         est.edge_stats
         | est.solve
@@ -1291,6 +1309,13 @@ def _unobserved_words(
                     "; the drive shows no corner, pillar or wall end clearly enough in the images to "
                     "measure it by their edges"
                 )
+        elif main in _EDGE_ONLY and 0 < info.get("edge_corners", 0) < MIN_CORNERS:
+            lo, hi = info.get("edge_depth_m", [0.0, 0.0])
+            why = (
+                f"the drive shows {info['edge_corners']} corners (at {lo:.1f}-{hi:.1f} m), each one error "
+                f"however many frames see it: too few (at least {MIN_CORNERS}) to tell the yaw and the "
+                "shifts across the view from the corners' own errors"
+            )
         elif abs(u[2]) >= 0.3 and max(abs(u[3]), abs(u[4])) >= 0.3 and info.get("edge_corners"):
             lo, hi = info.get("edge_depth_m", [0.0, 0.0])
             why = (
