@@ -25,24 +25,33 @@ that into a measurement of T:
 4. Gauss-Newton on xi with image gradients, robust (Cauchy) weights per patch and per
    edge band, each term weighed by its own noise; when edges are seen they alone
    estimate the yaw and the translations (the photometric term's are confounded with
-   the odometry's crab angle and pivot), the photometric term the roll and pitch.
-5. The covariance of xi: the sandwich H^-1 B H^-1 with B summed over blocks of
-   ``block_s`` seconds (neighbouring frames share odometry and images; blocks are nearly
-   independent), so model errors (odometry drift, rendering, range noise) count as they
-   show in the data rather than as assumed.
+   the odometry's crab angle and pivot), the photometric term the roll and pitch. The
+   edge bands are paired with their image edges once, at the start estimate; a step is
+   accepted only when the Newton correction at its end is shorter than the step
+   (natural monotonicity; damped and retried otherwise), and an estimate that does not
+   settle or runs off its pairing is "cannot tell".
+5. The covariance of xi: the clusters' jackknife (:mod:`rigcal.drift.statistic`), the
+   clusters being the photometric patches of each block of ``block_s`` seconds
+   (neighbouring frames share odometry and images) and the edge bands of each physical
+   corner (one corner's error is one error, however many frames see it), so model
+   errors (odometry drift, rendering, range noise, a corner's foot) count as they show
+   in the data rather than as assumed; plus a systematic floor derived on simulated
+   drives.
 6. Which directions are observed: those whose 1-sigma is below the resolution (0.3 deg, 2
    cm by default) over the detection factor (a change of one resolution is then detected
    95 % of the time at the level). A 2D laser moving in its scan plane never observes the
    camera's height above the laser (laser z): lifting every return along its wall keeps it
    on the same surface point in every frame, and slides a vertical edge's projection
-   along itself. Edges at several depths observe the translations across the plane. A
-   drive that keeps one heading (a straight corridor) and sees no edge does not observe
+   along itself. Edges at several depths observe the translations across the plane; with
+   fewer than 4 physical corners the edges' directions (yaw, translations) are not
+   counted as observed. A drive that keeps one heading (a straight corridor) and sees no edge does not observe
    a shift along the travel nor a roll about it (both slide the returns along their
    walls, alike in every frame).
 7. The test: the correction on the observed directions against its covariance plus the
-   stored calibration's (Hotelling's T^2 with the blocks' count: an F test that tends to
-   the chi-square with k dof as the blocks grow). Drifted when p < level. When the drive
-   is too short, sees no returns, or observes no direction, the verdict is "cannot tell".
+   stored calibration's (Hotelling's T^2 with the clusters' effective count: an F test
+   that tends to the chi-square with k dof as the clusters grow). Drifted when p <
+   level. When the drive is too short, sees no returns, or observes no direction, the
+   verdict is "cannot tell".
 """
 
 from __future__ import annotations
