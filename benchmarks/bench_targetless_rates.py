@@ -90,7 +90,12 @@ def check(folder: Path, rig: Path) -> dict:  # type: ignore[type-arg]
         "reasons": res.reasons if res.verdict == "cannot_tell" else [],
         # The test's pieces (resolution units), so that the report can say what the
         # statistic would give with another floor.
-        "details": {k: np.asarray(v).tolist() for k, v in res.details.items()},
+        "details": {
+            "groups": [
+                {k: np.asarray(v).tolist() for k, v in g.items()} for g in res.details.get("groups", [])
+            ]
+        },
+        "tests": rec.get("tests"),
         "cpu_s": round(time.process_time() - c, 2),
     }
 
@@ -101,21 +106,23 @@ def seeds_of(text: str) -> list[int]:
 
 
 def refloored(rows: list[dict], scales: list[float]) -> None:  # type: ignore[type-arg]
-    """The p-values the same checks give with the floor's covariance scaled by each of
-    ``scales`` (0: no floor), the estimate and its data covariance unchanged (the
-    observed directions as chosen with the settings' floor)."""
+    """The p-values the same checks give with the known part of each test's covariance
+    (the floor) scaled by each of ``scales`` (0: no floor), the estimate and its data
+    covariance unchanged (the observed directions as chosen with the settings' floor)."""
     from scipy.stats import kstest
 
     from rigcal.drift.statistic import hotelling
 
-    rows = [r for r in rows if r.get("details")]
+    rows = [r for r in rows if r.get("details", {}).get("groups")]
     print("floor scaled by | alarms at 1 % | KS D | p quantiles 0.1 / 0.5 / 0.9")
     for a in scales:
         p = []
         for r in rows:
-            d = {k: np.asarray(v) for k, v in r["details"].items()}
-            t = hotelling(d["z"], d["C_data"], a * d["C_floor"] + d["C_rig"], float(d["n_data"]), 0.01)
-            p.append(t.p)
+            groups = [{k: np.asarray(v) for k, v in g.items()} for g in r["details"]["groups"]]
+            ps = [
+                hotelling(g["z"], g["C_data"], a * g["C_known"], float(g["n_data"]), 0.01).p for g in groups
+            ]
+            p.append(min(1.0, len(ps) * min(ps)))
         q = np.quantile(p, [0.1, 0.5, 0.9])
         ks = kstest(p, "uniform").statistic
         n1 = sum(x < 0.01 for x in p)

@@ -239,12 +239,12 @@ def test_edges_at_one_depth_are_said_to_leave_yaw_and_a_sideways_shift_apart():
 
 
 @pytest.mark.parametrize(
-    ("corners", "want"), [(2, {"rx", "ry"}), (3, {"rx", "ry"}), (6, {"rx", "ry", "rz", "tx", "ty"})]
+    ("corners", "want"), [(2, {"rx", "ry"}), (4, {"rx", "ry"}), (5, {"rx", "ry", "rz", "tx", "ty"})]
 )
 def test_the_edges_directions_need_more_corners_than_they_estimate(corners, want):
     """With the edge term used, the yaw and the translations across the plane are tested
-    only when at least 4 physical corners carry them (a jackknife over fewer has no
-    spread to judge three directions by)."""
+    only when at least 5 physical corners carry them (an F test of three directions
+    needs five clusters)."""
     from rigcal.drift.targetless import AXES, _axis_observed, _Estimate, _observed_basis
 
     est = _Estimate(

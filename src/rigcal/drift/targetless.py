@@ -204,9 +204,9 @@ class TargetlessResult:
         covariance: (6, 6) its covariance on the observed directions (zero elsewhere).
         record: the drift log's ``targetless`` block (JSON-ready).
         reasons: sentences behind the verdict.
-        details: the test's pieces in the observed basis (resolution units): the
-            correction ``z``, its covariance from the data ``C_data``, the floor's
-            ``C_floor``, the rig's ``C_rig``, the clusters' effective count ``n_data``
+        details: ``groups``: each test's pieces in its observed basis ``V`` (resolution
+            units): the correction ``z``, its covariance from the data ``C_data``, the
+            floor's and the rig's ``C_known``, the clusters' effective count ``n_data``
             (for benchmarks that study the statistic; not logged).
     """
 
@@ -1074,10 +1074,10 @@ _EDGE_ONLY = (2, 3, 4)
 """Rows of the free parameters (rz, tx, ty) the edges alone estimate when they are seen."""
 MIN_EDGE_BANDS = 10
 """Fewer usable edge bands: the edge term is left out of that step."""
-MIN_CORNERS = len(_EDGE_ONLY) + 1
+MIN_CORNERS = len(_EDGE_ONLY) + 2
 """Fewer physical corners than the directions the edges alone estimate (the yaw and the
-translations across the laser plane) plus one: their jackknife has no spread to judge
-them by, and they count as not observed."""
+translations across the laser plane) plus two: their jackknife cannot judge them (an F
+test needs k + 2 clusters), and they count as not observed."""
 
 
 def _edge_rows(rig: Rig, edges: Edges | None) -> tuple[float, float]:
@@ -1116,24 +1116,55 @@ def _floor_z(s: TargetlessSettings, floor_m: float) -> FloatArray:
     return out
 
 
-def _observed_basis(est: _Estimate, s: TargetlessSettings) -> FloatArray:
-    """(6, k) orthonormal directions (resolution units) whose sigma (the blocks' sandwich
-    plus the floor) is under one resolution over the detection factor, among those the
-    drive determines once the odometry's errors are free."""
+@dataclass(frozen=True)
+class _Group:
+    """Observed directions tested together: their basis (6, k; resolution units), which
+    clusters carry them (rows of the estimate's ``moves``) and a name."""
+
+    name: str
+    V: FloatArray
+    clusters: slice
+
+
+def _observed_groups(est: _Estimate, s: TargetlessSettings) -> list[_Group]:
+    """The observed directions (resolution units), in the groups each tested on its own
+    clusters: with the edge term, the roll and pitch (the photometric term, its blocks)
+    and the yaw and translations across the plane (the edges alone, their corners);
+    without it, all five on the blocks. A direction is observed when the drive
+    determines it once the odometry's errors are free and its sigma (the clusters'
+    jackknife plus the floor) is under one resolution over the detection factor. A
+    group whose clusters are too few for its directions (fewer than k + 2) is left out:
+    its spread cannot judge them."""
     Q6 = est.determined
-    if est.edge_stats and est.corners < MIN_CORNERS:
-        # The edges alone estimate the yaw and the translations; from fewer corners than
-        # those three directions plus one, their spread says nothing of them (a
-        # corner's own error, its foot or its image edge, is indistinguishable from a
-        # change): only what the drive determines of the roll and the pitch is tested.
+    C = est.cov_z + _floor_z(s, _floor_m(s, est))
+    limit = (1.0 / s.detection_factor()) ** 2
+    if est.edge_stats:
+        parts = [
+            ("roll and pitch", [0, 1], slice(0, est.blocks)),
+            ("yaw and translations", list(_EDGE_ONLY), slice(est.blocks, est.blocks + est.corners)),
+        ]
+    else:
+        parts = [("all", [0, 1, 2, 3, 4], slice(0, est.blocks))]
+    out = []
+    for name, axes, clusters in parts:
         P = np.zeros((6, 6))
-        P[[0, 1], [0, 1]] = 1.0
+        P[axes, axes] = 1.0
         U, sv, _ = np.linalg.svd(P @ Q6, full_matrices=False)
-        Q6 = U[:, sv > 0.5]
-    Cq = Q6.T @ (est.cov_z + _floor_z(s, _floor_m(s, est))) @ Q6
-    ev, U = np.linalg.eigh(Cq)
-    keep = ev < (1.0 / s.detection_factor()) ** 2
-    out: FloatArray = Q6 @ U[:, keep]
+        Q = U[:, sv > 0.5]
+        if Q.shape[1] == 0:
+            continue
+        ev, W = np.linalg.eigh(Q.T @ C @ Q)
+        V = Q @ W[:, ev < limit]
+        n_clusters = clusters.stop - clusters.start
+        if V.shape[1] and n_clusters >= V.shape[1] + 2:
+            out.append(_Group(name, V, clusters))
+    return out
+
+
+def _observed_basis(est: _Estimate, s: TargetlessSettings) -> FloatArray:
+    """(6, k) every observed direction (:func:`_observed_groups`)."""
+    groups = _observed_groups(est, s)
+    out: FloatArray = np.concatenate([g.V for g in groups], axis=1) if groups else np.zeros((6, 0))
     return out
 
 
@@ -1144,7 +1175,8 @@ def _test(
     rig: Rig, est: _Estimate, patches: _Patches, s: TargetlessSettings, reasons: list[str]
 ) -> dict[str, Any]:
     D = np.diag(s.scale)
-    V_obs = _observed_basis(est, s)
+    groups = _observed_groups(est, s)
+    V_obs = np.concatenate([g.V for g in groups], axis=1) if groups else np.zeros((6, 0))
     k = V_obs.shape[1]
     info = patches.info | ({"edge_corners": est.corners} if est.edge_stats else {})
     unobserved = _unobserved_words(V_obs, info, _floor_limited(s, _floor_m(s, est)))
@@ -1178,29 +1210,33 @@ def _test(
             f"({s.resolution_deg:g} deg, {100 * s.resolution_m:g} cm) by this drive"
         )
         return {"verdict": "cannot_tell", "record": record} | nothing
-    # In the observed basis (resolution units): the clusters' jackknife, plus the known
-    # parts (the floor, the stored calibration's covariance).
-    Ck_est = V_obs.T @ est.cov_z @ V_obs
-    C_floor = V_obs.T @ _floor_z(s, _floor_m(s, est)) @ V_obs
-    C_rig = V_obs.T @ _rig_cov_z(rig, D) @ V_obs
-    Ck = Ck_est + C_floor
-    z = V_obs.T @ np.linalg.solve(D, est.xi)
-    # How many independent clusters the covariance stands on along the observed
-    # directions (a few corners carrying the yaw count as few, however many frames).
-    n_data = effective_clusters(est.moves, V_obs)
-    clusters = f"{est.blocks} blocks of {s.block_s:g} s and {est.corners} corners"
-    if n_data - k < 2:
+    # Each group on its own clusters (resolution units): the clusters' jackknife, plus
+    # the known parts (the floor, the stored calibration's covariance); Hotelling's T^2
+    # referred to the F with the clusters' effective count along the group's directions
+    # (a few corners carrying the yaw count as few, however many frames see them).
+    # The groups' tests are combined by Bonferroni: drifted when one group's p is
+    # under the level over the groups' count.
+    F_z, R_z = _floor_z(s, _floor_m(s, est)), _rig_cov_z(rig, D)
+    z_all = V_obs.T @ np.linalg.solve(D, est.xi)
+    tests = []
+    for g in groups:
+        z_g = g.V.T @ np.linalg.solve(D, est.xi)
+        C_g = g.V.T @ est.cov_z @ g.V
+        n_g = min(effective_clusters(est.moves[g.clusters], g.V), float(g.clusters.stop - g.clusters.start))
+        known = g.V.T @ (F_z + R_z) @ g.V
+        tests.append((g, hotelling(z_g, C_g, known, n_g, s.level / len(groups)), n_g, C_g, known, z_g))
+    if any(not math.isfinite(t.p) for _, t, *_ in tests):
         reasons.append(
-            f"too short: {clusters} amount to {n_data:.1f} independent pieces for {k} observed "
-            f"directions (needs at least {k + 2})"
+            f"too short: {est.blocks} blocks of {s.block_s:g} s and {est.corners} corners amount to too few "
+            f"independent pieces for the {k} observed directions"
         )
         return {"verdict": "cannot_tell", "record": record} | nothing
-    # Hotelling: (n - k) / (k (n - 1)) T^2 ~ F(k, n - k) under no change, n the
-    # clusters' effective count; the known parts make the covariance surer than n
-    # clusters alone (Satterthwaite's count). Tends to the chi-square with k dof.
-    test = hotelling(z, Ck_est, C_floor + C_rig, n_data, s.level)
-    t2, n, p = test.t2, test.n, test.p
+    p = min(1.0, len(tests) * min(t.p for _, t, *_ in tests))
+    g_min, test, n_data, *_ = min(tests, key=lambda x: x[1].p)
+    t2, n = test.t2, test.n
     drifted = p < s.level
+    Ck = V_obs.T @ (est.cov_z + F_z) @ V_obs
+    z = z_all
     xi_obs = D @ V_obs @ z
     cov_obs = D @ V_obs @ Ck @ V_obs.T @ D
     sig = np.sqrt(np.clip(np.diag(cov_obs), 0.0, None))
@@ -1222,7 +1258,19 @@ def _test(
         "effective_clusters": _r(n_data, 1),
         "effective_blocks": _r(n, 1),
         "p_value": float(f"{p:.4g}"),
-        "detects": _detectable(Ck + C_rig, k, n, s),
+        "tests": [
+            {
+                "directions": g.name,
+                "axes": [AXES[a] for a in range(6) if _axis_observed(g.V, a)],
+                "dof": t.k,
+                "t2": _r(t.t2, 4),
+                "t2_critical": _r(t.critical, 4),
+                "effective_clusters": _r(n_g, 1),
+                "p_value": float(f"{t.p:.4g}"),
+            }
+            for g, t, n_g, *_ in tests
+        ],
+        "detects": _detectable(V_obs.T @ (est.cov_z + F_z + R_z) @ V_obs, k, n, s),
     }
     if rig.covariance is None:
         reasons.append("the rig has no covariance: the stored calibration is taken as exact")
@@ -1231,10 +1279,16 @@ def _test(
     if drifted:
         reasons.append(
             f"the drive is most consistent with T_cam_laser corrected by {record['rotation_deg']:.3f} deg "
-            f"and {record['translation_mm']:.1f} mm (T^2 {t2:.1f} over {k} observed directions, {clusters}, "
-            f"p = {p:.2g})"
+            f"and {record['translation_mm']:.1f} mm (its {g_min.name}: T^2 {t2:.1f} over {test.k} observed "
+            f"directions, {n_data:.1f} effective clusters of {est.blocks} blocks and {est.corners} corners; "
+            f"p = {p:.2g} over {len(tests)} tests)"
         )
-    details = {"z": z, "C_data": Ck_est, "C_floor": C_floor, "C_rig": C_rig, "n_data": n_data, "V": V_obs}
+    details = {
+        "groups": [
+            {"z": z_g, "C_data": C_g, "C_known": known, "n_data": n_g, "V": g.V}
+            for g, _, n_g, C_g, known, z_g in tests
+        ],
+    }
     return {
         "verdict": "drifted" if drifted else "ok",
         "xi": xi_obs,
