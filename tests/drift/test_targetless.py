@@ -227,7 +227,7 @@ def test_edges_at_one_depth_are_said_to_leave_yaw_and_a_sideways_shift_apart():
     u = np.array([0.0, 0.0, 0.6, 0.0, 0.8, 0.0])
     w = np.array([0.0, 0.0, 0.8, 0.0, -0.6, 0.0])
     V = np.column_stack([np.eye(6)[:, 0], np.eye(6)[:, 1], u])
-    info = {"edge_corners": 3, "edge_depth_m": [2.4, 2.7], "heading_range_deg": 90.0}
+    info = {"edge_corners": 6, "edge_depth_m": [2.4, 2.7], "heading_range_deg": 90.0}
     words = _unobserved_words(V, info)
     mixed = [x for x in words if set(x["components"]) == {"rz", "ty"}]
     assert len(mixed) == 1
@@ -235,7 +235,10 @@ def test_edges_at_one_depth_are_said_to_leave_yaw_and_a_sideways_shift_apart():
     assert "not told apart" in mixed[0]["why"]
     assert abs(abs(mixed[0]["components"]["rz"]) - abs(w[2])) < 1e-3
     shift = [x for x in words if set(x["components"]) == {"tx"}]
-    assert "3 corners" in shift[0]["why"]
+    assert "6 corners" in shift[0]["why"]
+    # Fewer corners than the edges' three directions need: said so.
+    few = _unobserved_words(V, info | {"edge_corners": 3})
+    assert all("too few (at least 5)" in x["why"] for x in few if set(x["components"]) & {"rz", "tx", "ty"})
 
 
 @pytest.mark.parametrize(

@@ -963,10 +963,14 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
         last_step = math.inf
         for _ in range(s.iterations):
             sc = _scales(cur)
-            A_raw, g, _ = _system(cur, sc, keep)
+            A_raw, g, H_sym = _system(cur, sc, keep)
             A = D @ A_raw @ D + prior
             F = D @ g
+            # Steps are measured in the information's metric (sigmas): the odometry's
+            # weakly determined errors, which the prior barely holds, then count little.
+            metric = D @ H_sym @ D + prior
             lam = 0.0
+            remaining = float(np.abs(np.linalg.solve(A, F)[:5]).max())  # the undamped Newton step
             for _try in range(MAX_TRIES):
                 M = A + lam * np.diag(np.diag(A))
                 dz = -np.linalg.solve(M, F)
@@ -986,13 +990,17 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
                     # are dropped), so this, not a cost, says whether the step brought
                     # the estimate nearer the solution of both terms' equations.
                     _, g_try, _ = _system(trial, sc, keep)
-                    ok = float(np.linalg.norm(np.linalg.solve(M, D @ g_try))) < float(np.linalg.norm(dz))
+                    bar = np.linalg.solve(M, D @ g_try)
+                    ok = bool(bar @ metric @ bar < dz @ metric @ dz) or float(np.abs(bar[:5]).max()) < 0.01
                 if ok:
                     break
                 refused += 1
                 lam = 1e-2 if lam == 0.0 else 10.0 * lam
             else:
-                break  # no step brings it nearer: as settled as this stage goes
+                # No step brings it nearer: as settled as this stage goes; what is left
+                # of the Newton step says whether that is settled.
+                last_step = remaining
+                break
             T, nuis, cur = T_try, nuis_try, trial
             steps += 1
             last_step = float(np.abs(dz[:5]).max())
