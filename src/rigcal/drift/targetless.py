@@ -1140,9 +1140,9 @@ def _observed_groups(est: _Estimate, s: TargetlessSettings) -> list[_Group]:
     and the yaw and translations across the plane (the edges alone, their corners);
     without it, all five on the blocks. A direction is observed when the drive
     determines it once the odometry's errors are free and its sigma (the clusters'
-    jackknife plus the floor) is under one resolution over the detection factor. A
-    group whose clusters are too few for its directions (fewer than k + 2) is left out:
-    its spread cannot judge them."""
+    jackknife plus the floor) is under one resolution over the detection factor; of a
+    group whose clusters are too few for its directions (an F test of k needs k + 2),
+    only its best determined (clusters - 2) are tested: the spread cannot judge more."""
     Q6 = est.determined
     C = est.cov_z + _floor_z(s, _floor_m(s, est))
     limit = (1.0 / s.detection_factor()) ** 2
@@ -1161,11 +1161,11 @@ def _observed_groups(est: _Estimate, s: TargetlessSettings) -> list[_Group]:
         Q = U[:, sv > 0.5]
         if Q.shape[1] == 0:
             continue
-        ev, W = np.linalg.eigh(Q.T @ C @ Q)
-        V = Q @ W[:, ev < limit]
-        n_clusters = clusters.stop - clusters.start
-        if V.shape[1] and n_clusters >= V.shape[1] + 2:
-            out.append(_Group(name, V, clusters))
+        ev, W = np.linalg.eigh(Q.T @ C @ Q)  # ascending: the best determined first
+        # An F test of k directions needs k + 2 clusters: the best determined ones only.
+        k = min(int((ev < limit).sum()), clusters.stop - clusters.start - 2)
+        if k > 0:
+            out.append(_Group(name, Q @ W[:, :k], clusters))
     return out
 
 
