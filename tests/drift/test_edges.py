@@ -10,8 +10,16 @@ import numpy as np
 import pytest
 
 from rigcal.camera import Camera
-from rigcal.drift.edges import EdgeImages, Edges, band_points, edge_residuals, scan_discontinuities
-from rigcal.geometry import make_T, rotvec_to_R
+from rigcal.drift.edges import (
+    REPAIR_GATE_PX,
+    EdgeImages,
+    Edges,
+    band_points,
+    corner_clusters,
+    edge_residuals,
+    scan_discontinuities,
+)
+from rigcal.geometry import make_T, rotvec_to_R, se2
 from rigcal.lines import extract_lines
 from rigcal.scan import Scan
 from rigcal.sim.box_session import default_T_cam_laser
@@ -86,14 +94,16 @@ def scene():
     T = default_T_cam_laser()
     feet = np.array([[3.0, 0.2], [2.0, -0.5], [5.0, 1.1], [2.5, 0.6]])
     gray_of = {k: render_edge(f, T) for k, f in enumerate(feet)}
-    edges = Edges(band_points(feet), np.arange(len(feet)), np.zeros(len(feet), dtype=np.int64))
+    n = len(feet)
+    depth = np.linalg.norm(feet, axis=1)
+    edges = Edges(band_points(feet), np.arange(n), np.zeros(n, np.int64), np.arange(n), depth)
     images = EdgeImages(gray_of, edges.img, 1.2, (0.0, 480.0))
     return T, edges, images
 
 
 def test_the_right_T_puts_the_projections_on_the_edges(scene):
     T, edges, images = scene
-    r, _, usable = edge_residuals(CAMERA, T, edges, images, 6.0)
+    r, _, usable, _ = edge_residuals(CAMERA, T, edges, images, 6.0)
     assert usable.sum() >= 8
     # Bilinear sampling locks a peak a little towards pixel centres (up to about 0.2 px,
     # as many ways as the other: it averages out over edges at all sub-pixel phases).
@@ -106,10 +116,10 @@ def test_the_offsets_move_as_their_derivatives_say(scene, axis):
     """r(T Exp(xi)) - r(T) against J xi, for a change of 0.2 deg or 2 cm along one axis;
     laser z (a shift along the edges) moves nothing."""
     T, edges, images = scene
-    r0, J, u0 = edge_residuals(CAMERA, T, edges, images, 8.0)
+    r0, J, u0, _ = edge_residuals(CAMERA, T, edges, images, 8.0)
     xi = np.zeros(6)
     xi[axis] = 0.004 if axis < 3 else 0.02
-    r1, _, u1 = edge_residuals(CAMERA, T @ make_T(rotvec_to_R(xi[:3]), xi[3:]), edges, images, 8.0)
+    r1, _, u1, _ = edge_residuals(CAMERA, T @ make_T(rotvec_to_R(xi[:3]), xi[3:]), edges, images, 8.0)
     ok = u0 & u1
     assert ok.sum() >= 6
     pred = J[ok] @ xi
@@ -123,5 +133,54 @@ def test_the_offsets_move_as_their_derivatives_say(scene, axis):
 def test_no_edge_in_the_window_is_not_usable(scene):
     T, edges, images = scene
     far = T @ make_T(np.eye(3), [0.0, 0.15, 0.0])  # 15 cm: the edges 15-40 px away
-    _, _, usable = edge_residuals(CAMERA, far, edges, images, 6.0)
+    _, _, usable, _ = edge_residuals(CAMERA, far, edges, images, 6.0)
     assert not usable.any()
+
+
+def test_paired_once_the_bands_keep_their_edges_as_the_estimate_moves(scene):
+    """Paired at the start estimate, a band is re-measured only within the gate of its
+    first edge: far from the start its residual is the offset from the projection to that
+    same edge (not to another edge the window would find, nor none)."""
+    T, edges, images = scene
+    _, _, u0, found = edge_residuals(CAMERA, T, edges, images, 6.0)
+    far = T @ make_T(np.eye(3), [0.0, 0.15, 0.0])
+    r1, _, u1, found1 = edge_residuals(CAMERA, far, edges, images, 6.0, anchor=found)
+    ok = u0 & u1
+    assert ok.sum() >= 8
+    # The offset from the far projection to the first pairing's edge, band by band.
+    E, B, K, _ = edges.X.shape
+    mid = edges.X[:, :, K // 2].reshape(-1, 3)
+    q = CAMERA.project(mid @ far[:3, :3].T + far[:3, 3]).reshape(E, B, 2)
+    top = CAMERA.project(edges.X[:, :, -1].reshape(-1, 3) @ far[:3, :3].T + far[:3, 3]).reshape(E, B, 2)
+    bottom = CAMERA.project(edges.X[:, :, 0].reshape(-1, 3) @ far[:3, :3].T + far[:3, 3]).reshape(E, B, 2)
+    d = top - bottom
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    nrm = np.stack([d[..., 1], -d[..., 0]], axis=-1)
+    want = np.einsum("ebi,ebi->eb", found[:, :, K // 2] - q, nrm).ravel()
+    assert np.abs(want[ok]).min() > 10.0  # far beyond the gate: no re-pairing could reach
+    np.testing.assert_allclose(r1[ok], want[ok], atol=0.3)
+    # Re-measured within the gate: the edge points stay where they were found.
+    assert np.abs(found1 - found).max(axis=(2, 3)).reshape(-1)[ok].max() <= REPAIR_GATE_PX + 0.5
+
+
+def test_corner_observations_cluster_by_their_place_in_the_world():
+    """Three corners seen from a moving, turning laser, each foot with 1 cm of noise and
+    the odometry's pose slightly off: each corner's observations are one cluster."""
+    rng = np.random.default_rng(5)
+    corners = np.array([[3.0, 1.0], [3.3, 1.0], [6.0, -1.5]])
+    feet_world, truth = [], []
+    for k in range(30):
+        pose = np.array([0.05 * k, 0.01 * k, 0.02 * k])
+        P = se2(pose)
+        seen = rng.permutation(3)[: rng.integers(1, 4)]
+        local = (corners[seen] - P[:2, 2]) @ P[:2, :2]  # laser frame
+        odo = se2(pose + rng.normal(0.0, [0.005, 0.005, 0.001]))
+        feet_world.append((local + rng.normal(0.0, 0.01, local.shape)) @ odo[:2, :2].T + odo[:2, 2])
+        truth.append(seen)
+    labels = corner_clusters(np.concatenate(feet_world))
+    truth_ = np.concatenate(truth)
+    assert len(np.unique(labels)) == 3
+    for c in range(3):
+        assert len(np.unique(labels[truth_ == c])) == 1
+    assert labels[0] == 0  # numbered by first appearance
+    assert corner_clusters(np.zeros((0, 2))).shape == (0,)

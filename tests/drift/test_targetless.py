@@ -88,8 +88,17 @@ def test_true_rig_is_ok_and_laser_z_is_never_observed(drives):
     assert len(z) == 1
     assert "scan plane" in z[0]["why"]
     # The scans' corners and the partitions' ends against the images' edges observe the
-    # translations across the laser plane.
-    assert {"tx", "ty"} <= set(rec["observed_axes"])
+    # yaw and the translations across the laser plane, as far as the physical corners
+    # carry them (k + 2 corners for k directions: this drive's 4 carry two); the one
+    # left is said to need more corners.
+    assert rec["corners"] >= 3
+    edge_axes = {"rz", "tx", "ty"} & set(rec["observed_axes"])
+    assert len(edge_axes) == min(3, rec["corners"] - 2)
+    assert "ty" in edge_axes
+    left = [u for u in rec["unobserved"] if set(u["components"]) & ({"rz", "tx", "ty"} - edge_axes)]
+    assert left
+    assert all("corners" in u["why"] for u in left)
+    assert rec["tests"][1]["directions"] == "yaw and translations"
     assert rec["edges"] > 50
     assert rec["edge_bands"] > 100
     assert rec["edge_rms_px"] < 1.0
@@ -115,19 +124,24 @@ def test_without_edges_no_translation_is_observed_and_the_record_says_why(drives
     assert "edge_bands" not in rec
 
 
-@pytest.mark.parametrize("axis", [3, 4])
+@pytest.mark.parametrize("axis", [4])
 def test_two_centimetres_across_the_laser_plane_are_detected_and_corrected(drives, tmp_path, axis):
+    """Sideways (laser y), which this drive's corners observe; forward (x) needs more
+    corners than this 24 s drive shows (benchmarks: the laps)."""
     rig = read_rig(drives["rig"])
     p = np.zeros(6)
     p[axis] = 0.02
     stored = dataclasses.replace(rig, T_cam_laser=rig.T_cam_laser @ make_T(np.eye(3), p[3:]))
     res = check_targetless(stored, open_streams(drives["drive"], rig_file=drives["rig"]))
     assert res.verdict == "drifted", res.reasons
-    # The right correction is -2 cm along that axis, within the issue's 1 cm (here: 3 mm).
+    # The right correction is -2 cm along that axis: within 3 mm there; the other
+    # translations within the issue's 1 cm (an observed direction of the 4 corners
+    # mixes the forward shift in).
     got = np.array(res.record["correction_translation_mm"])
     want = np.zeros(3)
     want[axis - 3] = -20.0
-    assert np.abs(got - want).max() < 3.0
+    assert abs(got[axis - 3] - want[axis - 3]) < 3.0
+    assert np.abs(got - want).max() < 10.0
 
 
 def test_yaw_of_half_a_degree_is_detected_and_corrected(drives, tmp_path, capsys):
@@ -191,3 +205,75 @@ def test_one_source_only(drives, capsys):
 def test_settings_reject_a_bad_level():
     with pytest.raises(ValueError, match="level"):
         TargetlessSettings(level=1.5)
+
+
+def test_an_estimate_that_does_not_settle_or_runs_off_its_pairing_cannot_tell():
+    """The estimate's region of trust: a last step still large, or a correction that
+    moves the edges' projections beyond the window their image edges were paired in,
+    is "cannot tell" with the reason, never a verdict."""
+    from types import SimpleNamespace
+
+    from rigcal.drift.edges import Edges, band_points
+    from rigcal.drift.targetless import RUNAWAY_UNITS, _CannotTellError, _runaway
+
+    rig = Rig(default_T_cam_laser(), small_camera())
+    feet = np.array([[2.5, 0.3], [3.0, -0.4], [4.0, 0.8]])
+    n = len(feet)
+    edges = Edges(band_points(feet), np.arange(n), np.zeros(n, np.int64), np.arange(n), np.hypot(*feet.T))
+    patches = SimpleNamespace(edges=edges)
+    s = TargetlessSettings()
+    T0 = rig.T_cam_laser
+    near = T0 @ make_T(rotvec_to_R([0.0, 0.0, math.radians(0.5)]), [0.0, 0.0, 0.0])
+    _runaway(rig, T0, near, patches, 0.005, s)  # settled, within the window: no objection
+    with pytest.raises(_CannotTellError, match="did not settle"):
+        _runaway(rig, T0, near, patches, 2 * RUNAWAY_UNITS, s)
+    # 3 deg of yaw: the edges' projections move about 14 px at 260 px focal length.
+    far = T0 @ make_T(rotvec_to_R([0.0, 0.0, math.radians(3.0)]), [0.0, 0.0, 0.0])
+    with pytest.raises(_CannotTellError, match=r"ran away: the correction \(3.00 deg"):
+        _runaway(rig, T0, far, patches, 0.005, s)
+
+
+def test_edges_at_one_depth_are_said_to_leave_yaw_and_a_sideways_shift_apart():
+    from rigcal.drift.targetless import _unobserved_words
+
+    # Observed: roll, pitch, and yaw + sideways shift together; not: their difference
+    # (and laser z, x).
+    u = np.array([0.0, 0.0, 0.6, 0.0, 0.8, 0.0])
+    w = np.array([0.0, 0.0, 0.8, 0.0, -0.6, 0.0])
+    V = np.column_stack([np.eye(6)[:, 0], np.eye(6)[:, 1], u])
+    info = {"edge_corners": 6, "edge_depth_m": [2.4, 2.7], "heading_range_deg": 90.0}
+    words = _unobserved_words(V, info)
+    mixed = [x for x in words if set(x["components"]) == {"rz", "ty"}]
+    assert len(mixed) == 1
+    assert "one depth (2.4-2.7 m)" in mixed[0]["why"]
+    assert "not told apart" in mixed[0]["why"]
+    assert abs(abs(mixed[0]["components"]["rz"]) - abs(w[2])) < 1e-3
+    shift = [x for x in words if set(x["components"]) == {"tx"}]
+    assert "6 corners" in shift[0]["why"]
+    # Fewer corners than the edges' three directions need: said so.
+    few = _unobserved_words(V, info | {"edge_corners": 3})
+    assert all("too few (at least 5)" in x["why"] for x in few if set(x["components"]) & {"rz", "tx", "ty"})
+
+
+@pytest.mark.parametrize(("corners", "edge_axes"), [(2, 0), (3, 1), (4, 2), (5, 3), (9, 3)])
+def test_the_edges_directions_need_more_corners_than_they_estimate(corners, edge_axes):
+    """With the edge term used, the yaw and the translations across the plane are tested
+    as far as the physical corners carry them: an F test of k directions needs k + 2
+    clusters, so 5 corners for all three, fewer for the best determined of them."""
+    from rigcal.drift.targetless import AXES, _axis_observed, _Estimate, _observed_basis
+
+    est = _Estimate(
+        xi=np.zeros(6),
+        cov_z=np.diag([1e-3] * 5 + [0.0]),
+        odometry=np.zeros(6),
+        odometry_sigma=np.zeros(6),
+        blocks=12,
+        corners=corners,
+        moves=np.zeros((12 + corners, 6)),
+        determined=np.eye(6)[:, :5],
+        edge_stats={"edge_bands": 100},
+    )
+    V = _observed_basis(est, TargetlessSettings())
+    got = {AXES[a] for a in range(6) if _axis_observed(V, a)}
+    assert {"rx", "ry"} <= got
+    assert len(got & {"rz", "tx", "ty"}) == edge_axes

@@ -11,9 +11,18 @@ different at different depths, unlike a turn) and its roll and pitch (they tilt 
 projected line). This is the depth-discontinuity to image-edge alignment of Levinson &
 Thrun (RSS 2013, Section III), posed as least squares: for each discontinuity and each of
 a few height bands, the residual is the offset (pixels, across the projected line) from
-the projection to the image's edge, re-measured at every Gauss-Newton step as ICP
-re-pairs its points; the edge is the peak of the image gradient across the line, summed
-along the band (a vertical edge adds up, texture does not).
+the projection to the image's edge; the edge is the peak of the image gradient across
+the line, summed along the band (a vertical edge adds up, texture does not). Each band is
+paired with its image edge once, at the start estimate, searched a window either side of
+the projection; later steps re-measure the edge only within :data:`REPAIR_GATE_PX` of that
+first pairing, so that a moving estimate cannot re-pair a band with another image edge
+(which once let an estimate run away).
+
+A corner seen in many frames is one physical edge: whatever error its foot or its image
+edge carries (the scan's corner fit, the texture beside it, the lens model there) it
+carries in every frame. :func:`corner_clusters` groups the observations by the edge's
+position in the world (the foot through the odometry), so that the check's covariance
+counts each corner once (:mod:`rigcal.drift.statistic`).
 
 Vertical edges say nothing of the camera's height: a shift along the laser's z slides the
 projection along the edge itself. The edge term, like the photometric one, leaves laser z
@@ -57,6 +66,14 @@ which the band is not used."""
 MAX_SECOND_PEAK = 0.7
 """A band whose second-highest gradient peak (2 px or more from the first) is above this
 fraction of the highest is ambiguous (a textured wall beside the edge) and not used."""
+REPAIR_GATE_PX = 2.0
+"""After the first pairing, a band's image edge is re-measured only this far either side
+of where it was first found (the edge stays where it is in the image; only the projected
+line's direction and position along it change with the estimate)."""
+CORNER_RADIUS_M = 0.1
+"""Observations whose feet lie within this of each other in the world (through the
+odometry; chained) are one physical edge. Below the closest distinct edges the scans
+show (a 0.3 m pillar's corners), above the odometry's drift over a short drive."""
 
 
 def scan_discontinuities(scan: Scan, segments: list[Segment]) -> FloatArray:
@@ -122,6 +139,33 @@ class Edges:
     X: FloatArray  # (E, B, K, 3) band points, laser frame at the frame's stamp
     img: IntArray  # (E,) image index
     block: IntArray  # (E,) block index
+    corner: IntArray  # (E,) the physical edge (:func:`corner_clusters`)
+    depth_m: FloatArray  # (E,) the foot's range from the laser, metres
+
+
+def corner_clusters(feet_world: FloatArray, radius_m: float = CORNER_RADIUS_M) -> IntArray:
+    """(N,) a label per observation: the physical edge its foot belongs to.
+
+    Args:
+        feet_world: (N, 2) the feet in one world frame (each frame's feet moved by the
+            odometry's pose at its stamp), metres.
+        radius_m: feet closer than this are linked; labels are the linked groups
+            (single linkage), numbered 0.. in order of first appearance.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    n = len(feet_world)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    pairs = cKDTree(feet_world).query_pairs(radius_m, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    _, first = np.unique(labels, return_index=True)
+    order = np.argsort(np.argsort(first))  # renumber by first appearance
+    out: IntArray = order[labels].astype(np.int64)
+    return out
 
 
 class EdgeImages:
@@ -174,21 +218,31 @@ class EdgeImages:
 
 
 def edge_residuals(
-    camera: object, T: FloatArray, edges: Edges, images: EdgeImages, window_px: float
-) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    camera: object,
+    T: FloatArray,
+    edges: Edges,
+    images: EdgeImages,
+    window_px: float,
+    anchor: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], FloatArray]:
     """Offsets from the projected edges to the image's edges, and their derivatives.
 
     Args:
         camera: the :class:`rigcal.camera.Camera`.
         T: (4, 4) T_cam_laser.
-        window_px: the image's edge is searched this far either side of the projection.
+        window_px: with no anchor, the image's edge is searched this far either side of
+            the projection (the first pairing).
+        anchor: (E, B, K, 2) where each band's edge was first found (the ``found`` of
+            the first pairing), or None. Given, the edge is re-measured only within
+            :data:`REPAIR_GATE_PX` of it, across the projected line.
 
     Returns:
         r: (E * B,) per edge and band: the image edge's offset from the projected line,
             pixels, across the line (0 where not usable).
         J: (E * B, 6) d r / d xi for a right update T Exp(w, v) (laser frame).
         usable: (E * B,) bands whose edge was found: inside the image, a clear single
-            peak of the gradient inside the window.
+            peak of the gradient inside the window (or the gate).
+        found: (E, B, K, 2) the image edge's points found, pixels (an anchor).
     """
     E, B, K, _ = edges.X.shape
     R, t = T[:3, :3], T[:3, 3]
@@ -197,8 +251,13 @@ def edge_residuals(
     d = q[:, :, -1] - q[:, :, 0]
     d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-9)
     nrm = np.stack([d[..., 1], -d[..., 0]], axis=-1)  # (E, B, 2) across the line
-    off = np.arange(-window_px, window_px + 0.5 * STEP_PX, STEP_PX)
-    s = q[:, :, :, None, :] + off[None, None, None, :, None] * nrm[:, :, None, None, :]
+    # The search lines' centres: the projection (first pairing) or the first pairing's
+    # edge points, whose offset from the projected line adds to the residual.
+    centre = q if anchor is None else anchor
+    base = np.einsum("ebi,ebi->eb", centre[:, :, K // 2] - q[:, :, K // 2], nrm)
+    half = window_px if anchor is None else REPAIR_GATE_PX
+    off = np.arange(-half, half + 0.5 * STEP_PX, STEP_PX)
+    s = centre[:, :, :, None, :] + off[None, None, None, :, None] * nrm[:, :, None, None, :]
     which = images.key[:, None, None, None]
     grey = images.sample(which, s)  # (E, B, K, O)
     grad = np.diff(grey, axis=-1) / STEP_PX  # at the offsets' midpoints
@@ -221,7 +280,9 @@ def edge_residuals(
     )
     den = y0 - 2.0 * y1 + y2
     frac = np.where(den < 0.0, 0.5 * (y0 - y2) / np.where(den < 0.0, den, -1.0), 0.0)
-    r = mid[mc] + np.clip(frac, -0.5, 0.5) * STEP_PX
+    o = mid[mc] + np.clip(frac, -0.5, 0.5) * STEP_PX
+    found = centre + o[:, :, None, None] * nrm[:, :, None, :]
+    r = base + o
     # r(xi) = n . (q_edge - q(T Exp(xi) x)) at the band's middle point x.
     Xc = edges.X[:, :, K // 2].reshape(-1, 3)
     _, dq = camera.project_with_gradient(Xc @ R.T + t)  # type: ignore[attr-defined]
@@ -230,7 +291,7 @@ def edge_residuals(
     usable = usable.ravel() & np.isfinite(J).all(axis=1)
     r = np.where(usable, r.ravel(), 0.0)
     J = np.where(usable[:, None], J, 0.0)
-    return r, J, usable
+    return r, J, usable, found
 
 
 def _local_max(p: FloatArray) -> FloatArray:

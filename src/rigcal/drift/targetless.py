@@ -25,24 +25,33 @@ that into a measurement of T:
 4. Gauss-Newton on xi with image gradients, robust (Cauchy) weights per patch and per
    edge band, each term weighed by its own noise; when edges are seen they alone
    estimate the yaw and the translations (the photometric term's are confounded with
-   the odometry's crab angle and pivot), the photometric term the roll and pitch.
-5. The covariance of xi: the sandwich H^-1 B H^-1 with B summed over blocks of
-   ``block_s`` seconds (neighbouring frames share odometry and images; blocks are nearly
-   independent), so model errors (odometry drift, rendering, range noise) count as they
-   show in the data rather than as assumed.
+   the odometry's crab angle and pivot), the photometric term the roll and pitch. The
+   edge bands are paired with their image edges once, at the start estimate; a step is
+   accepted only when the Newton correction at its end is shorter than the step
+   (natural monotonicity; damped and retried otherwise), and an estimate that does not
+   settle or runs off its pairing is "cannot tell".
+5. The covariance of xi: the clusters' jackknife (:mod:`rigcal.drift.statistic`), the
+   clusters being the photometric patches of each block of ``block_s`` seconds
+   (neighbouring frames share odometry and images) and the edge bands of each physical
+   corner (one corner's error is one error, however many frames see it), so model
+   errors (odometry drift, rendering, range noise, a corner's foot) count as they show
+   in the data rather than as assumed; plus a systematic floor derived on simulated
+   drives.
 6. Which directions are observed: those whose 1-sigma is below the resolution (0.3 deg, 2
    cm by default) over the detection factor (a change of one resolution is then detected
    95 % of the time at the level). A 2D laser moving in its scan plane never observes the
    camera's height above the laser (laser z): lifting every return along its wall keeps it
    on the same surface point in every frame, and slides a vertical edge's projection
-   along itself. Edges at several depths observe the translations across the plane. A
-   drive that keeps one heading (a straight corridor) and sees no edge does not observe
+   along itself. Edges at several depths observe the translations across the plane; with
+   fewer than 4 physical corners the edges' directions (yaw, translations) are not
+   counted as observed. A drive that keeps one heading (a straight corridor) and sees no edge does not observe
    a shift along the travel nor a roll about it (both slide the returns along their
    walls, alike in every frame).
 7. The test: the correction on the observed directions against its covariance plus the
-   stored calibration's (Hotelling's T^2 with the blocks' count: an F test that tends to
-   the chi-square with k dof as the blocks grow). Drifted when p < level. When the drive
-   is too short, sees no returns, or observes no direction, the verdict is "cannot tell".
+   stored calibration's (Hotelling's T^2 with the clusters' effective count: an F test
+   that tends to the chi-square with k dof as the clusters grow). Drifted when p <
+   level. When the drive is too short, sees no returns, or observes no direction, the
+   verdict is "cannot tell".
 """
 
 from __future__ import annotations
@@ -62,8 +71,16 @@ from scipy.stats import f as f_dist
 from scipy.stats import ncx2, norm
 
 from rigcal.arrays import FloatArray
-from rigcal.drift.edges import EdgeImages, Edges, band_points, edge_residuals, scan_discontinuities
+from rigcal.drift.edges import (
+    EdgeImages,
+    Edges,
+    band_points,
+    corner_clusters,
+    edge_residuals,
+    scan_discontinuities,
+)
 from rigcal.drift.sampling import GREY_SCALE, project_sample
+from rigcal.drift.statistic import cluster_covariance, effective_clusters, hotelling
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R, se2
 from rigcal.lines import return_labels
@@ -111,14 +128,20 @@ class TargetlessSettings:
         min_travel_m: a drive shorter than this: "cannot tell" (no parallax).
         native_blur_px: the camera's own blur (1 sigma) assumed when matching the blur of
             two frames.
-        floor_deg, floor_m: a systematic floor added to every direction's variance: what
-            no drive averages out (the image model, the lens model, the odometry's errors
-            beyond those estimated). Measured on simulated drives (docs/benchmarks.md):
-            the rotations' errors stay within 0.05 deg, but the photometric term's
-            translations reach 1-1.5 cm (the odometry's crab angle and pivot take up a
-            shifted camera), so without edges no translation counts as observed at 2 cm.
-        edge_floor_m: the translations' floor when the edges estimate them (their
-            errors on simulated drives: within 4 mm, RMS 2 mm).
+        floor_deg: the systematic floor of the roll, pitch and yaw (1-sigma, added to
+            each one's variance): what no drive's own spread shows (errors common to
+            all of its blocks and corners: the image model, the lens model, the
+            odometry's errors beyond those estimated). Derived on simulated
+            development drives (seeds 100-121, docs/benchmarks.md, round 4): the root
+            mean square of the unperturbed corrections less the mean of their
+            jackknife variances, per axis (0.013-0.020, 0.018-0.029, 0.030-0.038
+            deg), rounded up.
+        floor_m: the translations' floor when the photometric term estimates them (no
+            edges): its translations reach 1-1.5 cm on simulated drives (the
+            odometry's crab angle and pivot take up a shifted camera), so without
+            edges no translation counts as observed at 2 cm.
+        edge_floor_m: the translations' floor when the edges estimate them, derived as
+            the rotations' (0.8-1.5 mm), rounded up.
         scan_rate_hz: with edges, the check's own laser odometry runs on the scans
             thinned to about this rate (every k-th scan; 40 Hz to 10 Hz: a quarter of
             the ICP's cost, steps of a few centimetres); a drive showing fewer than
@@ -148,9 +171,9 @@ class TargetlessSettings:
     min_returns: int = 200
     min_travel_m: float = 1.0
     native_blur_px: float = 0.8
-    floor_deg: float = 0.05
+    floor_deg: tuple[float, float, float] = (0.02, 0.03, 0.04)
     floor_m: float = 0.01
-    edge_floor_m: float = 0.003
+    edge_floor_m: float = 0.0015
     scan_rate_hz: float | None = 10.0
     edges: bool = True
     edge_window_px: tuple[float, ...] = (12.0, 6.0)
@@ -183,6 +206,10 @@ class TargetlessResult:
         covariance: (6, 6) its covariance on the observed directions (zero elsewhere).
         record: the drift log's ``targetless`` block (JSON-ready).
         reasons: sentences behind the verdict.
+        details: ``groups``: each test's pieces in its observed basis ``V`` (resolution
+            units): the correction ``z``, its covariance from the data ``C_data``, the
+            floor's and the rig's ``C_known``, the clusters' effective count ``n_data``
+            (for benchmarks that study the statistic; not logged).
     """
 
     verdict: str
@@ -191,6 +218,7 @@ class TargetlessResult:
     covariance: FloatArray
     record: dict[str, Any]
     reasons: list[str]
+    details: dict[str, Any] = field(default_factory=dict)
 
     @property
     def drifted(self) -> bool:
@@ -267,7 +295,9 @@ def check_targetless(
         return TargetlessResult("cannot_tell", settings.level, nan6, np.zeros((6, 6)), _json(rec), reasons)
     res = _test(rig, est, patches, settings, reasons)
     rec = base | res["record"] | {"check_s": round(time.perf_counter() - t_start, 3)}
-    return TargetlessResult(res["verdict"], settings.level, res["xi"], res["cov"], _json(rec), reasons)
+    return TargetlessResult(
+        res["verdict"], settings.level, res["xi"], res["cov"], _json(rec), reasons, res.get("details", {})
+    )
 
 
 def same_camera(rig: Rig, streams: Streams, rig_path: Any = None) -> None:
@@ -408,6 +438,7 @@ def _patches_of(
     feet_all: list[FloatArray] = []
     feet_img: list[NDArray[np.int64]] = []
     feet_block: list[NDArray[np.int64]] = []
+    feet_world: list[FloatArray] = []
     gray_of: dict[int, NDArray[np.uint8]] = {}
     for k, (i, gray) in enumerate(zip(frames, decoded, strict=True)):
         streams.report("targetless check: frames", k + 1, len(frames))
@@ -428,6 +459,8 @@ def _patches_of(
                 feet_all.append(feet)
                 feet_img.append(np.full(len(feet), i))
                 feet_block.append(np.full(len(feet), int((t_i - float(img_t[frames[0]])) // s.block_s)))
+                P_w = se2(poses[k])
+                feet_world.append(feet @ P_w[:2, :2].T + P_w[:2, 2])
                 gray_of[i] = gray
         if not partners:
             continue
@@ -482,6 +515,20 @@ def _patches_of(
             "textured walls)"
         )
     remap = {b: n for n, b in enumerate(used_blocks)}
+    edges = None
+    if feet_all:
+        feet = np.concatenate(feet_all)
+        corner = corner_clusters(np.concatenate(feet_world))
+        edges = Edges(
+            band_points(feet),
+            np.concatenate(feet_img),
+            np.array([remap[b] for b in edge_block], dtype=np.int64),
+            corner,
+            np.linalg.norm(feet, axis=1),
+        )
+        depth = np.array([np.mean(edges.depth_m[corner == c]) for c in range(int(corner.max()) + 1)])
+        info["edge_corners"] = len(depth)
+        info["edge_depth_m"] = [round(float(np.quantile(depth, q)), 2) for q in (0.1, 0.9)]
     return _Patches(
         np.concatenate(Xs),
         np.concatenate(Ms),
@@ -494,13 +541,7 @@ def _patches_of(
         np.array([remap[b] for b in block_of], dtype=np.int64),
         n_pairs,
         info,
-        Edges(
-            band_points(np.concatenate(feet_all)),
-            np.concatenate(feet_img),
-            np.array([remap[b] for b in edge_block], dtype=np.int64),
-        )
-        if feet_all
-        else None,
+        edges,
         gray_of,
     )
 
@@ -802,58 +843,193 @@ def _residuals(
     return r, J, usable
 
 
-def _weights(r: FloatArray, usable: NDArray[np.bool_]) -> FloatArray:
-    """Cauchy weights per patch from its mean squared residual (occlusions, a patch
-    across an edge or off the wall weigh little)."""
+def _weights(r: FloatArray, usable: NDArray[np.bool_], med: float | None = None) -> tuple[FloatArray, float]:
+    """Cauchy weights per patch (or edge band) from its mean squared residual
+    (occlusions, a patch across an edge or off the wall weigh little), and the median
+    they are scaled by (given: that one, so that two estimates weigh alike)."""
     e = (r**2).mean(axis=1)
-    med = float(np.median(e[usable])) if usable.any() else 1.0
+    if med is None:
+        med = float(np.median(e[usable])) if usable.any() else 1.0
     w = 1.0 / (1.0 + e / (4.0 * max(med, 1e-9)))
-    return np.where(usable, w, 0.0)
+    return np.where(usable, w, 0.0), med
 
 
-def _normal(
-    r: FloatArray, J: FloatArray, w: FloatArray, blocks: NDArray[np.int64], n_blocks: int
-) -> tuple[FloatArray, FloatArray, FloatArray, float]:
-    """H (7, 7), g (7,), per-block gradients (G, 7), weighted residual variance."""
-    K = J.shape[2]
-    Jf = J.reshape(-1, K)
+def _variance(r: FloatArray, w: FloatArray) -> float:
+    """The weighted residual variance (each patch's samples weighed by its weight)."""
     wf = np.repeat(w, r.shape[1])
-    rf = r.ravel()
-    H = (Jf * wf[:, None]).T @ Jf
-    gp = (r[:, None, :] @ J)[:, 0, :] * w[:, None]  # per patch
-    g_blocks = np.zeros((n_blocks, K))
-    np.add.at(g_blocks, blocks, gp)
-    var = float(np.sum(wf * rf**2) / max(np.sum(wf), 1.0))
-    return H, g_blocks.sum(axis=0), g_blocks, var
+    return float(np.sum(wf * r.ravel() ** 2) / max(np.sum(wf), 1.0))
+
+
+@dataclass
+class _Terms:
+    """Both terms evaluated at one (T, odometry errors): the photometric residuals (P, S)
+    with their derivatives (P, S, K) over the free parameters; the edge bands' (N,) and
+    (N, K), or None when the edges are not used; where each band's edge was found."""
+
+    r: FloatArray
+    J: FloatArray
+    usable: NDArray[np.bool_]
+    er: FloatArray | None = None
+    eJ: FloatArray | None = None
+    eusable: NDArray[np.bool_] | None = None
+    found: FloatArray | None = None
+
+
+@dataclass(frozen=True)
+class _Scales:
+    """The robust weights' medians and each term's residual variance, fixed for one
+    step so that the step's trial point is weighed as its start was."""
+
+    photo_med: float
+    photo_var: float
+    edge_med: float = math.nan
+    edge_var: float = math.nan
+
+
+def _scales(t: _Terms) -> _Scales:
+    w, med = _weights(t.r, t.usable)
+    var = max(_variance(t.r, w), 1e-12)
+    if t.er is None or t.eusable is None:
+        return _Scales(med, var)
+    we, emed = _weights(t.er[:, None], t.eusable)
+    return _Scales(med, var, emed, max(_variance(t.er[:, None], we), 1e-12))
+
+
+def _system(t: _Terms, sc: _Scales, keep: NDArray[np.bool_]) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The normal equations of both terms (module docstring, step 4): A (K, K), g (K,)
+    and the symmetric information H_sym (K, K). Each term is weighed by its own noise
+    (its weighted residual variance: grey levels, pixels). With edges, the photometric
+    term's equations for the yaw and the translations are dropped (their rows ``~keep``):
+    they are confounded with the odometry's errors (its crab angle and pivot take up a
+    shifted or turned camera); its dependence on them stays (A is not symmetric), so the
+    covariance counts how the edges' errors move its roll and pitch."""
+    w, _ = _weights(t.r, t.usable, sc.photo_med)
+    K = t.J.shape[2]
+    Jf = t.J.reshape(-1, K)
+    wf = np.repeat(w, t.r.shape[1])
+    H = (Jf * wf[:, None]).T @ Jf / sc.photo_var
+    g = Jf.T @ (wf * t.r.ravel()) / sc.photo_var
+    if t.er is None or t.eJ is None or t.eusable is None:
+        return H, g, H
+    we, _ = _weights(t.er[:, None], t.eusable, sc.edge_med)
+    He = (t.eJ * we[:, None]).T @ t.eJ / sc.edge_var
+    ge = t.eJ.T @ (we * t.er) / sc.edge_var
+    A = np.where(keep[:, None], H, 0.0) + He
+    H_sym = np.where(keep[:, None] & keep[None, :], H, 0.0) + He
+    return A, np.where(keep, g, 0.0) + ge, H_sym
+
+
+def _cluster_parts(
+    t: _Terms, sc: _Scales, keep: NDArray[np.bool_], patches: _Patches
+) -> tuple[FloatArray, FloatArray, int, int]:
+    """Each cluster's part of A and of g (:func:`_system`): (G, K, K), (G, K). The
+    clusters: the photometric patches of each block of the drive (they share the
+    odometry's errors and the exposure), and the edge bands of each physical corner
+    (:func:`rigcal.drift.edges.corner_clusters`: one corner's errors are one error,
+    however many frames see it). Also the counts of blocks and corners."""
+    w, _ = _weights(t.r, t.usable, sc.photo_med)
+    Jw = t.J * (w[:, None, None] / sc.photo_var)
+    Hp = np.einsum("psk,psl->pkl", Jw, t.J)
+    gp = np.einsum("psk,ps->pk", Jw, t.r)
+    if t.er is not None:
+        Hp[:, ~keep, :] = 0.0
+        gp[:, ~keep] = 0.0
+    parts_A, parts_g = [], []
+    blocks = np.unique(patches.block[t.usable & (w > 0)])
+    for b in blocks:
+        m = patches.block == b
+        parts_A.append(Hp[m].sum(axis=0))
+        parts_g.append(gp[m].sum(axis=0))
+    n_corners = 0
+    if t.er is not None and t.eJ is not None and t.eusable is not None and patches.edges is not None:
+        we, _ = _weights(t.er[:, None], t.eusable, sc.edge_med)
+        B = len(t.er) // len(patches.edges.img)
+        corner = np.repeat(patches.edges.corner, B)
+        eJw = t.eJ * (we / sc.edge_var)[:, None]
+        for c in np.unique(corner[t.eusable & (we > 0)]):
+            m = corner == c
+            parts_A.append(eJw[m].T @ t.eJ[m])
+            parts_g.append(eJw[m].T @ t.er[m])
+            n_corners += 1
+    K = t.J.shape[2]
+    return (
+        np.array(parts_A).reshape(-1, K, K),
+        np.array(parts_g).reshape(-1, K),
+        len(blocks),
+        n_corners,
+    )
 
 
 @dataclass(frozen=True)
 class _Estimate:
     """xi (6,) laser frame; its covariance in resolution units (6, 6; laser z's row and
-    column zero: held); the odometry's errors; blocks; the directions determined."""
+    column zero: held); the odometry's errors; the clusters; the directions determined."""
 
     xi: FloatArray
     cov_z: FloatArray
     odometry: FloatArray  # (6,) the odometry's scale, yaw scale, yaw rate bias (rad/s), pivot (m), crab
     odometry_sigma: FloatArray
-    blocks: int
+    blocks: int  # photometric clusters (blocks of the drive)
+    corners: int  # edge clusters (physical corners)
+    moves: FloatArray  # (G, 6) each cluster's leave-one-out move of xi, resolution units
     determined: FloatArray  # (6, m) basis, resolution units
     edge_stats: dict[str, Any] = field(default_factory=dict)  # the edge term's at the estimate
+    solve: dict[str, Any] = field(default_factory=dict)  # steps taken, refused, the last step
+
+
+RUNAWAY_UNITS = 0.3
+"""The last accepted step (resolution units, largest over the calibration's axes) above
+which the estimate has not settled: the verdict is "cannot tell"."""
+MAX_TRIES = 4
+"""Steps tried per iteration (each refusal raises the damping tenfold)."""
+
+
+def _evaluate(
+    rig: Rig,
+    T: FloatArray,
+    nuis: FloatArray,
+    patches: _Patches,
+    images: _Images,
+    edge_images: EdgeImages | None,
+    anchor: FloatArray | None,
+    window_px: float,
+    free: list[int],
+    s: TargetlessSettings,
+) -> _Terms:
+    r, J12, usable = _residuals(rig, T, nuis, patches, images)
+    if usable.sum() < s.min_returns:
+        raise _CannotTellError(
+            f"no overlap: only {int(usable.sum())} patches stay inside both frames as T_cam_laser "
+            "is corrected (the stored calibration may be far off)"
+        )
+    out = _Terms(r, J12[:, :, free], usable)
+    if edge_images is not None and patches.edges is not None:
+        er, J6, eusable, found = edge_residuals(rig.camera, T, patches.edges, edge_images, window_px, anchor)
+        if int(eusable.sum()) >= MIN_EDGE_BANDS:
+            eJ = np.zeros((len(er), 12))
+            eJ[:, :6] = J6
+            out.er, out.eJ, out.eusable, out.found = er, eJ[:, free], eusable, found
+    return out
 
 
 def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettings) -> _Estimate:
-    """Gauss-Newton on (xi without laser z, the odometry's scale error), coarse to fine,
-    then the sandwich covariance over blocks (module docstring, steps 4-5)."""
+    """Gauss-Newton on (xi without laser z, the odometry's errors), coarse to fine, each
+    step accepted only when it brings the estimate nearer the solution (a trust region),
+    then the clusters' jackknife covariance (module docstring, steps 4-5)."""
     T0 = rig.T_cam_laser
     free = [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11]  # rx ry rz tx ty, the odometry's errors; laser z (5) held
     D = np.diag(np.r_[s.scale, _NUISANCE_UNITS])[np.ix_(free, free)]
-    n_blocks = len(np.unique(np.r_[patches.block, patches.edges.block if patches.edges is not None else []]))
+    prior = np.eye(len(free)) / PRIOR_UNITS**2
     T = T0.copy()
     nuis = np.zeros(6)
     rows = _rows(rig, patches)
     edge_rows = _edge_rows(rig, patches.edges)
-    edge_stats: dict[str, Any] = {}
     use_edges = patches.edges is not None
+    keep = np.ones(len(free), dtype=bool)
+    keep[list(_EDGE_ONLY)] = False
+    anchor: FloatArray | None = None
+    steps = refused = 0
+    last_step = math.inf
     for stage, blur in enumerate(s.blur_px):
         images = _Images(streams, patches, rows, blur, s.native_blur_px)
         edge_images = (
@@ -861,58 +1037,69 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
             if use_edges and patches.edges is not None
             else None
         )
-        last = stage == len(s.blur_px) - 1
-        converged = False
-        for it in range(s.iterations + (1 if last else 0)):
-            r, J12, usable = _residuals(rig, T, nuis, patches, images)
-            if usable.sum() < s.min_returns:
-                raise _CannotTellError(
-                    f"no overlap: only {int(usable.sum())} patches stay inside both frames as T_cam_laser "
-                    "is corrected (the stored calibration may be far off)"
-                )
-            w = _weights(r, usable)
-            H, g, g_blocks, var = _normal(r, J12[:, :, free], w, patches.block, n_blocks)
-            # Each term weighed by its own noise (its weighted residual variance): the
-            # photometric one in grey levels, the edges' in pixels.
-            H, g, g_blocks = H / max(var, 1e-12), g / max(var, 1e-12), g_blocks / max(var, 1e-12)
-            H_sym = H
-            if edge_images is not None and patches.edges is not None:
-                window = s.edge_window_px[min(stage, len(s.edge_window_px) - 1)]
-                term = _edge_term(rig, T, patches.edges, edge_images, window, free, n_blocks)
-                if term is None and stage == 0 and it == 0:
-                    use_edges = False  # too few edges seen clearly: the photometric term alone
-                elif term is not None:
-                    # The edges alone estimate the yaw and the translations: the photometric
-                    # term's are confounded with the odometry's errors (its crab angle and
-                    # pivot take up a shifted or turned camera). Its equations for them are
-                    # dropped; its dependence on them stays (A is not symmetric), so the
-                    # sandwich counts how the edges' errors move its roll and pitch.
-                    keep = np.ones(len(free), dtype=bool)
-                    keep[list(_EDGE_ONLY)] = False
-                    H = np.where(keep[:, None], H, 0.0) + term[0]
-                    H_sym = np.where(keep[:, None] & keep[None, :], H_sym, 0.0) + term[0]
-                    g = np.where(keep, g, 0.0) + term[1]
-                    g_blocks = np.where(keep[None, :], g_blocks, 0.0) + term[2]
-                    edge_stats = term[3]
-            # A weak prior (PRIOR_UNITS resolutions, or odometry error units) keeps the
-            # directions the drive leaves open where they were instead of wandering.
-            A = D @ H @ D + np.eye(len(free)) / PRIOR_UNITS**2
-            if last and (it == s.iterations or converged):
-                break  # H and the blocks' gradients at the estimate: the covariance's
-            dz = -np.linalg.solve(A, D @ g)
-            # At most 3 resolutions a step on T (the odometry's errors follow freely: their
-            # units are small, and clamping by them would stall the steps along the valley
-            # where a camera yaw and the odometry's crab angle trade off).
-            dz *= min(1.0, 3.0 / max(float(np.abs(dz[:5]).max()), 1e-12))
-            d = D @ dz
-            T = T @ make_T(rotvec_to_R(d[:3]), np.r_[d[3:5], 0.0])
-            nuis += d[5:]
-            converged = float(np.abs(dz[:5]).max()) < 0.01
-            if converged and not last:
+        window = s.edge_window_px[min(stage, len(s.edge_window_px) - 1)]
+        cur = _evaluate(rig, T, nuis, patches, images, edge_images, anchor, window, free, s)
+        if stage == 0:
+            if cur.er is None:
+                use_edges = False  # too few edges seen clearly: the photometric term alone
+                edge_images = None
+            else:
+                # The bands are paired with their image edges once, here, at the start
+                # estimate; later evaluations re-measure them within a gate of it.
+                anchor = cur.found
+        last_step = math.inf
+        for _ in range(s.iterations):
+            sc = _scales(cur)
+            A_raw, g, H_sym = _system(cur, sc, keep)
+            A = D @ A_raw @ D + prior
+            F = D @ g
+            # Steps are measured in the information's metric (sigmas): the odometry's
+            # weakly determined errors, which the prior barely holds, then count little.
+            metric = D @ H_sym @ D + prior
+            lam = 0.0
+            remaining = float(np.abs(np.linalg.solve(A, F)[:5]).max())  # the undamped Newton step
+            for _try in range(MAX_TRIES):
+                M = A + lam * np.diag(np.diag(A))
+                dz = -np.linalg.solve(M, F)
+                # At most 3 resolutions a step on T (the odometry's errors follow freely).
+                dz *= min(1.0, 3.0 / max(float(np.abs(dz[:5]).max()), 1e-12))
+                d = D @ dz
+                T_try = T @ make_T(rotvec_to_R(d[:3]), np.r_[d[3:5], 0.0])
+                nuis_try = nuis + d[5:]
+                trial = _evaluate(rig, T_try, nuis_try, patches, images, edge_images, anchor, window, free, s)
+                if use_edges and trial.er is None:
+                    ok = False  # the step lost the edges
+                else:
+                    # Deuflhard's natural monotonicity test: the (simplified) Newton
+                    # correction at the trial point, with this step's matrix, must be
+                    # shorter than the step. The system is not the gradient of one cost
+                    # (the photometric term's equations for the yaw and the translations
+                    # are dropped), so this, not a cost, says whether the step brought
+                    # the estimate nearer the solution of both terms' equations.
+                    _, g_try, _ = _system(trial, sc, keep)
+                    bar = np.linalg.solve(M, D @ g_try)
+                    ok = bool(bar @ metric @ bar < dz @ metric @ dz) or float(np.abs(bar[:5]).max()) < 0.01
+                if ok:
+                    break
+                refused += 1
+                lam = 1e-2 if lam == 0.0 else 10.0 * lam
+            else:
+                # No step brings it nearer: as settled as this stage goes; what is left
+                # of the Newton step says whether that is settled.
+                last_step = remaining
+                break
+            T, nuis, cur = T_try, nuis_try, trial
+            steps += 1
+            last_step = float(np.abs(dz[:5]).max())
+            if last_step < 0.01:
                 break
         del images  # the next stage's stack replaces it
+    _runaway(rig, T0, T, patches, last_step, s)
     Delta = np.linalg.inv(T0) @ T
     xi = np.concatenate([R_to_rotvec(Delta[:3, :3]), Delta[:3, 3]])
+    sc = _scales(cur)
+    A_raw, _, H_sym = _system(cur, sc, keep)
+    A = D @ A_raw @ D + prior
     # What the drive determines of xi once the odometry's errors are free: the Schur
     # complement of their block in the (naive) information, in resolution units.
     info = D @ H_sym @ D
@@ -926,46 +1113,66 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
             "degenerate motion: the drive determines no direction of T_cam_laser to the "
             f"resolution ({s.resolution_deg:g} deg, {100 * s.resolution_m:g} cm)"
         )
-    # Sandwich over blocks (small-sample factor G / (G - 1)): A^-1 B A^-1.
-    G = n_blocks
-    A_inv = np.linalg.inv(A)
-    Bg = D @ g_blocks.T
-    C_free = A_inv @ (Bg @ Bg.T) * (G / max(G - 1, 1)) @ A_inv.T  # over the free parameters, units
+    # The clusters' jackknife (rigcal.drift.statistic): each block's patches and each
+    # corner's bands left out in turn, by one Newton step from the estimate.
+    A_c, g_c, n_blocks, n_corners = _cluster_parts(cur, sc, keep, patches)
+    A_c = D[None] @ A_c @ D[None]
+    C_free, d = cluster_covariance(A, A_c, g_c @ D)
     cov_z = np.zeros((6, 6))
     cov_z[np.ix_(free[:5], free[:5])] = C_free[:5, :5]  # the odometry's errors marginalised out
+    moves = np.zeros((len(d), 6))
+    moves[:, free[:5]] = d[:, :5]
     sig = np.sqrt(np.clip(np.diag(C_free)[5:], 0.0, None)) * np.array(_NUISANCE_UNITS)
-    return _Estimate(xi, cov_z, nuis, sig, G, determined, edge_stats if use_edges else {})
+    edge_stats: dict[str, Any] = {}
+    if use_edges and cur.er is not None and cur.eusable is not None:
+        edge_stats = {
+            "edge_bands": int(cur.eusable.sum()),
+            "edge_rms_px": _r(math.sqrt(sc.edge_var), 3),
+            "edge_corners_used": n_corners,
+        }
+    solve = {"steps": steps, "steps_refused": refused, "last_step_units": _r(last_step, 4)}
+    return _Estimate(xi, cov_z, nuis, sig, n_blocks, n_corners, moves, determined, edge_stats, solve)
+
+
+def _runaway(
+    rig: Rig, T0: FloatArray, T: FloatArray, patches: _Patches, last_step: float, s: TargetlessSettings
+) -> None:
+    """ "Cannot tell" when the estimate left the region where its linearisation holds:
+    it did not settle, or it moved the edges' projections farther than their image edges
+    were searched (the first pairing cannot stand for it)."""
+    Delta = np.linalg.inv(T0) @ T
+    rot = math.degrees(float(np.linalg.norm(R_to_rotvec(Delta[:3, :3]))))
+    mm = 1000.0 * float(np.linalg.norm(Delta[:3, 3]))
+    what = f"the correction ({rot:.2f} deg, {mm:.0f} mm)"
+    if last_step > RUNAWAY_UNITS:
+        raise _CannotTellError(
+            f"the estimate did not settle: {what} still moved by {last_step:.2f} resolutions in its last "
+            "step; the drive does not pin T_cam_laser down (or the stored calibration is far off)"
+        )
+    if patches.edges is None:
+        return
+    Xc = patches.edges.X[:, :, patches.edges.X.shape[2] // 2].reshape(-1, 3)
+    q0 = rig.camera.project(Xc @ T0[:3, :3].T + T0[:3, 3])
+    q1 = rig.camera.project(Xc @ T[:3, :3].T + T[:3, 3])
+    move = np.linalg.norm(q1 - q0, axis=1)
+    move = move[np.isfinite(move)]
+    window = max(s.edge_window_px)
+    if len(move) and float(np.median(move)) > window:
+        raise _CannotTellError(
+            f"the estimate ran away: {what} moves the edges' projections by {float(np.median(move)):.0f} px "
+            f"(median), beyond the {window:g} px their image edges were searched in; the linearisation "
+            "does not hold there (the stored calibration may be far off)"
+        )
 
 
 _EDGE_ONLY = (2, 3, 4)
 """Rows of the free parameters (rz, tx, ty) the edges alone estimate when they are seen."""
 MIN_EDGE_BANDS = 10
 """Fewer usable edge bands: the edge term is left out of that step."""
-
-
-def _edge_term(
-    rig: Rig,
-    T: FloatArray,
-    edges: Edges,
-    images: EdgeImages,
-    window_px: float,
-    free: list[int],
-    n_blocks: int,
-) -> tuple[FloatArray, FloatArray, FloatArray, dict[str, Any]] | None:
-    """The edges' normal equations over the free parameters (their Jacobian is zero on the
-    odometry's errors: one frame, no motion), each band weighed by Cauchy weights and
-    the term by its own residual variance; None when too few bands are usable."""
-    r, J6, usable = edge_residuals(rig.camera, T, edges, images, window_px)
-    if int(usable.sum()) < MIN_EDGE_BANDS:
-        return None
-    J = np.zeros((len(r), 12))
-    J[:, :6] = J6
-    w = _weights(r[:, None], usable)
-    B = r.size // len(edges.img)
-    H, g, g_blocks, var = _normal(r[:, None], J[:, None, free], w, np.repeat(edges.block, B), n_blocks)
-    v = max(var, 1e-12)
-    stats = {"edge_bands": int(usable.sum()), "edge_rms_px": _r(math.sqrt(var), 3)}
-    return H / v, g / v, g_blocks / v, stats
+MIN_CORNERS = len(_EDGE_ONLY) + 2
+"""Fewer physical corners than the directions the edges alone estimate (the yaw and the
+translations across the laser plane) plus two: their jackknife cannot judge them (an F
+test needs k + 2 clusters), and they count as not observed."""
 
 
 def _edge_rows(rig: Rig, edges: Edges | None) -> tuple[float, float]:
@@ -990,9 +1197,7 @@ def _floor_m(s: TargetlessSettings, est: _Estimate) -> float:
 def _floor_limited(s: TargetlessSettings, floor_m: float) -> set[int]:
     """Axes whose floor alone is above the observed threshold."""
     limit = 1.0 / s.detection_factor()
-    out = set()
-    if s.floor_deg / s.resolution_deg >= limit:
-        out |= {0, 1, 2}
+    out = {a for a in range(3) if s.floor_deg[a] / s.resolution_deg >= limit}
     if floor_m / s.resolution_m >= limit:
         out |= {3, 4}
     return out
@@ -1000,21 +1205,61 @@ def _floor_limited(s: TargetlessSettings, floor_m: float) -> set[int]:
 
 def _floor_z(s: TargetlessSettings, floor_m: float) -> FloatArray:
     """(6, 6) the systematic floor in resolution units (laser z's row and column zero)."""
-    f = np.array([math.radians(s.floor_deg)] * 3 + [floor_m] * 3) / s.scale
+    f = np.array([math.radians(x) for x in s.floor_deg] + [floor_m] * 3) / s.scale
     f[_FIXED] = 0.0
     out: FloatArray = np.diag(f**2)
     return out
 
 
-def _observed_basis(est: _Estimate, s: TargetlessSettings) -> FloatArray:
-    """(6, k) orthonormal directions (resolution units) whose sigma (the blocks' sandwich
-    plus the floor) is under one resolution over the detection factor, among those the
-    drive determines once the odometry's errors are free."""
+@dataclass(frozen=True)
+class _Group:
+    """Observed directions tested together: their basis (6, k; resolution units), which
+    clusters carry them (rows of the estimate's ``moves``) and a name."""
+
+    name: str
+    V: FloatArray
+    clusters: slice
+
+
+def _observed_groups(est: _Estimate, s: TargetlessSettings) -> list[_Group]:
+    """The observed directions (resolution units), in the groups each tested on its own
+    clusters: with the edge term, the roll and pitch (the photometric term, its blocks)
+    and the yaw and translations across the plane (the edges alone, their corners);
+    without it, all five on the blocks. A direction is observed when the drive
+    determines it once the odometry's errors are free and its sigma (the clusters'
+    jackknife plus the floor) is under one resolution over the detection factor; of a
+    group whose clusters are too few for its directions (an F test of k needs k + 2),
+    only its best determined (clusters - 2) are tested: the spread cannot judge more."""
     Q6 = est.determined
-    Cq = Q6.T @ (est.cov_z + _floor_z(s, _floor_m(s, est))) @ Q6
-    ev, U = np.linalg.eigh(Cq)
-    keep = ev < (1.0 / s.detection_factor()) ** 2
-    out: FloatArray = Q6 @ U[:, keep]
+    C = est.cov_z + _floor_z(s, _floor_m(s, est))
+    limit = (1.0 / s.detection_factor()) ** 2
+    if est.edge_stats:
+        parts = [
+            ("roll and pitch", [0, 1], slice(0, est.blocks)),
+            ("yaw and translations", list(_EDGE_ONLY), slice(est.blocks, est.blocks + est.corners)),
+        ]
+    else:
+        parts = [("all", [0, 1, 2, 3, 4], slice(0, est.blocks))]
+    out = []
+    for name, axes, clusters in parts:
+        P = np.zeros((6, 6))
+        P[axes, axes] = 1.0
+        U, sv, _ = np.linalg.svd(P @ Q6, full_matrices=False)
+        Q = U[:, sv > 0.5]
+        if Q.shape[1] == 0:
+            continue
+        ev, W = np.linalg.eigh(Q.T @ C @ Q)  # ascending: the best determined first
+        # An F test of k directions needs k + 2 clusters: the best determined ones only.
+        k = min(int((ev < limit).sum()), clusters.stop - clusters.start - 2)
+        if k > 0:
+            out.append(_Group(name, Q @ W[:, :k], clusters))
+    return out
+
+
+def _observed_basis(est: _Estimate, s: TargetlessSettings) -> FloatArray:
+    """(6, k) every observed direction (:func:`_observed_groups`)."""
+    groups = _observed_groups(est, s)
+    out: FloatArray = np.concatenate([g.V for g in groups], axis=1) if groups else np.zeros((6, 0))
     return out
 
 
@@ -1025,26 +1270,34 @@ def _test(
     rig: Rig, est: _Estimate, patches: _Patches, s: TargetlessSettings, reasons: list[str]
 ) -> dict[str, Any]:
     D = np.diag(s.scale)
-    G = est.blocks
-    V_obs = _observed_basis(est, s)
+    groups = _observed_groups(est, s)
+    V_obs = np.concatenate([g.V for g in groups], axis=1) if groups else np.zeros((6, 0))
     k = V_obs.shape[1]
-    unobserved = _unobserved_words(V_obs, patches.info, _floor_limited(s, _floor_m(s, est)))
-    record: dict[str, Any] = est.edge_stats | {
-        "unobserved": unobserved,
-        "odometry_errors": {
-            "scale_pct": [_r(100.0 * est.odometry[0], 4), _r(100.0 * est.odometry_sigma[0], 4)],
-            "yaw_scale_pct": [_r(100.0 * est.odometry[1], 4), _r(100.0 * est.odometry_sigma[1], 4)],
-            "yaw_rate_bias_deg_s": [
-                _r(math.degrees(est.odometry[2]), 5),
-                _r(math.degrees(est.odometry_sigma[2]), 5),
-            ],
-            "crab_deg": [_r(math.degrees(est.odometry[5]), 4), _r(math.degrees(est.odometry_sigma[5]), 4)],
-            "pivot_mm": [
-                [_r(1000.0 * est.odometry[3], 2), _r(1000.0 * est.odometry[4], 2)],
-                [_r(1000.0 * est.odometry_sigma[3], 2), _r(1000.0 * est.odometry_sigma[4], 2)],
-            ],
-        },
-    }
+    info = patches.info | ({"edge_corners": est.corners} if est.edge_stats else {})
+    unobserved = _unobserved_words(V_obs, info, _floor_limited(s, _floor_m(s, est)))
+    record: dict[str, Any] = (
+        est.edge_stats
+        | est.solve
+        | {
+            "unobserved": unobserved,
+            "odometry_errors": {
+                "scale_pct": [_r(100.0 * est.odometry[0], 4), _r(100.0 * est.odometry_sigma[0], 4)],
+                "yaw_scale_pct": [_r(100.0 * est.odometry[1], 4), _r(100.0 * est.odometry_sigma[1], 4)],
+                "yaw_rate_bias_deg_s": [
+                    _r(math.degrees(est.odometry[2]), 5),
+                    _r(math.degrees(est.odometry_sigma[2]), 5),
+                ],
+                "crab_deg": [
+                    _r(math.degrees(est.odometry[5]), 4),
+                    _r(math.degrees(est.odometry_sigma[5]), 4),
+                ],
+                "pivot_mm": [
+                    [_r(1000.0 * est.odometry[3], 2), _r(1000.0 * est.odometry[4], 2)],
+                    [_r(1000.0 * est.odometry_sigma[3], 2), _r(1000.0 * est.odometry_sigma[4], 2)],
+                ],
+            },
+        }
+    )
     nothing = {"xi": np.full(6, np.nan), "cov": np.zeros((6, 6))}
     if k == 0:
         reasons.append(
@@ -1052,30 +1305,37 @@ def _test(
             f"({s.resolution_deg:g} deg, {100 * s.resolution_m:g} cm) by this drive"
         )
         return {"verdict": "cannot_tell", "record": record} | nothing
-    if G - k < 2:
+    # Each group on its own clusters (resolution units): the clusters' jackknife, plus
+    # the known parts (the floor, the stored calibration's covariance); Hotelling's T^2
+    # referred to the F with the clusters' effective count along the group's directions
+    # (a few corners carrying the yaw count as few, however many frames see them).
+    # The groups' tests are combined by Bonferroni: drifted when one group's p is
+    # under the level over the groups' count.
+    F_z, R_z = _floor_z(s, _floor_m(s, est)), _rig_cov_z(rig, D)
+    z_all = V_obs.T @ np.linalg.solve(D, est.xi)
+    tests = []
+    for g in groups:
+        z_g = g.V.T @ np.linalg.solve(D, est.xi)
+        C_g = g.V.T @ est.cov_z @ g.V
+        n_g = min(effective_clusters(est.moves[g.clusters], g.V), float(g.clusters.stop - g.clusters.start))
+        known = g.V.T @ (F_z + R_z) @ g.V
+        tests.append((g, hotelling(z_g, C_g, known, n_g, s.level / len(groups)), n_g, C_g, known, z_g))
+    if any(not math.isfinite(t.p) for _, t, *_ in tests):
         reasons.append(
-            f"too short: {G} blocks of {s.block_s:g} s for {k} observed directions (needs at least {k + 2})"
+            f"too short: {est.blocks} blocks of {s.block_s:g} s and {est.corners} corners amount to too few "
+            f"independent pieces for the {k} observed directions"
         )
         return {"verdict": "cannot_tell", "record": record} | nothing
-    # In the observed basis (resolution units): the blocks' sandwich, plus the known
-    # parts (the floor, the stored calibration's covariance).
-    Ck_est = V_obs.T @ est.cov_z @ V_obs
-    Ck = Ck_est + V_obs.T @ _floor_z(s, _floor_m(s, est)) @ V_obs
-    z = V_obs.T @ np.linalg.solve(D, est.xi)
-    Ck_total = Ck + V_obs.T @ _rig_cov_z(rig, D) @ V_obs
-    t2 = float(z @ np.linalg.solve(Ck_total, z))
-    # Hotelling: (n - k) / (k (n - 1)) T^2 ~ F(k, n - k) under no change, n the blocks'
-    # count; the known parts make the covariance surer than n blocks alone
-    # (Satterthwaite's effective count). Tends to the chi-square with k dof.
-    n = _effective_blocks(Ck_est, Ck_total, G)
-    F = t2 * (n - k) / (k * (n - 1))
-    p = float(f_dist.sf(F, k, n - k))
+    p = min(1.0, len(tests) * min(t.p for _, t, *_ in tests))
+    g_min, test, n_data, *_ = min(tests, key=lambda x: x[1].p)
+    t2, n = test.t2, test.n
     drifted = p < s.level
+    Ck = V_obs.T @ (est.cov_z + F_z) @ V_obs
+    z = z_all
     xi_obs = D @ V_obs @ z
     cov_obs = D @ V_obs @ Ck @ V_obs.T @ D
     sig = np.sqrt(np.clip(np.diag(cov_obs), 0.0, None))
     observed = [AXES[a] for a in range(6) if _axis_observed(V_obs, a)]
-    crit = float(f_dist.isf(s.level, k, n - k)) * k * (n - 1) / (n - k)
     record |= {
         "observed_axes": observed,
         "observed_directions": k,
@@ -1086,12 +1346,26 @@ def _test(
         "rotation_deg": _r(math.degrees(float(np.linalg.norm(xi_obs[:3]))), 4),
         "translation_mm": _r(1000.0 * float(np.linalg.norm(xi_obs[3:])), 2),
         "t2": _r(t2, 4),
-        "t2_critical": _r(crit, 4),
+        "t2_critical": _r(test.critical, 4),
         "dof": k,
-        "blocks": G,
+        "blocks": est.blocks,
+        "corners": est.corners,
+        "effective_clusters": _r(n_data, 1),
         "effective_blocks": _r(n, 1),
         "p_value": float(f"{p:.4g}"),
-        "detects": _detectable(Ck_total, k, n, s),
+        "tests": [
+            {
+                "directions": g.name,
+                "axes": [AXES[a] for a in range(6) if _axis_observed(g.V, a)],
+                "dof": t.k,
+                "t2": _r(t.t2, 4),
+                "t2_critical": _r(t.critical, 4),
+                "effective_clusters": _r(n_g, 1),
+                "p_value": float(f"{t.p:.4g}"),
+            }
+            for g, t, n_g, *_ in tests
+        ],
+        "detects": _detectable(V_obs.T @ (est.cov_z + F_z + R_z) @ V_obs, k, n, s),
     }
     if rig.covariance is None:
         reasons.append("the rig has no covariance: the stored calibration is taken as exact")
@@ -1100,20 +1374,23 @@ def _test(
     if drifted:
         reasons.append(
             f"the drive is most consistent with T_cam_laser corrected by {record['rotation_deg']:.3f} deg "
-            f"and {record['translation_mm']:.1f} mm (T^2 {t2:.1f} over {k} observed directions, {G} blocks, "
-            f"p = {p:.2g})"
+            f"and {record['translation_mm']:.1f} mm (its {g_min.name}: T^2 {t2:.1f} over {test.k} observed "
+            f"directions, {n_data:.1f} effective clusters of {est.blocks} blocks and {est.corners} corners; "
+            f"p = {p:.2g} over {len(tests)} tests)"
         )
-    return {"verdict": "drifted" if drifted else "ok", "xi": xi_obs, "cov": cov_obs, "record": record}
-
-
-def _effective_blocks(C_est: FloatArray, C_total: FloatArray, G: int) -> float:
-    """Satterthwaite: a covariance estimated from G blocks (G - 1 dof) plus known parts
-    is as sure as one estimated from this many blocks."""
-    a = float(np.trace(C_est))
-    b = float(np.trace(C_total))
-    if a <= 0.0:
-        return 1e6
-    return float(min(1.0 + (G - 1) * (b / a) ** 2, 1e6))
+    details = {
+        "groups": [
+            {"z": z_g, "C_data": C_g, "C_known": known, "n_data": n_g, "V": g.V}
+            for g, _, n_g, C_g, known, z_g in tests
+        ],
+    }
+    return {
+        "verdict": "drifted" if drifted else "ok",
+        "xi": xi_obs,
+        "cov": cov_obs,
+        "record": record,
+        "details": details,
+    }
 
 
 def _detectable(C: FloatArray, k: int, n: float, s: TargetlessSettings) -> dict[str, float]:
@@ -1190,6 +1467,26 @@ def _unobserved_words(
                     "; the drive shows no corner, pillar or wall end clearly enough in the images to "
                     "measure it by their edges"
                 )
+        elif main in _EDGE_ONLY and 0 < info.get("edge_corners", 0) < MIN_CORNERS:
+            lo, hi = info.get("edge_depth_m", [0.0, 0.0])
+            why = (
+                f"the drive shows {info['edge_corners']} corners (at {lo:.1f}-{hi:.1f} m), each one error "
+                f"however many frames see it: too few (at least {MIN_CORNERS}) to tell the yaw and the "
+                "shifts across the view from the corners' own errors"
+            )
+        elif abs(u[2]) >= 0.3 and max(abs(u[3]), abs(u[4])) >= 0.3 and info.get("edge_corners"):
+            lo, hi = info.get("edge_depth_m", [0.0, 0.0])
+            why = (
+                f"the edges this drive sees ({info['edge_corners']} corners) stand at about one depth "
+                f"({lo:.1f}-{hi:.1f} m), where a yaw and a sideways shift move their projections alike, "
+                "so the two are not told apart; corners at several depths separate them"
+            )
+        elif main in (3, 4) and info.get("edge_corners"):
+            lo, hi = info.get("edge_depth_m", [0.0, 0.0])
+            why = (
+                f"the drive shows {info['edge_corners']} corners (at {lo:.1f}-{hi:.1f} m), each one error "
+                "however many frames see it: too few to pin a shift across the view"
+            )
         elif straight and main in (0, 3, 4):
             why = (
                 f"the drive keeps one heading (within {info.get('heading_range_deg', 0):.0f} deg): "

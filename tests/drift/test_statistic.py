@@ -1,0 +1,149 @@
+"""The targetless check's statistic on synthetic problems with a known answer: the
+clusters' jackknife covariance, their effective count and Hotelling's test (pure numpy,
+fast)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import kstest
+
+from rigcal.drift.statistic import cluster_covariance, effective_clusters, hotelling
+
+
+def clustered_problem(
+    rng: np.random.Generator, G: int, K: int = 3, shared: float = 1.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A least-squares problem of G clusters of unequal size (3-30 rows) whose rows are
+    alike within a cluster (one corner seen from nearby views) and whose errors share
+    one part per cluster; the truth is 0. Returns the estimate, A, A_c, g_c."""
+    Xs, ys = [], []
+    for _ in range(G):
+        n = int(rng.integers(3, 30))
+        X = rng.normal(size=K) + 0.3 * rng.normal(size=(n, K))
+        Xs.append(X)
+        ys.append(shared * rng.normal() + 0.5 * rng.normal(size=n))
+    X, y = np.concatenate(Xs), np.concatenate(ys)
+    A = X.T @ X
+    theta = np.linalg.solve(A, X.T @ y)
+    A_c = np.array([x.T @ x for x in Xs])
+    g_c = np.array([x.T @ (yy - x @ theta) for x, yy in zip(Xs, ys, strict=True)])
+    return theta, A, A_c, g_c
+
+
+def p_value(theta, A, A_c, g_c) -> float:
+    C, d = cluster_covariance(A, A_c, g_c)
+    n = effective_clusters(d, np.eye(len(theta)))
+    return hotelling(theta, C, np.zeros((len(theta), len(theta))), n, 0.01).p
+
+
+@pytest.mark.parametrize("G", [15, 40])
+def test_unchanged_the_p_values_are_uniform(G):
+    rng = np.random.default_rng(11 + G)
+    p = np.array([p_value(*clustered_problem(rng, G)) for _ in range(400)])
+    assert np.isfinite(p).all()
+    assert kstest(p, "uniform").statistic < 0.1
+    # At the 1 % level: at most 2.5 % of 400 (a calibrated test gives 4 +- 2).
+    assert (p < 0.01).sum() <= 10
+    assert 0.35 < float(np.median(p)) < 0.65
+
+
+def test_the_plain_sandwich_with_the_clusters_count_alarms_too_often():
+    """What the jackknife replaces: A^-1 (sum g_c g_c^T) A^-1 referred to G clusters
+    underestimates the spread of an estimate that a few clusters dominate."""
+    rng = np.random.default_rng(3)
+    alarms_plain = alarms_jack = 0
+    for _ in range(300):
+        theta, A, A_c, g_c = clustered_problem(rng, 20)
+        A_inv = np.linalg.inv(A)
+        C = A_inv @ (g_c.T @ g_c) @ A_inv * 20 / 19
+        alarms_plain += hotelling(theta, C, np.zeros((3, 3)), 20, 0.01).p < 0.01
+        alarms_jack += p_value(theta, A, A_c, g_c) < 0.01
+    assert alarms_plain >= 15  # 5 % or more at the 1 % level
+    assert alarms_jack <= 8  # a calibrated test: 3 +- 2
+
+
+def edges_at(depths: np.ndarray, lateral: np.ndarray, frames: int, rng: np.random.Generator):
+    """Vertical edges' horizontal image offsets (pixels, f = 260) against (yaw, sideways
+    shift) of the camera, each corner seen in ``frames`` frames from slightly different
+    places; each corner's foot carries one error (2 mm, in every frame), each frame 0.3 px
+    of noise. Returns the estimate, A, A_c, g_c with one cluster per corner, and the
+    same split per frame (the frames taken as independent)."""
+    f = 260.0
+    rows, rs, corner = [], [], []
+    for c, (x, y) in enumerate(zip(depths, lateral, strict=True)):
+        foot_error = rng.normal(0.0, 0.002)
+        for _ in range(frames):
+            xf = x + rng.normal(0.0, 0.05)
+            # u = f y / x: a yaw moves it by f (1 + y^2 / x^2), a sideways shift by f / x.
+            rows.append([f * (1.0 + (y / xf) ** 2), f / xf])
+            rs.append(f * foot_error / xf + rng.normal(0.0, 0.3))
+            corner.append(c)
+    X, r, corner_ = np.array(rows), np.array(rs), np.array(corner)
+    A = X.T @ X + 1e-6 * np.eye(2)
+    theta = np.linalg.solve(A, X.T @ r)
+    res = r - X @ theta
+
+    def parts(labels):
+        u = np.unique(labels)
+        A_c = np.array([X[labels == c].T @ X[labels == c] for c in u])
+        g_c = np.array([X[labels == c].T @ res[labels == c] for c in u])
+        return A_c, g_c
+
+    return theta, A, parts(corner_), parts(np.arange(len(r)))
+
+
+def test_corners_at_one_depth_leave_yaw_against_a_sideways_shift_wide():
+    """Four corners at one depth: the yaw and the sideways shift move their projections
+    nearly alike. Counted per frame, the covariance claims that direction; counted per
+    corner (the jackknife), it is as wide as the estimates really spread."""
+    rng = np.random.default_rng(7)
+    depths = np.full(4, 2.5)
+    lateral = np.array([-0.6, -0.2, 0.3, 0.7])
+    thetas, cov_corner, cov_frame = [], [], []
+    for _ in range(200):
+        theta, A, (A_c, g_c), (A_f, g_f) = edges_at(depths, lateral, 25, rng)
+        thetas.append(theta)
+        cov_corner.append(cluster_covariance(A, A_c, g_c)[0])
+        cov_frame.append(cluster_covariance(A, A_f, g_f)[0])
+    spread = np.cov(np.array(thetas).T)
+    _, U = np.linalg.eigh(spread)
+    weak = U[:, -1]  # the yaw-sideways direction
+    assert abs(weak[0]) > 0.1
+    assert abs(weak[1]) > 0.1
+    true_var = float(weak @ spread @ weak)
+    per_corner = float(np.mean([weak @ C @ weak for C in cov_corner]))
+    per_frame = float(np.mean([weak @ C @ weak for C in cov_frame]))
+    assert per_frame < 0.2 * true_var  # frames as independent: claims 5x too sure or more
+    assert 0.5 * true_var < per_corner < 3.0 * true_var
+    # Corners at several depths separate the two: the same direction is then narrow.
+    rng = np.random.default_rng(8)
+    theta, A, (A_c, g_c), _ = edges_at(np.array([1.5, 2.5, 4.0, 6.0]), lateral, 25, rng)
+    spread_depths = cluster_covariance(A, A_c, g_c)[0]
+    assert float(np.linalg.eigvalsh(spread_depths).max()) < 0.2 * true_var
+
+
+def test_effective_count_follows_the_clusters():
+    rng = np.random.default_rng(2)
+    like = rng.normal(size=(30, 3))
+    assert 15 < effective_clusters(like, np.eye(3)) <= 30
+    one_dominates = like * np.r_[100.0, np.ones(29)][:, None]
+    # Along one direction, one cluster carrying it all: few; in three, it carries one.
+    assert effective_clusters(one_dominates, np.eye(3)[:, :1]) < 5
+    assert effective_clusters(one_dominates, np.eye(3)) < effective_clusters(like, np.eye(3))
+    assert effective_clusters(like, np.zeros((3, 0))) == 30
+
+
+def test_hotelling_matches_the_chi_square_with_many_clusters_and_says_nan_with_too_few():
+    z = np.array([2.0, -1.0])
+    C = np.eye(2)
+    t = hotelling(z, C, np.zeros((2, 2)), 1e6, 0.01)
+    assert t.t2 == pytest.approx(5.0)
+    assert t.p == pytest.approx(math.exp(-2.5), rel=1e-3)  # chi-square, 2 dof
+    assert t.critical == pytest.approx(-2.0 * math.log(0.01), rel=1e-3)
+    few = hotelling(z, C, np.zeros((2, 2)), 3.0, 0.01)
+    assert math.isnan(few.p)
+    # A known part (a floor) makes the covariance surer than its clusters' count alone.
+    assert hotelling(z, C, 3.0 * np.eye(2), 6.0, 0.01).n > 6.0
