@@ -37,7 +37,7 @@ class Pyramid:
 
     Attributes:
         grids: (H, U, V) level h's maximum of the likelihood over the 2^h x 2^h cells
-            from each cell (level 0: the likelihood), 0 on the last row and column.
+            from each cell (level 0: the likelihood), 0 on the border.
         lo: (2,) the corner of cell (0, 0), metres, in the model's frame.
         r: the cell side, metres.
     """
@@ -51,20 +51,28 @@ class Pyramid:
         return int(self.grids.shape[0])
 
 
+def likelihood_grid(model: FloatArray, r: float, pad: int) -> tuple[FloatArray, FloatArray, NDArray[np.int_]]:
+    """The model's (M, 2) likelihood grid of cell ``r``: exp(-d^2 / 2 r^2), d the distance
+    to the nearest occupied cell (Olson 2009), 0 on a border of ``pad`` cells; its lower
+    corner (2,) and last cell index (2,)."""
+    lo = model.min(axis=0) - pad * r
+    shape = tuple(np.ceil((model.max(axis=0) + pad * r - lo) / r).astype(int) + 1)
+    occupied = np.zeros(shape, dtype=bool)
+    cells = np.floor((model - lo) / r).astype(int)
+    occupied[cells[:, 0], cells[:, 1]] = True
+    like = np.exp(-0.5 * distance_transform_edt(~occupied) ** 2)
+    like[:pad], like[-pad:], like[:, :pad], like[:, -pad:] = 0.0, 0.0, 0.0, 0.0
+    return like, lo, np.array(shape) - 1
+
+
 def pyramid(model: FloatArray, r: float, levels: int) -> Pyramid:
     """The likelihood pyramid of ``levels`` levels of the model's points (M, 2) on cells
     of ``r`` metres (module docstring)."""
     if levels < 1 or not r > 0 or len(model) == 0:
         raise ValueError("a pyramid needs a model point, a positive cell and at least one level")
-    lo = model.min(axis=0) - r
-    shape = tuple(np.ceil((model.max(axis=0) + r - lo) / r).astype(int) + 2)
-    occupied = np.zeros(shape, dtype=bool)
-    cells = np.floor((model - lo) / r).astype(int)
-    occupied[cells[:, 0], cells[:, 1]] = True
-    like = np.exp(-0.5 * distance_transform_edt(~occupied) ** 2)
-    like[-1, :] = 0.0  # the cell a point beyond the grid is clipped to
-    like[:, -1] = 0.0
-    grids = np.empty((levels, *shape))
+    # A border of 0: the cells a point beyond the grid is clipped to.
+    like, lo, _ = likelihood_grid(model, r, 2)
+    grids = np.empty((levels, *like.shape))
     grids[0] = like
     for h in range(1, levels):
         half = 1 << (h - 1)

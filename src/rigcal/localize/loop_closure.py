@@ -65,7 +65,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import distance_transform_edt, maximum_filter
+from scipy.ndimage import maximum_filter
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
@@ -476,20 +476,6 @@ def global_search(
     return out
 
 
-def likelihood_grid(model: FloatArray, r: float, pad: int) -> tuple[FloatArray, FloatArray, NDArray[np.int_]]:
-    """The model's (M, 2) likelihood grid of cell ``r``: exp(-d^2 / 2 r^2), d the distance
-    to the nearest occupied cell (Olson 2009), 0 on a border of ``pad`` cells; its lower
-    corner (2,) and last cell index (2,)."""
-    lo = model.min(axis=0) - pad * r
-    shape = tuple(np.ceil((model.max(axis=0) + pad * r - lo) / r).astype(int) + 1)
-    occupied = np.zeros(shape, dtype=bool)
-    cells = np.floor((model - lo) / r).astype(int)
-    occupied[cells[:, 0], cells[:, 1]] = True
-    like = np.exp(-0.5 * distance_transform_edt(~occupied) ** 2)
-    like[:pad], like[-pad:], like[:, :pad], like[:, -pad:] = 0.0, 0.0, 0.0, 0.0
-    return like, lo, np.array(shape) - 1
-
-
 def local_map(
     scans: Sequence[FloatArray],
     poses: FloatArray,
@@ -525,7 +511,7 @@ def correlative_match(
     ``ambiguity_m`` from it. Branch and bound over one coarse level (module docstring).
     ``kernel=False`` scores the shifts with numpy (the compiled kernel's reference)."""
     r, k = params.grid_m, params.coarse
-    like, lo, hi = likelihood_grid(model, r, k + 1)
+    like, lo, hi = bnb.likelihood_grid(model, r, k + 1)
     # Block (u, v) of the coarse grid holds the best fine cell among u..u+k-1, v..v+k-1:
     # an upper bound of the score of any shift inside the block.
     bound = maximum_filter(like, size=k, origin=-(k // 2), mode="constant")
