@@ -74,7 +74,7 @@ def _true(closures: list[Closure], gt: np.ndarray) -> int:
     return int(np.sum((np.hypot(*(z[:, :2] - t[:, :2]).T) < TRUE_M) & (off_deg < TRUE_DEG)))
 
 
-def killian(n: int | None, backends: list[str], steps: str = "own", global_every: int = 5) -> None:
+def killian(n: int | None, backends: list[str], steps: str = "own+drift", global_every: int = 5) -> None:
     archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
     with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
         z.extract("killian.g2o", tmp)
@@ -187,10 +187,10 @@ def main() -> None:
     ap.add_argument("--backend", default="both", choices=["scipy", "gtsam", "both"])
     ap.add_argument(
         "--steps",
-        default="own",
+        default="own+drift",
         choices=["own", "own+drift", "fixed"],
-        help="the odometry edges' covariance: ICP's own (default), ICP's own plus the drift "
-        "model's (LoopParams.step_drift), or the fixed sigmas",
+        help="the odometry edges' covariance: ICP's own capped by the step prior plus the drift "
+        "model's (LoopParams.step_drift, the default), ICP's own alone, or the fixed sigmas",
     )
     ap.add_argument(
         "--global-every",

@@ -16,15 +16,21 @@ starts from a map whose earlier loops are already closed:
    ``n_sigma``, plus ``search_m``, at most ``max_search_m`` / ``max_search_rad``. L is
    the shortest path between them in the graph, where an accepted closure is a short cut:
    once a loop is closed, the places it joined are close in the graph again.
-1b. **Global search** (with ``global_every`` > 0; off by default). A keyframe whose local
-   search proposed nothing or failed the verification, at most every ``global_every``
-   keyframes and not within as many of the last closure, searches the earlier keyframes
-   beyond their window but within ``search_m`` plus ``global_per_m`` of the graph path (at
-   most ``max_global_m``), nearest first, at most ``global_candidates``
-   (:func:`global_search`), each by a coarse-to-fine correlative search over the submap
-   (:func:`coarse_to_fine_match`, ``global_grid_m``, ``global_yaw_step_rad``, within
-   ``global_rad``), then step 2's fit and test; the robust kernel (step 3) catches what
-   that lets through.
+1b. **Global search** (with ``global_every`` > 0). A keyframe whose local search proposed
+   nothing or failed the verification, at most every ``global_every`` keyframes and not
+   within as many of the last closure, searches the earlier keyframes beyond their window
+   but within step 1's drift model's reach (its 3-sigma window uncapped, at most
+   ``max_global_m``, plus ``global_window_m``), nearest first, at most
+   ``global_candidates`` of them 2 ``submap_m`` of path apart (:func:`global_search`).
+   Each is matched by :func:`verify_global`: keyframe i's local submap (its scans over the
+   last ``global_context_m`` of path, placed by the odometry: short enough not to drift,
+   long enough to be distinctive) anywhere within ``global_window_m`` of j on j's submap
+   and within the drift model's yaw window (at least ``global_rad``; the full circle from
+   pi), by multi-resolution branch and bound (:mod:`rigcal.localize.branch_and_bound`,
+   Hess et al. 2016: max-pooled likelihood grids of ``global_levels`` levels on
+   ``global_grid_m`` cells, an exact bound) cut below ``global_min_score``; then step 2's
+   ambiguity test, fit and test. The robust kernel (step 3) catches what that lets
+   through.
 2. **Verification.** Keyframe i is matched to the submap of j (the scans within
    ``submap_m`` of path of j, moved into j's frame by the current poses). First i's
    context (its scan and those of the 2 ``submap_m`` of path before it, placed by the
@@ -119,7 +125,7 @@ class LoopParams:
     closure_floor_sigmas: tuple[float, float, float] = (0.002, 0.002, 0.0005)
     reoptimise_whitened: float = 3.0
     reject_whitened: float = 5.0
-    global_every: int = 0  # off: on Killian it did not help (docs/benchmarks.md, round 4)
+    global_every: int = 5
     max_global_m: float = 60.0
     global_rad: float = 0.6
     global_candidates: int = 8
@@ -128,7 +134,7 @@ class LoopParams:
     global_context_m: float = 6.0
     global_window_m: float = 6.0
     global_min_score: float = 0.55
-    step_drift: bool = False
+    step_drift: bool = True
     backend: str = "auto"
 
     def __post_init__(self) -> None:
@@ -684,6 +690,13 @@ def build_graph(
     if step_covariances is not None or any(c.covariance is not None for c in closures):
         own = np.full((last, 3, 3), np.nan) if step_covariances is None else step_covariances[1 : last + 1]
         if params.step_drift:
+            # Where the scans do not constrain a step (a corridor's length), ICP keeps its
+            # initial guess, and its Hessian's covariance there is unbounded (metres): the
+            # step is then as certain as the guess, the fixed step sigmas' prior. Fused as
+            # information, the prior caps those directions and leaves the constrained ones
+            # to the fit; without it the graph puts a loop's whole correction into the few
+            # degenerate steps.
+            own = _capped(own, step_sig)
             # The drift the search window assumes (step 1), per step: a scale error
             # drift_per_m and a heading random walk drift_rad_per_sqrt_m, which the fit's
             # own covariance does not see; compounded over L metres they give the window's
@@ -705,6 +718,19 @@ def build_graph(
         robust=np.r_[np.zeros(last, dtype=bool), np.ones(len(closures), dtype=bool)],
         covariances=covariances,
     )
+
+
+def _capped(own: FloatArray, prior_sigmas: FloatArray) -> FloatArray:
+    """(M, 3, 3) each finite, positive definite covariance ``own`` fused with the prior
+    diag(``prior_sigmas``^2) (M, 3) as information: (own^-1 + prior^-1)^-1; NaN kept."""
+    out = own.copy()
+    ok = np.flatnonzero(np.isfinite(own).all(axis=(1, 2)))
+    ok = ok[np.linalg.eigvalsh(own[ok])[:, 0] > 0]
+    info = np.linalg.inv(own[ok])
+    idx = np.arange(3)
+    info[:, idx, idx] += 1.0 / np.square(prior_sigmas[ok])
+    out[ok] = np.linalg.inv(info)
+    return out
 
 
 def _whitened(est: FloatArray, closures: list[Closure], params: LoopParams) -> FloatArray:
