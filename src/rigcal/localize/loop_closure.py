@@ -54,9 +54,11 @@ starts from a map whose earlier loops are already closed:
    (:func:`closure_covariance`, ``closure_sigmas`` where the fit has too few pairs), a
    step's the odometry's own where given (``step_covariances``: the laser odometry's over
    the step and the step's departure from it, :func:`step_covariances`; with
-   ``step_drift`` plus step 1's drift model over the step: (a l)^2 on x and y, b^2 l on
-   yaw), else 1-sigma ``step_sigmas`` plus ``step_sigma_per_m`` per metre of step. A
-   precise odometry is then not bent by a coarser closure. A closure that disagrees with
+   ``step_drift`` (the default) first capped by the fixed sigmas below as a prior, fused
+   as information, since where the scans do not constrain a step ICP kept its guess,
+   then plus step 1's drift model over the step: (a l)^2 on x and y, b^2 l on yaw), else
+   1-sigma ``step_sigmas`` plus ``step_sigma_per_m`` per metre of step. A precise
+   odometry (without ``step_drift``) is then not bent by a coarser closure. A closure that disagrees with
    the current poses by more than ``reoptimise_whitened`` (whitened) corrects them at once
    (the graph up to keyframe i; the later poses follow it rigidly); the whole graph is
    optimised at the end, and a closure whose whitened residual stays above
