@@ -20,7 +20,7 @@ each with closure off and on, and the closures' counts.
 
     uv sync --group bench --extra gtsam     # rtb-data, GTSAM
     .venv/bin/python benchmarks/bench_loop_closure.py [--scans N] [--backend scipy|gtsam|both]
-        [--steps own|own+drift|fixed] [--global-every N] [--global-per-m F]
+        [--steps own|own+drift|fixed] [--global-every N]
     .venv/bin/python benchmarks/bench_loop_closure.py --sim [--methods icp,kf,iasm,hiasm] [--drives DIR]
 """
 
@@ -39,7 +39,7 @@ import numpy as np
 
 from rigcal.io.wheel_odometry import laser_motions
 from rigcal.localize.icp import IcpParams
-from rigcal.localize.loop_closure import LoopParams, close_loops
+from rigcal.localize.loop_closure import Closure, LoopParams, close_loops, relative
 from rigcal.localize.metrics import anchored, evaluate, relation_error, rpe_pairs
 from rigcal.localize.odometry import icp_odometry
 from rigcal.localize.pose_graph import gtsam_available
@@ -60,9 +60,21 @@ def _row(name: str, est: np.ndarray, gt: np.ndarray, speed: str) -> str:
     )
 
 
-def killian(
-    n: int | None, backends: list[str], steps: str = "own", global_every: int = 5, global_per_m: float = 0.05
-) -> None:
+# An accepted closure is counted true when its relative pose is within these of the g2o's.
+TRUE_M, TRUE_DEG = 0.5, 2.0
+
+
+def _true(closures: list[Closure], gt: np.ndarray) -> int:
+    """How many of the closures' T_j_i are within TRUE_M / TRUE_DEG of the truth's."""
+    if not closures:
+        return 0
+    z = np.array([c.T_j_i for c in closures], dtype=float)
+    t = relative(gt[[c.j for c in closures]], gt[[c.i for c in closures]])
+    off_deg = np.degrees(np.abs(np.angle(np.exp(1j * (z[:, 2] - t[:, 2])))))
+    return int(np.sum((np.hypot(*(z[:, :2] - t[:, :2]).T) < TRUE_M) & (off_deg < TRUE_DEG)))
+
+
+def killian(n: int | None, backends: list[str], steps: str = "own+drift", global_every: int = 5) -> None:
     archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
     with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
         z.extract("killian.g2o", tmp)
@@ -98,7 +110,6 @@ def killian(
         params = LoopParams(
             backend=backend,
             global_every=global_every,
-            global_per_m=global_per_m,
             step_drift=steps == "own+drift",
         )
         lc = close_loops(scans, od.poses, params, None if steps == "fixed" else od.covariance)
@@ -111,13 +122,17 @@ def killian(
             f"loop closure {wall:.1f} s wall ({wall / icp_wall:.2f}x ICP's), "
             f"{cpu:.1f} s CPU ({cpu / icp_cpu:.2f}x ICP's)"
         )
-        wide = [x for x in lc.closures if x.wide]
-        why = Counter(x.why_not.split(" ")[0] for x in wide if x.T_j_i is None)
-        print(
-            f"  of them by the global search: proposed {len(wide)}, accepted "
-            f"{sum(1 for x in wide if x.T_j_i is not None and not x.kernel_rejected)}, rejected by the "
-            f"kernel {sum(1 for x in wide if x.kernel_rejected)}; its rejections {dict(why.most_common())}"
-        )
+        for name, wide in (("local", False), ("global", True)):
+            tried = [x for x in lc.closures if x.wide == wide]
+            why = Counter(x.why_not.split(" ")[0] for x in tried if x.T_j_i is None)
+            accepted = [x for x in tried if x.T_j_i is not None and not x.kernel_rejected]
+            kernel = [x for x in tried if x.kernel_rejected]
+            print(
+                f"  {name} search: proposed {len(tried)}, accepted {len(accepted)} "
+                f"({_true(accepted, gt)} within {TRUE_M} m / {TRUE_DEG} deg of the g2o's), rejected by the "
+                f"kernel {len(kernel)} ({_true(kernel, gt)} of them true); by the verification "
+                f"{dict(why.most_common())}"
+            )
         speed = (
             f"{duration / (icp_wall + wall):.0f}x real time wall, {duration / (icp_cpu + cpu):.0f}x CPU; "
             f"closure {cpu / icp_cpu:.2f}x ICP's CPU"
@@ -172,22 +187,16 @@ def main() -> None:
     ap.add_argument("--backend", default="both", choices=["scipy", "gtsam", "both"])
     ap.add_argument(
         "--steps",
-        default="own",
+        default="own+drift",
         choices=["own", "own+drift", "fixed"],
-        help="the odometry edges' covariance: ICP's own (default), ICP's own plus the drift "
-        "model's (LoopParams.step_drift), or the fixed sigmas",
+        help="the odometry edges' covariance: ICP's own capped by the step prior plus the drift "
+        "model's (LoopParams.step_drift, the default), ICP's own alone, or the fixed sigmas",
     )
     ap.add_argument(
         "--global-every",
         type=int,
         default=5,
         help="the global search at most every N keyframes (default 5; 0: off, the local search only)",
-    )
-    ap.add_argument(
-        "--global-per-m",
-        type=float,
-        default=LoopParams().global_per_m,
-        help="the global search's reach grows by this fraction of the graph path",
     )
     a = ap.parse_args()
     if a.sim:
@@ -197,7 +206,7 @@ def main() -> None:
     if not gtsam_available() and "gtsam" in backends:
         print("GTSAM is not installed (uv sync --extra gtsam): scipy only")
         backends = ["scipy"]
-    killian(a.scans, backends, a.steps, a.global_every, a.global_per_m)
+    killian(a.scans, backends, a.steps, a.global_every)
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ import pytest
 from rigcal.cli.main import main
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
+from rigcal.localize import branch_and_bound as bnb
 from rigcal.localize.loop_closure import (
     Closure,
     LoopParams,
@@ -28,7 +29,7 @@ from rigcal.localize.loop_closure import (
     scans_at,
     search_window,
     step_covariances,
-    verify,
+    verify_global,
 )
 from rigcal.localize.pose_graph import PoseGraph, gtsam_available, optimise
 
@@ -387,7 +388,9 @@ def test_a_precise_odometry_is_not_made_worse_by_a_coarser_closure(rng):
     z = relative(truth[[0]], truth[[n]])[0] + np.array([0.01, -0.01, 0.003])  # 1 sigma off
     c = Closure(n, 0, z, covariance=closure_cov)
     covs = np.concatenate([np.full((1, 3, 3), np.nan), np.tile(step_cov, (n, 1, 1))])
-    params = LoopParams()
+    # The steps' own covariances alone: the drift model (on by default) says the odometry
+    # drifts as much as step 1's window assumes, which this one does not.
+    params = LoopParams(step_drift=False)
     own, _ = optimise(build_graph(odo, odo, [c], n, params, covs))
     fixed, _ = optimise(build_graph(odo, odo, [Closure(n, 0, z)], n, params))
 
@@ -447,31 +450,93 @@ def _scans_of(world, truth, range_m=8.0):
     return out
 
 
-def test_the_global_search_closes_a_return_beyond_the_local_window(rng):
-    # A lap and a half of the square: the heading drift puts the return metres from the
-    # start, beyond a local window capped at 1 m.
+def test_branch_and_bound_finds_the_exhaustive_searchs_best(rng):
+    model = _room(rng)
+    T = np.array([0.63, -0.41, 2.2])  # a yaw only the full circle reaches
+    data = _moved(model[::5], T) + rng.normal(0, 0.01, (len(model[::5]), 2))
+    pyr = bnb.pyramid(model, 0.1, 4)
+    step = 0.03
+    found = bnb.match(pyr, data, np.zeros(3), 1.0, np.pi, step_rad=step)
+    pose, score = bnb.exhaustive_match(pyr, data, np.zeros(3), 1.0, np.pi, step)
+    np.testing.assert_allclose(found.pose, pose, atol=1e-12)
+    assert found.score == pytest.approx(score, abs=1e-12)
+    assert np.hypot(*(pose[:2] - T[:2])) < 0.15
+    assert abs(np.angle(np.exp(1j * (pose[2] - T[2])))) < 2 * step
+    poses = len(bnb.search_yaws(0.0, np.pi, step)) * 21**2
+    assert found.nodes < poses / 3  # the bound cut most of the search
+    # Each level bounds the level below over its block: the bound is exact.
+    for h in range(1, pyr.levels):
+        half = 1 << (h - 1)
+        lower = pyr.grids[h - 1]
+        assert np.all(pyr.grids[h][:-half, :-half] >= lower[half:, half:])
+        assert np.all(pyr.grids[h] >= lower)
+
+
+def test_branch_and_bound_reports_the_best_elsewhere_only_above_the_ratio(rng):
+    # A corridor of doors every 3 m: 3 m along, the scan fits as well.
+    x = rng.uniform(0, 30, 3000)
+    x = x[(x % 3.0) > 1.0]
+    model = np.vstack([np.column_stack([x, np.zeros_like(x)]), np.column_stack([x, np.full_like(x, 2.0)])])
+    data = model[np.abs(model[:, 0] - 15) < 5][::4] - np.array([15.0, 0.0])
+    pyr = bnb.pyramid(model, 0.1, 5)
+    found = bnb.match(pyr, data, np.array([15.0, 0.0, 0.0]), 4.0, 0.1, away_m=1.0, away_ratio=0.9)
+    assert found.elsewhere > 0.9 * found.score
+    room = _room(rng)
+    one = bnb.match(
+        bnb.pyramid(room, 0.1, 5), _moved(room[::3], np.zeros(3)), np.zeros(3), 2.0, 0.2, away_m=1.0
+    )
+    assert one.score > 0.9
+    assert 0 < one.elsewhere < 0.9 * one.score  # one room: nothing else fits as well
+    cut = bnb.match(
+        bnb.pyramid(room, 0.1, 5),
+        _moved(room[::3], np.zeros(3)),
+        np.zeros(3),
+        2.0,
+        0.2,
+        away_m=1.0,
+        away_ratio=0.9,
+    )
+    assert cut.elsewhere == 0.0
+    assert cut.nodes < one.nodes
+
+
+def test_the_global_search_closes_a_far_return_rotated_by_a_large_angle(rng):
+    # A lap and a half of the square; the odometry drifts 0.002 rad a step and its heading
+    # jumps by 0.7 rad once (a step it got wrong): the return comes back 9 m away and
+    # rotated by about 60 degrees, beyond a local window capped at 1 m and 0.35 rad. A
+    # drift model that allows for it (a heading random walk of 0.06 rad/sqrt(m), on the
+    # steps too) opens the global search's yaw window past it and lets the graph bend.
     lap = _square()
     truth = np.vstack([lap, lap[1:61] + np.array([0.0, 0.0, 2 * np.pi])])
     odo = _drifted(truth, yaw_per_step=0.002)
+    after = relative(np.repeat(odo[99][None], len(odo) - 100, 0), odo[100:])
+    odo[100:] = compose(np.repeat((odo[99] + np.array([0.0, 0.0, 0.7]))[None], len(after), 0), after)
     scans = _scans_of(_square_world(rng), truth)
-    params = LoopParams(max_search_m=1.0, global_every=5, global_per_m=0.15, backend="scipy")
-    assert np.hypot(*(odo[160, :2] - odo[0, :2])) > 2 * params.max_search_m
-    local = close_loops(scans, odo, replace(params, global_every=0))
+    params = LoopParams(
+        max_search_m=1.0, drift_rad_per_sqrt_m=0.06, step_drift=True, global_every=5, backend="scipy"
+    )
+    own = np.concatenate(
+        [np.full((1, 3, 3), np.nan), np.tile(np.diag([1e-6, 1e-6, 1e-8]), (len(odo) - 1, 1, 1))]
+    )
+    yaw_error = relative(odo[[0]], odo[[160]])[0, 2]
+    assert abs(yaw_error) > max(params.global_rad, params.max_search_rad)
+    assert np.hypot(*(odo[160, :2] - odo[0, :2])) > 8 * params.max_search_m
+    local = close_loops(scans, odo, replace(params, global_every=0), own)
     assert local.counts["accepted"] == 0
-    found = close_loops(scans, odo, params)
+    found = close_loops(scans, odo, params, own)
     accepted = [c for c in found.closures if c.T_j_i is not None and not c.kernel_rejected]
-    assert any(c.wide and c.window_m > params.max_search_m for c in accepted)  # the global search's
+    assert any(c.wide for c in accepted)  # the global search's
     for c in accepted:  # each closure is the truth's relative pose
         true = relative(truth[[c.j]], truth[[c.i]])[0]
         assert np.hypot(*(c.T_j_i[:2] - true[:2])) < 0.05
-        assert abs(c.T_j_i[2] - true[2]) < 0.02
+        assert abs(np.angle(np.exp(1j * (c.T_j_i[2] - true[2])))) < 0.03
     end = float(np.hypot(*(found.poses[-1, :2] - truth[-1, :2])))
-    assert end < 0.25 * float(np.hypot(*(odo[-1, :2] - truth[-1, :2])))
+    assert end < 0.15 * float(np.hypot(*(odo[-1, :2] - truth[-1, :2])))
 
 
 def test_the_global_search_rejects_a_false_candidate(rng):
-    # The poses put keyframe i (the square's third corner) next to j (its first): the
-    # coarse-to-fine search over the whole window finds no match that passes the test.
+    # The poses put keyframe i (the square's third corner) next to j (its first): no
+    # match over j's submap passes the test.
     truth = _square()
     scans = _scans_of(_square_world(rng), truth)
     est = truth.copy()
@@ -479,16 +544,33 @@ def test_the_global_search_rejects_a_false_candidate(rng):
     est[i - 40 : i + 1] = compose(
         np.repeat(truth[j][None], 41, 0), relative(np.repeat(truth[i][None], 41, 0), truth[i - 40 : i + 1])
     )
-    along = path_along(truth)
     params = LoopParams(backend="scipy")
-    c = verify(scans, est, along, i, j, 10.0, params.global_rad, params, coarse=True)
+    c = verify_global(scans, est, path_along(truth), i, j, np.pi, params)
     assert c.T_j_i is None
+    assert c.wide
     assert c.why_not
+
+
+def test_the_global_search_rejects_a_false_candidate_in_a_repetitive_corridor(rng):
+    # A 60 m corridor with a door every 3 m on both walls: keyframe i 40 m along is
+    # searched for on the submap of j 15 m along, a place that looks the same; every 3 m
+    # along fits as well, so the match is ambiguous and no closure is made.
+    x = rng.uniform(-10, 70, 16000)
+    x = x[(x % 3.0) > 1.0]
+    world = np.vstack([np.column_stack([x, np.zeros_like(x)]), np.column_stack([x, np.full_like(x, 2.0)])])
+    truth = np.column_stack([np.arange(0, 60, 0.25), np.full(240, 1.0), np.zeros(240)])
+    scans = _scans_of(world, truth)
+    i, j = 160, 60
+    params = LoopParams(backend="scipy")
+    c = verify_global(scans, truth, path_along(truth), i, j, params.global_rad, params)
+    assert c.T_j_i is None
+    assert "ambiguous" in c.why_not or "degenerate" in c.why_not
 
 
 def test_step_drift_adds_the_search_windows_drift_model_to_the_steps_own_covariances():
     # Compounded over the steps, the added variance is the window's: (a L)^2-ish on x, b^2 L
-    # on yaw; the fit's own covariance is kept under it.
+    # on yaw; the fit's own covariance (capped by the step prior, here all but unchanged)
+    # is kept under it.
     truth = _square()
     n = len(truth) - 1
     own = np.concatenate([np.full((1, 3, 3), np.nan), np.tile(np.diag([1e-6, 1e-6, 1e-8]), (n, 1, 1))])
@@ -498,14 +580,44 @@ def test_step_drift_adds_the_search_windows_drift_model_to_the_steps_own_covaria
     assert plain is not None
     assert drift is not None
     step_m = 10.0 / 40
-    np.testing.assert_allclose(drift[:, 2, 2] - plain[:, 2, 2], params.drift_rad_per_sqrt_m**2 * step_m)
-    np.testing.assert_allclose(drift[:, 0, 0] - plain[:, 0, 0], (params.drift_per_m * step_m) ** 2)
-    np.testing.assert_allclose(drift[:, 0, 1], plain[:, 0, 1])
+    kept = drift.copy()
+    kept[:, 2, 2] -= params.drift_rad_per_sqrt_m**2 * step_m
+    kept[:, 0, 0] -= (params.drift_per_m * step_m) ** 2
+    kept[:, 1, 1] -= (params.drift_per_m * step_m) ** 2
+    np.testing.assert_allclose(kept, plain, rtol=0.05)  # the prior (7 mm, 1 mrad) barely caps 1 mm
+    assert np.all(kept[:, [0, 1, 2], [0, 1, 2]] <= plain[:, [0, 1, 2], [0, 1, 2]])
+
+
+def test_step_drift_caps_a_degenerate_steps_covariance_by_the_step_prior():
+    # ICP along a corridor: its covariance along the corridor is metres (unconstrained);
+    # the step is then as certain as its guess, the fixed step sigmas' prior, and a loop's
+    # correction is not put into that one step.
+    truth = _square()
+    n = len(truth) - 1
+    own = np.concatenate([np.full((1, 3, 3), np.nan), np.tile(np.diag([1e-6, 1e-6, 1e-8]), (n, 1, 1))])
+    own[10] = np.diag([100.0, 1e-6, 1e-8])
+    params = LoopParams(step_drift=True)
+    cov = build_graph(truth, truth, [], n, params, own).covariances
+    assert cov is not None
+    prior_m = params.step_sigmas[0] + params.step_sigma_per_m * 10.0 / 40
+    drift = (params.drift_per_m * 10.0 / 40) ** 2
+    assert cov[9, 0, 0] == pytest.approx(prior_m**2 + drift, rel=1e-3)  # capped: millimetres, not 10 m
+    assert cov[9, 1, 1] == pytest.approx(cov[8, 1, 1], rel=1e-9)  # the constrained ones as before
+    unfused = build_graph(truth, truth, [], n, replace(params, step_drift=False), own).covariances
+    assert unfused is not None
+    assert unfused[9, 0, 0] == pytest.approx(100.0)
 
 
 @pytest.mark.parametrize(
     "bad",
-    [{"global_every": -1}, {"global_candidates": 0}, {"global_grid_m": 0.0}, {"global_yaw_step_rad": -0.1}],
+    [
+        {"global_every": -1},
+        {"global_candidates": 0},
+        {"global_grid_m": 0.0},
+        {"global_context_m": -1.0},
+        {"global_window_m": 0.0},
+        {"global_levels": 0},
+    ],
 )
 def test_the_global_search_settings_are_checked(bad):
     with pytest.raises(ValueError, match="global"):

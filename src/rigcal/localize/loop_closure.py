@@ -16,15 +16,21 @@ starts from a map whose earlier loops are already closed:
    ``n_sigma``, plus ``search_m``, at most ``max_search_m`` / ``max_search_rad``. L is
    the shortest path between them in the graph, where an accepted closure is a short cut:
    once a loop is closed, the places it joined are close in the graph again.
-1b. **Global search** (with ``global_every`` > 0; off by default). A keyframe whose local
-   search proposed nothing or failed the verification, at most every ``global_every``
-   keyframes and not within as many of the last closure, searches the earlier keyframes
-   beyond their window but within ``search_m`` plus ``global_per_m`` of the graph path (at
-   most ``max_global_m``), nearest first, at most ``global_candidates``
-   (:func:`global_search`), each by a coarse-to-fine correlative search over the submap
-   (:func:`coarse_to_fine_match`, ``global_grid_m``, ``global_yaw_step_rad``, within
-   ``global_rad``), then step 2's fit and test; the robust kernel (step 3) catches what
-   that lets through.
+1b. **Global search** (with ``global_every`` > 0). A keyframe whose local search proposed
+   nothing or failed the verification, at most every ``global_every`` keyframes and not
+   within as many of the last closure, searches the earlier keyframes beyond their window
+   but within step 1's drift model's reach (its 3-sigma window uncapped, at most
+   ``max_global_m``, plus ``global_window_m``), nearest first, at most
+   ``global_candidates`` of them 2 ``submap_m`` of path apart (:func:`global_search`).
+   Each is matched by :func:`verify_global`: keyframe i's local submap (its scans over the
+   last ``global_context_m`` of path, placed by the odometry: short enough not to drift,
+   long enough to be distinctive) anywhere within ``global_window_m`` of j on j's submap
+   and within the drift model's yaw window (at least ``global_rad``; the full circle from
+   pi), by multi-resolution branch and bound (:mod:`rigcal.localize.branch_and_bound`,
+   Hess et al. 2016: max-pooled likelihood grids of ``global_levels`` levels on
+   ``global_grid_m`` cells, an exact bound) cut below ``global_min_score``; then step 2's
+   ambiguity test, fit and test. The robust kernel (step 3) catches what that lets
+   through.
 2. **Verification.** Keyframe i is matched to the submap of j (the scans within
    ``submap_m`` of path of j, moved into j's frame by the current poses). First i's
    context (its scan and those of the 2 ``submap_m`` of path before it, placed by the
@@ -48,9 +54,11 @@ starts from a map whose earlier loops are already closed:
    (:func:`closure_covariance`, ``closure_sigmas`` where the fit has too few pairs), a
    step's the odometry's own where given (``step_covariances``: the laser odometry's over
    the step and the step's departure from it, :func:`step_covariances`; with
-   ``step_drift`` plus step 1's drift model over the step: (a l)^2 on x and y, b^2 l on
-   yaw), else 1-sigma ``step_sigmas`` plus ``step_sigma_per_m`` per metre of step. A
-   precise odometry is then not bent by a coarser closure. A closure that disagrees with
+   ``step_drift`` (the default) first capped by the fixed sigmas below as a prior, fused
+   as information, since where the scans do not constrain a step ICP kept its guess,
+   then plus step 1's drift model over the step: (a l)^2 on x and y, b^2 l on yaw), else
+   1-sigma ``step_sigmas`` plus ``step_sigma_per_m`` per metre of step. A precise
+   odometry (without ``step_drift``) is then not bent by a coarser closure. A closure that disagrees with
    the current poses by more than ``reoptimise_whitened`` (whitened) corrects them at once
    (the graph up to keyframe i; the later poses follow it rigidly); the whole graph is
    optimised at the end, and a closure whose whitened residual stays above
@@ -64,7 +72,7 @@ kernel as the scan search's own, each keyframe's after its scan search; each
 them apart. A proposal whose pair the current poses put within the search window (and
 whose yaw agrees within it) is searched there; otherwise, as where the drift has carried
 the poses beyond the window, around the proposal's own guess (its yaw, no translation)
-within its ``window_m`` / ``window_rad``, coarse to fine as the global search.
+within its ``window_m`` / ``window_rad``, by the global search's branch and bound.
 """
 
 from __future__ import annotations
@@ -74,13 +82,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import distance_transform_edt, maximum_filter
+from scipy.ndimage import maximum_filter
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from rigcal.arrays import FloatArray
 from rigcal.jit import njit
+from rigcal.localize import branch_and_bound as bnb
 from rigcal.localize.icp import IcpParams, icp
 from rigcal.localize.icp_covariance import icp_covariance
 from rigcal.localize.line_normals import pairing_normals
@@ -127,14 +136,16 @@ class LoopParams:
     closure_floor_sigmas: tuple[float, float, float] = (0.002, 0.002, 0.0005)
     reoptimise_whitened: float = 3.0
     reject_whitened: float = 5.0
-    global_every: int = 0  # off: on Killian it did not help (docs/benchmarks.md, round 4)
-    global_per_m: float = 0.05
-    max_global_m: float = 40.0
+    global_every: int = 5
+    max_global_m: float = 60.0
     global_rad: float = 0.6
-    global_candidates: int = 3
-    global_grid_m: float = 0.4
-    global_yaw_step_rad: float = 0.02
-    step_drift: bool = False
+    global_candidates: int = 8
+    global_grid_m: float = 0.1
+    global_levels: int = 7
+    global_context_m: float = 6.0
+    global_window_m: float = 6.0
+    global_min_score: float = 0.55
+    step_drift: bool = True
     backend: str = "auto"
 
     def __post_init__(self) -> None:
@@ -147,8 +158,10 @@ class LoopParams:
             raise ValueError("coarse must be at least 1 and match_points at least 3")
         if self.global_every < 0 or self.global_candidates < 1:
             raise ValueError("global_every must be at least 0 and global_candidates at least 1")
-        if not (self.global_grid_m > 0 and self.global_yaw_step_rad > 0):
-            raise ValueError("global_grid_m and global_yaw_step_rad must be positive")
+        if not (self.global_grid_m > 0 and self.global_context_m > 0 and self.global_window_m > 0):
+            raise ValueError("global_grid_m, global_context_m and global_window_m must be positive")
+        if self.global_levels < 1:
+            raise ValueError("global_levels must be at least 1")
 
     @property
     def pose_graph(self) -> str:
@@ -328,15 +341,15 @@ def _verified_proposal(
     params: LoopParams,
 ) -> Closure:
     """A proposal through step 2's verification (module docstring): within the search
-    window where the poses put its pair there, else around its own yaw, coarse to fine."""
+    window where the poses put its pair there, else around its own yaw within its own reach,
+    by the global search's branch and bound."""
     by_poses = relative(poses[p.j][None], poses[p.i][None])[0]
     yaw_off = abs(np.angle(np.exp(1j * (by_poses[2] - p.yaw_rad))))
     if np.hypot(*by_poses[:2]) <= window_m[0] and yaw_off <= window_rad[0]:
         closure = verify(scans, poses, along, p.i, p.j, float(window_m[0]), float(window_rad[0]), params)
     else:
-        guess = np.array([0.0, 0.0, p.yaw_rad])
-        closure = verify(
-            scans, poses, along, p.i, p.j, p.window_m, p.window_rad, params, coarse=True, guess=guess
+        closure = verify_global(
+            scans, poses, along, p.i, p.j, p.window_rad, params, yaw_rad=p.yaw_rad, window_m=p.window_m
         )
     return replace(closure, source=p.source)
 
@@ -394,37 +407,102 @@ def verify(
     window_m: float,
     window_rad: float,
     params: LoopParams,
-    *,
-    coarse: bool = False,
-    guess: FloatArray | None = None,
 ) -> Closure:
     """Match scan i to scan j's submap within the window; the closure T_j_i when the fit
-    passes the test (module docstring, step 2). ``scans``: each pose's valid returns (P, 2).
-    ``coarse``: search the window coarse to fine (:func:`coarse_to_fine_match`, the
-    global search) instead of by :func:`correlative_match`. ``guess``: the window's centre
-    T_j_i (x, y, yaw); the poses' T_j_i when None."""
+    passes the test (module docstring, step 2). ``scans``: each pose's valid returns (P, 2)."""
     submap = local_map(scans, poses, j, np.flatnonzero(np.abs(along - along[j]) <= params.submap_m), params)
     # The search matches keyframe i's context: its scan and those of the last 2 x submap_m
     # of path before it (the odometry is locally right), so that a corridor's repeated
     # structure is matched with what surrounds it, not one scan at a time. ICP then fits
     # i's scan alone, the part that overlaps j's submap, and its fit is the test.
-    behind = np.flatnonzero((along <= along[i]) & (along >= along[i] - 2 * params.submap_m))
-    context = local_map(scans, poses, i, behind[behind <= i], params)
+    context = _context(scans, poses, along, i, 2 * params.submap_m, params)
     data = voxel_filter(scans[i], params.voxel_m)
     if len(submap) < 20 or len(data) < 20:
         return Closure(i, j, None, why_not="too few returns", window_m=window_m)
-    guess = relative(poses[j][None], poses[i][None])[0] if guess is None else guess
-    stride = max(1, int(np.ceil(len(context) / params.match_points)))
-    match = coarse_to_fine_match if coarse else correlative_match
-    start, score, elsewhere = match(submap, context[::stride], guess, window_m, window_rad, params)
-    if score < params.min_score:
-        return Closure(
-            i, j, None, why_not=f"score {score:.2f} < {params.min_score:g}", score=score, window_m=window_m
-        )
+    guess = relative(poses[j][None], poses[i][None])[0]
+    start, score, elsewhere = correlative_match(submap, context, guess, window_m, window_rad, params)
+    return _tested(submap, data, start, score, elsewhere, Closure(i, j, None, window_m=window_m), params)
+
+
+def verify_global(
+    scans: Sequence[FloatArray],
+    poses: FloatArray,
+    along: FloatArray,
+    i: int,
+    j: int,
+    window_rad: float,
+    params: LoopParams,
+    *,
+    yaw_rad: float | None = None,
+    window_m: float | None = None,
+) -> Closure:
+    """The global search's match of keyframe i anywhere on keyframe j's submap (module
+    docstring, step 1b): i's local submap (its scans over the last ``global_context_m`` of
+    path, placed by the odometry) is searched for by branch and bound
+    (:func:`rigcal.localize.branch_and_bound.match`) over every translation within
+    ``global_window_m`` of j and every yaw within ``window_rad`` of the poses' relative
+    yaw (the full circle from pi), then tested as :func:`verify`'s match is. ``yaw_rad``
+    and ``window_m``: another source's relative yaw and reach (an image proposal's) in
+    place of the poses' and ``global_window_m``."""
+    submap = local_map(scans, poses, j, np.flatnonzero(np.abs(along - along[j]) <= params.submap_m), params)
+    context = _context(scans, poses, along, i, params.global_context_m, params)
+    data = voxel_filter(scans[i], params.voxel_m)
+    reach_m = params.global_window_m if window_m is None else window_m
+    proposal = Closure(i, j, None, window_m=reach_m, wide=True)
+    if len(submap) < 20 or len(data) < 20:
+        return replace(proposal, why_not="too few returns")
+    yaw = relative(poses[j][None], poses[i][None])[0, 2] if yaw_rad is None else yaw_rad
+    pyr = bnb.pyramid(submap, params.global_grid_m, params.global_levels)
+    found = bnb.match(
+        pyr,
+        context,
+        np.array([0.0, 0.0, yaw]),
+        reach_m,
+        window_rad,
+        away_m=params.ambiguity_m,
+        away_ratio=params.max_ambiguity,
+        min_score=params.global_min_score,
+    )
+    return _tested(
+        submap, data, found.pose, found.score, found.elsewhere, proposal, params, params.global_min_score
+    )
+
+
+def _context(
+    scans: Sequence[FloatArray],
+    poses: FloatArray,
+    along: FloatArray,
+    i: int,
+    behind_m: float,
+    params: LoopParams,
+) -> FloatArray:
+    """Keyframe i's context: its scan and those of the last ``behind_m`` of path before it,
+    in its frame, at most about ``match_points`` of them."""
+    behind = np.flatnonzero((along <= along[i]) & (along >= along[i] - behind_m))
+    context = local_map(scans, poses, i, behind[behind <= i], params)
+    return context[:: max(1, int(np.ceil(len(context) / params.match_points)))]
+
+
+def _tested(
+    submap: FloatArray,
+    data: FloatArray,
+    start: FloatArray,
+    score: float,
+    elsewhere: float,
+    proposal: Closure,
+    params: LoopParams,
+    min_score: float | None = None,
+) -> Closure:
+    """The search's match ``start`` tested (module docstring, step 2): its score against
+    ``min_score`` (``params.min_score`` when None), its ambiguity, then ICP's fit."""
+    floor = params.min_score if min_score is None else min_score
+    proposal = replace(proposal, score=score)
+    if not score >= floor:
+        return replace(proposal, why_not=f"score {score:.2f} < {floor:g}")
     if elsewhere > params.max_ambiguity * score:
         why = f"ambiguous (score {elsewhere:.2f} {params.ambiguity_m:g} m away, {score:.2f} at best)"
-        return Closure(i, j, None, why_not=why, score=score, window_m=window_m)
-    return fitted(submap, data, start, Closure(i, j, None, score=score, window_m=window_m), params)
+        return replace(proposal, why_not=why)
+    return fitted(submap, data, start, proposal, params)
 
 
 def fitted(
@@ -433,7 +511,6 @@ def fitted(
     """The proposal with scan ``data`` (P, 2) fitted to the ``submap`` (M, 2) by
     point-to-line ICP from the search's match ``start`` (x, y, yaw), accepted when the fit
     passes the test (module docstring, step 2), with its covariance."""
-    i, j, score, window_m = proposal.i, proposal.j, proposal.score, proposal.window_m
     res = icp(submap, data, initial=start, params=IcpParams(method="point-to-line"))
     slid = float(np.hypot(*(res.pose[:2] - start[:2])))
     if slid > params.max_refine_m:
@@ -446,9 +523,9 @@ def fitted(
         why = f"degenerate ({res.degeneracy:.3f})"
     else:
         cov = closure_covariance(submap, data, res.pose, params)
-        fit = (res.inlier_fraction, res.rms_m)
-        return Closure(i, j, res.pose, *fit, score=score, window_m=window_m, covariance=cov)
-    return Closure(i, j, None, res.inlier_fraction, res.rms_m, why, score=score, window_m=window_m)
+        fit = replace(proposal, inliers=res.inlier_fraction, rms_m=res.rms_m)
+        return replace(fit, T_j_i=res.pose, covariance=cov)
+    return replace(proposal, inliers=res.inlier_fraction, rms_m=res.rms_m, why_not=why)
 
 
 def _global_due(a: int, last_found: int, last_global: int, params: LoopParams) -> bool:
@@ -471,14 +548,18 @@ def global_search(
     params: LoopParams,
 ) -> list[Closure]:
     """The global search for keyframe i when the local one found nothing (module
-    docstring, step 1b): the earlier keyframes ``earlier`` beyond their local window
-    (``window_m``, at ``dist_m`` from i by the poses) but within ``search_m`` plus
-    ``global_per_m`` of the graph path ``path_m`` (at most ``max_global_m``), nearest
-    first, at most ``global_candidates`` of them ``2 submap_m`` of path apart, are each
-    matched by :func:`coarse_to_fine_match` and verified; the closures tried, the last the
-    accepted one if any."""
-    reach = np.minimum(params.search_m + params.global_per_m * path_m, params.max_global_m)
-    far = np.flatnonzero((dist_m > window_m) & (dist_m <= reach))
+    docstring, step 1b): of the earlier keyframes ``earlier`` beyond their local window
+    (``window_m``, at ``dist_m`` from i by the poses) but within the drift model's reach
+    over the graph path ``path_m`` (step 1's window uncapped, at most ``max_global_m``),
+    nearest first, at most ``global_candidates`` of them ``2 submap_m`` of path apart are
+    each matched by :func:`verify_global`, in a yaw window of the drift model's, at least
+    ``global_rad``; the closures tried, the last the accepted one if any."""
+    L = np.maximum(path_m, 0.0)
+    a, b = params.drift_per_m, params.drift_rad_per_sqrt_m
+    sigma_xy = np.sqrt((a * L) ** 2 + b**2 * L**3 / 3.0)
+    reach = np.minimum(params.search_m + params.n_sigma * sigma_xy, params.max_global_m)
+    yaw_window = np.maximum(params.n_sigma * b * np.sqrt(L), params.global_rad)
+    far = np.flatnonzero((dist_m > window_m) & (dist_m <= reach + params.global_window_m))
     picked: list[int] = []
     for c in far[np.argsort(dist_m[far])]:
         if all(abs(along[earlier[c]] - along[earlier[p]]) >= 2 * params.submap_m for p in picked):
@@ -487,82 +568,11 @@ def global_search(
             break
     out = []
     for c in picked:
-        closure = verify(
-            scans, poses, along, i, int(earlier[c]), float(reach[c]), params.global_rad, params, coarse=True
-        )
-        out.append(replace(closure, wide=True))
+        closure = verify_global(scans, poses, along, i, int(earlier[c]), float(yaw_window[c]), params)
+        out.append(closure)
         if closure.T_j_i is not None:
             break
     return out
-
-
-def coarse_to_fine_match(
-    model: FloatArray,
-    data: FloatArray,
-    guess: FloatArray,
-    window_m: float,
-    window_rad: float,
-    params: LoopParams,
-) -> tuple[FloatArray, float, float]:
-    """:func:`correlative_match` over a wide window, coarse to fine: every pose on a
-    ``global_grid_m`` / ``global_yaw_step_rad`` grid within ``window_m`` / ``window_rad``
-    of ``guess`` whose position lies on the model (its bounding box plus ``submap_m``)
-    is scored against the model's likelihood at the coarse cell size (Olson 2009's
-    multi-resolution search); the best is refined by :func:`correlative_match` within two
-    coarse cells and yaw steps, and so is the best coarse pose farther than
-    ``ambiguity_m`` from it. Returns the pose, its fine score and the best fine score
-    farther than ``ambiguity_m`` from it."""
-    R = params.global_grid_m
-    lo_m = model.min(axis=0) - params.submap_m
-    hi_m = model.max(axis=0) + params.submap_m
-    lo_t = np.maximum(guess[:2] - window_m, lo_m)
-    hi_t = np.minimum(guess[:2] + window_m, hi_m)
-    if np.any(hi_t <= lo_t):
-        return guess.copy(), 0.0, 0.0
-    like, lo, hi = likelihood_grid(model, R, 1)
-    n_y = int(np.ceil(window_rad / params.global_yaw_step_rad))
-    yaws = guess[2] + np.arange(-n_y, n_y + 1) * params.global_yaw_step_rad
-    c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
-    qx = c * data[:, 0] - s * data[:, 1] + lo_t[0]
-    qy = s * data[:, 0] + c * data[:, 1] + lo_t[1]
-    bases = np.stack([np.floor((qx - lo[0]) / R), np.floor((qy - lo[1]) / R)]).astype(np.int64)
-    su = np.arange(int(np.ceil((hi_t[0] - lo_t[0]) / R)) + 1, dtype=np.int64)
-    sv = np.arange(int(np.ceil((hi_t[1] - lo_t[1]) / R)) + 1, dtype=np.int64)
-    scores = _block_scores(like, bases[0], bases[1], su, sv, int(hi[0]), int(hi[1]))  # (Y, U, V)
-    y, u, v = np.unravel_index(np.argmax(scores), scores.shape)
-    if scores[y, u, v] <= 0.0:
-        return guess.copy(), 0.0, 0.0
-    # The best coarse pose farther than ambiguity_m is refined too: the coarse scores are
-    # smooth, so the fine scores of the two decide whether the match is ambiguous.
-    uu, vv = np.meshgrid(su, sv, indexing="ij")
-    away = np.hypot(uu - u, vv - v) * R > params.ambiguity_m
-
-    def refined(y: int, u: int, v: int) -> tuple[FloatArray, float, float]:
-        start = np.array([lo_t[0] + u * R, lo_t[1] + v * R, yaws[y]])
-        return correlative_match(model, data, start, 2 * R, 2 * params.global_yaw_step_rad, params)
-
-    pose, score, elsewhere = refined(int(y), int(u), int(v))
-    if away.any():
-        masked = np.where(away[None], scores, -1.0)
-        y2, u2, v2 = np.unravel_index(np.argmax(masked), masked.shape)
-        other, other_score, _ = refined(int(y2), int(u2), int(v2))
-        if np.hypot(*(other[:2] - pose[:2])) > params.ambiguity_m:
-            elsewhere = max(elsewhere, other_score)
-    return pose, score, elsewhere
-
-
-def likelihood_grid(model: FloatArray, r: float, pad: int) -> tuple[FloatArray, FloatArray, NDArray[np.int_]]:
-    """The model's (M, 2) likelihood grid of cell ``r``: exp(-d^2 / 2 r^2), d the distance
-    to the nearest occupied cell (Olson 2009), 0 on a border of ``pad`` cells; its lower
-    corner (2,) and last cell index (2,)."""
-    lo = model.min(axis=0) - pad * r
-    shape = tuple(np.ceil((model.max(axis=0) + pad * r - lo) / r).astype(int) + 1)
-    occupied = np.zeros(shape, dtype=bool)
-    cells = np.floor((model - lo) / r).astype(int)
-    occupied[cells[:, 0], cells[:, 1]] = True
-    like = np.exp(-0.5 * distance_transform_edt(~occupied) ** 2)
-    like[:pad], like[-pad:], like[:, :pad], like[:, -pad:] = 0.0, 0.0, 0.0, 0.0
-    return like, lo, np.array(shape) - 1
 
 
 def local_map(
@@ -600,7 +610,7 @@ def correlative_match(
     ``ambiguity_m`` from it. Branch and bound over one coarse level (module docstring).
     ``kernel=False`` scores the shifts with numpy (the compiled kernel's reference)."""
     r, k = params.grid_m, params.coarse
-    like, lo, hi = likelihood_grid(model, r, k + 1)
+    like, lo, hi = bnb.likelihood_grid(model, r, k + 1)
     # Block (u, v) of the coarse grid holds the best fine cell among u..u+k-1, v..v+k-1:
     # an upper bound of the score of any shift inside the block.
     bound = maximum_filter(like, size=k, origin=-(k // 2), mode="constant")
@@ -773,6 +783,13 @@ def build_graph(
     if step_covariances is not None or any(c.covariance is not None for c in closures):
         own = np.full((last, 3, 3), np.nan) if step_covariances is None else step_covariances[1 : last + 1]
         if params.step_drift:
+            # Where the scans do not constrain a step (a corridor's length), ICP keeps its
+            # initial guess, and its Hessian's covariance there is unbounded (metres): the
+            # step is then as certain as the guess, the fixed step sigmas' prior. Fused as
+            # information, the prior caps those directions and leaves the constrained ones
+            # to the fit; without it the graph puts a loop's whole correction into the few
+            # degenerate steps.
+            own = _capped(own, step_sig)
             # The drift the search window assumes (step 1), per step: a scale error
             # drift_per_m and a heading random walk drift_rad_per_sqrt_m, which the fit's
             # own covariance does not see; compounded over L metres they give the window's
@@ -794,6 +811,19 @@ def build_graph(
         robust=np.r_[np.zeros(last, dtype=bool), np.ones(len(closures), dtype=bool)],
         covariances=covariances,
     )
+
+
+def _capped(own: FloatArray, prior_sigmas: FloatArray) -> FloatArray:
+    """(M, 3, 3) each finite, positive definite covariance ``own`` fused with the prior
+    diag(``prior_sigmas``^2) (M, 3) as information: (own^-1 + prior^-1)^-1; NaN kept."""
+    out = own.copy()
+    ok = np.flatnonzero(np.isfinite(own).all(axis=(1, 2)))
+    ok = ok[np.linalg.eigvalsh(own[ok])[:, 0] > 0]
+    info = np.linalg.inv(own[ok])
+    idx = np.arange(3)
+    info[:, idx, idx] += 1.0 / np.square(prior_sigmas[ok])
+    out[ok] = np.linalg.inv(info)
+    return out
 
 
 def _whitened(est: FloatArray, closures: list[Closure], params: LoopParams) -> FloatArray:
