@@ -171,10 +171,10 @@ def _lap_and_a_half(rng):
 
 def test_an_image_proposal_closes_a_return_beyond_the_scan_searchs_window(rng):
     # The heading drift puts the return metres and degrees from the start, beyond the
-    # scan search's window: an image proposal (with the images' yaw) closes it, verified
-    # by the scans, and the counts tell the sources apart.
+    # local scan search's window (the global search off): an image proposal (with the
+    # images' yaw) closes it, verified by the scans, and the counts tell the sources apart.
     truth, odo, scans = _lap_and_a_half(rng)
-    params = LoopParams(max_search_m=1.0, backend="scipy")
+    params = LoopParams(max_search_m=1.0, backend="scipy", global_every=0)
     keys = keyframes(path_along(odo), params.keyframe_m)
     i, j = int(keys[keys >= 162][0]), 0
     assert np.hypot(*(odo[i, :2] - odo[j, :2])) > 2 * params.max_search_m
@@ -235,3 +235,19 @@ def test_a_sequence_without_images_gives_no_image_proposals_and_says_so(tmp_path
     assert main([*args, "--place-recognition", "none"]) == 0
     assert json.loads(capsys.readouterr().out)["methods"]["icp+lc"]["place_recognition"] == {"used": "none"}
     assert main([*args[:-1], "--place-recognition", "orb"]) == 2
+
+
+def test_an_image_proposal_of_the_place_the_scan_search_closed_is_not_counted_twice(rng):
+    # Without drift the scan search closes the return itself; the images proposing the
+    # same place (within the closure's submap) add no second edge of the same information.
+    truth, _, scans = _lap_and_a_half(rng)
+    params = LoopParams(backend="scipy")
+    scan_only = close_loops(scans, truth, params)
+    first = next(c for c in scan_only.closures if c.T_j_i is not None)
+    keys = keyframes(path_along(truth), params.keyframe_m)
+    j = int(keys[keys > first.j][0])  # the next keyframe: the same place
+    found = close_loops(scans, truth, params, proposals=[Proposal(first.i, j, "images", 0.0, 3.0, 0.3)])
+    images = next(c for c in found.closures if c.source == "images")
+    assert images.T_j_i is None and images.why_not == "the place of a closure found here"
+    assert found.counts_by_source["images"]["accepted"] == 0
+    assert found.counts["accepted"] == scan_only.counts["accepted"]

@@ -72,7 +72,9 @@ kernel as the scan search's own, each keyframe's after its scan search; each
 them apart. A proposal whose pair the current poses put within the search window (and
 whose yaw agrees within it) is searched there; otherwise, as where the drift has carried
 the poses beyond the window, around the proposal's own guess (its yaw, no translation)
-within its ``window_m`` / ``window_rad``, by the global search's branch and bound.
+within its ``window_m`` / ``window_rad``, by the global search's branch and bound. A
+proposal of a place that a closure found at the same keyframe already joins (within that
+closure's ``submap_m``) is not searched: the same information twice would count twice.
 """
 
 from __future__ import annotations
@@ -289,6 +291,13 @@ def close_loops(
             closure = tried[-1] if tried else None
         found = [] if closure is None or closure.T_j_i is None else [closure]
         for p in extra.get(int(i), []):
+            if any(abs(along[p.j] - along[x.j]) <= params.submap_m for x in found):
+                # The place is already in the graph by this keyframe's closure (within its
+                # submap): the same information twice would count it twice.
+                closures.append(
+                    Closure(p.i, p.j, None, why_not="the place of a closure found here", source=p.source)
+                )
+                continue
             path_j = graph_path(along, keys, short_cuts, a, [position[p.j]])
             proposed = _verified_proposal(points, est, along, p, *search_window(path_j, params), params)
             closures.append(proposed)
