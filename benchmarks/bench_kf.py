@@ -81,27 +81,35 @@ def step_errors(ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArra
 def lag1_correlation(ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArray) -> float:
     """The correlation of consecutive steps' errors, each over its 1-sigma (x, y and yaw
     pooled); negative where consecutive steps share an error with opposite signs."""
-    return float(np.mean(axis_consistency(ms, truth, stamps)[1]))
+    return float(np.mean(axis_consistency(ms, truth, stamps)[1][0]))
 
 
 def axis_consistency(
-    ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArray, trim: bool = False
+    ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArray, trim: bool = False, lags: int = 1
 ) -> tuple[FloatArray, FloatArray]:
     """Per axis (x, y, yaw in the step's frame): the steps' squared errors over their
-    variance (mean; 1 for an honest covariance) and consecutive steps' error correlation
-    (kalman.shared_error_fractions). ``trim``: only steps whose NEES is within the
-    chi-square 0.999 point (3 dof) times the lap's median NEES over the chi-square median
-    (the runs a gate passes once their covariance is scaled to the median: VO's runs with
-    a wrong carried scale left out)."""
+    variance (mean; 1 for an honest covariance) and the error correlation (lags, 3) of
+    steps 1 ... ``lags`` apart in an unbroken chain of steps (kalman.shared_error_fractions,
+    kalman.gauss_markov_fit). ``trim``: only steps whose NEES is within the chi-square
+    0.999 point (3 dof) times the lap's median NEES over the chi-square median (the runs a
+    gate passes once their covariance is scaled to the median: VO's runs with a wrong
+    carried scale left out)."""
     z = step_errors(ms, truth, stamps) / np.sqrt([np.diag(m.covariance) for m in ms])
     keep = np.ones(len(ms), dtype=bool)
     if trim:
         nees = step_nees(ms, truth, stamps)
         keep = nees < chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)
-    pairs = np.array([ms[k].t0 == ms[k - 1].t1 for k in range(1, len(ms))]) & keep[1:] & keep[:-1]
-    a, b = z[:-1][pairs], z[1:][pairs]
+    chained = np.array([ms[k].t0 == ms[k - 1].t1 for k in range(1, len(ms))])
     ratio = np.mean(z[keep] ** 2, axis=0)
-    return ratio, np.array([np.corrcoef(a[:, i], b[:, i])[0, 1] for i in range(3)])
+    corr = []
+    for lag in range(1, lags + 1):
+        # Steps k - lag ... k each starting where the one before ends, both ends kept.
+        pairs = keep[lag:] & keep[:-lag]
+        for j in range(lag):
+            pairs &= chained[j : len(chained) - lag + 1 + j]
+        a, b = z[:-lag][pairs], z[lag:][pairs]
+        corr.append([np.corrcoef(a[:, i], b[:, i])[0, 1] for i in range(3)])
+    return ratio, np.array(corr)
 
 
 def planar_at_stamps(truth: FloatArray, stamps: FloatArray, at: FloatArray) -> FloatArray:
@@ -193,9 +201,14 @@ def main() -> None:
 
 def consistency(args: argparse.Namespace) -> None:
     """Each input's error model's figures per lap (:func:`axis_consistency`; VO trimmed)
-    from the kept odometries, and their mean over the laps."""
-    print("| world | seed | input | variance ratio x / y / yaw | lag-1 corr x / y / yaw | NEES modelled |")
-    print("|---|---|---|---|---|---|")
+    from the kept odometries, and their mean over the laps; for VO also the forward error's
+    Gauss-Markov memory fitted to the mean lag-1 ... lag-3 correlations
+    (kalman.gauss_markov_fit)."""
+    print(
+        "| world | seed | input | variance ratio x / y / yaw | lag-1 corr x / y / yaw "
+        "| lag-2 corr x / y / yaw | lag-3 corr x / y / yaw | NEES modelled | run s |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
     sums: dict[str, list[FloatArray]] = defaultdict(list)
     for seed in seeds_of(args.seeds):
         for name in args.worlds.split(","):
@@ -210,7 +223,7 @@ def consistency(args: argparse.Namespace) -> None:
             ms = kf_measurements(streams, od, res, kalman.KF_MODES["weighted"])
             for src in ("icp", "vo"):
                 mine = [m for m in ms if m.source == src]
-                ratio, lag1 = axis_consistency(mine, gt, truth.stamps_s, trim=src == "vo")
+                ratio, corr = axis_consistency(mine, gt, truth.stamps_s, trim=src == "vo", lags=3)
                 # Each step's NEES under the filter's model of its error (own and twice the
                 # shared part, kalman.shared_error_fractions): 3 where the model is honest.
                 own, shared = kalman._error_model(src, kalman.KF_MODES["weighted"])
@@ -222,14 +235,28 @@ def consistency(args: argparse.Namespace) -> None:
                 nees = step_nees(modelled, gt, truth.stamps_s)
                 if src == "vo":
                     nees = nees[nees < chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)]
-                sums[src].append(np.concatenate([ratio, lag1, [nees.mean()]]))
-                r, c = " / ".join(f"{v:.2f}" for v in ratio), " / ".join(f"{v:+.2f}" for v in lag1)
-                print(f"| {name} | {seed} | {src} | {r} | {c} | {nees.mean():.2f} |", flush=True)
+                run_s = float(np.mean([m.t1 - m.t0 for m in mine]))
+                sums[src].append(np.concatenate([ratio, corr.ravel(), [nees.mean(), run_s]]))
+                cells = " | ".join(" / ".join(f"{v:+.2f}" for v in c) for c in corr)
+                r = " / ".join(f"{v:.2f}" for v in ratio)
+                print(
+                    f"| {name} | {seed} | {src} | {r} | {cells} | {nees.mean():.2f} | {run_s:.3f} |",
+                    flush=True,
+                )
             streams.stop_background()
     for src, rows in sums.items():
         m = np.mean(rows, axis=0)
-        r, c = " / ".join(f"{v:.2f}" for v in m[:3]), " / ".join(f"{v:+.2f}" for v in m[3:6])
-        print(f"| mean | {args.seeds} | {src} | {r} | {c} | {m[6]:.2f} |")
+        cells = " | ".join(" / ".join(f"{v:+.2f}" for v in m[3 + 3 * i : 6 + 3 * i]) for i in range(3))
+        r = " / ".join(f"{v:.2f}" for v in m[:3])
+        print(f"| mean | {args.seeds} | {src} | {r} | {cells} | {m[12]:.2f} | {m[13]:.3f} |")
+        if src == "vo":
+            forward = (float(m[3]), float(m[6]), float(m[9]))
+            fit = kalman.gauss_markov_fit(forward, float(m[13]))
+            print(
+                f"\nVO forward lag-1/2/3 {forward[0]:+.3f} / {forward[1]:+.3f} / {forward[2]:+.3f}: "
+                f"Gauss-Markov share {fit[0]:.3f} of the forward variance, {fit[1]:.3f} per run "
+                f"of {m[13]:.3f} s, time constant {fit[2]:.3f} s"
+            )
 
 
 def lap(seq: Path, reuse: bool = False) -> dict[str, float]:
