@@ -26,6 +26,7 @@ of (kalman.ICP_VARIANCE_RATIO, ICP_LAG1, VO_VARIANCE_RATIO, VO_LAG1: laps 1-2 of
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import pickle
 import tempfile
 import time
@@ -48,14 +49,25 @@ from rigcal.sim.world import BUILTIN
 
 # The filters compared: the paper's fixed covariances (``rigcal localize --kf fixed``),
 # round 2's weighted filter (each step's own covariance matched to its input's
-# innovations, ICP's steps taken as independent, every VO run in every direction), and
-# the default (``--kf weighted``: ICP's shared scan error, VO's innovation gate, VO only
-# where the filter is weaker).
+# innovations, ICP's steps taken as independent, every VO run in every direction), round
+# 4's (ICP's shared scan error, VO's shared frame error, its innovation gates, VO only
+# where the filter is weaker) and the default (``--kf weighted``: round 4's with VO's
+# forward error's Gauss-Markov memory, its forward variance ratio matched on line and the
+# whiteness test on its forward innovations).
+NO_MEMORY = {"vo_memory_s": 0.0, "vo_forward_adapt": False, "vo_forward_window": 0}
 VARIANTS = {
     "kf-fixed": kalman.KF_MODES["fixed"],
     "kf-own": kalman.KfParams(
-        icp_own=1.0, icp_shared=0.0, vo_own=1.0, vo_shared=0.0, gate=0.0, gate_window=1, vo_weak_only=0.0
+        icp_own=1.0,
+        icp_shared=0.0,
+        vo_own=1.0,
+        vo_shared=0.0,
+        gate=0.0,
+        gate_window=1,
+        vo_weak_only=0.0,
+        **NO_MEMORY,  # type: ignore[arg-type]
     ),
+    "kf-round4": dataclasses.replace(kalman.KF_MODES["weighted"], **NO_MEMORY),  # type: ignore[arg-type]
     "kf": kalman.KF_MODES["weighted"],
 }
 
@@ -137,6 +149,11 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, help="Keep (and reuse) the sequences in this folder.")
     ap.add_argument("--reuse", action="store_true", help="Reuse each lap's odometries of an earlier run.")
     ap.add_argument(
+        "--without",
+        default="",
+        help="Inputs the filters leave out, e.g. vo (the filter on ICP alone).",
+    )
+    ap.add_argument(
         "--consistency",
         action="store_true",
         help="Print each input's variance ratio and lag-1 correlation per axis instead "
@@ -154,10 +171,11 @@ def main() -> None:
         root.mkdir(parents=True, exist_ok=True)
         print(
             "| world | seed | ICP ATE (m) | VO ATE (m) | odom ATE (m) | KF fixed ATE (m) "
-            "| KF round 2 ATE (m) | KF ATE (m) | KF <= best input | NEES ICP steps | ICP lag-1 corr "
-            "| NEES VO runs | NEES KF poses | KF s |"
+            "| KF round 2 ATE (m) | KF round 4 ATE (m) | KF ATE (m) | KF <= best input | NEES ICP steps "
+            "| ICP lag-1 corr | NEES VO runs | NEES KF poses | VO forward ratio matched "
+            "| VO forward left out | KF s |"
         )
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for seed in seeds_of(args.seeds):
             for name in args.worlds.split(","):
                 tag = f"-{duration:g}s" if duration else ""
@@ -166,7 +184,7 @@ def main() -> None:
                 if not (seq / "sequence.yaml").exists():
                     spec = DriveSpec(seed=seed, duration_s=duration, wheel_odometry=args.wheel_odometry)
                     write_drive(BUILTIN[name](), spec, str(seq))
-                row = lap(seq, args.reuse)
+                row = lap(seq, args.reuse, tuple(filter(None, args.without.split(","))))
                 for k, v in row.items():
                     if isinstance(v, float):
                         scores[name, k].append(v)
@@ -174,28 +192,35 @@ def main() -> None:
                 best = min(inputs)
                 win = row["kf"] <= best
                 wins[name].append(win)
+                wins[name + " round 4"].append(row["kf-round4"] <= best)
                 odom = f"{row['odom']:.4f}" if "odom" in row else "-"
                 print(
                     f"| {name} | {seed} | {row['icp']:.4f} | {row['vo']:.4f} | {odom} "
-                    f"| {row['kf-fixed']:.4f} | {row['kf-own']:.4f} | {row['kf']:.4f} "
+                    f"| {row['kf-fixed']:.4f} | {row['kf-own']:.4f} | {row['kf-round4']:.4f} "
+                    f"| {row['kf']:.4f} "
                     f"| {'yes' if win else 'no'} "
-                    f"| {row['nees-icp']:.2f} | {row['icp-lag1']:.2f} | {row['nees-vo']:.2f} "
-                    f"| {row['nees-kf']:.2f} "
+                    f"| {row['nees-icp']:.2f} | {row['icp-lag1']:.2f} "
+                    f"| {row.get('nees-vo', float('nan')):.2f} "
+                    f"| {row['nees-kf']:.2f} | {row['vo-ratio']:.2f} | {row['vo-left-out']:.0f} "
                     f"| {row['kf-s']:.2f} |",
                     flush=True,
                 )
     print(
         "\n| world | laps | ICP ATE mean (m) | VO ATE mean (m) | KF fixed ATE mean (m) "
-        "| KF round 2 ATE mean (m) | KF ATE mean (m) | KF ATE worst (m) | laps KF <= best input |"
+        "| KF round 2 ATE mean (m) | KF round 4 ATE mean (m) | KF ATE mean (m) | KF ATE worst (m) "
+        "| laps KF <= best input: round 4 / now | now, laps 3-10 | NEES KF poses, median lap |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.worlds.split(","):
         s = {k: np.array(v) for (w, k), v in scores.items() if w == name}
+        seeds = seeds_of(args.seeds)
+        held_out = sum(w for w, seed in zip(wins[name], seeds, strict=True) if seed > 2)
         print(
             f"| {name} | {len(wins[name])} | {s['icp'].mean():.4f} | {s['vo'].mean():.4f} "
-            f"| {s['kf-fixed'].mean():.4f} | {s['kf-own'].mean():.4f} | {s['kf'].mean():.4f} "
-            f"| {s['kf'].max():.4f} "
-            f"| {sum(wins[name])} of {len(wins[name])} |"
+            f"| {s['kf-fixed'].mean():.4f} | {s['kf-own'].mean():.4f} | {s['kf-round4'].mean():.4f} "
+            f"| {s['kf'].mean():.4f} | {s['kf'].max():.4f} "
+            f"| {sum(wins[name + ' round 4'])} / {sum(wins[name])} of {len(wins[name])} "
+            f"| {held_out} of {sum(seed > 2 for seed in seeds)} | {np.median(s['nees-kf']):.2f} |"
         )
 
 
@@ -259,10 +284,11 @@ def consistency(args: argparse.Namespace) -> None:
             )
 
 
-def lap(seq: Path, reuse: bool = False) -> dict[str, float]:
+def lap(seq: Path, reuse: bool = False, without: tuple[str, ...] = ()) -> dict[str, float]:
     """One lap's ATEs, NEES means and the filter's time. ``reuse``: take the laser and
     visual odometry from an earlier run's ``odometries.pkl`` in the lap's folder (written
-    by every run), to try the filter's settings without computing them again."""
+    by every run), to try the filter's settings without computing them again; ``without``:
+    the inputs ("icp", "vo", "wheel") the filters leave out."""
     streams = open_streams(seq)
     cache = seq / "odometries.pkl"
     if reuse and cache.exists():
@@ -285,13 +311,14 @@ def lap(seq: Path, reuse: bool = False) -> dict[str, float]:
         )
 
     for key, params in VARIANTS.items():
-        ms = kf_measurements(streams, od, res, params)
+        ms = [m for m in kf_measurements(streams, od, res, params) if m.source not in without]
         t0 = time.perf_counter()
         kf = kalman.run_filter(ms, params)
         seconds = time.perf_counter() - t0
         row[key] = ate(kf.stamps_s, kf.poses)
         if key == "kf":
             row["kf-s"] = seconds
+            row["vo-ratio"], row["vo-left-out"] = kf.vo_forward_ratio, float(kf.vo_forward_left_out)
             wheel = [m for m in ms if m.source == "wheel"]
             if wheel:  # the wheel odometry's own path: its steps chained
                 T, path = np.eye(3), [np.zeros(3)]
