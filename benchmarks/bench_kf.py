@@ -154,6 +154,10 @@ def main() -> None:
         help="Inputs the filters leave out, e.g. vo (the filter on ICP alone).",
     )
     ap.add_argument(
+        "--process",
+        help="The filters' process noise ACCEL,YAW_ACCEL (m/s^2, rad/s^2) instead of their own (0.5,1.0).",
+    )
+    ap.add_argument(
         "--consistency",
         action="store_true",
         help="Print each input's variance ratio and lag-1 correlation per axis instead "
@@ -164,6 +168,10 @@ def main() -> None:
         consistency(args)
         return
     duration = args.duration_s or None
+    if args.process:
+        accel, yaw_accel = (float(v) for v in args.process.split(","))
+        for key, params in VARIANTS.items():
+            VARIANTS[key] = dataclasses.replace(params, accel_sigma=accel, yaw_accel_sigma=yaw_accel)
     scores: dict[tuple[str, str], list[float]] = defaultdict(list)
     wins: dict[str, list[bool]] = defaultdict(list)
     with tempfile.TemporaryDirectory() as tmp:

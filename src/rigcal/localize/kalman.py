@@ -40,7 +40,12 @@ ratio and lag-1 correlation (``icp_own`` ... ``vo_shared``, :func:`_update`); a 
 failing a chi-square innovation test, alone or with the runs before it (``gate``,
 ``gate_window``), is left out; and a VO run is fused only along directions where the
 filter knows the motion less well than the run's error, shared part included
-(``vo_weak_only``).
+(``vo_weak_only``). VO's forward error has a longer memory than a two-run share: a
+first-order Gauss-Markov part carried in the state (``vo_memory_s``, its time constant
+from the lag-1/2/3 correlations: :func:`gauss_markov_fit`), its forward variance ratio
+matched on line (``vo_forward_adapt``) and its forward innovations tested for whiteness
+over the last runs (``vo_forward_window``), the forward motion of runs failing that test
+left out.
 """
 
 from __future__ import annotations
