@@ -53,7 +53,8 @@ from rigcal.sim.world import BUILTIN
 # 4's (ICP's shared scan error, VO's shared frame error, its innovation gates, VO only
 # where the filter is weaker) and the default (``--kf weighted``: round 4's with VO's
 # forward error's Gauss-Markov memory, its forward variance ratio matched on line and the
-# whiteness test on its forward innovations).
+# whiteness test on its forward innovations); and the odometry-driven filter (``--kf
+# driven``: ICP's steps drive the prediction, VO and the wheels are its measurements).
 NO_MEMORY = {"vo_memory_s": 0.0, "vo_forward_adapt": False, "vo_forward_window": 0}
 VARIANTS = {
     "kf-fixed": kalman.KF_MODES["fixed"],
@@ -69,6 +70,7 @@ VARIANTS = {
     ),
     "kf-round4": dataclasses.replace(kalman.KF_MODES["weighted"], **NO_MEMORY),  # type: ignore[arg-type]
     "kf": kalman.KF_MODES["weighted"],
+    "kf-driven": kalman.KF_MODES["driven"],
 }
 
 
@@ -179,11 +181,12 @@ def main() -> None:
         root.mkdir(parents=True, exist_ok=True)
         print(
             "| world | seed | ICP ATE (m) | VO ATE (m) | odom ATE (m) | KF fixed ATE (m) "
-            "| KF round 2 ATE (m) | KF round 4 ATE (m) | KF ATE (m) | KF <= best input | NEES ICP steps "
+            "| KF round 2 ATE (m) | KF round 4 ATE (m) | KF ATE (m) | KF <= best input | KF driven ATE (m) "
+            "| KF driven <= best input | NEES ICP steps "
             "| ICP lag-1 corr | NEES VO runs | NEES KF poses | VO forward ratio matched "
             "| VO forward left out | KF s |"
         )
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for seed in seeds_of(args.seeds):
             for name in args.worlds.split(","):
                 tag = f"-{duration:g}s" if duration else ""
@@ -201,12 +204,14 @@ def main() -> None:
                 win = row["kf"] <= best
                 wins[name].append(win)
                 wins[name + " round 4"].append(row["kf-round4"] <= best)
+                wins[name + " driven"].append(row["kf-driven"] <= best)
                 odom = f"{row['odom']:.4f}" if "odom" in row else "-"
                 print(
                     f"| {name} | {seed} | {row['icp']:.4f} | {row['vo']:.4f} | {odom} "
                     f"| {row['kf-fixed']:.4f} | {row['kf-own']:.4f} | {row['kf-round4']:.4f} "
                     f"| {row['kf']:.4f} "
-                    f"| {'yes' if win else 'no'} "
+                    f"| {'yes' if win else 'no'} | {row['kf-driven']:.4f} "
+                    f"| {'yes' if row['kf-driven'] <= best else 'no'} "
                     f"| {row['nees-icp']:.2f} | {row['icp-lag1']:.2f} "
                     f"| {row.get('nees-vo', float('nan')):.2f} "
                     f"| {row['nees-kf']:.2f} | {row['vo-ratio']:.2f} | {row['vo-left-out']:.0f} "
@@ -216,9 +221,10 @@ def main() -> None:
     print(
         "\n| world | laps | ICP ATE mean (m) | VO ATE mean (m) | KF fixed ATE mean (m) "
         "| KF round 2 ATE mean (m) | KF round 4 ATE mean (m) | KF ATE mean (m) | KF ATE worst (m) "
-        "| laps KF <= best input: round 4 / now | now, laps 3-10 | NEES KF poses, median lap |"
+        "| laps KF <= best input: round 4 / now | now, laps 3-10 | NEES KF poses, median lap "
+        "| KF driven ATE mean (m) | KF driven ATE worst (m) | laps KF driven <= best input |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.worlds.split(","):
         s = {k: np.array(v) for (w, k), v in scores.items() if w == name}
         seeds = seeds_of(args.seeds)
@@ -228,7 +234,9 @@ def main() -> None:
             f"| {s['kf-fixed'].mean():.4f} | {s['kf-own'].mean():.4f} | {s['kf-round4'].mean():.4f} "
             f"| {s['kf'].mean():.4f} | {s['kf'].max():.4f} "
             f"| {sum(wins[name + ' round 4'])} / {sum(wins[name])} of {len(wins[name])} "
-            f"| {held_out} of {sum(seed > 2 for seed in seeds)} | {np.median(s['nees-kf']):.2f} |"
+            f"| {held_out} of {sum(seed > 2 for seed in seeds)} | {np.median(s['nees-kf']):.2f} "
+            f"| {s['kf-driven'].mean():.4f} | {s['kf-driven'].max():.4f} "
+            f"| {sum(wins[name + ' driven'])} of {len(wins[name])} |"
         )
 
 

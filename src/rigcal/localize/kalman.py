@@ -46,6 +46,13 @@ from the lag-1/2/3 correlations: :func:`gauss_markov_fit`), its forward variance
 matched on line (``vo_forward_adapt``) and its forward innovations tested for whiteness
 over the last runs (``vo_forward_window``), the forward motion of runs failing that test
 left out.
+
+Odometry-driven prediction (``drive="icp"``, ``rigcal localize --kf driven``; beyond the
+paper): instead of the constant-velocity model, ICP's steps drive the prediction as its
+control input (Thrun, Burgard and Fox, Probabilistic Robotics, 2005, Section 5.4), their
+covariances, own and shared, its process noise (:class:`_Drive`); VO's runs and the wheel
+odometry's steps are the measurements, under the same gates and error models. With no
+other measurement accepted, the filter's path is ICP's.
 """
 
 from __future__ import annotations
@@ -76,6 +83,9 @@ WHEEL_SIGMAS = (0.05, 0.02, 0.08)
 # Kept for the rate form: forward rate noise (m/s) of a step that measures no forward speed.
 OPEN_FORWARD_SIGMA = OPEN_SIGMA_M
 WEIGHTS = ("covariance", "fixed")
+# The prediction (``KfParams.drive``): the constant-velocity process model ("", Section VI)
+# or driven by an input's steps ("icp": the laser odometry as the control input).
+DRIVES = ("", "icp")
 # Covariance matching (``KfParams.adapt``): an input's covariance is scaled up by the
 # running mean (over about ADAPT_WINDOW steps) of its innovations' NIS per dimension when
 # that exceeds 1; a single innovation counts at most NIS_CAP (an outlier step).
@@ -206,9 +216,11 @@ class Increment:
 @dataclass(frozen=True)
 class KfParams:
     """Process noise: white acceleration (m/s^2) and angular acceleration (rad/s^2);
-    ``weights``: each step's own covariance ("covariance") or the paper's fixed ones
-    ("fixed"); ``adapt``: scale each input's covariances up by its innovations' running
-    NIS where that exceeds 1 (covariance matching: :data:`ADAPT_WINDOW`)."""
+    ``drive``: "" (the constant-velocity process model, Section VI) or the input whose
+    steps drive the prediction ("icp": odometry-driven, :class:`_Drive`); ``weights``:
+    each step's own covariance ("covariance") or the paper's fixed ones ("fixed");
+    ``adapt``: scale each input's covariances up by its innovations' running NIS where
+    that exceeds 1 (covariance matching: :data:`ADAPT_WINDOW`)."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
@@ -225,10 +237,13 @@ class KfParams:
     vo_memory_share: float = VO_MEMORY_SHARE
     vo_forward_adapt: bool = True
     vo_forward_window: int = VO_FORWARD_WINDOW
+    drive: str = ""
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
             raise ValueError(f"weights {self.weights!r}: expected one of {', '.join(WEIGHTS)}")
+        if self.drive not in DRIVES:
+            raise ValueError(f"drive {self.drive!r}: expected one of {', '.join(map(repr, DRIVES))}")
         if not (self.accel_sigma > 0 and self.yaw_accel_sigma > 0):
             raise ValueError("accel_sigma and yaw_accel_sigma must be > 0")
         for name in ("icp_own", "icp_shared", "vo_own", "vo_shared"):
@@ -267,6 +282,9 @@ KF_MODES = {
         vo_forward_window=0,
     ),
 }
+# "driven": the weighted filter with ICP's steps as the prediction's control input
+# (:func:`run_filter`, ``KfParams.drive``); VO and the wheels are its measurements.
+KF_MODES["driven"] = KfParams(drive="icp")
 
 
 @dataclass(frozen=True)
@@ -372,7 +390,9 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     ``params.gate`` a VO run whose innovation fails the chi-square test is left out; with
     ``params.vo_memory_s`` VO's forward error has a Gauss-Markov part carried in the state
     (:func:`_memory_decay`), its variance ratio matched on line (``vo_forward_adapt``) and
-    its innovations tested for whiteness (``vo_forward_window``).
+    its innovations tested for whiteness (``vo_forward_window``). With ``params.drive``
+    the driving input's steps carry the state between events (:class:`_Drive`) in place of
+    the constant-velocity model, and a pose is kept at each of their ends.
 
     Returns:
         the filtered pose after each update, starting with the origin at the earliest
@@ -384,8 +404,20 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     ms = sorted(measurements, key=lambda m: (m.t1, -m.t0))
     if not ms:
         return KfResult(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)))
-    # Events (time, 0 = update / 1 = clone, measurement); updates first at equal times.
+    # Odometry-driven (``params.drive``): the driving input's steps are the prediction's
+    # control input (:class:`_Drive`), the others its measurements; a pose is kept at each
+    # driving step's end (event 2).
+    drive = _Drive([m for m in ms if m.source == params.drive], params) if params.drive else None
+    if drive is not None:
+        ms = [m for m in ms if m.source != params.drive]
+    # Events (time, 0 = update / 1 = clone / 2 = a driving step's end, index); updates
+    # first at equal times.
     events = [(m.t1, 0, i) for i, m in enumerate(ms)] + [(m.t0, 1, i) for i, m in enumerate(ms)]
+    if drive is not None:
+        events += [(d.t1, 2, -1) for d in drive.steps]
+        if not events:
+            return KfResult(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)))
+        events.append((min(e[0] for e in events + [(d.t0, 2, -1) for d in drive.steps]), 2, -1))
     events.sort(key=lambda e: (e[0], e[1], e[2]))
     pending: dict[float, int] = {}  # clone stamp -> increments still to use it
     for m in ms:
@@ -410,8 +442,14 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     stamps, poses, covs = [t], [x[:3].copy()], [P[:3, :3].copy()]
     for when, kind, i in events:
         if when > t:
-            x, P = _predict(x, P, when - t, params)
+            if drive is not None:
+                x, P = drive.to(x, P, blocks, t, when)
+            else:
+                x, P = _predict(x, P, when - t, params)
             t = when
+        if kind == 2:
+            _keep(stamps, poses, covs, t, x, P)
+            continue
         m = ms[i]
         if kind == 1:
             if ("clone", m.t0) not in blocks:
@@ -492,13 +530,142 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
         if not pending[m.t0]:
             x, P = _drop(x, P, _offset(blocks, ("clone", m.t0)))
             blocks.remove(("clone", m.t0))
-        if stamps[-1] == t:
-            poses[-1], covs[-1] = x[:3].copy(), P[:3, :3].copy()
-        else:
-            stamps.append(t)
-            poses.append(x[:3].copy())
-            covs.append(P[:3, :3].copy())
+        _keep(stamps, poses, covs, t, x, P)
     return KfResult(np.array(stamps), np.array(poses), np.array(covs), forward_ratio, left_out)
+
+
+def _keep(
+    stamps: list[float],
+    poses: list[FloatArray],
+    covs: list[FloatArray],
+    t: float,
+    x: FloatArray,
+    P: FloatArray,
+) -> None:
+    """The pose and its covariance at ``t`` appended to the output (replacing the last at
+    the same stamp)."""
+    if stamps[-1] == t:
+        poses[-1], covs[-1] = x[:3].copy(), P[:3, :3].copy()
+    else:
+        stamps.append(t)
+        poses.append(x[:3].copy())
+        covs.append(P[:3, :3].copy())
+
+
+def _se2_log(motion: FloatArray) -> FloatArray:
+    """The twist (u_x m, u_y m, w rad) whose constant application over a unit time moves
+    by ``motion`` (dx, dy, dyaw): the SE(2) logarithm."""
+    w = float(np.angle(np.exp(1j * motion[2])))
+    a, b = _se2_v(w)
+    V = np.array([[a, -b], [b, a]])
+    return np.array([*np.linalg.solve(V, motion[:2]), w])
+
+
+def _se2_exp(twist: FloatArray) -> FloatArray:
+    """The motion (dx, dy, dyaw) of a twist applied for a unit time: the SE(2) exponential."""
+    a, b = _se2_v(float(twist[2]))
+    return np.array([a * twist[0] - b * twist[1], b * twist[0] + a * twist[1], twist[2]])
+
+
+def _se2_v(w: float) -> tuple[float, float]:
+    """sin(w) / w and (1 - cos(w)) / w (their series near w = 0)."""
+    if abs(w) < 1e-6:
+        return 1.0 - w * w / 6.0, w / 2.0
+    return float(np.sin(w) / w), float((1.0 - np.cos(w)) / w)
+
+
+class _Drive:
+    """The odometry-driven prediction (``KfParams.drive``; Thrun, Burgard and Fox,
+    Probabilistic Robotics, 2005, Section 5.4: odometry as the control input of the
+    motion model): the driving input's step u over [t0, t1], with covariance C, moves the
+    pose from t0 to t1 as its constant twist xi = log(u) (:func:`_se2_log`): a part of the
+    step from t to t' applies exp(f xi), f = (t' - t) / (t1 - t0), with process noise
+    f x own x C (own: the input's own fraction, :func:`_error_model`) in the rig's frame,
+    so the parts compose to the step exactly and a pose between scans (a VO run's end) is
+    where the step puts it. At the step's end its shared error enters as in
+    :func:`_update`: the true motion is u - w_k - s_k + s_(k-1) (ICP: scan k's noise, in
+    step k and, with the opposite sign, in step k + 1; Bar-Shalom, Li and Kirubarajan
+    2001, Section 8.2), s_k appended to the state and s_(k-1) dropped once in. With no
+    other measurement the filter's poses are the driving input's steps chained. Where no
+    step covers the time (a skipped scan pair), the constant-velocity model carries the
+    pose at the last step's velocity."""
+
+    def __init__(self, steps: list[Increment], params: KfParams) -> None:
+        self.steps = sorted(steps, key=lambda m: (m.t0, m.t1))
+        self.params = params
+        self.own, self.share = _error_model(params.drive, params)
+        self.next = 0  # the first step not yet finished
+
+    def to(
+        self, x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], t: float, when: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """The state carried from ``t`` to ``when`` (``blocks`` updated in place)."""
+        while t < when:
+            while self.next < len(self.steps) and self.steps[self.next].t1 <= t:
+                self.next += 1
+            d = self.steps[self.next] if self.next < len(self.steps) else None
+            if d is None or d.t0 > t:  # no step covers t: constant velocity to the next
+                end = when if d is None else min(when, d.t0)
+                x, P = _predict(x, P, end - t, self.params)
+                t = end
+                continue
+            end = min(when, d.t1)
+            x, P = self._part(x, P, d, (end - t) / (d.t1 - d.t0))
+            if end == d.t1:
+                x, P = self._shared(x, P, blocks, d)
+                self.next += 1
+            t = end
+        return x, P
+
+    def _part(self, x: FloatArray, P: FloatArray, d: Increment, f: float) -> tuple[FloatArray, FloatArray]:
+        """The pose moved by the part f of step ``d``, its velocity the step's."""
+        xi = _se2_log(d.motion)
+        u = _se2_exp(f * xi)
+        c, s = np.cos(x[2]), np.sin(x[2])
+        R = np.array([[c, -s], [s, c]])
+        F = np.eye(len(x))
+        F[:2, 2] = [-s * u[0] - c * u[1], c * u[0] - s * u[1]]  # d(R(yaw) u) / d yaw
+        G = np.eye(3)
+        G[:2, :2] = R
+        x = x.copy()
+        x[:2] += R @ u[:2]
+        x[2] += u[2]
+        P = F @ P @ F.T
+        P[:3, :3] += f * G @ _scaled(d.covariance, self.own) @ G.T
+        # The velocity (the constant-velocity model's, where no step covers the time): the
+        # step's, in the world; its uncertainty the step's.
+        dt = d.t1 - d.t0
+        x[3:6] = G @ xi / dt
+        P[3:6, :] = P[:, 3:6] = 0.0
+        P[3:6, 3:6] = G @ d.covariance @ G.T / dt**2
+        if not np.isfinite(P[3:6, 3:6]).all() or np.trace(P[3:6, 3:6]) > 1e4:
+            P[3:6, 3:6] = np.diag([1.0, 1.0, 1.0])
+        return x, P
+
+    def _shared(
+        self, x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], d: Increment
+    ) -> tuple[FloatArray, FloatArray]:
+        """The step's shared error in at its end: pose -= G (s_k - s_(k-1))."""
+        if not self.share.any():
+            return x, P
+        kind = SHARED_BLOCK[self.params.drive]
+        old = [b for b in blocks if b[0] == kind]
+        x, P = _append(x, P, _finite_part(_scaled(d.covariance, self.share)))
+        blocks.append((kind, d.t1))
+        c, s = np.cos(x[2] - d.motion[2]), np.sin(x[2] - d.motion[2])  # the step's start frame
+        G = np.eye(3)
+        G[:2, :2] = [[c, -s], [s, c]]
+        T = np.eye(len(x))
+        n = len(x)
+        T[:3, n - 3 :] = -G
+        if old and old[-1][1] == d.t0:
+            at = _offset(blocks, old[-1])
+            T[:3, at : at + 3] = G
+        x, P = T @ x, T @ P @ T.T
+        for b in old:
+            x, P = _drop(x, P, _offset(blocks, b))
+            blocks.remove(b)
+        return x, P
 
 
 def _offset(blocks: list[tuple[str, float]], block: tuple[str, float]) -> int:
