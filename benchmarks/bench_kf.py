@@ -18,6 +18,7 @@ against the truth with the filter's covariance. The mean over a lap is printed.
     .venv/bin/python benchmarks/bench_kf.py [--worlds cubicle-loop,corridor-loop]
         [--seeds 1-10] [--duration-s 40] [--wheel-odometry] [--keep DIR] [--reuse]
     .venv/bin/python benchmarks/bench_kf.py --seeds 1-2 --keep DIR --reuse --consistency
+    .venv/bin/python benchmarks/bench_kf.py ... --reuse [--without vo] [--vo-axes yaw]
 
 ``--consistency`` prints, per lap and input, the figures the filter's error model is made
 of (kalman.ICP_VARIANCE_RATIO, ICP_LAG1, VO_VARIANCE_RATIO, VO_LAG1: laps 1-2 of each loop).
@@ -72,6 +73,19 @@ VARIANTS = {
     "kf": kalman.KF_MODES["weighted"],
     "kf-driven": kalman.KF_MODES["driven"],
 }
+
+
+AXES = ("forward", "cross", "yaw")
+
+
+def open_axes(m: kalman.Increment, keep: tuple[int, ...]) -> kalman.Increment:
+    """The step measuring only along ``keep`` (axes of its frame): the others' covariance
+    1-sigma kalman.OPEN_SIGMA_M, uncorrelated."""
+    cov = m.covariance.copy()
+    for a in set(range(3)) - set(keep):
+        cov[a, :] = cov[:, a] = 0.0
+        cov[a, a] = kalman.OPEN_SIGMA_M**2
+    return dataclasses.replace(m, covariance=cov)
 
 
 def step_nees(ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArray) -> FloatArray:
@@ -156,6 +170,11 @@ def main() -> None:
         help="Inputs the filters leave out, e.g. vo (the filter on ICP alone).",
     )
     ap.add_argument(
+        "--vo-axes",
+        default="forward,cross,yaw",
+        help="The axes of VO's runs the filters take, e.g. yaw (the others open: 1-sigma 10 m or rad).",
+    )
+    ap.add_argument(
         "--process",
         help="The filters' process noise ACCEL,YAW_ACCEL (m/s^2, rad/s^2) instead of their own (0.5,1.0).",
     )
@@ -195,7 +214,8 @@ def main() -> None:
                 if not (seq / "sequence.yaml").exists():
                     spec = DriveSpec(seed=seed, duration_s=duration, wheel_odometry=args.wheel_odometry)
                     write_drive(BUILTIN[name](), spec, str(seq))
-                row = lap(seq, args.reuse, tuple(filter(None, args.without.split(","))))
+                axes = tuple(AXES.index(a) for a in args.vo_axes.split(","))
+                row = lap(seq, args.reuse, tuple(filter(None, args.without.split(","))), axes)
                 for k, v in row.items():
                     if isinstance(v, float):
                         scores[name, k].append(v)
@@ -300,10 +320,14 @@ def consistency(args: argparse.Namespace) -> None:
             )
 
 
-def lap(seq: Path, reuse: bool = False, without: tuple[str, ...] = ()) -> dict[str, float]:
+def lap(
+    seq: Path, reuse: bool = False, without: tuple[str, ...] = (), vo_axes: tuple[int, ...] = (0, 1, 2)
+) -> dict[str, float]:
     """One lap's ATEs, NEES means and the filter's time. ``reuse``: take the laser and
     visual odometry from an earlier run's ``odometries.pkl`` in the lap's folder (written
-    by every run), to try the filter's settings without computing them again; ``without``:
+    by every run), to try the filter's settings without computing them again; ``vo_axes``:
+    the axes (0 forward, 1 cross-track, 2 yaw) of VO's runs the filters take, the others
+    open (:func:`open_axes`); ``without``:
     the inputs ("icp", "vo", "wheel") the filters leave out."""
     streams = open_streams(seq)
     cache = seq / "odometries.pkl"
@@ -327,7 +351,11 @@ def lap(seq: Path, reuse: bool = False, without: tuple[str, ...] = ()) -> dict[s
         )
 
     for key, params in VARIANTS.items():
-        ms = [m for m in kf_measurements(streams, od, res, params) if m.source not in without]
+        ms = [
+            open_axes(m, vo_axes) if m.source == "vo" else m
+            for m in kf_measurements(streams, od, res, params)
+            if m.source not in without
+        ]
         t0 = time.perf_counter()
         kf = kalman.run_filter(ms, params)
         seconds = time.perf_counter() - t0
