@@ -114,6 +114,18 @@ def test_where_icp_is_open_along_a_corridor_vo_carries_the_motion():
     assert res.poses[-1, 0] == pytest.approx(line[-1, 0], rel=0.02)
 
 
+def test_the_wheels_are_measurements_where_icp_drives():
+    """ICP open along a corridor, the wheels measuring each scan pair: the wheels' forward
+    motion, not ICP's guess."""
+    t = np.arange(201) * 0.025
+    line = np.column_stack([t, np.zeros_like(t), np.zeros_like(t)])
+    guess = line * np.array([0.5, 1.0, 1.0])
+    icp = kalman.increments(t, guess, _own(len(t), (kalman.OPEN_SIGMA_M, 1e-4, 1e-5)), source="icp")
+    wheel = kalman.increments(t, line, kalman.WHEEL_SIGMAS, source="wheel")
+    res = kalman.run_filter(icp + wheel, DRIVEN)
+    assert res.poses[-1, 0] == pytest.approx(line[-1, 0], rel=0.01)
+
+
 def test_the_driving_input_is_checked():
     with pytest.raises(ValueError, match="drive 'vo'"):
         kalman.KfParams(drive="vo")
