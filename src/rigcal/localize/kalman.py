@@ -40,10 +40,9 @@ ratio and lag-1 correlation (``icp_own`` ... ``vo_shared``, :func:`_update`); a 
 failing a chi-square innovation test, alone or with the runs before it (``gate``,
 ``gate_window``), is left out; and a VO run is fused only along directions where the
 filter knows the motion less well than the run's error, shared part included
-(``vo_weak_only``). VO's errors have a longer memory than a two-run share: on each axis
-(forward, cross-track, yaw) a first-order Gauss-Markov part carried in the state
-(``vo_memory_s``, ``vo_memory_share``, from that axis's lag-1/2/3 correlations:
-:func:`gauss_markov_fit`; an axis without memory keeps the share), its forward variance ratio
+(``vo_weak_only``). VO's forward error has a longer memory than a two-run share: a
+first-order Gauss-Markov part carried in the state (``vo_memory_s``, its time constant
+from the lag-1/2/3 correlations: :func:`gauss_markov_fit`), its forward variance ratio
 matched on line (``vo_forward_adapt``) and its forward innovations tested for whiteness
 over the last runs (``vo_forward_window``), the forward motion of runs failing that test
 left out.
@@ -184,20 +183,14 @@ VO_WINDOW = 4
 # VO is fused only along directions where the filter's own prediction of the run's motion
 # is less certain than the run (generalised eigenvalue above this; ``KfParams.vo_weak_only``).
 VO_WEAK_ONLY = 1.0
-# VO's errors' memory (``KfParams.vo_memory_s``, ``vo_memory_share``, per axis,
-# :func:`run_filter`): its runs' errors correlate beyond what a two-run share gives (laps
-# 1-2, over runs of 0.49 s, benchmarks/bench_kf.py --consistency: forward +0.57 / +0.34 /
-# +0.17 at lags 1 / 2 / 3, cross-track +0.28 / +0.17 / +0.14, yaw +0.34 / +0.20 / +0.15).
-# A first-order Gauss-Markov state per axis fitted to them (:func:`gauss_markov_fit`, one
-# code path for the three) carries that part: forward 0.90 of its variance, 0.54 from one
-# run to the next, a time constant of 0.80 s; cross-track and yaw as the fit gives (an axis
-# whose fit gives no memory keeps the two-run share).
+# VO's forward error's memory (``KfParams.vo_memory_s``, :func:`run_filter`): its runs'
+# forward errors correlate beyond what a two-run share gives (laps 1-2: +0.57 at lag 1,
+# +0.34 at lag 2, +0.17 at lag 3, over runs of 0.49 s; benchmarks/bench_kf.py
+# --consistency). A first-order Gauss-Markov state fitted to them (:func:`gauss_markov_fit`)
+# carries that part: 0.90 of the forward variance, 0.54 from one run to the next, a time
+# constant of 0.80 s.
 VO_FORWARD_LAGS, VO_RUN_S = (0.57, 0.34, 0.17), 0.49
-VO_LAGS = (VO_FORWARD_LAGS, (0.28, 0.17, 0.14), (0.34, 0.20, 0.15))
-VO_MEMORY_FITS = tuple(gauss_markov_fit(lags, VO_RUN_S) for lags in VO_LAGS)
-VO_MEMORY_SHARE, VO_MEMORY_PHI, VO_MEMORY_S = VO_MEMORY_FITS[0]  # forward's
-VO_MEMORY_SHARES: Axes = (VO_MEMORY_FITS[0][0], VO_MEMORY_FITS[1][0], VO_MEMORY_FITS[2][0])
-VO_MEMORY_TAUS_S: Axes = (VO_MEMORY_FITS[0][2], VO_MEMORY_FITS[1][2], VO_MEMORY_FITS[2][2])
+VO_MEMORY_SHARE, VO_MEMORY_PHI, VO_MEMORY_S = gauss_markov_fit(VO_FORWARD_LAGS, VO_RUN_S)
 # The whiteness test on VO's forward innovations (``KfParams.vo_forward_window``): under
 # the model the filter's innovations are white, so the last W standardized forward
 # innovations summed, squared and over W are chi-square with 1 dof; above its 0.999 point
@@ -240,8 +233,8 @@ class KfParams:
     gate: float = VO_GATE
     gate_window: int = VO_WINDOW
     vo_weak_only: float = VO_WEAK_ONLY
-    vo_memory_s: float | Axes = VO_MEMORY_TAUS_S
-    vo_memory_share: float | Axes = VO_MEMORY_SHARES
+    vo_memory_s: float = VO_MEMORY_S
+    vo_memory_share: float = VO_MEMORY_SHARE
     vo_forward_adapt: bool = True
     vo_forward_window: int = VO_FORWARD_WINDOW
     drive: str = ""
@@ -261,9 +254,9 @@ class KfParams:
                 )
         if self.gate_window < 1:
             raise ValueError(f"gate_window {self.gate_window}: expected at least 1 run")
-        if not (_per_axis(self.vo_memory_s) >= 0).all():
+        if not self.vo_memory_s >= 0:
             raise ValueError(f"vo_memory_s {self.vo_memory_s}: expected >= 0 s (0: no memory state)")
-        if not ((_per_axis(self.vo_memory_share) >= 0) & (_per_axis(self.vo_memory_share) < 1)).all():
+        if not 0 <= self.vo_memory_share < 1:
             raise ValueError(f"vo_memory_share {self.vo_memory_share}: expected in [0, 1)")
         if self.vo_forward_window < 0:
             raise ValueError(f"vo_forward_window {self.vo_forward_window}: expected >= 0 runs (0: no test)")
@@ -431,8 +424,8 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
         pending[m.t0] = pending.get(m.t0, 0) + 1
     # The state's blocks after the pose and velocity, in state order: the pose clones
     # ("clone", t0), the last ICP scan's shared error ("scan", its stamp), the last VO
-    # frame's ("frame", its stamp), each of three, and VO's errors' Gauss-Markov
-    # parts ("memory", the end of the last run it was carried to), one per axis (three).
+    # frame's ("frame", its stamp), each of three, and VO's forward error's Gauss-Markov
+    # part ("memory", the end of the last run it was carried to), of one.
     blocks: list[tuple[str, float]] = []
     mean_nis: dict[str, float] = {}  # per input: its innovations' NIS per dimension, running mean
     recent: list[float] = []  # the last VO runs' squared distances (the windowed gate)
@@ -467,20 +460,15 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
         scale = max(1.0, mean_nis.get(m.source, 1.0)) if params.adapt else 1.0
         own, share = _error_model(m.source, params)
         vo = m.source == "vo"
-        memory: tuple[int, FloatArray] | None = None
-        gm = _memory_axes(m, params) if vo else np.zeros(3, dtype=bool)
-        if gm.any():
-            # An axis with memory: an own part and the Gauss-Markov part, no two-run share
-            # (forward's variance ratio matched on line); the others as before.
-            taus, gm_share = _per_axis(params.vo_memory_s), _per_axis(params.vo_memory_share)
-            x, P = _memory_decay(x, P, blocks, m.t1, taus)
+        memory: tuple[int, float] | None = None
+        if vo and params.vo_memory_s > 0 and m.covariance[0, 0] < (OPEN_SIGMA_M / 10.0) ** 2:
+            # Forward: an own part and the Gauss-Markov part (its variance ratio matched on
+            # line), no two-run share; cross-track and yaw as before.
+            x, P = _memory_decay(x, P, blocks, m.t1, params.vo_memory_s)
             own, share = own.copy(), share.copy()
-            ratio = own + 2.0 * share
-            ratio[0] = forward_ratio
-            own[gm], share[gm] = ratio[gm] * (1.0 - gm_share[gm]), 0.0
-            gains = np.where(gm, np.sqrt(scale * ratio * gm_share * np.diag(m.covariance)), 0.0)
-            memory = (_offset(blocks, ("memory", m.t1)), gains)
-        forward_memory = bool(gm[0])
+            own[0], share[0] = forward_ratio * (1.0 - params.vo_memory_share), 0.0
+            gain = float(np.sqrt(scale * forward_ratio * params.vo_memory_share * m.covariance[0, 0]))
+            memory = (_offset(blocks, ("memory", m.t1)), gain)
         shared: int | None = None
         if share.any():  # m.source is "icp" or "vo": its shared error enters the state
             kind_of = SHARED_BLOCK[m.source]
@@ -502,7 +490,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             window=(sum(recent), window_gate) if vo and params.gate_window > 1 else None,
             memory=memory,
             whiteness=(sum(whiteness), len(whiteness), VO_FORWARD_GATE)
-            if forward_memory and params.vo_forward_window > 0
+            if memory is not None and params.vo_forward_window > 0
             else None,
         )
         if vo and np.isfinite(inn.d2):
@@ -511,10 +499,10 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             recent.append(min(inn.d2, params.gate) if params.gate > 0 else inn.d2)
             del recent[: max(0, len(recent) - (params.gate_window - 1))]
         left_out += inn.forward_left_out
-        if forward_memory and np.isfinite(inn.forward_z):
+        if memory is not None and np.isfinite(inn.forward_z):
             whiteness.append(inn.forward_z)
             del whiteness[: max(0, len(whiteness) - (params.vo_forward_window - 1))]
-        if forward_memory and params.vo_forward_adapt and np.isfinite(inn.forward_sq):
+        if memory is not None and params.vo_forward_adapt and np.isfinite(inn.forward_sq):
             # Covariance matching on VO's forward axis alone (Mehra 1972): the run's forward
             # innovation against the pose's prediction, squared, less that prediction's
             # variance A, over the run's forward variance C, is a sample of the ratio
@@ -686,36 +674,27 @@ def _offset(blocks: list[tuple[str, float]], block: tuple[str, float]) -> int:
     return 6 + sum(BLOCK_SIZE.get(k, 3) for k, _ in blocks[: blocks.index(block)])
 
 
-def _memory_axes(m: Increment, params: KfParams) -> NDArray[np.bool_]:
-    """The axes (3,) of VO run ``m`` whose error has a Gauss-Markov part: a time constant
-    and a share above 0, forward only where the run measures forward motion."""
-    on = (_per_axis(params.vo_memory_s) > 0) & (_per_axis(params.vo_memory_share) > 0)
-    on[0] &= bool(m.covariance[0, 0] < (OPEN_SIGMA_M / 10.0) ** 2)
-    return on
-
-
 def _memory_decay(
-    x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], t1: float, tau_s: FloatArray
+    x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], t1: float, tau_s: float
 ) -> tuple[FloatArray, FloatArray]:
-    """The state with VO's Gauss-Markov errors (one per axis) carried to ``t1`` (appended,
-    of unit variance, at the first run; ``blocks`` updated in place): g(t1) = phi g(t) +
-    sqrt(1 - phi^2) n with phi = exp(-(t1 - t) / tau_s) per axis (Gelb 1974, Table 3.8-1;
-    Bar-Shalom, Li and Kirubarajan 2001, Section 8.2: a correlated measurement error
-    augmented to the state; an axis of time constant 0 is white). Lazy: no other
-    measurement reads it, so it is carried only when a run needs it."""
+    """The state with VO's forward Gauss-Markov error carried to ``t1`` (appended, of unit
+    variance, at the first run; ``blocks`` updated in place): g(t1) = phi g(t) +
+    sqrt(1 - phi^2) n with phi = exp(-(t1 - t) / tau_s) (Gelb 1974, Table 3.8-1; Bar-Shalom,
+    Li and Kirubarajan 2001, Section 8.2: a correlated measurement error augmented to the
+    state). Lazy: no other measurement reads it, so it is carried only when a run needs it."""
     old = [b for b in blocks if b[0] == "memory"]
     if not old:
-        x, P = _append(x, P, np.eye(3))
+        x, P = _append(x, P, np.ones((1, 1)))
         blocks.append(("memory", t1))
         return x, P
     at = _offset(blocks, old[0])
-    dt = max(0.0, t1 - old[0][1])
-    tau = np.asarray(tau_s, dtype=float)
-    phi = np.where(tau > 0, np.exp(-dt / np.where(tau > 0, tau, 1.0)), 0.0)
-    T = np.eye(len(x))
-    T[at : at + 3, at : at + 3] = np.diag(phi)
-    x, P = T @ x, T @ P @ T.T
-    P[at : at + 3, at : at + 3] += np.diag(1.0 - phi**2)
+    phi = float(np.exp(-max(0.0, t1 - old[0][1]) / tau_s))
+    x = x.copy()
+    x[at] *= phi
+    P = P.copy()
+    P[at, :] *= phi
+    P[:, at] *= phi
+    P[at, at] += 1.0 - phi**2
     blocks[blocks.index(old[0])] = ("memory", t1)
     return x, P
 
@@ -723,7 +702,7 @@ def _memory_decay(
 # The state block holding each input's shared error, and the sign it enters the step after
 # with (:func:`_update`).
 SHARED_BLOCK = {"icp": "scan", "vo": "frame"}
-BLOCK_SIZE: dict[str, int] = {}  # every block is of three
+BLOCK_SIZE = {"memory": 1}  # the other blocks are of three
 SHARED_SIGN = {"icp": -1.0, "vo": 1.0}
 
 
@@ -806,7 +785,7 @@ def _update(
     gate: float = 0.0,
     weak_only: float = 0.0,
     window: tuple[float, float] | None = None,
-    memory: tuple[int, FloatArray] | None = None,
+    memory: tuple[int, float] | None = None,
     whiteness: tuple[float, int, float] | None = None,
 ) -> tuple[FloatArray, FloatArray, Innovation]:
     """The EKF update with increment ``m`` against the clone at state index ``c``: h(S) is
@@ -826,9 +805,8 @@ def _update(
     augmenting the state (Bar-Shalom, Li and Kirubarajan 2001, Section 8.2; the small turn
     between the two steps' frames is neglected).
 
-    ``memory`` = (index, gains (3,)): the step's error on each axis has a further part
-    gain x g, g that axis's unit-variance Gauss-Markov state at the index's block
-    (:func:`_memory_decay`); forward's innovation is kept when its gain is above 0.
+    ``memory`` = (index, gain): the step's forward error has a further part gain x g, g the
+    unit-variance Gauss-Markov state at that index (:func:`_memory_decay`).
 
     ``gate`` > 0: when the innovation's squared Mahalanobis distance d2 (shared error
     included) exceeds it, or ``window`` = (the last runs' d2 summed, its gate) and that sum
@@ -861,7 +839,7 @@ def _update(
         if shared >= 0:
             Hs[:, shared : shared + 3] = sign * np.eye(3)
     if memory is not None:
-        Hs[:, memory[0] : memory[0] + 3] = np.diag(memory[1])
+        Hs[0, memory[0]] = memory[1]
     Hp = H.copy()  # the pose's part
     h, H = h + Hs @ x, H + Hs
     y = m.motion - h
@@ -873,7 +851,7 @@ def _update(
         return x, P, Innovation(d2=d2)
     forward_z = forward_sq = forward_var = float("nan")
     left_out = False
-    if memory is not None and memory[1][0] > 0 and (gate <= 0 or d2 <= gate):
+    if memory is not None and (gate <= 0 or d2 <= gate):
         forward_z = float(y[0] / np.sqrt(S[0, 0]))
         y0 = y[0] + (Hs @ x)[0]  # against the pose's prediction alone
         forward_var = float((Hp @ P @ Hp.T)[0, 0])
