@@ -18,6 +18,7 @@ against the truth with the filter's covariance. The mean over a lap is printed.
     .venv/bin/python benchmarks/bench_kf.py [--worlds cubicle-loop,corridor-loop]
         [--seeds 1-10] [--duration-s 40] [--wheel-odometry] [--keep DIR] [--reuse]
     .venv/bin/python benchmarks/bench_kf.py --seeds 1-2 --keep DIR --reuse --consistency
+    .venv/bin/python benchmarks/bench_kf.py ... --reuse [--without vo] [--vo-axes yaw]
 
 ``--consistency`` prints, per lap and input, the figures the filter's error model is made
 of (kalman.ICP_VARIANCE_RATIO, ICP_LAG1, VO_VARIANCE_RATIO, VO_LAG1: laps 1-2 of each loop).
@@ -26,6 +27,7 @@ of (kalman.ICP_VARIANCE_RATIO, ICP_LAG1, VO_VARIANCE_RATIO, VO_LAG1: laps 1-2 of
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import pickle
 import tempfile
 import time
@@ -48,16 +50,42 @@ from rigcal.sim.world import BUILTIN
 
 # The filters compared: the paper's fixed covariances (``rigcal localize --kf fixed``),
 # round 2's weighted filter (each step's own covariance matched to its input's
-# innovations, ICP's steps taken as independent, every VO run in every direction), and
-# the default (``--kf weighted``: ICP's shared scan error, VO's innovation gate, VO only
-# where the filter is weaker).
+# innovations, ICP's steps taken as independent, every VO run in every direction), round
+# 4's (ICP's shared scan error, VO's shared frame error, its innovation gates, VO only
+# where the filter is weaker) and the default (``--kf weighted``: round 4's with VO's
+# forward error's Gauss-Markov memory, its forward variance ratio matched on line and the
+# whiteness test on its forward innovations); and the odometry-driven filter (``--kf
+# driven``: ICP's steps drive the prediction, VO and the wheels are its measurements).
+NO_MEMORY = {"vo_memory_s": 0.0, "vo_forward_adapt": False, "vo_forward_window": 0}
 VARIANTS = {
     "kf-fixed": kalman.KF_MODES["fixed"],
     "kf-own": kalman.KfParams(
-        icp_own=1.0, icp_shared=0.0, vo_own=1.0, vo_shared=0.0, gate=0.0, gate_window=1, vo_weak_only=0.0
+        icp_own=1.0,
+        icp_shared=0.0,
+        vo_own=1.0,
+        vo_shared=0.0,
+        gate=0.0,
+        gate_window=1,
+        vo_weak_only=0.0,
+        **NO_MEMORY,  # type: ignore[arg-type]
     ),
+    "kf-round4": dataclasses.replace(kalman.KF_MODES["weighted"], **NO_MEMORY),  # type: ignore[arg-type]
     "kf": kalman.KF_MODES["weighted"],
+    "kf-driven": kalman.KF_MODES["driven"],
 }
+
+
+AXES = ("forward", "cross", "yaw")
+
+
+def open_axes(m: kalman.Increment, keep: tuple[int, ...]) -> kalman.Increment:
+    """The step measuring only along ``keep`` (axes of its frame): the others' covariance
+    1-sigma kalman.OPEN_SIGMA_M, uncorrelated."""
+    cov = m.covariance.copy()
+    for a in set(range(3)) - set(keep):
+        cov[a, :] = cov[:, a] = 0.0
+        cov[a, a] = kalman.OPEN_SIGMA_M**2
+    return dataclasses.replace(m, covariance=cov)
 
 
 def step_nees(ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArray) -> FloatArray:
@@ -81,27 +109,35 @@ def step_errors(ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArra
 def lag1_correlation(ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArray) -> float:
     """The correlation of consecutive steps' errors, each over its 1-sigma (x, y and yaw
     pooled); negative where consecutive steps share an error with opposite signs."""
-    return float(np.mean(axis_consistency(ms, truth, stamps)[1]))
+    return float(np.mean(axis_consistency(ms, truth, stamps)[1][0]))
 
 
 def axis_consistency(
-    ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArray, trim: bool = False
+    ms: list[kalman.Increment], truth: FloatArray, stamps: FloatArray, trim: bool = False, lags: int = 1
 ) -> tuple[FloatArray, FloatArray]:
     """Per axis (x, y, yaw in the step's frame): the steps' squared errors over their
-    variance (mean; 1 for an honest covariance) and consecutive steps' error correlation
-    (kalman.shared_error_fractions). ``trim``: only steps whose NEES is within the
-    chi-square 0.999 point (3 dof) times the lap's median NEES over the chi-square median
-    (the runs a gate passes once their covariance is scaled to the median: VO's runs with
-    a wrong carried scale left out)."""
+    variance (mean; 1 for an honest covariance) and the error correlation (lags, 3) of
+    steps 1 ... ``lags`` apart in an unbroken chain of steps (kalman.shared_error_fractions,
+    kalman.gauss_markov_fit). ``trim``: only steps whose NEES is within the chi-square
+    0.999 point (3 dof) times the lap's median NEES over the chi-square median (the runs a
+    gate passes once their covariance is scaled to the median: VO's runs with a wrong
+    carried scale left out)."""
     z = step_errors(ms, truth, stamps) / np.sqrt([np.diag(m.covariance) for m in ms])
     keep = np.ones(len(ms), dtype=bool)
     if trim:
         nees = step_nees(ms, truth, stamps)
         keep = nees < chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)
-    pairs = np.array([ms[k].t0 == ms[k - 1].t1 for k in range(1, len(ms))]) & keep[1:] & keep[:-1]
-    a, b = z[:-1][pairs], z[1:][pairs]
+    chained = np.array([ms[k].t0 == ms[k - 1].t1 for k in range(1, len(ms))])
     ratio = np.mean(z[keep] ** 2, axis=0)
-    return ratio, np.array([np.corrcoef(a[:, i], b[:, i])[0, 1] for i in range(3)])
+    corr = []
+    for lag in range(1, lags + 1):
+        # Steps k - lag ... k each starting where the one before ends, both ends kept.
+        pairs = keep[lag:] & keep[:-lag]
+        for j in range(lag):
+            pairs &= chained[j : len(chained) - lag + 1 + j]
+        a, b = z[:-lag][pairs], z[lag:][pairs]
+        corr.append([np.corrcoef(a[:, i], b[:, i])[0, 1] for i in range(3)])
+    return ratio, np.array(corr)
 
 
 def planar_at_stamps(truth: FloatArray, stamps: FloatArray, at: FloatArray) -> FloatArray:
@@ -129,6 +165,20 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, help="Keep (and reuse) the sequences in this folder.")
     ap.add_argument("--reuse", action="store_true", help="Reuse each lap's odometries of an earlier run.")
     ap.add_argument(
+        "--without",
+        default="",
+        help="Inputs the filters leave out, e.g. vo (the filter on ICP alone).",
+    )
+    ap.add_argument(
+        "--vo-axes",
+        default="forward,cross,yaw",
+        help="The axes of VO's runs the filters take, e.g. yaw (the others open: 1-sigma 10 m or rad).",
+    )
+    ap.add_argument(
+        "--process",
+        help="The filters' process noise ACCEL,YAW_ACCEL (m/s^2, rad/s^2) instead of their own (0.5,1.0).",
+    )
+    ap.add_argument(
         "--consistency",
         action="store_true",
         help="Print each input's variance ratio and lag-1 correlation per axis instead "
@@ -139,6 +189,10 @@ def main() -> None:
         consistency(args)
         return
     duration = args.duration_s or None
+    if args.process:
+        accel, yaw_accel = (float(v) for v in args.process.split(","))
+        for key, params in VARIANTS.items():
+            VARIANTS[key] = dataclasses.replace(params, accel_sigma=accel, yaw_accel_sigma=yaw_accel)
     scores: dict[tuple[str, str], list[float]] = defaultdict(list)
     wins: dict[str, list[bool]] = defaultdict(list)
     with tempfile.TemporaryDirectory() as tmp:
@@ -146,10 +200,12 @@ def main() -> None:
         root.mkdir(parents=True, exist_ok=True)
         print(
             "| world | seed | ICP ATE (m) | VO ATE (m) | odom ATE (m) | KF fixed ATE (m) "
-            "| KF round 2 ATE (m) | KF ATE (m) | KF <= best input | NEES ICP steps | ICP lag-1 corr "
-            "| NEES VO runs | NEES KF poses | KF s |"
+            "| KF round 2 ATE (m) | KF round 4 ATE (m) | KF ATE (m) | KF <= best input | KF driven ATE (m) "
+            "| KF driven <= best input | NEES ICP steps "
+            "| ICP lag-1 corr | NEES VO runs | NEES KF poses | VO forward ratio matched "
+            "| VO forward left out | KF s |"
         )
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for seed in seeds_of(args.seeds):
             for name in args.worlds.split(","):
                 tag = f"-{duration:g}s" if duration else ""
@@ -158,7 +214,8 @@ def main() -> None:
                 if not (seq / "sequence.yaml").exists():
                     spec = DriveSpec(seed=seed, duration_s=duration, wheel_odometry=args.wheel_odometry)
                     write_drive(BUILTIN[name](), spec, str(seq))
-                row = lap(seq, args.reuse)
+                axes = tuple(AXES.index(a) for a in args.vo_axes.split(","))
+                row = lap(seq, args.reuse, tuple(filter(None, args.without.split(","))), axes)
                 for k, v in row.items():
                     if isinstance(v, float):
                         scores[name, k].append(v)
@@ -166,36 +223,53 @@ def main() -> None:
                 best = min(inputs)
                 win = row["kf"] <= best
                 wins[name].append(win)
+                wins[name + " round 4"].append(row["kf-round4"] <= best)
+                wins[name + " driven"].append(row["kf-driven"] <= best)
                 odom = f"{row['odom']:.4f}" if "odom" in row else "-"
                 print(
                     f"| {name} | {seed} | {row['icp']:.4f} | {row['vo']:.4f} | {odom} "
-                    f"| {row['kf-fixed']:.4f} | {row['kf-own']:.4f} | {row['kf']:.4f} "
-                    f"| {'yes' if win else 'no'} "
-                    f"| {row['nees-icp']:.2f} | {row['icp-lag1']:.2f} | {row['nees-vo']:.2f} "
-                    f"| {row['nees-kf']:.2f} "
+                    f"| {row['kf-fixed']:.4f} | {row['kf-own']:.4f} | {row['kf-round4']:.4f} "
+                    f"| {row['kf']:.4f} "
+                    f"| {'yes' if win else 'no'} | {row['kf-driven']:.4f} "
+                    f"| {'yes' if row['kf-driven'] <= best else 'no'} "
+                    f"| {row['nees-icp']:.2f} | {row['icp-lag1']:.2f} "
+                    f"| {row.get('nees-vo', float('nan')):.2f} "
+                    f"| {row['nees-kf']:.2f} | {row['vo-ratio']:.2f} | {row['vo-left-out']:.0f} "
                     f"| {row['kf-s']:.2f} |",
                     flush=True,
                 )
     print(
         "\n| world | laps | ICP ATE mean (m) | VO ATE mean (m) | KF fixed ATE mean (m) "
-        "| KF round 2 ATE mean (m) | KF ATE mean (m) | KF ATE worst (m) | laps KF <= best input |"
+        "| KF round 2 ATE mean (m) | KF round 4 ATE mean (m) | KF ATE mean (m) | KF ATE worst (m) "
+        "| laps KF <= best input: round 4 / now | now, laps 3-10 | NEES KF poses, median lap "
+        "| KF driven ATE mean (m) | KF driven ATE worst (m) | laps KF driven <= best input |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.worlds.split(","):
         s = {k: np.array(v) for (w, k), v in scores.items() if w == name}
+        seeds = seeds_of(args.seeds)
+        held_out = sum(w for w, seed in zip(wins[name], seeds, strict=True) if seed > 2)
         print(
             f"| {name} | {len(wins[name])} | {s['icp'].mean():.4f} | {s['vo'].mean():.4f} "
-            f"| {s['kf-fixed'].mean():.4f} | {s['kf-own'].mean():.4f} | {s['kf'].mean():.4f} "
-            f"| {s['kf'].max():.4f} "
-            f"| {sum(wins[name])} of {len(wins[name])} |"
+            f"| {s['kf-fixed'].mean():.4f} | {s['kf-own'].mean():.4f} | {s['kf-round4'].mean():.4f} "
+            f"| {s['kf'].mean():.4f} | {s['kf'].max():.4f} "
+            f"| {sum(wins[name + ' round 4'])} / {sum(wins[name])} of {len(wins[name])} "
+            f"| {held_out} of {sum(seed > 2 for seed in seeds)} | {np.median(s['nees-kf']):.2f} "
+            f"| {s['kf-driven'].mean():.4f} | {s['kf-driven'].max():.4f} "
+            f"| {sum(wins[name + ' driven'])} of {len(wins[name])} |"
         )
 
 
 def consistency(args: argparse.Namespace) -> None:
     """Each input's error model's figures per lap (:func:`axis_consistency`; VO trimmed)
-    from the kept odometries, and their mean over the laps."""
-    print("| world | seed | input | variance ratio x / y / yaw | lag-1 corr x / y / yaw | NEES modelled |")
-    print("|---|---|---|---|---|---|")
+    from the kept odometries, and their mean over the laps; for VO also the forward error's
+    Gauss-Markov memory fitted to the mean lag-1 ... lag-3 correlations
+    (kalman.gauss_markov_fit)."""
+    print(
+        "| world | seed | input | variance ratio x / y / yaw | lag-1 corr x / y / yaw "
+        "| lag-2 corr x / y / yaw | lag-3 corr x / y / yaw | NEES modelled | run s |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
     sums: dict[str, list[FloatArray]] = defaultdict(list)
     for seed in seeds_of(args.seeds):
         for name in args.worlds.split(","):
@@ -210,7 +284,7 @@ def consistency(args: argparse.Namespace) -> None:
             ms = kf_measurements(streams, od, res, kalman.KF_MODES["weighted"])
             for src in ("icp", "vo"):
                 mine = [m for m in ms if m.source == src]
-                ratio, lag1 = axis_consistency(mine, gt, truth.stamps_s, trim=src == "vo")
+                ratio, corr = axis_consistency(mine, gt, truth.stamps_s, trim=src == "vo", lags=3)
                 # Each step's NEES under the filter's model of its error (own and twice the
                 # shared part, kalman.shared_error_fractions): 3 where the model is honest.
                 own, shared = kalman._error_model(src, kalman.KF_MODES["weighted"])
@@ -222,20 +296,39 @@ def consistency(args: argparse.Namespace) -> None:
                 nees = step_nees(modelled, gt, truth.stamps_s)
                 if src == "vo":
                     nees = nees[nees < chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)]
-                sums[src].append(np.concatenate([ratio, lag1, [nees.mean()]]))
-                r, c = " / ".join(f"{v:.2f}" for v in ratio), " / ".join(f"{v:+.2f}" for v in lag1)
-                print(f"| {name} | {seed} | {src} | {r} | {c} | {nees.mean():.2f} |", flush=True)
+                run_s = float(np.mean([m.t1 - m.t0 for m in mine]))
+                sums[src].append(np.concatenate([ratio, corr.ravel(), [nees.mean(), run_s]]))
+                cells = " | ".join(" / ".join(f"{v:+.2f}" for v in c) for c in corr)
+                r = " / ".join(f"{v:.2f}" for v in ratio)
+                print(
+                    f"| {name} | {seed} | {src} | {r} | {cells} | {nees.mean():.2f} | {run_s:.3f} |",
+                    flush=True,
+                )
             streams.stop_background()
     for src, rows in sums.items():
         m = np.mean(rows, axis=0)
-        r, c = " / ".join(f"{v:.2f}" for v in m[:3]), " / ".join(f"{v:+.2f}" for v in m[3:6])
-        print(f"| mean | {args.seeds} | {src} | {r} | {c} | {m[6]:.2f} |")
+        cells = " | ".join(" / ".join(f"{v:+.2f}" for v in m[3 + 3 * i : 6 + 3 * i]) for i in range(3))
+        r = " / ".join(f"{v:.2f}" for v in m[:3])
+        print(f"| mean | {args.seeds} | {src} | {r} | {cells} | {m[12]:.2f} | {m[13]:.3f} |")
+        if src == "vo":
+            forward = (float(m[3]), float(m[6]), float(m[9]))
+            fit = kalman.gauss_markov_fit(forward, float(m[13]))
+            print(
+                f"\nVO forward lag-1/2/3 {forward[0]:+.3f} / {forward[1]:+.3f} / {forward[2]:+.3f}: "
+                f"Gauss-Markov share {fit[0]:.3f} of the forward variance, {fit[1]:.3f} per run "
+                f"of {m[13]:.3f} s, time constant {fit[2]:.3f} s"
+            )
 
 
-def lap(seq: Path, reuse: bool = False) -> dict[str, float]:
+def lap(
+    seq: Path, reuse: bool = False, without: tuple[str, ...] = (), vo_axes: tuple[int, ...] = (0, 1, 2)
+) -> dict[str, float]:
     """One lap's ATEs, NEES means and the filter's time. ``reuse``: take the laser and
     visual odometry from an earlier run's ``odometries.pkl`` in the lap's folder (written
-    by every run), to try the filter's settings without computing them again."""
+    by every run), to try the filter's settings without computing them again; ``vo_axes``:
+    the axes (0 forward, 1 cross-track, 2 yaw) of VO's runs the filters take, the others
+    open (:func:`open_axes`); ``without``:
+    the inputs ("icp", "vo", "wheel") the filters leave out."""
     streams = open_streams(seq)
     cache = seq / "odometries.pkl"
     if reuse and cache.exists():
@@ -258,13 +351,18 @@ def lap(seq: Path, reuse: bool = False) -> dict[str, float]:
         )
 
     for key, params in VARIANTS.items():
-        ms = kf_measurements(streams, od, res, params)
+        ms = [
+            open_axes(m, vo_axes) if m.source == "vo" else m
+            for m in kf_measurements(streams, od, res, params)
+            if m.source not in without
+        ]
         t0 = time.perf_counter()
         kf = kalman.run_filter(ms, params)
         seconds = time.perf_counter() - t0
         row[key] = ate(kf.stamps_s, kf.poses)
         if key == "kf":
             row["kf-s"] = seconds
+            row["vo-ratio"], row["vo-left-out"] = kf.vo_forward_ratio, float(kf.vo_forward_left_out)
             wheel = [m for m in ms if m.source == "wheel"]
             if wheel:  # the wheel odometry's own path: its steps chained
                 T, path = np.eye(3), [np.zeros(3)]

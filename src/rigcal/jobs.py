@@ -421,8 +421,9 @@ def localize_sequence(
         iasm, tracks: ``KEY=VALUE`` settings of IASM and H-IASM, and of the feature tracks.
         pose_graph: the loop closures' pose-graph back end: ``auto`` (GTSAM where
             installed, else scipy), ``scipy`` or ``gtsam``.
-        kf: the Kalman filter: ``weighted`` (each step's own covariance) or ``fixed``
-            (the paper's fixed covariances), :data:`rigcal.localize.kalman.KF_MODES`.
+        kf: the Kalman filter: ``weighted`` (each step's own covariance), ``fixed``
+            (the paper's fixed covariances) or ``driven`` (weighted, ICP's steps driving
+            the prediction), :data:`rigcal.localize.kalman.KF_MODES`.
         place_recognition: loop closure's proposals from the keyframes' images
             (``images``, where the sequence has them) or none (``none``).
 

@@ -46,9 +46,9 @@ def short_drive(tmp_path_factory) -> Path:
     return out
 
 
-def test_the_kf_option_picks_the_papers_filter_or_the_weighted_one(short_drive, tmp_path, capsys):
+def test_the_kf_option_picks_the_papers_the_weighted_or_the_driven_filter(short_drive, tmp_path, capsys):
     docs = {}
-    for mode in ("weighted", "fixed"):
+    for mode in ("weighted", "fixed", "driven"):
         out = tmp_path / mode
         args = ["localize", str(short_drive), "--method", "kf", "--kf", mode, "-o", str(out), "--json"]
         assert main(args) == 0
@@ -67,3 +67,9 @@ def test_the_kf_option_picks_the_papers_filter_or_the_weighted_one(short_drive, 
     ate = {m: d["methods"]["kf"]["metrics"]["ate_rmse_m"] for m, d in docs.items()}
     assert ate["weighted"] != ate["fixed"]
     assert ate["weighted"] < ate["fixed"]
+    # --kf driven: the weighted filter with ICP's steps driving the prediction.
+    driven = docs["driven"]
+    assert driven["config"]["settings"]["kf"]["drive"] == "icp"
+    assert driven["config"]["settings"]["kf"]["weights"] == "covariance"
+    assert driven["methods"]["kf"]["prediction"] == "icp steps"
+    assert weighted["methods"]["kf"]["prediction"] == "constant velocity"

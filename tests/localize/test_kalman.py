@@ -13,6 +13,7 @@ def _plain(**changes):
     with ``changes``."""
     base = {"icp_own": 1.0, "icp_shared": 0.0, "vo_own": 1.0, "vo_shared": 0.0}
     base |= {"gate": 0.0, "gate_window": 1, "vo_weak_only": 0.0}
+    base |= {"vo_memory_s": 0.0, "vo_forward_adapt": False, "vo_forward_window": 0}
     return kalman.KfParams(**{**base, **changes})
 
 
@@ -381,11 +382,11 @@ def test_vo_runs_each_within_the_gate_but_off_together_fail_the_windowed_gate():
     fail their test (the fourth run on) the rest are left out, and the path ends less
     than half as far off as with the single-run test alone, which lets all eight in."""
     t, poses = _arc(n=201, dt=0.025, w=0.3)
-    # 7 mm off: about 3.1 sigma of the innovation (the filter's prediction from ICP and
-    # the runs before, and the run's own), a squared distance of about 9.7.
+    # 4.3 mm off: about 3 sigma of the innovation (the filter's prediction from ICP's four
+    # steps ending with the run, 1 mm, and the run's own, 1 mm), a squared distance of about 9.
     icp = kalman.increments(t, poses, _own(t, (5e-4, 5e-4, 5e-5)), source="icp")
     vo = kalman.increments(t[::4], poses[::4], _own(t[::4], (1e-3, 1e-3, 1e-4)), source="vo")
-    step = np.array([7e-3, 0.0, 0.0])
+    step = np.array([4.3e-3, 0.0, 0.0])
     off = [
         kalman.Increment(m.t0, m.t1, m.motion + step, m.covariance, "vo") if 20 <= k < 28 else m
         for k, m in enumerate(vo)

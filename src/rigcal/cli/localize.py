@@ -94,11 +94,12 @@ rig_option = click.option(
 )
 @click.option(
     "--kf",
-    type=click.Choice(["weighted", "fixed"]),
+    type=click.Choice(["weighted", "fixed", "driven"]),
     default="weighted",
     show_default=True,
     help="The Kalman filter (method kf): weighted (each step by its own covariance, matched to its "
-    "input's innovations) or fixed (the paper's filter: fixed covariances per input, Section VI).",
+    "input's innovations), fixed (the paper's filter: fixed covariances per input, Section VI) or "
+    "driven (weighted, ICP's steps driving the prediction, VO and the wheels its measurements).",
 )
 def localize(
     sequence: Path,

@@ -40,7 +40,19 @@ ratio and lag-1 correlation (``icp_own`` ... ``vo_shared``, :func:`_update`); a 
 failing a chi-square innovation test, alone or with the runs before it (``gate``,
 ``gate_window``), is left out; and a VO run is fused only along directions where the
 filter knows the motion less well than the run's error, shared part included
-(``vo_weak_only``).
+(``vo_weak_only``). VO's forward error has a longer memory than a two-run share: a
+first-order Gauss-Markov part carried in the state (``vo_memory_s``, its time constant
+from the lag-1/2/3 correlations: :func:`gauss_markov_fit`), its forward variance ratio
+matched on line (``vo_forward_adapt``) and its forward innovations tested for whiteness
+over the last runs (``vo_forward_window``), the forward motion of runs failing that test
+left out.
+
+Odometry-driven prediction (``drive="icp"``, ``rigcal localize --kf driven``; beyond the
+paper): instead of the constant-velocity model, ICP's steps drive the prediction as its
+control input (Thrun, Burgard and Fox, Probabilistic Robotics, 2005, Section 5.4), their
+covariances, own and shared, its process noise (:class:`_Drive`); VO's runs and the wheel
+odometry's steps are the measurements, under the same gates and error models. With no
+other measurement accepted, the filter's path is ICP's.
 """
 
 from __future__ import annotations
@@ -71,6 +83,9 @@ WHEEL_SIGMAS = (0.05, 0.02, 0.08)
 # Kept for the rate form: forward rate noise (m/s) of a step that measures no forward speed.
 OPEN_FORWARD_SIGMA = OPEN_SIGMA_M
 WEIGHTS = ("covariance", "fixed")
+# The prediction (``KfParams.drive``): the constant-velocity process model ("", Section VI)
+# or driven by an input's steps ("icp": the laser odometry as the control input).
+DRIVES = ("", "icp")
 # Covariance matching (``KfParams.adapt``): an input's covariance is scaled up by the
 # running mean (over about ADAPT_WINDOW steps) of its innovations' NIS per dimension when
 # that exceeds 1; a single innovation counts at most NIS_CAP (an outlier step).
@@ -125,6 +140,34 @@ def _per_axis(v: float | Axes | FloatArray) -> FloatArray:
     return out
 
 
+def gauss_markov_fit(lags: Sequence[float], run_s: float) -> tuple[float, float, float]:
+    """A first-order Gauss-Markov error's (share, phi, time constant s) from an input's
+    error correlation at lags 1, 2, 3 ... steps (``lags``) of ``run_s`` seconds each.
+
+    An error made of an own white part and a Gauss-Markov part g (g_k = phi g_(k-1) +
+    sqrt(1 - phi^2) n_k, unit variance) correlates at lag L by share x phi^L. log c_L =
+    log share + L log phi is fitted by least squares over the leading positive
+    correlations (Gelb, Applied Optimal Estimation, 1974, Section 3.8: the autocorrelation
+    exp(-|dt| / tau)); the share is at most 1 - (1 - 2 MAX_LAG1), leaving a step a tenth
+    of its error its own, as :func:`shared_error_fractions` does. No positive lag-1
+    correlation: share 0."""
+    c = np.asarray(lags, dtype=float)
+    if c.ndim != 1 or len(c) < 2 or not np.isfinite(c).all() or not run_s > 0:
+        raise ValueError(f"lag correlations {lags} over runs of {run_s} s: expected two or more, runs > 0 s")
+    n = int(np.argmax(c <= 0)) if (c <= 0).any() else len(c)
+    if n == 0:
+        return 0.0, 0.0, 0.0
+    if n == 1:  # one lag: phi = share = sqrt(c_1)
+        phi = float(np.sqrt(min(c[0], 1.0)))
+        share = phi
+    else:
+        slope, intercept = np.polyfit(np.arange(1, n + 1), np.log(c[:n]), 1)
+        phi, share = float(np.exp(min(slope, 0.0))), float(np.exp(intercept))
+    share = min(share, 2.0 * MAX_LAG1)
+    tau = -run_s / float(np.log(phi)) if 0 < phi < 1 else (np.inf if phi >= 1 else 0.0)
+    return share, phi, tau
+
+
 ICP_OWN, ICP_SHARED = shared_error_fractions(ICP_VARIANCE_RATIO, ICP_LAG1)
 VO_OWN, VO_SHARED = shared_error_fractions(VO_VARIANCE_RATIO, VO_LAG1)
 # A VO run whose innovation's squared Mahalanobis distance (shared error included) exceeds
@@ -140,6 +183,21 @@ VO_WINDOW = 4
 # VO is fused only along directions where the filter's own prediction of the run's motion
 # is less certain than the run (generalised eigenvalue above this; ``KfParams.vo_weak_only``).
 VO_WEAK_ONLY = 1.0
+# VO's forward error's memory (``KfParams.vo_memory_s``, :func:`run_filter`): its runs'
+# forward errors correlate beyond what a two-run share gives (laps 1-2: +0.57 at lag 1,
+# +0.34 at lag 2, +0.17 at lag 3, over runs of 0.49 s; benchmarks/bench_kf.py
+# --consistency). A first-order Gauss-Markov state fitted to them (:func:`gauss_markov_fit`)
+# carries that part: 0.90 of the forward variance, 0.54 from one run to the next, a time
+# constant of 0.80 s.
+VO_FORWARD_LAGS, VO_RUN_S = (0.57, 0.34, 0.17), 0.49
+VO_MEMORY_SHARE, VO_MEMORY_PHI, VO_MEMORY_S = gauss_markov_fit(VO_FORWARD_LAGS, VO_RUN_S)
+# The whiteness test on VO's forward innovations (``KfParams.vo_forward_window``): under
+# the model the filter's innovations are white, so the last W standardized forward
+# innovations summed, squared and over W are chi-square with 1 dof; above its 0.999 point
+# VO's forward motion is left out of the run (its cross-track and yaw still enter). W spans
+# the runs the memory correlates (phi^W below 0.05: 5 runs).
+VO_FORWARD_WINDOW = int(np.ceil(np.log(0.05) / np.log(VO_MEMORY_PHI)))
+VO_FORWARD_GATE = float(chi2.isf(0.001, 1))
 
 
 @dataclass(frozen=True)
@@ -158,9 +216,11 @@ class Increment:
 @dataclass(frozen=True)
 class KfParams:
     """Process noise: white acceleration (m/s^2) and angular acceleration (rad/s^2);
-    ``weights``: each step's own covariance ("covariance") or the paper's fixed ones
-    ("fixed"); ``adapt``: scale each input's covariances up by its innovations' running
-    NIS where that exceeds 1 (covariance matching: :data:`ADAPT_WINDOW`)."""
+    ``drive``: "" (the constant-velocity process model, Section VI) or the input whose
+    steps drive the prediction ("icp": odometry-driven, :class:`_Drive`); ``weights``:
+    each step's own covariance ("covariance") or the paper's fixed ones ("fixed");
+    ``adapt``: scale each input's covariances up by its innovations' running NIS where
+    that exceeds 1 (covariance matching: :data:`ADAPT_WINDOW`)."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
@@ -173,10 +233,17 @@ class KfParams:
     gate: float = VO_GATE
     gate_window: int = VO_WINDOW
     vo_weak_only: float = VO_WEAK_ONLY
+    vo_memory_s: float = VO_MEMORY_S
+    vo_memory_share: float = VO_MEMORY_SHARE
+    vo_forward_adapt: bool = True
+    vo_forward_window: int = VO_FORWARD_WINDOW
+    drive: str = ""
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
             raise ValueError(f"weights {self.weights!r}: expected one of {', '.join(WEIGHTS)}")
+        if self.drive not in DRIVES:
+            raise ValueError(f"drive {self.drive!r}: expected one of {', '.join(map(repr, DRIVES))}")
         if not (self.accel_sigma > 0 and self.yaw_accel_sigma > 0):
             raise ValueError("accel_sigma and yaw_accel_sigma must be > 0")
         for name in ("icp_own", "icp_shared", "vo_own", "vo_shared"):
@@ -187,6 +254,12 @@ class KfParams:
                 )
         if self.gate_window < 1:
             raise ValueError(f"gate_window {self.gate_window}: expected at least 1 run")
+        if not self.vo_memory_s >= 0:
+            raise ValueError(f"vo_memory_s {self.vo_memory_s}: expected >= 0 s (0: no memory state)")
+        if not 0 <= self.vo_memory_share < 1:
+            raise ValueError(f"vo_memory_share {self.vo_memory_share}: expected in [0, 1)")
+        if self.vo_forward_window < 0:
+            raise ValueError(f"vo_forward_window {self.vo_forward_window}: expected >= 0 runs (0: no test)")
 
 
 # ``rigcal localize --kf``: the filter by name. "weighted": each step's own covariance,
@@ -204,18 +277,29 @@ KF_MODES = {
         gate=0.0,
         gate_window=1,
         vo_weak_only=0.0,
+        vo_memory_s=0.0,
+        vo_forward_adapt=False,
+        vo_forward_window=0,
     ),
 }
+# "driven": the weighted filter with ICP's steps as the prediction's control input
+# (:func:`run_filter`, ``KfParams.drive``); VO and the wheels are its measurements.
+KF_MODES["driven"] = KfParams(drive="icp")
 
 
 @dataclass(frozen=True)
 class KfResult:
     """The filtered path: stamps (M,), poses (M, 3) after each update (the first: the
-    origin at the earliest stamp) and their covariances (M, 3, 3) (x, y, yaw; world)."""
+    origin at the earliest stamp) and their covariances (M, 3, 3) (x, y, yaw; world);
+    VO's forward variance ratio as matched at the end (``KfParams.vo_forward_adapt``;
+    otherwise as set) and the VO runs whose forward motion the whiteness test left out
+    (``KfParams.vo_forward_window``)."""
 
     stamps_s: FloatArray
     poses: FloatArray
     covariances: FloatArray
+    vo_forward_ratio: float = float("nan")
+    vo_forward_left_out: int = 0
 
 
 def rate_covariance(sigmas: tuple[float, float, float], dt: float, open_forward: bool = False) -> FloatArray:
@@ -303,28 +387,53 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     docstring); at equal stamps updates come before clones, so that a step starting where
     another ends starts from the updated pose. With ``params.icp_shared`` each ICP step's
     error shares a part with the step before (their common scan, :func:`_update`); with
-    ``params.gate`` a VO run whose innovation fails the chi-square test is left out.
+    ``params.gate`` a VO run whose innovation fails the chi-square test is left out; with
+    ``params.vo_memory_s`` VO's forward error has a Gauss-Markov part carried in the state
+    (:func:`_memory_decay`), its variance ratio matched on line (``vo_forward_adapt``) and
+    its innovations tested for whiteness (``vo_forward_window``). With ``params.drive``
+    the driving input's steps carry the state between events (:class:`_Drive`) in place of
+    the constant-velocity model, and a pose is kept at each of their ends.
 
     Returns:
         the filtered pose after each update, starting with the origin at the earliest
         stamp, with its covariance.
     """
     params = params or KfParams()
-    ms = sorted(measurements, key=lambda m: (m.t1, m.t0))
+    # At a common end, the shorter step first: a longer one is then compared with the
+    # motion the shorter ones already measured.
+    ms = sorted(measurements, key=lambda m: (m.t1, -m.t0))
     if not ms:
         return KfResult(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)))
-    # Events (time, 0 = update / 1 = clone, measurement); updates first at equal times.
+    # Odometry-driven (``params.drive``): the driving input's steps are the prediction's
+    # control input (:class:`_Drive`), the others its measurements; a pose is kept at each
+    # driving step's end (event 2).
+    drive = _Drive([m for m in ms if m.source == params.drive], params) if params.drive else None
+    if drive is not None:
+        ms = [m for m in ms if m.source != params.drive]
+    # Events (time, 0 = update / 1 = clone / 2 = a driving step's end, index); updates
+    # first at equal times.
     events = [(m.t1, 0, i) for i, m in enumerate(ms)] + [(m.t0, 1, i) for i, m in enumerate(ms)]
+    if drive is not None:
+        events += [(d.t1, 2, -1) for d in drive.steps]
+        if not events:
+            return KfResult(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)))
+        events.append((min(e[0] for e in events + [(d.t0, 2, -1) for d in drive.steps]), 2, -1))
     events.sort(key=lambda e: (e[0], e[1], e[2]))
     pending: dict[float, int] = {}  # clone stamp -> increments still to use it
     for m in ms:
         pending[m.t0] = pending.get(m.t0, 0) + 1
-    # The state's blocks of three after the pose and velocity, in state order: the pose
-    # clones ("clone", t0), the last ICP scan's shared error ("scan", its stamp) and the
-    # last VO frame's ("frame", its stamp).
+    # The state's blocks after the pose and velocity, in state order: the pose clones
+    # ("clone", t0), the last ICP scan's shared error ("scan", its stamp), the last VO
+    # frame's ("frame", its stamp), each of three, and VO's forward error's Gauss-Markov
+    # part ("memory", the end of the last run it was carried to), of one.
     blocks: list[tuple[str, float]] = []
     mean_nis: dict[str, float] = {}  # per input: its innovations' NIS per dimension, running mean
     recent: list[float] = []  # the last VO runs' squared distances (the windowed gate)
+    whiteness: list[float] = []  # the last VO runs' standardized forward innovations
+    left_out = 0  # VO runs whose forward motion the whiteness test left out
+    vo_own, vo_share = _error_model("vo", params)
+    forward_ratio = float(vo_own[0] + 2.0 * vo_share[0])  # VO's forward variance ratio, matched on line
+    forward_info = float(ADAPT_WINDOW)  # the information its running mean holds (runs of full weight)
     # The windowed gate: the chi-square point of 3 x gate_window dof at the single gate's tail.
     window_gate = float(chi2.isf(chi2.sf(params.gate, 3), 3 * params.gate_window)) if params.gate > 0 else 0.0
     t = events[0][0]
@@ -333,26 +442,41 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     stamps, poses, covs = [t], [x[:3].copy()], [P[:3, :3].copy()]
     for when, kind, i in events:
         if when > t:
-            x, P = _predict(x, P, when - t, params)
+            if drive is not None:
+                x, P = drive.to(x, P, blocks, t, when)
+            else:
+                x, P = _predict(x, P, when - t, params)
             t = when
+        if kind == 2:
+            _keep(stamps, poses, covs, t, x, P)
+            continue
         m = ms[i]
         if kind == 1:
             if ("clone", m.t0) not in blocks:
                 x, P = _clone(x, P)
                 blocks.append(("clone", m.t0))
             continue
-        c = 6 + 3 * blocks.index(("clone", m.t0))
+        c = _offset(blocks, ("clone", m.t0))
         scale = max(1.0, mean_nis.get(m.source, 1.0)) if params.adapt else 1.0
         own, share = _error_model(m.source, params)
+        vo = m.source == "vo"
+        memory: tuple[int, float] | None = None
+        if vo and params.vo_memory_s > 0 and m.covariance[0, 0] < (OPEN_SIGMA_M / 10.0) ** 2:
+            # Forward: an own part and the Gauss-Markov part (its variance ratio matched on
+            # line), no two-run share; cross-track and yaw as before.
+            x, P = _memory_decay(x, P, blocks, m.t1, params.vo_memory_s)
+            own, share = own.copy(), share.copy()
+            own[0], share[0] = forward_ratio * (1.0 - params.vo_memory_share), 0.0
+            gain = float(np.sqrt(scale * forward_ratio * params.vo_memory_share * m.covariance[0, 0]))
+            memory = (_offset(blocks, ("memory", m.t1)), gain)
         shared: int | None = None
         if share.any():  # m.source is "icp" or "vo": its shared error enters the state
             kind_of = SHARED_BLOCK[m.source]
             old = [b for b in blocks if b[0] == kind_of]
             x, P = _append(x, P, _finite_part(_scaled(m.covariance, share)))
             blocks.append((kind_of, m.t1))
-            shared = 6 + 3 * blocks.index(old[-1]) if old and old[-1][1] == m.t0 else -1
-        vo = m.source == "vo"
-        x, P, nis, d2 = _update(
+            shared = _offset(blocks, old[-1]) if old and old[-1][1] == m.t0 else -1
+        x, P, inn = _update(
             x,
             P,
             c,
@@ -364,37 +488,221 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             gate=params.gate if vo else 0.0,
             weak_only=params.vo_weak_only if vo else 0.0,
             window=(sum(recent), window_gate) if vo and params.gate_window > 1 else None,
+            memory=memory,
+            whiteness=(sum(whiteness), len(whiteness), VO_FORWARD_GATE)
+            if memory is not None and params.vo_forward_window > 0
+            else None,
         )
-        if vo and np.isfinite(d2):
+        if vo and np.isfinite(inn.d2):
             # The windowed test's last runs, each counted at most at the single gate (a lone
             # outlier is the single test's, not the window's).
-            recent.append(min(d2, params.gate) if params.gate > 0 else d2)
+            recent.append(min(inn.d2, params.gate) if params.gate > 0 else inn.d2)
             del recent[: max(0, len(recent) - (params.gate_window - 1))]
+        left_out += inn.forward_left_out
+        if memory is not None and np.isfinite(inn.forward_z):
+            whiteness.append(inn.forward_z)
+            del whiteness[: max(0, len(whiteness) - (params.vo_forward_window - 1))]
+        if memory is not None and params.vo_forward_adapt and np.isfinite(inn.forward_sq):
+            # Covariance matching on VO's forward axis alone (Mehra 1972): the run's forward
+            # innovation against the pose's prediction, squared, less that prediction's
+            # variance A, over the run's forward variance C, is a sample of the ratio
+            # (negative ones taken as 0; at most NIS_CAP times the current ratio r). Each
+            # sample weighs by its Fisher information, (r C / (A + r C))^2 up to a factor:
+            # where the filter's prediction is loose (a corridor ICP leaves open) a run says
+            # little about its own error. A running mean over about ADAPT_WINDOW runs of
+            # full weight.
+            var = forward_ratio * m.covariance[0, 0]
+            weight = (var / (var + inn.forward_prediction_var)) ** 2
+            forward_info += weight - forward_info / ADAPT_WINDOW
+            sample = min(max(0.0, inn.forward_sq) / m.covariance[0, 0], NIS_CAP * forward_ratio)
+            forward_ratio += weight / forward_info * (sample - forward_ratio)
         if shared is not None:  # the step's shared error is in; the one before is done with
             for b in [b for b in blocks if b[0] == SHARED_BLOCK[m.source] and b[1] != m.t1]:
-                x, P = _drop(x, P, 6 + 3 * blocks.index(b))
+                x, P = _drop(x, P, _offset(blocks, b))
                 blocks.remove(b)
-        if np.isfinite(nis):
+        if np.isfinite(inn.nis):
             # Covariance matching: each input's recent innovations against its covariance.
             mean_nis[m.source] = (
-                mean_nis.get(m.source, 1.0) + (min(nis, NIS_CAP) - mean_nis.get(m.source, 1.0)) / ADAPT_WINDOW
+                mean_nis.get(m.source, 1.0)
+                + (min(inn.nis, NIS_CAP) - mean_nis.get(m.source, 1.0)) / ADAPT_WINDOW
             )
         pending[m.t0] -= 1
         if not pending[m.t0]:
-            x, P = _drop(x, P, 6 + 3 * blocks.index(("clone", m.t0)))
+            x, P = _drop(x, P, _offset(blocks, ("clone", m.t0)))
             blocks.remove(("clone", m.t0))
-        if stamps[-1] == t:
-            poses[-1], covs[-1] = x[:3].copy(), P[:3, :3].copy()
-        else:
-            stamps.append(t)
-            poses.append(x[:3].copy())
-            covs.append(P[:3, :3].copy())
-    return KfResult(np.array(stamps), np.array(poses), np.array(covs))
+        _keep(stamps, poses, covs, t, x, P)
+    return KfResult(np.array(stamps), np.array(poses), np.array(covs), forward_ratio, left_out)
+
+
+def _keep(
+    stamps: list[float],
+    poses: list[FloatArray],
+    covs: list[FloatArray],
+    t: float,
+    x: FloatArray,
+    P: FloatArray,
+) -> None:
+    """The pose and its covariance at ``t`` appended to the output (replacing the last at
+    the same stamp)."""
+    if stamps[-1] == t:
+        poses[-1], covs[-1] = x[:3].copy(), P[:3, :3].copy()
+    else:
+        stamps.append(t)
+        poses.append(x[:3].copy())
+        covs.append(P[:3, :3].copy())
+
+
+def _se2_log(motion: FloatArray) -> FloatArray:
+    """The twist (u_x m, u_y m, w rad) whose constant application over a unit time moves
+    by ``motion`` (dx, dy, dyaw): the SE(2) logarithm."""
+    w = float(np.angle(np.exp(1j * motion[2])))
+    a, b = _se2_v(w)
+    V = np.array([[a, -b], [b, a]])
+    return np.array([*np.linalg.solve(V, motion[:2]), w])
+
+
+def _se2_exp(twist: FloatArray) -> FloatArray:
+    """The motion (dx, dy, dyaw) of a twist applied for a unit time: the SE(2) exponential."""
+    a, b = _se2_v(float(twist[2]))
+    return np.array([a * twist[0] - b * twist[1], b * twist[0] + a * twist[1], twist[2]])
+
+
+def _se2_v(w: float) -> tuple[float, float]:
+    """sin(w) / w and (1 - cos(w)) / w (their series near w = 0)."""
+    if abs(w) < 1e-6:
+        return 1.0 - w * w / 6.0, w / 2.0
+    return float(np.sin(w) / w), float((1.0 - np.cos(w)) / w)
+
+
+class _Drive:
+    """The odometry-driven prediction (``KfParams.drive``; Thrun, Burgard and Fox,
+    Probabilistic Robotics, 2005, Section 5.4: odometry as the control input of the
+    motion model): the driving input's step u over [t0, t1], with covariance C, moves the
+    pose from t0 to t1 as its constant twist xi = log(u) (:func:`_se2_log`): a part of the
+    step from t to t' applies exp(f xi), f = (t' - t) / (t1 - t0), with process noise
+    f x own x C (own: the input's own fraction, :func:`_error_model`) in the rig's frame,
+    so the parts compose to the step exactly and a pose between scans (a VO run's end) is
+    where the step puts it. At the step's end its shared error enters as in
+    :func:`_update`: the true motion is u - w_k - s_k + s_(k-1) (ICP: scan k's noise, in
+    step k and, with the opposite sign, in step k + 1; Bar-Shalom, Li and Kirubarajan
+    2001, Section 8.2), s_k appended to the state and s_(k-1) dropped once in. With no
+    other measurement the filter's poses are the driving input's steps chained. Where no
+    step covers the time (a skipped scan pair), the constant-velocity model carries the
+    pose at the last step's velocity."""
+
+    def __init__(self, steps: list[Increment], params: KfParams) -> None:
+        self.steps = sorted(steps, key=lambda m: (m.t0, m.t1))
+        self.params = params
+        self.own, self.share = _error_model(params.drive, params)
+        self.next = 0  # the first step not yet finished
+
+    def to(
+        self, x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], t: float, when: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """The state carried from ``t`` to ``when`` (``blocks`` updated in place)."""
+        while t < when:
+            while self.next < len(self.steps) and self.steps[self.next].t1 <= t:
+                self.next += 1
+            d = self.steps[self.next] if self.next < len(self.steps) else None
+            if d is None or d.t0 > t:  # no step covers t: constant velocity to the next
+                end = when if d is None else min(when, d.t0)
+                x, P = _predict(x, P, end - t, self.params)
+                t = end
+                continue
+            end = min(when, d.t1)
+            x, P = self._part(x, P, d, (end - t) / (d.t1 - d.t0))
+            if end == d.t1:
+                x, P = self._shared(x, P, blocks, d)
+                self.next += 1
+            t = end
+        return x, P
+
+    def _part(self, x: FloatArray, P: FloatArray, d: Increment, f: float) -> tuple[FloatArray, FloatArray]:
+        """The pose moved by the part f of step ``d``, its velocity the step's."""
+        xi = _se2_log(d.motion)
+        u = _se2_exp(f * xi)
+        c, s = np.cos(x[2]), np.sin(x[2])
+        R = np.array([[c, -s], [s, c]])
+        F = np.eye(len(x))
+        F[:2, 2] = [-s * u[0] - c * u[1], c * u[0] - s * u[1]]  # d(R(yaw) u) / d yaw
+        G = np.eye(3)
+        G[:2, :2] = R
+        x = x.copy()
+        x[:2] += R @ u[:2]
+        x[2] += u[2]
+        P = F @ P @ F.T
+        P[:3, :3] += f * G @ _scaled(d.covariance, self.own) @ G.T
+        # The velocity (the constant-velocity model's, where no step covers the time): the
+        # step's, in the world; its uncertainty the step's.
+        dt = d.t1 - d.t0
+        x[3:6] = G @ xi / dt
+        P[3:6, :] = P[:, 3:6] = 0.0
+        P[3:6, 3:6] = G @ d.covariance @ G.T / dt**2
+        if not np.isfinite(P[3:6, 3:6]).all() or np.trace(P[3:6, 3:6]) > 1e4:
+            P[3:6, 3:6] = np.diag([1.0, 1.0, 1.0])
+        return x, P
+
+    def _shared(
+        self, x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], d: Increment
+    ) -> tuple[FloatArray, FloatArray]:
+        """The step's shared error in at its end: pose -= G (s_k - s_(k-1))."""
+        if not self.share.any():
+            return x, P
+        kind = SHARED_BLOCK[self.params.drive]
+        old = [b for b in blocks if b[0] == kind]
+        x, P = _append(x, P, _finite_part(_scaled(d.covariance, self.share)))
+        blocks.append((kind, d.t1))
+        c, s = np.cos(x[2] - d.motion[2]), np.sin(x[2] - d.motion[2])  # the step's start frame
+        G = np.eye(3)
+        G[:2, :2] = [[c, -s], [s, c]]
+        T = np.eye(len(x))
+        n = len(x)
+        T[:3, n - 3 :] = -G
+        if old and old[-1][1] == d.t0:
+            at = _offset(blocks, old[-1])
+            T[:3, at : at + 3] = G
+        x, P = T @ x, T @ P @ T.T
+        for b in old:
+            x, P = _drop(x, P, _offset(blocks, b))
+            blocks.remove(b)
+        return x, P
+
+
+def _offset(blocks: list[tuple[str, float]], block: tuple[str, float]) -> int:
+    """A block's index in the state: after the pose and velocity (6) and the blocks before
+    it (three each, the memory one)."""
+    return 6 + sum(BLOCK_SIZE.get(k, 3) for k, _ in blocks[: blocks.index(block)])
+
+
+def _memory_decay(
+    x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], t1: float, tau_s: float
+) -> tuple[FloatArray, FloatArray]:
+    """The state with VO's forward Gauss-Markov error carried to ``t1`` (appended, of unit
+    variance, at the first run; ``blocks`` updated in place): g(t1) = phi g(t) +
+    sqrt(1 - phi^2) n with phi = exp(-(t1 - t) / tau_s) (Gelb 1974, Table 3.8-1; Bar-Shalom,
+    Li and Kirubarajan 2001, Section 8.2: a correlated measurement error augmented to the
+    state). Lazy: no other measurement reads it, so it is carried only when a run needs it."""
+    old = [b for b in blocks if b[0] == "memory"]
+    if not old:
+        x, P = _append(x, P, np.ones((1, 1)))
+        blocks.append(("memory", t1))
+        return x, P
+    at = _offset(blocks, old[0])
+    phi = float(np.exp(-max(0.0, t1 - old[0][1]) / tau_s))
+    x = x.copy()
+    x[at] *= phi
+    P = P.copy()
+    P[at, :] *= phi
+    P[:, at] *= phi
+    P[at, at] += 1.0 - phi**2
+    blocks[blocks.index(old[0])] = ("memory", t1)
+    return x, P
 
 
 # The state block holding each input's shared error, and the sign it enters the step after
 # with (:func:`_update`).
 SHARED_BLOCK = {"icp": "scan", "vo": "frame"}
+BLOCK_SIZE = {"memory": 1}  # the other blocks are of three
 SHARED_SIGN = {"icp": -1.0, "vo": 1.0}
 
 
@@ -423,12 +731,12 @@ def _clone(x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 def _append(x: FloatArray, P: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """The state with a zero-mean block of three appended, of covariance ``cov`` (3, 3),
-    independent of the rest."""
-    n = len(x)
-    out = np.zeros((n + 3, n + 3))
+    """The state with a zero-mean block appended, of covariance ``cov`` (k, k), independent
+    of the rest."""
+    n, k = len(x), len(cov)
+    out = np.zeros((n + k, n + k))
     out[:n, :n], out[n:, n:] = P, cov
-    return np.concatenate([x, np.zeros(3)]), out
+    return np.concatenate([x, np.zeros(k)]), out
 
 
 def _drop(x: FloatArray, P: FloatArray, at: int) -> tuple[FloatArray, FloatArray]:
@@ -447,6 +755,24 @@ def _finite_part(cov: FloatArray) -> FloatArray:
     return out
 
 
+@dataclass(frozen=True)
+class Innovation:
+    """What an update saw: the innovation's NIS per dimension without the covariance
+    matching's factor (what the matching follows), its squared Mahalanobis distance over
+    all three dimensions, and for a VO run with the forward memory (else NaN) its forward
+    innovation standardized under the whole model (the whiteness test's) and its forward
+    innovation against the pose's prediction alone, squared, less that prediction's
+    variance, and that variance (m^2; the forward ratio's matching); whether the whiteness
+    test left the forward direction out."""
+
+    nis: float = float("nan")
+    d2: float = float("nan")
+    forward_z: float = float("nan")
+    forward_sq: float = float("nan")
+    forward_prediction_var: float = float("nan")
+    forward_left_out: bool = False
+
+
 def _update(
     x: FloatArray,
     P: FloatArray,
@@ -459,13 +785,14 @@ def _update(
     gate: float = 0.0,
     weak_only: float = 0.0,
     window: tuple[float, float] | None = None,
-) -> tuple[FloatArray, FloatArray, float, float]:
+    memory: tuple[int, float] | None = None,
+    whiteness: tuple[float, int, float] | None = None,
+) -> tuple[FloatArray, FloatArray, Innovation]:
     """The EKF update with increment ``m`` against the clone at state index ``c``: h(S) is
     the motion from the clone's pose to the current one in the clone's frame. The step's
     own error has its covariance scaled per axis by ``own`` (:func:`_scaled`), times
-    ``adapt`` (the covariance matching's factor). Also returns the innovation's NIS per
-    dimension without ``adapt`` (what the matching follows) and its squared Mahalanobis
-    distance over all three dimensions (NaN where not computed).
+    ``adapt`` (the covariance matching's factor). Also returns what the innovation was
+    (:class:`Innovation`).
 
     ``shared`` (an index): the step's error is e_k = w_k + s_k + ``sign`` s_(k-1), w_k its
     own, s_j the error the step boundary j brings
@@ -478,9 +805,17 @@ def _update(
     augmenting the state (Bar-Shalom, Li and Kirubarajan 2001, Section 8.2; the small turn
     between the two steps' frames is neglected).
 
+    ``memory`` = (index, gain): the step's forward error has a further part gain x g, g the
+    unit-variance Gauss-Markov state at that index (:func:`_memory_decay`).
+
     ``gate`` > 0: when the innovation's squared Mahalanobis distance d2 (shared error
     included) exceeds it, or ``window`` = (the last runs' d2 summed, its gate) and that sum
     with d2 exceeds its gate, nothing is updated (the state comes back as it was).
+
+    ``whiteness`` = (the last runs' standardized forward innovations summed, their count,
+    the gate): when that sum with this run's, squared over the count, exceeds the gate
+    (chi-square, 1 dof: under the model the innovations are white), the forward direction
+    is left out of the update.
 
     ``weak_only`` > 0: only the directions along which the filter's own prediction of the
     motion (pose and clone, without the shared error) is less certain than the step's error
@@ -497,32 +832,52 @@ def _update(
     H[2, 2], H[2, c + 2] = 1.0, -1.0
     R0 = _scaled(m.covariance, _per_axis(own))
     Rm = adapt * R0
-    Hs = np.zeros_like(H)  # the shared error's part of H
+    Hs = np.zeros_like(H)  # the correlated errors' part of H (shared, memory)
     if shared is not None:
         n = len(x)
         Hs[:, n - 3 :] = np.eye(3)
         if shared >= 0:
             Hs[:, shared : shared + 3] = sign * np.eye(3)
-        h = h + Hs @ x
-        H = H + Hs
+    if memory is not None:
+        Hs[0, memory[0]] = memory[1]
+    Hp = H.copy()  # the pose's part
+    h, H = h + Hs @ x, H + Hs
     y = m.motion - h
     y[2] = np.angle(np.exp(1j * y[2]))
     HPH = H @ P @ H.T
     S = HPH + Rm
     d2 = float(y @ np.linalg.solve(S, y))
     if gate > 0 and (d2 > gate or (window is not None and window[0] + d2 > window[1])):
-        return x, P, float("nan"), d2
+        return x, P, Innovation(d2=d2)
+    forward_z = forward_sq = forward_var = float("nan")
+    left_out = False
+    if memory is not None and (gate <= 0 or d2 <= gate):
+        forward_z = float(y[0] / np.sqrt(S[0, 0]))
+        y0 = y[0] + (Hs @ x)[0]  # against the pose's prediction alone
+        forward_var = float((Hp @ P @ Hp.T)[0, 0])
+        forward_sq = float(y0**2 - forward_var)
+    if whiteness is not None and np.isfinite(forward_z):
+        total, count, limit = whiteness
+        left_out = (total + forward_z) ** 2 / (count + 1) > limit
+        if left_out:
+            T0 = np.eye(3)[1:]  # cross-track and yaw only
+            H, Hs, Hp, y, R0, Rm = T0 @ H, T0 @ Hs, T0 @ Hp, T0 @ y, T0 @ R0 @ T0.T, T0 @ Rm @ T0.T
+            HPH = H @ P @ H.T
+            S = HPH + Rm
     if weak_only > 0:
         # Only the directions along which the filter knows the motion less well than the
         # step does (generalised eigenvectors of the two covariances, ratio above
         # ``weak_only``): elsewhere the step would add little and bring its own errors.
-        Hp = H - Hs
-        err = Rm + Hs @ P @ Hs.T  # the step's error: its own and the shared part
+        err = Rm + Hs @ P @ Hs.T  # the step's error: its own and the correlated parts
         Li = np.linalg.inv(np.linalg.cholesky(err))
         lam, V = np.linalg.eigh(Li @ Hp @ P @ Hp.T @ Li.T)
         keep = lam > weak_only
         if not keep.any():
-            return x, P, float("nan"), d2
+            return (
+                x,
+                P,
+                Innovation(float("nan"), d2, forward_z, forward_sq, forward_var, left_out),
+            )
         T = (Li.T @ V[:, keep]).T  # rows: the kept directions, whitened by the step's error
         H, y, R0, Rm, HPH = T @ H, T @ y, T @ R0 @ T.T, T @ Rm @ T.T, T @ HPH @ T.T
         S = HPH + Rm
@@ -531,7 +886,7 @@ def _update(
     x = x + K @ y
     A = np.eye(len(x)) - K @ H
     P = A @ P @ A.T + K @ Rm @ K.T  # Joseph form: stays symmetric, positive
-    return x, P, nis, d2
+    return x, P, Innovation(nis, d2, forward_z, forward_sq, forward_var, left_out)
 
 
 def _predict(x: FloatArray, P: FloatArray, dt: float, params: KfParams) -> tuple[FloatArray, FloatArray]:

@@ -205,6 +205,7 @@ def _kf_estimate(streams: Streams, params: kalman.KfParams | None = None) -> Est
         "icp_measurements": sum(m.source == "icp" for m in ms),
         "vo_measurements": sum(m.source == "vo" for m in ms),
         "weights": params.weights,
+        "prediction": f"{params.drive} steps" if params.drive else "constant velocity",
     }
     if streams.wheel_odometry is not None:
         stats["wheel_measurements"] = sum(m.source == "wheel" for m in ms)
