@@ -95,6 +95,9 @@ class LoopbackCluster:
             "RAY_AUTH_MODE": "token",
             "RIGCAL_TEST_RAY_CLUSTER": self.marker,
             "RAY_USAGE_STATS_ENABLED": "0",
+            # The head's Ray Client proxy waits this long for a client's own server process
+            # (30 s by default), which a loaded 2-core machine can take longer to start.
+            "RAY_CLIENT_SERVER_CHECK_CHANNEL_TIMEOUT_S": "120",
         }
         return env
 
