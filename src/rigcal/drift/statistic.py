@@ -109,5 +109,10 @@ def hotelling(z: FloatArray, C_data: FloatArray, C_known: FloatArray, n_data: fl
         return Test(t2, math.nan, k, n, math.nan, math.nan)
     F = t2 * (n - k) / (k * (n - 1))
     p = float(f_dist.sf(F, k, n - k))
-    crit = float(f_dist.isf(level, k, n - k)) * k * (n - 1) / (n - k)
-    return Test(t2, F, k, n, p, crit)
+    return Test(t2, F, k, n, p, hotelling_critical(k, n, level))
+
+
+def hotelling_critical(k: int, n: float, level: float) -> float:
+    """The T^2 that k directions from n clusters exceed with probability ``level`` under
+    no change: F(k, n - k)'s upper point times k (n - 1) / (n - k)."""
+    return float(f_dist.isf(level, k, n - k)) * k * (n - 1) / (n - k)

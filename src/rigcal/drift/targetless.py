@@ -67,7 +67,6 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import f as f_dist
 from scipy.stats import ncx2, norm
 
 from rigcal.arrays import FloatArray
@@ -80,7 +79,7 @@ from rigcal.drift.edges import (
     scan_discontinuities,
 )
 from rigcal.drift.sampling import GREY_SCALE, project_sample
-from rigcal.drift.statistic import cluster_covariance, effective_clusters, hotelling
+from rigcal.drift.statistic import cluster_covariance, effective_clusters, hotelling, hotelling_critical
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R, se2
 from rigcal.lines import return_labels
@@ -1396,8 +1395,7 @@ def _test(
 def _detectable(C: FloatArray, k: int, n: float, s: TargetlessSettings) -> dict[str, float]:
     """The smallest change along the least-determined observed direction detected 95 %
     of the time at the level, as rotation deg and translation mm (for the record)."""
-    crit = float(f_dist.isf(s.level, k, n - k)) * k * (n - 1) / (n - k)
-    lam = _noncentrality(k, crit)
+    lam = _noncentrality(k, hotelling_critical(k, n, s.level))
     sig_max = float(np.sqrt(np.linalg.eigvalsh(C).max()))
     return {
         "resolution_units": _r(sig_max * math.sqrt(lam), 3),
