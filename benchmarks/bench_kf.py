@@ -59,15 +59,10 @@ from rigcal.sim.world import BUILTIN
 NO_MEMORY = {"vo_memory_s": 0.0, "vo_forward_adapt": False, "vo_forward_window": 0}
 VARIANTS = {
     "kf-fixed": kalman.KF_MODES["fixed"],
-    "kf-own": kalman.KfParams(
-        icp_own=1.0,
-        icp_shared=0.0,
-        vo_own=1.0,
-        vo_shared=0.0,
-        gate=0.0,
-        gate_window=1,
-        vo_weak_only=0.0,
-        **NO_MEMORY,  # type: ignore[arg-type]
+    # The paper's error model (no shared parts, gates or memory) with each step's own
+    # covariance, matched to its input's innovations.
+    "kf-own": dataclasses.replace(
+        kalman.KF_MODES["fixed"], weights=kalman.KfParams.weights, adapt=kalman.KfParams.adapt
     ),
     "kf-round4": dataclasses.replace(kalman.KF_MODES["weighted"], **NO_MEMORY),  # type: ignore[arg-type]
     "kf": kalman.KF_MODES["weighted"],
