@@ -70,6 +70,65 @@ def read_text(path: str | Path, what: str = "file") -> str:
         raise InputError(f"{path}: cannot read {what}: {exc}") from None
 
 
+# Compressed logs as archives ship them (Radish's CARMEN logs are often .gz), by their
+# first bytes, whatever the file's name says.
+_COMPRESSED = {b"\x1f\x8b": "gzip", b"BZh": "bzip2"}
+
+
+def read_bytes(path: str | Path, what: str = "file") -> bytes:
+    """A file's bytes.
+
+    Raises:
+        InputError: the file is missing, a folder or unreadable, naming it as ``what``.
+    """
+    path = Path(path)
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{path}: {what} not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: got a folder; expected a {what}") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read {what}: {exc}") from None
+
+
+def read_log_text(path: str | Path, what: str = "log") -> str:
+    """A text log's contents, gzip- or bzip2-compressed or not (told by the first bytes);
+    bytes that are not UTF-8 are replaced (old logs hold Latin-1 comments), and so is a
+    leading byte-order mark.
+
+    Raises:
+        InputError: the file is missing or unreadable, its compressed stream is cut short
+            or broken, or it holds more than 1 GiB of text.
+    """
+    import bz2
+    import gzip
+    import io
+
+    path = Path(path)
+    if "\0" in str(path):
+        raise InputError.at(None, what, str(path), "a path without NUL bytes")
+    too_large = f"{path}: {what} larger than {MAX_TEXT_BYTES >> 20} MiB; refusing to read it"
+    with contextlib.suppress(OSError):  # read_bytes says what is wrong with the path
+        if path.stat().st_size > MAX_TEXT_BYTES:
+            raise InputError(too_large)
+    data = read_bytes(path, what)
+    kind = next((k for magic, k in _COMPRESSED.items() if data.startswith(magic)), None)
+    if kind is not None:
+        stream = io.BytesIO(data)
+        try:
+            with gzip.GzipFile(fileobj=stream) if kind == "gzip" else bz2.BZ2File(stream) as z:
+                data = z.read(MAX_TEXT_BYTES + 1)
+        except (OSError, EOFError, ValueError) as exc:
+            raise InputError(
+                f"{path}: {what}: got a broken or cut-short {kind} stream ({exc}); expected a whole "
+                f"{kind}-compressed file (download it again?)"
+            ) from None
+        if len(data) > MAX_TEXT_BYTES:
+            raise InputError(too_large + " (uncompressed)")
+    return data.decode("utf-8", errors="replace").removeprefix("\ufeff")
+
+
 def load_yaml(path: str | Path, what: str = "file") -> Any:
     """Read a YAML file with ``safe_load`` semantics.
 
