@@ -168,3 +168,11 @@ def test_a_drive_under_a_path_with_spaces_and_accents(drive, tmp_path, capsys):
     shutil.copytree(drive, seq)
     assert main(["-q", "localize", str(seq), "--method", "icp", "-o", str(tmp_path / "sortie é")]) == 0
     assert (tmp_path / "sortie é" / "icp" / "trajectory.tum").is_file()
+
+
+def test_a_trajectory_error_names_the_pose_by_its_stamp(copy, fails):
+    tum = copy.parent / "tilted.tum"
+    # A camera's trajectory (z forward) given for the laser's: tilted 90 deg.
+    tum.write_text("".join(f"{0.1 * k!r} {0.05 * k} 0 0 0.7071068 0 0 0.7071068\n" for k in range(40)))
+    line = fails(["check", copy.parent / "rig.yaml", "--sequence", copy, "--trajectory", tum, "--no-log"], 3)
+    assert "tilted.tum: pose at 0.0 s: got 'z axis tilted 90.0 deg'" in line
