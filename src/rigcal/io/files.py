@@ -379,6 +379,7 @@ def check_apart(output: str | Path, inputs: Iterable[str | Path]) -> None:
             f"{ascii(str(output))[1:-1]}: output path holds U+{ord(bad):04X}; expected a path without "
             "control or bidi characters"
         )
+    _check_parents(Path(output))
     out = _resolved(output)
     for given in inputs:
         inp = _resolved(given)
@@ -388,6 +389,16 @@ def check_apart(output: str | Path, inputs: Iterable[str | Path]) -> None:
             raise OutputError(f"{output}: contains the input {given}; choose another output")
         if out.is_relative_to(inp) and Path(given).is_dir():
             raise OutputError(f"{output}: is inside the input {given}; choose another output")
+
+
+def _check_parents(output: Path) -> None:
+    """An output under a path one of whose folders is a file (``-o run.log/out``) cannot
+    be written: say which, before any work (the write would fail with "File exists")."""
+    for parent in output.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise OutputError(f"{output}: {parent} is a file; expected a folder to write into")
+            return
 
 
 def _resolved(path: str | Path) -> Path:
