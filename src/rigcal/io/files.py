@@ -92,6 +92,17 @@ def read_bytes(path: str | Path, what: str = "file") -> bytes:
         raise InputError(f"{path}: cannot read {what}: {exc}") from None
 
 
+def compressed(path: str | Path) -> bool:
+    """Whether the file starts as a gzip or bzip2 stream (False when it cannot be read:
+    the reader then says why)."""
+    try:
+        with Path(path).open("rb") as f:
+            head = f.read(3)
+    except (OSError, ValueError):
+        return False
+    return any(head.startswith(magic) for magic in _COMPRESSED)
+
+
 def read_log_text(path: str | Path, what: str = "log") -> str:
     """A text log's contents, gzip- or bzip2-compressed or not (told by the first bytes);
     bytes that are not UTF-8 are replaced (old logs hold Latin-1 comments), and so is a
