@@ -97,8 +97,18 @@ def test_scans_without_a_single_return_are_refused_not_localized(copy, fails, va
     arrays["ranges_m"][:] = value
     np.savez_compressed(copy / "scans.npz", **arrays)
     line = fails(["localize", copy, "--method", "icp", "-o", copy.parent / "out"], 3)
-    assert "scans: got 'no return in any of the 40 scans'" in line
+    assert "scans: got 'no return in all 40 scans'" in line
     fails(["check", copy.parent / "rig.yaml", "--sequence", copy, "--no-log"], 3)
+
+
+def test_scans_whose_every_return_is_the_maximum_range_are_refused(copy, fails):
+    with np.load(copy / "scans.npz") as z:
+        arrays = dict(z)
+    arrays["ranges_m"][:] = arrays["range_max_m"][:, None]  # a Hokuyo's 'no return'
+    np.savez_compressed(copy / "scans.npz", **arrays)
+    line = fails(["localize", copy, "--method", "icp", "-o", copy.parent / "out"], 3)
+    assert "scans: got 'every return at range_max_m in all 40 scans'" in line
+    assert "--no-return-m" in line
 
 
 def test_a_spreadsheets_bom_and_blank_lines_in_the_image_index_are_no_data(copy):

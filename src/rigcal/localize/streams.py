@@ -331,12 +331,16 @@ def open_streams(folder: str | Path, rig_file: str | Path | None = None) -> Stre
     """Read a sequence folder and its rig (``rig_file`` overrides the sequence's own)."""
     t0 = time.perf_counter()
     seq = read_sequence(folder)
-    if seq.scans and not any(s.valid.any() for s in seq.scans):  # a laser unplugged, a wrong range unit
+    # A laser unplugged, ranges in a wrong unit, or a scanner that writes its maximum range
+    # for no return: nothing to localize by, however still the robot would seem to stand.
+    if seq.scans and not any((s.valid & (s.ranges_m < s.range_max_m)).any() for s in seq.scans):
+        at_max = any(s.valid.any() for s in seq.scans)
         raise InputError.at(
             Path(folder),
             "scans",
-            f"no return in any of the {len(seq.scans)} scans",
-            "returns within each scan's range_min_m to range_max_m (NaN, inf, 0: no return)",
+            f"{'every return at range_max_m' if at_max else 'no return'} in all {len(seq.scans)} scans",
+            "returns within each scan's range_min_m to range_max_m (NaN, inf, 0: no return)"
+            + ("; its maximum written for no return? (import-laser --no-return-m)" if at_max else ""),
         )
     rig = None
     if rig_file is not None:
