@@ -308,7 +308,8 @@ def check_rig(
         raise InputError.at(None, "--trajectory", str(trajectory), "a drive's check: give it with --sequence")
     inputs = [rig, source, *([trajectory] if trajectory is not None else [])]
     log = log or default_log_path(rig)
-    check_apart(log, inputs)
+    if not no_log:  # only a log that is written must stay apart from the inputs
+        check_apart(log, inputs)
     if (plot is not None or not no_log) and log.is_dir():  # an output where a file goes: exit 5
         raise OutputError(f"{log}: is a folder; expected the drift log's file path (--log)")
     if plot is not None:

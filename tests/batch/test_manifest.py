@@ -114,6 +114,22 @@ def test_names_are_derived_from_the_paths_that_differ(tmp_path):
             r"items\[0\]: got \['picks', 'sequence'\]; expected exactly one of",
         ),
         (
+            {
+                "schema_version": 1,
+                "command": "check",
+                "items": [{"rig": "r", "picks": "p", "trajectory": "t.tum"}],
+            },
+            r"items\[0\].trajectory: got '.*t.tum'; expected an item with a sequence",
+        ),
+        (
+            {
+                "schema_version": 1,
+                "command": "check",
+                "items": [{"rig": "r", "sequence": "s", "trajectory": 3}],
+            },
+            r"items\[0\].trajectory: got 3; expected a path",
+        ),
+        (
             {"schema_version": 1, "command": "check", "defaults": {"level": "high"}, "items": [{}]},
             r"defaults.level: got 'high'; expected a number",
         ),

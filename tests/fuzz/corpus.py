@@ -363,7 +363,8 @@ def carmen_cases() -> list[Case]:
             Case(f"carmen-n={n[:8]}", CARMEN, line(first.replace("FLASER 5 ", f"FLASER {n} ")), 3, "FLASER")
         )
     for v in ["nan", "inf", "-inf", "1e400", "x"]:
-        out.append(Case(f"carmen-range={v}", CARMEN, line(first.replace(" 2.2 ", f" {v} ")), 3, "FLASER"))
+        if v in ("-inf", "x"):  # nan, inf (and 1e400, inf) are a range's no return
+            out.append(Case(f"carmen-range={v}", CARMEN, line(first.replace(" 2.2 ", f" {v} ")), 3, "FLASER"))
         out.append(
             Case(
                 f"carmen-x={v}",

@@ -69,6 +69,22 @@ def test_radlocc_laser(radlocc):
     assert s.valid[0]
 
 
+@pytest.mark.parametrize("pack", ["gzip", "bz2"])
+def test_a_compressed_laser_log_reads_as_the_plain_one(radlocc, pack):
+    import bz2
+    import gzip
+
+    plain = (radlocc / "laser.txt").read_bytes()
+    packed = radlocc / f"laser.txt.{pack}"
+    packed.write_bytes(gzip.compress(plain) if pack == "gzip" else bz2.compress(plain))
+    got, want = read_radlocc_laser(packed), read_radlocc_laser(radlocc / "laser.txt")
+    assert [s.stamp_s for s in got] == [s.stamp_s for s in want]
+    np.testing.assert_array_equal(got[5].ranges_m, want[5].ranges_m)
+    packed.write_bytes(packed.read_bytes()[:40])
+    with pytest.raises(InputError, match=rf"laser.txt.{pack}: RADLOCC laser log: got a broken or cut-short"):
+        read_radlocc_laser(packed)
+
+
 def test_radlocc_to_sequence_to_session(radlocc, tmp_path, capsys):
     seq_dir, session = tmp_path / "seq", tmp_path / "session"
     assert main(["import-laser", str(radlocc / "laser.txt"), "--images", str(radlocc / "images.txt"),

@@ -307,6 +307,11 @@ def _check_required(options: Mapping[str, Any], command: str, path: Path | None,
     if one_of and sum(k in options for k in one_of) != 1:
         given = [k for k in one_of if k in options]
         raise InputError.at(path, where, given or "none of them", f"exactly one of {list(one_of)}")
+    if command == "check" and "trajectory" in options and "sequence" not in options:
+        # A drive's laser poses: refused before any item runs, as `rigcal check` refuses it.
+        raise InputError.at(
+            path, f"{where}.trajectory", str(options["trajectory"]), "an item with a sequence"
+        )
 
 
 def _name(value: Any, path: Path | None, key: str) -> str:

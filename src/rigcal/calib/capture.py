@@ -240,7 +240,7 @@ def _check_image_sizes(
 
 def _images_dir(seq: Sequence) -> Path:
     assert seq.folder is not None
-    return seq.folder / "images"
+    return seq.folder / seq.image_folder
 
 
 def image_path(seq: Sequence, capture: StillCapture) -> Path:

@@ -45,11 +45,14 @@ def import_carmen(
     score laser odometry on real scans. The folder has no images. The log's wheel
     odometry (its ODOM lines, else the laser lines' odometry poses) is kept as
     odometry.tum with the laser's mounting (--laser-offset, else the log's PARAMs); ICP
-    starts from it. Equal stamps and small steps back are repaired (--stamps).
+    starts from it. Equal stamps and small steps back are repaired (--stamps). A log
+    compressed with gzip or bzip2 is read as it is; an incomplete last line (a log cut
+    short) is left out with a warning.
 
     \b
     Examples:
       rigcal import-carmen killian.g2o -o killian/
+      rigcal import-carmen fr079.log.gz -o fr079/
       rigcal localize killian/ --method icp -o killian-icp/
     """
     import numpy as np
@@ -67,6 +70,12 @@ def import_carmen(
     odometry, odometry_how = (None, "left out (--no-odometry)")
     if not no_odometry:
         odometry, odometry_how = carmen_odometry(c, str(log), mounting)
+    if c.cut is not None:
+        click.echo(
+            f"warning: {log}:{c.cut.line}: {c.cut.problem}; the log's last line, left out as incomplete "
+            "(a log cut short)",
+            err=True,
+        )
     warn_stamps(c.stamps, "scan stamps")
     warn_stamps(c.odom_stamps, "ODOM stamps")
     T = np.array([make_T(rotvec_to_R([0.0, 0.0, th]), [x, y, 0.0]) for x, y, th in c.laser_poses])
@@ -78,6 +87,8 @@ def import_carmen(
         "stamps": c.stamps.record(stamps) if c.stamps else {"mode": stamps},
         "odometry": odometry_how,
     }
+    if c.cut is not None:
+        source["incomplete_last_line"] = c.cut.line
     write_sequence(
         output,
         log.name,

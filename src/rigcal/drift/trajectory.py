@@ -59,7 +59,7 @@ def trajectory_odometry(path: str | Path, streams: Streams) -> Odometry:
         n = int(np.argmax(tilt))
         raise InputError.at(
             path,
-            f"pose at {t[n]!r} s",
+            f"pose at {float(t[n])!r} s",
             f"z axis tilted {tilt[n]:.1f} deg",
             f"the planar laser's poses (z up, within {MAX_TILT_DEG:g} deg), as `rigcal localize` writes them",
         )
@@ -80,7 +80,7 @@ def trajectory_odometry(path: str | Path, streams: Streams) -> Odometry:
         n = lo + int(np.argmax(gaps))
         raise InputError.at(
             path,
-            f"stamps after {t[n]!r} s",
+            f"stamps after {float(t[n])!r} s",
             f"a gap of {gaps.max():.3f} s",
             f"poses at most {MAX_GAP_S:g} s apart over the sequence's images",
         )

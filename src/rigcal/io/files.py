@@ -70,6 +70,76 @@ def read_text(path: str | Path, what: str = "file") -> str:
         raise InputError(f"{path}: cannot read {what}: {exc}") from None
 
 
+# Compressed logs as archives ship them (Radish's CARMEN logs are often .gz), by their
+# first bytes, whatever the file's name says.
+_COMPRESSED = {b"\x1f\x8b": "gzip", b"BZh": "bzip2"}
+
+
+def read_bytes(path: str | Path, what: str = "file") -> bytes:
+    """A file's bytes.
+
+    Raises:
+        InputError: the file is missing, a folder or unreadable, naming it as ``what``.
+    """
+    path = Path(path)
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{path}: {what} not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: got a folder; expected a {what}") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read {what}: {exc}") from None
+
+
+def compressed(path: str | Path) -> bool:
+    """Whether the file starts as a gzip or bzip2 stream (False when it cannot be read:
+    the reader then says why)."""
+    try:
+        with Path(path).open("rb") as f:
+            head = f.read(3)
+    except (OSError, ValueError):
+        return False
+    return any(head.startswith(magic) for magic in _COMPRESSED)
+
+
+def read_log_text(path: str | Path, what: str = "log") -> str:
+    """A text log's contents, gzip- or bzip2-compressed or not (told by the first bytes);
+    bytes that are not UTF-8 are replaced (old logs hold Latin-1 comments), and so is a
+    leading byte-order mark.
+
+    Raises:
+        InputError: the file is missing or unreadable, its compressed stream is cut short
+            or broken, or it holds more than 1 GiB of text.
+    """
+    import bz2
+    import gzip
+    import io
+
+    path = Path(path)
+    if "\0" in str(path):
+        raise InputError.at(None, what, str(path), "a path without NUL bytes")
+    too_large = f"{path}: {what} larger than {MAX_TEXT_BYTES >> 20} MiB; refusing to read it"
+    with contextlib.suppress(OSError):  # read_bytes says what is wrong with the path
+        if path.stat().st_size > MAX_TEXT_BYTES:
+            raise InputError(too_large)
+    data = read_bytes(path, what)
+    kind = next((k for magic, k in _COMPRESSED.items() if data.startswith(magic)), None)
+    if kind is not None:
+        stream = io.BytesIO(data)
+        try:
+            with gzip.GzipFile(fileobj=stream) if kind == "gzip" else bz2.BZ2File(stream) as z:
+                data = z.read(MAX_TEXT_BYTES + 1)
+        except (OSError, EOFError, ValueError) as exc:
+            raise InputError(
+                f"{path}: {what}: got a broken or cut-short {kind} stream ({exc}); expected a whole "
+                f"{kind}-compressed file (download it again?)"
+            ) from None
+        if len(data) > MAX_TEXT_BYTES:
+            raise InputError(too_large + " (uncompressed)")
+    return data.decode("utf-8", errors="replace").removeprefix("\ufeff")
+
+
 def load_yaml(path: str | Path, what: str = "file") -> Any:
     """Read a YAML file with ``safe_load`` semantics.
 
@@ -320,6 +390,7 @@ def check_apart(output: str | Path, inputs: Iterable[str | Path]) -> None:
             f"{ascii(str(output))[1:-1]}: output path holds U+{ord(bad):04X}; expected a path without "
             "control or bidi characters"
         )
+    _check_parents(Path(output))
     out = _resolved(output)
     for given in inputs:
         inp = _resolved(given)
@@ -329,6 +400,16 @@ def check_apart(output: str | Path, inputs: Iterable[str | Path]) -> None:
             raise OutputError(f"{output}: contains the input {given}; choose another output")
         if out.is_relative_to(inp) and Path(given).is_dir():
             raise OutputError(f"{output}: is inside the input {given}; choose another output")
+
+
+def _check_parents(output: Path) -> None:
+    """An output under a path one of whose folders is a file (``-o run.log/out``) cannot
+    be written: say which, before any work (the write would fail with "File exists")."""
+    for parent in output.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise OutputError(f"{output}: {parent} is a file; expected a folder to write into")
+            return
 
 
 def _resolved(path: str | Path) -> Path:

@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
+from rigcal.io.files import read_bytes
 
 # The x, y, z of a 2D scan lie in its plane: |z| above this is a 3D cloud or a scan
 # moved into another frame.
@@ -88,14 +89,7 @@ def read_pcd_scan(path: str | Path) -> PcdScan:
             |z| > MAX_ABS_Z_M; two returns at one angle; fewer than 2 valid returns.
     """
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(f"{path}: PCD scan not found") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: got a folder; expected a PCD scan") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read PCD scan: {exc}") from None
+    raw = read_bytes(path, "PCD scan")
     header, body, data_line = _header(path, raw)
     fields = header["FIELDS"]
     n = len(fields)

@@ -269,7 +269,7 @@ class ScanOdometry:
                 self._labels = line_labels(scan)
             else:
                 self._labels = return_labels(scan, extract_lines(scan, kernel=False))
-            if (self._labels >= 0).mean() < MIN_LINE_FRACTION:
+            if not len(self._labels) or (self._labels >= 0).mean() < MIN_LINE_FRACTION:
                 self._labels = None
         elif self._labels is not None:
             self._labels = carry_labels(model, self._labels, model_normals, step, pts, nearest, kernel=kernel)

@@ -124,7 +124,8 @@ class Streams:
         return self.rig
 
     def require_images(self, method: str, at_least: int = 2) -> None:
-        """An error unless the sequence has ``at_least`` images of the rig's camera size."""
+        """An error unless the sequence has ``at_least`` images of the rig's camera size,
+        within the scans' time span."""
         if self.n_images < at_least:
             raise InputError.at(
                 self._yaml(),
@@ -132,13 +133,17 @@ class Streams:
                 self.n_images,
                 f"at least {at_least} images for method {method!r}",
             )
-        rig = self.require_rig(method)
-        g = self.image(0)
-        if g.shape != (rig.camera.height_px, rig.camera.width_px):
-            raise InputError(
-                f"{self._image_path(0)}: image is {g.shape[1]}x{g.shape[0]} px; expected "
-                f"{rig.camera.width_px}x{rig.camera.height_px}, the rig's camera size"
+        self.require_rig(method)
+        t_img, t_scan = self.image_stamps_s, self.scan_stamps_s
+        if t_img[-1] < t_scan[0] or t_img[0] > t_scan[-1]:  # another clock, or another drive's images
+            raise InputError.at(
+                self.sequence.folder / self.sequence.image_index if self.sequence.folder else None,
+                "stamp_s",
+                f"{t_img[0]:.3f} to {t_img[-1]:.3f} s",
+                f"images within the scans' span, {t_scan[0]:.3f} to {t_scan[-1]:.3f} s (scans.npz): "
+                "the same clock",
             )
+        self.image(0)  # its decoding checks its size against the rig's camera
 
     def image(self, i: int) -> Gray:
         """Frame i as a grey image."""
@@ -174,6 +179,14 @@ class Streams:
         g = read_grey(path)
         if g is None:
             raise InputError(f"{path}: not a readable image")
+        if self.rig is not None and g.shape != (self.rig.camera.height_px, self.rig.camera.width_px):
+            cam = self.rig.camera  # every frame, not only the first: a frame of another camera mid-drive
+            raise InputError.at(
+                path,
+                "image size",
+                f"{g.shape[1]}x{g.shape[0]}",
+                f"{cam.width_px}x{cam.height_px}, the rig's camera size",
+            )
         g = equalized(g, self.track_params)
         seconds = time.perf_counter() - t0
         with self._lock:
@@ -311,13 +324,24 @@ class Streams:
 
     def _image_path(self, i: int) -> Path:
         assert self.sequence.folder is not None
-        return self.sequence.folder / "images" / self.sequence.image_files[i]
+        return self.sequence.folder / self.sequence.image_folder / self.sequence.image_files[i]
 
 
 def open_streams(folder: str | Path, rig_file: str | Path | None = None) -> Streams:
     """Read a sequence folder and its rig (``rig_file`` overrides the sequence's own)."""
     t0 = time.perf_counter()
     seq = read_sequence(folder)
+    # A laser unplugged, ranges in a wrong unit, or a scanner that writes its maximum range
+    # for no return: nothing to localize by, however still the robot would seem to stand.
+    if seq.scans and not any((s.valid & (s.ranges_m < s.range_max_m)).any() for s in seq.scans):
+        at_max = any(s.valid.any() for s in seq.scans)
+        raise InputError.at(
+            Path(folder),
+            "scans",
+            f"{'every return at range_max_m' if at_max else 'no return'} in all {len(seq.scans)} scans",
+            "returns within each scan's range_min_m to range_max_m (NaN, inf, 0: no return)"
+            + ("; its maximum written for no return? (import-laser --no-return-m)" if at_max else ""),
+        )
     rig = None
     if rig_file is not None:
         rig = read_rig(rig_file)

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
+from rigcal.io.files import read_log_text
 from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.validate import parse_real, parse_whole
 from rigcal.io.wheel_odometry import WheelOdometry, checked
@@ -46,6 +47,15 @@ LASER_MESSAGES = ("FLASER", "ROBOTLASER1")
 FLASER_RANGE_MAX_M = 50.0
 # More beams than any scanner has: a larger count is a broken line.
 MAX_BEAMS = 100_000
+
+
+@dataclass(frozen=True)
+class LastLine:
+    """The log's last line, left out because it was incomplete (the log was cut short)."""
+
+    line: int
+    message: str
+    problem: str
 
 
 @dataclass(frozen=True)
@@ -64,6 +74,7 @@ class CarmenLog:
         params: the laser mounting's PARAM values read (name -> value).
         g2o_steps: (N - 1, 3) in a g2o file whose EDGE_SE2 lines link every vertex to the
             next, one vertex per laser line: those edges (dx, dy, dtheta), else (0, 3).
+        cut: the last line when it was incomplete and left out (a log cut short), else None.
     """
 
     scans: list[Scan]
@@ -76,6 +87,7 @@ class CarmenLog:
     odom_stamps: StampRepair | None = None
     params: dict[str, float] = field(default_factory=dict)
     g2o_steps: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    cut: LastLine | None = None
 
 
 def read_carmen(
@@ -92,25 +104,33 @@ def read_carmen(
             repair cannot mend; no laser line.
     """
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8", errors="replace")
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read: {exc.strerror or exc}") from exc
+    text = read_log_text(p, "CARMEN log")
+    rows = text.splitlines()
+    last = max((i for i, r in enumerate(rows, start=1) if r.strip()), default=0)
+    cut = None  # the last line, when a logger stopped mid-line left it incomplete
     scans: list[Scan] = []
     laser: list[FloatArray] = []
     odom: list[FloatArray] = []
     lines: list[int] = []
     skipped = 0
     extra = _OtherMessages()
-    for no, line in enumerate(text.splitlines(), start=1):
+    for no, line in enumerate(rows, start=1):
         fields = line.split()
-        if not fields or fields[0] not in LASER_MESSAGES:
-            if not extra.read(fields, f"{p}:{no}", no):
-                skipped += 1
+        try:
+            if not fields or fields[0] not in LASER_MESSAGES:
+                if not extra.read(fields, f"{p}:{no}", no):
+                    skipped += 1
+                continue
+            where = f"{p}:{no}"
+            parse = _flaser if fields[0] == "FLASER" else _robotlaser1
+            scan, pose, odo = parse(fields[1:], where, flaser_range_max_m)
+        except InputError as exc:
+            # A log cut short (the logger killed, a partial download) ends mid-line: too
+            # few fields, or, with no newline after it, a number cut in two.
+            if no != last or not (isinstance(exc, _ShortLineError) or not text.endswith(("\n", "\r"))):
+                raise
+            cut = LastLine(no, fields[0], str(exc).removeprefix(f"{p}:{no}: "))
             continue
-        where = f"{p}:{no}"
-        parse = _flaser if fields[0] == "FLASER" else _robotlaser1
-        scan, pose, odo = parse(fields[1:], where, flaser_range_max_m)
         scans.append(scan)
         laser.append(pose)
         odom.append(odo)
@@ -134,6 +154,7 @@ def read_carmen(
         odom_fixed,
         extra.params,
         extra.g2o_steps(len(scans)),
+        cut,
     )
 
 
@@ -272,15 +293,28 @@ def _count(value: str, where: str, key: str, lo: int = 0) -> int:
     return parse_whole(value, where, key, lo=lo, hi=MAX_BEAMS)
 
 
-def _ranges(ranges: list[float], where: str, what: str) -> None:
-    for i, r in enumerate(ranges):
+def _ranges(fields: list[str], start: int, n: int, where: str, what: str, names: str) -> list[float]:
+    """The n ranges from field ``start`` (m): ``nan`` and ``inf`` are no return (as a
+    converter from a ROS bag writes them), a negative range or a non-number is an error."""
+    out = []
+    for i in range(n):
+        try:
+            r = float(fields[start + i])
+        except ValueError:
+            r = parse_real(fields[start + i], where, f"{what} field {start + i + 1} ({names})")
         if r < 0:
-            raise InputError.at(where, f"{what} range {i + 1}", r, "a range >= 0 (m)")
+            raise InputError.at(where, f"{what} range {i + 1}", r, "a range >= 0 (m; nan or inf: no return)")
+        out.append(r if math.isfinite(r) else math.nan)
+    return out
+
+
+class _ShortLineError(InputError):
+    """A message line with fewer fields than its message needs."""
 
 
 def _need(fields: list[str], n: int, where: str, what: str, layout: str) -> None:
     if len(fields) < n:
-        raise InputError.at(where, what, f"{len(fields)} fields", f"at least {n}: {layout}")
+        raise _ShortLineError.at(where, what, f"{len(fields)} fields", f"at least {n}: {layout}")
 
 
 def _flaser(fields: list[str], where: str, range_max_m: float) -> tuple[Scan, FloatArray, FloatArray]:
@@ -288,10 +322,11 @@ def _flaser(fields: list[str], where: str, range_max_m: float) -> tuple[Scan, Fl
     _need(fields, 1, where, "FLASER", layout)
     n = _count(fields[0], where, "FLASER num_readings", lo=1)
     _need(fields, 1 + n + 7, where, "FLASER", layout)
-    v = _numbers(fields, 1, 1 + n + 7, where, "FLASER", layout)
+    v = _ranges(fields, 1, n, where, "FLASER", layout) + _numbers(
+        fields, 1 + n, 1 + n + 7, where, "FLASER", layout
+    )
     # 180 degrees from -90: n even, n steps (1 degree for 180); n odd, both ends (181, 361).
     step = math.pi / (n - 1 if n % 2 else n) if n > 1 else math.pi
-    _ranges(v[:n], where, "FLASER")
     scan = Scan.from_uniform(-math.pi / 2, step, v[:n], 0.0, range_max_m, stamp_s=v[n + 6])
     return scan, np.array(v[n : n + 3]), np.array(v[n + 3 : n + 6])
 
@@ -306,7 +341,7 @@ def _robotlaser1(fields: list[str], where: str, _: float) -> tuple[Scan, FloatAr
     start, _fov, step, range_max = head[0], head[1], head[2], head[3]
     n = _count(fields[7], where, "ROBOTLASER1 num_readings", lo=1)
     _need(fields, 8 + n + 1, where, "ROBOTLASER1", layout)
-    ranges = _numbers(fields, 8, 8 + n, where, "ROBOTLASER1", layout)
+    ranges = _ranges(fields, 8, n, where, "ROBOTLASER1", layout)
     m = _count(fields[8 + n], where, "ROBOTLASER1 num_remissions")
     tail = 9 + n + m
     _need(fields, tail + 12, where, "ROBOTLASER1", layout)
@@ -315,7 +350,6 @@ def _robotlaser1(fields: list[str], where: str, _: float) -> tuple[Scan, FloatAr
         raise InputError.at(where, "ROBOTLASER1 angular_resolution", fields[3], "an angle in (0, 2 pi] rad")
     if not -2 * math.pi <= start <= 2 * math.pi:
         raise InputError.at(where, "ROBOTLASER1 start_angle", fields[1], "an angle in [-2 pi, 2 pi] rad")
-    _ranges(ranges, where, "ROBOTLASER1")
     if not range_max > 0:
         raise InputError.at(where, "ROBOTLASER1 max_range", fields[4], "a positive range (m)")
     scan = Scan.from_uniform(start, step, ranges, 0.0, range_max, stamp_s=v[11])

@@ -38,7 +38,7 @@ import numpy as np
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import read_text
+from rigcal.io.files import compressed, read_log_text, read_text
 from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.validate import file_inside
 from rigcal.io.wheel_odometry import read_odometry_tum
@@ -68,7 +68,8 @@ def _fields(line: str) -> list[str]:
 
 def _content_lines(path: Path, what: str) -> list[tuple[int, str]]:
     out = []
-    for n, line in enumerate(read_text(path, what).splitlines(), start=1):
+    text = read_log_text(path, what) if compressed(path) else read_text(path, what)
+    for n, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
         if s and not s.startswith(("#", "%")):
             out.append((n, s))

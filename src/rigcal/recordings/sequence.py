@@ -75,6 +75,8 @@ class Sequence:
     rig_file: str | None = None
     groundtruth_file: str | None = None
     odometry: WheelOdometry | None = None
+    image_folder: str = "images"  # the folder and index named in sequence.yaml's ``images``
+    image_index: str = "images.csv"
 
 
 def write_sequence(
@@ -156,6 +158,9 @@ def read_sequence(folder: str | Path) -> Sequence:
     """
     folder = Path(folder)
     path = folder / "sequence.yaml"
+    if folder.is_file():  # sequence.yaml or scans.npz given for its folder, or another file
+        hint = f" ({folder.parent}?)" if (folder.parent / "sequence.yaml").is_file() else ""
+        raise InputError(f"{folder}: got a file; expected a sequence folder{hint}, holding sequence.yaml")
     d = check_keys(
         load_yaml(path, "sequence file"),
         path,
@@ -164,6 +169,10 @@ def read_sequence(folder: str | Path) -> Sequence:
         ["source", "camera", "rig", "groundtruth", "laser", "odometry"],
     )
     clockwise = laser_clockwise(d, path, SEQUENCE_SCHEMA_VERSIONS, since=2)
+    if not isinstance(d["name"], str):
+        raise InputError.at(path, "name", d["name"], "a string (the recording's name)")
+    if not isinstance(d.get("source") or {}, dict):
+        raise InputError.at(path, "source", d["source"], "a mapping (where the sequence came from)")
     sc = check_keys(d["scans"], path, "scans", ["file", "count"])
     npz = folder / relative_inside(sc["file"], path, "scans.file")
     count = whole(sc["count"], path, "scans.count")
@@ -223,6 +232,8 @@ def read_sequence(folder: str | Path) -> Sequence:
         d.get("rig"),
         d.get("groundtruth"),
         odometry,
+        str(im["folder"]),
+        str(im["index"]),
     )
 
 
@@ -279,11 +290,15 @@ def _check_scan_arrays(a: dict[str, Any], npz: Path) -> int:
 
 
 def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
-    lines = read_text(index, "image index").splitlines()
+    # A spreadsheet's byte-order mark and blank lines (an editor's last newline) are no data.
+    lines = read_text(index, "image index").removeprefix("\ufeff").splitlines()
     if not lines or lines[0].strip() != "stamp_s,file":
-        raise InputError(f"{index}: line 1: expected the header 'stamp_s,file'")
+        got = lines[0][:60] if lines else ""
+        raise InputError(f"{index}: line 1: got {got!r}; expected the header 'stamp_s,file'")
     stamps, files = [], []
     for n, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
         parts = line.split(",")
         if len(parts) != 2:
             raise InputError(f"{index}: line {n}: got {line[:60]!r}; expected 'stamp_s,file'")
