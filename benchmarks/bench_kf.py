@@ -182,9 +182,18 @@ def main() -> None:
         help="Print each input's variance ratio and lag-1 correlation per axis instead "
         "(kalman.ICP_VARIANCE_RATIO ...: laps 1-2); needs --reuse.",
     )
+    ap.add_argument(
+        "--guard-evidence",
+        action="store_true",
+        help="Print, per lap, the VO runs the guard leaves out per direction and on how many of "
+        "them VO's chain is further from the truth than ICP's; needs --reuse.",
+    )
     args = ap.parse_args()
     if args.consistency:
         consistency(args)
+        return
+    if args.guard_evidence:
+        guard_evidence(args)
         return
     duration = args.duration_s or None
     if args.process:
@@ -325,6 +334,62 @@ def consistency(args: argparse.Namespace) -> None:
                 f"Gauss-Markov share {fit[0]:.3f} of the forward variance, {fit[1]:.3f} per run "
                 f"of {m[13]:.3f} s, time constant {fit[2]:.3f} s"
             )
+
+
+def guard_evidence(args: argparse.Namespace) -> None:
+    """Who is at fault where the guard fires: on the kept odometries, the guard
+    (kalman._guard, the default's error model with no covariance matching) at each VO run
+    in turn, and for each direction it leaves out, whether VO's chain or ICP's own steps
+    over the guard's longest window then are further from the truth along it."""
+    params = kalman.KF_MODES["weighted"]
+    print("| world | seed | VO runs | left out forward / cross / yaw | of which VO further from the truth |")
+    print("|---|---|---|---|---|")
+    total = np.zeros((2, 3), dtype=int)
+    for seed in seeds_of(args.seeds):
+        for name in args.worlds.split(","):
+            seq = args.keep / f"{name}-seed{seed}-{args.duration_s:g}s"
+            streams = open_streams(seq)
+            od, res = pickle.loads((seq / "odometries.pkl").read_bytes())
+            streams.results["vo"] = res
+            assert streams.sequence.groundtruth_file is not None
+            truth = read_tum(seq / streams.sequence.groundtruth_file)
+            assert truth.stamps_s is not None
+            gt = planar_at(truth, truth.stamps_s)
+            ms = kf_measurements(streams, od, res, params)
+            streams.stop_background()
+            reference = kalman._IcpReference([m for m in ms if m.source == "icp"], params)
+            vo = sorted((m for m in ms if m.source == "vo"), key=lambda m: m.t1)
+            own, share = kalman._error_model("vo", params)
+            own, share = own.copy(), share.copy()
+            own[0], share[0] = (own[0] + 2 * share[0]) * (1 - params.vo_memory_share), 0.0
+            runs: list[tuple[kalman.Increment, FloatArray]] = []
+            counts = np.zeros((2, 3), dtype=int)
+            for m in vo:
+                out = kalman._guard(reference, runs, m, own, share, (1.0, 1.0), True, m.t1, params)
+                if out is None or not out.any():
+                    continue
+                first = runs[0][0]
+                ref = reference.between(first.t0, m.t1, m.t1)
+                assert ref is not None
+                T = np.eye(3)
+                for r, _ in runs:
+                    T = T @ se2(r.motion)
+                chains = [kalman.Increment(first.t0, m.t1, pose_of(T), np.eye(3), "vo")]
+                chains.append(kalman.Increment(first.t0, m.t1, ref[0], np.eye(3), "icp"))
+                e_vo, e_icp = step_errors(chains, gt, truth.stamps_s)
+                # In the last run's frame, as the guard tests.
+                yaw = float(np.arctan2(T[1, 0], T[0, 0]) - m.motion[2])
+                G = kalman._rotation3(yaw)
+                e_vo, e_icp = G.T @ e_vo, G.T @ e_icp
+                counts[0] += out
+                counts[1] += out & (np.abs(e_vo) > np.abs(e_icp))
+            total += counts
+            print(
+                f"| {name} | {seed} | {len(vo)} | {' / '.join(map(str, counts[0]))} "
+                f"| {' / '.join(map(str, counts[1]))} |",
+                flush=True,
+            )
+    print(f"| all | {args.seeds} | | {' / '.join(map(str, total[0]))} | {' / '.join(map(str, total[1]))} |")
 
 
 def lap(
