@@ -45,7 +45,13 @@ first-order Gauss-Markov part carried in the state (``vo_memory_s``, its time co
 from the lag-1/2/3 correlations: :func:`gauss_markov_fit`), its forward variance ratio
 matched on line (``vo_forward_adapt``) and its forward innovations tested for whiteness
 over the last runs (``vo_forward_window``), the forward motion of runs failing that test
-left out.
+left out. Those gates test a run against the filter's prediction, which has taken in VO's
+earlier runs; the guard (``vo_guard``, :func:`_vo_guard`) compares VO with ICP alone: VO's
+last chained runs against ICP's own steps chained over the same interval, per direction,
+under both inputs' error models, VO left out along a direction where they disagree beyond
+a chi-square point and ICP's Hessian constrains it (where ICP is degenerate, VO carries the
+filter); VO's forward variance ratio is matched against ICP's steps over each run
+(``vo_forward_reference``).
 
 Odometry-driven prediction (``drive="icp"``, ``rigcal localize --kf driven``; beyond the
 paper): instead of the constant-velocity model, ICP's steps drive the prediction as its
