@@ -71,6 +71,19 @@ def test_icps_reference_chains_its_ended_steps_and_carries_the_last_across_a_sca
     assert np.trace(C) == pytest.approx(
         steps * np.trace(kalman._scaled(cov, own)) + 2 * share @ np.diag(cov), rel=0.05
     )
+    # On scan stamps, all steps ended: the steps' own covariances, each turned into the
+    # frame at a, summed (crossed at once by the prefix sums), plus the two ends' shared parts.
+    anisotropic = np.diag([1e-6, 9e-6, 1e-8])
+    full = kalman._IcpReference(_icp(t, poses, anisotropic), WEIGHTED)
+    motion, C = full.between(t[10], t[60], now=2.0)
+    expected_C = np.zeros((3, 3))
+    for k in range(10, 60):
+        G = kalman._rotation3(w * (t[k] - t[10]))
+        expected_C += G @ kalman._scaled(anisotropic, own) @ G.T
+        if k in (10, 59):
+            expected_C += G @ kalman._finite_part(kalman._scaled(anisotropic, share)) @ G.T
+    np.testing.assert_allclose(C, expected_C, rtol=1e-9, atol=1e-18)
+    assert motion == pytest.approx(pose_of(np.linalg.inv(se2(poses[10])) @ se2(poses[60])), abs=1e-12)
     # A step not ended by `now` is not read: a different last step changes nothing.
     bent = poses.copy()
     bent[49:, 1] += 0.05  # the step ending at scan 49 (1.225 s) and after

@@ -1037,12 +1037,33 @@ class _IcpReference:
     """ICP's own path over an interval, the guard's reference (:func:`_vo_guard`): its steps
     chained, causally. A step counts once it has ended (``now``); the part of the interval
     after the last ended step (at most one step: a VO run ends between two scans) is
-    carried at that step's constant twist, as :class:`_Drive` carries a step's parts."""
+    carried at that step's constant twist, as :class:`_Drive` carries a step's parts. Whole
+    steps are crossed at once: their chained poses and their own covariances turned into
+    the chain's frame are summed ahead (prefix sums), so an interval costs a few steps'
+    work however many it spans."""
 
     def __init__(self, steps: list[Increment], params: KfParams) -> None:
         self.steps = sorted(steps, key=lambda m: (m.t0, m.t1))
         self.t1s = np.array([m.t1 for m in self.steps])
         self.own, self.share = _error_model("icp", params)
+        n = len(self.steps)
+        # The chain's pose at each step's start (and the last one's end), its yaw, and the
+        # steps' own covariances in the chain's frame summed before each step.
+        self.poses = np.empty((n + 1, 3, 3))
+        self.yaws = np.empty(n + 1)
+        self.prefix = np.zeros((n + 1, 3, 3))
+        T = np.eye(3)
+        for k, d in enumerate(self.steps):
+            self.poses[k], self.yaws[k] = T, np.arctan2(T[1, 0], T[0, 0])
+            G = _rotation3(float(self.yaws[k]))
+            self.prefix[k + 1] = self.prefix[k] + G @ _scaled(d.covariance, self.own) @ G.T
+            T = T @ se2(d.motion)
+        self.poses[n], self.yaws[n] = T, np.arctan2(T[1, 0], T[0, 0])
+        # The last step of the unbroken run of steps (each starting where the one before ends) from each.
+        self.run_end = np.arange(n)
+        for k in range(n - 2, -1, -1):
+            if self.steps[k + 1].t0 == self.steps[k].t1:
+                self.run_end[k] = self.run_end[k + 1]
 
     def between(
         self, a: float, b: float, now: float, scale: float = 1.0
@@ -1057,6 +1078,20 @@ class _IcpReference:
         ends: list[tuple[FloatArray, FloatArray]] = []  # (rotation, covariance) of the first and last step
         while t < b:
             d = self.steps[k] if k < len(self.steps) else None
+            if d is not None and d.t0 == t and d.t1 <= min(b, now):
+                # Whole steps k ... last, ended by now and within the interval, at once.
+                ended = int(np.searchsorted(self.t1s, min(b, now), side="right")) - 1
+                last = min(int(self.run_end[k]), ended)
+                turn = float(np.arctan2(T[1, 0], T[0, 0])) - float(self.yaws[k])
+                G = _rotation3(turn)
+                C += G @ (self.prefix[last + 1] - self.prefix[k]) @ G.T
+                ends = [
+                    ends[0] if ends else (_rotation3(turn + float(self.yaws[k])), d.covariance),
+                    (_rotation3(turn + float(self.yaws[last])), self.steps[last].covariance),
+                ]
+                T = T @ np.linalg.inv(self.poses[k]) @ self.poses[last + 1]
+                t, k = self.steps[last].t1, last + 1
+                continue
             if d is not None and d.t0 <= t and d.t1 <= now:
                 end = min(b, d.t1)
                 k += 1
