@@ -57,6 +57,7 @@ from rigcal.sim.world import BUILTIN
 # whiteness test on its forward innovations); and the odometry-driven filter (``--kf
 # driven``: ICP's steps drive the prediction, VO and the wheels are its measurements).
 NO_MEMORY = {"vo_memory_s": 0.0, "vo_forward_adapt": False, "vo_forward_window": 0}
+NO_GUARD = {"vo_guard": 0, "vo_forward_reference": False}
 VARIANTS = {
     "kf-fixed": kalman.KF_MODES["fixed"],
     # The paper's error model (no shared parts, gates or memory) with each step's own
@@ -64,7 +65,9 @@ VARIANTS = {
     "kf-own": dataclasses.replace(
         kalman.KF_MODES["fixed"], weights=kalman.KfParams.weights, adapt=kalman.KfParams.adapt
     ),
-    "kf-round4": dataclasses.replace(kalman.KF_MODES["weighted"], **NO_MEMORY),  # type: ignore[arg-type]
+    "kf-round4": dataclasses.replace(kalman.KF_MODES["weighted"], **NO_MEMORY, **NO_GUARD),  # type: ignore[arg-type]
+    "kf-round5": dataclasses.replace(kalman.KF_MODES["weighted"], **NO_GUARD),  # type: ignore[arg-type]
+    "kf-guard": dataclasses.replace(kalman.KF_MODES["weighted"], vo_forward_reference=False),
     "kf": kalman.KF_MODES["weighted"],
     "kf-driven": kalman.KF_MODES["driven"],
 }
@@ -179,9 +182,18 @@ def main() -> None:
         help="Print each input's variance ratio and lag-1 correlation per axis instead "
         "(kalman.ICP_VARIANCE_RATIO ...: laps 1-2); needs --reuse.",
     )
+    ap.add_argument(
+        "--guard-evidence",
+        action="store_true",
+        help="Print, per lap, the VO runs the guard leaves out per direction and on how many of "
+        "them VO's chain is further from the truth than ICP's; needs --reuse.",
+    )
     args = ap.parse_args()
     if args.consistency:
         consistency(args)
+        return
+    if args.guard_evidence:
+        guard_evidence(args)
         return
     duration = args.duration_s or None
     if args.process:
@@ -195,12 +207,13 @@ def main() -> None:
         root.mkdir(parents=True, exist_ok=True)
         print(
             "| world | seed | ICP ATE (m) | VO ATE (m) | odom ATE (m) | KF fixed ATE (m) "
-            "| KF round 2 ATE (m) | KF round 4 ATE (m) | KF ATE (m) | KF <= best input | KF driven ATE (m) "
+            "| KF round 2 ATE (m) | KF round 4 ATE (m) | KF round 5 ATE (m) | KF guard alone ATE (m) "
+            "| KF ATE (m) | KF <= best input | KF driven ATE (m) "
             "| KF driven <= best input | NEES ICP steps "
             "| ICP lag-1 corr | NEES VO runs | NEES KF poses | VO forward ratio matched "
-            "| VO forward left out | KF s |"
+            "| VO forward left out | VO runs guarded forward / cross / yaw | KF s | KF s over round 5's |"
         )
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        print("|---" * 23 + "|")
         for seed in seeds_of(args.seeds):
             for name in args.worlds.split(","):
                 tag = f"-{duration:g}s" if duration else ""
@@ -219,27 +232,32 @@ def main() -> None:
                 win = row["kf"] <= best
                 wins[name].append(win)
                 wins[name + " round 4"].append(row["kf-round4"] <= best)
+                wins[name + " round 5"].append(row["kf-round5"] <= best)
+                wins[name + " guard"].append(row["kf-guard"] <= best)
                 wins[name + " driven"].append(row["kf-driven"] <= best)
                 odom = f"{row['odom']:.4f}" if "odom" in row else "-"
                 print(
                     f"| {name} | {seed} | {row['icp']:.4f} | {row['vo']:.4f} | {odom} "
                     f"| {row['kf-fixed']:.4f} | {row['kf-own']:.4f} | {row['kf-round4']:.4f} "
-                    f"| {row['kf']:.4f} "
+                    f"| {row['kf-round5']:.4f} | {row['kf-guard']:.4f} | {row['kf']:.4f} "
                     f"| {'yes' if win else 'no'} | {row['kf-driven']:.4f} "
                     f"| {'yes' if row['kf-driven'] <= best else 'no'} "
                     f"| {row['nees-icp']:.2f} | {row['icp-lag1']:.2f} "
                     f"| {row.get('nees-vo', float('nan')):.2f} "
                     f"| {row['nees-kf']:.2f} | {row['vo-ratio']:.2f} | {row['vo-left-out']:.0f} "
-                    f"| {row['kf-s']:.2f} |",
+                    f"| {row['guarded']} "
+                    f"| {row['kf-s']:.2f} | {row['kf-s'] / row['kf-round5-s']:.2f} |",
                     flush=True,
                 )
     print(
         "\n| world | laps | ICP ATE mean (m) | VO ATE mean (m) | KF fixed ATE mean (m) "
-        "| KF round 2 ATE mean (m) | KF round 4 ATE mean (m) | KF ATE mean (m) | KF ATE worst (m) "
-        "| laps KF <= best input: round 4 / now | now, laps 3-10 | NEES KF poses, median lap "
+        "| KF round 2 ATE mean (m) | KF round 4 ATE mean (m) | KF round 5 ATE mean (m) "
+        "| KF guard alone ATE mean (m) | KF ATE mean (m) | KF ATE worst (m) "
+        "| laps KF <= best input: round 4 / round 5 / guard alone / now | now, laps 3-10 "
+        "| NEES KF poses, median lap "
         "| KF driven ATE mean (m) | KF driven ATE worst (m) | laps KF driven <= best input |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---" * 17 + "|")
     for name in args.worlds.split(","):
         s = {k: np.array(v) for (w, k), v in scores.items() if w == name}
         seeds = seeds_of(args.seeds)
@@ -247,8 +265,11 @@ def main() -> None:
         print(
             f"| {name} | {len(wins[name])} | {s['icp'].mean():.4f} | {s['vo'].mean():.4f} "
             f"| {s['kf-fixed'].mean():.4f} | {s['kf-own'].mean():.4f} | {s['kf-round4'].mean():.4f} "
+            f"| {s['kf-round5'].mean():.4f} | {s['kf-guard'].mean():.4f} "
             f"| {s['kf'].mean():.4f} | {s['kf'].max():.4f} "
-            f"| {sum(wins[name + ' round 4'])} / {sum(wins[name])} of {len(wins[name])} "
+            f"| {sum(wins[name + ' round 4'])} / {sum(wins[name + ' round 5'])} "
+            f"/ {sum(wins[name + ' guard'])} "
+            f"/ {sum(wins[name])} of {len(wins[name])} "
             f"| {held_out} of {sum(seed > 2 for seed in seeds)} | {np.median(s['nees-kf']):.2f} "
             f"| {s['kf-driven'].mean():.4f} | {s['kf-driven'].max():.4f} "
             f"| {sum(wins[name + ' driven'])} of {len(wins[name])} |"
@@ -315,6 +336,62 @@ def consistency(args: argparse.Namespace) -> None:
             )
 
 
+def guard_evidence(args: argparse.Namespace) -> None:
+    """Who is at fault where the guard fires: on the kept odometries, the guard
+    (kalman._guard, the default's error model with no covariance matching) at each VO run
+    in turn, and for each direction it leaves out, whether VO's chain or ICP's own steps
+    over the guard's longest window then are further from the truth along it."""
+    params = kalman.KF_MODES["weighted"]
+    print("| world | seed | VO runs | left out forward / cross / yaw | of which VO further from the truth |")
+    print("|---|---|---|---|---|")
+    total = np.zeros((2, 3), dtype=int)
+    for seed in seeds_of(args.seeds):
+        for name in args.worlds.split(","):
+            seq = args.keep / f"{name}-seed{seed}-{args.duration_s:g}s"
+            streams = open_streams(seq)
+            od, res = pickle.loads((seq / "odometries.pkl").read_bytes())
+            streams.results["vo"] = res
+            assert streams.sequence.groundtruth_file is not None
+            truth = read_tum(seq / streams.sequence.groundtruth_file)
+            assert truth.stamps_s is not None
+            gt = planar_at(truth, truth.stamps_s)
+            ms = kf_measurements(streams, od, res, params)
+            streams.stop_background()
+            reference = kalman._IcpReference([m for m in ms if m.source == "icp"], params)
+            vo = sorted((m for m in ms if m.source == "vo"), key=lambda m: m.t1)
+            own, share = kalman._error_model("vo", params)
+            own, share = own.copy(), share.copy()
+            own[0], share[0] = (own[0] + 2 * share[0]) * (1 - params.vo_memory_share), 0.0
+            runs: list[tuple[kalman.Increment, FloatArray]] = []
+            counts = np.zeros((2, 3), dtype=int)
+            for m in vo:
+                out = kalman._guard(reference, runs, m, own, share, (1.0, 1.0), True, m.t1, params)
+                if out is None or not out.any():
+                    continue
+                first = runs[0][0]
+                ref = reference.between(first.t0, m.t1, m.t1)
+                assert ref is not None
+                T = np.eye(3)
+                for r, _ in runs:
+                    T = T @ se2(r.motion)
+                chains = [kalman.Increment(first.t0, m.t1, pose_of(T), np.eye(3), "vo")]
+                chains.append(kalman.Increment(first.t0, m.t1, ref[0], np.eye(3), "icp"))
+                e_vo, e_icp = step_errors(chains, gt, truth.stamps_s)
+                # In the last run's frame, as the guard tests.
+                yaw = float(np.arctan2(T[1, 0], T[0, 0]) - m.motion[2])
+                G = kalman._rotation3(yaw)
+                e_vo, e_icp = G.T @ e_vo, G.T @ e_icp
+                counts[0] += out
+                counts[1] += out & (np.abs(e_vo) > np.abs(e_icp))
+            total += counts
+            print(
+                f"| {name} | {seed} | {len(vo)} | {' / '.join(map(str, counts[0]))} "
+                f"| {' / '.join(map(str, counts[1]))} |",
+                flush=True,
+            )
+    print(f"| all | {args.seeds} | | {' / '.join(map(str, total[0]))} | {' / '.join(map(str, total[1]))} |")
+
+
 def lap(
     seq: Path, reuse: bool = False, without: tuple[str, ...] = (), vo_axes: tuple[int, ...] = (0, 1, 2)
 ) -> dict[str, float]:
@@ -339,6 +416,7 @@ def lap(
     assert truth.stamps_s is not None
     gt_all = planar_at(truth, truth.stamps_s)
     row: dict[str, float] = {}
+    guarded = [""]  # the runs the guard left out per direction, as printed
 
     def ate(stamps: FloatArray, poses: FloatArray) -> float:
         return float(
@@ -355,9 +433,12 @@ def lap(
         kf = kalman.run_filter(ms, params)
         seconds = time.perf_counter() - t0
         row[key] = ate(kf.stamps_s, kf.poses)
+        if key == "kf-round5":
+            row["kf-round5-s"] = seconds
         if key == "kf":
             row["kf-s"] = seconds
             row["vo-ratio"], row["vo-left-out"] = kf.vo_forward_ratio, float(kf.vo_forward_left_out)
+            guarded[0] = " / ".join(map(str, kf.vo_guarded))
             wheel = [m for m in ms if m.source == "wheel"]
             if wheel:  # the wheel odometry's own path: its steps chained
                 T, path = np.eye(3), [np.zeros(3)]
@@ -375,7 +456,7 @@ def lap(
     row["icp"] = ate(streams.scan_stamps_s, od.poses)
     row["vo"] = ate(streams.image_stamps_s[res.frames], res.poses)
     streams.stop_background()
-    return row
+    return {**row, "guarded": guarded[0]}  # type: ignore[dict-item]
 
 
 if __name__ == "__main__":

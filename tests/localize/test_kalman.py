@@ -14,6 +14,7 @@ def _plain(**changes):
     base = {"icp_own": 1.0, "icp_shared": 0.0, "vo_own": 1.0, "vo_shared": 0.0}
     base |= {"gate": 0.0, "gate_window": 1, "vo_weak_only": 0.0}
     base |= {"vo_memory_s": 0.0, "vo_forward_adapt": False, "vo_forward_window": 0}
+    base |= {"vo_guard": 0, "vo_forward_reference": False}
     return kalman.KfParams(**{**base, **changes})
 
 

@@ -81,7 +81,8 @@ def test_a_biased_vo_run_that_fails_the_gate_changes_nothing():
         np.max(np.abs(gated.poses - without.poses[np.searchsorted(without.stamps_s, gated.stamps_s)])) < 1e-9
     )
     ungated = kalman.run_filter(
-        icp + vo[:20] + [biased] + vo[21:], dataclasses.replace(DRIVEN, gate=0.0, vo_forward_window=0)
+        icp + vo[:20] + [biased] + vo[21:],
+        dataclasses.replace(DRIVEN, gate=0.0, vo_forward_window=0, vo_guard=0),
     )
     assert np.max(np.abs(ungated.poses[-1] - without.poses[-1])) > 0.01
 

@@ -45,7 +45,13 @@ first-order Gauss-Markov part carried in the state (``vo_memory_s``, its time co
 from the lag-1/2/3 correlations: :func:`gauss_markov_fit`), its forward variance ratio
 matched on line (``vo_forward_adapt``) and its forward innovations tested for whiteness
 over the last runs (``vo_forward_window``), the forward motion of runs failing that test
-left out.
+left out. Those gates test a run against the filter's prediction, which has taken in VO's
+earlier runs; the guard (``vo_guard``, :func:`_vo_guard`) compares VO with ICP alone: VO's
+last chained runs against ICP's own steps chained over the same interval, per direction,
+under both inputs' error models, VO left out along a direction where they disagree beyond
+a chi-square point and ICP's Hessian constrains it (where ICP is degenerate, VO carries the
+filter); VO's forward variance ratio is matched against ICP's steps over each run
+(``vo_forward_reference``).
 
 Odometry-driven prediction (``drive="icp"``, ``rigcal localize --kf driven``; beyond the
 paper): instead of the constant-velocity model, ICP's steps drive the prediction as its
@@ -198,6 +204,19 @@ VO_MEMORY_SHARE, VO_MEMORY_PHI, VO_MEMORY_S = gauss_markov_fit(VO_FORWARD_LAGS, 
 # the runs the memory correlates (phi^W below 0.05: 5 runs).
 VO_FORWARD_WINDOW = int(np.ceil(np.log(0.05) / np.log(VO_MEMORY_PHI)))
 VO_FORWARD_GATE = float(chi2.isf(0.001, 1))
+# The guard against VO where ICP knows better (``KfParams.vo_guard``, :class:`_IcpReference`,
+# :func:`_vo_guard`): VO's last chained runs and ICP's own steps chained over the same
+# interval are compared per direction of the run (forward, cross-track, yaw), the
+# difference over its variance under both inputs' error models (VO's runs' correlations
+# included); above the chi-square point (1 dof) the two disagree beyond their errors, and
+# the run is left out along that direction unless ICP's own steps leave it open (its
+# Hessian's degeneracy: :data:`OPEN_SIGMA_M`), where the difference's variance is ICP's
+# open one and the test cannot fire: VO carries the filter. Windows of the last 1, 2, 4 and
+# 8 runs (a single bad run shows over the short ones, a bias over the long ones; 8: the
+# power of two spanning the runs the forward memory correlates, VO_FORWARD_WINDOW), each at
+# the Bonferroni share of the 0.001 tail (:func:`_guard_gate`: 13.41).
+VO_GUARD_RUNS = 2 ** int(np.ceil(np.log2(VO_FORWARD_WINDOW)))
+VO_GUARD_LEVEL = 0.999
 
 
 @dataclass(frozen=True)
@@ -220,7 +239,9 @@ class KfParams:
     steps drive the prediction ("icp": odometry-driven, :class:`_Drive`); ``weights``:
     each step's own covariance ("covariance") or the paper's fixed ones ("fixed");
     ``adapt``: scale each input's covariances up by its innovations' running NIS where
-    that exceeds 1 (covariance matching: :data:`ADAPT_WINDOW`)."""
+    that exceeds 1 (covariance matching: :data:`ADAPT_WINDOW`); ``vo_guard``: the VO runs
+    compared with ICP's own steps over the same interval (:data:`VO_GUARD_RUNS`; 0: no
+    guard)."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
@@ -237,6 +258,8 @@ class KfParams:
     vo_memory_share: float = VO_MEMORY_SHARE
     vo_forward_adapt: bool = True
     vo_forward_window: int = VO_FORWARD_WINDOW
+    vo_guard: int = VO_GUARD_RUNS
+    vo_forward_reference: bool = True
     drive: str = ""
 
     def __post_init__(self) -> None:
@@ -260,6 +283,8 @@ class KfParams:
             raise ValueError(f"vo_memory_share {self.vo_memory_share}: expected in [0, 1)")
         if self.vo_forward_window < 0:
             raise ValueError(f"vo_forward_window {self.vo_forward_window}: expected >= 0 runs (0: no test)")
+        if self.vo_guard < 0:
+            raise ValueError(f"vo_guard {self.vo_guard}: expected >= 0 runs (0: no guard)")
 
 
 # ``rigcal localize --kf``: the filter by name. "weighted": each step's own covariance,
@@ -280,6 +305,8 @@ KF_MODES = {
         vo_memory_s=0.0,
         vo_forward_adapt=False,
         vo_forward_window=0,
+        vo_guard=0,
+        vo_forward_reference=False,
     ),
 }
 # "driven": the weighted filter with ICP's steps as the prediction's control input
@@ -293,13 +320,15 @@ class KfResult:
     origin at the earliest stamp) and their covariances (M, 3, 3) (x, y, yaw; world);
     VO's forward variance ratio as matched at the end (``KfParams.vo_forward_adapt``;
     otherwise as set) and the VO runs whose forward motion the whiteness test left out
-    (``KfParams.vo_forward_window``)."""
+    (``KfParams.vo_forward_window``); per direction (forward, cross-track, yaw) the VO runs
+    the guard left out there (``KfParams.vo_guard``)."""
 
     stamps_s: FloatArray
     poses: FloatArray
     covariances: FloatArray
     vo_forward_ratio: float = float("nan")
     vo_forward_left_out: int = 0
+    vo_guarded: tuple[int, int, int] = (0, 0, 0)
 
 
 def rate_covariance(sigmas: tuple[float, float, float], dt: float, open_forward: bool = False) -> FloatArray:
@@ -431,6 +460,15 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     recent: list[float] = []  # the last VO runs' squared distances (the windowed gate)
     whiteness: list[float] = []  # the last VO runs' standardized forward innovations
     left_out = 0  # VO runs whose forward motion the whiteness test left out
+    # The guard (:func:`_vo_guard`): ICP's own steps chained, and VO's last chained runs with
+    # their covariances under VO's error model.
+    reference = (
+        _IcpReference([m for m in measurements if m.source == "icp"], params)
+        if params.vo_guard > 0 or params.vo_forward_reference
+        else None
+    )
+    guard_runs: list[tuple[Increment, FloatArray]] = []
+    guarded = np.zeros(3, dtype=int)  # VO runs the guard left out, per direction
     vo_own, vo_share = _error_model("vo", params)
     forward_ratio = float(vo_own[0] + 2.0 * vo_share[0])  # VO's forward variance ratio, matched on line
     forward_info = float(ADAPT_WINDOW)  # the information its running mean holds (runs of full weight)
@@ -469,6 +507,18 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             own[0], share[0] = forward_ratio * (1.0 - params.vo_memory_share), 0.0
             gain = float(np.sqrt(scale * forward_ratio * params.vo_memory_share * m.covariance[0, 0]))
             memory = (_offset(blocks, ("memory", m.t1)), gain)
+        leave_out: NDArray[np.bool_] | None = None
+        alone = None
+        if vo and reference is not None:
+            icp_scale = max(1.0, mean_nis.get("icp", 1.0)) if params.adapt else 1.0
+            if params.vo_guard > 0:
+                leave_out = _guard(
+                    reference, guard_runs, m, own, share, (scale, icp_scale), memory is not None, t, params
+                )
+            if leave_out is not None:
+                guarded += leave_out
+            if memory is not None and params.vo_forward_reference:
+                alone = reference.between(m.t0, m.t1, t, icp_scale)
         shared: int | None = None
         if share.any():  # m.source is "icp" or "vo": its shared error enters the state
             kind_of = SHARED_BLOCK[m.source]
@@ -492,6 +542,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             whiteness=(sum(whiteness), len(whiteness), VO_FORWARD_GATE)
             if memory is not None and params.vo_forward_window > 0
             else None,
+            leave_out=leave_out,
         )
         if vo and np.isfinite(inn.d2):
             # The windowed test's last runs, each counted at most at the single gate (a lone
@@ -512,9 +563,13 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             # little about its own error. A running mean over about ADAPT_WINDOW runs of
             # full weight.
             var = forward_ratio * m.covariance[0, 0]
-            weight = (var / (var + inn.forward_prediction_var)) ** 2
+            fsq, fvar = inn.forward_sq, inn.forward_prediction_var
+            if alone is not None:
+                fvar = float(alone[1][0, 0])
+                fsq = float((m.motion[0] - alone[0][0]) ** 2 - fvar)
+            weight = (var / (var + fvar)) ** 2
             forward_info += weight - forward_info / ADAPT_WINDOW
-            sample = min(max(0.0, inn.forward_sq) / m.covariance[0, 0], NIS_CAP * forward_ratio)
+            sample = min(max(0.0, fsq) / m.covariance[0, 0], NIS_CAP * forward_ratio)
             forward_ratio += weight / forward_info * (sample - forward_ratio)
         if shared is not None:  # the step's shared error is in; the one before is done with
             for b in [b for b in blocks if b[0] == SHARED_BLOCK[m.source] and b[1] != m.t1]:
@@ -531,7 +586,70 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             x, P = _drop(x, P, _offset(blocks, ("clone", m.t0)))
             blocks.remove(("clone", m.t0))
         _keep(stamps, poses, covs, t, x, P)
-    return KfResult(np.array(stamps), np.array(poses), np.array(covs), forward_ratio, left_out)
+    return KfResult(
+        np.array(stamps),
+        np.array(poses),
+        np.array(covs),
+        forward_ratio,
+        left_out,
+        (int(guarded[0]), int(guarded[1]), int(guarded[2])),
+    )
+
+
+def _guard(
+    reference: _IcpReference,
+    runs: list[tuple[Increment, FloatArray]],
+    m: Increment,
+    own: FloatArray,
+    share: FloatArray,
+    scales: tuple[float, float],
+    memory: bool,
+    now: float,
+    params: KfParams,
+) -> NDArray[np.bool_] | None:
+    """The directions of VO's run ``m`` the guard leaves out (:func:`_vo_guard`), or None
+    where ICP gives no reference. ``runs`` (VO's last chained runs with their modelled
+    covariances) is updated in place; ``own``, ``share``: the run's error model per axis
+    (with the forward memory, ``share`` forward 0 and the memory's part the rest of the
+    forward variance ratio); ``scales``: VO's and ICP's covariance matching factors."""
+    total = own + 2.0 * share
+    rho = np.divide(share, total, out=np.zeros(3), where=total > 0)
+    if memory:
+        total[0] = own[0] / (1.0 - params.vo_memory_share)  # own and the Gauss-Markov part
+    if runs and runs[-1][0].t1 != m.t0:
+        runs.clear()
+    runs.append((m, scales[0] * _scaled(m.covariance, total)))
+    del runs[: -params.vo_guard]
+    correlation = np.zeros((max(len(runs) - 1, 1), 3))
+    correlation[0] = rho
+    if memory:
+        lags = np.arange(1, len(correlation) + 1)
+        correlation[:, 0] = params.vo_memory_share * np.exp(-lags * (m.t1 - m.t0) / params.vo_memory_s)
+    # The windows: the last 1, 2, 4 ... runs up to ``vo_guard``, each tested at the
+    # Bonferroni share of the 0.001 tail (a bias shows over the longer windows, a single
+    # bad run over the shorter ones).
+    windows = [n for n in _guard_windows(params.vo_guard) if n <= len(runs)]
+    gate = _guard_gate(params.vo_guard)
+    out: NDArray[np.bool_] | None = None
+    for n in windows:
+        ref = reference.between(runs[-n][0].t0, m.t1, now, scales[1])
+        if ref is None:
+            continue
+        fired = _vo_guard(runs[-n:], ref, correlation[: n - 1], gate)[0]
+        out = fired if out is None else out | fired
+    return out
+
+
+def _guard_windows(runs: int) -> list[int]:
+    """The guard's windows, in VO runs: 1, 2, 4 ... up to ``runs``."""
+    return [2**j for j in range(int(np.log2(runs)) + 1)] if runs > 0 else []
+
+
+def _guard_gate(runs: int) -> float:
+    """The chi-square point (1 dof) each of the guard's windows is tested at: the 0.001
+    tail shared among them (Bonferroni), so that a run's direction is left out by chance
+    no more often than by the whiteness test's 0.999 point."""
+    return float(chi2.isf((1.0 - VO_GUARD_LEVEL) / max(1, len(_guard_windows(runs))), 1))
 
 
 def _keep(
@@ -787,6 +905,7 @@ def _update(
     window: tuple[float, float] | None = None,
     memory: tuple[int, float] | None = None,
     whiteness: tuple[float, int, float] | None = None,
+    leave_out: NDArray[np.bool_] | None = None,
 ) -> tuple[FloatArray, FloatArray, Innovation]:
     """The EKF update with increment ``m`` against the clone at state index ``c``: h(S) is
     the motion from the clone's pose to the current one in the clone's frame. The step's
@@ -815,7 +934,8 @@ def _update(
     ``whiteness`` = (the last runs' standardized forward innovations summed, their count,
     the gate): when that sum with this run's, squared over the count, exceeds the gate
     (chi-square, 1 dof: under the model the innovations are white), the forward direction
-    is left out of the update.
+    is left out of the update. ``leave_out`` (3,): directions of the step's frame (forward,
+    cross-track, yaw) left out of the update as well (the guard's, :func:`_vo_guard`).
 
     ``weak_only`` > 0: only the directions along which the filter's own prediction of the
     motion (pose and clone, without the shared error) is less certain than the step's error
@@ -856,14 +976,18 @@ def _update(
         y0 = y[0] + (Hs @ x)[0]  # against the pose's prediction alone
         forward_var = float((Hp @ P @ Hp.T)[0, 0])
         forward_sq = float(y0**2 - forward_var)
+    drop = np.zeros(3, dtype=bool) if leave_out is None else np.asarray(leave_out, dtype=bool).copy()
     if whiteness is not None and np.isfinite(forward_z):
         total, count, limit = whiteness
         left_out = (total + forward_z) ** 2 / (count + 1) > limit
-        if left_out:
-            T0 = np.eye(3)[1:]  # cross-track and yaw only
-            H, Hs, Hp, y, R0, Rm = T0 @ H, T0 @ Hs, T0 @ Hp, T0 @ y, T0 @ R0 @ T0.T, T0 @ Rm @ T0.T
-            HPH = H @ P @ H.T
-            S = HPH + Rm
+        drop[0] |= left_out
+    if drop.all():
+        return x, P, Innovation(float("nan"), d2, forward_z, forward_sq, forward_var, left_out)
+    if drop.any():
+        T0 = np.eye(3)[~drop]  # the directions kept
+        H, Hs, Hp, y, R0, Rm = T0 @ H, T0 @ Hs, T0 @ Hp, T0 @ y, T0 @ R0 @ T0.T, T0 @ Rm @ T0.T
+        HPH = H @ P @ H.T
+        S = HPH + Rm
     if weak_only > 0:
         # Only the directions along which the filter knows the motion less well than the
         # step does (generalised eigenvectors of the two covariances, ratio above
@@ -900,3 +1024,140 @@ def _predict(x: FloatArray, P: FloatArray, dt: float, params: KfParams) -> tuple
     Q[:3, 3:6] = Q[3:6, :3] = np.diag(q * dt**2 / 2.0)
     Q[3:6, 3:6] = np.diag(q * dt)
     return F @ x, F @ P @ F.T + Q
+
+
+def _rotation3(yaw: float) -> FloatArray:
+    """The (3, 3) map of a motion (dx, dy, dyaw) from a frame turned by ``yaw`` into the
+    frame it was turned from."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+class _IcpReference:
+    """ICP's own path over an interval, the guard's reference (:func:`_vo_guard`): its steps
+    chained, causally. A step counts once it has ended (``now``); the part of the interval
+    after the last ended step (at most one step: a VO run ends between two scans) is
+    carried at that step's constant twist, as :class:`_Drive` carries a step's parts. Whole
+    steps are crossed at once: their chained poses and their own covariances turned into
+    the chain's frame are summed ahead (prefix sums), so an interval costs a few steps'
+    work however many it spans."""
+
+    def __init__(self, steps: list[Increment], params: KfParams) -> None:
+        self.steps = sorted(steps, key=lambda m: (m.t0, m.t1))
+        self.t1s = np.array([m.t1 for m in self.steps])
+        self.own, self.share = _error_model("icp", params)
+        n = len(self.steps)
+        # The chain's pose at each step's start (and the last one's end), its yaw, and the
+        # steps' own covariances in the chain's frame summed before each step.
+        self.poses = np.empty((n + 1, 3, 3))
+        self.yaws = np.empty(n + 1)
+        self.prefix = np.zeros((n + 1, 3, 3))
+        T = np.eye(3)
+        for k, d in enumerate(self.steps):
+            self.poses[k], self.yaws[k] = T, np.arctan2(T[1, 0], T[0, 0])
+            G = _rotation3(float(self.yaws[k]))
+            self.prefix[k + 1] = self.prefix[k] + G @ _scaled(d.covariance, self.own) @ G.T
+            T = T @ se2(d.motion)
+        self.poses[n], self.yaws[n] = T, np.arctan2(T[1, 0], T[0, 0])
+        # The last step of the unbroken run of steps (each starting where the one before ends) from each.
+        self.run_end = np.arange(n)
+        for k in range(n - 2, -1, -1):
+            if self.steps[k + 1].t0 == self.steps[k].t1:
+                self.run_end[k] = self.run_end[k + 1]
+
+    def between(
+        self, a: float, b: float, now: float, scale: float = 1.0
+    ) -> tuple[FloatArray, FloatArray] | None:
+        """ICP's motion (dx, dy, dyaw) from ``a`` to ``b`` in the rig's frame at ``a``, and
+        its covariance (3, 3) under ICP's error model (the steps' own parts summed, the
+        shared parts of the first and last step: within the chain they cancel; times
+        ``scale``, the covariance matching's factor), from the steps ended by ``now``; None
+        where ICP's steps leave a gap."""
+        k = int(np.searchsorted(self.t1s, a, side="right"))
+        T, C, t = np.eye(3), np.zeros((3, 3)), a
+        ends: list[tuple[FloatArray, FloatArray]] = []  # (rotation, covariance) of the first and last step
+        while t < b:
+            d = self.steps[k] if k < len(self.steps) else None
+            if d is not None and d.t0 == t and d.t1 <= min(b, now):
+                # Whole steps k ... last, ended by now and within the interval, at once.
+                ended = int(np.searchsorted(self.t1s, min(b, now), side="right")) - 1
+                last = min(int(self.run_end[k]), ended)
+                turn = float(np.arctan2(T[1, 0], T[0, 0])) - float(self.yaws[k])
+                G = _rotation3(turn)
+                C += G @ (self.prefix[last + 1] - self.prefix[k]) @ G.T
+                ends = [
+                    ends[0] if ends else (_rotation3(turn + float(self.yaws[k])), d.covariance),
+                    (_rotation3(turn + float(self.yaws[last])), self.steps[last].covariance),
+                ]
+                T = T @ np.linalg.inv(self.poses[k]) @ self.poses[last + 1]
+                t, k = self.steps[last].t1, last + 1
+                continue
+            if d is not None and d.t0 <= t and d.t1 <= now:
+                end = min(b, d.t1)
+                k += 1
+            else:
+                # The step has not ended (or ICP has none yet): the last ended one's twist, from its
+                # end on, for at most its length; a gap in ICP's steps: no reference.
+                d = self.steps[k - 1] if k > 0 else None
+                if d is None or d.t1 != t or d.t1 > now or b - t > d.t1 - d.t0:
+                    return None
+                end = b
+            f = (end - t) / (d.t1 - d.t0)
+            G = _rotation3(float(np.arctan2(T[1, 0], T[0, 0])))
+            C += f * G @ _scaled(d.covariance, self.own) @ G.T
+            ends = [ends[0] if ends else (G, d.covariance), (G, d.covariance)]
+            T = T @ se2(_se2_exp(f * _se2_log(d.motion)))
+            t = end
+        for G, cov in ends:
+            C += G @ _finite_part(_scaled(cov, self.share)) @ G.T
+        return pose_of(T), scale * C
+
+
+def _vo_guard(
+    runs: list[tuple[Increment, FloatArray]],
+    icp: tuple[FloatArray, FloatArray],
+    correlation: FloatArray,
+    gate: float,
+) -> tuple[NDArray[np.bool_], FloatArray]:
+    """The directions (forward, cross-track, yaw of the last run's frame) along which VO's
+    chained runs and ICP's own steps over the same interval disagree beyond their errors,
+    and the test's statistics (3,).
+
+    ``runs``: VO's chained runs (each starting where the one before ends), each with its
+    covariance under VO's error model (own and correlated parts); ``icp``: ICP's motion
+    over the same interval and its covariance (:meth:`_IcpReference.between`), both in the
+    rig's frame at the first run's start; ``correlation`` (L, 3): VO's runs' error
+    correlation per axis at lags 1 ... L (forward from its Gauss-Markov memory, cross-track
+    and yaw their lag-1 share).
+
+    The chain's covariance is sum_ij G_i D_i C_ij D_j G_j^T (G_i a run's frame in the
+    first's, D_i its standard deviations, C_ij the correlation of runs |i - j| apart; the
+    run's own covariance where i = j), the difference's that plus ICP's (the two inputs'
+    errors are independent). Each direction's squared difference over its variance is
+    chi-square with 1 dof where both inputs' error models hold (Bar-Shalom, Li and
+    Kirubarajan 2001, Section 5.4: a test of a measurement's consistency with another
+    estimate of the same quantity); above ``gate`` VO is left out along it, unless ICP's
+    steps leave it open (variance above (OPEN_SIGMA_M / 10)^2: a corridor ICP cannot fix,
+    where VO carries the filter)."""
+    T = np.eye(3)
+    frames, sds = [], []
+    V = np.zeros((3, 3))
+    for m, cov in runs:
+        G = _rotation3(float(np.arctan2(T[1, 0], T[0, 0])))
+        frames.append(G)
+        sds.append(np.sqrt(np.diag(cov)))
+        V += G @ cov @ G.T
+        T = T @ se2(m.motion)
+    for i in range(len(runs)):
+        for j in range(len(runs)):
+            lag = abs(i - j)
+            if 0 < lag <= len(correlation):
+                V += frames[i] @ np.diag(correlation[lag - 1] * sds[i] * sds[j]) @ frames[j].T
+    d = pose_of(T) - icp[0]
+    d[2] = np.angle(np.exp(1j * d[2]))
+    # In the last run's frame: its directions are the ones the update can leave out.
+    G = frames[-1]
+    d, V, A = G.T @ d, G.T @ V @ G, G.T @ icp[1] @ G
+    stat = d**2 / np.diag(V + A)
+    out: NDArray[np.bool_] = (stat > gate) & (np.diag(A) < (OPEN_SIGMA_M / 10.0) ** 2)
+    return out, stat
