@@ -62,11 +62,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from rigcal.arrays import FloatArray
 from rigcal.geometry import pose_of, se2
 from rigcal.localize.icp_covariance import OPEN_SIGMA_M
+from rigcal.stats import chi2_isf, chi2_sf
 
 # The paper's fixed covariances (weights="fixed"), as 1-sigma rate noise in the rig's
 # frame: forward (m/s), cross-track (m/s), yaw rate (rad/s); a step over dt seconds has
@@ -197,7 +197,7 @@ VO_MEMORY_SHARE, VO_MEMORY_PHI, VO_MEMORY_S = gauss_markov_fit(VO_FORWARD_LAGS, 
 # VO's forward motion is left out of the run (its cross-track and yaw still enter). W spans
 # the runs the memory correlates (phi^W below 0.05: 5 runs).
 VO_FORWARD_WINDOW = int(np.ceil(np.log(0.05) / np.log(VO_MEMORY_PHI)))
-VO_FORWARD_GATE = float(chi2.isf(0.001, 1))
+VO_FORWARD_GATE = chi2_isf(0.001, 1)
 
 
 @dataclass(frozen=True)
@@ -435,7 +435,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     forward_ratio = float(vo_own[0] + 2.0 * vo_share[0])  # VO's forward variance ratio, matched on line
     forward_info = float(ADAPT_WINDOW)  # the information its running mean holds (runs of full weight)
     # The windowed gate: the chi-square point of 3 x gate_window dof at the single gate's tail.
-    window_gate = float(chi2.isf(chi2.sf(params.gate, 3), 3 * params.gate_window)) if params.gate > 0 else 0.0
+    window_gate = chi2_isf(chi2_sf(params.gate, 3), 3 * params.gate_window) if params.gate > 0 else 0.0
     t = events[0][0]
     x = np.zeros(6)
     P = np.diag([1e-12, 1e-12, 1e-12, 1.0, 1.0, 1.0])
