@@ -22,13 +22,26 @@ over the time) and as the check's time over the odometry's.
 
 With ``--sequence DIR`` (a sequence folder with its rig, e.g. ``rigcal simulate world
 --duration-s 60``), the command itself instead: ``rigcal -q check RIG --sequence DIR --no-log
---json`` (RIG a copy of DIR/rig.yaml) in a new process (starting Python, imports, loading the compiled
-kernels from their cache, reading the sequence, the check), without and with
-``--trajectory`` (the reference odometry written as a TUM file), each timed by the wall
-clock and the child process's CPU time, against the laser odometry of every scan of the
-same sequence in this process:
+--json`` (RIG a copy of DIR/rig.yaml) in a new process (starting Python, imports, loading the
+compiled kernels from their cache, reading the sequence, the check), against the same check
+as a library call in this process (``rigcal.jobs.check_rig``, which the command calls: it
+reads the sequence anew, so the difference is the process's start-up: Python, the imports,
+the kernels loaded from their cache), and against the laser odometry of every scan in this
+process. Each is timed by the wall clock and CPU time (the child's, all threads). One more
+child runs the command under ``python -X importtime`` and reports its CPU time when the check
+proper begins (the start-up: Python, imports, reading the sequence and the rig, as a child
+of this benchmark) and the imports that cost most; it also says how many kernels were
+compiled rather than loaded from the cache (0 once warmed). ``--trajectory`` adds the
+command with ``--trajectory`` (the reference odometry as a TUM file), ``--no-bytecode`` a
+run with no compiled bytecode to load or write (``PYTHONDONTWRITEBYTECODE=1`` and an empty
+``PYTHONPYCACHEPREFIX``: what each process costs where bytecode is never written, and what the
+first run of an install costs). The children write bytecode as an ordinary install does
+(``PYTHONDONTWRITEBYTECODE`` removed from their environment) and the importtime child runs
+first, so the timed runs load it. Verdicts and corrections of the command and of the library
+call are printed side by side (they are the same check).
 
     .venv/bin/python benchmarks/bench_targetless_speed.py --sequence /tmp/c60
+    .venv/bin/python benchmarks/bench_targetless_speed.py --sequence /tmp/c60 --repeat 3 --no-bytecode
 """
 
 from __future__ import annotations
@@ -64,65 +77,161 @@ def reused(streams, path: Path):  # type: ignore[no-untyped-def]
     return check_targetless(streams.rig, streams, TargetlessSettings(scan_rate_hz=None))
 
 
-def command(argv: list[str]) -> tuple[dict, float, float]:  # type: ignore[type-arg]
-    """(the JSON printed, wall s, CPU s of the child) of ``rigcal ARGV``."""
+def command(
+    argv: list[str], env: dict[str, str] | None = None, python: list[str] | None = None
+) -> tuple[dict, float, float, str]:  # type: ignore[type-arg]
+    """(the JSON printed, wall s, CPU s of the child, its stderr) of ``rigcal -q ARGV``
+    (with ``python``: that interpreter command line instead of the console script)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     done = subprocess.run(
-        [str(Path(sys.executable).parent / "rigcal"), "-q", *argv],
+        [*(python or [str(Path(sys.executable).parent / "rigcal")]), "-q", *argv],
         capture_output=True,
         text=True,
         check=False,
+        env=env if env is not None else _child_env(),
     )
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if done.returncode not in (0, 1, 6):
         raise SystemExit(done.stderr)
-    return json.loads(done.stdout), wall, cpu
+    return json.loads(done.stdout), wall, cpu, done.stderr
 
 
-def main_command(seq: Path) -> None:
+def _child_env(**extra: str) -> dict[str, str]:
+    """This environment, writing bytecode as an ordinary install does."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    return env | extra
+
+
+# The command in a child that says its CPU time when the check proper begins and how many
+# kernels it compiled (rather than loaded from their cache).
+_MARKED = """
+import sys, time
+import rigcal.drift.targetless as t
+check = t.check_targetless
+def marked(*a, **k):
+    print(f"STARTUP_CPU_S {time.process_time():.3f}", file=sys.stderr)
+    return check(*a, **k)
+t.check_targetless = marked
+from rigcal.cli.main import main
+from rigcal.jit import COMPILED
+rc = main(sys.argv[1:])
+print(f"KERNELS_COMPILED {len(COMPILED)}", file=sys.stderr)
+sys.exit(rc)
+"""
+
+
+def importtime(stderr: str, top: int = 12) -> dict[str, object]:
+    """``-X importtime``'s lines: the costliest imports made at top level (not inside
+    another import: what the command asked for) by cumulative time, and each package's own
+    time summed (ms; the child's wall clock, so under load they measure the load too)."""
+    rows = []
+    for line in stderr.splitlines():
+        if not line.startswith("import time:") or "self [us]" in line:
+            continue
+        own, cum, name = line[len("import time:") :].split("|")
+        rows.append((len(name) - len(name.lstrip()), name.strip(), int(own), int(cum)))
+    first = min((r[0] for r in rows), default=0)
+    outer = sorted((r for r in rows if r[0] == first), key=lambda r: -r[3])
+    packages: dict[str, int] = {}
+    for _, name, own, _ in rows:
+        packages[name.split(".")[0]] = packages.get(name.split(".")[0], 0) + own
+    return {
+        "total_ms": round(sum(r[2] for r in rows) / 1000),
+        "modules": len(rows),
+        "top_level_cumulative_ms": {r[1]: round(r[3] / 1000) for r in outer[:top]},
+        "package_self_ms": {
+            k: round(v / 1000) for k, v in sorted(packages.items(), key=lambda kv: -kv[1])[:top]
+        },
+    }
+
+
+def _marks(stderr: str) -> dict[str, float]:
+    out = {}
+    for line in stderr.splitlines():
+        if line.startswith(("STARTUP_CPU_S ", "KERNELS_COMPILED ")):
+            key, value = line.split()
+            out[key.lower()] = float(value)
+    return out
+
+
+def _corrections(targetless: dict) -> list[object]:  # type: ignore[type-arg]
+    return [targetless.get("correction_rotation_deg"), targetless.get("correction_translation_mm")]
+
+
+def main_command(seq: Path, repeat: int, with_trajectory: bool, no_bytecode: bool) -> None:
     """The --sequence mode (module docstring)."""
+    from rigcal.jobs import check_rig
+
     streams = open_streams(seq)
     dur = float(streams.image_stamps_s[-1] - streams.image_stamps_s[0])
     load0 = os.getloadavg()[0]
     _, icp_wall, icp_cpu = timed(streams.laser_odometry)
     tmp = Path(tempfile.mkdtemp())
-    tum = tmp / "trajectory.tum"
-    write_tum(tum, planar_trajectory(streams.scan_stamps_s, streams.laser_odometry().poses))
     rig = tmp / "rig.yaml"  # outside the sequence (a check's outputs may not go inside an input)
     rig.write_bytes((seq / "rig.yaml").read_bytes())
+    _, read_wall, read_cpu = timed(lambda: open_streams(seq, rig_file=rig))
+    inproc, in_wall, in_cpu = timed(lambda: check_rig(rig, sequence=seq, no_log=True).record)
     base = ["check", str(rig), "--sequence", str(seq), "--no-log", "--json"]
-    rec, wall, cpu = command(base)
-    rec2, wall2, cpu2 = command([*base, "--trajectory", str(tum)])
-    row = {
+    python = [sys.executable, "-X", "importtime", "-c", _MARKED]
+    marked, m_wall, m_cpu, m_err = command(base, python=python)  # first: writes any bytecode missing
+    runs = [command(base)[:3] for _ in range(repeat)]
+    wall = min(r[1] for r in runs)
+    cpu = min(r[2] for r in runs)
+    rec = runs[0][0]
+    marks = _marks(m_err)
+    row: dict[str, object] = {
         "sequence": str(seq),
         "drive_s": round(dur, 1),
         "load": [round(load0, 1), round(os.getloadavg()[0], 1)],
         "odometry_s": {"wall": round(icp_wall, 2), "cpu": round(icp_cpu, 2)},
-        "rigcal_check_s": {"wall": round(wall, 2), "cpu": round(cpu, 2), "verdict": rec["verdict"]},
-        "rigcal_check_trajectory_s": {
+        "in_process_s": {
+            "check_rig": {"wall": round(in_wall, 2), "cpu": round(in_cpu, 2), "verdict": inproc["verdict"]},
+            "reading_the_sequence": {"wall": round(read_wall, 2), "cpu": round(read_cpu, 2)},
+        },
+        "rigcal_check_s": {
+            "runs": [{"wall": round(r[1], 2), "cpu": round(r[2], 2)} for r in runs],
+            "verdict": rec["verdict"],
+        },
+        "command_over_in_process": {"wall": round(wall / in_wall, 3), "cpu": round(cpu / in_cpu, 3)},
+        "command_over_odometry": {"wall": round(wall / icp_wall, 3), "cpu": round(cpu / icp_cpu, 3)},
+        "x_real_time_wall": {"command": round(dur / wall, 2), "in_process": round(dur / in_wall, 2)},
+        "importtime_child": {
+            "wall": round(m_wall, 2),
+            "cpu": round(m_cpu, 2),
+            "startup_cpu_s": marks.get("startup_cpu_s"),
+            "kernels_compiled": marks.get("kernels_compiled"),
+            "verdict": marked["verdict"],
+            "imports": importtime(m_err),
+        },
+        "corrections": {
+            "command": _corrections(rec["targetless"]),
+            "in_process": _corrections(inproc["targetless"]),
+        },
+    }
+    if no_bytecode:
+        empty = tempfile.mkdtemp()
+        env = _child_env(PYTHONDONTWRITEBYTECODE="1", PYTHONPYCACHEPREFIX=empty)
+        rec3, wall3, cpu3, _ = command(base, env=env)
+        row["rigcal_check_no_bytecode_s"] = {
+            "wall": round(wall3, 2),
+            "cpu": round(cpu3, 2),
+            "verdict": rec3["verdict"],
+        }
+    if with_trajectory:
+        tum = tmp / "trajectory.tum"
+        write_tum(tum, planar_trajectory(streams.scan_stamps_s, streams.laser_odometry().poses))
+        rec2, wall2, cpu2, _ = command([*base, "--trajectory", str(tum)])
+        row["rigcal_check_trajectory_s"] = {
             "wall": round(wall2, 2),
             "cpu": round(cpu2, 2),
             "verdict": rec2["verdict"],
-        },
-        "over_odometry": {
-            "check": {"wall": round(wall / icp_wall, 3), "cpu": round(cpu / icp_cpu, 3)},
-            "check_trajectory": {"wall": round(wall2 / icp_wall, 3), "cpu": round(cpu2 / icp_cpu, 3)},
-        },
-        "x_real_time_wall": {"check": round(dur / wall, 2), "check_trajectory": round(dur / wall2, 2)},
-        "corrections": {
-            "check": [
-                rec["targetless"].get("correction_rotation_deg"),
-                rec["targetless"].get("correction_translation_mm"),
-            ],
-            "check_trajectory": [
-                rec2["targetless"].get("correction_rotation_deg"),
-                rec2["targetless"].get("correction_translation_mm"),
-            ],
-        },
-    }
+            "over_odometry": {"wall": round(wall2 / icp_wall, 3), "cpu": round(cpu2 / icp_cpu, 3)},
+            "x_real_time_wall": round(dur / wall2, 2),
+            "corrections": _corrections(rec2["targetless"]),
+        }
     print(json.dumps(row, indent=1))
 
 
@@ -134,9 +243,16 @@ def main() -> None:
     ap.add_argument("--start-s", type=float, default=0.0)
     ap.add_argument("--length", type=float, default=60.0)
     ap.add_argument("--sequence", type=Path, help="time `rigcal check` on this sequence folder instead")
+    ap.add_argument(
+        "--repeat", type=int, default=1, help="--sequence: timed command runs (the least is used)"
+    )
+    ap.add_argument(
+        "--trajectory", action="store_true", help="--sequence: also the command with --trajectory"
+    )
+    ap.add_argument("--no-bytecode", action="store_true", help="--sequence: also a run with no bytecode")
     args = ap.parse_args()
     if args.sequence is not None:
-        main_command(args.sequence)
+        main_command(args.sequence, args.repeat, args.trajectory, args.no_bytecode)
         return
     full = open_streams(drive(args.cache, args.world, args.seed))
     w = window(full, args.start_s, args.length)

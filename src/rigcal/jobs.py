@@ -371,13 +371,26 @@ def _targetless(
     """A drive's targetless check record (with ``trajectory``: its laser motion from that
     TUM file instead of the check's own odometry)."""
     import dataclasses
+    import time
+    from concurrent.futures import ThreadPoolExecutor
 
-    from rigcal.drift.log import targetless_record
-    from rigcal.drift.targetless import TargetlessSettings, check_targetless, same_camera
-    from rigcal.drift.trajectory import trajectory_odometry
-    from rigcal.localize.streams import open_streams
+    from rigcal.recordings.sequence import read_sequence
 
-    streams = open_streams(sequence, rig_file=rig_path)
+    def timed_read() -> tuple[Any, float]:
+        t0 = time.perf_counter()
+        return read_sequence(sequence), time.perf_counter() - t0
+
+    # The drive is read (inflating scans.npz and numpy's work on the scans, mostly outside
+    # the interpreter's lock) on a second thread while the check's modules import.
+    with ThreadPoolExecutor(1, thread_name_prefix="rigcal-read") as pool:
+        read = pool.submit(timed_read)
+        from rigcal.drift.log import targetless_record
+        from rigcal.drift.targetless import TargetlessSettings, check_targetless, same_camera
+        from rigcal.drift.trajectory import trajectory_odometry
+        from rigcal.localize.streams import Streams
+
+        seq, read_s = read.result()
+        streams = Streams(seq, stored, {"read_s": read_s})
     same_camera(stored, streams, rig_path)
     streams.progress = progress
     streams.odometry_covariance = False  # the check uses the odometry's poses only

@@ -60,21 +60,15 @@ class Scan:
             raise ValueError("Scan: angles must be strictly increasing")
         if not 0.0 <= self.range_min_m < self.range_max_m:
             raise ValueError("Scan: need 0 <= range_min_m < range_max_m")
-        a.setflags(write=False)
-        r.setflags(write=False)
+        valid, pts = _valid_points(a, r, self.range_min_m, self.range_max_m)
+        self._set_arrays(a, r, valid, pts)
+
+    def _set_arrays(self, a: FloatArray, r: FloatArray, valid: NDArray[np.bool_], pts: FloatArray) -> None:
+        for x in (a, r, valid, pts):
+            x.setflags(write=False)
         object.__setattr__(self, "angles_rad", a)
         object.__setattr__(self, "ranges_m", r)
-        with np.errstate(invalid="ignore"):
-            valid = np.isfinite(r) & (r > 0.0) & (r >= self.range_min_m) & (r <= self.range_max_m)
-        valid.setflags(write=False)
         object.__setattr__(self, "_valid", valid)
-        pts = np.full((len(r), 2), np.nan)
-        # The directions from angles in one range, -pi..pi, whichever range the scan lists
-        # them in (0..2pi, say): the same beam gives the same point.
-        w = np.where(a > np.pi, a - 2.0 * np.pi, np.where(a < -np.pi, a + 2.0 * np.pi, a))[valid]
-        pts[valid, 0] = r[valid] * np.cos(w)
-        pts[valid, 1] = r[valid] * np.sin(w)
-        pts.setflags(write=False)
         object.__setattr__(self, "_points", pts)
 
     @classmethod
@@ -92,6 +86,25 @@ class Scan:
         angles: FloatArray = angle_min_rad + angle_increment_rad * np.arange(len(r), dtype=np.float64)
         return cls(angles, r, range_min_m, range_max_m, stamp_s, float(angle_increment_rad))
 
+    @classmethod
+    def _checked(
+        cls,
+        arrays: tuple[FloatArray, FloatArray, NDArray[np.bool_], FloatArray],
+        range_min_m: float,
+        range_max_m: float,
+        stamp_s: float | None,
+        angle_increment_rad: float | None,
+    ) -> Scan:
+        """A scan of (angles, ranges, valid, points) already checked and computed as
+        ``__post_init__`` would (:func:`uniform_scans`)."""
+        scan = object.__new__(cls)
+        object.__setattr__(scan, "range_min_m", range_min_m)
+        object.__setattr__(scan, "range_max_m", range_max_m)
+        object.__setattr__(scan, "stamp_s", stamp_s)
+        object.__setattr__(scan, "angle_increment_rad", angle_increment_rad)
+        scan._set_arrays(*arrays)
+        return scan
+
     @property
     def valid(self) -> NDArray[np.bool_]:
         """(N,) bool: the returns that are finite, > 0 and within [range_min_m, range_max_m]."""
@@ -108,6 +121,101 @@ class Scan:
     def step_rad(self) -> float:
         """The median angular step between beams (0 for a single beam)."""
         return float(np.median(np.diff(self.angles_rad))) if len(self.angles_rad) > 1 else 0.0
+
+
+class ScanArrayError(ValueError):
+    """Scan ``index`` of :func:`uniform_scans`' arrays is not a scan: ``key`` names the
+    argument at fault."""
+
+    def __init__(self, index: int, key: str, expected: str) -> None:
+        super().__init__(f"scan {index}: {key}: expected {expected}")
+        self.index = index
+        self.key = key
+        self.expected = expected
+
+
+def _valid_points(
+    a: FloatArray, r: FloatArray, range_min_m: float | FloatArray, range_max_m: float | FloatArray
+) -> tuple[NDArray[np.bool_], FloatArray]:
+    """The valid returns (shape of r) and the points (r's shape, 2) of angles a and ranges
+    r (any shape; the range limits broadcast against r)."""
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(r) & (r > 0.0) & (r >= range_min_m) & (r <= range_max_m)
+    # The directions from angles in one range, -pi..pi, whichever range the scan lists
+    # them in (0..2pi, say): the same beam gives the same point.
+    if (np.abs(a) > np.pi).any():
+        a = np.where(a > np.pi, a - 2.0 * np.pi, np.where(a < -np.pi, a + 2.0 * np.pi, a))
+    pts = np.empty((*r.shape, 2))
+    with np.errstate(invalid="ignore"):  # inf * 0 where a beam has no return
+        np.multiply(r, np.cos(a), out=pts[..., 0])
+        np.multiply(r, np.sin(a), out=pts[..., 1])
+    pts[~valid] = np.nan
+    return valid, pts
+
+
+def uniform_scans(
+    angle_min_rad: FloatArray,
+    angle_increment_rad: FloatArray,
+    ranges_m: FloatArray,
+    n_beams: NDArray[np.integer],
+    range_min_m: FloatArray,
+    range_max_m: FloatArray,
+    stamps_s: FloatArray,
+    clockwise: bool = False,
+) -> list[Scan]:
+    """N scans at once, each as ``Scan.from_uniform(angle_min_rad[i],
+    angle_increment_rad[i], ranges_m[i, :n_beams[i]], range_min_m[i], range_max_m[i],
+    stamps_s[i])`` makes it (and with ``clockwise`` as :func:`counter_clockwise` then
+    turns it), bit for bit, with the arithmetic done on (N, B) arrays instead of scan by
+    scan: a sequence's thousands of scans read in a fraction of the time. Each scan's
+    arrays are rows of those (read-only) arrays.
+
+    Args:
+        ranges_m: (N, B) ranges, metres; beams from n_beams[i] on are ignored.
+        n_beams: (N,) beams of each scan, 1 to B.
+        the rest: (N,) per scan.
+
+    Raises:
+        ScanArrayError: a scan whose angles do not increase, or whose range limits are
+            not 0 <= range_min_m < range_max_m (the first such scan).
+    """
+    r_all = np.asarray(ranges_m, dtype=float)
+    width = r_all.shape[1]
+    nb = np.asarray(n_beams, dtype=np.int64)
+    lo, hi = np.asarray(range_min_m, dtype=float), np.asarray(range_max_m, dtype=float)
+    step = np.asarray(angle_increment_rad, dtype=float)
+    a0 = np.asarray(angle_min_rad, dtype=float)
+    beam = np.arange(width, dtype=np.float64)
+    inside = beam[None, :] < nb[:, None]
+    if clockwise:  # counter_clockwise(): the beams reversed, from -(the last angle)
+        first = -(a0 + step * beam[0] + step * (nb - 1))
+        src = np.clip(nb[:, None] - 1 - np.arange(width)[None, :], 0, width - 1)
+        r_all, a0 = np.where(inside, np.take_along_axis(r_all, src, axis=1), np.nan), first
+    bad = np.flatnonzero(~((lo >= 0.0) & (lo < hi)))
+    if len(bad):
+        raise ScanArrayError(int(bad[0]), "range_min_m", "0 <= range_min_m < range_max_m")
+    a = a0[:, None] + step[:, None] * beam[None, :]
+    rising = (np.diff(a, axis=1) > 0) | ~inside[:, 1:]
+    bad = np.flatnonzero(~rising.all(axis=1))
+    if len(bad):
+        raise ScanArrayError(
+            int(bad[0]), "angle_increment_rad", "a step that makes the beams' angles increase (rad)"
+        )
+    r = np.array(r_all, dtype=float)  # a copy the scans own (as Scan's own copy)
+    valid, pts = _valid_points(a, r, lo[:, None], hi[:, None])
+    valid &= inside
+    pts[~inside] = np.nan
+    stamps = np.asarray(stamps_s, dtype=float)
+    return [
+        Scan._checked(
+            (a[i, :k], r[i, :k], valid[i, :k], pts[i, :k]),
+            float(lo[i]),
+            float(hi[i]),
+            float(stamps[i]),
+            float(step[i]),
+        )
+        for i, k in enumerate(nb.tolist())
+    ]
 
 
 # --- file ------------------------------------------------------------------------------------

@@ -10,8 +10,15 @@ from pathlib import Path
 
 import pytest
 
-from rigcal.drift.log import RECORD_KEYS, append_record, default_log_path, drift_record, read_log
-from rigcal.drift.target import DRIFT_LOG_SCHEMA_VERSION, DriftResult
+from rigcal.drift.log import (
+    DRIFT_LOG_SCHEMA_VERSION,
+    RECORD_KEYS,
+    append_record,
+    default_log_path,
+    drift_record,
+    read_log,
+)
+from rigcal.drift.target import DriftResult
 from rigcal.errors import InputError, OutputError
 
 RESIDUAL = {

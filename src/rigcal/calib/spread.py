@@ -34,6 +34,7 @@ import numpy as np
 
 from rigcal.arrays import FloatArray
 from rigcal.geometry import tangent_delta
+from rigcal.stats import chi2_ppf, f_ppf
 
 # A spread more than this many times the stated 1-sigma (scale) is warned about.
 SPREAD_WARN_RATIO = 2.0
@@ -288,10 +289,8 @@ def few_dof_factor(dof: int, params: int = 6, level: float = 0.95) -> float:
     about 4.3 with 3 dof (5 board poses and a fitted range bias), 1.6 with 9, and tends to
     1 as the data grow. ``dof`` below 1 is taken as 1.
     """
-    from scipy.stats import chi2, f
-
     nu = max(int(dof), 1)
-    return float(params * f.ppf(level, params, nu) / chi2.ppf(level, params))
+    return params * f_ppf(level, params, nu) / chi2_ppf(level, params)
 
 
 def uncertainty_warnings(

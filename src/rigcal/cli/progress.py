@@ -74,20 +74,20 @@ class Progress:
         self.close()
 
     def _bar(self, stage: str, total: int | None) -> Any:
+        self.started[stage] = time.perf_counter()
+        if not self.live:  # nothing drawn: no need to import tqdm
+            return _Count(total)
         from tqdm import tqdm  # type: ignore[import-untyped]
 
-        bar = tqdm(
+        return tqdm(
             total=total,
             desc=stage,
             unit=self.unit,
             file=sys.stderr,
-            disable=not self.live,
             position=len(self.bars),
             leave=True,
             dynamic_ncols=True,
         )
-        self.started[stage] = time.perf_counter()
-        return bar
 
     def __call__(self, stage: str, done: int, total: int | None) -> None:
         with self.lock:
@@ -122,3 +122,18 @@ class Progress:
         with self.lock:
             for stage in sorted(self.bars):
                 self._end(stage)
+
+
+class _Count:
+    """A stage where no bar is drawn (``-q``, or stderr not a terminal): the total a
+    bar would show, and tqdm's update and close as no-ops (:class:`Progress` keeps the
+    counts)."""
+
+    def __init__(self, total: int | None) -> None:
+        self.total = total
+
+    def update(self, n: int) -> None:
+        pass
+
+    def close(self) -> None:
+        pass

@@ -15,12 +15,14 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rigcal.drift.target import DRIFT_LOG_SCHEMA_VERSION, DriftResult
 from rigcal.errors import InputError, OutputError
 from rigcal.io.files import read_text, sha256_file
 
-if TYPE_CHECKING:  # a drive's check is built above the methods (rigcal.drift)
+if TYPE_CHECKING:  # types only: a drive's check need not load the target checks' solvers
+    from rigcal.drift.target import DriftResult
     from rigcal.drift.targetless import TargetlessResult
+
+DRIFT_LOG_SCHEMA_VERSION = 2
 
 RECORD_KEYS_V1 = (
     "schema_version",

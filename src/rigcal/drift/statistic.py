@@ -27,9 +27,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import f as f_dist
 
 from rigcal.arrays import FloatArray
+from rigcal.stats import f_isf, f_sf
 
 
 def cluster_covariance(A: FloatArray, A_c: FloatArray, g_c: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -108,11 +108,11 @@ def hotelling(z: FloatArray, C_data: FloatArray, C_known: FloatArray, n_data: fl
     if n - k <= 1.0:
         return Test(t2, math.nan, k, n, math.nan, math.nan)
     F = t2 * (n - k) / (k * (n - 1))
-    p = float(f_dist.sf(F, k, n - k))
+    p = f_sf(F, k, n - k)
     return Test(t2, F, k, n, p, hotelling_critical(k, n, level))
 
 
 def hotelling_critical(k: int, n: float, level: float) -> float:
     """The T^2 that k directions from n clusters exceed with probability ``level`` under
     no change: F(k, n - k)'s upper point times k (n - 1) / (n - k)."""
-    return float(f_dist.isf(level, k, n - k)) * k * (n - 1) / (n - k)
+    return f_isf(level, k, n - k) * k * (n - 1) / (n - k)

@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2
 
 from rigcal.arrays import FloatArray
 from rigcal.calib.box.picks import PickSession
@@ -44,8 +43,7 @@ from rigcal.calib.box.solve import INLIER_GATE_CHI2, CalibProblem, CalibResult, 
 from rigcal.errors import CalibrationError, InputError
 from rigcal.geometry import tangent_delta
 from rigcal.rig import Rig
-
-DRIFT_LOG_SCHEMA_VERSION = 2
+from rigcal.stats import chi2_sf
 
 
 @dataclass(frozen=True)
@@ -249,7 +247,7 @@ def _board_residual_test(rig: Rig, fresh: Any, observations: Any) -> dict[str, A
         "max_mm": _r(1000.0 * float(np.max(np.abs(e))) if len(e) else float("nan"), 3),
         "chi2": _r(chi2_value, 4),
         "dof": dof,
-        "p_value": float(f"{float(chi2.sf(chi2_value, dof)) if dof else 1.0:.4g}"),
+        "p_value": float(f"{chi2_sf(chi2_value, dof) if dof else 1.0:.4g}"),
     }
 
 
@@ -317,7 +315,7 @@ def _residual_test(
     e_in = e[rows]
     chi2_value = float(e_in @ np.linalg.solve(S, e_in)) if len(rows) else 0.0
     dof = len(rows)
-    p_value = float(chi2.sf(chi2_value, dof)) if dof else 1.0
+    p_value = chi2_sf(chi2_value, dof) if dof else 1.0
     err_px = np.linalg.norm(e.reshape(-1, 2), axis=1)
     return (
         {
@@ -369,7 +367,7 @@ def _pose_test(rig: Rig, fresh: CalibResult | Any) -> dict[str, Any]:
         "sigma_rotation_deg": [_r(float(x), 5) for x in np.degrees(sig[:3])],
         "sigma_translation_mm": [_r(float(x), 3) for x in 1000.0 * sig[3:]],
         "mahalanobis2": _r(m2, 4),
-        "p_value": float(f"{float(chi2.sf(m2, 6)):.4g}"),
+        "p_value": float(f"{chi2_sf(m2, 6):.4g}"),
     }
 
 

@@ -67,7 +67,6 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import ncx2, norm
 
 from rigcal.arrays import FloatArray
 from rigcal.drift.edges import (
@@ -89,6 +88,7 @@ from rigcal.localize.odometry import DEGENERATE_BELOW
 from rigcal.localize.streams import Streams
 from rigcal.localize.time_pairing import nearest_index, poses_at
 from rigcal.rig import Rig
+from rigcal.stats import ncx2_sf, norm_ppf
 
 AXES = ("rx", "ry", "rz", "tx", "ty", "tz")
 AXIS_WORDS = (
@@ -190,7 +190,7 @@ class TargetlessSettings:
     def detection_factor(self) -> float:
         """How many sigmas a resolution must span to be detected 95 % of the time in a
         one-dof test at ``level`` (two-sided)."""
-        return float(norm.ppf(1.0 - self.level / 2.0) + norm.ppf(0.95))
+        return norm_ppf(1.0 - self.level / 2.0) + norm_ppf(0.95)
 
 
 @dataclass(frozen=True)
@@ -1408,7 +1408,7 @@ def _noncentrality(k: int, crit: float) -> float:
     lo, hi = 0.0, 400.0
     for _ in range(60):
         mid = 0.5 * (lo + hi)
-        if float(ncx2.sf(crit, k, mid)) < 0.95:
+        if ncx2_sf(crit, k, mid) < 0.95:
             lo = mid
         else:
             hi = mid

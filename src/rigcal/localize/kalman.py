@@ -68,11 +68,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from rigcal.arrays import FloatArray
 from rigcal.geometry import pose_of, se2
 from rigcal.localize.icp_covariance import OPEN_SIGMA_M
+from rigcal.stats import chi2_isf, chi2_sf
 
 # The paper's fixed covariances (weights="fixed"), as 1-sigma rate noise in the rig's
 # frame: forward (m/s), cross-track (m/s), yaw rate (rad/s); a step over dt seconds has
@@ -203,7 +203,7 @@ VO_MEMORY_SHARE, VO_MEMORY_PHI, VO_MEMORY_S = gauss_markov_fit(VO_FORWARD_LAGS, 
 # VO's forward motion is left out of the run (its cross-track and yaw still enter). W spans
 # the runs the memory correlates (phi^W below 0.05: 5 runs).
 VO_FORWARD_WINDOW = int(np.ceil(np.log(0.05) / np.log(VO_MEMORY_PHI)))
-VO_FORWARD_GATE = float(chi2.isf(0.001, 1))
+VO_FORWARD_GATE = chi2_isf(0.001, 1)
 # The guard against VO where ICP knows better (``KfParams.vo_guard``, :class:`_IcpReference`,
 # :func:`_vo_guard`): VO's last chained runs and ICP's own steps chained over the same
 # interval are compared per direction of the run (forward, cross-track, yaw), the
@@ -473,7 +473,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     forward_ratio = float(vo_own[0] + 2.0 * vo_share[0])  # VO's forward variance ratio, matched on line
     forward_info = float(ADAPT_WINDOW)  # the information its running mean holds (runs of full weight)
     # The windowed gate: the chi-square point of 3 x gate_window dof at the single gate's tail.
-    window_gate = float(chi2.isf(chi2.sf(params.gate, 3), 3 * params.gate_window)) if params.gate > 0 else 0.0
+    window_gate = chi2_isf(chi2_sf(params.gate, 3), 3 * params.gate_window) if params.gate > 0 else 0.0
     t = events[0][0]
     x = np.zeros(6)
     P = np.diag([1e-12, 1e-12, 1e-12, 1.0, 1.0, 1.0])
@@ -649,7 +649,7 @@ def _guard_gate(runs: int) -> float:
     """The chi-square point (1 dof) each of the guard's windows is tested at: the 0.001
     tail shared among them (Bonferroni), so that a run's direction is left out by chance
     no more often than by the whiteness test's 0.999 point."""
-    return float(chi2.isf((1.0 - VO_GUARD_LEVEL) / max(1, len(_guard_windows(runs))), 1))
+    return chi2_isf((1.0 - VO_GUARD_LEVEL) / max(1, len(_guard_windows(runs))), 1)
 
 
 def _keep(

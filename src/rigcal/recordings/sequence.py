@@ -33,7 +33,7 @@ from rigcal.errors import InputError
 from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text
 from rigcal.io.validate import finite_array, parse_real, real, relative_inside, whole
 from rigcal.io.wheel_odometry import WheelOdometry, odometry_tum, read_odometry_tum
-from rigcal.scan import Scan, counter_clockwise, laser_clockwise
+from rigcal.scan import Scan, ScanArrayError, laser_clockwise, uniform_scans
 
 SEQUENCE_SCHEMA_VERSION = 1
 # Written when the folder keeps wheel odometry (its ``odometry`` mapping).
@@ -194,18 +194,21 @@ def read_sequence(folder: str | Path) -> Sequence:
             f"{npz}: stamps_s[{k}]: got {float(st[k])!r}; expected a finite stamp after "
             f"{float(st[k - 1]) if k else '-inf'!r} (scan stamps increase)"
         )
-    scans = []
-    for i in range(n):
-        nb = int(arrays["n_beams"][i])
-        scan = Scan.from_uniform(
-            float(arrays["angle_min_rad"][i]),
-            float(arrays["angle_increment_rad"][i]),
-            arrays["ranges_m"][i, :nb],
-            float(arrays["range_min_m"][i]),
-            float(arrays["range_max_m"][i]),
-            stamp_s=float(arrays["stamps_s"][i]),
+    try:
+        scans = uniform_scans(
+            arrays["angle_min_rad"],
+            arrays["angle_increment_rad"],
+            arrays["ranges_m"],
+            arrays["n_beams"],
+            arrays["range_min_m"],
+            arrays["range_max_m"],
+            arrays["stamps_s"],
+            clockwise=clockwise,
         )
-        scans.append(counter_clockwise(scan) if clockwise else scan)
+    except ScanArrayError as exc:  # e.g. a step so small against the first angle that the angles stall
+        raise InputError.at(
+            npz, f"{exc.key}[{exc.index}]", float(arrays[exc.key][exc.index]), exc.expected
+        ) from None
     im = check_keys(d["images"], path, "images", ["folder", "index", "count"])
     index = folder / relative_inside(im["index"], path, "images.index")
     images = folder / relative_inside(im["folder"], path, "images.folder")

@@ -81,6 +81,7 @@ from rigcal.calib.spread import (
 )
 from rigcal.errors import CalibrationError
 from rigcal.geometry import make_T, rotvec_to_R
+from rigcal.stats import chi2_ppf
 
 MIN_CAPTURES = 5
 # A set of planes whose normals span less than this (smallest singular value of the
@@ -974,14 +975,12 @@ def _capture_sigma(
     as the noise model predicts (:func:`rigcal.calib.noise.matching_noise`; 0 when the range
     noise and the board poses already explain them); ``params``: the parameters fitted
     (6, or the level solve's 3 observed ones)."""
-    from scipy.stats import chi2
-
     obs = [o for o, k in zip(observations, mask, strict=True) if k]
     lns = [ln for ln, k in zip(lines, mask, strict=True) if k]
     dof = 2 * len(obs) - params
     # No per-capture error unless the captures disagree beyond chance (90 %): an estimate
     # from chance alone would only widen the covariance.
-    if dof <= 0 or float(np.sum(np.minimum(_chi2(T, obs, lns, noise), CLIP_CHI2))) < chi2.ppf(0.9, dof):
+    if dof <= 0 or float(np.sum(np.minimum(_chi2(T, obs, lns, noise), CLIP_CHI2))) < chi2_ppf(0.9, dof):
         return 0.0
     return matching_noise(
         lambda s: _chi2(T, obs, lns, replace(noise, capture_sigma_m=s)),
