@@ -387,9 +387,10 @@ def _targetless(
         from rigcal.drift.log import targetless_record
         from rigcal.drift.targetless import TargetlessSettings, check_targetless, same_camera
         from rigcal.drift.trajectory import trajectory_odometry
-        from rigcal.localize.streams import Streams
+        from rigcal.localize.streams import Streams, require_returns
 
         seq, read_s = read.result()
+        require_returns(sequence, seq)
         streams = Streams(seq, stored, {"read_s": read_s})
     same_camera(stored, streams, rig_path)
     streams.progress = progress

@@ -327,10 +327,8 @@ class Streams:
         return self.sequence.folder / self.sequence.image_folder / self.sequence.image_files[i]
 
 
-def open_streams(folder: str | Path, rig_file: str | Path | None = None) -> Streams:
-    """Read a sequence folder and its rig (``rig_file`` overrides the sequence's own)."""
-    t0 = time.perf_counter()
-    seq = read_sequence(folder)
+def require_returns(folder: str | Path, seq: Sequence) -> None:
+    """Refuse a drive whose scans hold no return at all, or only the scanner's maximum."""
     # A laser unplugged, ranges in a wrong unit, or a scanner that writes its maximum range
     # for no return: nothing to localize by, however still the robot would seem to stand.
     if seq.scans and not any((s.valid & (s.ranges_m < s.range_max_m)).any() for s in seq.scans):
@@ -342,6 +340,13 @@ def open_streams(folder: str | Path, rig_file: str | Path | None = None) -> Stre
             "returns within each scan's range_min_m to range_max_m (NaN, inf, 0: no return)"
             + ("; its maximum written for no return? (import-laser --no-return-m)" if at_max else ""),
         )
+
+
+def open_streams(folder: str | Path, rig_file: str | Path | None = None) -> Streams:
+    """Read a sequence folder and its rig (``rig_file`` overrides the sequence's own)."""
+    t0 = time.perf_counter()
+    seq = read_sequence(folder)
+    require_returns(folder, seq)
     rig = None
     if rig_file is not None:
         rig = read_rig(rig_file)
