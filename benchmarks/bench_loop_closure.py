@@ -21,6 +21,7 @@ each with closure off and on, and the closures' counts.
     uv sync --group bench --extra gtsam     # rtb-data, GTSAM
     .venv/bin/python benchmarks/bench_loop_closure.py [--scans N] [--backend scipy|gtsam|both]
         [--steps own|own+drift|fixed] [--global-every N] [--workers 1,2] [--submap-scans N]
+    .venv/bin/python benchmarks/bench_loop_closure.py --solver [--scans N]
     .venv/bin/python benchmarks/bench_loop_closure.py --sim [--methods icp,kf,iasm,hiasm] [--drives DIR]
 """
 
@@ -39,7 +40,7 @@ import numpy as np
 
 from rigcal.io.wheel_odometry import laser_motions
 from rigcal.localize.icp import IcpParams
-from rigcal.localize.loop_closure import Closure, LoopParams, LoopResult, close_loops, relative
+from rigcal.localize.loop_closure import Closure, LoopParams, LoopResult, close_loops, compose, relative
 from rigcal.localize.metrics import anchored, evaluate, relation_error, rpe_pairs
 from rigcal.localize.odometry import icp_odometry
 from rigcal.localize.pose_graph import gtsam_available
@@ -118,7 +119,13 @@ def killian(
     w0 = time.perf_counter()
     prev = icp_odometry(scans, IcpParams(method="point-to-line"))
     prev_speed = f"{duration / (time.perf_counter() - w0):.0f}x real time"
+    # The log's odometry chained alone (the g2o's sequential edges, which its vertices
+    # are the optimum of): how far the reference itself follows it step by step.
+    wheels = np.zeros((len(scans), 3))
+    for k, step in enumerate(guess):
+        wheels[k + 1] = compose(wheels[k][None], step[None])[0]
     rows = [
+        _row("the log's odometry alone", wheels, gt, "-"),
         _row("ICP from the previous motion", prev.poses, gt, prev_speed),
         _row("ICP from the odometry", od.poses, gt, f"{duration / icp_wall:.0f}x real time"),
     ]
@@ -161,6 +168,48 @@ def killian(
     # Hess et al. 2016, Table I (Killian Court, against the Freiburg site's relations).
     cartographer = "| - | - | 0.0395 ± 0.0488 | 0.352 ± 0.353 | - | - | 40x real time on 6 cores |"
     print(f"| Cartographer (published) {cartographer}")
+
+
+def solver(n: int | None) -> None:
+    """The scipy back end's solve against its reference (the generic sparse least squares
+    and its old 1e-7 stop) on every graph a loop closure run over the log's first N scans
+    re-optimises, in this process: CPU time of each and the largest difference."""
+    from rigcal.localize import loop_closure, pose_graph
+
+    archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
+    with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
+        z.extract("killian.g2o", tmp)
+        log = read_carmen(Path(tmp) / "killian.g2o")
+        odom, _ = carmen_odometry(log, "killian.g2o")
+    assert odom is not None
+    scans = log.scans[:n]
+    guess = laser_motions(odom, np.array([s.stamp_s for s in scans]))
+    od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess)
+    graphs: list[pose_graph.PoseGraph] = []
+    optimise = loop_closure.optimise
+
+    def kept(g: pose_graph.PoseGraph, backend: str = "scipy") -> tuple[np.ndarray, np.ndarray]:
+        graphs.append(g)
+        return optimise(g, backend)
+
+    loop_closure.optimise = kept  # type: ignore[assignment]
+    close_loops(scans, od.poses, LoopParams(backend="scipy"), od.covariance)
+    loop_closure.optimise = optimise
+    tolerance = pose_graph.STEP_TOLERANCE
+    pose_graph.STEP_TOLERANCE = 1e-7
+    c0 = time.process_time()
+    ref = [pose_graph._scipy_optimum_reference(g) for g in graphs]
+    ref_cpu = time.process_time() - c0
+    pose_graph.STEP_TOLERANCE = tolerance
+    c0 = time.process_time()
+    new = [pose_graph._scipy_optimum(g) for g in graphs]
+    new_cpu = time.process_time() - c0
+    diff = max(float(np.abs(a - b).max()) for a, b in zip(ref, new, strict=True))
+    print(
+        f"{len(graphs)} graphs of {len(graphs[0].poses)}-{len(graphs[-1].poses)} poses: reference "
+        f"{ref_cpu:.2f} s CPU, block-assembled SPD solve {new_cpu:.2f} s ({ref_cpu / new_cpu:.2f}x); "
+        f"largest difference {diff:.2g} (m, rad); load average {os.getloadavg()[0]:.1f}"
+    )
 
 
 def _by_search(lc: LoopResult, gt: np.ndarray) -> None:
@@ -241,7 +290,15 @@ def main() -> None:
         default=1,
         help="ICP's steps matched to the last N scans (scan-to-submap; default 1: the previous scan)",
     )
+    ap.add_argument(
+        "--solver",
+        action="store_true",
+        help="time the scipy back end's solve against its reference on the graphs of a run",
+    )
     a = ap.parse_args()
+    if a.solver:
+        solver(a.scans)
+        return
     if a.sim:
         simulated(a.methods.split(","), a.drives)
         return
