@@ -11,8 +11,9 @@ is down-weighted instead of bending the map (Sunderhauf and Protzel 2012; Agarwa
 2013 compare it with switchable constraints). The first pose is held.
 
 - ``scipy``: Gauss-Newton by iteratively reweighted least squares (each robust edge
-  weighs 1 / (1 + |r|^2 / c^2), the Cauchy kernel's weight), sparse normal equations
-  solved by scipy's sparse LU.
+  weighs 1 / (1 + |r|^2 / c^2), the Cauchy kernel's weight), the sparse normal equations
+  assembled in 3 x 3 blocks per edge and solved as symmetric positive definite by
+  scipy's SuperLU, until a step moves no pose by ``STEP_TOLERANCE``.
 - ``gtsam``: GTSAM's Levenberg-Marquardt on ``BetweenFactorPose2`` factors, robust
   edges under ``noiseModel.Robust`` with its Cauchy m-estimator (the same weight); needs
   the optional extra ``rigcal[gtsam]``.
