@@ -20,7 +20,8 @@ each with closure off and on, and the closures' counts.
 
     uv sync --group bench --extra gtsam     # rtb-data, GTSAM
     .venv/bin/python benchmarks/bench_loop_closure.py [--scans N] [--backend scipy|gtsam|both]
-        [--steps own|own+drift|fixed] [--global-every N]
+        [--steps own|own+drift|fixed] [--global-every N] [--workers 1,2] [--submap-scans N]
+    .venv/bin/python benchmarks/bench_loop_closure.py --solver [--scans N]
     .venv/bin/python benchmarks/bench_loop_closure.py --sim [--methods icp,kf,iasm,hiasm] [--drives DIR]
 """
 
@@ -39,7 +40,7 @@ import numpy as np
 
 from rigcal.io.wheel_odometry import laser_motions
 from rigcal.localize.icp import IcpParams
-from rigcal.localize.loop_closure import Closure, LoopParams, close_loops, relative
+from rigcal.localize.loop_closure import Closure, LoopParams, LoopResult, close_loops, compose, relative
 from rigcal.localize.metrics import anchored, evaluate, relation_error, rpe_pairs
 from rigcal.localize.odometry import icp_odometry
 from rigcal.localize.pose_graph import gtsam_available
@@ -74,7 +75,24 @@ def _true(closures: list[Closure], gt: np.ndarray) -> int:
     return int(np.sum((np.hypot(*(z[:, :2] - t[:, :2]).T) < TRUE_M) & (off_deg < TRUE_DEG)))
 
 
-def killian(n: int | None, backends: list[str], steps: str = "own+drift", global_every: int = 5) -> None:
+def _same(a: LoopResult, b: LoopResult) -> bool:
+    """Whether two runs gave the same closures (pairs, verdicts, poses) and poses, bit for bit."""
+
+    def key(c: Closure) -> tuple[object, ...]:
+        pose = None if c.T_j_i is None else tuple(c.T_j_i)
+        return c.i, c.j, c.why_not, c.kernel_rejected, pose
+
+    return [key(c) for c in a.closures] == [key(c) for c in b.closures] and np.array_equal(a.poses, b.poses)
+
+
+def killian(
+    n: int | None,
+    backends: list[str],
+    steps: str = "own+drift",
+    global_every: int = 5,
+    workers: tuple[int, ...] = (2,),
+    submap_scans: int = 1,
+) -> None:
     archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
     with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
         z.extract("killian.g2o", tmp)
@@ -87,12 +105,12 @@ def killian(n: int | None, backends: list[str], steps: str = "own+drift", global
     guess = laser_motions(odom, t)
     icp_odometry(scans[:50], IcpParams(method="point-to-line"), guess=guess[:49])  # compile / load kernels
     w0, c0 = time.perf_counter(), time.process_time()
-    od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess)
+    od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess, submap_scans=submap_scans)
     icp_wall, icp_cpu = time.perf_counter() - w0, time.process_time() - c0
     load = [os.getloadavg()[0]]
     print(
         f"Killian Court: {len(scans)} scans, {duration:.0f} s of data; "
-        f"ICP {icp_wall:.1f} s wall, {icp_cpu:.1f} s CPU"
+        f"ICP {icp_wall:.1f} s wall, {icp_cpu:.1f} s CPU (the step matched to the last {submap_scans} scans)"
     )
     header = (
         "| method | ATE (m) | end error (m) | relation error, consecutive (m) | (deg) "
@@ -101,43 +119,48 @@ def killian(n: int | None, backends: list[str], steps: str = "own+drift", global
     w0 = time.perf_counter()
     prev = icp_odometry(scans, IcpParams(method="point-to-line"))
     prev_speed = f"{duration / (time.perf_counter() - w0):.0f}x real time"
+    # The log's odometry chained alone (the g2o's sequential edges, which its vertices
+    # are the optimum of): how far the reference itself follows it step by step.
+    wheels = np.zeros((len(scans), 3))
+    for k, step in enumerate(guess):
+        wheels[k + 1] = compose(wheels[k][None], step[None])[0]
     rows = [
+        _row("the log's odometry alone", wheels, gt, "-"),
         _row("ICP from the previous motion", prev.poses, gt, prev_speed),
         _row("ICP from the odometry", od.poses, gt, f"{duration / icp_wall:.0f}x real time"),
     ]
     for backend in backends:
-        w0, c0 = time.perf_counter(), time.process_time()
-        params = LoopParams(
-            backend=backend,
-            global_every=global_every,
-            step_drift=steps == "own+drift",
-        )
-        lc = close_loops(scans, od.poses, params, None if steps == "fixed" else od.covariance)
-        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
-        load.append(os.getloadavg()[0])
-        c = lc.counts
-        print(
-            f"{backend}: closures proposed {c['proposed']}, accepted {c['accepted']}, rejected by the "
-            f"verification {c['rejected_by_verification']}, by the kernel {c['rejected_by_kernel']}; "
-            f"loop closure {wall:.1f} s wall ({wall / icp_wall:.2f}x ICP's), "
-            f"{cpu:.1f} s CPU ({cpu / icp_cpu:.2f}x ICP's)"
-        )
-        for name, wide in (("local", False), ("global", True)):
-            tried = [x for x in lc.closures if x.wide == wide]
-            why = Counter(x.why_not.split(" ")[0] for x in tried if x.T_j_i is None)
-            accepted = [x for x in tried if x.T_j_i is not None and not x.kernel_rejected]
-            kernel = [x for x in tried if x.kernel_rejected]
-            print(
-                f"  {name} search: proposed {len(tried)}, accepted {len(accepted)} "
-                f"({_true(accepted, gt)} within {TRUE_M} m / {TRUE_DEG} deg of the g2o's), rejected by the "
-                f"kernel {len(kernel)} ({_true(kernel, gt)} of them true); by the verification "
-                f"{dict(why.most_common())}"
+        first: LoopResult | None = None
+        for threads in workers:
+            w0, c0 = time.perf_counter(), time.process_time()
+            params = LoopParams(
+                backend=backend,
+                global_every=global_every,
+                step_drift=steps == "own+drift",
+                workers=threads,
             )
-        speed = (
-            f"{duration / (icp_wall + wall):.0f}x real time wall, {duration / (icp_cpu + cpu):.0f}x CPU; "
-            f"closure {cpu / icp_cpu:.2f}x ICP's CPU"
-        )
-        rows.append(_row(f"ICP from the odometry + loop closure ({backend})", lc.poses, gt, speed))
+            lc = close_loops(scans, od.poses, params, None if steps == "fixed" else od.covariance)
+            wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+            load.append(os.getloadavg()[0])
+            c = lc.counts
+            print(
+                f"{backend}, {threads} thread(s): closures proposed {c['proposed']}, "
+                f"accepted {c['accepted']}, rejected by the verification {c['rejected_by_verification']}, "
+                f"by the kernel {c['rejected_by_kernel']}; "
+                f"loop closure {wall:.1f} s wall ({wall / icp_wall:.2f}x ICP's), "
+                f"{cpu:.1f} s CPU ({cpu / icp_cpu:.2f}x ICP's); load average {load[-1]:.1f}"
+            )
+            if first is None:
+                first = lc
+                _by_search(lc, gt)
+            else:
+                print(f"  the same closures and poses as with {workers[0]} thread(s): {_same(first, lc)}")
+            speed = (
+                f"{duration / (icp_wall + wall):.0f}x real time wall, {duration / (icp_cpu + cpu):.0f}x CPU; "
+                f"closure {cpu / icp_cpu:.2f}x ICP's CPU"
+            )
+            name = f"ICP from the odometry + loop closure ({backend}, {threads} thread(s))"
+            rows.append(_row(name, lc.poses, gt, speed))
     print(f"load average (1 min) over the runs: {min(load):.1f}-{max(load):.1f}")
     print(header)
     print("|---|---|---|---|---|---|---|---|")
@@ -145,6 +168,63 @@ def killian(n: int | None, backends: list[str], steps: str = "own+drift", global
     # Hess et al. 2016, Table I (Killian Court, against the Freiburg site's relations).
     cartographer = "| - | - | 0.0395 ± 0.0488 | 0.352 ± 0.353 | - | - | 40x real time on 6 cores |"
     print(f"| Cartographer (published) {cartographer}")
+
+
+def solver(n: int | None) -> None:
+    """The scipy back end's solve against its reference (the generic sparse least squares
+    and its old 1e-7 stop) on every graph a loop closure run over the log's first N scans
+    re-optimises, in this process: CPU time of each and the largest difference."""
+    from rigcal.localize import loop_closure, pose_graph
+
+    archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
+    with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
+        z.extract("killian.g2o", tmp)
+        log = read_carmen(Path(tmp) / "killian.g2o")
+        odom, _ = carmen_odometry(log, "killian.g2o")
+    assert odom is not None
+    scans = log.scans[:n]
+    guess = laser_motions(odom, np.array([s.stamp_s for s in scans]))
+    od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess)
+    graphs: list[pose_graph.PoseGraph] = []
+    optimise = loop_closure.optimise
+
+    def kept(g: pose_graph.PoseGraph, backend: str = "scipy") -> tuple[np.ndarray, np.ndarray]:
+        graphs.append(g)
+        return optimise(g, backend)
+
+    loop_closure.optimise = kept  # type: ignore[assignment]
+    close_loops(scans, od.poses, LoopParams(backend="scipy"), od.covariance)
+    loop_closure.optimise = optimise
+    tolerance = pose_graph.STEP_TOLERANCE
+    pose_graph.STEP_TOLERANCE = 1e-7
+    c0 = time.process_time()
+    ref = [pose_graph._scipy_optimum_reference(g) for g in graphs]
+    ref_cpu = time.process_time() - c0
+    pose_graph.STEP_TOLERANCE = tolerance
+    c0 = time.process_time()
+    new = [pose_graph._scipy_optimum(g) for g in graphs]
+    new_cpu = time.process_time() - c0
+    diff = max(float(np.abs(a - b).max()) for a, b in zip(ref, new, strict=True))
+    print(
+        f"{len(graphs)} graphs of {len(graphs[0].poses)}-{len(graphs[-1].poses)} poses: reference "
+        f"{ref_cpu:.2f} s CPU, block-assembled SPD solve {new_cpu:.2f} s ({ref_cpu / new_cpu:.2f}x); "
+        f"largest difference {diff:.2g} (m, rad); load average {os.getloadavg()[0]:.1f}"
+    )
+
+
+def _by_search(lc: LoopResult, gt: np.ndarray) -> None:
+    """The local and the global search's closures: accepted (true), rejected and why."""
+    for name, wide in (("local", False), ("global", True)):
+        tried = [x for x in lc.closures if x.wide == wide]
+        why = Counter(x.why_not.split(" ")[0] for x in tried if x.T_j_i is None)
+        accepted = [x for x in tried if x.T_j_i is not None and not x.kernel_rejected]
+        kernel = [x for x in tried if x.kernel_rejected]
+        print(
+            f"  {name} search: proposed {len(tried)}, accepted {len(accepted)} "
+            f"({_true(accepted, gt)} within {TRUE_M} m / {TRUE_DEG} deg of the g2o's), rejected by the "
+            f"kernel {len(kernel)} ({_true(kernel, gt)} of them true); by the verification "
+            f"{dict(why.most_common())}"
+        )
 
 
 def simulated(methods: list[str], drives: str | None = None) -> None:
@@ -198,7 +278,27 @@ def main() -> None:
         default=5,
         help="the global search at most every N keyframes (default 5; 0: off, the local search only)",
     )
+    ap.add_argument(
+        "--workers",
+        default="2",
+        help="loop closure's threads (LoopParams.workers), a run for each of a comma-separated list, "
+        "e.g. 1,2: the same closures, the speed of each (default 2)",
+    )
+    ap.add_argument(
+        "--submap-scans",
+        type=int,
+        default=1,
+        help="ICP's steps matched to the last N scans (scan-to-submap; default 1: the previous scan)",
+    )
+    ap.add_argument(
+        "--solver",
+        action="store_true",
+        help="time the scipy back end's solve against its reference on the graphs of a run",
+    )
     a = ap.parse_args()
+    if a.solver:
+        solver(a.scans)
+        return
     if a.sim:
         simulated(a.methods.split(","), a.drives)
         return
@@ -206,7 +306,8 @@ def main() -> None:
     if not gtsam_available() and "gtsam" in backends:
         print("GTSAM is not installed (uv sync --extra gtsam): scipy only")
         backends = ["scipy"]
-    killian(a.scans, backends, a.steps, a.global_every)
+    workers = tuple(int(w) for w in a.workers.split(","))
+    killian(a.scans, backends, a.steps, a.global_every, workers, a.submap_scans)
 
 
 if __name__ == "__main__":

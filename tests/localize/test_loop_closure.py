@@ -13,6 +13,7 @@ from rigcal.cli.main import main
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
 from rigcal.localize import branch_and_bound as bnb
+from rigcal.localize import pose_graph
 from rigcal.localize.loop_closure import (
     Closure,
     LoopParams,
@@ -174,6 +175,27 @@ def test_scipy_and_gtsam_reach_the_same_optimum(rng, with_false):
     np.testing.assert_allclose(wa, wb, atol=0.05)
     # The optimum itself is right: the loop closed near the truth whatever the false edge.
     assert np.hypot(*(a[-1, :2] - truth[-1, :2])) < 0.1
+
+
+@pytest.mark.parametrize("with_false", [False, True])
+def test_the_block_assembled_solve_matches_the_generic_sparse_one(rng, with_false, monkeypatch):
+    # The normal equations built block by block and solved as symmetric positive definite
+    # take the same Gauss-Newton steps as the generic sparse least squares: held to a
+    # tighter stop, the two agree to far below the stop.
+    g, _ = _noisy_square_graph(rng, with_false)
+    g = replace(
+        g,
+        poses=g.poses
+        + rng.normal(0, [0.05, 0.05, 0.01], g.poses.shape) * (np.arange(len(g.poses)) > 0)[:, None],
+    )
+    monkeypatch.setattr(pose_graph, "STEP_TOLERANCE", 1e-10)
+    a = pose_graph._scipy_optimum(g)
+    b = pose_graph._scipy_optimum_reference(g)
+    np.testing.assert_allclose(a, b, atol=1e-9)
+    assert np.array_equal(a[0], g.poses[0])  # the first pose held
+    # At the default stop the optimum moves by well under a millimetre.
+    monkeypatch.setattr(pose_graph, "STEP_TOLERANCE", 1e-6)
+    np.testing.assert_allclose(pose_graph._scipy_optimum(g), b, atol=1e-4)
 
 
 def test_an_unknown_or_missing_back_end_is_an_input_error(rng, monkeypatch):
@@ -500,24 +522,33 @@ def test_branch_and_bound_reports_the_best_elsewhere_only_above_the_ratio(rng):
     assert cut.nodes < one.nodes
 
 
+def _precise_steps(n):
+    """(n, 3, 3) steps' covariances of a precise odometry (the first NaN)."""
+    return np.concatenate([np.full((1, 3, 3), np.nan), np.tile(np.diag([1e-6, 1e-6, 1e-8]), (n - 1, 1, 1))])
+
+
+def _jumped_lap(rng):
+    """A lap and a half of the square (the lap, the truth, the odometry, the scans); the
+    odometry drifts 0.002 rad a step and its heading jumps by 0.7 rad once."""
+    lap = _square()
+    truth = np.vstack([lap, lap[1:61] + np.array([0.0, 0.0, 2 * np.pi])])
+    odo = _drifted(truth, yaw_per_step=0.002)
+    after = relative(np.repeat(odo[99][None], len(odo) - 100, 0), odo[100:])
+    odo[100:] = compose(np.repeat((odo[99] + np.array([0.0, 0.0, 0.7]))[None], len(after), 0), after)
+    return lap, truth, odo, _scans_of(_square_world(rng), truth)
+
+
 def test_the_global_search_closes_a_far_return_rotated_by_a_large_angle(rng):
     # A lap and a half of the square; the odometry drifts 0.002 rad a step and its heading
     # jumps by 0.7 rad once (a step it got wrong): the return comes back 9 m away and
     # rotated by about 60 degrees, beyond a local window capped at 1 m and 0.35 rad. A
     # drift model that allows for it (a heading random walk of 0.06 rad/sqrt(m), on the
     # steps too) opens the global search's yaw window past it and lets the graph bend.
-    lap = _square()
-    truth = np.vstack([lap, lap[1:61] + np.array([0.0, 0.0, 2 * np.pi])])
-    odo = _drifted(truth, yaw_per_step=0.002)
-    after = relative(np.repeat(odo[99][None], len(odo) - 100, 0), odo[100:])
-    odo[100:] = compose(np.repeat((odo[99] + np.array([0.0, 0.0, 0.7]))[None], len(after), 0), after)
-    scans = _scans_of(_square_world(rng), truth)
+    _, truth, odo, scans = _jumped_lap(rng)
     params = LoopParams(
         max_search_m=1.0, drift_rad_per_sqrt_m=0.06, step_drift=True, global_every=5, backend="scipy"
     )
-    own = np.concatenate(
-        [np.full((1, 3, 3), np.nan), np.tile(np.diag([1e-6, 1e-6, 1e-8]), (len(odo) - 1, 1, 1))]
-    )
+    own = _precise_steps(len(odo))
     yaw_error = relative(odo[[0]], odo[[160]])[0, 2]
     assert abs(yaw_error) > max(params.global_rad, params.max_search_rad)
     assert np.hypot(*(odo[160, :2] - odo[0, :2])) > 8 * params.max_search_m
@@ -622,3 +653,49 @@ def test_step_drift_caps_a_degenerate_steps_covariance_by_the_step_prior():
 def test_the_global_search_settings_are_checked(bad):
     with pytest.raises(ValueError, match="global"):
         LoopParams(**bad)
+
+
+def _same_closures(a, b):
+    assert len(a.closures) == len(b.closures)
+    for x, y in zip(a.closures, b.closures, strict=True):
+        assert (x.i, x.j, x.why_not, x.kernel_rejected, x.wide) == (
+            y.i,
+            y.j,
+            y.why_not,
+            y.kernel_rejected,
+            y.wide,
+        )
+        assert x.score == y.score or (np.isnan(x.score) and np.isnan(y.score))
+        if x.T_j_i is None:
+            assert y.T_j_i is None
+        else:
+            np.testing.assert_array_equal(x.T_j_i, y.T_j_i)
+            np.testing.assert_array_equal(x.covariance, y.covariance)
+    np.testing.assert_array_equal(a.poses, b.poses)
+
+
+def test_the_searches_on_threads_give_exactly_the_serial_result(rng):
+    # A lap and a half with a drift the local search closes and a heading jump only the
+    # global search reaches: closures found, poses corrected mid-run (each correction a new
+    # version of the poses, whose searches started ahead are dropped), global candidates
+    # matched at once. Every closure, score and pose is the serial run's, bit for bit.
+    lap, _, odo, scans = _jumped_lap(rng)
+    params = LoopParams(max_search_m=1.0, drift_rad_per_sqrt_m=0.06, global_every=5, backend="scipy")
+    own = _precise_steps(len(odo))
+    serial = close_loops(scans, odo, replace(params, workers=1), own)
+    assert serial.counts["accepted"] >= 2
+    assert any(c.wide for c in serial.closures)
+    for workers in (2, 3):
+        _same_closures(serial, close_loops(scans, odo, replace(params, workers=workers), own))
+    # The local search alone, on a drift it closes within its window.
+    small = _drifted(lap, yaw_per_step=0.001)
+    scans = _scans_of(_square_world(rng), lap)
+    local = replace(params, global_every=0, max_search_m=8.0)
+    serial = close_loops(scans, small, replace(local, workers=1))
+    assert serial.counts["accepted"] >= 1
+    _same_closures(serial, close_loops(scans, small, replace(local, workers=2)))
+
+
+def test_the_number_of_threads_is_checked():
+    with pytest.raises(ValueError, match="workers must be at least 1, not 0"):
+        LoopParams(workers=0)

@@ -79,7 +79,8 @@ closure's ``submap_m``) is not searched: the same information twice would count 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -108,7 +109,8 @@ _MAX_BLOCKS = 64
 @dataclass(frozen=True)
 class LoopParams:
     """Loop closure's settings (module docstring). ``backend``: the pose graph's, "scipy",
-    "gtsam" or "auto" (GTSAM where it is installed, scipy otherwise)."""
+    "gtsam" or "auto" (GTSAM where it is installed, scipy otherwise). ``workers``: threads
+    the global search's candidates are matched on (step 1b; 1: one by one)."""
 
     keyframe_m: float = 1.0
     min_loop_m: float = 10.0
@@ -149,6 +151,7 @@ class LoopParams:
     global_min_score: float = 0.55
     step_drift: bool = True
     backend: str = "auto"
+    workers: int = 2
 
     def __post_init__(self) -> None:
         if self.backend not in ("auto", "scipy", "gtsam"):
@@ -164,6 +167,8 @@ class LoopParams:
             raise ValueError("global_grid_m, global_context_m and global_window_m must be positive")
         if self.global_levels < 1:
             raise ValueError("global_levels must be at least 1")
+        if self.workers < 1:
+            raise ValueError(f"workers must be at least 1, not {self.workers}")
 
     @property
     def pose_graph(self) -> str:
@@ -562,7 +567,8 @@ def global_search(
     over the graph path ``path_m`` (step 1's window uncapped, at most ``max_global_m``),
     nearest first, at most ``global_candidates`` of them ``2 submap_m`` of path apart are
     each matched by :func:`verify_global`, in a yaw window of the drift model's, at least
-    ``global_rad``; the closures tried, the last the accepted one if any."""
+    ``global_rad``; the closures tried, the last the accepted one if any; on
+    ``workers`` threads at once (the same closures as one by one)."""
     L = np.maximum(path_m, 0.0)
     a, b = params.drift_per_m, params.drift_rad_per_sqrt_m
     sigma_xy = np.sqrt((a * L) ** 2 + b**2 * L**3 / 3.0)
@@ -575,9 +581,26 @@ def global_search(
             picked.append(int(c))
         if len(picked) == params.global_candidates:
             break
+
+    def match(c: int) -> Closure:
+        return verify_global(scans, poses, along, i, int(earlier[c]), float(yaw_window[c]), params)
+
+    if params.workers == 1 or len(picked) < 2:
+        return _until_accepted(map(match, picked))
+    # The candidates are matched at once on threads (the branch and bound and ICP kernels
+    # release the GIL) and taken in order up to the first accepted, as one by one.
+    with ThreadPoolExecutor(min(params.workers, len(picked))) as pool:
+        futures = [pool.submit(match, c) for c in picked]
+        out = _until_accepted(f.result() for f in futures)
+        for f in futures[len(out) :]:
+            f.cancel()
+    return out
+
+
+def _until_accepted(closures: Iterator[Closure]) -> list[Closure]:
+    """The closures up to and with the first accepted one."""
     out = []
-    for c in picked:
-        closure = verify_global(scans, poses, along, i, int(earlier[c]), float(yaw_window[c]), params)
+    for closure in closures:
         out.append(closure)
         if closure.T_j_i is not None:
             break

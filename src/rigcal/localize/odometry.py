@@ -17,6 +17,7 @@ references (and ICP's numpy iterations), which the tests hold them to.
 from __future__ import annotations
 
 import dataclasses
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -43,6 +44,8 @@ DEGENERATE_BELOW = 0.01
 # (m, fraction of the step's length) and (rad, fraction of the step's turn).
 WHEEL_GATE_M = (0.10, 0.10)
 WHEEL_GATE_RAD = (np.radians(3.0), 0.10)
+# Scans in the model each step is matched against (scan-to-submap): 1 the previous scan.
+SUBMAP_SCANS = 1
 
 
 def agrees_with_wheels(step: FloatArray, wheel: FloatArray) -> bool:
@@ -94,6 +97,7 @@ def icp_odometry(
     kernel: bool = True,
     guess: FloatArray | None = None,
     covariance: bool = True,
+    submap_scans: int = SUBMAP_SCANS,
 ) -> Odometry:
     """Chain ICP increments T_prev_cur over the scans (:class:`ScanOdometry` fed every
     scan in turn), each started from ``guess[k]`` (N - 1, 3: the wheel odometry's motion
@@ -108,7 +112,7 @@ def icp_odometry(
         raise ValueError("icp_odometry needs at least one scan")
     if guess is not None and np.shape(guess) != (len(scans) - 1, 3):
         raise ValueError(f"icp_odometry: guess of shape {np.shape(guess)}, expected ({len(scans) - 1}, 3)")
-    od = ScanOdometry(params, lines, kernel=kernel, covariance=covariance)
+    od = ScanOdometry(params, lines, kernel=kernel, covariance=covariance, submap_scans=submap_scans)
     for k, scan in enumerate(scans):
         if k and progress is not None:
             progress(k + 1)
@@ -143,8 +147,14 @@ class ScanOdometry:
         *,
         kernel: bool = True,
         covariance: bool = True,
+        submap_scans: int = SUBMAP_SCANS,
     ) -> None:
+        if submap_scans < 1:
+            raise ValueError(f"submap_scans must be at least 1, not {submap_scans}")
         self.params = params or IcpParams()
+        self._submap_scans = submap_scans
+        # The last submap_scans scans' returns and normals in their own frames, and their poses.
+        self._recent: deque[tuple[FloatArray, FloatArray | None, FloatArray]] = deque(maxlen=submap_scans)
         self._with_covariance = covariance
         self._lines = lines
         self._kernel = kernel
@@ -176,6 +186,7 @@ class ScanOdometry:
         if k == 0:
             self._prev = cur
             self._prev_normals = self._normals_of(0, scan, cur, cur, None, np.zeros(3), None)
+            self._recent.append((cur, self._prev_normals, self._T.copy()))
             self._poses.append(pose_of(self._T))
             self._deg.append(1.0)
             self._rms.append(0.0)
@@ -189,9 +200,8 @@ class ScanOdometry:
             step, d, r = start, 0.0, float("nan")
             self._skipped += 1
         else:
-            res = icp(
-                prev, cur, initial=start, params=params, model_normals=self._prev_normals, kernel=kernel
-            )
+            model, model_normals = self._model()
+            res = icp(model, cur, initial=start, params=params, model_normals=model_normals, kernel=kernel)
             measured = True
             if wheel and not agrees_with_wheels(res.pose, start):
                 res = dataclasses.replace(res, pose=start, degeneracy=0.0)
@@ -200,14 +210,17 @@ class ScanOdometry:
             elif not wheel and res.inlier_fraction < params.restart_below_inliers:
                 zero = np.zeros(3)
                 again = icp(
-                    prev, cur, initial=zero, params=params, model_normals=self._prev_normals, kernel=kernel
+                    model, cur, initial=zero, params=params, model_normals=model_normals, kernel=kernel
                 )
                 if (again.inlier_fraction, -again.rms_m) > (res.inlier_fraction, -res.rms_m):
                     res = again
                 self._restarts += 1
-            step, d, r, self._nearest = res.pose, res.degeneracy, res.rms_m, res.nearest
+            step, d, r = res.pose, res.degeneracy, res.rms_m
+            # The lines are carried from the previous scan's returns: its nearest, where
+            # the model is the previous scan alone.
+            self._nearest = res.nearest if len(model) == len(prev) else None
             if measured and res.nearest is not None and self._with_covariance:
-                cov = self._covariance(prev, cur, res)
+                cov = self._covariance(model, model_normals, cur, res)
         self._T = self._T @ se2(step)
         self._poses.append(pose_of(self._T))
         self._deg.append(d)
@@ -217,6 +230,7 @@ class ScanOdometry:
         if len(cur) >= 10:
             self._prev_normals = self._normals_of(k, scan, cur, prev, self._prev_normals, step, self._nearest)
             self._prev = cur
+            self._recent.append((cur, self._prev_normals, self._T.copy()))
         return self._poses[-1]
 
     def odometry(self) -> Odometry:
@@ -231,12 +245,39 @@ class ScanOdometry:
             np.array(self._cov),
         )
 
-    def _covariance(self, prev: FloatArray, cur: FloatArray, res: IcpResult) -> FloatArray:
+    def _model(self) -> tuple[FloatArray, FloatArray | None]:
+        """The step's model in the previous scan's frame: the previous scan's returns and
+        normals, then those of the ``submap_scans`` - 1 scans before it moved there by the
+        poses already estimated (scan-to-submap, as Cartographer's local SLAM matches a scan
+        to the submap of the last scans rather than to one: a wall the previous scan saw
+        in part or through clutter is whole in the submap, and each scan's range noise
+        averages out over the submap's returns). Normals NaN where a scan's return lies on
+        no line, or where a scan has no line normals at all."""
+        prev_pts, prev_normals, T_w_prev = self._recent[-1]
+        if len(self._recent) == 1:
+            return prev_pts, prev_normals
+        T_prev_w = np.linalg.inv(T_w_prev)
+        points, normals = [prev_pts], [prev_normals]
+        for pts, nrm, T_w in list(self._recent)[:-1]:
+            T = T_prev_w @ T_w
+            points.append(pts @ T[:2, :2].T + T[:2, 2])
+            normals.append(None if nrm is None else nrm @ T[:2, :2].T)
+        model = np.ascontiguousarray(np.vstack(points))
+        if all(n is None for n in normals):
+            return model, None
+        filled = [
+            np.full((len(p), 2), np.nan) if n is None else n for p, n in zip(points, normals, strict=True)
+        ]
+        return model, np.ascontiguousarray(np.vstack(filled))
+
+    def _covariance(
+        self, prev: FloatArray, prev_normals: FloatArray | None, cur: FloatArray, res: IcpResult
+    ) -> FloatArray:
         """ICP's step covariance (:func:`icp_covariance`) with the normals it paired along."""
         assert res.nearest is not None
         normals = None
         if self.params.method == "point-to-line":
-            given = self._prev_normals
+            given = prev_normals
             if given is not None and np.isfinite(given[:, 0]).mean() >= MIN_LINE_FRACTION:
                 normals = given
             else:
