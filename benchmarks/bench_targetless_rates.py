@@ -100,6 +100,13 @@ def check(folder: Path, rig: Path) -> dict:  # type: ignore[type-arg]
     }
 
 
+def read_rows(path: Path) -> list[dict]:  # type: ignore[type-arg]
+    """The checks already in ``path`` (JSON lines; none if it does not exist)."""
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
 def seeds_of(text: str) -> list[int]:
     a, _, b = text.partition("-")
     return list(range(int(a), int(b or a) + 1))
@@ -180,7 +187,10 @@ def main() -> None:
         args.cache.mkdir(parents=True, exist_ok=True)
         rig = small_rig(args.cache)
         worlds = args.worlds.split(",")
+        done = {r["seed"] for r in read_rows(args.out)}  # a stopped run resumes where it stopped
         for seed in seeds_of(args.seeds):
+            if seed in done:
+                continue
             world = worlds[seed % len(worlds)]
             folder = simulate(args.cache, rig, world, seed, args.duration_s)
             if folder is None:
@@ -193,7 +203,7 @@ def main() -> None:
                 import shutil
 
                 shutil.rmtree(folder)
-    rows = [json.loads(line) for line in args.out.read_text().splitlines() if line.strip()]
+    rows = read_rows(args.out)
     report(rows, [float(x) for x in args.floor_scale.split(",")] if args.floor_scale else None)
 
 
