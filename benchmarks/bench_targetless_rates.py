@@ -100,6 +100,13 @@ def check(folder: Path, rig: Path) -> dict:  # type: ignore[type-arg]
     }
 
 
+def read_rows(path: Path) -> list[dict]:  # type: ignore[type-arg]
+    """The checks already in ``path`` (JSON lines; none if it does not exist)."""
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
 def seeds_of(text: str) -> list[int]:
     a, _, b = text.partition("-")
     return list(range(int(a), int(b or a) + 1))
@@ -129,17 +136,52 @@ def refloored(rows: list[dict], scales: list[float]) -> None:  # type: ignore[ty
         print(f"{a:g} | {n1}/{len(p)} | {ks:.3f} | {q[0]:.3f} / {q[1]:.3f} / {q[2]:.3f}")
 
 
+def alarms(rows: list[dict], what: str) -> None:  # type: ignore[type-arg]
+    """The false alarms among the judged checks with their Clopper-Pearson interval, and
+    the "cannot tell" count."""
+    judged = [r for r in rows if r["verdict"] != "cannot_tell"]
+    fa = sum(r["verdict"] == "drifted" for r in judged)
+    lo, hi = clopper_pearson(fa, len(judged))
+    print(
+        f"{what}: {len(rows)} checks, {len(rows) - len(judged)} cannot tell; false alarms at 1 %: "
+        f"{fa}/{len(judged)} (Clopper-Pearson 95 %: {100 * lo:.1f}-{100 * hi:.1f} %)"
+    )
+
+
 def report(rows: list[dict], floor_scale: list[float] | None = None) -> None:  # type: ignore[type-arg]
     from scipy.stats import f as f_dist
     from scipy.stats import kstest
 
     judged = [r for r in rows if r["verdict"] != "cannot_tell"]
-    fa = sum(r["verdict"] == "drifted" for r in judged)
-    lo, hi = clopper_pearson(fa, len(judged))
-    print(f"checks: {len(rows)} ({len(rows) - len(judged)} cannot tell)")
-    print(f"false alarms at 1 %: {fa}/{len(judged)} (Clopper-Pearson 95 %: {100 * lo:.1f}-{100 * hi:.1f} %)")
+    alarms(rows, "all")
+    for world in sorted({r["world"] for r in rows}):
+        alarms([r for r in rows if r["world"] == world], world)
+    for r in rows:
+        if r["verdict"] == "drifted":
+            print(f"  alarm: {r['world']} seed {r['seed']}: p {r['p_value']:.3g}, tests {r.get('tests')}")
+        if r["verdict"] == "cannot_tell":
+            why = "; ".join(r["reasons"])
+            print(f"  cannot tell: {r['world']} seed {r['seed']} ({r.get('solve')}): {why}")
     if not judged:
         return
+    axes = ["rx", "ry", "rz", "tx", "ty"]
+    tested = {a: sum(a in (r.get("observed") or []) for r in judged) for a in axes}
+    print(f"axes tested (of {len(judged)} judged): " + ", ".join(f"{a} {n}" for a, n in tested.items()))
+    for world in sorted({r["world"] for r in judged}):
+        w = [r for r in judged if r["world"] == world]
+        counts = ", ".join(f"{a} {sum(a in (r.get('observed') or []) for r in w)}" for a in axes)
+        corners = np.median([r.get("corners") or 0 for r in w])
+        print(f"  {world} ({len(w)}): {counts}; median corners {corners:g}")
+    # Each group's own p-values (the combined one is their Bonferroni minimum).
+    for name in sorted({t["directions"] for r in judged for t in r.get("tests") or []}):
+        pg = np.array([t["p_value"] for r in judged for t in r.get("tests") or [] if t["directions"] == name])
+        ksg = kstest(pg, "uniform")
+        q = np.quantile(pg, [0.1, 0.5, 0.9])
+        print(
+            f"group {name!r}: {len(pg)} tests, KS D = {ksg.statistic:.3f} (p = {ksg.pvalue:.3g}); "
+            f"quantiles 0.1 / 0.5 / 0.9: {q[0]:.3f} / {q[1]:.3f} / {q[2]:.3f}; "
+            f"p < 0.01: {int((pg < 0.01).sum())}"
+        )
     p = np.array([r["p_value"] for r in judged])
     ks = kstest(p, "uniform")
     qs = [0.1, 0.25, 0.5, 0.75, 0.9]
@@ -175,12 +217,32 @@ def main() -> None:
     ap.add_argument(
         "--keep", action="store_true", help="keep the simulated drives (else removed after their check)"
     )
+    ap.add_argument(
+        "--recheck",
+        type=Path,
+        help="check again the drives of this run's rows (kept in --cache by --keep; no simulation)",
+    )
+    ap.add_argument("--compare", type=Path, help="also list the verdicts that differ from this run's")
     args = ap.parse_args()
-    if not args.report:
+    if args.recheck:
+        rig = small_rig(args.cache)
+        done = {r["seed"] for r in read_rows(args.out)}
+        for old in read_rows(args.recheck):
+            folder = args.cache / f"{old['world']}-320-s{old['seed']}-{old['duration_s']:g}s"
+            if old["seed"] in done or not (folder / "sequence.yaml").exists():
+                continue
+            row = {k: old[k] for k in ("world", "seed", "duration_s")} | check(folder, rig)
+            with args.out.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+            print(json.dumps(row), file=sys.stderr, flush=True)
+    elif not args.report:
         args.cache.mkdir(parents=True, exist_ok=True)
         rig = small_rig(args.cache)
         worlds = args.worlds.split(",")
+        done = {r["seed"] for r in read_rows(args.out)}  # a stopped run resumes where it stopped
         for seed in seeds_of(args.seeds):
+            if seed in done:
+                continue
             world = worlds[seed % len(worlds)]
             folder = simulate(args.cache, rig, world, seed, args.duration_s)
             if folder is None:
@@ -193,7 +255,17 @@ def main() -> None:
                 import shutil
 
                 shutil.rmtree(folder)
-    rows = [json.loads(line) for line in args.out.read_text().splitlines() if line.strip()]
+    rows = read_rows(args.out)
+    if args.compare:
+        before = {r["seed"]: r for r in read_rows(args.compare)}
+        rows_b = [before[r["seed"]] for r in rows if r["seed"] in before]
+        print(f"--- {args.compare} on the same {len(rows_b)} drives:")
+        report(rows_b)
+        for r in rows:
+            b = before.get(r["seed"])
+            if b is not None and b["verdict"] != r["verdict"]:
+                print(f"  changed: {r['world']} seed {r['seed']}: {b['verdict']} -> {r['verdict']}")
+        print(f"--- {args.out}:")
     report(rows, [float(x) for x in args.floor_scale.split(",")] if args.floor_scale else None)
 
 

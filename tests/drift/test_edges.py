@@ -163,6 +163,35 @@ def test_paired_once_the_bands_keep_their_edges_as_the_estimate_moves(scene):
     assert np.abs(found1 - found).max(axis=(2, 3)).reshape(-1)[ok].max() <= REPAIR_GATE_PX + 0.5
 
 
+def test_a_band_off_its_edges_line_is_not_paired_nor_used_later():
+    """Above 0.525 m the image's edge is 5 px aside of the true one (a texture edge
+    beside the corner, a farther edge in the window): the top band finds it and
+    disagrees with the two below, which agree with each other; it is left out at the
+    first pairing and stays out when re-measured around its (absent) anchor. With only
+    the top band and one other band usable, neither can be told right: both out."""
+    T = default_T_cam_laser()
+    foot = np.array([3.0, 0.2])
+    aside = foot + np.array([0.0, 5.0 * np.linalg.norm(foot) / K[0, 0]])  # 5 px to one side
+    v_cut = CAMERA.project(np.array([[*foot, 0.525]]) @ T[:3, :3].T + T[:3, 3])[0, 1]
+    img = render_edge(foot, T)
+    rows = np.arange(480) < v_cut  # image up is the laser's z up
+    img[rows] = render_edge(aside, T)[rows]
+    one = np.zeros(1, np.int64)
+    edges = Edges(band_points(foot[None]), one, one, one, np.array([3.0]))
+    images = EdgeImages({0: img}, edges.img, 1.2, (0.0, 480.0))
+    r, _, usable, found = edge_residuals(CAMERA, T, edges, images, 8.0)
+    assert usable.tolist() == [True, True, False]
+    assert np.abs(r[:2]).max() < 0.3
+    assert np.isnan(found[0, 2]).all()
+    _, _, usable1, _ = edge_residuals(CAMERA, T, edges, images, 8.0, anchor=found)
+    assert usable1.tolist() == [True, True, False]
+    # The lowest band out of the image's rows: the two left disagree, and neither is used.
+    images_top = EdgeImages({0: img}, edges.img, 1.2, (0.0, 200.0))  # bands 1 and 2 only
+    _, _, usable2, found2 = edge_residuals(CAMERA, T, edges, images_top, 8.0)
+    assert not usable2.any()
+    assert np.isnan(found2).all()
+
+
 def test_corner_observations_cluster_by_their_place_in_the_world():
     """Three corners seen from a moving, turning laser, each foot with 1 cm of noise and
     the odometry's pose slightly off: each corner's observations are one cluster."""

@@ -70,6 +70,13 @@ REPAIR_GATE_PX = 2.0
 """After the first pairing, a band's image edge is re-measured only this far either side
 of where it was first found (the edge stays where it is in the image; only the projected
 line's direction and position along it change with the estimate)."""
+BAND_AGREE_PX = 2.0
+"""At the first pairing, a band is used only when another band of the same edge (one
+frame's discontinuity) found its image edge within this of its own offset across the
+line. A vertical edge projects to one line: its bands' offsets differ by their edge
+finding's noise (0.75 px median on simulated drives at the true T) and by the tilt a
+wrong T gives the line (under 1 px for 1 deg over the bands' 0.9 m at 4 m), far less
+than a neighbouring image edge's offset."""
 CORNER_RADIUS_M = 0.1
 """Observations whose feet lie within this of each other in the world (through the
 odometry; chained) are one physical edge. Below the closest distinct edges the scans
@@ -283,6 +290,12 @@ def edge_residuals(
     o = mid[mc] + np.clip(frac, -0.5, 0.5) * STEP_PX
     found = centre + o[:, :, None, None] * nrm[:, :, None, :]
     r = base + o
+    if anchor is None:
+        # The first pairing: a band counts only when another band of the same edge
+        # found its image edge on the same line; a band that is not paired here is
+        # never used (its anchor is NaN: nothing is searched around it later).
+        usable &= _agreeing(r, usable)
+        found = np.where(usable[:, :, None, None], found, np.nan)
     # r(xi) = n . (q_edge - q(T Exp(xi) x)) at the band's middle point x.
     Xc = edges.X[:, :, K // 2].reshape(-1, 3)
     _, dq = camera.project_with_gradient(Xc @ R.T + t)  # type: ignore[attr-defined]
@@ -292,6 +305,18 @@ def edge_residuals(
     r = np.where(usable, r.ravel(), 0.0)
     J = np.where(usable[:, None], J, 0.0)
     return r, J, usable, found
+
+
+def _agreeing(r: FloatArray, usable: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """(E, B) bands whose offset r (E, B) lies within :data:`BAND_AGREE_PX` of another
+    usable band's of the same edge: one vertical edge is one line across its heights,
+    so bands that disagree were paired with different image edges (a texture beside it,
+    a farther edge in its window), and a band alone cannot be told from such a pairing."""
+    diff = np.abs(r[:, :, None] - r[:, None, :])
+    B = r.shape[1]
+    other = usable[:, None, :] & ~np.eye(B, dtype=bool)[None]
+    out: NDArray[np.bool_] = usable & np.any(other & (diff <= BAND_AGREE_PX), axis=2)
+    return out
 
 
 def _local_max(p: FloatArray) -> FloatArray:

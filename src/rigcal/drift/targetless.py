@@ -1050,11 +1050,12 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
         for _ in range(s.iterations):
             sc = _scales(cur)
             A_raw, g, H_sym = _system(cur, sc, keep)
-            A = D @ A_raw @ D + prior
-            F = D @ g
             # Steps are measured in the information's metric (sigmas): the odometry's
             # weakly determined errors, which the prior barely holds, then count little.
             metric = D @ H_sym @ D + prior
+            # The directions the drive does not determine are held (_held).
+            A = D @ A_raw @ D + prior + _held(metric)
+            F = D @ g
             lam = 0.0
             remaining = float(np.abs(np.linalg.solve(A, F)[:5]).max())  # the undamped Newton step
             for _try in range(MAX_TRIES):
@@ -1098,15 +1099,13 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     xi = np.concatenate([R_to_rotvec(Delta[:3, :3]), Delta[:3, 3]])
     sc = _scales(cur)
     A_raw, _, H_sym = _system(cur, sc, keep)
-    A = D @ A_raw @ D + prior
-    # What the drive determines of xi once the odometry's errors are free: the Schur
-    # complement of their block in the (naive) information, in resolution units.
-    info = D @ H_sym @ D
-    nn = info[5:, 5:] + np.eye(len(free) - 5) / PRIOR_UNITS**2
-    schur = info[:5, :5] - info[:5, 5:] @ np.linalg.solve(nn, info[5:, :5])
-    ev, U = np.linalg.eigh(schur)
-    determined = np.zeros((6, int((ev > 1.0).sum())))
-    determined[free[:5]] = U[:, ev > 1.0]
+    metric = D @ H_sym @ D + prior
+    A = D @ A_raw @ D + prior + _held(metric)  # the estimator as solved, for its jackknife
+    # What the drive determines of xi once the odometry's errors are free (resolution
+    # units): the directions not held.
+    ev, U = _schur_eig(metric)
+    determined = np.zeros((6, int((ev > 1.0 / HELD_UNITS**2).sum())))
+    determined[free[:5]] = U[:, ev > 1.0 / HELD_UNITS**2]
     if determined.shape[1] == 0:
         raise _CannotTellError(
             "degenerate motion: the drive determines no direction of T_cam_laser to the "
@@ -1131,6 +1130,38 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
         }
     solve = {"steps": steps, "steps_refused": refused, "last_step_units": _r(last_step, 4)}
     return _Estimate(xi, cov_z, nuis, sig, n_blocks, n_corners, moves, determined, edge_stats, solve)
+
+
+HELD_UNITS = 1.0
+"""A direction of xi whose 1-sigma (the odometry's errors free) is above this many
+resolutions is not determined by the drive: it is held at the stored value while
+solving, as laser z is."""
+HELD_STIFFNESS = 1e6
+"""The information (per resolution squared) that holds such a direction."""
+
+
+def _schur_eig(metric: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Eigenvalues (ascending) and vectors of the information on xi's five free
+    directions (resolution units) once the odometry's errors (the last rows of
+    ``metric``, its prior in it) are free: the Schur complement of their block."""
+    schur = metric[:5, :5] - metric[:5, 5:] @ np.linalg.solve(metric[5:, 5:], metric[5:, :5])
+    ev, U = np.linalg.eigh(0.5 * (schur + schur.T))
+    return ev, U
+
+
+def _held(metric: FloatArray) -> FloatArray:
+    """(K, K) a stiff prior along the directions of xi the drive does not determine
+    (1-sigma above :data:`HELD_UNITS` resolutions): they are held at the stored value, as
+    laser z is, not moved by what little the data say of them. Two corners at about one
+    depth leave the yaw against a sideways shift to the corners' own errors (a valley
+    along which one corner's wrong pairing moved the estimate by metres, and no damped
+    step brought it nearer the solution); such a direction is neither observed nor
+    tested, and moving along it would only drag the observed ones."""
+    ev, U = _schur_eig(metric)
+    W = U[:, ev <= 1.0 / HELD_UNITS**2]
+    out = np.zeros_like(metric)
+    out[:5, :5] = HELD_STIFFNESS * (W @ W.T)
+    return out
 
 
 def _runaway(
