@@ -230,5 +230,5 @@ def test_no_contact_sheet_is_left_when_the_picks_cannot_be_written(rendered, tmp
     sheet = tmp_path / "sheet.png"
     argv = ["pick", str(path), "-o", str(tmp_path / "a-file" / "auto.yaml"), "--sheet", str(sheet)]
     assert main(argv) == 5
-    assert "a-file/auto.yaml: cannot write" in capsys.readouterr().err
+    assert "a-file is a file; expected a folder to write into" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]

@@ -4,6 +4,7 @@ value (exit 3), never a traceback, a false "ok" or a file written into the drive
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -13,7 +14,9 @@ import pytest
 import yaml
 
 from rigcal.camera import Camera
+from rigcal.cli.main import main
 from rigcal.errors import InputError
+from rigcal.jobs import check_rig
 from rigcal.localize.streams import open_streams
 from rigcal.recordings.sequence import ImageFrame, read_sequence, write_sequence
 from rigcal.rig import Rig
@@ -81,13 +84,17 @@ def test_an_image_of_another_size_mid_drive_is_one_line_naming_it(copy, fails):
     assert "000007.png: image size: got '32x24'" in line
 
 
-def test_images_on_another_clock_than_the_scans_are_refused(copy, fails):
+def test_images_on_another_clock_than_the_scans_are_refused(copy):
     rows = (copy / "images.csv").read_text().splitlines()
     shifted = [rows[0]] + [f"{float(r.split(',')[0]) + 1000.0!r},{r.split(',')[1]}" for r in rows[1:]]
     (copy / "images.csv").write_text("\n".join(shifted) + "\n")
-    line = fails(["check", copy.parent / "rig.yaml", "--sequence", copy, "--no-log"], 3)
-    assert "images.csv: stamp_s: got '1000.010 to 1003.810 s'; expected images within the scans' span" in line
-    fails(["localize", copy, "--method", "hiasm", "-o", copy.parent / "out"], 3)
+    want = "images.csv: stamp_s: got '1000.010 to 1003.810 s'; expected images within the scans' span"
+    with pytest.raises(InputError, match=re.escape(want)):
+        check_rig(copy.parent / "rig.yaml", sequence=copy, no_log=True)
+    # The exit codes (the message is the one raised above).
+    assert main(["check", str(copy.parent / "rig.yaml"), "--sequence", str(copy), "--no-log"]) == 3
+    assert main(["localize", str(copy), "--method", "hiasm", "-o", str(copy.parent / "out")]) == 3
+    assert not (copy.parent / "out").exists()
 
 
 @pytest.mark.parametrize("value", [np.nan, 0.0, np.inf])
