@@ -35,6 +35,7 @@ import zipfile
 from collections import Counter
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -45,6 +46,17 @@ from rigcal.localize.metrics import anchored, evaluate, relation_error, rpe_pair
 from rigcal.localize.odometry import icp_odometry
 from rigcal.localize.pose_graph import gtsam_available
 from rigcal.recordings.carmen import carmen_odometry, read_carmen
+
+
+def killian_log() -> tuple[Any, Any]:
+    """The Killian Court log (rtb-data's killian.g2o) and its odometry."""
+    archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
+    with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
+        z.extract("killian.g2o", tmp)
+        log = read_carmen(Path(tmp) / "killian.g2o")
+        odom, _ = carmen_odometry(log, "killian.g2o")
+    assert odom is not None
+    return log, odom
 
 
 def _row(name: str, est: np.ndarray, gt: np.ndarray, speed: str) -> str:
@@ -93,12 +105,7 @@ def killian(
     workers: tuple[int, ...] = (2,),
     submap_scans: int = 1,
 ) -> None:
-    archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
-    with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
-        z.extract("killian.g2o", tmp)
-        log = read_carmen(Path(tmp) / "killian.g2o")
-        odom, _ = carmen_odometry(log, "killian.g2o")
-    assert odom is not None
+    log, odom = killian_log()
     scans, gt = log.scans[:n], log.laser_poses[:n]
     t = np.array([s.stamp_s for s in scans])
     duration = float(t[-1] - t[0])
@@ -176,12 +183,7 @@ def solver(n: int | None) -> None:
     re-optimises, in this process: CPU time of each and the largest difference."""
     from rigcal.localize import loop_closure, pose_graph
 
-    archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
-    with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
-        z.extract("killian.g2o", tmp)
-        log = read_carmen(Path(tmp) / "killian.g2o")
-        odom, _ = carmen_odometry(log, "killian.g2o")
-    assert odom is not None
+    log, odom = killian_log()
     scans = log.scans[:n]
     guess = laser_motions(odom, np.array([s.stamp_s for s in scans]))
     od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess)
