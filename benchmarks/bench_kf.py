@@ -33,6 +33,7 @@ import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
@@ -74,6 +75,19 @@ VARIANTS = {
 
 
 AXES = ("forward", "cross", "yaw")
+
+
+def kept_lap(args: argparse.Namespace, name: str, seed: int) -> tuple[Any, Any, Any, FloatArray, FloatArray]:
+    """A lap kept by ``--keep``: its streams (VO's result set), odometries, planar truth and
+    the truth's stamps."""
+    seq = args.keep / f"{name}-seed{seed}-{args.duration_s:g}s"
+    streams = open_streams(seq)
+    od, res = pickle.loads((seq / "odometries.pkl").read_bytes())
+    streams.results["vo"] = res
+    assert streams.sequence.groundtruth_file is not None
+    truth = read_tum(seq / streams.sequence.groundtruth_file)
+    assert truth.stamps_s is not None
+    return streams, od, res, planar_at(truth, truth.stamps_s), truth.stamps_s
 
 
 def open_axes(m: kalman.Increment, keep: tuple[int, ...]) -> kalman.Increment:
@@ -289,18 +303,11 @@ def consistency(args: argparse.Namespace) -> None:
     sums: dict[str, list[FloatArray]] = defaultdict(list)
     for seed in seeds_of(args.seeds):
         for name in args.worlds.split(","):
-            seq = args.keep / f"{name}-seed{seed}-{args.duration_s:g}s"
-            streams = open_streams(seq)
-            od, res = pickle.loads((seq / "odometries.pkl").read_bytes())
-            streams.results["vo"] = res
-            assert streams.sequence.groundtruth_file is not None
-            truth = read_tum(seq / streams.sequence.groundtruth_file)
-            assert truth.stamps_s is not None
-            gt = planar_at(truth, truth.stamps_s)
+            streams, od, res, gt, truth_s = kept_lap(args, name, seed)
             ms = kf_measurements(streams, od, res, kalman.KF_MODES["weighted"])
             for src in ("icp", "vo"):
                 mine = [m for m in ms if m.source == src]
-                ratio, corr = axis_consistency(mine, gt, truth.stamps_s, trim=src == "vo", lags=3)
+                ratio, corr = axis_consistency(mine, gt, truth_s, trim=src == "vo", lags=3)
                 # Each step's NEES under the filter's model of its error (own and twice the
                 # shared part, kalman.shared_error_fractions): 3 where the model is honest.
                 own, shared = kalman._error_model(src, kalman.KF_MODES["weighted"])
@@ -309,7 +316,7 @@ def consistency(args: argparse.Namespace) -> None:
                     kalman.Increment(m.t0, m.t1, m.motion, kalman._scaled(m.covariance, total), src)
                     for m in mine
                 ]
-                nees = step_nees(modelled, gt, truth.stamps_s)
+                nees = step_nees(modelled, gt, truth_s)
                 if src == "vo":
                     nees = nees[nees < chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)]
                 run_s = float(np.mean([m.t1 - m.t0 for m in mine]))
@@ -347,14 +354,7 @@ def guard_evidence(args: argparse.Namespace) -> None:
     total = np.zeros((2, 3), dtype=int)
     for seed in seeds_of(args.seeds):
         for name in args.worlds.split(","):
-            seq = args.keep / f"{name}-seed{seed}-{args.duration_s:g}s"
-            streams = open_streams(seq)
-            od, res = pickle.loads((seq / "odometries.pkl").read_bytes())
-            streams.results["vo"] = res
-            assert streams.sequence.groundtruth_file is not None
-            truth = read_tum(seq / streams.sequence.groundtruth_file)
-            assert truth.stamps_s is not None
-            gt = planar_at(truth, truth.stamps_s)
+            streams, od, res, gt, truth_s = kept_lap(args, name, seed)
             ms = kf_measurements(streams, od, res, params)
             streams.stop_background()
             reference = kalman._IcpReference([m for m in ms if m.source == "icp"], params)
@@ -376,7 +376,7 @@ def guard_evidence(args: argparse.Namespace) -> None:
                     T = T @ se2(r.motion)
                 chains = [kalman.Increment(first.t0, m.t1, pose_of(T), np.eye(3), "vo")]
                 chains.append(kalman.Increment(first.t0, m.t1, ref[0], np.eye(3), "icp"))
-                e_vo, e_icp = step_errors(chains, gt, truth.stamps_s)
+                e_vo, e_icp = step_errors(chains, gt, truth_s)
                 # In the last run's frame, as the guard tests.
                 yaw = float(np.arctan2(T[1, 0], T[0, 0]) - m.motion[2])
                 G = kalman._rotation3(yaw)
