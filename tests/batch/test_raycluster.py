@@ -289,3 +289,65 @@ def test_rays_multiline_reasons_become_one_line():
     long = _one_line(ValueError("x" * 1000))
     assert len(long) == 400
     assert long.endswith("...")
+
+
+class _FlakyClientRay:
+    """A ``ray`` whose init fails with the given errors first, then joins."""
+
+    def __init__(self, errors: list[Exception]):
+        self.errors = list(errors)
+        self.inits = 0
+        self.shutdowns = 0
+
+    def init(self, **kwargs):
+        self.inits += 1
+        if self.errors:
+            raise self.errors.pop(0)
+
+    def shutdown(self):
+        self.shutdowns += 1
+
+    def nodes(self):
+        return [{"Alive": True, "NodeManagerAddress": "10.0.0.5"}]
+
+    def cluster_resources(self):
+        return {"CPU": 2.0}
+
+
+def _join(fake, monkeypatch, text):
+    from rigcal.batch import raycluster
+
+    monkeypatch.setattr(raycluster, "import_ray", lambda: fake)
+    monkeypatch.setattr(raycluster, "token_available", lambda: False)
+    lines: list[str] = []
+    with raycluster._join_cluster(parse_address(text), lines.append) as (_, session):
+        return session.description, lines
+
+
+def test_a_client_server_that_failed_to_start_is_asked_once_more(monkeypatch):
+    from rigcal.batch.raycluster import CLIENT_START_FAILED
+
+    fake = _FlakyClientRay([ConnectionAbortedError(f"{CLIENT_START_FAILED}: ray_client_server exited")])
+    description, lines = _join(fake, monkeypatch, "ray://head:10001")
+    assert fake.inits == 2
+    assert fake.shutdowns == 1
+    assert description == "joined ray://head:10001: 1 nodes, 2 CPUs"
+    assert len(lines) == 1
+    assert lines[0].startswith("Ray: the head did not start this client's server; trying once more")
+
+
+def test_a_client_server_failing_twice_or_other_errors_are_one_line(monkeypatch):
+    from rigcal.batch.raycluster import CLIENT_START_FAILED
+
+    twice = _FlakyClientRay([ConnectionAbortedError(CLIENT_START_FAILED)] * 2)
+    with pytest.raises(InputError, match=r"^--ray: got 'ray://head:10001'; expected a Ray cluster to join"):
+        _join(twice, monkeypatch, "ray://head:10001")
+    assert twice.inits == 2
+    other = _FlakyClientRay([ConnectionError("connection refused")])
+    with pytest.raises(InputError, match="connection refused"):
+        _join(other, monkeypatch, "ray://head:10001")
+    assert other.inits == 1
+    gcs = _FlakyClientRay([ConnectionError(CLIENT_START_FAILED)])  # the retry is Ray Client's only
+    with pytest.raises(InputError):
+        _join(gcs, monkeypatch, "10.0.0.5:6379")
+    assert gcs.inits == 1

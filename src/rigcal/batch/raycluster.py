@@ -37,6 +37,8 @@ from rigcal import __version__
 from rigcal.errors import InputError
 
 FORMS = "auto, local, HOST:PORT or ray://HOST:PORT"
+# Ray Client's error when the head could not start the server process of this client
+CLIENT_START_FAILED = "Starting Ray client server failed"
 LOOPBACK = "127.0.0.1"
 _HOST_RE = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9-]*[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]*[A-Za-z0-9])?)*$")
 
@@ -199,7 +201,7 @@ def connect(
     address = resolve(address)
     if address.kind in ("gcs", "client"):
         probe(address, timeout_s)
-    cm = _local(cpus, log) if address.kind == "local" else _join_cluster(address)
+    cm = _local(cpus, log) if address.kind == "local" else _join_cluster(address, log)
     with cm as (ray, session):
         log(f"Ray: {session.description}")
         try:
@@ -270,24 +272,34 @@ def _init_local(ray: Any, cpus: int, temp: Path, log: Callable[[str], None]) -> 
 
 
 @contextlib.contextmanager
-def _join_cluster(address: RayAddress) -> Iterator[tuple[Any, Session]]:
+def _join_cluster(address: RayAddress, log: Callable[[str], None]) -> Iterator[tuple[Any, Session]]:
     """Join a running cluster. A token found where Ray looks for one turns token
     authentication on for the connection (Ray does so itself only for a cluster it
-    finds on this machine, not for a named address)."""
+    finds on this machine, not for a named address).
+
+    Through Ray Client the head starts a server process for each client; on a loaded head
+    that start can fail once ("Starting Ray client server failed") and succeed when asked
+    again, so that error alone is tried a second time."""
     env = {"RAY_AUTH_MODE": "token"} if token_available() else {}
     with _environ(env):
         ray = import_ray()
-        try:
-            ray.init(address=address.target, log_to_driver=False)
-        except Exception as exc:  # ConnectionError, AuthenticationError, RuntimeError, ...
-            with contextlib.suppress(Exception):
-                ray.shutdown()
-            hint = ""
-            if "uthentication" in str(exc) or "token" in str(exc):
-                hint = "; the cluster's token: RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token"
-            raise InputError.at(
-                None, "--ray", address.text, f"a Ray cluster to join ({_one_line(exc)}{hint})"
-            ) from None
+        for attempt in (1, 2):
+            try:
+                ray.init(address=address.target, log_to_driver=False)
+                break
+            except Exception as exc:  # ConnectionError, AuthenticationError, RuntimeError, ...
+                with contextlib.suppress(Exception):
+                    ray.shutdown()
+                first = _one_line(exc)
+                if attempt == 1 and address.kind == "client" and CLIENT_START_FAILED in str(exc):
+                    log(f"Ray: the head did not start this client's server; trying once more ({first})")
+                    continue
+                hint = ""
+                if "uthentication" in str(exc) or "token" in str(exc):
+                    hint = "; the cluster's token: RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token"
+                raise InputError.at(
+                    None, "--ray", address.text, f"a Ray cluster to join ({first}{hint})"
+                ) from None
         nodes = [n for n in ray.nodes() if n.get("Alive")]
         n_cpus = int(ray.cluster_resources().get("CPU", 0))
         where = address.target if address.kind != "auto" else "the cluster of this machine"
