@@ -467,6 +467,8 @@ def run(
     streams.progress = progress
     streams.track_params = tracks or TrackParams()
     streams.use_wheel_odometry = wheel_odometry
+    if wheel_odometry or "odom" in methods:
+        _ = streams.sequence.odometry  # its file read now, before any work (read only when used)
     if len(streams.scans) < MIN_SCANS:
         raise InputError.at(
             Path(sequence) / "sequence.yaml", "scans.count", len(streams.scans), f"at least {MIN_SCANS} scans"
@@ -523,7 +525,7 @@ def run(
     stamps = streams.scan_stamps_s
     duration = float(stamps[-1] - stamps[0])
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
-    wheel = "none" if streams.sequence.odometry is None else "used" if wheel_odometry else "ignored"
+    wheel = "none" if not streams.sequence.has_odometry else "used" if wheel_odometry else "ignored"
     return Run(
         results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params, wheel, kf
     )

@@ -20,8 +20,9 @@ folder atomically; :func:`read_sequence` validates it.
 from __future__ import annotations
 
 import zipfile
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from functools import cached_property, partial
 from pathlib import Path
 from typing import Any
 
@@ -63,7 +64,12 @@ class ImageFrame:
 
 @dataclass(frozen=True)
 class Sequence:
-    """A sequence in memory (as read: image bytes are not loaded)."""
+    """A sequence in memory (as read: image bytes are not loaded).
+
+    The wheel odometry's file (odometry.tum) is read when :attr:`odometry` is first asked
+    for, not by :func:`read_sequence`: a run that does not use it (``rigcal localize
+    --wheel-odometry ignore``) goes on whatever that file holds.
+    """
 
     folder: Path | None
     name: str
@@ -74,9 +80,23 @@ class Sequence:
     source: dict[str, Any]
     rig_file: str | None = None
     groundtruth_file: str | None = None
-    odometry: WheelOdometry | None = None
+    odometry_reader: Callable[[], WheelOdometry] | None = field(default=None, repr=False, compare=False)
     image_folder: str = "images"  # the folder and index named in sequence.yaml's ``images``
     image_index: str = "images.csv"
+
+    @property
+    def has_odometry(self) -> bool:
+        """Whether sequence.yaml names wheel odometry (without reading its file)."""
+        return self.odometry_reader is not None
+
+    @cached_property
+    def odometry(self) -> WheelOdometry | None:
+        """The wheel odometry, read and checked against the scans on first use.
+
+        Raises:
+            InputError: its file is missing or malformed, naming the file, line and value.
+        """
+        return None if self.odometry_reader is None else self.odometry_reader()
 
 
 def write_sequence(
@@ -223,7 +243,7 @@ def read_sequence(folder: str | Path) -> Sequence:
             raise InputError.at(path, key, d[key], f"a file in {folder}")
     odometry = None
     if "odometry" in d:
-        odometry = _read_odometry(folder, path, d, np.array([s.stamp_s for s in scans], dtype=float))
+        odometry = _odometry_reader(folder, path, d, np.array([s.stamp_s for s in scans], dtype=float))
     return Sequence(
         folder,
         str(d["name"]),
@@ -240,10 +260,11 @@ def read_sequence(folder: str | Path) -> Sequence:
     )
 
 
-def _read_odometry(
+def _odometry_reader(
     folder: Path, path: Path, d: Mapping[str, Any], scan_stamps_s: FloatArray
-) -> WheelOdometry:
-    """The ``odometry`` mapping (schema 3) and its TUM file, checked against the scans."""
+) -> Callable[[], WheelOdometry]:
+    """The ``odometry`` mapping (schema 3), checked now, and the reader of its TUM file
+    (checked against the scans when called)."""
     if whole(d["schema_version"], path, "schema_version") < SEQUENCE_SCHEMA_VERSION_ODOMETRY:
         need = f"{SEQUENCE_SCHEMA_VERSION_ODOMETRY} for key 'odometry'"
         raise InputError.at(path, "schema_version", d["schema_version"], need)
@@ -253,7 +274,7 @@ def _read_odometry(
         raise InputError.at(path, "odometry.T_base_laser", mount, "[x, y, yaw] (m, m, rad)")
     xyz = [real(v, path, f"odometry.T_base_laser[{i}]") for i, v in enumerate(mount)]
     file = folder / relative_inside(od["file"], path, "odometry.file")
-    return read_odometry_tum(file, np.array(xyz), scan_stamps_s)
+    return partial(read_odometry_tum, file, np.array(xyz), scan_stamps_s)
 
 
 def _check_scan_arrays(a: dict[str, Any], npz: Path) -> int:
