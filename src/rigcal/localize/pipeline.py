@@ -91,6 +91,7 @@ def _loop_closed(
         cov = step_covariances(streams.scan_stamps_s, od.poses, od.covariance, est.stamps_s, est.poses)
     res = close_loops(points, est.poses, params, cov, proposals)
     seconds = time.perf_counter() - t0
+    path_m = float(path_along(est.poses)[-1]) if len(est.poses) else 0.0
     streams.timings_s["loop_closure_s"] = streams.timings_s.get("loop_closure_s", 0.0) + seconds
     stats = {
         "closures": res.counts,
@@ -99,6 +100,11 @@ def _loop_closed(
         "pose_graph": res.backend,
         "loop_closure_s": round(seconds, 3),
     }
+    if path_m < params.min_loop_m:  # said on stderr too (rigcal localize), not an error
+        stats["note"] = (
+            f"a path of {path_m:.1f} m over {len(est.poses)} poses, shorter than the {params.min_loop_m:g} m "
+            "a loop needs: no closure could be searched; the trajectory is the method's own"
+        )
     return Estimate(est.stamps_s, res.poses, stats, None, res)
 
 
@@ -298,6 +304,8 @@ METHODS: dict[str, Callable[[Streams, IasmParams], Estimate]] = {
 # Methods that track image features (and use the laser odometry too): the laser odometry
 # then runs beside the tracking on a second thread.
 TRACKING = ("vo", "kf", "hiasm")
+# Methods that read the images (and so the rig's camera).
+IMAGE_METHODS = ("vo", "kf", "iasm", "hiasm")
 
 # The shared stages (their keys in the stage timings) each method's estimate is built on;
 # a method's own time leaves them out, wherever they ran (before the methods, or inside
@@ -356,13 +364,30 @@ def _shared_stages(streams: Streams, methods: list[str]) -> None:
     (when a method tracks images) with the laser odometry beside them on a second thread,
     then the laser odometry (every method but icp-p2p pairs scans and images with it)."""
     tracking = [m for m in methods if m in TRACKING]
-    for m in tracking:
-        streams.require_images(m)  # a clear error before any work
+    _require_images(streams, methods)  # a clear error before any work
     if tracking:
         streams.start_laser_odometry()
         streams.feature_tracks()
     if any(m != "icp-p2p" for m in methods):
         streams.laser_odometry()
+
+
+def _require_images(streams: Streams, methods: list[str]) -> None:
+    """An error naming every method given that needs images, and those that would run,
+    when the sequence has fewer than 2; else each image method's own checks (the rig, the
+    images' clock and size: :meth:`Streams.require_images`)."""
+    need = [m for m in methods if m in IMAGE_METHODS]
+    if need and streams.n_images < 2:
+        odom = streams.sequence.has_odometry
+        can = [m for m in METHODS if m not in IMAGE_METHODS and (m != "odom" or odom)]
+        raise InputError.at(
+            streams._yaml(),
+            "images.count",
+            streams.n_images,
+            f"at least 2 images for --method {','.join(need)}; without images, --method {','.join(can)} run",
+        )
+    for m in need:
+        streams.require_images(m)
 
 
 def parse_methods(text: str, key: str = "--method") -> list[str]:

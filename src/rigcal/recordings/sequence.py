@@ -20,6 +20,7 @@ folder atomically; :func:`read_sequence` validates it.
 from __future__ import annotations
 
 import zipfile
+import zlib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property, partial
@@ -32,6 +33,7 @@ import yaml
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text
+from rigcal.io.kinds import kind_of_bytes
 from rigcal.io.validate import finite_array, parse_real, real, relative_inside, whole
 from rigcal.io.wheel_odometry import WheelOdometry, odometry_tum, read_odometry_tum
 from rigcal.scan import Scan, ScanArrayError, laser_clockwise, uniform_scans
@@ -196,13 +198,7 @@ def read_sequence(folder: str | Path) -> Sequence:
     sc = check_keys(d["scans"], path, "scans", ["file", "count"])
     npz = folder / relative_inside(sc["file"], path, "scans.file")
     count = whole(sc["count"], path, "scans.count")
-    try:
-        with np.load(npz) as z:
-            arrays = {k: np.array(z[k]) for k in SCAN_KEYS}
-    except FileNotFoundError:
-        raise InputError(f"{npz}: scans file not found") from None
-    except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise InputError(f"{npz}: not a scans file with arrays {list(SCAN_KEYS)}: {exc}") from None
+    arrays = _load_scan_arrays(npz)
     n = _check_scan_arrays(arrays, npz)
     if n != count:
         raise InputError.at(path, "scans.count", sc["count"], f"{n}, the number of scans in {npz.name}")
@@ -275,6 +271,45 @@ def _odometry_reader(
     xyz = [real(v, path, f"odometry.T_base_laser[{i}]") for i, v in enumerate(mount)]
     file = folder / relative_inside(od["file"], path, "odometry.file")
     return partial(read_odometry_tum, file, np.array(xyz), scan_stamps_s)
+
+
+def _load_scan_arrays(npz: Path) -> dict[str, Any]:
+    """The arrays of scans.npz, or one line naming what the file or a missing or broken
+    array is (a file copied while written, another tool's archive, a folder)."""
+    keys = ", ".join(SCAN_KEYS)
+    expected = f"a NumPy .npz archive of the scans (arrays {keys}; docs/formats/sequence.md)"
+    try:
+        with npz.open("rb") as f:
+            head = f.read(32)
+        if not zipfile.is_zipfile(npz):
+            what = "an empty file" if not head else kind_of_bytes(head) or f"a file starting {head[:8]!r}"
+            if head.startswith(b"PK"):
+                what = "a zip archive cut short or broken (no table of contents at its end)"
+            raise InputError(f"{npz}: got {what}; expected {expected}")
+        with np.load(npz, allow_pickle=False) as z:
+            arrays = {}
+            for k in SCAN_KEYS:
+                if k not in z.files:
+                    has = ", ".join(sorted(z.files)[:10]) or "none"
+                    why = f"got no such array (it has {has})"
+                    raise InputError(f"{npz}: {k}: {why}; expected the arrays {keys}")
+                try:
+                    arrays[k] = np.array(z[k])
+                except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+                    why = f"got an unreadable array ({exc})"
+                    raise InputError(f"{npz}: {k}: {why}; expected numbers as numpy.savez writes") from None
+    except FileNotFoundError:
+        raise InputError(f"{npz}: scans file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{npz}: got a folder; expected {expected}") from None
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise InputError(f"{npz}: cannot read the scans file: {exc}") from None
+    st = arrays["stamps_s"]
+    if st.dtype.kind in "iu":  # ROS and other loggers keep integer nanoseconds
+        raise InputError.at(
+            npz, "stamps_s", f"{st.dtype} array", "seconds as floating-point numbers (integers: nanoseconds?)"
+        )
+    return arrays
 
 
 def _check_scan_arrays(a: dict[str, Any], npz: Path) -> int:
