@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from room_scans import room_scan
 
 from rigcal.camera import Camera
 from rigcal.cli.main import main
@@ -21,20 +22,9 @@ from rigcal.localize.streams import open_streams
 from rigcal.recordings.sequence import ImageFrame, read_sequence, write_sequence
 from rigcal.rig import Rig
 from rigcal.rigfile import write_rig
-from rigcal.scan import Scan
 from rigcal.sim.box_session import default_T_cam_laser
 
 W, H = 64, 48
-
-
-def _room_scan(x_m: float, t_s: float) -> Scan:
-    """A 6 m x 4 m room seen from (x_m, 0), 181 beams over 180 deg."""
-    a = np.radians(np.arange(181) - 90.0)
-    c, s = np.cos(a), np.sin(a)
-    with np.errstate(divide="ignore"):
-        to_x = np.where(c > 1e-9, (3.0 - x_m) / c, np.inf)
-        to_y = np.where(np.abs(s) > 1e-9, 2.0 / np.abs(s), np.inf)
-    return Scan.from_uniform(-np.pi / 2, np.radians(1.0), np.minimum(to_x, to_y), 0.05, 30.0, stamp_s=t_s)
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +34,7 @@ def drive(tmp_path_factory) -> Path:
     cam = Camera.from_opencv(np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]]), [0.0] * 5, W, H)
     write_rig(base / "rig.yaml", Rig(default_T_cam_laser(), cam, laser={"name": "test"}))
     rng = np.random.default_rng(3)
-    scans = [_room_scan(0.05 * k, 0.1 * k) for k in range(40)]
+    scans = [room_scan(0.05 * k, 0.1 * k) for k in range(40)]
     frames = []
     for k in range(20):
         img = cv2.GaussianBlur(rng.integers(0, 255, (H, W), dtype=np.uint8), (3, 3), 0)

@@ -11,26 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from room_scans import room_scan
 
 from rigcal.cli.main import main
 from rigcal.recordings.sequence import write_sequence
-from rigcal.scan import Scan
 
 KEYS = "stamps_s, ranges_m, n_beams, angle_min_rad, angle_increment_rad, range_min_m, range_max_m"
 
 
-def _scan(x_m: float, t_s: float) -> Scan:
-    """A 6 m x 4 m room seen from (x_m, 0), 181 beams over 180 deg."""
-    a = np.radians(np.arange(181) - 90.0)
-    c, s = np.cos(a), np.sin(a)
-    with np.errstate(divide="ignore"):
-        to_x = np.where(c > 1e-9, (3.0 - x_m) / c, np.inf)
-        to_y = np.where(np.abs(s) > 1e-9, 2.0 / np.abs(s), np.inf)
-    return Scan.from_uniform(-np.pi / 2, np.radians(1.0), np.minimum(to_x, to_y), 0.05, 30.0, stamp_s=t_s)
-
-
 def _sequence(folder: Path, n: int) -> Path:
-    scans = [_scan(0.05 * k, 0.1 * k) for k in range(n)]
+    scans = [room_scan(0.05 * k, 0.1 * k) for k in range(n)]
     return write_sequence(folder, "room", scans, [], None, {"test": True})
 
 
@@ -97,7 +87,7 @@ CORRUPT = [
     (
         _garbage_member,
         f"scans.npz: ranges_m: got no such array (it has stamps_s); expected the arrays {KEYS}",
-    ),  # noqa: E501
+    ),
     (_a_folder, "scans.npz: got a folder; expected a NumPy .npz archive"),
 ]
 
