@@ -12,7 +12,6 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from room_scans import room_scan
 
 from rigcal.camera import Camera
 from rigcal.cli.main import main
@@ -23,6 +22,7 @@ from rigcal.recordings.sequence import ImageFrame, read_sequence, write_sequence
 from rigcal.rig import Rig
 from rigcal.rigfile import write_rig
 from rigcal.sim.box_session import default_T_cam_laser
+from room_scans import room_scan
 
 W, H = 64, 48
 

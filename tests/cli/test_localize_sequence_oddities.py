@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from room_scans import room_scan
 
 from rigcal.cli.main import main
 from rigcal.recordings.sequence import write_sequence
+from room_scans import room_scan
 
 KEYS = "stamps_s, ranges_m, n_beams, angle_min_rad, angle_increment_rad, range_min_m, range_max_m"
 

@@ -26,7 +26,7 @@ from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
 from rigcal.io.trajectory import Trajectory, read_tum
-from rigcal.io.wheel_odometry import laser_motions
+from rigcal.io.wheel_odometry import across_gaps, gap_s, laser_motions
 from rigcal.localize import kalman
 from rigcal.localize.iasm import IasmParams
 from rigcal.localize.icp import IcpParams
@@ -246,7 +246,10 @@ def kf_measurements(
         ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses, vo_cov.reshape(-1, 3, 3))
     if streams.wheel_odometry is not None:
         wheel = _wheel_estimate(streams)
-        ms += kalman.increments(wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS, source="wheel")
+        measured = np.r_[True, ~across_gaps(streams.wheel_odometry, wheel.stamps_s)]  # none over a gap
+        ms += kalman.increments(
+            wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS, measured=measured, source="wheel"
+        )
     return ms
 
 
@@ -276,10 +279,15 @@ def _wheel_estimate(streams: Streams) -> Estimate:
         )
     T = np.eye(3)
     poses = [pose_of(T)]
-    for step in laser_motions(od, t):
+    steps = laser_motions(od, t)
+    gaps = ~np.isfinite(steps).all(axis=1)  # across a gap in the odometry: the pose is held
+    for step in np.where(gaps[:, None], 0.0, steps):
         T = T @ se2(step)
         poses.append(pose_of(T))
-    return Estimate(t, np.array(poses), {"odometry_poses": len(od.stamps_s)})
+    stats: dict[str, Any] = {"odometry_poses": len(od.stamps_s)}
+    if gaps.any():
+        stats["odometry_gaps_held"] = int(gaps.sum())
+    return Estimate(t, np.array(poses), stats)
 
 
 def _matching_estimate(streams: Streams, method: str, params: IasmParams) -> Estimate:
@@ -370,6 +378,24 @@ def _shared_stages(streams: Streams, methods: list[str]) -> None:
         streams.feature_tracks()
     if any(m != "icp-p2p" for m in methods):
         streams.laser_odometry()
+
+
+def _warn_gaps(streams: Streams) -> None:
+    """Read the wheel odometry and say (one warning) where it has gaps the scans cross."""
+    od = streams.sequence.odometry
+    if od is None or len(streams.scan_stamps_s) < 2:
+        return
+    gaps = across_gaps(od, streams.scan_stamps_s)
+    if gaps.any():
+        long = float(np.diff(od.stamps_s).max())
+        log.warning(
+            "the wheel odometry pauses for over %.3g s between %d pair(s) of scans (the longest pause "
+            "%.3g s): no motion is taken from it there (ICP starts from its last motion, method odom "
+            "holds its pose)",
+            gap_s(od),
+            int(gaps.sum()),
+            long,
+        )
 
 
 def _require_images(streams: Streams, methods: list[str]) -> None:
@@ -493,7 +519,7 @@ def run(
     streams.track_params = tracks or TrackParams()
     streams.use_wheel_odometry = wheel_odometry
     if wheel_odometry or "odom" in methods:
-        _ = streams.sequence.odometry  # its file read now, before any work (read only when used)
+        _warn_gaps(streams)  # its file read now, before any work (read only when used)
     if len(streams.scans) < MIN_SCANS:
         raise InputError.at(
             Path(sequence) / "sequence.yaml", "scans.count", len(streams.scans), f"at least {MIN_SCANS} scans"
