@@ -71,6 +71,7 @@ class Streams:
     _image_cache: ImageCache = field(default_factory=ImageCache, repr=False)
     _laser_odometry: Odometry | None = field(default=None, repr=False)
     _background: Future[Odometry] | None = field(default=None, repr=False)
+    _background_pool: ThreadPoolExecutor | None = field(default=None, repr=False)
     _stop: threading.Event = field(default_factory=threading.Event, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     results: dict[str, Any] = field(default_factory=dict, repr=False)
@@ -218,13 +219,16 @@ class Streams:
         stages (feature tracking spends its time in OpenCV, which releases the
         interpreter); :meth:`laser_odometry` waits for it."""
         if self._laser_odometry is None and self._background is None:
-            pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="laser-odometry")
-            self._background = pool.submit(self._compute_laser_odometry)
-            pool.shutdown(wait=False)
+            self._background_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="laser-odometry")
+            self._background = self._background_pool.submit(self._compute_laser_odometry)
 
     def stop_background(self) -> None:
-        """Stop the background laser odometry, if any is still running (a failed run)."""
+        """Stop the background laser odometry, if any is still running (a failed run), and
+        wait for its thread to end: a command leaves no thread behind that could still
+        write to stderr (a progress line, a kernel's compile note) after it returned."""
         self._stop.set()
+        if self._background_pool is not None:
+            self._background_pool.shutdown(wait=True)
 
     def _compute_laser_odometry(self) -> Odometry:
         t0 = time.perf_counter()
