@@ -87,7 +87,7 @@ def read_tum(path: str | Path) -> Trajectory:
     stamps: list[float] = []
     poses: list[FloatArray] = []
     for n, fields in _lines(path):
-        planar = len(fields) in (3, 4)  # "t x y [yaw]", a 2D tool's file
+        planar = not poses and len(fields) in (3, 4)  # "t x y [yaw]" from the start: a 2D tool's file
         hint = _PLANAR_HINT if planar else ""
         v = _numbers(path, n, fields, 8, "timestamp tx ty tz qx qy qz qw", hint)
         q = v[4:8]
