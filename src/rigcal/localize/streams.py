@@ -16,9 +16,10 @@ overlaps the tracking. The pairing in time is :mod:`rigcal.localize.time_pairing
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from collections.abc import Sequence as PySequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
@@ -150,13 +151,13 @@ class Streams:
         """Frame i as a grey image."""
         return self._keep(i, self._kept_or_decoded(i))
 
-    def images_in_order(self, ahead: int = 8) -> Iterator[Gray]:
+    def images_in_order(self, ahead: int = 8) -> Generator[Gray]:
         """Every frame in order, decoded ``ahead`` frames in advance on a second thread
         (OpenCV's PNG/JPEG decoding releases the interpreter, so it overlaps the work
         done on each frame). Frames already kept are not decoded again."""
         return self.images_at(range(self.n_images), ahead)
 
-    def images_at(self, indices: PySequence[int], ahead: int = 8) -> Iterator[Gray]:
+    def images_at(self, indices: PySequence[int], ahead: int = 8) -> Generator[Gray]:
         """The frames ``indices`` in that order, decoded ahead as :meth:`images_in_order`."""
         for k, g in computed_ahead(lambda k: self._kept_or_decoded(indices[k]), len(indices), ahead):
             yield self._keep(indices[k], g)
@@ -276,9 +277,9 @@ class Streams:
             def tell(k: int) -> None:
                 self.report("feature tracks", k, n)
 
-            self.results["tracks"] = track_sequence(
-                self.images_in_order(), rig.camera, self.track_params, tell
-            )
+            # Closed on an error too: its decoding thread ends before the error is printed.
+            with contextlib.closing(self.images_in_order()) as images:
+                self.results["tracks"] = track_sequence(images, rig.camera, self.track_params, tell)
             self.timings_s["tracks_s"] = time.perf_counter() - t0
         out: list[FrameTracks] = self.results["tracks"]
         return out
