@@ -110,3 +110,26 @@ def test_carmen_logs_follow_the_same_rule_and_strict_refuses(tmp_path, capsys):
     assert err[0].startswith(f"Error: {log}:5: FLASER: got ")
     assert "a log cut short" in err[0]
     assert not (tmp_path / "b").exists()
+
+
+def test_an_image_list_cut_short_is_read_to_its_last_whole_line(tmp_path, capsys):
+    log = tmp_path / "laser.txt"
+    log.write_text("".join(radlocc(k) + "\n" for k in range(5)))
+    for i in range(3):
+        (tmp_path / f"im{i}.png").write_bytes(b"\x89PNG\r\n\x1a\n")
+    images = tmp_path / "images.txt"
+    images.write_text("1.0 im0.png\n1.2 im1.png\n1.4 im2.p")  # copied while im2.png was listed
+    code, out, err = _import(tmp_path, capsys, log, "--images", images)
+    assert code == 0, err
+    (warning,) = [line for line in err.splitlines() if "left out as incomplete" in line]
+    assert warning.startswith(f"warning: {images}:3: image im2.p not found in {tmp_path}; the log's last")
+    doc = yaml.safe_load((out / "sequence.yaml").read_text())
+    assert doc["images"]["count"] == 2
+    assert doc["source"]["images_incomplete_last_line"] == 3
+    code, strict_out, err = _import(tmp_path, capsys, log, "--images", images, "--stamps", "strict")
+    assert code == 3
+    assert "a log cut short" in err
+    assert not strict_out.exists()
+    # With its newline, a missing last image is an error as before.
+    images.write_text("1.0 im0.png\n1.2 im1.png\n1.4 im2.p\n")
+    assert _import(tmp_path, capsys, log, "--images", images)[0] == 3

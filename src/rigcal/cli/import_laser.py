@@ -104,6 +104,7 @@ def import_laser(
         laser_offset=mounting,
     )
     warn_cut(s.cut, log)
+    warn_cut(s.images_cut, images)
     warn_stamps(s.stamps, "scan stamps")
     if as_json:
         import json

@@ -62,6 +62,7 @@ class LaserTextSummary:
     stamps: StampRepair | None = None
     odometry: bool = False
     cut: CutLine | None = None
+    images_cut: CutLine | None = None
 
 
 def _fields(line: str) -> list[str]:
@@ -385,38 +386,56 @@ def read_image_list(path: str | Path) -> tuple[FloatArray, list[Path]]:
         InputError: a line without one stamp and one existing file (or, for a stamps-only
             RADLOCC list, a missing ``image_00k`` file), or stamps not increasing.
     """
-    path = Path(path)
-    lines = _content_lines(path, "image list")
+    stamps, files, _ = _image_list(Path(path), strict=True)
+    return stamps, files
+
+
+def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLine | None]:
+    """:func:`read_image_list`, and its incomplete last line left out (a list copied while
+    it was written, rigcal.io.log_lines; ``strict`` refuses it)."""
+    text = _log_text(path, "image list")
+    lines = _content_lines(path, "image list", text)
     stamps_only = all(_numbers_only(_fields(line)) for _, line in lines)
     stamps: list[float] = []
     files: list[Path] = []
+    cut = None
     for k, (n, line) in enumerate(lines, start=1):
-        f = _fields(line)
-        if stamps_only:  # RADLOCC image_stamps.txt: image_00k.* beside it
-            stamp = float(f[0])
-            file = _radlocc_image(path.parent, k)
-            if file is None:
-                raise InputError(
-                    f"{path}: line {n}: image_{k:03d}.png (or .jpg, ...) not found in {path.parent}"
-                )
-        else:
-            numbers: list[str] = []
-            names: list[str] = []
-            for x in f:
-                (numbers if _numbers_only([x]) else names).append(x)
-            if len(f) != 2 or len(numbers) != 1 or not math.isfinite(float(numbers[0])):
-                raise InputError(
-                    f"{path}: line {n}: got {line[:60]!r}; expected a stamp (s) and an image file"
-                )
-            stamp = float(numbers[0])
-            file = file_inside(path.parent, names[0], path, f"line {n}")
-            if not file.is_file():
-                raise InputError(f"{path}: line {n}: image {names[0]} not found in {path.parent}")
+        try:
+            stamp, file = _image_entry(path, k, n, line, stamps_only)
+        except InputError as exc:
+            if not stamps:  # nothing whole before it: not a list cut short
+                raise
+            cut = cut_last_line(exc, text, n, lines[-1][0], line, f"{path}: line {n}", strict)
+            continue
         if stamps and not stamp > stamps[-1]:
             raise InputError(f"{path}: line {n}: stamp {stamp!r} not after {stamps[-1]!r}")
         stamps.append(stamp)
         files.append(file)
-    return np.array(stamps), files
+    return np.array(stamps), files, cut
+
+
+def _image_entry(path: Path, k: int, n: int, line: str, stamps_only: bool) -> tuple[float, Path]:
+    """Line n (the k-th entry) of an image list: its stamp and existing file."""
+    f = _fields(line)
+    if stamps_only:  # RADLOCC image_stamps.txt: image_00k.* beside it
+        stamp = float(f[0])
+        file = _radlocc_image(path.parent, k)
+        if file is None:
+            raise InputError(f"{path}: line {n}: image_{k:03d}.png (or .jpg, ...) not found in {path.parent}")
+    else:
+        numbers: list[str] = []
+        names: list[str] = []
+        for x in f:
+            (numbers if _numbers_only([x]) else names).append(x)
+        if len(f) != 2 or len(numbers) != 1 or not math.isfinite(float(numbers[0])):
+            raise (ShortLineError if len(f) < 2 else InputError)(
+                f"{path}: line {n}: got {line[:60]!r}; expected a stamp (s) and an image file"
+            )
+        stamp = float(numbers[0])
+        file = file_inside(path.parent, names[0], path, f"line {n}")
+        if not file.is_file():
+            raise InputError(f"{path}: line {n}: image {names[0]} not found in {path.parent}")
+    return stamp, file
 
 
 def _numbers_only(fields: list[str]) -> bool:
@@ -480,8 +499,9 @@ def import_laser_text(
         mount = np.zeros(3) if laser_offset is None else laser_offset
         wheel = read_odometry_tum(odometry, mount, fixed.stamps_s)
     frames: list[ImageFrame] = []
+    list_cut = None
     if images is not None:
-        image_stamps, files = read_image_list(images)
+        image_stamps, files, list_cut = _image_list(Path(images), strict)
         frames = [
             ImageFrame(float(t), f"{i:06d}{f.suffix.lower()}", f.read_bytes())
             for i, (t, f) in enumerate(zip(image_stamps, files, strict=True))
@@ -495,9 +515,11 @@ def import_laser_text(
     source["stamps"] = fixed.record(stamps)
     if cut is not None:
         source["incomplete_last_line"] = cut.line
+    if list_cut is not None:
+        source["images_incomplete_last_line"] = list_cut.line
     if odometry is not None:
         source["odometry"] = str(Path(odometry).resolve())
     write_sequence(output, log.name, scans, frames, camera_yaml, source, force=force, odometry=wheel)
     return LaserTextSummary(
-        fmt, len(scans), len(frames), camera_yaml is not None, fixed, wheel is not None, cut
+        fmt, len(scans), len(frames), camera_yaml is not None, fixed, wheel is not None, cut, list_cut
     )
