@@ -32,7 +32,8 @@ def test_a_broken_scans_file_is_one_error_line(rig_and_drive, capsys):
     code = main(["check", str(rig), "--sequence", str(drive)])
     err = capsys.readouterr().err
     assert code == 3
-    assert err.startswith(f"Error: {drive / 'scans.npz'}: not a scans file with arrays")
+    npz = drive / "scans.npz"
+    assert err.startswith(f"Error: {npz}: got a file starting b'not a zi'; expected a NumPy .npz")
     assert len(err.strip().splitlines()) == 1
     assert not (rig.parent / "rig.checks.jsonl").exists()
 

@@ -8,5 +8,8 @@ def test_a_missing_bag_is_bad_input(fails, tmp_path):
     assert "none.bag" in fails([*argv, "-o", tmp_path / "seq"], 3)
 
 
-def test_the_scan_topic_is_required(fails, tmp_path):
-    assert "--scan-topic" in fails(["import-bag", tmp_path / "none.bag", "-o", tmp_path / "seq"], 2)
+def test_without_topics_a_missing_bag_is_still_named(fails, tmp_path):
+    # --scan-topic and --image-topic default to the bag's only topics of their types.
+    assert "none.bag: bag not found" in fails(
+        ["import-bag", tmp_path / "none.bag", "-o", tmp_path / "seq"], 3
+    )

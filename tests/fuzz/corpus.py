@@ -484,6 +484,8 @@ def sequence_cases() -> list[Case]:
     seq("npz-n-beams-big", npz_edit(arr("n_beams", np.full(8, 500))), "n_beams")
     seq("npz-n-beams-neg", npz_edit(arr("n_beams", np.full(8, -3))), "n_beams")
     seq("npz-n-beams-float", npz_edit(arr("n_beams", np.full(8, 2.5))), "n_beams")
+    seq("npz-stamps-nanoseconds", npz_edit(arr("stamps_s", np.arange(8) * 10**8)), "integers: nanoseconds?")
+    seq("npz-ranges-objects", npz_edit(arr("ranges_m", np.array([[None] * 91] * 8))), "ranges_m")
     for v in (-1.0, -INF, -1e-9):
         seq(f"npz-range={v}", npz_edit(arr("ranges_m", at0(v))), "ranges_m")
     for key, vals in [
@@ -1556,6 +1558,9 @@ def laser_cases() -> list[Case]:
     radlocc("angles-beyond-2pi", "1.0 -50 25 50 3 5 2.0 2.0 2.0 2.0 2.0")
     radlocc("too-few", "1.0 -0.5 0.25")
     radlocc("short-ranges", "1.0 -0.5 0.25 0.5 3 5 2.0 2.0")
+    last = "1.3 -0.5 0.25 0.5 3 5 2.0 2.0 2.0 2.0 2.0\n"  # a log cut short: refused when strict
+    cut = edit_text(rel, last, last[:24])
+    out.append(Case("import-laser-radlocc-cut-strict", [*LASER, "--stamps", "strict"], cut, 3, "cut short"))
     strict = [*LASER, "--stamps", "strict"]  # the default repairs small glitches
     out.append(
         Case(

@@ -124,7 +124,35 @@ def test_bad_odometry_in_a_sequence_is_one_line_naming_the_file(tmp_path, change
     else:
         (out / change[0]).write_text(change[1])
     with pytest.raises(InputError, match=match):
-        read_sequence(out)
+        read_sequence(out).odometry  # noqa: B018 (the file is read when first used)
+
+
+BROKEN_TUM = [
+    ("10 0 0 0 0 0 0 1\n11 0 0 0 0 0\n", r"odometry.tum: line 2: got 6 fields; expected 8"),
+    ("10 0 0 0 0 0 0 1\n11 zero 0 0 0 0 0 1\n", r"odometry.tum: line 2: got '11 zero"),
+    ("", r"odometry.tum: no poses"),
+]
+
+
+@pytest.mark.parametrize(("text", "match"), BROKEN_TUM)
+def test_a_broken_odometry_file_is_read_only_when_used(tmp_path, capsys, text, match):
+    """`--wheel-odometry ignore` runs without the file; using it names the file, line and value."""
+    out = _odometry_sequence(tmp_path)
+    (out / "odometry.tum").write_text(text)
+    seq = read_sequence(out)  # the scans and images read; the odometry not yet
+    assert seq.has_odometry
+    with pytest.raises(InputError, match=match):
+        seq.odometry  # noqa: B018
+    argv = ["localize", str(out), "--method", "icp", "-o", str(tmp_path / "run")]
+    assert main(argv) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert err[0].startswith("Error: ")
+    assert "odometry.tum: " in err[0]
+    assert not (tmp_path / "run").exists()
+    assert main([*argv, "--wheel-odometry", "ignore", "--json"]) == 0
+    doc = yaml.safe_load((tmp_path / "run" / "summary.yaml").read_text())
+    assert doc["config"]["wheel_odometry"] == "ignored"
 
 
 def test_import_laser_with_a_tum_odometry_and_its_errors(tmp_path, capsys):

@@ -13,8 +13,10 @@ from rigcal.cli.stamps import laser_offset_option
 
 @click.command("import-bag")
 @click.argument("bag", type=click.Path(path_type=Path))
-@click.option("--scan-topic", required=True, help="sensor_msgs/LaserScan topic.")
-@click.option("--image-topic", required=True, help="sensor_msgs/Image or CompressedImage topic.")
+@click.option("--scan-topic", help="sensor_msgs/LaserScan topic [default: the bag's only one].")
+@click.option(
+    "--image-topic", help="sensor_msgs/Image or CompressedImage topic [default: the bag's only one]."
+)
 @click.option("--camera-info-topic", help="sensor_msgs/CameraInfo topic: also write camera.yaml.")
 @click.option(
     "--odometry-topic",
@@ -41,8 +43,8 @@ from rigcal.cli.stamps import laser_offset_option
 @json_option("Print what was written as JSON on stdout.")
 def import_bag(
     bag: Path,
-    scan_topic: str,
-    image_topic: str,
+    scan_topic: str | None,
+    image_topic: str | None,
     camera_info_topic: str | None,
     odometry_topic: str | None,
     odometry_frames: str,
@@ -55,7 +57,8 @@ def import_bag(
     """Write the scans, images (and camera) of BAG as a sequence folder (docs/formats/sequence.md).
 
     Works on ROS 1 (.bag) and ROS 2 (folder with metadata.yaml) bags through the rosbags
-    package; no ROS installation is needed.
+    package; no ROS installation is needed. Without --scan-topic (--image-topic) the bag's
+    only LaserScan (image) topic is read; a bag with several names them.
 
     \b
     Examples:

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from rigcal.cli.options import force_option, json_option, output_option
-from rigcal.cli.stamps import laser_offset_option, stamps_option, warn_stamps
+from rigcal.cli.stamps import laser_offset_option, stamps_option, warn_cut, warn_stamps
 from rigcal.cli.types import Real
 
 
@@ -47,7 +47,7 @@ def import_carmen(
     odometry.tum with the laser's mounting (--laser-offset, else the log's PARAMs); ICP
     starts from it. Equal stamps and small steps back are repaired (--stamps). A log
     compressed with gzip or bzip2 is read as it is; an incomplete last line (a log cut
-    short) is left out with a warning.
+    short) is left out with a warning (--stamps strict refuses it).
 
     \b
     Examples:
@@ -70,12 +70,7 @@ def import_carmen(
     odometry, odometry_how = (None, "left out (--no-odometry)")
     if not no_odometry:
         odometry, odometry_how = carmen_odometry(c, str(log), mounting)
-    if c.cut is not None:
-        click.echo(
-            f"warning: {log}:{c.cut.line}: {c.cut.problem}; the log's last line, left out as incomplete "
-            "(a log cut short)",
-            err=True,
-        )
+    warn_cut(c.cut, log)
     warn_stamps(c.stamps, "scan stamps")
     warn_stamps(c.odom_stamps, "ODOM stamps")
     T = np.array([make_T(rotvec_to_R([0.0, 0.0, th]), [x, y, 0.0]) for x, y, th in c.laser_poses])

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from rigcal.cli.options import force_option, json_option, output_option
-from rigcal.cli.stamps import laser_offset_option, stamps_option, warn_stamps
+from rigcal.cli.stamps import laser_offset_option, stamps_option, warn_cut, warn_stamps
 from rigcal.cli.types import Real
 
 
@@ -67,7 +67,9 @@ def import_laser(
 
     LOG is a RADLOCC laser.txt (stamp, angle_min, increment, angle_max, ranges per line;
     nan/inf: no return) or a CSV with columns stamp_s, angle_rad (or angle_deg), range_m,
-    one row per beam (docs/formats/sequence.md). The folder feeds rigcal capture.
+    one row per beam (docs/formats/sequence.md). The folder feeds rigcal capture. An
+    incomplete last line (a log copied while it was recorded) is left out with a warning
+    (--stamps strict refuses it).
 
     \b
     Examples:
@@ -101,6 +103,8 @@ def import_laser(
         odometry=odometry,
         laser_offset=mounting,
     )
+    warn_cut(s.cut, log)
+    warn_cut(s.images_cut, images)
     warn_stamps(s.stamps, "scan stamps")
     if as_json:
         import json

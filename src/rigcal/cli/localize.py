@@ -174,6 +174,8 @@ def localize(
                 err=True,
             )
             click.echo(f"{m.method}: {source_line(m)}", err=True)
+            if "note" in m.stats:
+                click.echo(f"warning: {m.method}: {m.stats['note']}", err=True)
     shared = ", ".join(f"{k.removesuffix('_s')} {v:.1f} s" for k, v in r.timings_s.items())
     click.echo(f"stages: {shared}", err=True)
     ratio = r.duration_s / r.wall_s if r.wall_s > 0 else float("inf")

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 import click
 
 if TYPE_CHECKING:
+    from rigcal.io.log_lines import CutLine
     from rigcal.io.stamps import StampRepair
 
 stamps_option = click.option(
@@ -15,7 +16,8 @@ stamps_option = click.option(
     default="repair",
     show_default=True,
     help="repair: equal stamps and small steps back are placed evenly between their increasing "
-    "neighbours, with one warning (docs/formats/sequence.md); strict: refuse them.",
+    "neighbours, and an incomplete last line (a log cut short) is left out, each with one warning "
+    "(docs/formats/sequence.md); strict: refuse them.",
 )
 
 laser_offset_option = click.option(
@@ -30,3 +32,9 @@ def warn_stamps(repair: StampRepair | None, what: str) -> None:
     msg = repair.message(what) if repair is not None else None
     if msg:
         click.echo(f"warning: {msg}", err=True)
+
+
+def warn_cut(cut: CutLine | None, path: object) -> None:
+    """Print the one warning line of a log's incomplete last line left out (stderr), if any."""
+    if cut is not None:
+        click.echo(f"warning: {cut.warning(path)}", err=True)

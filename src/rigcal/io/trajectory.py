@@ -48,9 +48,9 @@ def _lines(path: Path) -> list[tuple[int, list[str]]]:
     return out
 
 
-def _numbers(path: Path, n: int, fields: list[str], count: int, what: str) -> FloatArray:
+def _numbers(path: Path, n: int, fields: list[str], count: int, what: str, hint: str = "") -> FloatArray:
     if len(fields) != count:
-        raise InputError(f"{path}: line {n}: got {len(fields)} fields; expected {count} ({what})")
+        raise InputError(f"{path}: line {n}: got {len(fields)} fields; expected {count} ({what}){hint}")
     try:
         v = np.array([float(f) for f in fields])
     except ValueError:
@@ -69,17 +69,35 @@ def _numbers(path: Path, n: int, fields: list[str], count: int, what: str) -> Fl
 MAX_ABS = 1e12
 
 
+# A quaternion printed to 3 decimals is within this of unit length; it is normalised.
+QUATERNION_NORM_TOLERANCE = 1e-3
+_PLANAR_HINT = (
+    ": a 2D 'timestamp x y yaw' file? write each pose as 'timestamp x y 0 0 0 sin(yaw/2) cos(yaw/2)'"
+)
+
+
 def read_tum(path: str | Path) -> Trajectory:
-    """Read a TUM trajectory (quaternions are normalised if within 1e-3 of unit length)."""
+    """Read a TUM trajectory (quaternions are normalised if within 1e-3 of unit length).
+
+    Raises:
+        InputError: a line that is not 8 finite numbers (a 2D file of 3 or 4 columns is
+            named as such), a quaternion off unit length, stamps not increasing, no pose.
+    """
     path = Path(path)
     stamps: list[float] = []
     poses: list[FloatArray] = []
     for n, fields in _lines(path):
-        v = _numbers(path, n, fields, 8, "timestamp tx ty tz qx qy qz qw")
+        planar = not poses and len(fields) in (3, 4)  # "t x y [yaw]" from the start: a 2D tool's file
+        hint = _PLANAR_HINT if planar else ""
+        v = _numbers(path, n, fields, 8, "timestamp tx ty tz qx qy qz qw", hint)
         q = v[4:8]
         norm = float(np.linalg.norm(q))
-        if abs(norm - 1.0) > 1e-3:
-            raise InputError(f"{path}: line {n}: quaternion norm {norm:.6g}; expected a unit quaternion")
+        if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+            few = " (printed with too few decimals?)" if abs(norm - 1.0) < 0.02 else ""
+            raise InputError(
+                f"{path}: line {n}: qx qy qz qw: got {q.tolist()} (norm {norm:.6g}){few}; expected a unit "
+                f"quaternion (norm within {QUATERNION_NORM_TOLERANCE:g} of 1, as printed to 3 decimals)"
+            )
         if stamps and v[0] <= stamps[-1]:
             raise InputError(
                 f"{path}: line {n}: timestamp {float(v[0])!r} not after {stamps[-1]!r}; expected increasing"

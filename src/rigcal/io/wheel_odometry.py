@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
@@ -24,6 +25,12 @@ from rigcal.io.trajectory import Trajectory, read_tum, tum_text
 
 # A TUM odometry file is planar: its poses may tilt by at most this (rad) off the floor.
 MAX_TILT_RAD = 0.2
+# A pause between two odometry poses longer than this (s) and than GAP_PERIODS of the
+# odometry's own period (median step) is a gap: a robot parked with its logger paused, a
+# base rebooted. Nothing says how the base moved across it, so no motion is taken from
+# the odometry over a gap (:func:`across_gaps`).
+MAX_GAP_S = 1.0
+GAP_PERIODS = 5.0
 
 
 @dataclass(frozen=True)
@@ -54,9 +61,25 @@ class WheelOdometry:
         return laser_motions(self, np.array([t0, t1]))[0]
 
 
+def gap_s(odom: WheelOdometry) -> float:
+    """The odometry's gap threshold (s): MAX_GAP_S, or GAP_PERIODS of its period if longer."""
+    return max(MAX_GAP_S, GAP_PERIODS * float(np.median(np.diff(odom.stamps_s))))
+
+
+def across_gaps(odom: WheelOdometry, stamps_s: FloatArray) -> NDArray[np.bool_]:
+    """(N - 1,) whether the odometry has a gap (:func:`gap_s`) between each stamp and the next."""
+    t = np.asarray(stamps_s, dtype=float)
+    s = odom.stamps_s
+    gaps = np.r_[0, np.cumsum(np.diff(s) > gap_s(odom))]  # gaps among the steps before pose k
+    before = np.clip(np.searchsorted(s, t[:-1], side="right") - 1, 0, len(s) - 1)
+    after = np.clip(np.searchsorted(s, t[1:], side="left"), 0, len(s) - 1)
+    return np.asarray(gaps[after] > gaps[before])
+
+
 def laser_motions(odom: WheelOdometry, stamps_s: FloatArray) -> FloatArray:
     """(N - 1, 3) the laser's motion from each stamp to the next (T_laser_k-1_laser_k),
-    from the base's poses interpolated at the stamps (vectorised)."""
+    from the base's poses interpolated at the stamps (vectorised); NaN for a step across a
+    gap in the odometry (:func:`across_gaps`)."""
     yaw = np.unwrap(odom.poses[:, 2])
     x = np.interp(stamps_s, odom.stamps_s, odom.poses[:, 0])
     y = np.interp(stamps_s, odom.stamps_s, odom.poses[:, 1])
@@ -72,7 +95,9 @@ def laser_motions(odom: WheelOdometry, stamps_s: FloatArray) -> FloatArray:
     # t = R_l^T (R_b t_l + t_b - t_l)
     px = cb * lx - sb * ly + bx - lx
     py = sb * lx + cb * ly + by - ly
-    return np.column_stack([cl * px + sl * py, -sl * px + cl * py, bth])
+    out = np.column_stack([cl * px + sl * py, -sl * px + cl * py, bth])
+    out[across_gaps(odom, stamps_s)] = np.nan
+    return out
 
 
 def checked(
@@ -128,7 +153,10 @@ def planar_poses(traj: Trajectory, where: str) -> FloatArray:
     if (tilt > MAX_TILT_RAD).any():
         k = int(np.argmax(tilt))
         raise InputError.at(
-            where, f"pose {k}", f"tilted {np.degrees(tilt[k]):.1f} deg", "planar odometry (z axis up)"
+            where,
+            f"pose {k}",
+            f"tilted {np.degrees(tilt[k]):.1f} deg",
+            "planar odometry (z axis up; TUM's quaternions are qx qy qz qw, w last)",
         )
     return np.column_stack([traj.poses[:, 0, 3], traj.poses[:, 1, 3], np.arctan2(R[:, 1, 0], R[:, 0, 0])])
 

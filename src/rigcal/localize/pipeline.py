@@ -26,7 +26,7 @@ from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
 from rigcal.io.trajectory import Trajectory, read_tum
-from rigcal.io.wheel_odometry import laser_motions
+from rigcal.io.wheel_odometry import across_gaps, gap_s, laser_motions
 from rigcal.localize import kalman
 from rigcal.localize.iasm import IasmParams
 from rigcal.localize.icp import IcpParams
@@ -91,6 +91,7 @@ def _loop_closed(
         cov = step_covariances(streams.scan_stamps_s, od.poses, od.covariance, est.stamps_s, est.poses)
     res = close_loops(points, est.poses, params, cov, proposals)
     seconds = time.perf_counter() - t0
+    path_m = float(path_along(est.poses)[-1]) if len(est.poses) else 0.0
     streams.timings_s["loop_closure_s"] = streams.timings_s.get("loop_closure_s", 0.0) + seconds
     stats = {
         "closures": res.counts,
@@ -99,6 +100,11 @@ def _loop_closed(
         "pose_graph": res.backend,
         "loop_closure_s": round(seconds, 3),
     }
+    if path_m < params.min_loop_m:  # said on stderr too (rigcal localize), not an error
+        stats["note"] = (
+            f"a path of {path_m:.1f} m over {len(est.poses)} poses, shorter than the {params.min_loop_m:g} m "
+            "a loop needs: no closure could be searched; the trajectory is the method's own"
+        )
     return Estimate(est.stamps_s, res.poses, stats, None, res)
 
 
@@ -240,7 +246,10 @@ def kf_measurements(
         ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses, vo_cov.reshape(-1, 3, 3))
     if streams.wheel_odometry is not None:
         wheel = _wheel_estimate(streams)
-        ms += kalman.increments(wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS, source="wheel")
+        measured = np.r_[True, ~across_gaps(streams.wheel_odometry, wheel.stamps_s)]  # none over a gap
+        ms += kalman.increments(
+            wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS, measured=measured, source="wheel"
+        )
     return ms
 
 
@@ -270,10 +279,15 @@ def _wheel_estimate(streams: Streams) -> Estimate:
         )
     T = np.eye(3)
     poses = [pose_of(T)]
-    for step in laser_motions(od, t):
+    steps = laser_motions(od, t)
+    gaps = ~np.isfinite(steps).all(axis=1)  # across a gap in the odometry: the pose is held
+    for step in np.where(gaps[:, None], 0.0, steps):
         T = T @ se2(step)
         poses.append(pose_of(T))
-    return Estimate(t, np.array(poses), {"odometry_poses": len(od.stamps_s)})
+    stats: dict[str, Any] = {"odometry_poses": len(od.stamps_s)}
+    if gaps.any():
+        stats["odometry_gaps_held"] = int(gaps.sum())
+    return Estimate(t, np.array(poses), stats)
 
 
 def _matching_estimate(streams: Streams, method: str, params: IasmParams) -> Estimate:
@@ -298,6 +312,8 @@ METHODS: dict[str, Callable[[Streams, IasmParams], Estimate]] = {
 # Methods that track image features (and use the laser odometry too): the laser odometry
 # then runs beside the tracking on a second thread.
 TRACKING = ("vo", "kf", "hiasm")
+# Methods that read the images (and so the rig's camera).
+IMAGE_METHODS = ("vo", "kf", "iasm", "hiasm")
 
 # The shared stages (their keys in the stage timings) each method's estimate is built on;
 # a method's own time leaves them out, wherever they ran (before the methods, or inside
@@ -356,13 +372,48 @@ def _shared_stages(streams: Streams, methods: list[str]) -> None:
     (when a method tracks images) with the laser odometry beside them on a second thread,
     then the laser odometry (every method but icp-p2p pairs scans and images with it)."""
     tracking = [m for m in methods if m in TRACKING]
-    for m in tracking:
-        streams.require_images(m)  # a clear error before any work
+    _require_images(streams, methods)  # a clear error before any work
     if tracking:
         streams.start_laser_odometry()
         streams.feature_tracks()
     if any(m != "icp-p2p" for m in methods):
         streams.laser_odometry()
+
+
+def _warn_gaps(streams: Streams) -> None:
+    """Read the wheel odometry and say (one warning) where it has gaps the scans cross."""
+    od = streams.sequence.odometry
+    if od is None or len(streams.scan_stamps_s) < 2:
+        return
+    gaps = across_gaps(od, streams.scan_stamps_s)
+    if gaps.any():
+        long = float(np.diff(od.stamps_s).max())
+        log.warning(
+            "the wheel odometry pauses for over %.3g s between %d pair(s) of scans (the longest pause "
+            "%.3g s): no motion is taken from it there (ICP starts from its last motion, method odom "
+            "holds its pose)",
+            gap_s(od),
+            int(gaps.sum()),
+            long,
+        )
+
+
+def _require_images(streams: Streams, methods: list[str]) -> None:
+    """An error naming every method given that needs images, and those that would run,
+    when the sequence has fewer than 2; else each image method's own checks (the rig, the
+    images' clock and size: :meth:`Streams.require_images`)."""
+    need = [m for m in methods if m in IMAGE_METHODS]
+    if need and streams.n_images < 2:
+        odom = streams.sequence.has_odometry
+        can = [m for m in METHODS if m not in IMAGE_METHODS and (m != "odom" or odom)]
+        raise InputError.at(
+            streams._yaml(),
+            "images.count",
+            streams.n_images,
+            f"at least 2 images for --method {','.join(need)}; without images, --method {','.join(can)} run",
+        )
+    for m in need:
+        streams.require_images(m)
 
 
 def parse_methods(text: str, key: str = "--method") -> list[str]:
@@ -467,6 +518,8 @@ def run(
     streams.progress = progress
     streams.track_params = tracks or TrackParams()
     streams.use_wheel_odometry = wheel_odometry
+    if wheel_odometry or "odom" in methods:
+        _warn_gaps(streams)  # its file read now, before any work (read only when used)
     if len(streams.scans) < MIN_SCANS:
         raise InputError.at(
             Path(sequence) / "sequence.yaml", "scans.count", len(streams.scans), f"at least {MIN_SCANS} scans"
@@ -523,7 +576,7 @@ def run(
     stamps = streams.scan_stamps_s
     duration = float(stamps[-1] - stamps[0])
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
-    wheel = "none" if streams.sequence.odometry is None else "used" if wheel_odometry else "ignored"
+    wheel = "none" if not streams.sequence.has_odometry else "used" if wheel_odometry else "ignored"
     return Run(
         results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params, wheel, kf
     )

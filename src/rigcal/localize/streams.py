@@ -16,9 +16,10 @@ overlaps the tracking. The pairing in time is :mod:`rigcal.localize.time_pairing
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from collections.abc import Sequence as PySequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
@@ -71,6 +72,7 @@ class Streams:
     _image_cache: ImageCache = field(default_factory=ImageCache, repr=False)
     _laser_odometry: Odometry | None = field(default=None, repr=False)
     _background: Future[Odometry] | None = field(default=None, repr=False)
+    _background_pool: ThreadPoolExecutor | None = field(default=None, repr=False)
     _stop: threading.Event = field(default_factory=threading.Event, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     results: dict[str, Any] = field(default_factory=dict, repr=False)
@@ -149,13 +151,13 @@ class Streams:
         """Frame i as a grey image."""
         return self._keep(i, self._kept_or_decoded(i))
 
-    def images_in_order(self, ahead: int = 8) -> Iterator[Gray]:
+    def images_in_order(self, ahead: int = 8) -> Generator[Gray]:
         """Every frame in order, decoded ``ahead`` frames in advance on a second thread
         (OpenCV's PNG/JPEG decoding releases the interpreter, so it overlaps the work
         done on each frame). Frames already kept are not decoded again."""
         return self.images_at(range(self.n_images), ahead)
 
-    def images_at(self, indices: PySequence[int], ahead: int = 8) -> Iterator[Gray]:
+    def images_at(self, indices: PySequence[int], ahead: int = 8) -> Generator[Gray]:
         """The frames ``indices`` in that order, decoded ahead as :meth:`images_in_order`."""
         for k, g in computed_ahead(lambda k: self._kept_or_decoded(indices[k]), len(indices), ahead):
             yield self._keep(indices[k], g)
@@ -218,13 +220,16 @@ class Streams:
         stages (feature tracking spends its time in OpenCV, which releases the
         interpreter); :meth:`laser_odometry` waits for it."""
         if self._laser_odometry is None and self._background is None:
-            pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="laser-odometry")
-            self._background = pool.submit(self._compute_laser_odometry)
-            pool.shutdown(wait=False)
+            self._background_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="laser-odometry")
+            self._background = self._background_pool.submit(self._compute_laser_odometry)
 
     def stop_background(self) -> None:
-        """Stop the background laser odometry, if any is still running (a failed run)."""
+        """Stop the background laser odometry, if any is still running (a failed run), and
+        wait for its thread to end: a command leaves no thread behind that could still
+        write to stderr (a progress line, a kernel's compile note) after it returned."""
         self._stop.set()
+        if self._background_pool is not None:
+            self._background_pool.shutdown(wait=True)
 
     def _compute_laser_odometry(self) -> Odometry:
         t0 = time.perf_counter()
@@ -272,9 +277,9 @@ class Streams:
             def tell(k: int) -> None:
                 self.report("feature tracks", k, n)
 
-            self.results["tracks"] = track_sequence(
-                self.images_in_order(), rig.camera, self.track_params, tell
-            )
+            # Closed on an error too: its decoding thread ends before the error is printed.
+            with contextlib.closing(self.images_in_order()) as images:
+                self.results["tracks"] = track_sequence(images, rig.camera, self.track_params, tell)
             self.timings_s["tracks_s"] = time.perf_counter() - t0
         out: list[FrameTracks] = self.results["tracks"]
         return out

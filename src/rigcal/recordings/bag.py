@@ -50,8 +50,8 @@ class ImportSummary:
 def import_bag(
     bag: str | Path,
     output: str | Path,
-    scan_topic: str,
-    image_topic: str,
+    scan_topic: str | None,
+    image_topic: str | None,
     camera_info_topic: str | None = None,
     force: bool = False,
     progress: Callable[[int, int], None] | None = None,
@@ -66,7 +66,8 @@ def import_bag(
     nav_msgs/Odometry topic kept as the wheel odometry, or a tf topic (tf2_msgs/TFMessage,
     as /tf) whose transforms ``odometry_frames`` (parent, child: odom -> base_link by
     default) are; the laser's mounting from ``laser_offset`` or else the bag's /tf_static
-    (:func:`bag_odometry`).
+    (:func:`bag_odometry`). ``scan_topic`` and ``image_topic`` None: the bag's only topic
+    of that type.
 
     Raises:
         InputError: unreadable bag, a missing topic (the bag's topics are listed), a topic
@@ -86,6 +87,16 @@ def import_bag(
         raise InputError(f"{bag}: not a readable ROS 1 or ROS 2 bag: {str(exc).strip()[:120]}") from None
     try:
         topics = {c.topic: c.msgtype for c in reader.connections}
+        scan_topic = scan_topic or _only_topic(bag, topics, "--scan-topic", SCAN_TYPES)
+        image_topic = image_topic or _only_topic(bag, topics, "--image-topic", IMAGE_TYPES)
+        if odometry_topic == TF_STATIC:  # fixed transforms (the mounting), no motion
+            raise InputError.at(
+                bag,
+                "--odometry-topic",
+                odometry_topic,
+                f"the odometry over time: a nav_msgs/Odometry topic or /tf (its odom -> base_link); "
+                f"{TF_STATIC} holds fixed transforms, read for the laser's mounting",
+            )
         wanted = {"scan": (scan_topic, SCAN_TYPES), "image": (image_topic, IMAGE_TYPES)}
         if camera_info_topic is not None:
             wanted["camera_info"] = (camera_info_topic, INFO_TYPES)
@@ -189,6 +200,16 @@ def import_bag(
 
 
 TF_STATIC = "/tf_static"
+
+
+def _only_topic(bag: Path, topics: dict[str, str], option: str, types: tuple[str, ...]) -> str:
+    """The bag's one topic of ``types``, for an option not given; else an error listing them."""
+    found = sorted(t for t, kind in topics.items() if kind in types)
+    if len(found) == 1:
+        return found[0]
+    what = " or ".join(x.rsplit("/", 1)[-1] for x in types)
+    has = f"the bag's {what} topics {found}" if found else f"a {what} topic (the bag has {sorted(topics)})"
+    raise InputError.at(bag, option, "not given", f"one of {has}" if found else has)
 
 
 class _WheelMessages:

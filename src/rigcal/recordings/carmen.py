@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import read_log_text
+from rigcal.io.log_lines import CutLine, ShortLineError, cut_last_line
 from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.validate import parse_real, parse_whole
 from rigcal.io.wheel_odometry import WheelOdometry, checked
@@ -47,15 +48,6 @@ LASER_MESSAGES = ("FLASER", "ROBOTLASER1")
 FLASER_RANGE_MAX_M = 50.0
 # More beams than any scanner has: a larger count is a broken line.
 MAX_BEAMS = 100_000
-
-
-@dataclass(frozen=True)
-class LastLine:
-    """The log's last line, left out because it was incomplete (the log was cut short)."""
-
-    line: int
-    message: str
-    problem: str
 
 
 @dataclass(frozen=True)
@@ -74,7 +66,8 @@ class CarmenLog:
         params: the laser mounting's PARAM values read (name -> value).
         g2o_steps: (N - 1, 3) in a g2o file whose EDGE_SE2 lines link every vertex to the
             next, one vertex per laser line: those edges (dx, dy, dtheta), else (0, 3).
-        cut: the last line when it was incomplete and left out (a log cut short), else None.
+        cut: the last line when it was incomplete and left out (a log cut short,
+            rigcal.io.log_lines), else None.
     """
 
     scans: list[Scan]
@@ -87,7 +80,7 @@ class CarmenLog:
     odom_stamps: StampRepair | None = None
     params: dict[str, float] = field(default_factory=dict)
     g2o_steps: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
-    cut: LastLine | None = None
+    cut: CutLine | None = None
 
 
 def read_carmen(
@@ -95,7 +88,8 @@ def read_carmen(
 ) -> CarmenLog:
     """Read the FLASER, ROBOTLASER1 and ODOM lines (and the laser's mounting PARAMs) of a
     CARMEN log or a g2o file. ``stamps``: "repair" mends equal stamps and small steps back
-    (rigcal.io.stamps), "strict" refuses them.
+    (rigcal.io.stamps) and leaves out an incomplete last line (rigcal.io.log_lines),
+    "strict" refuses both.
 
     Raises:
         InputError: unreadable file; a laser or ODOM line with too few fields, a field that
@@ -124,12 +118,8 @@ def read_carmen(
             where = f"{p}:{no}"
             parse = _flaser if fields[0] == "FLASER" else _robotlaser1
             scan, pose, odo = parse(fields[1:], where, flaser_range_max_m)
-        except InputError as exc:
-            # A log cut short (the logger killed, a partial download) ends mid-line: too
-            # few fields, or, with no newline after it, a number cut in two.
-            if no != last or not (isinstance(exc, _ShortLineError) or not text.endswith(("\n", "\r"))):
-                raise
-            cut = LastLine(no, fields[0], str(exc).removeprefix(f"{p}:{no}: "))
+        except InputError as exc:  # a log cut short ends mid-line (rigcal.io.log_lines)
+            cut = cut_last_line(exc, text, no, last, line, f"{p}:{no}", stamps == "strict")
             continue
         scans.append(scan)
         laser.append(pose)
@@ -308,13 +298,9 @@ def _ranges(fields: list[str], start: int, n: int, where: str, what: str, names:
     return out
 
 
-class _ShortLineError(InputError):
-    """A message line with fewer fields than its message needs."""
-
-
 def _need(fields: list[str], n: int, where: str, what: str, layout: str) -> None:
     if len(fields) < n:
-        raise _ShortLineError.at(where, what, f"{len(fields)} fields", f"at least {n}: {layout}")
+        raise ShortLineError.at(where, what, f"{len(fields)} fields", f"at least {n}: {layout}")
 
 
 def _flaser(fields: list[str], where: str, range_max_m: float) -> tuple[Scan, FloatArray, FloatArray]:

@@ -23,14 +23,14 @@
   (:func:`read_board_points`; a board session's ``laser_side: {returns_file: FILE}``).
 
 Every malformed line stops the import with the file, the line number and what was
-expected (docs/formats/sequence.md).
+expected (docs/formats/sequence.md), but for a log's incomplete last line (a log copied
+while it was recorded), which is left out by the rule of :mod:`rigcal.io.log_lines`.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import compressed, read_log_text, read_text
+from rigcal.io.log_lines import CutLine, ShortLineError, cut_last_line
 from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.validate import file_inside
 from rigcal.io.wheel_odometry import read_odometry_tum
@@ -60,15 +61,21 @@ class LaserTextSummary:
     camera: bool
     stamps: StampRepair | None = None
     odometry: bool = False
+    cut: CutLine | None = None
+    images_cut: CutLine | None = None
 
 
 def _fields(line: str) -> list[str]:
     return line.replace(",", " ").replace(";", " ").split()
 
 
-def _content_lines(path: Path, what: str) -> list[tuple[int, str]]:
+def _log_text(path: Path, what: str) -> str:
+    return read_log_text(path, what) if compressed(path) else read_text(path, what)
+
+
+def _content_lines(path: Path, what: str, text: str | None = None) -> list[tuple[int, str]]:
     out = []
-    text = read_log_text(path, what) if compressed(path) else read_text(path, what)
+    text = _log_text(path, what) if text is None else text
     for n, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
         if s and not s.startswith(("#", "%")):
@@ -152,78 +159,98 @@ def read_radlocc_laser(
             than the first, a stamp not after the previous (strict) or beyond repair.
     """
     path = Path(path)
-    return restamped(*_radlocc_scans(path, range_min_m, range_max_m, no_return_m), path, stamps)[0]
+    scans, lines, _ = _radlocc_scans(path, range_min_m, range_max_m, no_return_m, stamps == "strict")
+    return restamped(scans, lines, path, stamps)[0]
 
 
 def restamped(scans: list[Scan], lines: list[int], path: Path, stamps: str) -> tuple[list[Scan], StampRepair]:
     """The scans with their stamps repaired (``stamps="repair"``) or checked as they are
     (``"strict"``) by :func:`rigcal.io.stamps.repair_stamps`; ``lines`` their lines."""
-    from dataclasses import replace
-
     fixed = repair_stamps([s.stamp_s for s in scans], f"{path}: stamp", stamps, lines)
     return [replace(s, stamp_s=float(t)) for s, t in zip(scans, fixed.stamps_s, strict=True)], fixed
 
 
 def _radlocc_scans(
-    path: Path, range_min_m: float, range_max_m: float, no_return_m: float | None = None
-) -> tuple[list[Scan], list[int]]:
+    path: Path, range_min_m: float, range_max_m: float, no_return_m: float | None = None, strict: bool = False
+) -> tuple[list[Scan], list[int], CutLine | None]:
+    """The scans, their lines, and the incomplete last line left out (None: the log is whole)."""
     scans: list[Scan] = []
-    header_form: bool | None = None
     numbers: list[int] = []
-    for n, line in _content_lines(path, "RADLOCC laser log"):
-        f = _fields(line)
+    form: list[bool] = []  # the first line's: radlocc_collect's header (unit type, count) or not
+    text = _log_text(path, "RADLOCC laser log")
+    lines = _content_lines(path, "RADLOCC laser log", text)
+    cut = None
+    for n, line in lines:
         where = f"{path}: line {n}"
         try:
-            values = [float(x) for x in f]
-        except ValueError:
-            raise InputError(
-                f"{where}: got {line[:60]!r}; expected numbers: stamp angle_min increment angle_max ranges..."
-            ) from None
-        if len(values) < 6:
-            raise InputError(
-                f"{where}: got {len(values)} fields; expected stamp, angle_min, increment, max, ranges"
-            )
-        stamp, a0, step, a1 = values[:4]
-        if not all(math.isfinite(x) for x in (stamp, a0, step, a1)) or not step > 0:
-            raise InputError(
-                f"{where}: got stamp {stamp!r}, increment {step!r}; expected finite, increment > 0"
-            )
-        if max(abs(a0), abs(a1)) > 2 * math.pi + 1e-6:
-            raise InputError(f"{where}: got angles {a0!r} to {a1!r}; expected radians (within +/- 2 pi)")
-        count = round((a1 - a0) / step) + 1
-        declared = values[5]
-        # radlocc_collect's form: range unit type and beam count N, then exactly N ranges.
-        has_header = declared.is_integer() and declared >= 1 and len(values) == int(declared) + 6
-        if header_form is None:
-            header_form = has_header
-        elif has_header != header_form:
-            expected = (
-                "stamp angle_min increment angle_max 3 N r_1 ... r_N (unit type 3: metres, N ranges), "
-                f"as line {_first_line(path)} has"
-                if header_form
-                else "stamp angle_min increment angle_max r_1 ..., without unit type and count, "
-                "as the first line"
-            )
-            raise InputError(f"{where}: got {len(values) - 4} values after the angles; expected {expected}")
-        ranges = np.array(values[4:])
-        if has_header:
-            if values[4] != RADLOCC_METRES:
-                raise InputError(
-                    f"{where}: range unit type {values[4]!r}; expected {RADLOCC_METRES:g} (metres)"
-                )
-            ranges = ranges[2:]
-        if abs(len(ranges) - count) > 1:
-            said = f"the header's N = {int(declared)}" if has_header else f"{len(ranges)} ranges"
-            raise InputError(
-                f"{where}: got {said}; expected {count} (within one step) for angles {a0!r} to {a1!r} "
-                f"by {step!r}"
-            )
-        ranges = np.where(np.isfinite(ranges) & (ranges >= 0), ranges, np.nan)
-        if no_return_m is not None:
-            ranges = np.where(np.abs(ranges - no_return_m) <= 1e-9 * max(1.0, no_return_m), np.nan, ranges)
-        scans.append(Scan.from_uniform(a0, step, ranges, range_min_m, range_max_m, stamp))
+            scans.append(_radlocc_line(path, where, line, form, range_min_m, range_max_m, no_return_m))
+        except InputError as exc:  # a log cut short ends mid-line (rigcal.io.log_lines)
+            if not scans:  # nothing whole before it: not a log cut short
+                raise
+            cut = cut_last_line(exc, text, n, lines[-1][0], line, where, strict)
+            continue
         numbers.append(n)
-    return scans, numbers
+    return scans, numbers, cut
+
+
+def _radlocc_line(
+    path: Path,
+    where: str,
+    line: str,
+    form: list[bool],
+    range_min_m: float,
+    range_max_m: float,
+    no_return_m: float | None,
+) -> Scan:
+    """One line's scan; ``form`` holds the first line's form once it is known."""
+    f = _fields(line)
+    try:
+        values = [float(x) for x in f]
+    except ValueError:
+        raise InputError(
+            f"{where}: got {line[:60]!r}; expected numbers: stamp angle_min increment angle_max ranges..."
+        ) from None
+    if len(values) < 6:
+        raise ShortLineError(
+            f"{where}: got {len(values)} fields; expected stamp, angle_min, increment, max, ranges"
+        )
+    stamp, a0, step, a1 = values[:4]
+    if not all(math.isfinite(x) for x in (stamp, a0, step, a1)) or not step > 0:
+        raise InputError(f"{where}: got stamp {stamp!r}, increment {step!r}; expected finite, increment > 0")
+    if max(abs(a0), abs(a1)) > 2 * math.pi + 1e-6:
+        raise InputError(f"{where}: got angles {a0!r} to {a1!r}; expected radians (within +/- 2 pi)")
+    count = round((a1 - a0) / step) + 1
+    declared = values[5]
+    # radlocc_collect's form: range unit type and beam count N, then exactly N ranges.
+    has_header = declared.is_integer() and declared >= 1 and len(values) == int(declared) + 6
+    if not form:
+        form.append(has_header)
+    header_form = form[0]
+    if has_header != header_form:
+        short = header_form and len(values) < declared + 6  # fewer ranges than its count
+        expected = (
+            "stamp angle_min increment angle_max 3 N r_1 ... r_N (unit type 3: metres, N ranges), "
+            f"as line {_first_line(path)} has"
+            if header_form
+            else "stamp angle_min increment angle_max r_1 ..., without unit type and count, as the first line"
+        )
+        raise (ShortLineError if short else InputError)(
+            f"{where}: got {len(values) - 4} values after the angles; expected {expected}"
+        )
+    ranges = np.array(values[4:])
+    if has_header:
+        if values[4] != RADLOCC_METRES:
+            raise InputError(f"{where}: range unit type {values[4]!r}; expected {RADLOCC_METRES:g} (metres)")
+        ranges = ranges[2:]
+    if abs(len(ranges) - count) > 1:
+        said = f"the header's N = {int(declared)}" if has_header else f"{len(ranges)} ranges"
+        raise (ShortLineError if len(ranges) < count else InputError)(
+            f"{where}: got {said}; expected {count} (within one step) for angles {a0!r} to {a1!r} by {step!r}"
+        )
+    ranges = np.where(np.isfinite(ranges) & (ranges >= 0), ranges, np.nan)
+    if no_return_m is not None:
+        ranges = np.where(np.abs(ranges - no_return_m) <= 1e-9 * max(1.0, no_return_m), np.nan, ranges)
+    return Scan.from_uniform(a0, step, ranges, range_min_m, range_max_m, stamp)
 
 
 def _first_line(path: Path) -> int:
@@ -240,11 +267,17 @@ def read_csv_laser(
         InputError: a missing column, a non-numeric value, angles not increasing within a
             scan, a stamp not after the previous scan's (strict) or beyond repair.
     """
-    return restamped(*_csv_scans(Path(path), range_min_m, range_max_m), Path(path), stamps)[0]
+    scans, lines, _ = _csv_scans(Path(path), range_min_m, range_max_m, stamps == "strict")
+    return restamped(scans, lines, Path(path), stamps)[0]
 
 
-def _csv_scans(path: Path, range_min_m: float, range_max_m: float) -> tuple[list[Scan], list[int]]:
-    lines = _content_lines(path, "CSV laser log")
+def _csv_scans(
+    path: Path, range_min_m: float, range_max_m: float, strict: bool = False
+) -> tuple[list[Scan], list[int], CutLine | None]:
+    """The scans, their first rows' lines, and the incomplete last row left out with the
+    scan it ended (None: the log is whole)."""
+    text = _log_text(path, "CSV laser log")
+    lines = _content_lines(path, "CSV laser log", text)
     header = [h.strip().lower() for h in lines[0][1].split(",")]
     angle_key = "angle_rad" if "angle_rad" in header else "angle_deg"
     for key in ("stamp_s", angle_key, "range_m"):
@@ -256,14 +289,20 @@ def _csv_scans(path: Path, range_min_m: float, range_max_m: float) -> tuple[list
     scale = math.pi / 180.0 if angle_key == "angle_deg" else 1.0
     groups: list[tuple[float, list[float], list[float]]] = []
     first_rows: list[int] = []
+    cut = None
     for n, line in lines[1:]:
         parts = line.split(",")
         try:
-            stamp, angle, rng = (float(parts[c]) for c in cols)
-        except (ValueError, IndexError):
-            raise InputError(
-                f"{path}: line {n}: got {line[:60]!r}; expected numbers in the columns {header}"
-            ) from None
+            stamp, angle, rng = _csv_row(path, n, line, parts, cols, header)
+        except InputError as exc:  # a log cut short ends mid-row (rigcal.io.log_lines)
+            if not groups:  # nothing whole before it: not a log cut short
+                raise
+            cut = cut_last_line(exc, text, n, lines[-1][0], line, f"{path}: line {n}", strict)
+            if groups and _same_stamp(parts, cols[0], groups[-1][0]):  # the scan it ended is cut too
+                cut = replace(cut, records=len(groups[-1][1]))
+                groups.pop()
+                first_rows.pop()
+            continue
         if not (math.isfinite(stamp) and math.isfinite(angle)):
             raise InputError(
                 f"{path}: line {n}: got stamp {stamp!r}, angle {angle!r}; expected finite numbers"
@@ -283,7 +322,30 @@ def _csv_scans(path: Path, range_min_m: float, range_max_m: float) -> tuple[list
     if not groups:
         raise InputError(f"{path}: got a header only; expected rows stamp_s, angle, range_m")
     scans = [_on_a_grid(path, stamp, a, r, range_min_m, range_max_m) for stamp, a, r in groups]
-    return scans, first_rows
+    return scans, first_rows, cut
+
+
+def _csv_row(
+    path: Path, n: int, line: str, parts: list[str], cols: list[int], header: list[str]
+) -> tuple[float, float, float]:
+    """A CSV row's stamp, angle and range; a row short of a column (or ending in an empty
+    field) is a :class:`ShortLineError`."""
+    try:
+        stamp, angle, rng = (float(parts[c]) for c in cols)
+    except (ValueError, IndexError):
+        short = len(parts) < len(header) or not parts[-1].strip()
+        raise (ShortLineError if short else InputError)(
+            f"{path}: line {n}: got {line[:60]!r}; expected numbers in the columns {header}"
+        ) from None
+    return stamp, angle, rng
+
+
+def _same_stamp(parts: list[str], col: int, stamp: float) -> bool:
+    """Whether a cut row belongs to the scan at ``stamp`` (or its stamp is itself cut)."""
+    try:
+        return float(parts[col]) == stamp
+    except (ValueError, IndexError):
+        return True
 
 
 MAX_GRID_BEAMS = 100_000
@@ -324,38 +386,56 @@ def read_image_list(path: str | Path) -> tuple[FloatArray, list[Path]]:
         InputError: a line without one stamp and one existing file (or, for a stamps-only
             RADLOCC list, a missing ``image_00k`` file), or stamps not increasing.
     """
-    path = Path(path)
-    lines = _content_lines(path, "image list")
+    stamps, files, _ = _image_list(Path(path), strict=True)
+    return stamps, files
+
+
+def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLine | None]:
+    """:func:`read_image_list`, and its incomplete last line left out (a list copied while
+    it was written, rigcal.io.log_lines; ``strict`` refuses it)."""
+    text = _log_text(path, "image list")
+    lines = _content_lines(path, "image list", text)
     stamps_only = all(_numbers_only(_fields(line)) for _, line in lines)
     stamps: list[float] = []
     files: list[Path] = []
+    cut = None
     for k, (n, line) in enumerate(lines, start=1):
-        f = _fields(line)
-        if stamps_only:  # RADLOCC image_stamps.txt: image_00k.* beside it
-            stamp = float(f[0])
-            file = _radlocc_image(path.parent, k)
-            if file is None:
-                raise InputError(
-                    f"{path}: line {n}: image_{k:03d}.png (or .jpg, ...) not found in {path.parent}"
-                )
-        else:
-            numbers: list[str] = []
-            names: list[str] = []
-            for x in f:
-                (numbers if _numbers_only([x]) else names).append(x)
-            if len(f) != 2 or len(numbers) != 1 or not math.isfinite(float(numbers[0])):
-                raise InputError(
-                    f"{path}: line {n}: got {line[:60]!r}; expected a stamp (s) and an image file"
-                )
-            stamp = float(numbers[0])
-            file = file_inside(path.parent, names[0], path, f"line {n}")
-            if not file.is_file():
-                raise InputError(f"{path}: line {n}: image {names[0]} not found in {path.parent}")
+        try:
+            stamp, file = _image_entry(path, k, n, line, stamps_only)
+        except InputError as exc:
+            if not stamps:  # nothing whole before it: not a list cut short
+                raise
+            cut = cut_last_line(exc, text, n, lines[-1][0], line, f"{path}: line {n}", strict)
+            continue
         if stamps and not stamp > stamps[-1]:
             raise InputError(f"{path}: line {n}: stamp {stamp!r} not after {stamps[-1]!r}")
         stamps.append(stamp)
         files.append(file)
-    return np.array(stamps), files
+    return np.array(stamps), files, cut
+
+
+def _image_entry(path: Path, k: int, n: int, line: str, stamps_only: bool) -> tuple[float, Path]:
+    """Line n (the k-th entry) of an image list: its stamp and existing file."""
+    f = _fields(line)
+    if stamps_only:  # RADLOCC image_stamps.txt: image_00k.* beside it
+        stamp = float(f[0])
+        file = _radlocc_image(path.parent, k)
+        if file is None:
+            raise InputError(f"{path}: line {n}: image_{k:03d}.png (or .jpg, ...) not found in {path.parent}")
+    else:
+        numbers: list[str] = []
+        names: list[str] = []
+        for x in f:
+            (numbers if _numbers_only([x]) else names).append(x)
+        if len(f) != 2 or len(numbers) != 1 or not math.isfinite(float(numbers[0])):
+            raise (ShortLineError if len(f) < 2 else InputError)(
+                f"{path}: line {n}: got {line[:60]!r}; expected a stamp (s) and an image file"
+            )
+        stamp = float(numbers[0])
+        file = file_inside(path.parent, names[0], path, f"line {n}")
+        if not file.is_file():
+            raise InputError(f"{path}: line {n}: image {names[0]} not found in {path.parent}")
+    return stamp, file
 
 
 def _numbers_only(fields: list[str]) -> bool:
@@ -402,25 +482,26 @@ def import_laser_text(
 
     log = Path(log)
     fmt = fmt or detect_format(log)
-    readers: dict[str, Callable[..., tuple[list[Scan], list[int]]]] = {
-        "radlocc": _radlocc_scans,
-        "csv": _csv_scans,
-    }
-    if fmt not in readers:
-        raise InputError.at(log, "--format", fmt, f"one of {sorted(readers)}")
+    if fmt not in ("csv", "radlocc"):
+        raise InputError.at(log, "--format", fmt, "one of ['csv', 'radlocc']")
     if no_return_m is not None and fmt != "radlocc":
         raise InputError.at(
             log, "--no-return-m", no_return_m, "a RADLOCC log (a CSV writes no return as nan)"
         )
-    extra = (no_return_m,) if fmt == "radlocc" else ()
-    scans, fixed = restamped(*readers[fmt](log, range_min_m, range_max_m, *extra), log, stamps)
+    strict = stamps == "strict"
+    if fmt == "radlocc":
+        scans, lines, cut = _radlocc_scans(log, range_min_m, range_max_m, no_return_m, strict)
+    else:
+        scans, lines, cut = _csv_scans(log, range_min_m, range_max_m, strict)
+    scans, fixed = restamped(scans, lines, log, stamps)
     wheel = None
     if odometry is not None:
         mount = np.zeros(3) if laser_offset is None else laser_offset
         wheel = read_odometry_tum(odometry, mount, fixed.stamps_s)
     frames: list[ImageFrame] = []
+    list_cut = None
     if images is not None:
-        image_stamps, files = read_image_list(images)
+        image_stamps, files, list_cut = _image_list(Path(images), strict)
         frames = [
             ImageFrame(float(t), f"{i:06d}{f.suffix.lower()}", f.read_bytes())
             for i, (t, f) in enumerate(zip(image_stamps, files, strict=True))
@@ -432,7 +513,13 @@ def import_laser_text(
         "images": str(Path(images).resolve()) if images else None,
     }
     source["stamps"] = fixed.record(stamps)
+    if cut is not None:
+        source["incomplete_last_line"] = cut.line
+    if list_cut is not None:
+        source["images_incomplete_last_line"] = list_cut.line
     if odometry is not None:
         source["odometry"] = str(Path(odometry).resolve())
     write_sequence(output, log.name, scans, frames, camera_yaml, source, force=force, odometry=wheel)
-    return LaserTextSummary(fmt, len(scans), len(frames), camera_yaml is not None, fixed, wheel is not None)
+    return LaserTextSummary(
+        fmt, len(scans), len(frames), camera_yaml is not None, fixed, wheel is not None, cut, list_cut
+    )

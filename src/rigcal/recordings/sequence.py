@@ -20,8 +20,10 @@ folder atomically; :func:`read_sequence` validates it.
 from __future__ import annotations
 
 import zipfile
-from collections.abc import Iterable, Mapping
+import zlib
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from functools import cached_property, partial
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +33,7 @@ import yaml
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text
+from rigcal.io.kinds import kind_of_bytes
 from rigcal.io.validate import finite_array, parse_real, real, relative_inside, whole
 from rigcal.io.wheel_odometry import WheelOdometry, odometry_tum, read_odometry_tum
 from rigcal.scan import Scan, ScanArrayError, laser_clockwise, uniform_scans
@@ -63,7 +66,12 @@ class ImageFrame:
 
 @dataclass(frozen=True)
 class Sequence:
-    """A sequence in memory (as read: image bytes are not loaded)."""
+    """A sequence in memory (as read: image bytes are not loaded).
+
+    The wheel odometry's file (odometry.tum) is read when :attr:`odometry` is first asked
+    for, not by :func:`read_sequence`: a run that does not use it (``rigcal localize
+    --wheel-odometry ignore``) goes on whatever that file holds.
+    """
 
     folder: Path | None
     name: str
@@ -74,9 +82,23 @@ class Sequence:
     source: dict[str, Any]
     rig_file: str | None = None
     groundtruth_file: str | None = None
-    odometry: WheelOdometry | None = None
+    odometry_reader: Callable[[], WheelOdometry] | None = field(default=None, repr=False, compare=False)
     image_folder: str = "images"  # the folder and index named in sequence.yaml's ``images``
     image_index: str = "images.csv"
+
+    @property
+    def has_odometry(self) -> bool:
+        """Whether sequence.yaml names wheel odometry (without reading its file)."""
+        return self.odometry_reader is not None
+
+    @cached_property
+    def odometry(self) -> WheelOdometry | None:
+        """The wheel odometry, read and checked against the scans on first use.
+
+        Raises:
+            InputError: its file is missing or malformed, naming the file, line and value.
+        """
+        return None if self.odometry_reader is None else self.odometry_reader()
 
 
 def write_sequence(
@@ -176,13 +198,7 @@ def read_sequence(folder: str | Path) -> Sequence:
     sc = check_keys(d["scans"], path, "scans", ["file", "count"])
     npz = folder / relative_inside(sc["file"], path, "scans.file")
     count = whole(sc["count"], path, "scans.count")
-    try:
-        with np.load(npz) as z:
-            arrays = {k: np.array(z[k]) for k in SCAN_KEYS}
-    except FileNotFoundError:
-        raise InputError(f"{npz}: scans file not found") from None
-    except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise InputError(f"{npz}: not a scans file with arrays {list(SCAN_KEYS)}: {exc}") from None
+    arrays = _load_scan_arrays(npz)
     n = _check_scan_arrays(arrays, npz)
     if n != count:
         raise InputError.at(path, "scans.count", sc["count"], f"{n}, the number of scans in {npz.name}")
@@ -223,7 +239,7 @@ def read_sequence(folder: str | Path) -> Sequence:
             raise InputError.at(path, key, d[key], f"a file in {folder}")
     odometry = None
     if "odometry" in d:
-        odometry = _read_odometry(folder, path, d, np.array([s.stamp_s for s in scans], dtype=float))
+        odometry = _odometry_reader(folder, path, d, np.array([s.stamp_s for s in scans], dtype=float))
     return Sequence(
         folder,
         str(d["name"]),
@@ -240,10 +256,11 @@ def read_sequence(folder: str | Path) -> Sequence:
     )
 
 
-def _read_odometry(
+def _odometry_reader(
     folder: Path, path: Path, d: Mapping[str, Any], scan_stamps_s: FloatArray
-) -> WheelOdometry:
-    """The ``odometry`` mapping (schema 3) and its TUM file, checked against the scans."""
+) -> Callable[[], WheelOdometry]:
+    """The ``odometry`` mapping (schema 3), checked now, and the reader of its TUM file
+    (checked against the scans when called)."""
     if whole(d["schema_version"], path, "schema_version") < SEQUENCE_SCHEMA_VERSION_ODOMETRY:
         need = f"{SEQUENCE_SCHEMA_VERSION_ODOMETRY} for key 'odometry'"
         raise InputError.at(path, "schema_version", d["schema_version"], need)
@@ -253,7 +270,46 @@ def _read_odometry(
         raise InputError.at(path, "odometry.T_base_laser", mount, "[x, y, yaw] (m, m, rad)")
     xyz = [real(v, path, f"odometry.T_base_laser[{i}]") for i, v in enumerate(mount)]
     file = folder / relative_inside(od["file"], path, "odometry.file")
-    return read_odometry_tum(file, np.array(xyz), scan_stamps_s)
+    return partial(read_odometry_tum, file, np.array(xyz), scan_stamps_s)
+
+
+def _load_scan_arrays(npz: Path) -> dict[str, Any]:
+    """The arrays of scans.npz, or one line naming what the file or a missing or broken
+    array is (a file copied while written, another tool's archive, a folder)."""
+    keys = ", ".join(SCAN_KEYS)
+    expected = f"a NumPy .npz archive of the scans (arrays {keys}; docs/formats/sequence.md)"
+    try:
+        with npz.open("rb") as f:
+            head = f.read(32)
+        if not zipfile.is_zipfile(npz):
+            what = "an empty file" if not head else kind_of_bytes(head) or f"a file starting {head[:8]!r}"
+            if head.startswith(b"PK"):
+                what = "a zip archive cut short or broken (no table of contents at its end)"
+            raise InputError(f"{npz}: got {what}; expected {expected}")
+        with np.load(npz, allow_pickle=False) as z:
+            arrays = {}
+            for k in SCAN_KEYS:
+                if k not in z.files:
+                    has = ", ".join(sorted(z.files)[:10]) or "none"
+                    why = f"got no such array (it has {has})"
+                    raise InputError(f"{npz}: {k}: {why}; expected the arrays {keys}")
+                try:
+                    arrays[k] = np.array(z[k])
+                except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+                    why = f"got an unreadable array ({exc})"
+                    raise InputError(f"{npz}: {k}: {why}; expected numbers as numpy.savez writes") from None
+    except FileNotFoundError:
+        raise InputError(f"{npz}: scans file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{npz}: got a folder; expected {expected}") from None
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise InputError(f"{npz}: cannot read the scans file: {exc}") from None
+    st = arrays["stamps_s"]
+    if st.dtype.kind in "iu":  # ROS and other loggers keep integer nanoseconds
+        raise InputError.at(
+            npz, "stamps_s", f"{st.dtype} array", "seconds as floating-point numbers (integers: nanoseconds?)"
+        )
+    return arrays
 
 
 def _check_scan_arrays(a: dict[str, Any], npz: Path) -> int:

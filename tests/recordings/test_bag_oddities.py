@@ -1,0 +1,124 @@
+"""Bags as real robots record them: two laser topics, a scan whose beam count and step
+change, compressed images of other encodings, odometry asked of /tf_static, a scan frame
+with a leading slash. One line naming the bag, the topic or option, the value and what
+was expected (exit 3), or the data read as they are."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from rosbags.rosbag2 import Writer as Writer2
+from test_bag import TS2, _msgs, bag_with
+from test_bag_odometry import _odometry_bag
+
+from rigcal.cli.main import main
+from rigcal.errors import InputError
+from rigcal.recordings.bag import import_bag
+from rigcal.recordings.sequence import read_sequence
+
+SCAN, IMAGE = "sensor_msgs/msg/LaserScan", "sensor_msgs/msg/Image"
+
+
+def _bag(path, lasers=("/scan",), change_beams=False, scan_frame="laser"):
+    scan, image, _, _ = _msgs(TS2)
+    ser = TS2.serialize_cdr
+    with Writer2(path, version=8) as w:
+        cs = [w.add_connection(t, SCAN, typestore=TS2) for t in lasers]
+        ci = w.add_connection("/cam/image", IMAGE, typestore=TS2)
+        for k in range(6):
+            m = scan(1.0 + 0.1 * k, k)
+            m.header.frame_id = scan_frame
+            if change_beams and k % 2:  # another mode of the scanner: twice the beams
+                m.ranges, m.angle_increment = np.full(21, 2.0, np.float32), 0.05
+            for c in cs:
+                w.write(c, int(1e9 * (10 + k)), ser(m, SCAN))
+            w.write(ci, int(1e9 * (10 + k)) + 1, ser(image(1.0 + 0.1 * k, k), IMAGE))
+    return path
+
+
+def test_two_laser_topics_and_none_chosen_names_them(tmp_path, capsys):
+    bag = _bag(tmp_path / "two", lasers=("/front/scan", "/rear/scan"))
+    assert main(["import-bag", str(bag), "-o", str(tmp_path / "s")]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"Error: {bag}: --scan-topic: got 'not given'; expected one of the bag's LaserScan topics "
+        "['/front/scan', '/rear/scan']"
+    ]
+    assert not (tmp_path / "s").exists()
+    # One of each: the bag's own topics are read without naming them.
+    assert main(["import-bag", str(_bag(tmp_path / "one")), "-o", str(tmp_path / "t")]) == 0
+    assert read_sequence(tmp_path / "t").source["scan_topic"] == "/scan"
+
+
+def test_a_scan_whose_beam_count_and_step_change_keeps_each_scans_own(tmp_path):
+    bag = _bag(tmp_path / "b", change_beams=True)
+    import_bag(bag, tmp_path / "s", None, None)
+    scans = read_sequence(tmp_path / "s").scans
+    assert [len(s.ranges_m) for s in scans] == [11, 21] * 3
+    np.testing.assert_allclose([s.angle_increment_rad for s in scans], [0.1, 0.05] * 3, rtol=1e-6)
+    np.testing.assert_allclose([s.angles_rad[-1] for s in scans], 0.5, rtol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("fmt", "data"),
+    [
+        ("tiff", cv2.imencode(".tiff", np.zeros((4, 6), np.uint8))[1].ravel()),
+        ("bmp", cv2.imencode(".bmp", np.zeros((4, 6), np.uint8))[1].ravel()),
+        (
+            "16UC1; compressedDepth png",
+            np.r_[np.zeros(12, np.uint8), cv2.imencode(".png", np.zeros((4, 6)))[1]],
+        ),
+    ],
+)
+def test_compressed_images_of_another_encoding_name_the_message(tmp_path, fmt, data):
+    bag = bag_with(tmp_path / "c", 2, image={"format": fmt, "data": data})
+    with pytest.raises(
+        InputError,
+        match=rf"c: /cam/image message 1: data: got .*; expected PNG or JPEG bytes \(format says '{fmt}'\)",
+    ):
+        import_bag(bag, tmp_path / "s", "/scan", "/cam/image")
+    assert not (tmp_path / "s").exists()
+
+
+def test_odometry_asked_of_tf_static_says_what_it_holds(tmp_path):
+    bag = _odometry_bag(
+        tmp_path / "b2",
+        2,
+        [0.9, 1.4, 1.9, 2.4],
+        static=(("odom", "base_link"), ("base_link", "laser")),
+        via_tf=True,
+    )
+    with pytest.raises(
+        InputError,
+        match=r"b2: --odometry-topic: got '/tf_static'; expected the odometry over time: a nav_msgs/Odometry "
+        r"topic or /tf \(its odom -> base_link\); /tf_static holds fixed transforms",
+    ):
+        import_bag(bag, tmp_path / "s", "/scan", "/cam/image", odometry_topic="/tf_static")
+    # /tf's odom -> base_link is the odometry, /tf_static's base_link -> laser the mounting.
+    import_bag(bag, tmp_path / "s", "/scan", "/cam/image", odometry_topic="/tf")
+    od = read_sequence(tmp_path / "s").odometry
+    assert od is not None
+    np.testing.assert_allclose(od.T_base_laser, [0.3, 0.0, 0.0], atol=1e-9)
+
+
+def test_tf_missing_for_a_scan_frame_on_another_frame_asks_for_the_mounting(tmp_path):
+    bag = _odometry_bag(tmp_path / "b2", 2, [0.9, 1.4, 1.9, 2.4], static=())
+    with pytest.raises(
+        InputError,
+        match=r"/odom: child_frame_id: got 'base_link'; expected the scans' frame 'laser' .*--laser-offset",
+    ):
+        import_bag(bag, tmp_path / "s", "/scan", "/cam/image", odometry_topic="/odom")
+    assert not (tmp_path / "s").exists()
+
+
+def test_frames_named_with_a_leading_slash_are_the_same_frames(tmp_path):
+    """ROS 1 bags often name frames '/base_link': the odometry's child and /tf_static's
+    frames match the scans' whichever spelling each uses."""
+    bag = _odometry_bag(
+        tmp_path / "b2", 2, [0.9, 1.4, 1.9, 2.4], child="/base_link", static=(("/base_link", "laser"),)
+    )
+    import_bag(bag, tmp_path / "s", "/scan", "/cam/image", odometry_topic="/odom")
+    od = read_sequence(tmp_path / "s").odometry
+    assert od is not None
+    np.testing.assert_allclose(od.T_base_laser, [0.3, 0.0, 0.0], atol=1e-9)
