@@ -209,6 +209,12 @@ def main() -> None:
         help=f"Run only these filters (of {','.join(VARIANTS)}); prints round 7's table alone.",
     )
     ap.add_argument(
+        "--windows",
+        action="store_true",
+        help="Print VO's and ICP's errors over windows of 1-32 VO runs against their error models; "
+        "needs --reuse.",
+    )
+    ap.add_argument(
         "--drive-stats",
         action="store_true",
         help="Print the truth's velocity changes per scan (kalman.DRIVE_ACCEL_SIGMA: laps 1-2); "
@@ -232,6 +238,9 @@ def main() -> None:
         return
     if args.drive_stats:
         drive_stats(args)
+        return
+    if args.windows:
+        windows(args)
         return
     if args.consistency:
         consistency(args)
@@ -415,6 +424,66 @@ def consistency(args: argparse.Namespace) -> None:
                 f"Gauss-Markov share {fit[0]:.3f} of the forward variance, {fit[1]:.3f} per run "
                 f"of {m[13]:.3f} s, time constant {fit[2]:.3f} s"
             )
+
+
+def windows(args: argparse.Namespace, sizes: tuple[int, ...] = (1, 2, 4, 8, 16, 32)) -> None:
+    """Each input's error over windows of 1 ... 32 chained VO runs (0.5-16 s) against its
+    error model there: VO's chain under the guard's model (kalman._vo_guard: the runs'
+    covariances with their variance ratios, the forward memory's and the lag-1 shares'
+    correlations), ICP's own steps chained over the same interval under theirs
+    (kalman._IcpReference.between); per direction of the window's last run, the squared
+    error against the truth over the modelled variance (1 where the model holds at that
+    length), mean and median over every window of the laps. VO's runs whose own error is
+    beyond the chi-square 0.999 point at the lap's median (a wrong scale) end no window."""
+    params = kalman.KF_MODES["weighted"]
+    own, share = kalman._error_model("vo", params)
+    total = own + 2.0 * share
+    rho = np.divide(share, total, out=np.zeros(3), where=total > 0)
+    stats: dict[int, dict[str, list[FloatArray]]] = {n: {"vo": [], "icp": []} for n in sizes}
+    for seed in seeds_of(args.seeds):
+        for name in args.worlds.split(","):
+            streams, od, res, gt, truth_s = kept_lap(args, name, seed)
+            ms = kf_measurements(streams, od, res, params)
+            streams.stop_background()
+            reference = kalman._IcpReference([m for m in ms if m.source == "icp"], params)
+            vo = sorted((m for m in ms if m.source == "vo" and m.covariance[0, 0] < 1.0), key=lambda m: m.t1)
+            nees = step_nees(vo, gt, truth_s)
+            bad = nees > chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)
+            for k, m in enumerate(vo):
+                for n in sizes:
+                    j = k - n + 1
+                    broken = any(vo[i].t0 != vo[i - 1].t1 for i in range(j + 1, k + 1))
+                    if j < 0 or bad[j : k + 1].any() or broken:
+                        continue
+                    runs = [(r, kalman._scaled(r.covariance, total)) for r in vo[j : k + 1]]
+                    corr = np.zeros((max(n - 1, 1), 3))
+                    corr[0] = rho
+                    lags = np.arange(1, len(corr) + 1)
+                    corr[:, 0] = params.vo_memory_share * np.exp(-lags * (m.t1 - m.t0) / params.vo_memory_s)
+                    a, b = vo[j].t0, m.t1
+                    ends = planar_at_stamps(gt, truth_s, np.array([a, b]))
+                    truth = pose_of(np.linalg.inv(se2(ends[0])) @ se2(ends[1]))
+                    ref = reference.between(a, b, b + 1.0)
+                    if ref is None:
+                        continue
+                    exact = (truth, np.zeros((3, 3)))
+                    stats[n]["vo"].append(kalman._vo_guard(runs, exact, corr[: n - 1], 1e9)[1])
+                    # ICP's chain against the truth, in the last run's frame, as the guard turns it.
+                    T = np.eye(3)
+                    for r, _ in runs:
+                        T = T @ se2(r.motion)
+                    G = kalman._rotation3(float(np.arctan2(T[1, 0], T[0, 0])) - m.motion[2])
+                    d = ref[0] - truth
+                    d[2] = np.angle(np.exp(1j * d[2]))
+                    stats[n]["icp"].append((G.T @ d) ** 2 / np.diag(G.T @ ref[1] @ G))
+    print(f"laps {args.seeds} of {args.worlds}: squared error over modelled variance")
+    print("(forward / cross-track / yaw of the window's last run)\n")
+    print("| VO runs in the window | windows | VO mean | VO median | ICP mean | ICP median |")
+    print("|---|---|---|---|---|---|")
+    for n in sizes:
+        v, i = np.array(stats[n]["vo"]), np.array(stats[n]["icp"])
+        cells = [" / ".join(f"{x:.2f}" for x in f(a, axis=0)) for a in (v, i) for f in (np.mean, np.median)]
+        print(f"| {n} | {len(v)} | " + " | ".join(cells) + " |")
 
 
 def drive_stats(args: argparse.Namespace) -> None:
