@@ -59,6 +59,13 @@ control input (Thrun, Burgard and Fox, Probabilistic Robotics, 2005, Section 5.4
 covariances, own and shared, its process noise (:class:`_Drive`); VO's runs and the wheel
 odometry's steps are the measurements, under the same gates and error models. With no
 other measurement accepted, the filter's path is ICP's.
+
+Options measured on the simulated laps and off in every mode (docs/localization.md): VO's
+biases over seconds (``vo_bias_sigma``: a forward scale, a cross-track drift per metre and
+a yaw-rate bias as Gauss-Markov states, :func:`_bias_decay`, learned against ICP by a
+Schmidt update where the filter knows a run's motion better than the run,
+:func:`_learn_bias`; :data:`VO_BIASED`) and the process noise at the level of the drive's
+largest velocity change per scan (:data:`DRIVE_PROCESS`).
 """
 
 from __future__ import annotations
