@@ -57,6 +57,8 @@ from rigcal.sim.world import BUILTIN
 # forward error's Gauss-Markov memory, its forward variance ratio matched on line and the
 # whiteness test on its forward innovations); and the odometry-driven filter (``--kf
 # driven``: ICP's steps drive the prediction, VO and the wheels are its measurements).
+# and the default with VO's bias states (kalman.VO_BIASED) or with the process noise of the
+# drive (kalman.DRIVE_PROCESS), round 7's measured options.
 NO_MEMORY = {"vo_memory_s": 0.0, "vo_forward_adapt": False, "vo_forward_window": 0}
 NO_GUARD = {"vo_guard": 0, "vo_forward_reference": False}
 VARIANTS = {
@@ -71,7 +73,12 @@ VARIANTS = {
     "kf-guard": dataclasses.replace(kalman.KF_MODES["weighted"], vo_forward_reference=False),
     "kf": kalman.KF_MODES["weighted"],
     "kf-driven": kalman.KF_MODES["driven"],
+    "kf-bias": kalman.VO_BIASED,
+    "kf-process": kalman.DRIVE_PROCESS,
 }
+# Round 7's table: the default against its options, lap by lap.
+ROUND7 = ("kf", "kf-bias", "kf-process")
+ALL_VARIANTS = tuple(VARIANTS)
 
 
 AXES = ("forward", "cross", "yaw")
@@ -197,12 +204,44 @@ def main() -> None:
         "(kalman.ICP_VARIANCE_RATIO ...: laps 1-2); needs --reuse.",
     )
     ap.add_argument(
+        "--variants",
+        default="",
+        help=f"Run only these filters (of {','.join(VARIANTS)}); prints round 7's table alone.",
+    )
+    ap.add_argument(
+        "--windows",
+        action="store_true",
+        help="Print VO's and ICP's errors over windows of 1-32 VO runs against their error models; "
+        "needs --reuse.",
+    )
+    ap.add_argument(
+        "--drive-stats",
+        action="store_true",
+        help="Print the truth's velocity changes per scan (kalman.DRIVE_ACCEL_SIGMA: laps 1-2); "
+        "needs --reuse.",
+    )
+    ap.add_argument(
+        "--bias-fit",
+        action="store_true",
+        help="Print VO's scale, cross-track and yaw-rate errors' correlation over runs and their "
+        "Gauss-Markov fits (kalman.VO_BIAS_RMS, VO_BIAS_LAGS: laps 1-2); needs --reuse.",
+    )
+    ap.add_argument(
         "--guard-evidence",
         action="store_true",
         help="Print, per lap, the VO runs the guard leaves out per direction and on how many of "
         "them VO's chain is further from the truth than ICP's; needs --reuse.",
     )
     args = ap.parse_args()
+    if args.bias_fit:
+        bias_fit(args)
+        return
+    if args.drive_stats:
+        drive_stats(args)
+        return
+    if args.windows:
+        windows(args)
+        return
     if args.consistency:
         consistency(args)
         return
@@ -214,20 +253,25 @@ def main() -> None:
         accel, yaw_accel = (float(v) for v in args.process.split(","))
         for key, params in VARIANTS.items():
             VARIANTS[key] = dataclasses.replace(params, accel_sigma=accel, yaw_accel_sigma=yaw_accel)
+    if args.variants:
+        for key in set(VARIANTS) - set(args.variants.split(",")):
+            del VARIANTS[key]
     scores: dict[tuple[str, str], list[float]] = defaultdict(list)
     wins: dict[str, list[bool]] = defaultdict(list)
+    round7: list[str] = []
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         root.mkdir(parents=True, exist_ok=True)
-        print(
-            "| world | seed | ICP ATE (m) | VO ATE (m) | odom ATE (m) | KF fixed ATE (m) "
-            "| KF round 2 ATE (m) | KF round 4 ATE (m) | KF round 5 ATE (m) | KF guard alone ATE (m) "
-            "| KF ATE (m) | KF <= best input | KF driven ATE (m) "
-            "| KF driven <= best input | NEES ICP steps "
-            "| ICP lag-1 corr | NEES VO runs | NEES KF poses | VO forward ratio matched "
-            "| VO forward left out | VO runs guarded forward / cross / yaw | KF s | KF s over round 5's |"
-        )
-        print("|---" * 23 + "|")
+        if set(VARIANTS) == set(ALL_VARIANTS):
+            print(
+                "| world | seed | ICP ATE (m) | VO ATE (m) | odom ATE (m) | KF fixed ATE (m) "
+                "| KF round 2 ATE (m) | KF round 4 ATE (m) | KF round 5 ATE (m) | KF guard alone ATE (m) "
+                "| KF ATE (m) | KF <= best input | KF driven ATE (m) "
+                "| KF driven <= best input | NEES ICP steps "
+                "| ICP lag-1 corr | NEES VO runs | NEES KF poses | VO forward ratio matched "
+                "| VO forward left out | VO runs guarded forward / cross / yaw | KF s | KF s over round 5's |"
+            )
+            print("|---" * 23 + "|")
         for seed in seeds_of(args.seeds):
             for name in args.worlds.split(","):
                 tag = f"-{duration:g}s" if duration else ""
@@ -243,6 +287,18 @@ def main() -> None:
                         scores[name, k].append(v)
                 inputs = [row[k] for k in ("icp", "vo", "odom") if isinstance(row.get(k), float)]
                 best = min(inputs)
+                cells = []
+                for key in ROUND7:
+                    if key in row:
+                        cells.append(f"{row[key]:.4f} {'yes' if row[key] <= best else 'no'}")
+                        wins[f"{name} {key} round 7"].append(row[key] <= best)
+                        scores[name, f"{key} over best"].append(row[key] - best)
+                round7.append(
+                    f"| {name} | {seed} | {row['icp']:.4f} | {row['vo']:.4f} | " + " | ".join(cells) + " |"
+                )
+                if set(VARIANTS) != set(ALL_VARIANTS):
+                    print(round7[-1], flush=True)
+                    continue
                 win = row["kf"] <= best
                 wins[name].append(win)
                 wins[name + " round 4"].append(row["kf-round4"] <= best)
@@ -263,6 +319,33 @@ def main() -> None:
                     f"| {row['kf-s']:.2f} | {row['kf-s'] / row['kf-round5-s']:.2f} |",
                     flush=True,
                 )
+    print(
+        "\n| world | seed | ICP ATE (m) | VO ATE (m) | "
+        + " | ".join(f"{k} ATE (m), <= best input" for k in ROUND7 if k in VARIANTS)
+        + " |"
+    )
+    print("|---" * (4 + len([k for k in ROUND7 if k in VARIANTS])) + "|")
+    print("\n".join(round7))
+    print(
+        "\n| world | laps | "
+        + " | ".join(
+            f"{k}: ATE mean (m), worst over best input (m), laps <= best input"
+            for k in ROUND7
+            if k in VARIANTS
+        )
+        + " |"
+    )
+    print("|---" * (2 + len([k for k in ROUND7 if k in VARIANTS])) + "|")
+    for name in args.worlds.split(","):
+        cells = []
+        for key in ROUND7:
+            if key in VARIANTS:
+                won = wins[f"{name} {key} round 7"]
+                over = np.array(scores[name, f"{key} over best"])
+                cells.append(f"{np.mean(scores[name, key]):.4f}, {over.max():+.4f}, {sum(won)} of {len(won)}")
+        print(f"| {name} | {len(wins[name + ' ' + ROUND7[0] + ' round 7'])} | " + " | ".join(cells) + " |")
+    if set(VARIANTS) != set(ALL_VARIANTS):
+        return
     print(
         "\n| world | laps | ICP ATE mean (m) | VO ATE mean (m) | KF fixed ATE mean (m) "
         "| KF round 2 ATE mean (m) | KF round 4 ATE mean (m) | KF round 5 ATE mean (m) "
@@ -341,6 +424,150 @@ def consistency(args: argparse.Namespace) -> None:
                 f"Gauss-Markov share {fit[0]:.3f} of the forward variance, {fit[1]:.3f} per run "
                 f"of {m[13]:.3f} s, time constant {fit[2]:.3f} s"
             )
+
+
+def windows(args: argparse.Namespace, sizes: tuple[int, ...] = (1, 2, 4, 8, 16, 32)) -> None:
+    """Each input's error over windows of 1 ... 32 chained VO runs (0.5-16 s) against its
+    error model there: VO's chain under the guard's model (kalman._vo_guard: the runs'
+    covariances with their variance ratios, the forward memory's and the lag-1 shares'
+    correlations), ICP's own steps chained over the same interval under theirs
+    (kalman._IcpReference.between); per direction of the window's last run, the squared
+    error against the truth over the modelled variance (1 where the model holds at that
+    length), mean and median over every window of the laps. VO's runs whose own error is
+    beyond the chi-square 0.999 point at the lap's median (a wrong scale) end no window."""
+    params = kalman.KF_MODES["weighted"]
+    own, share = kalman._error_model("vo", params)
+    total = own + 2.0 * share
+    rho = np.divide(share, total, out=np.zeros(3), where=total > 0)
+    stats: dict[int, dict[str, list[FloatArray]]] = {n: {"vo": [], "icp": []} for n in sizes}
+    for seed in seeds_of(args.seeds):
+        for name in args.worlds.split(","):
+            streams, od, res, gt, truth_s = kept_lap(args, name, seed)
+            ms = kf_measurements(streams, od, res, params)
+            streams.stop_background()
+            reference = kalman._IcpReference([m for m in ms if m.source == "icp"], params)
+            vo = sorted((m for m in ms if m.source == "vo" and m.covariance[0, 0] < 1.0), key=lambda m: m.t1)
+            nees = step_nees(vo, gt, truth_s)
+            bad = nees > chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)
+            for k, m in enumerate(vo):
+                for n in sizes:
+                    j = k - n + 1
+                    broken = any(vo[i].t0 != vo[i - 1].t1 for i in range(j + 1, k + 1))
+                    if j < 0 or bad[j : k + 1].any() or broken:
+                        continue
+                    runs = [(r, kalman._scaled(r.covariance, total)) for r in vo[j : k + 1]]
+                    corr = np.zeros((max(n - 1, 1), 3))
+                    corr[0] = rho
+                    lags = np.arange(1, len(corr) + 1)
+                    corr[:, 0] = params.vo_memory_share * np.exp(-lags * (m.t1 - m.t0) / params.vo_memory_s)
+                    a, b = vo[j].t0, m.t1
+                    ends = planar_at_stamps(gt, truth_s, np.array([a, b]))
+                    truth = pose_of(np.linalg.inv(se2(ends[0])) @ se2(ends[1]))
+                    ref = reference.between(a, b, b + 1.0)
+                    if ref is None:
+                        continue
+                    exact = (truth, np.zeros((3, 3)))
+                    stats[n]["vo"].append(kalman._vo_guard(runs, exact, corr[: n - 1], 1e9)[1])
+                    # ICP's chain against the truth, in the last run's frame, as the guard turns it.
+                    T = np.eye(3)
+                    for r, _ in runs:
+                        T = T @ se2(r.motion)
+                    G = kalman._rotation3(float(np.arctan2(T[1, 0], T[0, 0])) - m.motion[2])
+                    d = ref[0] - truth
+                    d[2] = np.angle(np.exp(1j * d[2]))
+                    stats[n]["icp"].append((G.T @ d) ** 2 / np.diag(G.T @ ref[1] @ G))
+    print(f"laps {args.seeds} of {args.worlds}: squared error over modelled variance")
+    print("(forward / cross-track / yaw of the window's last run)\n")
+    print("| VO runs in the window | windows | VO mean | VO median | ICP mean | ICP median |")
+    print("|---|---|---|---|---|---|")
+    for n in sizes:
+        v, i = np.array(stats[n]["vo"]), np.array(stats[n]["icp"])
+        cells = [" / ".join(f"{x:.2f}" for x in f(a, axis=0)) for a in (v, i) for f in (np.mean, np.median)]
+        print(f"| {n} | {len(v)} | " + " | ".join(cells) + " |")
+
+
+def drive_stats(args: argparse.Namespace) -> None:
+    """The drive's velocity changes (kalman.DRIVE_ACCEL_SIGMA, DRIVE_YAW_ACCEL_SIGMA: laps
+    1-2): the truth's velocity (world x, y, yaw) over each scan interval, its change from
+    one interval to the next over sqrt(dt) (m/s^1.5, rad/s^1.5: a white acceleration's
+    1-sigma level that would make the change a 1-sigma event), its percentiles over the
+    laps."""
+    changes = []
+    for seed in seeds_of(args.seeds):
+        for name in args.worlds.split(","):
+            streams, _, _, gt, truth_s = kept_lap(args, name, seed)
+            streams.stop_background()
+            t = streams.scan_stamps_s
+            dt = float(np.median(np.diff(t)))
+            v = np.diff(planar_at_stamps(gt, truth_s, t), axis=0) / np.diff(t)[:, None]
+            changes.append(np.abs(np.diff(v, axis=0)) / np.sqrt(dt))
+    c = np.vstack(changes)
+    print(f"{len(c)} scan intervals of laps {args.seeds} ({args.worlds})\n")
+    print("| percentile | x (m/s^1.5) | y (m/s^1.5) | yaw (rad/s^1.5) |")
+    print("|---|---|---|---|")
+    for q in (50, 90, 99, 99.9, 100):
+        print(f"| {q:g} | " + " | ".join(f"{v:.3f}" for v in np.percentile(c, q, axis=0)) + " |")
+    print("| RMS | " + " | ".join(f"{v:.3f}" for v in np.sqrt(np.mean(c**2, axis=0))) + " |")
+
+
+def bias_fit(args: argparse.Namespace, lags: int = 16) -> None:
+    """VO's errors over seconds (kalman.VO_BIAS_RMS, VO_BIAS_LAGS: laps 1-2): per VO run
+    with a measured forward motion of 5 cm or more, its forward error over that motion (a
+    scale error), its cross-track error over it, and its yaw error over the run's duration
+    (a yaw-rate error), against the truth; a lap's values beyond 6 x 1.4826 MAD (a wrong
+    scale) left out. Printed: each series' RMS over the laps, its correlation at lags 1 ...
+    ``lags`` runs in an unbroken chain (about the mean 0, pooled over the laps) and the
+    Gauss-Markov fit to those (kalman.gauss_markov_fit): share, per run, time constant, and
+    the state's sigma (RMS x sqrt(share))."""
+    series: list[tuple[FloatArray, FloatArray]] = []  # per lap: (chained (M,), values (M, 3))
+    durations = []
+    for seed in seeds_of(args.seeds):
+        for name in args.worlds.split(","):
+            streams, od, res, gt, truth_s = kept_lap(args, name, seed)
+            ms = kf_measurements(streams, od, res, kalman.KF_MODES["weighted"])
+            streams.stop_background()
+            vo = sorted((m for m in ms if m.source == "vo" and m.covariance[0, 0] < 1.0), key=lambda m: m.t1)
+            e = step_errors(vo, gt, truth_s)
+            dist = np.array([m.motion[0] for m in vo])
+            dt = np.array([m.t1 - m.t0 for m in vo])
+            moving = np.abs(dist) >= 0.05
+            v = np.column_stack(
+                [
+                    np.where(moving, e[:, 0] / np.where(moving, dist, 1.0), np.nan),
+                    np.where(moving, e[:, 1] / np.where(moving, dist, 1.0), np.nan),
+                    e[:, 2] / dt,
+                ]
+            )
+            mad = 1.4826 * np.nanmedian(np.abs(v), axis=0)
+            v[np.abs(v) > 6.0 * mad] = np.nan
+            chained = np.array([True] + [vo[k].t0 == vo[k - 1].t1 for k in range(1, len(vo))])
+            series.append((chained, v))
+            durations.append(dt)
+    run_s = float(np.mean(np.concatenate(durations)))
+    allv = np.vstack([v for _, v in series])
+    rms = np.sqrt(np.nanmean(allv**2, axis=0))
+    corr = np.zeros((lags, 3))
+    for lag in range(1, lags + 1):
+        num, den = np.zeros(3), np.zeros(3)
+        for chained, v in series:
+            unbroken = np.array([chained[k - lag + 1 : k + 1].all() for k in range(lag, len(v))], dtype=bool)
+            if not unbroken.any():
+                continue
+            a, b = v[:-lag][unbroken], v[lag:][unbroken]
+            ok = np.isfinite(a) & np.isfinite(b)
+            num += np.where(ok, a * b, 0.0).sum(axis=0)
+            den += ok.sum(axis=0)
+        corr[lag - 1] = num / np.maximum(den, 1) / rms**2
+    print(f"VO runs of {run_s:.3f} s on average; laps {args.seeds} of {args.worlds}\n")
+    print("| series | RMS | correlation at lags 1 ... | share | per run | time constant (s) | sigma |")
+    print("|---|---|---|---|---|---|---|")
+    for k, label in enumerate(("forward scale", "cross-track per metre", "yaw rate (rad/s)")):
+        share, phi, tau = kalman.gauss_markov_fit(corr[:, k], run_s)
+        cells = " ".join(f"{c:+.2f}" for c in corr[:, k])
+        print(
+            f"| {label} | {rms[k]:.4g} | {cells} | {share:.3f} | {phi:.3f} | {tau:.3f} "
+            f"| {rms[k] * np.sqrt(share):.4g} |"
+        )
 
 
 def guard_evidence(args: argparse.Namespace) -> None:

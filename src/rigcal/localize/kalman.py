@@ -59,10 +59,18 @@ control input (Thrun, Burgard and Fox, Probabilistic Robotics, 2005, Section 5.4
 covariances, own and shared, its process noise (:class:`_Drive`); VO's runs and the wheel
 odometry's steps are the measurements, under the same gates and error models. With no
 other measurement accepted, the filter's path is ICP's.
+
+Options measured on the simulated laps and off in every mode (docs/localization.md): VO's
+biases over seconds (``vo_bias_sigma``: a forward scale, a cross-track drift per metre and
+a yaw-rate bias as Gauss-Markov states, :func:`_bias_decay`, learned against ICP by a
+Schmidt update where the filter knows a run's motion better than the run,
+:func:`_learn_bias`; :data:`VO_BIASED`) and the process noise at the level of the drive's
+largest velocity change per scan (:data:`DRIVE_PROCESS`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -217,6 +225,42 @@ VO_FORWARD_GATE = chi2_isf(0.001, 1)
 # the Bonferroni share of the 0.001 tail (:func:`_guard_gate`: 13.41).
 VO_GUARD_RUNS = 2 ** int(np.ceil(np.log2(VO_FORWARD_WINDOW)))
 VO_GUARD_LEVEL = 0.999
+# VO's errors over seconds (``KfParams.vo_bias_sigma``, ``vo_bias_s``; :func:`_bias_decay`):
+# a forward scale factor (its runs' forward error over their forward motion), a cross-track
+# drift per metre forward (a small turn of the camera's motion into the laser's frame) and
+# a yaw-rate bias (rad/s), each a first-order Gauss-Markov state. On laps 1-2 of each loop
+# (benchmarks/bench_kf.py --bias-fit, VO's runs against the truth) these series
+# correlate over 3-16 runs (1.5-8 s), not only over the 1-3 runs the shares and the forward
+# memory model; :func:`gauss_markov_fit` to their correlations at lags 1 ... gives each
+# state's share of the series' mean square (sigma = rms x sqrt(share)) and time constant.
+# Carried in the state, a bias is learned where ICP constrains the motion (:func:`_learn_bias`)
+# and VO's runs are corrected by it. Off by default (``KfParams.vo_bias_sigma`` zero; on:
+# :data:`VO_BIASED`): on the twenty simulated laps it brought no lap to its best input and
+# worsened the means (docs/benchmarks.md, "The Kalman filter over ten laps of both loops").
+VO_BIAS_RMS = (0.005509, 0.002798, 0.0008952)
+VO_BIAS_LAGS = (
+    (0.32, 0.24, 0.16, 0.20, 0.11, 0.07, 0.04, 0.02, -0.00),
+    (0.14, 0.08, 0.10, 0.14, 0.11, 0.09, 0.09, 0.09, 0.07, 0.06, 0.02, 0.02, 0.08, 0.11, 0.08, 0.02),
+    (0.28, 0.12, 0.10, 0.11, 0.11, 0.08, 0.01, -0.01),
+)
+_BIAS_FITS = [gauss_markov_fit(lags, VO_RUN_S) for lags in VO_BIAS_LAGS]
+VO_BIAS_SIGMA: Axes = (
+    VO_BIAS_RMS[0] * float(np.sqrt(_BIAS_FITS[0][0])),
+    VO_BIAS_RMS[1] * float(np.sqrt(_BIAS_FITS[1][0])),
+    VO_BIAS_RMS[2] * float(np.sqrt(_BIAS_FITS[2][0])),
+)
+VO_BIAS_S: Axes = (float(_BIAS_FITS[0][2]), float(_BIAS_FITS[1][2]), float(_BIAS_FITS[2][2]))
+# The process noise matched to the drive (:data:`DRIVE_PROCESS`): the simulated drives'
+# velocity changes in steps (laps 1-2, the truth's velocity over each 25 ms scan: half of
+# the changes 0, 99 % below 0.06 m/s^1.5, the largest 5.1 / 3.0 m/s^1.5 in x / y and 4.7
+# rad/s^1.5 in yaw, over sqrt(dt); benchmarks/bench_kf.py --drive-stats). A white
+# acceleration of 0.5 m/s^2 makes such a step a 10-sigma event, which the prediction
+# then smooths over many scans; at the largest step's level (1 sigma) the prediction never
+# outweighs a step ICP measured. Not the default: see :data:`VO_BIASED`'s note.
+DRIVE_ACCEL_SIGMA, DRIVE_YAW_ACCEL_SIGMA = 5.1, 4.7
+# The share of each axis's per-run error the bias takes: a run's own and shared parts are
+# scaled by 1 - share there, so that its error in all stays what laps 1-2 measured.
+VO_BIAS_SHARE: Axes = (float(_BIAS_FITS[0][0]), float(_BIAS_FITS[1][0]), float(_BIAS_FITS[2][0]))
 
 
 @dataclass(frozen=True)
@@ -260,6 +304,9 @@ class KfParams:
     vo_forward_window: int = VO_FORWARD_WINDOW
     vo_guard: int = VO_GUARD_RUNS
     vo_forward_reference: bool = True
+    vo_bias_sigma: Axes = (0.0, 0.0, 0.0)
+    vo_bias_s: Axes = VO_BIAS_S
+    vo_bias_share: Axes = (0.0, 0.0, 0.0)
     drive: str = ""
 
     def __post_init__(self) -> None:
@@ -285,6 +332,19 @@ class KfParams:
             raise ValueError(f"vo_forward_window {self.vo_forward_window}: expected >= 0 runs (0: no test)")
         if self.vo_guard < 0:
             raise ValueError(f"vo_guard {self.vo_guard}: expected >= 0 runs (0: no guard)")
+        sigma, tau = np.asarray(self.vo_bias_sigma, dtype=float), np.asarray(self.vo_bias_s, dtype=float)
+        share = np.asarray(self.vo_bias_share, dtype=float)
+        if (
+            sigma.shape != (3,)
+            or tau.shape != (3,)
+            or share.shape != (3,)
+            or not ((sigma >= 0).all() and (tau[sigma > 0] > 0).all() and ((share >= 0) & (share < 1)).all())
+        ):
+            raise ValueError(
+                f"vo_bias_sigma {self.vo_bias_sigma}, vo_bias_s {self.vo_bias_s}, vo_bias_share "
+                f"{self.vo_bias_share}: expected three each, sigmas >= 0 (0: no bias state on that "
+                "axis), time constants > 0 s, shares in [0, 1)"
+            )
 
 
 # ``rigcal localize --kf``: the filter by name. "weighted": each step's own covariance,
@@ -307,8 +367,17 @@ KF_MODES = {
         vo_forward_window=0,
         vo_guard=0,
         vo_forward_reference=False,
+        vo_bias_sigma=(0.0, 0.0, 0.0),
     ),
 }
+# The weighted filter with VO's bias states (:data:`VO_BIAS_SIGMA`), and with the process
+# noise of the drive (:data:`DRIVE_ACCEL_SIGMA`): measured options, not modes of the CLI.
+VO_BIASED = dataclasses.replace(
+    KF_MODES["weighted"], vo_bias_sigma=VO_BIAS_SIGMA, vo_bias_share=VO_BIAS_SHARE
+)
+DRIVE_PROCESS = dataclasses.replace(
+    KF_MODES["weighted"], accel_sigma=DRIVE_ACCEL_SIGMA, yaw_accel_sigma=DRIVE_YAW_ACCEL_SIGMA
+)
 # "driven": the weighted filter with ICP's steps as the prediction's control input
 # (:func:`run_filter`, ``KfParams.drive``); VO and the wheels are its measurements.
 KF_MODES["driven"] = KfParams(drive="icp")
@@ -321,7 +390,9 @@ class KfResult:
     VO's forward variance ratio as matched at the end (``KfParams.vo_forward_adapt``;
     otherwise as set) and the VO runs whose forward motion the whiteness test left out
     (``KfParams.vo_forward_window``); per direction (forward, cross-track, yaw) the VO runs
-    the guard left out there (``KfParams.vo_guard``)."""
+    the guard left out there (``KfParams.vo_guard``); VO's biases as estimated at the end
+    (forward scale, cross-track per metre forward, yaw rate rad/s; ``KfParams.vo_bias_sigma``;
+    None without them)."""
 
     stamps_s: FloatArray
     poses: FloatArray
@@ -329,6 +400,7 @@ class KfResult:
     vo_forward_ratio: float = float("nan")
     vo_forward_left_out: int = 0
     vo_guarded: tuple[int, int, int] = (0, 0, 0)
+    vo_bias: FloatArray | None = None
 
 
 def rate_covariance(sigmas: tuple[float, float, float], dt: float, open_forward: bool = False) -> FloatArray:
@@ -507,6 +579,17 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             own[0], share[0] = forward_ratio * (1.0 - params.vo_memory_share), 0.0
             gain = float(np.sqrt(scale * forward_ratio * params.vo_memory_share * m.covariance[0, 0]))
             memory = (_offset(blocks, ("memory", m.t1)), gain)
+        bias: tuple[int, FloatArray] | None = None
+        if vo and any(params.vo_bias_sigma):
+            # A run's own and shared parts less the bias's share of its error.
+            on = np.array(params.vo_bias_sigma) > 0
+            rest = 1.0 - np.array(params.vo_bias_share) * on
+            own, share = own * rest, share * rest
+            # VO's biases over seconds (:func:`_bias_decay`): forward scale and cross-track
+            # drift per metre of the run's forward motion (where it is measured), yaw rate
+            # over its duration.
+            x, P = _bias_decay(x, P, blocks, m.t1, params)
+            bias = (_offset(blocks, ("bias", m.t1)), _bias_coefficients(m) * on)
         leave_out: NDArray[np.bool_] | None = None
         alone = None
         if vo and reference is not None:
@@ -519,6 +602,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
                 guarded += leave_out
             if memory is not None and params.vo_forward_reference:
                 alone = reference.between(m.t0, m.t1, t, icp_scale)
+        x_before = x
         shared: int | None = None
         if share.any():  # m.source is "icp" or "vo": its shared error enters the state
             kind_of = SHARED_BLOCK[m.source]
@@ -539,6 +623,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             weak_only=params.vo_weak_only if vo else 0.0,
             window=(sum(recent), window_gate) if vo and params.gate_window > 1 else None,
             memory=memory,
+            bias=bias,
             whiteness=(sum(whiteness), len(whiteness), VO_FORWARD_GATE)
             if memory is not None and params.vo_forward_window > 0
             else None,
@@ -566,7 +651,9 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
             fsq, fvar = inn.forward_sq, inn.forward_prediction_var
             if alone is not None:
                 fvar = float(alone[1][0, 0])
-                fsq = float((m.motion[0] - alone[0][0]) ** 2 - fvar)
+                # Less VO's estimated scale bias (the ratio is that of its errors around it).
+                scaled = bias[1][0] * x_before[bias[0]] if bias is not None else 0.0
+                fsq = float((m.motion[0] - scaled - alone[0][0]) ** 2 - fvar)
             weight = (var / (var + fvar)) ** 2
             forward_info += weight - forward_info / ADAPT_WINDOW
             sample = min(max(0.0, fsq) / m.covariance[0, 0], NIS_CAP * forward_ratio)
@@ -593,6 +680,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
         forward_ratio,
         left_out,
         (int(guarded[0]), int(guarded[1]), int(guarded[2])),
+        x[_offset(blocks, block) + np.arange(3)].copy() if (block := _block(blocks, "bias")) else None,
     )
 
 
@@ -635,9 +723,26 @@ def _guard(
         ref = reference.between(runs[-n][0].t0, m.t1, now, scales[1])
         if ref is None:
             continue
-        fired = _vo_guard(runs[-n:], ref, correlation[: n - 1], gate)[0]
+        fired = _vo_guard(runs[-n:], ref, correlation[: n - 1], gate, _bias_model(params))[0]
         out = fired if out is None else out | fired
     return out
+
+
+def _bias_model(params: KfParams) -> tuple[FloatArray, FloatArray] | None:
+    """VO's biases' (sigma (3,), time constant s (3,)) (``KfParams.vo_bias_sigma``,
+    ``vo_bias_s``; an axis without a bias: time constant 1 s), or None without them."""
+    sigma = np.asarray(params.vo_bias_sigma, dtype=float)
+    if not sigma.any():
+        return None
+    return sigma, np.where(sigma > 0, np.asarray(params.vo_bias_s, dtype=float), 1.0)
+
+
+def _bias_coefficients(m: Increment) -> FloatArray:
+    """What VO's biases (forward scale, cross-track per metre, yaw rate) add to run ``m``'s
+    error per unit of bias (3,): its forward motion where it measures one, twice, and its
+    duration."""
+    measured = float(m.covariance[0, 0] < (OPEN_SIGMA_M / 10.0) ** 2)
+    return np.array([measured * m.motion[0], measured * m.motion[0], m.t1 - m.t0])
 
 
 def _guard_windows(runs: int) -> list[int]:
@@ -786,6 +891,11 @@ class _Drive:
         return x, P
 
 
+def _block(blocks: list[tuple[str, float]], kind: str) -> tuple[str, float] | None:
+    """The state's block of that kind, if any."""
+    return next((b for b in blocks if b[0] == kind), None)
+
+
 def _offset(blocks: list[tuple[str, float]], block: tuple[str, float]) -> int:
     """A block's index in the state: after the pose and velocity (6) and the blocks before
     it (three each, the memory one)."""
@@ -814,6 +924,34 @@ def _memory_decay(
     P[:, at] *= phi
     P[at, at] += 1.0 - phi**2
     blocks[blocks.index(old[0])] = ("memory", t1)
+    return x, P
+
+
+def _bias_decay(
+    x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], t1: float, params: KfParams
+) -> tuple[FloatArray, FloatArray]:
+    """The state with VO's biases (forward scale, cross-track per metre forward, yaw rate
+    rad/s; ``params.vo_bias_sigma``, ``vo_bias_s``) carried to ``t1`` (appended at the
+    first run, zero with their stationary variances): each a first-order Gauss-Markov
+    process, b(t1) = phi b(t) + sigma sqrt(1 - phi^2) n, phi = exp(-(t1 - t) / tau) (Gelb
+    1974, Table 3.8-1; Bar-Shalom, Li and Kirubarajan 2001, Section 8.2). Lazy, as
+    :func:`_memory_decay`."""
+    var = np.square(np.asarray(params.vo_bias_sigma, dtype=float))
+    old = [b for b in blocks if b[0] == "bias"]
+    if not old:
+        x, P = _append(x, P, np.diag(var))
+        blocks.append(("bias", t1))
+        return x, P
+    at = _offset(blocks, old[0]) + np.arange(3)
+    tau = np.where(var > 0, np.asarray(params.vo_bias_s, dtype=float), 1.0)
+    phi = np.exp(-max(0.0, t1 - old[0][1]) / tau)
+    x = x.copy()
+    x[at] *= phi
+    P = P.copy()
+    P[at, :] *= phi[:, None]
+    P[:, at] *= phi[None, :]
+    P[at, at] += var * (1.0 - phi**2)
+    blocks[blocks.index(old[0])] = ("bias", t1)
     return x, P
 
 
@@ -904,6 +1042,7 @@ def _update(
     weak_only: float = 0.0,
     window: tuple[float, float] | None = None,
     memory: tuple[int, float] | None = None,
+    bias: tuple[int, FloatArray] | None = None,
     whiteness: tuple[float, int, float] | None = None,
     leave_out: NDArray[np.bool_] | None = None,
 ) -> tuple[FloatArray, FloatArray, Innovation]:
@@ -925,7 +1064,10 @@ def _update(
     between the two steps' frames is neglected).
 
     ``memory`` = (index, gain): the step's forward error has a further part gain x g, g the
-    unit-variance Gauss-Markov state at that index (:func:`_memory_decay`).
+    unit-variance Gauss-Markov state at that index (:func:`_memory_decay`). ``bias`` =
+    (index, coefficients (3,)): the step's error along each axis has a further part
+    coefficient x b, b the state's block of three at that index (VO's biases:
+    :func:`_bias_decay`).
 
     ``gate`` > 0: when the innovation's squared Mahalanobis distance d2 (shared error
     included) exceeds it, or ``window`` = (the last runs' d2 summed, its gate) and that sum
@@ -960,6 +1102,8 @@ def _update(
             Hs[:, shared : shared + 3] = sign * np.eye(3)
     if memory is not None:
         Hs[0, memory[0]] = memory[1]
+    if bias is not None:
+        Hs[[0, 1, 2], bias[0] + np.arange(3)] = bias[1]
     Hp = H.copy()  # the pose's part
     h, H = h + Hs @ x, H + Hs
     y = m.motion - h
@@ -988,6 +1132,7 @@ def _update(
         H, Hs, Hp, y, R0, Rm = T0 @ H, T0 @ Hs, T0 @ Hp, T0 @ y, T0 @ R0 @ T0.T, T0 @ Rm @ T0.T
         HPH = H @ P @ H.T
         S = HPH + Rm
+    inn = Innovation(float("nan"), d2, forward_z, forward_sq, forward_var, left_out)
     if weak_only > 0:
         # Only the directions along which the filter knows the motion less well than the
         # step does (generalised eigenvectors of the two covariances, ratio above
@@ -996,12 +1141,10 @@ def _update(
         Li = np.linalg.inv(np.linalg.cholesky(err))
         lam, V = np.linalg.eigh(Li @ Hp @ P @ Hp.T @ Li.T)
         keep = lam > weak_only
+        if bias is not None and not keep.all():
+            return _learn_bias(x, P, H, y, Rm, R0, (Li.T @ V).T, keep, bias[0], inn)
         if not keep.any():
-            return (
-                x,
-                P,
-                Innovation(float("nan"), d2, forward_z, forward_sq, forward_var, left_out),
-            )
+            return x, P, inn
         T = (Li.T @ V[:, keep]).T  # rows: the kept directions, whitened by the step's error
         H, y, R0, Rm, HPH = T @ H, T @ y, T @ R0 @ T.T, T @ Rm @ T.T, T @ HPH @ T.T
         S = HPH + Rm
@@ -1011,6 +1154,42 @@ def _update(
     A = np.eye(len(x)) - K @ H
     P = A @ P @ A.T + K @ Rm @ K.T  # Joseph form: stays symmetric, positive
     return x, P, Innovation(nis, d2, forward_z, forward_sq, forward_var, left_out)
+
+
+def _learn_bias(
+    x: FloatArray,
+    P: FloatArray,
+    H: FloatArray,
+    y: FloatArray,
+    Rm: FloatArray,
+    R0: FloatArray,
+    T: FloatArray,
+    keep: NDArray[np.bool_],
+    at: int,
+    inn: Innovation,
+) -> tuple[FloatArray, FloatArray, Innovation]:
+    """The update of a VO run with bias states (at index ``at``, three) where the filter
+    knows some directions of its motion better than the run (``keep`` False along rows of
+    ``T``, the directions whitened by the run's error): along those the run updates its
+    biases alone (a Schmidt, or consider, update: the other states' gains set to 0;
+    Schmidt 1966, Brink 2017), along the others every state as in :func:`_update`. So
+    VO's drift is learned against ICP where ICP fixes the motion, and VO moves the pose
+    only where the filter is weaker than it. The Joseph form keeps the covariance
+    consistent with any gain."""
+    H, y, Rm, R0 = T @ H, T @ y, T @ Rm @ T.T, T @ R0 @ T.T
+    HPH = H @ P @ H.T
+    if keep.any():  # the covariance matching's NIS, over the directions the pose takes
+        k = np.ix_(keep, keep)
+        nis = float(y[keep] @ np.linalg.solve(HPH[k] + R0[k], y[keep])) / int(keep.sum())
+        inn = dataclasses.replace(inn, nis=nis)
+    K = np.linalg.solve(HPH + Rm, H @ P).T
+    others = np.ones(len(x), dtype=bool)
+    others[at : at + 3] = False
+    K[np.ix_(others, ~keep)] = 0.0
+    x = x + K @ y
+    A = np.eye(len(x)) - K @ H
+    P = A @ P @ A.T + K @ Rm @ K.T
+    return x, P, inn
 
 
 def _predict(x: FloatArray, P: FloatArray, dt: float, params: KfParams) -> tuple[FloatArray, FloatArray]:
@@ -1118,6 +1297,7 @@ def _vo_guard(
     icp: tuple[FloatArray, FloatArray],
     correlation: FloatArray,
     gate: float,
+    bias: tuple[FloatArray, FloatArray] | None = None,
 ) -> tuple[NDArray[np.bool_], FloatArray]:
     """The directions (forward, cross-track, yaw of the last run's frame) along which VO's
     chained runs and ICP's own steps over the same interval disagree beyond their errors,
@@ -1128,7 +1308,8 @@ def _vo_guard(
     over the same interval and its covariance (:meth:`_IcpReference.between`), both in the
     rig's frame at the first run's start; ``correlation`` (L, 3): VO's runs' error
     correlation per axis at lags 1 ... L (forward from its Gauss-Markov memory, cross-track
-    and yaw their lag-1 share).
+    and yaw their lag-1 share); ``bias``: VO's biases' (sigma (3,), time constant (3,)),
+    whose part of the runs' errors correlates as exp(-|t_i - t_j| / tau) (:func:`_bias_decay`).
 
     The chain's covariance is sum_ij G_i D_i C_ij D_j G_j^T (G_i a run's frame in the
     first's, D_i its standard deviations, C_ij the correlation of runs |i - j| apart; the
@@ -1148,11 +1329,16 @@ def _vo_guard(
         sds.append(np.sqrt(np.diag(cov)))
         V += G @ cov @ G.T
         T = T @ se2(m.motion)
+    coef = [_bias_coefficients(m) for m, _ in runs]
+    mid = [0.5 * (m.t0 + m.t1) for m, _ in runs]
     for i in range(len(runs)):
         for j in range(len(runs)):
             lag = abs(i - j)
             if 0 < lag <= len(correlation):
                 V += frames[i] @ np.diag(correlation[lag - 1] * sds[i] * sds[j]) @ frames[j].T
+            if bias is not None:
+                b = bias[0] ** 2 * np.exp(-abs(mid[i] - mid[j]) / bias[1]) * coef[i] * coef[j]
+                V += frames[i] @ np.diag(b) @ frames[j].T
     d = pose_of(T) - icp[0]
     d[2] = np.angle(np.exp(1j * d[2]))
     # In the last run's frame: its directions are the ones the update can leave out.
