@@ -243,7 +243,7 @@ class _Patches:
     edges: Edges | None = None  # the scans' depth discontinuities (module docstring, step 3b)
     gray_of: dict[int, NDArray[np.uint8]] = field(default_factory=dict)  # the edges' frames
     rows: tuple[float, float] | None = None  # _rows's, made once
-    stacks_ahead: dict[tuple[Any, ...], Future[_Stack]] = field(default_factory=dict)  # _stacks_ahead's
+    stacks_ahead: dict[tuple[Any, ...], Future[Any]] = field(default_factory=dict)  # _stacks_ahead's
 
 
 class _CannotTellError(Exception):
@@ -749,15 +749,34 @@ def _stack(
 
 
 def _stacks_ahead(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettings) -> ThreadPoolExecutor:
-    """Start making the stacks of the stages after the first on a second thread, so that
-    they blur while the first stage iterates (returns the pool, to shut down after the
-    estimate)."""
+    """Start making, on a second thread, the edges' blurred frames of every stage (the
+    first stage's while the calling thread makes its stack) and the stacks of the stages
+    after the first (while the first stage iterates); returns the pool, to shut down after
+    the estimate. Each is taken by :class:`_Images` and :func:`_edge_images` as made."""
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stages")
     rows = _rows(rig, patches)
-    for blur in s.blur_px[1:]:
-        key = (rows, blur, s.native_blur_px)
-        patches.stacks_ahead[key] = pool.submit(_stack, streams, patches, rows, blur, s.native_blur_px)
+    edge_rows = _edge_rows(rig, patches.edges)
+    for stage, blur in enumerate(s.blur_px):
+        if s.edges and patches.edges is not None:
+            edge_blur = math.hypot(blur, s.native_blur_px)
+            patches.stacks_ahead[("edges", edge_blur)] = pool.submit(
+                EdgeImages, patches.gray_of, patches.edges.img, edge_blur, edge_rows
+            )
+        if stage > 0:
+            key = (rows, blur, s.native_blur_px)
+            patches.stacks_ahead[key] = pool.submit(_stack, streams, patches, rows, blur, s.native_blur_px)
     return pool
+
+
+def _edge_images(rig: Rig, patches: _Patches, blur_px: float) -> EdgeImages | None:
+    """The edges' frames blurred by ``blur_px`` in all (as made ahead, else made here),
+    or None without edges."""
+    if patches.edges is None:
+        return None
+    ahead: Future[EdgeImages] | None = patches.stacks_ahead.pop(("edges", blur_px), None)
+    if ahead is not None:
+        return ahead.result()
+    return EdgeImages(patches.gray_of, patches.edges.img, blur_px, _edge_rows(rig, patches.edges))
 
 
 def _rows(rig: Rig, patches: _Patches) -> tuple[float, float]:
@@ -1022,7 +1041,6 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     T = T0.copy()
     nuis = np.zeros(6)
     rows = _rows(rig, patches)
-    edge_rows = _edge_rows(rig, patches.edges)
     use_edges = patches.edges is not None
     keep = np.ones(len(free), dtype=bool)
     keep[list(_EDGE_ONLY)] = False
@@ -1031,17 +1049,15 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     last_step = math.inf
     for stage, blur in enumerate(s.blur_px):
         images = _Images(streams, patches, rows, blur, s.native_blur_px)
-        edge_images = (
-            EdgeImages(patches.gray_of, patches.edges.img, math.hypot(blur, s.native_blur_px), edge_rows)
-            if use_edges and patches.edges is not None
-            else None
-        )
+        edge_images = _edge_images(rig, patches, math.hypot(blur, s.native_blur_px)) if use_edges else None
         window = s.edge_window_px[min(stage, len(s.edge_window_px) - 1)]
         cur = _evaluate(rig, T, nuis, patches, images, edge_images, anchor, window, free, s)
         if stage == 0:
             if cur.er is None:
                 use_edges = False  # too few edges seen clearly: the photometric term alone
                 edge_images = None
+                for key in [k for k in patches.stacks_ahead if k[0] == "edges"]:
+                    patches.stacks_ahead.pop(key).cancel()
             else:
                 # The bands are paired with their image edges once, here, at the start
                 # estimate; later evaluations re-measure them within a gate of it.
