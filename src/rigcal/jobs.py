@@ -386,7 +386,6 @@ def _targetless(
         read = pool.submit(timed_read)
         from rigcal.drift.log import targetless_record
         from rigcal.drift.targetless import TargetlessSettings, check_targetless, same_camera
-        from rigcal.drift.trajectory import trajectory_odometry
         from rigcal.localize.streams import Streams, require_returns
 
         seq, read_s = read.result()
@@ -397,6 +396,8 @@ def _targetless(
     streams.odometry_covariance = False  # the check uses the odometry's poses only
     settings = TargetlessSettings(level=level)
     if trajectory is not None:
+        from rigcal.drift.trajectory import trajectory_odometry
+
         streams.use_laser_odometry(trajectory_odometry(trajectory, streams))
         settings = dataclasses.replace(settings, scan_rate_hz=None)  # every scan's pose is known
     result = check_targetless(stored, streams, settings)

@@ -1,6 +1,7 @@
 """What a command imports before it runs: ``rigcal --help`` loads none of the heavy
 libraries, and the targetless check loads none it does not use (scipy.stats, tqdm without
-a terminal, plotting, the box solver's kernels)."""
+a terminal, plotting, the box solver's kernels), nor before it runs what it uses only later
+(scipy.spatial, scipy.special, scipy.sparse: imported beside the laser odometry)."""
 
 from __future__ import annotations
 
@@ -61,5 +62,27 @@ def test_targetless_check_modules_leave_out_what_it_does_not_use() -> None:
         + "from rigcal.cli.progress import Progress\n"
         + "with Progress('frame', disable=True) as bars: bars('frame', 3, 3)\n"
         + f"print(json.dumps([m for m in {unused!r} if m in sys.modules]))"
+    )
+    assert out == []
+
+
+def test_targetless_check_modules_defer_scipy() -> None:
+    """The check's modules (its reading of a drive without --trajectory) import no scipy
+    package the check uses only later (:data:`rigcal.drift.targetless.LATER_IMPORTS`:
+    imported on a second thread while the laser odometry runs)."""
+    modules = [
+        "rigcal.cli.main",
+        "rigcal.jobs",
+        "rigcal.drift.log",
+        "rigcal.rigfile",
+        "rigcal.recordings.sequence",
+        "rigcal.drift.targetless",
+        "rigcal.localize.streams",
+    ]
+    out = _child(
+        "import json, sys\n"
+        + "".join(f"import {m}\n" for m in modules)
+        + "from rigcal.drift.targetless import LATER_IMPORTS\n"
+        + "print(json.dumps([m for m in sys.modules if m.startswith(LATER_IMPORTS)]))"
     )
     assert out == []

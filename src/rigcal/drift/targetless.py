@@ -56,8 +56,12 @@ that into a measurement of T:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import importlib
 import math
+import sys
+import threading
 import time
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -265,6 +269,7 @@ def check_targetless(
     """
     settings = settings or TargetlessSettings()
     t_start = time.perf_counter()
+    _import_ahead()
     if streams.n_images < 2:
         raise InputError.at(
             streams._yaml(), "images.count", streams.n_images, "a drive with camera images (at least 2)"
@@ -297,6 +302,28 @@ def check_targetless(
     return TargetlessResult(
         res["verdict"], settings.level, res["xi"], res["cov"], _json(rec), reasons, res.get("details", {})
     )
+
+
+LATER_IMPORTS = ("scipy.special", "scipy.spatial", "scipy.sparse.csgraph")
+"""Modules the check imports only where it first uses them (the test's tails, rotation
+vectors, the corners' clusters): a third of a second of the interpreter's time, imported
+on a second thread while the laser odometry runs (its compiled ICP releases the
+interpreter) rather than on the main thread later."""
+
+
+def _import_ahead() -> None:
+    """Import :data:`LATER_IMPORTS` on a daemon thread, unless imported already (an import
+    error there is left for the import where the module is used to raise)."""
+    missing = [m for m in LATER_IMPORTS if m not in sys.modules]
+    if not missing:
+        return
+
+    def run() -> None:
+        for name in missing:
+            with contextlib.suppress(ImportError):
+                importlib.import_module(name)
+
+    threading.Thread(target=run, name="rigcal-imports", daemon=True).start()
 
 
 def same_camera(rig: Rig, streams: Streams, rig_path: Any = None) -> None:
@@ -389,16 +416,19 @@ def _se3_of_se2(T2: FloatArray) -> FloatArray:
 def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patches:
     cam = rig.camera
     frames = _used_frames(streams, s.frame_rate_hz)
-    # The used frames decode on a second thread from here on, while the laser odometry
+    # The used frames decode on two other threads from here on, while the laser odometry
     # runs (its compiled ICP releases the interpreter), as far ahead as FRAMES_AHEAD_BYTES
-    # allows; then while each frame's grids are made.
+    # allows; then while each frame's grids are made (decoding two at a time keeps both
+    # cores busy where the grids would otherwise wait on the decoding).
     cam_bytes = cam.width_px * cam.height_px
-    with streams.images_ahead(frames, max(8, FRAMES_AHEAD_BYTES // cam_bytes)) as decoded:
+    with streams.images_ahead(frames, max(8, FRAMES_AHEAD_BYTES // cam_bytes), DECODE_THREADS) as decoded:
         return _patches_of(rig, streams, s, frames, decoded)
 
 
 FRAMES_AHEAD_BYTES = 256 * 2**20
 """Decoded frames held ahead of the check's use at most (8-bit grey)."""
+DECODE_THREADS = 2
+"""Threads decoding the used frames ahead of the check's use."""
 
 
 def _patches_of(
@@ -698,7 +728,9 @@ class _Images:
         self, streams: Streams, patches: _Patches, rows: tuple[float, float], blur_px: float, native_px: float
     ) -> None:
         ahead = patches.stacks_ahead.pop((rows, blur_px, native_px), None)
-        made = ahead.result() if ahead is not None else _stack(streams, patches, rows, blur_px, native_px)
+        made: _Stack = (
+            ahead.result() if ahead is not None else _stack(streams, patches, rows, blur_px, native_px)
+        )
         self.down, self.key_i, self.key_j, self.row0, self.stack = made
 
 
@@ -819,17 +851,18 @@ def _residuals(
     Y = RX + t_M[:, None, :]
     out_v, out_J = [], []
     assert images.stack is not None
-    for pts, key in ((X, images.key_i), (Y, images.key_j)):
+    # Frame i's derivatives: T only (6 columns; the odometry's errors move frame j alone).
+    for pts, key, width in ((X, images.key_i, 6), (Y, images.key_j, 12)):
         which = np.repeat(key, S)
         v, d_point, d_rot = project_sample(
             pts.reshape(-1, 3), T[:3, :3], T[:3, 3], cam, images.stack, which, images.down, images.row0
         )
         # x' = Exp(w) x + v: d grey / d w = x cross d grey / d x, d grey / d v = d grey / d x.
-        J = np.zeros((Pn * S, 12))
+        J = np.empty((Pn * S, width))
         J[:, :3] = d_rot
         J[:, 3:6] = d_point
         out_v.append(v.reshape(Pn, S))
-        out_J.append(J.reshape(Pn, S, 12))
+        out_J.append(J.reshape(Pn, S, width))
     a, b = out_v
     Ja, Jb = out_J
     # The odometry's errors move frame j's points: its scale along the step (d y / d eps =
@@ -842,22 +875,24 @@ def _residuals(
     Jb[:, :, 9:11] = gRb @ R_I[:, :, :2]
     Jb[:, :, 11] = gRb[..., 1] * t0[:, None, 0] - gRb[..., 0] * t0[:, None, 1]
     usable = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
-    a = np.where(usable[:, None], a, 0.0)
-    b = np.where(usable[:, None], b, 0.0)
-    Ja = np.where(usable[:, None, None], Ja, 0.0)
-    Jb = np.where(usable[:, None, None], Jb, 0.0)
+    unusable = ~usable
+    for arr in (a, b, Ja, Jb):  # in place: these arrays are this call's own
+        arr[unusable] = 0.0
     # Zero-mean patches (an offset between the frames drops out), frame j scaled by the
     # pair's gain (the automatic exposure): the square root of the ratio of the patches'
     # energies.
     a0 = a - a.mean(axis=1, keepdims=True)
     b0 = b - b.mean(axis=1, keepdims=True)
-    Ja0 = Ja - Ja.mean(axis=1, keepdims=True)
-    Jb0 = Jb - Jb.mean(axis=1, keepdims=True)
+    Ja -= Ja.mean(axis=1, keepdims=True)
+    Jb -= Jb.mean(axis=1, keepdims=True)
     ea = np.bincount(patches.pair, np.where(usable, (a0**2).sum(axis=1), 0.0), patches.n_pairs)
     eb = np.bincount(patches.pair, np.where(usable, (b0**2).sum(axis=1), 0.0), patches.n_pairs)
     gain = np.sqrt(np.where(eb > 0, ea / np.where(eb > 0, eb, 1.0), 1.0))[patches.pair]
     r = b0 * gain[:, None] - a0
-    J = Jb0 * gain[:, None, None] - Ja0
+    # J = Jb0 gain - Ja0, in place (frame i's columns past the sixth are zero).
+    J = Jb
+    J *= gain[:, None, None]
+    J[:, :, :6] -= Ja
     return r, J, usable
 
 

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
@@ -71,6 +70,8 @@ MAX_ABS = 1e12
 
 def read_tum(path: str | Path) -> Trajectory:
     """Read a TUM trajectory (quaternions are normalised if within 1e-3 of unit length)."""
+    from scipy.spatial.transform import Rotation  # here: a drive's reading does without it
+
     path = Path(path)
     stamps: list[float] = []
     poses: list[FloatArray] = []
@@ -114,6 +115,8 @@ def read_kitti(path: str | Path) -> Trajectory:
 def tum_text(traj: Trajectory) -> str:
     if traj.stamps_s is None:
         raise ValueError("TUM files need time stamps")
+    from scipy.spatial.transform import Rotation
+
     rows = ["# timestamp tx ty tz qx qy qz qw"]
     for t, T in zip(traj.stamps_s, traj.poses, strict=True):
         q = Rotation.from_matrix(T[:3, :3]).as_quat()
