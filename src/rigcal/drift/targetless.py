@@ -81,6 +81,7 @@ from rigcal.drift.edges import (
     edge_residuals,
     scan_discontinuities,
 )
+from rigcal.drift.frames import FRAME_RATE_HZ, frames_ahead, used_frames
 from rigcal.drift.sampling import GREY_SCALE, project_sample
 from rigcal.drift.statistic import cluster_covariance, effective_clusters, hotelling, hotelling_critical
 from rigcal.errors import InputError
@@ -159,7 +160,7 @@ class TargetlessSettings:
     level: float = 0.01
     resolution_deg: float = 0.3
     resolution_m: float = 0.02
-    frame_rate_hz: float = 5.0
+    frame_rate_hz: float = FRAME_RATE_HZ
     gaps_s: tuple[float, ...] = (0.2, 0.6)
     returns_per_frame: int = 40
     patch_half: int = 1
@@ -395,17 +396,6 @@ def thinned(streams: Streams, rate_hz: float | None) -> Streams:
 # --- the problem ----------------------------------------------------------------------
 
 
-def _used_frames(streams: Streams, rate_hz: float) -> list[int]:
-    """Image indices at most ``rate_hz`` apart in time."""
-    out: list[int] = []
-    last = -np.inf
-    for i, t in enumerate(streams.image_stamps_s):
-        if t - last >= 0.9 / rate_hz:
-            out.append(i)
-            last = float(t)
-    return out
-
-
 def _se3_of_se2(T2: FloatArray) -> FloatArray:
     T = np.eye(4)
     T[:2, :2] = T2[:2, :2]
@@ -415,18 +405,16 @@ def _se3_of_se2(T2: FloatArray) -> FloatArray:
 
 def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patches:
     cam = rig.camera
-    frames = _used_frames(streams, s.frame_rate_hz)
+    frames = used_frames(streams.image_stamps_s, s.frame_rate_hz)
     # The used frames decode on two other threads from here on, while the laser odometry
     # runs (its compiled ICP releases the interpreter), as far ahead as FRAMES_AHEAD_BYTES
     # allows; then while each frame's grids are made (decoding two at a time keeps both
     # cores busy where the grids would otherwise wait on the decoding).
-    cam_bytes = cam.width_px * cam.height_px
-    with streams.images_ahead(frames, max(8, FRAMES_AHEAD_BYTES // cam_bytes), DECODE_THREADS) as decoded:
+    ahead = frames_ahead(cam.width_px, cam.height_px)
+    with streams.images_ahead(frames, ahead, DECODE_THREADS) as decoded:
         return _patches_of(rig, streams, s, frames, decoded)
 
 
-FRAMES_AHEAD_BYTES = 256 * 2**20
-"""Decoded frames held ahead of the check's use at most (8-bit grey)."""
 DECODE_THREADS = 2
 """Threads decoding the used frames ahead of the check's use."""
 
@@ -1049,15 +1037,25 @@ def _evaluate(
     free: list[int],
     s: TargetlessSettings,
 ) -> _Terms:
-    r, J12, usable = _residuals(rig, T, nuis, patches, images)
+    edges = patches.edges
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="edge-terms") as pool:
+        # The edge term on a second thread beside the photometric one (both mostly numpy
+        # and compiled code outside the interpreter's lock; independent of each other).
+        edge_terms = (
+            pool.submit(edge_residuals, rig.camera, T, edges, edge_images, window_px, anchor)
+            if edge_images is not None and edges is not None
+            else None
+        )
+        r, J12, usable = _residuals(rig, T, nuis, patches, images)
+        edge = edge_terms.result() if edge_terms is not None else None
     if usable.sum() < s.min_returns:
         raise _CannotTellError(
             f"no overlap: only {int(usable.sum())} patches stay inside both frames as T_cam_laser "
             "is corrected (the stored calibration may be far off)"
         )
     out = _Terms(r, J12[:, :, free], usable)
-    if edge_images is not None and patches.edges is not None:
-        er, J6, eusable, found = edge_residuals(rig.camera, T, patches.edges, edge_images, window_px, anchor)
+    if edge is not None:
+        er, J6, eusable, found = edge
         if int(eusable.sum()) >= MIN_EDGE_BANDS:
             eJ = np.zeros((len(er), 12))
             eJ[:, :6] = J6
