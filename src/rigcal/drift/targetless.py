@@ -788,15 +788,17 @@ def _stacks_ahead(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSe
     return pool
 
 
-def _edge_images(rig: Rig, patches: _Patches, blur_px: float) -> EdgeImages | None:
-    """The edges' frames blurred by ``blur_px`` in all (as made ahead, else made here),
-    or None without edges."""
+def _edge_images(rig: Rig, patches: _Patches, blur_px: float) -> Future[EdgeImages] | None:
+    """The edges' frames blurred by ``blur_px`` in all (as made ahead, possibly still
+    under way; else made here), or None without edges."""
     if patches.edges is None:
         return None
     ahead: Future[EdgeImages] | None = patches.stacks_ahead.pop(("edges", blur_px), None)
     if ahead is not None:
-        return ahead.result()
-    return EdgeImages(patches.gray_of, patches.edges.img, blur_px, _edge_rows(rig, patches.edges))
+        return ahead
+    made: Future[EdgeImages] = Future()
+    made.set_result(EdgeImages(patches.gray_of, patches.edges.img, blur_px, _edge_rows(rig, patches.edges)))
+    return made
 
 
 def _rows(rig: Rig, patches: _Patches) -> tuple[float, float]:
@@ -1031,7 +1033,7 @@ def _evaluate(
     nuis: FloatArray,
     patches: _Patches,
     images: _Images,
-    edge_images: EdgeImages | None,
+    edge_images: Future[EdgeImages] | None,
     anchor: FloatArray | None,
     window_px: float,
     free: list[int],
@@ -1040,12 +1042,14 @@ def _evaluate(
     edges = patches.edges
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="edge-terms") as pool:
         # The edge term on a second thread beside the photometric one (both mostly numpy
-        # and compiled code outside the interpreter's lock; independent of each other).
-        edge_terms = (
-            pool.submit(edge_residuals, rig.camera, T, edges, edge_images, window_px, anchor)
-            if edge_images is not None and edges is not None
-            else None
-        )
+        # and compiled code outside the interpreter's lock; independent of each other),
+        # there waiting for its frames if they are still being blurred.
+        def edge_term(images: Future[EdgeImages], edges: Edges) -> tuple[Any, ...]:
+            return edge_residuals(rig.camera, T, edges, images.result(), window_px, anchor)
+
+        edge_terms = None
+        if edge_images is not None and edges is not None:
+            edge_terms = pool.submit(edge_term, edge_images, edges)
         r, J12, usable = _residuals(rig, T, nuis, patches, images)
         edge = edge_terms.result() if edge_terms is not None else None
     if usable.sum() < s.min_returns:
