@@ -774,7 +774,6 @@ def _stacks_ahead(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSe
     after the first (while the first stage iterates); returns the pool, to shut down after
     the estimate. Each is taken by :class:`_Images` and :func:`_edge_images` as made."""
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stages")
-    rows = _rows(rig, patches)
     edge_rows = _edge_rows(rig, patches.edges)
     for stage, blur in enumerate(s.blur_px):
         if s.edges and patches.edges is not None:
@@ -783,6 +782,7 @@ def _stacks_ahead(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSe
                 EdgeImages, patches.gray_of, patches.edges.img, edge_blur, edge_rows
             )
         if stage > 0:
+            rows = _rows(rig, patches)  # after the first edges' frames are under way
             key = (rows, blur, s.native_blur_px)
             patches.stacks_ahead[key] = pool.submit(_stack, streams, patches, rows, blur, s.native_blur_px)
     return pool
