@@ -6,6 +6,7 @@ that otherwise decode them are imported.
 
 from __future__ import annotations
 
+import sys
 import threading
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -78,7 +79,7 @@ class EarlyFrames:
         self._thread.start()
 
     def _run(self, paths: list[tuple[int, Path]], shape: tuple[int, int]) -> None:
-        from rigcal.io.png import plain_png_grey
+        from rigcal.io.png import plain_png_grey, rgb_to_grey_reference
 
         for i, path in paths:
             if self._stop.is_set():
@@ -87,7 +88,13 @@ class EarlyFrames:
                 data = path.read_bytes()
             except OSError:
                 return
-            g = plain_png_grey(data)
+            # numpy's conversion until the compiled one is imported (the same levels; its
+            # kernel is the module's last definition: present, the module is complete).
+            images = sys.modules.get("rigcal.io.images")
+            to_grey = rgb_to_grey_reference
+            if images is not None and hasattr(images, "_rgb_to_grey"):
+                to_grey = images.rgb_to_grey
+            g = plain_png_grey(data, to_grey)
             if g is None or g.shape != shape:
                 return
             self.cache.keep(i, g)
