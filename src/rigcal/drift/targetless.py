@@ -90,6 +90,7 @@ from rigcal.lines import return_labels
 from rigcal.localize.iasm import snap_to_lines
 from rigcal.localize.line_normals import line_fits
 from rigcal.localize.odometry import DEGENERATE_BELOW
+from rigcal.localize.prefetch import computed_ahead
 from rigcal.localize.streams import Streams
 from rigcal.localize.time_pairing import nearest_index, poses_at
 from rigcal.rig import Rig
@@ -457,31 +458,43 @@ def _patches_of(
     feet_block: list[NDArray[np.int64]] = []
     feet_world: list[FloatArray] = []
     gray_of: dict[int, NDArray[np.uint8]] = {}
-    for k, (i, gray) in enumerate(zip(frames, decoded, strict=True)):
-        streams.report("targetless check: frames", k + 1, len(frames))
+    frames_in = iter(decoded)
+
+    def frame_parts(k: int) -> tuple[NDArray[np.uint8], list[int], int, FloatArray | None, FloatArray | None]:
+        """Frame k's own work (its image, its partners, the pairs left out as degenerate,
+        its edges' feet, its grids), on a second thread a frame or two ahead of the
+        pairing below (the scans' lines and the kernels run outside the interpreter's
+        lock); in frame order, so the decoded frames are taken in turn."""
+        i = frames[k]
+        gray = next(frames_in)
         t_i = float(img_t[i])
         partners = []
+        skipped = 0
         for gap in s.gaps_s:
             j = nearest_index(img_t, t_i + gap)
             if j == i or j not in frame_of_image or abs(float(img_t[j]) - t_i - gap) > 0.5 * gap:
                 continue
             k0, k1 = nearest_index(scan_t, t_i), nearest_index(scan_t, float(img_t[j]))
             if degenerate[k0 + 1 : k1 + 1].any():
-                n_degenerate += 1
+                skipped += 1
                 continue
             partners.append(j)
-        if s.edges:
-            feet = _frame_edges(streams, i, T0, cam, s)
-            if len(feet):
-                feet_all.append(feet)
-                feet_img.append(np.full(len(feet), i))
-                feet_block.append(np.full(len(feet), int((t_i - float(img_t[frames[0]])) // s.block_s)))
-                P_w = se2(poses[k])
-                feet_world.append(feet @ P_w[:2, :2].T + P_w[:2, 2])
-                gray_of[i] = gray
-        if not partners:
-            continue
-        X = _frame_grid(streams, i, gray, T0, cam, s, f_mean, ga, gb)
+        feet = _frame_edges(streams, i, T0, cam, s) if s.edges else None
+        X = _frame_grid(streams, i, gray, T0, cam, s, f_mean, ga, gb) if partners else None
+        return gray, partners, skipped, feet, X
+
+    for k, (gray, partners, skipped, feet, X) in computed_ahead(frame_parts, len(frames), 2):
+        i = frames[k]
+        streams.report("targetless check: frames", k + 1, len(frames))
+        t_i = float(img_t[i])
+        n_degenerate += skipped
+        if feet is not None and len(feet):
+            feet_all.append(feet)
+            feet_img.append(np.full(len(feet), i))
+            feet_block.append(np.full(len(feet), int((t_i - float(img_t[frames[0]])) // s.block_s)))
+            P_w = se2(poses[k])
+            feet_world.append(feet @ P_w[:2, :2].T + P_w[:2, 2])
+            gray_of[i] = gray
         if X is None:
             continue
         seen_returns += len(X)
