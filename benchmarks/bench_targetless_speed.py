@@ -30,7 +30,9 @@ the kernels loaded from their cache), and against the laser odometry of every sc
 process. Each is timed by the wall clock and CPU time (the child's, all threads). One more
 child runs the command under ``python -X importtime`` and reports its CPU time when the check
 proper begins (the start-up: Python, imports, reading the sequence and the rig, as a child
-of this benchmark) and the imports that cost most; it also says how many kernels were
+of this benchmark), its main thread's CPU time at the end (the work no other thread takes
+off it: about the command's wall time on two idle cores, whatever the load) and the imports
+that cost most; it also says how many kernels were
 compiled rather than loaded from the cache (0 once warmed). ``--trajectory`` adds the
 command with ``--trajectory`` (the reference odometry as a TUM file), ``--no-bytecode`` a
 run with no compiled bytecode to load or write (``PYTHONDONTWRITEBYTECODE=1`` and an empty
@@ -119,6 +121,8 @@ from rigcal.cli.main import main
 from rigcal.jit import COMPILED
 rc = main(sys.argv[1:])
 print(f"KERNELS_COMPILED {len(COMPILED)}", file=sys.stderr)
+print(f"MAIN_THREAD_CPU_S {time.thread_time():.3f}", file=sys.stderr)
+print(f"PROCESS_CPU_S {time.process_time():.3f}", file=sys.stderr)
 sys.exit(rc)
 """
 
@@ -151,7 +155,7 @@ def importtime(stderr: str, top: int = 12) -> dict[str, object]:
 def _marks(stderr: str) -> dict[str, float]:
     out = {}
     for line in stderr.splitlines():
-        if line.startswith(("STARTUP_CPU_S ", "KERNELS_COMPILED ")):
+        if line.startswith(("STARTUP_CPU_S ", "KERNELS_COMPILED ", "MAIN_THREAD_CPU_S ", "PROCESS_CPU_S ")):
             key, value = line.split()
             out[key.lower()] = float(value)
     return out
@@ -202,6 +206,8 @@ def main_command(seq: Path, repeat: int, with_trajectory: bool, no_bytecode: boo
             "wall": round(m_wall, 2),
             "cpu": round(m_cpu, 2),
             "startup_cpu_s": marks.get("startup_cpu_s"),
+            "main_thread_cpu_s": marks.get("main_thread_cpu_s"),
+            "process_cpu_s": marks.get("process_cpu_s"),
             "kernels_compiled": marks.get("kernels_compiled"),
             "verdict": marked["verdict"],
             "imports": importtime(m_err),

@@ -11,7 +11,6 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial.transform import Rotation
 
 from rigcal.arrays import FloatArray
 
@@ -82,6 +81,8 @@ def rotvec_to_R(rotvec: ArrayLike) -> FloatArray:
     formula; (N, 3) vectors give (N, 3, 3))."""
     w = np.asarray(rotvec, dtype=float)
     if w.shape != (3,):
+        from scipy.spatial.transform import Rotation
+
         out: FloatArray = Rotation.from_rotvec(w).as_matrix()
         return out
     wx, wy, wz = float(w[0]), float(w[1]), float(w[2])
@@ -102,6 +103,8 @@ def rotvec_to_R(rotvec: ArrayLike) -> FloatArray:
 
 def R_to_rotvec(R: ArrayLike) -> FloatArray:
     """(3, 3) rotation matrix to a (3,) rotation vector (axis * angle, rad)."""
+    from scipy.spatial.transform import Rotation
+
     out: FloatArray = Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec()
     return out
 
@@ -141,6 +144,8 @@ def pose_error(T_est: ArrayLike, T_ref: ArrayLike) -> tuple[float, float]:
 def random_rotation(rng: np.random.Generator, max_angle_rad: float | None = None) -> FloatArray:
     """A random rotation, uniform on SO(3), or with a uniform angle up to max_angle_rad."""
     if max_angle_rad is None:
+        from scipy.spatial.transform import Rotation
+
         q = rng.normal(size=4)
         out: FloatArray = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
         return out

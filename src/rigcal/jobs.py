@@ -374,31 +374,59 @@ def _targetless(
     import time
     from concurrent.futures import ThreadPoolExecutor
 
+    from rigcal.drift.frames import FRAME_RATE_HZ, frames_ahead, used_frames
+    from rigcal.localize.image_cache import EarlyFrames, ImageCache
     from rigcal.recordings.sequence import read_sequence
 
-    def timed_read() -> tuple[Any, float]:
+    def timed_read() -> tuple[Any, float, EarlyFrames | None]:
         t0 = time.perf_counter()
-        return read_sequence(sequence), time.perf_counter() - t0
+        early: list[EarlyFrames] = []
+
+        def decode_early(folder: Path, stamps_s: Any, files: list[str]) -> None:
+            """The check's frames (drift/frames.py) start decoding on another thread as soon
+            as the image index is read, while the scans are read and the check's modules
+            import."""
+            frames = used_frames(stamps_s, FRAME_RATE_HZ)[: frames_ahead(cam.width_px, cam.height_px)]
+            paths = [(i, folder / files[i]) for i in frames]
+            early.append(EarlyFrames(paths, (cam.height_px, cam.width_px), ImageCache()))
+
+        try:
+            seq = read_sequence(sequence, on_images=decode_early)
+        except BaseException:
+            for e in early:
+                e.stop()
+            raise
+        return seq, time.perf_counter() - t0, early[0] if early else None
 
     # The drive is read (inflating scans.npz and numpy's work on the scans, mostly outside
-    # the interpreter's lock) on a second thread while the check's modules import.
+    # the interpreter's lock) on a second thread while the check's modules import, its
+    # frames decoding on a third.
+    cam = stored.camera
     with ThreadPoolExecutor(1, thread_name_prefix="rigcal-read") as pool:
         read = pool.submit(timed_read)
         from rigcal.drift.log import targetless_record
         from rigcal.drift.targetless import TargetlessSettings, check_targetless, same_camera
-        from rigcal.drift.trajectory import trajectory_odometry
         from rigcal.localize.streams import Streams, require_returns
 
-        seq, read_s = read.result()
+        seq, read_s, early = read.result()
+    try:
         require_returns(sequence, seq)
-        streams = Streams(seq, stored, {"read_s": read_s})
-    same_camera(stored, streams, rig_path)
-    streams.progress = progress
-    streams.odometry_covariance = False  # the check uses the odometry's poses only
-    settings = TargetlessSettings(level=level)
-    if trajectory is not None:
-        streams.use_laser_odometry(trajectory_odometry(trajectory, streams))
-        settings = dataclasses.replace(settings, scan_rate_hz=None)  # every scan's pose is known
+        # Streams keep frames as decoded (their default feature tracks' settings do not
+        # equalise), so the early frames are the frames the check would decode itself.
+        cache = early.cache if early is not None else ImageCache()
+        streams = Streams(seq, stored, {"read_s": read_s}, _image_cache=cache)
+        same_camera(stored, streams, rig_path)
+        streams.progress = progress
+        streams.odometry_covariance = False  # the check uses the odometry's poses only
+        settings = TargetlessSettings(level=level)
+        if trajectory is not None:
+            from rigcal.drift.trajectory import trajectory_odometry
+
+            streams.use_laser_odometry(trajectory_odometry(trajectory, streams))
+            settings = dataclasses.replace(settings, scan_rate_hz=None)  # every scan's pose is known
+    finally:
+        if early is not None:
+            early.stop()  # the check decodes the rest itself
     result = check_targetless(stored, streams, settings)
     return targetless_record(result, sequence, trajectory)
 

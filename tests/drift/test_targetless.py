@@ -279,3 +279,52 @@ def test_the_edges_directions_need_more_corners_than_they_estimate(corners, edge
     got = {AXES[a] for a in range(6) if _axis_observed(V, a)}
     assert {"rx", "ry"} <= got
     assert len(got & {"rz", "tx", "ty"}) == edge_axes
+
+
+class _Inline:
+    """A stand-in for ThreadPoolExecutor that runs each task at once on the calling thread."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        pass
+
+    def submit(self, fn, *args, **kwargs):  # type: ignore[no-untyped-def]
+        from concurrent.futures import Future
+
+        done: Future = Future()  # type: ignore[type-arg]
+        done.set_result(fn(*args, **kwargs))
+        return done
+
+    def map(self, fn, *iterables):  # type: ignore[no-untyped-def]
+        return list(map(fn, *iterables))
+
+    def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:
+        pass
+
+    def __enter__(self) -> _Inline:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+
+def test_the_command_and_the_check_on_one_thread_agree_to_the_bit(drives, monkeypatch):
+    """`rigcal check --sequence`'s orchestration (frames decoded from the reading on, two at
+    a time; the edges' frames and the later stages made ahead; the edge term beside the
+    photometric one; the samples in two halves) changes no result: its record is the
+    record of the check with every step in turn on the calling thread."""
+    import rigcal.drift.sampling as sampling
+    import rigcal.drift.targetless as targetless
+    import rigcal.localize.prefetch as prefetch
+    from rigcal.jobs import check_rig
+
+    command = check_rig(drives["rig"], sequence=drives["drive"], no_log=True).record["targetless"]
+    for module in (targetless, sampling, prefetch):
+        monkeypatch.setattr(module, "ThreadPoolExecutor", _Inline)
+    monkeypatch.setattr(sampling, "SPLIT_ABOVE", 0)  # the halves, one after the other
+    streams = open_streams(drives["drive"], rig_file=drives["rig"])
+    streams.odometry_covariance = False
+    serial = check_targetless(read_rig(drives["rig"]), streams).record
+    command.pop("check_s")
+    serial.pop("check_s")
+    assert command["correction_rotation_deg"] is not None
+    assert command == serial

@@ -151,14 +151,14 @@ def test_missing_empty_and_damaged_files_read_as_none(tmp_path):
         assert cut is None
     else:
         np.testing.assert_array_equal(cut, expected)
-    (tmp_path / "junk.png").write_bytes(images._PNG_SIGNATURE + b"\x00\x00\x00\x0dIHDR" + b"\x00" * 5)
+    (tmp_path / "junk.png").write_bytes(images.PNG_SIGNATURE + b"\x00\x00\x00\x0dIHDR" + b"\x00" * 5)
     assert read_grey(tmp_path / "junk.png") is None
 
 
 def test_a_truncated_header_is_not_plain():
     assert plain_png_kind(b"") is None
-    assert plain_png_kind(images._PNG_SIGNATURE) is None
-    assert plain_png_kind(images._PNG_SIGNATURE + struct.pack(">I4s", 13, b"IHDR") + b"\x00" * 4) is None
+    assert plain_png_kind(images.PNG_SIGNATURE) is None
+    assert plain_png_kind(images.PNG_SIGNATURE + struct.pack(">I4s", 13, b"IHDR") + b"\x00" * 4) is None
 
 
 def test_a_path_given_as_text_reads_too(tmp_path: Path):

@@ -272,3 +272,25 @@ def test_every_reader_of_the_frames_sees_them_equalized_when_asked(seq):
     ordered = list(st.images_in_order())  # the feature tracks
     assert np.array_equal(ordered[2], want)
     assert np.array_equal(open_streams(seq).image(2), raw)  # the default leaves them be
+
+
+def test_early_frames_are_the_frames_read_grey_reads_and_stop_at_one_they_cannot_take(tmp_path):
+    from rigcal.io.images import read_grey
+    from rigcal.localize.image_cache import EarlyFrames, ImageCache
+
+    rng = np.random.default_rng(3)
+    paths = []
+    for k in range(4):
+        rgb = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+        if k == 2:
+            rgb = rgb[:-1]  # another size: the reader's own decoding reports it
+        path = tmp_path / f"{k}.png"
+        assert cv2.imwrite(str(path), rgb)
+        paths.append((k, path))
+    early = EarlyFrames(paths, (48, 64), ImageCache())
+    early._thread.join(30.0)  # it ends by itself at frame 2
+    early.stop()
+    assert early.cache.indices() == [0, 1]
+    for i in (0, 1):
+        np.testing.assert_array_equal(early.cache.get(i), read_grey(paths[i][1]))
+        np.testing.assert_array_equal(early.cache.get(i), cv2.imread(str(paths[i][1]), cv2.IMREAD_GRAYSCALE))

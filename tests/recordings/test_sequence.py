@@ -1,4 +1,4 @@
-"""Sequence folders: the laser.clockwise key (schema 2)."""
+"""Sequence folders: the laser.clockwise key (schema 2); the images known before the scans."""
 
 import re
 
@@ -44,3 +44,38 @@ def test_clockwise_must_be_a_boolean(tmp_path):
     folder = _folder(tmp_path, scans, schema_version=2, laser={"clockwise": "cw"})
     with pytest.raises(InputError, match=re.escape("laser.clockwise: got 'cw'; expected true")):
         read_sequence(folder)
+
+
+def _with_images(tmp_path):
+    from rigcal.recordings.sequence import ImageFrame
+
+    scans = [Scan.from_uniform(-1.0, 0.25, np.full(9, 2.0), 0.1, 10.0, stamp_s=0.1 * i) for i in range(5)]
+    images = [ImageFrame(0.05 + 0.1 * k, f"{k:06d}.png", b"not read here") for k in range(3)]
+    return write_sequence(tmp_path / "seq", "test", scans, images, None, {})
+
+
+def test_the_images_are_told_before_the_scans_are_read(tmp_path):
+    folder = _with_images(tmp_path)
+    told = []
+    (folder / "scans.npz").rename(folder / "moved.npz")
+    with pytest.raises(InputError, match="scans file not found"):
+        read_sequence(folder, on_images=lambda *a: told.append(a))
+    (folder / "moved.npz").rename(folder / "scans.npz")
+    assert len(told) == 1
+    images, stamps, files = told[0]
+    seq = read_sequence(folder)
+    assert images == folder / "images"
+    assert list(stamps) == list(seq.image_stamps_s)
+    assert tuple(files) == seq.image_files
+
+
+def test_a_broken_index_is_not_told_and_fails_as_without_the_callback(tmp_path):
+    folder = _with_images(tmp_path)
+    (folder / "images.csv").write_text("stamp,file\n")
+    told = []
+    with pytest.raises(InputError) as plain:
+        read_sequence(folder)
+    with pytest.raises(InputError) as early:
+        read_sequence(folder, on_images=lambda *a: told.append(a))
+    assert str(early.value) == str(plain.value)
+    assert told == []

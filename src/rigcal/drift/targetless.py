@@ -56,8 +56,12 @@ that into a measurement of T:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import importlib
 import math
+import sys
+import threading
 import time
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -77,6 +81,7 @@ from rigcal.drift.edges import (
     edge_residuals,
     scan_discontinuities,
 )
+from rigcal.drift.frames import FRAME_RATE_HZ, frames_ahead, used_frames
 from rigcal.drift.sampling import GREY_SCALE, project_sample
 from rigcal.drift.statistic import cluster_covariance, effective_clusters, hotelling, hotelling_critical
 from rigcal.errors import InputError
@@ -85,6 +90,7 @@ from rigcal.lines import return_labels
 from rigcal.localize.iasm import snap_to_lines
 from rigcal.localize.line_normals import line_fits
 from rigcal.localize.odometry import DEGENERATE_BELOW
+from rigcal.localize.prefetch import computed_ahead
 from rigcal.localize.streams import Streams
 from rigcal.localize.time_pairing import nearest_index, poses_at
 from rigcal.rig import Rig
@@ -155,7 +161,7 @@ class TargetlessSettings:
     level: float = 0.01
     resolution_deg: float = 0.3
     resolution_m: float = 0.02
-    frame_rate_hz: float = 5.0
+    frame_rate_hz: float = FRAME_RATE_HZ
     gaps_s: tuple[float, ...] = (0.2, 0.6)
     returns_per_frame: int = 40
     patch_half: int = 1
@@ -243,7 +249,7 @@ class _Patches:
     edges: Edges | None = None  # the scans' depth discontinuities (module docstring, step 3b)
     gray_of: dict[int, NDArray[np.uint8]] = field(default_factory=dict)  # the edges' frames
     rows: tuple[float, float] | None = None  # _rows's, made once
-    stacks_ahead: dict[tuple[Any, ...], Future[_Stack]] = field(default_factory=dict)  # _stacks_ahead's
+    stacks_ahead: dict[tuple[Any, ...], Future[Any]] = field(default_factory=dict)  # _stacks_ahead's
 
 
 class _CannotTellError(Exception):
@@ -265,6 +271,7 @@ def check_targetless(
     """
     settings = settings or TargetlessSettings()
     t_start = time.perf_counter()
+    _import_ahead()
     if streams.n_images < 2:
         raise InputError.at(
             streams._yaml(), "images.count", streams.n_images, "a drive with camera images (at least 2)"
@@ -297,6 +304,28 @@ def check_targetless(
     return TargetlessResult(
         res["verdict"], settings.level, res["xi"], res["cov"], _json(rec), reasons, res.get("details", {})
     )
+
+
+LATER_IMPORTS = ("scipy.special", "scipy.spatial", "scipy.sparse.csgraph")
+"""Modules the check imports only where it first uses them (the test's tails, rotation
+vectors, the corners' clusters): a third of a second of the interpreter's time, imported
+on a second thread while the laser odometry runs (its compiled ICP releases the
+interpreter) rather than on the main thread later."""
+
+
+def _import_ahead() -> None:
+    """Import :data:`LATER_IMPORTS` on a daemon thread, unless imported already (an import
+    error there is left for the import where the module is used to raise)."""
+    missing = [m for m in LATER_IMPORTS if m not in sys.modules]
+    if not missing:
+        return
+
+    def run() -> None:
+        for name in missing:
+            with contextlib.suppress(ImportError):
+                importlib.import_module(name)
+
+    threading.Thread(target=run, name="rigcal-imports", daemon=True).start()
 
 
 def same_camera(rig: Rig, streams: Streams, rig_path: Any = None) -> None:
@@ -368,17 +397,6 @@ def thinned(streams: Streams, rate_hz: float | None) -> Streams:
 # --- the problem ----------------------------------------------------------------------
 
 
-def _used_frames(streams: Streams, rate_hz: float) -> list[int]:
-    """Image indices at most ``rate_hz`` apart in time."""
-    out: list[int] = []
-    last = -np.inf
-    for i, t in enumerate(streams.image_stamps_s):
-        if t - last >= 0.9 / rate_hz:
-            out.append(i)
-            last = float(t)
-    return out
-
-
 def _se3_of_se2(T2: FloatArray) -> FloatArray:
     T = np.eye(4)
     T[:2, :2] = T2[:2, :2]
@@ -388,17 +406,18 @@ def _se3_of_se2(T2: FloatArray) -> FloatArray:
 
 def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patches:
     cam = rig.camera
-    frames = _used_frames(streams, s.frame_rate_hz)
-    # The used frames decode on a second thread from here on, while the laser odometry
+    frames = used_frames(streams.image_stamps_s, s.frame_rate_hz)
+    # The used frames decode on two other threads from here on, while the laser odometry
     # runs (its compiled ICP releases the interpreter), as far ahead as FRAMES_AHEAD_BYTES
-    # allows; then while each frame's grids are made.
-    cam_bytes = cam.width_px * cam.height_px
-    with streams.images_ahead(frames, max(8, FRAMES_AHEAD_BYTES // cam_bytes)) as decoded:
+    # allows; then while each frame's grids are made (decoding two at a time keeps both
+    # cores busy where the grids would otherwise wait on the decoding).
+    ahead = frames_ahead(cam.width_px, cam.height_px)
+    with streams.images_ahead(frames, ahead, DECODE_THREADS) as decoded:
         return _patches_of(rig, streams, s, frames, decoded)
 
 
-FRAMES_AHEAD_BYTES = 256 * 2**20
-"""Decoded frames held ahead of the check's use at most (8-bit grey)."""
+DECODE_THREADS = 2
+"""Threads decoding the used frames ahead of the check's use."""
 
 
 def _patches_of(
@@ -439,31 +458,43 @@ def _patches_of(
     feet_block: list[NDArray[np.int64]] = []
     feet_world: list[FloatArray] = []
     gray_of: dict[int, NDArray[np.uint8]] = {}
-    for k, (i, gray) in enumerate(zip(frames, decoded, strict=True)):
-        streams.report("targetless check: frames", k + 1, len(frames))
+    frames_in = iter(decoded)
+
+    def frame_parts(k: int) -> tuple[NDArray[np.uint8], list[int], int, FloatArray | None, FloatArray | None]:
+        """Frame k's own work (its image, its partners, the pairs left out as degenerate,
+        its edges' feet, its grids), on a second thread a frame or two ahead of the
+        pairing below (the scans' lines and the kernels run outside the interpreter's
+        lock); in frame order, so the decoded frames are taken in turn."""
+        i = frames[k]
+        gray = next(frames_in)
         t_i = float(img_t[i])
         partners = []
+        skipped = 0
         for gap in s.gaps_s:
             j = nearest_index(img_t, t_i + gap)
             if j == i or j not in frame_of_image or abs(float(img_t[j]) - t_i - gap) > 0.5 * gap:
                 continue
             k0, k1 = nearest_index(scan_t, t_i), nearest_index(scan_t, float(img_t[j]))
             if degenerate[k0 + 1 : k1 + 1].any():
-                n_degenerate += 1
+                skipped += 1
                 continue
             partners.append(j)
-        if s.edges:
-            feet = _frame_edges(streams, i, T0, cam, s)
-            if len(feet):
-                feet_all.append(feet)
-                feet_img.append(np.full(len(feet), i))
-                feet_block.append(np.full(len(feet), int((t_i - float(img_t[frames[0]])) // s.block_s)))
-                P_w = se2(poses[k])
-                feet_world.append(feet @ P_w[:2, :2].T + P_w[:2, 2])
-                gray_of[i] = gray
-        if not partners:
-            continue
-        X = _frame_grid(streams, i, gray, T0, cam, s, f_mean, ga, gb)
+        feet = _frame_edges(streams, i, T0, cam, s) if s.edges else None
+        X = _frame_grid(streams, i, gray, T0, cam, s, f_mean, ga, gb) if partners else None
+        return gray, partners, skipped, feet, X
+
+    for k, (gray, partners, skipped, feet, X) in computed_ahead(frame_parts, len(frames), 2):
+        i = frames[k]
+        streams.report("targetless check: frames", k + 1, len(frames))
+        t_i = float(img_t[i])
+        n_degenerate += skipped
+        if feet is not None and len(feet):
+            feet_all.append(feet)
+            feet_img.append(np.full(len(feet), i))
+            feet_block.append(np.full(len(feet), int((t_i - float(img_t[frames[0]])) // s.block_s)))
+            P_w = se2(poses[k])
+            feet_world.append(feet @ P_w[:2, :2].T + P_w[:2, 2])
+            gray_of[i] = gray
         if X is None:
             continue
         seen_returns += len(X)
@@ -698,7 +729,9 @@ class _Images:
         self, streams: Streams, patches: _Patches, rows: tuple[float, float], blur_px: float, native_px: float
     ) -> None:
         ahead = patches.stacks_ahead.pop((rows, blur_px, native_px), None)
-        made = ahead.result() if ahead is not None else _stack(streams, patches, rows, blur_px, native_px)
+        made: _Stack = (
+            ahead.result() if ahead is not None else _stack(streams, patches, rows, blur_px, native_px)
+        )
         self.down, self.key_i, self.key_j, self.row0, self.stack = made
 
 
@@ -749,15 +782,36 @@ def _stack(
 
 
 def _stacks_ahead(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettings) -> ThreadPoolExecutor:
-    """Start making the stacks of the stages after the first on a second thread, so that
-    they blur while the first stage iterates (returns the pool, to shut down after the
-    estimate)."""
+    """Start making, on a second thread, the edges' blurred frames of every stage (the
+    first stage's while the calling thread makes its stack) and the stacks of the stages
+    after the first (while the first stage iterates); returns the pool, to shut down after
+    the estimate. Each is taken by :class:`_Images` and :func:`_edge_images` as made."""
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stages")
-    rows = _rows(rig, patches)
-    for blur in s.blur_px[1:]:
-        key = (rows, blur, s.native_blur_px)
-        patches.stacks_ahead[key] = pool.submit(_stack, streams, patches, rows, blur, s.native_blur_px)
+    edge_rows = _edge_rows(rig, patches.edges)
+    for stage, blur in enumerate(s.blur_px):
+        if s.edges and patches.edges is not None:
+            edge_blur = math.hypot(blur, s.native_blur_px)
+            patches.stacks_ahead[("edges", edge_blur)] = pool.submit(
+                EdgeImages, patches.gray_of, patches.edges.img, edge_blur, edge_rows
+            )
+        if stage > 0:
+            rows = _rows(rig, patches)  # after the first edges' frames are under way
+            key = (rows, blur, s.native_blur_px)
+            patches.stacks_ahead[key] = pool.submit(_stack, streams, patches, rows, blur, s.native_blur_px)
     return pool
+
+
+def _edge_images(rig: Rig, patches: _Patches, blur_px: float) -> Future[EdgeImages] | None:
+    """The edges' frames blurred by ``blur_px`` in all (as made ahead, possibly still
+    under way; else made here), or None without edges."""
+    if patches.edges is None:
+        return None
+    ahead: Future[EdgeImages] | None = patches.stacks_ahead.pop(("edges", blur_px), None)
+    if ahead is not None:
+        return ahead
+    made: Future[EdgeImages] = Future()
+    made.set_result(EdgeImages(patches.gray_of, patches.edges.img, blur_px, _edge_rows(rig, patches.edges)))
+    return made
 
 
 def _rows(rig: Rig, patches: _Patches) -> tuple[float, float]:
@@ -800,17 +854,18 @@ def _residuals(
     Y = RX + t_M[:, None, :]
     out_v, out_J = [], []
     assert images.stack is not None
-    for pts, key in ((X, images.key_i), (Y, images.key_j)):
+    # Frame i's derivatives: T only (6 columns; the odometry's errors move frame j alone).
+    for pts, key, width in ((X, images.key_i, 6), (Y, images.key_j, 12)):
         which = np.repeat(key, S)
         v, d_point, d_rot = project_sample(
             pts.reshape(-1, 3), T[:3, :3], T[:3, 3], cam, images.stack, which, images.down, images.row0
         )
         # x' = Exp(w) x + v: d grey / d w = x cross d grey / d x, d grey / d v = d grey / d x.
-        J = np.zeros((Pn * S, 12))
+        J = np.empty((Pn * S, width))
         J[:, :3] = d_rot
         J[:, 3:6] = d_point
         out_v.append(v.reshape(Pn, S))
-        out_J.append(J.reshape(Pn, S, 12))
+        out_J.append(J.reshape(Pn, S, width))
     a, b = out_v
     Ja, Jb = out_J
     # The odometry's errors move frame j's points: its scale along the step (d y / d eps =
@@ -823,22 +878,24 @@ def _residuals(
     Jb[:, :, 9:11] = gRb @ R_I[:, :, :2]
     Jb[:, :, 11] = gRb[..., 1] * t0[:, None, 0] - gRb[..., 0] * t0[:, None, 1]
     usable = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
-    a = np.where(usable[:, None], a, 0.0)
-    b = np.where(usable[:, None], b, 0.0)
-    Ja = np.where(usable[:, None, None], Ja, 0.0)
-    Jb = np.where(usable[:, None, None], Jb, 0.0)
+    unusable = ~usable
+    for arr in (a, b, Ja, Jb):  # in place: these arrays are this call's own
+        arr[unusable] = 0.0
     # Zero-mean patches (an offset between the frames drops out), frame j scaled by the
     # pair's gain (the automatic exposure): the square root of the ratio of the patches'
     # energies.
     a0 = a - a.mean(axis=1, keepdims=True)
     b0 = b - b.mean(axis=1, keepdims=True)
-    Ja0 = Ja - Ja.mean(axis=1, keepdims=True)
-    Jb0 = Jb - Jb.mean(axis=1, keepdims=True)
+    Ja -= Ja.mean(axis=1, keepdims=True)
+    Jb -= Jb.mean(axis=1, keepdims=True)
     ea = np.bincount(patches.pair, np.where(usable, (a0**2).sum(axis=1), 0.0), patches.n_pairs)
     eb = np.bincount(patches.pair, np.where(usable, (b0**2).sum(axis=1), 0.0), patches.n_pairs)
     gain = np.sqrt(np.where(eb > 0, ea / np.where(eb > 0, eb, 1.0), 1.0))[patches.pair]
     r = b0 * gain[:, None] - a0
-    J = Jb0 * gain[:, None, None] - Ja0
+    # J = Jb0 gain - Ja0, in place (frame i's columns past the sixth are zero).
+    J = Jb
+    J *= gain[:, None, None]
+    J[:, :, :6] -= Ja
     return r, J, usable
 
 
@@ -989,21 +1046,33 @@ def _evaluate(
     nuis: FloatArray,
     patches: _Patches,
     images: _Images,
-    edge_images: EdgeImages | None,
+    edge_images: Future[EdgeImages] | None,
     anchor: FloatArray | None,
     window_px: float,
     free: list[int],
     s: TargetlessSettings,
 ) -> _Terms:
-    r, J12, usable = _residuals(rig, T, nuis, patches, images)
+    edges = patches.edges
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="edge-terms") as pool:
+        # The edge term on a second thread beside the photometric one (both mostly numpy
+        # and compiled code outside the interpreter's lock; independent of each other),
+        # there waiting for its frames if they are still being blurred.
+        def edge_term(images: Future[EdgeImages], edges: Edges) -> tuple[Any, ...]:
+            return edge_residuals(rig.camera, T, edges, images.result(), window_px, anchor)
+
+        edge_terms = None
+        if edge_images is not None and edges is not None:
+            edge_terms = pool.submit(edge_term, edge_images, edges)
+        r, J12, usable = _residuals(rig, T, nuis, patches, images)
+        edge = edge_terms.result() if edge_terms is not None else None
     if usable.sum() < s.min_returns:
         raise _CannotTellError(
             f"no overlap: only {int(usable.sum())} patches stay inside both frames as T_cam_laser "
             "is corrected (the stored calibration may be far off)"
         )
     out = _Terms(r, J12[:, :, free], usable)
-    if edge_images is not None and patches.edges is not None:
-        er, J6, eusable, found = edge_residuals(rig.camera, T, patches.edges, edge_images, window_px, anchor)
+    if edge is not None:
+        er, J6, eusable, found = edge
         if int(eusable.sum()) >= MIN_EDGE_BANDS:
             eJ = np.zeros((len(er), 12))
             eJ[:, :6] = J6
@@ -1022,7 +1091,6 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     T = T0.copy()
     nuis = np.zeros(6)
     rows = _rows(rig, patches)
-    edge_rows = _edge_rows(rig, patches.edges)
     use_edges = patches.edges is not None
     keep = np.ones(len(free), dtype=bool)
     keep[list(_EDGE_ONLY)] = False
@@ -1031,17 +1099,15 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     last_step = math.inf
     for stage, blur in enumerate(s.blur_px):
         images = _Images(streams, patches, rows, blur, s.native_blur_px)
-        edge_images = (
-            EdgeImages(patches.gray_of, patches.edges.img, math.hypot(blur, s.native_blur_px), edge_rows)
-            if use_edges and patches.edges is not None
-            else None
-        )
+        edge_images = _edge_images(rig, patches, math.hypot(blur, s.native_blur_px)) if use_edges else None
         window = s.edge_window_px[min(stage, len(s.edge_window_px) - 1)]
         cur = _evaluate(rig, T, nuis, patches, images, edge_images, anchor, window, free, s)
         if stage == 0:
             if cur.er is None:
                 use_edges = False  # too few edges seen clearly: the photometric term alone
                 edge_images = None
+                for key in [k for k in patches.stacks_ahead if k[0] == "edges"]:
+                    patches.stacks_ahead.pop(key).cancel()
             else:
                 # The bands are paired with their image edges once, here, at the start
                 # estimate; later evaluations re-measure them within a gate of it.

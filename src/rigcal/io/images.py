@@ -9,7 +9,9 @@ libpng applies for OpenCV, ``(9797 R + 19234 G + 3737 B) >> 15`` (ITU-R BT.601's
 0.587 and 0.114 in 1/32768, truncated), so the grey levels are bit for bit OpenCV's and
 so are the tracks and trajectories computed from them. Any other image (JPEG, 16-bit
 PNG, a palette, transparency, or a PNG that states its gamma or colour space, which
-libpng may honour) is read by OpenCV itself.
+libpng may honour) is read by OpenCV itself. The plain PNGs' decoding is
+:mod:`rigcal.io.png`'s (importable without OpenCV or numba, for decoding that starts
+while a command still imports them).
 """
 
 from __future__ import annotations
@@ -17,7 +19,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import struct
 import tempfile
 import threading
 from collections.abc import Iterator
@@ -28,20 +29,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
+from rigcal.io.png import PNG_SIGNATURE, WEIGHTS_RGB, plain_png_grey
+from rigcal.io.png import plain_png_kind as plain_png_kind
+from rigcal.io.png import rgb_to_grey_reference as rgb_to_grey_reference
 from rigcal.jit import njit
 
 Gray = NDArray[np.uint8]
 log = logging.getLogger(__name__)
 
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-# Chunks before the image data that leave the decoded levels as stored: text, time,
-# resolution, background (which grey reading ignores without transparency).
-_PLAIN_CHUNKS = frozenset({b"IHDR", b"pHYs", b"tEXt", b"zTXt", b"iTXt", b"tIME", b"bKGD", b"eXIf"})
-# IHDR colour types read here: 0 grey, 2 RGB.
-_GREY, _RGB = 0, 2
-# libpng's rgb-to-grey weights for OpenCV's (0.299, 0.587) in 1/32768 (the blue weight is
-# what is left), applied as (r R + g G + b B) >> 15.
-WEIGHTS_RGB = (9797, 19234, 3737)
 _WR, _WG, _WB = WEIGHTS_RGB
 
 
@@ -56,19 +51,9 @@ def read_grey(path: str | Path) -> Gray | None:
         return None
     if not data:
         return None
-    kind = plain_png_kind(data)
-    if kind is not None:
-        import imagecodecs
-
-        try:
-            img = np.asarray(imagecodecs.png_decode(data))
-        except Exception:  # a damaged file: OpenCV decides (and reports None)
-            img = None
-        if img is not None and img.dtype == np.uint8:
-            if kind == _GREY and img.ndim == 2:
-                return img
-            if kind == _RGB and img.ndim == 3 and img.shape[2] == 3:
-                return rgb_to_grey(img)
+    grey = plain_png_grey(data, rgb_to_grey)
+    if grey is not None:
+        return grey
     out = decode(data, cv2.IMREAD_GRAYSCALE)
     return None if out is None else np.asarray(out, dtype=np.uint8)
 
@@ -84,7 +69,7 @@ def decode(data: bytes, flags: int) -> NDArray[Any] | None:
 
     if not data:
         return None
-    if data.startswith(_PNG_SIGNATURE):  # libpng writes its own "libpng error: ..." lines
+    if data.startswith(PNG_SIGNATURE):  # libpng writes its own "libpng error: ..." lines
         with _codec_messages_to_log():
             out = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     else:  # JPEG and the rest say nothing of their own, and decode in parallel threads
@@ -166,42 +151,10 @@ def _codec_messages_to_log() -> Iterator[None]:
                 os.write(2, "".join(other).encode())
 
 
-def plain_png_kind(data: bytes) -> int | None:
-    """The IHDR colour type (0 grey, 2 RGB) of an 8-bit PNG whose chunks before the image
-    data change nothing in how its levels read; None for anything else."""
-    if not data.startswith(_PNG_SIGNATURE):
-        return None
-    pos = len(_PNG_SIGNATURE)
-    kind: int | None = None
-    while pos + 8 <= len(data):
-        length, ctype = struct.unpack(">I4s", data[pos : pos + 8])
-        if ctype == b"IDAT":
-            return kind
-        if ctype not in _PLAIN_CHUNKS:
-            return None
-        if ctype == b"IHDR":
-            if length != 13 or pos + 21 > len(data):
-                return None
-            depth, colour = data[pos + 16], data[pos + 17]
-            if depth != 8 or colour not in (_GREY, _RGB):
-                return None
-            kind = colour
-        pos += 12 + length
-    return None
-
-
 def rgb_to_grey(rgb: NDArray[np.uint8]) -> Gray:
     """(H, W, 3) RGB to (H, W) grey with libpng's integer weights (:data:`WEIGHTS_RGB`)."""
     out = np.empty(rgb.shape[:2], dtype=np.uint8)
     _rgb_to_grey(np.ascontiguousarray(rgb), out)
-    return out
-
-
-def rgb_to_grey_reference(rgb: NDArray[np.uint8]) -> Gray:
-    """:func:`rgb_to_grey` in numpy (the reference the kernel is tested against)."""
-    wr, wg, wb = WEIGHTS_RGB
-    c = rgb.astype(np.uint32)
-    out: Gray = ((wr * c[..., 0] + wg * c[..., 1] + wb * c[..., 2]) >> 15).astype(np.uint8)
     return out
 
 

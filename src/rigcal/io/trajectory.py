@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
@@ -77,12 +76,18 @@ _PLANAR_HINT = (
 
 
 def read_tum(path: str | Path) -> Trajectory:
+<<<<<<< HEAD
     """Read a TUM trajectory (quaternions are normalised if within 1e-3 of unit length).
 
     Raises:
         InputError: a line that is not 8 finite numbers (a 2D file of 3 or 4 columns is
             named as such), a quaternion off unit length, stamps not increasing, no pose.
     """
+=======
+    """Read a TUM trajectory (quaternions are normalised if within 1e-3 of unit length)."""
+    from scipy.spatial.transform import Rotation  # here: a drive's reading does without it
+
+>>>>>>> cmd31b
     path = Path(path)
     stamps: list[float] = []
     poses: list[FloatArray] = []
@@ -132,6 +137,8 @@ def read_kitti(path: str | Path) -> Trajectory:
 def tum_text(traj: Trajectory) -> str:
     if traj.stamps_s is None:
         raise ValueError("TUM files need time stamps")
+    from scipy.spatial.transform import Rotation
+
     rows = ["# timestamp tx ty tz qx qy qz qw"]
     for t, T in zip(traj.stamps_s, traj.poses, strict=True):
         q = Rotation.from_matrix(T[:3, :3]).as_quat()

@@ -36,7 +36,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
@@ -446,6 +445,8 @@ def laser_scores(
     if kernel:
         d = Grid(f2.points).distances(moved, params.truncate_m)
     else:
+        from scipy.spatial import cKDTree
+
         d = cKDTree(f2.points).query(moved, distance_upper_bound=params.truncate_m)[0]
     d = np.minimum(d, params.truncate_m).reshape(len(hyp), -1)
     out: FloatArray = -d.mean(axis=1)

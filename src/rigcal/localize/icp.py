@@ -42,15 +42,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from rigcal.arrays import FloatArray
 from rigcal.localize.icp_compiled import icp_kernel
 from rigcal.localize.icp_steps import DEGENERATE_EIGEN_RATIO, point_to_line, point_to_point
 from rigcal.localize.line_normals import MIN_LINE_FRACTION, pairing_normals
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 # Point-to-point steps before point-to-line, while they still move the scan by more than
 # COARSE_TOLERANCE (m, rad): from a good initial guess one closed-form step is all (more
@@ -150,6 +153,8 @@ def icp(
     x, y, yaw = (0.0, 0.0, 0.0) if initial is None else (float(v) for v in np.asarray(initial, dtype=float))
     if kernel:
         return _icp_compiled(model, data, x, y, yaw, params, model_normals)
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(model)
     T = _Transform(math.cos(yaw), math.sin(yaw), x, y)
     sparse = data[:: params.subsample] if len(data) >= 3 * params.subsample else data

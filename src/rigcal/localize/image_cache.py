@@ -1,13 +1,17 @@
 """Decoded images kept in memory up to a byte budget, the least recently used going first;
 safe to use from the prefetch thread (:mod:`rigcal.localize.prefetch`) and the caller's at
-once.
+once. Frames can be decoded into it early (:class:`EarlyFrames`), before the modules
+that otherwise decode them are imported.
 """
 
 from __future__ import annotations
 
+import sys
 import threading
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,3 +53,54 @@ class ImageCache:
         """The frames kept, least recently used first."""
         with self._lock:
             return list(self._images)
+
+
+class EarlyFrames:
+    """Frames decoded into an :class:`ImageCache` on a thread of their own from the moment
+    they are known: a command that knows which frames it will read starts decoding them
+    while it still imports OpenCV, numba and the rest (the decoding, imagecodecs' libpng,
+    runs outside the interpreter's lock, on the other core).
+
+    Plain 8-bit PNGs only (:mod:`rigcal.io.png`: the levels ``read_grey`` returns, bit for
+    bit), of the given size (height, width). The first frame it cannot take (another kind
+    of file, another size, unreadable) ends it: the reader's own decoding then reads that
+    frame and reports what is wrong with it. For readers that keep frames as decoded (no
+    equalisation). :meth:`stop` before the reader decodes these frames itself, so that
+    no frame is decoded twice.
+    """
+
+    def __init__(self, paths: Sequence[tuple[int, Path]], shape: tuple[int, int], cache: ImageCache) -> None:
+        self.cache = cache
+        self.decoded = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(
+            target=self._run, args=(list(paths), shape), name="rigcal-early-frames", daemon=True
+        )
+        self._thread.start()
+
+    def _run(self, paths: list[tuple[int, Path]], shape: tuple[int, int]) -> None:
+        from rigcal.io.png import plain_png_grey, rgb_to_grey_reference
+
+        for i, path in paths:
+            if self._stop.is_set():
+                return
+            try:
+                data = path.read_bytes()
+            except OSError:
+                return
+            # numpy's conversion until the compiled one is imported (the same levels; its
+            # kernel is the module's last definition: present, the module is complete).
+            images = sys.modules.get("rigcal.io.images")
+            to_grey = rgb_to_grey_reference
+            if images is not None and hasattr(images, "_rgb_to_grey"):
+                to_grey = images.rgb_to_grey
+            g = plain_png_grey(data, to_grey)
+            if g is None or g.shape != shape:
+                return
+            self.cache.keep(i, g)
+            self.decoded += 1
+
+    def stop(self) -> None:
+        """Stop after the frame under way (kept) and wait for the thread."""
+        self._stop.set()
+        self._thread.join()

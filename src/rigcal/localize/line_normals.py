@@ -11,13 +11,17 @@ IASM's polish and the targetless drift check use them too.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from rigcal.arrays import FloatArray
 from rigcal.jit import njit
 from rigcal.localize.nearest import GridArgs, knn
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 # Line normals are used when at least this fraction of the model's returns lie on a line;
 # otherwise (clutter, outdoors) every return takes a nearest-neighbour normal.

@@ -23,7 +23,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from rigcal.arrays import FloatArray, IntArray
 from rigcal.geometry import pose_of, se2
@@ -281,6 +280,8 @@ class ScanOdometry:
             if given is not None and np.isfinite(given[:, 0]).mean() >= MIN_LINE_FRACTION:
                 normals = given
             else:
+                from scipy.spatial import cKDTree
+
                 normals = pairing_normals(prev, cKDTree(prev), self.params.normal_neighbours, None)[0]
         reject_m = self.params.reject_m
         return icp_covariance(prev, cur, res.pose, res.nearest, normals, reject_m, DEGENERATE_BELOW)
@@ -338,6 +339,8 @@ def carry_labels(
         return out
     T = se2(step)
     if nearest is None or len(nearest) != len(cur):
+        from scipy.spatial import cKDTree
+
         nearest = cKDTree(prev).query(cur @ T[:2, :2].T + T[:2, 2])[1]
     normals = line_normals(prev, prev_labels, kernel=kernel) if prev_normals is None else prev_normals
     if kernel:

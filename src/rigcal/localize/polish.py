@@ -18,7 +18,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from rigcal.arrays import MAD_TO_SIGMA, FloatArray
 from rigcal.geometry import pose_of, se2
@@ -66,6 +65,8 @@ def joint_polish(
     result is held to within ``fallback_sigma_m`` and ``fallback_sigma_deg`` (the laser
     odometry's, when a step falls back to it).
     """
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(scan1)
     normals, usable = pairing_normals(scan1, tree, 5, normals1)
     x = np.asarray(pose, dtype=float).copy()

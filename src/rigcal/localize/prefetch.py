@@ -13,16 +13,18 @@ from types import TracebackType
 
 class Ahead[T]:
     """``(i, compute(i))`` for i = 0 .. n-1 in order, each computed up to ``ahead`` items in
-    advance on a second thread, the first ``ahead`` submitted at once (so they are under
-    way while the caller does other work before it asks for them). Use as a context
-    manager, or call :meth:`close`: the items not yet started are then dropped and the
-    thread is joined. An error raised by ``compute`` comes out where its item would have."""
+    advance on ``workers`` other threads (one by default; with two, items are computed two
+    at a time, for a caller that would otherwise wait on them), the first ``ahead``
+    submitted at once (so they are under way while the caller does other work before it
+    asks for them). Use as a context manager, or call :meth:`close`: the items not yet
+    started are then dropped and the threads are joined. An error raised by ``compute``
+    comes out where its item would have."""
 
-    def __init__(self, compute: Callable[[int], T], n: int, ahead: int) -> None:
+    def __init__(self, compute: Callable[[int], T], n: int, ahead: int, workers: int = 1) -> None:
         self._compute = compute
         self._n = n
         self._ahead = max(ahead, 1)
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ahead")
+        self._pool = ThreadPoolExecutor(max_workers=max(workers, 1), thread_name_prefix="ahead")
         self._pending: deque[Future[T]] = deque()
         self._submitted = 0
         self._fill()

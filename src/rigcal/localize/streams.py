@@ -163,12 +163,14 @@ class Streams:
             yield self._keep(indices[k], g)
 
     @contextmanager
-    def images_ahead(self, indices: PySequence[int], ahead: int) -> Iterator[Iterator[Gray]]:
+    def images_ahead(
+        self, indices: PySequence[int], ahead: int, workers: int = 1
+    ) -> Iterator[Iterator[Gray]]:
         """The frames ``indices`` in that order, as :meth:`images_at`, but the first
         ``ahead`` start decoding at once, on entering the context (so they decode while the
-        caller does other work first, e.g. the laser odometry); leaving it stops the
-        decoding."""
-        with Ahead(lambda k: self._kept_or_decoded(indices[k]), len(indices), ahead) as work:
+        caller does other work first, e.g. the laser odometry), on ``workers`` threads;
+        leaving it stops the decoding."""
+        with Ahead(lambda k: self._kept_or_decoded(indices[k]), len(indices), ahead, workers) as work:
             yield (self._keep(indices[k], g) for k, g in work)
 
     def _kept_or_decoded(self, i: int) -> Gray:

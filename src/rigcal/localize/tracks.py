@@ -42,7 +42,6 @@ from typing import ClassVar
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from rigcal.arrays import FloatArray
 from rigcal.camera import Camera
@@ -279,6 +278,8 @@ class Tracker:
         if new.any():
             if known.any():
                 k = min(self.params.predict_neighbours, int(known.sum()))
+                from scipy.spatial import cKDTree
+
                 _, nb = cKDTree(self._px[known]).query(self._px[new], k=k)
                 vel[new] = np.median(self._vel[known][nb.reshape(int(new.sum()), k)], axis=1)
             else:

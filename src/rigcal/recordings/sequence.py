@@ -19,6 +19,7 @@ folder atomically; :func:`read_sequence` validates it.
 
 from __future__ import annotations
 
+import contextlib
 import zipfile
 import zlib
 from collections.abc import Callable, Iterable, Mapping
@@ -37,6 +38,9 @@ from rigcal.io.kinds import kind_of_bytes
 from rigcal.io.validate import finite_array, parse_real, real, relative_inside, whole
 from rigcal.io.wheel_odometry import WheelOdometry, odometry_tum, read_odometry_tum
 from rigcal.scan import Scan, ScanArrayError, laser_clockwise, uniform_scans
+
+ImagesKnown = Callable[[Path, FloatArray, list[str]], None]
+"""A :func:`read_sequence` callback: the images' folder, stamps (s) and file names."""
 
 SEQUENCE_SCHEMA_VERSION = 1
 # Written when the folder keeps wheel odometry (its ``odometry`` mapping).
@@ -172,8 +176,14 @@ def write_sequence(
     return Path(folder)
 
 
-def read_sequence(folder: str | Path) -> Sequence:
+def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> Sequence:
     """Read and validate a sequence folder.
+
+    Args:
+        on_images: called with the images' folder, stamps and file names as soon as the
+            image index is read, before the scans (a caller may start decoding frames
+            while the scans are read); not called when the index is unreadable (its error
+            is raised where it always is, after the scans').
 
     Raises:
         InputError: a missing or malformed file, naming it and the key or line.
@@ -195,6 +205,11 @@ def read_sequence(folder: str | Path) -> Sequence:
         raise InputError.at(path, "name", d["name"], "a string (the recording's name)")
     if not isinstance(d.get("source") or {}, dict):
         raise InputError.at(path, "source", d["source"], "a mapping (where the sequence came from)")
+    if on_images is not None:
+        with contextlib.suppress(InputError):  # raised below, in its usual order
+            im = check_keys(d["images"], path, "images", ["folder", "index", "count"])
+            index = folder / relative_inside(im["index"], path, "images.index")
+            on_images(folder / relative_inside(im["folder"], path, "images.folder"), *_read_index(index))
     sc = check_keys(d["scans"], path, "scans", ["file", "count"])
     npz = folder / relative_inside(sc["file"], path, "scans.file")
     count = whole(sc["count"], path, "scans.count")
