@@ -76,18 +76,14 @@ _PLANAR_HINT = (
 
 
 def read_tum(path: str | Path) -> Trajectory:
-<<<<<<< HEAD
     """Read a TUM trajectory (quaternions are normalised if within 1e-3 of unit length).
 
     Raises:
         InputError: a line that is not 8 finite numbers (a 2D file of 3 or 4 columns is
             named as such), a quaternion off unit length, stamps not increasing, no pose.
     """
-=======
-    """Read a TUM trajectory (quaternions are normalised if within 1e-3 of unit length)."""
     from scipy.spatial.transform import Rotation  # here: a drive's reading does without it
 
->>>>>>> cmd31b
     path = Path(path)
     stamps: list[float] = []
     poses: list[FloatArray] = []
