@@ -76,7 +76,7 @@ def check(folder: Path, rig: Path) -> dict:  # type: ignore[type-arg]
     res = check_targetless(streams.rig, streams)
     rec = res.record
     keys = ("t2", "dof", "effective_blocks", "effective_clusters", "blocks", "corners", "edges")
-    keys += ("edge_corners",)
+    keys += ("edge_corners", "corner_directions")
     return {
         "verdict": res.verdict,
         "p_value": rec.get("p_value"),
