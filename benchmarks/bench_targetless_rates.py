@@ -29,6 +29,9 @@ import numpy as np
 
 from bench_targetless import REALISTIC, WORLDS, clopper_pearson
 
+TAIL = (0.005, 0.01, 0.02, 0.05, 0.1)
+"""The levels at which each group's p-values are counted against a uniform tail."""
+
 CAMERA = {
     "K": [[260.0, 0.0, 159.5], [0.0, 260.0, 119.5], [0.0, 0.0, 1.0]],
     "dist": [-0.15, 0.05, 0.0005, -0.0003, 0.0],
@@ -76,7 +79,7 @@ def check(folder: Path, rig: Path) -> dict:  # type: ignore[type-arg]
     res = check_targetless(streams.rig, streams)
     rec = res.record
     keys = ("t2", "dof", "effective_blocks", "effective_clusters", "blocks", "corners", "edges")
-    keys += ("edge_corners",)
+    keys += ("edge_corners", "corner_directions")
     return {
         "verdict": res.verdict,
         "p_value": rec.get("p_value"),
@@ -174,7 +177,8 @@ def report(rows: list[dict], floor_scale: list[float] | None = None) -> None:  #
         print(f"  {world} ({len(w)}): {counts}; median corners {corners:g}")
     # Each group's own p-values (the combined one is their Bonferroni minimum).
     for name in sorted({t["directions"] for r in judged for t in r.get("tests") or []}):
-        pg = np.array([t["p_value"] for r in judged for t in r.get("tests") or [] if t["directions"] == name])
+        tg = [t for r in judged for t in r.get("tests") or [] if t["directions"] == name]
+        pg = np.array([t["p_value"] for t in tg])
         ksg = kstest(pg, "uniform")
         q = np.quantile(pg, [0.1, 0.5, 0.9])
         print(
@@ -182,6 +186,10 @@ def report(rows: list[dict], floor_scale: list[float] | None = None) -> None:  #
             f"quantiles 0.1 / 0.5 / 0.9: {q[0]:.3f} / {q[1]:.3f} / {q[2]:.3f}; "
             f"p < 0.01: {int((pg < 0.01).sum())}"
         )
+        # The lower tail against a uniform one's: a heavy tail shows as more than expected.
+        tail = ", ".join(f"< {a:g}: {int((pg < a).sum())} ({a * len(pg):.1f})" for a in TAIL)
+        qn = np.quantile([t["effective_clusters"] for t in tg], [0.05, 0.5])
+        print(f"  p-values {tail} (expected); effective clusters 5 % / 50 %: {qn[0]:.1f} / {qn[1]:.1f}")
     p = np.array([r["p_value"] for r in judged])
     ks = kstest(p, "uniform")
     qs = [0.1, 0.25, 0.5, 0.75, 0.9]

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.stats import kstest
 
-from rigcal.drift.statistic import cluster_covariance, effective_clusters, hotelling
+from rigcal.drift.statistic import cluster_covariance, effective_clusters, hotelling, spread_dof
 
 
 def clustered_problem(
@@ -147,3 +147,44 @@ def test_hotelling_matches_the_chi_square_with_many_clusters_and_says_nan_with_t
     assert math.isnan(few.p)
     # A known part (a floor) makes the covariance surer than its clusters' count alone.
     assert hotelling(z, C, 3.0 * np.eye(2), 6.0, 0.01).n > 6.0
+
+
+def few_cluster_p_values(rng: np.random.Generator, G: int, K: int = 3) -> dict[str, float]:
+    """One draw of a clustered problem of G clusters fitting K directions, tested by the
+    former rule (G - 2 directions, the narrowest spreads, an effective count up to G)
+    and by the spread's degrees of freedom (G - K - 1 directions, the best determined by
+    the design, a count up to G - K + 1); a rule that tests nothing gives no p-value.
+    (benchmarks/bench_targetless_few_clusters.py prints the rates over many draws.)"""
+    theta, A, A_c, g_c = clustered_problem(rng, G, K)
+    C, d = cluster_covariance(A, A_c, g_c)
+    by_spread = np.linalg.eigh(C)[1]
+    by_design = np.linalg.eigh(np.linalg.inv(A))[1]  # ascending variance: best first
+    out = {}
+    for rule, W, k, cap in (
+        ("former", by_spread, min(K, G - 2), G),
+        ("spread", by_design, min(K, spread_dof(G, K) - 1), spread_dof(G, K) + 1),
+    ):
+        if k > 0:
+            V = W[:, :k]
+            n = min(effective_clusters(d, V), cap)
+            out[rule] = hotelling(V.T @ theta, V.T @ C @ V, np.zeros((k, k)), n, 0.01).p
+    return out
+
+
+def test_few_clusters_test_only_what_their_spread_can_judge():
+    """Clusters about as few as the directions fitted from them (the corners of a short
+    drive fixing the yaw and both shifts): the jackknife's spread has G - m degrees of
+    freedom left (spread_dof), so at most G - m - 1 directions are tested, those the
+    design determines best, on an effective count of at most G - m + 1: the 1 % level
+    holds. The former rule (G - 2 directions, the count up to G, the narrowest spreads
+    chosen) alarms several times too often."""
+    rng = np.random.default_rng(5)
+    alarms: dict[str, list[bool]] = {"former": [], "spread": []}
+    for G in (4, 5, 6, 8):
+        for _ in range(500):
+            for rule, p in few_cluster_p_values(rng, G).items():
+                alarms[rule].append(p < 0.01)
+    assert spread_dof(4, 3) - 1 == 0  # four corners fixing three directions judge none
+    assert len(alarms["spread"]) == 1500
+    assert np.mean(alarms["spread"]) <= 0.012  # calibrated or conservative: 15 +- 4 of 1500
+    assert np.mean(alarms["former"]) >= 0.025

@@ -15,6 +15,9 @@ not what each observation's noise assumes:
 - :func:`effective_clusters`: how many independent clusters the covariance stands on
   along the tested directions (Kish's effective count of the clusters' whitened shares:
   G when all contribute alike, fewer when a few dominate).
+- :func:`spread_dof`: how many degrees of freedom the clusters' spread has left to judge
+  the directions fitted from them (G - m), which bounds both the directions a group
+  tests and its effective count.
 - :func:`hotelling`: Hotelling's T^2 of the estimate against that covariance plus known
   parts (a systematic floor, the stored calibration's covariance), referred to the F
   distribution with the effective count (Satterthwaite's for the known parts), which
@@ -72,6 +75,18 @@ def effective_clusters(d: FloatArray, V: FloatArray) -> float:
     # (k + 2) / k: the shares are estimated, one draw each (|w|^2 ~ chi-square_k / G for
     # G like clusters, whose fourth moment is (k^2 + 2k) / G^2): G for G like clusters.
     return float(min(k * (k + 2) / max(float(np.sum(w2**2)), 1e-300), len(d)))
+
+
+def spread_dof(clusters: int, fitted: int) -> int:
+    """The degrees of freedom the spread of ``clusters`` has left to judge the ``fitted``
+    directions estimated from them: G - m, as a regression on G cluster-level errors
+    leaves G - m residuals. With G = m each cluster is fitted exactly and its
+    leave-one-out move says nothing of its own error; the jackknife's variance is then
+    about one draw whatever its clusters' count (Bell and McCaffrey, 2002: the
+    degrees of freedom of a cluster-robust covariance follow the clusters' leverage).
+    Hotelling's test of k directions on such a covariance refers to F(k, G - m - k + 1)
+    and needs that count 2 or more (a reference with a mean): k <= G - m - 1."""
+    return clusters - fitted
 
 
 @dataclass(frozen=True)

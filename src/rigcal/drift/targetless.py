@@ -42,9 +42,10 @@ that into a measurement of T:
    95 % of the time at the level). A 2D laser moving in its scan plane never observes the
    camera's height above the laser (laser z): lifting every return along its wall keeps it
    on the same surface point in every frame, and slides a vertical edge's projection
-   along itself. Edges at several depths observe the translations across the plane; with
-   fewer than 4 physical corners the edges' directions (yaw, translations) are not
-   counted as observed. A drive that keeps one heading (a straight corridor) and sees no edge does not observe
+   along itself. Edges at several depths observe the translations across the plane; the
+   physical corners judge the edges' directions (yaw, translations) only as far as they
+   outnumber them: G corners fixing m directions test at most G - m - 1 (none with fewer
+   than m + 2 corners). A drive that keeps one heading (a straight corridor) and sees no edge does not observe
    a shift along the travel nor a roll about it (both slide the returns along their
    walls, alike in every frame).
 7. The test: the correction on the observed directions against its covariance plus the
@@ -83,7 +84,13 @@ from rigcal.drift.edges import (
 )
 from rigcal.drift.frames import FRAME_RATE_HZ, frames_ahead, used_frames
 from rigcal.drift.sampling import GREY_SCALE, project_sample
-from rigcal.drift.statistic import cluster_covariance, effective_clusters, hotelling, hotelling_critical
+from rigcal.drift.statistic import (
+    cluster_covariance,
+    effective_clusters,
+    hotelling,
+    hotelling_critical,
+    spread_dof,
+)
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R, se2
 from rigcal.lines import return_labels
@@ -1031,6 +1038,9 @@ class _Estimate:
     determined: FloatArray  # (6, m) basis, resolution units
     edge_stats: dict[str, Any] = field(default_factory=dict)  # the edge term's at the estimate
     solve: dict[str, Any] = field(default_factory=dict)  # steps taken, refused, the last step
+    # (6, 6) the information on xi (resolution units) once the odometry's errors are free:
+    # how well the drive's design determines each direction, whatever its residuals.
+    information: FloatArray = field(default_factory=lambda: np.eye(6))
 
 
 RUNAWAY_UNITS = 0.3
@@ -1172,6 +1182,8 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     ev, U = _schur_eig(metric)
     determined = np.zeros((6, int((ev > 1.0 / HELD_UNITS**2).sum())))
     determined[free[:5]] = U[:, ev > 1.0 / HELD_UNITS**2]
+    information = np.zeros((6, 6))
+    information[np.ix_(free[:5], free[:5])] = (U * ev) @ U.T
     if determined.shape[1] == 0:
         raise _CannotTellError(
             "degenerate motion: the drive determines no direction of T_cam_laser to the "
@@ -1195,7 +1207,9 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
             "edge_corners_used": n_corners,
         }
     solve = {"steps": steps, "steps_refused": refused, "last_step_units": _r(last_step, 4)}
-    return _Estimate(xi, cov_z, nuis, sig, n_blocks, n_corners, moves, determined, edge_stats, solve)
+    return _Estimate(
+        xi, cov_z, nuis, sig, n_blocks, n_corners, moves, determined, edge_stats, solve, information
+    )
 
 
 HELD_UNITS = 1.0
@@ -1265,10 +1279,6 @@ _EDGE_ONLY = (2, 3, 4)
 """Rows of the free parameters (rz, tx, ty) the edges alone estimate when they are seen."""
 MIN_EDGE_BANDS = 10
 """Fewer usable edge bands: the edge term is left out of that step."""
-MIN_CORNERS = len(_EDGE_ONLY) + 2
-"""Fewer physical corners than the directions the edges alone estimate (the yaw and the
-translations across the laser plane) plus two: their jackknife cannot judge them (an F
-test needs k + 2 clusters), and they count as not observed."""
 
 
 def _edge_rows(rig: Rig, edges: Edges | None) -> tuple[float, float]:
@@ -1310,25 +1320,21 @@ def _floor_z(s: TargetlessSettings, floor_m: float) -> FloatArray:
 @dataclass(frozen=True)
 class _Group:
     """Observed directions tested together: their basis (6, k; resolution units), which
-    clusters carry them (rows of the estimate's ``moves``) and a name."""
+    clusters carry them (rows of the estimate's ``moves``), a name, and the degrees of
+    freedom the clusters' spread has left to judge them (:func:`_group_parts`)."""
 
     name: str
     V: FloatArray
     clusters: slice
+    spread_dof: int
 
 
-def _observed_groups(est: _Estimate, s: TargetlessSettings) -> list[_Group]:
-    """The observed directions (resolution units), in the groups each tested on its own
-    clusters: with the edge term, the roll and pitch (the photometric term, its blocks)
-    and the yaw and translations across the plane (the edges alone, their corners);
-    without it, all five on the blocks. A direction is observed when the drive
-    determines it once the odometry's errors are free and its sigma (the clusters'
-    jackknife plus the floor) is under one resolution over the detection factor; of a
-    group whose clusters are too few for its directions (an F test of k needs k + 2),
-    only its best determined (clusters - 2) are tested: the spread cannot judge more."""
-    Q6 = est.determined
-    C = est.cov_z + _floor_z(s, _floor_m(s, est))
-    limit = (1.0 / s.detection_factor()) ** 2
+def _group_parts(est: _Estimate) -> list[tuple[str, list[int], slice, FloatArray]]:
+    """The groups of directions each tested on its own clusters: with the edge term, the
+    roll and pitch (the photometric term, its blocks) and the yaw and translations
+    across the plane (the edges alone, their corners); without it, all five on the
+    blocks. Each with the directions the drive determines among its axes (6, m;
+    resolution units): those its clusters fit."""
     if est.edge_stats:
         parts = [
             ("roll and pitch", [0, 1], slice(0, est.blocks)),
@@ -1340,15 +1346,40 @@ def _observed_groups(est: _Estimate, s: TargetlessSettings) -> list[_Group]:
     for name, axes, clusters in parts:
         P = np.zeros((6, 6))
         P[axes, axes] = 1.0
-        U, sv, _ = np.linalg.svd(P @ Q6, full_matrices=False)
-        Q = U[:, sv > 0.5]
-        if Q.shape[1] == 0:
+        U, sv, _ = np.linalg.svd(P @ est.determined, full_matrices=False)
+        out.append((name, axes, clusters, U[:, sv > 0.5]))
+    return out
+
+
+def _observed_groups(est: _Estimate, s: TargetlessSettings) -> list[_Group]:
+    """The observed directions (resolution units) per group (:func:`_group_parts`). A
+    direction is observed when the drive determines it once the odometry's errors are
+    free and its sigma (the clusters' jackknife plus the floor) is under one resolution
+    over the detection factor.
+
+    The clusters' spread judges a group's directions only as far as it has degrees of
+    freedom left: G clusters (one error each: a corner's, seen in however many frames)
+    that fix m directions leave G - m to show their own errors (a cluster-level
+    regression's residual count; with G = m each cluster is fitted exactly and its
+    leave-one-out move says nothing of its error; :func:`statistic.spread_dof`). So at
+    most G - m - 1 directions are tested: three or four corners fixing the yaw and both
+    shifts judge none, five judge one. Which ones: those the drive's design determines
+    best (its information), not those whose spread happens to come out narrowest (the
+    narrowest of a few clusters' spreads is narrow by chance as often as not, and a test
+    on it alarms too often)."""
+    C = est.cov_z + _floor_z(s, _floor_m(s, est))
+    limit = (1.0 / s.detection_factor()) ** 2
+    out = []
+    for name, _axes, clusters, Q in _group_parts(est):
+        dof = spread_dof(clusters.stop - clusters.start, Q.shape[1])
+        if Q.shape[1] == 0 or dof < 2:
             continue
-        ev, W = np.linalg.eigh(Q.T @ C @ Q)  # ascending: the best determined first
-        # An F test of k directions needs k + 2 clusters: the best determined ones only.
-        k = min(int((ev < limit).sum()), clusters.stop - clusters.start - 2)
+        _, W_info = np.linalg.eigh(Q.T @ est.information @ Q)
+        S = Q @ W_info[:, ::-1][:, : dof - 1]  # the best determined by design
+        ev, W = np.linalg.eigh(S.T @ C @ S)  # ascending
+        k = int((ev < limit).sum())
         if k > 0:
-            out.append(_Group(name, Q @ W[:, :k], clusters))
+            out.append(_Group(name, S @ W[:, :k], clusters, dof))
     return out
 
 
@@ -1369,7 +1400,10 @@ def _test(
     groups = _observed_groups(est, s)
     V_obs = np.concatenate([g.V for g in groups], axis=1) if groups else np.zeros((6, 0))
     k = V_obs.shape[1]
-    info = patches.info | ({"edge_corners": est.corners} if est.edge_stats else {})
+    info = patches.info
+    if est.edge_stats:
+        fixed = {name: Q.shape[1] for name, _, _, Q in _group_parts(est)}["yaw and translations"]
+        info = info | {"edge_corners": est.corners, "edge_fixed": fixed}
     unobserved = _unobserved_words(V_obs, info, _floor_limited(s, _floor_m(s, est)))
     record: dict[str, Any] = (
         est.edge_stats
@@ -1404,7 +1438,8 @@ def _test(
     # Each group on its own clusters (resolution units): the clusters' jackknife, plus
     # the known parts (the floor, the stored calibration's covariance); Hotelling's T^2
     # referred to the F with the clusters' effective count along the group's directions
-    # (a few corners carrying the yaw count as few, however many frames see them).
+    # (a few corners carrying the yaw count as few, however many frames see them), at
+    # most one more than the spread's degrees of freedom (_observed_groups).
     # The groups' tests are combined by Bonferroni: drifted when one group's p is
     # under the level over the groups' count.
     F_z, R_z = _floor_z(s, _floor_m(s, est)), _rig_cov_z(rig, D)
@@ -1413,7 +1448,7 @@ def _test(
     for g in groups:
         z_g = g.V.T @ np.linalg.solve(D, est.xi)
         C_g = g.V.T @ est.cov_z @ g.V
-        n_g = min(effective_clusters(est.moves[g.clusters], g.V), float(g.clusters.stop - g.clusters.start))
+        n_g = min(effective_clusters(est.moves[g.clusters], g.V), float(g.spread_dof + 1))
         known = g.V.T @ (F_z + R_z) @ g.V
         tests.append((g, hotelling(z_g, C_g, known, n_g, s.level / len(groups)), n_g, C_g, known, z_g))
     if any(not math.isfinite(t.p) for _, t, *_ in tests):
@@ -1446,6 +1481,7 @@ def _test(
         "dof": k,
         "blocks": est.blocks,
         "corners": est.corners,
+        "corner_directions": info.get("edge_fixed", 0),
         "effective_clusters": _r(n_data, 1),
         "effective_blocks": _r(n, 1),
         "p_value": float(f"{p:.4g}"),
@@ -1562,12 +1598,14 @@ def _unobserved_words(
                     "; the drive shows no corner, pillar or wall end clearly enough in the images to "
                     "measure it by their edges"
                 )
-        elif main in _EDGE_ONLY and 0 < info.get("edge_corners", 0) < MIN_CORNERS:
+        elif main in _EDGE_ONLY and 0 < info.get("edge_corners", 0) < info.get("edge_fixed", 3) + 2:
             lo, hi = info.get("edge_depth_m", [0.0, 0.0])
+            fixed = info.get("edge_fixed", 3)
             why = (
                 f"the drive shows {info['edge_corners']} corners (at {lo:.1f}-{hi:.1f} m), each one error "
-                f"however many frames see it: too few (at least {MIN_CORNERS}) to tell the yaw and the "
-                "shifts across the view from the corners' own errors"
+                f"however many frames see it; fitting {fixed} directions to them leaves too few (at least "
+                f"{fixed + 2} corners) to tell the yaw and the shifts across the view from the corners' "
+                "own errors"
             )
         elif abs(u[2]) >= 0.3 and max(abs(u[3]), abs(u[4])) >= 0.3 and info.get("edge_corners"):
             lo, hi = info.get("edge_depth_m", [0.0, 0.0])
