@@ -31,32 +31,18 @@ import argparse
 import os
 import tempfile
 import time
-import zipfile
 from collections import Counter
-from importlib import resources
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from bench_wheel_odometry import killian_log
 from rigcal.io.wheel_odometry import laser_motions
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.loop_closure import Closure, LoopParams, LoopResult, close_loops, compose, relative
 from rigcal.localize.metrics import anchored, evaluate, relation_error, rpe_pairs
 from rigcal.localize.odometry import icp_odometry
 from rigcal.localize.pose_graph import gtsam_available
-from rigcal.recordings.carmen import carmen_odometry, read_carmen
-
-
-def killian_log() -> tuple[Any, Any]:
-    """The Killian Court log (rtb-data's killian.g2o) and its odometry."""
-    archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
-    with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
-        z.extract("killian.g2o", tmp)
-        log = read_carmen(Path(tmp) / "killian.g2o")
-        odom, _ = carmen_odometry(log, "killian.g2o")
-    assert odom is not None
-    return log, odom
 
 
 def _row(name: str, est: np.ndarray, gt: np.ndarray, speed: str) -> str:
@@ -105,7 +91,7 @@ def killian(
     workers: tuple[int, ...] = (2,),
     submap_scans: int = 1,
 ) -> None:
-    log, odom = killian_log()
+    log, odom, _ = killian_log()
     scans, gt = log.scans[:n], log.laser_poses[:n]
     t = np.array([s.stamp_s for s in scans])
     duration = float(t[-1] - t[0])
@@ -183,7 +169,7 @@ def solver(n: int | None) -> None:
     re-optimises, in this process: CPU time of each and the largest difference."""
     from rigcal.localize import loop_closure, pose_graph
 
-    log, odom = killian_log()
+    log, odom, _ = killian_log()
     scans = log.scans[:n]
     guess = laser_motions(odom, np.array([s.stamp_s for s in scans]))
     od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess)

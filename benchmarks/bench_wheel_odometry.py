@@ -28,6 +28,7 @@ import time
 import zipfile
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -51,13 +52,19 @@ def chained(steps: FloatArray) -> FloatArray:
     return np.array(out)
 
 
-def killian(n: int | None) -> None:
+def killian_log() -> tuple[Any, Any, str]:
+    """The Killian Court log (rtb-data's killian.g2o), its odometry, and how it was read."""
     archive = resources.files("rtbdata") / "data" / "killian.g2o.zip"
     with tempfile.TemporaryDirectory() as tmp, zipfile.ZipFile(str(archive)) as z:
         z.extract("killian.g2o", tmp)
         log = read_carmen(Path(tmp) / "killian.g2o")
         odom, how = carmen_odometry(log, "killian.g2o")
     assert odom is not None
+    return log, odom, how
+
+
+def killian(n: int | None) -> None:
+    log, odom, how = killian_log()
     scans, gt = log.scans[:n], log.laser_poses[:n]
     t = np.array([s.stamp_s for s in scans])
     guess = laser_motions(odom, t)
