@@ -97,6 +97,17 @@ def kept_lap(args: argparse.Namespace, name: str, seed: int) -> tuple[Any, Any, 
     return streams, od, res, planar_at(truth, truth.stamps_s), truth.stamps_s
 
 
+def kept_measurements(
+    args: argparse.Namespace, name: str, seed: int, params: kalman.KfParams
+) -> tuple[list[kalman.Increment], FloatArray, FloatArray]:
+    """A kept lap's increments as the filter of ``params`` takes them, its planar truth
+    and the truth's stamps (the lap's background work stopped)."""
+    streams, od, res, gt, truth_s = kept_lap(args, name, seed)
+    ms = kf_measurements(streams, od, res, params)
+    streams.stop_background()
+    return ms, gt, truth_s
+
+
 def open_axes(m: kalman.Increment, keep: tuple[int, ...]) -> kalman.Increment:
     """The step measuring only along ``keep`` (axes of its frame): the others' covariance
     1-sigma kalman.OPEN_SIGMA_M, uncorrelated."""
@@ -442,9 +453,7 @@ def windows(args: argparse.Namespace, sizes: tuple[int, ...] = (1, 2, 4, 8, 16, 
     stats: dict[int, dict[str, list[FloatArray]]] = {n: {"vo": [], "icp": []} for n in sizes}
     for seed in seeds_of(args.seeds):
         for name in args.worlds.split(","):
-            streams, od, res, gt, truth_s = kept_lap(args, name, seed)
-            ms = kf_measurements(streams, od, res, params)
-            streams.stop_background()
+            ms, gt, truth_s = kept_measurements(args, name, seed, params)
             reference = kalman._IcpReference([m for m in ms if m.source == "icp"], params)
             vo = sorted((m for m in ms if m.source == "vo" and m.covariance[0, 0] < 1.0), key=lambda m: m.t1)
             nees = step_nees(vo, gt, truth_s)
@@ -523,9 +532,7 @@ def bias_fit(args: argparse.Namespace, lags: int = 16) -> None:
     durations = []
     for seed in seeds_of(args.seeds):
         for name in args.worlds.split(","):
-            streams, od, res, gt, truth_s = kept_lap(args, name, seed)
-            ms = kf_measurements(streams, od, res, kalman.KF_MODES["weighted"])
-            streams.stop_background()
+            ms, gt, truth_s = kept_measurements(args, name, seed, kalman.KF_MODES["weighted"])
             vo = sorted((m for m in ms if m.source == "vo" and m.covariance[0, 0] < 1.0), key=lambda m: m.t1)
             e = step_errors(vo, gt, truth_s)
             dist = np.array([m.motion[0] for m in vo])
@@ -581,9 +588,7 @@ def guard_evidence(args: argparse.Namespace) -> None:
     total = np.zeros((2, 3), dtype=int)
     for seed in seeds_of(args.seeds):
         for name in args.worlds.split(","):
-            streams, od, res, gt, truth_s = kept_lap(args, name, seed)
-            ms = kf_measurements(streams, od, res, params)
-            streams.stop_background()
+            ms, gt, truth_s = kept_measurements(args, name, seed, params)
             reference = kalman._IcpReference([m for m in ms if m.source == "icp"], params)
             vo = sorted((m for m in ms if m.source == "vo"), key=lambda m: m.t1)
             own, share = kalman._error_model("vo", params)
