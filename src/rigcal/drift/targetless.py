@@ -97,7 +97,7 @@ from rigcal.lines import return_labels
 from rigcal.localize.iasm import snap_to_lines
 from rigcal.localize.line_normals import line_fits
 from rigcal.localize.odometry import DEGENERATE_BELOW
-from rigcal.localize.prefetch import computed_ahead
+from rigcal.localize.prefetch import Ahead
 from rigcal.localize.streams import Streams
 from rigcal.localize.time_pairing import nearest_index, poses_at
 from rigcal.rig import Rig
@@ -425,6 +425,8 @@ def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patche
 
 DECODE_THREADS = 2
 """Threads decoding the used frames ahead of the check's use."""
+FRAME_PARTS_AHEAD = 4
+"""Frames whose own work (:func:`_patches_of`) is under way ahead of their pairing."""
 
 
 def _patches_of(
@@ -466,14 +468,25 @@ def _patches_of(
     feet_world: list[FloatArray] = []
     gray_of: dict[int, NDArray[np.uint8]] = {}
     frames_in = iter(decoded)
+    taken: dict[int, NDArray[np.uint8]] = {}
+    n_taken = [0]
+    take = threading.Lock()
+
+    def gray_at(k: int) -> NDArray[np.uint8]:
+        """Frame k's image: the decoded frames are taken in order, whichever thread asks."""
+        with take:
+            while n_taken[0] <= k:
+                taken[n_taken[0]] = next(frames_in)
+                n_taken[0] += 1
+            return taken.pop(k)
 
     def frame_parts(k: int) -> tuple[NDArray[np.uint8], list[int], int, FloatArray | None, FloatArray | None]:
         """Frame k's own work (its image, its partners, the pairs left out as degenerate,
-        its edges' feet, its grids), on a second thread a frame or two ahead of the
-        pairing below (the scans' lines and the kernels run outside the interpreter's
-        lock); in frame order, so the decoded frames are taken in turn."""
+        its edges' feet, its grids), on two other threads a few frames ahead of the
+        pairing below (the scans' lines, OpenCV's sampling and the kernels run outside
+        the interpreter's lock); each frame's work depends on that frame alone."""
         i = frames[k]
-        gray = next(frames_in)
+        gray = gray_at(k)
         t_i = float(img_t[i])
         partners = []
         skipped = 0
@@ -490,45 +503,47 @@ def _patches_of(
         X = _frame_grid(streams, i, gray, T0, cam, s, f_mean, ga, gb) if partners else None
         return gray, partners, skipped, feet, X
 
-    for k, (gray, partners, skipped, feet, X) in computed_ahead(frame_parts, len(frames), 2):
-        i = frames[k]
-        streams.report("targetless check: frames", k + 1, len(frames))
-        t_i = float(img_t[i])
-        n_degenerate += skipped
-        if feet is not None and len(feet):
-            feet_all.append(feet)
-            feet_img.append(np.full(len(feet), i))
-            feet_block.append(np.full(len(feet), int((t_i - float(img_t[frames[0]])) // s.block_s)))
-            P_w = se2(poses[k])
-            feet_world.append(feet @ P_w[:2, :2].T + P_w[:2, 2])
-            gray_of[i] = gray
-        if X is None:
-            continue
-        seen_returns += len(X)
-        P_i = se2(poses[k])
-        block = int((t_i - float(img_t[frames[0]])) // s.block_s)
-        for j in dict.fromkeys(partners):
-            P_j = se2(poses[frame_of_image[j]])
-            M = _se3_of_se2(np.linalg.inv(P_j) @ P_i)
-            # Keep the grids wholly inside image j under the stored T (margin for the blur).
-            Y = X @ M[:3, :3].T + M[:3, 3]
-            q = cam.project((Y @ T0[:3, :3].T + T0[:3, 3]).reshape(-1, 3)).reshape(len(X), -1, 2)
-            inside = cam.in_image(q.reshape(-1, 2), margin_px=8.0).reshape(len(X), -1).all(axis=1)
-            if inside.sum() < 5:
+    # Left early (an error), the frames not yet started are dropped.
+    with Ahead(frame_parts, len(frames), FRAME_PARTS_AHEAD, workers=2) as parts:
+        for k, (gray, partners, skipped, feet, X) in parts:
+            i = frames[k]
+            streams.report("targetless check: frames", k + 1, len(frames))
+            t_i = float(img_t[i])
+            n_degenerate += skipped
+            if feet is not None and len(feet):
+                feet_all.append(feet)
+                feet_img.append(np.full(len(feet), i))
+                feet_block.append(np.full(len(feet), int((t_i - float(img_t[frames[0]])) // s.block_s)))
+                P_w = se2(poses[k])
+                feet_world.append(feet @ P_w[:2, :2].T + P_w[:2, 2])
+                gray_of[i] = gray
+            if X is None:
                 continue
-            n = int(inside.sum())
-            z_i = X[inside, X.shape[1] // 2] @ T0[2, :3] + T0[2, 3]
-            z_j = Y[inside, X.shape[1] // 2] @ T0[2, :3] + T0[2, 3]
-            ratios.append(z_i / z_j)
-            yaws.append(np.full(n, float(np.arctan2(M[1, 0], M[0, 0]))))
-            dts.append(np.full(n, float(img_t[j]) - t_i))
-            Xs.append(X[inside])
-            Ms.append(np.broadcast_to(M, (n, 4, 4)))
-            ii.append(np.full(n, i))
-            jj.append(np.full(n, j))
-            pairs.append(np.full(n, n_pairs))
-            blocks.append(np.full(n, block))
-            n_pairs += 1
+            seen_returns += len(X)
+            P_i = se2(poses[k])
+            block = int((t_i - float(img_t[frames[0]])) // s.block_s)
+            for j in dict.fromkeys(partners):
+                P_j = se2(poses[frame_of_image[j]])
+                M = _se3_of_se2(np.linalg.inv(P_j) @ P_i)
+                # Keep the grids wholly inside image j under the stored T (margin for the blur).
+                Y = X @ M[:3, :3].T + M[:3, 3]
+                q = cam.project((Y @ T0[:3, :3].T + T0[:3, 3]).reshape(-1, 3)).reshape(len(X), -1, 2)
+                inside = cam.in_image(q.reshape(-1, 2), margin_px=8.0).reshape(len(X), -1).all(axis=1)
+                if inside.sum() < 5:
+                    continue
+                n = int(inside.sum())
+                z_i = X[inside, X.shape[1] // 2] @ T0[2, :3] + T0[2, 3]
+                z_j = Y[inside, X.shape[1] // 2] @ T0[2, :3] + T0[2, 3]
+                ratios.append(z_i / z_j)
+                yaws.append(np.full(n, float(np.arctan2(M[1, 0], M[0, 0]))))
+                dts.append(np.full(n, float(img_t[j]) - t_i))
+                Xs.append(X[inside])
+                Ms.append(np.broadcast_to(M, (n, 4, 4)))
+                ii.append(np.full(n, i))
+                jj.append(np.full(n, j))
+                pairs.append(np.full(n, n_pairs))
+                blocks.append(np.full(n, block))
+                n_pairs += 1
     info |= {"pairs": n_pairs, "pairs_degenerate": n_degenerate}
     if not Xs or sum(len(x) for x in Xs) < s.min_returns:
         got = sum(len(x) for x in Xs)
