@@ -32,7 +32,7 @@ from rigcal.errors import InputError
 from rigcal.io.png import PNG_SIGNATURE, WEIGHTS_RGB, plain_png_grey
 from rigcal.io.png import plain_png_kind as plain_png_kind
 from rigcal.io.png import rgb_to_grey_reference as rgb_to_grey_reference
-from rigcal.jit import njit
+from rigcal.jit import loaded, njit
 
 Gray = NDArray[np.uint8]
 log = logging.getLogger(__name__)
@@ -161,7 +161,7 @@ def rgb_to_grey(rgb: NDArray[np.uint8]) -> Gray:
     set-up: about half a CPU second, under numba's compile lock) while the others convert
     with numpy (:func:`rgb_to_grey_reference`, the same levels) rather than wait."""
     out = np.empty(rgb.shape[:2], dtype=np.uint8)
-    if not _rgb_to_grey.signatures:
+    if not loaded(_rgb_to_grey):
         if not _loading.acquire(blocking=False):
             return rgb_to_grey_reference(rgb)
         try:

@@ -106,10 +106,12 @@ def _to_grey() -> Callable[[NDArray[np.uint8]], Gray]:
     kernel here: that sets numba up (about half a CPU second of the interpreter's time,
     holding numba's compile lock), which the command's main thread does at its own first
     kernel while this thread goes on decoding on the other core."""
+    from rigcal.jit import loaded
+
     images = sys.modules.get("rigcal.io.images")
     # The kernel is the module's last definition: present, the module is complete.
     kernel = getattr(images, "_rgb_to_grey", None)
-    if images is not None and kernel is not None and kernel.signatures:
+    if images is not None and kernel is not None and loaded(kernel):
         to_grey: Callable[[NDArray[np.uint8]], Gray] = images.rgb_to_grey
         return to_grey
     from rigcal.io.png import rgb_to_grey_reference
