@@ -860,65 +860,119 @@ def _residuals(
     """(P, S) residuals, (P, S, 12) their derivatives with respect to a right update of T
     (T Exp(w, v), laser frame) and to the odometry's errors ``nuis`` (its scale, its yaw's
     scale, its yaw rate's bias, its pivot: a translation (R - I) l for a turn R, its crab
-    angle: the step turned about z), (P,) usable patches."""
+    angle: the step turned about z), (P,) usable patches.
+
+    Above :data:`SPLIT_PATCHES_ABOVE` patches, in two halves of the patches on two threads
+    (numpy and the sampling kernel release the interpreter); each patch's values are its
+    own but for the pairs' gains, summed over the whole in patch order as in one pass: the
+    same numbers."""
+    Pn, S, _ = patches.X.shape
+    r = np.empty((Pn, S))
+    J = np.empty((Pn, S, 12))
+    usable = np.empty(Pn, dtype=bool)
+    a0 = np.empty((Pn, S))
+    Ja = np.empty((Pn, S, 6))
+    halves = [slice(0, Pn)] if Pn <= SPLIT_PATCHES_ABOVE else [slice(0, Pn // 2), slice(Pn // 2, Pn)]
+
+    def first(h: slice) -> None:
+        _frames_terms(rig, T, nuis, patches, images, h, r, J, usable, a0, Ja)
+
+    def second(h: slice) -> None:
+        # r = b0 gain - a0; J = Jb0 gain - Ja0, in place (frame i's columns past the sixth
+        # are zero).
+        g = gain[h][:, None]
+        r[h] *= g
+        r[h] -= a0[h]
+        J[h] *= g[:, :, None]
+        J[h, :, :6] -= Ja[h]
+
+    if len(halves) == 1:
+        first(halves[0])
+    else:
+        with ThreadPoolExecutor(max_workers=2, thread_name_prefix="residuals") as pool:
+            list(pool.map(first, halves))
+    # The pair's gain (the automatic exposure): the square root of the ratio of the
+    # zero-mean patches' energies (r holds frame j's zero-mean patches here).
+    ea = np.bincount(patches.pair, np.where(usable, (a0**2).sum(axis=1), 0.0), patches.n_pairs)
+    eb = np.bincount(patches.pair, np.where(usable, (r**2).sum(axis=1), 0.0), patches.n_pairs)
+    gain = np.sqrt(np.where(eb > 0, ea / np.where(eb > 0, eb, 1.0), 1.0))[patches.pair]
+    if len(halves) == 1:
+        second(halves[0])
+    else:
+        with ThreadPoolExecutor(max_workers=2, thread_name_prefix="residuals") as pool:
+            list(pool.map(second, halves))
+    return r, J, usable
+
+
+SPLIT_PATCHES_ABOVE = 2000
+"""More patches than this have their residuals made in two halves on two threads."""
+
+
+def _frames_terms(
+    rig: Rig,
+    T: FloatArray,
+    nuis: FloatArray,
+    patches: _Patches,
+    images: _Images,
+    h: slice,
+    b0: FloatArray,
+    Jb: FloatArray,
+    usable: NDArray[np.bool_],
+    a0: FloatArray,
+    Ja: FloatArray,
+) -> None:
+    """:func:`_residuals`' per-patch part for the patches ``h``: frame j's zero-mean
+    patches into ``b0[h]`` and their derivatives into ``Jb[h]`` (12 columns), frame i's
+    into ``a0[h]`` and ``Ja[h]`` (6: T only, the odometry's errors move frame j alone),
+    ``usable[h]``."""
     cam = rig.camera
-    X = patches.X
+    X = patches.X[h]
+    M = patches.M[h]
+    yaw, dt = patches.yaw[h], patches.dt[h]
     Pn, S, _ = X.shape
     eps, kappa, bias, lx, ly, crab = nuis
-    R_I = patches.M[:, :3, :3] - np.eye(3)
-    t0 = patches.M[:, :3, 3]
+    R_I = M[:, :3, :3] - np.eye(3)
+    t0 = M[:, :3, 3]
     crabbed = t0 + crab * np.column_stack([-t0[:, 1], t0[:, 0], np.zeros(len(t0))])
     t_M = crabbed * (1.0 + eps) + R_I @ np.array([lx, ly, 0.0])
-    RX = X @ patches.M[:, :3, :3].transpose(0, 2, 1)
-    turn = patches.yaw * kappa + patches.dt * bias
+    RX = X @ M[:, :3, :3].transpose(0, 2, 1)
+    turn = yaw * kappa + dt * bias
     c, sn = np.cos(turn)[:, None], np.sin(turn)[:, None]
     RX = np.stack([c * RX[..., 0] - sn * RX[..., 1], sn * RX[..., 0] + c * RX[..., 1], RX[..., 2]], axis=-1)
     Y = RX + t_M[:, None, :]
-    out_v, out_J = [], []
+    out_v = []
     assert images.stack is not None
-    # Frame i's derivatives: T only (6 columns; the odometry's errors move frame j alone).
-    for pts, key, width in ((X, images.key_i, 6), (Y, images.key_j, 12)):
+    Jb_h = Jb[h]
+    Ja_h = Ja[h]
+    for pts, key, J in ((X, images.key_i[h], Ja_h), (Y, images.key_j[h], Jb_h)):
         which = np.repeat(key, S)
         v, d_point, d_rot = project_sample(
             pts.reshape(-1, 3), T[:3, :3], T[:3, 3], cam, images.stack, which, images.down, images.row0
         )
         # x' = Exp(w) x + v: d grey / d w = x cross d grey / d x, d grey / d v = d grey / d x.
-        J = np.empty((Pn * S, width))
-        J[:, :3] = d_rot
-        J[:, 3:6] = d_point
+        J[:, :, :3] = d_rot.reshape(Pn, S, 3)
+        J[:, :, 3:6] = d_point.reshape(Pn, S, 3)
         out_v.append(v.reshape(Pn, S))
-        out_J.append(J.reshape(Pn, S, width))
     a, b = out_v
-    Ja, Jb = out_J
     # The odometry's errors move frame j's points: its scale along the step (d y / d eps =
     # t_M), its yaw about the laser's z (d y / d turn = z cross R x).
-    gRb = Jb[:, :, 3:6]
-    Jb[:, :, 6] = (gRb @ patches.M[:, :3, 3:4])[..., 0]
+    gRb = Jb_h[:, :, 3:6]
+    Jb_h[:, :, 6] = (gRb @ M[:, :3, 3:4])[..., 0]
     d_turn = gRb[..., 1] * RX[..., 0] - gRb[..., 0] * RX[..., 1]
-    Jb[:, :, 7] = d_turn * patches.yaw[:, None]
-    Jb[:, :, 8] = d_turn * patches.dt[:, None]
-    Jb[:, :, 9:11] = gRb @ R_I[:, :, :2]
-    Jb[:, :, 11] = gRb[..., 1] * t0[:, None, 0] - gRb[..., 0] * t0[:, None, 1]
-    usable = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
-    unusable = ~usable
-    for arr in (a, b, Ja, Jb):  # in place: these arrays are this call's own
+    Jb_h[:, :, 7] = d_turn * yaw[:, None]
+    Jb_h[:, :, 8] = d_turn * dt[:, None]
+    Jb_h[:, :, 9:11] = gRb @ R_I[:, :, :2]
+    Jb_h[:, :, 11] = gRb[..., 1] * t0[:, None, 0] - gRb[..., 0] * t0[:, None, 1]
+    ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    unusable = ~ok
+    usable[h] = ok
+    for arr in (a, b, Ja_h, Jb_h):  # in place: these arrays are this call's own
         arr[unusable] = 0.0
-    # Zero-mean patches (an offset between the frames drops out), frame j scaled by the
-    # pair's gain (the automatic exposure): the square root of the ratio of the patches'
-    # energies.
-    a0 = a - a.mean(axis=1, keepdims=True)
-    b0 = b - b.mean(axis=1, keepdims=True)
-    Ja -= Ja.mean(axis=1, keepdims=True)
-    Jb -= Jb.mean(axis=1, keepdims=True)
-    ea = np.bincount(patches.pair, np.where(usable, (a0**2).sum(axis=1), 0.0), patches.n_pairs)
-    eb = np.bincount(patches.pair, np.where(usable, (b0**2).sum(axis=1), 0.0), patches.n_pairs)
-    gain = np.sqrt(np.where(eb > 0, ea / np.where(eb > 0, eb, 1.0), 1.0))[patches.pair]
-    r = b0 * gain[:, None] - a0
-    # J = Jb0 gain - Ja0, in place (frame i's columns past the sixth are zero).
-    J = Jb
-    J *= gain[:, None, None]
-    J[:, :, :6] -= Ja
-    return r, J, usable
+    # Zero-mean patches (an offset between the frames drops out).
+    a0[h] = a - a.mean(axis=1, keepdims=True)
+    b0[h] = b - b.mean(axis=1, keepdims=True)
+    Ja_h -= Ja_h.mean(axis=1, keepdims=True)
+    Jb_h -= Jb_h.mean(axis=1, keepdims=True)
 
 
 def _weights(r: FloatArray, usable: NDArray[np.bool_], med: float | None = None) -> tuple[FloatArray, float]:
