@@ -104,8 +104,8 @@ def _to_grey() -> Callable[[NDArray[np.uint8]], Gray]:
     """The colour conversion for :class:`EarlyFrames`: the compiled one once another thread
     has loaded it, numpy's before (the same levels). Never the first call of a compiled
     kernel here: that sets numba up (about half a CPU second of the interpreter's time,
-    holding numba's compile lock), which the command's main thread does at its own first
-    kernel while this thread goes on decoding on the other core."""
+    holding numba's compile lock), which another thread makes (the command's main thread
+    at its first kernel, or a decoding thread) while this one goes on decoding."""
     from rigcal.jit import loaded
 
     images = sys.modules.get("rigcal.io.images")
