@@ -470,13 +470,22 @@ def _patches_of(
     frames_in = iter(decoded)
     taken: dict[int, NDArray[np.uint8]] = {}
     n_taken = [0]
+    failed: list[BaseException] = []
     take = threading.Lock()
 
     def gray_at(k: int) -> NDArray[np.uint8]:
-        """Frame k's image: the decoded frames are taken in order, whichever thread asks."""
+        """Frame k's image: the decoded frames are taken in order, whichever thread asks. A
+        frame that does not decode (its error) fails every frame from it on, so the error
+        comes out at that frame's place whichever thread took it."""
         with take:
             while n_taken[0] <= k:
-                taken[n_taken[0]] = next(frames_in)
+                if failed:
+                    raise failed[0]
+                try:
+                    taken[n_taken[0]] = next(frames_in)
+                except BaseException as exc:
+                    failed.append(exc)
+                    raise
                 n_taken[0] += 1
             return taken.pop(k)
 
