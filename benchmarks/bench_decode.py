@@ -8,11 +8,20 @@ whether the grey levels are the same on every frame (they must be: the tracks, a
 every trajectory, depend on them).
 
     .venv/bin/python benchmarks/bench_decode.py [--sequence DIR] [--frames 200] [--repeats 3]
+
+With ``--parts``, also where a frame's decoding goes, in CPU milliseconds of this thread per
+frame (the best of the passes, each step alternating with the others): imagecodecs' three
+PNG decoders (libpng, its APNG build, libspng: whether any is faster on the same pixels),
+the inflating alone (zlib, as libpng does it, and zlib-ng), and the colour conversion
+(numpy's, the compiled kernel's).
+
+    .venv/bin/python benchmarks/bench_decode.py --sequence /work/tmp/c60 --frames 150 --parts
 """
 
 from __future__ import annotations
 
 import argparse
+import struct
 import tempfile
 import time
 from collections.abc import Callable
@@ -39,11 +48,60 @@ def opencv(path: Path) -> object:
     return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
 
 
+def idat(data: bytes) -> bytes:
+    """A PNG's compressed image data (its IDAT chunks joined)."""
+    pos, out = 8, []
+    while pos + 8 <= len(data):
+        length, kind = struct.unpack(">I4s", data[pos : pos + 8])
+        if kind == b"IDAT":
+            out.append(data[pos + 8 : pos + 8 + length])
+        pos += 12 + length
+    return b"".join(out)
+
+
+def parts(paths: list[Path], repeats: int) -> None:
+    """The --parts table (module docstring)."""
+    import imagecodecs
+
+    from rigcal.io.images import rgb_to_grey
+    from rigcal.io.png import rgb_to_grey_reference
+
+    data = [p.read_bytes() for p in paths]
+    streams = [idat(d) for d in data]
+    rgb = [np.asarray(imagecodecs.png_decode(d)) for d in data]
+    reference = rgb[0]
+    steps: dict[str, tuple[Callable[[object], object], list[object]]] = {
+        "imagecodecs.png_decode (libpng)": (imagecodecs.png_decode, list(data)),
+        "imagecodecs.apng_decode": (imagecodecs.apng_decode, list(data)),
+        "imagecodecs.spng_decode (libspng)": (imagecodecs.spng_decode, list(data)),
+        "inflating alone, zlib": (imagecodecs.zlib_decode, list(streams)),
+        "inflating alone, zlib-ng": (imagecodecs.zlibng_decode, list(streams)),
+        "colour to grey, numpy": (rgb_to_grey_reference, list(rgb)),  # type: ignore[dict-item]
+        "colour to grey, compiled": (rgb_to_grey, list(rgb)),  # type: ignore[dict-item]
+    }
+    same = all(
+        np.array_equal(np.asarray(f(data[0])), reference)
+        for f in (imagecodecs.png_decode, imagecodecs.apng_decode, imagecodecs.spng_decode)
+    )
+    best = dict.fromkeys(steps, float("inf"))
+    for _ in range(repeats):
+        for name, (fn, inputs) in steps.items():
+            c = time.thread_time()
+            for x in inputs:
+                fn(x)
+            best[name] = min(best[name], 1e3 * (time.thread_time() - c) / len(inputs))
+    print("\n| step | CPU ms per frame |\n|---|---|")
+    for name, ms in best.items():
+        print(f"| {name} | {ms:.2f} |")
+    print(f"\nThe three PNG decoders give the same pixels: {same}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sequence", type=Path, help="A sequence folder (default: a simulated corridor lap).")
     ap.add_argument("--frames", type=int, default=200, help="Frames read per pass.")
     ap.add_argument("--repeats", type=int, default=3, help="Passes per reader (the best is kept).")
+    ap.add_argument("--parts", action="store_true", help="Also the decoding's parts (module docstring).")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.sequence
@@ -67,6 +125,8 @@ def main() -> None:
         print(f"| cv2.imread(IMREAD_GRAYSCALE) | {a:.2f} | 1.00 |")
         print(f"| rigcal.io.images.read_grey | {b:.2f} | {a / b:.2f} |")
         print(f"\nGrey levels identical on every frame: {same}")
+        if args.parts:
+            parts(paths, args.repeats)
 
 
 if __name__ == "__main__":

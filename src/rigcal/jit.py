@@ -57,6 +57,12 @@ def njit[F: Callable[..., Any]](fn: F) -> F:
     return cast(F, out)
 
 
+def loaded(kernel: Callable[..., Any]) -> bool:
+    """Whether the kernel has machine code in this process (compiled or loaded from the
+    cache): a call then sets nothing up."""
+    return bool(getattr(kernel, "signatures", ()))
+
+
 def cache_dir(dispatcher: Any) -> str | None:
     """The folder a kernel's compiled code is cached in, or None if it is not cached."""
     cache = getattr(dispatcher, "_cache", None)

@@ -187,3 +187,11 @@ def test_a_trajectory_error_names_the_pose_by_its_stamp(copy, fails):
     tum.write_text("".join(f"{0.1 * k!r} {0.05 * k} 0 0 0.7071068 0 0 0.7071068\n" for k in range(40)))
     line = fails(["check", copy.parent / "rig.yaml", "--sequence", copy, "--trajectory", tum, "--no-log"], 3)
     assert "tilted.tum: pose at 0.0 s: got 'z axis tilted 90.0 deg'" in line
+
+
+def test_the_check_names_an_image_of_another_size_mid_drive_in_one_line(copy, fails):
+    """Each frame's own work runs two frames at a time: the frame that does not decode is
+    named in the one error line, whichever thread decoded it."""
+    cv2.imwrite(str(copy / "images" / "000007.png"), np.zeros((H // 2, W // 2), np.uint8))
+    line = fails(["check", copy.parent / "rig.yaml", "--sequence", copy, "--no-log"], 3)
+    assert "000007.png: image size: got '32x24'" in line

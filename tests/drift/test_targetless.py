@@ -347,18 +347,23 @@ class _Inline:
 
 def test_the_command_and_the_check_on_one_thread_agree_to_the_bit(drives, monkeypatch):
     """`rigcal check --sequence`'s orchestration (frames decoded from the reading on, two at
-    a time; the edges' frames and the later stages made ahead; the edge term beside the
-    photometric one; the samples in two halves) changes no result: its record is the
-    record of the check with every step in turn on the calling thread."""
+    a time; each frame's own work two at a time; the edges' frames, blurred on two
+    threads, and the later stages made ahead; the edge term beside the photometric one;
+    the samples, and the residuals, in two halves) changes no result: its record is the
+    record of the check with every step in turn on the calling thread, the residuals in one
+    pass."""
+    import rigcal.drift.edges as edges
     import rigcal.drift.sampling as sampling
     import rigcal.drift.targetless as targetless
     import rigcal.localize.prefetch as prefetch
     from rigcal.jobs import check_rig
 
     command = check_rig(drives["rig"], sequence=drives["drive"], no_log=True).record["targetless"]
-    for module in (targetless, sampling, prefetch):
+    assert command["patches"] > targetless.SPLIT_PATCHES_ABOVE  # the command split its residuals
+    for module in (targetless, sampling, prefetch, edges):
         monkeypatch.setattr(module, "ThreadPoolExecutor", _Inline)
     monkeypatch.setattr(sampling, "SPLIT_ABOVE", 0)  # the halves, one after the other
+    monkeypatch.setattr(targetless, "SPLIT_PATCHES_ABOVE", 10**9)  # the residuals in one pass
     streams = open_streams(drives["drive"], rig_file=drives["rig"])
     streams.odometry_covariance = False
     serial = check_targetless(read_rig(drives["rig"]), streams).record

@@ -198,3 +198,28 @@ def test_other_text_on_stderr_while_decoding_is_written_back(capfd):
     with _codec_messages_to_log():
         os.write(2, b"progress 3/4\n")
     assert capfd.readouterr().err == "progress 3/4\n"
+
+
+def test_rgb_to_grey_converts_with_numpy_while_another_thread_loads_its_kernel(monkeypatch):
+    """A decoding thread does not wait on the kernel's loading (numba's set-up at a
+    process's first kernel) under way on another: numpy's conversion, the same levels."""
+    import rigcal.io.images as images
+
+    calls = []
+
+    class Unloaded:
+        def __init__(self) -> None:
+            self.signatures: list[object] = []
+
+        def __call__(self, rgb, out):  # type: ignore[no-untyped-def]
+            calls.append(rgb.shape)
+            out[:] = rgb_to_grey_reference(rgb)
+
+    monkeypatch.setattr(images, "_rgb_to_grey", Unloaded())
+    rgb = np.random.default_rng(5).integers(0, 256, (6, 7, 3), dtype=np.uint8)
+    with images._loading:  # another thread is loading the kernel
+        np.testing.assert_array_equal(rgb_to_grey(rgb), rgb_to_grey_reference(rgb))
+    assert calls == []
+    np.testing.assert_array_equal(rgb_to_grey(rgb), rgb_to_grey_reference(rgb))  # this thread loads it
+    assert calls == [(6, 7, 3)]
+    assert not images._loading.locked()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import cv2
 import numpy as np
 import pytest
@@ -294,3 +296,24 @@ def test_early_frames_are_the_frames_read_grey_reads_and_stop_at_one_they_cannot
     for i in (0, 1):
         np.testing.assert_array_equal(early.cache.get(i), read_grey(paths[i][1]))
         np.testing.assert_array_equal(early.cache.get(i), cv2.imread(str(paths[i][1]), cv2.IMREAD_GRAYSCALE))
+
+
+def test_early_frames_convert_with_the_kernel_only_once_another_thread_loaded_it(monkeypatch):
+    """The early frames' thread never makes a kernel's first call (numba's set-up, which
+    the command's main thread makes at its own first kernel): numpy's conversion until
+    then, the same levels."""
+    import types
+
+    from rigcal.io.png import rgb_to_grey_reference
+    from rigcal.localize import image_cache
+
+    def converted(rgb):  # type: ignore[no-untyped-def]
+        return rgb[..., 0]
+
+    fake = types.SimpleNamespace(_rgb_to_grey=types.SimpleNamespace(signatures=[]), rgb_to_grey=converted)
+    monkeypatch.setitem(sys.modules, "rigcal.io.images", fake)
+    assert image_cache._to_grey() is rgb_to_grey_reference
+    fake._rgb_to_grey.signatures = ["(uint8[:, :, ::1], uint8[:, ::1])"]
+    assert image_cache._to_grey() is converted
+    monkeypatch.setitem(sys.modules, "rigcal.io.images", types.SimpleNamespace())  # still importing
+    assert image_cache._to_grey() is rgb_to_grey_reference

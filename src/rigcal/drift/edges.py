@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -196,13 +197,19 @@ class EdgeImages:
         hi = min(math.ceil(rows[1]) + 1, first.shape[0])
         a = max(self.row0 - pad, 0)
         self.stack = np.empty((len(self.frames), hi - self.row0, first.shape[1]), dtype=np.uint16)
-        for n, f in enumerate(self.frames):
-            g = gray_of[int(f)][a : min(hi + pad, first.shape[0])].astype(np.uint16) * np.uint16(
+
+        def blur(n: int) -> None:
+            g = gray_of[int(self.frames[n])][a : min(hi + pad, first.shape[0])].astype(np.uint16) * np.uint16(
                 self.GREY_SCALE
             )
             self.stack[n] = cv2.GaussianBlur(g, (0, 0), blur_px)[
                 self.row0 - a : self.row0 - a + hi - self.row0
             ]
+
+        # Two threads (OpenCV releases the interpreter): the check waits on these frames
+        # while its first stage iterates.
+        with ThreadPoolExecutor(max_workers=2, thread_name_prefix="edge-images") as pool:
+            list(pool.map(blur, range(len(self.frames))))
 
     def sample(self, which: IntArray, q: FloatArray) -> FloatArray:
         """Bilinear grey levels at full-size pixels q (..., 2) of the stack's images

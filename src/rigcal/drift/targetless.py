@@ -97,7 +97,7 @@ from rigcal.lines import return_labels
 from rigcal.localize.iasm import snap_to_lines
 from rigcal.localize.line_normals import line_fits
 from rigcal.localize.odometry import DEGENERATE_BELOW
-from rigcal.localize.prefetch import computed_ahead
+from rigcal.localize.prefetch import Ahead
 from rigcal.localize.streams import Streams
 from rigcal.localize.time_pairing import nearest_index, poses_at
 from rigcal.rig import Rig
@@ -425,6 +425,8 @@ def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patche
 
 DECODE_THREADS = 2
 """Threads decoding the used frames ahead of the check's use."""
+FRAME_PARTS_AHEAD = 4
+"""Frames whose own work (:func:`_patches_of`) is under way ahead of their pairing."""
 
 
 def _patches_of(
@@ -466,14 +468,34 @@ def _patches_of(
     feet_world: list[FloatArray] = []
     gray_of: dict[int, NDArray[np.uint8]] = {}
     frames_in = iter(decoded)
+    taken: dict[int, NDArray[np.uint8]] = {}
+    n_taken = [0]
+    failed: list[BaseException] = []
+    take = threading.Lock()
+
+    def gray_at(k: int) -> NDArray[np.uint8]:
+        """Frame k's image: the decoded frames are taken in order, whichever thread asks. A
+        frame that does not decode (its error) fails every frame from it on, so the error
+        comes out at that frame's place whichever thread took it."""
+        with take:
+            while n_taken[0] <= k:
+                if failed:
+                    raise failed[0]
+                try:
+                    taken[n_taken[0]] = next(frames_in)
+                except BaseException as exc:
+                    failed.append(exc)
+                    raise
+                n_taken[0] += 1
+            return taken.pop(k)
 
     def frame_parts(k: int) -> tuple[NDArray[np.uint8], list[int], int, FloatArray | None, FloatArray | None]:
         """Frame k's own work (its image, its partners, the pairs left out as degenerate,
-        its edges' feet, its grids), on a second thread a frame or two ahead of the
-        pairing below (the scans' lines and the kernels run outside the interpreter's
-        lock); in frame order, so the decoded frames are taken in turn."""
+        its edges' feet, its grids), on two other threads a few frames ahead of the
+        pairing below (the scans' lines, OpenCV's sampling and the kernels run outside
+        the interpreter's lock); each frame's work depends on that frame alone."""
         i = frames[k]
-        gray = next(frames_in)
+        gray = gray_at(k)
         t_i = float(img_t[i])
         partners = []
         skipped = 0
@@ -490,45 +512,47 @@ def _patches_of(
         X = _frame_grid(streams, i, gray, T0, cam, s, f_mean, ga, gb) if partners else None
         return gray, partners, skipped, feet, X
 
-    for k, (gray, partners, skipped, feet, X) in computed_ahead(frame_parts, len(frames), 2):
-        i = frames[k]
-        streams.report("targetless check: frames", k + 1, len(frames))
-        t_i = float(img_t[i])
-        n_degenerate += skipped
-        if feet is not None and len(feet):
-            feet_all.append(feet)
-            feet_img.append(np.full(len(feet), i))
-            feet_block.append(np.full(len(feet), int((t_i - float(img_t[frames[0]])) // s.block_s)))
-            P_w = se2(poses[k])
-            feet_world.append(feet @ P_w[:2, :2].T + P_w[:2, 2])
-            gray_of[i] = gray
-        if X is None:
-            continue
-        seen_returns += len(X)
-        P_i = se2(poses[k])
-        block = int((t_i - float(img_t[frames[0]])) // s.block_s)
-        for j in dict.fromkeys(partners):
-            P_j = se2(poses[frame_of_image[j]])
-            M = _se3_of_se2(np.linalg.inv(P_j) @ P_i)
-            # Keep the grids wholly inside image j under the stored T (margin for the blur).
-            Y = X @ M[:3, :3].T + M[:3, 3]
-            q = cam.project((Y @ T0[:3, :3].T + T0[:3, 3]).reshape(-1, 3)).reshape(len(X), -1, 2)
-            inside = cam.in_image(q.reshape(-1, 2), margin_px=8.0).reshape(len(X), -1).all(axis=1)
-            if inside.sum() < 5:
+    # Left early (an error), the frames not yet started are dropped.
+    with Ahead(frame_parts, len(frames), FRAME_PARTS_AHEAD, workers=2) as parts:
+        for k, (gray, partners, skipped, feet, X) in parts:
+            i = frames[k]
+            streams.report("targetless check: frames", k + 1, len(frames))
+            t_i = float(img_t[i])
+            n_degenerate += skipped
+            if feet is not None and len(feet):
+                feet_all.append(feet)
+                feet_img.append(np.full(len(feet), i))
+                feet_block.append(np.full(len(feet), int((t_i - float(img_t[frames[0]])) // s.block_s)))
+                P_w = se2(poses[k])
+                feet_world.append(feet @ P_w[:2, :2].T + P_w[:2, 2])
+                gray_of[i] = gray
+            if X is None:
                 continue
-            n = int(inside.sum())
-            z_i = X[inside, X.shape[1] // 2] @ T0[2, :3] + T0[2, 3]
-            z_j = Y[inside, X.shape[1] // 2] @ T0[2, :3] + T0[2, 3]
-            ratios.append(z_i / z_j)
-            yaws.append(np.full(n, float(np.arctan2(M[1, 0], M[0, 0]))))
-            dts.append(np.full(n, float(img_t[j]) - t_i))
-            Xs.append(X[inside])
-            Ms.append(np.broadcast_to(M, (n, 4, 4)))
-            ii.append(np.full(n, i))
-            jj.append(np.full(n, j))
-            pairs.append(np.full(n, n_pairs))
-            blocks.append(np.full(n, block))
-            n_pairs += 1
+            seen_returns += len(X)
+            P_i = se2(poses[k])
+            block = int((t_i - float(img_t[frames[0]])) // s.block_s)
+            for j in dict.fromkeys(partners):
+                P_j = se2(poses[frame_of_image[j]])
+                M = _se3_of_se2(np.linalg.inv(P_j) @ P_i)
+                # Keep the grids wholly inside image j under the stored T (margin for the blur).
+                Y = X @ M[:3, :3].T + M[:3, 3]
+                q = cam.project((Y @ T0[:3, :3].T + T0[:3, 3]).reshape(-1, 3)).reshape(len(X), -1, 2)
+                inside = cam.in_image(q.reshape(-1, 2), margin_px=8.0).reshape(len(X), -1).all(axis=1)
+                if inside.sum() < 5:
+                    continue
+                n = int(inside.sum())
+                z_i = X[inside, X.shape[1] // 2] @ T0[2, :3] + T0[2, 3]
+                z_j = Y[inside, X.shape[1] // 2] @ T0[2, :3] + T0[2, 3]
+                ratios.append(z_i / z_j)
+                yaws.append(np.full(n, float(np.arctan2(M[1, 0], M[0, 0]))))
+                dts.append(np.full(n, float(img_t[j]) - t_i))
+                Xs.append(X[inside])
+                Ms.append(np.broadcast_to(M, (n, 4, 4)))
+                ii.append(np.full(n, i))
+                jj.append(np.full(n, j))
+                pairs.append(np.full(n, n_pairs))
+                blocks.append(np.full(n, block))
+                n_pairs += 1
     info |= {"pairs": n_pairs, "pairs_degenerate": n_degenerate}
     if not Xs or sum(len(x) for x in Xs) < s.min_returns:
         got = sum(len(x) for x in Xs)
@@ -845,65 +869,119 @@ def _residuals(
     """(P, S) residuals, (P, S, 12) their derivatives with respect to a right update of T
     (T Exp(w, v), laser frame) and to the odometry's errors ``nuis`` (its scale, its yaw's
     scale, its yaw rate's bias, its pivot: a translation (R - I) l for a turn R, its crab
-    angle: the step turned about z), (P,) usable patches."""
+    angle: the step turned about z), (P,) usable patches.
+
+    Above :data:`SPLIT_PATCHES_ABOVE` patches, in two halves of the patches on two threads
+    (numpy and the sampling kernel release the interpreter); each patch's values are its
+    own but for the pairs' gains, summed over the whole in patch order as in one pass: the
+    same numbers."""
+    Pn, S, _ = patches.X.shape
+    r = np.empty((Pn, S))
+    J = np.empty((Pn, S, 12))
+    usable = np.empty(Pn, dtype=bool)
+    a0 = np.empty((Pn, S))
+    Ja = np.empty((Pn, S, 6))
+    halves = [slice(0, Pn)] if Pn <= SPLIT_PATCHES_ABOVE else [slice(0, Pn // 2), slice(Pn // 2, Pn)]
+
+    def first(h: slice) -> None:
+        _frames_terms(rig, T, nuis, patches, images, h, r, J, usable, a0, Ja)
+
+    def second(h: slice) -> None:
+        # r = b0 gain - a0; J = Jb0 gain - Ja0, in place (frame i's columns past the sixth
+        # are zero).
+        g = gain[h][:, None]
+        r[h] *= g
+        r[h] -= a0[h]
+        J[h] *= g[:, :, None]
+        J[h, :, :6] -= Ja[h]
+
+    if len(halves) == 1:
+        first(halves[0])
+    else:
+        with ThreadPoolExecutor(max_workers=2, thread_name_prefix="residuals") as pool:
+            list(pool.map(first, halves))
+    # The pair's gain (the automatic exposure): the square root of the ratio of the
+    # zero-mean patches' energies (r holds frame j's zero-mean patches here).
+    ea = np.bincount(patches.pair, np.where(usable, (a0**2).sum(axis=1), 0.0), patches.n_pairs)
+    eb = np.bincount(patches.pair, np.where(usable, (r**2).sum(axis=1), 0.0), patches.n_pairs)
+    gain = np.sqrt(np.where(eb > 0, ea / np.where(eb > 0, eb, 1.0), 1.0))[patches.pair]
+    if len(halves) == 1:
+        second(halves[0])
+    else:
+        with ThreadPoolExecutor(max_workers=2, thread_name_prefix="residuals") as pool:
+            list(pool.map(second, halves))
+    return r, J, usable
+
+
+SPLIT_PATCHES_ABOVE = 2000
+"""More patches than this have their residuals made in two halves on two threads."""
+
+
+def _frames_terms(
+    rig: Rig,
+    T: FloatArray,
+    nuis: FloatArray,
+    patches: _Patches,
+    images: _Images,
+    h: slice,
+    b0: FloatArray,
+    Jb: FloatArray,
+    usable: NDArray[np.bool_],
+    a0: FloatArray,
+    Ja: FloatArray,
+) -> None:
+    """:func:`_residuals`' per-patch part for the patches ``h``: frame j's zero-mean
+    patches into ``b0[h]`` and their derivatives into ``Jb[h]`` (12 columns), frame i's
+    into ``a0[h]`` and ``Ja[h]`` (6: T only, the odometry's errors move frame j alone),
+    ``usable[h]``."""
     cam = rig.camera
-    X = patches.X
+    X = patches.X[h]
+    M = patches.M[h]
+    yaw, dt = patches.yaw[h], patches.dt[h]
     Pn, S, _ = X.shape
     eps, kappa, bias, lx, ly, crab = nuis
-    R_I = patches.M[:, :3, :3] - np.eye(3)
-    t0 = patches.M[:, :3, 3]
+    R_I = M[:, :3, :3] - np.eye(3)
+    t0 = M[:, :3, 3]
     crabbed = t0 + crab * np.column_stack([-t0[:, 1], t0[:, 0], np.zeros(len(t0))])
     t_M = crabbed * (1.0 + eps) + R_I @ np.array([lx, ly, 0.0])
-    RX = X @ patches.M[:, :3, :3].transpose(0, 2, 1)
-    turn = patches.yaw * kappa + patches.dt * bias
+    RX = X @ M[:, :3, :3].transpose(0, 2, 1)
+    turn = yaw * kappa + dt * bias
     c, sn = np.cos(turn)[:, None], np.sin(turn)[:, None]
     RX = np.stack([c * RX[..., 0] - sn * RX[..., 1], sn * RX[..., 0] + c * RX[..., 1], RX[..., 2]], axis=-1)
     Y = RX + t_M[:, None, :]
-    out_v, out_J = [], []
+    out_v = []
     assert images.stack is not None
-    # Frame i's derivatives: T only (6 columns; the odometry's errors move frame j alone).
-    for pts, key, width in ((X, images.key_i, 6), (Y, images.key_j, 12)):
+    Jb_h = Jb[h]
+    Ja_h = Ja[h]
+    for pts, key, J in ((X, images.key_i[h], Ja_h), (Y, images.key_j[h], Jb_h)):
         which = np.repeat(key, S)
         v, d_point, d_rot = project_sample(
             pts.reshape(-1, 3), T[:3, :3], T[:3, 3], cam, images.stack, which, images.down, images.row0
         )
         # x' = Exp(w) x + v: d grey / d w = x cross d grey / d x, d grey / d v = d grey / d x.
-        J = np.empty((Pn * S, width))
-        J[:, :3] = d_rot
-        J[:, 3:6] = d_point
+        J[:, :, :3] = d_rot.reshape(Pn, S, 3)
+        J[:, :, 3:6] = d_point.reshape(Pn, S, 3)
         out_v.append(v.reshape(Pn, S))
-        out_J.append(J.reshape(Pn, S, width))
     a, b = out_v
-    Ja, Jb = out_J
     # The odometry's errors move frame j's points: its scale along the step (d y / d eps =
     # t_M), its yaw about the laser's z (d y / d turn = z cross R x).
-    gRb = Jb[:, :, 3:6]
-    Jb[:, :, 6] = (gRb @ patches.M[:, :3, 3:4])[..., 0]
+    gRb = Jb_h[:, :, 3:6]
+    Jb_h[:, :, 6] = (gRb @ M[:, :3, 3:4])[..., 0]
     d_turn = gRb[..., 1] * RX[..., 0] - gRb[..., 0] * RX[..., 1]
-    Jb[:, :, 7] = d_turn * patches.yaw[:, None]
-    Jb[:, :, 8] = d_turn * patches.dt[:, None]
-    Jb[:, :, 9:11] = gRb @ R_I[:, :, :2]
-    Jb[:, :, 11] = gRb[..., 1] * t0[:, None, 0] - gRb[..., 0] * t0[:, None, 1]
-    usable = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
-    unusable = ~usable
-    for arr in (a, b, Ja, Jb):  # in place: these arrays are this call's own
+    Jb_h[:, :, 7] = d_turn * yaw[:, None]
+    Jb_h[:, :, 8] = d_turn * dt[:, None]
+    Jb_h[:, :, 9:11] = gRb @ R_I[:, :, :2]
+    Jb_h[:, :, 11] = gRb[..., 1] * t0[:, None, 0] - gRb[..., 0] * t0[:, None, 1]
+    ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    unusable = ~ok
+    usable[h] = ok
+    for arr in (a, b, Ja_h, Jb_h):  # in place: these arrays are this call's own
         arr[unusable] = 0.0
-    # Zero-mean patches (an offset between the frames drops out), frame j scaled by the
-    # pair's gain (the automatic exposure): the square root of the ratio of the patches'
-    # energies.
-    a0 = a - a.mean(axis=1, keepdims=True)
-    b0 = b - b.mean(axis=1, keepdims=True)
-    Ja -= Ja.mean(axis=1, keepdims=True)
-    Jb -= Jb.mean(axis=1, keepdims=True)
-    ea = np.bincount(patches.pair, np.where(usable, (a0**2).sum(axis=1), 0.0), patches.n_pairs)
-    eb = np.bincount(patches.pair, np.where(usable, (b0**2).sum(axis=1), 0.0), patches.n_pairs)
-    gain = np.sqrt(np.where(eb > 0, ea / np.where(eb > 0, eb, 1.0), 1.0))[patches.pair]
-    r = b0 * gain[:, None] - a0
-    # J = Jb0 gain - Ja0, in place (frame i's columns past the sixth are zero).
-    J = Jb
-    J *= gain[:, None, None]
-    J[:, :, :6] -= Ja
-    return r, J, usable
+    # Zero-mean patches (an offset between the frames drops out).
+    a0[h] = a - a.mean(axis=1, keepdims=True)
+    b0[h] = b - b.mean(axis=1, keepdims=True)
+    Ja_h -= Ja_h.mean(axis=1, keepdims=True)
+    Jb_h -= Jb_h.mean(axis=1, keepdims=True)
 
 
 def _weights(r: FloatArray, usable: NDArray[np.bool_], med: float | None = None) -> tuple[FloatArray, float]:

@@ -32,7 +32,7 @@ from rigcal.errors import InputError
 from rigcal.io.png import PNG_SIGNATURE, WEIGHTS_RGB, plain_png_grey
 from rigcal.io.png import plain_png_kind as plain_png_kind
 from rigcal.io.png import rgb_to_grey_reference as rgb_to_grey_reference
-from rigcal.jit import njit
+from rigcal.jit import loaded, njit
 
 Gray = NDArray[np.uint8]
 log = logging.getLogger(__name__)
@@ -151,9 +151,24 @@ def _codec_messages_to_log() -> Iterator[None]:
                 os.write(2, "".join(other).encode())
 
 
+_loading = threading.Lock()
+
+
 def rgb_to_grey(rgb: NDArray[np.uint8]) -> Gray:
-    """(H, W, 3) RGB to (H, W) grey with libpng's integer weights (:data:`WEIGHTS_RGB`)."""
+    """(H, W, 3) RGB to (H, W) grey with libpng's integer weights (:data:`WEIGHTS_RGB`).
+
+    Until its kernel is loaded, one thread loads it (at a process's first kernel, numba's
+    set-up: about half a CPU second, under numba's compile lock) while the others convert
+    with numpy (:func:`rgb_to_grey_reference`, the same levels) rather than wait."""
     out = np.empty(rgb.shape[:2], dtype=np.uint8)
+    if not loaded(_rgb_to_grey):
+        if not _loading.acquire(blocking=False):
+            return rgb_to_grey_reference(rgb)
+        try:
+            _rgb_to_grey(np.ascontiguousarray(rgb), out)
+        finally:
+            _loading.release()
+        return out
     _rgb_to_grey(np.ascontiguousarray(rgb), out)
     return out
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 import threading
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -79,7 +79,7 @@ class EarlyFrames:
         self._thread.start()
 
     def _run(self, paths: list[tuple[int, Path]], shape: tuple[int, int]) -> None:
-        from rigcal.io.png import plain_png_grey, rgb_to_grey_reference
+        from rigcal.io.png import plain_png_grey
 
         for i, path in paths:
             if self._stop.is_set():
@@ -88,13 +88,7 @@ class EarlyFrames:
                 data = path.read_bytes()
             except OSError:
                 return
-            # numpy's conversion until the compiled one is imported (the same levels; its
-            # kernel is the module's last definition: present, the module is complete).
-            images = sys.modules.get("rigcal.io.images")
-            to_grey = rgb_to_grey_reference
-            if images is not None and hasattr(images, "_rgb_to_grey"):
-                to_grey = images.rgb_to_grey
-            g = plain_png_grey(data, to_grey)
+            g = plain_png_grey(data, _to_grey())
             if g is None or g.shape != shape:
                 return
             self.cache.keep(i, g)
@@ -104,3 +98,22 @@ class EarlyFrames:
         """Stop after the frame under way (kept) and wait for the thread."""
         self._stop.set()
         self._thread.join()
+
+
+def _to_grey() -> Callable[[NDArray[np.uint8]], Gray]:
+    """The colour conversion for :class:`EarlyFrames`: the compiled one once another thread
+    has loaded it, numpy's before (the same levels). Never the first call of a compiled
+    kernel here: that sets numba up (about half a CPU second of the interpreter's time,
+    holding numba's compile lock), which another thread makes (the command's main thread
+    at its first kernel, or a decoding thread) while this one goes on decoding."""
+    from rigcal.jit import loaded
+
+    images = sys.modules.get("rigcal.io.images")
+    # The kernel is the module's last definition: present, the module is complete.
+    kernel = getattr(images, "_rgb_to_grey", None)
+    if images is not None and kernel is not None and loaded(kernel):
+        to_grey: Callable[[NDArray[np.uint8]], Gray] = images.rgb_to_grey
+        return to_grey
+    from rigcal.io.png import rgb_to_grey_reference
+
+    return rgb_to_grey_reference
