@@ -304,6 +304,7 @@ class KfParams:
     vo_forward_window: int = VO_FORWARD_WINDOW
     vo_guard: int = VO_GUARD_RUNS
     vo_forward_reference: bool = True
+    vo_pays: float = 0.0
     vo_bias_sigma: Axes = (0.0, 0.0, 0.0)
     vo_bias_s: Axes = VO_BIAS_S
     vo_bias_share: Axes = (0.0, 0.0, 0.0)
@@ -332,6 +333,8 @@ class KfParams:
             raise ValueError(f"vo_forward_window {self.vo_forward_window}: expected >= 0 runs (0: no test)")
         if self.vo_guard < 0:
             raise ValueError(f"vo_guard {self.vo_guard}: expected >= 0 runs (0: no guard)")
+        if not self.vo_pays >= 0:
+            raise ValueError(f"vo_pays {self.vo_pays}: expected >= 0 (0: no rule; it acts with vo_guard)")
         sigma, tau = np.asarray(self.vo_bias_sigma, dtype=float), np.asarray(self.vo_bias_s, dtype=float)
         share = np.asarray(self.vo_bias_share, dtype=float)
         if (
@@ -723,7 +726,9 @@ def _guard(
         ref = reference.between(runs[-n][0].t0, m.t1, now, scales[1])
         if ref is None:
             continue
-        fired = _vo_guard(runs[-n:], ref, correlation[: n - 1], gate, _bias_model(params))[0]
+        # The rule VO_PAYS over the longest window: the one the lap's error integrates most.
+        pays = params.vo_pays if n == windows[-1] else 0.0
+        fired = _vo_guard(runs[-n:], ref, correlation[: n - 1], gate, _bias_model(params), pays)[0]
         out = fired if out is None else out | fired
     return out
 
@@ -1298,10 +1303,12 @@ def _vo_guard(
     correlation: FloatArray,
     gate: float,
     bias: tuple[FloatArray, FloatArray] | None = None,
+    pays: float = 0.0,
 ) -> tuple[NDArray[np.bool_], FloatArray]:
     """The directions (forward, cross-track, yaw of the last run's frame) along which VO's
     chained runs and ICP's own steps over the same interval disagree beyond their errors,
-    and the test's statistics (3,).
+    or (``pays`` > 0) along which VO's chain's variance exceeds ``pays`` times ICP's
+    (fusing VO cannot pay there: :data:`VO_PAYS`), and the test's statistics (3,).
 
     ``runs``: VO's chained runs (each starting where the one before ends), each with its
     covariance under VO's error model (own and correlated parts); ``icp``: ICP's motion
@@ -1319,7 +1326,8 @@ def _vo_guard(
     Kirubarajan 2001, Section 5.4: a test of a measurement's consistency with another
     estimate of the same quantity); above ``gate`` VO is left out along it, unless ICP's
     steps leave it open (variance above (OPEN_SIGMA_M / 10)^2: a corridor ICP cannot fix,
-    where VO carries the filter)."""
+    where VO carries the filter). So is a direction where V_aa > ``pays`` A_aa (ICP
+    constraining it)."""
     T = np.eye(3)
     frames, sds = [], []
     V = np.zeros((3, 3))
@@ -1345,5 +1353,8 @@ def _vo_guard(
     G = frames[-1]
     d, V, A = G.T @ d, G.T @ V @ G, G.T @ icp[1] @ G
     stat = d**2 / np.diag(V + A)
-    out: NDArray[np.bool_] = (stat > gate) & (np.diag(A) < (OPEN_SIGMA_M / 10.0) ** 2)
+    fired = stat > gate
+    if pays > 0:
+        fired |= np.diag(V) > pays * np.diag(A)
+    out: NDArray[np.bool_] = fired & (np.diag(A) < (OPEN_SIGMA_M / 10.0) ** 2)
     return out, stat
