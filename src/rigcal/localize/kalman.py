@@ -51,7 +51,11 @@ last chained runs against ICP's own steps chained over the same interval, per di
 under both inputs' error models, VO left out along a direction where they disagree beyond
 a chi-square point and ICP's Hessian constrains it (where ICP is degenerate, VO carries the
 filter); VO's forward variance ratio is matched against ICP's steps over each run
-(``vo_forward_reference``).
+(``vo_forward_reference``). With ``vo_pays`` (q*; :data:`VO_OPEN_ONLY` in the mode "icp-first") the
+guard also leaves VO out along a direction where its chain's modelled variance over the
+guard's longest window exceeds q* times ICP's (fusing cannot pay there: even the optimal
+filter of two inputs of known errors is worse than the better one on about 45 % of
+laps, benchmarks/bench_kf_fusion.py), unless ICP leaves it open.
 
 Odometry-driven prediction (``drive="icp"``, ``rigcal localize --kf driven``; beyond the
 paper): instead of the constant-velocity model, ICP's steps drive the prediction as its
