@@ -58,7 +58,10 @@ from rigcal.sim.world import BUILTIN
 # whiteness test on its forward innovations); and the odometry-driven filter (``--kf
 # driven``: ICP's steps drive the prediction, VO and the wheels are its measurements).
 # and the default with VO's bias states (kalman.VO_BIASED) or with the process noise of the
-# drive (kalman.DRIVE_PROCESS), round 7's measured options.
+# drive (kalman.DRIVE_PROCESS), round 7's measured options; "kf-round7", the default without
+# round 8's rule (kalman.KfParams.vo_pays 0: the same as the default while that stays 0);
+# with --pays Q, the rule at q* = Q on the default ("kf-pays"), on the drive's process noise
+# ("kf-pays-process") and on the driven filter ("kf-pays-driven"; Q -> 0 is --kf icp-first).
 NO_MEMORY = {"vo_memory_s": 0.0, "vo_forward_adapt": False, "vo_forward_window": 0}
 NO_GUARD = {"vo_guard": 0, "vo_forward_reference": False, "vo_pays": 0.0}
 VARIANTS = {
