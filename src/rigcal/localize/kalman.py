@@ -399,8 +399,8 @@ DRIVE_PROCESS = dataclasses.replace(
 KF_MODES["driven"] = KfParams(drive="icp")
 # "icp-first": the driven filter with VO only where ICP leaves the direction open
 # (``vo_pays`` at :data:`VO_OPEN_ONLY`): where ICP constrains the motion the path is ICP's
-# steps chained, never worse than ICP on a lap; along a corridor ICP cannot fix, VO
-# carries it (docs/localization.md, "VO only where it pays").
+# steps chained; along a corridor ICP cannot fix, VO carries it (docs/localization.md,
+# "VO only where it pays").
 KF_MODES["icp-first"] = KfParams(drive="icp", vo_pays=VO_OPEN_ONLY)
 
 
