@@ -235,7 +235,7 @@ VO_GUARD_LEVEL = 0.999
 # odometries at the laps' error levels (laps 1-2), fused optimally with their true models,
 # end above the better input on 42-48 % of laps at every ratio; following ICP does so only
 # where VO is the better input (8 % at a window variance ratio of 3.5-4.8, 0.2 % at 31-44),
-# fusing is ahead of following ICP on that count below a ratio of about 0.7. VO_OPEN_ONLY:
+# fusing is ahead of following ICP on that count below a ratio of 0.7-0.9. VO_OPEN_ONLY:
 # q* -> 0, VO only along ICP's open directions (the mode "icp-first").
 VO_OPEN_ONLY = 1e-9
 # VO's errors over seconds (``KfParams.vo_bias_sigma``, ``vo_bias_s``; :func:`_bias_decay`):
