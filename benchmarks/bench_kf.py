@@ -58,9 +58,12 @@ from rigcal.sim.world import BUILTIN
 # whiteness test on its forward innovations); and the odometry-driven filter (``--kf
 # driven``: ICP's steps drive the prediction, VO and the wheels are its measurements).
 # and the default with VO's bias states (kalman.VO_BIASED) or with the process noise of the
-# drive (kalman.DRIVE_PROCESS), round 7's measured options.
+# drive (kalman.DRIVE_PROCESS), round 7's measured options; "kf-round7", the default without
+# round 8's rule (kalman.KfParams.vo_pays 0: the same as the default while that stays 0);
+# with --pays Q, the rule at q* = Q on the default ("kf-pays"), on the drive's process noise
+# ("kf-pays-process") and on the driven filter ("kf-pays-driven"; Q -> 0 is --kf icp-first).
 NO_MEMORY = {"vo_memory_s": 0.0, "vo_forward_adapt": False, "vo_forward_window": 0}
-NO_GUARD = {"vo_guard": 0, "vo_forward_reference": False}
+NO_GUARD = {"vo_guard": 0, "vo_forward_reference": False, "vo_pays": 0.0}
 VARIANTS = {
     "kf-fixed": kalman.KF_MODES["fixed"],
     # The paper's error model (no shared parts, gates or memory) with each step's own
@@ -70,15 +73,25 @@ VARIANTS = {
     ),
     "kf-round4": dataclasses.replace(kalman.KF_MODES["weighted"], **NO_MEMORY, **NO_GUARD),  # type: ignore[arg-type]
     "kf-round5": dataclasses.replace(kalman.KF_MODES["weighted"], **NO_GUARD),  # type: ignore[arg-type]
-    "kf-guard": dataclasses.replace(kalman.KF_MODES["weighted"], vo_forward_reference=False),
+    "kf-guard": dataclasses.replace(kalman.KF_MODES["weighted"], vo_forward_reference=False, vo_pays=0.0),
+    "kf-round7": dataclasses.replace(kalman.KF_MODES["weighted"], vo_pays=0.0),
     "kf": kalman.KF_MODES["weighted"],
     "kf-driven": kalman.KF_MODES["driven"],
     "kf-bias": kalman.VO_BIASED,
     "kf-process": kalman.DRIVE_PROCESS,
 }
-# Round 7's table: the default against its options, lap by lap.
-ROUND7 = ("kf", "kf-bias", "kf-process")
 ALL_VARIANTS = tuple(VARIANTS)
+# The compact table: the default against round 7's and the options, lap by lap (those run).
+ROUND7 = (
+    "kf-round7",
+    "kf",
+    "kf-pays",
+    "kf-pays-process",
+    "kf-pays-driven",
+    "kf-bias",
+    "kf-process",
+    "kf-driven",
+)
 
 
 AXES = ("forward", "cross", "yaw")
@@ -208,6 +221,7 @@ def main() -> None:
         "--process",
         help="The filters' process noise ACCEL,YAW_ACCEL (m/s^2, rad/s^2) instead of their own (0.5,1.0).",
     )
+    ap.add_argument("--pays", help="Also run the filters kf-pays* with the rule kalman.VO_PAYS at this q*.")
     ap.add_argument(
         "--consistency",
         action="store_true",
@@ -264,6 +278,11 @@ def main() -> None:
         accel, yaw_accel = (float(v) for v in args.process.split(","))
         for key, params in VARIANTS.items():
             VARIANTS[key] = dataclasses.replace(params, accel_sigma=accel, yaw_accel_sigma=yaw_accel)
+    if args.pays:
+        q = float(args.pays)
+        VARIANTS["kf-pays"] = dataclasses.replace(VARIANTS["kf-round7"], vo_pays=q)
+        VARIANTS["kf-pays-process"] = dataclasses.replace(VARIANTS["kf-process"], vo_pays=q)
+        VARIANTS["kf-pays-driven"] = dataclasses.replace(VARIANTS["kf-driven"], vo_pays=q)
     if args.variants:
         for key in set(VARIANTS) - set(args.variants.split(",")):
             del VARIANTS[key]
@@ -302,7 +321,7 @@ def main() -> None:
                 for key in ROUND7:
                     if key in row:
                         cells.append(f"{row[key]:.4f} {'yes' if row[key] <= best else 'no'}")
-                        wins[f"{name} {key} round 7"].append(row[key] <= best)
+                        wins[f"{name} {key} compact"].append(row[key] <= best)
                         scores[name, f"{key} over best"].append(row[key] - best)
                 round7.append(
                     f"| {name} | {seed} | {row['icp']:.4f} | {row['vo']:.4f} | " + " | ".join(cells) + " |"
@@ -351,10 +370,11 @@ def main() -> None:
         cells = []
         for key in ROUND7:
             if key in VARIANTS:
-                won = wins[f"{name} {key} round 7"]
+                won = wins[f"{name} {key} compact"]
                 over = np.array(scores[name, f"{key} over best"])
                 cells.append(f"{np.mean(scores[name, key]):.4f}, {over.max():+.4f}, {sum(won)} of {len(won)}")
-        print(f"| {name} | {len(wins[name + ' ' + ROUND7[0] + ' round 7'])} | " + " | ".join(cells) + " |")
+        laps = len(scores[name, "icp"])
+        print(f"| {name} | {laps} | " + " | ".join(cells) + " |")
     if set(VARIANTS) != set(ALL_VARIANTS):
         return
     print(

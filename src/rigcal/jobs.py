@@ -465,8 +465,9 @@ def localize_sequence(
         pose_graph: the loop closures' pose-graph back end: ``auto`` (GTSAM where
             installed, else scipy), ``scipy`` or ``gtsam``.
         kf: the Kalman filter: ``weighted`` (each step's own covariance), ``fixed``
-            (the paper's fixed covariances) or ``driven`` (weighted, ICP's steps driving
-            the prediction), :data:`rigcal.localize.kalman.KF_MODES`.
+            (the paper's fixed covariances), ``driven`` (weighted, ICP's steps driving
+            the prediction) or ``icp-first`` (driven, VO only along directions ICP
+            leaves open), :data:`rigcal.localize.kalman.KF_MODES`.
         place_recognition: loop closure's proposals from the keyframes' images
             (``images``, where the sequence has them) or none (``none``).
 

@@ -11,6 +11,7 @@ from rigcal.cli.main import main
 from rigcal.errors import ArgumentError
 from rigcal.io.trajectory import read_tum
 from rigcal.jobs import localize_sequence
+from rigcal.localize import kalman
 
 
 def test_a_missing_sequence_is_bad_input(fails, tmp_path):
@@ -48,7 +49,7 @@ def short_drive(tmp_path_factory) -> Path:
 
 def test_the_kf_option_picks_the_papers_the_weighted_or_the_driven_filter(short_drive, tmp_path, capsys):
     docs = {}
-    for mode in ("weighted", "fixed", "driven"):
+    for mode in ("weighted", "fixed", "driven", "icp-first"):
         out = tmp_path / mode
         args = ["localize", str(short_drive), "--method", "kf", "--kf", mode, "-o", str(out), "--json"]
         assert main(args) == 0
@@ -73,3 +74,7 @@ def test_the_kf_option_picks_the_papers_the_weighted_or_the_driven_filter(short_
     assert driven["config"]["settings"]["kf"]["weights"] == "covariance"
     assert driven["methods"]["kf"]["prediction"] == "icp steps"
     assert weighted["methods"]["kf"]["prediction"] == "constant velocity"
+    # --kf icp-first: driven, VO only along ICP's open directions.
+    first = docs["icp-first"]["config"]["settings"]["kf"]
+    assert (first["drive"], first["vo_pays"]) == ("icp", kalman.VO_OPEN_ONLY)
+    assert docs["weighted"]["config"]["settings"]["kf"]["vo_pays"] == 0.0

@@ -144,7 +144,7 @@ def _drive(icp_cov, vo_forward_error, icp_forward_error=0.0, n=801, per_run=20):
     return icp + vo, poses[-1]
 
 
-@pytest.mark.parametrize("mode", ["weighted", "driven"])
+@pytest.mark.parametrize("mode", ["weighted", "driven", "icp-first"])
 def test_a_degenerate_corridor_the_filter_follows_vo_along_the_travel(mode):
     """ICP degenerate along the travel (its Hessian opens it: 10 m 1-sigma) and its steps
     there its initial guess, 2 mm a step short of the truth; VO's runs good (0.2 mm off
@@ -191,3 +191,89 @@ def test_vo_biased_beyond_its_errors_against_a_constrained_icp_is_left_out_forwa
     assert unguarded.vo_guarded == (0, 0, 0)
     off = {k: abs(r.poses[-1, 0] - poses[-1, 0]) for k, r in (("guarded", guarded), ("unguarded", unguarded))}
     assert off["guarded"] < 0.67 * off["unguarded"]
+
+
+def test_the_rule_leaves_vo_out_where_its_chain_is_looser_than_icps_unless_icp_is_open():
+    """VO's chain agreeing with ICP's (no disagreement to test) but, under both models,
+    with four times ICP's variance forward and a quarter of it cross-track: at q* = 1 the
+    rule leaves forward out and keeps cross-track; at q* = 8 it keeps both; along a
+    direction ICP leaves open VO always stays."""
+    cov = np.diag([4e-6, 1e-6, 1e-8])
+    runs = _runs(4, 0.5, [0.25, 0.0, 0.0], cov)
+    no_corr = np.zeros((3, 3))
+    icp = (np.array([1.0, 0.0, 0.0]), np.diag([4e-6, 16e-6, 4e-8]))
+    assert not kalman._vo_guard(runs, icp, no_corr, GATE)[0].any()
+    assert kalman._vo_guard(runs, icp, no_corr, GATE, pays=1.0)[0].tolist() == [True, False, False]
+    assert not kalman._vo_guard(runs, icp, no_corr, GATE, pays=8.0)[0].any()
+    open_icp = (icp[0], np.diag([kalman.OPEN_SIGMA_M**2, 16e-6, 4e-8]))
+    assert not kalman._vo_guard(runs, open_icp, no_corr, GATE, pays=1.0)[0].any()
+    with pytest.raises(ValueError, match="vo_pays"):
+        kalman.KfParams(vo_pays=-1.0)
+
+
+@pytest.mark.parametrize("mode", ["weighted", "driven"])
+def test_vo_much_worse_than_a_constrained_icp_leaves_the_filter_on_icps_path(mode):
+    """ICP constrained (1 mm a step forward, honest: its chain over a run of 20 steps
+    3.7 mm under its model); VO's runs claiming 3 mm forward (2.5 mm under VO's model,
+    more over several runs, whose errors it correlates) and erring by it at random, within
+    every gate and looser than the filter's prediction: fused as round 7 does, VO moves the
+    filter; with the rule at q* = 0.25 (VO's chain has more than a quarter of ICP's
+    variance over every window) the filter's path is the filter's on ICP alone (driven:
+    ICP's steps chained), to rounding."""
+    rng = np.random.default_rng(5)
+    t, poses = _line(801, 0.025)
+    icp_errors = np.zeros((800, 3))
+    icp_errors[:, 0] = rng.normal(0.0, 1e-3, 800)
+    icp = _icp(t, _with_errors(poses, icp_errors), np.diag([1e-6, 9e-8, 1e-10]))
+    vo_errors = np.zeros((40, 3))
+    vo_errors[:, 0] = rng.normal(0.0, 3e-3, 40)
+    vo = kalman.increments(
+        t[::20],
+        _with_errors(poses[::20], vo_errors),
+        np.stack([np.diag([9e-6, 1e-4, 1e-6])] * 41),
+        source="vo",
+    )
+    params = dataclasses.replace(kalman.KF_MODES[mode], vo_pays=0.25)
+    alone = kalman.run_filter(icp, params)
+    ruled = kalman.run_filter(icp + vo, params)
+    fused = kalman.run_filter(icp + vo, dataclasses.replace(params, vo_pays=0.0))
+    at = np.searchsorted(ruled.stamps_s, alone.stamps_s)
+    np.testing.assert_allclose(ruled.poses[at], alone.poses, atol=1e-9)
+    assert np.abs(fused.poses[-1] - alone.poses[-1]).max() > 1e-5
+    if mode == "driven":
+        np.testing.assert_allclose(alone.poses[-1], _with_errors(poses, icp_errors)[-1], atol=1e-9)
+
+
+@pytest.mark.parametrize("mode", ["weighted", "driven"])
+def test_with_the_rule_vo_still_carries_the_filter_along_icps_open_direction(mode):
+    """The degenerate corridor above with the rule on (q* = 1): ICP open along the travel,
+    VO carries the filter there."""
+    icp_cov = np.diag([kalman.OPEN_SIGMA_M**2, 1e-8, 1e-10])
+    ms, end = _drive(icp_cov, vo_forward_error=2e-4, icp_forward_error=2e-3)
+    res = kalman.run_filter(ms, dataclasses.replace(kalman.KF_MODES[mode], vo_pays=1.0))
+    assert res.vo_guarded[0] == 0
+    assert abs(res.poses[-1, 0] - end[0]) < 0.03
+
+
+def test_icp_first_is_icps_path_where_icp_constrains_the_motion():
+    """--kf icp-first on ICP constrained in every direction and VO runs erring at random
+    within their claims: VO is left out along every direction of every run, and the
+    filter's path is ICP's steps chained."""
+    rng = np.random.default_rng(11)
+    t, poses = _line(401, 0.025)
+    icp_errors = rng.normal(0.0, 1.0, (400, 3)) * [1e-3, 3e-4, 1e-5]
+    icp_path = _with_errors(poses, icp_errors)
+    icp = _icp(t, icp_path, np.diag([1e-6, 9e-8, 1e-10]))
+    vo_errors = rng.normal(0.0, 1.0, (20, 3)) * [3e-4, 3e-4, 1e-5]
+    vo = kalman.increments(
+        t[::20],
+        _with_errors(poses[::20], vo_errors),
+        np.stack([np.diag([1e-7, 1e-7, 1e-10])] * 21),
+        source="vo",
+    )
+    params = kalman.KF_MODES["icp-first"]
+    assert (params.drive, params.vo_pays) == ("icp", kalman.VO_OPEN_ONLY)
+    res = kalman.run_filter(icp + vo, params)
+    at = np.searchsorted(res.stamps_s, t)
+    np.testing.assert_allclose(res.poses[at], icp_path, atol=1e-9)
+    assert sum(res.vo_guarded) > 0

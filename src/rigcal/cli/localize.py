@@ -94,12 +94,14 @@ rig_option = click.option(
 )
 @click.option(
     "--kf",
-    type=click.Choice(["weighted", "fixed", "driven"]),
+    type=click.Choice(["weighted", "fixed", "driven", "icp-first"]),
     default="weighted",
     show_default=True,
     help="The Kalman filter (method kf): weighted (each step by its own covariance, matched to its "
     "input's innovations), fixed (the paper's filter: fixed covariances per input, Section VI) or "
-    "driven (weighted, ICP's steps driving the prediction, VO and the wheels its measurements).",
+    "driven (weighted, ICP's steps driving the prediction, VO and the wheels its measurements) or "
+    "icp-first (driven, VO only along directions ICP leaves open: ICP's path wherever ICP "
+    "constrains the motion).",
 )
 def localize(
     sequence: Path,

@@ -51,7 +51,11 @@ last chained runs against ICP's own steps chained over the same interval, per di
 under both inputs' error models, VO left out along a direction where they disagree beyond
 a chi-square point and ICP's Hessian constrains it (where ICP is degenerate, VO carries the
 filter); VO's forward variance ratio is matched against ICP's steps over each run
-(``vo_forward_reference``).
+(``vo_forward_reference``). With ``vo_pays`` (q*; :data:`VO_OPEN_ONLY` in the mode "icp-first") the
+guard also leaves VO out along a direction where its chain's modelled variance over the
+guard's longest window exceeds q* times ICP's (fusing cannot pay there: even the optimal
+filter of two inputs of known errors is worse than the better one on about 45 % of
+laps, benchmarks/bench_kf_fusion.py), unless ICP leaves it open.
 
 Odometry-driven prediction (``drive="icp"``, ``rigcal localize --kf driven``; beyond the
 paper): instead of the constant-velocity model, ICP's steps drive the prediction as its
@@ -225,6 +229,15 @@ VO_FORWARD_GATE = chi2_isf(0.001, 1)
 # the Bonferroni share of the 0.001 tail (:func:`_guard_gate`: 13.41).
 VO_GUARD_RUNS = 2 ** int(np.ceil(np.log2(VO_FORWARD_WINDOW)))
 VO_GUARD_LEVEL = 0.999
+# VO only where it pays (``KfParams.vo_pays``, :func:`_vo_guard`): over the guard's longest
+# window VO is left out along a direction where its chain's modelled variance exceeds q*
+# times ICP's, unless ICP leaves the direction open. benchmarks/bench_kf_fusion.py: two
+# odometries at the laps' error levels (laps 1-2), fused optimally with their true models,
+# end above the better input on 42-48 % of laps at every ratio; following ICP does so only
+# where VO is the better input (8 % at a window variance ratio of 3.5-4.8, 0.2 % at 31-44),
+# fusing is ahead of following ICP on that count below a ratio of 0.7-0.9. VO_OPEN_ONLY:
+# q* -> 0, VO only along ICP's open directions (the mode "icp-first").
+VO_OPEN_ONLY = 1e-9
 # VO's errors over seconds (``KfParams.vo_bias_sigma``, ``vo_bias_s``; :func:`_bias_decay`):
 # a forward scale factor (its runs' forward error over their forward motion), a cross-track
 # drift per metre forward (a small turn of the camera's motion into the laser's frame) and
@@ -304,6 +317,7 @@ class KfParams:
     vo_forward_window: int = VO_FORWARD_WINDOW
     vo_guard: int = VO_GUARD_RUNS
     vo_forward_reference: bool = True
+    vo_pays: float = 0.0
     vo_bias_sigma: Axes = (0.0, 0.0, 0.0)
     vo_bias_s: Axes = VO_BIAS_S
     vo_bias_share: Axes = (0.0, 0.0, 0.0)
@@ -332,6 +346,8 @@ class KfParams:
             raise ValueError(f"vo_forward_window {self.vo_forward_window}: expected >= 0 runs (0: no test)")
         if self.vo_guard < 0:
             raise ValueError(f"vo_guard {self.vo_guard}: expected >= 0 runs (0: no guard)")
+        if not self.vo_pays >= 0:
+            raise ValueError(f"vo_pays {self.vo_pays}: expected >= 0 (0: no rule; it acts with vo_guard)")
         sigma, tau = np.asarray(self.vo_bias_sigma, dtype=float), np.asarray(self.vo_bias_s, dtype=float)
         share = np.asarray(self.vo_bias_share, dtype=float)
         if (
@@ -381,6 +397,11 @@ DRIVE_PROCESS = dataclasses.replace(
 # "driven": the weighted filter with ICP's steps as the prediction's control input
 # (:func:`run_filter`, ``KfParams.drive``); VO and the wheels are its measurements.
 KF_MODES["driven"] = KfParams(drive="icp")
+# "icp-first": the driven filter with VO only where ICP leaves the direction open
+# (``vo_pays`` at :data:`VO_OPEN_ONLY`): where ICP constrains the motion the path is ICP's
+# steps chained; along a corridor ICP cannot fix, VO carries it (docs/localization.md,
+# "VO only where it pays").
+KF_MODES["icp-first"] = KfParams(drive="icp", vo_pays=VO_OPEN_ONLY)
 
 
 @dataclass(frozen=True)
@@ -723,7 +744,9 @@ def _guard(
         ref = reference.between(runs[-n][0].t0, m.t1, now, scales[1])
         if ref is None:
             continue
-        fired = _vo_guard(runs[-n:], ref, correlation[: n - 1], gate, _bias_model(params))[0]
+        # The rule VO_PAYS over the longest window: the one the lap's error integrates most.
+        pays = params.vo_pays if n == windows[-1] else 0.0
+        fired = _vo_guard(runs[-n:], ref, correlation[: n - 1], gate, _bias_model(params), pays)[0]
         out = fired if out is None else out | fired
     return out
 
@@ -1298,10 +1321,12 @@ def _vo_guard(
     correlation: FloatArray,
     gate: float,
     bias: tuple[FloatArray, FloatArray] | None = None,
+    pays: float = 0.0,
 ) -> tuple[NDArray[np.bool_], FloatArray]:
     """The directions (forward, cross-track, yaw of the last run's frame) along which VO's
     chained runs and ICP's own steps over the same interval disagree beyond their errors,
-    and the test's statistics (3,).
+    or (``pays`` > 0) along which VO's chain's variance exceeds ``pays`` times ICP's
+    (fusing VO cannot pay there: :data:`VO_PAYS`), and the test's statistics (3,).
 
     ``runs``: VO's chained runs (each starting where the one before ends), each with its
     covariance under VO's error model (own and correlated parts); ``icp``: ICP's motion
@@ -1319,7 +1344,8 @@ def _vo_guard(
     Kirubarajan 2001, Section 5.4: a test of a measurement's consistency with another
     estimate of the same quantity); above ``gate`` VO is left out along it, unless ICP's
     steps leave it open (variance above (OPEN_SIGMA_M / 10)^2: a corridor ICP cannot fix,
-    where VO carries the filter)."""
+    where VO carries the filter). So is a direction where V_aa > ``pays`` A_aa (ICP
+    constraining it)."""
     T = np.eye(3)
     frames, sds = [], []
     V = np.zeros((3, 3))
@@ -1345,5 +1371,8 @@ def _vo_guard(
     G = frames[-1]
     d, V, A = G.T @ d, G.T @ V @ G, G.T @ icp[1] @ G
     stat = d**2 / np.diag(V + A)
-    out: NDArray[np.bool_] = (stat > gate) & (np.diag(A) < (OPEN_SIGMA_M / 10.0) ** 2)
+    fired = stat > gate
+    if pays > 0:
+        fired |= np.diag(V) > pays * np.diag(A)
+    out: NDArray[np.bool_] = fired & (np.diag(A) < (OPEN_SIGMA_M / 10.0) ** 2)
     return out, stat
