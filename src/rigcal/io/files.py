@@ -296,6 +296,7 @@ def check_keys(
     keypath: str,
     required: Iterable[str],
     optional: Iterable[str] = (),
+    versions: Iterable[int] = (),
 ) -> Mapping[str, Any]:
     """Check that ``mapping`` is a mapping with all required keys and no unknown ones.
 
@@ -305,10 +306,13 @@ def check_keys(
         keypath: where in the file it sits ("" for the top level), for the message.
         required: keys that must be present.
         optional: keys that may be present.
+        versions: a versioned file's top level: the ``schema_version`` values this rigcal
+            reads; a newer one is named as such first (:func:`check_not_newer`).
 
     Returns:
         The mapping, typed as such.
     """
+    check_not_newer(mapping, path, versions)
     label = keypath or "(top level)"
     required = list(required)
     allowed = set(required) | set(optional)
@@ -326,6 +330,23 @@ def check_keys(
         if key not in mapping:
             raise InputError(f"{path}: {_join(keypath, key)}: missing; this key is required")
     return mapping
+
+
+def check_not_newer(mapping: Any, path: str | Path | None, versions: Iterable[int]) -> None:
+    """Refuse a file of a newer ``schema_version`` than ``versions`` (the ones this rigcal
+    reads) as such, before its keys are checked: a newer file's new keys would otherwise
+    read as typos ("no such key"). Other values are left to the reader's own check."""
+    known = sorted(versions)
+    v = mapping.get("schema_version") if isinstance(mapping, Mapping) else None
+    if known and type(v) is int and v > known[-1]:
+        listed = f"one of {', '.join(str(k) for k in known)}" if len(known) > 1 else str(known[0])
+        which = "versions" if len(known) > 1 else "version"
+        raise InputError.at(
+            path,
+            "schema_version",
+            v,
+            f"{listed} (the {which} this rigcal reads; a file of a newer rigcal: upgrade rigcal to read it)",
+        )
 
 
 def _join(keypath: str, key: str) -> str:
