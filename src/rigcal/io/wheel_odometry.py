@@ -164,8 +164,17 @@ def planar_poses(traj: Trajectory, where: str) -> FloatArray:
 def read_odometry_tum(
     path: str | Path, T_base_laser: FloatArray | tuple[float, float, float], scan_stamps_s: FloatArray | None
 ) -> WheelOdometry:
-    """Wheel odometry from a TUM file (T_odom_base per line)."""
-    traj = read_tum(path)
+    """Wheel odometry from a TUM file (T_odom_base per line), every line whole."""
+    return odometry_of_tum(read_tum(path), path, T_base_laser, scan_stamps_s)
+
+
+def odometry_of_tum(
+    traj: Trajectory,
+    path: str | Path,
+    T_base_laser: FloatArray | tuple[float, float, float],
+    scan_stamps_s: FloatArray | None,
+) -> WheelOdometry:
+    """Wheel odometry from a TUM file's trajectory (T_odom_base), checked (:func:`checked`)."""
     assert traj.stamps_s is not None
     return checked(traj.stamps_s, planar_poses(traj, str(path)), T_base_laser, str(path), scan_stamps_s)
 

@@ -199,6 +199,7 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
         "",
         ["schema_version", "name", "scans", "images"],
         ["source", "camera", "rig", "groundtruth", "laser", "odometry"],
+        SEQUENCE_SCHEMA_VERSIONS,
     )
     clockwise = laser_clockwise(d, path, SEQUENCE_SCHEMA_VERSIONS, since=2)
     if not isinstance(d["name"], str):
@@ -285,7 +286,15 @@ def _odometry_reader(
         raise InputError.at(path, "odometry.T_base_laser", mount, "[x, y, yaw] (m, m, rad)")
     xyz = [real(v, path, f"odometry.T_base_laser[{i}]") for i, v in enumerate(mount)]
     file = folder / relative_inside(od["file"], path, "odometry.file")
-    return partial(read_odometry_tum, file, np.array(xyz), scan_stamps_s)
+    return partial(_read_odometry, file, np.array(xyz), scan_stamps_s)
+
+
+def _read_odometry(file: Path, T_base_laser: FloatArray, scan_stamps_s: FloatArray) -> WheelOdometry:
+    """The sequence's odometry.tum; its error says how to go on without it."""
+    try:
+        return read_odometry_tum(file, T_base_laser, scan_stamps_s)
+    except InputError as exc:
+        raise InputError(f"{exc} (--wheel-odometry ignore runs without it)") from None
 
 
 def _load_scan_arrays(npz: Path) -> dict[str, Any]:
