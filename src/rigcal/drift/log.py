@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rigcal.errors import InputError, OutputError
-from rigcal.io.files import read_text, sha256_file
+from rigcal.io.files import read_text, sha256_file, text_lines
 
 if TYPE_CHECKING:  # types only: a drive's check need not load the target checks' solvers
     from rigcal.drift.target import DriftResult
@@ -157,7 +157,7 @@ def read_log(path: str | Path) -> list[dict[str, Any]]:
     path = Path(path)
     text = read_text(path, "drift log")
     out = []
-    for n, line in enumerate(text.splitlines(), start=1):
+    for n, line in enumerate(text_lines(text), start=1):
         if not line.strip():
             continue
         try:

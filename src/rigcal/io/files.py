@@ -290,6 +290,20 @@ def _check_expansion(root: yaml.Node | None, path: Path) -> None:
     return
 
 
+_LINE_BREAK = re.compile(r"\r\n|\r|\n")
+
+
+def text_lines(text: str) -> list[str]:
+    """The lines of a text file as editors and other tools number them: split at ``\n``,
+    ``\r\n`` and a lone ``\r`` only (mixed freely), not at the form feeds, vertical tabs,
+    file separators and Unicode line separators ``str.splitlines`` also splits at (one in
+    a log's comment would put the number of every later line in an error off)."""
+    lines = _LINE_BREAK.split(text)
+    if lines and not lines[-1]:
+        lines.pop()
+    return lines
+
+
 def check_keys(
     mapping: Any,
     path: str | Path | None,
@@ -424,12 +438,16 @@ def check_apart(output: str | Path, inputs: Iterable[str | Path]) -> None:
 
 
 def _check_parents(output: Path) -> None:
-    """An output under a path one of whose folders is a file (``-o run.log/out``) cannot
-    be written: say which, before any work (the write would fail with "File exists")."""
+    """An output under a path one of whose folders is a file (``-o run.log/out``), or
+    whose nearest existing folder cannot be written (read-only, another user's), cannot be
+    written: say which, before any work (the write would fail after it, with "File
+    exists" or "Permission denied"; every write makes its temporary beside the output)."""
     for parent in output.absolute().parents:
         if parent.exists():
             if not parent.is_dir():
                 raise OutputError(f"{output}: {parent} is a file; expected a folder to write into")
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise OutputError(f"{output}: cannot write into {parent} (read-only or not yours)")
             return
 
 

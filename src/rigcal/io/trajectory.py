@@ -22,7 +22,7 @@ import numpy as np
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_write_text, read_text
+from rigcal.io.files import atomic_write_text, read_text, text_lines
 from rigcal.io.log_lines import CutLine, ShortLineError, cut_last_line
 
 
@@ -46,7 +46,7 @@ def _lines(path: Path, text: str | None = None) -> list[tuple[int, list[str], st
     """(line number, fields, the line) of each line that is not blank or a comment."""
     text = read_text(path, "trajectory file") if text is None else text
     out = []
-    for n, line in enumerate(text.splitlines(), start=1):
+    for n, line in enumerate(text_lines(text), start=1):
         body = line.split("#", 1)[0].strip()
         if body:
             out.append((n, body.replace(",", " ").split(), line))

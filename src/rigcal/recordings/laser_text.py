@@ -38,7 +38,7 @@ import numpy as np
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import compressed, read_log_text, read_text
+from rigcal.io.files import compressed, read_log_text, read_text, text_lines
 from rigcal.io.log_lines import CutLine, ShortLineError, cut_last_line
 from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.trajectory import read_tum_cut
@@ -78,7 +78,7 @@ def _log_text(path: Path, what: str) -> str:
 def _content_lines(path: Path, what: str, text: str | None = None) -> list[tuple[int, str]]:
     out = []
     text = _log_text(path, what) if text is None else text
-    for n, line in enumerate(text.splitlines(), start=1):
+    for n, line in enumerate(text_lines(text), start=1):
         s = line.strip()
         if s and not s.startswith(("#", "%")):
             out.append((n, s))

@@ -33,7 +33,7 @@ import yaml
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text
+from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text, text_lines
 from rigcal.io.kinds import kind_of_bytes
 from rigcal.io.validate import finite_array, parse_real, real, relative_inside, whole
 from rigcal.io.wheel_odometry import WheelOdometry, odometry_tum, read_odometry_tum
@@ -374,7 +374,7 @@ def _check_scan_arrays(a: dict[str, Any], npz: Path) -> int:
 
 def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
     # A spreadsheet's byte-order mark and blank lines (an editor's last newline) are no data.
-    lines = read_text(index, "image index").removeprefix("\ufeff").splitlines()
+    lines = text_lines(read_text(index, "image index").removeprefix("\ufeff"))
     if not lines or lines[0].strip() != "stamp_s,file":
         got = lines[0][:60] if lines else ""
         raise InputError(f"{index}: line 1: got {got!r}; expected the header 'stamp_s,file'")
