@@ -35,6 +35,7 @@ from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text, text_lines
 from rigcal.io.kinds import kind_of_bytes
+from rigcal.io.stamps import check_seconds
 from rigcal.io.validate import finite_array, parse_real, real, relative_inside, whole
 from rigcal.io.wheel_odometry import WheelOdometry, odometry_tum, read_odometry_tum
 from rigcal.scan import Scan, ScanArrayError, laser_clockwise, uniform_scans
@@ -226,6 +227,7 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
             f"{npz}: stamps_s[{k}]: got {float(st[k])!r}; expected a finite stamp after "
             f"{float(st[k - 1]) if k else '-inf'!r} (scan stamps increase)"
         )
+    check_seconds(st, str(npz), "stamps_s", scans=True)
     try:
         scans = uniform_scans(
             arrays["angle_min_rad"],
@@ -245,6 +247,7 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
     index = folder / relative_inside(im["index"], path, "images.index")
     images = folder / relative_inside(im["folder"], path, "images.folder")
     stamps, files = _read_index(index)
+    check_seconds(stamps, str(index), "stamp_s")
     if len(files) != whole(im["count"], path, "images.count"):
         raise InputError.at(path, "images.count", im["count"], f"{len(files)}, the rows of {index.name}")
     for f in files:
