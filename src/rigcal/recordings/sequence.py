@@ -194,6 +194,8 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
     if folder.is_file():  # sequence.yaml or scans.npz given for its folder, or another file
         hint = f" ({folder.parent}?)" if (folder.parent / "sequence.yaml").is_file() else ""
         raise InputError(f"{folder}: got a file; expected a sequence folder{hint}, holding sequence.yaml")
+    if not folder.exists():
+        raise InputError(f"{folder}: not found; expected a sequence folder holding sequence.yaml")
     d = check_keys(
         load_yaml(path, "sequence file"),
         path,
