@@ -30,7 +30,7 @@ from room_scans import room_scan
 
 EXAMPLE = Path(__file__).parents[2] / "examples" / "box-session"
 NEWER = (
-    r"schema_version: got 99; expected (one of )?[\d, ]+ "
+    r"schema_version: got 99; expected [\d, or]+ "
     r"\(the versions? this rigcal reads; a file of a newer rigcal: upgrade"
 )
 
@@ -110,9 +110,9 @@ def test_check_and_localize_say_it_in_one_line(tmp_path, fails):
     doc = yaml.safe_load(rig.read_text())
     rig.write_text(yaml.safe_dump({**doc, "schema_version": 4, "imu": {"T_imu_laser": np.zeros(6).tolist()}}))
     line = fails(["check", rig, "--sequence", seq, "--no-log"], 3)
-    assert line.startswith(f"Error: {rig}: schema_version: got 4; expected one of 1, 2, 3 (the versions this")
+    assert line.startswith(f"Error: {rig}: schema_version: got 4; expected 1, 2 or 3 (the versions this")
     doc = yaml.safe_load((seq / "sequence.yaml").read_text())
     newer = {**doc, "schema_version": 4, "lidar": {"file": "l.npz"}}
     (seq / "sequence.yaml").write_text(yaml.safe_dump(newer))
     line = fails(["localize", seq, "--method", "icp", "-o", tmp_path / "out"], 3)
-    assert "sequence.yaml: schema_version: got 4; expected one of 1, 2, 3 (the versions this rigcal" in line
+    assert "sequence.yaml: schema_version: got 4; expected 1, 2 or 3 (the versions this rigcal" in line

@@ -353,7 +353,7 @@ def check_not_newer(mapping: Any, path: str | Path | None, versions: Iterable[in
     known = sorted(versions)
     v = mapping.get("schema_version") if isinstance(mapping, Mapping) else None
     if known and type(v) is int and v > known[-1]:
-        listed = f"one of {', '.join(str(k) for k in known)}" if len(known) > 1 else str(known[0])
+        listed = " or ".join([", ".join(str(k) for k in known[:-1]), str(known[-1])][len(known) == 1 :])
         which = "versions" if len(known) > 1 else "version"
         raise InputError.at(
             path,
