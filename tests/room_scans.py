@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from rigcal.scan import Scan
@@ -15,3 +17,35 @@ def room_scan(x_m: float, t_s: float) -> Scan:
         to_x = np.where(c > 1e-9, (3.0 - x_m) / c, np.inf)
         to_y = np.where(np.abs(s) > 1e-9, 2.0 / np.abs(s), np.inf)
     return Scan.from_uniform(-np.pi / 2, np.radians(1.0), np.minimum(to_x, to_y), 0.05, 30.0, stamp_s=t_s)
+
+
+def room_drive(base: Path, odometry: bool = False) -> Path:
+    """Four seconds through the room at 0.5 m/s: scans at 10 Hz, 64x48 textured images at
+    5 Hz, the rig inside (and beside it, ``base/rig.yaml``), with ``odometry`` the wheel
+    odometry at 20 Hz. Returns the sequence folder ``base/seq``."""
+    import cv2
+
+    from rigcal.camera import Camera
+    from rigcal.io.wheel_odometry import checked
+    from rigcal.recordings.sequence import ImageFrame, write_sequence
+    from rigcal.rig import Rig
+    from rigcal.rigfile import write_rig
+    from rigcal.sim.box_session import default_T_cam_laser
+
+    w, h = 64, 48
+    cam = Camera.from_opencv(np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]]), [0.0] * 5, w, h)
+    write_rig(base / "rig.yaml", Rig(default_T_cam_laser(), cam, laser={"name": "test"}))
+    rng = np.random.default_rng(3)
+    scans = [room_scan(0.05 * k, 0.1 * k) for k in range(40)]
+    frames = []
+    for k in range(20):
+        img = cv2.GaussianBlur(rng.integers(0, 255, (h, w), dtype=np.uint8), (3, 3), 0)
+        frames.append(ImageFrame(0.2 * k + 0.01, f"{k:06d}.png", cv2.imencode(".png", img)[1].tobytes()))
+    wheels = None
+    if odometry:
+        t = np.arange(0.0, 4.0, 0.05)
+        wheels = checked(t, np.column_stack([0.5 * t, 0 * t, 0 * t]), (0.0, 0.0, 0.0), "test")
+    rig_yaml = (base / "rig.yaml").read_text()
+    return write_sequence(
+        base / "seq", "room", scans, frames, None, {"test": True}, rig_yaml=rig_yaml, odometry=wheels
+    )

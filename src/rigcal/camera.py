@@ -255,7 +255,12 @@ def _read_cameramodel(path: Path) -> Camera:
 
 def _read_opencv_yaml(path: Path, data: Any) -> Camera:
     d = check_keys(
-        data, path, "", ["schema_version", "image_width_px", "image_height_px", "K"], ["distortion", "name"]
+        data,
+        path,
+        "",
+        ["schema_version", "image_width_px", "image_height_px", "K"],
+        ["distortion", "name"],
+        [CAMERA_SCHEMA_VERSION],
     )
     check_schema_version(d, path, CAMERA_SCHEMA_VERSION)
     for key in ("image_width_px", "image_height_px"):

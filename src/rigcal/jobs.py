@@ -15,7 +15,7 @@ from __future__ import annotations
 import contextlib
 import json
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -36,6 +36,7 @@ if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
 
+    from rigcal.io.log_lines import CutLine
     from rigcal.localize.pipeline import Run
     from rigcal.rig import Rig
 
@@ -274,6 +275,7 @@ def check_rig(
     session: Path | None = None,
     sequence: Path | None = None,
     trajectory: Path | None = None,
+    wheel_odometry: bool = True,
     level: float = 0.01,
     min_captures: int = 5,
     log: Path | None = None,
@@ -286,7 +288,9 @@ def check_rig(
     box session (``session``) or drive (``sequence``); append the record to the drift log
     (``log``, by default beside the rig) unless ``no_log``, and draw the history with
     ``plot``. ``trajectory``: with ``sequence``, a TUM file of the laser's poses (a
-    ``rigcal localize`` run's) that the check uses instead of its own laser odometry.
+    ``rigcal localize`` run's) that the check uses instead of its own laser odometry;
+    ``wheel_odometry``: with ``sequence``, start that odometry's steps from the drive's
+    wheel odometry (False: neither read nor used).
 
     Raises:
         InputError: not exactly one of picks, session and sequence; a bad value or input.
@@ -319,7 +323,7 @@ def check_rig(
         check_chart_name(plot)
     stored = read_rig(rig)
     if kind_flag == "--sequence":
-        record = _targetless(rig, stored, source, trajectory, level, progress)
+        record = _targetless(rig, stored, source, trajectory, wheel_odometry, level, progress)
     else:
         record = _with_target(rig, stored, source, kind_flag, level, min_captures)
     # The plot (the history and this check) first: a failure there leaves the log as it was.
@@ -365,6 +369,7 @@ def _targetless(
     stored: Rig,
     sequence: Path,
     trajectory: Path | None,
+    wheel_odometry: bool,
     level: float,
     progress: Progress | None,
 ) -> dict[str, Any]:
@@ -415,6 +420,7 @@ def _targetless(
         # equalise), so the early frames are the frames the check would decode itself.
         cache = early.cache if early is not None else ImageCache()
         streams = Streams(seq, stored, {"read_s": read_s}, _image_cache=cache)
+        streams.use_wheel_odometry = wheel_odometry  # False: odometry.tum is not even read
         same_camera(stored, streams, rig_path)
         streams.progress = progress
         streams.odometry_covariance = False  # the check uses the odometry's poses only
@@ -530,6 +536,7 @@ class Evaluated:
 
     rows: list[tuple[str, dict[str, Any]]]
     doc: dict[str, Any]
+    cut: list[tuple[Path, CutLine]] = field(default_factory=list)  # files read to their last whole line
 
 
 def evaluate_files(
@@ -539,16 +546,19 @@ def evaluate_files(
     max_diff_s: float = 0.01,
     plot: Path | None = None,
     force: bool = False,
+    strict: bool = False,
 ) -> Evaluated:
     """``rigcal evaluate``: score TUM trajectories against the truth (the paper's Table 1
-    figures, ATE and RPE as evo), and with ``plot`` chart them.
+    figures, ATE and RPE as evo), and with ``plot`` chart them. A file copied while it was
+    written (an incomplete last line) is read to its last whole line, named in ``cut``;
+    ``strict`` refuses it (``--stamps strict``).
 
     Raises:
         InputError: a bad trajectory, or one with fewer than 2 stamps matching the truth's.
         OutputError: ``plot`` exists and ``force`` is False.
     """
     from rigcal.io.files import check_writable
-    from rigcal.io.trajectory import read_tum
+    from rigcal.io.trajectory import read_tum_cut
     from rigcal.localize.metrics import anchored, associate, evaluate
     from rigcal.localize.pipeline import planar_at
 
@@ -559,13 +569,16 @@ def evaluate_files(
 
         check_chart_name(plot)
         check_writable(plot, force, [*trajectories, gt])
-    truth = read_tum(gt)
+    cut = []
+    truth, gt_cut = read_tum_cut(gt, strict)
     assert truth.stamps_s is not None
+    cut += [(gt, gt_cut)] if gt_cut is not None else []
     rows = []
     drawn: dict[str, tuple[FloatArray, FloatArray, FloatArray]] = {}  # label -> (estimate, truth, stamps)
     for path, label in zip(trajectories, labels(trajectories), strict=True):
-        est = read_tum(path)
+        est, est_cut = read_tum_cut(path, strict)
         assert est.stamps_s is not None
+        cut += [(path, est_cut)] if est_cut is not None else []
         i_est, i_gt = associate(est.stamps_s, truth.stamps_s, max_diff_s)
         if len(i_est) < 2:
             raise InputError.at(
@@ -589,7 +602,7 @@ def evaluate_files(
             {k: v[2] for k, v in drawn.items()},
         )
         save_figure(plot, fig, force=force)
-    return Evaluated(rows, rows[0][1] if len(rows) == 1 else dict(rows))
+    return Evaluated(rows, rows[0][1] if len(rows) == 1 else dict(rows), cut)
 
 
 def labels(paths: Sequence[Path]) -> list[str]:

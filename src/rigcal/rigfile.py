@@ -154,6 +154,7 @@ def _rig_from_dict(data: Any, path: str | Path | None) -> Rig:
         "",
         ["schema_version", "T_cam_laser", "camera"],
         ["uncertainty", "laser", "residuals", "provenance"],
+        RIG_SCHEMA_VERSIONS,
     )
     version = d["schema_version"]
     if type(version) is not int or version not in RIG_SCHEMA_VERSIONS:

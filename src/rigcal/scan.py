@@ -236,6 +236,7 @@ def read_scan(path: str | Path) -> Scan:
         "",
         ["schema_version", "range_min_m", "range_max_m", "ranges_m"],
         ["stamp_s", "frame", "angle_min_rad", "angle_increment_rad", "angles_rad", "laser"],
+        SCAN_SCHEMA_VERSIONS,
     )
     clockwise = laser_clockwise(d, path, SCAN_SCHEMA_VERSIONS)
     if "frame" in d and d["frame"] != "laser":

@@ -477,6 +477,18 @@ def sequence_cases() -> list[Case]:
         return f
 
     seq("npz-no-key", npz_edit(lambda a: a.pop("n_beams")), "n_beams")
+    # Stamps in another unit than seconds (Unix milliseconds; milliseconds from the start);
+    # a sequence.yaml of a newer rigcal, whose new key is not a typo.
+    seq("npz-stamps-unix-ms", npz_edit(arr("stamps_s", lambda t: t * 1e3 + 1.7e12)), "like milliseconds")
+    seq("npz-stamps-ms", npz_edit(arr("stamps_s", lambda t: t * 1e3)), "a scan every 100 (median)")
+    seq(
+        "yaml-newer-version",
+        lambda p: (
+            set_yaml("seq/sequence.yaml", "schema_version", 9)(p),
+            set_yaml("seq/sequence.yaml", "lidar", 1)(p),
+        ),
+        "schema_version: got 9; expected 1, 2 or 3 (the versions this rigcal reads; a file of a newer",
+    )
     seq("npz-ranges-1d", npz_edit(arr("ranges_m", np.zeros(8))), "ranges_m")
     seq("npz-ranges-3d", npz_edit(arr("ranges_m", np.zeros((8, 2, 2)))), "ranges_m")
     seq("npz-ranges-strings", npz_edit(arr("ranges_m", np.array([["a"] * 91] * 8))), "ranges_m")
@@ -596,6 +608,14 @@ def tum_cases() -> list[Case]:
         )
     )
     out.append(Case("evaluate-empty", EVALUATE, write("a.tum", ""), 3, "a.tum"))
+
+    # A trajectory copied while written: read to its last whole line, refused under --stamps strict.
+    def cut(p: Path) -> None:
+        (p / "a.tum").write_bytes((p / "a.tum").read_bytes()[:-8])  # the last line's quaternion cut
+
+    strict = [*EVALUATE, "--stamps", "strict"]
+    out.append(Case("evaluate-cut-short-strict", strict, cut, 3, "a log cut short"))
+    out.append(Case("check-wheel-odometry-without-a-drive", [*CHECK, "--wheel-odometry", "ignore"], code=2))
     out.append(Case("evaluate-one-pose", EVALUATE, write("a.tum", "10.0 0 0 0 0 0 0 1\n"), 3, "a.tum"))
     return out
 

@@ -15,11 +15,19 @@ from rigcal.recordings.sequence import read_sequence
 
 
 def _odometry_bag(
-    path, ros, odom_stamps, child="base_link", static=(("base_link", "laser"),), nan=False, via_tf=False
+    path,
+    ros,
+    odom_stamps,
+    child="base_link",
+    static=(("base_link", "laser"),),
+    nan=False,
+    via_tf=False,
+    covariance=None,
 ):
     ts = TS2 if ros == 2 else TS1
     T = ts.types
     scan, image, _, _ = _msgs(ts)
+    covariance = np.zeros(36) if covariance is None else covariance
     header = T["std_msgs/msg/Header"]
     time = T["builtin_interfaces/msg/Time"]
 
@@ -43,8 +51,8 @@ def _odometry_bag(
         )
         return T["nav_msgs/msg/Odometry"](
             header=hdr(t, "odom"), child_frame_id=child,
-            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
-            twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)),
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=covariance),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=covariance),
         )  # fmt: skip
 
     def tf_static():

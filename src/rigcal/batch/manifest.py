@@ -32,6 +32,7 @@ class Option:
     flag: str | None  # None: a positional argument
     kind: str  # "path", "str", "int", "float", "bool", "list"
     required: bool = False
+    choices: tuple[str, ...] = ()  # a "str" option's values, when it has a fixed set
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,7 @@ COMMANDS: dict[str, Command] = {
             "session": Option("--session", "path"),
             "sequence": Option("--sequence", "path"),
             "trajectory": Option("--trajectory", "path"),  # with sequence: the laser's poses
+            "wheel_odometry": Option("--wheel-odometry", "str", choices=("use", "ignore")),
             "level": Option("--level", "float"),
             "min_captures": Option("--min-captures", "int"),
             "log": Option("--log", "path"),
@@ -154,7 +156,12 @@ def read_manifest(path: str | Path) -> list[Item]:
     """
     path = Path(path)
     doc = check_keys(
-        load_yaml(path, "batch manifest"), path, "", ["schema_version", "command", "items"], ["defaults"]
+        load_yaml(path, "batch manifest"),
+        path,
+        "",
+        ["schema_version", "command", "items"],
+        ["defaults"],
+        [MANIFEST_SCHEMA_VERSION],
     )
     check_schema_version(doc, path, MANIFEST_SCHEMA_VERSION)
     command = _command(doc["command"], path, "command")
@@ -242,6 +249,8 @@ def _options(
         kind = spec[key].kind
         full = f"{where}.{key}"
         out[key] = _convert(value, kind, path, full, base, from_text)
+        if spec[key].choices and out[key] not in spec[key].choices:
+            raise InputError.at(path, full, out[key], f"one of {list(spec[key].choices)}")
     return out
 
 
@@ -307,11 +316,11 @@ def _check_required(options: Mapping[str, Any], command: str, path: Path | None,
     if one_of and sum(k in options for k in one_of) != 1:
         given = [k for k in one_of if k in options]
         raise InputError.at(path, where, given or "none of them", f"exactly one of {list(one_of)}")
-    if command == "check" and "trajectory" in options and "sequence" not in options:
-        # A drive's laser poses: refused before any item runs, as `rigcal check` refuses it.
-        raise InputError.at(
-            path, f"{where}.trajectory", str(options["trajectory"]), "an item with a sequence"
-        )
+    for key in ("trajectory", "wheel_odometry"):
+        if command == "check" and key in options and "sequence" not in options:
+            # A drive's laser poses or wheel odometry: refused before any item runs, as
+            # `rigcal check` refuses it.
+            raise InputError.at(path, f"{where}.{key}", str(options[key]), "an item with a sequence")
 
 
 def _name(value: Any, path: Path | None, key: str) -> str:

@@ -157,6 +157,7 @@ def _run_job(item: Item, folder: Path, command: str) -> tuple[int, Any]:
             session=path("session"),
             sequence=path("sequence"),
             trajectory=path("trajectory"),
+            wheel_odometry=o.get("wheel_odometry", "use") == "use",
             log=path("log"),
             no_log=bool(o.get("no_log", False)),
             **{k: o[k] for k in ("level", "min_captures") if k in o},

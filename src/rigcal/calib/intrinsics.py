@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import CalibrationError, InputError
-from rigcal.io.files import read_text
+from rigcal.io.files import read_text, text_lines
 
 MIN_IMAGES = 3
 # An image whose board has fewer non-outlier corners than this is reported as unusable.
@@ -259,7 +259,7 @@ def read_corners_vnl(path: Path, board: Board, imagersize: tuple[int, int]) -> D
     per_image: dict[str, list[tuple[float, float, float]]] = {}
     order: list[str] = []
     missing: list[str] = []
-    for n, line in enumerate(text.splitlines(), start=1):
+    for n, line in enumerate(text_lines(text), start=1):
         body = line.strip()
         if not body or body.startswith("#"):
             continue

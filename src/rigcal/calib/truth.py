@@ -37,6 +37,13 @@ def truth_to_text(T_cam_laser: NDArray[np.float64], generator: dict[str, Any] | 
 def read_truth(path: str | Path) -> NDArray[np.float64]:
     """Read a truth file; returns T_cam_laser (4, 4)."""
     path = Path(path)
-    d = check_keys(load_yaml(path, "truth file"), path, "", ["schema_version", "T_cam_laser"], ["generator"])
+    d = check_keys(
+        load_yaml(path, "truth file"),
+        path,
+        "",
+        ["schema_version", "T_cam_laser"],
+        ["generator"],
+        [TRUTH_SCHEMA_VERSION],
+    )
     check_schema_version(d, path, TRUTH_SCHEMA_VERSION)
     return transform_from_dict(d["T_cam_laser"], path, "T_cam_laser", "cam", "laser")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from rigcal.cli.options import force_option, json_option
+from rigcal.cli.options import force_option, json_option, wheel_odometry_option
 from rigcal.cli.types import option_type
 from rigcal.jobs import LEVEL, MIN_CAPTURES
 
@@ -34,6 +34,10 @@ from rigcal.jobs import LEVEL, MIN_CAPTURES
     type=click.Path(path_type=Path),
     help="With --sequence: the laser's poses over the drive (a TUM file, e.g. a `rigcal localize` "
     "run's METHOD/trajectory.tum) instead of the check's own laser odometry.",
+)
+@wheel_odometry_option(
+    "With --sequence: use: the check's laser odometry starts each step from the drive's wheel "
+    "odometry (when it has one); ignore: from the previous motion, without reading odometry.tum."
 )
 @click.option(
     "--level",
@@ -69,6 +73,7 @@ def check(
     session: Path | None,
     sequence: Path | None,
     trajectory: Path | None,
+    wheel_odometry: str,
     level: float,
     min_captures: int,
     log_path: Path | None,
@@ -92,7 +97,8 @@ def check(
     drive observes, and those it does not are named with why. The laser's motion comes
     from the check's own laser odometry, or with --trajectory from a TUM file of the
     laser's poses covering the drive's images to within 0.05 s (a `rigcal localize` run's; its stamps must
-    increase, with no gap over 0.5 s).
+    increase, with no gap over 0.5 s). The check's own odometry starts each ICP step from
+    the drive's wheel odometry (odometry.tum) unless --wheel-odometry ignore.
 
     Exit code 0 when the rig is ok, 1 when it has drifted, 6 when the drive cannot tell
     (too short, no camera-laser overlap, no motion that observes the rig), 2 for usage
@@ -104,6 +110,7 @@ def check(
       rigcal check rig.yaml --session today/board_session.yaml --json --no-log
       rigcal check rig.yaml --sequence drives/2026-11-26/ --plot drift.png --force
       rigcal check rig.yaml --sequence drives/today/ --trajectory runs/today/kf/trajectory.tum
+      rigcal check rig.yaml --sequence drives/today/ --wheel-odometry ignore --no-log
       rigcal check rig.yaml --sequence drives/today/ || echo "recalibrate, or drive more"
     """
     from rigcal.cli.progress import Progress
@@ -121,6 +128,8 @@ def check(
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     if trajectory is not None and sequence is None:
         raise click.UsageError("--trajectory goes with --sequence (a drive's laser poses)")
+    if wheel_odometry != "use" and sequence is None:
+        raise click.UsageError("--wheel-odometry goes with --sequence (a drive's wheel odometry)")
     with Progress("frame") as bars:
         done = check_rig(
             rig,
@@ -128,6 +137,7 @@ def check(
             session=session,
             sequence=sequence,
             trajectory=trajectory,
+            wheel_odometry=wheel_odometry == "use",
             level=level,
             min_captures=min_captures,
             log=log_path,

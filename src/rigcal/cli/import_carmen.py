@@ -101,6 +101,7 @@ def import_carmen(
             "scans": len(c.scans),
             "groundtruth": "groundtruth.tum",
             "other_lines_skipped": c.skipped_lines,
+            "other_lines_by_kind": c.skipped_kinds,
             "duration_s": float(stamps_s[-1] - stamps_s[0]) if len(stamps_s) else 0.0,
             "stamps_repaired": c.stamps.repaired if c.stamps else 0,
             "odometry": odometry_how if odometry is not None else None,
@@ -111,4 +112,11 @@ def import_carmen(
         f"wrote {output}/: {len(c.scans)} scans, groundtruth.tum"
         + (f", odometry.tum ({odometry_how})" if odometry is not None else "")
         + f"; {c.skipped_lines} other lines skipped"
+        + (f" ({kinds})" if (kinds := _kinds(c.skipped_kinds)) else "")
     )
+
+
+def _kinds(counts: dict[str, int], most: int = 6) -> str:
+    """The skipped lines' kinds, most first: "comment 7, TRUEPOS 5, ..."."""
+    shown = [f"{k[:20] if k.isprintable() else ascii(k[:20])} {n}" for k, n in list(counts.items())[:most]]
+    return ", ".join(shown) + (f", {len(counts) - most} more kinds" if len(counts) > most else "")

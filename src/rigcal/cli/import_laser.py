@@ -68,8 +68,8 @@ def import_laser(
     LOG is a RADLOCC laser.txt (stamp, angle_min, increment, angle_max, ranges per line;
     nan/inf: no return) or a CSV with columns stamp_s, angle_rad (or angle_deg), range_m,
     one row per beam (docs/formats/sequence.md). The folder feeds rigcal capture. An
-    incomplete last line (a log copied while it was recorded) is left out with a warning
-    (--stamps strict refuses it).
+    incomplete last line of the log, the image list or the --odometry TUM file (a file
+    copied while it was recorded) is left out with a warning (--stamps strict refuses it).
 
     \b
     Examples:
@@ -105,6 +105,7 @@ def import_laser(
     )
     warn_cut(s.cut, log)
     warn_cut(s.images_cut, images)
+    warn_cut(s.odometry_cut, odometry)
     warn_stamps(s.stamps, "scan stamps")
     if as_json:
         import json

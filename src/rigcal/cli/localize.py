@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from rigcal.cli.options import force_option, json_option, output_option
+from rigcal.cli.options import choice_option, force_option, json_option, output_option, wheel_odometry_option
 from rigcal.cli.types import option_type
 from rigcal.jobs import MAX_DIFF_S
 
@@ -61,13 +61,9 @@ rig_option = click.option(
     help="Change one of the feature tracks' settings (vo, kf, hiasm; docs/localization.md), e.g. "
     "detector=shi-tomasi or n_features=500; may be repeated. The summary records them.",
 )
-@click.option(
-    "--wheel-odometry",
-    type=click.Choice(["use", "ignore"]),
-    default="use",
-    show_default=True,
-    help="use: ICP starts each step from the sequence's wheel odometry (when it has one) and the "
-    "Kalman filter fuses it; ignore: start from the previous motion.",
+@wheel_odometry_option(
+    "use: ICP starts each step from the sequence's wheel odometry (when it has one) and the "
+    "Kalman filter fuses it; ignore: start from the previous motion."
 )
 @click.option(
     "--loop-closure",
@@ -241,6 +237,12 @@ def method_line(m: MethodRun) -> str:
     metavar="FILE",
     help="Chart the paths against the truth beside their errors over time (.png, .svg or .pdf).",
 )
+@choice_option(
+    "--stamps",
+    ["repair", "strict"],
+    "repair: a TUM file's incomplete last line (a file copied while it was written) is left "
+    "out with one warning; strict: refuse it.",
+)
 @force_option("Overwrite an existing --plot file.")
 def evaluate_cmd(
     trajectories: tuple[Path, ...],
@@ -249,6 +251,7 @@ def evaluate_cmd(
     as_json: bool,
     precision: int,
     plot: Path | None,
+    stamps: str,
     force: bool,
 ) -> None:
     """Score TUM TRAJECTORIES against ground truth the way the paper's Table 1 does, plus
@@ -258,7 +261,9 @@ def evaluate_cmd(
     paths where two would be the same). The table rounds to --precision decimals; with
     --json, unrounded figures: one trajectory gives one object of figures, several give
     one object per label. --plot charts the paths (each started at the truth's first
-    matched pose) and their position errors over time, as evo_ape --plot does.
+    matched pose) and their position errors over time, as evo_ape --plot does. A file
+    copied while it was written is read to its last whole line with one warning
+    (--stamps strict refuses it).
 
     \b
     Examples:
@@ -267,10 +272,15 @@ def evaluate_cmd(
       rigcal evaluate out/iasm/trajectory.tum out/hiasm/trajectory.tum --gt corridor/groundtruth.tum \\
         --plot compare.png --precision 6
     """
+    from rigcal.cli.stamps import warn_cut
     from rigcal.jobs import evaluate_files
     from rigcal.localize.pipeline import table
 
-    done = evaluate_files(trajectories, gt, max_diff_s=max_diff_s, plot=plot, force=force)
+    done = evaluate_files(
+        trajectories, gt, max_diff_s=max_diff_s, plot=plot, force=force, strict=stamps == "strict"
+    )
+    for path, cut in done.cut:
+        warn_cut(cut, path)
     if plot is not None:
         click.echo(f"wrote {plot}", err=True)
     if as_json:

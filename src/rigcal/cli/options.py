@@ -34,6 +34,16 @@ def force_option(help: str) -> Callable[[Any], Any]:
     return click.option("--force", is_flag=True, help=help)
 
 
+def choice_option(flag: str, choices: list[str], help: str) -> Callable[[Any], Any]:
+    """``FLAG CHOICE``: one of ``choices``, the first the default (shown in --help)."""
+    return click.option(flag, type=click.Choice(choices), default=choices[0], show_default=True, help=help)
+
+
+def wheel_odometry_option(help: str) -> Callable[[Any], Any]:
+    """``--wheel-odometry use|ignore``: whether a run uses the sequence's odometry.tum."""
+    return choice_option("--wheel-odometry", ["use", "ignore"], help)
+
+
 def json_option(help: str) -> Callable[[Any], Any]:
     """``--json``: the result as JSON on stdout (``as_json``), for scripts."""
     return click.option("--json", "as_json", is_flag=True, help=help)

@@ -6,16 +6,16 @@ from typing import TYPE_CHECKING
 
 import click
 
+from rigcal.cli.options import choice_option
+
 if TYPE_CHECKING:
     from rigcal.io.log_lines import CutLine
     from rigcal.io.stamps import StampRepair
 
-stamps_option = click.option(
+stamps_option = choice_option(
     "--stamps",
-    type=click.Choice(["repair", "strict"]),
-    default="repair",
-    show_default=True,
-    help="repair: equal stamps and small steps back are placed evenly between their increasing "
+    ["repair", "strict"],
+    "repair: equal stamps and small steps back are placed evenly between their increasing "
     "neighbours, and an incomplete last line (a log cut short) is left out, each with one warning "
     "(docs/formats/sequence.md); strict: refuse them.",
 )

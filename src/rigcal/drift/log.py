@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rigcal.errors import InputError, OutputError
-from rigcal.io.files import read_text, sha256_file
+from rigcal.io.files import read_text, sha256_file, text_lines
 
 if TYPE_CHECKING:  # types only: a drive's check need not load the target checks' solvers
     from rigcal.drift.target import DriftResult
@@ -157,7 +157,7 @@ def read_log(path: str | Path) -> list[dict[str, Any]]:
     path = Path(path)
     text = read_text(path, "drift log")
     out = []
-    for n, line in enumerate(text.splitlines(), start=1):
+    for n, line in enumerate(text_lines(text), start=1):
         if not line.strip():
             continue
         try:
@@ -170,8 +170,13 @@ def read_log(path: str | Path) -> list[dict[str, Any]]:
             raise InputError.at(path, f"line {n}", rec, "a JSON object (one check)")
         version = rec.get("schema_version")
         if version not in (1, DRIFT_LOG_SCHEMA_VERSION) or type(version) is not int:
+            newer = type(version) is int and version > DRIFT_LOG_SCHEMA_VERSION
+            upgrade = " (the versions this rigcal reads; a record of a newer rigcal: upgrade rigcal)"
             raise InputError.at(
-                path, f"line {n}: schema_version", version, f"1 or {DRIFT_LOG_SCHEMA_VERSION}"
+                path,
+                f"line {n}: schema_version",
+                version,
+                f"1 or {DRIFT_LOG_SCHEMA_VERSION}" + (upgrade if newer else ""),
             )
         missing = [k for k in (RECORD_KEYS_V1 if version == 1 else RECORD_KEYS) if k not in rec]
         if missing:

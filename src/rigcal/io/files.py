@@ -290,12 +290,27 @@ def _check_expansion(root: yaml.Node | None, path: Path) -> None:
     return
 
 
+_LINE_BREAK = re.compile(r"\r\n|\r|\n")
+
+
+def text_lines(text: str) -> list[str]:
+    """The lines of a text file as editors and other tools number them: split at ``\n``,
+    ``\r\n`` and a lone ``\r`` only (mixed freely), not at the form feeds, vertical tabs,
+    file separators and Unicode line separators ``str.splitlines`` also splits at (one in
+    a log's comment would put the number of every later line in an error off)."""
+    lines = _LINE_BREAK.split(text)
+    if lines and not lines[-1]:
+        lines.pop()
+    return lines
+
+
 def check_keys(
     mapping: Any,
     path: str | Path | None,
     keypath: str,
     required: Iterable[str],
     optional: Iterable[str] = (),
+    versions: Iterable[int] = (),
 ) -> Mapping[str, Any]:
     """Check that ``mapping`` is a mapping with all required keys and no unknown ones.
 
@@ -305,10 +320,13 @@ def check_keys(
         keypath: where in the file it sits ("" for the top level), for the message.
         required: keys that must be present.
         optional: keys that may be present.
+        versions: a versioned file's top level: the ``schema_version`` values this rigcal
+            reads; a newer one is named as such first (:func:`check_not_newer`).
 
     Returns:
         The mapping, typed as such.
     """
+    check_not_newer(mapping, path, versions)
     label = keypath or "(top level)"
     required = list(required)
     allowed = set(required) | set(optional)
@@ -326,6 +344,23 @@ def check_keys(
         if key not in mapping:
             raise InputError(f"{path}: {_join(keypath, key)}: missing; this key is required")
     return mapping
+
+
+def check_not_newer(mapping: Any, path: str | Path | None, versions: Iterable[int]) -> None:
+    """Refuse a file of a newer ``schema_version`` than ``versions`` (the ones this rigcal
+    reads) as such, before its keys are checked: a newer file's new keys would otherwise
+    read as typos ("no such key"). Other values are left to the reader's own check."""
+    known = sorted(versions)
+    v = mapping.get("schema_version") if isinstance(mapping, Mapping) else None
+    if known and type(v) is int and v > known[-1]:
+        listed = " or ".join([", ".join(str(k) for k in known[:-1]), str(known[-1])][len(known) == 1 :])
+        which = "versions" if len(known) > 1 else "version"
+        raise InputError.at(
+            path,
+            "schema_version",
+            v,
+            f"{listed} (the {which} this rigcal reads; a file of a newer rigcal: upgrade rigcal to read it)",
+        )
 
 
 def _join(keypath: str, key: str) -> str:
@@ -403,12 +438,16 @@ def check_apart(output: str | Path, inputs: Iterable[str | Path]) -> None:
 
 
 def _check_parents(output: Path) -> None:
-    """An output under a path one of whose folders is a file (``-o run.log/out``) cannot
-    be written: say which, before any work (the write would fail with "File exists")."""
+    """An output under a path one of whose folders is a file (``-o run.log/out``), or
+    whose nearest existing folder cannot be written (read-only, another user's), cannot be
+    written: say which, before any work (the write would fail after it, with "File
+    exists" or "Permission denied"; every write makes its temporary beside the output)."""
     for parent in output.absolute().parents:
         if parent.exists():
             if not parent.is_dir():
                 raise OutputError(f"{output}: {parent} is a file; expected a folder to write into")
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise OutputError(f"{output}: cannot write into {parent} (read-only or not yours)")
             return
 
 

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import read_bytes
+from rigcal.io.files import read_bytes, text_lines
 
 # The x, y, z of a 2D scan lie in its plane: |z| above this is a 3D cloud or a scan
 # moved into another frame.
@@ -218,7 +218,7 @@ def _ints(path: Path, header: dict[str, Any], key: str, n: int) -> list[int]:
 def _ascii(
     path: Path, body: bytes, data_line: int, columns: list[str], points: int, fields: list[str]
 ) -> FloatArray:
-    text = body.decode("ascii", errors="replace").splitlines()
+    text = text_lines(body.decode("ascii", errors="replace"))
     rows = [(k, ln) for k, ln in enumerate(text) if ln.strip()]
     if len(rows) != points:
         raise InputError(f"{path}: got {len(rows)} point lines after DATA ascii; expected POINTS = {points}")

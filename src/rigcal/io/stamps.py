@@ -204,3 +204,50 @@ def _longest_increasing(t: FloatArray) -> NDArray[np.int64]:
         out.append(n - 1 - i)
         i = int(parent[i])
     return np.array(out, dtype=np.int64)
+
+
+# Seconds since 1970 stay below this until the year 5138; a stamp above it is in another
+# unit (Unix milliseconds are about 1.7e12, microseconds 1.7e15, nanoseconds 1.7e18).
+MAX_STAMP_S = 1e11
+# A laser scans several times a second; a drive's scans this far apart (median) are
+# stamped in another unit (a 10 Hz scanner's milliseconds step by 100), not seconds.
+MAX_SCAN_PERIOD_S = 10.0
+_UNITS = ((3, "milliseconds"), (6, "microseconds"), (9, "nanoseconds"))
+
+
+def unit_hint(span: float, other_span: float) -> str:
+    """ " (one stream in milliseconds, the other in seconds?)" when two streams' time spans
+    differ by about 1e3, 1e6 or 1e9 (the other units loggers stamp in), else ""."""
+    if not (span > 0 and other_span > 0):
+        return ""
+    ratio = abs(float(np.log10(span / other_span)))
+    unit = next((name for k, name in _UNITS if abs(ratio - k) < 0.3), None)
+    return f" (one stream in {unit}, the other in seconds?)" if unit else ""
+
+
+def check_seconds(stamps_s: FloatArray, where: str, key: str, scans: bool = False) -> None:
+    """Refuse stamps that cannot be seconds: above :data:`MAX_STAMP_S`, or (``scans``: a
+    laser's) a median step over :data:`MAX_SCAN_PERIOD_S`, naming the unit they look like.
+
+    Raises:
+        InputError: ``where: key: got ...; expected seconds ...``.
+    """
+    t = np.asarray(stamps_s, dtype=float)
+    if len(t) and float(np.abs(t).max()) > MAX_STAMP_S:
+        big = float(np.abs(t).max())
+        unit = next((name for k, name in reversed(_UNITS) if big > 10.0 ** (k + 8)), "another unit")
+        raise InputError.at(
+            where,
+            key,
+            big,
+            f"seconds (Unix time is about 1.7e9 s; this looks like {unit}: convert to seconds)",
+        )
+    if scans and len(t) > 2:
+        period = float(np.median(np.diff(t)))
+        if period > MAX_SCAN_PERIOD_S:
+            raise InputError.at(
+                where,
+                key,
+                f"a scan every {period:g} (median)",
+                "seconds: a laser scans several times a second (stamps in milliseconds?)",
+            )

@@ -6,7 +6,11 @@
 - KITTI: one pose per line, the 12 numbers of the 3x4 matrix [R | t] of T_world_body in
   row-major order; no time stamps.
 
-Readers validate every line and name the file and line number of a bad one.
+Readers validate every line and name the file and line number of a bad one. A TUM file
+copied while it was written (a SLAM run's, a logger's) ends mid-line: :func:`read_tum_cut`
+applies the importers' rule for logs cut short to it (:mod:`rigcal.io.log_lines`: the
+incomplete last line left out and returned, or refused with ``strict``); each caller
+decides whether its files can be cut short (docs/formats/sequence.md, "Logs cut short").
 """
 
 from __future__ import annotations
@@ -18,7 +22,8 @@ import numpy as np
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_write_text, read_text
+from rigcal.io.files import atomic_write_text, read_text, text_lines
+from rigcal.io.log_lines import CutLine, ShortLineError, cut_last_line
 
 
 @dataclass(frozen=True)
@@ -37,19 +42,21 @@ class Trajectory:
         return len(self.poses)
 
 
-def _lines(path: Path) -> list[tuple[int, list[str]]]:
-    text = read_text(path, "trajectory file")
+def _lines(path: Path, text: str | None = None) -> list[tuple[int, list[str], str]]:
+    """(line number, fields, the line) of each line that is not blank or a comment."""
+    text = read_text(path, "trajectory file") if text is None else text
     out = []
-    for n, line in enumerate(text.splitlines(), start=1):
+    for n, line in enumerate(text_lines(text), start=1):
         body = line.split("#", 1)[0].strip()
         if body:
-            out.append((n, body.replace(",", " ").split()))
+            out.append((n, body.replace(",", " ").split(), line))
     return out
 
 
 def _numbers(path: Path, n: int, fields: list[str], count: int, what: str, hint: str = "") -> FloatArray:
     if len(fields) != count:
-        raise InputError(f"{path}: line {n}: got {len(fields)} fields; expected {count} ({what}){hint}")
+        short = ShortLineError if len(fields) < count else InputError  # fewer: maybe a line cut short
+        raise short(f"{path}: line {n}: got {len(fields)} fields; expected {count} ({what}){hint}")
     try:
         v = np.array([float(f) for f in fields])
     except ValueError:
@@ -76,48 +83,80 @@ _PLANAR_HINT = (
 
 
 def read_tum(path: str | Path) -> Trajectory:
-    """Read a TUM trajectory (quaternions are normalised if within 1e-3 of unit length).
+    """Read a TUM trajectory (quaternions are normalised if within 1e-3 of unit length);
+    every line must be whole (a file rigcal wrote, or one that cannot have been cut short).
 
     Raises:
         InputError: a line that is not 8 finite numbers (a 2D file of 3 or 4 columns is
             named as such), a quaternion off unit length, stamps not increasing, no pose.
     """
+    return _read_tum(Path(path), None)[0]
+
+
+def read_tum_cut(path: str | Path, strict: bool) -> tuple[Trajectory, CutLine | None]:
+    """:func:`read_tum` of a file that may have been copied while it was written: an
+    incomplete last line (too few fields, or no newline and not a whole pose) is left out
+    and returned (None when the file is whole), as the importers' logs cut short
+    (:mod:`rigcal.io.log_lines`).
+
+    Raises:
+        InputError: as :func:`read_tum`; with ``strict`` also for a file cut short, saying so.
+    """
+    return _read_tum(Path(path), strict)
+
+
+def _read_tum(path: Path, strict: bool | None) -> tuple[Trajectory, CutLine | None]:
+    """The TUM reader; ``strict`` None: no line may be cut short (:func:`read_tum`)."""
     from scipy.spatial.transform import Rotation  # here: a drive's reading does without it
 
-    path = Path(path)
+    text = read_text(path, "trajectory file")
+    lines = _lines(path, text)
     stamps: list[float] = []
     poses: list[FloatArray] = []
-    for n, fields in _lines(path):
-        planar = not poses and len(fields) in (3, 4)  # "t x y [yaw]" from the start: a 2D tool's file
-        hint = _PLANAR_HINT if planar else ""
-        v = _numbers(path, n, fields, 8, "timestamp tx ty tz qx qy qz qw", hint)
-        q = v[4:8]
-        norm = float(np.linalg.norm(q))
-        if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
-            few = " (printed with too few decimals?)" if abs(norm - 1.0) < 0.02 else ""
-            raise InputError(
-                f"{path}: line {n}: qx qy qz qw: got {q.tolist()} (norm {norm:.6g}){few}; expected a unit "
-                f"quaternion (norm within {QUATERNION_NORM_TOLERANCE:g} of 1, as printed to 3 decimals)"
-            )
-        if stamps and v[0] <= stamps[-1]:
-            raise InputError(
-                f"{path}: line {n}: timestamp {float(v[0])!r} not after {stamps[-1]!r}; expected increasing"
-            )
+    cut = None
+    for n, fields, line in lines:
+        try:
+            v, norm = _tum_pose(path, n, fields, stamps)
+        except InputError as exc:  # a file copied while written ends mid-line (rigcal.io.log_lines)
+            if strict is None or not poses:  # nothing whole before it: not a file cut short
+                raise
+            cut = cut_last_line(exc, text, n, lines[-1][0], line, f"{path}: line {n}", strict)
+            continue
         T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(q / norm).as_matrix()
+        T[:3, :3] = Rotation.from_quat(v[4:8] / norm).as_matrix()
         T[:3, 3] = v[1:4]
         stamps.append(float(v[0]))
         poses.append(T)
     if not poses:
         raise InputError(f"{path}: no poses; expected lines 'timestamp tx ty tz qx qy qz qw'")
-    return Trajectory(np.array(poses), np.array(stamps))
+    return Trajectory(np.array(poses), np.array(stamps)), cut
+
+
+def _tum_pose(path: Path, n: int, fields: list[str], stamps: list[float]) -> tuple[FloatArray, float]:
+    """Line ``n``'s 8 numbers and its quaternion's norm, checked (stamps: those before it)."""
+    planar = not stamps and len(fields) in (3, 4)  # "t x y [yaw]" from the start: a 2D tool's file
+    hint = _PLANAR_HINT if planar else ""
+    v = _numbers(path, n, fields, 8, "timestamp tx ty tz qx qy qz qw", hint)
+    q = v[4:8]
+    norm = float(np.linalg.norm(q))
+    if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+        few = " (printed with too few decimals?)" if abs(norm - 1.0) < 0.02 else ""
+        raise InputError(
+            f"{path}: line {n}: qx qy qz qw: got {q.tolist()} (norm {norm:.6g}){few}; expected a unit "
+            f"quaternion (norm within {QUATERNION_NORM_TOLERANCE:g} of 1, as printed to 3 decimals)"
+        )
+    if stamps and v[0] <= stamps[-1]:
+        raise InputError(
+            f"{path}: line {n}: timestamp {float(v[0])!r} not after {stamps[-1]!r}; expected increasing"
+        )
+    return v, norm
 
 
 def read_kitti(path: str | Path) -> Trajectory:
     """Read a KITTI trajectory (rotations must be orthonormal to 1e-6)."""
     path = Path(path)
     poses: list[FloatArray] = []
-    for n, fields in _lines(path):
+    for n, fields, _ in _lines(path):
         v = _numbers(path, n, fields, 12, "the 3x4 matrix [R | t], row-major")
         T = np.eye(4)
         T[:3, :] = v.reshape(3, 4)

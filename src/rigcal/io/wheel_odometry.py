@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
+from rigcal.io.stamps import unit_hint
 from rigcal.io.trajectory import Trajectory, read_tum, tum_text
 
 # A TUM odometry file is planar: its poses may tilt by at most this (rad) off the floor.
@@ -135,12 +136,14 @@ def checked(
         raise InputError.at(where, "T_base_laser", mount.tolist(), "3 finite numbers: x y (m), yaw (rad)")
     if scan_stamps_s is not None and len(scan_stamps_s):
         lo, hi = float(scan_stamps_s[0]), float(scan_stamps_s[-1])
-        if t[-1] < lo or t[0] > hi:
+        # Another unit (milliseconds from the start) may still overlap: told by the spans.
+        unit = unit_hint(float(t[-1] - t[0]), hi - lo)
+        if t[-1] < lo or t[0] > hi or unit:
             raise InputError.at(
                 where,
                 "odometry stamps",
                 f"{float(t[0])!r} to {float(t[-1])!r}",
-                f"a span overlapping the scans' ({lo!r} to {hi!r}): the same clock",
+                f"a span overlapping the scans' ({lo!r} to {hi!r}): the same clock" + unit,
             )
     return WheelOdometry(t, p, mount)
 
@@ -164,8 +167,17 @@ def planar_poses(traj: Trajectory, where: str) -> FloatArray:
 def read_odometry_tum(
     path: str | Path, T_base_laser: FloatArray | tuple[float, float, float], scan_stamps_s: FloatArray | None
 ) -> WheelOdometry:
-    """Wheel odometry from a TUM file (T_odom_base per line)."""
-    traj = read_tum(path)
+    """Wheel odometry from a TUM file (T_odom_base per line), every line whole."""
+    return odometry_of_tum(read_tum(path), path, T_base_laser, scan_stamps_s)
+
+
+def odometry_of_tum(
+    traj: Trajectory,
+    path: str | Path,
+    T_base_laser: FloatArray | tuple[float, float, float],
+    scan_stamps_s: FloatArray | None,
+) -> WheelOdometry:
+    """Wheel odometry from a TUM file's trajectory (T_odom_base), checked (:func:`checked`)."""
     assert traj.stamps_s is not None
     return checked(traj.stamps_s, planar_poses(traj, str(path)), T_base_laser, str(path), scan_stamps_s)
 

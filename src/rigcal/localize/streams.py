@@ -34,6 +34,7 @@ from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
 from rigcal.io.images import read_grey
+from rigcal.io.stamps import unit_hint
 from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
 from rigcal.lines import Segment, extract_lines
 from rigcal.localize.image_cache import Gray, ImageCache
@@ -143,7 +144,7 @@ class Streams:
                 "stamp_s",
                 f"{t_img[0]:.3f} to {t_img[-1]:.3f} s",
                 f"images within the scans' span, {t_scan[0]:.3f} to {t_scan[-1]:.3f} s (scans.npz): "
-                "the same clock",
+                "the same clock" + unit_hint(t_img[-1] - t_img[0], t_scan[-1] - t_scan[0]),
             )
         self.image(0)  # its decoding checks its size against the rig's camera
 

@@ -28,6 +28,7 @@ the odometry pose is the robot's raw odometry (ROBOTLASER1: the robot pose).
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -36,7 +37,7 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import read_log_text
+from rigcal.io.files import read_log_text, text_lines
 from rigcal.io.log_lines import CutLine, ShortLineError, cut_last_line
 from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.validate import parse_real, parse_whole
@@ -68,6 +69,8 @@ class CarmenLog:
             next, one vertex per laser line: those edges (dx, dy, dtheta), else (0, 3).
         cut: the last line when it was incomplete and left out (a log cut short,
             rigcal.io.log_lines), else None.
+        skipped_kinds: the skipped lines by message name ("comment", "blank" for
+            those), most first: what else the log holds.
     """
 
     scans: list[Scan]
@@ -81,6 +84,7 @@ class CarmenLog:
     params: dict[str, float] = field(default_factory=dict)
     g2o_steps: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     cut: CutLine | None = None
+    skipped_kinds: dict[str, int] = field(default_factory=dict)
 
 
 def read_carmen(
@@ -99,21 +103,21 @@ def read_carmen(
     """
     p = Path(path)
     text = read_log_text(p, "CARMEN log")
-    rows = text.splitlines()
+    rows = text_lines(text)
     last = max((i for i, r in enumerate(rows, start=1) if r.strip()), default=0)
     cut = None  # the last line, when a logger stopped mid-line left it incomplete
     scans: list[Scan] = []
     laser: list[FloatArray] = []
     odom: list[FloatArray] = []
     lines: list[int] = []
-    skipped = 0
+    skipped: Counter[str] = Counter()
     extra = _OtherMessages()
     for no, line in enumerate(rows, start=1):
         fields = line.split()
         try:
             if not fields or fields[0] not in LASER_MESSAGES:
                 if not extra.read(fields, f"{p}:{no}", no):
-                    skipped += 1
+                    skipped["blank" if not fields else "comment" if fields[0][0] == "#" else fields[0]] += 1
                 continue
             where = f"{p}:{no}"
             parse = _flaser if fields[0] == "FLASER" else _robotlaser1
@@ -138,13 +142,14 @@ def read_carmen(
         np.array(laser),
         np.array(odom),
         line_numbers,
-        skipped,
+        skipped.total(),
         fixed,
         odom_lines,
         odom_fixed,
         extra.params,
         extra.g2o_steps(len(scans)),
         cut,
+        dict(skipped.most_common()),
     )
 
 

@@ -38,11 +38,12 @@ import numpy as np
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import compressed, read_log_text, read_text
+from rigcal.io.files import compressed, read_log_text, read_text, text_lines
 from rigcal.io.log_lines import CutLine, ShortLineError, cut_last_line
 from rigcal.io.stamps import StampRepair, repair_stamps
+from rigcal.io.trajectory import read_tum_cut
 from rigcal.io.validate import file_inside
-from rigcal.io.wheel_odometry import read_odometry_tum
+from rigcal.io.wheel_odometry import odometry_of_tum
 from rigcal.recordings.sequence import ImageFrame, write_sequence
 from rigcal.scan import Scan
 
@@ -63,6 +64,7 @@ class LaserTextSummary:
     odometry: bool = False
     cut: CutLine | None = None
     images_cut: CutLine | None = None
+    odometry_cut: CutLine | None = None
 
 
 def _fields(line: str) -> list[str]:
@@ -76,7 +78,7 @@ def _log_text(path: Path, what: str) -> str:
 def _content_lines(path: Path, what: str, text: str | None = None) -> list[tuple[int, str]]:
     out = []
     text = _log_text(path, what) if text is None else text
-    for n, line in enumerate(text.splitlines(), start=1):
+    for n, line in enumerate(text_lines(text), start=1):
         s = line.strip()
         if s and not s.startswith(("#", "%")):
             out.append((n, s))
@@ -494,10 +496,11 @@ def import_laser_text(
     else:
         scans, lines, cut = _csv_scans(log, range_min_m, range_max_m, strict)
     scans, fixed = restamped(scans, lines, log, stamps)
-    wheel = None
+    wheel, odometry_cut = None, None
     if odometry is not None:
         mount = np.zeros(3) if laser_offset is None else laser_offset
-        wheel = read_odometry_tum(odometry, mount, fixed.stamps_s)
+        traj, odometry_cut = read_tum_cut(odometry, strict)  # a TUM file cut short: the logs' rule
+        wheel = odometry_of_tum(traj, odometry, mount, fixed.stamps_s)
     frames: list[ImageFrame] = []
     list_cut = None
     if images is not None:
@@ -519,7 +522,17 @@ def import_laser_text(
         source["images_incomplete_last_line"] = list_cut.line
     if odometry is not None:
         source["odometry"] = str(Path(odometry).resolve())
+    if odometry_cut is not None:
+        source["odometry_incomplete_last_line"] = odometry_cut.line
     write_sequence(output, log.name, scans, frames, camera_yaml, source, force=force, odometry=wheel)
     return LaserTextSummary(
-        fmt, len(scans), len(frames), camera_yaml is not None, fixed, wheel is not None, cut, list_cut
+        fmt,
+        len(scans),
+        len(frames),
+        camera_yaml is not None,
+        fixed,
+        wheel is not None,
+        cut,
+        list_cut,
+        odometry_cut,
     )

@@ -33,8 +33,9 @@ import yaml
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text
+from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text, text_lines
 from rigcal.io.kinds import kind_of_bytes
+from rigcal.io.stamps import check_seconds
 from rigcal.io.validate import finite_array, parse_real, real, relative_inside, whole
 from rigcal.io.wheel_odometry import WheelOdometry, odometry_tum, read_odometry_tum
 from rigcal.scan import Scan, ScanArrayError, laser_clockwise, uniform_scans
@@ -193,12 +194,15 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
     if folder.is_file():  # sequence.yaml or scans.npz given for its folder, or another file
         hint = f" ({folder.parent}?)" if (folder.parent / "sequence.yaml").is_file() else ""
         raise InputError(f"{folder}: got a file; expected a sequence folder{hint}, holding sequence.yaml")
+    if not folder.exists():
+        raise InputError(f"{folder}: not found; expected a sequence folder holding sequence.yaml")
     d = check_keys(
         load_yaml(path, "sequence file"),
         path,
         "",
         ["schema_version", "name", "scans", "images"],
         ["source", "camera", "rig", "groundtruth", "laser", "odometry"],
+        SEQUENCE_SCHEMA_VERSIONS,
     )
     clockwise = laser_clockwise(d, path, SEQUENCE_SCHEMA_VERSIONS, since=2)
     if not isinstance(d["name"], str):
@@ -225,6 +229,7 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
             f"{npz}: stamps_s[{k}]: got {float(st[k])!r}; expected a finite stamp after "
             f"{float(st[k - 1]) if k else '-inf'!r} (scan stamps increase)"
         )
+    check_seconds(st, str(npz), "stamps_s", scans=True)
     try:
         scans = uniform_scans(
             arrays["angle_min_rad"],
@@ -244,6 +249,7 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
     index = folder / relative_inside(im["index"], path, "images.index")
     images = folder / relative_inside(im["folder"], path, "images.folder")
     stamps, files = _read_index(index)
+    check_seconds(stamps, str(index), "stamp_s")
     if len(files) != whole(im["count"], path, "images.count"):
         raise InputError.at(path, "images.count", im["count"], f"{len(files)}, the rows of {index.name}")
     for f in files:
@@ -285,7 +291,15 @@ def _odometry_reader(
         raise InputError.at(path, "odometry.T_base_laser", mount, "[x, y, yaw] (m, m, rad)")
     xyz = [real(v, path, f"odometry.T_base_laser[{i}]") for i, v in enumerate(mount)]
     file = folder / relative_inside(od["file"], path, "odometry.file")
-    return partial(read_odometry_tum, file, np.array(xyz), scan_stamps_s)
+    return partial(_read_odometry, file, np.array(xyz), scan_stamps_s)
+
+
+def _read_odometry(file: Path, T_base_laser: FloatArray, scan_stamps_s: FloatArray) -> WheelOdometry:
+    """The sequence's odometry.tum; its error says how to go on without it."""
+    try:
+        return read_odometry_tum(file, T_base_laser, scan_stamps_s)
+    except InputError as exc:
+        raise InputError(f"{exc} (--wheel-odometry ignore runs without it)") from None
 
 
 def _load_scan_arrays(npz: Path) -> dict[str, Any]:
@@ -365,7 +379,7 @@ def _check_scan_arrays(a: dict[str, Any], npz: Path) -> int:
 
 def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
     # A spreadsheet's byte-order mark and blank lines (an editor's last newline) are no data.
-    lines = read_text(index, "image index").removeprefix("\ufeff").splitlines()
+    lines = text_lines(read_text(index, "image index").removeprefix("\ufeff"))
     if not lines or lines[0].strip() != "stamp_s,file":
         got = lines[0][:60] if lines else ""
         raise InputError(f"{index}: line 1: got {got!r}; expected the header 'stamp_s,file'")

@@ -79,6 +79,7 @@ def read_world(path: str | Path) -> World:
         "",
         ["schema_version", "name", "path", "walls"],
         ["obstacles", "laser_height_m"],
+        [WORLD_SCHEMA_VERSION],
     )
     check_schema_version(d, path, WORLD_SCHEMA_VERSION)
     laser_h = get_float(d, "laser_height_m", path, positive=True) if "laser_height_m" in d else 0.4

@@ -63,7 +63,7 @@ def read_target(path: str | Path) -> MarkerTarget | BoardTarget:
 
 def parse_board_target(data: Any, path: Path | None) -> BoardTarget:
     """Validate a parsed targets file with ``kind: board`` (see :func:`read_target`)."""
-    d = check_keys(data, path, "", ["schema_version", "kind", "board"], ["name"])
+    d = check_keys(data, path, "", ["schema_version", "kind", "board"], ["name"], TARGETS_SCHEMA_VERSIONS)
     version = d["schema_version"]
     if type(version) is not int or version not in TARGETS_SCHEMA_VERSIONS or version < 2:
         raise InputError.at(path, "schema_version", version, "2 (kind: board needs schema version 2)")

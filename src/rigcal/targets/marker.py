@@ -166,6 +166,7 @@ def parse_targets(data: Any, path: Path | None) -> MarkerTarget:
         "",
         ["schema_version", "dictionary", "angle_deg", "edge_m", "faces"],
         ["name", "corner", "kind"],
+        TARGETS_SCHEMA_VERSIONS,
     )
     version = d["schema_version"]
     if type(version) is not int or version not in TARGETS_SCHEMA_VERSIONS:

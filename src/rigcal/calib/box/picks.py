@@ -173,7 +173,14 @@ def read_pick_draft(path: str | Path, line_params: LineParams | None = None) -> 
     """
     path = Path(path)
     data = load_yaml(path, "picking file")
-    d = check_keys(data, path, "", ["schema_version", "camera", "captures"], ["laser", "name", "box"])
+    d = check_keys(
+        data,
+        path,
+        "",
+        ["schema_version", "camera", "captures"],
+        ["laser", "name", "box"],
+        READABLE_PICKS_VERSIONS,
+    )
     version = d["schema_version"]
     if type(version) is not int or version not in READABLE_PICKS_VERSIONS:
         raise InputError.at(
@@ -652,6 +659,7 @@ def read_session_header(
         "",
         ["schema_version", "method", "camera", "captures", *required],
         ["laser", "name", *optional],
+        versions,
     )
     version = d["schema_version"]
     if type(version) is not int or version not in versions:
