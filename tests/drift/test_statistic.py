@@ -29,7 +29,8 @@ def clustered_problem(
     A = X.T @ X
     theta = np.linalg.solve(A, X.T @ y)
     A_c = np.array([x.T @ x for x in Xs])
-    g_c = np.array([x.T @ (yy - x @ theta) for x, yy in zip(Xs, ys, strict=True)])
+    # The gradient of the residuals r = X theta - y (dg_c / dtheta = A_c, as the check's).
+    g_c = np.array([x.T @ (x @ theta - yy) for x, yy in zip(Xs, ys, strict=True)])
     return theta, A, A_c, g_c
 
 
