@@ -146,6 +146,14 @@ BOOTSTRAP_DRAWS = 4999
 """Draws of the wild cluster bootstrap: (B + 1) times the level an integer for every level
 the check uses (1 %, and 0.5 % for two groups), and the p-value's Monte Carlo error about
 0.001 at the 1 % level."""
+BOOTSTRAP_FROM_CLUSTERS = 12
+"""A group of directions judged by this many clusters or more is referred to the wild
+cluster bootstrap; by fewer, to the F with Kish's count capped by the spread's degrees of
+freedom. On synthetic clustered problems (benchmarks/bench_targetless_few_clusters.py)
+the F holds the 1 % level with 5-8 clusters (0.25-0.65 %) and exceeds it from 12 on
+(1.7-1.9 % with unequal clusters, about 4 % with wildly unequal ones), where the
+bootstrap holds it at about the F's power; with 6-8 clusters the bootstrap holds it too
+but detects a third to a half as often (its restricted scores carry the change)."""
 BOOTSTRAP_SEED = 20080801
 """The bootstrap's generator is seeded with this (a constant: the same drive gives the same
 verdict on every run and machine)."""

@@ -85,6 +85,7 @@ from rigcal.drift.edges import (
 from rigcal.drift.frames import FRAME_RATE_HZ, frames_ahead, used_frames
 from rigcal.drift.sampling import GREY_SCALE, project_sample
 from rigcal.drift.statistic import (
+    BOOTSTRAP_FROM_CLUSTERS,
     cluster_covariance,
     effective_clusters,
     hotelling,
@@ -1458,9 +1459,10 @@ def _test(
         return {"verdict": "cannot_tell", "record": record} | nothing
     # Each group's directions (resolution units): Hotelling's T^2 of the estimate
     # against the clusters' jackknife plus the known parts (the floor, the stored
-    # calibration's covariance), referred to its wild cluster bootstrap under no change
-    # on the linearised problem (statistic.wild_cluster_bootstrap: the F with Kish's
-    # count alarmed too often with many unequal clusters). The clusters' effective count
+    # calibration's covariance), referred with 12 clusters or more to its wild cluster
+    # bootstrap under no change on the linearised problem (statistic.wild_cluster_bootstrap:
+    # the F with Kish's count alarmed too often with many unequal clusters), with fewer to
+    # the F (statistic.BOOTSTRAP_FROM_CLUSTERS). The clusters' effective count
     # along the group's directions (a few corners carrying the yaw count as few, however
     # many frames see them), at most one more than the spread's degrees of freedom
     # (_observed_groups), says whether there are enough to judge them (F(k, n - k)
@@ -1477,7 +1479,7 @@ def _test(
         known = g.V.T @ (F_z + R_z) @ g.V
         level_g = s.level / len(groups)
         h = hotelling(z_g, C_g, known, n_g, level_g)
-        if math.isfinite(h.p):
+        if math.isfinite(h.p) and g.clusters.stop - g.clusters.start >= BOOTSTRAP_FROM_CLUSTERS:
             V_free = np.zeros((len(est.normal), g.V.shape[1]))
             V_free[: len(free)] = g.V[free]
             b = wild_cluster_bootstrap(
