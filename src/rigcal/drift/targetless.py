@@ -85,11 +85,13 @@ from rigcal.drift.edges import (
 from rigcal.drift.frames import FRAME_RATE_HZ, frames_ahead, used_frames
 from rigcal.drift.sampling import GREY_SCALE, project_sample
 from rigcal.drift.statistic import (
+    BOOTSTRAP_FROM_CLUSTERS,
     cluster_covariance,
     effective_clusters,
     hotelling,
     hotelling_critical,
     spread_dof,
+    wild_cluster_bootstrap,
 )
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R, se2
@@ -1119,6 +1121,12 @@ class _Estimate:
     # (6, 6) the information on xi (resolution units) once the odometry's errors are free:
     # how well the drive's design determines each direction, whatever its residuals.
     information: FloatArray = field(default_factory=lambda: np.eye(6))
+    # The linearised problem the jackknife and the bootstrap work on (free parameters: xi
+    # without laser z, then the odometry's errors; resolution and odometry error units):
+    # the normal matrix (K, K), each cluster's part of it (G, K, K) and of the gradient (G, K).
+    normal: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    cluster_normal: FloatArray = field(default_factory=lambda: np.zeros((0, 0, 0)))
+    cluster_gradient: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
 
 
 RUNAWAY_UNITS = 0.3
@@ -1271,7 +1279,8 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     # corner's bands left out in turn, by one Newton step from the estimate.
     A_c, g_c, n_blocks, n_corners = _cluster_parts(cur, sc, keep, patches)
     A_c = D[None] @ A_c @ D[None]
-    C_free, d = cluster_covariance(A, A_c, g_c @ D)
+    g_c = g_c @ D
+    C_free, d = cluster_covariance(A, A_c, g_c)
     cov_z = np.zeros((6, 6))
     cov_z[np.ix_(free[:5], free[:5])] = C_free[:5, :5]  # the odometry's errors marginalised out
     moves = np.zeros((len(d), 6))
@@ -1286,7 +1295,20 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
         }
     solve = {"steps": steps, "steps_refused": refused, "last_step_units": _r(last_step, 4)}
     return _Estimate(
-        xi, cov_z, nuis, sig, n_blocks, n_corners, moves, determined, edge_stats, solve, information
+        xi,
+        cov_z,
+        nuis,
+        sig,
+        n_blocks,
+        n_corners,
+        moves,
+        determined,
+        edge_stats,
+        solve,
+        information,
+        normal=A,
+        cluster_normal=A_c,
+        cluster_gradient=g_c,
     )
 
 
@@ -1513,22 +1535,36 @@ def _test(
             f"({s.resolution_deg:g} deg, {100 * s.resolution_m:g} cm) by this drive"
         )
         return {"verdict": "cannot_tell", "record": record} | nothing
-    # Each group on its own clusters (resolution units): the clusters' jackknife, plus
-    # the known parts (the floor, the stored calibration's covariance); Hotelling's T^2
-    # referred to the F with the clusters' effective count along the group's directions
-    # (a few corners carrying the yaw count as few, however many frames see them), at
-    # most one more than the spread's degrees of freedom (_observed_groups).
-    # The groups' tests are combined by Bonferroni: drifted when one group's p is
-    # under the level over the groups' count.
+    # Each group's directions (resolution units): Hotelling's T^2 of the estimate
+    # against the clusters' jackknife plus the known parts (the floor, the stored
+    # calibration's covariance), referred with 12 clusters or more to its wild cluster
+    # bootstrap under no change on the linearised problem (statistic.wild_cluster_bootstrap:
+    # the F with Kish's count alarmed too often with many unequal clusters), with fewer to
+    # the F (statistic.BOOTSTRAP_FROM_CLUSTERS). The clusters' effective count
+    # along the group's directions (a few corners carrying the yaw count as few, however
+    # many frames see them), at most one more than the spread's degrees of freedom
+    # (_observed_groups), says whether there are enough to judge them (F(k, n - k)
+    # needs n > k + 1) and sizes the detectable change. The groups' tests are combined
+    # by Bonferroni: drifted when one group's p is under the level over the groups' count.
     F_z, R_z = _floor_z(s, _floor_m(s, est)), _rig_cov_z(rig, D)
     z_all = V_obs.T @ np.linalg.solve(D, est.xi)
+    free = [0, 1, 2, 3, 4]  # xi's rows among the free parameters (laser z held)
     tests = []
     for g in groups:
         z_g = g.V.T @ np.linalg.solve(D, est.xi)
         C_g = g.V.T @ est.cov_z @ g.V
         n_g = min(effective_clusters(est.moves[g.clusters], g.V), float(g.spread_dof + 1))
         known = g.V.T @ (F_z + R_z) @ g.V
-        tests.append((g, hotelling(z_g, C_g, known, n_g, s.level / len(groups)), n_g, C_g, known, z_g))
+        level_g = s.level / len(groups)
+        h = hotelling(z_g, C_g, known, n_g, level_g)
+        if math.isfinite(h.p) and g.clusters.stop - g.clusters.start >= BOOTSTRAP_FROM_CLUSTERS:
+            V_free = np.zeros((len(est.normal), g.V.shape[1]))
+            V_free[: len(free)] = g.V[free]
+            b = wild_cluster_bootstrap(
+                est.normal, est.cluster_normal, est.cluster_gradient, V_free, z_g, known, level_g
+            )
+            h = dataclasses.replace(h, p=b.p, critical=b.critical)
+        tests.append((g, h, n_g, C_g, known, z_g))
     if any(not math.isfinite(t.p) for _, t, *_ in tests):
         reasons.append(
             f"too short: {est.blocks} blocks of {s.block_s:g} s and {est.corners} corners amount to too few "
