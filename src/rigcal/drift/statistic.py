@@ -224,9 +224,14 @@ def wild_cluster_bootstrap(
     rng = np.random.default_rng(seed)
     w = WEBB_WEIGHTS[rng.integers(0, 6, size=(draws, G))]
     u = -(w @ g_r) @ A_inv.T  # (B, K): theta* - theta_r
-    s = w[..., None] * g_r[None] + np.einsum("gkl,bl->bgk", A_c, u)  # the draws' scores at theta*
+    # The draws' scores at theta* are w_c g_c^r + A_c u; only their moves along V are
+    # needed, V^T (A - A_c)^-1 (w_c g_c^r + A_c u), formed from (G, k) and (G, k, K) parts
+    # (matrix products; not the (B, G, K) scores themselves).
+    h = np.einsum("gil,gl->gi", VQ, g_r)
+    M = VQ @ A_c  # (G, k, K)
+    dV = w[..., None] * h[None] + np.moveaxis(M @ u.T, 2, 0)  # (B, G, k)
     ev, U = np.linalg.eigh(0.5 * (C_known + C_known.T))
     e = (rng.normal(size=(draws, k)) * np.sqrt(np.clip(ev, 0.0, None))) @ U.T
-    t2_star = t2_of(np.einsum("gil,bgl->bgi", VQ, s), u @ V + e)
+    t2_star = t2_of(dV, u @ V + e)
     p = float((1 + np.count_nonzero(t2_star >= t2)) / (draws + 1))
     return Test(t2, math.nan, k, float(G), p, float(np.quantile(t2_star, 1.0 - level)))
