@@ -265,11 +265,24 @@ def test_missing_required_key(tmp_path, key):
         read_scan(path)
 
 
-@pytest.mark.parametrize(("text", "shown"), [("3", "3"), ("'1'", "'1'"), ("true", "True"), ("0", "0")])
+@pytest.mark.parametrize(("text", "shown"), [("'1'", "'1'"), ("true", "True"), ("0", "0")])
 def test_wrong_schema_version(tmp_path, text, shown):
     path = scan_file(tmp_path, schema_version=text)
     with pytest.raises(
         InputError, match=re.escape(f"{path}: schema_version: got {shown}; expected one of 1, 2")
+    ):
+        read_scan(path)
+
+
+def test_newer_schema_version(tmp_path):
+    """A version above those this rigcal reads is named as a newer rigcal's file."""
+    path = scan_file(tmp_path, schema_version="3")
+    with pytest.raises(
+        InputError,
+        match=re.escape(
+            f"{path}: schema_version: got 3; expected 1 or 2 (the versions this rigcal reads; "
+            "a file of a newer rigcal: upgrade rigcal to read it)"
+        ),
     ):
         read_scan(path)
 
