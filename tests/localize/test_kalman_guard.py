@@ -162,6 +162,21 @@ def test_a_degenerate_corridor_the_filter_follows_vo_along_the_travel(mode):
     assert abs(res.poses[-1, 0] - end[0]) < 0.03
 
 
+def _line_icp_vo(rng, vo_forward_errors, vo_cov):
+    """A 20 m straight line: ICP's 800 steps, constrained and honest (1 mm forward, drawn
+    first from rng), and VO's 40 runs erring forward by vo_forward_errors() under vo_cov."""
+    t, poses = _line(801, 0.025)
+    icp_errors = np.zeros((800, 3))
+    icp_errors[:, 0] = rng.normal(0.0, 1e-3, 800)
+    icp_path = _with_errors(poses, icp_errors)
+    icp = _icp(t, icp_path, np.diag([1e-6, 9e-8, 1e-10]))
+    vo_errors = np.zeros((40, 3))
+    vo_errors[:, 0] = vo_forward_errors()
+    vo_path = _with_errors(poses[::20], vo_errors)
+    vo = kalman.increments(t[::20], vo_path, np.stack([vo_cov] * 41), source="vo")
+    return poses, icp_path, icp, vo
+
+
 @pytest.mark.parametrize("mode", ["weighted", "driven"])
 def test_vo_biased_beyond_its_errors_against_a_constrained_icp_is_left_out_forward(mode):
     """ICP constrained and honest (1 mm a step, erring by that); VO's runs 8 mm too long
@@ -171,18 +186,7 @@ def test_vo_biased_beyond_its_errors_against_a_constrained_icp_is_left_out_forwa
     most runs (never its cross-track or yaw, which agree), and the filter ends at least a
     third closer to the truth than without it (10 m: 5-6 cm off against 9-10 cm)."""
     rng = np.random.default_rng(3)
-    t, poses = _line(801, 0.025)
-    icp_errors = np.zeros((800, 3))
-    icp_errors[:, 0] = rng.normal(0.0, 1e-3, 800)
-    icp = _icp(t, _with_errors(poses, icp_errors), np.diag([1e-6, 9e-8, 1e-10]))
-    vo_errors = np.zeros((40, 3))
-    vo_errors[:, 0] = 8e-3
-    vo = kalman.increments(
-        t[::20],
-        _with_errors(poses[::20], vo_errors),
-        np.stack([np.diag([2.25e-6, 1e-6, 1e-8])] * 41),
-        source="vo",
-    )
+    poses, _, icp, vo = _line_icp_vo(rng, lambda: np.full(40, 8e-3), np.diag([2.25e-6, 1e-6, 1e-8]))
     params = kalman.KF_MODES[mode]
     guarded = kalman.run_filter(icp + vo, params)
     unguarded = kalman.run_filter(icp + vo, dataclasses.replace(params, vo_guard=0))
@@ -221,18 +225,7 @@ def test_vo_much_worse_than_a_constrained_icp_leaves_the_filter_on_icps_path(mod
     variance over every window) the filter's path is the filter's on ICP alone (driven:
     ICP's steps chained), to rounding."""
     rng = np.random.default_rng(5)
-    t, poses = _line(801, 0.025)
-    icp_errors = np.zeros((800, 3))
-    icp_errors[:, 0] = rng.normal(0.0, 1e-3, 800)
-    icp = _icp(t, _with_errors(poses, icp_errors), np.diag([1e-6, 9e-8, 1e-10]))
-    vo_errors = np.zeros((40, 3))
-    vo_errors[:, 0] = rng.normal(0.0, 3e-3, 40)
-    vo = kalman.increments(
-        t[::20],
-        _with_errors(poses[::20], vo_errors),
-        np.stack([np.diag([9e-6, 1e-4, 1e-6])] * 41),
-        source="vo",
-    )
+    _, icp_path, icp, vo = _line_icp_vo(rng, lambda: rng.normal(0.0, 3e-3, 40), np.diag([9e-6, 1e-4, 1e-6]))
     params = dataclasses.replace(kalman.KF_MODES[mode], vo_pays=0.25)
     alone = kalman.run_filter(icp, params)
     ruled = kalman.run_filter(icp + vo, params)
@@ -241,7 +234,7 @@ def test_vo_much_worse_than_a_constrained_icp_leaves_the_filter_on_icps_path(mod
     np.testing.assert_allclose(ruled.poses[at], alone.poses, atol=1e-9)
     assert np.abs(fused.poses[-1] - alone.poses[-1]).max() > 1e-5
     if mode == "driven":
-        np.testing.assert_allclose(alone.poses[-1], _with_errors(poses, icp_errors)[-1], atol=1e-9)
+        np.testing.assert_allclose(alone.poses[-1], icp_path[-1], atol=1e-9)
 
 
 @pytest.mark.parametrize("mode", ["weighted", "driven"])
