@@ -1,0 +1,130 @@
+"""Blurred images made only where they are read: one Gaussian blur per key (an image at a
+blur level), over a box of it, widened on demand.
+
+The targetless check (:mod:`rigcal.drift.targetless`) reads its blurred frames only
+around the laser's returns projected into them (the photometric patches) and around
+the scans' depth discontinuities (the edge bands, :mod:`rigcal.drift.edges`): a small
+part of each frame. Blurring whole frames was most of the check's image work. Here
+each key's blur is made over the box its reads fall in under the stored T_cam_laser
+(with a margin for the correction), and a read that falls outside its key's box (the
+estimate moved a point farther) widens the box first. A Gaussian blur of a crop that
+reaches a kernel radius beyond the box equals the blur of the whole image there, bit
+for bit (OpenCV's separable filter; ``tests/drift/test_blur_stack.py``), so every value
+read is the value the whole blurred image holds: the results are those of blurring
+every frame whole.
+
+Coordinates are the stack's: rows from the first row of the band the stack holds
+(``row0`` of the key's source image), columns as in the source image.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from rigcal.arrays import FloatArray, IntArray
+
+Source = Callable[[int], NDArray[np.uint16]]
+"""A source image (uint16, the stack's grey scale, possibly downsampled) by its id."""
+
+
+class BlurStack:
+    """(K, H, W) uint16 blurred images, key k holding source ``image_of[k]`` blurred by
+    ``sigma_px[k]``, rows ``row0`` to ``row0 + H`` of it, made only inside ``box[k]``
+    (rows r0:r1, columns c0:c1; empty at first). Pixels outside a key's box hold
+    nothing meaningful: readers check the box (:meth:`covers`) and widen it
+    (:meth:`widen`) before reading."""
+
+    def __init__(
+        self,
+        image_of: IntArray,
+        sigma_px: FloatArray,
+        row0: int,
+        height: int,
+        width: int,
+        source: Source,
+    ) -> None:
+        self.image_of = np.asarray(image_of, dtype=np.int64)
+        self.sigma_px = np.asarray(sigma_px, dtype=np.float64)
+        self.row0 = row0
+        # Untouched pages of an empty array take no memory: only the boxes are made.
+        self.stack = np.empty((len(self.image_of), height, width), dtype=np.uint16)
+        self.box = np.zeros((len(self.image_of), 4), dtype=np.int64)
+        self._source = source
+        self._lock = threading.Lock()
+
+    def fill(self, need: IntArray, threads: int = 2) -> None:
+        """Make each key's blur over ``need[k]`` (rows r0:r1, columns c0:c1, stack
+        coordinates; clipped to the stack), each source image read once, the images on
+        ``threads`` threads (OpenCV releases the interpreter)."""
+        need = self._clipped(need)
+        images = np.unique(self.image_of)
+        order = np.argsort(self.image_of, kind="stable")
+        bounds = [*np.searchsorted(self.image_of[order], images), len(order)]
+
+        def one(n: int) -> None:
+            g = self._source(int(images[n]))
+            for k in order[bounds[n] : bounds[n + 1]]:
+                if need[k, 1] > need[k, 0] and need[k, 3] > need[k, 2]:
+                    self._blur(int(k), need[k], g)
+                    self.box[k] = need[k]
+
+        if threads > 1 and len(images) > 1:
+            with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="blur-stack") as pool:
+                list(pool.map(one, range(len(images))))
+        else:
+            for n in range(len(images)):
+                one(n)
+
+    def covers(self, keys: IntArray, need: IntArray) -> NDArray[np.bool_]:
+        """(N,) whether each key's box holds the (N, 4) region ``need``."""
+        b = self.box[keys]
+        rows = (b[:, 0] <= need[:, 0]) & (need[:, 1] <= b[:, 1])
+        out: NDArray[np.bool_] = rows & (b[:, 2] <= need[:, 2]) & (need[:, 3] <= b[:, 3])
+        return out
+
+    def widen(self, keys: IntArray, need: IntArray, margin_px: int) -> None:
+        """Widen each key's box to hold the regions ``need`` of its reads (N, 4), with
+        ``margin_px`` more on every side, and make the blur there; safe from several
+        threads at once (a box grows only after its pixels are made)."""
+        with self._lock:
+            for k in np.unique(keys):
+                r = need[keys == k]
+                if self.covers(np.full(len(r), k), r).all():  # another thread made it meanwhile
+                    continue
+                lo = r[:, 0::2].min(axis=0) - margin_px  # first row, first column
+                hi = r[:, 1::2].max(axis=0) + margin_px  # past the last
+                b = self.box[k]
+                if b[1] > b[0] and b[3] > b[2]:  # the union with what is made
+                    lo, hi = np.minimum(lo, b[0::2]), np.maximum(hi, b[1::2])
+                want = self._clipped(np.array([[lo[0], hi[0], lo[1], hi[1]]]))[0]
+                self._blur(int(k), want, self._source(int(self.image_of[k])))
+                self.box[k] = want
+
+    def _clipped(self, need: IntArray) -> IntArray:
+        _, H, W = self.stack.shape
+        out = np.array(need, dtype=np.int64, copy=True)
+        out[:, 0:2] = np.clip(out[:, 0:2], 0, H)
+        out[:, 2:4] = np.clip(out[:, 2:4], 0, W)
+        return out
+
+    def _blur(self, k: int, box: IntArray, g: NDArray[np.uint16]) -> None:
+        """Key k's blur over box, from a crop of its source reaching a kernel radius
+        beyond it (OpenCV's 16-bit kernel spans 4 sigma either side): the whole image's
+        blur there, bit for bit."""
+        sigma = float(self.sigma_px[k])
+        pad = math.ceil(4.0 * sigma) + 1
+        r0, r1, c0, c1 = (int(x) for x in box)
+        a = max(self.row0 + r0 - pad, 0)
+        b = min(self.row0 + r1 + pad, g.shape[0])
+        ca = max(c0 - pad, 0)
+        cb = min(c1 + pad, g.shape[1])
+        out = cv2.GaussianBlur(g[a:b, ca:cb], (0, 0), sigma)
+        top = self.row0 + r0 - a
+        self.stack[k, r0:r1, c0:c1] = out[top : top + r1 - r0, c0 - ca : c1 - ca]
