@@ -99,3 +99,24 @@ def test_edge_images_over_boxes_read_as_whole_frames():
     q = np.column_stack([rng.uniform(-5, 325, 2000), rng.uniform(0, 240, 2000)])
     which = rng.integers(0, 3, 2000)
     np.testing.assert_array_equal(boxed.sample(which, q), whole_frames.sample(which, q))
+
+
+def test_many_boxes_blurred_side_by_side_hold_the_whole_images_blur():
+    """Boxes of every size, touching the images' borders or not, several blurs, many
+    to a row of crops (rigcal.drift.blur_stack._side_by_side)."""
+    rng = np.random.default_rng(5)
+    src = images(rng, 6, 90, 130)
+    n = 400
+    keys = rng.integers(0, 6, n)
+    sig = rng.choice([0.7, 1.44, 3.1], n)
+    row0, height = 5, 80
+    r = np.sort(rng.integers(0, height + 1, (n, 2)), axis=1)
+    c = np.sort(rng.integers(0, 131, (n, 2)), axis=1)
+    need = np.column_stack([r[:, 0], r[:, 1] + 1, c[:, 0], c[:, 1] + 1])
+    stack = BlurStack(keys, sig, row0, height, 130, lambda i: src[i])
+    stack.fill(need)
+    for k in range(n):
+        r0, r1, c0, c1 = stack.box[k]
+        assert (r1 - r0) * (c1 - c0) > 0
+        ref = whole(src[keys[k]], sig[k], row0, height)
+        np.testing.assert_array_equal(stack.stack[k, r0:r1, c0:c1], ref[r0:r1, c0:c1])
