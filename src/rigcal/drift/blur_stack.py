@@ -137,12 +137,12 @@ class BlurStack:
         top, bottom, left, right = self.row0 + r0 - pad, self.row0 + r1 + pad, c0 - pad, c1 + pad
         a, b = max(top, 0), min(bottom, g.shape[0])
         ca, cb = max(left, 0), min(right, g.shape[1])
-        crop = g[a:b, ca:cb]
-        if (a - top, bottom - b, ca - left, right - cb) != (0, 0, 0, 0):
-            border = cv2.BORDER_REFLECT_101
-            crop = cv2.copyMakeBorder(crop, a - top, bottom - b, ca - left, right - cb, border)
-        out: NDArray[np.uint16] = np.asarray(crop, dtype=np.uint16)
-        return out
+        crop: NDArray[np.uint16] = g[a:b, ca:cb]
+        if (a - top, bottom - b, ca - left, right - cb) == (0, 0, 0, 0):
+            return crop
+        border = cv2.BORDER_REFLECT_101
+        out = cv2.copyMakeBorder(crop, a - top, bottom - b, ca - left, right - cb, borderType=border)
+        return np.asarray(out, dtype=np.uint16)
 
     def _blur(self, k: int, box: IntArray, g: NDArray[np.uint16]) -> None:
         """Key k's blur over box, from a crop of its source reaching a kernel radius
