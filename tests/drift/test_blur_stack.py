@@ -18,6 +18,11 @@ def images(rng: np.random.Generator, n: int, h: int = 120, w: int = 160) -> list
     return [(rng.integers(0, 256, (h, w)) * 64).astype(np.uint16) for _ in range(n)]
 
 
+def rows_of(src: list[np.ndarray]) -> tuple[object, int]:
+    """A BlurStack's source (rows a:b of image i) and the images' height."""
+    return (lambda i, a, b: src[i][a:b]), src[0].shape[0]
+
+
 def whole(g: np.ndarray, sigma: float, row0: int, height: int) -> np.ndarray:
     out: np.ndarray = cv2.GaussianBlur(g, (0, 0), sigma)[row0 : row0 + height]
     return out
@@ -30,7 +35,7 @@ def test_a_box_holds_the_whole_images_blur(sigma):
     row0, height = 17, 70
     keys = np.array([0, 0, 1, 2, 2])
     sig = np.array([sigma, 1.1 * sigma, sigma, sigma, 2.0 * sigma])
-    stack = BlurStack(keys, sig, row0, height, 160, lambda i: src[i])
+    stack = BlurStack(keys, sig, row0, height, 160, *rows_of(src))
     need = np.array([[0, 70, 0, 160], [5, 30, 40, 41], [60, 70, 150, 160], [0, 1, 0, 1], [20, 50, 3, 90]])
     stack.fill(need)
     np.testing.assert_array_equal(stack.box, need)
@@ -42,7 +47,7 @@ def test_a_box_holds_the_whole_images_blur(sigma):
 def test_widening_makes_the_reads_and_keeps_what_was_made():
     rng = np.random.default_rng(2)
     src = images(rng, 2)
-    stack = BlurStack(np.array([0, 1]), np.array([1.5, 2.5]), 10, 100, 160, lambda i: src[i])
+    stack = BlurStack(np.array([0, 1]), np.array([1.5, 2.5]), 10, 100, 160, *rows_of(src))
     stack.fill(np.array([[40, 50, 60, 70], [0, 0, 0, 0]]))  # key 1: nothing made yet
     need = np.array([[45, 47, 100, 102], [90, 92, 158, 160], [3, 5, 0, 2]])
     keys = np.array([0, 1, 1])
@@ -70,7 +75,7 @@ def test_the_kernel_reads_beyond_a_box_only_once_it_is_made():
     row0, height = 30, 180
     full = np.stack([whole(g, 1.7, row0, height) for g in src])
     ref = project_sample(pts, T[:3, :3], T[:3, 3], cam, full, which, 1, row0)
-    stack = BlurStack(np.arange(3), np.full(3, 1.7), row0, height, 320, lambda i: src[i])
+    stack = BlurStack(np.arange(3), np.full(3, 1.7), row0, height, 320, *rows_of(src))
     stack.fill(np.array([[50, 60, 100, 140], [0, 0, 0, 0], [0, 180, 0, 320]]))
     with pytest.raises(ValueError, match="outside the images' boxes"):
         project_sample(pts, T[:3, :3], T[:3, 3], cam, stack.stack, which, 1, row0, stack.box)
@@ -113,10 +118,22 @@ def test_many_boxes_blurred_side_by_side_hold_the_whole_images_blur():
     r = np.sort(rng.integers(0, height + 1, (n, 2)), axis=1)
     c = np.sort(rng.integers(0, 131, (n, 2)), axis=1)
     need = np.column_stack([r[:, 0], r[:, 1] + 1, c[:, 0], c[:, 1] + 1])
-    stack = BlurStack(keys, sig, row0, height, 130, lambda i: src[i])
+    stack = BlurStack(keys, sig, row0, height, 130, *rows_of(src))
     stack.fill(need)
     for k in range(n):
         r0, r1, c0, c1 = stack.box[k]
         assert (r1 - r0) * (c1 - c0) > 0
         ref = whole(src[keys[k]], sig[k], row0, height)
         np.testing.assert_array_equal(stack.stack[k, r0:r1, c0:c1], ref[r0:r1, c0:c1])
+
+
+def test_half_size_rows_are_their_own_full_size_rows_averaged():
+    """The coarse stage's source rows (rigcal.drift.targetless._stack) resize only the
+    full-size rows they average: for an image of even size, OpenCV's area resize at a
+    scale of exactly 2 gives those rows of the whole image's resize."""
+    rng = np.random.default_rng(6)
+    g = (rng.integers(0, 256, (480, 640)) * 64).astype(np.uint16)
+    whole_half = cv2.resize(g, (320, 240), interpolation=cv2.INTER_AREA)
+    for a, b in ((0, 240), (0, 1), (17, 90), (239, 240), (100, 101)):
+        part = cv2.resize(g[2 * a : 2 * b], (320, b - a), interpolation=cv2.INTER_AREA)
+        np.testing.assert_array_equal(part, whole_half[a:b])

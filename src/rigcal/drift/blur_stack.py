@@ -23,6 +23,7 @@ import math
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import cv2
 import numpy as np
@@ -30,8 +31,9 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray, IntArray
 
-Source = Callable[[int], NDArray[np.uint16]]
-"""A source image (uint16, the stack's grey scale, possibly downsampled) by its id."""
+Source = Callable[[int, int, int], NDArray[np.uint16]]
+"""Rows a:b of a source image (uint16, the stack's grey scale, possibly downsampled,
+every column) by its id, a and b."""
 
 
 class BlurStack:
@@ -49,6 +51,7 @@ class BlurStack:
         height: int,
         width: int,
         source: Source,
+        source_height: int,
     ) -> None:
         self.image_of = np.asarray(image_of, dtype=np.int64)
         self.sigma_px = np.asarray(sigma_px, dtype=np.float64)
@@ -57,6 +60,7 @@ class BlurStack:
         self.stack = np.empty((len(self.image_of), height, width), dtype=np.uint16)
         self.box = np.zeros((len(self.image_of), 4), dtype=np.int64)
         self._source = source
+        self._height = source_height  # the source images' rows
         self._lock = threading.Lock()
 
     def fill(self, need: IntArray, threads: int = 2) -> None:
@@ -73,12 +77,15 @@ class BlurStack:
         crops: list[list[tuple[int, NDArray[np.uint16]]]] = [[] for _ in images]
 
         def cut(n: int) -> None:
-            g = self._source(int(images[n]))
-            crops[n] = [(int(k), self._padded(int(k), need[k], g)) for k in of_image[n]]
+            keys = of_image[n]
+            pads = np.array([_pad(float(x)) for x in self.sigma_px[keys]])
+            a = max(int((self.row0 + need[keys, 0] - pads).min()), 0)
+            b = min(int((self.row0 + need[keys, 1] + pads).max()), self._height)
+            g = self._source(int(images[n]), a, b)  # the rows its keys' crops read
+            crops[n] = [(int(k), self._padded(int(k), need[k], g, a)) for k in keys]
 
         def blur(rows: list[tuple[int, NDArray[np.uint16]]]) -> None:
             sigma = float(self.sigma_px[rows[0][0]])
-            pad = _pad(sigma)
             buf = np.zeros((max(c.shape[0] for _, c in rows), sum(c.shape[1] for _, c in rows)), np.uint16)
             x = 0
             for _, c in rows:
@@ -87,8 +94,7 @@ class BlurStack:
             out = cv2.GaussianBlur(buf, (0, 0), sigma)
             x = 0
             for k, c in rows:
-                r0, r1, c0, c1 = (int(v) for v in need[k])
-                self.stack[k, r0:r1, c0:c1] = out[pad : pad + r1 - r0, x + pad : x + pad + c1 - c0]
+                self._place(k, need[k], out, x)
                 self.box[k] = need[k]
                 x += c.shape[1]
 
@@ -118,7 +124,11 @@ class BlurStack:
                 if b[1] > b[0] and b[3] > b[2]:  # the union with what is made
                     lo, hi = np.minimum(lo, b[0::2]), np.maximum(hi, b[1::2])
                 want = self._clipped(np.array([[lo[0], hi[0], lo[1], hi[1]]]))[0]
-                self._blur(int(k), want, self._source(int(self.image_of[k])))
+                pad = _pad(float(self.sigma_px[k]))
+                a = max(self.row0 + int(want[0]) - pad, 0)
+                b = min(self.row0 + int(want[1]) + pad, self._height)
+                crop = self._padded(int(k), want, self._source(int(self.image_of[k]), a, b), a)
+                self._place(int(k), want, cv2.GaussianBlur(crop, (0, 0), float(self.sigma_px[k])), 0)
                 self.box[k] = want
 
     def _clipped(self, need: IntArray) -> IntArray:
@@ -128,36 +138,28 @@ class BlurStack:
         out[:, 2:4] = np.clip(out[:, 2:4], 0, W)
         return out
 
-    def _padded(self, k: int, box: IntArray, g: NDArray[np.uint16]) -> NDArray[np.uint16]:
-        """Key k's source over box, a kernel radius wider on every side: the image's
-        pixels, or OpenCV's default border (reflected, the edge pixel once) beyond the
-        image, so that blurring the crop alone gives the whole image's blur in the box."""
+    def _padded(self, k: int, box: IntArray, g: NDArray[np.uint16], g_row0: int) -> NDArray[np.uint16]:
+        """Key k's source over box, a kernel radius wider on every side, from ``g`` (the
+        source's rows from ``g_row0`` on, those the crop reads): the image's pixels, or
+        OpenCV's default border (reflected, the edge pixel once) beyond the image, so
+        that blurring the crop alone gives the whole image's blur in the box."""
         pad = _pad(float(self.sigma_px[k]))
         r0, r1, c0, c1 = (int(x) for x in box)
         top, bottom, left, right = self.row0 + r0 - pad, self.row0 + r1 + pad, c0 - pad, c1 + pad
-        a, b = max(top, 0), min(bottom, g.shape[0])
+        a, b = max(top, 0), min(bottom, self._height)
         ca, cb = max(left, 0), min(right, g.shape[1])
-        crop: NDArray[np.uint16] = g[a:b, ca:cb]
+        crop: NDArray[np.uint16] = g[a - g_row0 : b - g_row0, ca:cb]
         if (a - top, bottom - b, ca - left, right - cb) == (0, 0, 0, 0):
             return crop
         border = cv2.BORDER_REFLECT_101
         out = cv2.copyMakeBorder(crop, a - top, bottom - b, ca - left, right - cb, borderType=border)
         return np.asarray(out, dtype=np.uint16)
 
-    def _blur(self, k: int, box: IntArray, g: NDArray[np.uint16]) -> None:
-        """Key k's blur over box, from a crop of its source reaching a kernel radius
-        beyond it (OpenCV's 16-bit kernel spans 4 sigma either side): the whole image's
-        blur there, bit for bit."""
-        sigma = float(self.sigma_px[k])
-        pad = _pad(sigma)
-        r0, r1, c0, c1 = (int(x) for x in box)
-        a = max(self.row0 + r0 - pad, 0)
-        b = min(self.row0 + r1 + pad, g.shape[0])
-        ca = max(c0 - pad, 0)
-        cb = min(c1 + pad, g.shape[1])
-        out = cv2.GaussianBlur(g[a:b, ca:cb], (0, 0), sigma)
-        top = self.row0 + r0 - a
-        self.stack[k, r0:r1, c0:c1] = out[top : top + r1 - r0, c0 - ca : c1 - ca]
+    def _place(self, k: int, box: IntArray, blurred: NDArray[Any], x: int) -> None:
+        """Key k's box from its blurred crop, the crop's columns from x on."""
+        pad = _pad(float(self.sigma_px[k]))
+        r0, r1, c0, c1 = (int(v) for v in box)
+        self.stack[k, r0:r1, c0:c1] = blurred[pad : pad + r1 - r0, x + pad : x + pad + c1 - c0]
 
 
 def _pad(sigma_px: float) -> int:

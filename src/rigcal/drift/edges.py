@@ -199,13 +199,13 @@ class EdgeImages:
         self.row0 = max(math.floor(rows[0]), 0)
         hi = min(math.ceil(rows[1]) + 1, first.shape[0])
 
-        def source(i: int) -> NDArray[np.uint16]:
-            out: NDArray[np.uint16] = gray_of[i].astype(np.uint16) * np.uint16(self.GREY_SCALE)
+        def source(i: int, a: int, b: int) -> NDArray[np.uint16]:
+            out: NDArray[np.uint16] = gray_of[i][a:b].astype(np.uint16) * np.uint16(self.GREY_SCALE)
             return out
 
-        self.images = BlurStack(
-            self.frames, np.full(len(self.frames), blur_px), self.row0, hi - self.row0, first.shape[1], source
-        )
+        sigmas = np.full(len(self.frames), blur_px)
+        height, width = first.shape
+        self.images = BlurStack(self.frames, sigmas, self.row0, hi - self.row0, width, source, height)
         if boxes is None:
             need = np.tile([0, hi - self.row0, 0, first.shape[1]], (len(self.frames), 1))
         else:

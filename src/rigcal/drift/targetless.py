@@ -809,15 +809,21 @@ def _stack(
         return down, key_i, key_j, lo, None
     width = streams.image(int(keys[0] // LEVELS)).shape[1] // down
 
-    def source(img: int) -> NDArray[np.uint16]:
-        """Image img, grey levels x 64, half size when the stage is."""
-        g = np.asarray(streams.image(img), dtype=np.uint16) * np.uint16(GREY_SCALE)
-        if down > 1:
-            half = (g.shape[1] // 2, g.shape[0] // 2)
-            g = np.asarray(cv2.resize(g, half, interpolation=cv2.INTER_AREA), dtype=np.uint16)
-        return g
+    def source(img: int, a: int, b: int) -> NDArray[np.uint16]:
+        """Rows a:b of image img, grey levels x 64, of half size when the stage is."""
+        full = streams.image(img)
+        if down == 1:
+            out: NDArray[np.uint16] = full[a:b].astype(np.uint16) * np.uint16(GREY_SCALE)
+            return out
+        # A half-size pixel is the mean of its 2 x 2 full-size pixels (OpenCV's area
+        # resize at a scale of exactly 2): the rows' own, for an image of even size.
+        even = full.shape[0] % 2 == 0 and full.shape[1] % 2 == 0
+        g = (full[2 * a : 2 * b] if even else full).astype(np.uint16) * np.uint16(GREY_SCALE)
+        half = (g.shape[1] // 2, g.shape[0] // 2)
+        g = np.asarray(cv2.resize(g, half, interpolation=cv2.INTER_AREA), dtype=np.uint16)
+        return g if even else g[a:b]
 
-    stack = BlurStack(keys // LEVELS, np.array(sigmas)[keys % LEVELS], lo, hi - lo, width, source)
+    stack = BlurStack(keys // LEVELS, np.array(sigmas)[keys % LEVELS], lo, hi - lo, width, source, height)
     assert streams.rig is not None
     stack.fill(_boxes(streams.rig, patches, key_i, key_j, len(keys), down, lo))
     return down, key_i, key_j, lo, stack
