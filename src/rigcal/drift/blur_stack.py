@@ -20,6 +20,7 @@ Coordinates are the stack's: rows from the first row of the band the stack holds
 from __future__ import annotations
 
 import math
+import mmap
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -56,8 +57,7 @@ class BlurStack:
         self.image_of = np.asarray(image_of, dtype=np.int64)
         self.sigma_px = np.asarray(sigma_px, dtype=np.float64)
         self.row0 = row0
-        # Untouched pages of an empty array take no memory: only the boxes are made.
-        self.stack = np.empty((len(self.image_of), height, width), dtype=np.uint16)
+        self.stack = _untouched((len(self.image_of), height, width))
         self.box = np.zeros((len(self.image_of), 4), dtype=np.int64)
         self._source = source
         self._height = source_height  # the source images' rows
@@ -160,6 +160,20 @@ class BlurStack:
         pad = _pad(float(self.sigma_px[k]))
         r0, r1, c0, c1 = (int(v) for v in box)
         self.stack[k, r0:r1, c0:c1] = blurred[pad : pad + r1 - r0, x + pad : x + pad + c1 - c0]
+
+
+def _untouched(shape: tuple[int, int, int]) -> NDArray[np.uint16]:
+    """An uninitialised uint16 array whose memory is taken a small page at a time as it
+    is written: the boxes are a small part of it. (numpy asks the kernel for huge pages
+    for large arrays, and a huge page is zeroed whole, 2 MiB, at its first write: the
+    boxes' scattered rows would take and zero most of the array.)"""
+    size = int(np.prod(shape)) * 2
+    if size == 0:
+        return np.empty(shape, dtype=np.uint16)
+    buf = mmap.mmap(-1, size)  # anonymous memory, zero pages mapped at first write
+    if hasattr(mmap, "MADV_NOHUGEPAGE"):
+        buf.madvise(mmap.MADV_NOHUGEPAGE)
+    return np.frombuffer(buf, dtype=np.uint16).reshape(shape)
 
 
 def _pad(sigma_px: float) -> int:
