@@ -137,3 +137,30 @@ def test_half_size_rows_are_their_own_full_size_rows_averaged():
     for a, b in ((0, 240), (0, 1), (17, 90), (239, 240), (100, 101)):
         part = cv2.resize(g[2 * a : 2 * b], (320, b - a), interpolation=cv2.INTER_AREA)
         np.testing.assert_array_equal(part, whole_half[a:b])
+
+
+def test_a_narrow_stack_keeps_a_window_of_columns_per_image():
+    """Each key's columns from col0 on only; a box widened within its window stays
+    there, one widened beyond it gives every key the whole width, what was made kept."""
+    rng = np.random.default_rng(7)
+    src = images(rng, 2)
+    stack = BlurStack(np.array([0, 1]), np.array([1.5, 3.1]), 10, 100, 160, *rows_of(src), narrow=True)
+    stack.fill(np.array([[10, 60, 40, 50], [20, 90, 120, 130]]))
+    assert stack.stack.shape == (2, 100, 10 + 32)
+    np.testing.assert_array_equal(stack.col0, [24, 104])  # 16 px before each box
+
+    def check() -> None:
+        for k in (0, 1):
+            r0, r1, c0, c1 = stack.box[k]
+            ref = whole(src[k], stack.sigma_px[k], 10, 100)
+            got = stack.stack[k, r0:r1, c0 - stack.col0[k] : c1 - stack.col0[k]]
+            np.testing.assert_array_equal(got, ref[r0:r1, c0:c1])
+
+    check()
+    stack.widen(np.array([0]), np.array([[55, 70, 48, 52]]), 2)  # inside its window
+    assert stack.stack.shape[2] == 42
+    check()
+    stack.widen(np.array([1]), np.array([[5, 7, 3, 5]]), 2)  # far beyond it
+    assert stack.stack.shape[2] == 160
+    np.testing.assert_array_equal(stack.col0, [0, 0])
+    check()

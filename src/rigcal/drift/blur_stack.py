@@ -42,7 +42,12 @@ class BlurStack:
     ``sigma_px[k]``, rows ``row0`` to ``row0 + H`` of it, made only inside ``box[k]``
     (rows r0:r1, columns c0:c1; empty at first). Pixels outside a key's box hold
     nothing meaningful: readers check the box (:meth:`covers`) and widen it
-    (:meth:`widen`) before reading."""
+    (:meth:`widen`) before reading.
+
+    With ``narrow``, each key keeps only a window of columns around its box (its columns
+    from ``col0[k]`` on, as many as the widest box and a margin): key k's column c is
+    ``stack[k, :, c - col0[k]]``. For boxes far narrower than the images (an edge's
+    search); a box widened beyond its window gives every key the whole width."""
 
     def __init__(
         self,
@@ -53,11 +58,15 @@ class BlurStack:
         width: int,
         source: Source,
         source_height: int,
+        narrow: bool = False,
     ) -> None:
         self.image_of = np.asarray(image_of, dtype=np.int64)
         self.sigma_px = np.asarray(sigma_px, dtype=np.float64)
         self.row0 = row0
-        self.stack = _untouched((len(self.image_of), height, width))
+        self.height, self.width = height, width
+        self.stack = _untouched((0 if narrow else len(self.image_of), height, width))
+        self.col0 = np.zeros(len(self.image_of), dtype=np.int64)
+        self._narrow = narrow
         self.box = np.zeros((len(self.image_of), 4), dtype=np.int64)
         self._source = source
         self._height = source_height  # the source images' rows
@@ -73,6 +82,11 @@ class BlurStack:
         need = self._clipped(need)
         made = np.flatnonzero((need[:, 1] > need[:, 0]) & (need[:, 3] > need[:, 2]))
         images = np.unique(self.image_of[made])
+        if self._narrow:
+            wide = int((need[made, 3] - need[made, 2]).max(initial=0)) + 2 * NARROW_MARGIN_PX
+            window = min(wide, self.width)
+            self.col0 = np.clip(need[:, 2] - NARROW_MARGIN_PX, 0, self.width - window)
+            self.stack = _untouched((len(self.image_of), self.height, window))
         of_image = [made[self.image_of[made] == i] for i in images]
         crops: list[list[tuple[int, NDArray[np.uint16]]]] = [[] for _ in images]
 
@@ -124,6 +138,8 @@ class BlurStack:
                 if b[1] > b[0] and b[3] > b[2]:  # the union with what is made
                     lo, hi = np.minimum(lo, b[0::2]), np.maximum(hi, b[1::2])
                 want = self._clipped(np.array([[lo[0], hi[0], lo[1], hi[1]]]))[0]
+                if want[2] < self.col0[k] or want[3] > self.col0[k] + self.stack.shape[2]:
+                    self._whole_width()
                 pad = _pad(float(self.sigma_px[k]))
                 a = max(self.row0 + int(want[0]) - pad, 0)
                 b = min(self.row0 + int(want[1]) + pad, self._height)
@@ -131,8 +147,16 @@ class BlurStack:
                 self._place(int(k), want, cv2.GaussianBlur(crop, (0, 0), float(self.sigma_px[k])), 0)
                 self.box[k] = want
 
+    def _whole_width(self) -> None:
+        """Every key's window the images' whole width (what is made kept)."""
+        wide = _untouched((len(self.image_of), self.height, self.width))
+        for k, (r0, r1, c0, c1) in enumerate(self.box):
+            if r1 > r0 and c1 > c0:
+                wide[k, r0:r1, c0:c1] = self.stack[k, r0:r1, c0 - self.col0[k] : c1 - self.col0[k]]
+        self.stack, self.col0 = wide, np.zeros_like(self.col0)
+
     def _clipped(self, need: IntArray) -> IntArray:
-        _, H, W = self.stack.shape
+        H, W = self.height, self.width
         out = np.array(need, dtype=np.int64, copy=True)
         out[:, 0:2] = np.clip(out[:, 0:2], 0, H)
         out[:, 2:4] = np.clip(out[:, 2:4], 0, W)
@@ -159,7 +183,12 @@ class BlurStack:
         """Key k's box from its blurred crop, the crop's columns from x on."""
         pad = _pad(float(self.sigma_px[k]))
         r0, r1, c0, c1 = (int(v) for v in box)
-        self.stack[k, r0:r1, c0:c1] = blurred[pad : pad + r1 - r0, x + pad : x + pad + c1 - c0]
+        at = c0 - int(self.col0[k])
+        self.stack[k, r0:r1, at : at + c1 - c0] = blurred[pad : pad + r1 - r0, x + pad : x + pad + c1 - c0]
+
+
+NARROW_MARGIN_PX = 16
+"""A narrow stack's windows reach this much beyond the widest box on either side."""
 
 
 def _untouched(shape: tuple[int, int, int]) -> NDArray[np.uint16]:

@@ -205,20 +205,20 @@ class EdgeImages:
 
         sigmas = np.full(len(self.frames), blur_px)
         height, width = first.shape
-        self.images = BlurStack(self.frames, sigmas, self.row0, hi - self.row0, width, source, height)
+        narrow = boxes is not None
+        self.images = BlurStack(self.frames, sigmas, self.row0, hi - self.row0, width, source, height, narrow)
         if boxes is None:
-            need = np.tile([0, hi - self.row0, 0, first.shape[1]], (len(self.frames), 1))
+            need = np.tile([0, hi - self.row0, 0, width], (len(self.frames), 1))
         else:
             need = np.asarray(boxes, dtype=np.int64) - [self.row0, self.row0, 0, 0]
         # Two threads (OpenCV releases the interpreter): the check waits on these frames
         # while its first stage iterates.
         self.images.fill(need)
-        self.stack = self.images.stack
 
     def sample(self, which: IntArray, q: FloatArray) -> FloatArray:
         """Bilinear grey levels at full-size pixels q (..., 2) of the stack's images
         ``which`` (broadcast against q's leading axes); NaN outside the band."""
-        H, W = self.stack.shape[1:]
+        H, W = self.images.height, self.images.width
         u = q[..., 0]
         v = q[..., 1] - self.row0
         inside = (u >= 0.0) & (u <= W - 1.0) & (v >= 0.0) & (v <= H - 1.0)
@@ -234,9 +234,12 @@ class EdgeImages:
         if missed.any():
             self.images.widen(kin[missed], need[missed], SEARCH_MARGIN_PX)
         fu, fv = u - u0, v - v0
-        s = self.stack
-        top = s[k, v0, u0] * (1.0 - fu) + s[k, v0, u0 + 1] * fu
-        bottom = s[k, v0 + 1, u0] * (1.0 - fu) + s[k, v0 + 1, u0 + 1] * fu
+        s = self.images.stack
+        # Each image's own columns (a narrow stack's window; points outside the band read
+        # anything there, and NaN below).
+        at = np.clip(u0 - self.images.col0[k], 0, s.shape[2] - 2)
+        top = s[k, v0, at] * (1.0 - fu) + s[k, v0, at + 1] * fu
+        bottom = s[k, v0 + 1, at] * (1.0 - fu) + s[k, v0 + 1, at + 1] * fu
         out: FloatArray = np.where(inside, (top * (1.0 - fv) + bottom * fv) / self.GREY_SCALE, np.nan)
         return out
 
