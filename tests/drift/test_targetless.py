@@ -352,7 +352,7 @@ def test_the_command_and_the_check_on_one_thread_agree_to_the_bit(drives, monkey
     the samples, and the residuals, in two halves) changes no result: its record is the
     record of the check with every step in turn on the calling thread, the residuals in one
     pass."""
-    import rigcal.drift.edges as edges
+    import rigcal.drift.blur_stack as blur_stack
     import rigcal.drift.sampling as sampling
     import rigcal.drift.targetless as targetless
     import rigcal.localize.prefetch as prefetch
@@ -360,7 +360,7 @@ def test_the_command_and_the_check_on_one_thread_agree_to_the_bit(drives, monkey
 
     command = check_rig(drives["rig"], sequence=drives["drive"], no_log=True).record["targetless"]
     assert command["patches"] > targetless.SPLIT_PATCHES_ABOVE  # the command split its residuals
-    for module in (targetless, sampling, prefetch, edges):
+    for module in (targetless, sampling, prefetch, blur_stack):
         monkeypatch.setattr(module, "ThreadPoolExecutor", _Inline)
     monkeypatch.setattr(sampling, "SPLIT_ABOVE", 0)  # the halves, one after the other
     monkeypatch.setattr(targetless, "SPLIT_PATCHES_ABOVE", 10**9)  # the residuals in one pass
@@ -371,3 +371,40 @@ def test_the_command_and_the_check_on_one_thread_agree_to_the_bit(drives, monkey
     serial.pop("check_s")
     assert command["correction_rotation_deg"] is not None
     assert command == serial
+
+
+def test_blurring_only_where_the_check_reads_changes_no_result(drives, monkeypatch):
+    """The stacks and the edges' frames made only over the boxes their reads fall in
+    (rigcal.drift.blur_stack), widened where a read needs more, give the record of
+    blurring the whole band of every frame: with no margin (many reads widen their box)
+    and with boxes as large as the band."""
+    import rigcal.drift.blur_stack as blur_stack
+    import rigcal.drift.targetless as targetless
+
+    def record() -> dict[str, object]:
+        streams = open_streams(drives["drive"], rig_file=drives["rig"])
+        streams.odometry_covariance = False
+        out = check_targetless(read_rig(drives["rig"]), streams).record
+        out.pop("check_s")
+        return out
+
+    widened = []
+    widen = blur_stack.BlurStack.widen
+
+    def counted(self, keys, need, margin_px):  # type: ignore[no-untyped-def]
+        widened.append(len(keys))
+        widen(self, keys, need, margin_px)
+
+    def boxes(size: int):  # type: ignore[no-untyped-def]
+        return lambda camera, T, edges, window_px: np.tile([-size, size, -size, size], (len(edges.X), 1))
+
+    monkeypatch.setattr(blur_stack.BlurStack, "widen", counted)
+    monkeypatch.setattr(targetless, "BOX_MARGIN_PX", 0.0)
+    monkeypatch.setattr(targetless, "search_boxes", boxes(0))  # the edges' frames: each read widens
+    tight = record()
+    assert len(widened) > 5
+    monkeypatch.setattr(targetless, "BOX_MARGIN_PX", 10.0**4)
+    monkeypatch.setattr(targetless, "search_boxes", boxes(10**4))
+    whole = record()
+    assert whole["correction_rotation_deg"] is not None
+    assert tight == whole

@@ -33,14 +33,13 @@ from __future__ import annotations
 
 import itertools
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray, IntArray
+from rigcal.drift.blur_stack import BlurStack
 from rigcal.geometry import line_intersection
 from rigcal.lines import Segment
 from rigcal.scan import Scan
@@ -178,7 +177,9 @@ def corner_clusters(feet_world: FloatArray, radius_m: float = CORNER_RADIUS_M) -
 
 class EdgeImages:
     """The frames the edges are seen in, blurred for one stage, in one uint16 stack (grey
-    levels x 64) of the band of rows the edges fall in."""
+    levels x 64) of the band of rows the edges fall in: one image per edge (each
+    discontinuity seen in a frame), made only over the box its band is searched in
+    (:class:`rigcal.drift.blur_stack.BlurStack`; widened where a read needs more)."""
 
     GREY_SCALE = 64.0
 
@@ -188,33 +189,36 @@ class EdgeImages:
         frames: IntArray,
         blur_px: float,
         rows: tuple[float, float],
+        boxes: IntArray | None = None,
     ) -> None:
-        self.frames = np.unique(frames)
-        self.key = np.searchsorted(self.frames, frames)
+        """``boxes``: (E, 4) where each edge's reads fall (image rows r0:r1, columns
+        c0:c1; :func:`search_boxes`); None: the whole band."""
+        self.frames = np.asarray(frames)
+        self.key = np.arange(len(self.frames))
         first = gray_of[int(self.frames[0])]
-        pad = math.ceil(4.0 * blur_px) + 1
         self.row0 = max(math.floor(rows[0]), 0)
         hi = min(math.ceil(rows[1]) + 1, first.shape[0])
-        a = max(self.row0 - pad, 0)
-        self.stack = np.empty((len(self.frames), hi - self.row0, first.shape[1]), dtype=np.uint16)
 
-        def blur(n: int) -> None:
-            g = gray_of[int(self.frames[n])][a : min(hi + pad, first.shape[0])].astype(np.uint16) * np.uint16(
-                self.GREY_SCALE
-            )
-            self.stack[n] = cv2.GaussianBlur(g, (0, 0), blur_px)[
-                self.row0 - a : self.row0 - a + hi - self.row0
-            ]
+        def source(i: int, a: int, b: int) -> NDArray[np.uint16]:
+            out: NDArray[np.uint16] = gray_of[i][a:b].astype(np.uint16) * np.uint16(self.GREY_SCALE)
+            return out
 
+        sigmas = np.full(len(self.frames), blur_px)
+        height, width = first.shape
+        narrow = boxes is not None
+        self.images = BlurStack(self.frames, sigmas, self.row0, hi - self.row0, width, source, height, narrow)
+        if boxes is None:
+            need = np.tile([0, hi - self.row0, 0, width], (len(self.frames), 1))
+        else:
+            need = np.asarray(boxes, dtype=np.int64) - [self.row0, self.row0, 0, 0]
         # Two threads (OpenCV releases the interpreter): the check waits on these frames
         # while its first stage iterates.
-        with ThreadPoolExecutor(max_workers=2, thread_name_prefix="edge-images") as pool:
-            list(pool.map(blur, range(len(self.frames))))
+        self.images.fill(need)
 
     def sample(self, which: IntArray, q: FloatArray) -> FloatArray:
         """Bilinear grey levels at full-size pixels q (..., 2) of the stack's images
         ``which`` (broadcast against q's leading axes); NaN outside the band."""
-        H, W = self.stack.shape[1:]
+        H, W = self.images.height, self.images.width
         u = q[..., 0]
         v = q[..., 1] - self.row0
         inside = (u >= 0.0) & (u <= W - 1.0) & (v >= 0.0) & (v <= H - 1.0)
@@ -222,13 +226,41 @@ class EdgeImages:
         v = np.clip(np.nan_to_num(v, nan=0.0), 0.0, H - 1.0)
         u0 = np.minimum(u.astype(np.int64), W - 2)
         v0 = np.minimum(v.astype(np.int64), H - 2)
-        fu, fv = u - u0, v - v0
         k = np.broadcast_to(which, u.shape)
-        s = self.stack
-        top = s[k, v0, u0] * (1.0 - fu) + s[k, v0, u0 + 1] * fu
-        bottom = s[k, v0 + 1, u0] * (1.0 - fu) + s[k, v0 + 1, u0 + 1] * fu
+        # Reads beyond their image's box: made first (the whole band's values there).
+        kin, vin, uin = k[inside], v0[inside], u0[inside]
+        need = np.column_stack([vin, vin + 2, uin, uin + 2])
+        missed = ~self.images.covers(kin, need)
+        if missed.any():
+            self.images.widen(kin[missed], need[missed], SEARCH_MARGIN_PX)
+        fu, fv = u - u0, v - v0
+        s = self.images.stack
+        # Each image's own columns (a narrow stack's window; points outside the band read
+        # anything there, and NaN below).
+        at = np.clip(u0 - self.images.col0[k], 0, s.shape[2] - 2)
+        top = s[k, v0, at] * (1.0 - fu) + s[k, v0, at + 1] * fu
+        bottom = s[k, v0 + 1, at] * (1.0 - fu) + s[k, v0 + 1, at + 1] * fu
         out: FloatArray = np.where(inside, (top * (1.0 - fv) + bottom * fv) / self.GREY_SCALE, np.nan)
         return out
+
+
+SEARCH_MARGIN_PX = 2
+"""The edges' boxes reach this much beyond their search (pixels): the bilinear's own."""
+
+
+def search_boxes(camera: object, T: FloatArray, edges: Edges, window_px: float) -> IntArray:
+    """(E, 4) the image box (rows r0:r1, columns c0:c1) each edge's search reads under
+    the stored T: its bands' points projected, a search window either side (the first
+    pairing), then :data:`REPAIR_GATE_PX` about where it was found (the later steps,
+    :func:`edge_residuals`), and :data:`SEARCH_MARGIN_PX`."""
+    E = len(edges.X)
+    q = camera.project(edges.X.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]).reshape(E, -1, 2)  # type: ignore[attr-defined]
+    m = window_px + REPAIR_GATE_PX + SEARCH_MARGIN_PX
+    with np.errstate(invalid="ignore"):
+        lo = np.floor(np.nan_to_num(np.nanmin(q, axis=1), nan=0.0) - m)
+        hi = np.floor(np.nan_to_num(np.nanmax(q, axis=1), nan=-1.0) + m) + 2
+    out: IntArray = np.column_stack([lo[:, 1], hi[:, 1], lo[:, 0], hi[:, 0]]).astype(np.int64)
+    return out
 
 
 def edge_residuals(

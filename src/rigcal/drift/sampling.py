@@ -21,6 +21,7 @@ is the mean of full-size pixels (2u, 2v) to (2u + 1, 2v + 1), centred at (2u + 0
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -60,6 +61,8 @@ def project_sample(
     which: NDArray[np.int64],
     down: int,
     row0: int = 0,
+    box: NDArray[np.int64] | None = None,
+    widen: Callable[[NDArray[np.int64], NDArray[np.int64]], None] | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Grey levels at the projections of points, and their derivatives.
 
@@ -72,6 +75,11 @@ def project_sample(
         down: the stack's downsampling (1 or 2).
         row0: the stack's first row, in its own (downsampled) pixels: a stack may hold a
             band of the images' rows only; points outside it read NaN.
+        box: (K, 4) where each image of the stack is made (rows r0:r1, columns c0:c1 of
+            the stack, :class:`rigcal.drift.blur_stack.BlurStack`); None: everywhere.
+        widen: with ``box``, called with the images and the (N, 4) regions of the reads
+            that fall outside their boxes; it makes them (widening ``box``), and those
+            points are read again.
 
     Returns:
         value: (N,) grey levels (NaN outside the image, behind the camera).
@@ -82,9 +90,12 @@ def project_sample(
     value = np.empty(n)
     d_point = np.empty((n, 3))
     d_rot = np.empty((n, 3))
+    need = np.empty((n, 4), dtype=np.int64)
     R = np.ascontiguousarray(R, dtype=np.float64)
     t = np.ascontiguousarray(t, dtype=np.float64)
     pts = np.ascontiguousarray(points, dtype=np.float64)
+    if box is None:
+        box = np.tile(np.array([0, stack.shape[1], 0, stack.shape[2]], dtype=np.int64), (len(stack), 1))
     intr = np.zeros(16)
     if compiled_model(camera.lensmodel):
         code = _OPENCV_CODES[camera.lensmodel]
@@ -101,8 +112,8 @@ def project_sample(
         """Points a to b (the kernel releases the interpreter: parts run side by side)."""
         qa, dqa = (q[a:b], dq[a:b]) if code < 0 else (q, dq)
         _project_sample_kernel(
-            pts[a:b], R, t, intr, code, qa, dqa, stack, which[a:b], down, row0, *size,
-            value[a:b], d_point[a:b], d_rot[a:b],
+            pts[a:b], R, t, intr, code, qa, dqa, stack, box, which[a:b], down, row0, *size,
+            value[a:b], d_point[a:b], d_rot[a:b], need[a:b],
         )  # fmt: skip
 
     if n < SPLIT_ABOVE:
@@ -110,6 +121,24 @@ def project_sample(
     else:
         with ThreadPoolExecutor(max_workers=2, thread_name_prefix="sample") as pool:
             list(pool.map(lambda ab: part(*ab), ((0, n // 2), (n // 2, n))))
+    missed = np.flatnonzero(need[:, 0] >= 0)
+    for _ in range(3):  # once is enough: widen makes what the reads need
+        if not len(missed):
+            break
+        if widen is None:
+            raise ValueError("project_sample: reads outside the images' boxes, and nothing to widen them")
+        widen(which[missed], need[missed])
+        m = missed
+        qm, dqm = (q[m], dq[m]) if code < 0 else (q, dq)
+        v, dp, dr = np.empty(len(m)), np.empty((len(m), 3)), np.empty((len(m), 3))
+        nd = np.empty((len(m), 4), dtype=np.int64)
+        _project_sample_kernel(
+            pts[m], R, t, intr, code, qm, dqm, stack, box, which[m], down, row0, *size, v, dp, dr, nd
+        )
+        value[m], d_point[m], d_rot[m], need[m] = v, dp, dr, nd
+        missed = m[nd[:, 0] >= 0]
+    if len(missed):
+        raise RuntimeError("project_sample: widen did not make the regions the reads need")
     return value, d_point, d_rot
 
 
@@ -168,9 +197,22 @@ def _bilinear(img: NDArray[np.uint16], u: float, v: float) -> float:
 
 @njit
 def _read(
-    stack: NDArray[np.uint16], k: int, qx: float, qy: float, down: int, row0: int, width: int, height: int
+    stack: NDArray[np.uint16],
+    box: NDArray[np.int64],
+    k: int,
+    qx: float,
+    qy: float,
+    down: int,
+    row0: int,
+    width: int,
+    height: int,
+    need: NDArray[np.int64],
 ) -> tuple[float, float, float]:
-    """Grey level and its derivatives per full-size pixel at full-size pixel (qx, qy)."""
+    """Grey level and its derivatives per full-size pixel at full-size pixel (qx, qy).
+    A read whose pixels lie outside image k's box (``box[k]``: rows r0:r1, columns c0:c1
+    of the stack, where its blur is made) reads NaN and puts the rows and columns it
+    needs in ``need`` (else need[0] is -1)."""
+    need[0] = -1
     b = BORDER_PX
     if not (qx >= b and qy >= b and qx <= width - 1.0 - b and qy <= height - 1.0 - b):
         return np.nan, 0.0, 0.0
@@ -182,6 +224,14 @@ def _read(
     if not (v >= 1.0 and v <= img.shape[0] - 2.0):  # outside the stack's band of rows
         return np.nan, 0.0, 0.0
     h = GRAD_STEP_PX
+    # The pixels the bilinear reads at (u +- h, v +- h) (:func:`_bilinear`).
+    r_lo = int(v - h)
+    r_hi = int(v + h) + 2
+    c_lo = min(max(int(np.floor(u - h)), 0), img.shape[1] - 2)
+    c_hi = min(int(np.floor(u + h)) + 2, img.shape[1])
+    if r_lo < box[k, 0] or r_hi > box[k, 1] or c_lo < box[k, 2] or c_hi > box[k, 3]:
+        need[0], need[1], need[2], need[3] = r_lo, r_hi, c_lo, c_hi
+        return np.nan, 0.0, 0.0
     val = _bilinear(img, u, v)
     gx = (_bilinear(img, u + h, v) - _bilinear(img, u - h, v)) / (2.0 * h * down)
     gy = (_bilinear(img, u, v + h) - _bilinear(img, u, v - h)) / (2.0 * h * down)
@@ -210,6 +260,7 @@ def _project_sample_kernel(
     q: FloatArray,
     dq: FloatArray,
     stack: NDArray[np.uint16],
+    box: NDArray[np.int64],
     which: NDArray[np.int64],
     down: int,
     row0: int,
@@ -218,13 +269,15 @@ def _project_sample_kernel(
     value: FloatArray,
     d_point: FloatArray,
     d_rot: FloatArray,
+    need: NDArray[np.int64],
 ) -> None:
     """Per point: project (``code`` >= 0: the OpenCV model with that many coefficients;
-    -1: the projection ``q`` and its derivatives ``dq`` given), read, chain the gradient."""
+    -1: the projection ``q`` and its derivatives ``dq`` given), read (:func:`_read`: a
+    read outside its image's box says what it needs), chain the gradient."""
     fx, fy, cx, cy = intr[0], intr[1], intr[2], intr[3]
     for n in range(pts.shape[0]):
         if code < 0:
-            val, gx, gy = _read(stack, which[n], q[n, 0], q[n, 1], down, row0, width, height)
+            val, gx, gy = _read(stack, box, which[n], q[n, 0], q[n, 1], down, row0, width, height, need[n])
             g0 = gx * dq[n, 0, 0] + gy * dq[n, 1, 0]
             g1 = gx * dq[n, 0, 1] + gy * dq[n, 1, 1]
             g2 = gx * dq[n, 0, 2] + gy * dq[n, 1, 2]
@@ -234,12 +287,15 @@ def _project_sample_kernel(
             Z = R[2, 0] * pts[n, 0] + R[2, 1] * pts[n, 1] + R[2, 2] * pts[n, 2] + t[2]
             val, gx, gy = np.nan, 0.0, 0.0
             g0 = g1 = g2 = 0.0
+            need[n, 0] = -1
             if Z > 0.0:
                 iz = 1.0 / Z
                 x = X * iz
                 y = Y * iz
                 xd, yd, a11, a12, a21, a22 = _distort(x, y, intr, code)
-                val, gx, gy = _read(stack, which[n], fx * xd + cx, fy * yd + cy, down, row0, width, height)
+                val, gx, gy = _read(
+                    stack, box, which[n], fx * xd + cx, fy * yd + cy, down, row0, width, height, need[n]
+                )
                 # d value / d (x, y) through the distortion, then d (x, y) / d (X, Y, Z).
                 gnx = gx * fx * a11 + gy * fy * a21
                 gny = gx * fx * a12 + gy * fy * a22

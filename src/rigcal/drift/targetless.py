@@ -74,6 +74,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
+from rigcal.drift.blur_stack import BlurStack
 from rigcal.drift.edges import (
     EdgeImages,
     Edges,
@@ -81,9 +82,10 @@ from rigcal.drift.edges import (
     corner_clusters,
     edge_residuals,
     scan_discontinuities,
+    search_boxes,
 )
 from rigcal.drift.frames import FRAME_RATE_HZ, frames_ahead, used_frames
-from rigcal.drift.sampling import GREY_SCALE, project_sample
+from rigcal.drift.sampling import GRAD_STEP_PX, GREY_SCALE, project_sample
 from rigcal.drift.statistic import (
     BOOTSTRAP_FROM_CLUSTERS,
     cluster_covariance,
@@ -258,6 +260,7 @@ class _Patches:
     edges: Edges | None = None  # the scans' depth discontinuities (module docstring, step 3b)
     gray_of: dict[int, NDArray[np.uint8]] = field(default_factory=dict)  # the edges' frames
     rows: tuple[float, float] | None = None  # _rows's, made once
+    projected: tuple[FloatArray, FloatArray] | None = None  # _projected's, made once
     stacks_ahead: dict[tuple[Any, ...], Future[Any]] = field(default_factory=dict)  # _stacks_ahead's
 
 
@@ -752,10 +755,11 @@ wider on either side (a correction of 2 deg moves a return about 18 px)."""
 
 
 class _Images:
-    """The blurred images of a stage: every (image, blur level) the patches read, made
-    once, in one stack (:mod:`rigcal.drift.sampling`), grey levels x 64 as uint16 (an
+    """The blurred images of a stage: every (image, blur level) the patches read, in one
+    stack (:class:`rigcal.drift.blur_stack.BlurStack`), grey levels x 64 as uint16 (an
     eighth of float64's memory, 1/64 grey level steps), the band of rows the patches
-    fall in only; half size when the stage's blur is wide. A stage's stack made ahead
+    fall in only, each made only around its patches (widened where a read needs more);
+    half size when the stage's blur is wide. A stage's stack made ahead
     (:func:`_stacks_ahead`) is taken as it is."""
 
     def __init__(
@@ -767,8 +771,19 @@ class _Images:
         )
         self.down, self.key_i, self.key_j, self.row0, self.stack = made
 
+    def widen(self, keys: NDArray[np.int64], need: NDArray[np.int64]) -> None:
+        """Make the images ``keys`` over the regions ``need`` reads fall in (beyond
+        their boxes), :data:`BOX_MARGIN_PX` wider."""
+        assert self.stack is not None
+        self.stack.widen(keys, need, math.ceil(BOX_MARGIN_PX / self.down))
 
-_Stack = tuple[int, NDArray[np.int64], NDArray[np.int64], int, NDArray[np.uint16] | None]
+
+_Stack = tuple[int, NDArray[np.int64], NDArray[np.int64], int, BlurStack | None]
+
+BOX_MARGIN_PX = 8.0
+"""Each blurred image is first made over the box its patches' samples fall in under the
+stored T, this much wider on every side (full-size pixels): the correction moves them
+by a few pixels; a read beyond its box widens it (the same values, made later)."""
 
 
 def _stack(
@@ -776,7 +791,7 @@ def _stack(
 ) -> _Stack:
     """A stage's stack (:class:`_Images`): (downsampling, key of frame i and of frame j of
     each patch, first row, the stack); its images are blurred on two threads (OpenCV
-    releases the interpreter)."""
+    releases the interpreter), each over its patches' box."""
     total = math.hypot(blur_px, native_px)
     down = 2 if total >= DOWNSAMPLE_BLUR_PX else 1
     li, lj = _levels(patches.ratio)
@@ -790,28 +805,63 @@ def _stack(
     height = streams.rig.camera.height_px // down if streams.rig is not None else 0
     lo = max(math.floor((rows[0] - BAND_MARGIN_PX - 0.5) / down), 0)
     hi = min(math.ceil((rows[1] + BAND_MARGIN_PX - 0.5) / down) + 1, height)
-    pad = math.ceil(4.0 * max(sigmas)) + 1  # rows beyond the band the blur reads
     if not len(keys):
         return down, key_i, key_j, lo, None
-    imgs, first = np.unique(keys // LEVELS, return_index=True)
-    width = streams.image(int(imgs[0])).shape[1] // down
-    stack = np.empty((len(keys), hi - lo, width), dtype=np.uint16)
+    width = streams.image(int(keys[0] // LEVELS)).shape[1] // down
 
-    def blur_image(n: int) -> None:
-        """Image imgs[n]'s levels into the stack."""
-        g = np.asarray(streams.image(int(imgs[n])), dtype=np.uint16) * np.uint16(GREY_SCALE)
-        if down > 1:
-            half = (g.shape[1] // 2, g.shape[0] // 2)
-            g = np.asarray(cv2.resize(g, half, interpolation=cv2.INTER_AREA), dtype=np.uint16)
-        a = max(lo - pad, 0)
-        g = g[a : min(hi + pad, g.shape[0])]
-        last = first[n + 1] if n + 1 < len(first) else len(keys)
-        for m in range(int(first[n]), int(last)):
-            stack[m] = cv2.GaussianBlur(g, (0, 0), sigmas[int(keys[m]) % LEVELS])[lo - a : hi - a]
+    def source(img: int, a: int, b: int) -> NDArray[np.uint16]:
+        """Rows a:b of image img, grey levels x 64, of half size when the stage is."""
+        full = streams.image(img)
+        if down == 1:
+            out: NDArray[np.uint16] = full[a:b].astype(np.uint16) * np.uint16(GREY_SCALE)
+            return out
+        # A half-size pixel is the mean of its 2 x 2 full-size pixels (OpenCV's area
+        # resize at a scale of exactly 2): the rows' own, for an image of even size.
+        even = full.shape[0] % 2 == 0 and full.shape[1] % 2 == 0
+        g = (full[2 * a : 2 * b] if even else full).astype(np.uint16) * np.uint16(GREY_SCALE)
+        half = (g.shape[1] // 2, g.shape[0] // 2)
+        g = np.asarray(cv2.resize(g, half, interpolation=cv2.INTER_AREA), dtype=np.uint16)
+        return g if even else g[a:b]
 
-    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="stack") as pool:
-        list(pool.map(blur_image, range(len(imgs))))
+    stack = BlurStack(keys // LEVELS, np.array(sigmas)[keys % LEVELS], lo, hi - lo, width, source, height)
+    assert streams.rig is not None
+    stack.fill(_boxes(streams.rig, patches, key_i, key_j, len(keys), down, lo))
     return down, key_i, key_j, lo, stack
+
+
+def _boxes(
+    rig: Rig,
+    patches: _Patches,
+    key_i: NDArray[np.int64],
+    key_j: NDArray[np.int64],
+    n_keys: int,
+    down: int,
+    row0: int,
+) -> NDArray[np.int64]:
+    """(K, 4) each key's box (rows r0:r1, columns c0:c1 of the stack): the pixels its
+    patches' samples read under the stored T (:func:`_projected`), :data:`BOX_MARGIN_PX`
+    wider."""
+    box = np.zeros((n_keys, 4))
+    box[:, 0] = box[:, 2] = np.inf
+    box[:, 1] = box[:, 3] = -np.inf
+    m = BOX_MARGIN_PX / down + GRAD_STEP_PX
+    for q, key in zip(_projected(rig, patches), (key_i, key_j), strict=True):
+        u = (q[..., 0] - 0.5) / down if down > 1 else q[..., 0]
+        v = ((q[..., 1] - 0.5) / down if down > 1 else q[..., 1]) - row0
+        with np.errstate(invalid="ignore"):
+            np.minimum.at(box[:, 0], key, np.nanmin(v, axis=1) - m)
+            np.maximum.at(box[:, 1], key, np.nanmax(v, axis=1) + m)
+            np.minimum.at(box[:, 2], key, np.nanmin(u, axis=1) - m)
+            np.maximum.at(box[:, 3], key, np.nanmax(u, axis=1) + m)
+    empty = ~np.isfinite(box).all(axis=1)
+    box[empty] = 0.0
+    out = np.empty((n_keys, 4), dtype=np.int64)
+    out[:, 0] = np.floor(box[:, 0])
+    out[:, 1] = np.floor(box[:, 1]) + 2
+    out[:, 2] = np.floor(box[:, 2])
+    out[:, 3] = np.floor(box[:, 3]) + 2
+    out[empty] = 0
+    return out
 
 
 def _stacks_ahead(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettings) -> ThreadPoolExecutor:
@@ -820,13 +870,10 @@ def _stacks_ahead(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSe
     after the first (while the first stage iterates); returns the pool, to shut down after
     the estimate. Each is taken by :class:`_Images` and :func:`_edge_images` as made."""
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stages")
-    edge_rows = _edge_rows(rig, patches.edges)
     for stage, blur in enumerate(s.blur_px):
         if s.edges and patches.edges is not None:
             edge_blur = math.hypot(blur, s.native_blur_px)
-            patches.stacks_ahead[("edges", edge_blur)] = pool.submit(
-                EdgeImages, patches.gray_of, patches.edges.img, edge_blur, edge_rows
-            )
+            patches.stacks_ahead[("edges", edge_blur)] = pool.submit(_edge_stack, rig, patches, edge_blur, s)
         if stage > 0:
             rows = _rows(rig, patches)  # after the first edges' frames are under way
             key = (rows, blur, s.native_blur_px)
@@ -834,7 +881,9 @@ def _stacks_ahead(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSe
     return pool
 
 
-def _edge_images(rig: Rig, patches: _Patches, blur_px: float) -> Future[EdgeImages] | None:
+def _edge_images(
+    rig: Rig, patches: _Patches, blur_px: float, s: TargetlessSettings
+) -> Future[EdgeImages] | None:
     """The edges' frames blurred by ``blur_px`` in all (as made ahead, possibly still
     under way; else made here), or None without edges."""
     if patches.edges is None:
@@ -843,8 +892,15 @@ def _edge_images(rig: Rig, patches: _Patches, blur_px: float) -> Future[EdgeImag
     if ahead is not None:
         return ahead
     made: Future[EdgeImages] = Future()
-    made.set_result(EdgeImages(patches.gray_of, patches.edges.img, blur_px, _edge_rows(rig, patches.edges)))
+    made.set_result(_edge_stack(rig, patches, blur_px, s))
     return made
+
+
+def _edge_stack(rig: Rig, patches: _Patches, blur_px: float, s: TargetlessSettings) -> EdgeImages:
+    """The edges' frames blurred by ``blur_px``, each over the box its search reads."""
+    assert patches.edges is not None
+    boxes = search_boxes(rig.camera, rig.T_cam_laser, patches.edges, max(s.edge_window_px))
+    return EdgeImages(patches.gray_of, patches.edges.img, blur_px, _edge_rows(rig, patches.edges), boxes)
 
 
 def _rows(rig: Rig, patches: _Patches) -> tuple[float, float]:
@@ -856,13 +912,23 @@ def _rows(rig: Rig, patches: _Patches) -> tuple[float, float]:
 
 
 def _rows_of(rig: Rig, patches: _Patches) -> tuple[float, float]:
-    T = rig.T_cam_laser
-    X = patches.X.reshape(-1, 3)
-    Y = patches.X @ patches.M[:, :3, :3].transpose(0, 2, 1) + patches.M[:, None, :3, 3]
-    Y = Y.reshape(-1, 3)
-    q = rig.camera.project(np.concatenate([X, Y]) @ T[:3, :3].T + T[:3, 3])
-    v = q[np.isfinite(q[:, 1]), 1]
+    v = np.concatenate([q[..., 1].ravel() for q in _projected(rig, patches)])
+    v = v[np.isfinite(v)]
     return (float(v.min()), float(v.max())) if len(v) else (0.0, float(rig.camera.height_px))
+
+
+def _projected(rig: Rig, patches: _Patches) -> tuple[FloatArray, FloatArray]:
+    """(P, S, 2) the patches' samples in frame i and in frame j under the stored T
+    (pixels), made once per patches."""
+    if patches.projected is None:
+        T = rig.T_cam_laser
+        X = patches.X.reshape(-1, 3)
+        Y = patches.X @ patches.M[:, :3, :3].transpose(0, 2, 1) + patches.M[:, None, :3, 3]
+        Y = Y.reshape(-1, 3)
+        q = rig.camera.project(np.concatenate([X, Y]) @ T[:3, :3].T + T[:3, 3])
+        P, S, _ = patches.X.shape
+        patches.projected = (q[: P * S].reshape(P, S, 2), q[P * S :].reshape(P, S, 2))
+    return patches.projected
 
 
 def _residuals(
@@ -958,8 +1024,9 @@ def _frames_terms(
     for pts, key, J in ((X, images.key_i[h], Ja_h), (Y, images.key_j[h], Jb_h)):
         which = np.repeat(key, S)
         v, d_point, d_rot = project_sample(
-            pts.reshape(-1, 3), T[:3, :3], T[:3, 3], cam, images.stack, which, images.down, images.row0
-        )
+            pts.reshape(-1, 3), T[:3, :3], T[:3, 3], cam, images.stack.stack, which, images.down, images.row0,
+            images.stack.box, images.widen,
+        )  # fmt: skip
         # x' = Exp(w) x + v: d grey / d w = x cross d grey / d x, d grey / d v = d grey / d x.
         J[:, :, :3] = d_rot.reshape(Pn, S, 3)
         J[:, :, 3:6] = d_point.reshape(Pn, S, 3)
@@ -1195,7 +1262,7 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
     last_step = math.inf
     for stage, blur in enumerate(s.blur_px):
         images = _Images(streams, patches, rows, blur, s.native_blur_px)
-        edge_images = _edge_images(rig, patches, math.hypot(blur, s.native_blur_px)) if use_edges else None
+        edge_images = _edge_images(rig, patches, math.hypot(blur, s.native_blur_px), s) if use_edges else None
         window = s.edge_window_px[min(stage, len(s.edge_window_px) - 1)]
         cur = _evaluate(rig, T, nuis, patches, images, edge_images, anchor, window, free, s)
         if stage == 0:
