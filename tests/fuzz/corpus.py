@@ -1013,7 +1013,7 @@ BAD_IMAGE_BODIES: list[tuple[str, dict[str, Any], str]] = [
     ("mono16-odd-step", {"encoding": "mono16", "step": 13, "data": _u8(52)}, "step"),
     ("mono16-odd-bytes", {"encoding": "mono16", "step": 12, "data": _u8(47)}, "data"),
     ("mono16-8-bit-step", {"encoding": "mono16"}, "step"),
-    ("encoding-yuv", {"encoding": "yuv422"}, "encoding"),
+    ("encoding-float", {"encoding": "32FC1"}, "encoding"),
     ("encoding-empty", {"encoding": ""}, "encoding"),
     ("encoding-bidi", {"encoding": "mono8\u202e\x1b[2J"}, "encoding"),
     ("compressed-broken-png", {"format": "png", "data": b"\x89PNG\r\n\x1a\nbroken"}, "data"),

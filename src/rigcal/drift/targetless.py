@@ -416,6 +416,10 @@ def _se3_of_se2(T2: FloatArray) -> FloatArray:
 def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patches:
     cam = rig.camera
     frames = used_frames(streams.image_stamps_s, s.frame_rate_hz)
+    # Frames before the first scan or after the last have no laser pose (it would be held
+    # at the drive's ends, projecting the returns at the wrong place): left out.
+    t_img, t_scan = streams.image_stamps_s, streams.scan_stamps_s
+    frames = [f for f in frames if t_scan[0] <= t_img[f] <= t_scan[-1]]
     # The used frames decode on two other threads from here on, while the laser odometry
     # runs (its compiled ICP releases the interpreter), as far ahead as FRAMES_AHEAD_BYTES
     # allows; then while each frame's grids are made (decoding two at a time keeps both

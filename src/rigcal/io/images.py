@@ -58,6 +58,39 @@ def read_grey(path: str | Path) -> Gray | None:
     return None if out is None else np.asarray(out, dtype=np.uint8)
 
 
+# A grey frame whose levels are all below this may be a 16-bit image whose levels do not
+# reach its top byte (OpenCV's 8-bit reading keeps the top byte): checked by
+# :func:`check_depth`.
+DARK_LEVELS = 16
+
+
+def check_depth(path: str | Path, grey: Gray) -> None:
+    """Refuse a 16-bit image that reads (by OpenCV's rule, its top 8 bits) as nearly black
+    because its levels use 12 bits or fewer (a 12-bit camera's 0-4095 in 16-bit words):
+    read as it is, every method would see a black frame. Costs nothing for other frames
+    (only a frame whose grey levels all lie below :data:`DARK_LEVELS` is looked at again).
+
+    Raises:
+        InputError: ``PATH: levels: got '16-bit, up to 4095'; expected ...``.
+    """
+    import cv2
+
+    if grey.size == 0 or int(grey.max()) >= DARK_LEVELS:
+        return
+    img = read_image_file(path, cv2.IMREAD_UNCHANGED)
+    if img is None or img.dtype != np.uint16:
+        return
+    top = int(img.max())
+    raise InputError.at(
+        path,
+        "levels",
+        f"16-bit, up to {top}",
+        "8-bit images, or 16-bit ones whose levels reach the top byte (read by their top 8 bits, "
+        f"this frame's levels use {max(top.bit_length(), 1)} bits and it reads black): convert the "
+        "drive's images to 8 bits, each shifted right by the same bits, as rigcal import-bag does",
+    )
+
+
 def decode(data: bytes, flags: int) -> NDArray[Any] | None:
     """``cv2.imdecode(data, flags)``, None for a file that does not decode, with what
     OpenCV's PNG codec prints about a damaged file (libpng's "libpng error: IDAT: CRC

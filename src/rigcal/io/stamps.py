@@ -262,3 +262,14 @@ def check_seconds(stamps_s: FloatArray, where: str, key: str, step: str | None =
                 f"{one} every {period:g} (median)",
                 f"seconds: {rate} (stamps in milliseconds?)",
             )
+
+
+def outside_scans(image_stamps_s: FloatArray, scan_stamps_s: FloatArray) -> dict[str, int]:
+    """How many images are stamped before the first scan and after the last, by more than
+    one scan period (median step): the laser's pose is not known there, so no image method
+    can place them (``{"before": n, "after": m}``)."""
+    t, s = np.asarray(image_stamps_s, dtype=float), np.asarray(scan_stamps_s, dtype=float)
+    if not len(t) or not len(s):
+        return {"before": 0, "after": 0}
+    period = float(np.median(np.diff(s))) if len(s) > 1 else 0.0
+    return {"before": int((t < s[0] - period).sum()), "after": int((t > s[-1] + period).sum())}
