@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
+from rigcal.io.images import eight_bit_pngs
 from rigcal.io.stamps import outside_scans
 from rigcal.io.validate import real
 from rigcal.io.wheel_odometry import WheelOdometry, checked
@@ -213,7 +214,8 @@ def import_bag(
         odometry = bag_odometry(wheel, f"{bag}: {odometry_topic}", laser_offset, scan_t)
         summary.odometry = len(odometry.stamps_s)
     summary.outside = outside_scans(np.array([t for t, _, _ in images_sorted]), scan_t)
-    images_sorted, summary.depth = _eight_bits(images_sorted)
+    datas, summary.depth = eight_bit_pngs([data for _, data, _ in images_sorted])
+    images_sorted = [(t, data, ext) for (t, _, ext), data in zip(images_sorted, datas, strict=True)]
     frames = [ImageFrame(stamp, f"{i:06d}.{ext}", data) for i, (stamp, data, ext) in enumerate(images_sorted)]
     write_sequence(
         output,
@@ -369,36 +371,6 @@ def _ordered(items: list[Any]) -> tuple[list[Any], int, int]:
             continue
         out.append(items[i])
     return out, reordered, dup
-
-
-def _eight_bits(
-    images: list[tuple[float, bytes, str]],
-) -> tuple[list[tuple[float, bytes, str]], dict[str, int]]:
-    """16-bit PNG frames (mono16, 16UC1, bayer_*16, 16-bit PNG CompressedImages) as 8-bit
-    PNG, every one shifted right by the same number of bits: the bits of the topic's
-    brightest level beyond 8 (a 12-bit camera's levels up to 4095: 4), so that a level
-    means the same brightness in every frame and a camera that fills only 12 of its 16
-    bits is not read as nearly black (OpenCV keeps a 16-bit image's top byte)."""
-    import cv2
-
-    from rigcal.io.images import decode
-
-    sixteen = [k for k, (_, data, ext) in enumerate(images) if ext == "png" and data[24:25] == b"\x10"]
-    if not sixteen:
-        return images, {}
-    top = 0
-    for k in sixteen:
-        img = decode(images[k][1], cv2.IMREAD_UNCHANGED)
-        top = max(top, int(img.max())) if img is not None else top
-    shift = max(0, top.bit_length() - 8)
-    out = list(images)
-    for k in sixteen:
-        img = decode(images[k][1], cv2.IMREAD_UNCHANGED)
-        assert img is not None  # it decoded when read
-        ok, buf = cv2.imencode(".png", (img >> shift).astype(np.uint8))
-        assert ok  # cv2 encodes any 8-bit image
-        out[k] = (images[k][0], bytes(buf.tobytes()), "png")
-    return out, {"frames": len(sixteen), "max_level": top, "shift_bits": shift}
 
 
 def _deserialize(reader: Any, raw: bytes, msgtype: str, where: str) -> Any:

@@ -39,6 +39,7 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import compressed, read_log_text, read_text, text_lines
+from rigcal.io.images import eight_bit_pngs
 from rigcal.io.log_lines import CutLine, ShortLineError, cut_last_line
 from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.trajectory import read_tum_cut
@@ -509,6 +510,8 @@ def import_laser_text(
             ImageFrame(float(t), f"{i:06d}{f.suffix.lower()}", f.read_bytes())
             for i, (t, f) in enumerate(zip(image_stamps, files, strict=True))
         ]
+    datas, depth = eight_bit_pngs([f.data for f in frames])  # 16-bit PNGs as import-bag's
+    frames = [ImageFrame(f.stamp_s, f.name, data) for f, data in zip(frames, datas, strict=True)]
     camera_yaml = camera_to_opencv_yaml(read_camera(camera)) if camera is not None else None
     source: dict[str, Any] = {
         "log": str(log.resolve()),
@@ -516,6 +519,8 @@ def import_laser_text(
         "images": str(Path(images).resolve()) if images else None,
     }
     source["stamps"] = fixed.record(stamps)
+    if depth:
+        source["images_16_bit"] = depth
     if cut is not None:
         source["incomplete_last_line"] = cut.line
     if list_cut is not None:
