@@ -182,3 +182,39 @@ def test_the_command_says_what_it_converted(tmp_path, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert doc["returns_at_range_max"] == 2
     assert doc["images_outside_scans"] == {"before": 0, "after": 1}
+
+
+def test_messages_a_driver_left_unstamped_take_their_record_time(tmp_path, capsys):
+    """A camera driver that never fills header.stamp: every image would share stamp 0 and
+    all but one be dropped as repeated; each takes the time the recorder got it instead."""
+    from rosbags.rosbag2 import Writer
+    from test_bag import TS2, _msgs
+
+    scan, image, _, _ = _msgs(TS2)
+    with Writer(tmp_path / "b2", version=8) as w:
+        cs = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=TS2)
+        ci = w.add_connection("/cam/image", "sensor_msgs/msg/Image", typestore=TS2)
+        for k in range(5):
+            w.write(
+                cs,
+                10**9 * 100 + 10**8 * k,
+                TS2.serialize_cdr(scan(100.0 + 0.1 * k, k), "sensor_msgs/msg/LaserScan"),
+            )
+            w.write(
+                ci,
+                10**9 * 100 + 10**8 * k + 5 * 10**6,
+                TS2.serialize_cdr(image(0.0, k), "sensor_msgs/msg/Image"),
+            )
+    assert main(["import-bag", str(tmp_path / "b2"), "-o", str(tmp_path / "s")]) == 0
+    assert (
+        "5 /cam/image messages with header.stamp 0 (stamped with their record time)"
+        in capsys.readouterr().out
+    )
+    seq = read_sequence(tmp_path / "s")
+    np.testing.assert_allclose(seq.image_stamps_s, 100.005 + 0.1 * np.arange(5), atol=1e-9)
+    assert seq.source["unstamped_record_time"] == {"/cam/image": 5}
+    argv = ["import-bag", str(tmp_path / "b2"), "--stamps", "strict", "-o", str(tmp_path / "t")]
+    assert main(argv) == 3
+    err = capsys.readouterr().err
+    assert "/cam/image message 0: header.stamp: got 0.0; expected a stamp set by the driver" in err
+    assert not (tmp_path / "t").exists()

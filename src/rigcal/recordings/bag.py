@@ -51,6 +51,7 @@ class ImportSummary:
     scan_counts: dict[str, int] = field(default_factory=dict)  # returns at range_max, beams past a turn
     outside: dict[str, int] = field(default_factory=dict)  # images before the first scan, after the last
     depth: dict[str, int] = field(default_factory=dict)  # 16-bit images: frames, max_level, shift_bits
+    unstamped: dict[str, int] = field(default_factory=dict)  # topic -> messages stamped 0 (record time used)
 
     def record(self) -> dict[str, Any]:
         """The conversions made, for the sequence's ``source`` (none: nothing)."""
@@ -59,6 +60,8 @@ class ImportSummary:
             out["images_outside_scans"] = dict(self.outside)
         if self.depth:
             out["images_16_bit"] = dict(self.depth)
+        if self.unstamped:
+            out["unstamped_record_time"] = dict(self.unstamped)
         return out
 
     def notes(self) -> list[str]:
@@ -73,6 +76,8 @@ class ImportSummary:
                 f"{self.outside['before']} images before the first scan and {self.outside['after']} "
                 "after the last (kept; check leaves them out, localize warns)"
             )
+        for topic, n in self.unstamped.items():
+            out.append(f"{n} {topic} messages with header.stamp 0 (stamped with their record time)")
         if self.depth:
             d = self.depth
             out.append(
@@ -160,7 +165,7 @@ def import_bag(
         conns = [c for c in reader.connections if c.topic in {t for t, _ in wanted.values()}]
         total = sum(int(c.msgcount) for c in conns)
         seen = dict.fromkeys(topics, 0)
-        for k, (con, _, raw) in enumerate(reader.messages(connections=conns)):
+        for k, (con, recorded_ns, raw) in enumerate(reader.messages(connections=conns)):
             where = f"{bag}: {con.topic} message {seen[con.topic]}"
             seen[con.topic] += 1
             msg = _deserialize(reader, raw, con.msgtype, where)
@@ -170,6 +175,17 @@ def import_bag(
                     progress(k + 1, total)
                 continue
             stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
+            if stamp == 0.0 and con.topic in (scan_topic, image_topic):
+                # A driver that leaves header.stamp unset: the time the recorder got it.
+                if stamps == "strict":
+                    raise InputError.at(
+                        where,
+                        "header.stamp",
+                        0.0,
+                        "a stamp set by the driver (--stamps repair uses the record time)",
+                    )
+                stamp = 1e-9 * float(recorded_ns)
+                summary.unstamped[con.topic] = summary.unstamped.get(con.topic, 0) + 1
             if con.topic == scan_topic:
                 wheel.scan_frame = wheel.scan_frame or str(msg.header.frame_id)
                 scans.append((stamp, _scan(msg, stamp, where, summary.scan_counts)))
