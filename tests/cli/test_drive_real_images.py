@@ -104,3 +104,14 @@ def test_the_targetless_check_leaves_out_frames_outside_the_scans(drive, monkeyp
     assert 0 not in asked[0]
     assert 1 not in asked[0]
     assert len(t) - 1 not in asked[0]
+
+
+def test_the_check_records_the_images_outside_the_scans(drive, capsys):
+    import json
+
+    _restamp(drive, 2, 3)
+    rig = drive.parent / "rig.yaml"
+    code = main(["-q", "check", str(rig), "--sequence", str(drive), "--no-log", "--json"])
+    assert code == 6  # four seconds of a room: too short to tell, and said so
+    record = json.loads(capsys.readouterr().out)
+    assert record["targetless"]["images_outside_scans"] == {"before": 2, "after": 3}

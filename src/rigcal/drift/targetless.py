@@ -95,6 +95,7 @@ from rigcal.drift.statistic import (
 )
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R, se2
+from rigcal.io.stamps import outside_scans
 from rigcal.lines import return_labels
 from rigcal.localize.iasm import snap_to_lines
 from rigcal.localize.line_normals import line_fits
@@ -291,6 +292,9 @@ def check_targetless(
     nan6 = np.full(6, np.nan)
     duration = float(streams.image_stamps_s[-1] - streams.image_stamps_s[0])
     base: dict[str, Any] = {"duration_s": round(duration, 3), "images": streams.n_images}
+    outside = outside_scans(streams.image_stamps_s, streams.scan_stamps_s)
+    if outside["before"] or outside["after"]:  # left out of the check (no laser pose there)
+        base["images_outside_scans"] = outside
     try:
         # The odometry of the thinned scans serves where the edges estimate the yaw and
         # the translations; the photometric term alone needs the odometry of every scan
