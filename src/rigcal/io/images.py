@@ -87,7 +87,7 @@ def check_depth(path: str | Path, grey: Gray) -> None:
         f"16-bit, up to {top}",
         "8-bit images, or 16-bit ones whose levels reach the top byte (read by their top 8 bits, "
         f"this frame's levels use {max(top.bit_length(), 1)} bits and it reads black): convert the "
-        "drive's images to 8 bits, each shifted right by the same bits, as import-bag and import-laser do",
+        "images to 8 bits, every frame shifted right by the same bits, as import-bag and import-laser do",
     )
 
 
