@@ -1659,8 +1659,10 @@ def laser_cases() -> list[Case]:
     images("missing", "im1.png", "nope.png", "nope.png")
     for v in ["nan", "inf", "-inf", "1e400"]:
         images(f"stamp={v}", "1.1 im1.png", f"{v} im1.png")
-    images("stamp-back", "1.1 im1.png", "0.5 im1.png")
-    images("stamp-repeated", "1.1 im1.png", "1.0 im1.png")
+    # Steps back and repeated stamps are repaired as the log's (--stamps repair); strict refuses them.
+    for name, stamp in (("stamp-back", "0.5"), ("stamp-repeated", "1.0")):
+        edit = edit_text(il, "1.1 im1.png", f"{stamp} im1.png")
+        out.append(Case(f"import-laser-images-{name}", strict, edit, 3, il))
     images("three-fields", "1.1 im1.png", "1.1 im1.png extra")
     images("no-stamp", "1.1 im1.png", "im1.png im1.png")
     out.append(Case("import-laser-images-empty", LASER, write(il, ""), 3, "images.txt"))

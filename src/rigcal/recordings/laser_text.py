@@ -66,6 +66,7 @@ class LaserTextSummary:
     cut: CutLine | None = None
     images_cut: CutLine | None = None
     odometry_cut: CutLine | None = None
+    image_stamps: StampRepair | None = None
 
 
 def _fields(line: str) -> list[str]:
@@ -389,18 +390,21 @@ def read_image_list(path: str | Path) -> tuple[FloatArray, list[Path]]:
         InputError: a line without one stamp and one existing file (or, for a stamps-only
             RADLOCC list, a missing ``image_00k`` file), or stamps not increasing.
     """
-    stamps, files, _ = _image_list(Path(path), strict=True)
+    stamps, files, _, _ = _image_list(Path(path), strict=True)
     return stamps, files
 
 
-def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLine | None]:
+def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLine | None, StampRepair]:
     """:func:`read_image_list`, and its incomplete last line left out (a list copied while
-    it was written, rigcal.io.log_lines; ``strict`` refuses it)."""
+    it was written, rigcal.io.log_lines; ``strict`` refuses it); its stamps repaired as a
+    log's (:func:`rigcal.io.stamps.repair_stamps`: equal stamps of low-precision printing
+    spread, small steps back placed; ``strict`` refuses them)."""
     text = _log_text(path, "image list")
     lines = _content_lines(path, "image list", text)
     stamps_only = all(_numbers_only(_fields(line)) for _, line in lines)
     stamps: list[float] = []
     files: list[Path] = []
+    numbers: list[int] = []
     cut = None
     for k, (n, line) in enumerate(lines, start=1):
         try:
@@ -410,11 +414,11 @@ def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLi
                 raise
             cut = cut_last_line(exc, text, n, lines[-1][0], line, f"{path}: line {n}", strict)
             continue
-        if stamps and not stamp > stamps[-1]:
-            raise InputError(f"{path}: line {n}: stamp {stamp!r} not after {stamps[-1]!r}")
         stamps.append(stamp)
         files.append(file)
-    return np.array(stamps), files, cut
+        numbers.append(n)
+    fixed = repair_stamps(stamps, str(path), "strict" if strict else "repair", numbers)
+    return fixed.stamps_s, files, cut, fixed
 
 
 def _image_entry(path: Path, k: int, n: int, line: str, stamps_only: bool) -> tuple[float, Path]:
@@ -503,9 +507,9 @@ def import_laser_text(
         traj, odometry_cut = read_tum_cut(odometry, strict)  # a TUM file cut short: the logs' rule
         wheel = odometry_of_tum(traj, odometry, mount, fixed.stamps_s)
     frames: list[ImageFrame] = []
-    list_cut = None
+    list_cut, image_fix = None, None
     if images is not None:
-        image_stamps, files, list_cut = _image_list(Path(images), strict)
+        image_stamps, files, list_cut, image_fix = _image_list(Path(images), strict)
         frames = [
             ImageFrame(float(t), f"{i:06d}{f.suffix.lower()}", f.read_bytes())
             for i, (t, f) in enumerate(zip(image_stamps, files, strict=True))
@@ -519,6 +523,8 @@ def import_laser_text(
         "images": str(Path(images).resolve()) if images else None,
     }
     source["stamps"] = fixed.record(stamps)
+    if image_fix is not None and image_fix.repaired:
+        source["image_stamps"] = image_fix.record(stamps)
     if depth:
         source["images_16_bit"] = depth
     if cut is not None:
@@ -540,4 +546,5 @@ def import_laser_text(
         cut,
         list_cut,
         odometry_cut,
+        image_fix,
     )
