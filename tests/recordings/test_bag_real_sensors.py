@@ -67,11 +67,19 @@ def test_packed_yuv_is_converted_and_an_odd_width_refused(tmp_path):
     assert not (tmp_path / "s2").exists()
 
 
-def test_a_one_pixel_bayer_image_is_refused(tmp_path):
-    bag = bag_with(
-        tmp_path / "b", 2, image={"encoding": "bayer_rggb8", "height": 1, "step": 6, "data": BGRA[0, :, 0]}
-    )
-    with pytest.raises(InputError, match=r"message 1: height x width: got '1x6'; expected at least 2x2"):
+@pytest.mark.parametrize("width", [6, 12])
+def test_a_one_row_bayer_image_is_refused(tmp_path, width):
+    fields = {
+        "encoding": "bayer_rggb8",
+        "height": 1,
+        "width": width,
+        "step": width,
+        "data": np.zeros(width, np.uint8),
+    }
+    bag = bag_with(tmp_path / "b", 2, image=fields)
+    with pytest.raises(
+        InputError, match=rf"message 1: height x width: got '1x{width}'; expected at least 2x2"
+    ):
         import_bag(bag, tmp_path / "s", "/scan", "/cam/image")
 
 

@@ -548,7 +548,7 @@ def _image_bytes(msg: Any, msgtype: str, where: str) -> tuple[bytes, str, tuple[
         img = img[:, :, ::-1]
     if enc in CONVERTED_ENCODINGS:
         if enc.startswith("bayer") and min(h, w) < 2:  # a mosaic's 2x2 cell
-            raise InputError.at(where, "height x width", _wxh((w, h))[::-1], f"at least 2x2 pixels ({enc})")
+            raise InputError.at(where, "height x width", f"{h}x{w}", f"at least 2x2 pixels ({enc})")
         code = getattr(cv2, CONVERTED_ENCODINGS[enc][2])
         img = cv2.cvtColor(np.ascontiguousarray(img, dtype=img.dtype.newbyteorder("=")), code)
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(img, dtype=img.dtype.newbyteorder("=")))
