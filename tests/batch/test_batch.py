@@ -119,7 +119,7 @@ def test_check_fleet_on_the_local_pool(fleet, tmp_path, capsys):
     }
     # summary: CSV and JSON agree, one row per item in the manifest's order
     doc = json.loads((out / "summary.json").read_text())
-    assert doc["schema_version"] == 2
+    assert doc["schema_version"] == 3
     assert doc["counts"] == {"ok": 2, "drifted": 1, "cannot_tell": 0, "failed": 1}
     with open(out / "summary.csv", newline="") as f:
         table = list(csv.DictReader(f))

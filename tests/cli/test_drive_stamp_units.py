@@ -72,9 +72,32 @@ def test_a_drive_stamped_in_another_unit_is_one_line(drive, fails, spoil, want):
 
 
 def test_wheel_odometry_in_milliseconds_says_so(drive, fails):
-    _odometry(drive, lambda t: t * 1e3)
+    _odometry(drive, lambda t: t * 1e3)  # 20 Hz: a pose every 50 ms
     line = fails(["localize", drive, "--method", "icp", "-o", drive.parent / "out"], 3)
     assert (
-        "odometry.tum: odometry stamps: got '0.0 to 3950.0'; expected a span overlapping the scans' " in line
+        "odometry.tum: odometry stamps: got 'a pose every 50 (median)'; expected seconds: wheel "
+        "odometry is logged several times a second (stamps in milliseconds?)" in line
     )
-    assert "(one stream in milliseconds, the other in seconds?)" in line
+
+
+def test_wheel_odometry_in_milliseconds_on_another_clock_gets_the_hint(drive, fails):
+    _odometry(drive, lambda t: t * 1e3 + 1e4)  # no overlap either: the spans' ratio is a hint
+    line = fails(["localize", drive, "--method", "icp", "-o", drive.parent / "out"], 3)
+    assert "odometry stamps: got 'a pose every 50 (median)'" in line
+
+
+def test_wheel_odometry_logged_far_longer_than_the_scans_is_read(drive, capsys):
+    """An hour of 5 Hz odometry around the drive's 4 s of scans (spans about 1000x apart,
+    which the spans' ratio once took for milliseconds): the stamps' own step (0.2 s) says
+    seconds, so the drive localizes from the wheels."""
+    from rigcal.cli.main import main
+
+    rows = [r.split() for r in (drive / "odometry.tum").read_text().splitlines() if not r.startswith("#")]
+    before = [[repr(-1800.0 + 0.2 * k), "0", "0", "0", "0", "0", "0", "1"] for k in range(9000)]
+    after = [[repr(4.0 + 0.2 * k), "2.0", "0", "0", "0", "0", "0", "1"] for k in range(9000)]
+    (drive / "odometry.tum").write_text("".join(" ".join(r) + "\n" for r in [*before, *rows, *after]))
+    assert main(["-q", "localize", str(drive), "--method", "icp,odom", "-o", str(drive.parent / "out")]) == 0
+    assert "Error" not in capsys.readouterr().err
+    odom = (drive.parent / "out" / "odom" / "trajectory.tum").read_text().splitlines()
+    last = [float(v) for v in odom[-1].split()]
+    assert last[1] == pytest.approx(0.5 * 3.9, abs=0.01)  # the wheels' 0.5 m/s over the scans

@@ -1013,7 +1013,7 @@ BAD_IMAGE_BODIES: list[tuple[str, dict[str, Any], str]] = [
     ("mono16-odd-step", {"encoding": "mono16", "step": 13, "data": _u8(52)}, "step"),
     ("mono16-odd-bytes", {"encoding": "mono16", "step": 12, "data": _u8(47)}, "data"),
     ("mono16-8-bit-step", {"encoding": "mono16"}, "step"),
-    ("encoding-yuv", {"encoding": "yuv422"}, "encoding"),
+    ("encoding-float", {"encoding": "32FC1"}, "encoding"),
     ("encoding-empty", {"encoding": ""}, "encoding"),
     ("encoding-bidi", {"encoding": "mono8\u202e\x1b[2J"}, "encoding"),
     ("compressed-broken-png", {"format": "png", "data": b"\x89PNG\r\n\x1a\nbroken"}, "data"),
@@ -1659,8 +1659,10 @@ def laser_cases() -> list[Case]:
     images("missing", "im1.png", "nope.png", "nope.png")
     for v in ["nan", "inf", "-inf", "1e400"]:
         images(f"stamp={v}", "1.1 im1.png", f"{v} im1.png")
-    images("stamp-back", "1.1 im1.png", "0.5 im1.png")
-    images("stamp-repeated", "1.1 im1.png", "1.0 im1.png")
+    # Steps back and repeated stamps are repaired as the log's (--stamps repair); strict refuses them.
+    for name, stamp in (("stamp-back", "0.5"), ("stamp-repeated", "1.0")):
+        edit = edit_text(il, "1.1 im1.png", f"{stamp} im1.png")
+        out.append(Case(f"import-laser-images-{name}", strict, edit, 3, il))
     images("three-fields", "1.1 im1.png", "1.1 im1.png extra")
     images("no-stamp", "1.1 im1.png", "im1.png im1.png")
     out.append(Case("import-laser-images-empty", LASER, write(il, ""), 3, "images.txt"))

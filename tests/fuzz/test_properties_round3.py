@@ -33,7 +33,7 @@ def attempt(fn, *args):
 
 @SETTINGS
 @given(
-    encoding=st.sampled_from([*RAW_ENCODINGS, "MONO8", "yuv422", "", "bgra8", "32FC1"]),
+    encoding=st.sampled_from([*RAW_ENCODINGS, "MONO8", "", "32FC1", "rgb16"]),
     height=st.integers(-2, 9),
     width=st.integers(-2, 9),
     pad=st.integers(-3, 5),
@@ -60,8 +60,8 @@ def test_a_raw_image_body_is_stored_exactly_or_refused(encoding, height, width, 
         with pytest.raises(InputError, match=rf"^{WHERE}: (encoding|height|width|step|data): got "):
             _image_bytes(msg, "sensor_msgs/msg/Image", WHERE)
         return
-    png, ext, size = _image_bytes(msg, "sensor_msgs/msg/Image", WHERE)
-    assert size == (width, height)
+    png, ext, wxh = _image_bytes(msg, "sensor_msgs/msg/Image", WHERE)
+    assert wxh == (width, height)
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
     assert ext == "png"
     assert img.shape[:2] == (height, width)

@@ -83,3 +83,34 @@ def test_radlocc_and_csv_logs_repair_or_refuse(tmp_path):
     assert [s.stamp_s for s in read_csv_laser(c)] == pytest.approx([1.0, 1.1, 1.2, 1.3])
     with pytest.raises(InputError, match=r"l.csv: stamp: line 6: got stamp 0.95"):
         read_csv_laser(c, stamps="strict")
+
+
+# --- the unit of a stream's stamps, from its own steps and magnitude --------------------------
+@pytest.mark.parametrize(
+    ("stamps", "scans"),
+    [
+        (np.arange(0.0, 3600.0, 0.02), (100.0, 160.0)),  # an hour of 50 Hz odometry, a minute of scans
+        (1.7e9 + np.arange(0.0, 3600.0, 0.02), (1.7e9 + 10.0, 1.7e9 + 13.6)),  # 1000x the scans' span
+        (np.arange(0.0, 60.0, 5.0), (0.0, 60.0)),  # a slow logger: a pose every 5 s
+    ],
+)
+def test_odometry_far_longer_than_the_scans_is_seconds(stamps, scans):
+    from rigcal.io.wheel_odometry import checked
+
+    odom = checked(stamps, np.zeros((len(stamps), 3)), (0.0, 0.0, 0.0), "odom.tum", np.array(scans))
+    assert len(odom.stamps_s) == len(stamps)
+
+
+@pytest.mark.parametrize(
+    ("stamps", "match"),
+    [
+        (np.arange(0.0, 60.0, 0.02) * 1e3, r"got 'a pose every 20 \(median\)'; expected seconds: wheel"),
+        ((1.7e9 + np.arange(0.0, 60.0, 0.02)) * 1e3, r"got 1700000059980.0; expected seconds .*milliseconds"),
+        ((1.7e9 + np.arange(0.0, 60.0, 0.02)) * 1e9, r"got 1.7.*e\+18; .*this looks like nanoseconds"),
+    ],
+)
+def test_odometry_in_another_unit_is_refused_by_its_own_stamps(stamps, match):
+    from rigcal.io.wheel_odometry import checked
+
+    with pytest.raises(InputError, match=rf"^odom.tum: odometry stamps: {match}"):
+        checked(stamps, np.zeros((len(stamps), 3)), (0.0, 0.0, 0.0), "odom.tum", np.array([0.0, 60.0]))

@@ -282,8 +282,9 @@ BAD_IMAGES = [
     ),
     (
         "unknown-encoding",
-        {"encoding": "yuv422"},
-        r"encoding: got 'yuv422'; expected mono8, mono16, bgr8 or rgb8",
+        {"encoding": "32FC1"},
+        r"encoding: got '32FC1'; expected mono8/8UC1, mono16/16UC1, bgr8, rgb8, 8UC3, bgra8, rgba8, 8UC4, "
+        r"bayer_rggb8, bayer_bggr8, bayer_gbrg8, bayer_grbg8 \(or 16\), yuv422 \(uyvy\) or yuv422_yuy2",
     ),
     (
         "compressed-broken-png",
@@ -317,7 +318,9 @@ def test_padded_rows_and_big_endian_mono16_are_read_as_the_pixels(tmp_path, ros)
     import_bag(bag, tmp_path / "seq", "/scan", "/cam/image")
     seq = read_sequence(tmp_path / "seq")
     got = cv2.imread(str(tmp_path / "seq" / "images" / seq.image_files[1]), cv2.IMREAD_UNCHANGED)
-    np.testing.assert_array_equal(got, img16)
+    # stored as 8 bits: levels up to 23000 use 15 bits, so every frame is shifted right by 7
+    np.testing.assert_array_equal(got, (img16 >> 7).astype(np.uint8))
+    assert seq.source["images_16_bit"] == {"frames": 1, "max_level": 23000, "shift_bits": 7}
 
 
 BEAMS = [  # 11 ranges from -0.5 in steps of 0.1: angle_max 0.5 exactly, 0.4 / 0.6 one beam off

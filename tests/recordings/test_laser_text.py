@@ -176,7 +176,7 @@ def test_image_list(tmp_path):
     assert stamps.tolist() == [3.5]
     assert files == [tmp_path / "a.png"]
     for text, match in (("1.0 b.png\n", "image b.png not found"), ("1.0 a.png b.png\n", "expected a stamp"),
-                        ("1.0 a.png\n0.5 a.png\n", "stamp 0.5 not after 1.0")):  # fmt: skip
+                        ("1.0 a.png\n0.5 a.png\n", "line 2: got stamp 0.5; expected a stamp")):  # fmt: skip
         (tmp_path / "l.txt").write_text(text)
         with pytest.raises(InputError, match=match):
             read_image_list(tmp_path / "l.txt")

@@ -176,7 +176,19 @@ def _run_job(item: Item, folder: Path, command: str) -> tuple[int, Any]:
         )
         return 0, done.doc
     assert item.command == "evaluate", item.command
-    return 0, jobs.evaluate_files([Path(o["trajectory"])], Path(o["gt"])).doc
+    scored = jobs.evaluate_files([Path(o["trajectory"])], Path(o["gt"]))
+    for cut_path, cut in scored.cut:  # the single command's warning, in the item's stderr
+        print(f"warning: {cut.warning(cut_path)}", file=sys.stderr)
+    return 0, scored.doc
+
+
+def warning_lines(stderr: str) -> list[str]:
+    """The ``warning:`` lines an item's command printed (its stderr), without the prefix:
+    what the single command would have said on the terminal (a file read to its last whole
+    line, stamps repaired), kept in the batch's summary."""
+    return [
+        line.split(":", 1)[1].strip() for line in stderr.splitlines() if line.lower().startswith("warning:")
+    ]
 
 
 def item_command(batch_command: str, item: Item, argv: list[str]) -> str:

@@ -15,11 +15,13 @@ from pathlib import Path
 from typing import Any
 
 from rigcal import __version__
-from rigcal.batch.runner import Outcome
+from rigcal.batch.runner import Outcome, warning_lines
 from rigcal.io.files import atomic_write_text
 
-SUMMARY_SCHEMA_VERSION = 2  # 2: host, node
-BASE_COLUMNS = ("name", "command", "status", "resumed", "exit_code", "seconds", "host", "node", "error")
+SUMMARY_SCHEMA_VERSION = 3  # 2: host, node; 3: warnings
+BASE_COLUMNS = (
+    "name", "command", "status", "resumed", "exit_code", "seconds", "host", "node", "error", "warnings",
+)  # fmt: skip
 METRICS = ("ate_rmse_m", "average_position_error_m", "loop_closure_error_percent", "rpe_1m_rmse_m")
 
 
@@ -71,6 +73,7 @@ def rows(outcomes: list[Outcome]) -> list[dict[str, Any]]:
             "host": r.get("host"),
             "node": r.get("node"),
             "error": r["error"],
+            "warnings": " | ".join(warning_lines(str(r.get("stderr") or ""))) or None,
         }
         out.append(base | figures(o.item.command, r.get("result")))
     return out

@@ -100,7 +100,7 @@ def batch(
     import json
 
     from rigcal.batch.manifest import glob_items, read_manifest
-    from rigcal.batch.runner import BatchSettings, Outcome, run_batch
+    from rigcal.batch.runner import BatchSettings, Outcome, run_batch, warning_lines
     from rigcal.batch.summary import rows, write_summary
     from rigcal.errors import InputError
     from rigcal.viz.fleet_plot import write_fleet_png
@@ -133,6 +133,8 @@ def batch(
         if rec["error"]:
             line += f": {rec['error']}"
         click.echo(line, err=True)
+        for warning in warning_lines(str(rec.get("stderr") or "")):
+            click.echo(f"warning: {o.item.name}: {warning}", err=True)
 
     settings = BatchSettings(workers, ray_address, rerun, ray_timeout_s, ray_retries)
     command = "rigcal " + shlex.join(sys.argv[1:]) if sys.argv else "rigcal batch"

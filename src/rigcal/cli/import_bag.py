@@ -102,6 +102,7 @@ def import_bag(
             "reordered": dict(s.reordered),
             "duplicates_dropped": dict(s.duplicates),
             "odometry_poses": s.odometry,
+            **s.record(),
         }
         click.echo(json.dumps(doc, indent=1))
         return
@@ -111,6 +112,7 @@ def import_bag(
             notes.append(f"{s.reordered[what]} {what} out of order (sorted)")
         if s.duplicates.get(what):
             notes.append(f"{s.duplicates[what]} {what} with a repeated stamp (dropped)")
+    notes += s.notes()
     click.echo(
         f"wrote {output}/: {s.scans} scans, {s.images} images"
         + (", camera.yaml" if s.camera else "")

@@ -107,6 +107,7 @@ def import_laser(
     warn_cut(s.images_cut, images)
     warn_cut(s.odometry_cut, odometry)
     warn_stamps(s.stamps, "scan stamps")
+    warn_stamps(s.image_stamps, "image stamps")
     if as_json:
         import json
 

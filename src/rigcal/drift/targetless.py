@@ -97,6 +97,7 @@ from rigcal.drift.statistic import (
 )
 from rigcal.errors import InputError
 from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R, se2
+from rigcal.io.stamps import outside_scans
 from rigcal.lines import return_labels
 from rigcal.localize.iasm import snap_to_lines
 from rigcal.localize.line_normals import line_fits
@@ -294,6 +295,9 @@ def check_targetless(
     nan6 = np.full(6, np.nan)
     duration = float(streams.image_stamps_s[-1] - streams.image_stamps_s[0])
     base: dict[str, Any] = {"duration_s": round(duration, 3), "images": streams.n_images}
+    outside = outside_scans(streams.image_stamps_s, streams.scan_stamps_s)
+    if outside["before"] or outside["after"]:  # left out of the check (no laser pose there)
+        base["images_outside_scans"] = outside
     try:
         # The odometry of the thinned scans serves where the edges estimate the yaw and
         # the translations; the photometric term alone needs the odometry of every scan
@@ -419,6 +423,10 @@ def _se3_of_se2(T2: FloatArray) -> FloatArray:
 def _build_patches(rig: Rig, streams: Streams, s: TargetlessSettings) -> _Patches:
     cam = rig.camera
     frames = used_frames(streams.image_stamps_s, s.frame_rate_hz)
+    # Frames before the first scan or after the last have no laser pose (it would be held
+    # at the drive's ends, projecting the returns at the wrong place): left out.
+    t_img, t_scan = streams.image_stamps_s, streams.scan_stamps_s
+    frames = [f for f in frames if t_scan[0] <= t_img[f] <= t_scan[-1]]
     # The used frames decode on two other threads from here on, while the laser odometry
     # runs (its compiled ICP releases the interpreter), as far ahead as FRAMES_AHEAD_BYTES
     # allows; then while each frame's grids are made (decoding two at a time keeps both

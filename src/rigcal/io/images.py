@@ -58,6 +58,72 @@ def read_grey(path: str | Path) -> Gray | None:
     return None if out is None else np.asarray(out, dtype=np.uint8)
 
 
+# A grey frame whose levels are all below this may be a 16-bit image whose levels do not
+# reach its top byte (OpenCV's 8-bit reading keeps the top byte): checked by
+# :func:`check_depth`.
+DARK_LEVELS = 16
+
+
+def check_depth(path: str | Path, grey: Gray) -> None:
+    """Refuse a 16-bit image that reads (by OpenCV's rule, its top 8 bits) as nearly black
+    because its levels use 12 bits or fewer (a 12-bit camera's 0-4095 in 16-bit words):
+    read as it is, every method would see a black frame. Costs nothing for other frames
+    (only a frame whose grey levels all lie below :data:`DARK_LEVELS` is looked at again).
+
+    Raises:
+        InputError: ``PATH: levels: got '16-bit, up to 4095'; expected ...``.
+    """
+    import cv2
+
+    if grey.size == 0 or int(grey.max()) >= DARK_LEVELS:
+        return
+    img = read_image_file(path, cv2.IMREAD_UNCHANGED)
+    if img is None or img.dtype != np.uint16:
+        return
+    top = int(img.max())
+    raise InputError.at(
+        path,
+        "levels",
+        f"16-bit, up to {top}",
+        "8-bit images, or 16-bit ones whose levels reach the top byte (read by their top 8 bits, "
+        f"this frame's levels use {max(top.bit_length(), 1)} bits and it reads black): convert the "
+        "images to 8 bits, every frame shifted right by the same bits, as import-bag and import-laser do",
+    )
+
+
+def eight_bit_pngs(images: list[bytes]) -> tuple[list[bytes], dict[str, int]]:
+    """A drive's encoded frames with its 16-bit PNGs as 8-bit PNGs, every one shifted right
+    by the same number of bits: the bits of the drive's brightest 16-bit level beyond 8 (a
+    12-bit camera's levels up to 4095: 4), so that a level means the same brightness in
+    every frame and a camera that fills only 12 of its 16 bits is not read as nearly black
+    (OpenCV keeps a 16-bit image's top byte). Other frames are returned as they are; the
+    dict says what was done (``frames``, ``max_level``, ``shift_bits``; empty: nothing)."""
+    import cv2
+
+    # IHDR's bit depth is byte 24 of a PNG (signature, chunk length and type, width, height).
+    # Two passes, each decoding one frame at a time: a drive's 16-bit frames need not fit
+    # in memory together.
+    def wide(data: bytes) -> NDArray[np.uint16] | None:
+        if not (data.startswith(PNG_SIGNATURE) and data[24:25] == b"\x10"):
+            return None
+        img = decode(data, cv2.IMREAD_UNCHANGED)
+        return img if img is not None and img.dtype == np.uint16 else None
+
+    levels = {k: int(img.max()) for k, data in enumerate(images) if (img := wide(data)) is not None}
+    if not levels:
+        return images, {}
+    top = max(levels.values())
+    shift = max(0, top.bit_length() - 8)
+    out = list(images)
+    for k in levels:
+        img = wide(images[k])
+        assert img is not None  # it decoded in the first pass
+        ok, buf = cv2.imencode(".png", (img >> shift).astype(np.uint8))
+        assert ok  # cv2 encodes any 8-bit image
+        out[k] = bytes(buf.tobytes())
+    return out, {"frames": len(levels), "max_level": top, "shift_bits": shift}
+
+
 def decode(data: bytes, flags: int) -> NDArray[Any] | None:
     """``cv2.imdecode(data, flags)``, None for a file that does not decode, with what
     OpenCV's PNG codec prints about a damaged file (libpng's "libpng error: IDAT: CRC

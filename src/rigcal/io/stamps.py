@@ -209,15 +209,23 @@ def _longest_increasing(t: FloatArray) -> NDArray[np.int64]:
 # Seconds since 1970 stay below this until the year 5138; a stamp above it is in another
 # unit (Unix milliseconds are about 1.7e12, microseconds 1.7e15, nanoseconds 1.7e18).
 MAX_STAMP_S = 1e11
-# A laser scans several times a second; a drive's scans this far apart (median) are
-# stamped in another unit (a 10 Hz scanner's milliseconds step by 100), not seconds.
+# A laser scans several times a second, and wheel odometry is logged as often; a stream
+# whose own steps are this far apart (median) is stamped in another unit (a 10 Hz
+# scanner's milliseconds step by 100, a 50 Hz odometry's by 20), not seconds.
 MAX_SCAN_PERIOD_S = 10.0
+# What each stream's step is, for the message: (its element, the rate it is logged at).
+STEPS = {
+    "scan": ("a scan", "a laser scans several times a second"),
+    "pose": ("a pose", "wheel odometry is logged several times a second"),
+}
 _UNITS = ((3, "milliseconds"), (6, "microseconds"), (9, "nanoseconds"))
 
 
 def unit_hint(span: float, other_span: float) -> str:
     """ " (one stream in milliseconds, the other in seconds?)" when two streams' time spans
-    differ by about 1e3, 1e6 or 1e9 (the other units loggers stamp in), else ""."""
+    differ by about 1e3, 1e6 or 1e9 (the other units loggers stamp in), else "". Only a
+    hint in the message of streams that do not overlap: a span ratio never refuses a
+    stream by itself (odometry logged for an hour beside a minute of scans is real)."""
     if not (span > 0 and other_span > 0):
         return ""
     ratio = abs(float(np.log10(span / other_span)))
@@ -225,9 +233,11 @@ def unit_hint(span: float, other_span: float) -> str:
     return f" (one stream in {unit}, the other in seconds?)" if unit else ""
 
 
-def check_seconds(stamps_s: FloatArray, where: str, key: str, scans: bool = False) -> None:
-    """Refuse stamps that cannot be seconds: above :data:`MAX_STAMP_S`, or (``scans``: a
-    laser's) a median step over :data:`MAX_SCAN_PERIOD_S`, naming the unit they look like.
+def check_seconds(stamps_s: FloatArray, where: str, key: str, step: str | None = None) -> None:
+    """Refuse stamps that cannot be seconds, judged by the stream's own stamps: a
+    magnitude above :data:`MAX_STAMP_S`, or (``step``: ``"scan"`` for a laser's stamps,
+    ``"pose"`` for wheel odometry's, :data:`STEPS`) a median step over
+    :data:`MAX_SCAN_PERIOD_S`, naming the unit they look like.
 
     Raises:
         InputError: ``where: key: got ...; expected seconds ...``.
@@ -242,12 +252,24 @@ def check_seconds(stamps_s: FloatArray, where: str, key: str, scans: bool = Fals
             big,
             f"seconds (Unix time is about 1.7e9 s; this looks like {unit}: convert to seconds)",
         )
-    if scans and len(t) > 2:
+    if step is not None and len(t) > 2:
         period = float(np.median(np.diff(t)))
         if period > MAX_SCAN_PERIOD_S:
+            one, rate = STEPS[step]
             raise InputError.at(
                 where,
                 key,
-                f"a scan every {period:g} (median)",
-                "seconds: a laser scans several times a second (stamps in milliseconds?)",
+                f"{one} every {period:g} (median)",
+                f"seconds: {rate} (stamps in milliseconds?)",
             )
+
+
+def outside_scans(image_stamps_s: FloatArray, scan_stamps_s: FloatArray) -> dict[str, int]:
+    """How many images are stamped before the first scan and after the last, by more than
+    one scan period (median step): the laser's pose is not known there, so no image method
+    can place them (``{"before": n, "after": m}``)."""
+    t, s = np.asarray(image_stamps_s, dtype=float), np.asarray(scan_stamps_s, dtype=float)
+    if not len(t) or not len(s):
+        return {"before": 0, "after": 0}
+    period = float(np.median(np.diff(s))) if len(s) > 1 else 0.0
+    return {"before": int((t < s[0] - period).sum()), "after": int((t > s[-1] + period).sum())}

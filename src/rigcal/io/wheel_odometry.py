@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.stamps import unit_hint
+from rigcal.io.stamps import check_seconds, unit_hint
 from rigcal.io.trajectory import Trajectory, read_tum, tum_text
 
 # A TUM odometry file is planar: its poses may tilt by at most this (rad) off the floor.
@@ -134,16 +134,19 @@ def checked(
         )
     if mount.shape != (3,) or not np.isfinite(mount).all():
         raise InputError.at(where, "T_base_laser", mount.tolist(), "3 finite numbers: x y (m), yaw (rad)")
+    # The unit from the odometry's own stamps (their magnitude and step), never from its
+    # span against the scans': a robot's odometry may be logged for an hour around a
+    # minute of scans.
+    check_seconds(t, where, "odometry stamps", step="pose")
     if scan_stamps_s is not None and len(scan_stamps_s):
         lo, hi = float(scan_stamps_s[0]), float(scan_stamps_s[-1])
-        # Another unit (milliseconds from the start) may still overlap: told by the spans.
-        unit = unit_hint(float(t[-1] - t[0]), hi - lo)
-        if t[-1] < lo or t[0] > hi or unit:
+        if t[-1] < lo or t[0] > hi:
             raise InputError.at(
                 where,
                 "odometry stamps",
                 f"{float(t[0])!r} to {float(t[-1])!r}",
-                f"a span overlapping the scans' ({lo!r} to {hi!r}): the same clock" + unit,
+                f"a span overlapping the scans' ({lo!r} to {hi!r}): the same clock"
+                + unit_hint(float(t[-1] - t[0]), hi - lo),
             )
     return WheelOdometry(t, p, mount)
 

@@ -25,6 +25,7 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
+from rigcal.io.stamps import outside_scans
 from rigcal.io.trajectory import Trajectory, read_tum
 from rigcal.io.wheel_odometry import across_gaps, gap_s, laser_motions
 from rigcal.localize import kalman
@@ -373,6 +374,7 @@ def _shared_stages(streams: Streams, methods: list[str]) -> None:
     then the laser odometry (every method but icp-p2p pairs scans and images with it)."""
     tracking = [m for m in methods if m in TRACKING]
     _require_images(streams, methods)  # a clear error before any work
+    _warn_outside(streams, methods)
     if tracking:
         streams.start_laser_odometry()
         streams.feature_tracks()
@@ -395,6 +397,22 @@ def _warn_gaps(streams: Streams) -> None:
             gap_s(od),
             int(gaps.sum()),
             long,
+        )
+
+
+def _warn_outside(streams: Streams, methods: list[str]) -> None:
+    """Say (one warning) when images lie before the first scan or after the last: no scan
+    measures the laser's motion there."""
+    if not any(m in IMAGE_METHODS for m in methods):
+        return
+    out = outside_scans(streams.image_stamps_s, streams.scan_stamps_s)
+    if out["before"] or out["after"]:
+        log.warning(
+            "%d image(s) before the first scan and %d after the last (by more than a scan period): "
+            "no scan measures the laser's motion there, so the image methods' poses at them rest on "
+            "the images alone or are held at the scans' ends",
+            out["before"],
+            out["after"],
         )
 
 

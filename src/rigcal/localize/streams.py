@@ -33,7 +33,7 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
-from rigcal.io.images import read_grey
+from rigcal.io.images import check_depth, read_grey
 from rigcal.io.stamps import unit_hint
 from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
 from rigcal.lines import Segment, extract_lines
@@ -184,6 +184,7 @@ class Streams:
         g = read_grey(path)
         if g is None:
             raise InputError(f"{path}: not a readable image")
+        check_depth(path, g)
         if self.rig is not None and g.shape != (self.rig.camera.height_px, self.rig.camera.width_px):
             cam = self.rig.camera  # every frame, not only the first: a frame of another camera mid-drive
             raise InputError.at(

@@ -19,6 +19,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rigcal.errors import InputError
+from rigcal.io.images import eight_bit_pngs
+from rigcal.io.stamps import outside_scans
 from rigcal.io.validate import real
 from rigcal.io.wheel_odometry import WheelOdometry, checked
 from rigcal.recordings.sequence import ImageFrame, write_sequence
@@ -45,6 +47,44 @@ class ImportSummary:
     reordered: dict[str, int] = field(default_factory=dict)
     duplicates: dict[str, int] = field(default_factory=dict)
     odometry: int = 0
+    # What the import converted by a documented rule (docs/formats/sequence.md#from-bags):
+    scan_counts: dict[str, int] = field(default_factory=dict)  # returns at range_max, beams past a turn
+    outside: dict[str, int] = field(default_factory=dict)  # images before the first scan, after the last
+    depth: dict[str, int] = field(default_factory=dict)  # 16-bit images: frames, max_level, shift_bits
+    unstamped: dict[str, int] = field(default_factory=dict)  # topic -> messages stamped 0 (record time used)
+
+    def record(self) -> dict[str, Any]:
+        """The conversions made, for the sequence's ``source`` (none: nothing)."""
+        out: dict[str, Any] = {k: v for k, v in self.scan_counts.items() if v}
+        if any(self.outside.values()):
+            out["images_outside_scans"] = dict(self.outside)
+        if self.depth:
+            out["images_16_bit"] = dict(self.depth)
+        if self.unstamped:
+            out["unstamped_record_time"] = dict(self.unstamped)
+        return out
+
+    def notes(self) -> list[str]:
+        """One phrase per conversion made, for the command's summary line."""
+        out = []
+        if self.scan_counts.get("returns_at_range_max"):
+            out.append(f"{self.scan_counts['returns_at_range_max']} ranges at range_max (no return)")
+        if self.scan_counts.get("beams_past_one_turn"):
+            out.append(f"{self.scan_counts['beams_past_one_turn']} beams past one full turn (dropped)")
+        if any(self.outside.values()):
+            out.append(
+                f"{self.outside['before']} images before the first scan and {self.outside['after']} "
+                "after the last (kept; check leaves them out, localize warns)"
+            )
+        for topic, n in self.unstamped.items():
+            out.append(f"{n} {topic} messages with header.stamp 0 (stamped with their record time)")
+        if self.depth:
+            d = self.depth
+            out.append(
+                f"{d['frames']} 16-bit images stored as 8 bits (levels up to {d['max_level']}: "
+                f"shifted right by {d['shift_bits']} bits)"
+            )
+        return out
 
 
 def import_bag(
@@ -114,6 +154,7 @@ def import_bag(
                 )
             if topics[topic] not in types:
                 raise InputError.at(bag, topic, topics[topic], f"a topic of type {' or '.join(types)}")
+        summary = ImportSummary()
         scans: list[tuple[float, Scan]] = []
         images: list[tuple[float, bytes, str]] = []
         info: Any = None
@@ -124,7 +165,7 @@ def import_bag(
         conns = [c for c in reader.connections if c.topic in {t for t, _ in wanted.values()}]
         total = sum(int(c.msgcount) for c in conns)
         seen = dict.fromkeys(topics, 0)
-        for k, (con, _, raw) in enumerate(reader.messages(connections=conns)):
+        for k, (con, recorded_ns, raw) in enumerate(reader.messages(connections=conns)):
             where = f"{bag}: {con.topic} message {seen[con.topic]}"
             seen[con.topic] += 1
             msg = _deserialize(reader, raw, con.msgtype, where)
@@ -134,9 +175,20 @@ def import_bag(
                     progress(k + 1, total)
                 continue
             stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
+            if stamp == 0.0 and con.topic in (scan_topic, image_topic):
+                # A driver that leaves header.stamp unset: the time the recorder got it.
+                if stamps == "strict":
+                    raise InputError.at(
+                        where,
+                        "header.stamp",
+                        0.0,
+                        "a stamp set by the driver (--stamps repair uses the record time)",
+                    )
+                stamp = 1e-9 * float(recorded_ns)
+                summary.unstamped[con.topic] = summary.unstamped.get(con.topic, 0) + 1
             if con.topic == scan_topic:
                 wheel.scan_frame = wheel.scan_frame or str(msg.header.frame_id)
-                scans.append((stamp, _scan(msg, stamp, where)))
+                scans.append((stamp, _scan(msg, stamp, where, summary.scan_counts)))
             elif con.topic == image_topic:
                 data, ext, size = _image_bytes(msg, con.msgtype, where)
                 first_image = first_image or (size, where)
@@ -165,7 +217,6 @@ def import_bag(
     finally:
         reader.close()
     log.info("%s: %d scans, %d images read from %d messages", bag, len(scans), len(images), total)
-    summary = ImportSummary()
     for what, items, topic in (("scans", scans, scan_topic), ("images", images, image_topic)):
         if not items:
             raise InputError.at(bag, topic, "no messages", f"a topic with {what}")
@@ -174,10 +225,13 @@ def import_bag(
     if stamps == "strict":
         _strict_order(bag, [(scan_topic, scans), (image_topic, images)])
     odometry = None
+    scan_t = np.array([t for t, _ in scans_sorted])
     if odometry_topic is not None:
-        scan_t = np.array([t for t, _ in scans_sorted])
         odometry = bag_odometry(wheel, f"{bag}: {odometry_topic}", laser_offset, scan_t)
         summary.odometry = len(odometry.stamps_s)
+    summary.outside = outside_scans(np.array([t for t, _, _ in images_sorted]), scan_t)
+    datas, summary.depth = eight_bit_pngs([data for _, data, _ in images_sorted])
+    images_sorted = [(t, data, ext) for (t, _, ext), data in zip(images_sorted, datas, strict=True)]
     frames = [ImageFrame(stamp, f"{i:06d}.{ext}", data) for i, (stamp, data, ext) in enumerate(images_sorted)]
     write_sequence(
         output,
@@ -191,6 +245,7 @@ def import_bag(
             "image_topic": image_topic,
             "camera_info_topic": camera_info_topic,
             **({"odometry_topic": odometry_topic} if odometry_topic is not None else {}),
+            **summary.record(),
         },
         force=force,
         odometry=odometry,
@@ -350,13 +405,15 @@ def _deserialize(reader: Any, raw: bytes, msgtype: str, where: str) -> Any:
 BEAM_COUNT_SLACK = 1
 
 
-def _scan(msg: Any, stamp: float, where: str) -> Scan:
+def _scan(msg: Any, stamp: float, where: str, counts: dict[str, int] | None = None) -> Scan:
     """A LaserScan message as a scan; its geometry checked (finite, angles within 2 pi,
     0 <= range_min < range_max, as many ranges as angle_min .. angle_max in steps of
     angle_increment give, within :data:`BEAM_COUNT_SLACK`), -inf ranges ("too close", REP
     117) as 0 (no return) and other negative ranges refused. A negative
     ``angle_increment`` (a scanner sweeping clockwise, angle_max < angle_min) gives the
-    same beams in reverse order, so that the angles increase (docs/formats/scan.md)."""
+    same beams in reverse order, so that the angles increase (docs/formats/scan.md). A range
+    equal to ``range_max`` is no return (inf); beams past one full turn are dropped;
+    ``counts`` (``returns_at_range_max``, ``beams_past_one_turn``) adds up both."""
     two_pi = 2 * np.pi
     a0 = real(float(msg.angle_min), where, "angle_min", lo=-two_pi, hi=two_pi)
     a1 = real(float(msg.angle_max), where, "angle_max", lo=-two_pi, hi=two_pi)
@@ -388,14 +445,42 @@ def _scan(msg: Any, stamp: float, where: str) -> Scan:
         raise InputError.at(where, f"ranges[{k}]", float(r[k]), "a range >= 0 (NaN, inf, -inf: no return)")
     if step < 0:
         a0, step, r = a0 + step * (len(r) - 1), -step, r[::-1]
-    return Scan.from_uniform(a0, step, r, lo, hi, stamp)
+    # A range of exactly range_max is the driver's value for no return (or a return it
+    # clipped), never a surface measured with noise: no return.
+    at_max = r == hi
+    if at_max.any():
+        r = np.where(at_max, np.inf, r)
+    # Beams more than half a step past one full turn from the first measure directions
+    # already measured (a scan spanning over 360 deg): dropped, the first turn kept.
+    turn = int(np.floor(2 * np.pi / step + 0.5)) + 1 if step > 0 else len(r)
+    if counts is not None:
+        counts["returns_at_range_max"] = counts.get("returns_at_range_max", 0) + int(at_max.sum())
+        counts["beams_past_one_turn"] = counts.get("beams_past_one_turn", 0) + max(0, len(r) - turn)
+    return Scan.from_uniform(a0, step, r[:turn], lo, hi, stamp)
 
 
-# Raw encodings stored (sensor_msgs/image_encodings.h): bytes per channel, channels.
+# Raw encodings stored as they are (sensor_msgs/image_encodings.h): bytes per channel, channels.
 RAW_ENCODINGS = {
     "mono8": (1, 1), "8uc1": (1, 1), "mono16": (2, 1), "16uc1": (2, 1),
     "bgr8": (1, 3), "rgb8": (1, 3), "8uc3": (1, 3),
 }  # fmt: skip
+# Raw encodings real cameras also send, converted to BGR as cv_bridge converts them: bytes
+# per channel, channels in the message, OpenCV's conversion. Alpha is dropped; a Bayer
+# mosaic is demosaiced (ROS names the pattern's first row, OpenCV its second: ROS rggb is
+# OpenCV's BG); packed YUV 4:2:2 (two bytes a pixel) is converted.
+CONVERTED_ENCODINGS = {
+    "bgra8": (1, 4, "COLOR_BGRA2BGR"), "8uc4": (1, 4, "COLOR_BGRA2BGR"), "rgba8": (1, 4, "COLOR_RGBA2BGR"),
+    "bayer_rggb8": (1, 1, "COLOR_BayerBG2BGR"), "bayer_bggr8": (1, 1, "COLOR_BayerRG2BGR"),
+    "bayer_gbrg8": (1, 1, "COLOR_BayerGR2BGR"), "bayer_grbg8": (1, 1, "COLOR_BayerGB2BGR"),
+    "bayer_rggb16": (2, 1, "COLOR_BayerBG2BGR"), "bayer_bggr16": (2, 1, "COLOR_BayerRG2BGR"),
+    "bayer_gbrg16": (2, 1, "COLOR_BayerGR2BGR"), "bayer_grbg16": (2, 1, "COLOR_BayerGB2BGR"),
+    "yuv422": (1, 2, "COLOR_YUV2BGR_UYVY"), "uyvy": (1, 2, "COLOR_YUV2BGR_UYVY"),
+    "yuv422_yuy2": (1, 2, "COLOR_YUV2BGR_YUY2"), "yuyv": (1, 2, "COLOR_YUV2BGR_YUY2"),
+}  # fmt: skip
+ENCODINGS_READ = (
+    "mono8/8UC1, mono16/16UC1, bgr8, rgb8, 8UC3, bgra8, rgba8, 8UC4, bayer_rggb8, bayer_bggr8, "
+    "bayer_gbrg8, bayer_grbg8 (or 16), yuv422 (uyvy) or yuv422_yuy2 (yuyv)"
+)
 # The largest image side accepted (as camera files: docs/formats/camera.md).
 MAX_IMAGE_SIDE_PX = 10**6
 
@@ -432,13 +517,15 @@ def _image_bytes(msg: Any, msgtype: str, where: str) -> tuple[bytes, str, tuple[
             )
         return data, ext, (int(img.shape[1]), int(img.shape[0]))
     enc = str(msg.encoding).lower()
-    if enc not in RAW_ENCODINGS:
-        raise InputError.at(where, "encoding", str(msg.encoding)[:40], "mono8, mono16, bgr8 or rgb8")
-    size, channels = RAW_ENCODINGS[enc]
+    if enc not in RAW_ENCODINGS and enc not in CONVERTED_ENCODINGS:
+        raise InputError.at(where, "encoding", str(msg.encoding)[:40], ENCODINGS_READ)
+    size, channels = RAW_ENCODINGS[enc] if enc in RAW_ENCODINGS else CONVERTED_ENCODINGS[enc][:2]
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     for key, v in (("height", h), ("width", w)):
         if not 0 < v <= MAX_IMAGE_SIDE_PX:
             raise InputError.at(where, key, v, f"a positive number of pixels (at most {MAX_IMAGE_SIDE_PX})")
+    if channels == 2 and w % 2:  # 4:2:2 shares one colour between two pixels of a row
+        raise InputError.at(where, "width", w, f"an even number of pixels ({enc}: two pixels share a colour)")
     if step < w * size * channels or step % size:
         raise InputError.at(
             where,
@@ -456,9 +543,14 @@ def _image_bytes(msg: Any, msgtype: str, where: str) -> tuple[bytes, str, tuple[
     if size == 2:
         dtype = dtype.newbyteorder(">" if int(msg.is_bigendian) else "<")
     rows = np.frombuffer(raw, dtype=dtype).reshape(h, step // size)[:, : w * channels]
-    img = rows.reshape(h, w, channels) if channels == 3 else rows
+    img = rows.reshape(h, w, channels) if channels > 1 else rows
     if enc == "rgb8":
         img = img[:, :, ::-1]
+    if enc in CONVERTED_ENCODINGS:
+        if enc.startswith("bayer") and min(h, w) < 2:  # a mosaic's 2x2 cell
+            raise InputError.at(where, "height x width", f"{h}x{w}", f"at least 2x2 pixels ({enc})")
+        code = getattr(cv2, CONVERTED_ENCODINGS[enc][2])
+        img = cv2.cvtColor(np.ascontiguousarray(img, dtype=img.dtype.newbyteorder("=")), code)
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(img, dtype=img.dtype.newbyteorder("=")))
     if not ok:  # pragma: no cover - cv2 encodes any 8/16-bit image
         raise InputError(f"{where}: cannot encode an image as PNG")

@@ -318,7 +318,8 @@ def _flaser(fields: list[str], where: str, range_max_m: float) -> tuple[Scan, Fl
     )
     # 180 degrees from -90: n even, n steps (1 degree for 180); n odd, both ends (181, 361).
     step = math.pi / (n - 1 if n % 2 else n) if n > 1 else math.pi
-    scan = Scan.from_uniform(-math.pi / 2, step, v[:n], 0.0, range_max_m, stamp_s=v[n + 6])
+    ranges = _no_return_at(v[:n], range_max_m)
+    scan = Scan.from_uniform(-math.pi / 2, step, ranges, 0.0, range_max_m, stamp_s=v[n + 6])
     return scan, np.array(v[n : n + 3]), np.array(v[n + 3 : n + 6])
 
 
@@ -343,5 +344,11 @@ def _robotlaser1(fields: list[str], where: str, _: float) -> tuple[Scan, FloatAr
         raise InputError.at(where, "ROBOTLASER1 start_angle", fields[1], "an angle in [-2 pi, 2 pi] rad")
     if not range_max > 0:
         raise InputError.at(where, "ROBOTLASER1 max_range", fields[4], "a positive range (m)")
-    scan = Scan.from_uniform(start, step, ranges, 0.0, range_max, stamp_s=v[11])
+    scan = Scan.from_uniform(start, step, _no_return_at(ranges, range_max), 0.0, range_max, stamp_s=v[11])
     return scan, np.array(v[0:3]), np.array(v[3:6])
+
+
+def _no_return_at(ranges: list[float], range_max: float) -> list[float]:
+    """A reading of exactly the maximum range is CARMEN's no return (a measured surface is
+    never at exactly the maximum): inf, as the readings beyond it."""
+    return [math.inf if r == range_max else r for r in ranges]

@@ -39,6 +39,7 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import compressed, read_log_text, read_text, text_lines
+from rigcal.io.images import eight_bit_pngs
 from rigcal.io.log_lines import CutLine, ShortLineError, cut_last_line
 from rigcal.io.stamps import StampRepair, repair_stamps
 from rigcal.io.trajectory import read_tum_cut
@@ -65,6 +66,7 @@ class LaserTextSummary:
     cut: CutLine | None = None
     images_cut: CutLine | None = None
     odometry_cut: CutLine | None = None
+    image_stamps: StampRepair | None = None
 
 
 def _fields(line: str) -> list[str]:
@@ -388,18 +390,21 @@ def read_image_list(path: str | Path) -> tuple[FloatArray, list[Path]]:
         InputError: a line without one stamp and one existing file (or, for a stamps-only
             RADLOCC list, a missing ``image_00k`` file), or stamps not increasing.
     """
-    stamps, files, _ = _image_list(Path(path), strict=True)
+    stamps, files, _, _ = _image_list(Path(path), strict=True)
     return stamps, files
 
 
-def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLine | None]:
+def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLine | None, StampRepair]:
     """:func:`read_image_list`, and its incomplete last line left out (a list copied while
-    it was written, rigcal.io.log_lines; ``strict`` refuses it)."""
+    it was written, rigcal.io.log_lines; ``strict`` refuses it); its stamps repaired as a
+    log's (:func:`rigcal.io.stamps.repair_stamps`: equal stamps of low-precision printing
+    spread, small steps back placed; ``strict`` refuses them)."""
     text = _log_text(path, "image list")
     lines = _content_lines(path, "image list", text)
     stamps_only = all(_numbers_only(_fields(line)) for _, line in lines)
     stamps: list[float] = []
     files: list[Path] = []
+    numbers: list[int] = []
     cut = None
     for k, (n, line) in enumerate(lines, start=1):
         try:
@@ -409,11 +414,11 @@ def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLi
                 raise
             cut = cut_last_line(exc, text, n, lines[-1][0], line, f"{path}: line {n}", strict)
             continue
-        if stamps and not stamp > stamps[-1]:
-            raise InputError(f"{path}: line {n}: stamp {stamp!r} not after {stamps[-1]!r}")
         stamps.append(stamp)
         files.append(file)
-    return np.array(stamps), files, cut
+        numbers.append(n)
+    fixed = repair_stamps(stamps, str(path), "strict" if strict else "repair", numbers)
+    return fixed.stamps_s, files, cut, fixed
 
 
 def _image_entry(path: Path, k: int, n: int, line: str, stamps_only: bool) -> tuple[float, Path]:
@@ -502,13 +507,15 @@ def import_laser_text(
         traj, odometry_cut = read_tum_cut(odometry, strict)  # a TUM file cut short: the logs' rule
         wheel = odometry_of_tum(traj, odometry, mount, fixed.stamps_s)
     frames: list[ImageFrame] = []
-    list_cut = None
+    list_cut, image_fix = None, None
     if images is not None:
-        image_stamps, files, list_cut = _image_list(Path(images), strict)
+        image_stamps, files, list_cut, image_fix = _image_list(Path(images), strict)
         frames = [
             ImageFrame(float(t), f"{i:06d}{f.suffix.lower()}", f.read_bytes())
             for i, (t, f) in enumerate(zip(image_stamps, files, strict=True))
         ]
+    datas, depth = eight_bit_pngs([f.data for f in frames])  # 16-bit PNGs as import-bag's
+    frames = [ImageFrame(f.stamp_s, f.name, data) for f, data in zip(frames, datas, strict=True)]
     camera_yaml = camera_to_opencv_yaml(read_camera(camera)) if camera is not None else None
     source: dict[str, Any] = {
         "log": str(log.resolve()),
@@ -516,6 +523,10 @@ def import_laser_text(
         "images": str(Path(images).resolve()) if images else None,
     }
     source["stamps"] = fixed.record(stamps)
+    if image_fix is not None and image_fix.repaired:
+        source["image_stamps"] = image_fix.record(stamps)
+    if depth:
+        source["images_16_bit"] = depth
     if cut is not None:
         source["incomplete_last_line"] = cut.line
     if list_cut is not None:
@@ -535,4 +546,5 @@ def import_laser_text(
         cut,
         list_cut,
         odometry_cut,
+        image_fix,
     )

@@ -229,7 +229,7 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
             f"{npz}: stamps_s[{k}]: got {float(st[k])!r}; expected a finite stamp after "
             f"{float(st[k - 1]) if k else '-inf'!r} (scan stamps increase)"
         )
-    check_seconds(st, str(npz), "stamps_s", scans=True)
+    check_seconds(st, str(npz), "stamps_s", step="scan")
     try:
         scans = uniform_scans(
             arrays["angle_min_rad"],

@@ -158,7 +158,7 @@ def read_marker_session(path: str | Path, joint: bool = True) -> MarkerSession:
     n_scans: dict[str, int] = {}
     dropped: dict[str, str] = {}
     foreign: dict[str, tuple[int, ...]] = {}
-    from rigcal.io.images import read_grey
+    from rigcal.io.images import check_depth, read_grey
 
     for i, c in enumerate(captures):
         kp = f"captures[{i}]"
@@ -176,6 +176,7 @@ def read_marker_session(path: str | Path, joint: bool = True) -> MarkerSession:
         grey = read_grey(image_path)
         if grey is None:  # pragma: no cover - check_image read it already
             raise InputError.at(path, f"{kp}.image", c["image"], "an image file OpenCV can read")
+        check_depth(image_path, grey)  # a 12-bit camera's 16-bit frame would read black
         view = detect_target(grey, camera, target, sigma)
         if view.foreign_ids:
             foreign[name] = view.foreign_ids
