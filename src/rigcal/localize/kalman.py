@@ -238,6 +238,25 @@ VO_GUARD_LEVEL = 0.999
 # fusing is ahead of following ICP on that count below a ratio of 0.7-0.9. VO_OPEN_ONLY:
 # q* -> 0, VO only along ICP's open directions (the mode "icp-first").
 VO_OPEN_ONLY = 1e-9
+# The wheel odometry as the guard's witness (``KfParams.wheel_witness``, :class:`_WheelWitness`):
+# its chain over a window, its scale and heading drift per metre calibrated against ICP's
+# steps over the distance driven so far, once that is WHEEL_WITNESS_MIN_M (m); its
+# covariance there the steps' rate covariances (:data:`WHEEL_SIGMAS`) times the variance
+# ratio per axis (forward, cross-track, yaw) its calibrated chain showed against the truth
+# over windows of 1, 2, 4 and 8 VO runs (the guard's) on laps 1-2 of each loop (mean
+# squared error over the rate model's variance; benchmarks/bench_kf.py --wheel-windows).
+# Forward the rate model is pessimistic over short windows (0.09: a wheel's distance noise
+# is a fraction of the step, not a rate) and the calibration's scale shows over 8 runs (4.0);
+# cross-track grows from 3.5 to 140 times the model with the window, the lever arm of the
+# heading's drift, which a sum of the steps' covariances leaves out. The axes are those of
+# the frame at the window's end.
+WHEEL_WITNESS_MIN_M = 5.0
+WHEEL_WINDOW_RATIO: tuple[Axes, ...] = (
+    (0.090, 3.499, 1.238),
+    (0.159, 9.605, 1.232),
+    (0.503, 33.364, 1.310),
+    (4.004, 140.223, 1.358),
+)
 # VO's errors over seconds (``KfParams.vo_bias_sigma``, ``vo_bias_s``; :func:`_bias_decay`):
 # a forward scale factor (its runs' forward error over their forward motion), a cross-track
 # drift per metre forward (a small turn of the camera's motion into the laser's frame) and
@@ -298,7 +317,9 @@ class KfParams:
     ``adapt``: scale each input's covariances up by its innovations' running NIS where
     that exceeds 1 (covariance matching: :data:`ADAPT_WINDOW`); ``vo_guard``: the VO runs
     compared with ICP's own steps over the same interval (:data:`VO_GUARD_RUNS`; 0: no
-    guard)."""
+    guard); ``wheel_input``: the wheel odometry's steps (where given) fused as
+    measurements; ``wheel_witness``: the wheel odometry (where given) the guard's third
+    witness (:class:`_WheelWitness`, :func:`_witness`; it acts with ``vo_guard``)."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
@@ -322,6 +343,8 @@ class KfParams:
     vo_bias_s: Axes = VO_BIAS_S
     vo_bias_share: Axes = (0.0, 0.0, 0.0)
     drive: str = ""
+    wheel_input: bool = True
+    wheel_witness: bool = False
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
@@ -422,6 +445,7 @@ class KfResult:
     vo_forward_left_out: int = 0
     vo_guarded: tuple[int, int, int] = (0, 0, 0)
     vo_bias: FloatArray | None = None
+    icp_witnessed: tuple[int, int, int] = (0, 0, 0)
 
 
 def rate_covariance(sigmas: tuple[float, float, float], dt: float, open_forward: bool = False) -> FloatArray:
@@ -496,10 +520,41 @@ def vo_increments(
     return increments(stamps, poses, own, open_forward=guessed, measured=~failed, source="vo")
 
 
-def fuse(measurements: list[Increment], params: KfParams | None = None) -> tuple[FloatArray, FloatArray]:
-    """:func:`run_filter`'s stamps (M,) and poses (M, 3)."""
+def fuse(
+    measurements: list[Increment], params: KfParams | None = None, at: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`run_filter`'s stamps (M,) and poses (M, 3); with ``at``, its path at those
+    stamps alone (:func:`path_at`: the laser's scans, so that the filter is scored where
+    its inputs are)."""
     res = run_filter(measurements, params)
+    if at is not None and len(res.stamps_s):
+        res = path_at(res, at)
     return res.stamps_s, res.poses
+
+
+def path_at(res: KfResult, at: FloatArray) -> KfResult:
+    """The filter's path at the stamps ``at`` (K,) within its span (the others dropped):
+    a pose it kept at a stamp as it is, one between two kept poses on the constant twist
+    between them (:func:`_se2_log`; its covariance the nearer pose's). The filter keeps a
+    pose after each update, at the ends of VO's runs (image stamps) as well as of ICP's
+    steps (scan stamps); scored at the scans alone, a filter whose path is ICP's scores
+    ICP's ATE exactly, where the image stamps' poses would weigh the score by more
+    samples of some stretches (docs/localization.md, "Kalman filter")."""
+    t = np.asarray(at, dtype=float)
+    t = t[(t >= res.stamps_s[0]) & (t <= res.stamps_s[-1])]
+    k = np.clip(np.searchsorted(res.stamps_s, t, side="right") - 1, 0, len(res.stamps_s) - 1)
+    poses = res.poses[k].copy()
+    covs = res.covariances[k].copy()
+    for i in np.flatnonzero(res.stamps_s[k] != t):
+        a, b = int(k[i]), int(k[i]) + 1
+        f = (t[i] - res.stamps_s[a]) / (res.stamps_s[b] - res.stamps_s[a])
+        T = se2(res.poses[a]) @ se2(
+            _se2_exp(f * _se2_log(pose_of(np.linalg.inv(se2(res.poses[a])) @ se2(res.poses[b]))))
+        )
+        poses[i] = pose_of(T)
+        poses[i, 2] = res.poses[a, 2] + np.angle(np.exp(1j * (poses[i, 2] - res.poses[a, 2])))
+        covs[i] = res.covariances[b if f > 0.5 else a]
+    return dataclasses.replace(res, stamps_s=t, poses=poses, covariances=covs)
 
 
 def run_filter(measurements: list[Increment], params: KfParams | None = None) -> KfResult:
@@ -523,7 +578,9 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     params = params or KfParams()
     # At a common end, the shorter step first: a longer one is then compared with the
     # motion the shorter ones already measured.
-    ms = sorted(measurements, key=lambda m: (m.t1, -m.t0))
+    ms = sorted(
+        (m for m in measurements if params.wheel_input or m.source != "wheel"), key=lambda m: (m.t1, -m.t0)
+    )
     if not ms:
         return KfResult(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)))
     # Odometry-driven (``params.drive``): the driving input's steps are the prediction's
@@ -562,6 +619,13 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     )
     guard_runs: list[tuple[Increment, FloatArray]] = []
     guarded = np.zeros(3, dtype=int)  # VO runs the guard left out, per direction
+    wheel_steps = [m for m in measurements if m.source == "wheel"]
+    witness = (
+        _WheelWitness(wheel_steps, reference, params)
+        if reference is not None and params.wheel_witness and params.vo_guard > 0 and wheel_steps
+        else None
+    )
+    witnessed = np.zeros(3, dtype=int)  # VO runs over which the wheels found ICP erring, per direction
     vo_own, vo_share = _error_model("vo", params)
     forward_ratio = float(vo_own[0] + 2.0 * vo_share[0])  # VO's forward variance ratio, matched on line
     forward_info = float(ADAPT_WINDOW)  # the information its running mean holds (runs of full weight)
@@ -616,9 +680,26 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
         if vo and reference is not None:
             icp_scale = max(1.0, mean_nis.get("icp", 1.0)) if params.adapt else 1.0
             if params.vo_guard > 0:
-                leave_out = _guard(
-                    reference, guard_runs, m, own, share, (scale, icp_scale), memory is not None, t, params
+                leave_out, inflate, icp_errs = _guard(
+                    reference,
+                    guard_runs,
+                    m,
+                    own,
+                    share,
+                    (scale, icp_scale),
+                    memory is not None,
+                    t,
+                    params,
+                    witness,
                 )
+                witnessed += icp_errs
+                if inflate.any():
+                    # ICP's path over the run erred beyond its model (the wheels' verdict):
+                    # the pose's covariance takes that excess in the run's frame (the
+                    # clone's), as process noise ICP's steps should have brought.
+                    G = _rotation3(float(x[c + 2]))
+                    P = P.copy()
+                    P[:3, :3] += G @ np.diag(inflate) @ G.T
             if leave_out is not None:
                 guarded += leave_out
             if memory is not None and params.vo_forward_reference:
@@ -702,6 +783,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
         left_out,
         (int(guarded[0]), int(guarded[1]), int(guarded[2])),
         x[_offset(blocks, block) + np.arange(3)].copy() if (block := _block(blocks, "bias")) else None,
+        (int(witnessed[0]), int(witnessed[1]), int(witnessed[2])),
     )
 
 
@@ -715,9 +797,14 @@ def _guard(
     memory: bool,
     now: float,
     params: KfParams,
-) -> NDArray[np.bool_] | None:
+    witness: _WheelWitness | None = None,
+) -> tuple[NDArray[np.bool_] | None, FloatArray, NDArray[np.bool_]]:
     """The directions of VO's run ``m`` the guard leaves out (:func:`_vo_guard`), or None
-    where ICP gives no reference. ``runs`` (VO's last chained runs with their modelled
+    where ICP gives no reference; with the wheels' ``witness`` (:func:`_witness`) VO is kept
+    along a direction where the wheels find ICP erring over any window and left out where
+    they find VO erring, and the variance to add to ICP's path over the run where ICP errs
+    (3,: ICP's excess over the window over its runs) and those directions (3,) come back
+    too (zeros and False without). ``runs`` (VO's last chained runs with their modelled
     covariances) is updated in place; ``own``, ``share``: the run's error model per axis
     (with the forward memory, ``share`` forward 0 and the memory's part the rest of the
     forward variance ratio); ``scales``: VO's and ICP's covariance matching factors."""
@@ -740,6 +827,7 @@ def _guard(
     windows = [n for n in _guard_windows(params.vo_guard) if n <= len(runs)]
     gate = _guard_gate(params.vo_guard)
     out: NDArray[np.bool_] | None = None
+    icp_errs, vo_errs, inflate = np.zeros(3, dtype=bool), np.zeros(3, dtype=bool), np.zeros(3)
     for n in windows:
         ref = reference.between(runs[-n][0].t0, m.t1, now, scales[1])
         if ref is None:
@@ -748,7 +836,15 @@ def _guard(
         pays = params.vo_pays if n == windows[-1] else 0.0
         fired = _vo_guard(runs[-n:], ref, correlation[: n - 1], gate, _bias_model(params), pays)[0]
         out = fired if out is None else out | fired
-    return out
+        wheel = witness.between(runs[-n][0].t0, m.t1, now, n) if witness is not None else None
+        if wheel is not None:
+            i, v, excess = _witness(runs[-n:], ref, wheel, correlation[: n - 1], gate, _bias_model(params))
+            icp_errs |= i
+            vo_errs |= v
+            inflate = np.maximum(inflate, excess / n)
+    if out is not None:
+        out = (out & ~icp_errs) | vo_errs
+    return out, inflate, icp_errs
 
 
 def _bias_model(params: KfParams) -> tuple[FloatArray, FloatArray] | None:
@@ -1244,10 +1340,14 @@ class _IcpReference:
     the chain's frame are summed ahead (prefix sums), so an interval costs a few steps'
     work however many it spans."""
 
-    def __init__(self, steps: list[Increment], params: KfParams) -> None:
+    def __init__(self, steps: list[Increment], params: KfParams, source: str = "icp") -> None:
         self.steps = sorted(steps, key=lambda m: (m.t0, m.t1))
         self.t1s = np.array([m.t1 for m in self.steps])
-        self.own, self.share = _error_model("icp", params)
+        self.own, self.share = _error_model(source, params)
+        # The distance (m) and turn (rad) of the steps ended by each step's end, summed
+        # (the wheel witness's calibration, :class:`_WheelWitness`).
+        self.distance = np.cumsum([float(np.hypot(*m.motion[:2])) for m in self.steps])
+        self.turn = np.cumsum([float(m.motion[2]) for m in self.steps])
         n = len(self.steps)
         # The chain's pose at each step's start (and the last one's end), its yaw, and the
         # steps' own covariances in the chain's frame summed before each step.
@@ -1266,6 +1366,11 @@ class _IcpReference:
         for k in range(n - 2, -1, -1):
             if self.steps[k + 1].t0 == self.steps[k].t1:
                 self.run_end[k] = self.run_end[k + 1]
+
+    def ended(self, now: float) -> tuple[float, float]:
+        """The distance (m) and turn (rad) of the steps ended by ``now``, summed."""
+        k = int(np.searchsorted(self.t1s, now, side="right"))
+        return (float(self.distance[k - 1]), float(self.turn[k - 1])) if k else (0.0, 0.0)
 
     def between(
         self, a: float, b: float, now: float, scale: float = 1.0
@@ -1346,6 +1451,27 @@ def _vo_guard(
     steps leave it open (variance above (OPEN_SIGMA_M / 10)^2: a corridor ICP cannot fix,
     where VO carries the filter). So is a direction where V_aa > ``pays`` A_aa (ICP
     constraining it)."""
+    vo, V, G = _vo_chain(runs, correlation, bias)
+    d = vo - icp[0]
+    d[2] = np.angle(np.exp(1j * d[2]))
+    # In the last run's frame: its directions are the ones the update can leave out.
+    d, V, A = G.T @ d, G.T @ V @ G, G.T @ icp[1] @ G
+    stat = d**2 / np.diag(V + A)
+    fired = stat > gate
+    if pays > 0:
+        fired |= np.diag(V) > pays * np.diag(A)
+    out: NDArray[np.bool_] = fired & (np.diag(A) < (OPEN_SIGMA_M / 10.0) ** 2)
+    return out, stat
+
+
+def _vo_chain(
+    runs: list[tuple[Increment, FloatArray]],
+    correlation: FloatArray,
+    bias: tuple[FloatArray, FloatArray] | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """VO's chained runs (:func:`_vo_guard`'s ``runs``, ``correlation``, ``bias``): their
+    motion (3,) and its covariance (3, 3), both in the first run's frame, and the last
+    run's frame in the first's (3, 3)."""
     T = np.eye(3)
     frames, sds = [], []
     V = np.zeros((3, 3))
@@ -1365,14 +1491,78 @@ def _vo_guard(
             if bias is not None:
                 b = bias[0] ** 2 * np.exp(-abs(mid[i] - mid[j]) / bias[1]) * coef[i] * coef[j]
                 V += frames[i] @ np.diag(b) @ frames[j].T
-    d = pose_of(T) - icp[0]
-    d[2] = np.angle(np.exp(1j * d[2]))
-    # In the last run's frame: its directions are the ones the update can leave out.
-    G = frames[-1]
-    d, V, A = G.T @ d, G.T @ V @ G, G.T @ icp[1] @ G
-    stat = d**2 / np.diag(V + A)
-    fired = stat > gate
-    if pays > 0:
-        fired |= np.diag(V) > pays * np.diag(A)
-    out: NDArray[np.bool_] = fired & (np.diag(A) < (OPEN_SIGMA_M / 10.0) ** 2)
-    return out, stat
+    return pose_of(T), V, frames[-1]
+
+
+class _WheelWitness:
+    """The wheel odometry as the guard's third, independent witness (``KfParams.wheel_witness``,
+    :func:`_witness`). The wheels' errors are mostly systematic (a wheel radius's scale
+    error, a heading drift per metre from the wheel base: rigcal.sim.drive's model of them,
+    and that of every differential drive), small per step; so their chain over a window of
+    a few runs, corrected by a scale and a drift per metre calibrated against ICP's steps
+    over all the distance driven so far (causally: the steps ended by ``now``), errs by its
+    white noise alone. Before :data:`WHEEL_WITNESS_MIN_M` of calibration it gives no
+    verdict."""
+
+    def __init__(self, steps: list[Increment], icp: _IcpReference, params: KfParams) -> None:
+        self.wheel = _IcpReference(steps, params, "wheel")
+        self.icp = icp
+
+    def between(self, a: float, b: float, now: float, runs: int = 1) -> tuple[FloatArray, FloatArray] | None:
+        """The wheels' calibrated motion (dx, dy, dyaw) from ``a`` to ``b`` in the rig's
+        frame at ``a`` and its covariance (3, 3) (the steps' own, times
+        :data:`WHEEL_WINDOW_RATIO` per axis for a window of ``runs`` VO runs, 1, 2, 4, 8 or
+        more); None before the calibration or over a gap."""
+        dw, tw = self.wheel.ended(now)
+        di, ti = self.icp.ended(now)
+        if dw < WHEEL_WITNESS_MIN_M or di <= 0:
+            return None
+        ref = self.wheel.between(a, b, now)
+        if ref is None:
+            return None
+        scale, drift = dw / di, (tw - ti) / dw
+        arc = float(
+            np.interp(b, self.wheel.t1s, self.wheel.distance)
+            - np.interp(a, self.wheel.t1s, self.wheel.distance)
+        )
+        motion = ref[0].copy()
+        motion[:2] /= scale
+        motion[2] -= drift * arc
+        ratio = WHEEL_WINDOW_RATIO[min(int(np.log2(max(runs, 1))), len(WHEEL_WINDOW_RATIO) - 1)]
+        R = _rotation3(float(motion[2]))  # the ratio's axes: those of the frame at b
+        return motion, R @ _scaled(R.T @ ref[1] @ R, np.asarray(ratio)) @ R.T
+
+
+def _witness(
+    runs: list[tuple[Increment, FloatArray]],
+    icp: tuple[FloatArray, FloatArray],
+    wheel: tuple[FloatArray, FloatArray],
+    correlation: FloatArray,
+    gate: float,
+    bias: tuple[FloatArray, FloatArray] | None = None,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_], FloatArray]:
+    """The wheels' verdict over a window (:func:`_vo_guard`'s ``runs``, ``icp``,
+    ``correlation``, ``bias``; ``wheel``: the wheels' calibrated motion over the same
+    interval and its covariance, :meth:`_WheelWitness.between`), per direction of the last
+    run's frame: where ICP errs (its chain and the wheels' disagree beyond both models, VO's
+    and the wheels' do not), where VO errs (the other way round; not along a direction
+    ICP leaves open, where VO carries the filter), and ICP's squared error beyond its
+    model and the wheels' where it errs (m^2, rad^2; 0 elsewhere). Two tests of one
+    estimate against another (Bar-Shalom, Li and Kirubarajan 2001, Section 5.4), each at
+    ``gate`` (chi-square, 1 dof): with three independent inputs, the one that disagrees
+    with both others is the one that errs."""
+    vo, V, G = _vo_chain(runs, correlation, bias)
+
+    def off(a: FloatArray, b: FloatArray) -> FloatArray:
+        d = a - b
+        d[2] = np.angle(np.exp(1j * d[2]))
+        out: FloatArray = G.T @ d
+        return out
+
+    dv, di = off(vo, wheel[0]), off(icp[0], wheel[0])
+    v, a, w = (np.diag(G.T @ c @ G) for c in (V, icp[1], wheel[1]))
+    vo_off, icp_off = dv**2 / (v + w) > gate, di**2 / (a + w) > gate
+    icp_errs = icp_off & ~vo_off
+    vo_errs = vo_off & ~icp_off & (a < (OPEN_SIGMA_M / 10.0) ** 2)
+    excess = np.where(icp_errs, np.maximum(0.0, di**2 - a - w), 0.0)
+    return icp_errs, vo_errs, excess
