@@ -89,12 +89,23 @@ VARIANTS = {
     ),
     "kf-icp-first-witness-fused": dataclasses.replace(kalman.KF_MODES["icp-first"], wheel_witness=True),
 }
+# Each of them and the default smoothed (kalman.KfParams.smooth: the RTS backward pass), "-smooth".
+VARIANTS.update(
+    {
+        f"{k}-smooth": dataclasses.replace(VARIANTS[k], smooth=True)
+        for k in ("kf", "kf-icp-first", "kf-witness", "kf-icp-first-witness")
+    }
+)
 ROUND9 = (
     "kf-icp-first",
     "kf-witness",
     "kf-witness-fused",
     "kf-icp-first-witness",
     "kf-icp-first-witness-fused",
+    "kf-smooth",
+    "kf-icp-first-smooth",
+    "kf-witness-smooth",
+    "kf-icp-first-witness-smooth",
 )
 ALL_VARIANTS = tuple(k for k in VARIANTS if k not in ROUND9)
 # The compact table: the default against round 7's and the options, lap by lap (those run).

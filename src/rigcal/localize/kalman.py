@@ -76,6 +76,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from contextvars import ContextVar
 from dataclasses import dataclass
 
 import numpy as np
@@ -251,6 +252,9 @@ VO_OPEN_ONLY = 1e-9
 # heading's drift, which a sum of the steps' covariances leaves out. The axes are those of
 # the frame at the window's end.
 WHEEL_WITNESS_MIN_M = 5.0
+# The scale's blocks (m of the wheels' distance): about a VO run at a walking pace, so that
+# ICP's own error over one (about 2 %) stays below its error where it errs beyond its model.
+WHEEL_BLOCK_M = 0.25
 WHEEL_WINDOW_RATIO: tuple[Axes, ...] = (
     (0.090, 3.499, 1.238),
     (0.159, 9.605, 1.232),
@@ -319,7 +323,9 @@ class KfParams:
     compared with ICP's own steps over the same interval (:data:`VO_GUARD_RUNS`; 0: no
     guard); ``wheel_input``: the wheel odometry's steps (where given) fused as
     measurements; ``wheel_witness``: the wheel odometry (where given) the guard's third
-    witness (:class:`_WheelWitness`, :func:`_witness`; it acts with ``vo_guard``)."""
+    witness (:class:`_WheelWitness`, :func:`_witness`; it acts with ``vo_guard``);
+    ``smooth``: the forward pass followed by the Rauch-Tung-Striebel backward pass
+    (:class:`_Tape`): each pose from all the lap's measurements, offline."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
@@ -345,6 +351,7 @@ class KfParams:
     drive: str = ""
     wheel_input: bool = True
     wheel_witness: bool = False
+    smooth: bool = False
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
@@ -558,6 +565,17 @@ def path_at(res: KfResult, at: FloatArray) -> KfResult:
 
 
 def run_filter(measurements: list[Increment], params: KfParams | None = None) -> KfResult:
+    """Run the filter over the increments in time order (Section VI, Eq. (11)); with
+    ``params.smooth`` then the backward pass (:class:`_Tape`). See :func:`_run`."""
+    params = params or KfParams()
+    token = _TAPE.set(_Tape() if params.smooth else None)
+    try:
+        return _run(measurements, params)
+    finally:
+        _TAPE.reset(token)
+
+
+def _run(measurements: list[Increment], params: KfParams) -> KfResult:
     """Run the filter over the increments in time order (Section VI, Eq. (11)).
 
     Each increment clones the pose at its start t0 and updates at its end t1 (module
@@ -573,9 +591,8 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
 
     Returns:
         the filtered pose after each update, starting with the origin at the earliest
-        stamp, with its covariance.
+        stamp, with its covariance (smoothed with ``params.smooth``).
     """
-    params = params or KfParams()
     # At a common end, the shorter step first: a longer one is then compared with the
     # motion the shorter ones already measured.
     ms = sorted(
@@ -635,6 +652,9 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     x = np.zeros(6)
     P = np.diag([1e-12, 1e-12, 1e-12, 1.0, 1.0, 1.0])
     stamps, poses, covs = [t], [x[:3].copy()], [P[:3, :3].copy()]
+    tape = _TAPE.get()
+    if tape is not None:
+        tape.mark(0)
     for when, kind, i in events:
         if when > t:
             if drive is not None:
@@ -643,7 +663,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
                 x, P = _predict(x, P, when - t, params)
             t = when
         if kind == 2:
-            _keep(stamps, poses, covs, t, x, P)
+            _keep(stamps, poses, covs, t, x, P, tape)
             continue
         m = ms[i]
         if kind == 1:
@@ -698,8 +718,9 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
                     # the pose's covariance takes that excess in the run's frame (the
                     # clone's), as process noise ICP's steps should have brought.
                     G = _rotation3(float(x[c + 2]))
-                    P = P.copy()
-                    P[:3, :3] += G @ np.diag(inflate) @ G.T
+                    grown = P.copy()
+                    grown[:3, :3] += G @ np.diag(inflate) @ G.T
+                    x, P = _recorded(x, P, np.eye(len(x)), x, grown)
             if leave_out is not None:
                 guarded += leave_out
             if memory is not None and params.vo_forward_reference:
@@ -774,7 +795,11 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
         if not pending[m.t0]:
             x, P = _drop(x, P, _offset(blocks, ("clone", m.t0)))
             blocks.remove(("clone", m.t0))
-        _keep(stamps, poses, covs, t, x, P)
+        _keep(stamps, poses, covs, t, x, P, tape)
+    if tape is not None:  # the backward pass (Rauch, Tung and Striebel 1965)
+        smoothed = tape.smooth(x, P)
+        poses = [xs[:3].copy() for xs, _ in smoothed]
+        covs = [Ps[:3, :3].copy() for _, Ps in smoothed]
     return KfResult(
         np.array(stamps),
         np.array(poses),
@@ -883,15 +908,18 @@ def _keep(
     t: float,
     x: FloatArray,
     P: FloatArray,
+    tape: _Tape | None = None,
 ) -> None:
     """The pose and its covariance at ``t`` appended to the output (replacing the last at
-    the same stamp)."""
+    the same stamp); the ``tape``'s mark of that output where smoothing."""
     if stamps[-1] == t:
         poses[-1], covs[-1] = x[:3].copy(), P[:3, :3].copy()
     else:
         stamps.append(t)
         poses.append(x[:3].copy())
         covs.append(P[:3, :3].copy())
+    if tape is not None:
+        tape.mark(len(stamps) - 1)
 
 
 def _se2_log(motion: FloatArray) -> FloatArray:
@@ -969,6 +997,7 @@ class _Drive:
         F[:2, 2] = [-s * u[0] - c * u[1], c * u[0] - s * u[1]]  # d(R(yaw) u) / d yaw
         G = np.eye(3)
         G[:2, :2] = R
+        x0, P0 = x, P
         x = x.copy()
         x[:2] += R @ u[:2]
         x[2] += u[2]
@@ -982,7 +1011,8 @@ class _Drive:
         P[3:6, 3:6] = G @ d.covariance @ G.T / dt**2
         if not np.isfinite(P[3:6, 3:6]).all() or np.trace(P[3:6, 3:6]) > 1e4:
             P[3:6, 3:6] = np.diag([1.0, 1.0, 1.0])
-        return x, P
+        F[3:6, :] = 0.0  # the velocity is the step's, whatever it was
+        return _recorded(x0, P0, F, x, P)
 
     def _shared(
         self, x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], d: Increment
@@ -1003,7 +1033,7 @@ class _Drive:
         if old and old[-1][1] == d.t0:
             at = _offset(blocks, old[-1])
             T[:3, at : at + 3] = G
-        x, P = T @ x, T @ P @ T.T
+        x, P = _recorded(x, P, T, T @ x, T @ P @ T.T)
         for b in old:
             x, P = _drop(x, P, _offset(blocks, b))
             blocks.remove(b)
@@ -1036,6 +1066,7 @@ def _memory_decay(
         return x, P
     at = _offset(blocks, old[0])
     phi = float(np.exp(-max(0.0, t1 - old[0][1]) / tau_s))
+    x0, P0 = x, P
     x = x.copy()
     x[at] *= phi
     P = P.copy()
@@ -1043,7 +1074,9 @@ def _memory_decay(
     P[:, at] *= phi
     P[at, at] += 1.0 - phi**2
     blocks[blocks.index(old[0])] = ("memory", t1)
-    return x, P
+    F = np.eye(len(x))
+    F[at, at] = phi
+    return _recorded(x0, P0, F, x, P)
 
 
 def _bias_decay(
@@ -1064,6 +1097,7 @@ def _bias_decay(
     at = _offset(blocks, old[0]) + np.arange(3)
     tau = np.where(var > 0, np.asarray(params.vo_bias_s, dtype=float), 1.0)
     phi = np.exp(-max(0.0, t1 - old[0][1]) / tau)
+    x0, P0 = x, P
     x = x.copy()
     x[at] *= phi
     P = P.copy()
@@ -1071,7 +1105,9 @@ def _bias_decay(
     P[:, at] *= phi[None, :]
     P[at, at] += var * (1.0 - phi**2)
     blocks[blocks.index(old[0])] = ("bias", t1)
-    return x, P
+    F = np.eye(len(x))
+    F[at, at] = phi
+    return _recorded(x0, P0, F, x, P)
 
 
 # The state block holding each input's shared error, and the sign it enters the step after
@@ -1102,7 +1138,7 @@ def _clone(x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
     correlated with the pose)."""
     n = len(x)
     J = np.vstack([np.eye(n), np.eye(n)[:3]])
-    return np.concatenate([x, x[:3]]), J @ P @ J.T
+    return _recorded(x, P, J, np.concatenate([x, x[:3]]), J @ P @ J.T)
 
 
 def _append(x: FloatArray, P: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -1111,13 +1147,13 @@ def _append(x: FloatArray, P: FloatArray, cov: FloatArray) -> tuple[FloatArray, 
     n, k = len(x), len(cov)
     out = np.zeros((n + k, n + k))
     out[:n, :n], out[n:, n:] = P, cov
-    return np.concatenate([x, np.zeros(k)]), out
+    return _recorded(x, P, np.eye(n + k, n), np.concatenate([x, np.zeros(k)]), out)
 
 
 def _drop(x: FloatArray, P: FloatArray, at: int) -> tuple[FloatArray, FloatArray]:
     """The state without its block of three at index ``at`` (marginalised out)."""
     keep = np.r_[0:at, at + 3 : len(x)]
-    return x[keep], P[np.ix_(keep, keep)]
+    return _recorded(x, P, np.eye(len(x))[keep], x[keep], P[np.ix_(keep, keep)])
 
 
 def _finite_part(cov: FloatArray) -> FloatArray:
@@ -1321,7 +1357,7 @@ def _predict(x: FloatArray, P: FloatArray, dt: float, params: KfParams) -> tuple
     Q[:3, :3] = np.diag(q * dt**3 / 3.0)
     Q[:3, 3:6] = Q[3:6, :3] = np.diag(q * dt**2 / 2.0)
     Q[3:6, 3:6] = np.diag(q * dt)
-    return F @ x, F @ P @ F.T + Q
+    return _recorded(x, P, F, F @ x, F @ P @ F.T + Q)
 
 
 def _rotation3(yaw: float) -> FloatArray:
@@ -1507,6 +1543,12 @@ class _WheelWitness:
     def __init__(self, steps: list[Increment], icp: _IcpReference, params: KfParams) -> None:
         self.wheel = _IcpReference(steps, params, "wheel")
         self.icp = icp
+        # The times the wheels had driven each further WHEEL_BLOCK_M (their distance
+        # interpolated over their steps' ends): the scale's blocks.
+        t1s, dist = self.wheel.t1s, self.wheel.distance
+        marks = np.arange(1, int(dist[-1] // WHEEL_BLOCK_M) + 1) * WHEEL_BLOCK_M if len(dist) else np.zeros(0)
+        self.blocks = np.interp(marks, dist, t1s) if len(marks) else np.zeros(0)
+        self.start = float(steps[0].t0) if steps else 0.0
 
     def between(self, a: float, b: float, now: float, runs: int = 1) -> tuple[FloatArray, FloatArray] | None:
         """The wheels' calibrated motion (dx, dy, dyaw) from ``a`` to ``b`` in the rig's
@@ -1520,7 +1562,16 @@ class _WheelWitness:
         ref = self.wheel.between(a, b, now)
         if ref is None:
             return None
-        scale, drift = dw / di, (tw - ti) / dw
+        # The scale: the median over the blocks of WHEEL_BLOCK_M ended by now of the wheels'
+        # distance over ICP's, so that a stretch where ICP errs beyond its model (less
+        # than half the distance) does not move it; the drift: the wheels' turn less
+        # ICP's over the distance.
+        ends = np.r_[self.start, self.blocks[self.blocks <= now]]
+        icp_dist = np.diff(np.interp(ends, self.icp.t1s, self.icp.distance))
+        moved = icp_dist > 0
+        if not moved.any():
+            return None
+        scale, drift = float(np.median(WHEEL_BLOCK_M / icp_dist[moved])), (tw - ti) / dw
         arc = float(
             np.interp(b, self.wheel.t1s, self.wheel.distance)
             - np.interp(a, self.wheel.t1s, self.wheel.distance)
@@ -1566,3 +1617,64 @@ def _witness(
     vo_errs = vo_off & ~icp_off & (a < (OPEN_SIGMA_M / 10.0) ** 2)
     excess = np.where(icp_errs, np.maximum(0.0, di**2 - a - w), 0.0)
     return icp_errs, vo_errs, excess
+
+
+class _Tape:
+    """The filter's transitions, kept for the Rauch-Tung-Striebel backward pass
+    (``KfParams.smooth``; Rauch, Tung and Striebel 1965; Bar-Shalom, Li and Kirubarajan
+    2001, Section 8.6). Every change of the state between two updates is a linear(ised)
+    map x' = F x (+ noise): the prediction (constant velocity or a driving step's part),
+    a clone appended, a block of correlated error appended or marginalised, a
+    Gauss-Markov state's decay, a covariance grown. Each is kept as the filtered state
+    before it (x, P: all updates so far in), F and the state after it (x', P'); the
+    backward pass runs them in reverse,
+
+        C = P F^T P'^+,   x_s = x + C (x_s' - x'),   P_s = P + C (P_s' - P') C^T,
+
+    P'^+ the pseudo-inverse (a clone makes P' singular: its copy carries no more than the
+    pose), so that each kept output pose takes in the measurements after it. The
+    filter's gates, guard and weights stay the forward pass's: the backward pass only
+    spreads what was fused."""
+
+    def __init__(self) -> None:
+        self.ops: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]] = []
+        self.marks: dict[int, int] = {}  # output index -> transitions before it
+
+    def record(self, x: FloatArray, P: FloatArray, F: FloatArray, x1: FloatArray, P1: FloatArray) -> None:
+        self.ops.append((x, P, F, x1, P1))
+
+    def mark(self, index: int) -> None:
+        """Output ``index`` is the state after the transitions so far (and the updates)."""
+        self.marks[index] = len(self.ops)
+
+    def smooth(self, x: FloatArray, P: FloatArray) -> list[tuple[FloatArray, FloatArray]]:
+        """The smoothed state (x, P) at each marked output, from the last filtered one."""
+        at: dict[int, list[int]] = {}
+        for index, n in self.marks.items():
+            at.setdefault(n, []).append(index)
+        out: dict[int, tuple[FloatArray, FloatArray]] = {}
+        xs, Ps = x, P
+        for j in range(len(self.ops), -1, -1):
+            for index in at.get(j, []):
+                out[index] = (xs, Ps)
+            if j == 0:
+                break
+            x0, P0, F, x1, P1 = self.ops[j - 1]
+            C = np.linalg.lstsq(P1, F @ P0, rcond=None)[0].T  # P0 F^T P1^+ (P1 symmetric)
+            xs = x0 + C @ (xs - x1)
+            Ps = P0 + C @ (Ps - P1) @ C.T
+        return [out[i] for i in sorted(out)]
+
+
+# The tape of the run_filter call under way (None: not smoothing).
+_TAPE: ContextVar[_Tape | None] = ContextVar("kalman_tape", default=None)
+
+
+def _recorded(
+    x: FloatArray, P: FloatArray, F: FloatArray, x1: FloatArray, P1: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """(x1, P1), the transition x -> x1 = F x (+ noise) kept on the tape where smoothing."""
+    tape = _TAPE.get()
+    if tape is not None:
+        tape.record(x, P, F, x1, P1)
+    return x1, P1
