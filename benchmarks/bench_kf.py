@@ -89,11 +89,23 @@ VARIANTS = {
     ),
     "kf-icp-first-witness-fused": dataclasses.replace(kalman.KF_MODES["icp-first"], wheel_witness=True),
 }
+# The wheels fused calibrated against ICP (kalman.KfParams.wheel_calibrated), with the witness.
+VARIANTS["kf-wheels"] = dataclasses.replace(VARIANTS["kf-witness"], wheel_input=True, wheel_calibrated=True)
+VARIANTS["kf-icp-first-wheels"] = dataclasses.replace(
+    VARIANTS["kf-icp-first-witness"], wheel_input=True, wheel_calibrated=True
+)
 # Each of them and the default smoothed (kalman.KfParams.smooth: the RTS backward pass), "-smooth".
 VARIANTS.update(
     {
         f"{k}-smooth": dataclasses.replace(VARIANTS[k], smooth=True)
-        for k in ("kf", "kf-icp-first", "kf-witness", "kf-icp-first-witness")
+        for k in (
+            "kf",
+            "kf-icp-first",
+            "kf-witness",
+            "kf-icp-first-witness",
+            "kf-wheels",
+            "kf-icp-first-wheels",
+        )
     }
 )
 ROUND9 = (
@@ -106,6 +118,10 @@ ROUND9 = (
     "kf-icp-first-smooth",
     "kf-witness-smooth",
     "kf-icp-first-witness-smooth",
+    "kf-wheels",
+    "kf-icp-first-wheels",
+    "kf-wheels-smooth",
+    "kf-icp-first-wheels-smooth",
 )
 ALL_VARIANTS = tuple(k for k in VARIANTS if k not in ROUND9)
 # The compact table: the default against round 7's and the options, lap by lap (those run).

@@ -324,6 +324,8 @@ class KfParams:
     guard); ``wheel_input``: the wheel odometry's steps (where given) fused as
     measurements; ``wheel_witness``: the wheel odometry (where given) the guard's third
     witness (:class:`_WheelWitness`, :func:`_witness`; it acts with ``vo_guard``);
+    ``wheel_calibrated``: the wheels' steps fused (with ``wheel_input``) calibrated against
+    ICP's, forward and yaw (:meth:`_WheelWitness.calibrated_steps`), not as they come;
     ``smooth``: the forward pass followed by the Rauch-Tung-Striebel backward pass
     (:class:`_Tape`): each pose from all the lap's measurements, offline."""
 
@@ -351,6 +353,7 @@ class KfParams:
     drive: str = ""
     wheel_input: bool = True
     wheel_witness: bool = False
+    wheel_calibrated: bool = False
     smooth: bool = False
 
     def __post_init__(self) -> None:
@@ -568,15 +571,26 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     """Run the filter over the increments in time order (Section VI, Eq. (11)); with
     ``params.smooth`` then the backward pass (:class:`_Tape`). See :func:`_run`."""
     params = params or KfParams()
+    fused: list[Increment] | None = None  # the wheels' steps the filter fuses, where not as they come
+    if params.wheel_calibrated and params.wheel_input:
+        wheel = [m for m in measurements if m.source == "wheel"]
+        icp = [m for m in measurements if m.source == "icp"]
+        fused = (
+            _WheelWitness(wheel, _IcpReference(icp, params), params).calibrated_steps()
+            if wheel and icp
+            else []
+        )
     token = _TAPE.set(_Tape() if params.smooth else None)
     try:
-        return _run(measurements, params)
+        return _run(measurements, params, fused)
     finally:
         _TAPE.reset(token)
 
 
-def _run(measurements: list[Increment], params: KfParams) -> KfResult:
-    """Run the filter over the increments in time order (Section VI, Eq. (11)).
+def _run(measurements: list[Increment], params: KfParams, fused: list[Increment] | None = None) -> KfResult:
+    """Run the filter over the increments in time order (Section VI, Eq. (11)); ``fused``:
+    the wheels' steps it fuses in place of theirs in ``measurements`` (which the witness
+    takes as they came).
 
     Each increment clones the pose at its start t0 and updates at its end t1 (module
     docstring); at equal stamps updates come before clones, so that a step starting where
@@ -595,8 +609,11 @@ def _run(measurements: list[Increment], params: KfParams) -> KfResult:
     """
     # At a common end, the shorter step first: a longer one is then compared with the
     # motion the shorter ones already measured.
+    raw = params.wheel_input and fused is None
     ms = sorted(
-        (m for m in measurements if params.wheel_input or m.source != "wheel"), key=lambda m: (m.t1, -m.t0)
+        [m for m in measurements if raw or m.source != "wheel"]
+        + (fused if params.wheel_input and fused else []),
+        key=lambda m: (m.t1, -m.t0),
     )
     if not ms:
         return KfResult(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)))
@@ -1550,28 +1567,55 @@ class _WheelWitness:
         self.blocks = np.interp(marks, dist, t1s) if len(marks) else np.zeros(0)
         self.start = float(steps[0].t0) if steps else 0.0
 
-    def between(self, a: float, b: float, now: float, runs: int = 1) -> tuple[FloatArray, FloatArray] | None:
-        """The wheels' calibrated motion (dx, dy, dyaw) from ``a`` to ``b`` in the rig's
-        frame at ``a`` and its covariance (3, 3) (the steps' own, times
-        :data:`WHEEL_WINDOW_RATIO` per axis for a window of ``runs`` VO runs, 1, 2, 4, 8 or
-        more); None before the calibration or over a gap."""
+    def calibration(self, now: float) -> tuple[float, float] | None:
+        """The wheels' scale (their distance over the true one) and heading drift (rad/m)
+        from the steps ended by ``now``; None before :data:`WHEEL_WITNESS_MIN_M`. The
+        scale: the median over the blocks of :data:`WHEEL_BLOCK_M` of the wheels' distance
+        over ICP's, so that a stretch where ICP errs beyond its model (less than half the
+        distance) does not move it; the drift: the wheels' turn less ICP's over the
+        distance."""
         dw, tw = self.wheel.ended(now)
         di, ti = self.icp.ended(now)
         if dw < WHEEL_WITNESS_MIN_M or di <= 0:
             return None
-        ref = self.wheel.between(a, b, now)
-        if ref is None:
-            return None
-        # The scale: the median over the blocks of WHEEL_BLOCK_M ended by now of the wheels'
-        # distance over ICP's, so that a stretch where ICP errs beyond its model (less
-        # than half the distance) does not move it; the drift: the wheels' turn less
-        # ICP's over the distance.
         ends = np.r_[self.start, self.blocks[self.blocks <= now]]
         icp_dist = np.diff(np.interp(ends, self.icp.t1s, self.icp.distance))
         moved = icp_dist > 0
         if not moved.any():
             return None
-        scale, drift = float(np.median(WHEEL_BLOCK_M / icp_dist[moved])), (tw - ti) / dw
+        return float(np.median(WHEEL_BLOCK_M / icp_dist[moved])), (tw - ti) / dw
+
+    def calibrated_steps(self) -> list[Increment]:
+        """The wheels' steps as a filter input (``KfParams.wheel_calibrated``): each with
+        the calibration at its end (causal; steps before it left out), its forward motion
+        and turn (cross-track open: the heading's lever arm correlates it over steps), their
+        covariance the steps' rate covariance times the ratio of one-run windows
+        (:data:`WHEEL_WINDOW_RATIO`: forward 0.09, yaw 1.24 on laps 1-2)."""
+        out = []
+        ratio = np.asarray(WHEEL_WINDOW_RATIO[0])
+        for m in self.wheel.steps:
+            cal = self.calibration(m.t1)
+            if cal is None:
+                continue
+            scale, drift = cal
+            dist = float(np.hypot(*m.motion[:2]))
+            motion = np.array([m.motion[0] / scale, m.motion[1] / scale, m.motion[2] - drift * dist])
+            cov = _scaled(m.covariance, ratio)
+            cov[1, :] = cov[:, 1] = 0.0
+            cov[1, 1] = OPEN_SIGMA_M**2
+            out.append(Increment(m.t0, m.t1, motion, cov, "wheel"))
+        return out
+
+    def between(self, a: float, b: float, now: float, runs: int = 1) -> tuple[FloatArray, FloatArray] | None:
+        """The wheels' calibrated motion (dx, dy, dyaw) from ``a`` to ``b`` in the rig's
+        frame at ``a`` and its covariance (3, 3) (the steps' own, times
+        :data:`WHEEL_WINDOW_RATIO` per axis for a window of ``runs`` VO runs, 1, 2, 4, 8 or
+        more); None before the calibration or over a gap."""
+        cal = self.calibration(now)
+        ref = self.wheel.between(a, b, now) if cal is not None else None
+        if cal is None or ref is None:
+            return None
+        scale, drift = cal
         arc = float(
             np.interp(b, self.wheel.t1s, self.wheel.distance)
             - np.interp(a, self.wheel.t1s, self.wheel.distance)
