@@ -164,3 +164,24 @@ def test_the_witness_verdict_names_the_input_that_disagrees_with_both_others():
     # ICP open along the travel: VO carries the filter there, the wheels do not leave it out.
     open_icp = (vo_icp_agree[0], np.diag([kalman.OPEN_SIGMA_M**2, 4e-6, 4e-8]))
     assert not kalman._witness(runs, open_icp, (vo_icp_agree[0], small), no_corr, gate)[1].any()
+
+
+def test_the_wheels_fused_calibrated_do_not_pull_the_filter_by_their_scale():
+    """ICP honest, the wheels 2 % long: fused as they come (WHEEL_SIGMAS) they pull the
+    driven filter's 20 m about 10 cm long; calibrated against ICP (wheel_calibrated:
+    forward and yaw, after the first 5 m) they leave it within 2 cm of the truth, and
+    forward they are fused only once calibrated."""
+    poses, icp, _, wheels = _drive(np.random.default_rng(6), 0.0)
+    driven = dataclasses.replace(kalman.KF_MODES["driven"], vo_guard=0, vo_forward_reference=False)
+    raw = kalman.run_filter(icp + wheels, driven)
+    calibrated = kalman.run_filter(icp + wheels, dataclasses.replace(driven, wheel_calibrated=True))
+    assert raw.poses[-1, 0] - poses[-1, 0] > 0.05
+    assert abs(calibrated.poses[-1, 0] - poses[-1, 0]) < 0.02
+    steps = kalman._WheelWitness(wheels, kalman._IcpReference(icp, driven), driven).calibrated_steps()
+    assert min(m.t1 for m in steps) >= 5.0 / 1.02 / 0.5  # 5 m by the wheels (2 % long) at 0.5 m/s
+    assert all(m.covariance[1, 1] == kalman.OPEN_SIGMA_M**2 for m in steps)
+    # No ICP to calibrate against: no wheel step fused.
+    np.testing.assert_array_equal(
+        kalman.run_filter(wheels, dataclasses.replace(driven, wheel_calibrated=True)).poses[-1],
+        [0.0, 0.0, 0.0],
+    )
