@@ -182,3 +182,24 @@ def test_the_wheels_fused_calibrated_do_not_pull_the_filter_by_their_scale():
     assert all(m.covariance[1, 1] == kalman.OPEN_SIGMA_M**2 for m in steps)
     # No ICP to calibrate against: no wheel step fused (no measurement at all).
     assert len(kalman.run_filter(wheels, dataclasses.replace(driven, wheel_calibrated=True)).poses) == 0
+
+
+def test_the_wheels_calibration_skips_where_icp_leaves_the_travel_open():
+    """A corridor ICP cannot fix along the travel from 12 s on (its steps forward open and
+    measuring half the motion there): the wheels' scale is calibrated on the blocks before
+    alone, so at the end their calibrated motion over 2 m is still within 1 cm of the truth
+    (taking those blocks in, it would read about half the distance)."""
+    rng = np.random.default_rng(7)
+    t, poses = _line()
+    errors = np.zeros((len(t) - 1, 3))
+    errors[480:, 0] = -0.5 * 0.5 * 0.025  # half of each step's forward motion missing
+    covs = np.stack([np.diag([1e-6, 9e-8, 1e-10])] * len(t))
+    covs[481:, 0, 0] = kalman.OPEN_SIGMA_M**2
+    icp = kalman.increments(t, _with_errors(poses, errors), covs, source="icp")
+    witness = kalman._WheelWitness(_wheels(rng, t, poses), kalman._IcpReference(icp, WEIGHTED), WEIGHTED)
+    cal = witness.calibration(40.0)
+    assert cal is not None
+    assert cal[0] == pytest.approx(1.02, abs=0.01)
+    got = witness.between(36.0, 40.0, 40.0, 8)
+    assert got is not None
+    assert abs(got[0][0] - 2.0) < 0.01

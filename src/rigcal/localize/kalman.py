@@ -1401,6 +1401,9 @@ class _IcpReference:
         # (the wheel witness's calibration, :class:`_WheelWitness`).
         self.distance = np.cumsum([float(np.hypot(*m.motion[:2])) for m in self.steps])
         self.turn = np.cumsum([float(m.motion[2]) for m in self.steps])
+        # The steps leaving their forward direction open (a corridor's), counted up to each
+        # step's end: their distance is no measurement (the wheels' calibration skips them).
+        self.open = np.cumsum([m.covariance[0, 0] >= (OPEN_SIGMA_M / 10.0) ** 2 for m in self.steps])
         n = len(self.steps)
         # The chain's pose at each step's start (and the last one's end), its yaw, and the
         # steps' own covariances in the chain's frame summed before each step.
@@ -1572,15 +1575,19 @@ class _WheelWitness:
         from the steps ended by ``now``; None before :data:`WHEEL_WITNESS_MIN_M`. The
         scale: the median over the blocks of :data:`WHEEL_BLOCK_M` of the wheels' distance
         over ICP's, so that a stretch where ICP errs beyond its model (less than half the
-        distance) does not move it; the drift: the wheels' turn less ICP's over the
-        distance."""
+        distance) does not move it, blocks where ICP leaves the travel open (a corridor)
+        left out; the drift: the wheels' turn less ICP's over the distance."""
         dw, tw = self.wheel.ended(now)
         di, ti = self.icp.ended(now)
         if dw < WHEEL_WITNESS_MIN_M or di <= 0:
             return None
         ends = np.r_[self.start, self.blocks[self.blocks <= now]]
         icp_dist = np.diff(np.interp(ends, self.icp.t1s, self.icp.distance))
-        moved = icp_dist > 0
+        # A block with a step ICP leaves open forward (a corridor's) measures no scale.
+        opened = np.diff(
+            self.icp.open[np.clip(np.searchsorted(self.icp.t1s, ends), 0, len(self.icp.t1s) - 1)]
+        )
+        moved = (icp_dist > 0) & (opened == 0)
         if not moved.any():
             return None
         return float(np.median(WHEEL_BLOCK_M / icp_dist[moved])), (tw - ti) / dw
