@@ -20,6 +20,11 @@ against the truth with the filter's covariance. The mean over a lap is printed.
     .venv/bin/python benchmarks/bench_kf.py --seeds 1-2 --keep DIR --reuse --consistency
     .venv/bin/python benchmarks/bench_kf.py ... --reuse [--without vo] [--vo-axes yaw]
 
+Round 9 (``--variants``, see :data:`ROUND9`): the filter's path is scored at the scans'
+stamps (kalman.path_at, as ``rigcal localize``); laps with wheel odometry are the kept
+laps copied by benchmarks/kf_wheel_laps.py (``--keep DIR2 --wheel-odometry --reuse``),
+where ``--wheel-windows`` measures the wheel witness's window model (laps 1-2).
+
 ``--consistency`` prints, per lap and input, the figures the filter's error model is made
 of (kalman.ICP_VARIANCE_RATIO, ICP_LAG1, VO_VARIANCE_RATIO, VO_LAG1: laps 1-2 of each loop).
 """
