@@ -88,13 +88,17 @@ VARIANTS = {
     # icp-first; the wheels as the guard's witness and not fused ("-witness"), as both.
     "kf-icp-first": kalman.KF_MODES["icp-first"],
     "kf-witness": dataclasses.replace(kalman.KF_MODES["weighted"], wheel_witness=True, wheel_input=False),
-    "kf-witness-fused": dataclasses.replace(kalman.KF_MODES["weighted"], wheel_witness=True),
+    # (the wheels fused as they come, with the witness; kalman.KfParams.wheel_calibrated off)
+    "kf-witness-fused": dataclasses.replace(kalman.KF_MODES["weighted"], wheel_calibrated=False),
     "kf-icp-first-witness": dataclasses.replace(
         kalman.KF_MODES["icp-first"], wheel_witness=True, wheel_input=False
     ),
-    "kf-icp-first-witness-fused": dataclasses.replace(kalman.KF_MODES["icp-first"], wheel_witness=True),
+    "kf-icp-first-witness-fused": dataclasses.replace(kalman.KF_MODES["icp-first"], wheel_calibrated=False),
 }
-# The wheels fused calibrated against ICP (kalman.KfParams.wheel_calibrated), with the witness.
+# The wheels fused as they come (WHEEL_SIGMAS) with no witness: round 8's default on laps with wheels.
+VARIANTS["kf-raw"] = dataclasses.replace(VARIANTS["kf"], wheel_witness=False, wheel_calibrated=False)
+# The wheels fused calibrated against ICP (kalman.KfParams.wheel_calibrated), with the witness:
+# the default now (the same as "kf" on laps with wheels).
 VARIANTS["kf-wheels"] = dataclasses.replace(VARIANTS["kf-witness"], wheel_input=True, wheel_calibrated=True)
 VARIANTS["kf-icp-first-wheels"] = dataclasses.replace(
     VARIANTS["kf-icp-first-witness"], wheel_input=True, wheel_calibrated=True
@@ -127,6 +131,7 @@ ROUND9 = (
     "kf-icp-first-wheels",
     "kf-wheels-smooth",
     "kf-icp-first-wheels-smooth",
+    "kf-raw",
 )
 ALL_VARIANTS = tuple(k for k in VARIANTS if k not in ROUND9)
 # The compact table: the default against round 7's and the options, lap by lap (those run).

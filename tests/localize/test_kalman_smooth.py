@@ -119,6 +119,7 @@ def test_the_backward_pass_takes_later_measurements_into_earlier_poses(mode):
     assert np.mean(gains) > 0
 
 
-def test_smoothing_is_off_in_every_mode():
+def test_smoothing_is_off_in_every_mode_the_wheel_witness_and_calibration_on_but_the_papers():
     assert not any(p.smooth for p in kalman.KF_MODES.values())
-    assert not kalman.KfParams().wheel_witness
+    for mode, p in kalman.KF_MODES.items():
+        assert (p.wheel_witness, p.wheel_calibrated, p.wheel_input) == ((mode != "fixed"),) * 2 + (True,)

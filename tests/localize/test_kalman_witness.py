@@ -59,7 +59,9 @@ def test_the_wheels_convict_icp_erring_beyond_its_model_and_vo_carries_the_filte
     and ICP's path loosened there, and the filter ends within 5 cm."""
     poses, icp, vo, wheels = _drive(np.random.default_rng(1), 1e-3)
     params = kalman.KF_MODES[mode]
-    alone = kalman.run_filter(icp + vo + wheels, dataclasses.replace(params, wheel_input=False))
+    alone = kalman.run_filter(
+        icp + vo + wheels, dataclasses.replace(params, wheel_input=False, wheel_witness=False)
+    )
     witnessed = kalman.run_filter(
         icp + vo + wheels, dataclasses.replace(params, wheel_witness=True, wheel_input=False)
     )
@@ -93,12 +95,17 @@ def test_the_wheels_keep_an_honest_icp_and_leave_out_a_biased_vo():
 
 
 def test_without_wheel_odometry_the_witness_changes_nothing():
-    """wheel_witness on a drive without wheel steps: the filter's path as without it, to the bit."""
+    """The witness and the calibration on a drive without wheel steps: the filter's path as
+    without them, to the bit, in every mode (their default)."""
     _, icp, vo, _ = _drive(np.random.default_rng(3), 1e-3)
     for mode in ("weighted", "icp-first", "driven"):
         params = kalman.KF_MODES[mode]
-        off = kalman.run_filter(icp + vo, params)
-        on = kalman.run_filter(icp + vo, dataclasses.replace(params, wheel_witness=True))
+        off = kalman.run_filter(
+            icp + vo, dataclasses.replace(params, wheel_witness=False, wheel_calibrated=False)
+        )
+        on = kalman.run_filter(
+            icp + vo, dataclasses.replace(params, wheel_witness=True, wheel_calibrated=True)
+        )
         np.testing.assert_array_equal(on.poses, off.poses)
         assert on.icp_witnessed == (0, 0, 0)
 
@@ -169,19 +176,25 @@ def test_the_witness_verdict_names_the_input_that_disagrees_with_both_others():
 def test_the_wheels_fused_calibrated_do_not_pull_the_filter_by_their_scale():
     """ICP honest, the wheels 2 % long: fused as they come (WHEEL_SIGMAS) they pull the
     driven filter's 20 m about 10 cm long; calibrated against ICP (wheel_calibrated:
-    forward and yaw, after the first 5 m) they leave it within 2 cm of the truth, and
-    forward they are fused only once calibrated."""
+    forward and yaw, after the first 5 m; before, as they came) they leave it within 2 cm
+    of the truth."""
     poses, icp, _, wheels = _drive(np.random.default_rng(6), 0.0)
     driven = dataclasses.replace(kalman.KF_MODES["driven"], vo_guard=0, vo_forward_reference=False)
-    raw = kalman.run_filter(icp + wheels, driven)
+    raw = kalman.run_filter(icp + wheels, dataclasses.replace(driven, wheel_calibrated=False))
     calibrated = kalman.run_filter(icp + wheels, dataclasses.replace(driven, wheel_calibrated=True))
     assert raw.poses[-1, 0] - poses[-1, 0] > 0.05
     assert abs(calibrated.poses[-1, 0] - poses[-1, 0]) < 0.02
     steps = kalman._WheelWitness(wheels, kalman._IcpReference(icp, driven), driven).calibrated_steps()
-    assert min(m.t1 for m in steps) > 9.7  # 5 m by the wheels (2 % long, 1 % noise) at 0.5 m/s
-    assert all(m.covariance[1, 1] == kalman.OPEN_SIGMA_M**2 for m in steps)
-    # No ICP to calibrate against: no wheel step fused (no measurement at all).
-    assert len(kalman.run_filter(wheels, dataclasses.replace(driven, wheel_calibrated=True)).poses) == 0
+    assert len(steps) == len(wheels)
+    # Before 5 m by the wheels (2 % long, 1 % noise, at 0.5 m/s: 9.8 s) as they came, then calibrated.
+    first = min(m.t1 for m in steps if m.covariance[1, 1] == kalman.OPEN_SIGMA_M**2)
+    assert 9.7 < first < 9.9
+    assert all(m is w for m, w in zip(steps, wheels, strict=True) if m.t1 < first)
+    # No ICP to calibrate against: the wheels fused as they came.
+    np.testing.assert_array_equal(
+        kalman.run_filter(wheels, driven).poses,
+        kalman.run_filter(wheels, dataclasses.replace(driven, wheel_calibrated=False)).poses,
+    )
 
 
 def test_the_wheels_calibration_skips_where_icp_leaves_the_travel_open():

@@ -325,7 +325,8 @@ class KfParams:
     measurements; ``wheel_witness``: the wheel odometry (where given) the guard's third
     witness (:class:`_WheelWitness`, :func:`_witness`; it acts with ``vo_guard``);
     ``wheel_calibrated``: the wheels' steps fused (with ``wheel_input``) calibrated against
-    ICP's, forward and yaw (:meth:`_WheelWitness.calibrated_steps`), not as they come;
+    ICP's, forward and yaw (:meth:`_WheelWitness.calibrated_steps`), not as they come
+    (both on in every mode but "fixed", the paper's, which fuses them as they come);
     ``smooth``: the forward pass followed by the Rauch-Tung-Striebel backward pass
     (:class:`_Tape`): each pose from all the lap's measurements, offline."""
 
@@ -352,8 +353,8 @@ class KfParams:
     vo_bias_share: Axes = (0.0, 0.0, 0.0)
     drive: str = ""
     wheel_input: bool = True
-    wheel_witness: bool = False
-    wheel_calibrated: bool = False
+    wheel_witness: bool = True
+    wheel_calibrated: bool = True
     smooth: bool = False
 
     def __post_init__(self) -> None:
@@ -417,6 +418,8 @@ KF_MODES = {
         vo_guard=0,
         vo_forward_reference=False,
         vo_bias_sigma=(0.0, 0.0, 0.0),
+        wheel_witness=False,
+        wheel_calibrated=False,
     ),
 }
 # The weighted filter with VO's bias states (:data:`VO_BIAS_SIGMA`), and with the process
@@ -575,11 +578,8 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     if params.wheel_calibrated and params.wheel_input:
         wheel = [m for m in measurements if m.source == "wheel"]
         icp = [m for m in measurements if m.source == "icp"]
-        fused = (
-            _WheelWitness(wheel, _IcpReference(icp, params), params).calibrated_steps()
-            if wheel and icp
-            else []
-        )
+        if wheel and icp:  # without ICP to calibrate against, the wheels as they came (None)
+            fused = _WheelWitness(wheel, _IcpReference(icp, params), params).calibrated_steps()
     token = _TAPE.set(_Tape() if params.smooth else None)
     try:
         return _run(measurements, params, fused)
@@ -1594,15 +1594,18 @@ class _WheelWitness:
 
     def calibrated_steps(self) -> list[Increment]:
         """The wheels' steps as a filter input (``KfParams.wheel_calibrated``): each with
-        the calibration at its end (causal; steps before it left out), its forward motion
-        and turn (cross-track open: the heading's lever arm correlates it over steps), their
-        covariance the steps' rate covariance times the ratio of one-run windows
-        (:data:`WHEEL_WINDOW_RATIO`: forward 0.09, yaw 1.24 on laps 1-2)."""
+        the calibration at its end (causal), its forward motion and turn (cross-track open:
+        the heading's lever arm correlates it over steps), their covariance the steps' rate
+        covariance times the ratio of one-run windows (:data:`WHEEL_WINDOW_RATIO`: forward
+        0.09, yaw 1.24 on laps 1-2). Where no calibration is to be had yet (the first
+        :data:`WHEEL_WITNESS_MIN_M`, or ICP open along the travel all the way: a corridor)
+        a step is fused as it came (:data:`WHEEL_SIGMAS`): the wheels carry the filter there."""
         out = []
         ratio = np.asarray(WHEEL_WINDOW_RATIO[0])
         for m in self.wheel.steps:
             cal = self.calibration(m.t1)
             if cal is None:
+                out.append(m)
                 continue
             scale, drift = cal
             dist = float(np.hypot(*m.motion[:2]))
