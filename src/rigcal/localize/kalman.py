@@ -1598,14 +1598,22 @@ class _WheelWitness:
         the heading's lever arm correlates it over steps), their covariance the steps' rate
         covariance times the ratio of one-run windows (:data:`WHEEL_WINDOW_RATIO`: forward
         0.09, yaw 1.24 on laps 1-2). Where no calibration is to be had yet (the first
-        :data:`WHEEL_WITNESS_MIN_M`, or ICP open along the travel all the way: a corridor)
-        a step is fused as it came (:data:`WHEEL_SIGMAS`): the wheels carry the filter there."""
+        :data:`WHEEL_WITNESS_MIN_M`, or ICP open along the travel all the way: a corridor) a
+        step over which ICP leaves the travel open is fused as it came
+        (:data:`WHEEL_SIGMAS`): the wheels carry the filter there; one where ICP constrains
+        it is left out (its scale error would only pull ICP's path)."""
         out = []
         ratio = np.asarray(WHEEL_WINDOW_RATIO[0])
+        icp = self.icp
         for m in self.wheel.steps:
             cal = self.calibration(m.t1)
             if cal is None:
-                out.append(m)
+                k = np.clip(np.searchsorted(icp.t1s, [m.t0, m.t1]), 0, len(icp.t1s) - 1)
+                if len(icp.t1s) and (
+                    icp.open[k[1]] > icp.open[k[0]]
+                    or icp.steps[k[1]].covariance[0, 0] >= (OPEN_SIGMA_M / 10.0) ** 2
+                ):
+                    out.append(m)
                 continue
             scale, drift = cal
             dist = float(np.hypot(*m.motion[:2]))
