@@ -100,3 +100,20 @@ def test_icp_first_scores_icps_ate_and_smooth_reaches_the_filter(short_drive, tm
         assert doc["config"]["settings"]["kf"]["smooth"] is smooth
         m = doc["methods"]
         assert m["kf"]["metrics"]["ate_rmse_m"] == m["icp"]["metrics"]["ate_rmse_m"]
+
+
+def test_kf_with_wheel_odometry_fuses_the_calibrated_wheels(tmp_path, capsys):
+    """Eight seconds of the corridor loop with wheel odometry (2 % scale error): method kf
+    with the default filter runs with the wheels as witness and calibrated input (the
+    summary says so) and ends within its inputs' reach: below the wheels' own ATE."""
+    drive = tmp_path / "drive"
+    args = ["simulate", "world", "--world", "corridor-loop", "--duration-s", "8", "--seed", "2"]
+    assert main([*args, "--wheel-odometry", "-o", str(drive)]) == 0
+    out = tmp_path / "out"
+    assert main(["localize", str(drive), "--method", "icp,kf,odom", "-o", str(out), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    kf = doc["config"]["settings"]["kf"]
+    assert (kf["wheel_witness"], kf["wheel_calibrated"], kf["wheel_input"]) == (True, True, True)
+    assert doc["methods"]["kf"]["wheel_measurements"] > 0
+    ate = {m: doc["methods"][m]["metrics"]["ate_rmse_m"] for m in ("icp", "kf", "odom")}
+    assert ate["kf"] < ate["odom"]
