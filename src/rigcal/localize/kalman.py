@@ -64,6 +64,15 @@ covariances, own and shared, its process noise (:class:`_Drive`); VO's runs and 
 odometry's steps are the measurements, under the same gates and error models. With no
 other measurement accepted, the filter's path is ICP's.
 
+The wheel odometry (where a sequence has it; beyond the paper) is the guard's third,
+independent witness (``wheel_witness``, :class:`_WheelWitness`, :func:`_witness`):
+calibrated against ICP (scale, heading drift per metre), its chain over the guard's
+windows tells which of ICP and VO errs where they disagree, and VO is kept (ICP's path
+loosened) or left out accordingly; and it is fused calibrated, forward and in yaw
+(``wheel_calibrated``). Both are on in every mode but "fixed". The filter's path is
+scored and written at the scans' stamps (:func:`path_at`), and ``smooth`` adds the
+Rauch-Tung-Striebel backward pass (:class:`_Tape`).
+
 Options measured on the simulated laps and off in every mode (docs/localization.md): VO's
 biases over seconds (``vo_bias_sigma``: a forward scale, a cross-track drift per metre and
 a yaw-rate bias as Gauss-Markov states, :func:`_bias_decay`, learned against ICP by a
