@@ -349,6 +349,9 @@ def main() -> None:
     if args.variants:
         for key in set(VARIANTS) - set(args.variants.split(",")):
             del VARIANTS[key]
+    else:  # round 9's run by name alone; the rest as before
+        for key in ROUND9:
+            VARIANTS.pop(key, None)
     scores: dict[tuple[str, str], list[float]] = defaultdict(list)
     wins: dict[str, list[bool]] = defaultdict(list)
     round7: list[str] = []
