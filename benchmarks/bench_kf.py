@@ -20,6 +20,11 @@ against the truth with the filter's covariance. The mean over a lap is printed.
     .venv/bin/python benchmarks/bench_kf.py --seeds 1-2 --keep DIR --reuse --consistency
     .venv/bin/python benchmarks/bench_kf.py ... --reuse [--without vo] [--vo-axes yaw]
 
+Round 9 (``--variants``, see :data:`ROUND9`): the filter's path is scored at the scans'
+stamps (kalman.path_at, as ``rigcal localize``); laps with wheel odometry are the kept
+laps copied by benchmarks/kf_wheel_laps.py (``--keep DIR2 --wheel-odometry --reuse``),
+where ``--wheel-windows`` measures the wheel witness's window model (laps 1-2).
+
 ``--consistency`` prints, per lap and input, the figures the filter's error model is made
 of (kalman.ICP_VARIANCE_RATIO, ICP_LAG1, VO_VARIANCE_RATIO, VO_LAG1: laps 1-2 of each loop).
 """
@@ -79,10 +84,59 @@ VARIANTS = {
     "kf-driven": kalman.KF_MODES["driven"],
     "kf-bias": kalman.VO_BIASED,
     "kf-process": kalman.DRIVE_PROCESS,
+    # Round 9 (run with --variants; laps with wheel odometry: --wheel-odometry): --kf
+    # icp-first; the wheels as the guard's witness and not fused ("-witness"), as both.
+    "kf-icp-first": kalman.KF_MODES["icp-first"],
+    "kf-witness": dataclasses.replace(kalman.KF_MODES["weighted"], wheel_witness=True, wheel_input=False),
+    # (the wheels fused as they come, with the witness; kalman.KfParams.wheel_calibrated off)
+    "kf-witness-fused": dataclasses.replace(kalman.KF_MODES["weighted"], wheel_calibrated=False),
+    "kf-icp-first-witness": dataclasses.replace(
+        kalman.KF_MODES["icp-first"], wheel_witness=True, wheel_input=False
+    ),
+    "kf-icp-first-witness-fused": dataclasses.replace(kalman.KF_MODES["icp-first"], wheel_calibrated=False),
 }
-ALL_VARIANTS = tuple(VARIANTS)
+# The wheels fused as they come (WHEEL_SIGMAS) with no witness: round 8's default on laps with wheels.
+VARIANTS["kf-raw"] = dataclasses.replace(VARIANTS["kf"], wheel_witness=False, wheel_calibrated=False)
+# The wheels fused calibrated against ICP (kalman.KfParams.wheel_calibrated), with the witness:
+# the default now (the same as "kf" on laps with wheels).
+VARIANTS["kf-wheels"] = dataclasses.replace(VARIANTS["kf-witness"], wheel_input=True, wheel_calibrated=True)
+VARIANTS["kf-icp-first-wheels"] = dataclasses.replace(
+    VARIANTS["kf-icp-first-witness"], wheel_input=True, wheel_calibrated=True
+)
+# Each of them and the default smoothed (kalman.KfParams.smooth: the RTS backward pass), "-smooth".
+VARIANTS.update(
+    {
+        f"{k}-smooth": dataclasses.replace(VARIANTS[k], smooth=True)
+        for k in (
+            "kf",
+            "kf-icp-first",
+            "kf-witness",
+            "kf-icp-first-witness",
+            "kf-wheels",
+            "kf-icp-first-wheels",
+        )
+    }
+)
+ROUND9 = (
+    "kf-icp-first",
+    "kf-witness",
+    "kf-witness-fused",
+    "kf-icp-first-witness",
+    "kf-icp-first-witness-fused",
+    "kf-smooth",
+    "kf-icp-first-smooth",
+    "kf-witness-smooth",
+    "kf-icp-first-witness-smooth",
+    "kf-wheels",
+    "kf-icp-first-wheels",
+    "kf-wheels-smooth",
+    "kf-icp-first-wheels-smooth",
+    "kf-raw",
+)
+ALL_VARIANTS = tuple(k for k in VARIANTS if k not in ROUND9)
 # The compact table: the default against round 7's and the options, lap by lap (those run).
 ROUND7 = (
+    *ROUND9,
     "kf-round7",
     "kf",
     "kf-pays",
@@ -100,7 +154,7 @@ AXES = ("forward", "cross", "yaw")
 def kept_lap(args: argparse.Namespace, name: str, seed: int) -> tuple[Any, Any, Any, FloatArray, FloatArray]:
     """A lap kept by ``--keep``: its streams (VO's result set), odometries, planar truth and
     the truth's stamps."""
-    seq = args.keep / f"{name}-seed{seed}-{args.duration_s:g}s"
+    seq = args.keep / f"{name}-seed{seed}-{args.duration_s:g}s{'-wheels' if args.wheel_odometry else ''}"
     streams = open_streams(seq)
     od, res = pickle.loads((seq / "odometries.pkl").read_bytes())
     streams.results["vo"] = res
@@ -257,7 +311,16 @@ def main() -> None:
         help="Print, per lap, the VO runs the guard leaves out per direction and on how many of "
         "them VO's chain is further from the truth than ICP's; needs --reuse.",
     )
+    ap.add_argument(
+        "--wheel-windows",
+        action="store_true",
+        help="Print the wheel witness's calibrated chain's error over windows of 1-8 VO runs against "
+        "its model (kalman.WHEEL_WINDOW_RATIO: laps 1-2); needs --reuse --wheel-odometry.",
+    )
     args = ap.parse_args()
+    if args.wheel_windows:
+        wheel_windows(args)
+        return
     if args.bias_fit:
         bias_fit(args)
         return
@@ -286,6 +349,9 @@ def main() -> None:
     if args.variants:
         for key in set(VARIANTS) - set(args.variants.split(",")):
             del VARIANTS[key]
+    else:  # round 9's run by name alone; the rest as before
+        for key in ROUND9:
+            VARIANTS.pop(key, None)
     scores: dict[tuple[str, str], list[float]] = defaultdict(list)
     wins: dict[str, list[bool]] = defaultdict(list)
     round7: list[str] = []
@@ -315,16 +381,18 @@ def main() -> None:
                 for k, v in row.items():
                     if isinstance(v, float):
                         scores[name, k].append(v)
-                inputs = [row[k] for k in ("icp", "vo", "odom") if isinstance(row.get(k), float)]
-                best = min(inputs)
+                best = min(row["icp"], row["vo"])  # the wheels' own ATE is printed beside
                 cells = []
                 for key in ROUND7:
                     if key in row:
                         cells.append(f"{row[key]:.4f} {'yes' if row[key] <= best else 'no'}")
                         wins[f"{name} {key} compact"].append(row[key] <= best)
                         scores[name, f"{key} over best"].append(row[key] - best)
+                odom = f"{row['odom']:.4f}" if "odom" in row else "-"
                 round7.append(
-                    f"| {name} | {seed} | {row['icp']:.4f} | {row['vo']:.4f} | " + " | ".join(cells) + " |"
+                    f"| {name} | {seed} | {row['icp']:.4f} | {row['vo']:.4f} | {odom} | "
+                    + " | ".join(cells)
+                    + " |"
                 )
                 if set(VARIANTS) != set(ALL_VARIANTS):
                     print(round7[-1], flush=True)
@@ -350,11 +418,11 @@ def main() -> None:
                     flush=True,
                 )
     print(
-        "\n| world | seed | ICP ATE (m) | VO ATE (m) | "
+        "\n| world | seed | ICP ATE (m) | VO ATE (m) | wheels ATE (m) | "
         + " | ".join(f"{k} ATE (m), <= best input" for k in ROUND7 if k in VARIANTS)
         + " |"
     )
-    print("|---" * (4 + len([k for k in ROUND7 if k in VARIANTS])) + "|")
+    print("|---" * (5 + len([k for k in ROUND7 if k in VARIANTS])) + "|")
     print("\n".join(round7))
     print(
         "\n| world | laps | "
@@ -512,6 +580,47 @@ def windows(args: argparse.Namespace, sizes: tuple[int, ...] = (1, 2, 4, 8, 16, 
     for n in sizes:
         v, i = np.array(stats[n]["vo"]), np.array(stats[n]["icp"])
         cells = [" / ".join(f"{x:.2f}" for x in f(a, axis=0)) for a in (v, i) for f in (np.mean, np.median)]
+        print(f"| {n} | {len(v)} | " + " | ".join(cells) + " |")
+
+
+def wheel_windows(args: argparse.Namespace, sizes: tuple[int, ...] = (1, 2, 4, 8)) -> None:
+    """The wheel witness's error model (kalman.WHEEL_WINDOW_RATIO: laps 1-2; needs
+    --wheel-odometry): at each VO run's end, the wheels' calibrated chain over the last 1,
+    2, 4, 8 runs (kalman._WheelWitness.between, the model's ratio taken as 1) against the
+    truth, per direction of the frame at the window's end (forward, cross-track, yaw), the squared error
+    over the modelled variance: mean and median over the windows of the laps."""
+    params = dataclasses.replace(kalman.KF_MODES["weighted"], wheel_witness=True)
+    stats: dict[int, list[FloatArray]] = {n: [] for n in sizes}
+    for seed in seeds_of(args.seeds):
+        for name in args.worlds.split(","):
+            ms, gt, truth_s = kept_measurements(args, name, seed, params)
+            reference = kalman._IcpReference([m for m in ms if m.source == "icp"], params)
+            witness = kalman._WheelWitness([m for m in ms if m.source == "wheel"], reference, params)
+            vo = sorted((m for m in ms if m.source == "vo"), key=lambda m: m.t1)
+            for k, m in enumerate(vo):
+                for n in sizes:
+                    if k - n + 1 < 0:
+                        continue
+                    a, b = vo[k - n + 1].t0, m.t1
+                    w = witness.between(a, b, b, n)
+                    if w is None:
+                        continue
+                    ends = planar_at_stamps(gt, truth_s, np.array([a, b]))
+                    truth = pose_of(np.linalg.inv(se2(ends[0])) @ se2(ends[1]))
+                    d = w[0] - truth
+                    d[2] = np.angle(np.exp(1j * d[2]))
+                    G = kalman._rotation3(float(w[0][2]))  # the frame at the window's end, the ratio's
+                    ratio = np.asarray(kalman.WHEEL_WINDOW_RATIO[int(np.log2(n))])
+                    cov = G.T @ w[1] @ G / np.sqrt(np.outer(ratio, ratio))  # the ratio taken as 1
+                    stats[n].append((G.T @ d) ** 2 / np.diag(cov))
+    print(f"laps {args.seeds} of {args.worlds}: the wheels' calibrated chain,")
+    print("squared error over modelled variance (forward / cross-track / yaw of the frame at")
+    print("the window's end; the model's ratio 1)\n")
+    print("| VO runs in the window | windows | mean | median |")
+    print("|---|---|---|---|")
+    for n in sizes:
+        v = np.array(stats[n])
+        cells = [" / ".join(f"{x:.3f}" for x in f(v, axis=0)) for f in (np.mean, np.median)]
         print(f"| {n} | {len(v)} | " + " | ".join(cells) + " |")
 
 
@@ -684,20 +793,16 @@ def lap(
         t0 = time.perf_counter()
         kf = kalman.run_filter(ms, params)
         seconds = time.perf_counter() - t0
+        # Scored at the scans' stamps, as ICP (kalman.path_at; rigcal localize does the same).
+        kf = kalman.path_at(kf, streams.scan_stamps_s)
         row[key] = ate(kf.stamps_s, kf.poses)
+        row[f"{key}-witnessed"] = float(sum(kf.icp_witnessed))
         if key == "kf-round5":
             row["kf-round5-s"] = seconds
         if key == "kf":
             row["kf-s"] = seconds
             row["vo-ratio"], row["vo-left-out"] = kf.vo_forward_ratio, float(kf.vo_forward_left_out)
             guarded[0] = " / ".join(map(str, kf.vo_guarded))
-            wheel = [m for m in ms if m.source == "wheel"]
-            if wheel:  # the wheel odometry's own path: its steps chained
-                T, path = np.eye(3), [np.zeros(3)]
-                for m in wheel:
-                    T = T @ se2(m.motion)
-                    path.append(pose_of(T))
-                row["odom"] = ate(np.array([wheel[0].t0] + [m.t1 for m in wheel]), np.array(path))
             for src in ("icp", "vo", "wheel"):
                 mine = [m for m in ms if m.source == src]
                 if mine:
@@ -705,6 +810,13 @@ def lap(
             row["icp-lag1"] = lag1_correlation([m for m in ms if m.source == "icp"], gt_all, truth.stamps_s)
             gt = planar_at(truth, kf.stamps_s)
             row["nees-kf"] = float(np.mean(pose_nees(anchored(kf.poses, gt), kf.covariances, gt)))
+    wheel = [m for m in kf_measurements(streams, od, res, kalman.KfParams()) if m.source == "wheel"]
+    if wheel:  # the wheel odometry's own path: its steps chained
+        T, path = np.eye(3), [np.zeros(3)]
+        for m in wheel:
+            T = T @ se2(m.motion)
+            path.append(pose_of(T))
+        row["odom"] = ate(np.array([wheel[0].t0] + [m.t1 for m in wheel]), np.array(path))
     row["icp"] = ate(streams.scan_stamps_s, od.poses)
     row["vo"] = ate(streams.image_stamps_s[res.frames], res.poses)
     streams.stop_background()

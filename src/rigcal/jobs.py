@@ -15,7 +15,7 @@ from __future__ import annotations
 import contextlib
 import json
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -459,6 +459,7 @@ def localize_sequence(
     loop_closure: bool = False,
     pose_graph: str = "auto",
     kf: str = "weighted",
+    kf_smooth: bool = False,
     place_recognition: str = "images",
     force: bool = False,
     progress: Progress | None = None,
@@ -474,6 +475,8 @@ def localize_sequence(
             (the paper's fixed covariances), ``driven`` (weighted, ICP's steps driving
             the prediction) or ``icp-first`` (driven, VO only along directions ICP
             leaves open), :data:`rigcal.localize.kalman.KF_MODES`.
+        kf_smooth: that filter followed by its backward pass (the Rauch-Tung-Striebel
+            smoother, ``KfParams.smooth``).
         place_recognition: loop closure's proposals from the keyframes' images
             (``images``, where the sequence has them) or none (``none``).
 
@@ -522,7 +525,7 @@ def localize_sequence(
         tracks=track_params,
         wheel_odometry=wheel_odometry,
         loop_closure=lc_params if loop_closure else None,
-        kf=KF_MODES[kf],
+        kf=replace(KF_MODES[kf], smooth=kf_smooth),
         place_recognition=PlaceParams() if place_recognition == "images" else None,
     )
     write_run(r, sequence, output, force=force, kitti=kitti)

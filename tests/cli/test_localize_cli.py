@@ -78,3 +78,42 @@ def test_the_kf_option_picks_the_papers_the_weighted_or_the_driven_filter(short_
     first = docs["icp-first"]["config"]["settings"]["kf"]
     assert (first["drive"], first["vo_pays"]) == ("icp", kalman.VO_OPEN_ONLY)
     assert docs["weighted"]["config"]["settings"]["kf"]["vo_pays"] == 0.0
+
+
+def test_icp_first_scores_icps_ate_and_smooth_reaches_the_filter(short_drive, tmp_path, capsys):
+    """`--kf icp-first` on a drive whose ICP constrains every direction: the filter's path
+    is ICP's, scored at the scans as ICP is, so its ATE is ICP's exactly (the filter's
+    image-stamp poses are not scored); `--smooth` is recorded in the settings and leaves
+    that path as it is (no update to spread back)."""
+    docs = {}
+    for smooth in (False, True):
+        out = tmp_path / f"smooth-{smooth}"
+        args = ["localize", str(short_drive), "--method", "icp,kf", "--kf", "icp-first", "-o", str(out)]
+        args.append("--json")
+        assert main([*args, "--smooth"] if smooth else args) == 0
+        docs[smooth] = json.loads(capsys.readouterr().out)
+        kf, icp = (read_tum(out / m / "trajectory.tum") for m in ("kf", "icp"))
+        assert kf.stamps_s is not None
+        assert icp.stamps_s is not None
+        assert set(kf.stamps_s) <= set(icp.stamps_s)
+    for smooth, doc in docs.items():
+        assert doc["config"]["settings"]["kf"]["smooth"] is smooth
+        m = doc["methods"]
+        assert m["kf"]["metrics"]["ate_rmse_m"] == m["icp"]["metrics"]["ate_rmse_m"]
+
+
+def test_kf_with_wheel_odometry_fuses_the_calibrated_wheels(tmp_path, capsys):
+    """Eight seconds of the corridor loop with wheel odometry (2 % scale error): method kf
+    with the default filter runs with the wheels as witness and calibrated input (the
+    summary says so) and ends within its inputs' reach: below the wheels' own ATE."""
+    drive = tmp_path / "drive"
+    args = ["simulate", "world", "--world", "corridor-loop", "--duration-s", "8", "--seed", "2"]
+    assert main([*args, "--wheel-odometry", "-o", str(drive)]) == 0
+    out = tmp_path / "out"
+    assert main(["localize", str(drive), "--method", "icp,kf,odom", "-o", str(out), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    kf = doc["config"]["settings"]["kf"]
+    assert (kf["wheel_witness"], kf["wheel_calibrated"], kf["wheel_input"]) == (True, True, True)
+    assert doc["methods"]["kf"]["wheel_measurements"] > 0
+    ate = {m: doc["methods"][m]["metrics"]["ate_rmse_m"] for m in ("icp", "kf", "odom")}
+    assert ate["kf"] < ate["odom"]

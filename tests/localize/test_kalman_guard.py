@@ -8,6 +8,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from odometry_paths import line as _line
+from odometry_paths import with_errors as _with_errors
 from scipy.stats import chi2
 
 from rigcal.geometry import pose_of, se2
@@ -16,21 +18,6 @@ from rigcal.localize import kalman
 WEIGHTED = kalman.KF_MODES["weighted"]
 UNGUARDED = dataclasses.replace(WEIGHTED, vo_guard=0, vo_forward_reference=False)
 GATE = float(chi2.isf(0.001, 1))
-
-
-def _line(n, dt, v=0.5):
-    """A straight drive along x at v m/s: stamps (n,), poses (n, 3)."""
-    t = np.arange(n) * dt
-    return t, np.column_stack([v * t, np.zeros(n), np.zeros(n)])
-
-
-def _with_errors(poses, errors):
-    """Odometry whose step k (ending at pose k + 1) errs by errors[k] (3,) in its frame."""
-    out = [poses[0]]
-    for k in range(1, len(poses)):
-        step = pose_of(np.linalg.inv(se2(poses[k - 1])) @ se2(poses[k])) + errors[k - 1]
-        out.append(pose_of(se2(out[-1]) @ se2(step)))
-    return np.array(out)
 
 
 def _icp(t, poses, cov):

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from odometry_paths import line as _line
+from odometry_paths import with_errors as _with_errors
 
 from rigcal.localize import kalman
 
@@ -17,21 +19,6 @@ def _plain(**changes):
     base |= {"vo_memory_s": 0.0, "vo_forward_adapt": False, "vo_forward_window": 0}
     base |= {"vo_guard": 0, "vo_forward_reference": False}
     return kalman.KfParams(**{**base, **changes})
-
-
-def _line(n, dt, v=0.5):
-    """A straight drive along x at v m/s: stamps (n,), poses (n, 3)."""
-    t = np.arange(n) * dt
-    return t, np.column_stack([v * t, np.zeros(n), np.zeros(n)])
-
-
-def _with_errors(poses, errors):
-    """Odometry whose step k (ending at pose k + 1) errs by errors[k] (3,) in its frame."""
-    out = [poses[0]]
-    for k in range(1, len(poses)):
-        step = kalman.pose_of(np.linalg.inv(kalman.se2(poses[k - 1])) @ kalman.se2(poses[k])) + errors[k - 1]
-        out.append(kalman.pose_of(kalman.se2(out[-1]) @ kalman.se2(step)))
-    return np.array(out)
 
 
 def _gauss_markov(rng, n, phi, share):

@@ -99,6 +99,12 @@ rig_option = click.option(
     "icp-first (driven, VO only along directions ICP leaves open: ICP's path wherever ICP "
     "constrains the motion).",
 )
+@click.option(
+    "--smooth",
+    is_flag=True,
+    help="Follow the Kalman filter (method kf) with its backward pass (the Rauch-Tung-Striebel "
+    "smoother): each pose from the whole drive's measurements, not only those before it.",
+)
 def localize(
     sequence: Path,
     methods: str,
@@ -114,6 +120,7 @@ def localize(
     pose_graph: str,
     place_recognition: str,
     kf: str,
+    smooth: bool,
 ) -> None:
     """Estimate the laser's trajectory through SEQUENCE (a sequence folder) with one or
     more methods, run on the same data in the same process.
@@ -130,6 +137,7 @@ def localize(
       rigcal localize corridor/ --method iasm,hiasm --iasm snap_max_m=0 -o out-raw/
       rigcal localize corridor/ --method vo,kf --tracks detector=sift -o out-sift/
       rigcal localize corridor/ --method icp,vo,kf --kf fixed -o out-paper/
+      rigcal localize corridor/ --method icp,kf --kf icp-first --smooth -o out-smooth/
     """
     from rigcal.cli.progress import Progress
     from rigcal.errors import ArgumentError
@@ -151,6 +159,7 @@ def localize(
                 pose_graph=pose_graph,
                 place_recognition=place_recognition,
                 kf=kf,
+                kf_smooth=smooth,
                 force=force,
                 progress=bars,
             )

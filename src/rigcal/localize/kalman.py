@@ -64,6 +64,15 @@ covariances, own and shared, its process noise (:class:`_Drive`); VO's runs and 
 odometry's steps are the measurements, under the same gates and error models. With no
 other measurement accepted, the filter's path is ICP's.
 
+The wheel odometry (where a sequence has it; beyond the paper) is the guard's third,
+independent witness (``wheel_witness``, :class:`_WheelWitness`, :func:`_witness`):
+calibrated against ICP (scale, heading drift per metre), its chain over the guard's
+windows tells which of ICP and VO errs where they disagree, and VO is kept (ICP's path
+loosened) or left out accordingly; and it is fused calibrated, forward and in yaw
+(``wheel_calibrated``). Both are on in every mode but "fixed". The filter's path is
+scored and written at the scans' stamps (:func:`path_at`), and ``smooth`` adds the
+Rauch-Tung-Striebel backward pass (:class:`_Tape`).
+
 Options measured on the simulated laps and off in every mode (docs/localization.md): VO's
 biases over seconds (``vo_bias_sigma``: a forward scale, a cross-track drift per metre and
 a yaw-rate bias as Gauss-Markov states, :func:`_bias_decay`, learned against ICP by a
@@ -76,6 +85,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from contextvars import ContextVar
 from dataclasses import dataclass
 
 import numpy as np
@@ -238,6 +248,28 @@ VO_GUARD_LEVEL = 0.999
 # fusing is ahead of following ICP on that count below a ratio of 0.7-0.9. VO_OPEN_ONLY:
 # q* -> 0, VO only along ICP's open directions (the mode "icp-first").
 VO_OPEN_ONLY = 1e-9
+# The wheel odometry as the guard's witness (``KfParams.wheel_witness``, :class:`_WheelWitness`):
+# its chain over a window, its scale and heading drift per metre calibrated against ICP's
+# steps over the distance driven so far, once that is WHEEL_WITNESS_MIN_M (m); its
+# covariance there the steps' rate covariances (:data:`WHEEL_SIGMAS`) times the variance
+# ratio per axis (forward, cross-track, yaw) its calibrated chain showed against the truth
+# over windows of 1, 2, 4 and 8 VO runs (the guard's) on laps 1-2 of each loop (mean
+# squared error over the rate model's variance; benchmarks/bench_kf.py --wheel-windows).
+# Forward the rate model is pessimistic over short windows (0.09: a wheel's distance noise
+# is a fraction of the step, not a rate) and the calibration's scale shows over 8 runs (4.0);
+# cross-track grows from 3.5 to 140 times the model with the window, the lever arm of the
+# heading's drift, which a sum of the steps' covariances leaves out. The axes are those of
+# the frame at the window's end.
+WHEEL_WITNESS_MIN_M = 5.0
+# The scale's blocks (m of the wheels' distance): about a VO run at a walking pace, so that
+# ICP's own error over one (about 2 %) stays below its error where it errs beyond its model.
+WHEEL_BLOCK_M = 0.25
+WHEEL_WINDOW_RATIO: tuple[Axes, ...] = (
+    (0.090, 3.499, 1.238),
+    (0.159, 9.605, 1.232),
+    (0.503, 33.364, 1.310),
+    (4.004, 140.223, 1.358),
+)
 # VO's errors over seconds (``KfParams.vo_bias_sigma``, ``vo_bias_s``; :func:`_bias_decay`):
 # a forward scale factor (its runs' forward error over their forward motion), a cross-track
 # drift per metre forward (a small turn of the camera's motion into the laser's frame) and
@@ -298,7 +330,14 @@ class KfParams:
     ``adapt``: scale each input's covariances up by its innovations' running NIS where
     that exceeds 1 (covariance matching: :data:`ADAPT_WINDOW`); ``vo_guard``: the VO runs
     compared with ICP's own steps over the same interval (:data:`VO_GUARD_RUNS`; 0: no
-    guard)."""
+    guard); ``wheel_input``: the wheel odometry's steps (where given) fused as
+    measurements; ``wheel_witness``: the wheel odometry (where given) the guard's third
+    witness (:class:`_WheelWitness`, :func:`_witness`; it acts with ``vo_guard``);
+    ``wheel_calibrated``: the wheels' steps fused (with ``wheel_input``) calibrated against
+    ICP's, forward and yaw (:meth:`_WheelWitness.calibrated_steps`), not as they come
+    (both on in every mode but "fixed", the paper's, which fuses them as they come);
+    ``smooth``: the forward pass followed by the Rauch-Tung-Striebel backward pass
+    (:class:`_Tape`): each pose from all the lap's measurements, offline."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
@@ -322,6 +361,10 @@ class KfParams:
     vo_bias_s: Axes = VO_BIAS_S
     vo_bias_share: Axes = (0.0, 0.0, 0.0)
     drive: str = ""
+    wheel_input: bool = True
+    wheel_witness: bool = True
+    wheel_calibrated: bool = True
+    smooth: bool = False
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
@@ -384,6 +427,8 @@ KF_MODES = {
         vo_guard=0,
         vo_forward_reference=False,
         vo_bias_sigma=(0.0, 0.0, 0.0),
+        wheel_witness=False,
+        wheel_calibrated=False,
     ),
 }
 # The weighted filter with VO's bias states (:data:`VO_BIAS_SIGMA`), and with the process
@@ -422,6 +467,7 @@ class KfResult:
     vo_forward_left_out: int = 0
     vo_guarded: tuple[int, int, int] = (0, 0, 0)
     vo_bias: FloatArray | None = None
+    icp_witnessed: tuple[int, int, int] = (0, 0, 0)
 
 
 def rate_covariance(sigmas: tuple[float, float, float], dt: float, open_forward: bool = False) -> FloatArray:
@@ -496,14 +542,64 @@ def vo_increments(
     return increments(stamps, poses, own, open_forward=guessed, measured=~failed, source="vo")
 
 
-def fuse(measurements: list[Increment], params: KfParams | None = None) -> tuple[FloatArray, FloatArray]:
-    """:func:`run_filter`'s stamps (M,) and poses (M, 3)."""
+def fuse(
+    measurements: list[Increment], params: KfParams | None = None, at: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`run_filter`'s stamps (M,) and poses (M, 3); with ``at``, its path at those
+    stamps alone (:func:`path_at`: the laser's scans, so that the filter is scored where
+    its inputs are)."""
     res = run_filter(measurements, params)
+    if at is not None and len(res.stamps_s):
+        res = path_at(res, at)
     return res.stamps_s, res.poses
 
 
+def path_at(res: KfResult, at: FloatArray) -> KfResult:
+    """The filter's path at the stamps ``at`` (K,) within its span (the others dropped):
+    a pose it kept at a stamp as it is, one between two kept poses on the constant twist
+    between them (:func:`_se2_log`; its covariance the nearer pose's). The filter keeps a
+    pose after each update, at the ends of VO's runs (image stamps) as well as of ICP's
+    steps (scan stamps); scored at the scans alone, a filter whose path is ICP's scores
+    ICP's ATE exactly, where the image stamps' poses would weigh the score by more
+    samples of some stretches (docs/localization.md, "Kalman filter")."""
+    t = np.asarray(at, dtype=float)
+    t = t[(t >= res.stamps_s[0]) & (t <= res.stamps_s[-1])]
+    k = np.clip(np.searchsorted(res.stamps_s, t, side="right") - 1, 0, len(res.stamps_s) - 1)
+    poses = res.poses[k].copy()
+    covs = res.covariances[k].copy()
+    for i in np.flatnonzero(res.stamps_s[k] != t):
+        a, b = int(k[i]), int(k[i]) + 1
+        f = (t[i] - res.stamps_s[a]) / (res.stamps_s[b] - res.stamps_s[a])
+        T = se2(res.poses[a]) @ se2(
+            _se2_exp(f * _se2_log(pose_of(np.linalg.inv(se2(res.poses[a])) @ se2(res.poses[b]))))
+        )
+        poses[i] = pose_of(T)
+        poses[i, 2] = res.poses[a, 2] + np.angle(np.exp(1j * (poses[i, 2] - res.poses[a, 2])))
+        covs[i] = res.covariances[b if f > 0.5 else a]
+    return dataclasses.replace(res, stamps_s=t, poses=poses, covariances=covs)
+
+
 def run_filter(measurements: list[Increment], params: KfParams | None = None) -> KfResult:
-    """Run the filter over the increments in time order (Section VI, Eq. (11)).
+    """Run the filter over the increments in time order (Section VI, Eq. (11)); with
+    ``params.smooth`` then the backward pass (:class:`_Tape`). See :func:`_run`."""
+    params = params or KfParams()
+    fused: list[Increment] | None = None  # the wheels' steps the filter fuses, where not as they come
+    if params.wheel_calibrated and params.wheel_input:
+        wheel = [m for m in measurements if m.source == "wheel"]
+        icp = [m for m in measurements if m.source == "icp"]
+        if wheel and icp:  # without ICP to calibrate against, the wheels as they came (None)
+            fused = _WheelWitness(wheel, _IcpReference(icp, params), params).calibrated_steps()
+    token = _TAPE.set(_Tape() if params.smooth else None)
+    try:
+        return _run(measurements, params, fused)
+    finally:
+        _TAPE.reset(token)
+
+
+def _run(measurements: list[Increment], params: KfParams, fused: list[Increment] | None = None) -> KfResult:
+    """Run the filter over the increments in time order (Section VI, Eq. (11)); ``fused``:
+    the wheels' steps it fuses in place of theirs in ``measurements`` (which the witness
+    takes as they came).
 
     Each increment clones the pose at its start t0 and updates at its end t1 (module
     docstring); at equal stamps updates come before clones, so that a step starting where
@@ -518,12 +614,16 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
 
     Returns:
         the filtered pose after each update, starting with the origin at the earliest
-        stamp, with its covariance.
+        stamp, with its covariance (smoothed with ``params.smooth``).
     """
-    params = params or KfParams()
     # At a common end, the shorter step first: a longer one is then compared with the
     # motion the shorter ones already measured.
-    ms = sorted(measurements, key=lambda m: (m.t1, -m.t0))
+    raw = params.wheel_input and fused is None
+    ms = sorted(
+        [m for m in measurements if raw or m.source != "wheel"]
+        + (fused if params.wheel_input and fused else []),
+        key=lambda m: (m.t1, -m.t0),
+    )
     if not ms:
         return KfResult(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)))
     # Odometry-driven (``params.drive``): the driving input's steps are the prediction's
@@ -562,6 +662,13 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     )
     guard_runs: list[tuple[Increment, FloatArray]] = []
     guarded = np.zeros(3, dtype=int)  # VO runs the guard left out, per direction
+    wheel_steps = [m for m in measurements if m.source == "wheel"]
+    witness = (
+        _WheelWitness(wheel_steps, reference, params)
+        if reference is not None and params.wheel_witness and params.vo_guard > 0 and wheel_steps
+        else None
+    )
+    witnessed = np.zeros(3, dtype=int)  # VO runs over which the wheels found ICP erring, per direction
     vo_own, vo_share = _error_model("vo", params)
     forward_ratio = float(vo_own[0] + 2.0 * vo_share[0])  # VO's forward variance ratio, matched on line
     forward_info = float(ADAPT_WINDOW)  # the information its running mean holds (runs of full weight)
@@ -571,6 +678,9 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
     x = np.zeros(6)
     P = np.diag([1e-12, 1e-12, 1e-12, 1.0, 1.0, 1.0])
     stamps, poses, covs = [t], [x[:3].copy()], [P[:3, :3].copy()]
+    tape = _TAPE.get()
+    if tape is not None:
+        tape.mark(0)
     for when, kind, i in events:
         if when > t:
             if drive is not None:
@@ -579,7 +689,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
                 x, P = _predict(x, P, when - t, params)
             t = when
         if kind == 2:
-            _keep(stamps, poses, covs, t, x, P)
+            _keep(stamps, poses, covs, t, x, P, tape)
             continue
         m = ms[i]
         if kind == 1:
@@ -616,9 +726,27 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
         if vo and reference is not None:
             icp_scale = max(1.0, mean_nis.get("icp", 1.0)) if params.adapt else 1.0
             if params.vo_guard > 0:
-                leave_out = _guard(
-                    reference, guard_runs, m, own, share, (scale, icp_scale), memory is not None, t, params
+                leave_out, inflate, icp_errs = _guard(
+                    reference,
+                    guard_runs,
+                    m,
+                    own,
+                    share,
+                    (scale, icp_scale),
+                    memory is not None,
+                    t,
+                    params,
+                    witness,
                 )
+                witnessed += icp_errs
+                if inflate.any():
+                    # ICP's path over the run erred beyond its model (the wheels' verdict):
+                    # the pose's covariance takes that excess in the run's frame (the
+                    # clone's), as process noise ICP's steps should have brought.
+                    G = _rotation3(float(x[c + 2]))
+                    grown = P.copy()
+                    grown[:3, :3] += G @ np.diag(inflate) @ G.T
+                    x, P = _recorded(x, P, np.eye(len(x)), x, grown)
             if leave_out is not None:
                 guarded += leave_out
             if memory is not None and params.vo_forward_reference:
@@ -693,7 +821,11 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
         if not pending[m.t0]:
             x, P = _drop(x, P, _offset(blocks, ("clone", m.t0)))
             blocks.remove(("clone", m.t0))
-        _keep(stamps, poses, covs, t, x, P)
+        _keep(stamps, poses, covs, t, x, P, tape)
+    if tape is not None:  # the backward pass (Rauch, Tung and Striebel 1965)
+        smoothed = tape.smooth(x, P)
+        poses = [xs[:3].copy() for xs, _ in smoothed]
+        covs = [Ps[:3, :3].copy() for _, Ps in smoothed]
     return KfResult(
         np.array(stamps),
         np.array(poses),
@@ -702,6 +834,7 @@ def run_filter(measurements: list[Increment], params: KfParams | None = None) ->
         left_out,
         (int(guarded[0]), int(guarded[1]), int(guarded[2])),
         x[_offset(blocks, block) + np.arange(3)].copy() if (block := _block(blocks, "bias")) else None,
+        (int(witnessed[0]), int(witnessed[1]), int(witnessed[2])),
     )
 
 
@@ -715,9 +848,14 @@ def _guard(
     memory: bool,
     now: float,
     params: KfParams,
-) -> NDArray[np.bool_] | None:
+    witness: _WheelWitness | None = None,
+) -> tuple[NDArray[np.bool_] | None, FloatArray, NDArray[np.bool_]]:
     """The directions of VO's run ``m`` the guard leaves out (:func:`_vo_guard`), or None
-    where ICP gives no reference. ``runs`` (VO's last chained runs with their modelled
+    where ICP gives no reference; with the wheels' ``witness`` (:func:`_witness`) VO is kept
+    along a direction where the wheels find ICP erring over any window and left out where
+    they find VO erring, and the variance to add to ICP's path over the run where ICP errs
+    (3,: ICP's excess over the window over its runs) and those directions (3,) come back
+    too (zeros and False without). ``runs`` (VO's last chained runs with their modelled
     covariances) is updated in place; ``own``, ``share``: the run's error model per axis
     (with the forward memory, ``share`` forward 0 and the memory's part the rest of the
     forward variance ratio); ``scales``: VO's and ICP's covariance matching factors."""
@@ -740,6 +878,7 @@ def _guard(
     windows = [n for n in _guard_windows(params.vo_guard) if n <= len(runs)]
     gate = _guard_gate(params.vo_guard)
     out: NDArray[np.bool_] | None = None
+    icp_errs, vo_errs, inflate = np.zeros(3, dtype=bool), np.zeros(3, dtype=bool), np.zeros(3)
     for n in windows:
         ref = reference.between(runs[-n][0].t0, m.t1, now, scales[1])
         if ref is None:
@@ -748,7 +887,15 @@ def _guard(
         pays = params.vo_pays if n == windows[-1] else 0.0
         fired = _vo_guard(runs[-n:], ref, correlation[: n - 1], gate, _bias_model(params), pays)[0]
         out = fired if out is None else out | fired
-    return out
+        wheel = witness.between(runs[-n][0].t0, m.t1, now, n) if witness is not None else None
+        if wheel is not None:
+            i, v, excess = _witness(runs[-n:], ref, wheel, correlation[: n - 1], gate, _bias_model(params))
+            icp_errs |= i
+            vo_errs |= v
+            inflate = np.maximum(inflate, excess / n)
+    if out is not None:
+        out = (out & ~icp_errs) | vo_errs
+    return out, inflate, icp_errs
 
 
 def _bias_model(params: KfParams) -> tuple[FloatArray, FloatArray] | None:
@@ -787,15 +934,18 @@ def _keep(
     t: float,
     x: FloatArray,
     P: FloatArray,
+    tape: _Tape | None = None,
 ) -> None:
     """The pose and its covariance at ``t`` appended to the output (replacing the last at
-    the same stamp)."""
+    the same stamp); the ``tape``'s mark of that output where smoothing."""
     if stamps[-1] == t:
         poses[-1], covs[-1] = x[:3].copy(), P[:3, :3].copy()
     else:
         stamps.append(t)
         poses.append(x[:3].copy())
         covs.append(P[:3, :3].copy())
+    if tape is not None:
+        tape.mark(len(stamps) - 1)
 
 
 def _se2_log(motion: FloatArray) -> FloatArray:
@@ -873,6 +1023,7 @@ class _Drive:
         F[:2, 2] = [-s * u[0] - c * u[1], c * u[0] - s * u[1]]  # d(R(yaw) u) / d yaw
         G = np.eye(3)
         G[:2, :2] = R
+        x0, P0 = x, P
         x = x.copy()
         x[:2] += R @ u[:2]
         x[2] += u[2]
@@ -886,7 +1037,8 @@ class _Drive:
         P[3:6, 3:6] = G @ d.covariance @ G.T / dt**2
         if not np.isfinite(P[3:6, 3:6]).all() or np.trace(P[3:6, 3:6]) > 1e4:
             P[3:6, 3:6] = np.diag([1.0, 1.0, 1.0])
-        return x, P
+        F[3:6, :] = 0.0  # the velocity is the step's, whatever it was
+        return _recorded(x0, P0, F, x, P)
 
     def _shared(
         self, x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], d: Increment
@@ -907,7 +1059,7 @@ class _Drive:
         if old and old[-1][1] == d.t0:
             at = _offset(blocks, old[-1])
             T[:3, at : at + 3] = G
-        x, P = T @ x, T @ P @ T.T
+        x, P = _recorded(x, P, T, T @ x, T @ P @ T.T)
         for b in old:
             x, P = _drop(x, P, _offset(blocks, b))
             blocks.remove(b)
@@ -940,6 +1092,7 @@ def _memory_decay(
         return x, P
     at = _offset(blocks, old[0])
     phi = float(np.exp(-max(0.0, t1 - old[0][1]) / tau_s))
+    x0, P0 = x, P
     x = x.copy()
     x[at] *= phi
     P = P.copy()
@@ -947,7 +1100,9 @@ def _memory_decay(
     P[:, at] *= phi
     P[at, at] += 1.0 - phi**2
     blocks[blocks.index(old[0])] = ("memory", t1)
-    return x, P
+    F = np.eye(len(x))
+    F[at, at] = phi
+    return _recorded(x0, P0, F, x, P)
 
 
 def _bias_decay(
@@ -968,6 +1123,7 @@ def _bias_decay(
     at = _offset(blocks, old[0]) + np.arange(3)
     tau = np.where(var > 0, np.asarray(params.vo_bias_s, dtype=float), 1.0)
     phi = np.exp(-max(0.0, t1 - old[0][1]) / tau)
+    x0, P0 = x, P
     x = x.copy()
     x[at] *= phi
     P = P.copy()
@@ -975,7 +1131,9 @@ def _bias_decay(
     P[:, at] *= phi[None, :]
     P[at, at] += var * (1.0 - phi**2)
     blocks[blocks.index(old[0])] = ("bias", t1)
-    return x, P
+    F = np.eye(len(x))
+    F[at, at] = phi
+    return _recorded(x0, P0, F, x, P)
 
 
 # The state block holding each input's shared error, and the sign it enters the step after
@@ -1006,7 +1164,7 @@ def _clone(x: FloatArray, P: FloatArray) -> tuple[FloatArray, FloatArray]:
     correlated with the pose)."""
     n = len(x)
     J = np.vstack([np.eye(n), np.eye(n)[:3]])
-    return np.concatenate([x, x[:3]]), J @ P @ J.T
+    return _recorded(x, P, J, np.concatenate([x, x[:3]]), J @ P @ J.T)
 
 
 def _append(x: FloatArray, P: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -1015,13 +1173,13 @@ def _append(x: FloatArray, P: FloatArray, cov: FloatArray) -> tuple[FloatArray, 
     n, k = len(x), len(cov)
     out = np.zeros((n + k, n + k))
     out[:n, :n], out[n:, n:] = P, cov
-    return np.concatenate([x, np.zeros(k)]), out
+    return _recorded(x, P, np.eye(n + k, n), np.concatenate([x, np.zeros(k)]), out)
 
 
 def _drop(x: FloatArray, P: FloatArray, at: int) -> tuple[FloatArray, FloatArray]:
     """The state without its block of three at index ``at`` (marginalised out)."""
     keep = np.r_[0:at, at + 3 : len(x)]
-    return x[keep], P[np.ix_(keep, keep)]
+    return _recorded(x, P, np.eye(len(x))[keep], x[keep], P[np.ix_(keep, keep)])
 
 
 def _finite_part(cov: FloatArray) -> FloatArray:
@@ -1225,7 +1383,7 @@ def _predict(x: FloatArray, P: FloatArray, dt: float, params: KfParams) -> tuple
     Q[:3, :3] = np.diag(q * dt**3 / 3.0)
     Q[:3, 3:6] = Q[3:6, :3] = np.diag(q * dt**2 / 2.0)
     Q[3:6, 3:6] = np.diag(q * dt)
-    return F @ x, F @ P @ F.T + Q
+    return _recorded(x, P, F, F @ x, F @ P @ F.T + Q)
 
 
 def _rotation3(yaw: float) -> FloatArray:
@@ -1244,10 +1402,17 @@ class _IcpReference:
     the chain's frame are summed ahead (prefix sums), so an interval costs a few steps'
     work however many it spans."""
 
-    def __init__(self, steps: list[Increment], params: KfParams) -> None:
+    def __init__(self, steps: list[Increment], params: KfParams, source: str = "icp") -> None:
         self.steps = sorted(steps, key=lambda m: (m.t0, m.t1))
         self.t1s = np.array([m.t1 for m in self.steps])
-        self.own, self.share = _error_model("icp", params)
+        self.own, self.share = _error_model(source, params)
+        # The distance (m) and turn (rad) of the steps ended by each step's end, summed
+        # (the wheel witness's calibration, :class:`_WheelWitness`).
+        self.distance = np.cumsum([float(np.hypot(*m.motion[:2])) for m in self.steps])
+        self.turn = np.cumsum([float(m.motion[2]) for m in self.steps])
+        # The steps leaving their forward direction open (a corridor's), counted up to each
+        # step's end: their distance is no measurement (the wheels' calibration skips them).
+        self.open = np.cumsum([m.covariance[0, 0] >= (OPEN_SIGMA_M / 10.0) ** 2 for m in self.steps])
         n = len(self.steps)
         # The chain's pose at each step's start (and the last one's end), its yaw, and the
         # steps' own covariances in the chain's frame summed before each step.
@@ -1266,6 +1431,11 @@ class _IcpReference:
         for k in range(n - 2, -1, -1):
             if self.steps[k + 1].t0 == self.steps[k].t1:
                 self.run_end[k] = self.run_end[k + 1]
+
+    def ended(self, now: float) -> tuple[float, float]:
+        """The distance (m) and turn (rad) of the steps ended by ``now``, summed."""
+        k = int(np.searchsorted(self.t1s, now, side="right"))
+        return (float(self.distance[k - 1]), float(self.turn[k - 1])) if k else (0.0, 0.0)
 
     def between(
         self, a: float, b: float, now: float, scale: float = 1.0
@@ -1346,6 +1516,27 @@ def _vo_guard(
     steps leave it open (variance above (OPEN_SIGMA_M / 10)^2: a corridor ICP cannot fix,
     where VO carries the filter). So is a direction where V_aa > ``pays`` A_aa (ICP
     constraining it)."""
+    vo, V, G = _vo_chain(runs, correlation, bias)
+    d = vo - icp[0]
+    d[2] = np.angle(np.exp(1j * d[2]))
+    # In the last run's frame: its directions are the ones the update can leave out.
+    d, V, A = G.T @ d, G.T @ V @ G, G.T @ icp[1] @ G
+    stat = d**2 / np.diag(V + A)
+    fired = stat > gate
+    if pays > 0:
+        fired |= np.diag(V) > pays * np.diag(A)
+    out: NDArray[np.bool_] = fired & (np.diag(A) < (OPEN_SIGMA_M / 10.0) ** 2)
+    return out, stat
+
+
+def _vo_chain(
+    runs: list[tuple[Increment, FloatArray]],
+    correlation: FloatArray,
+    bias: tuple[FloatArray, FloatArray] | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """VO's chained runs (:func:`_vo_guard`'s ``runs``, ``correlation``, ``bias``): their
+    motion (3,) and its covariance (3, 3), both in the first run's frame, and the last
+    run's frame in the first's (3, 3)."""
     T = np.eye(3)
     frames, sds = [], []
     V = np.zeros((3, 3))
@@ -1365,14 +1556,196 @@ def _vo_guard(
             if bias is not None:
                 b = bias[0] ** 2 * np.exp(-abs(mid[i] - mid[j]) / bias[1]) * coef[i] * coef[j]
                 V += frames[i] @ np.diag(b) @ frames[j].T
-    d = pose_of(T) - icp[0]
-    d[2] = np.angle(np.exp(1j * d[2]))
-    # In the last run's frame: its directions are the ones the update can leave out.
-    G = frames[-1]
-    d, V, A = G.T @ d, G.T @ V @ G, G.T @ icp[1] @ G
-    stat = d**2 / np.diag(V + A)
-    fired = stat > gate
-    if pays > 0:
-        fired |= np.diag(V) > pays * np.diag(A)
-    out: NDArray[np.bool_] = fired & (np.diag(A) < (OPEN_SIGMA_M / 10.0) ** 2)
-    return out, stat
+    return pose_of(T), V, frames[-1]
+
+
+class _WheelWitness:
+    """The wheel odometry as the guard's third, independent witness (``KfParams.wheel_witness``,
+    :func:`_witness`). The wheels' errors are mostly systematic (a wheel radius's scale
+    error, a heading drift per metre from the wheel base: rigcal.sim.drive's model of them,
+    and that of every differential drive), small per step; so their chain over a window of
+    a few runs, corrected by a scale and a drift per metre calibrated against ICP's steps
+    over all the distance driven so far (causally: the steps ended by ``now``), errs by its
+    white noise alone. Before :data:`WHEEL_WITNESS_MIN_M` of calibration it gives no
+    verdict."""
+
+    def __init__(self, steps: list[Increment], icp: _IcpReference, params: KfParams) -> None:
+        self.wheel = _IcpReference(steps, params, "wheel")
+        self.icp = icp
+        # The times the wheels had driven each further WHEEL_BLOCK_M (their distance
+        # interpolated over their steps' ends): the scale's blocks.
+        t1s, dist = self.wheel.t1s, self.wheel.distance
+        marks = np.arange(1, int(dist[-1] // WHEEL_BLOCK_M) + 1) * WHEEL_BLOCK_M if len(dist) else np.zeros(0)
+        self.blocks = np.interp(marks, dist, t1s) if len(marks) else np.zeros(0)
+        self.start = float(steps[0].t0) if steps else 0.0
+
+    def calibration(self, now: float) -> tuple[float, float] | None:
+        """The wheels' scale (their distance over the true one) and heading drift (rad/m)
+        from the steps ended by ``now``; None before :data:`WHEEL_WITNESS_MIN_M`. The
+        scale: the median over the blocks of :data:`WHEEL_BLOCK_M` of the wheels' distance
+        over ICP's, so that a stretch where ICP errs beyond its model (less than half the
+        distance) does not move it, blocks where ICP leaves the travel open (a corridor)
+        left out; the drift: the wheels' turn less ICP's over the distance."""
+        dw, tw = self.wheel.ended(now)
+        di, ti = self.icp.ended(now)
+        if dw < WHEEL_WITNESS_MIN_M or di <= 0:
+            return None
+        ends = np.r_[self.start, self.blocks[self.blocks <= now]]
+        icp_dist = np.diff(np.interp(ends, self.icp.t1s, self.icp.distance))
+        # A block with a step ICP leaves open forward (a corridor's) measures no scale.
+        opened = np.diff(
+            self.icp.open[np.clip(np.searchsorted(self.icp.t1s, ends), 0, len(self.icp.t1s) - 1)]
+        )
+        moved = (icp_dist > 0) & (opened == 0)
+        if not moved.any():
+            return None
+        return float(np.median(WHEEL_BLOCK_M / icp_dist[moved])), (tw - ti) / dw
+
+    def calibrated_steps(self) -> list[Increment]:
+        """The wheels' steps as a filter input (``KfParams.wheel_calibrated``): each with
+        the calibration at its end (causal), its forward motion and turn (cross-track open:
+        the heading's lever arm correlates it over steps), their covariance the steps' rate
+        covariance times the ratio of one-run windows (:data:`WHEEL_WINDOW_RATIO`: forward
+        0.09, yaw 1.24 on laps 1-2). Where no calibration is to be had yet (the first
+        :data:`WHEEL_WITNESS_MIN_M`, or ICP open along the travel all the way: a corridor) a
+        step over which ICP leaves the travel open is fused as it came
+        (:data:`WHEEL_SIGMAS`): the wheels carry the filter there; one where ICP constrains
+        it is left out (its scale error would only pull ICP's path)."""
+        out = []
+        ratio = np.asarray(WHEEL_WINDOW_RATIO[0])
+        icp = self.icp
+        for m in self.wheel.steps:
+            cal = self.calibration(m.t1)
+            if cal is None:
+                k = np.clip(np.searchsorted(icp.t1s, [m.t0, m.t1]), 0, len(icp.t1s) - 1)
+                if len(icp.t1s) and (
+                    icp.open[k[1]] > icp.open[k[0]]
+                    or icp.steps[k[1]].covariance[0, 0] >= (OPEN_SIGMA_M / 10.0) ** 2
+                ):
+                    out.append(m)
+                continue
+            scale, drift = cal
+            dist = float(np.hypot(*m.motion[:2]))
+            motion = np.array([m.motion[0] / scale, m.motion[1] / scale, m.motion[2] - drift * dist])
+            cov = _scaled(m.covariance, ratio)
+            cov[1, :] = cov[:, 1] = 0.0
+            cov[1, 1] = OPEN_SIGMA_M**2
+            out.append(Increment(m.t0, m.t1, motion, cov, "wheel"))
+        return out
+
+    def between(self, a: float, b: float, now: float, runs: int = 1) -> tuple[FloatArray, FloatArray] | None:
+        """The wheels' calibrated motion (dx, dy, dyaw) from ``a`` to ``b`` in the rig's
+        frame at ``a`` and its covariance (3, 3) (the steps' own, times
+        :data:`WHEEL_WINDOW_RATIO` per axis for a window of ``runs`` VO runs, 1, 2, 4, 8 or
+        more); None before the calibration or over a gap."""
+        cal = self.calibration(now)
+        ref = self.wheel.between(a, b, now) if cal is not None else None
+        if cal is None or ref is None:
+            return None
+        scale, drift = cal
+        arc = float(
+            np.interp(b, self.wheel.t1s, self.wheel.distance)
+            - np.interp(a, self.wheel.t1s, self.wheel.distance)
+        )
+        motion = ref[0].copy()
+        motion[:2] /= scale
+        motion[2] -= drift * arc
+        ratio = WHEEL_WINDOW_RATIO[min(int(np.log2(max(runs, 1))), len(WHEEL_WINDOW_RATIO) - 1)]
+        R = _rotation3(float(motion[2]))  # the ratio's axes: those of the frame at b
+        return motion, R @ _scaled(R.T @ ref[1] @ R, np.asarray(ratio)) @ R.T
+
+
+def _witness(
+    runs: list[tuple[Increment, FloatArray]],
+    icp: tuple[FloatArray, FloatArray],
+    wheel: tuple[FloatArray, FloatArray],
+    correlation: FloatArray,
+    gate: float,
+    bias: tuple[FloatArray, FloatArray] | None = None,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_], FloatArray]:
+    """The wheels' verdict over a window (:func:`_vo_guard`'s ``runs``, ``icp``,
+    ``correlation``, ``bias``; ``wheel``: the wheels' calibrated motion over the same
+    interval and its covariance, :meth:`_WheelWitness.between`), per direction of the last
+    run's frame: where ICP errs (its chain and the wheels' disagree beyond both models, VO's
+    and the wheels' do not), where VO errs (the other way round; not along a direction
+    ICP leaves open, where VO carries the filter), and ICP's squared error beyond its
+    model and the wheels' where it errs (m^2, rad^2; 0 elsewhere). Two tests of one
+    estimate against another (Bar-Shalom, Li and Kirubarajan 2001, Section 5.4), each at
+    ``gate`` (chi-square, 1 dof): with three independent inputs, the one that disagrees
+    with both others is the one that errs."""
+    vo, V, G = _vo_chain(runs, correlation, bias)
+
+    def off(a: FloatArray, b: FloatArray) -> FloatArray:
+        d = a - b
+        d[2] = np.angle(np.exp(1j * d[2]))
+        out: FloatArray = G.T @ d
+        return out
+
+    dv, di = off(vo, wheel[0]), off(icp[0], wheel[0])
+    v, a, w = (np.diag(G.T @ c @ G) for c in (V, icp[1], wheel[1]))
+    vo_off, icp_off = dv**2 / (v + w) > gate, di**2 / (a + w) > gate
+    icp_errs = icp_off & ~vo_off
+    vo_errs = vo_off & ~icp_off & (a < (OPEN_SIGMA_M / 10.0) ** 2)
+    excess = np.where(icp_errs, np.maximum(0.0, di**2 - a - w), 0.0)
+    return icp_errs, vo_errs, excess
+
+
+class _Tape:
+    """The filter's transitions, kept for the Rauch-Tung-Striebel backward pass
+    (``KfParams.smooth``; Rauch, Tung and Striebel 1965; Bar-Shalom, Li and Kirubarajan
+    2001, Section 8.6). Every change of the state between two updates is a linear(ised)
+    map x' = F x (+ noise): the prediction (constant velocity or a driving step's part),
+    a clone appended, a block of correlated error appended or marginalised, a
+    Gauss-Markov state's decay, a covariance grown. Each is kept as the filtered state
+    before it (x, P: all updates so far in), F and the state after it (x', P'); the
+    backward pass runs them in reverse,
+
+        C = P F^T P'^+,   x_s = x + C (x_s' - x'),   P_s = P + C (P_s' - P') C^T,
+
+    P'^+ the pseudo-inverse (a clone makes P' singular: its copy carries no more than the
+    pose), so that each kept output pose takes in the measurements after it. The
+    filter's gates, guard and weights stay the forward pass's: the backward pass only
+    spreads what was fused."""
+
+    def __init__(self) -> None:
+        self.ops: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]] = []
+        self.marks: dict[int, int] = {}  # output index -> transitions before it
+
+    def record(self, x: FloatArray, P: FloatArray, F: FloatArray, x1: FloatArray, P1: FloatArray) -> None:
+        self.ops.append((x, P, F, x1, P1))
+
+    def mark(self, index: int) -> None:
+        """Output ``index`` is the state after the transitions so far (and the updates)."""
+        self.marks[index] = len(self.ops)
+
+    def smooth(self, x: FloatArray, P: FloatArray) -> list[tuple[FloatArray, FloatArray]]:
+        """The smoothed state (x, P) at each marked output, from the last filtered one."""
+        at: dict[int, list[int]] = {}
+        for index, n in self.marks.items():
+            at.setdefault(n, []).append(index)
+        out: dict[int, tuple[FloatArray, FloatArray]] = {}
+        xs, Ps = x, P
+        for j in range(len(self.ops), -1, -1):
+            for index in at.get(j, []):
+                out[index] = (xs, Ps)
+            if j == 0:
+                break
+            x0, P0, F, x1, P1 = self.ops[j - 1]
+            C = np.linalg.lstsq(P1, F @ P0, rcond=None)[0].T  # P0 F^T P1^+ (P1 symmetric)
+            xs = x0 + C @ (xs - x1)
+            Ps = P0 + C @ (Ps - P1) @ C.T
+        return [out[i] for i in sorted(out)]
+
+
+# The tape of the run_filter call under way (None: not smoothing).
+_TAPE: ContextVar[_Tape | None] = ContextVar("kalman_tape", default=None)
+
+
+def _recorded(
+    x: FloatArray, P: FloatArray, F: FloatArray, x1: FloatArray, P1: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """(x1, P1), the transition x -> x1 = F x (+ noise) kept on the tape where smoothing."""
+    tape = _TAPE.get()
+    if tape is not None:
+        tape.record(x, P, F, x1, P1)
+    return x1, P1

@@ -216,7 +216,7 @@ def _kf_estimate(streams: Streams, params: kalman.KfParams | None = None) -> Est
     }
     if streams.wheel_odometry is not None:
         stats["wheel_measurements"] = sum(m.source == "wheel" for m in ms)
-    stamps, poses = kalman.fuse(ms, params)
+    stamps, poses = kalman.fuse(ms, params, at=streams.scan_stamps_s)  # scored where ICP is
     streams.timings_s["kf_s"] = time.perf_counter() - t0
     return Estimate(stamps, poses, stats)
 
