@@ -382,8 +382,9 @@ def _photometric_alone(seed: int, yaw_deg: float):  # type: ignore[no-untyped-de
 
 def test_the_photometric_term_alone_does_not_judge_the_yaw():
     """Without edges the photometric term estimates the yaw too, and its yaw errs by a
-    drive-level error no block's spread shows (the laser odometry's, the image model's:
-    0.136 deg root mean square on development drives, ``photo_floor_deg``). With the
+    drive-level error no block's spread shows (the photometric model's own, as large on
+    the true motion: 0.136 deg root mean square on development drives,
+    ``photo_floor_deg``). With the
     edges' yaw floor (0.04 deg: the former rule) a 0.18 deg error on 10 agreeing blocks
     is an alarm (corridor 1220's case); with the photometric term's own floor the yaw is
     not observed, said why, and the roll and pitch alone are judged."""

@@ -48,8 +48,8 @@ that into a measurement of T:
    than m + 2 corners). A drive that keeps one heading (a straight corridor) and sees no edge does not observe
    a shift along the travel nor a roll about it (both slide the returns along their
    walls, alike in every frame). Without edges the yaw and the translations are not
-   observed either: the photometric term's errors there are common to every block (the
-   odometry's, the image model's) and its floors (``photo_floor_deg``, ``floor_m``) are
+   observed either: the photometric term's errors there are common to every block and
+   its floors (``photo_floor_deg``, ``floor_m``) are
    above the resolution over the detection factor.
 7. The test: the correction on the observed directions against its covariance plus the
    stored calibration's (Hotelling's T^2 with the clusters' effective count: an F test
@@ -157,10 +157,10 @@ class TargetlessSettings:
             them (no edge used: it then estimates the yaw too), derived as floor_deg's on
             development drives (seeds 300-339) checked with the edge term off (0.028,
             0.030 and 0.136 deg; docs/benchmarks.md, round 8), rounded up. The yaw's
-            error there is common to every block (the laser odometry's beyond the errors
-            estimated, the image model's), so no block's spread shows it; its floor is
-            above the resolution over the detection factor, so without edges the yaw is
-            not observed.
+            error there is common to every block, so no block's spread shows it, and as
+            large on the true motion (the photometric model's own, not the odometry's);
+            its floor is above the resolution over the detection factor, so without
+            edges the yaw is not observed.
         floor_m: the translations' floor when the photometric term estimates them (no
             edges): its translations reach 1-1.5 cm on simulated drives (the
             odometry's crab angle and pivot take up a shifted camera), so without
