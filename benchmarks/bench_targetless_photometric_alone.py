@@ -18,6 +18,8 @@ z-scores against the jackknife plus the current floor.
 
     .venv/bin/python benchmarks/bench_targetless_photometric_alone.py --cache /tmp/rates31/drives \
         --seeds 300-339 --out /tmp/photo_alone.jsonl
+    .venv/bin/python benchmarks/bench_targetless_photometric_alone.py --cache /tmp/rates31/drives \
+        --seeds 300-319 --motion true --out /tmp/photo_alone_true.jsonl
 """
 
 from __future__ import annotations
@@ -85,7 +87,9 @@ def alone(folder: Path, rig_path: Path, motion: str) -> dict:  # type: ignore[ty
     }
 
 
-def summary(rows: list[dict], floor_deg: tuple[float, float, float]) -> None:  # type: ignore[type-arg]
+def summary(rows: list[dict], floors: dict[str, tuple[float, float, float]]) -> None:  # type: ignore[type-arg]
+    """Per axis: the corrections' and the jackknife's root mean square, the floor they
+    imply, and the drives whose correction is beyond 2.58 sigmas with each floor."""
     rows = [r for r in rows if "z" in r]
     if not rows:
         return
@@ -93,19 +97,23 @@ def summary(rows: list[dict], floor_deg: tuple[float, float, float]) -> None:  #
     z = np.array([r["z"][:3] for r in rows]) * res_deg
     sd = np.array([r["sd_jackknife"][:3] for r in rows]) * res_deg
     print(f"{len(rows)} drives judged by the photometric term alone (deg):")
+    names = list(floors)
     print(
-        "| axis | rms correction | rms jackknife sigma | implied floor | current floor | |z| > 2.58 with it |"
+        "| axis | rms correction | mean correction | rms jackknife sigma | implied floor | "
+        + " | ".join(f"{n} floor: value, drives beyond 2.58 sigma" for n in names)
+        + " |"
     )
-    print("|---|---|---|---|---|---|")
+    print("|---" * (5 + len(names)) + "|")
     for a, name in enumerate(("roll", "pitch", "yaw")):
         rms = float(np.sqrt(np.mean(z[:, a] ** 2)))
         jk = float(np.sqrt(np.mean(sd[:, a] ** 2)))
         implied = math.sqrt(max(rms**2 - jk**2, 0.0))
-        zs = np.abs(z[:, a]) / np.sqrt(sd[:, a] ** 2 + floor_deg[a] ** 2)
-        print(
-            f"| {name} | {rms:.4f} | {jk:.4f} | {implied:.4f} | {floor_deg[a]:.2f} | "
-            f"{int((zs > 2.5758).sum())} / {len(rows)} |"
-        )
+        cells = []
+        for n in names:
+            zs = np.abs(z[:, a]) / np.sqrt(sd[:, a] ** 2 + floors[n][a] ** 2)
+            cells.append(f"{floors[n][a]:.2f}, {int((zs > 2.5758).sum())} / {len(rows)}")
+        mean = float(z[:, a].mean())
+        print(f"| {name} | {rms:.4f} | {mean:+.4f} | {jk:.4f} | {implied:.4f} | {' | '.join(cells)} |")
     lag = np.array([r["lag1_corr"] for r in rows if "lag1_corr" in r])
     if len(lag):
         G = np.mean([r["blocks"] for r in rows])
@@ -144,7 +152,8 @@ def main() -> None:
             with args.out.open("a") as f:
                 f.write(json.dumps(row) + "\n")
             print(json.dumps(row), file=sys.stderr, flush=True)
-    summary(read_rows(args.out), TargetlessSettings().floor_deg)
+    s = TargetlessSettings()
+    summary(read_rows(args.out), {"edges'": s.floor_deg, "photometric": s.photo_floor_deg})
 
 
 if __name__ == "__main__":
