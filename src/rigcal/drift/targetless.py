@@ -1213,7 +1213,7 @@ def _estimate(
 
     Raises:
         _EdgesUnusableError: ``edges_required`` (the streams' odometry is of thinned scans)
-            and too few edge bands are usable at the start estimate.
+            and too few edge bands are usable at the start estimate, or at the estimate.
     """
     T0 = rig.T_cam_laser
     free = [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11]  # rx ry rz tx ty, the odometry's errors; laser z (5) held
@@ -1332,6 +1332,8 @@ def _estimate(
             "edge_rms_px": _r(math.sqrt(sc.edge_var), 3),
             "edge_corners_used": n_corners,
         }
+    elif edges_required:
+        raise _EdgesUnusableError  # the edges were lost on the way: the photometric term alone
     solve = {"steps": steps, "steps_refused": refused, "last_step_units": _r(last_step, 4)}
     return _Estimate(
         xi,
