@@ -319,6 +319,100 @@ def test_the_edges_directions_need_more_corners_than_they_estimate(corners, dete
     assert len(got & {"rz", "tx", "ty"}) == edge_axes
 
 
+def test_edges_found_but_unusable_leave_the_photometric_term_on_every_scans_odometry(drives, monkeypatch):
+    """A drive shows edges (so its odometry starts on the scans thinned to 10 Hz, which serve
+    where the edges estimate the yaw and the translations), but too few of them are clear
+    in the images to be used: the photometric term alone then judges, and it needs every
+    scan's odometry (on the thinned one a corridor drive's yaw came out 0.18 deg off,
+    against 0.07 deg on every scan's). The estimate is made again on every scan."""
+    import rigcal.drift.targetless as targetless
+
+    def unusable(*args, **kwargs):  # type: ignore[no-untyped-def]
+        er, J6, eusable, found = found_edges(*args, **kwargs)
+        return er, J6, np.zeros_like(eusable), found
+
+    found_edges = targetless.edge_residuals
+    monkeypatch.setattr(targetless, "edge_residuals", unusable)
+    scans_seen = []
+    estimate = targetless._estimate
+
+    def spy(rig, streams, *args, **kwargs):  # type: ignore[no-untyped-def]
+        scans_seen.append(len(streams.scan_stamps_s))
+        return estimate(rig, streams, *args, **kwargs)
+
+    monkeypatch.setattr(targetless, "_estimate", spy)
+    streams = open_streams(drives["drive"], rig_file=drives["rig"])
+    res = check_targetless(read_rig(drives["rig"]), streams)
+    assert res.verdict != "cannot_tell", res.reasons
+    assert "edge_bands" not in res.record  # the photometric term alone
+    assert res.record["edges"] >= targetless.MIN_EDGE_BANDS  # edges were found
+    n = len(streams.scan_stamps_s)  # 40 Hz: the thinned odometry has every 4th scan
+    assert scans_seen == [len(range(0, n, 4)), n]
+
+
+def _photometric_alone(seed: int, yaw_deg: float):  # type: ignore[no-untyped-def]
+    """A synthetic estimate of the photometric term alone (no edges) on 10 blocks of an
+    unmoved rig, whose yaw carries an error common to every block (``yaw_deg``: the laser
+    odometry's, the image model's), which the blocks' spread cannot show: their leave-one-
+    out moves scatter by about 0.01 deg on the rotations and 3 mm on the translations."""
+    from rigcal.drift.targetless import _Estimate
+
+    s = TargetlessSettings()
+    rng = np.random.default_rng(seed)
+    G = 10
+    sd = np.array([math.radians(0.01)] * 3 + [3e-3, 3e-3, 0.0]) / s.scale  # resolution units
+    moves = rng.normal(size=(G, 6)) * sd / math.sqrt(G)
+    dc = moves - moves.mean(axis=0)
+    cov_z = (G - 1) / G * dc.T @ dc
+    xi = np.r_[rng.normal(size=3) * math.radians(0.01), rng.normal(size=3) * 3e-3]
+    xi[2] = math.radians(yaw_deg)
+    xi[5] = 0.0
+    return _Estimate(
+        xi=xi,
+        cov_z=cov_z,
+        odometry=np.zeros(6),
+        odometry_sigma=np.zeros(6),
+        blocks=G,
+        corners=0,
+        moves=moves,
+        determined=np.eye(6)[:, :5],
+        information=np.diag([1e4, 1e4, 1e4, 1e3, 1e3, 0.0]),
+    )
+
+
+def test_the_photometric_term_alone_does_not_judge_the_yaw():
+    """Without edges the photometric term estimates the yaw too, and its yaw errs by a
+    drive-level error no block's spread shows (the photometric model's own, as large on
+    the true motion: 0.136 deg root mean square on development drives,
+    ``photo_floor_deg``). With the
+    edges' yaw floor (0.04 deg: the former rule) a 0.18 deg error on 10 agreeing blocks
+    is an alarm (corridor 1220's case); with the photometric term's own floor the yaw is
+    not observed, said why, and the roll and pitch alone are judged."""
+    from types import SimpleNamespace
+
+    from rigcal.drift.targetless import _test
+
+    rig = Rig(default_T_cam_laser(), small_camera())
+    patches = SimpleNamespace(info={"heading_range_deg": 174.0, "edges": 50})
+    est = _photometric_alone(seed=1220, yaw_deg=-0.18)
+    s = TargetlessSettings()
+    former = dataclasses.replace(s, photo_floor_deg=s.floor_deg)
+    old = _test(rig, est, patches, former, [])
+    assert old["verdict"] == "drifted"
+    assert "rz" in old["record"]["observed_axes"]
+    reasons: list[str] = []
+    new = _test(rig, est, patches, s, reasons)
+    assert new["verdict"] == "ok"
+    assert new["record"]["observed_axes"] == ["rx", "ry"]
+    yaw = [u for u in new["record"]["unobserved"] if "rz" in u["components"]]
+    assert yaw
+    assert all("systematic floor" in u["why"] and "no corner" in u["why"] for u in yaw)
+    # The roll and pitch are still judged: a 0.3 deg roll on the same blocks is detected.
+    moved = _photometric_alone(seed=1220, yaw_deg=-0.18)
+    moved.xi[0] = math.radians(0.3)
+    assert _test(rig, moved, patches, s, [])["verdict"] == "drifted"
+
+
 class _Inline:
     """A stand-in for ThreadPoolExecutor that runs each task at once on the calling thread."""
 

@@ -47,7 +47,10 @@ that into a measurement of T:
    outnumber them: G corners fixing m directions test at most G - m - 1 (none with fewer
    than m + 2 corners). A drive that keeps one heading (a straight corridor) and sees no edge does not observe
    a shift along the travel nor a roll about it (both slide the returns along their
-   walls, alike in every frame).
+   walls, alike in every frame). Without edges the yaw and the translations are not
+   observed either: the photometric term's errors there are common to every block and
+   its floors (``photo_floor_deg``, ``floor_m``) are
+   above the resolution over the detection factor.
 7. The test: the correction on the observed directions against its covariance plus the
    stored calibration's (Hotelling's T^2 with the clusters' effective count: an F test
    that tends to the chi-square with k dof as the clusters grow). Drifted when p <
@@ -153,6 +156,14 @@ class TargetlessSettings:
             mean square of the unperturbed corrections less the mean of their
             jackknife variances, per axis (0.013-0.020, 0.018-0.029, 0.030-0.038
             deg), rounded up.
+        photo_floor_deg: the rotations' floor when the photometric term alone estimates
+            them (no edge used: it then estimates the yaw too), derived as floor_deg's on
+            development drives (seeds 300-339) checked with the edge term off (0.028,
+            0.030 and 0.136 deg; docs/benchmarks.md, round 8), rounded up. The yaw's
+            error there is common to every block, so no block's spread shows it, and as
+            large on the true motion (the photometric model's own, not the odometry's);
+            its floor is above the resolution over the detection factor, so without
+            edges the yaw is not observed.
         floor_m: the translations' floor when the photometric term estimates them (no
             edges): its translations reach 1-1.5 cm on simulated drives (the
             odometry's crab angle and pivot take up a shifted camera), so without
@@ -162,7 +173,8 @@ class TargetlessSettings:
         scan_rate_hz: with edges, the check's own laser odometry runs on the scans
             thinned to about this rate (every k-th scan; 40 Hz to 10 Hz: a quarter of
             the ICP's cost, steps of a few centimetres); a drive showing fewer than
-            :data:`MIN_EDGE_BANDS` edges is checked on every scan's odometry. None: on
+            :data:`MIN_EDGE_BANDS` edges, or fewer usable at the start estimate, is
+            checked on every scan's odometry (the photometric term alone needs it). None: on
             every scan (and reuse the odometry the streams have computed, as after a
             ``localize`` run).
         edges: use the depth discontinuities against the image edges.
@@ -189,6 +201,7 @@ class TargetlessSettings:
     min_travel_m: float = 1.0
     native_blur_px: float = 0.8
     floor_deg: tuple[float, float, float] = (0.02, 0.03, 0.04)
+    photo_floor_deg: tuple[float, float, float] = (0.03, 0.04, 0.14)
     floor_m: float = 0.01
     edge_floor_m: float = 0.0015
     scan_rate_hz: float | None = 10.0
@@ -269,6 +282,12 @@ class _CannotTellError(Exception):
     """The drive cannot decide (a reason for the verdict, not an error)."""
 
 
+class _EdgesUnusableError(Exception):
+    """The estimate ran on the odometry of thinned scans, which serves only where the edges
+    estimate the yaw and the translations, and too few edge bands were usable at its start
+    (:data:`MIN_EDGE_BANDS`): the photometric term alone must run on every scan's odometry."""
+
+
 def check_targetless(
     rig: Rig, streams: Streams, settings: TargetlessSettings | None = None
 ) -> TargetlessResult:
@@ -308,9 +327,18 @@ def check_targetless(
             thin = streams
             patches = _build_patches(rig, thin, settings)
         base.update(patches.info)
-        # The later stages' images blur on a second thread while the first stage iterates.
-        with _stacks_ahead(rig, thin, patches, settings):
-            est = _estimate(rig, thin, patches, settings)
+        try:
+            # The later stages' images blur on a second thread while the first stage iterates.
+            with _stacks_ahead(rig, thin, patches, settings):
+                est = _estimate(rig, thin, patches, settings, edges_required=thin is not streams)
+        except _EdgesUnusableError:
+            # Edges were found but too few of them are clear in the images to be used: the
+            # photometric term alone judges, on every scan's odometry.
+            thin = streams
+            patches = _build_patches(rig, thin, settings)
+            base.update(patches.info)
+            with _stacks_ahead(rig, thin, patches, settings):
+                est = _estimate(rig, thin, patches, settings)
     except _CannotTellError as exc:
         reasons.append(str(exc))
         rec = base | {"check_s": round(time.perf_counter() - t_start, 3)}
@@ -1251,10 +1279,17 @@ def _evaluate(
     return out
 
 
-def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettings) -> _Estimate:
+def _estimate(
+    rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettings, edges_required: bool = False
+) -> _Estimate:
     """Gauss-Newton on (xi without laser z, the odometry's errors), coarse to fine, each
     step accepted only when it brings the estimate nearer the solution (a trust region),
-    then the clusters' jackknife covariance (module docstring, steps 4-5)."""
+    then the clusters' jackknife covariance (module docstring, steps 4-5).
+
+    Raises:
+        _EdgesUnusableError: ``edges_required`` (the streams' odometry is of thinned scans)
+            and too few edge bands are usable at the start estimate, or at the estimate.
+    """
     T0 = rig.T_cam_laser
     free = [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11]  # rx ry rz tx ty, the odometry's errors; laser z (5) held
     D = np.diag(np.r_[s.scale, _NUISANCE_UNITS])[np.ix_(free, free)]
@@ -1275,6 +1310,10 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
         cur = _evaluate(rig, T, nuis, patches, images, edge_images, anchor, window, free, s)
         if stage == 0:
             if cur.er is None:
+                if edges_required:
+                    for ahead in patches.stacks_ahead.values():
+                        ahead.cancel()
+                    raise _EdgesUnusableError
                 use_edges = False  # too few edges seen clearly: the photometric term alone
                 edge_images = None
                 for key in [k for k in patches.stacks_ahead if k[0] == "edges"]:
@@ -1368,6 +1407,8 @@ def _estimate(rig: Rig, streams: Streams, patches: _Patches, s: TargetlessSettin
             "edge_rms_px": _r(math.sqrt(sc.edge_var), 3),
             "edge_corners_used": n_corners,
         }
+    elif edges_required:
+        raise _EdgesUnusableError  # the edges were lost on the way: the photometric term alone
     solve = {"steps": steps, "steps_refused": refused, "last_step_units": _r(last_step, 4)}
     return _Estimate(
         xi,
@@ -1469,24 +1510,28 @@ def _edge_rows(rig: Rig, edges: Edges | None) -> tuple[float, float]:
     return (float(v.min()) - BAND_MARGIN_PX, float(v.max()) + BAND_MARGIN_PX)
 
 
-def _floor_m(s: TargetlessSettings, est: _Estimate) -> float:
-    """The translations' floor: the edges' when they estimated them, else the
-    photometric term's."""
-    return s.edge_floor_m if est.edge_stats else s.floor_m
+def _floors(s: TargetlessSettings, est: _Estimate) -> tuple[tuple[float, float, float], float]:
+    """The rotations' floors (deg) and the translations' (m): the edges' when they
+    estimated the yaw and the translations, else the photometric term's alone."""
+    if est.edge_stats:
+        return s.floor_deg, s.edge_floor_m
+    return s.photo_floor_deg, s.floor_m
 
 
-def _floor_limited(s: TargetlessSettings, floor_m: float) -> set[int]:
+def _floor_limited(s: TargetlessSettings, floors: tuple[tuple[float, float, float], float]) -> set[int]:
     """Axes whose floor alone is above the observed threshold."""
+    floor_deg, floor_m = floors
     limit = 1.0 / s.detection_factor()
-    out = {a for a in range(3) if s.floor_deg[a] / s.resolution_deg >= limit}
+    out = {a for a in range(3) if floor_deg[a] / s.resolution_deg >= limit}
     if floor_m / s.resolution_m >= limit:
         out |= {3, 4}
     return out
 
 
-def _floor_z(s: TargetlessSettings, floor_m: float) -> FloatArray:
+def _floor_z(s: TargetlessSettings, floors: tuple[tuple[float, float, float], float]) -> FloatArray:
     """(6, 6) the systematic floor in resolution units (laser z's row and column zero)."""
-    f = np.array([math.radians(x) for x in s.floor_deg] + [floor_m] * 3) / s.scale
+    floor_deg, floor_m = floors
+    f = np.array([math.radians(x) for x in floor_deg] + [floor_m] * 3) / s.scale
     f[_FIXED] = 0.0
     out: FloatArray = np.diag(f**2)
     return out
@@ -1542,7 +1587,7 @@ def _observed_groups(est: _Estimate, s: TargetlessSettings) -> list[_Group]:
     best (its information), not those whose spread happens to come out narrowest (the
     narrowest of a few clusters' spreads is narrow by chance as often as not, and a test
     on it alarms too often)."""
-    C = est.cov_z + _floor_z(s, _floor_m(s, est))
+    C = est.cov_z + _floor_z(s, _floors(s, est))
     limit = (1.0 / s.detection_factor()) ** 2
     out = []
     for name, _axes, clusters, Q in _group_parts(est):
@@ -1579,7 +1624,7 @@ def _test(
     if est.edge_stats:
         fixed = {name: Q.shape[1] for name, _, _, Q in _group_parts(est)}["yaw and translations"]
         info = info | {"edge_corners": est.corners, "edge_fixed": fixed}
-    unobserved = _unobserved_words(V_obs, info, _floor_limited(s, _floor_m(s, est)))
+    unobserved = _unobserved_words(V_obs, info, _floor_limited(s, _floors(s, est)))
     record: dict[str, Any] = (
         est.edge_stats
         | est.solve
@@ -1621,7 +1666,7 @@ def _test(
     # (_observed_groups), says whether there are enough to judge them (F(k, n - k)
     # needs n > k + 1) and sizes the detectable change. The groups' tests are combined
     # by Bonferroni: drifted when one group's p is under the level over the groups' count.
-    F_z, R_z = _floor_z(s, _floor_m(s, est)), _rig_cov_z(rig, D)
+    F_z, R_z = _floor_z(s, _floors(s, est)), _rig_cov_z(rig, D)
     z_all = V_obs.T @ np.linalg.solve(D, est.xi)
     free = [0, 1, 2, 3, 4]  # xi's rows among the free parameters (laser z held)
     tests = []
@@ -1782,7 +1827,7 @@ def _unobserved_words(
                 "the laser odometry's own errors (its crab angle, its pivot in turns) and the image model "
                 "leave it uncertain by the systematic floor, more than the resolution allows"
             )
-            if main in (3, 4):
+            if main in _EDGE_ONLY:
                 why += (
                     "; the drive shows no corner, pillar or wall end clearly enough in the images to "
                     "measure it by their edges"
