@@ -1,0 +1,261 @@
+"""Where the targetless check's photometric yaw bias comes from: one factor changed at a
+time on the same seeds (docs/benchmarks.md, "The targetless check: where the photometric
+term's yaw bias comes from").
+
+With the edge term off and the simulator's true laser motion, the photometric term's yaw
+correction on unmoved rigs is about -0.13 deg on every drive (round 8). Here each seed is
+simulated again under ``--cache`` with one factor of the simulator changed (or checked
+with one factor of the check's input changed), and the photometric term alone is
+estimated on the true motion as in ``bench_targetless_photometric_alone.py --motion
+true``. Printed per variant: the roll, pitch and yaw corrections' mean over the seeds and
+the yaw's change against the base variant, seed by seed (paired: the same stops, camera
+phase, noise and textures).
+
+Variants of the simulation (the drive written again under ``--cache``):
+
+- ``base``: as bench_targetless_rates (exposure walk 0.02, blur 0.7 px, noise 3);
+- ``no-walk``, ``no-blur``, ``no-noise``, ``clean`` (all three off);
+- ``no-distortion``: the camera without lens distortion (simulated and checked);
+- ``mirrored``: the world mirrored (y -> -y): the drive turns right where it turned left;
+- ``no-falloff``: the renderer's fall-off of brightness with distance off (a wall point
+  then has the same brightness from every distance);
+- ``clock+10ms``: the images' stamps 10 ms late (a stamp-to-exposure offset, to measure
+  how the yaw answers one).
+
+Variants of the check's input (the base drive, checked differently):
+
+- ``cx+0.5``: the rig's principal point half a pixel to the right (a pixel-centre
+  convention differing between renderer and projection by half a pixel);
+- ``straight``, ``turning``: only the pairs of frames whose laser turned less than 1 deg,
+  or more than 3 deg, between them.
+
+    .venv/bin/python benchmarks/bench_targetless_yaw_bias.py --cache /tmp/ybias31/drives \\
+        --seeds 300-305 --variants base,no-walk,no-blur,clean --out /tmp/ybias31/rows.jsonl
+    .venv/bin/python benchmarks/bench_targetless_yaw_bias.py --cache /tmp/ybias31/drives --report \\
+        --out /tmp/ybias31/rows.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import json
+import math
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench_targetless import WORLDS
+from bench_targetless_rates import CAMERA, read_rows, seeds_of
+
+SIM_VARIANTS = {
+    "base": {},
+    "no-walk": {"exposure_walk": 0.0},
+    "no-blur": {"image_blur_sigma_px": 0.0},
+    "no-noise": {"image_noise_sigma": 0.0},
+    "clean": {"exposure_walk": 0.0, "image_blur_sigma_px": 0.0, "image_noise_sigma": 0.0},
+    "no-distortion": {},
+    "mirrored": {},
+    "no-falloff": {},
+    "clock+10ms": {"camera_clock_offset_s": 0.010},
+}
+CHECK_VARIANTS = ("cx+0.5", "straight", "turning")
+BASE = {"exposure_walk": 0.02, "image_blur_sigma_px": 0.7, "image_noise_sigma": 3.0}
+
+
+def rig_file(cache: Path, distortion: bool, cx_shift_px: float = 0.0) -> Path:
+    """The 320 x 240 simulated rig (bench_targetless_rates.small_rig), with or without its
+    lens distortion, its principal point moved by ``cx_shift_px``."""
+    from rigcal.camera import Camera
+    from rigcal.rig import Rig
+    from rigcal.rigfile import write_rig
+    from rigcal.sim.box_session import default_T_cam_laser
+
+    name = f"rig-320{'' if distortion else '-nodist'}{f'-cx{cx_shift_px:+g}' if cx_shift_px else ''}.yaml"
+    path = cache / name
+    if not path.exists():
+        K = np.array(CAMERA["K"])
+        K[0, 2] += cx_shift_px
+        dist = CAMERA["dist"] if distortion else [0.0] * len(CAMERA["dist"])
+        cam = Camera.from_opencv(K, dist, 320, 240, source="simulated")
+        write_rig(path, Rig(default_T_cam_laser(), cam, laser={"name": "simulated 2D scanner"}))
+    return path
+
+
+def mirrored(world: Any) -> Any:
+    """The world mirrored about its x axis (y -> -y): the same walls, textures and loop,
+    driven the other way round (each surface's ends swapped, so that its texture still
+    starts at the end on the viewer's left)."""
+    from rigcal.sim.world import Surface
+
+    flip = np.array([1.0, -1.0])
+    surfaces = tuple(Surface(s.b * flip, s.a * flip, s.height_m, s.texture) for s in world.surfaces)
+    return dataclasses.replace(world, surfaces=surfaces, path=world.path * flip)
+
+
+@contextlib.contextmanager
+def no_falloff() -> Iterator[None]:
+    """The renderer's shading without its fall-off with distance (rigcal.sim.world_render:
+    the colour divided by the same factor of the ray's length)."""
+    from rigcal.sim import world_render as wr
+
+    original = wr._shade
+
+    def shade(world: Any, camera: Any, tex: Any, fan: Any, o: Any, R: Any, t: Any, *rest: Any) -> Any:
+        out = original(world, camera, tex, fan, o, R, t, *rest)
+        fall = np.clip(np.float32(1.08) - np.float32(0.02) * np.minimum(t, np.float32(1e3)), 0.7, 1.05)
+        return out / fall[:, None]
+
+    wr._shade = shade
+    try:
+        yield
+    finally:
+        wr._shade = original
+
+
+def simulate(cache: Path, variant: str, world_name: str, seed: int, duration_s: float) -> tuple[Path, Path]:
+    """The drive of ``variant`` (simulated once) and the rig file it is checked with."""
+    from rigcal.rigfile import read_rig
+    from rigcal.sim.drive import DriveSpec, write_drive
+    from rigcal.sim.world import world_named
+
+    rig_path = rig_file(cache, distortion=variant != "no-distortion")
+    folder = cache / f"{variant}-{world_name}-s{seed}-{duration_s:g}s"
+    if (folder / "sequence.yaml").exists():
+        return folder, rig_path
+    spec = DriveSpec(seed=seed, camera_rate_hz=5.0, duration_s=duration_s, **(BASE | SIM_VARIANTS[variant]))
+    world = world_named(world_name)
+    if variant == "mirrored":
+        world = mirrored(world)
+    with no_falloff() if variant == "no-falloff" else contextlib.nullcontext():
+        write_drive(world, spec, str(folder), force=True, rig=read_rig(rig_path))
+    return folder, rig_path
+
+
+def estimate(folder: Path, rig_path: Path, pairs: str = "all") -> dict[str, Any]:
+    """The photometric term alone at the true rig on the simulator's true laser motion
+    (bench_targetless_photometric_alone's ``--motion true``), on all pairs of frames or
+    only those whose laser turned less than 1 deg ("straight") or more than 3 deg
+    ("turning") between the two frames."""
+    from rigcal.drift import targetless as tl
+    from rigcal.drift.trajectory import trajectory_odometry
+    from rigcal.localize.streams import open_streams
+
+    streams = open_streams(folder, rig_file=rig_path)
+    rig = streams.rig
+    assert rig is not None
+    s = tl.TargetlessSettings(edges=False)
+    streams.require_images("targetless check")
+    streams.use_laser_odometry(trajectory_odometry(folder / "groundtruth.tum", streams))
+    c = time.process_time()
+    patches = tl._build_patches(rig, streams, s)
+    if pairs != "all":
+        turn = np.abs(np.degrees(patches.yaw))
+        keep = np.flatnonzero(turn < 1.0 if pairs == "straight" else turn > 3.0)
+        patches = subset(patches, keep)
+    try:
+        with tl._stacks_ahead(rig, streams, patches, s):
+            est = tl._estimate(rig, streams, patches, s)
+    except tl._CannotTellError as exc:
+        return {"cannot_tell": str(exc)}
+    deg = np.degrees(est.xi[:3])
+    sd = np.sqrt(np.clip(np.diag(est.cov_z), 0.0, None))[:3] * s.resolution_deg
+    return {
+        "rotation_deg": deg.round(4).tolist(),
+        "sd_jackknife_deg": sd.round(4).tolist(),
+        "crab_deg": round(math.degrees(float(est.odometry[5])), 4),
+        "patches": len(patches.X),
+        "blocks": est.blocks,
+        "cpu_s": round(time.process_time() - c, 2),
+    }
+
+
+def subset(patches: Any, keep: np.ndarray) -> Any:  # type: ignore[type-arg]
+    """The patches ``keep`` only (their pairs and blocks keep their numbers)."""
+    per_patch = ("X", "M", "img_i", "img_j", "pair", "ratio", "yaw", "dt", "block")
+    blocks = np.unique(patches.block[keep])
+    remap = np.full(int(patches.block.max()) + 1, -1)
+    remap[blocks] = np.arange(len(blocks))
+    out = dataclasses.replace(
+        patches,
+        **{k: getattr(patches, k)[keep] for k in per_patch},
+        rows=None,
+        projected=None,
+        stacks_ahead={},
+    )
+    out.block = remap[out.block]
+    return out
+
+
+def report(rows: list[dict[str, Any]]) -> None:
+    """Per variant: the mean corrections and the yaw's paired change against ``base``."""
+    by = {(r["variant"], r["seed"]): r for r in rows if "rotation_deg" in r}
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    print(
+        "| variant | drives | roll mean | pitch mean | yaw mean | yaw per drive "
+        "| yaw - base (mean, sd of mean) |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for v in variants:
+        seeds = sorted(s for (vv, s) in by if vv == v)
+        if not seeds:
+            continue
+        rot = np.array([by[v, s]["rotation_deg"] for s in seeds])
+        diff = [
+            by[v, s]["rotation_deg"][2] - by["base", s]["rotation_deg"][2] for s in seeds if ("base", s) in by
+        ]
+        dtxt = ""
+        if diff and v != "base":
+            d = np.array(diff)
+            sem = float(d.std(ddof=1) / math.sqrt(len(d))) if len(d) > 1 else math.nan
+            dtxt = f"{d.mean():+.3f} ({sem:.3f})"
+        per = ", ".join(f"{y:+.3f}" for y in rot[:, 2])
+        m = rot.mean(axis=0)
+        print(f"| {v} | {len(seeds)} | {m[0]:+.3f} | {m[1]:+.3f} | {m[2]:+.3f} | {per} | {dtxt} |")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cache", type=Path, required=True, help="where the drives are simulated (reused)")
+    ap.add_argument("--seeds", default="300-305", help="a range of seeds, a-b (the world by the parity)")
+    ap.add_argument(
+        "--variants", default="base", help=f"comma-separated: {', '.join([*SIM_VARIANTS, *CHECK_VARIANTS])}"
+    )
+    ap.add_argument("--duration-s", type=float, default=24.0)
+    ap.add_argument("--out", type=Path, required=True, help="JSON lines, appended (a stopped run resumes)")
+    ap.add_argument("--report", action="store_true", help="only print the summary of --out")
+    ap.add_argument("--with", dest="also", type=Path, nargs="*", default=[], help="more rows for the summary")
+    args = ap.parse_args()
+    if not args.report:
+        args.cache.mkdir(parents=True, exist_ok=True)
+        done = {(r["variant"], r["seed"]) for r in read_rows(args.out)}
+        for variant in args.variants.split(","):
+            if variant not in SIM_VARIANTS and variant not in CHECK_VARIANTS:
+                ap.error(f"--variants: {variant!r} is not one of {[*SIM_VARIANTS, *CHECK_VARIANTS]}")
+            for seed in seeds_of(args.seeds):
+                if (variant, seed) in done:
+                    continue
+                world = WORLDS[seed % len(WORLDS)]
+                if variant in SIM_VARIANTS:
+                    folder, rig_path = simulate(args.cache, variant, world, seed, args.duration_s)
+                    row = estimate(folder, rig_path)
+                else:
+                    folder, rig_path = simulate(args.cache, "base", world, seed, args.duration_s)
+                    if variant == "cx+0.5":
+                        row = estimate(folder, rig_file(args.cache, True, 0.5))
+                    else:
+                        row = estimate(folder, rig_path, variant)
+                row = {"variant": variant, "world": world, "seed": seed} | row
+                with args.out.open("a") as f:
+                    f.write(json.dumps(row) + "\n")
+                print(json.dumps(row), file=sys.stderr, flush=True)
+    report([r for path in [args.out, *args.also] for r in read_rows(path)])
+
+
+if __name__ == "__main__":
+    main()
