@@ -27,7 +27,15 @@ Variants of the check's input (the base drive, checked differently):
 - ``cx+0.5``: the rig's principal point half a pixel to the right (a pixel-centre
   convention differing between renderer and projection by half a pixel);
 - ``straight``, ``turning``: only the pairs of frames whose laser turned less than 1 deg,
-  or more than 3 deg, between them.
+  or more than 3 deg, between them;
+- ``fine-blur-0.6``, ``fine-blur-2.4``: the check's last stage blurs by 0.6 or 2.4 px
+  instead of 1.2 (an error that grows with the blur, such as a blurred slanted wall's
+  texture pulled towards its far side, would change with it);
+- ``iterations-20``: 20 Gauss-Newton iterations per stage instead of 6;
+- ``odometry-held``: the laser odometry's errors (scale, yaw scale, yaw rate bias, pivot,
+  crab angle), which the check estimates beside T, held at zero (right on the true
+  motion); ``crab-free``: only the crab angle estimated; ``turn-free``: only the yaw
+  scale and the yaw rate bias.
 
     .venv/bin/python benchmarks/bench_targetless_yaw_bias.py --cache /tmp/ybias31/drives \\
         --seeds 300-305 --variants base,no-walk,no-blur,clean --out /tmp/ybias31/rows.jsonl
@@ -64,7 +72,21 @@ SIM_VARIANTS = {
     "no-falloff": {},
     "clock+10ms": {"camera_clock_offset_s": 0.010},
 }
-CHECK_VARIANTS = ("cx+0.5", "straight", "turning")
+CHECK_SETTINGS: dict[str, dict[str, Any]] = {
+    "fine-blur-0.6": {"blur_px": (3.0, 0.6)},
+    "fine-blur-2.4": {"blur_px": (3.0, 2.4)},
+    "iterations-20": {"iterations": 20},
+}
+HELD = 1e-9
+"""The unit of an odometry error held (the check's weak prior, 10 units, then holds it at 0)."""
+CHECK_NUISANCES = {
+    "odometry-held": (HELD,) * 6,
+    "crab-free": (HELD,) * 5 + (1e-3,),
+    "turn-free": (HELD, 1e-3, 1e-3, HELD, HELD, HELD),
+}
+"""The units of the check's odometry errors (scale, yaw scale, yaw rate bias, pivot x and y,
+crab; rigcal.drift.targetless._NUISANCE_UNITS, all 1e-3) with some held at zero."""
+CHECK_VARIANTS = ("cx+0.5", "straight", "turning", *CHECK_SETTINGS, *CHECK_NUISANCES)
 BASE = {"exposure_walk": 0.02, "image_blur_sigma_px": 0.7, "image_noise_sigma": 3.0}
 
 
@@ -137,11 +159,18 @@ def simulate(cache: Path, variant: str, world_name: str, seed: int, duration_s: 
     return folder, rig_path
 
 
-def estimate(folder: Path, rig_path: Path, pairs: str = "all") -> dict[str, Any]:
+def estimate(
+    folder: Path,
+    rig_path: Path,
+    pairs: str = "all",
+    settings: dict[str, Any] | None = None,
+    nuisance_units: tuple[float, ...] | None = None,
+) -> dict[str, Any]:
     """The photometric term alone at the true rig on the simulator's true laser motion
     (bench_targetless_photometric_alone's ``--motion true``), on all pairs of frames or
     only those whose laser turned less than 1 deg ("straight") or more than 3 deg
-    ("turning") between the two frames."""
+    ("turning") between the two frames; with ``settings`` changed, or the odometry's
+    errors' units (``nuisance_units``: tiny units hold them)."""
     from rigcal.drift import targetless as tl
     from rigcal.drift.trajectory import trajectory_odometry
     from rigcal.localize.streams import open_streams
@@ -149,10 +178,20 @@ def estimate(folder: Path, rig_path: Path, pairs: str = "all") -> dict[str, Any]
     streams = open_streams(folder, rig_file=rig_path)
     rig = streams.rig
     assert rig is not None
-    s = tl.TargetlessSettings(edges=False)
+    s = tl.TargetlessSettings(edges=False, **(settings or {}))
     streams.require_images("targetless check")
     streams.use_laser_odometry(trajectory_odometry(folder / "groundtruth.tum", streams))
     c = time.process_time()
+    units = tl._NUISANCE_UNITS
+    if nuisance_units is not None:
+        tl._NUISANCE_UNITS = nuisance_units
+    try:
+        return _estimate(tl, rig, streams, s, pairs, c)
+    finally:
+        tl._NUISANCE_UNITS = units
+
+
+def _estimate(tl: Any, rig: Any, streams: Any, s: Any, pairs: str, c: float) -> dict[str, Any]:
     patches = tl._build_patches(rig, streams, s)
     if pairs != "all":
         turn = np.abs(np.degrees(patches.yaw))
@@ -168,6 +207,7 @@ def estimate(folder: Path, rig_path: Path, pairs: str = "all") -> dict[str, Any]
     return {
         "rotation_deg": deg.round(4).tolist(),
         "sd_jackknife_deg": sd.round(4).tolist(),
+        "translation_mm": (1000.0 * est.xi[3:5]).round(2).tolist(),
         "crab_deg": round(math.degrees(float(est.odometry[5])), 4),
         "patches": len(patches.X),
         "blocks": est.blocks,
@@ -248,6 +288,10 @@ def main() -> None:
                     folder, rig_path = simulate(args.cache, "base", world, seed, args.duration_s)
                     if variant == "cx+0.5":
                         row = estimate(folder, rig_file(args.cache, True, 0.5))
+                    elif variant in CHECK_SETTINGS:
+                        row = estimate(folder, rig_path, settings=CHECK_SETTINGS[variant])
+                    elif variant in CHECK_NUISANCES:
+                        row = estimate(folder, rig_path, nuisance_units=CHECK_NUISANCES[variant])
                     else:
                         row = estimate(folder, rig_path, variant)
                 row = {"variant": variant, "world": world, "seed": seed} | row
