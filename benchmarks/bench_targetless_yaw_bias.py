@@ -232,6 +232,100 @@ def subset(patches: Any, keep: np.ndarray) -> Any:  # type: ignore[type-arg]
     return out
 
 
+def pixel_centre(cache: Path) -> None:
+    """Does a rendered pixel (u, v) show the world point Camera.project puts at (u, v)? Wall
+    points of two corridor frames (seed 300's drive at 6 s and 12 s) are projected, the
+    rendered depth is read there (bilinear, where the 2 x 4 pixels around show that wall)
+    and compared with the point's depth: an offset of (e_u, e_v) pixels shows as a depth
+    error e_u dZ/du + e_v dZ/dv, fitted by least squares (e_v is poorly determined: a
+    vertical wall's depth hardly changes along a column)."""
+    from rigcal.geometry import inv_T
+    from rigcal.rigfile import read_rig
+    from rigcal.sim.drive import DriveSpec, Motion, laser_poses_T
+    from rigcal.sim.textures import world_textures
+    from rigcal.sim.world import world_named
+    from rigcal.sim.world_render import render_world
+
+    rig = read_rig(rig_file(cache, distortion=True))
+    cam = rig.camera
+    world = world_named("corridor-loop")
+    tex = world_textures(world, 300)
+    motion = Motion(world, DriveSpec(seed=300))
+    for t in (6.0, 12.0):
+        T_wc = laser_poses_T(world, motion.poses(np.array([t])))[0] @ inv_T(rig.T_cam_laser)
+        frame = render_world(world, cam, T_wc, tex)
+        T_cw = inv_T(T_wc)
+        D, S = frame.depth_m.astype(float), frame.surface
+        rows = []
+        for j, sf in enumerate(world.surfaces):
+            a = np.linspace(0.02, 0.98, 400)[:, None]
+            xy = sf.a + a * (sf.b - sf.a)
+            P = np.array([[x, y, z] for x, y in xy for z in np.linspace(0.2, 2.0, 10)]) @ T_cw[:3, :3].T
+            P += T_cw[:3, 3]
+            P = P[P[:, 2] > 0.3]
+            q = cam.project(P)
+            ok = (q[:, 0] > 5) & (q[:, 0] < cam.width_px - 6) & (q[:, 1] > 5) & (q[:, 1] < cam.height_px - 6)
+            for (u, v), Z in zip(q[ok], P[ok, 2], strict=True):
+                u0, v0 = int(u), int(v)
+                if not (S[v0 : v0 + 2, u0 - 1 : u0 + 3] == j).all():
+                    continue
+                fu, fv = u - u0, v - v0
+                Zr = (D[v0, u0] * (1 - fu) + D[v0, u0 + 1] * fu) * (1 - fv)
+                Zr += (D[v0 + 1, u0] * (1 - fu) + D[v0 + 1, u0 + 1] * fu) * fv
+                rows.append((Zr - Z, D[v0, u0 + 1] - D[v0, u0], D[v0 + 1, u0] - D[v0, u0]))
+        o = np.array(rows)
+        e, *_ = np.linalg.lstsq(o[:, 1:], o[:, 0], rcond=None)
+        rms_mm = 1000 * np.sqrt(np.mean(o[:, 0] ** 2))
+        print(
+            f"frame at {t:g} s: {len(o)} wall points; offset of the rendering against Camera.project: "
+            f"u {e[0]:+.4f} px, v {e[1]:+.4f} px; rms depth difference {rms_mm:.2f} mm"
+        )
+
+
+def trace(folder: Path, rig_path: Path, iterations: int, free: str) -> None:
+    """The last stage's Gauss-Newton iterations (blur 1.2 px, no trust region) from the true
+    T on the true motion, with the odometry's errors ``free`` (comma-separated of scale,
+    yaw-scale, yaw-rate, pivot, crab; "none"), printed every few iterations: the yaw,
+    the sideways shift, the odometry's crab, the mean squared photometric residual."""
+    from rigcal.drift import targetless as tl
+    from rigcal.drift.trajectory import trajectory_odometry
+    from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
+    from rigcal.localize.streams import open_streams
+
+    streams = open_streams(folder, rig_file=rig_path)
+    rig = streams.rig
+    assert rig is not None
+    s = tl.TargetlessSettings(edges=False)
+    streams.use_laser_odometry(trajectory_odometry(folder / "groundtruth.tum", streams))
+    patches = tl._build_patches(rig, streams, s)
+    cols = [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11]
+    names = ["scale", "yaw-scale", "yaw-rate", "pivot", "pivot", "crab"]
+    held = [5 + k for k, n in enumerate(names) if n not in free.split(",")]
+    D = np.diag(np.r_[s.scale, tl._NUISANCE_UNITS])[np.ix_(cols, cols)]
+    prior = np.eye(len(cols)) / tl.PRIOR_UNITS**2
+    images = tl._Images(streams, patches, tl._rows(rig, patches), s.blur_px[-1], s.native_blur_px)
+    T0 = rig.T_cam_laser
+    T, nuis = T0.copy(), np.zeros(6)
+    keep = np.ones(len(cols), dtype=bool)
+    for it in range(iterations + 1):
+        cur = tl._evaluate(rig, T, nuis, patches, images, None, None, 6.0, cols, s)
+        A_raw, g, H = tl._system(cur, tl._scales(cur), keep)
+        metric = D @ H @ D + prior
+        A = D @ A_raw @ D + prior + tl._held(metric)
+        A[held, held] += 1e9
+        if it % 5 == 0:
+            Delta = np.linalg.inv(T0) @ T
+            yaw = math.degrees(R_to_rotvec(Delta[:3, :3])[2])
+            res = float((cur.r[cur.usable] ** 2).mean())
+            print(
+                f"iteration {it:3d}: yaw {yaw:+.4f} deg, sideways {1000 * Delta[1, 3]:+.2f} mm, crab "
+                f"{math.degrees(nuis[5]):+.4f} deg, mean squared residual {res:.4f} grey^2"
+            )
+        d = D @ -np.linalg.solve(A, D @ g)
+        T = T @ make_T(rotvec_to_R(d[:3]), np.r_[d[3:5], 0.0])
+        nuis = nuis + d[5:]
+
+
 def report(rows: list[dict[str, Any]]) -> None:
     """Per variant: the mean corrections and the yaw's paired change against ``base``."""
     by = {(r["variant"], r["seed"]): r for r in rows if "rotation_deg" in r}
@@ -269,8 +363,22 @@ def main() -> None:
     ap.add_argument("--duration-s", type=float, default=24.0)
     ap.add_argument("--out", type=Path, required=True, help="JSON lines, appended (a stopped run resumes)")
     ap.add_argument("--report", action="store_true", help="only print the summary of --out")
+    ap.add_argument("--pixel-centre", action="store_true", help="only the renderer-projection test")
+    ap.add_argument("--trace", metavar="VARIANT", help="only trace the last stage on --seeds' first drive")
+    ap.add_argument(
+        "--free", default="scale,yaw-scale,yaw-rate,pivot,crab", help="--trace: odometry errors free"
+    )
+    ap.add_argument("--iterations", type=int, default=60, help="--trace: iterations")
     ap.add_argument("--with", dest="also", type=Path, nargs="*", default=[], help="more rows for the summary")
     args = ap.parse_args()
+    if args.pixel_centre:
+        pixel_centre(args.cache)
+        return
+    if args.trace:
+        seed = seeds_of(args.seeds)[0]
+        folder, rig_path = simulate(args.cache, args.trace, WORLDS[seed % len(WORLDS)], seed, args.duration_s)
+        trace(folder, rig_path, args.iterations, args.free)
+        return
     if not args.report:
         args.cache.mkdir(parents=True, exist_ok=True)
         done = {(r["variant"], r["seed"]) for r in read_rows(args.out)}
