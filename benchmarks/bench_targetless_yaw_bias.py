@@ -35,7 +35,10 @@ Variants of the check's input (the base drive, checked differently):
 - ``odometry-held``: the laser odometry's errors (scale, yaw scale, yaw rate bias, pivot,
   crab angle), which the check estimates beside T, held at zero (right on the true
   motion); ``crab-free``: only the crab angle estimated; ``turn-free``: only the yaw
-  scale and the yaw rate bias.
+  scale and the yaw rate bias;
+- ``every``, ``every-odometry-held``: on every scan's laser odometry (as the check runs the
+  photometric term alone) instead of the true motion, the odometry's errors estimated
+  or held at zero.
 
     .venv/bin/python benchmarks/bench_targetless_yaw_bias.py --cache /tmp/ybias31/drives \\
         --seeds 300-305 --variants base,no-walk,no-blur,clean --out /tmp/ybias31/rows.jsonl
@@ -86,7 +89,15 @@ CHECK_NUISANCES = {
 }
 """The units of the check's odometry errors (scale, yaw scale, yaw rate bias, pivot x and y,
 crab; rigcal.drift.targetless._NUISANCE_UNITS, all 1e-3) with some held at zero."""
-CHECK_VARIANTS = ("cx+0.5", "straight", "turning", *CHECK_SETTINGS, *CHECK_NUISANCES)
+CHECK_VARIANTS = (
+    "cx+0.5",
+    "straight",
+    "turning",
+    *CHECK_SETTINGS,
+    *CHECK_NUISANCES,
+    "every",
+    "every-odometry-held",
+)
 BASE = {"exposure_walk": 0.02, "image_blur_sigma_px": 0.7, "image_noise_sigma": 3.0}
 
 
@@ -165,6 +176,7 @@ def estimate(
     pairs: str = "all",
     settings: dict[str, Any] | None = None,
     nuisance_units: tuple[float, ...] | None = None,
+    true_motion: bool = True,
 ) -> dict[str, Any]:
     """The photometric term alone at the true rig on the simulator's true laser motion
     (bench_targetless_photometric_alone's ``--motion true``), on all pairs of frames or
@@ -180,7 +192,8 @@ def estimate(
     assert rig is not None
     s = tl.TargetlessSettings(edges=False, **(settings or {}))
     streams.require_images("targetless check")
-    streams.use_laser_odometry(trajectory_odometry(folder / "groundtruth.tum", streams))
+    if true_motion:
+        streams.use_laser_odometry(trajectory_odometry(folder / "groundtruth.tum", streams))
     c = time.process_time()
     units = tl._NUISANCE_UNITS
     if nuisance_units is not None:
@@ -313,6 +326,13 @@ def trace(folder: Path, rig_path: Path, iterations: int, free: str) -> None:
         metric = D @ H @ D + prior
         A = D @ A_raw @ D + prior + tl._held(metric)
         A[held, held] += 1e9
+        if it == 0:
+            C = np.linalg.inv(A)
+            corr = C[2] / np.sqrt(C[2, 2] * np.diag(C))
+            print(
+                f"at the true T: the yaw's correlation with the sideways shift {corr[4]:+.3f}, "
+                f"with the crab {corr[10]:+.3f}, the yaw rate bias {corr[7]:+.3f}"
+            )
         if it % 5 == 0:
             Delta = np.linalg.inv(T0) @ T
             yaw = math.degrees(R_to_rotvec(Delta[:3, :3])[2])
@@ -324,6 +344,64 @@ def trace(folder: Path, rig_path: Path, iterations: int, free: str) -> None:
         d = D @ -np.linalg.solve(A, D @ g)
         T = T @ make_T(rotvec_to_R(d[:3]), np.r_[d[3:5], 0.0])
         nuis = nuis + d[5:]
+
+
+def flow(folder: Path, rig_path: Path) -> None:
+    """Per patch at the true T on the true motion (the last stage's images), the horizontal
+    shift of frame j's samples that best aligns them with frame i's (one Gauss-Newton step
+    on that shift alone, the pair's gain as the check's), averaged (weighted by the
+    information) over the straight pairs (turned < 1 deg) of each gap and wall."""
+    from rigcal.camera import Camera
+    from rigcal.drift import targetless as tl
+    from rigcal.drift.sampling import project_sample
+    from rigcal.drift.trajectory import trajectory_odometry
+    from rigcal.localize.streams import open_streams
+
+    streams = open_streams(folder, rig_file=rig_path)
+    rig = streams.rig
+    assert rig is not None
+    s = tl.TargetlessSettings(edges=False)
+    streams.use_laser_odometry(trajectory_odometry(folder / "groundtruth.tum", streams))
+    patches = tl._build_patches(rig, streams, s)
+    images = tl._Images(streams, patches, tl._rows(rig, patches), s.blur_px[-1], s.native_blur_px)
+    assert images.stack is not None
+    T, cam = rig.T_cam_laser, rig.camera
+    P, S, _ = patches.X.shape
+    Y = patches.X @ patches.M[:, :3, :3].transpose(0, 2, 1) + patches.M[:, None, :3, 3]
+
+    def sample(pts: np.ndarray, keys: np.ndarray, du: float = 0.0) -> np.ndarray:  # type: ignore[type-arg]
+        intr = cam.intrinsics.copy()
+        intr[2] += du
+        c = Camera(cam.lensmodel, intr, cam.width_px, cam.height_px)
+        assert images.stack is not None
+        v, _, _ = project_sample(
+            pts.reshape(-1, 3), T[:3, :3], T[:3, 3], c, images.stack.stack, np.repeat(keys, S), images.down,
+            images.row0, images.stack.box, images.widen,
+        )  # fmt: skip
+        return v.reshape(P, S)
+
+    a, b = sample(patches.X, images.key_i), sample(Y, images.key_j)
+    h = 0.25
+    db = (sample(Y, images.key_j, h) - sample(Y, images.key_j, -h)) / (2 * h)
+    ok = np.isfinite(a).all(1) & np.isfinite(b).all(1) & np.isfinite(db).all(1)
+    a0, b0 = a - a.mean(1, keepdims=True), b - b.mean(1, keepdims=True)
+    db0 = db - db.mean(1, keepdims=True)
+    ea = np.bincount(patches.pair, np.where(ok, (a0**2).sum(1), 0.0), patches.n_pairs)
+    eb = np.bincount(patches.pair, np.where(ok, (b0**2).sum(1), 0.0), patches.n_pairs)
+    gain = np.sqrt(np.where(eb > 0, ea / np.where(eb > 0, eb, 1.0), 1.0))[patches.pair][:, None]
+    r, J = gain * b0 - a0, gain * db0
+    info = np.where(ok, (J**2).sum(1), 0.0)
+    pull = np.where(ok, (r * J).sum(1), 0.0)
+    side = np.sign(patches.X[:, S // 2, 1])
+    straight = np.abs(np.degrees(patches.yaw)) < 1.0
+    for gap in s.gaps_s:
+        G = straight & (np.abs(patches.dt - gap) < 0.5 * gap)
+        cells = []
+        for name, m in (("left wall", G & (side > 0)), ("right wall", G & (side < 0))):
+            cells.append(
+                f"{name} {-pull[m].sum() / max(info[m].sum(), 1e-12):+.4f} px ({int((m & ok).sum())})"
+            )
+        print(f"straight pairs {gap:g} s apart: frame j's best shift, " + ", ".join(cells))
 
 
 def report(rows: list[dict[str, Any]]) -> None:
@@ -365,6 +443,7 @@ def main() -> None:
     ap.add_argument("--report", action="store_true", help="only print the summary of --out")
     ap.add_argument("--pixel-centre", action="store_true", help="only the renderer-projection test")
     ap.add_argument("--trace", metavar="VARIANT", help="only trace the last stage on --seeds' first drive")
+    ap.add_argument("--flow", metavar="VARIANT", help="only frame j's best shifts on --seeds' first drive")
     ap.add_argument(
         "--free", default="scale,yaw-scale,yaw-rate,pivot,crab", help="--trace: odometry errors free"
     )
@@ -373,6 +452,10 @@ def main() -> None:
     args = ap.parse_args()
     if args.pixel_centre:
         pixel_centre(args.cache)
+        return
+    if args.flow:
+        seed = seeds_of(args.seeds)[0]
+        flow(*simulate(args.cache, args.flow, WORLDS[seed % len(WORLDS)], seed, args.duration_s))
         return
     if args.trace:
         seed = seeds_of(args.seeds)[0]
@@ -398,6 +481,9 @@ def main() -> None:
                         row = estimate(folder, rig_file(args.cache, True, 0.5))
                     elif variant in CHECK_SETTINGS:
                         row = estimate(folder, rig_path, settings=CHECK_SETTINGS[variant])
+                    elif variant.startswith("every"):
+                        units = CHECK_NUISANCES["odometry-held"] if variant.endswith("held") else None
+                        row = estimate(folder, rig_path, nuisance_units=units, true_motion=False)
                     elif variant in CHECK_NUISANCES:
                         row = estimate(folder, rig_path, nuisance_units=CHECK_NUISANCES[variant])
                     else:
