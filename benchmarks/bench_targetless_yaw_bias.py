@@ -36,6 +36,8 @@ Variants of the check's input (the base drive, checked differently):
   crab angle), which the check estimates beside T, held at zero (right on the true
   motion); ``crab-free``: only the crab angle estimated; ``turn-free``: only the yaw
   scale and the yaw rate bias;
+- ``VARIANT/held`` (VARIANT one of the simulation's): that drive, the odometry's errors
+  held at zero;
 - ``every``, ``every-odometry-held``: on every scan's laser odometry (as the check runs the
   photometric term alone) instead of the true motion, the odometry's errors estimated
   or held at zero.
@@ -466,15 +468,19 @@ def main() -> None:
         args.cache.mkdir(parents=True, exist_ok=True)
         done = {(r["variant"], r["seed"]) for r in read_rows(args.out)}
         for variant in args.variants.split(","):
-            if variant not in SIM_VARIANTS and variant not in CHECK_VARIANTS:
+            sim, _, held = variant.partition("/")
+            if held and (held != "held" or sim not in SIM_VARIANTS):
+                ap.error(f"--variants: {variant!r}: expected a simulation's variant and /held")
+            if not held and variant not in SIM_VARIANTS and variant not in CHECK_VARIANTS:
                 ap.error(f"--variants: {variant!r} is not one of {[*SIM_VARIANTS, *CHECK_VARIANTS]}")
             for seed in seeds_of(args.seeds):
                 if (variant, seed) in done:
                     continue
                 world = WORLDS[seed % len(WORLDS)]
-                if variant in SIM_VARIANTS:
-                    folder, rig_path = simulate(args.cache, variant, world, seed, args.duration_s)
-                    row = estimate(folder, rig_path)
+                if sim in SIM_VARIANTS:
+                    folder, rig_path = simulate(args.cache, sim, world, seed, args.duration_s)
+                    units = CHECK_NUISANCES["odometry-held"] if held else None
+                    row = estimate(folder, rig_path, nuisance_units=units)
                 else:
                     folder, rig_path = simulate(args.cache, "base", world, seed, args.duration_s)
                     if variant == "cx+0.5":
