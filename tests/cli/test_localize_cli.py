@@ -47,6 +47,29 @@ def short_drive(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.parametrize(
+    ("options", "named"),
+    [
+        (["--smooth"], "--smooth ignored: it acts"),
+        (["--kf", "fixed"], "--kf ignored: it acts"),
+        (["--kf", "driven", "--smooth"], "--kf and --smooth ignored: they act"),
+    ],
+)
+def test_kf_options_without_method_kf_are_named_as_ignored(short_drive, tmp_path, capsys, options, named):
+    args = ["localize", str(short_drive), "--method", "icp", *options, "-o", str(tmp_path / "out")]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert f"warning: {named} only on method kf's filter, which is not among the methods given (icp)" in err
+
+
+def test_kf_options_with_method_kf_or_left_at_their_defaults_warn_nothing(short_drive, tmp_path, capsys):
+    assert main(["localize", str(short_drive), "--method", "icp", "-o", str(tmp_path / "a")]) == 0
+    assert (
+        main(["localize", str(short_drive), "--method", "icp,kf", "--smooth", "-o", str(tmp_path / "b")]) == 0
+    )
+    assert "ignored" not in capsys.readouterr().err
+
+
 def test_the_kf_option_picks_the_papers_the_weighted_or_the_driven_filter(short_drive, tmp_path, capsys):
     docs = {}
     for mode in ("weighted", "fixed", "driven", "icp-first"):

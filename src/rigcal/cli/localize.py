@@ -144,6 +144,7 @@ def localize(
     from rigcal.jobs import localize_sequence
     from rigcal.localize.pipeline import table
 
+    _warn_unused_kf_options(methods, kf, smooth)
     try:
         with Progress("step") as bars:
             done = localize_sequence(
@@ -190,6 +191,26 @@ def localize(
         f"{r.duration_s:.1f} s of data in {r.wall_s:.1f} s ({ratio:.2f}x real time); wrote {output}/",
         err=True,
     )
+
+
+def _warn_unused_kf_options(methods: str, kf: str, smooth: bool) -> None:
+    """One warning line when ``--kf`` or ``--smooth`` is given but method kf, the only one
+    they act on, is not among the methods: the run goes on, the options change nothing."""
+    given = [name for name, on in (("--kf", _given("kf")), ("--smooth", smooth)) if on]
+    names = [m.strip() for m in methods.split(",") if m.strip()]
+    if given and "kf" not in names:
+        they = "they act" if len(given) > 1 else "it acts"
+        click.echo(
+            f"warning: {' and '.join(given)} ignored: {they} only on method kf's filter, which is "
+            f"not among the methods given ({', '.join(names)})",
+            err=True,
+        )
+
+
+def _given(param: str) -> bool:
+    """Whether the option was given on the command line (not its default)."""
+    source = click.get_current_context().get_parameter_source(param)
+    return source is not None and source.name == "COMMANDLINE"
 
 
 def source_line(m: MethodRun) -> str:
