@@ -50,23 +50,48 @@ def short_drive(tmp_path_factory) -> Path:
 @pytest.mark.parametrize(
     ("options", "named"),
     [
-        (["--smooth"], "--smooth ignored: it acts"),
-        (["--kf", "fixed"], "--kf ignored: it acts"),
-        (["--kf", "driven", "--smooth"], "--kf and --smooth ignored: they act"),
+        (["--smooth"], "--smooth ignored: it acts only on method kf, which is not"),
+        (["--kf", "fixed"], "--kf ignored: it acts only on method kf, which is not"),
+        (
+            ["--kf", "driven", "--smooth"],
+            "--kf and --smooth ignored: they act only on method kf, which is not",
+        ),
+        (
+            ["--iasm", "snap_max_m=0"],
+            "--iasm ignored: it acts only on method iasm or hiasm, none of which is",
+        ),
+        (
+            ["--tracks", "n_features=500"],
+            "--tracks ignored: it acts only on method vo or kf or hiasm, none of which is",
+        ),
     ],
 )
-def test_kf_options_without_method_kf_are_named_as_ignored(short_drive, tmp_path, capsys, options, named):
+def test_options_of_methods_not_run_are_named_as_ignored(short_drive, tmp_path, capsys, options, named):
     args = ["localize", str(short_drive), "--method", "icp", *options, "-o", str(tmp_path / "out")]
     assert main(args) == 0
+    assert f"warning: {named} among the methods given (icp)" in capsys.readouterr().err
+
+
+def test_loop_closure_options_without_loop_closure_are_named_as_ignored(short_drive, tmp_path, capsys):
+    args = [
+        "localize",
+        str(short_drive),
+        "--method",
+        "icp",
+        "--pose-graph",
+        "scipy",
+        "-o",
+        str(tmp_path / "o"),
+    ]
+    assert main(args) == 0
     err = capsys.readouterr().err
-    assert f"warning: {named} only on method kf's filter, which is not among the methods given (icp)" in err
+    assert "warning: --pose-graph ignored: it acts only with --loop-closure, which is not given" in err
 
 
-def test_kf_options_with_method_kf_or_left_at_their_defaults_warn_nothing(short_drive, tmp_path, capsys):
+def test_options_of_methods_run_or_left_at_their_defaults_warn_nothing(short_drive, tmp_path, capsys):
     assert main(["localize", str(short_drive), "--method", "icp", "-o", str(tmp_path / "a")]) == 0
-    assert (
-        main(["localize", str(short_drive), "--method", "icp,kf", "--smooth", "-o", str(tmp_path / "b")]) == 0
-    )
+    args = ["localize", str(short_drive), "--method", "icp,kf", "--smooth", "--tracks", "n_features=500"]
+    assert main([*args, "-o", str(tmp_path / "b")]) == 0
     assert "ignored" not in capsys.readouterr().err
 
 

@@ -144,7 +144,7 @@ def localize(
     from rigcal.jobs import localize_sequence
     from rigcal.localize.pipeline import table
 
-    _warn_unused_kf_options(methods, kf, smooth)
+    _warn_ignored_options(methods, bool(iasm_items), bool(track_items), smooth, loop_closure)
     try:
         with Progress("step") as bars:
             done = localize_sequence(
@@ -193,18 +193,40 @@ def localize(
     )
 
 
-def _warn_unused_kf_options(methods: str, kf: str, smooth: bool) -> None:
-    """One warning line when ``--kf`` or ``--smooth`` is given but method kf, the only one
-    they act on, is not among the methods: the run goes on, the options change nothing."""
-    given = [name for name, on in (("--kf", _given("kf")), ("--smooth", smooth)) if on]
+def _warn_ignored_options(methods: str, iasm: bool, tracks: bool, smooth: bool, loop_closure: bool) -> None:
+    """One warning line per kind of option given that nothing in the run reads: ``--kf`` and
+    ``--smooth`` without method kf, ``--iasm`` without iasm or hiasm, ``--tracks`` without a
+    method that tracks images, ``--pose-graph`` and ``--place-recognition`` without
+    ``--loop-closure``. The run goes on; those options change nothing in it."""
+    from rigcal.localize.pipeline import TRACKING
+
     names = [m.strip() for m in methods.split(",") if m.strip()]
-    if given and "kf" not in names:
-        they = "they act" if len(given) > 1 else "it acts"
+    for given, used_by in (
+        ([o for o, on in (("--kf", _given("kf")), ("--smooth", smooth)) if on], ("kf",)),
+        (["--iasm"] if iasm else [], ("iasm", "hiasm")),
+        (["--tracks"] if tracks else [], TRACKING),
+    ):
+        if given and not set(used_by) & set(names):
+            which = "which is not" if len(used_by) == 1 else "none of which is"
+            click.echo(
+                f"warning: {_options_ignored(given)} only on method {' or '.join(used_by)}, {which} "
+                f"among the methods given ({', '.join(names)})",
+                err=True,
+            )
+    lc_only = [
+        o
+        for o, p in (("--pose-graph", "pose_graph"), ("--place-recognition", "place_recognition"))
+        if _given(p)
+    ]
+    if lc_only and not loop_closure:
         click.echo(
-            f"warning: {' and '.join(given)} ignored: {they} only on method kf's filter, which is "
-            f"not among the methods given ({', '.join(names)})",
-            err=True,
+            f"warning: {_options_ignored(lc_only)} only with --loop-closure, which is not given", err=True
         )
+
+
+def _options_ignored(given: list[str]) -> str:
+    they = "they act" if len(given) > 1 else "it acts"
+    return f"{' and '.join(given)} ignored: {they}"
 
 
 def _given(param: str) -> bool:
