@@ -144,7 +144,6 @@ def localize(
     from rigcal.jobs import localize_sequence
     from rigcal.localize.pipeline import table
 
-    _warn_ignored_options(methods, bool(iasm_items), bool(track_items), smooth, loop_closure)
     try:
         with Progress("step") as bars:
             done = localize_sequence(
@@ -166,6 +165,7 @@ def localize(
             )
     except ArgumentError as exc:  # bad option values are usage errors (exit code 2)
         raise click.UsageError(str(exc)) from None
+    _warn_ignored_options(methods, bool(iasm_items), bool(track_items), smooth, loop_closure)
     r = done.run
     if as_json:
         click.echo(json.dumps(done.doc, indent=1))
