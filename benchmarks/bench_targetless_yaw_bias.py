@@ -297,14 +297,11 @@ def pixel_centre(cache: Path) -> None:
         )
 
 
-def trace(folder: Path, rig_path: Path, iterations: int, free: str) -> None:
-    """The last stage's Gauss-Newton iterations (blur 1.2 px, no trust region) from the true
-    T on the true motion, with the odometry's errors ``free`` (comma-separated of scale,
-    yaw-scale, yaw-rate, pivot, crab; "none"), printed every few iterations: the yaw,
-    the sideways shift, the odometry's crab, the mean squared photometric residual."""
+def _last_stage_on_true_motion(folder: Path, rig_path: Path) -> tuple[Any, Any, Any, Any]:
+    """The rig, the photometric term's settings (no edges), its patches on the simulator's
+    true motion and the last stage's images: what --trace and --flow both start from."""
     from rigcal.drift import targetless as tl
     from rigcal.drift.trajectory import trajectory_odometry
-    from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
     from rigcal.localize.streams import open_streams
 
     streams = open_streams(folder, rig_file=rig_path)
@@ -313,12 +310,24 @@ def trace(folder: Path, rig_path: Path, iterations: int, free: str) -> None:
     s = tl.TargetlessSettings(edges=False)
     streams.use_laser_odometry(trajectory_odometry(folder / "groundtruth.tum", streams))
     patches = tl._build_patches(rig, streams, s)
+    images = tl._Images(streams, patches, tl._rows(rig, patches), s.blur_px[-1], s.native_blur_px)
+    return rig, s, patches, images
+
+
+def trace(folder: Path, rig_path: Path, iterations: int, free: str) -> None:
+    """The last stage's Gauss-Newton iterations (blur 1.2 px, no trust region) from the true
+    T on the true motion, with the odometry's errors ``free`` (comma-separated of scale,
+    yaw-scale, yaw-rate, pivot, crab; "none"), printed every few iterations: the yaw,
+    the sideways shift, the odometry's crab, the mean squared photometric residual."""
+    from rigcal.drift import targetless as tl
+    from rigcal.geometry import R_to_rotvec, make_T, rotvec_to_R
+
+    rig, s, patches, images = _last_stage_on_true_motion(folder, rig_path)
     cols = [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11]
     names = ["scale", "yaw-scale", "yaw-rate", "pivot", "pivot", "crab"]
     held = [5 + k for k, n in enumerate(names) if n not in free.split(",")]
     D = np.diag(np.r_[s.scale, tl._NUISANCE_UNITS])[np.ix_(cols, cols)]
     prior = np.eye(len(cols)) / tl.PRIOR_UNITS**2
-    images = tl._Images(streams, patches, tl._rows(rig, patches), s.blur_px[-1], s.native_blur_px)
     T0 = rig.T_cam_laser
     T, nuis = T0.copy(), np.zeros(6)
     keep = np.ones(len(cols), dtype=bool)
@@ -354,18 +363,9 @@ def flow(folder: Path, rig_path: Path) -> None:
     on that shift alone, the pair's gain as the check's), averaged (weighted by the
     information) over the straight pairs (turned < 1 deg) of each gap and wall."""
     from rigcal.camera import Camera
-    from rigcal.drift import targetless as tl
     from rigcal.drift.sampling import project_sample
-    from rigcal.drift.trajectory import trajectory_odometry
-    from rigcal.localize.streams import open_streams
 
-    streams = open_streams(folder, rig_file=rig_path)
-    rig = streams.rig
-    assert rig is not None
-    s = tl.TargetlessSettings(edges=False)
-    streams.use_laser_odometry(trajectory_odometry(folder / "groundtruth.tum", streams))
-    patches = tl._build_patches(rig, streams, s)
-    images = tl._Images(streams, patches, tl._rows(rig, patches), s.blur_px[-1], s.native_blur_px)
+    rig, s, patches, images = _last_stage_on_true_motion(folder, rig_path)
     assert images.stack is not None
     T, cam = rig.T_cam_laser, rig.camera
     P, S, _ = patches.X.shape
