@@ -110,7 +110,8 @@ def stored_png(data: bytes) -> tuple[bytearray, int, int] | None:
     import imagecodecs
 
     raw, png = _stored_buffers(n)
-    stream = b"".join(data[a:b] for a, b in idat)
+    whole = memoryview(data)
+    stream = b"".join(whole[a:b] for a, b in idat)
     try:
         inflated = imagecodecs.deflate_decode(stream, out=raw)
     except Exception:  # a damaged stream: libpng decides
@@ -137,6 +138,7 @@ def _idat_spans(data: bytes) -> list[tuple[int, int]] | None:
     """The (start, end) of each IDAT chunk's data in a plain PNG, when they follow one
     another with right CRCs up to IEND, the file's end; else None."""
     pos, spans = 8, list[tuple[int, int]]()
+    whole = memoryview(data)  # chunks read in place, not copied
     while pos + 12 <= len(data):
         length, ctype = struct.unpack(">I4s", data[pos : pos + 8])
         end = pos + 12 + length
@@ -145,7 +147,7 @@ def _idat_spans(data: bytes) -> list[tuple[int, int]] | None:
         if ctype == b"IDAT":
             if spans and spans[-1][1] + 4 != pos:
                 return None
-            if zlib.crc32(data[pos + 4 : end - 4]) != struct.unpack(">I", data[end - 4 : end])[0]:
+            if zlib.crc32(whole[pos + 4 : end - 4]) != struct.unpack_from(">I", data, end - 4)[0]:
                 return None
             spans.append((pos + 8, end - 4))
         elif spans:
