@@ -271,6 +271,7 @@ def test_pngs_not_rewritten_are_decoded_as_they_are(tmp_path):
         "taller than its data": _with_ihdr(good, height=31),
         "shorter than its data": _with_ihdr(good, height=29),
         "damaged data": bytes(damaged),
+        "IHDR not first": good[:8] + text + good[8:],
     }
     for name, data in cases.items():
         assert png.stored_png(data) is None, name

@@ -98,6 +98,8 @@ def stored_png(data: bytes) -> tuple[bytearray, int, int] | None:
     if plain_png_kind(data) is None:
         return None
     ihdr = data[8:33]
+    if ihdr[4:8] != b"IHDR":  # not the first chunk: libpng refuses the file
+        return None
     width, height, _, colour, compression, filtering, interlace = struct.unpack(">IIBBBBB", ihdr[8:21])
     if compression or filtering or interlace or width == 0 or height == 0:
         return None
