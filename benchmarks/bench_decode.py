@@ -12,8 +12,10 @@ every trajectory, depend on them).
 With ``--parts``, also where a frame's decoding goes, in CPU milliseconds of this thread per
 frame (the best of the passes, each step alternating with the others): imagecodecs' three
 PNG decoders (libpng, its APNG build, libspng: whether any is faster on the same pixels),
-the inflating alone (zlib, as libpng does it, and zlib-ng), and the colour conversion
-(numpy's, the compiled kernel's).
+the inflating alone (zlib, as libpng does it, zlib-ng and libdeflate), the rewriting of
+:func:`rigcal.io.png.stored_png` (libdeflate's inflating included) and libpng's decoding of
+the rewritten file (the rows stored), and the colour conversion (numpy's, the compiled
+kernel's).
 
     .venv/bin/python benchmarks/bench_decode.py --sequence /work/tmp/c60 --frames 150 --parts
 """
@@ -64,11 +66,17 @@ def parts(paths: list[Path], repeats: int) -> None:
     import imagecodecs
 
     from rigcal.io.images import rgb_to_grey
-    from rigcal.io.png import rgb_to_grey_reference
+    from rigcal.io.png import rgb_to_grey_reference, stored_png
 
     data = [p.read_bytes() for p in paths]
     streams = [idat(d) for d in data]
     rgb = [np.asarray(imagecodecs.png_decode(d)) for d in data]
+    rows = bytearray(len(imagecodecs.zlib_decode(streams[0])))
+
+    def into(stream: object) -> object:
+        return imagecodecs.deflate_decode(stream, out=rows)
+
+    rewritten = [bytes(stored[0]) for d in data if (stored := stored_png(d)) is not None]
     reference = rgb[0]
     steps: dict[str, tuple[Callable[[object], object], list[object]]] = {
         "imagecodecs.png_decode (libpng)": (imagecodecs.png_decode, list(data)),
@@ -76,6 +84,9 @@ def parts(paths: list[Path], repeats: int) -> None:
         "imagecodecs.spng_decode (libspng)": (imagecodecs.spng_decode, list(data)),
         "inflating alone, zlib": (imagecodecs.zlib_decode, list(streams)),
         "inflating alone, zlib-ng": (imagecodecs.zlibng_decode, list(streams)),
+        "inflating alone, libdeflate (into a buffer reused)": (into, list(streams)),
+        "rows stored by libdeflate (stored_png)": (stored_png, list(data)),  # type: ignore[dict-item]
+        "libpng on the rows stored": (imagecodecs.png_decode, list(rewritten)),
         "colour to grey, numpy": (rgb_to_grey_reference, list(rgb)),  # type: ignore[dict-item]
         "colour to grey, compiled": (rgb_to_grey, list(rgb)),  # type: ignore[dict-item]
     }
@@ -83,6 +94,9 @@ def parts(paths: list[Path], repeats: int) -> None:
         np.array_equal(np.asarray(f(data[0])), reference)
         for f in (imagecodecs.png_decode, imagecodecs.apng_decode, imagecodecs.spng_decode)
     )
+    stored_same = all(
+        np.array_equal(np.asarray(imagecodecs.png_decode(r)), x) for r, x in zip(rewritten, rgb, strict=False)
+    ) and len(rewritten) == len(data)
     best = dict.fromkeys(steps, float("inf"))
     for _ in range(repeats):
         for name, (fn, inputs) in steps.items():
@@ -94,6 +108,7 @@ def parts(paths: list[Path], repeats: int) -> None:
     for name, ms in best.items():
         print(f"| {name} | {ms:.2f} |")
     print(f"\nThe three PNG decoders give the same pixels: {same}")
+    print(f"Frames rewritten (rows stored) {len(rewritten)} of {len(data)}, the same pixels: {stored_same}")
 
 
 def main() -> None:

@@ -44,6 +44,14 @@ call are printed side by side (they are the same check).
 
     .venv/bin/python benchmarks/bench_targetless_speed.py --sequence /tmp/c60
     .venv/bin/python benchmarks/bench_targetless_speed.py --sequence /tmp/c60 --repeat 3 --no-bytecode
+
+With ``--against SRC`` (another checkout's ``src`` folder, e.g. ``git archive main src``
+unpacked), the command alone, A/B: ``--pairs`` pairs of runs, each pair SRC's code
+(``PYTHONPATH=SRC``) then this checkout's, in turn; each run's wall and CPU seconds and the
+load, the medians and ranges of each side, and whether each run's record equals the first
+run's (all but the check's time and date).
+
+    .venv/bin/python benchmarks/bench_targetless_speed.py --sequence /tmp/c60 --against /tmp/b/src --pairs 6
 """
 
 from __future__ import annotations
@@ -241,6 +249,57 @@ def main_command(seq: Path, repeat: int, with_trajectory: bool, no_bytecode: boo
     print(json.dumps(row, indent=1))
 
 
+def main_against(seq: Path, before_src: Path, pairs: int) -> None:
+    """The --against mode (module docstring)."""
+    import statistics
+
+    tmp = Path(tempfile.mkdtemp())
+    rig = tmp / "rig.yaml"
+    rig.write_bytes((seq / "rig.yaml").read_bytes())
+    base = ["check", str(rig), "--sequence", str(seq), "--no-log", "--json"]
+    here = str(Path(__file__).resolve().parents[1] / "src")
+    sides = {"before": _child_env(PYTHONPATH=str(before_src)), "after": _child_env(PYTHONPATH=here)}
+    runs: dict[str, list[dict[str, float]]] = {"before": [], "after": []}
+    first: dict | None = None  # type: ignore[type-arg]
+    identical = True
+    for _ in range(pairs):
+        for side, env in sides.items():
+            load = os.getloadavg()[0]
+            rec, wall, cpu, _ = command(base, env=env)
+            same = {k: v for k, v in rec.items() if k != "checked_utc"}
+            same["targetless"] = {k: v for k, v in rec["targetless"].items() if k != "check_s"}
+            first = first or same
+            identical = identical and same == first
+            runs[side].append({"wall": round(wall, 2), "cpu": round(cpu, 2), "load": round(load, 1)})
+
+    def summary(rows: list[dict[str, float]], key: str) -> dict[str, float]:
+        values = [r[key] for r in rows]
+        return {"median": round(statistics.median(values), 2), "min": min(values), "max": max(values)}
+
+    pairs_cpu = [a["cpu"] / b["cpu"] for a, b in zip(runs["after"], runs["before"], strict=True)]
+    pairs_wall = [a["wall"] / b["wall"] for a, b in zip(runs["after"], runs["before"], strict=True)]
+    print(
+        json.dumps(
+            {
+                "sequence": str(seq),
+                "before_src": str(before_src),
+                "runs": runs,
+                "wall_s": {side: summary(rows, "wall") for side, rows in runs.items()},
+                "cpu_s": {side: summary(rows, "cpu") for side, rows in runs.items()},
+                "after_over_before_by_pair": {
+                    "cpu": [round(x, 3) for x in pairs_cpu],
+                    "wall": [round(x, 3) for x in pairs_wall],
+                    "cpu_median": round(statistics.median(pairs_cpu), 3),
+                    "wall_median": round(statistics.median(pairs_wall), 3),
+                },
+                "records_identical": identical,
+                "verdict": first["verdict"] if first else None,
+            },
+            indent=1,
+        )
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/rigcal-bench-targetless"))
@@ -256,7 +315,12 @@ def main() -> None:
         "--trajectory", action="store_true", help="--sequence: also the command with --trajectory"
     )
     ap.add_argument("--no-bytecode", action="store_true", help="--sequence: also a run with no bytecode")
+    ap.add_argument("--against", type=Path, help="--sequence: A/B of the command against this src folder")
+    ap.add_argument("--pairs", type=int, default=6, help="--against: pairs of runs")
     args = ap.parse_args()
+    if args.sequence is not None and args.against is not None:
+        main_against(args.sequence, args.against, args.pairs)
+        return
     if args.sequence is not None:
         main_command(args.sequence, args.repeat, args.trajectory, args.no_bytecode)
         return

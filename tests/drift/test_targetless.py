@@ -502,3 +502,31 @@ def test_blurring_only_where_the_check_reads_changes_no_result(drives, monkeypat
     whole = record()
     assert whole["correction_rotation_deg"] is not None
     assert tight == whole
+
+
+def test_frames_inflated_by_libdeflate_change_no_result(drives, monkeypatch):
+    """The frames' image data inflated by libdeflate and given to libpng stored
+    (rigcal.io.png.stored_png) gives the command's record of libpng inflating the files
+    itself."""
+    import rigcal.io.png as png
+    from rigcal.jobs import check_rig
+
+    stored = png.stored_png
+    rewritten = []
+
+    def counted(data: bytes):  # type: ignore[no-untyped-def]
+        out = stored(data)
+        rewritten.append(out is not None)
+        return out
+
+    monkeypatch.setattr(png, "stored_png", counted)
+    fast = check_rig(drives["rig"], sequence=drives["drive"], no_log=True).record
+    assert rewritten
+    assert all(rewritten)
+    monkeypatch.setattr(png, "stored_png", lambda data: None)
+    as_before = check_rig(drives["rig"], sequence=drives["drive"], no_log=True).record
+    for record in (fast, as_before):
+        record.pop("checked_utc")
+        record["targetless"].pop("check_s")
+    assert fast["targetless"]["correction_rotation_deg"] is not None
+    assert fast == as_before

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rigcal.io import images
+from rigcal.io import images, png
 from rigcal.io.images import plain_png_kind, read_grey, rgb_to_grey, rgb_to_grey_reference
 
 
@@ -35,9 +35,9 @@ def _decoded_by_imagecodecs(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     calls: list[int] = []
     real = imagecodecs.png_decode
 
-    def spy(data: bytes) -> np.ndarray:
+    def spy(data: bytes, **kw: object) -> np.ndarray:
         calls.append(len(data))
-        return np.asarray(real(data))
+        return np.asarray(real(data, **kw))
 
     monkeypatch.setattr(imagecodecs, "png_decode", spy)
     return calls
@@ -61,6 +61,7 @@ def test_plain_pngs_read_as_opencv_reads_them(tmp_path_factory, seed, h, w, chan
     path = tmp_path_factory.mktemp("png") / "frame.png"
     path.write_bytes(_png(img, cv2.IMWRITE_PNG_COMPRESSION, compression))
     assert plain_png_kind(path.read_bytes()) == (0 if channels == 1 else 2)
+    assert png.stored_png(path.read_bytes()) is not None  # the rows inflated by libdeflate
     got = read_grey(path)
     assert got is not None
     assert got.dtype == np.uint8
@@ -76,7 +77,9 @@ def test_a_colour_png_is_decoded_by_imagecodecs_and_matches_opencv(tmp_path, mon
     path.write_bytes(_png(img, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY))
     calls = _decoded_by_imagecodecs(monkeypatch)
     np.testing.assert_array_equal(read_grey(path), cv2.imread(str(path), cv2.IMREAD_GRAYSCALE))
-    assert calls == [path.stat().st_size]
+    stored = png.stored_png(path.read_bytes())
+    assert stored is not None
+    assert calls == [len(stored[0])]  # libpng given the rows stored, once
 
 
 def test_the_compiled_conversion_follows_its_numpy_reference():
@@ -223,3 +226,72 @@ def test_rgb_to_grey_converts_with_numpy_while_another_thread_loads_its_kernel(m
     np.testing.assert_array_equal(rgb_to_grey(rgb), rgb_to_grey_reference(rgb))  # this thread loads it
     assert calls == [(6, 7, 3)]
     assert not images._loading.locked()
+
+
+def _with_ihdr(data: bytes, **fields: int) -> bytes:
+    """A PNG with IHDR fields (height, interlace) changed and its CRC made right again."""
+    w, h, depth, colour, comp, filt, inter = struct.unpack(">IIBBBBB", data[16:29])
+    h, inter = fields.get("height", h), fields.get("interlace", inter)
+    body = b"IHDR" + struct.pack(">IIBBBBB", w, h, depth, colour, comp, filt, inter)
+    return data[:12] + body + struct.pack(">I", zlib.crc32(body)) + data[33:]
+
+
+def _grey_of(data: bytes) -> np.ndarray | None:
+    return png.plain_png_grey(data, rgb_to_grey)
+
+
+def _stored_pixels_equal(data: bytes) -> bool:
+    stored = png.stored_png(data)
+    assert stored is not None
+    return bool(np.array_equal(imagecodecs.png_decode(bytes(stored[0])), imagecodecs.png_decode(data)))
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+@pytest.mark.parametrize("compression", [0, 1, 9])
+def test_the_rows_stored_uncompressed_decode_to_the_same_pixels(channels, compression):
+    # Taller than one stored block (65535 bytes) and with every row filter libpng picks.
+    img = _textured(np.random.default_rng(7), 150, 230, channels)
+    img[:40] = 100
+    data = _png(img, cv2.IMWRITE_PNG_COMPRESSION, compression)
+    assert _stored_pixels_equal(data)
+    assert _stored_pixels_equal(_with_chunk_after_ihdr(data, b"tEXt", b"Software\x00rigcal"))
+
+
+def test_pngs_not_rewritten_are_decoded_as_they_are(tmp_path):
+    img = _textured(np.random.default_rng(8), 30, 40, 3)
+    good = _png(img)
+    iend = good.rindex(b"IEND") - 4
+    text = struct.pack(">I", 4) + b"tEXt" + b"a\x00bc" + struct.pack(">I", zlib.crc32(b"tEXta\x00bc"))
+    damaged = bytearray(good)
+    damaged[60] ^= 0xFF  # in the IDAT: its CRC is wrong
+    cases = {
+        "chunk after the data": good[:iend] + text + good[iend:],
+        "bytes after IEND": good + b"\x00",
+        "interlaced": _with_ihdr(good, interlace=1),
+        "taller than its data": _with_ihdr(good, height=31),
+        "shorter than its data": _with_ihdr(good, height=29),
+        "damaged data": bytes(damaged),
+        "IHDR not first": good[:8] + text + good[8:],
+    }
+    for name, data in cases.items():
+        assert png.stored_png(data) is None, name
+        path = tmp_path / "f.png"
+        path.write_bytes(data)
+        expected = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        got = read_grey(path)
+        assert (got is None and expected is None) or np.array_equal(got, expected), name
+    np.testing.assert_array_equal(_grey_of(good[:iend] + text + good[iend:]), rgb_to_grey(img[..., ::-1]))
+
+
+def test_frames_decoded_one_after_another_keep_their_own_levels():
+    """The colour image and the stored PNG are buffers each thread reuses: a frame's grey
+    levels are an array of its own."""
+    rng = np.random.default_rng(9)
+    a, b = _textured(rng, 20, 30, 3), _textured(rng, 20, 30, 3)
+    ga = _grey_of(_png(a))
+    gb = _grey_of(_png(b))
+    assert ga is not None
+    assert gb is not None
+    np.testing.assert_array_equal(ga, rgb_to_grey(np.ascontiguousarray(a[..., ::-1])))
+    np.testing.assert_array_equal(gb, rgb_to_grey(np.ascontiguousarray(b[..., ::-1])))
+    assert png.stored_png(_png(a)) is not None

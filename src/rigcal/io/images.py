@@ -2,15 +2,15 @@
 them, faster for the PNGs sequences are made of.
 
 Decoding is one of the largest costs of localizing a sequence from its images.
-:func:`read_grey` decodes plain 8-bit grey and colour PNGs with imagecodecs (libpng on
-zlib-ng, faster than OpenCV's libpng: ``benchmarks/bench_decode.py``, figures in
-docs/benchmarks.md) and converts colour to grey with the integer weights
-libpng applies for OpenCV, ``(9797 R + 19234 G + 3737 B) >> 15`` (ITU-R BT.601's 0.299,
-0.587 and 0.114 in 1/32768, truncated), so the grey levels are bit for bit OpenCV's and
-so are the tracks and trajectories computed from them. Any other image (JPEG, 16-bit
-PNG, a palette, transparency, or a PNG that states its gamma or colour space, which
-libpng may honour) is read by OpenCV itself. The plain PNGs' decoding is
-:mod:`rigcal.io.png`'s (importable without OpenCV or numba, for decoding that starts
+:func:`read_grey` decodes plain 8-bit grey and colour PNGs with imagecodecs (the image
+data inflated by libdeflate, then unfiltered by libpng: faster than OpenCV's libpng,
+``benchmarks/bench_decode.py``, figures in docs/benchmarks.md) and converts colour to
+grey with the integer weights libpng applies for OpenCV, ``(9797 R + 19234 G + 3737 B) >>
+15`` (ITU-R BT.601's 0.299, 0.587 and 0.114 in 1/32768, truncated), so the grey levels
+are bit for bit OpenCV's and so are the tracks and trajectories computed from them. Any
+other image (JPEG, 16-bit PNG, a palette, transparency, or a PNG that states its gamma or
+colour space, which libpng may honour) is read by OpenCV itself. The plain PNGs' decoding
+is :mod:`rigcal.io.png`'s (importable without OpenCV or numba, for decoding that starts
 while a command still imports them).
 """
 
