@@ -59,7 +59,9 @@ def alone(folder: Path, rig_path: Path, motion: str) -> dict:  # type: ignore[ty
     patches = tl._build_patches(rig, streams, s)
     try:
         with tl._stacks_ahead(rig, streams, patches, s):
-            est = tl._estimate(rig, streams, patches, s)
+            # The odometry's errors held on every scan's odometry (and the true motion),
+            # as the check runs; estimated under the weak prior on the thinned one.
+            est = tl._estimate(rig, streams, patches, s, hold_odometry=motion != "thinned")
     except tl._CannotTellError as exc:
         return {"cannot_tell": str(exc)}
     z = est.xi / s.scale  # resolution units
@@ -80,6 +82,8 @@ def alone(folder: Path, rig_path: Path, motion: str) -> dict:  # type: ignore[ty
         "yaw_info_free": round(held, 3),
         "yaw_info_held": round(raw, 3),
         "crab_deg": round(math.degrees(float(est.odometry[5])), 4),
+        "odometry_units": np.round(est.odometry / 1e-3, 3).tolist(),
+        "solve": est.solve,
         "blocks": est.blocks,
         "heading_range_deg": patches.info.get("heading_range_deg"),
         "edges": patches.info.get("edges"),
@@ -129,13 +133,20 @@ def summary(rows: list[dict], floors: dict[str, tuple[float, float, float]]) -> 
     )
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cache", type=Path, required=True, help="kept drives (bench_targetless_rates --keep)")
+def development_arguments(doc: str | None) -> argparse.ArgumentParser:
+    """The options of a script run over the development drives: --cache, --seeds (300-339),
+    --duration-s, --out, --report."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cache", type=Path, required=True, help="the drives (bench_targetless_rates --keep)")
     ap.add_argument("--seeds", default="300-339", help="a range of seeds, a-b (the world by the parity)")
     ap.add_argument("--duration-s", type=float, default=24.0)
     ap.add_argument("--out", type=Path, required=True, help="JSON lines, appended (a stopped run resumes)")
     ap.add_argument("--report", action="store_true", help="only print the summary of --out")
+    return ap
+
+
+def main() -> None:
+    ap = development_arguments(__doc__)
     ap.add_argument("--motion", choices=("every", "thinned", "true"), default="every", help="laser motion")
     args = ap.parse_args()
     from rigcal.drift.targetless import TargetlessSettings
