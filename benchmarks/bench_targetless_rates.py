@@ -136,13 +136,14 @@ def detection(rows: list[dict]) -> None:  # type: ignore[type-arg]
     rows = [r for r in rows if r.get("perturb")]
     if not rows:
         return
-    axis = rows[0]["perturb"][0]
+    axis, size = rows[0]["perturb"]
+    shown = f"{math.degrees(size):g} deg" if axis.startswith("r") else f"{1000.0 * size:g} mm"
     seen = [r for r in rows if axis in (r.get("observed") or [])]
     hit = sum(r["verdict"] == "drifted" for r in seen)
     lo, hi = clopper_pearson(hit, len(seen)) if seen else (math.nan, math.nan)
     err = np.abs([r["correction_error"] for r in seen if r["correction_error"] is not None])
     print(
-        f"perturbed {axis} by {rows[0]['perturb'][1]:g}: observed in {len(seen)}/{len(rows)}; detected "
+        f"perturbed {axis} by {shown}: observed in {len(seen)}/{len(rows)}; detected "
         f"{hit}/{len(seen)} (Clopper-Pearson 95 %: {100 * lo:.1f}-{100 * hi:.1f} %); correction error "
         + (f"median {np.median(err):.4f}, max {err.max():.4f}" if len(err) else "-")
     )
