@@ -69,15 +69,26 @@ def simulate(cache: Path, rig: Path, world: str, seed: int, duration_s: float) -
     return out
 
 
-def check(folder: Path, rig: Path) -> dict:  # type: ignore[type-arg]
-    from rigcal.drift.targetless import check_targetless
+def check(folder: Path, rig: Path, edges: bool = True, perturb: tuple[int, float] | None = None) -> dict:  # type: ignore[type-arg]
+    """One check of the drive ``folder`` against the rig file ``rig``: with the edge term
+    or without it (``edges``: the photometric term alone, as on a drive that shows no
+    edge clearly), the stored T_cam_laser moved by ``perturb`` (axis, rad or m: T_true
+    Exp(p), so the right correction is -p) or not."""
+    from bench_targetless import perturbed
+    from rigcal.drift.targetless import TargetlessSettings, check_targetless
     from rigcal.localize.streams import open_streams
 
     streams = open_streams(folder, rig_file=rig)
     assert streams.rig is not None
+    stored = streams.rig if perturb is None else perturbed(streams.rig, *perturb)
     c = time.process_time()
-    res = check_targetless(streams.rig, streams)
+    res = check_targetless(stored, streams, TargetlessSettings(edges=edges))
     rec = res.record
+    error = None
+    if perturb is not None and res.verdict != "cannot_tell":
+        axis, size = perturb
+        x = float(res.correction[axis]) + size
+        error = math.degrees(x) if axis < 3 else 1000.0 * x  # the correction's error, deg or mm
     keys = ("t2", "dof", "effective_blocks", "effective_clusters", "blocks", "corners", "edges")
     keys += ("edge_corners", "corner_directions")
     return {
@@ -99,8 +110,43 @@ def check(folder: Path, rig: Path) -> dict:  # type: ignore[type-arg]
             ]
         },
         "tests": rec.get("tests"),
+        "edge_bands": rec.get("edge_bands"),
+        "odometry_errors": rec.get("odometry_errors"),
+        "perturb": None if perturb is None else [AXES_NAMES[perturb[0]], perturb[1]],
+        "correction_error": error,
         "cpu_s": round(time.process_time() - c, 2),
     }
+
+
+AXES_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
+
+
+def perturbation(text: str | None) -> tuple[int, float] | None:
+    """``AXIS:SIZE`` (deg for rx/ry/rz, mm for tx/ty/tz) as (axis, rad or m)."""
+    if not text:
+        return None
+    name, _, size = text.partition(":")
+    axis = AXES_NAMES.index(name)
+    return axis, math.radians(float(size)) if axis < 3 else float(size) / 1000.0
+
+
+def detection(rows: list[dict]) -> None:  # type: ignore[type-arg]
+    """Of perturbed checks: how often the perturbed axis is observed, detected when
+    observed (with the Clopper-Pearson interval), and the correction's error there."""
+    rows = [r for r in rows if r.get("perturb")]
+    if not rows:
+        return
+    axis, size = rows[0]["perturb"]
+    shown = f"{math.degrees(size):g} deg" if axis.startswith("r") else f"{1000.0 * size:g} mm"
+    seen = [r for r in rows if axis in (r.get("observed") or [])]
+    hit = sum(r["verdict"] == "drifted" for r in seen)
+    lo, hi = clopper_pearson(hit, len(seen)) if seen else (math.nan, math.nan)
+    err = np.abs([r["correction_error"] for r in seen if r["correction_error"] is not None])
+    print(
+        f"perturbed {axis} by {shown}: observed in {len(seen)}/{len(rows)}; detected "
+        f"{hit}/{len(seen)} (Clopper-Pearson 95 %: {100 * lo:.1f}-{100 * hi:.1f} %); correction error "
+        + (f"median {np.median(err):.4f}, max {err.max():.4f}" if len(err) else "-")
+    )
 
 
 def read_rows(path: Path) -> list[dict]:  # type: ignore[type-arg]
@@ -231,7 +277,16 @@ def main() -> None:
         help="check again the drives of this run's rows (kept in --cache by --keep; no simulation)",
     )
     ap.add_argument("--compare", type=Path, help="also list the verdicts that differ from this run's")
+    ap.add_argument(
+        "--no-edges",
+        action="store_true",
+        help="the photometric term alone (the edge term off), as without edges",
+    )
+    ap.add_argument(
+        "--perturb", help="AXIS:SIZE, the stored T_cam_laser moved (deg for rx/ry/rz, mm for tx/ty/tz)"
+    )
     args = ap.parse_args()
+    perturb = perturbation(args.perturb)
     if args.recheck:
         rig = small_rig(args.cache)
         done = {r["seed"] for r in read_rows(args.out)}
@@ -239,7 +294,9 @@ def main() -> None:
             folder = args.cache / f"{old['world']}-320-s{old['seed']}-{old['duration_s']:g}s"
             if old["seed"] in done or not (folder / "sequence.yaml").exists():
                 continue
-            row = {k: old[k] for k in ("world", "seed", "duration_s")} | check(folder, rig)
+            row = {k: old[k] for k in ("world", "seed", "duration_s")} | check(
+                folder, rig, not args.no_edges, perturb
+            )
             with args.out.open("a") as f:
                 f.write(json.dumps(row) + "\n")
             print(json.dumps(row), file=sys.stderr, flush=True)
@@ -255,7 +312,9 @@ def main() -> None:
             folder = simulate(args.cache, rig, world, seed, args.duration_s)
             if folder is None:
                 continue
-            row = {"world": world, "seed": seed, "duration_s": args.duration_s} | check(folder, rig)
+            row = {"world": world, "seed": seed, "duration_s": args.duration_s} | check(
+                folder, rig, not args.no_edges, perturb
+            )
             with args.out.open("a") as f:
                 f.write(json.dumps(row) + "\n")
             print(json.dumps(row), file=sys.stderr, flush=True)
@@ -274,7 +333,10 @@ def main() -> None:
             if b is not None and b["verdict"] != r["verdict"]:
                 print(f"  changed: {r['world']} seed {r['seed']}: {b['verdict']} -> {r['verdict']}")
         print(f"--- {args.out}:")
-    report(rows, [float(x) for x in args.floor_scale.split(",")] if args.floor_scale else None)
+    if any(r.get("perturb") for r in rows):
+        detection(rows)  # a moved rig: its alarms are detections
+    else:
+        report(rows, [float(x) for x in args.floor_scale.split(",")] if args.floor_scale else None)
 
 
 if __name__ == "__main__":

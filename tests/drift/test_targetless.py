@@ -350,11 +350,12 @@ def test_edges_found_but_unusable_leave_the_photometric_term_on_every_scans_odom
     assert scans_seen == [len(range(0, n, 4)), n]
 
 
-def _photometric_alone(seed: int, yaw_deg: float):  # type: ignore[no-untyped-def]
+def _photometric_alone(seed: int, yaw_deg: float, held: bool = True):  # type: ignore[no-untyped-def]
     """A synthetic estimate of the photometric term alone (no edges) on 10 blocks of an
     unmoved rig, whose yaw carries an error common to every block (``yaw_deg``: the laser
     odometry's, the image model's), which the blocks' spread cannot show: their leave-one-
-    out moves scatter by about 0.01 deg on the rotations and 3 mm on the translations."""
+    out moves scatter by about 0.01 deg on the rotations and 3 mm on the translations.
+    ``held``: made with the odometry's errors held (else estimated)."""
     from rigcal.drift.targetless import _Estimate
 
     s = TargetlessSettings()
@@ -376,41 +377,71 @@ def _photometric_alone(seed: int, yaw_deg: float):  # type: ignore[no-untyped-de
         corners=0,
         moves=moves,
         determined=np.eye(6)[:, :5],
+        solve={"odometry_errors_held": held},
         information=np.diag([1e4, 1e4, 1e4, 1e3, 1e3, 0.0]),
     )
 
 
-def test_the_photometric_term_alone_does_not_judge_the_yaw():
-    """Without edges the photometric term estimates the yaw too, and its yaw errs by a
-    drive-level error no block's spread shows (the photometric model's own, as large on
-    the true motion: 0.136 deg root mean square on development drives,
-    ``photo_floor_deg``). With the
-    edges' yaw floor (0.04 deg: the former rule) a 0.18 deg error on 10 agreeing blocks
-    is an alarm (corridor 1220's case); with the photometric term's own floor the yaw is
-    not observed, said why, and the roll and pitch alone are judged."""
+def test_the_photometric_yaw_is_judged_where_its_floor_allows():
+    """Without edges the photometric term estimates the yaw too. With the laser odometry's
+    errors estimated beside T its yaw erred by 0.14 deg on every drive
+    (``photo_floor_free_deg``), above the resolution over the detection factor: not
+    observed, and said why. With them held on every scan's odometry its floor is the
+    odometry's and the image model's (``photo_floor_deg``), under that limit: the yaw is
+    observed, and a 0.3 deg yaw on 10 agreeing blocks is detected."""
     from types import SimpleNamespace
 
     from rigcal.drift.targetless import _test
 
     rig = Rig(default_T_cam_laser(), small_camera())
-    patches = SimpleNamespace(info={"heading_range_deg": 174.0, "edges": 50})
-    est = _photometric_alone(seed=1220, yaw_deg=-0.18)
+    patches = SimpleNamespace(info={"heading_range_deg": 174.0, "edges": 0})
     s = TargetlessSettings()
-    former = dataclasses.replace(s, photo_floor_deg=s.floor_deg)
-    old = _test(rig, est, patches, former, [])
-    assert old["verdict"] == "drifted"
-    assert "rz" in old["record"]["observed_axes"]
-    reasons: list[str] = []
-    new = _test(rig, est, patches, s, reasons)
-    assert new["verdict"] == "ok"
-    assert new["record"]["observed_axes"] == ["rx", "ry"]
-    yaw = [u for u in new["record"]["unobserved"] if "rz" in u["components"]]
+    assert s.photo_floor_deg[2] < s.resolution_deg / s.detection_factor()
+    assert s.photo_floor_free_deg[2] > s.resolution_deg / s.detection_factor()
+    est = _photometric_alone(seed=1220, yaw_deg=0.3)
+    old = _test(rig, _photometric_alone(seed=1220, yaw_deg=0.3, held=False), patches, s, [])
+    assert old["record"]["observed_axes"] == ["rx", "ry"]
+    yaw = [u for u in old["record"]["unobserved"] if "rz" in u["components"]]
     assert yaw
     assert all("systematic floor" in u["why"] and "no corner" in u["why"] for u in yaw)
-    # The roll and pitch are still judged: a 0.3 deg roll on the same blocks is detected.
-    moved = _photometric_alone(seed=1220, yaw_deg=-0.18)
-    moved.xi[0] = math.radians(0.3)
-    assert _test(rig, moved, patches, s, [])["verdict"] == "drifted"
+    new = _test(rig, est, patches, s, [])
+    assert new["record"]["observed_axes"] == ["rx", "ry", "rz"]
+    assert new["verdict"] == "drifted"
+    # An error of the floor's size common to the blocks is not an alarm.
+    unmoved = _photometric_alone(seed=1220, yaw_deg=s.photo_floor_deg[2])
+    assert _test(rig, unmoved, patches, s, [])["verdict"] == "ok"
+
+
+def test_without_edges_the_odometrys_errors_are_held_and_the_yaw_is_judged(drives):
+    """The photometric term alone, on every scan's odometry: the odometry's errors are held
+    at zero (estimated beside T they took up the image model's errors and dragged the
+    yaw), the estimate iterates until it settles, the yaw is observed, and a 0.3 deg yaw
+    is detected and corrected to within 0.1 deg. With edges, on the thinned scans'
+    odometry, the odometry's errors are still estimated."""
+    from rigcal.drift.targetless import SETTLED_UNITS
+
+    rig = read_rig(drives["rig"])
+    streams = open_streams(drives["drive"], rig_file=drives["rig"])
+    s = TargetlessSettings(edges=False)
+    res = check_targetless(rig, streams, s)
+    rec = res.record
+    assert res.verdict == "ok", res.reasons
+    assert "rz" in rec["observed_axes"]
+    assert rec["last_step_units"] < SETTLED_UNITS
+    assert rec["odometry_errors_held"] is True
+    held = rec["odometry_errors"]
+    assert held["crab_deg"] == [0.0, 0.0]
+    assert held["pivot_mm"] == [[0.0, 0.0], [0.0, 0.0]]
+    stored = dataclasses.replace(
+        rig, T_cam_laser=rig.T_cam_laser @ make_T(rotvec_to_R([0, 0, 0.3 * math.pi / 180]), np.zeros(3))
+    )
+    moved_res = check_targetless(stored, streams, s)
+    assert moved_res.verdict == "drifted", moved_res.reasons
+    assert abs(math.degrees(moved_res.correction[2]) + 0.3) < 0.1
+    with_edges = check_targetless(rig, streams).record
+    assert "edge_bands" in with_edges
+    assert with_edges["odometry_errors_held"] is False
+    assert with_edges["odometry_errors"]["crab_deg"][1] > 0.0
 
 
 class _Inline:
