@@ -69,13 +69,33 @@ def _restamp(seq: Path, before: int, after: int) -> None:
     (seq / "images.csv").write_text("\n".join(out) + "\n")
 
 
-def test_images_outside_the_scans_are_named_by_localize(drive, capsys):
+def test_images_outside_the_scans_are_left_out_by_localize_and_named_after_the_run(drive, capsys):
+    """Their laser pose is not measured: the image methods leave them out, and so do
+    their trajectories; one warning line, the last, counts them."""
     _restamp(drive, 2, 3)
-    assert main(["localize", str(drive), "--method", "icp,vo", "-o", str(drive.parent / "out")]) == 0
-    err = capsys.readouterr().err
-    assert "2 image(s) before the first scan and 3 after the last (by more than a scan period)" in err
+    out = drive.parent / "out"
+    assert main(["localize", str(drive), "--method", "icp,vo", "-o", str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == (
+        "warning: 2 image(s) before the first scan and 3 after the last (by more than a scan period) "
+        "left out of the image methods and their trajectories: no scan measures the laser's motion there"
+    )
+    assert sum("image(s) before the first scan" in line for line in err) == 1
+    with np.load(drive / "scans.npz") as z:
+        t_scan = z["stamps_s"]
+    vo = np.loadtxt(out / "vo" / "trajectory.tum", ndmin=2)[:, 0]
+    assert len(vo) == 20 - 5
+    assert vo.min() >= t_scan[0] - 0.5
+    assert vo.max() <= t_scan[-1] + 0.5
     assert main(["localize", str(drive), "--method", "icp", "-o", str(drive.parent / "icp")]) == 0
     assert "before the first scan" not in capsys.readouterr().err  # no image method: nothing to say
+
+
+def test_localize_refuses_a_drive_with_too_few_images_within_the_scans(drive, fails):
+    _restamp(drive, 9, 10)  # one frame left within the scans
+    line = fails(["localize", drive, "--method", "vo", "-o", drive.parent / "out"], 3)
+    want = f"Error: {drive / 'sequence.yaml'}: images.count: got 1; expected at least 2 images"
+    assert line.startswith(want)
 
 
 def test_the_targetless_check_leaves_out_frames_outside_the_scans(drive, monkeypatch):

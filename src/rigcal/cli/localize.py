@@ -191,6 +191,14 @@ def localize(
         f"{r.duration_s:.1f} s of data in {r.wall_s:.1f} s ({ratio:.2f}x real time); wrote {output}/",
         err=True,
     )
+    out = r.images_outside_scans
+    if out["before"] or out["after"]:
+        click.echo(
+            f"warning: {out['before']} image(s) before the first scan and {out['after']} after the last "
+            "(by more than a scan period) left out of the image methods and their trajectories: no scan "
+            "measures the laser's motion there",
+            err=True,
+        )
 
 
 def _warn_ignored_options(methods: str, iasm: bool, tracks: bool, smooth: bool, loop_closure: bool) -> None:

@@ -264,12 +264,23 @@ def check_seconds(stamps_s: FloatArray, where: str, key: str, step: str | None =
             )
 
 
-def outside_scans(image_stamps_s: FloatArray, scan_stamps_s: FloatArray) -> dict[str, int]:
-    """How many images are stamped before the first scan and after the last, by more than
-    one scan period (median step): the laser's pose is not known there, so no image method
-    can place them (``{"before": n, "after": m}``)."""
+def within_scans(image_stamps_s: FloatArray, scan_stamps_s: FloatArray) -> NDArray[np.bool_]:
+    """(M,) whether each image is stamped within the scans' span, give or take one scan
+    period (median step): beyond it the laser's pose is not known, so no image method can
+    place the image (the rule :func:`outside_scans` counts by)."""
     t, s = np.asarray(image_stamps_s, dtype=float), np.asarray(scan_stamps_s, dtype=float)
     if not len(t) or not len(s):
-        return {"before": 0, "after": 0}
+        return np.ones(len(t), dtype=bool)
     period = float(np.median(np.diff(s))) if len(s) > 1 else 0.0
-    return {"before": int((t < s[0] - period).sum()), "after": int((t > s[-1] + period).sum())}
+    return (t >= s[0] - period) & (t <= s[-1] + period)
+
+
+def outside_scans(image_stamps_s: FloatArray, scan_stamps_s: FloatArray) -> dict[str, int]:
+    """How many images are stamped before the first scan and after the last, by more than
+    one scan period (:func:`within_scans`): the laser's pose is not known there, so no image
+    method can place them (``{"before": n, "after": m}``)."""
+    t, s = np.asarray(image_stamps_s, dtype=float), np.asarray(scan_stamps_s, dtype=float)
+    out = ~within_scans(t, s)
+    if not out.any():
+        return {"before": 0, "after": 0}
+    return {"before": int((out & (t < s[0])).sum()), "after": int((out & (t > s[-1])).sum())}

@@ -23,7 +23,7 @@ from collections.abc import Callable, Generator, Iterator
 from collections.abc import Sequence as PySequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -34,7 +34,7 @@ from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
 from rigcal.io.images import check_depth, read_grey
-from rigcal.io.stamps import unit_hint
+from rigcal.io.stamps import outside_scans, unit_hint, within_scans
 from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
 from rigcal.lines import Segment, extract_lines
 from rigcal.localize.image_cache import Gray, ImageCache
@@ -147,6 +147,21 @@ class Streams:
                 "the same clock" + unit_hint(t_img[-1] - t_img[0], t_scan[-1] - t_scan[0]),
             )
         self.image(0)  # its decoding checks its size against the rig's camera
+
+    def leave_out_images_outside_scans(self) -> dict[str, int]:
+        """Leave out the images stamped before the first scan or after the last by more
+        than a scan period (:func:`rigcal.io.stamps.within_scans`): no scan measures the
+        laser's motion there, so an image method would place them on the images alone or
+        hold the scans' end pose. Returns how many were left out, ``{"before", "after"}``
+        (the images kept keep their order; frames decoded before are forgotten)."""
+        seq = self.sequence
+        out = outside_scans(seq.image_stamps_s, self.scan_stamps_s)
+        if out["before"] or out["after"]:
+            keep = within_scans(seq.image_stamps_s, self.scan_stamps_s)
+            files = tuple(f for f, k in zip(seq.image_files, keep, strict=True) if k)
+            self.sequence = replace(seq, image_stamps_s=seq.image_stamps_s[keep], image_files=files)
+            self._image_cache = ImageCache()
+        return out
 
     def image(self, i: int) -> Gray:
         """Frame i as a grey image."""
