@@ -2,9 +2,12 @@
 
 A scan is one sweep of a horizontal 2D scanner: beam angles (radians, counter-clockwise
 from the laser's +x, strictly increasing) and ranges (metres). Returns that are 0, NaN,
-inf, below ``range_min_m`` or above ``range_max_m`` are invalid: they are kept in the
-record (beam indices stay those of the file) and masked by :attr:`Scan.valid`, never
-crashed on.
+inf, below ``range_min_m`` or at or above ``range_max_m`` are invalid: they are kept in
+the record (beam indices stay those of the file) and masked by :attr:`Scan.valid`, never
+crashed on. A range of exactly ``range_max_m`` is what drivers (ROS's, CARMEN's, SICK's
+and Hokuyo's) write for a beam that saw nothing: one rule, here, for every reader (scan
+files, sequences, the importers), so that it never becomes a ring of points at the
+scanner's range.
 """
 
 from __future__ import annotations
@@ -107,7 +110,7 @@ class Scan:
 
     @property
     def valid(self) -> NDArray[np.bool_]:
-        """(N,) bool: the returns that are finite, > 0 and within [range_min_m, range_max_m]."""
+        """(N,) bool: the returns that are finite, > 0 and within [range_min_m, range_max_m)."""
         out: NDArray[np.bool_] = self._valid  # type: ignore[attr-defined]
         return out
 
@@ -140,7 +143,8 @@ def _valid_points(
     """The valid returns (shape of r) and the points (r's shape, 2) of angles a and ranges
     r (any shape; the range limits broadcast against r)."""
     with np.errstate(invalid="ignore"):
-        valid = np.isfinite(r) & (r > 0.0) & (r >= range_min_m) & (r <= range_max_m)
+        # At range_max: the driver's no return (the module's rule).
+        valid = np.isfinite(r) & (r > 0.0) & (r >= range_min_m) & (r < range_max_m)
     # The directions from angles in one range, -pi..pi, whichever range the scan lists
     # them in (0..2pi, say): the same beam gives the same point.
     if (np.abs(a) > np.pi).any():

@@ -355,8 +355,9 @@ def require_returns(folder: str | Path, seq: Sequence) -> None:
     """Refuse a drive whose scans hold no return at all, or only the scanner's maximum."""
     # A laser unplugged, ranges in a wrong unit, or a scanner that writes its maximum range
     # for no return: nothing to localize by, however still the robot would seem to stand.
-    if seq.scans and not any((s.valid & (s.ranges_m < s.range_max_m)).any() for s in seq.scans):
-        at_max = any(s.valid.any() for s in seq.scans)
+    # (A range at range_max_m is no return: rigcal.scan's rule.)
+    if seq.scans and not any(s.valid.any() for s in seq.scans):
+        at_max = any((s.ranges_m == s.range_max_m).any() for s in seq.scans)
         raise InputError.at(
             Path(folder),
             "scans",
