@@ -199,6 +199,12 @@ def localize(
             "measures the laser's motion there",
             err=True,
         )
+    if d := r.images_16_bit:
+        click.echo(
+            f"warning: {d['frames']} 16-bit images read as 8 bits (levels up to {d['max_level']}: "
+            f"shifted right by {d['shift_bits']} bits, every frame the same)",
+            err=True,
+        )
 
 
 def _warn_ignored_options(methods: str, iasm: bool, tracks: bool, smooth: bool, loop_closure: bool) -> None:

@@ -367,6 +367,8 @@ class Run:
     kf: kalman.KfParams = field(default_factory=kalman.KfParams)
     # Images left out of the image methods, stamped before the first scan or after the last.
     images_outside_scans: dict[str, int] = field(default_factory=lambda: {"before": 0, "after": 0})
+    # The sequence's 16-bit frames, read as 8 bits (frames, max_level, shift_bits; empty: none).
+    images_16_bit: dict[str, int] = field(default_factory=dict)
 
 
 def _shared_stages(streams: Streams, methods: list[str]) -> None:
@@ -605,6 +607,7 @@ def run(
         wheel,
         kf,
         outside,
+        dict(streams.results.get("images_16_bit", {})),
     )
 
 
@@ -619,6 +622,7 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
         },
         "duration_s": round(r.duration_s, 3),
         **({"images_outside_scans": dict(out)} if any((out := r.images_outside_scans).values()) else {}),
+        **({"images_16_bit": dict(r.images_16_bit)} if r.images_16_bit else {}),
         "wall_s": round(r.wall_s, 3),
         "x_real_time": round(r.duration_s / r.wall_s, 2) if r.wall_s > 0 else None,
         "stage_timings_s": {k: round(v, 3) for k, v in r.timings_s.items()},

@@ -231,7 +231,10 @@ def import_bag(
         summary.odometry = len(odometry.stamps_s)
     summary.outside = outside_scans(np.array([t for t, _, _ in images_sorted]), scan_t)
     datas, summary.depth = eight_bit_pngs([data for _, data, _ in images_sorted])
-    images_sorted = [(t, data, ext) for (t, _, ext), data in zip(images_sorted, datas, strict=True)]
+    images_sorted = [  # a converted frame is an 8-bit PNG
+        (t, data, ext if data is was else "png")
+        for (t, was, ext), data in zip(images_sorted, datas, strict=True)
+    ]
     frames = [ImageFrame(stamp, f"{i:06d}.{ext}", data) for i, (stamp, data, ext) in enumerate(images_sorted)]
     write_sequence(
         output,
