@@ -52,6 +52,7 @@ class ImportSummary:
     outside: dict[str, int] = field(default_factory=dict)  # images before the first scan, after the last
     depth: dict[str, int] = field(default_factory=dict)  # 16-bit images: frames, max_level, shift_bits
     unstamped: dict[str, int] = field(default_factory=dict)  # topic -> messages stamped 0 (record time used)
+    unread_info: list[str] = field(default_factory=list)  # CameraInfo topics the bag has, none asked for
 
     def record(self) -> dict[str, Any]:
         """The conversions made, for the sequence's ``source`` (none: nothing)."""
@@ -74,7 +75,7 @@ class ImportSummary:
         if any(self.outside.values()):
             out.append(
                 f"{self.outside['before']} images before the first scan and {self.outside['after']} "
-                "after the last (kept; check leaves them out, localize warns)"
+                "after the last (kept; check and localize's image methods leave them out)"
             )
         for topic, n in self.unstamped.items():
             out.append(f"{n} {topic} messages with header.stamp 0 (stamped with their record time)")
@@ -83,6 +84,11 @@ class ImportSummary:
             out.append(
                 f"{d['frames']} 16-bit images stored as 8 bits (levels up to {d['max_level']}: "
                 f"shifted right by {d['shift_bits']} bits)"
+            )
+        if self.unread_info:
+            out.append(
+                f"CameraInfo topic(s) {self.unread_info} not read: no camera.yaml "
+                "(--camera-info-topic TOPIC writes it)"
             )
         return out
 
@@ -155,6 +161,8 @@ def import_bag(
             if topics[topic] not in types:
                 raise InputError.at(bag, topic, topics[topic], f"a topic of type {' or '.join(types)}")
         summary = ImportSummary()
+        if camera_info_topic is None:  # said on the summary line: a camera the bag has, not kept
+            summary.unread_info = sorted(t for t, kind in topics.items() if kind in INFO_TYPES)
         scans: list[tuple[float, Scan]] = []
         images: list[tuple[float, bytes, str]] = []
         info: Any = None
