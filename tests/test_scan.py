@@ -541,3 +541,24 @@ def test_a_range_at_range_max_is_no_return_in_every_reader(tmp_path):
         {},
     )
     np.testing.assert_array_equal(read_sequence(seq).scans[0].valid, scan.valid)
+
+
+def test_a_negative_step_names_the_clockwise_form(tmp_path):
+    """A ROS LaserScan sweeping clockwise (angle_increment < 0) copied into a scan file: one
+    line saying how the file states it (the clockwise key, angles negated)."""
+    path = tmp_path / "cw.yaml"
+    path.write_text(
+        "schema_version: 1\nrange_min_m: 0.1\nrange_max_m: 30\n"
+        "angle_min_rad: -0.5\nangle_increment_rad: -0.1\nranges_m: [1.0, 2.0, 3.0]\n"
+    )
+    with pytest.raises(InputError, match=r"cw.yaml: angle_increment_rad: got -0.1; expected a step > 0") as e:
+        read_scan(path)
+    assert "angle_min_rad 0.5 and angle_increment_rad 0.1, negated, with schema_version: 2" in str(e.value)
+    cw = tmp_path / "cw2.yaml"
+    cw.write_text(
+        "schema_version: 2\nlaser: {clockwise: true}\nrange_min_m: 0.1\nrange_max_m: 30\n"
+        "angle_min_rad: 0.5\nangle_increment_rad: 0.1\nranges_m: [1.0, 2.0, 3.0]\n"
+    )
+    scan = read_scan(cw)  # the same beams: -0.5, -0.6, -0.7 rad, in increasing order
+    np.testing.assert_allclose(scan.angles_rad, [-0.7, -0.6, -0.5])
+    np.testing.assert_allclose(scan.ranges_m, [3.0, 2.0, 1.0])

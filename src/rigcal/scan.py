@@ -261,6 +261,15 @@ def read_scan(path: str | Path) -> Scan:
             if key not in d:
                 raise InputError(f"{path}: {key}: missing; angle_min_rad needs angle_increment_rad")
         a0 = real(d["angle_min_rad"], path, "angle_min_rad", lo=-2 * math.pi, hi=2 * math.pi)
+        step_given = d["angle_increment_rad"]
+        if is_real(step_given) and float(step_given) < 0:  # a ROS LaserScan sweeping clockwise
+            raise InputError.at(
+                path,
+                "angle_increment_rad",
+                float(step_given),
+                f"a step > 0 (a scanner sweeping clockwise: angle_min_rad {-a0:g} and angle_increment_rad "
+                f"{-float(step_given):g}, negated, with schema_version: 2 and laser: {{clockwise: true}})",
+            )
         step = real(
             d["angle_increment_rad"], path, "angle_increment_rad", lo=MIN_ANGLE_INCREMENT_RAD, hi=2 * math.pi
         )
