@@ -10,7 +10,7 @@ nothing is silently changed.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -105,6 +105,7 @@ def import_bag(
     odometry_topic: str | None = None,
     laser_offset: NDArray[np.float64] | None = None,
     odometry_frames: tuple[str, str] = ODOMETRY_FRAMES,
+    more: Sequence[str | Path] = (),
 ) -> ImportSummary:
     """Write a sequence folder from a bag. ``progress`` is called with (messages read,
     messages on the wanted topics). ``stamps="strict"`` refuses messages out of time order
@@ -113,7 +114,8 @@ def import_bag(
     as /tf) whose transforms ``odometry_frames`` (parent, child: odom -> base_link by
     default) are; the laser's mounting from ``laser_offset`` or else the bag's /tf_static
     (:func:`bag_odometry`). ``scan_topic`` and ``image_topic`` None: the bag's only topic
-    of that type.
+    of that type. ``more``: the further files of a bag recorded in parts (``rosbag record
+    --split``), read with ``bag`` as one bag, their messages in time order.
 
     Raises:
         InputError: unreadable bag, a missing topic (the bag's topics are listed), a topic
@@ -124,10 +126,14 @@ def import_bag(
     from rosbags.typesys import Stores, get_typestore
 
     bag = Path(bag)
-    if not bag.exists():
-        raise InputError(f"{bag}: bag not found")
+    parts = [bag, *(Path(b) for b in more)]
+    for b in parts:
+        if not b.exists():
+            raise InputError(f"{b}: bag not found")
+    if len(set(parts)) < len(parts):
+        raise InputError.at(bag, "BAG", [str(b) for b in parts], "each part of a bag given once")
     try:
-        reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader = AnyReader(parts, default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except Exception as exc:  # rosbags raises its own errors for unreadable bags
         raise InputError(f"{bag}: not a readable ROS 1 or ROS 2 bag: {str(exc).strip()[:120]}") from None
@@ -252,6 +258,7 @@ def import_bag(
         camera_yaml,
         {
             "bag": str(bag.resolve()),
+            **({"bag_parts": [str(b.resolve()) for b in parts]} if more else {}),
             "scan_topic": scan_topic,
             "image_topic": image_topic,
             "camera_info_topic": camera_info_topic,
