@@ -359,10 +359,16 @@ def test_half_of_the_uniform_angle_form(tmp_path, drop, missing):
         read_scan(path)
 
 
-@pytest.mark.parametrize(("text", "shown"), [("0", "0"), ("-0.25", "-0.25")])
-def test_increment_not_positive(tmp_path, text, shown):
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("0", "got 0; expected a finite number in [1e-06, 6.28319]"),
+        ("-0.25", "got -0.25; expected a step > 0"),
+    ],
+)
+def test_increment_not_positive(tmp_path, text, expected):
     path = scan_file(tmp_path, angle_increment_rad=text)
-    msg = f"{path}: angle_increment_rad: got {shown}; expected a finite number in [1e-06, 6.28319]"
+    msg = f"{path}: angle_increment_rad: {expected}"
     with pytest.raises(InputError, match=re.escape(msg)):
         read_scan(path)
 
