@@ -36,8 +36,9 @@ def assert_same_scan(a: Scan, b: Scan) -> None:
 def test_invalid_returns_are_masked_and_their_points_nan():
     ranges = [1.0, 0.0, np.nan, np.inf, 0.05, 31.0, 0.1, 30.0, -np.inf]
     scan = Scan.from_uniform(-1.0, 0.1, ranges, 0.1, 30.0)
-    # range_min and range_max themselves are valid; 0, NaN, +-inf, below and above are not.
-    np.testing.assert_array_equal(scan.valid, [True, False, False, False, False, False, True, True, False])
+    # range_min itself is valid; 0, NaN, +-inf, below, above and range_max itself (a
+    # driver's no return) are not.
+    np.testing.assert_array_equal(scan.valid, [True, False, False, False, False, False, True, False, False])
     assert np.isnan(scan.points[~scan.valid]).all()
     assert np.isfinite(scan.points[scan.valid]).all()
     # The record keeps the invalid returns as they were recorded.
@@ -45,7 +46,7 @@ def test_invalid_returns_are_masked_and_their_points_nan():
 
 
 def test_zero_range_is_invalid_even_when_range_min_is_zero():
-    scan = Scan([0.0, 0.1, 0.2, 0.3], [0.0, -0.0, 1e-9, 30.0], 0.0, 30.0)
+    scan = Scan([0.0, 0.1, 0.2, 0.3], [0.0, -0.0, 1e-9, 29.0], 0.0, 30.0)
     np.testing.assert_array_equal(scan.valid, [False, False, True, True])
 
 
@@ -358,10 +359,16 @@ def test_half_of_the_uniform_angle_form(tmp_path, drop, missing):
         read_scan(path)
 
 
-@pytest.mark.parametrize(("text", "shown"), [("0", "0"), ("-0.25", "-0.25")])
-def test_increment_not_positive(tmp_path, text, shown):
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("0", "got 0; expected a finite number in [1e-06, 6.28319]"),
+        ("-0.25", "got -0.25; expected a step > 0"),
+    ],
+)
+def test_increment_not_positive(tmp_path, text, expected):
     path = scan_file(tmp_path, angle_increment_rad=text)
-    msg = f"{path}: angle_increment_rad: got {shown}; expected a finite number in [1e-06, 6.28319]"
+    msg = f"{path}: angle_increment_rad: {expected}"
     with pytest.raises(InputError, match=re.escape(msg)):
         read_scan(path)
 
@@ -515,3 +522,49 @@ def test_mean_scan_refuses_scans_of_other_beams():
         mean_scan([a, b])
     with pytest.raises(ValueError, match="no scans"):
         mean_scan([])
+
+
+def test_a_range_at_range_max_is_no_return_in_every_reader(tmp_path):
+    """A driver's value for no return, read by the one rule of rigcal.scan: from a scan
+    file (`rigcal solve`, `rigcal lines`) as from a sequence's scans.npz (the importers
+    store it as inf: the same beams)."""
+    from rigcal.recordings.sequence import read_sequence, write_sequence
+
+    path = tmp_path / "scan.yaml"
+    path.write_text(
+        "schema_version: 1\nrange_min_m: 0.1\nrange_max_m: 30\n"
+        "angle_min_rad: -0.1\nangle_increment_rad: 0.1\nranges_m: [2.0, 30.0, 29.999]\n"
+    )
+    scan = read_scan(path)
+    np.testing.assert_array_equal(scan.valid, [True, False, True])
+    assert np.isnan(scan.points[1]).all()
+    seq = write_sequence(
+        tmp_path / "seq",
+        "s",
+        [Scan.from_uniform(-0.1, 0.1, [2.0, 30.0, 29.999], 0.1, 30.0, 0.0)],
+        [],
+        None,
+        {},
+    )
+    np.testing.assert_array_equal(read_sequence(seq).scans[0].valid, scan.valid)
+
+
+def test_a_negative_step_names_the_clockwise_form(tmp_path):
+    """A ROS LaserScan sweeping clockwise (angle_increment < 0) copied into a scan file: one
+    line saying how the file states it (the clockwise key, angles negated)."""
+    path = tmp_path / "cw.yaml"
+    path.write_text(
+        "schema_version: 1\nrange_min_m: 0.1\nrange_max_m: 30\n"
+        "angle_min_rad: -0.5\nangle_increment_rad: -0.1\nranges_m: [1.0, 2.0, 3.0]\n"
+    )
+    with pytest.raises(InputError, match=r"cw.yaml: angle_increment_rad: got -0.1; expected a step > 0") as e:
+        read_scan(path)
+    assert "angle_min_rad 0.5 and angle_increment_rad 0.1, negated, with schema_version: 2" in str(e.value)
+    cw = tmp_path / "cw2.yaml"
+    cw.write_text(
+        "schema_version: 2\nlaser: {clockwise: true}\nrange_min_m: 0.1\nrange_max_m: 30\n"
+        "angle_min_rad: 0.5\nangle_increment_rad: 0.1\nranges_m: [1.0, 2.0, 3.0]\n"
+    )
+    scan = read_scan(cw)  # the same beams: -0.5, -0.6, -0.7 rad, in increasing order
+    np.testing.assert_allclose(scan.angles_rad, [-0.7, -0.6, -0.5])
+    np.testing.assert_allclose(scan.ranges_m, [3.0, 2.0, 1.0])

@@ -2,9 +2,12 @@
 
 A scan is one sweep of a horizontal 2D scanner: beam angles (radians, counter-clockwise
 from the laser's +x, strictly increasing) and ranges (metres). Returns that are 0, NaN,
-inf, below ``range_min_m`` or above ``range_max_m`` are invalid: they are kept in the
-record (beam indices stay those of the file) and masked by :attr:`Scan.valid`, never
-crashed on.
+inf, below ``range_min_m`` or at or above ``range_max_m`` are invalid: they are kept in
+the record (beam indices stay those of the file) and masked by :attr:`Scan.valid`, never
+crashed on. A range of exactly ``range_max_m`` is what drivers (ROS's, CARMEN's, SICK's
+and Hokuyo's) write for a beam that saw nothing: one rule, here, for every reader (scan
+files, sequences, the importers), so that it never becomes a ring of points at the
+scanner's range.
 """
 
 from __future__ import annotations
@@ -107,7 +110,7 @@ class Scan:
 
     @property
     def valid(self) -> NDArray[np.bool_]:
-        """(N,) bool: the returns that are finite, > 0 and within [range_min_m, range_max_m]."""
+        """(N,) bool: the returns that are finite, > 0 and within [range_min_m, range_max_m)."""
         out: NDArray[np.bool_] = self._valid  # type: ignore[attr-defined]
         return out
 
@@ -140,7 +143,8 @@ def _valid_points(
     """The valid returns (shape of r) and the points (r's shape, 2) of angles a and ranges
     r (any shape; the range limits broadcast against r)."""
     with np.errstate(invalid="ignore"):
-        valid = np.isfinite(r) & (r > 0.0) & (r >= range_min_m) & (r <= range_max_m)
+        # At range_max: the driver's no return (the module's rule).
+        valid = np.isfinite(r) & (r > 0.0) & (r >= range_min_m) & (r < range_max_m)
     # The directions from angles in one range, -pi..pi, whichever range the scan lists
     # them in (0..2pi, say): the same beam gives the same point.
     if (np.abs(a) > np.pi).any():
@@ -257,6 +261,15 @@ def read_scan(path: str | Path) -> Scan:
             if key not in d:
                 raise InputError(f"{path}: {key}: missing; angle_min_rad needs angle_increment_rad")
         a0 = real(d["angle_min_rad"], path, "angle_min_rad", lo=-2 * math.pi, hi=2 * math.pi)
+        step_given = d["angle_increment_rad"]
+        if is_real(step_given) and float(step_given) < 0:  # a ROS LaserScan sweeping clockwise
+            raise InputError.at(
+                path,
+                "angle_increment_rad",
+                float(step_given),
+                f"a step > 0 (a scanner sweeping clockwise: angle_min_rad {-a0:g} and angle_increment_rad "
+                f"{-float(step_given):g}, negated, with schema_version: 2 and laser: {{clockwise: true}})",
+            )
         step = real(
             d["angle_increment_rad"], path, "angle_increment_rad", lo=MIN_ANGLE_INCREMENT_RAD, hi=2 * math.pi
         )

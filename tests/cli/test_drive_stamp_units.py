@@ -80,6 +80,21 @@ def test_wheel_odometry_in_milliseconds_says_so(drive, fails):
     )
 
 
+def test_fast_wheel_odometry_in_milliseconds_from_its_start_says_so(drive, fails):
+    """200 Hz odometry stamped in milliseconds from its start steps by 5, which passes for
+    seconds, and overlaps the scans: its span, about 1000x the scans', says milliseconds."""
+    rows = [r.split() for r in (drive / "odometry.tum").read_text().splitlines() if not r.startswith("#")]
+    t = np.arange(0.0, 4.0, 0.005)
+    x = np.interp(t, [float(r[0]) for r in rows], [float(r[1]) for r in rows])
+    lines = [f"{k * 5} {float(xi)!r} 0 0 0 0 0 1\n" for k, xi in enumerate(x)]
+    (drive / "odometry.tum").write_text("".join(lines))
+    line = fails(["localize", drive, "--method", "icp", "-o", drive.parent / "out"], 3)
+    assert "odometry.tum: odometry stamps: got 'a pose every 5 (median) over 3995'; expected seconds" in line
+    assert "(stamps in milliseconds from the start?)" in line
+    rig = drive.parent / "rig.yaml"
+    assert "a pose every 5 (median)" in fails(["check", rig, "--sequence", drive, "--no-log"], 3)
+
+
 def test_wheel_odometry_in_milliseconds_on_another_clock_gets_the_hint(drive, fails):
     _odometry(drive, lambda t: t * 1e3 + 1e4)  # no overlap either: the spans' ratio is a hint
     line = fails(["localize", drive, "--method", "icp", "-o", drive.parent / "out"], 3)

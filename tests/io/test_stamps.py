@@ -114,3 +114,16 @@ def test_odometry_in_another_unit_is_refused_by_its_own_stamps(stamps, match):
 
     with pytest.raises(InputError, match=rf"^odom.tum: odometry stamps: {match}"):
         checked(stamps, np.zeros((len(stamps), 3)), (0.0, 0.0, 0.0), "odom.tum", np.array([0.0, 60.0]))
+
+
+@pytest.mark.parametrize("hz", [200, 500])
+def test_fast_odometry_in_milliseconds_from_its_start_is_refused_beside_its_scans(hz):
+    """Steps under 10 pass for seconds by themselves; a pose every 5 (or 2) "seconds" over
+    about 1000x the scans' span is two things real odometry is not at once."""
+    from rigcal.io.wheel_odometry import checked
+
+    t = np.round(np.arange(0.0, 60.0, 1.0 / hz) * 1e3)  # a logger's integer milliseconds
+    with pytest.raises(
+        InputError, match=rf"^odom.tum: odometry stamps: got 'a pose every {1000 // hz:g} \(median\)"
+    ):
+        checked(t, np.zeros((len(t), 3)), (0.0, 0.0, 0.0), "odom.tum", np.array([0.0, 60.0]))

@@ -5,6 +5,8 @@ was expected (exit 3), or the data read as they are."""
 
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -122,3 +124,32 @@ def test_frames_named_with_a_leading_slash_are_the_same_frames(tmp_path):
     od = read_sequence(tmp_path / "s").odometry
     assert od is not None
     np.testing.assert_allclose(od.T_base_laser, [0.3, 0.0, 0.0], atol=1e-9)
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_a_bag_recorded_in_parts_is_read_as_one(tmp_path, capsys, ros):
+    """rosbag record --split writes a drive as several files: given together they are one
+    bag, their messages in time order; a part given twice or missing is one line."""
+    from test_bag import write_bag
+
+    a = write_bag(
+        tmp_path / ("a.bag" if ros == 1 else "a"), ros, [1.0 + 0.1 * k for k in range(10)], [1.05, 1.45]
+    )
+    b = write_bag(
+        tmp_path / ("b.bag" if ros == 1 else "b"), ros, [2.0 + 0.1 * k for k in range(10)], [2.05, 2.45]
+    )
+    assert main(["-q", "import-bag", str(b), str(a), "-o", str(tmp_path / "s"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert (doc["scans"], doc["images"]) == (20, 4)
+    seq = read_sequence(tmp_path / "s")
+    stamps = [s.stamp_s for s in seq.scans]
+    np.testing.assert_allclose(stamps, sorted(stamps))
+    np.testing.assert_allclose([stamps[0], stamps[-1]], [1.0, 2.9])
+    assert seq.source["bag_parts"] == [str(b.resolve()), str(a.resolve())]
+    assert main(["import-bag", str(a), str(a), "-o", str(tmp_path / "t")]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"Error: {a}: BAG: got ")
+    assert err[-1].endswith("expected each part of a bag given once")
+    assert main(["import-bag", str(a), str(tmp_path / "c.bag"), "-o", str(tmp_path / "t")]) == 3
+    assert capsys.readouterr().err.strip().splitlines()[-1] == f"Error: {tmp_path / 'c.bag'}: bag not found"
+    assert not (tmp_path / "t").exists()

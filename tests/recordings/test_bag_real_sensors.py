@@ -183,9 +183,16 @@ def test_the_command_says_what_it_converted(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "2 ranges at range_max (no return)" in out
     assert (
-        "0 images before the first scan and 1 after the last (kept; check leaves them out, localize "
-        "warns)" in out in out
+        "0 images before the first scan and 1 after the last (kept; check and localize's image methods "
+        "leave them out)" in out
     )
+    # The bag's camera, not asked for, is said to be left (no silent sequence without it).
+    assert (
+        "CameraInfo topic(s) ['/cam/info'] not read: no camera.yaml (--camera-info-topic TOPIC writes it)"
+        in out
+    )
+    assert main(["import-bag", str(bag), "-o", str(tmp_path / "c"), "--camera-info-topic", "/cam/info"]) == 0
+    assert "CameraInfo" not in capsys.readouterr().out
     assert main(["-q", "import-bag", str(bag), "-o", str(tmp_path / "j"), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["returns_at_range_max"] == 2

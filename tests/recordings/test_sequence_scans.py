@@ -18,11 +18,11 @@ Arrays = dict[str, np.ndarray]
 
 def _reference(a0: float, step: float, ranges: np.ndarray, lo: float, hi: float, stamp: float) -> dict:
     """One scan as the reader built it before, scan by scan (angles, validity and points
-    written out as Scan.__post_init__ computed them)."""
+    written out as Scan.__post_init__ computes them; a range at range_max is no return)."""
     r = np.array(ranges, dtype=float)
     a = a0 + step * np.arange(len(r), dtype=np.float64)
     with np.errstate(invalid="ignore"):
-        valid = np.isfinite(r) & (r > 0.0) & (r >= lo) & (r <= hi)
+        valid = np.isfinite(r) & (r > 0.0) & (r >= lo) & (r < hi)
     pts = np.full((len(r), 2), np.nan)
     w = np.where(a > np.pi, a - 2.0 * np.pi, np.where(a < -np.pi, a + 2.0 * np.pi, a))[valid]
     pts[valid, 0] = r[valid] * np.cos(w)

@@ -12,7 +12,7 @@ from rigcal.cli.stamps import laser_offset_option
 
 
 @click.command("import-bag")
-@click.argument("bag", type=click.Path(path_type=Path))
+@click.argument("bags", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="BAG...")
 @click.option("--scan-topic", help="sensor_msgs/LaserScan topic [default: the bag's only one].")
 @click.option(
     "--image-topic", help="sensor_msgs/Image or CompressedImage topic [default: the bag's only one]."
@@ -42,7 +42,7 @@ from rigcal.cli.stamps import laser_offset_option
 @force_option("Replace an existing folder.")
 @json_option("Print what was written as JSON on stdout.")
 def import_bag(
-    bag: Path,
+    bags: tuple[Path, ...],
     scan_topic: str | None,
     image_topic: str | None,
     camera_info_topic: str | None,
@@ -57,7 +57,8 @@ def import_bag(
     """Write the scans, images (and camera) of BAG as a sequence folder (docs/formats/sequence.md).
 
     Works on ROS 1 (.bag) and ROS 2 (folder with metadata.yaml) bags through the rosbags
-    package; no ROS installation is needed. Without --scan-topic (--image-topic) the bag's
+    package; no ROS installation is needed. A bag recorded in parts (rosbag record --split)
+    is given as all its files, read as one bag. Without --scan-topic (--image-topic) the bag's
     only LaserScan (image) topic is read; a bag with several names them.
 
     \b
@@ -66,6 +67,7 @@ def import_bag(
       rigcal import-bag run2/ --scan-topic /scan --image-topic /cam/image/compressed \\
           --camera-info-topic /cam/camera_info -o run2-seq/ --force
       rigcal import-bag run3/ --scan-topic /scan --image-topic /cam/image --odometry-topic /tf -o run3/
+      rigcal import-bag run4_0.bag run4_1.bag run4_2.bag -o run4/
     """
     from rigcal.errors import InputError
     from rigcal.io.files import check_folder_writable
@@ -76,7 +78,8 @@ def import_bag(
     frames = tuple(f.strip().lstrip("/") for f in odometry_frames.split(","))
     if len(frames) != 2 or not all(frames):
         raise InputError.at(None, "--odometry-frames", odometry_frames, "PARENT,CHILD (e.g. odom,base_link)")
-    check_folder_writable(output, force, [bag])
+    bag, more = bags[0], bags[1:]
+    check_folder_writable(output, force, list(bags))
     from rigcal.cli.progress import Progress
 
     with Progress("msg") as bars:
@@ -92,6 +95,7 @@ def import_bag(
             odometry_topic=odometry_topic,
             laser_offset=mounting,
             odometry_frames=(frames[0], frames[1]),
+            more=more,
         )
     if as_json:
         doc = {

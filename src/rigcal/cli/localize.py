@@ -191,6 +191,20 @@ def localize(
         f"{r.duration_s:.1f} s of data in {r.wall_s:.1f} s ({ratio:.2f}x real time); wrote {output}/",
         err=True,
     )
+    out = r.images_outside_scans
+    if out["before"] or out["after"]:
+        click.echo(
+            f"warning: {out['before']} image(s) before the first scan and {out['after']} after the last "
+            "(by more than a scan period) left out of the image methods and their trajectories: no scan "
+            "measures the laser's motion there",
+            err=True,
+        )
+    if d := r.images_16_bit:
+        click.echo(
+            f"warning: {d['frames']} 16-bit images read as 8 bits (levels up to {d['max_level']}: "
+            f"shifted right by {d['shift_bits']} bits, every frame the same)",
+            err=True,
+        )
 
 
 def _warn_ignored_options(methods: str, iasm: bool, tracks: bool, smooth: bool, loop_closure: bool) -> None:

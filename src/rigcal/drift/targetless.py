@@ -332,6 +332,8 @@ def check_targetless(
     nan6 = np.full(6, np.nan)
     duration = float(streams.image_stamps_s[-1] - streams.image_stamps_s[0])
     base: dict[str, Any] = {"duration_s": round(duration, 3), "images": streams.n_images}
+    if depth := streams.first_image_depth():  # 16-bit frames read as 8 bits, one shift for all
+        base["images_16_bit"] = dict(depth)
     outside = outside_scans(streams.image_stamps_s, streams.scan_stamps_s)
     if outside["before"] or outside["after"]:  # left out of the check (no laser pose there)
         base["images_outside_scans"] = outside

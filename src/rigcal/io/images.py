@@ -8,9 +8,13 @@ data inflated by libdeflate, then unfiltered by libpng: faster than OpenCV's lib
 grey with the integer weights libpng applies for OpenCV, ``(9797 R + 19234 G + 3737 B) >>
 15`` (ITU-R BT.601's 0.299, 0.587 and 0.114 in 1/32768, truncated), so the grey levels
 are bit for bit OpenCV's and so are the tracks and trajectories computed from them. Any
-other image (JPEG, 16-bit PNG, a palette, transparency, or a PNG that states its gamma or
-colour space, which libpng may honour) is read by OpenCV itself. The plain PNGs' decoding
-is :mod:`rigcal.io.png`'s (importable without OpenCV or numba, for decoding that starts
+other image (JPEG, a palette, transparency, or a PNG that states its gamma or colour
+space, which libpng may honour) is read by OpenCV itself. A drive's 16-bit frames (PNG,
+TIFF, PGM, PPM) are made 8-bit by one rule wherever they are read (:func:`eight_bit_pngs`
+when a recording is imported, :func:`sixteen_bit_grey` when a sequence folder holds them):
+every frame shifted right by the same bits, those of the drive's brightest level beyond 8
+(:func:`depth_shift`). The plain PNGs' decoding is :mod:`rigcal.io.png`'s (importable
+without OpenCV or numba, for decoding that starts
 while a command still imports them).
 """
 
@@ -43,12 +47,17 @@ _WR, _WG, _WB = WEIGHTS_RGB
 def read_grey(path: str | Path) -> Gray | None:
     """The image at ``path`` as 8-bit grey, or None when it cannot be read (as
     ``cv2.imread(path, cv2.IMREAD_GRAYSCALE)``, whose levels it returns)."""
-    import cv2
-
     try:
         data = Path(path).read_bytes()
     except OSError:
         return None
+    return grey_of(data)
+
+
+def grey_of(data: bytes) -> Gray | None:
+    """Encoded image bytes as 8-bit grey, as :func:`read_grey` reads a file."""
+    import cv2
+
     if not data:
         return None
     grey = plain_png_grey(data, rgb_to_grey)
@@ -58,70 +67,107 @@ def read_grey(path: str | Path) -> Gray | None:
     return None if out is None else np.asarray(out, dtype=np.uint8)
 
 
-# A grey frame whose levels are all below this may be a 16-bit image whose levels do not
-# reach its top byte (OpenCV's 8-bit reading keeps the top byte): checked by
-# :func:`check_depth`.
-DARK_LEVELS = 16
+# TIFF's two byte orders and binary PGM/PPM: formats that may hold 16-bit frames (besides
+# PNG, whose IHDR says its depth). A JPEG is 8-bit.
+_WIDE_SIGNATURES = (b"II*\x00", b"MM\x00*", b"P5", b"P6")
 
 
-def check_depth(path: str | Path, grey: Gray) -> None:
-    """Refuse a 16-bit image that reads (by OpenCV's rule, its top 8 bits) as nearly black
-    because its levels use 12 bits or fewer (a 12-bit camera's 0-4095 in 16-bit words):
-    read as it is, every method would see a black frame. Costs nothing for other frames
-    (only a frame whose grey levels all lie below :data:`DARK_LEVELS` is looked at again).
-
-    Raises:
-        InputError: ``PATH: levels: got '16-bit, up to 4095'; expected ...``.
-    """
-    import cv2
-
-    if grey.size == 0 or int(grey.max()) >= DARK_LEVELS:
-        return
-    img = read_image_file(path, cv2.IMREAD_UNCHANGED)
-    if img is None or img.dtype != np.uint16:
-        return
-    top = int(img.max())
-    raise InputError.at(
-        path,
-        "levels",
-        f"16-bit, up to {top}",
-        "8-bit images, or 16-bit ones whose levels reach the top byte (read by their top 8 bits, "
-        f"this frame's levels use {max(top.bit_length(), 1)} bits and it reads black): convert the "
-        "images to 8 bits, every frame shifted right by the same bits, as import-bag and import-laser do",
-    )
-
-
-def eight_bit_pngs(images: list[bytes]) -> tuple[list[bytes], dict[str, int]]:
-    """A drive's encoded frames with its 16-bit PNGs as 8-bit PNGs, every one shifted right
-    by the same number of bits: the bits of the drive's brightest 16-bit level beyond 8 (a
-    12-bit camera's levels up to 4095: 4), so that a level means the same brightness in
-    every frame and a camera that fills only 12 of its 16 bits is not read as nearly black
-    (OpenCV keeps a 16-bit image's top byte). Other frames are returned as they are; the
-    dict says what was done (``frames``, ``max_level``, ``shift_bits``; empty: nothing)."""
+def sixteen_bit(data: bytes) -> NDArray[np.uint16] | None:
+    """An encoded frame's levels when it is a 16-bit image (PNG, TIFF, binary PGM or PPM),
+    as OpenCV decodes it unchanged ((H, W) grey, (H, W, 3) BGR or (H, W, 4) BGRA); None for
+    any other frame (8-bit ones; JPEGs and 8-bit PNGs are not decoded)."""
     import cv2
 
     # IHDR's bit depth is byte 24 of a PNG (signature, chunk length and type, width, height).
+    if data.startswith(PNG_SIGNATURE):
+        if data[24:25] != b"\x10":
+            return None
+    elif not data.startswith(_WIDE_SIGNATURES):
+        return None
+    img = decode(data, cv2.IMREAD_UNCHANGED)
+    return img if img is not None and img.dtype == np.uint16 else None
+
+
+def depth_shift(top_level: int) -> int:
+    """The bits a drive's 16-bit frames are shifted right by to make them 8-bit: those of
+    its brightest level beyond 8 (a 12-bit camera's levels up to 4095: 4; a camera filling
+    16 bits: 8, its top byte), the same for every frame, so that a level means the same
+    brightness in every frame and a camera that fills only 12 of its 16 bits is not read
+    as nearly black (OpenCV keeps a 16-bit image's top byte)."""
+    return max(0, int(top_level).bit_length() - 8)
+
+
+def eight_bits(img: NDArray[np.uint16], shift: int) -> NDArray[np.uint8]:
+    """A 16-bit frame's levels shifted right by ``shift`` bits (:func:`depth_shift`), as
+    8 bits (levels above the drive's brightest cannot occur: it sets the shift)."""
+    return np.minimum(img >> shift, 255).astype(np.uint8)
+
+
+def sixteen_bit_grey(img: NDArray[np.uint16], shift: int) -> Gray:
+    """A 16-bit frame as the 8-bit grey its 8-bit PNG (:func:`eight_bit_pngs`) reads as
+    (:func:`read_grey`: colour by libpng's weights, alpha ignored)."""
+    eight = eight_bits(img, shift)
+    if eight.ndim == 2:
+        return eight
+    return rgb_to_grey(np.ascontiguousarray(eight[..., 2::-1]))  # BGR(A) -> RGB
+
+
+def eight_bit_pngs(images: list[bytes]) -> tuple[list[bytes], dict[str, int]]:
+    """A drive's encoded frames with its 16-bit frames (PNG, TIFF, PGM, PPM:
+    :func:`sixteen_bit`) as 8-bit PNGs, every one shifted right by the same bits
+    (:func:`depth_shift`). Other frames are returned as they are (the same objects: a
+    frame that is not is a PNG now); the dict says what was done (``frames``,
+    ``max_level``, ``shift_bits``; empty: nothing)."""
+    import cv2
+
     # Two passes, each decoding one frame at a time: a drive's 16-bit frames need not fit
     # in memory together.
-    def wide(data: bytes) -> NDArray[np.uint16] | None:
-        if not (data.startswith(PNG_SIGNATURE) and data[24:25] == b"\x10"):
-            return None
-        img = decode(data, cv2.IMREAD_UNCHANGED)
-        return img if img is not None and img.dtype == np.uint16 else None
-
-    levels = {k: int(img.max()) for k, data in enumerate(images) if (img := wide(data)) is not None}
+    levels = {k: int(img.max()) for k, data in enumerate(images) if (img := sixteen_bit(data)) is not None}
     if not levels:
         return images, {}
     top = max(levels.values())
-    shift = max(0, top.bit_length() - 8)
+    shift = depth_shift(top)
     out = list(images)
     for k in levels:
-        img = wide(images[k])
+        img = sixteen_bit(images[k])
         assert img is not None  # it decoded in the first pass
-        ok, buf = cv2.imencode(".png", (img >> shift).astype(np.uint8))
+        ok, buf = cv2.imencode(".png", eight_bits(img, shift))
         assert ok  # cv2 encodes any 8-bit image
         out[k] = bytes(buf.tobytes())
     return out, {"frames": len(levels), "max_level": top, "shift_bits": shift}
+
+
+def sixteen_bit_levels(paths: list[Path]) -> dict[str, int]:
+    """The 16-bit frames among ``paths`` (:func:`sixteen_bit`), as :func:`eight_bit_pngs`
+    records them: ``frames``, ``max_level``, ``shift_bits`` (empty: none). Each file is read
+    once, one at a time."""
+    levels = []
+    for path in paths:
+        try:
+            data = path.read_bytes()
+        except OSError:  # the frame's own reading names it
+            continue
+        img = sixteen_bit(data)
+        if img is not None:
+            levels.append(int(img.max()))
+    if not levels:
+        return {}
+    top = max(levels)
+    return {"frames": len(levels), "max_level": top, "shift_bits": depth_shift(top)}
+
+
+def read_grey_at_depth(path: str | Path, depth: dict[str, int]) -> Gray | None:
+    """The image at ``path`` as 8-bit grey (:func:`read_grey`); a 16-bit frame of a drive
+    whose 16-bit frames ``depth`` describes (:func:`sixteen_bit_levels`) shifted right by
+    its ``shift_bits``, as its 8-bit PNG would read (:func:`sixteen_bit_grey`)."""
+    if depth:
+        try:
+            img = sixteen_bit(Path(path).read_bytes())
+        except OSError:
+            return None
+        if img is not None:
+            return sixteen_bit_grey(img, depth["shift_bits"])
+    return read_grey(path)
 
 
 def decode(data: bytes, flags: int) -> NDArray[Any] | None:

@@ -264,12 +264,55 @@ def check_seconds(stamps_s: FloatArray, where: str, key: str, step: str | None =
             )
 
 
-def outside_scans(image_stamps_s: FloatArray, scan_stamps_s: FloatArray) -> dict[str, int]:
-    """How many images are stamped before the first scan and after the last, by more than
-    one scan period (median step): the laser's pose is not known there, so no image method
-    can place them (``{"before": n, "after": m}``)."""
+# Wheel odometry logged less often than this (s, median step) is slow; see
+# :func:`check_beside_scans`.
+SLOW_POSE_S = 1.0
+
+
+def check_beside_scans(stamps_s: FloatArray, scan_stamps_s: FloatArray, where: str, key: str) -> None:
+    """Refuse wheel odometry stamped in milliseconds from its start and logged faster than
+    100 Hz (steps under 10, which :func:`check_seconds` takes for seconds) beside scans
+    stamped in seconds. Read as seconds, such odometry is two things at once that real
+    odometry is not: logged less than once a second (median step over
+    :data:`SLOW_POSE_S`: a 200 Hz logger's 5 ms) **and** over about 1000 times the scans'
+    span (:func:`unit_hint`: a minute of driving becomes 17 hours). Either alone is real (a
+    slow logger; an hour of odometry around a minute of scans) and is read as it is.
+
+    Raises:
+        InputError: ``where: key: got 'a pose every 5 (median) over 59995'; expected ...``.
+    """
+    t, s = np.asarray(stamps_s, dtype=float), np.asarray(scan_stamps_s, dtype=float)
+    if len(t) < 3 or len(s) < 2:
+        return
+    period = float(np.median(np.diff(t)))
+    span, scan_span = float(t[-1] - t[0]), float(s[-1] - s[0])
+    if period > SLOW_POSE_S and "milliseconds" in unit_hint(span, scan_span):
+        raise InputError.at(
+            where,
+            key,
+            f"a pose every {period:g} (median) over {span:g}",
+            f"seconds: wheel odometry is logged several times a second, and over about the scans' "
+            f"span ({scan_span:.3g} s), not 1000 times it (stamps in milliseconds from the start?)",
+        )
+
+
+def within_scans(image_stamps_s: FloatArray, scan_stamps_s: FloatArray) -> NDArray[np.bool_]:
+    """(M,) whether each image is stamped within the scans' span, give or take one scan
+    period (median step): beyond it the laser's pose is not known, so no image method can
+    place the image (the rule :func:`outside_scans` counts by)."""
     t, s = np.asarray(image_stamps_s, dtype=float), np.asarray(scan_stamps_s, dtype=float)
     if not len(t) or not len(s):
-        return {"before": 0, "after": 0}
+        return np.ones(len(t), dtype=bool)
     period = float(np.median(np.diff(s))) if len(s) > 1 else 0.0
-    return {"before": int((t < s[0] - period).sum()), "after": int((t > s[-1] + period).sum())}
+    return (t >= s[0] - period) & (t <= s[-1] + period)
+
+
+def outside_scans(image_stamps_s: FloatArray, scan_stamps_s: FloatArray) -> dict[str, int]:
+    """How many images are stamped before the first scan and after the last, by more than
+    one scan period (:func:`within_scans`): the laser's pose is not known there, so no image
+    method can place them (``{"before": n, "after": m}``)."""
+    t, s = np.asarray(image_stamps_s, dtype=float), np.asarray(scan_stamps_s, dtype=float)
+    out = ~within_scans(t, s)
+    if not out.any():
+        return {"before": 0, "after": 0}
+    return {"before": int((out & (t < s[0])).sum()), "after": int((out & (t > s[-1])).sum())}

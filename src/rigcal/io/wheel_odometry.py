@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.stamps import check_seconds, unit_hint
+from rigcal.io.stamps import check_beside_scans, check_seconds, unit_hint
 from rigcal.io.trajectory import Trajectory, read_tum, tum_text
 
 # A TUM odometry file is planar: its poses may tilt by at most this (rad) off the floor.
@@ -139,6 +139,7 @@ def checked(
     # minute of scans.
     check_seconds(t, where, "odometry stamps", step="pose")
     if scan_stamps_s is not None and len(scan_stamps_s):
+        check_beside_scans(t, scan_stamps_s, where, "odometry stamps")
         lo, hi = float(scan_stamps_s[0]), float(scan_stamps_s[-1])
         if t[-1] < lo or t[0] > hi:
             raise InputError.at(

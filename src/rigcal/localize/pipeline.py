@@ -25,7 +25,6 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
-from rigcal.io.stamps import outside_scans
 from rigcal.io.trajectory import Trajectory, read_tum
 from rigcal.io.wheel_odometry import across_gaps, gap_s, laser_motions
 from rigcal.localize import kalman
@@ -366,6 +365,10 @@ class Run:
     tracks: TrackParams = field(default_factory=TrackParams)
     wheel_odometry: str = "none"  # "used", "ignored" or "none" (the sequence has none)
     kf: kalman.KfParams = field(default_factory=kalman.KfParams)
+    # Images left out of the image methods, stamped before the first scan or after the last.
+    images_outside_scans: dict[str, int] = field(default_factory=lambda: {"before": 0, "after": 0})
+    # The sequence's 16-bit frames, read as 8 bits (frames, max_level, shift_bits; empty: none).
+    images_16_bit: dict[str, int] = field(default_factory=dict)
 
 
 def _shared_stages(streams: Streams, methods: list[str]) -> None:
@@ -374,7 +377,7 @@ def _shared_stages(streams: Streams, methods: list[str]) -> None:
     then the laser odometry (every method but icp-p2p pairs scans and images with it)."""
     tracking = [m for m in methods if m in TRACKING]
     _require_images(streams, methods)  # a clear error before any work
-    _warn_outside(streams, methods)
+    streams.results["images_outside_scans"] = _leave_out_outside(streams, methods)
     if tracking:
         streams.start_laser_odometry()
         streams.feature_tracks()
@@ -400,20 +403,16 @@ def _warn_gaps(streams: Streams) -> None:
         )
 
 
-def _warn_outside(streams: Streams, methods: list[str]) -> None:
-    """Say (one warning) when images lie before the first scan or after the last: no scan
-    measures the laser's motion there."""
+def _leave_out_outside(streams: Streams, methods: list[str]) -> dict[str, int]:
+    """Leave out of the image methods the images stamped before the first scan or after
+    the last (:meth:`Streams.leave_out_images_outside_scans`), and say how many (none
+    without an image method: nothing reads them)."""
     if not any(m in IMAGE_METHODS for m in methods):
-        return
-    out = outside_scans(streams.image_stamps_s, streams.scan_stamps_s)
+        return {"before": 0, "after": 0}
+    out = streams.leave_out_images_outside_scans()
     if out["before"] or out["after"]:
-        log.warning(
-            "%d image(s) before the first scan and %d after the last (by more than a scan period): "
-            "no scan measures the laser's motion there, so the image methods' poses at them rest on "
-            "the images alone or are held at the scans' ends",
-            out["before"],
-            out["after"],
-        )
+        _require_images(streams, methods)  # those left may be too few
+    return out
 
 
 def _require_images(streams: Streams, methods: list[str]) -> None:
@@ -595,8 +594,20 @@ def run(
     duration = float(stamps[-1] - stamps[0])
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
     wheel = "none" if not streams.sequence.has_odometry else "used" if wheel_odometry else "ignored"
+    outside = streams.results.get("images_outside_scans", {"before": 0, "after": 0})
     return Run(
-        results, dict(streams.timings_s), duration, truth, wall, iasm, cpu, streams.track_params, wheel, kf
+        results,
+        dict(streams.timings_s),
+        duration,
+        truth,
+        wall,
+        iasm,
+        cpu,
+        streams.track_params,
+        wheel,
+        kf,
+        outside,
+        dict(streams.results.get("images_16_bit", {})),
     )
 
 
@@ -610,6 +621,8 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
             "wheel_odometry": r.wheel_odometry,
         },
         "duration_s": round(r.duration_s, 3),
+        **({"images_outside_scans": dict(out)} if any((out := r.images_outside_scans).values()) else {}),
+        **({"images_16_bit": dict(r.images_16_bit)} if r.images_16_bit else {}),
         "wall_s": round(r.wall_s, 3),
         "x_real_time": round(r.duration_s / r.wall_s, 2) if r.wall_s > 0 else None,
         "stage_timings_s": {k: round(v, 3) for k, v in r.timings_s.items()},

@@ -23,7 +23,7 @@ from collections.abc import Callable, Generator, Iterator
 from collections.abc import Sequence as PySequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -33,8 +33,8 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
-from rigcal.io.images import check_depth, read_grey
-from rigcal.io.stamps import unit_hint
+from rigcal.io.images import grey_of, sixteen_bit, sixteen_bit_grey, sixteen_bit_levels
+from rigcal.io.stamps import outside_scans, unit_hint, within_scans
 from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
 from rigcal.lines import Segment, extract_lines
 from rigcal.localize.image_cache import Gray, ImageCache
@@ -76,6 +76,7 @@ class Streams:
     _background_pool: ThreadPoolExecutor | None = field(default=None, repr=False)
     _stop: threading.Event = field(default_factory=threading.Event, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _depth_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     results: dict[str, Any] = field(default_factory=dict, repr=False)
     _lines: dict[int, list[Segment]] = field(default_factory=dict, repr=False)
     progress: Callable[[str, int, int], None] | None = field(default=None, repr=False)
@@ -148,6 +149,21 @@ class Streams:
             )
         self.image(0)  # its decoding checks its size against the rig's camera
 
+    def leave_out_images_outside_scans(self) -> dict[str, int]:
+        """Leave out the images stamped before the first scan or after the last by more
+        than a scan period (:func:`rigcal.io.stamps.within_scans`): no scan measures the
+        laser's motion there, so an image method would place them on the images alone or
+        hold the scans' end pose. Returns how many were left out, ``{"before", "after"}``
+        (the images kept keep their order; frames decoded before are forgotten)."""
+        seq = self.sequence
+        out = outside_scans(seq.image_stamps_s, self.scan_stamps_s)
+        if out["before"] or out["after"]:
+            keep = within_scans(seq.image_stamps_s, self.scan_stamps_s)
+            files = tuple(f for f, k in zip(seq.image_files, keep, strict=True) if k)
+            self.sequence = replace(seq, image_stamps_s=seq.image_stamps_s[keep], image_files=files)
+            self._image_cache = ImageCache()
+        return out
+
     def image(self, i: int) -> Gray:
         """Frame i as a grey image."""
         return self._keep(i, self._kept_or_decoded(i))
@@ -181,10 +197,14 @@ class Streams:
     def _decode(self, i: int) -> Gray:
         t0 = time.perf_counter()
         path = self._image_path(i)
-        g = read_grey(path)
+        try:
+            data = path.read_bytes()
+        except OSError:
+            data = b""
+        wide = sixteen_bit(data)
+        g = grey_of(data) if wide is None else sixteen_bit_grey(wide, self.image_depth()["shift_bits"])
         if g is None:
             raise InputError(f"{path}: not a readable image")
-        check_depth(path, g)
         if self.rig is not None and g.shape != (self.rig.camera.height_px, self.rig.camera.width_px):
             cam = self.rig.camera  # every frame, not only the first: a frame of another camera mid-drive
             raise InputError.at(
@@ -198,6 +218,30 @@ class Streams:
         with self._lock:
             self.timings_s["read_images_s"] = self.timings_s.get("read_images_s", 0.0) + seconds
         return g
+
+    def image_depth(self) -> dict[str, int]:
+        """The sequence's 16-bit frames (``frames``, ``max_level``, ``shift_bits``; empty:
+        none), asked for when a first 16-bit frame is decoded (every frame is then looked at
+        once: :func:`rigcal.io.images.sixteen_bit_levels`); each is read shifted right by
+        ``shift_bits``, the rule the importers store 16-bit frames by."""
+        with self._depth_lock:
+            if "images_16_bit" not in self.results:
+                paths = [self._image_path(i) for i in range(self.n_images)]
+                self.results["images_16_bit"] = sixteen_bit_levels(paths)
+            out: dict[str, int] = self.results["images_16_bit"]
+            return out
+
+    def first_image_depth(self) -> dict[str, int]:
+        """:meth:`image_depth` when frame 0 is a 16-bit frame or it was found already, else
+        an empty dict (frame 0's header alone is read)."""
+        if "images_16_bit" not in self.results:
+            try:
+                wide = self.n_images > 0 and sixteen_bit(self._image_path(0).read_bytes()) is not None
+            except OSError:  # its reading names it
+                wide = False
+            if not wide:
+                return {}
+        return self.image_depth()
 
     def _keep(self, i: int, g: Gray) -> Gray:
         """Keep frame i (the least recently used frames go when over the budget)."""
@@ -340,8 +384,9 @@ def require_returns(folder: str | Path, seq: Sequence) -> None:
     """Refuse a drive whose scans hold no return at all, or only the scanner's maximum."""
     # A laser unplugged, ranges in a wrong unit, or a scanner that writes its maximum range
     # for no return: nothing to localize by, however still the robot would seem to stand.
-    if seq.scans and not any((s.valid & (s.ranges_m < s.range_max_m)).any() for s in seq.scans):
-        at_max = any(s.valid.any() for s in seq.scans)
+    # (A range at range_max_m is no return: rigcal.scan's rule.)
+    if seq.scans and not any(s.valid.any() for s in seq.scans):
+        at_max = any((s.ranges_m == s.range_max_m).any() for s in seq.scans)
         raise InputError.at(
             Path(folder),
             "scans",

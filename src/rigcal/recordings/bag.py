@@ -10,7 +10,7 @@ nothing is silently changed.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -52,6 +52,7 @@ class ImportSummary:
     outside: dict[str, int] = field(default_factory=dict)  # images before the first scan, after the last
     depth: dict[str, int] = field(default_factory=dict)  # 16-bit images: frames, max_level, shift_bits
     unstamped: dict[str, int] = field(default_factory=dict)  # topic -> messages stamped 0 (record time used)
+    unread_info: list[str] = field(default_factory=list)  # CameraInfo topics the bag has, none asked for
 
     def record(self) -> dict[str, Any]:
         """The conversions made, for the sequence's ``source`` (none: nothing)."""
@@ -74,7 +75,7 @@ class ImportSummary:
         if any(self.outside.values()):
             out.append(
                 f"{self.outside['before']} images before the first scan and {self.outside['after']} "
-                "after the last (kept; check leaves them out, localize warns)"
+                "after the last (kept; check and localize's image methods leave them out)"
             )
         for topic, n in self.unstamped.items():
             out.append(f"{n} {topic} messages with header.stamp 0 (stamped with their record time)")
@@ -83,6 +84,11 @@ class ImportSummary:
             out.append(
                 f"{d['frames']} 16-bit images stored as 8 bits (levels up to {d['max_level']}: "
                 f"shifted right by {d['shift_bits']} bits)"
+            )
+        if self.unread_info:
+            out.append(
+                f"CameraInfo topic(s) {self.unread_info} not read: no camera.yaml "
+                "(--camera-info-topic TOPIC writes it)"
             )
         return out
 
@@ -99,6 +105,7 @@ def import_bag(
     odometry_topic: str | None = None,
     laser_offset: NDArray[np.float64] | None = None,
     odometry_frames: tuple[str, str] = ODOMETRY_FRAMES,
+    more: Sequence[str | Path] = (),
 ) -> ImportSummary:
     """Write a sequence folder from a bag. ``progress`` is called with (messages read,
     messages on the wanted topics). ``stamps="strict"`` refuses messages out of time order
@@ -107,7 +114,8 @@ def import_bag(
     as /tf) whose transforms ``odometry_frames`` (parent, child: odom -> base_link by
     default) are; the laser's mounting from ``laser_offset`` or else the bag's /tf_static
     (:func:`bag_odometry`). ``scan_topic`` and ``image_topic`` None: the bag's only topic
-    of that type.
+    of that type. ``more``: the further files of a bag recorded in parts (``rosbag record
+    --split``), read with ``bag`` as one bag, their messages in time order.
 
     Raises:
         InputError: unreadable bag, a missing topic (the bag's topics are listed), a topic
@@ -118,10 +126,14 @@ def import_bag(
     from rosbags.typesys import Stores, get_typestore
 
     bag = Path(bag)
-    if not bag.exists():
-        raise InputError(f"{bag}: bag not found")
+    parts = [bag, *(Path(b) for b in more)]
+    for b in parts:
+        if not b.exists():
+            raise InputError(f"{b}: bag not found")
+    if len(set(parts)) < len(parts):
+        raise InputError.at(bag, "BAG", [str(b) for b in parts], "each part of a bag given once")
     try:
-        reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader = AnyReader(parts, default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except Exception as exc:  # rosbags raises its own errors for unreadable bags
         raise InputError(f"{bag}: not a readable ROS 1 or ROS 2 bag: {str(exc).strip()[:120]}") from None
@@ -155,6 +167,8 @@ def import_bag(
             if topics[topic] not in types:
                 raise InputError.at(bag, topic, topics[topic], f"a topic of type {' or '.join(types)}")
         summary = ImportSummary()
+        if camera_info_topic is None:  # said on the summary line: a camera the bag has, not kept
+            summary.unread_info = sorted(t for t, kind in topics.items() if kind in INFO_TYPES)
         scans: list[tuple[float, Scan]] = []
         images: list[tuple[float, bytes, str]] = []
         info: Any = None
@@ -231,7 +245,10 @@ def import_bag(
         summary.odometry = len(odometry.stamps_s)
     summary.outside = outside_scans(np.array([t for t, _, _ in images_sorted]), scan_t)
     datas, summary.depth = eight_bit_pngs([data for _, data, _ in images_sorted])
-    images_sorted = [(t, data, ext) for (t, _, ext), data in zip(images_sorted, datas, strict=True)]
+    images_sorted = [  # a converted frame is an 8-bit PNG
+        (t, data, ext if data is was else "png")
+        for (t, was, ext), data in zip(images_sorted, datas, strict=True)
+    ]
     frames = [ImageFrame(stamp, f"{i:06d}.{ext}", data) for i, (stamp, data, ext) in enumerate(images_sorted)]
     write_sequence(
         output,
@@ -241,6 +258,7 @@ def import_bag(
         camera_yaml,
         {
             "bag": str(bag.resolve()),
+            **({"bag_parts": [str(b.resolve()) for b in parts]} if more else {}),
             "scan_topic": scan_topic,
             "image_topic": image_topic,
             "camera_info_topic": camera_info_topic,

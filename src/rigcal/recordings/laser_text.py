@@ -514,8 +514,11 @@ def import_laser_text(
             ImageFrame(float(t), f"{i:06d}{f.suffix.lower()}", f.read_bytes())
             for i, (t, f) in enumerate(zip(image_stamps, files, strict=True))
         ]
-    datas, depth = eight_bit_pngs([f.data for f in frames])  # 16-bit PNGs as import-bag's
-    frames = [ImageFrame(f.stamp_s, f.name, data) for f, data in zip(frames, datas, strict=True)]
+    datas, depth = eight_bit_pngs([f.data for f in frames])  # 16-bit frames as import-bag's
+    frames = [  # a 16-bit frame (a TIFF, say) is an 8-bit PNG now
+        ImageFrame(f.stamp_s, f.name if data is f.data else f"{Path(f.name).stem}.png", data)
+        for f, data in zip(frames, datas, strict=True)
+    ]
     camera_yaml = camera_to_opencv_yaml(read_camera(camera)) if camera is not None else None
     source: dict[str, Any] = {
         "log": str(log.resolve()),

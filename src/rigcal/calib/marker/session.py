@@ -158,8 +158,9 @@ def read_marker_session(path: str | Path, joint: bool = True) -> MarkerSession:
     n_scans: dict[str, int] = {}
     dropped: dict[str, str] = {}
     foreign: dict[str, tuple[int, ...]] = {}
-    from rigcal.io.images import check_depth, read_grey
+    from rigcal.io.images import read_grey_at_depth, sixteen_bit_levels
 
+    images: list[tuple[str, Path]] = []
     for i, c in enumerate(captures):
         kp = f"captures[{i}]"
         many = version >= 2
@@ -173,10 +174,14 @@ def read_marker_session(path: str | Path, joint: bool = True) -> MarkerSession:
         files += [*scan_files, image_path]
         scans.append(scan)
         n_scans[name] = len(scan_files)
-        grey = read_grey(image_path)
+        images.append((name, image_path))
+    # 16-bit images made 8-bit, every one shifted by the same bits (a 12-bit camera's
+    # frames would read black by their top byte): the rule of rigcal.io.images.
+    depth = sixteen_bit_levels([p for _, p in images])
+    for name, image_path in images:
+        grey = read_grey_at_depth(image_path, depth)
         if grey is None:  # pragma: no cover - check_image read it already
-            raise InputError.at(path, f"{kp}.image", c["image"], "an image file OpenCV can read")
-        check_depth(image_path, grey)  # a 12-bit camera's 16-bit frame would read black
+            raise InputError(f"{image_path}: not a readable image")
         view = detect_target(grey, camera, target, sigma)
         if view.foreign_ids:
             foreign[name] = view.foreign_ids
