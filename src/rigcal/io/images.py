@@ -219,12 +219,38 @@ def image_size(path: str | Path) -> tuple[int, int]:
 
 def read_image_file(path: str | Path, flags: int) -> NDArray[Any] | None:
     """The image at ``path`` decoded with :func:`decode`; None when it is missing,
-    unreadable or does not decode (as ``cv2.imread(path, flags)``)."""
+    unreadable or does not decode (as ``cv2.imread(path, flags)``).
+
+    A still image read as 8-bit grey or colour (``cv2.IMREAD_GRAYSCALE``,
+    ``cv2.IMREAD_COLOR``: the captures of a calibration, a box picking file's images)
+    that is 16-bit (:func:`sixteen_bit`) is shifted right by its own brightest level's
+    bits beyond 8 (:func:`depth_shift`), not cut to its top byte as OpenCV does: a 12-bit
+    camera's frame would read nearly black and its board go unfound. Each still is its own
+    exposure, so each has its own shift (a drive's frames share one:
+    :func:`eight_bit_pngs`)."""
+    import cv2
+
     try:
         data = Path(path).read_bytes()
     except OSError:
         return None
+    if flags in (cv2.IMREAD_GRAYSCALE, cv2.IMREAD_COLOR):
+        wide = sixteen_bit(data)
+        if wide is not None:
+            return still_eight_bit(wide, grey=flags == cv2.IMREAD_GRAYSCALE)
     return decode(data, flags)
+
+
+def still_eight_bit(img: NDArray[np.uint16], grey: bool) -> NDArray[np.uint8]:
+    """A 16-bit still (grey, BGR or BGRA) as 8-bit grey or BGR, shifted by its own
+    brightest level's bits beyond 8 (:func:`depth_shift`)."""
+    shift = depth_shift(int(img.max()))
+    if grey:
+        return sixteen_bit_grey(img, shift)
+    eight = eight_bits(img, shift)
+    if eight.ndim == 2:
+        return np.ascontiguousarray(np.repeat(eight[..., None], 3, axis=2))
+    return np.ascontiguousarray(eight[..., :3])
 
 
 _STDERR_LOCK = threading.Lock()
