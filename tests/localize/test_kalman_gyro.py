@@ -65,7 +65,7 @@ def test_the_bias_is_learned_where_the_rig_stands_still():
     800 steps: 0.057 deg 1-sigma)."""
     rng = np.random.default_rng(2)
     t, truth = _drive(rng, speed=0.0)
-    icp = _icp(rng, t, truth, np.array([0.001, 0.001, np.radians(0.002)]))
+    icp = _icp(rng, t, truth, np.array([0.0005, 0.0005, np.radians(0.002)]))
     bias = np.radians(0.1)
     r = kalman.run_filter(icp + _gyro(rng, t, truth, bias), kalman.KF_MODES["weighted"])
     assert abs(r.gyro_bias - bias) < np.radians(0.005)
@@ -94,3 +94,21 @@ def test_bad_gyro_settings_are_refused():
         kalman.KfParams(gyro_noise=0.0)
     with pytest.raises(ValueError, match="gyro_bias_walk -1"):
         kalman.KfParams(gyro_bias_walk=-1.0)
+
+
+def test_the_bias_is_not_learned_from_a_moving_rigs_icp():
+    """Where the rig moves, ICP's slow heading errors are not the gyro's bias: with ICP's
+    yaw drifting by 0.05 deg/s while the rig drives, the bias stays near its prior (0) unless
+    learned from every step (``gyro_still_only`` False), which takes ICP's drift for it."""
+    rng = np.random.default_rng(4)
+    t, truth = _drive(rng)
+    icp = _icp(rng, t, truth, np.array([0.002, 0.002, np.radians(0.002)]))
+    drift = np.radians(0.05)
+    icp = [dataclasses.replace(m, motion=m.motion + np.array([0.0, 0.0, drift * (m.t1 - m.t0)])) for m in icp]
+    gyro = _gyro(rng, t, truth, 0.0)
+    still_only = kalman.run_filter(icp + gyro, kalman.KF_MODES["weighted"])
+    everywhere = kalman.run_filter(
+        icp + gyro, dataclasses.replace(kalman.KF_MODES["weighted"], gyro_still_only=False)
+    )
+    assert abs(still_only.gyro_bias) < 0.1 * drift
+    assert abs(everywhere.gyro_bias + drift) < 0.3 * drift

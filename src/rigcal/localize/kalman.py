@@ -80,8 +80,15 @@ y = yaw_t1 - yaw_t0 + b (t1 - t0) + n, with the gyro's bias b a random-walk stat
 rate gyro (IEEE Std 952-1997, Annex C; Groves, Principles of GNSS, Inertial, and
 Multisensor Integrated Navigation Systems, 2013, Section 4.4.6: white rate noise, a bias
 and its random walk; :data:`GYRO_NOISE`, :data:`GYRO_BIAS_SIGMA`, :data:`GYRO_BIAS_WALK`).
-The bias is learned against the other inputs' yaw, where they constrain it; the filter's
-heading over the lap is then the gyro's, corrected by that.
+The bias is learned where the rig stands still (``gyro_still_only``, :func:`_still`: ICP's
+steps over the gyro's step all slower than :data:`GYRO_STILL_MPS`, :data:`GYRO_STILL_RAD_S`), a
+zero-velocity update (Foxlin, "Pedestrian tracking with shoe-mounted inertial sensors", IEEE
+CG&A 2005; Groves 2013, Section 15.3): there the true turn is zero and the gyro reads its
+bias. Elsewhere the bias is a consider state of the gyro's steps (Schmidt 1966): its
+uncertainty weighs them, but they do not move it (other updates move it only through its
+correlation with the pose), as ICP's slow heading errors (over the lap) would
+otherwise be learned as the gyro's bias (measured: docs/benchmarks.md, "A gyroscope as the
+Kalman filter's third heading").
 
 Options measured on the simulated laps and off in every mode (docs/localization.md): VO's
 biases over seconds (``vo_bias_sigma``: a forward scale, a cross-track drift per metre and
@@ -131,6 +138,13 @@ GYRO_BIAS_SIGMA = float(np.radians(0.2))
 GYRO_BIAS_WALK = float(np.radians(0.001))
 # The gyro's steps: its yaw turned over the scans' stamps at least this far apart (s).
 GYRO_STEP_S = 0.1
+# The rig stands still over a gyro step (its bias learned there: ``KfParams.gyro_still_only``)
+# where every ICP step within it moved slower than these (m/s, rad/s): a standing rig's ICP
+# steps move by their noise (on the simulated laps' stops, 25 ms steps: 0.04 m/s, 0.45 deg/s
+# median, 1 deg/s at the 90th percentile), a walking one's by centimetres (0.5-1 m/s). The
+# bias is learned against ICP's yaw there, whatever it measured.
+GYRO_STILL_MPS = 0.1
+GYRO_STILL_RAD_S = float(np.radians(3.0))
 WEIGHTS = ("covariance", "fixed")
 # The prediction (``KfParams.drive``): the constant-velocity process model ("", Section VI)
 # or driven by an input's steps ("icp": the laser odometry as the control input).
@@ -360,7 +374,8 @@ class KfParams:
     ``smooth``: the forward pass followed by the Rauch-Tung-Striebel backward pass
     (:class:`_Tape`): each pose from all the lap's measurements, offline; ``gyro_noise``,
     ``gyro_bias_sigma``, ``gyro_bias_walk``: the gyroscope's error model (where its steps
-    are given: :data:`GYRO_NOISE` ...)."""
+    are given: :data:`GYRO_NOISE` ...); ``gyro_still_only``: its bias learned only where the
+    rig stands still (:func:`_still`; False: from every step)."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
@@ -391,6 +406,7 @@ class KfParams:
     gyro_noise: float = GYRO_NOISE
     gyro_bias_sigma: float = GYRO_BIAS_SIGMA
     gyro_bias_walk: float = GYRO_BIAS_WALK
+    gyro_still_only: bool = True
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
@@ -684,6 +700,7 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
     drive = _Drive([m for m in ms if m.source == params.drive], params) if params.drive else None
     if drive is not None:
         ms = [m for m in ms if m.source != params.drive]
+    still = _still(ms, [m for m in measurements if m.source == "icp"]) if params.gyro_still_only else None
     # Events (time, 0 = update / 1 = clone / 2 = a driving step's end, index); updates
     # first at equal times.
     events = [(m.t1, 0, i) for i, m in enumerate(ms)] + [(m.t0, 1, i) for i, m in enumerate(ms)]
@@ -780,6 +797,9 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
             x, P = _gyro_bias_walk(x, P, blocks, m.t1, params)
             gyro_bias = (_offset(blocks, ("gyro", m.t1)), m.t1 - m.t0)
             leave_out = np.array([True, True, False])
+        # The gyro's bias learned only from its steps where the rig stands still: a consider
+        # state in its other steps' updates.
+        consider = gyro_bias[0] if gyro_bias is not None and still is not None and i not in still else None
         alone = None
         if vo and reference is not None:
             icp_scale = max(1.0, mean_nis.get("icp", 1.0)) if params.adapt else 1.0
@@ -836,6 +856,7 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
             else None,
             leave_out=leave_out,
             gyro_bias=gyro_bias,
+            consider=consider,
         )
         if vo and np.isfinite(inn.d2):
             # The windowed test's last runs, each counted at most at the single gate (a lone
@@ -1196,6 +1217,35 @@ def _bias_decay(
     return _recorded(x0, P0, F, x, P)
 
 
+def _still(ms: list[Increment], icp: list[Increment]) -> set[int]:
+    """The indices of the gyro's steps in ``ms`` over which the rig stands still: ICP's
+    steps cover the step and each moved slower than :data:`GYRO_STILL_MPS` and
+    :data:`GYRO_STILL_RAD_S`."""
+    if not icp:
+        return set()
+    icp = sorted(icp, key=lambda m: m.t0)
+    t0 = np.array([m.t0 for m in icp])
+    t1 = np.array([m.t1 for m in icp])
+    moved = np.array(
+        [
+            np.hypot(m.motion[0], m.motion[1]) >= GYRO_STILL_MPS * (m.t1 - m.t0)
+            or abs(m.motion[2]) >= GYRO_STILL_RAD_S * (m.t1 - m.t0)
+            for m in icp
+        ]
+    )
+    out = set()
+    for i, m in enumerate(ms):
+        if m.source != "gyro":
+            continue
+        a, b = np.searchsorted(t1, m.t0, side="right"), np.searchsorted(t0, m.t1, side="left")
+        covered = (
+            b > a and t0[a] <= m.t0 and t1[b - 1] >= m.t1 and bool((t0[a + 1 : b] == t1[a : b - 1]).all())
+        )
+        if covered and not moved[a:b].any():
+            out.add(i)
+    return out
+
+
 def _gyro_bias_walk(
     x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], t1: float, params: KfParams
 ) -> tuple[FloatArray, FloatArray]:
@@ -1306,6 +1356,7 @@ def _update(
     whiteness: tuple[float, int, float] | None = None,
     leave_out: NDArray[np.bool_] | None = None,
     gyro_bias: tuple[int, float] | None = None,
+    consider: int | None = None,
 ) -> tuple[FloatArray, FloatArray, Innovation]:
     """The EKF update with increment ``m`` against the clone at state index ``c``: h(S) is
     the motion from the clone's pose to the current one in the clone's frame. The step's
@@ -1330,6 +1381,8 @@ def _update(
     coefficient x b, b the state's block of three at that index (VO's biases:
     :func:`_bias_decay`). ``gyro_bias`` = (index, seconds): the step's yaw has a further
     part seconds x b, b the gyroscope's bias at that index (:func:`_gyro_bias_walk`).
+    ``consider`` (an index): that state is a consider state in this update (its gain 0, its
+    covariance with the rest kept exact by the Joseph form; Schmidt 1966).
 
     ``gate`` > 0: when the innovation's squared Mahalanobis distance d2 (shared error
     included) exceeds it, or ``window`` = (the last runs' d2 summed, its gate) and that sum
@@ -1414,6 +1467,8 @@ def _update(
         S = HPH + Rm
     nis = float(y @ np.linalg.solve(HPH + R0, y)) / len(y)
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
+    if consider is not None:
+        K[consider, :] = 0.0
     x = x + K @ y
     A = np.eye(len(x)) - K @ H
     P = A @ P @ A.T + K @ Rm @ K.T  # Joseph form: stays symmetric, positive
