@@ -527,7 +527,7 @@ def sequence_cases() -> list[Case]:
         ("images.index", ["../../../etc/passwd", None]),
         ("images.folder", ["../..", "/", None]),
         ("groundtruth", ["../../../nope", "/etc/passwd", 5]),
-        ("schema_version", [4, None, "1"]),  # 3 (odometry) is read
+        ("schema_version", [5, None, "1"]),  # 3 (odometry) and 4 (gyro) are read
     ]:
         for v in vals:
             seq(f"yaml-{key}={_show(v)}", set_yaml(y, key, v), key.split(".")[0])
