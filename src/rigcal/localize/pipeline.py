@@ -537,7 +537,7 @@ def run(
     loop_closure: LoopParams | None = None,
     kf: kalman.KfParams | None = None,
     place_recognition: PlaceParams | None = DEFAULT_PLACE,
-    gyro: bool = True,
+    gyro: bool = False,
 ) -> Run:
     """Localize a sequence with each method; :func:`rigcal.viz.localize_output.write_run`
     writes the output folder. ``iasm``: IASM's and H-IASM's settings, ``tracks`` the
@@ -548,7 +548,7 @@ def run(
     (:data:`rigcal.localize.kalman.KF_MODES`; the weighted filter unless given).
     ``place_recognition``: loop closure's image place recognition's settings, None for
     the scan search alone. ``gyro``: the Kalman filter fuses the sequence's gyroscope
-    (when it has one); False ignores it.
+    (when it has one); False, the default, ignores it.
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
