@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -41,9 +42,9 @@ from rigcal.sim.world import BUILTIN
 LINKED = ("scans.npz", "images", "images.csv", "rig.yaml", "groundtruth.tum", "odometries.pkl")
 
 
-def add_wheels(src: Path, out: Path, name: str, seed: int, duration_s: float) -> None:
-    """One lap's copy with wheel odometry (see the module docstring)."""
-    spec = DriveSpec(seed=seed, duration_s=duration_s, wheel_odometry=True)
+def same_drive(src: Path, name: str, spec: DriveSpec, out: Path, linked: tuple[str, ...]) -> Motion:
+    """The drive of ``spec`` on world ``name``, its scans checked equal to the kept lap's
+    in ``src`` (else exit), and ``out`` made with the lap's files of ``linked`` linked."""
     world = BUILTIN[name]()
     motion = Motion(world, spec)
     stamps = laser_stamps(motion, spec)
@@ -54,10 +55,18 @@ def add_wheels(src: Path, out: Path, name: str, seed: int, duration_s: float) ->
         for a, b in zip(again, kept.scans, strict=True)
     )
     if not same:
-        raise SystemExit(f"{src}: its scans are not the drive of seed {seed} re-simulated")
+        raise SystemExit(f"{src}: its scans are not the drive of seed {spec.seed} re-simulated")
     out.mkdir(parents=True, exist_ok=False)
-    for f in LINKED:
-        (out / f).symlink_to((src / f).resolve())
+    for f in linked:
+        if (src / f).exists():
+            (out / f).symlink_to((src / f).resolve())
+    return motion
+
+
+def add_wheels(src: Path, out: Path, name: str, seed: int, duration_s: float) -> None:
+    """One lap's copy with wheel odometry (see the module docstring)."""
+    spec = DriveSpec(seed=seed, duration_s=duration_s, wheel_odometry=True)
+    motion = same_drive(src, name, spec, out, LINKED)
     t, poses = wheel_odometry(motion, spec)
     od = checked(t, poses, WHEEL_T_BASE_LASER, "simulated wheel odometry")
     (out / "odometry.tum").write_text(odometry_tum(od), encoding="utf-8")
@@ -70,19 +79,30 @@ def add_wheels(src: Path, out: Path, name: str, seed: int, duration_s: float) ->
         "noise_distance_fraction_heading_rad": list(WHEEL_NOISE),
     }
     doc["odometry"] = {"file": "odometry.tum", "T_base_laser": [float(v) for v in WHEEL_T_BASE_LASER]}
+    write_yaml(out, doc)
+
+
+def write_yaml(out: Path, doc: dict[str, Any]) -> None:
+    """The copy's sequence.yaml."""
     (out / "sequence.yaml").write_text(
         "# rigcal sequence (docs/formats/sequence.md)\n" + yaml.safe_dump(doc, sort_keys=False),
         encoding="utf-8",
     )
 
 
-def main() -> None:
+def lap_parser() -> argparse.ArgumentParser:
+    """The options of a script copying kept laps: their folder, the copies', which laps."""
     ap = argparse.ArgumentParser()
     ap.add_argument("--source", type=Path, required=True)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--worlds", default="cubicle-loop,corridor-loop")
     ap.add_argument("--seeds", default="1-10")
     ap.add_argument("--duration-s", type=float, default=40.0)
+    return ap
+
+
+def main() -> None:
+    ap = lap_parser()
     args = ap.parse_args()
     for seed in seeds_of(args.seeds):
         for name in args.worlds.split(","):

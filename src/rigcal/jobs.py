@@ -463,6 +463,7 @@ def localize_sequence(
     place_recognition: str = "images",
     force: bool = False,
     progress: Progress | None = None,
+    gyro: bool = True,
 ) -> Localized:
     """``rigcal localize``: each method (comma-separated names) over the sequence folder,
     the output folder written by :func:`rigcal.viz.localize_output.write_run`.
@@ -479,6 +480,8 @@ def localize_sequence(
             smoother, ``KfParams.smooth``).
         place_recognition: loop closure's proposals from the keyframes' images
             (``images``, where the sequence has them) or none (``none``).
+        gyro: the Kalman filter fuses the sequence's gyroscope (when it has one); False
+            ignores it.
 
     Raises:
         ArgumentError: an unknown method or setting (the command line's usage errors).
@@ -527,6 +530,7 @@ def localize_sequence(
         loop_closure=lc_params if loop_closure else None,
         kf=replace(KF_MODES[kf], smooth=kf_smooth),
         place_recognition=PlaceParams() if place_recognition == "images" else None,
+        gyro=gyro,
     )
     write_run(r, sequence, output, force=force, kitti=kitti)
     return Localized(r, summary(r, sequence))

@@ -119,7 +119,7 @@ def test_a_wrong_image_index_header_says_what_it_got(copy):
     [
         ("name", [1, 2], r"sequence.yaml: name: got \[1, 2\]; expected a string"),
         ("source", [1, 2], r"sequence.yaml: source: got \[1, 2\]; expected a mapping"),
-        ("schema_version", 99, r"schema_version: got 99; expected 1, 2 or 3"),
+        ("schema_version", 99, r"schema_version: got 99; expected 1, 2, 3 or 4"),
         ("scans", "scans.npz", r"scans: got 'scans.npz'; expected a mapping"),
     ],
 )

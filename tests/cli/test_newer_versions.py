@@ -112,7 +112,7 @@ def test_check_and_localize_say_it_in_one_line(tmp_path, fails):
     line = fails(["check", rig, "--sequence", seq, "--no-log"], 3)
     assert line.startswith(f"Error: {rig}: schema_version: got 4; expected 1, 2 or 3 (the versions this")
     doc = yaml.safe_load((seq / "sequence.yaml").read_text())
-    newer = {**doc, "schema_version": 4, "lidar": {"file": "l.npz"}}
+    newer = {**doc, "schema_version": 5, "lidar": {"file": "l.npz"}}
     (seq / "sequence.yaml").write_text(yaml.safe_dump(newer))
     line = fails(["localize", seq, "--method", "icp", "-o", tmp_path / "out"], 3)
-    assert "sequence.yaml: schema_version: got 4; expected 1, 2 or 3 (the versions this rigcal" in line
+    assert "sequence.yaml: schema_version: got 5; expected 1, 2, 3 or 4 (the versions this rigcal" in line

@@ -487,7 +487,7 @@ def sequence_cases() -> list[Case]:
             set_yaml("seq/sequence.yaml", "schema_version", 9)(p),
             set_yaml("seq/sequence.yaml", "lidar", 1)(p),
         ),
-        "schema_version: got 9; expected 1, 2 or 3 (the versions this rigcal reads; a file of a newer",
+        "schema_version: got 9; expected 1, 2, 3 or 4 (the versions this rigcal reads; a file of a newer",
     )
     seq("npz-ranges-1d", npz_edit(arr("ranges_m", np.zeros(8))), "ranges_m")
     seq("npz-ranges-3d", npz_edit(arr("ranges_m", np.zeros((8, 2, 2)))), "ranges_m")
@@ -527,7 +527,7 @@ def sequence_cases() -> list[Case]:
         ("images.index", ["../../../etc/passwd", None]),
         ("images.folder", ["../..", "/", None]),
         ("groundtruth", ["../../../nope", "/etc/passwd", 5]),
-        ("schema_version", [4, None, "1"]),  # 3 (odometry) is read
+        ("schema_version", [5, None, "1"]),  # 3 (odometry) and 4 (gyro) are read
     ]:
         for v in vals:
             seq(f"yaml-{key}={_show(v)}", set_yaml(y, key, v), key.split(".")[0])

@@ -30,6 +30,12 @@ from rigcal.cli.stamps import laser_offset_option
     metavar="PARENT,CHILD",
     help="With a tf --odometry-topic: the transform that is the odometry.",
 )
+@click.option(
+    "--imu-topic",
+    help="sensor_msgs/Imu topic: keep its angular velocity, rotated into the scans' frame (the same "
+    "frame or linked by the bag's /tf_static), as the gyroscope (gyro.csv); none: no IMU.  "
+    "[default: the bag's only Imu topic, if it has one]",
+)
 @laser_offset_option
 @click.option(
     "--stamps",
@@ -48,6 +54,7 @@ def import_bag(
     camera_info_topic: str | None,
     odometry_topic: str | None,
     odometry_frames: str,
+    imu_topic: str | None,
     laser_offset: str | None,
     stamps: str,
     output: Path,
@@ -68,6 +75,7 @@ def import_bag(
           --camera-info-topic /cam/camera_info -o run2-seq/ --force
       rigcal import-bag run3/ --scan-topic /scan --image-topic /cam/image --odometry-topic /tf -o run3/
       rigcal import-bag run4_0.bag run4_1.bag run4_2.bag -o run4/
+      rigcal import-bag run5/ --odometry-topic /odom --imu-topic /imu/data -o run5/
     """
     from rigcal.errors import InputError
     from rigcal.io.files import check_folder_writable
@@ -96,6 +104,7 @@ def import_bag(
             laser_offset=mounting,
             odometry_frames=(frames[0], frames[1]),
             more=more,
+            imu_topic=imu_topic,
         )
     if as_json:
         doc = {
@@ -106,6 +115,7 @@ def import_bag(
             "reordered": dict(s.reordered),
             "duplicates_dropped": dict(s.duplicates),
             "odometry_poses": s.odometry,
+            "gyro_samples": s.gyro,
             **s.record(),
         }
         click.echo(json.dumps(doc, indent=1))
@@ -121,5 +131,6 @@ def import_bag(
         f"wrote {output}/: {s.scans} scans, {s.images} images"
         + (", camera.yaml" if s.camera else "")
         + (f", odometry.tum ({s.odometry} poses)" if s.odometry else "")
+        + (f", gyro.csv ({s.gyro} samples)" if s.gyro else "")
         + ("; " + "; ".join(notes) if notes else "")
     )

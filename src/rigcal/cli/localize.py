@@ -65,6 +65,13 @@ rig_option = click.option(
     "use: ICP starts each step from the sequence's wheel odometry (when it has one) and the "
     "Kalman filter fuses it; ignore: start from the previous motion."
 )
+@choice_option(
+    "--gyro",
+    ["ignore", "use"],
+    "use: the Kalman filter (method kf) fuses the sequence's gyroscope (gyro.csv, when it has "
+    "one), its bias learned as a state where the rig stands still; ignore (the default: on the "
+    "simulated laps the fused gyro was not better than the filter without it): runs without it.",
+)
 @click.option(
     "--loop-closure",
     is_flag=True,
@@ -121,6 +128,7 @@ def localize(
     place_recognition: str,
     kf: str,
     smooth: bool,
+    gyro: str,
 ) -> None:
     """Estimate the laser's trajectory through SEQUENCE (a sequence folder) with one or
     more methods, run on the same data in the same process.
@@ -162,11 +170,14 @@ def localize(
                 kf_smooth=smooth,
                 force=force,
                 progress=bars,
+                gyro=gyro == "use",
             )
     except ArgumentError as exc:  # bad option values are usage errors (exit code 2)
         raise click.UsageError(str(exc)) from None
     _warn_ignored_options(methods, bool(iasm_items), bool(track_items), smooth, loop_closure)
     r = done.run
+    if _given("gyro") and r.gyro == "none" and "kf" in [m.strip() for m in methods.split(",")]:
+        click.echo(f"warning: --gyro ignored: {sequence} has no gyroscope (gyro.csv, schema 4)", err=True)
     if as_json:
         click.echo(json.dumps(done.doc, indent=1))
     elif r.truth is not None:
@@ -208,15 +219,18 @@ def localize(
 
 
 def _warn_ignored_options(methods: str, iasm: bool, tracks: bool, smooth: bool, loop_closure: bool) -> None:
-    """One warning line per kind of option given that nothing in the run reads: ``--kf`` and
-    ``--smooth`` without method kf, ``--iasm`` without iasm or hiasm, ``--tracks`` without a
+    """One warning line per kind of option given that nothing in the run reads: ``--kf``,
+    ``--smooth`` and ``--gyro`` without method kf, ``--iasm`` without iasm or hiasm, ``--tracks`` without a
     method that tracks images, ``--pose-graph`` and ``--place-recognition`` without
     ``--loop-closure``. The run goes on; those options change nothing in it."""
     from rigcal.localize.pipeline import TRACKING
 
     names = [m.strip() for m in methods.split(",") if m.strip()]
     for given, used_by in (
-        ([o for o, on in (("--kf", _given("kf")), ("--smooth", smooth)) if on], ("kf",)),
+        (
+            [o for o, on in (("--kf", _given("kf")), ("--smooth", smooth), ("--gyro", _given("gyro"))) if on],
+            ("kf",),
+        ),
         (["--iasm"] if iasm else [], ("iasm", "hiasm")),
         (["--tracks"] if tracks else [], TRACKING),
     ):

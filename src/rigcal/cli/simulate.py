@@ -432,6 +432,13 @@ WEAK_BOARD_CAPTURES = 12
     help="Also write the base's wheel odometry (odometry.tum: 50 Hz, 2 %% scale error, "
     "0.5 deg/m heading drift; docs/formats/sequence.md).",
 )
+@click.option(
+    "--gyro",
+    is_flag=True,
+    help="Also write a MEMS gyroscope's yaw rate (gyro.csv: 200 Hz, 0.005 deg/s/sqrt(Hz) noise, "
+    "a constant bias and a bias random walk; docs/formats/sequence.md). The drive's other "
+    "files are the same with or without it.",
+)
 @force_option("Replace an existing folder.")
 @_json_option
 def world(
@@ -451,6 +458,7 @@ def world(
     no_images: bool,
     image_format: str,
     wheel_odometry: bool,
+    gyro: bool,
     force: bool,
     as_json: bool,
 ) -> None:
@@ -466,6 +474,7 @@ def world(
       rigcal simulate world --world my-office.yaml -o office/ --laser-rate-hz 20 --no-images --force
       rigcal simulate world -o side/ --rig side-looking-rig.yaml --duration-s 20
       rigcal simulate world -o small/ --image-format png-grey
+      rigcal simulate world -o imu/ --wheel-odometry --gyro --duration-s 40
     """
     from rigcal.cli.progress import Progress, quiet
     from rigcal.io.files import check_folder_writable
@@ -495,6 +504,7 @@ def world(
         duration_s=duration_s,
         image_format=image_format,
         wheel_odometry=wheel_odometry,
+        gyro=gyro,
     )
     n_images = len(camera_stamps(Motion(w, spec), spec)) if spec.images else 0
     if n_images and not quiet():

@@ -217,6 +217,7 @@ MAX_SCAN_PERIOD_S = 10.0
 STEPS = {
     "scan": ("a scan", "a laser scans several times a second"),
     "pose": ("a pose", "wheel odometry is logged several times a second"),
+    "sample": ("a sample", "a gyroscope is sampled many times a second"),
 }
 _UNITS = ((3, "milliseconds"), (6, "microseconds"), (9, "nanoseconds"))
 
@@ -231,6 +232,27 @@ def unit_hint(span: float, other_span: float) -> str:
     ratio = abs(float(np.log10(span / other_span)))
     unit = next((name for k, name in _UNITS if abs(ratio - k) < 0.3), None)
     return f" (one stream in {unit}, the other in seconds?)" if unit else ""
+
+
+def check_overlap(stamps_s: FloatArray, where: str, key: str, scan_stamps_s: FloatArray | None) -> None:
+    """Refuse a stream (stamps (N,), increasing) whose time span misses the scans' (given,
+    not empty): it is on another clock or in another unit (:func:`unit_hint`).
+
+    Raises:
+        InputError: ``where: key: got 'A to B'; expected a span overlapping the scans' ...``.
+    """
+    if scan_stamps_s is None or not len(scan_stamps_s):
+        return
+    t = np.asarray(stamps_s, dtype=float)
+    lo, hi = float(scan_stamps_s[0]), float(scan_stamps_s[-1])
+    if t[-1] < lo or t[0] > hi:
+        raise InputError.at(
+            where,
+            key,
+            f"{float(t[0])!r} to {float(t[-1])!r}",
+            f"a span overlapping the scans' ({lo!r} to {hi!r}): the same clock"
+            + unit_hint(float(t[-1] - t[0]), hi - lo),
+        )
 
 
 def check_seconds(stamps_s: FloatArray, where: str, key: str, step: str | None = None) -> None:

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.stamps import check_beside_scans, check_seconds, unit_hint
+from rigcal.io.stamps import check_beside_scans, check_overlap, check_seconds
 from rigcal.io.trajectory import Trajectory, read_tum, tum_text
 
 # A TUM odometry file is planar: its poses may tilt by at most this (rad) off the floor.
@@ -140,15 +140,7 @@ def checked(
     check_seconds(t, where, "odometry stamps", step="pose")
     if scan_stamps_s is not None and len(scan_stamps_s):
         check_beside_scans(t, scan_stamps_s, where, "odometry stamps")
-        lo, hi = float(scan_stamps_s[0]), float(scan_stamps_s[-1])
-        if t[-1] < lo or t[0] > hi:
-            raise InputError.at(
-                where,
-                "odometry stamps",
-                f"{float(t[0])!r} to {float(t[-1])!r}",
-                f"a span overlapping the scans' ({lo!r} to {hi!r}): the same clock"
-                + unit_hint(float(t[-1] - t[0]), hi - lo),
-            )
+    check_overlap(t, where, "odometry stamps", scan_stamps_s)
     return WheelOdometry(t, p, mount)
 
 

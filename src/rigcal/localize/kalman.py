@@ -73,6 +73,23 @@ loosened) or left out accordingly; and it is fused calibrated, forward and in ya
 scored and written at the scans' stamps (:func:`path_at`), and ``smooth`` adds the
 Rauch-Tung-Striebel backward pass (:class:`_Tape`).
 
+The gyroscope (where a sequence has one; beyond the paper): its yaw turned over each
+step of about :data:`GYRO_STEP_S` is a measurement of the yaw alone (:func:`gyro_increments`),
+y = yaw_t1 - yaw_t0 + b (t1 - t0) + n, with the gyro's bias b a random-walk state
+(:func:`_gyro_bias_walk`) and n its angle random walk, the standard error model of a
+rate gyro (IEEE Std 952-1997, Annex C; Groves, Principles of GNSS, Inertial, and
+Multisensor Integrated Navigation Systems, 2013, Section 4.4.6: white rate noise, a bias
+and its random walk; :data:`GYRO_NOISE`, :data:`GYRO_BIAS_SIGMA`, :data:`GYRO_BIAS_WALK`).
+The bias is learned where the rig stands still (``gyro_still_only``, :func:`_still`: ICP's
+steps over the gyro's step all slower than :data:`GYRO_STILL_MPS`, :data:`GYRO_STILL_RAD_S`), a
+zero-velocity update (Foxlin, "Pedestrian tracking with shoe-mounted inertial sensors", IEEE
+CG&A 2005; Groves 2013, Section 15.3): there the true turn is zero and the gyro reads its
+bias. Elsewhere the bias is a consider state of the gyro's steps (Schmidt 1966): its
+uncertainty weighs them, but they do not move it (other updates move it only through its
+correlation with the pose), as ICP's slow heading errors (over the lap) would
+otherwise be learned as the gyro's bias (measured: docs/benchmarks.md, "A gyroscope as the
+Kalman filter's third heading").
+
 Options measured on the simulated laps and off in every mode (docs/localization.md): VO's
 biases over seconds (``vo_bias_sigma``: a forward scale, a cross-track drift per metre and
 a yaw-rate bias as Gauss-Markov states, :func:`_bias_decay`, learned against ICP by a
@@ -110,6 +127,24 @@ WHEEL_SIGMAS = (0.05, 0.02, 0.08)
 # without a scale).
 # Kept for the rate form: forward rate noise (m/s) of a step that measures no forward speed.
 OPEN_FORWARD_SIGMA = OPEN_SIGMA_M
+# The gyroscope's error model (``KfParams.gyro_noise`` ... ``gyro_bias_walk``; the standard
+# rate gyro model, module docstring): white rate noise (rad/s/sqrt(Hz): the angle random
+# walk), the 1-sigma of the bias at the start (rad/s) and its random walk (rad/s/sqrt(s)).
+# A MEMS gyro's datasheet figures, each twice the simulated gyro's
+# (rigcal.sim.drive.GYRO_NOISE_DEG_S_RT_HZ ...) or more: the filter does not know the
+# device better than its datasheet.
+GYRO_NOISE = float(np.radians(0.01))
+GYRO_BIAS_SIGMA = float(np.radians(0.2))
+GYRO_BIAS_WALK = float(np.radians(0.001))
+# The gyro's steps: its yaw turned over the scans' stamps at least this far apart (s).
+GYRO_STEP_S = 0.1
+# The rig stands still over a gyro step (its bias learned there: ``KfParams.gyro_still_only``)
+# where every ICP step within it moved slower than these (m/s, rad/s): a standing rig's ICP
+# steps move by their noise (on the simulated laps' stops, 25 ms steps: 0.04 m/s, 0.45 deg/s
+# median, 1 deg/s at the 90th percentile), a walking one's by centimetres (0.5-1 m/s). The
+# bias is learned against ICP's yaw there, whatever it measured.
+GYRO_STILL_MPS = 0.1
+GYRO_STILL_RAD_S = float(np.radians(3.0))
 WEIGHTS = ("covariance", "fixed")
 # The prediction (``KfParams.drive``): the constant-velocity process model ("", Section VI)
 # or driven by an input's steps ("icp": the laser odometry as the control input).
@@ -337,7 +372,10 @@ class KfParams:
     ICP's, forward and yaw (:meth:`_WheelWitness.calibrated_steps`), not as they come
     (both on in every mode but "fixed", the paper's, which fuses them as they come);
     ``smooth``: the forward pass followed by the Rauch-Tung-Striebel backward pass
-    (:class:`_Tape`): each pose from all the lap's measurements, offline."""
+    (:class:`_Tape`): each pose from all the lap's measurements, offline; ``gyro_noise``,
+    ``gyro_bias_sigma``, ``gyro_bias_walk``: the gyroscope's error model (where its steps
+    are given: :data:`GYRO_NOISE` ...); ``gyro_still_only``: its bias learned only where the
+    rig stands still (:func:`_still`; False: from every step)."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
@@ -365,6 +403,10 @@ class KfParams:
     wheel_witness: bool = True
     wheel_calibrated: bool = True
     smooth: bool = False
+    gyro_noise: float = GYRO_NOISE
+    gyro_bias_sigma: float = GYRO_BIAS_SIGMA
+    gyro_bias_walk: float = GYRO_BIAS_WALK
+    gyro_still_only: bool = True
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
@@ -379,6 +421,11 @@ class KfParams:
                 raise ValueError(
                     f"{name} {getattr(self, name)}: expected {'> 0' if name.endswith('own') else '>= 0'}"
                 )
+        if not (self.gyro_noise > 0 and self.gyro_bias_sigma >= 0 and self.gyro_bias_walk >= 0):
+            raise ValueError(
+                f"gyro_noise {self.gyro_noise}, gyro_bias_sigma {self.gyro_bias_sigma}, gyro_bias_walk "
+                f"{self.gyro_bias_walk}: expected noise > 0, the bias's sigmas >= 0"
+            )
         if self.gate_window < 1:
             raise ValueError(f"gate_window {self.gate_window}: expected at least 1 run")
         if not self.vo_memory_s >= 0:
@@ -468,6 +515,27 @@ class KfResult:
     vo_guarded: tuple[int, int, int] = (0, 0, 0)
     vo_bias: FloatArray | None = None
     icp_witnessed: tuple[int, int, int] = (0, 0, 0)
+    gyro_bias: float = float("nan")
+
+
+def gyro_increments(stamps_s: FloatArray, yaw_rad: FloatArray, noise: float = GYRO_NOISE) -> list[Increment]:
+    """The gyroscope's steps: ``yaw_rad`` (K - 1,) the yaw it turned from each stamp of
+    ``stamps_s`` (K,) to the next (NaN: not measured, left out), each a measurement of the
+    yaw alone (the translation open, 1-sigma :data:`OPEN_SIGMA_M`) with the angle random
+    walk's variance noise^2 (t1 - t0) (rad^2; ``noise`` rad/s/sqrt(Hz)). The bias is the
+    filter's state (:func:`_gyro_bias_walk`)."""
+    out = []
+    for k in range(len(stamps_s) - 1):
+        dt = float(stamps_s[k + 1] - stamps_s[k])
+        if not (dt > 0 and np.isfinite(yaw_rad[k])):
+            continue
+        cov = np.diag([OPEN_SIGMA_M**2, OPEN_SIGMA_M**2, noise**2 * dt])
+        out.append(
+            Increment(
+                float(stamps_s[k]), float(stamps_s[k + 1]), np.array([0.0, 0.0, yaw_rad[k]]), cov, "gyro"
+            )
+        )
+    return out
 
 
 def rate_covariance(sigmas: tuple[float, float, float], dt: float, open_forward: bool = False) -> FloatArray:
@@ -632,6 +700,7 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
     drive = _Drive([m for m in ms if m.source == params.drive], params) if params.drive else None
     if drive is not None:
         ms = [m for m in ms if m.source != params.drive]
+    still = _still(ms, [m for m in measurements if m.source == "icp"]) if params.gyro_still_only else None
     # Events (time, 0 = update / 1 = clone / 2 = a driving step's end, index); updates
     # first at equal times.
     events = [(m.t1, 0, i) for i, m in enumerate(ms)] + [(m.t0, 1, i) for i, m in enumerate(ms)]
@@ -722,6 +791,15 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
             x, P = _bias_decay(x, P, blocks, m.t1, params)
             bias = (_offset(blocks, ("bias", m.t1)), _bias_coefficients(m) * on)
         leave_out: NDArray[np.bool_] | None = None
+        gyro_bias: tuple[int, float] | None = None
+        if m.source == "gyro":
+            # The yaw alone, with the bias's part over the step (module docstring).
+            x, P = _gyro_bias_walk(x, P, blocks, m.t1, params)
+            gyro_bias = (_offset(blocks, ("gyro", m.t1)), m.t1 - m.t0)
+            leave_out = np.array([True, True, False])
+        # The gyro's bias learned only from its steps where the rig stands still: a consider
+        # state in its other steps' updates.
+        consider = gyro_bias[0] if gyro_bias is not None and still is not None and i not in still else None
         alone = None
         if vo and reference is not None:
             icp_scale = max(1.0, mean_nis.get("icp", 1.0)) if params.adapt else 1.0
@@ -777,6 +855,8 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
             if memory is not None and params.vo_forward_window > 0
             else None,
             leave_out=leave_out,
+            gyro_bias=gyro_bias,
+            consider=consider,
         )
         if vo and np.isfinite(inn.d2):
             # The windowed test's last runs, each counted at most at the single gate (a lone
@@ -835,6 +915,7 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
         (int(guarded[0]), int(guarded[1]), int(guarded[2])),
         x[_offset(blocks, block) + np.arange(3)].copy() if (block := _block(blocks, "bias")) else None,
         (int(witnessed[0]), int(witnessed[1]), int(witnessed[2])),
+        float(x[_offset(blocks, block)]) if (block := _block(blocks, "gyro")) else float("nan"),
     )
 
 
@@ -1136,10 +1217,58 @@ def _bias_decay(
     return _recorded(x0, P0, F, x, P)
 
 
+def _still(ms: list[Increment], icp: list[Increment]) -> set[int]:
+    """The indices of the gyro's steps in ``ms`` over which the rig stands still: ICP's
+    steps cover the step and each moved slower than :data:`GYRO_STILL_MPS` and
+    :data:`GYRO_STILL_RAD_S`."""
+    if not icp:
+        return set()
+    icp = sorted(icp, key=lambda m: m.t0)
+    t0 = np.array([m.t0 for m in icp])
+    t1 = np.array([m.t1 for m in icp])
+    moved = np.array(
+        [
+            np.hypot(m.motion[0], m.motion[1]) >= GYRO_STILL_MPS * (m.t1 - m.t0)
+            or abs(m.motion[2]) >= GYRO_STILL_RAD_S * (m.t1 - m.t0)
+            for m in icp
+        ]
+    )
+    out = set()
+    for i, m in enumerate(ms):
+        if m.source != "gyro":
+            continue
+        a, b = np.searchsorted(t1, m.t0, side="right"), np.searchsorted(t0, m.t1, side="left")
+        covered = (
+            b > a and t0[a] <= m.t0 and t1[b - 1] >= m.t1 and bool((t0[a + 1 : b] == t1[a : b - 1]).all())
+        )
+        if covered and not moved[a:b].any():
+            out.add(i)
+    return out
+
+
+def _gyro_bias_walk(
+    x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], t1: float, params: KfParams
+) -> tuple[FloatArray, FloatArray]:
+    """The state with the gyroscope's bias (rad/s) carried to ``t1`` (appended at its first
+    step, zero with variance ``params.gyro_bias_sigma``^2; ``blocks`` updated in place): a
+    random walk, b(t1) = b(t) + ``gyro_bias_walk`` sqrt(t1 - t) n (the rate random walk of
+    the rate gyro model; Groves 2013, Section 4.4.6). Lazy, as :func:`_memory_decay`."""
+    old = _block(blocks, "gyro")
+    if old is None:
+        x, P = _append(x, P, np.array([[params.gyro_bias_sigma**2]]))
+        blocks.append(("gyro", t1))
+        return x, P
+    at = _offset(blocks, old)
+    grown = P.copy()
+    grown[at, at] += params.gyro_bias_walk**2 * max(0.0, t1 - old[1])
+    blocks[blocks.index(old)] = ("gyro", t1)
+    return _recorded(x, P, np.eye(len(x)), x, grown)
+
+
 # The state block holding each input's shared error, and the sign it enters the step after
 # with (:func:`_update`).
 SHARED_BLOCK = {"icp": "scan", "vo": "frame"}
-BLOCK_SIZE = {"memory": 1}  # the other blocks are of three
+BLOCK_SIZE = {"memory": 1, "gyro": 1}  # the other blocks are of three
 SHARED_SIGN = {"icp": -1.0, "vo": 1.0}
 
 
@@ -1226,6 +1355,8 @@ def _update(
     bias: tuple[int, FloatArray] | None = None,
     whiteness: tuple[float, int, float] | None = None,
     leave_out: NDArray[np.bool_] | None = None,
+    gyro_bias: tuple[int, float] | None = None,
+    consider: int | None = None,
 ) -> tuple[FloatArray, FloatArray, Innovation]:
     """The EKF update with increment ``m`` against the clone at state index ``c``: h(S) is
     the motion from the clone's pose to the current one in the clone's frame. The step's
@@ -1248,7 +1379,10 @@ def _update(
     unit-variance Gauss-Markov state at that index (:func:`_memory_decay`). ``bias`` =
     (index, coefficients (3,)): the step's error along each axis has a further part
     coefficient x b, b the state's block of three at that index (VO's biases:
-    :func:`_bias_decay`).
+    :func:`_bias_decay`). ``gyro_bias`` = (index, seconds): the step's yaw has a further
+    part seconds x b, b the gyroscope's bias at that index (:func:`_gyro_bias_walk`).
+    ``consider`` (an index): that state is a consider state in this update (its gain 0, its
+    covariance with the rest kept exact by the Joseph form; Schmidt 1966).
 
     ``gate`` > 0: when the innovation's squared Mahalanobis distance d2 (shared error
     included) exceeds it, or ``window`` = (the last runs' d2 summed, its gate) and that sum
@@ -1285,6 +1419,8 @@ def _update(
         Hs[0, memory[0]] = memory[1]
     if bias is not None:
         Hs[[0, 1, 2], bias[0] + np.arange(3)] = bias[1]
+    if gyro_bias is not None:
+        Hs[2, gyro_bias[0]] = gyro_bias[1]
     Hp = H.copy()  # the pose's part
     h, H = h + Hs @ x, H + Hs
     y = m.motion - h
@@ -1331,6 +1467,8 @@ def _update(
         S = HPH + Rm
     nis = float(y @ np.linalg.solve(HPH + R0, y)) / len(y)
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
+    if consider is not None:
+        K[consider, :] = 0.0
     x = x + K @ y
     A = np.eye(len(x)) - K @ H
     P = A @ P @ A.T + K @ Rm @ K.T  # Joseph form: stays symmetric, positive

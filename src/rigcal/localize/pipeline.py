@@ -25,6 +25,7 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
+from rigcal.io.gyro import Gyro
 from rigcal.io.trajectory import Trajectory, read_tum
 from rigcal.io.wheel_odometry import across_gaps, gap_s, laser_motions
 from rigcal.localize import kalman
@@ -215,6 +216,8 @@ def _kf_estimate(streams: Streams, params: kalman.KfParams | None = None) -> Est
     }
     if streams.wheel_odometry is not None:
         stats["wheel_measurements"] = sum(m.source == "wheel" for m in ms)
+    if streams.gyro is not None:
+        stats["gyro_measurements"] = sum(m.source == "gyro" for m in ms)
     stamps, poses = kalman.fuse(ms, params, at=streams.scan_stamps_s)  # scored where ICP is
     streams.timings_s["kf_s"] = time.perf_counter() - t0
     return Estimate(stamps, poses, stats)
@@ -250,7 +253,27 @@ def kf_measurements(
         ms += kalman.increments(
             wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS, measured=measured, source="wheel"
         )
+    if streams.gyro is not None:
+        ms += gyro_measurements(streams.gyro, streams.scan_stamps_s, params)
     return ms
+
+
+def gyro_measurements(
+    gyro: Gyro, scan_stamps_s: FloatArray, params: kalman.KfParams
+) -> list[kalman.Increment]:
+    """The gyroscope's steps (:func:`rigcal.localize.kalman.gyro_increments`): its yaw
+    turned between scans' stamps at least :data:`rigcal.localize.kalman.GYRO_STEP_S` apart
+    (the first scan's and each next one that far from the last taken), within its span."""
+    t = np.asarray(scan_stamps_s, dtype=float)
+    t = t[(t >= gyro.stamps_s[0]) & (t <= gyro.stamps_s[-1])]
+    if len(t) < 2:
+        return []
+    keep = [0]
+    for k in range(1, len(t)):
+        if t[k] - t[keep[-1]] >= kalman.GYRO_STEP_S - 1e-9:
+            keep.append(k)
+    at = t[keep]
+    return kalman.gyro_increments(at, gyro.yaw_between(at), params.gyro_noise)
 
 
 def _run_covariance(step: VoStep, focal_px: float) -> FloatArray:
@@ -369,6 +392,7 @@ class Run:
     images_outside_scans: dict[str, int] = field(default_factory=lambda: {"before": 0, "after": 0})
     # The sequence's 16-bit frames, read as 8 bits (frames, max_level, shift_bits; empty: none).
     images_16_bit: dict[str, int] = field(default_factory=dict)
+    gyro: str = "none"  # "used" (by method kf), "ignored" or "none" (the sequence has none)
 
 
 def _shared_stages(streams: Streams, methods: list[str]) -> None:
@@ -512,6 +536,7 @@ def run(
     loop_closure: LoopParams | None = None,
     kf: kalman.KfParams | None = None,
     place_recognition: PlaceParams | None = DEFAULT_PLACE,
+    gyro: bool = False,
 ) -> Run:
     """Localize a sequence with each method; :func:`rigcal.viz.localize_output.write_run`
     writes the output folder. ``iasm``: IASM's and H-IASM's settings, ``tracks`` the
@@ -521,7 +546,8 @@ def run(
     loop closure, as ``METHOD+lc``. ``kf``: the Kalman filter's settings
     (:data:`rigcal.localize.kalman.KF_MODES`; the weighted filter unless given).
     ``place_recognition``: loop closure's image place recognition's settings, None for
-    the scan search alone.
+    the scan search alone. ``gyro``: the Kalman filter fuses the sequence's gyroscope
+    (when it has one); False, the default, ignores it.
 
     Raises:
         InputError: an unknown method, or a sequence that cannot be localized.
@@ -535,6 +561,9 @@ def run(
     streams.progress = progress
     streams.track_params = tracks or TrackParams()
     streams.use_wheel_odometry = wheel_odometry
+    streams.use_gyro = gyro
+    if gyro and "kf" in methods:
+        _ = streams.gyro  # its file read now, before any work (read only when used)
     if wheel_odometry or "odom" in methods:
         _warn_gaps(streams)  # its file read now, before any work (read only when used)
     if len(streams.scans) < MIN_SCANS:
@@ -595,6 +624,7 @@ def run(
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
     wheel = "none" if not streams.sequence.has_odometry else "used" if wheel_odometry else "ignored"
     outside = streams.results.get("images_outside_scans", {"before": 0, "after": 0})
+    used = "used" if gyro and "kf" in methods else "ignored"
     return Run(
         results,
         dict(streams.timings_s),
@@ -608,6 +638,7 @@ def run(
         kf,
         outside,
         dict(streams.results.get("images_16_bit", {})),
+        used if streams.sequence.has_gyro else "none",
     )
 
 
@@ -619,6 +650,7 @@ def summary(r: Run, sequence: Path) -> dict[str, Any]:
             "methods": [m.method for m in r.methods],
             "settings": settings(r.iasm, r.tracks, r.kf),
             "wheel_odometry": r.wheel_odometry,
+            "gyro": r.gyro,
         },
         "duration_s": round(r.duration_s, 3),
         **({"images_outside_scans": dict(out)} if any((out := r.images_outside_scans).values()) else {}),

@@ -33,6 +33,7 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
+from rigcal.io.gyro import Gyro
 from rigcal.io.images import grey_of, sixteen_bit, sixteen_bit_grey, sixteen_bit_levels
 from rigcal.io.stamps import outside_scans, unit_hint, within_scans
 from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
@@ -82,6 +83,7 @@ class Streams:
     progress: Callable[[str, int, int], None] | None = field(default=None, repr=False)
     track_params: TrackParams = field(default_factory=TrackParams)
     use_wheel_odometry: bool = True
+    use_gyro: bool = True
     odometry_covariance: bool = True
     _unwrapped: tuple[Odometry, FloatArray] | None = field(default=None, repr=False)
 
@@ -89,6 +91,11 @@ class Streams:
     def wheel_odometry(self) -> WheelOdometry | None:
         """The sequence's wheel odometry, unless told not to use it."""
         return self.sequence.odometry if self.use_wheel_odometry else None
+
+    @property
+    def gyro(self) -> Gyro | None:
+        """The sequence's gyroscope, unless told not to use it."""
+        return self.sequence.gyro if self.use_gyro else None
 
     def wheel_guess(self) -> FloatArray | None:
         """(N - 1, 3) the laser's motion between consecutive scans by the wheel odometry

@@ -17,8 +17,11 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from rigcal.errors import InputError
+from rigcal.io.gyro import Gyro
+from rigcal.io.gyro import checked as checked_gyro
 from rigcal.io.images import eight_bit_pngs
 from rigcal.io.stamps import outside_scans
 from rigcal.io.validate import real
@@ -35,6 +38,9 @@ ODOMETRY_TYPES = ("nav_msgs/msg/Odometry", *TF_TYPES)
 ODOMETRY_FRAMES = ("odom", "base_link")
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
+IMU_TYPES = ("sensor_msgs/msg/Imu",)
+# ``--imu-topic``: no IMU read, even where the bag has one.
+NO_IMU = "none"
 
 
 @dataclass
@@ -47,6 +53,8 @@ class ImportSummary:
     reordered: dict[str, int] = field(default_factory=dict)
     duplicates: dict[str, int] = field(default_factory=dict)
     odometry: int = 0
+    gyro: int = 0  # the IMU's samples kept as gyro.csv
+    imu_topics: list[str] = field(default_factory=list)  # several IMU topics, none chosen
     # What the import converted by a documented rule (docs/formats/sequence.md#from-bags):
     scan_counts: dict[str, int] = field(default_factory=dict)  # returns at range_max, beams past a turn
     outside: dict[str, int] = field(default_factory=dict)  # images before the first scan, after the last
@@ -77,6 +85,8 @@ class ImportSummary:
                 f"{self.outside['before']} images before the first scan and {self.outside['after']} "
                 "after the last (kept; check and localize's image methods leave them out)"
             )
+        if self.imu_topics:
+            out.append(f"IMU topics {self.imu_topics}, none read (--imu-topic T keeps one as the gyro)")
         for topic, n in self.unstamped.items():
             out.append(f"{n} {topic} messages with header.stamp 0 (stamped with their record time)")
         if self.depth:
@@ -106,6 +116,7 @@ def import_bag(
     laser_offset: NDArray[np.float64] | None = None,
     odometry_frames: tuple[str, str] = ODOMETRY_FRAMES,
     more: Sequence[str | Path] = (),
+    imu_topic: str | None = None,
 ) -> ImportSummary:
     """Write a sequence folder from a bag. ``progress`` is called with (messages read,
     messages on the wanted topics). ``stamps="strict"`` refuses messages out of time order
@@ -115,12 +126,15 @@ def import_bag(
     default) are; the laser's mounting from ``laser_offset`` or else the bag's /tf_static
     (:func:`bag_odometry`). ``scan_topic`` and ``image_topic`` None: the bag's only topic
     of that type. ``more``: the further files of a bag recorded in parts (``rosbag record
-    --split``), read with ``bag`` as one bag, their messages in time order.
+    --split``), read with ``bag`` as one bag, their messages in time order. ``imu_topic``: a
+    sensor_msgs/Imu topic whose angular velocity, rotated into the scans' frame, is kept as
+    the gyroscope (:func:`bag_gyro`); None: the bag's only one, if it has one;
+    :data:`NO_IMU`: none.
 
     Raises:
         InputError: unreadable bag, a missing topic (the bag's topics are listed), a topic
             of the wrong type, an empty topic, an image encoding that cannot be stored,
-            stamps out of order (strict), or odometry that cannot be used.
+            stamps out of order (strict), or odometry or an IMU that cannot be used.
     """
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
@@ -149,13 +163,21 @@ def import_bag(
                 f"the odometry over time: a nav_msgs/Odometry topic or /tf (its odom -> base_link); "
                 f"{TF_STATIC} holds fixed transforms, read for the laser's mounting",
             )
+        imus = sorted(t for t, kind in topics.items() if kind in IMU_TYPES)
+        summary = ImportSummary()
+        if imu_topic is None and len(imus) > 1:
+            summary.imu_topics = imus
+        imu_topic = (imus[0] if len(imus) == 1 else None) if imu_topic is None else imu_topic
+        imu_topic = None if imu_topic == NO_IMU else imu_topic
         wanted = {"scan": (scan_topic, SCAN_TYPES), "image": (image_topic, IMAGE_TYPES)}
         if camera_info_topic is not None:
             wanted["camera_info"] = (camera_info_topic, INFO_TYPES)
         if odometry_topic is not None:
             wanted["odometry"] = (odometry_topic, ODOMETRY_TYPES)
-            if topics.get(TF_STATIC) in TF_TYPES:
-                wanted["tf_static"] = (TF_STATIC, TF_TYPES)
+        if imu_topic is not None:
+            wanted["imu"] = (imu_topic, IMU_TYPES)
+        if (odometry_topic is not None or imu_topic is not None) and topics.get(TF_STATIC) in TF_TYPES:
+            wanted["tf_static"] = (TF_STATIC, TF_TYPES)
         for what, (topic, types) in wanted.items():
             if topic not in topics:
                 raise InputError.at(
@@ -166,7 +188,6 @@ def import_bag(
                 )
             if topics[topic] not in types:
                 raise InputError.at(bag, topic, topics[topic], f"a topic of type {' or '.join(types)}")
-        summary = ImportSummary()
         if camera_info_topic is None:  # said on the summary line: a camera the bag has, not kept
             summary.unread_info = sorted(t for t, kind in topics.items() if kind in INFO_TYPES)
         scans: list[tuple[float, Scan]] = []
@@ -189,6 +210,13 @@ def import_bag(
                     progress(k + 1, total)
                 continue
             stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
+            if con.topic == imu_topic:
+                w = msg.angular_velocity
+                wheel.imu.append((stamp, float(w.x), float(w.y), float(w.z)))
+                wheel.imu_frames.add(str(msg.header.frame_id).lstrip("/"))
+                if progress is not None:
+                    progress(k + 1, total)
+                continue
             if stamp == 0.0 and con.topic in (scan_topic, image_topic):
                 # A driver that leaves header.stamp unset: the time the recorder got it.
                 if stamps == "strict":
@@ -243,6 +271,10 @@ def import_bag(
     if odometry_topic is not None:
         odometry = bag_odometry(wheel, f"{bag}: {odometry_topic}", laser_offset, scan_t)
         summary.odometry = len(odometry.stamps_s)
+    gyro = None
+    if imu_topic is not None:
+        gyro = bag_gyro(wheel, f"{bag}: {imu_topic}", scan_t)
+        summary.gyro = len(gyro.stamps_s)
     summary.outside = outside_scans(np.array([t for t, _, _ in images_sorted]), scan_t)
     datas, summary.depth = eight_bit_pngs([data for _, data, _ in images_sorted])
     images_sorted = [  # a converted frame is an 8-bit PNG
@@ -263,10 +295,12 @@ def import_bag(
             "image_topic": image_topic,
             "camera_info_topic": camera_info_topic,
             **({"odometry_topic": odometry_topic} if odometry_topic is not None else {}),
+            **({"imu_topic": imu_topic} if imu_topic is not None else {}),
             **summary.record(),
         },
         force=force,
         odometry=odometry,
+        gyro=gyro,
     )
     summary.scans, summary.images, summary.camera = len(scans_sorted), len(frames), camera_yaml is not None
     return summary
@@ -295,7 +329,10 @@ class _WheelMessages:
         self.tf_seen: set[tuple[str, str]] = set()  # every transform a tf topic carried
         self.via_tf = False
         self.static: dict[tuple[str, str], NDArray[np.float64]] = {}  # (parent, child) -> x y yaw
+        self.static_R: dict[tuple[str, str], NDArray[np.float64]] = {}  # (parent, child) -> R_parent_child
         self.scan_frame = ""
+        self.imu: list[tuple[float, float, float, float]] = []  # stamp, angular velocity x y z (rad/s)
+        self.imu_frames: set[str] = set()
 
     def add(self, topic: str, msg: Any) -> None:
         if topic == TF_STATIC:
@@ -303,6 +340,9 @@ class _WheelMessages:
                 t, q = tf.transform.translation, tf.transform.rotation
                 key = (str(tf.header.frame_id).lstrip("/"), str(tf.child_frame_id).lstrip("/"))
                 self.static[key] = np.array([float(t.x), float(t.y), _yaw(q)])
+                quat = np.array([float(q.x), float(q.y), float(q.z), float(q.w)])
+                if np.linalg.norm(quat) > 0:  # a zero quaternion is no rotation: no link
+                    self.static_R[key] = Rotation.from_quat(quat).as_matrix()
             return
         if hasattr(msg, "transforms"):  # a tf topic: the odometry is one of its transforms
             self.via_tf = True
@@ -374,6 +414,51 @@ def bag_odometry(
     a = np.array(wheel.poses, dtype=float).reshape(-1, 4)
     order = np.argsort(a[:, 0], kind="stable")
     return checked(a[order, 0], a[order, 1:], mount, where, scan_stamps_s)
+
+
+def bag_gyro(wheel: _WheelMessages, where: str, scan_stamps_s: NDArray[np.float64]) -> Gyro:
+    """The IMU topic's angular velocities (its ``header.frame_id``'s axes) rotated into the
+    scans' frame, their z component (the yaw rate about the laser's z axis), as the
+    gyroscope: R_laser_imu from the scans' and the IMU's frames, the same frame or linked by
+    a chain of /tf_static transforms (:func:`_static_rotation`).
+
+    Raises:
+        InputError: messages that switch frames, an IMU frame not linked to the scans',
+            and the checks of :func:`rigcal.io.gyro.checked` (stamps, NaN, no overlap).
+    """
+    if len(wheel.imu_frames) > 1:
+        raise InputError.at(where, "header.frame_id", sorted(wheel.imu_frames), "one frame for the topic")
+    frame = next(iter(wheel.imu_frames), "")
+    R = _static_rotation(wheel.static_R, wheel.scan_frame.lstrip("/"), frame)
+    if R is None:
+        raise InputError.at(
+            where,
+            "header.frame_id",
+            frame,
+            f"the scans' frame {wheel.scan_frame!r} or a frame linked to it by {TF_STATIC} transforms "
+            f"(known: {sorted(wheel.static_R)})",
+        )
+    a = np.array(wheel.imu, dtype=float).reshape(-1, 4)
+    order = np.argsort(a[:, 0], kind="stable")
+    rates = (a[order, 1:] @ R.T)[:, 2]  # (R_laser_imu w_imu)_z
+    return checked_gyro(a[order, 0], rates, where, scan_stamps_s)
+
+
+def _static_rotation(
+    static: dict[tuple[str, str], NDArray[np.float64]], target: str, source: str
+) -> NDArray[np.float64] | None:
+    """R_target_source through the /tf_static transforms (R_parent_child each, taken
+    either way), or None when no chain links the two frames (breadth first)."""
+    rotations: dict[str, NDArray[np.float64]] = {target: np.eye(3)}  # frame -> R_target_frame
+    todo = [target]
+    while todo:
+        frame = todo.pop(0)
+        for (parent, child), R in static.items():
+            for a, b, R_ab in ((parent, child, R), (child, parent, R.T)):
+                if a == frame and b not in rotations:
+                    rotations[b] = rotations[a] @ R_ab
+                    todo.append(b)
+    return rotations.get(source)
 
 
 def _strict_order(bag: Path, streams: list[tuple[str, list[Any]]]) -> None:

@@ -12,6 +12,7 @@ The input of the localization pipeline and the output of ``rigcal import-bag``::
       rig.yaml          the rig, when known (rig file)
       groundtruth.tum   the laser's true poses in the world, when known (simulations)
       odometry.tum      the robot base's wheel odometry, when the log has it (schema 3)
+      gyro.csv          the gyroscope's yaw rate, when the log has it (schema 4)
 
 Stamps are seconds, increasing within each stream. :func:`write_sequence` writes a whole
 folder atomically; :func:`read_sequence` validates it.
@@ -34,6 +35,7 @@ import yaml
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text, text_lines
+from rigcal.io.gyro import Gyro, gyro_csv, read_gyro_csv
 from rigcal.io.kinds import kind_of_bytes
 from rigcal.io.stamps import check_seconds
 from rigcal.io.validate import finite_array, parse_real, real, relative_inside, whole
@@ -46,9 +48,12 @@ ImagesKnown = Callable[[Path, FloatArray, list[str]], None]
 SEQUENCE_SCHEMA_VERSION = 1
 # Written when the folder keeps wheel odometry (its ``odometry`` mapping).
 SEQUENCE_SCHEMA_VERSION_ODOMETRY = 3
+# Written when the folder keeps a gyroscope (its ``gyro`` mapping).
+SEQUENCE_SCHEMA_VERSION_GYRO = 4
 # Versions read: 2 adds the optional ``laser: {clockwise: BOOL}`` mapping, 3 the optional
-# ``odometry: {file, T_base_laser}`` (rigcal.io.wheel_odometry).
-SEQUENCE_SCHEMA_VERSIONS = (1, 2, 3)
+# ``odometry: {file, T_base_laser}`` (rigcal.io.wheel_odometry), 4 the optional
+# ``gyro: {file}`` (rigcal.io.gyro).
+SEQUENCE_SCHEMA_VERSIONS = (1, 2, 3, 4)
 SCAN_KEYS = (
     "stamps_s",
     "ranges_m",
@@ -90,6 +95,7 @@ class Sequence:
     odometry_reader: Callable[[], WheelOdometry] | None = field(default=None, repr=False, compare=False)
     image_folder: str = "images"  # the folder and index named in sequence.yaml's ``images``
     image_index: str = "images.csv"
+    gyro_reader: Callable[[], Gyro] | None = field(default=None, repr=False, compare=False)
 
     @property
     def has_odometry(self) -> bool:
@@ -105,6 +111,20 @@ class Sequence:
         """
         return None if self.odometry_reader is None else self.odometry_reader()
 
+    @property
+    def has_gyro(self) -> bool:
+        """Whether sequence.yaml names a gyroscope (without reading its file)."""
+        return self.gyro_reader is not None
+
+    @cached_property
+    def gyro(self) -> Gyro | None:
+        """The gyroscope, read and checked against the scans on first use (as :attr:`odometry`).
+
+        Raises:
+            InputError: its file is missing or malformed, naming the file, line and value.
+        """
+        return None if self.gyro_reader is None else self.gyro_reader()
+
 
 def write_sequence(
     folder: str | Path,
@@ -117,12 +137,14 @@ def write_sequence(
     groundtruth_tum: str | None = None,
     rig_yaml: str | None = None,
     odometry: WheelOdometry | None = None,
+    gyro: Gyro | None = None,
 ) -> Path:
     """Write a sequence folder atomically (refuses an existing folder unless ``force``).
 
     ``groundtruth_tum`` (the laser's poses in the world, TUM text) and ``rig_yaml`` (a rig
     file's text) are written when given, and so is ``odometry`` (odometry.tum and its
-    mounting; schema 3). ``images`` may be a generator: each frame is written as it comes.
+    mounting; schema 3) and ``gyro`` (gyro.csv; schema 4). ``images`` may be a
+    generator: each frame is written as it comes.
     """
     B = max((len(s.ranges_m) for s in scans), default=0)
     ranges = np.full((len(scans), B), np.nan)
@@ -153,6 +175,9 @@ def write_sequence(
     if odometry is not None:
         doc["schema_version"] = SEQUENCE_SCHEMA_VERSION_ODOMETRY
         doc["odometry"] = {"file": "odometry.tum", "T_base_laser": [float(v) for v in odometry.T_base_laser]}
+    if gyro is not None:
+        doc["schema_version"] = SEQUENCE_SCHEMA_VERSION_GYRO
+        doc["gyro"] = {"file": "gyro.csv"}
     with atomic_folder(folder, force) as tmp:
         np.savez_compressed(tmp / "scans.npz", **arrays)  # type: ignore[arg-type]
         (tmp / "images").mkdir()
@@ -170,6 +195,8 @@ def write_sequence(
             (tmp / "groundtruth.tum").write_text(groundtruth_tum, encoding="utf-8")
         if odometry is not None:
             (tmp / "odometry.tum").write_text(odometry_tum(odometry), encoding="utf-8")
+        if gyro is not None:
+            (tmp / "gyro.csv").write_text(gyro_csv(gyro), encoding="utf-8")
         (tmp / "sequence.yaml").write_text(
             "# rigcal sequence (docs/formats/sequence.md)\n" + yaml.safe_dump(doc, sort_keys=False),
             encoding="utf-8",
@@ -201,7 +228,7 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
         path,
         "",
         ["schema_version", "name", "scans", "images"],
-        ["source", "camera", "rig", "groundtruth", "laser", "odometry"],
+        ["source", "camera", "rig", "groundtruth", "laser", "odometry", "gyro"],
         SEQUENCE_SCHEMA_VERSIONS,
     )
     clockwise = laser_clockwise(d, path, SEQUENCE_SCHEMA_VERSIONS, since=2)
@@ -261,6 +288,9 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
     odometry = None
     if "odometry" in d:
         odometry = _odometry_reader(folder, path, d, np.array([s.stamp_s for s in scans], dtype=float))
+    gyro = None
+    if "gyro" in d:
+        gyro = _gyro_reader(folder, path, d, np.array([s.stamp_s for s in scans], dtype=float))
     return Sequence(
         folder,
         str(d["name"]),
@@ -274,6 +304,7 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
         odometry,
         str(im["folder"]),
         str(im["index"]),
+        gyro,
     )
 
 
@@ -292,6 +323,27 @@ def _odometry_reader(
     xyz = [real(v, path, f"odometry.T_base_laser[{i}]") for i, v in enumerate(mount)]
     file = folder / relative_inside(od["file"], path, "odometry.file")
     return partial(_read_odometry, file, np.array(xyz), scan_stamps_s)
+
+
+def _gyro_reader(
+    folder: Path, path: Path, d: Mapping[str, Any], scan_stamps_s: FloatArray
+) -> Callable[[], Gyro]:
+    """The ``gyro`` mapping (schema 4), checked now, and the reader of its file (checked
+    against the scans when called)."""
+    if whole(d["schema_version"], path, "schema_version") < SEQUENCE_SCHEMA_VERSION_GYRO:
+        need = f"{SEQUENCE_SCHEMA_VERSION_GYRO} for key 'gyro'"
+        raise InputError.at(path, "schema_version", d["schema_version"], need)
+    g = check_keys(d["gyro"], path, "gyro", ["file"])
+    file = folder / relative_inside(g["file"], path, "gyro.file")
+    return partial(_read_gyro, file, scan_stamps_s)
+
+
+def _read_gyro(file: Path, scan_stamps_s: FloatArray) -> Gyro:
+    """The sequence's gyro.csv; its error says how to go on without it."""
+    try:
+        return read_gyro_csv(file, scan_stamps_s)
+    except InputError as exc:
+        raise InputError(f"{exc} (--gyro ignore runs without it)") from None
 
 
 def _read_odometry(file: Path, T_base_laser: FloatArray, scan_stamps_s: FloatArray) -> WheelOdometry:

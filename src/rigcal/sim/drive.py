@@ -47,7 +47,8 @@ class DriveSpec:
     per frame) as in :class:`rigcal.sim.world_render.CameraEffects`; ``images`` False
     writes no images; ``image_format`` is how they are stored (:data:`IMAGE_FORMATS`).
     ``duration_s`` drives only the lap's first seconds (None: the lap).
-    ``wheel_odometry`` also writes the base's wheel odometry (:func:`wheel_odometry`).
+    ``wheel_odometry`` also writes the base's wheel odometry (:func:`wheel_odometry`);
+    ``gyro`` a MEMS gyroscope's yaw rate (:func:`gyro_rates`).
     ``laps``: how many times the loop is driven, one lap after the other (the stops fall
     anywhere in the drive); a second lap revisits every place of the first, as loop
     closure's place recognition is measured on.
@@ -75,6 +76,7 @@ class DriveSpec:
     image_format: str = "png"
     wheel_odometry: bool = False
     laps: int = 1
+    gyro: bool = False
 
     def __post_init__(self) -> None:
         checks = [
@@ -301,6 +303,37 @@ def wheel_odometry(motion: Motion, spec: DriveSpec) -> tuple[FloatArray, FloatAr
     return t, np.array(out)
 
 
+# Simulated gyroscope (a MEMS IMU's z axis, mounted level: its rate is the laser's yaw
+# rate): its rate, and its errors in the standard model of a rate gyro (IEEE Std 952-1997,
+# Annex C; Groves, Principles of GNSS, Inertial, and Multisensor Integrated Navigation
+# Systems, 2013, Section 4.4): white rate noise of GYRO_NOISE_DEG_S_RT_HZ (the angle random
+# walk, deg/s/sqrt(Hz)), a constant bias drawn once per drive (1-sigma GYRO_BIAS_DEG_S,
+# what is left of a turn-on bias a driver does not calibrate away), and a bias random walk
+# (GYRO_BIAS_WALK_DEG_S_RT_S, deg/s/sqrt(s): the slow drift of the bias in a run).
+GYRO_RATE_HZ = 200.0
+GYRO_NOISE_DEG_S_RT_HZ = 0.005
+GYRO_BIAS_DEG_S = 0.05
+GYRO_BIAS_WALK_DEG_S_RT_S = 0.0005
+
+
+def gyro_rates(motion: Motion, spec: DriveSpec) -> tuple[FloatArray, FloatArray]:
+    """Stamps (M,) and yaw rates (M,) rad/s of the gyroscope over the drive: the true yaw
+    rate averaged over the period ending at each sample's stamp (:mod:`rigcal.io.gyro`),
+    plus the bias (constant and random walk) and white noise of
+    :data:`GYRO_NOISE_DEG_S_RT_HZ` (a sample's 1-sigma is the density times sqrt(rate)).
+    Its random stream is its own (seeded by the drive's
+    seed and 11): a drive's other streams are the same with or without it."""
+    rng = np.random.default_rng([spec.seed, 11])
+    dt = 1.0 / GYRO_RATE_HZ
+    t: FloatArray = np.arange(0.0, drive_duration(motion, spec), dt)
+    ends = np.r_[t[0] - dt, t]
+    true = np.diff(np.interp(np.clip(ends, 0.0, motion.duration_s), motion.t, motion.yaw)) / dt
+    bias = np.radians(GYRO_BIAS_DEG_S) * rng.standard_normal()
+    walk = np.cumsum(np.radians(GYRO_BIAS_WALK_DEG_S_RT_S) * np.sqrt(dt) * rng.standard_normal(len(t)))
+    noise = np.radians(GYRO_NOISE_DEG_S_RT_HZ) * np.sqrt(GYRO_RATE_HZ) * rng.standard_normal(len(t))
+    return t, true + bias + walk + noise
+
+
 def write_drive(
     world: World,
     spec: DriveSpec,
@@ -365,6 +398,17 @@ def write_drive(
             "drift_deg_per_m": WHEEL_DRIFT_DEG_PER_M,
             "noise_distance_fraction_heading_rad": list(WHEEL_NOISE),
         }
+    gyro = None
+    if spec.gyro:
+        from rigcal.io.gyro import checked as checked_gyro
+
+        gyro = checked_gyro(*gyro_rates(motion, spec), "simulated gyroscope")
+        source["gyro"] = {
+            "rate_hz": GYRO_RATE_HZ,
+            "noise_deg_s_rt_hz": GYRO_NOISE_DEG_S_RT_HZ,
+            "bias_deg_s": GYRO_BIAS_DEG_S,
+            "bias_walk_deg_s_rt_s": GYRO_BIAS_WALK_DEG_S_RT_S,
+        }
     write_sequence(
         folder,
         world.name,
@@ -376,6 +420,7 @@ def write_drive(
         groundtruth_tum=truth,
         rig_yaml=rig_to_text(rig),
         odometry=odometry,
+        gyro=gyro,
     )
     return {
         "length_m": world.path_length_m,
