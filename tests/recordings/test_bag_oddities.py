@@ -153,3 +153,32 @@ def test_a_bag_recorded_in_parts_is_read_as_one(tmp_path, capsys, ros):
     assert main(["import-bag", str(a), str(tmp_path / "c.bag"), "-o", str(tmp_path / "t")]) == 3
     assert capsys.readouterr().err.strip().splitlines()[-1] == f"Error: {tmp_path / 'c.bag'}: bag not found"
     assert not (tmp_path / "t").exists()
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+def test_a_bad_message_in_a_later_part_is_named_by_its_own_file(tmp_path, capsys, ros):
+    """A bag recorded in parts: a broken scan in the second file is named by that file and
+    its index there, not by the first file."""
+    import dataclasses
+
+    from rosbags.rosbag1 import Writer as Writer1
+    from test_bag import TS1, write_bag
+
+    ts = TS2 if ros == 2 else TS1
+    a = write_bag(tmp_path / ("a.bag" if ros == 1 else "a"), ros, [1.0 + 0.1 * k for k in range(5)], [1.05])
+    b = tmp_path / ("b.bag" if ros == 1 else "b")
+    scan, image, _, _ = _msgs(ts)
+    ser = ts.serialize_cdr if ros == 2 else ts.serialize_ros1
+    with Writer2(b, version=8) if ros == 2 else Writer1(b) as w:
+        cs = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
+        ci = w.add_connection("/cam/image", "sensor_msgs/msg/Image", typestore=ts)
+        for k in range(3):
+            msg = scan(2.0 + 0.1 * k, k)
+            if k == 2:
+                msg = dataclasses.replace(msg, angle_increment=0.0)
+            w.write(cs, int(1e9 * (20 + k)), ser(msg, "sensor_msgs/msg/LaserScan"))
+        w.write(ci, int(1e9 * 20) + 1, ser(image(2.05, 0), "sensor_msgs/msg/Image"))
+    assert main(["import-bag", str(a), str(b), "-o", str(tmp_path / "s")]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"Error: {b}: /scan message 2: ")
+    assert not (tmp_path / "s").exists()

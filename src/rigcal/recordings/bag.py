@@ -199,10 +199,14 @@ def import_bag(
         wheel = _WheelMessages(odometry_frames)
         conns = [c for c in reader.connections if c.topic in {t for t, _ in wanted.values()}]
         total = sum(int(c.msgcount) for c in conns)
-        seen = dict.fromkeys(topics, 0)
+        # A message is named by the file it is in (a part of a bag recorded in parts) and
+        # its index on its topic there.
+        seen: dict[tuple[str, str], int] = {}
         for k, (con, recorded_ns, raw) in enumerate(reader.messages(connections=conns)):
-            where = f"{bag}: {con.topic} message {seen[con.topic]}"
-            seen[con.topic] += 1
+            part = str(getattr(con.owner, "path", bag)) if more else str(bag)
+            n = seen.get((part, con.topic), 0)
+            seen[(part, con.topic)] = n + 1
+            where = f"{part}: {con.topic} message {n}"
             msg = _deserialize(reader, raw, con.msgtype, where)
             if con.topic in (odometry_topic, TF_STATIC):  # TFMessage has no header
                 wheel.add(con.topic, msg)
