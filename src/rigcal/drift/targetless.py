@@ -60,8 +60,11 @@ that into a measurement of T:
 7. The test: the correction on the observed directions against its covariance plus the
    stored calibration's (Hotelling's T^2 with the clusters' effective count: an F test
    that tends to the chi-square with k dof as the clusters grow). Drifted when p <
-   level. When the drive is too short, sees no returns, or observes no direction, the
-   verdict is "cannot tell".
+   level. When the check with the edges cannot tell (their few corners determine no
+   direction, or too few of them), it is made again with the edge term off, the
+   photometric term alone on every scan's odometry (:func:`_photometric_alone`). When the
+   drive is too short, sees no returns, or observes no direction, the verdict is "cannot
+   tell".
 """
 
 from __future__ import annotations
@@ -371,10 +374,37 @@ def check_targetless(
         rec = base | {"check_s": round(time.perf_counter() - t_start, 3)}
         return TargetlessResult("cannot_tell", settings.level, nan6, np.zeros((6, 6)), _json(rec), reasons)
     res = _test(rig, est, patches, settings, reasons)
+    if res["verdict"] == "cannot_tell" and est.edge_stats:
+        alone = _photometric_alone(rig, streams, settings)
+        if alone is not None:
+            # The edges' few corners could not judge (no direction determined, too few
+            # of them); the photometric term alone, on every scan's odometry, judges what
+            # it observes.
+            patches, res, reasons = alone
+            base.update(patches.info)
+            base["photometric_alone"] = "the check with the edges could not tell"
     rec = base | res["record"] | {"check_s": round(time.perf_counter() - t_start, 3)}
     return TargetlessResult(
         res["verdict"], settings.level, res["xi"], res["cov"], _json(rec), reasons, res.get("details", {})
     )
+
+
+def _photometric_alone(
+    rig: Rig, streams: Streams, settings: TargetlessSettings
+) -> tuple[_Patches, dict[str, Any], list[str]] | None:
+    """The check made again with the edge term off, on every scan's odometry with its
+    errors held (module docstring, step 4): (its patches, its test, its reasons) when it
+    observes a direction, else None."""
+    alone = dataclasses.replace(settings, edges=False)
+    reasons: list[str] = []
+    try:
+        patches = _build_patches(rig, streams, alone)
+        with _stacks_ahead(rig, streams, patches, alone):
+            est = _estimate(rig, streams, patches, alone)
+    except _CannotTellError:
+        return None
+    res = _test(rig, est, patches, alone, reasons)
+    return None if res["verdict"] == "cannot_tell" else (patches, res, reasons)
 
 
 LATER_IMPORTS = ("scipy.special", "scipy.spatial", "scipy.sparse.csgraph")
