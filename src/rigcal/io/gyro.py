@@ -22,7 +22,7 @@ import numpy as np
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import read_text
-from rigcal.io.stamps import check_overlap, check_seconds
+from rigcal.io.stamps import check_increasing, check_overlap, check_seconds
 
 # A pause between two samples longer than this (s) and than GAP_PERIODS of the gyro's own
 # period (median step) is a gap (a logger paused, a driver restarted): no yaw is taken
@@ -89,12 +89,7 @@ def checked(
             [float(t[k]), float(r[k])],
             f"a finite stamp and a yaw rate within +-{MAX_RATE_RAD_S:g} rad/s",
         )
-    back = np.flatnonzero(np.diff(t) <= 0)
-    if len(back):
-        k = int(back[0]) + 1
-        raise InputError.at(
-            where, f"gyro stamp {k}", float(t[k]), f"a stamp after the previous one {float(t[k - 1])!r}"
-        )
+    check_increasing(t, where, "gyro stamp")
     check_seconds(t, where, "gyro stamps", step="sample")
     check_overlap(t, where, "gyro stamps", scan_stamps_s)
     return Gyro(t, r)

@@ -234,6 +234,22 @@ def unit_hint(span: float, other_span: float) -> str:
     return f" (one stream in {unit}, the other in seconds?)" if unit else ""
 
 
+def check_increasing(stamps_s: FloatArray, where: str, name: str) -> None:
+    """Refuse stamps (N,) that do not increase: the first one at or before its predecessor
+    is named ``{name} k``.
+
+    Raises:
+        InputError: ``where: {name} k: got T; expected a stamp after the previous one ...``.
+    """
+    t = np.asarray(stamps_s, dtype=float)
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if len(back):
+        k = int(back[0]) + 1
+        raise InputError.at(
+            where, f"{name} {k}", float(t[k]), f"a stamp after the previous one {float(t[k - 1])!r}"
+        )
+
+
 def check_overlap(stamps_s: FloatArray, where: str, key: str, scan_stamps_s: FloatArray | None) -> None:
     """Refuse a stream (stamps (N,), increasing) whose time span misses the scans' (given,
     not empty): it is on another clock or in another unit (:func:`unit_hint`).

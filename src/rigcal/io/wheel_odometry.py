@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.stamps import check_beside_scans, check_overlap, check_seconds
+from rigcal.io.stamps import check_beside_scans, check_increasing, check_overlap, check_seconds
 from rigcal.io.trajectory import Trajectory, read_tum, tum_text
 
 # A TUM odometry file is planar: its poses may tilt by at most this (rad) off the floor.
@@ -126,12 +126,7 @@ def checked(
         raise InputError.at(
             where, f"odometry pose {k}", [float(t[k]), *p[k].tolist()], "finite stamp, x, y and yaw"
         )
-    back = np.flatnonzero(np.diff(t) <= 0)
-    if len(back):
-        k = int(back[0]) + 1
-        raise InputError.at(
-            where, f"odometry stamp {k}", float(t[k]), f"a stamp after the previous one {float(t[k - 1])!r}"
-        )
+    check_increasing(t, where, "odometry stamp")
     if mount.shape != (3,) or not np.isfinite(mount).all():
         raise InputError.at(where, "T_base_laser", mount.tolist(), "3 finite numbers: x y (m), yaw (rad)")
     # The unit from the odometry's own stamps (their magnitude and step), never from its
