@@ -51,7 +51,7 @@ from rigcal.localize import kalman
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.pipeline import kf_inputs, kf_measurements, planar_at
 from rigcal.localize.streams import open_streams
-from rigcal.sim.drive import DriveSpec, write_drive
+from rigcal.sim.drive import DriveSpec, Motion, gyro_bias, write_drive
 from rigcal.sim.world import BUILTIN
 
 # The filters compared: the paper's fixed covariances (``rigcal localize --kf fixed``),
@@ -428,9 +428,14 @@ def main() -> None:
                 )
                 if set(VARIANTS) != set(ALL_VARIANTS):
                     print(round7[-1], flush=True)
-                    if args.gyro:  # the gyro's bias as each filter ends the lap
+                    if args.gyro:  # the gyro's bias as each filter ends the lap, and the simulated one
+                        spec = DriveSpec(
+                            seed=seed, duration_s=duration, start_still_s=args.start_still, gyro=True
+                        )
+                        motion = Motion(BUILTIN[name](), spec)
+                        _, bias = gyro_bias(motion, spec)
                         print(
-                            "gyro bias at the end (deg/s): "
+                            f"gyro bias at the end (deg/s): simulated {np.degrees(bias[-1]):+.4f}, "
                             + ", ".join(
                                 f"{k} {row[k + '-bias-deg-s']:+.4f}" for k in shown if k.endswith("-gyro")
                             ),

@@ -53,10 +53,16 @@ def main() -> None:
         flush=True,
     )
 
-    def ate(r: kalman.KfResult) -> float:
+    def ate(r: kalman.KfResult) -> tuple[float, float]:
+        """ATE (m) and the heading's RMS error (deg), both after anchoring the first pose."""
         r = kalman.path_at(r, streams.scan_stamps_s)
         gt = planar_at(truth, r.stamps_s)
-        return float(evaluate(anchored(r.poses, gt), gt)["ate_rmse_m"])
+        est = anchored(r.poses, gt)
+        yaw = np.angle(np.exp(1j * (est[:, 2] - gt[:, 2])))
+        return float(evaluate(est, gt)["ate_rmse_m"]), float(np.degrees(np.sqrt(np.mean(yaw**2))))
+
+    icp_ate, icp_yaw = ate(kalman.KfResult(streams.scan_stamps_s, od.poses, np.zeros((len(od.poses), 3, 3))))
+    print(f"ICP | ATE {icp_ate:.4f} m | yaw RMS {icp_yaw:.3f} deg", flush=True)
 
     for mode in ("weighted", "icp-first"):
         base = kalman.KF_MODES[mode]
@@ -87,8 +93,10 @@ def main() -> None:
             ("gyro less its simulated bias, bias known", others + unbiased, known),
         ):
             r = kalman.run_filter(meas, params)
+            err, yaw_err = ate(r)
             print(
-                f"{mode} | {label} | ATE {ate(r):.4f} m | bias {np.degrees(r.gyro_bias):.4f} "
+                f"{mode} | {label} | ATE {err:.4f} m | yaw RMS {yaw_err:.3f} deg "
+                f"| bias {np.degrees(r.gyro_bias):.4f} "
                 f"+- {np.degrees(r.gyro_bias_sigma):.4f} deg/s | still {r.gyro_still_s:.1f} s",
                 flush=True,
             )
