@@ -25,6 +25,11 @@ stamps (kalman.path_at, as ``rigcal localize``); laps with wheel odometry are th
 laps copied by benchmarks/kf_wheel_laps.py (``--keep DIR2 --wheel-odometry --reuse``),
 where ``--wheel-windows`` measures the wheel witness's window model (laps 1-2).
 
+``--start-still S --gyro``: laps that begin standing still for S seconds with the simulated
+gyroscope (``DriveSpec(start_still_s=S, gyro=True)``, kept as ``...-stillS-gyro``), each
+filter run without the gyro and with it ("KEY-gyro"), the bias each ends with printed
+beside the simulated one; every input scored over the whole drive, standstill included.
+
 ``--consistency`` prints, per lap and input, the figures the filter's error model is made
 of (kalman.ICP_VARIANCE_RATIO, ICP_LAG1, VO_VARIANCE_RATIO, VO_LAG1: laps 1-2 of each loop).
 """
