@@ -25,6 +25,11 @@ stamps (kalman.path_at, as ``rigcal localize``); laps with wheel odometry are th
 laps copied by benchmarks/kf_wheel_laps.py (``--keep DIR2 --wheel-odometry --reuse``),
 where ``--wheel-windows`` measures the wheel witness's window model (laps 1-2).
 
+``--start-still S --gyro``: laps that begin standing still for S seconds with the simulated
+gyroscope (``DriveSpec(start_still_s=S, gyro=True)``, kept as ``...-stillS-gyro``), each
+filter run without the gyro and with it ("KEY-gyro"), the bias each ends with printed
+beside the simulated one; every input scored over the whole drive, standstill included.
+
 ``--consistency`` prints, per lap and input, the figures the filter's error model is made
 of (kalman.ICP_VARIANCE_RATIO, ICP_LAG1, VO_VARIANCE_RATIO, VO_LAG1: laps 1-2 of each loop).
 """
@@ -51,7 +56,7 @@ from rigcal.localize import kalman
 from rigcal.localize.metrics import anchored, evaluate
 from rigcal.localize.pipeline import kf_inputs, kf_measurements, planar_at
 from rigcal.localize.streams import open_streams
-from rigcal.sim.drive import DriveSpec, write_drive
+from rigcal.sim.drive import DriveSpec, Motion, gyro_bias, write_drive
 from rigcal.sim.world import BUILTIN
 
 # The filters compared: the paper's fixed covariances (``rigcal localize --kf fixed``),
@@ -95,6 +100,10 @@ VARIANTS = {
     ),
     "kf-icp-first-witness-fused": dataclasses.replace(kalman.KF_MODES["icp-first"], wheel_calibrated=False),
 }
+# The gyro's bias learned at the stops against ICP's turn there, not against none
+# (kalman.KfParams.gyro_zero_turn off; with --gyro, "-gyro").
+VARIANTS["kf-icp-turn"] = dataclasses.replace(VARIANTS["kf"], gyro_zero_turn=False)
+VARIANTS["kf-icp-first-icp-turn"] = dataclasses.replace(VARIANTS["kf-icp-first"], gyro_zero_turn=False)
 # The wheels fused as they come (WHEEL_SIGMAS) with no witness: round 8's default on laps with wheels.
 VARIANTS["kf-raw"] = dataclasses.replace(VARIANTS["kf"], wheel_witness=False, wheel_calibrated=False)
 # The wheels fused calibrated against ICP (kalman.KfParams.wheel_calibrated), with the witness:
@@ -132,6 +141,8 @@ ROUND9 = (
     "kf-wheels-smooth",
     "kf-icp-first-wheels-smooth",
     "kf-raw",
+    "kf-icp-turn",
+    "kf-icp-first-icp-turn",
 )
 ALL_VARIANTS = tuple(k for k in VARIANTS if k not in ROUND9)
 # The compact table: the default against round 7's and the options, lap by lap (those run).
@@ -146,6 +157,8 @@ ROUND7 = (
     "kf-process",
     "kf-driven",
 )
+# With --gyro, each filter with the gyroscope beside it.
+ROUND7 = tuple(k for key in ROUND7 for k in (key, f"{key}-gyro"))
 
 
 AXES = ("forward", "cross", "yaw")
@@ -259,6 +272,18 @@ def main() -> None:
     ap.add_argument("--seeds", default="1-10", help='"1", "1,2,3" or "1-10".')
     ap.add_argument("--duration-s", type=float, default=40.0, help="Drive length (0: the whole lap).")
     ap.add_argument("--wheel-odometry", action="store_true", help="Simulate and fuse wheel odometry.")
+    ap.add_argument(
+        "--start-still",
+        type=float,
+        default=0.0,
+        help="Seconds the rig stands still before it moves (DriveSpec.start_still_s); the drive "
+        "lasts that and --duration-s of motion, every input scored over all of it.",
+    )
+    ap.add_argument(
+        "--gyro",
+        action="store_true",
+        help="Simulate the gyroscope too; each filter then runs without it and with it (KEY-gyro).",
+    )
     ap.add_argument("--keep", type=Path, help="Keep (and reuse) the sequences in this folder.")
     ap.add_argument("--reuse", action="store_true", help="Reuse each lap's odometries of an earlier run.")
     ap.add_argument(
@@ -352,6 +377,10 @@ def main() -> None:
     else:  # round 9's run by name alone; the rest as before
         for key in ROUND9:
             VARIANTS.pop(key, None)
+    if args.gyro:
+        shown = [k for k in ROUND7 if k in VARIANTS or k.removesuffix("-gyro") in VARIANTS]
+    else:
+        shown = [k for k in ROUND7 if k in VARIANTS]
     scores: dict[tuple[str, str], list[float]] = defaultdict(list)
     wins: dict[str, list[bool]] = defaultdict(list)
     round7: list[str] = []
@@ -372,12 +401,20 @@ def main() -> None:
             for name in args.worlds.split(","):
                 tag = f"-{duration:g}s" if duration else ""
                 tag += "-wheels" if args.wheel_odometry else ""
+                tag += f"-still{args.start_still:g}" if args.start_still else ""
+                tag += "-gyro" if args.gyro else ""
                 seq = root / f"{name}-seed{seed}{tag}"
                 if not (seq / "sequence.yaml").exists():
-                    spec = DriveSpec(seed=seed, duration_s=duration, wheel_odometry=args.wheel_odometry)
+                    spec = DriveSpec(
+                        seed=seed,
+                        duration_s=duration,
+                        wheel_odometry=args.wheel_odometry,
+                        start_still_s=args.start_still,
+                        gyro=args.gyro,
+                    )
                     write_drive(BUILTIN[name](), spec, str(seq))
                 axes = tuple(AXES.index(a) for a in args.vo_axes.split(","))
-                row = lap(seq, args.reuse, tuple(filter(None, args.without.split(","))), axes)
+                row = lap(seq, args.reuse, tuple(filter(None, args.without.split(","))), axes, args.gyro)
                 for k, v in row.items():
                     if isinstance(v, float):
                         scores[name, k].append(v)
@@ -396,6 +433,19 @@ def main() -> None:
                 )
                 if set(VARIANTS) != set(ALL_VARIANTS):
                     print(round7[-1], flush=True)
+                    if args.gyro:  # the gyro's bias as each filter ends the lap, and the simulated one
+                        spec = DriveSpec(
+                            seed=seed, duration_s=duration, start_still_s=args.start_still, gyro=True
+                        )
+                        motion = Motion(BUILTIN[name](), spec)
+                        _, bias = gyro_bias(motion, spec)
+                        print(
+                            f"gyro bias at the end (deg/s): simulated {np.degrees(bias[-1]):+.4f}, "
+                            + ", ".join(
+                                f"{k} {row[k + '-bias-deg-s']:+.4f}" for k in shown if k.endswith("-gyro")
+                            ),
+                            flush=True,
+                        )
                     continue
                 win = row["kf"] <= best
                 wins[name].append(win)
@@ -419,28 +469,23 @@ def main() -> None:
                 )
     print(
         "\n| world | seed | ICP ATE (m) | VO ATE (m) | wheels ATE (m) | "
-        + " | ".join(f"{k} ATE (m), <= best input" for k in ROUND7 if k in VARIANTS)
+        + " | ".join(f"{k} ATE (m), <= best input" for k in shown)
         + " |"
     )
-    print("|---" * (5 + len([k for k in ROUND7 if k in VARIANTS])) + "|")
+    print("|---" * (5 + len(shown)) + "|")
     print("\n".join(round7))
     print(
         "\n| world | laps | "
-        + " | ".join(
-            f"{k}: ATE mean (m), worst over best input (m), laps <= best input"
-            for k in ROUND7
-            if k in VARIANTS
-        )
+        + " | ".join(f"{k}: ATE mean (m), worst over best input (m), laps <= best input" for k in shown)
         + " |"
     )
-    print("|---" * (2 + len([k for k in ROUND7 if k in VARIANTS])) + "|")
+    print("|---" * (2 + len(shown)) + "|")
     for name in args.worlds.split(","):
         cells = []
-        for key in ROUND7:
-            if key in VARIANTS:
-                won = wins[f"{name} {key} compact"]
-                over = np.array(scores[name, f"{key} over best"])
-                cells.append(f"{np.mean(scores[name, key]):.4f}, {over.max():+.4f}, {sum(won)} of {len(won)}")
+        for key in shown:
+            won = wins[f"{name} {key} compact"]
+            over = np.array(scores[name, f"{key} over best"])
+            cells.append(f"{np.mean(scores[name, key]):.4f}, {over.max():+.4f}, {sum(won)} of {len(won)}")
         laps = len(scores[name, "icp"])
         print(f"| {name} | {laps} | " + " | ".join(cells) + " |")
     if set(VARIANTS) != set(ALL_VARIANTS):
@@ -754,14 +799,19 @@ def guard_evidence(args: argparse.Namespace) -> None:
 
 
 def lap(
-    seq: Path, reuse: bool = False, without: tuple[str, ...] = (), vo_axes: tuple[int, ...] = (0, 1, 2)
+    seq: Path,
+    reuse: bool = False,
+    without: tuple[str, ...] = (),
+    vo_axes: tuple[int, ...] = (0, 1, 2),
+    gyro: bool = False,
 ) -> dict[str, float]:
     """One lap's ATEs, NEES means and the filter's time. ``reuse``: take the laser and
     visual odometry from an earlier run's ``odometries.pkl`` in the lap's folder (written
     by every run), to try the filter's settings without computing them again; ``vo_axes``:
     the axes (0 forward, 1 cross-track, 2 yaw) of VO's runs the filters take, the others
     open (:func:`open_axes`); ``without``:
-    the inputs ("icp", "vo", "wheel") the filters leave out."""
+    the inputs ("icp", "vo", "wheel", "gyro") the filters leave out; ``gyro``: each filter
+    run without the lap's gyroscope (KEY) and with it (KEY-gyro)."""
     streams = open_streams(seq)
     cache = seq / "odometries.pkl"
     if reuse and cache.exists():
@@ -784,11 +834,15 @@ def lap(
             evaluate(anchored(poses, planar_at(truth, stamps)), planar_at(truth, stamps))["ate_rmse_m"]
         )
 
-    for key, params in VARIANTS.items():
+    runs = [(key, params, ()) for key, params in VARIANTS.items()]
+    if gyro:
+        runs = [(key, params, ("gyro",)) for key, params, _ in runs]
+        runs += [(f"{key}-gyro", params, ()) for key, params in VARIANTS.items()]
+    for key, params, left in runs:
         ms = [
             open_axes(m, vo_axes) if m.source == "vo" else m
             for m in kf_measurements(streams, od, res, params)
-            if m.source not in without
+            if m.source not in without + left
         ]
         t0 = time.perf_counter()
         kf = kalman.run_filter(ms, params)
@@ -797,6 +851,7 @@ def lap(
         kf = kalman.path_at(kf, streams.scan_stamps_s)
         row[key] = ate(kf.stamps_s, kf.poses)
         row[f"{key}-witnessed"] = float(sum(kf.icp_witnessed))
+        row[f"{key}-bias-deg-s"] = float(np.degrees(kf.gyro_bias))
         if key == "kf-round5":
             row["kf-round5-s"] = seconds
         if key == "kf":

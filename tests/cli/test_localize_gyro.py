@@ -70,3 +70,27 @@ def test_a_broken_gyro_file_is_a_one_line_error(tmp_path, fails):
         f"Error: {seq / 'gyro.csv'}: gyro sample 1: got [0.005, nan]; expected a finite stamp and a "
         "yaw rate within +-40 rad/s (--gyro ignore runs without it)"
     )
+
+
+def test_a_drive_that_starts_standing_gives_the_gyros_bias_in_the_summary(tmp_path, capsys):
+    """2 s standing, then 1 s of motion (seed 11: a simulated bias of -0.083 deg/s): the
+    summary counts the seconds the rig stood still and gives the bias learned there, within
+    3 of its sigmas of the simulated one; a drive without a gyro has no such figures."""
+    import numpy as np
+
+    from rigcal.sim.drive import DriveSpec, Motion, gyro_bias
+    from rigcal.sim.world import BUILTIN
+
+    seq = tmp_path / "seq"
+    args = ["simulate", "world", "--world", "corridor-loop", "--duration-s", "1", "--seed", "11"]
+    assert main([*args, "--start-still", "2", "--gyro", "-o", str(seq)]) == 0
+    capsys.readouterr()
+    out = tmp_path / "out"
+    assert main(["localize", str(seq), "--method", "kf", "--gyro", "use", "-o", str(out), "--json"]) == 0
+    kf = json.loads(capsys.readouterr().out)["methods"]["kf"]
+    assert 1.8 <= kf["gyro_still_s"] <= 2.1
+    spec = DriveSpec(seed=11, duration_s=1.0, start_still_s=2.0, gyro=True)
+    t, bias = gyro_bias(Motion(BUILTIN["corridor-loop"](), spec), spec)
+    simulated = float(np.degrees(np.interp(2.0, t, bias)))
+    assert kf["gyro_bias_sigma_deg_s"] < 0.02
+    assert abs(kf["gyro_bias_deg_s"] - simulated) < 3 * kf["gyro_bias_sigma_deg_s"]

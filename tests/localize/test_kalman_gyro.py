@@ -112,3 +112,19 @@ def test_the_bias_is_not_learned_from_a_moving_rigs_icp():
     )
     assert abs(still_only.gyro_bias) < 0.1 * drift
     assert abs(everywhere.gyro_bias + drift) < 0.3 * drift
+
+
+def test_a_slow_turn_in_place_is_not_taken_for_the_bias():
+    """A rig turning in place at 1.5 deg/s: ICP's steps are below the still thresholds (3
+    deg/s), but the gyro reads a turn the bias's prior cannot explain, so its zero-turn
+    update is refused (:data:`kalman.GYRO_ZERO_TURN_GATE`) and the steps are taken against
+    ICP's turn: the bias (0.05 deg/s) comes out within 0.02 deg/s, not near 1.5."""
+    rng = np.random.default_rng(5)
+    t, truth = _drive(rng, speed=0.0)
+    truth[:, 2] = np.radians(1.5) * t
+    icp = _icp(rng, t, truth, np.array([0.0005, 0.0005, np.radians(0.002)]))
+    bias = np.radians(0.05)
+    r = kalman.run_filter(icp + _gyro(rng, t, truth, bias), kalman.KF_MODES["weighted"])
+    assert r.gyro_still_s > 15.0
+    assert abs(r.gyro_bias - bias) < np.radians(0.02)
+    assert abs(r.poses[-1, 2] - truth[-1, 2]) < np.radians(0.2)

@@ -407,7 +407,16 @@ WEAK_BOARD_CAPTURES = 12
     "--duration-s",
     default=None,
     type=Real(min=0.0, min_open=True),
-    help="Drive only the lap's first seconds.  [default: the whole lap]",
+    help="Drive only the lap's first seconds of motion (after --start-still).  [default: the whole lap]",
+)
+@click.option(
+    "--start-still",
+    "start_still_s",
+    default=0.0,
+    show_default=True,
+    type=Real(min=0.0, max=3600.0),
+    help="Seconds standing still before the rig moves, as real drives begin (every sensor "
+    "covers them; a gyroscope's bias can be learned there).",
 )
 @click.option(
     "--rig",
@@ -454,6 +463,7 @@ def world(
     image_blur_px: float,
     exposure_walk: float,
     duration_s: float | None,
+    start_still_s: float,
     rig_file: Path | None,
     no_images: bool,
     image_format: str,
@@ -475,6 +485,7 @@ def world(
       rigcal simulate world -o side/ --rig side-looking-rig.yaml --duration-s 20
       rigcal simulate world -o small/ --image-format png-grey
       rigcal simulate world -o imu/ --wheel-odometry --gyro --duration-s 40
+      rigcal simulate world -o imu/ --gyro --start-still 3 --duration-s 40
     """
     from rigcal.cli.progress import Progress, quiet
     from rigcal.io.files import check_folder_writable
@@ -502,6 +513,7 @@ def world(
         exposure_walk=exposure_walk,
         images=not no_images,
         duration_s=duration_s,
+        start_still_s=start_still_s,
         image_format=image_format,
         wheel_odometry=wheel_odometry,
         gyro=gyro,

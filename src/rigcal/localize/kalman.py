@@ -84,7 +84,9 @@ The bias is learned where the rig stands still (``gyro_still_only``, :func:`_sti
 steps over the gyro's step all slower than :data:`GYRO_STILL_MPS`, :data:`GYRO_STILL_RAD_S`), a
 zero-velocity update (Foxlin, "Pedestrian tracking with shoe-mounted inertial sensors", IEEE
 CG&A 2005; Groves 2013, Section 15.3): there the true turn is zero and the gyro reads its
-bias. Elsewhere the bias is a consider state of the gyro's steps (Schmidt 1966): its
+bias (``gyro_zero_turn``: its step's model the bias's part alone, unless the reading fails
+:data:`GYRO_ZERO_TURN_GATE`), so a drive that begins standing still gives the bias before
+the rig moves. Elsewhere the bias is a consider state of the gyro's steps (Schmidt 1966): its
 uncertainty weighs them, but they do not move it (other updates move it only through its
 correlation with the pose), as ICP's slow heading errors (over the lap) would
 otherwise be learned as the gyro's bias (measured: docs/benchmarks.md, "A gyroscope as the
@@ -145,6 +147,11 @@ GYRO_STEP_S = 0.1
 # bias is learned against ICP's yaw there, whatever it measured.
 GYRO_STILL_MPS = 0.1
 GYRO_STILL_RAD_S = float(np.radians(3.0))
+# A still step's zero-turn update (``KfParams.gyro_zero_turn``) is made where the gyro's
+# reading less the bias it predicts passes the chi-square test at this point (1 dof,
+# 0.001); beyond it (a slow turn ICP's steps did not tell from standing), the step is
+# taken against ICP's turn as any other.
+GYRO_ZERO_TURN_GATE = float(chi2_isf(0.001, 1))
 WEIGHTS = ("covariance", "fixed")
 # The prediction (``KfParams.drive``): the constant-velocity process model ("", Section VI)
 # or driven by an input's steps ("icp": the laser odometry as the control input).
@@ -375,7 +382,9 @@ class KfParams:
     (:class:`_Tape`): each pose from all the lap's measurements, offline; ``gyro_noise``,
     ``gyro_bias_sigma``, ``gyro_bias_walk``: the gyroscope's error model (where its steps
     are given: :data:`GYRO_NOISE` ...); ``gyro_still_only``: its bias learned only where the
-    rig stands still (:func:`_still`; False: from every step)."""
+    rig stands still (:func:`_still`; False: from every step); ``gyro_zero_turn``: there
+    against a zero turn (the rig stands, so the gyro reads its bias alone; a zero-velocity
+    update) rather than against the turn ICP measured (False)."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
@@ -407,6 +416,7 @@ class KfParams:
     gyro_bias_sigma: float = GYRO_BIAS_SIGMA
     gyro_bias_walk: float = GYRO_BIAS_WALK
     gyro_still_only: bool = True
+    gyro_zero_turn: bool = True
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
@@ -505,7 +515,9 @@ class KfResult:
     (``KfParams.vo_forward_window``); per direction (forward, cross-track, yaw) the VO runs
     the guard left out there (``KfParams.vo_guard``); VO's biases as estimated at the end
     (forward scale, cross-track per metre forward, yaw rate rad/s; ``KfParams.vo_bias_sigma``;
-    None without them)."""
+    None without them); the gyroscope's bias (rad/s) at the end and its 1-sigma, and the
+    seconds of its steps it was learned from (those over which the rig stood still,
+    :func:`_still`; NaN, NaN and 0 without gyro steps)."""
 
     stamps_s: FloatArray
     poses: FloatArray
@@ -516,6 +528,8 @@ class KfResult:
     vo_bias: FloatArray | None = None
     icp_witnessed: tuple[int, int, int] = (0, 0, 0)
     gyro_bias: float = float("nan")
+    gyro_bias_sigma: float = float("nan")
+    gyro_still_s: float = 0.0
 
 
 def gyro_increments(stamps_s: FloatArray, yaw_rad: FloatArray, noise: float = GYRO_NOISE) -> list[Increment]:
@@ -700,7 +714,9 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
     drive = _Drive([m for m in ms if m.source == params.drive], params) if params.drive else None
     if drive is not None:
         ms = [m for m in ms if m.source != params.drive]
-    still = _still(ms, [m for m in measurements if m.source == "icp"]) if params.gyro_still_only else None
+    # The gyro's steps over which the rig stands still (its bias learned there alone with
+    # ``params.gyro_still_only``).
+    still = _still(ms, [m for m in measurements if m.source == "icp"])
     # Events (time, 0 = update / 1 = clone / 2 = a driving step's end, index); updates
     # first at equal times.
     events = [(m.t1, 0, i) for i, m in enumerate(ms)] + [(m.t0, 1, i) for i, m in enumerate(ms)]
@@ -799,7 +815,33 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
             leave_out = np.array([True, True, False])
         # The gyro's bias learned only from its steps where the rig stands still: a consider
         # state in its other steps' updates.
-        consider = gyro_bias[0] if gyro_bias is not None and still is not None and i not in still else None
+        consider = (
+            gyro_bias[0] if gyro_bias is not None and params.gyro_still_only and i not in still else None
+        )
+        if gyro_bias is not None and params.gyro_zero_turn and i in still:
+            # The rig stands: the gyro reads its bias alone (the pose's turn left out of
+            # the step's model; Foxlin 2005's zero-velocity update), unless it reads a turn.
+            x_zero, P_zero, inn = _update(
+                x,
+                P,
+                c,
+                m,
+                own,
+                1.0,
+                None,
+                gate=GYRO_ZERO_TURN_GATE,
+                leave_out=leave_out,
+                gyro_bias=gyro_bias,
+                zero_turn=True,
+            )
+            if np.isfinite(inn.nis):
+                x, P = x_zero, P_zero
+                pending[m.t0] -= 1
+                if not pending[m.t0]:
+                    x, P = _drop(x, P, _offset(blocks, ("clone", m.t0)))
+                    blocks.remove(("clone", m.t0))
+                _keep(stamps, poses, covs, t, x, P, tape)
+                continue
         alone = None
         if vo and reference is not None:
             icp_scale = max(1.0, mean_nis.get("icp", 1.0)) if params.adapt else 1.0
@@ -902,6 +944,11 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
             x, P = _drop(x, P, _offset(blocks, ("clone", m.t0)))
             blocks.remove(("clone", m.t0))
         _keep(stamps, poses, covs, t, x, P, tape)
+    gyro_block = _block(blocks, "gyro")
+    bias_sigma = float("nan")
+    if gyro_block is not None:
+        at = _offset(blocks, gyro_block)
+        bias_sigma = float(np.sqrt(P[at, at]))
     if tape is not None:  # the backward pass (Rauch, Tung and Striebel 1965)
         smoothed = tape.smooth(x, P)
         poses = [xs[:3].copy() for xs, _ in smoothed]
@@ -915,7 +962,9 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
         (int(guarded[0]), int(guarded[1]), int(guarded[2])),
         x[_offset(blocks, block) + np.arange(3)].copy() if (block := _block(blocks, "bias")) else None,
         (int(witnessed[0]), int(witnessed[1]), int(witnessed[2])),
-        float(x[_offset(blocks, block)]) if (block := _block(blocks, "gyro")) else float("nan"),
+        float(x[_offset(blocks, gyro_block)]) if gyro_block is not None else float("nan"),
+        bias_sigma,
+        float(sum(ms[i].t1 - ms[i].t0 for i in still)),
     )
 
 
@@ -1357,6 +1406,7 @@ def _update(
     leave_out: NDArray[np.bool_] | None = None,
     gyro_bias: tuple[int, float] | None = None,
     consider: int | None = None,
+    zero_turn: bool = False,
 ) -> tuple[FloatArray, FloatArray, Innovation]:
     """The EKF update with increment ``m`` against the clone at state index ``c``: h(S) is
     the motion from the clone's pose to the current one in the clone's frame. The step's
@@ -1382,7 +1432,9 @@ def _update(
     :func:`_bias_decay`). ``gyro_bias`` = (index, seconds): the step's yaw has a further
     part seconds x b, b the gyroscope's bias at that index (:func:`_gyro_bias_walk`).
     ``consider`` (an index): that state is a consider state in this update (its gain 0, its
-    covariance with the rest kept exact by the Joseph form; Schmidt 1966).
+    covariance with the rest kept exact by the Joseph form; Schmidt 1966). ``zero_turn``:
+    the step's yaw is known to be zero (the rig stands), so the model's yaw is the bias's
+    part alone (a zero-velocity update; Foxlin 2005, Groves 2013, Section 15.3).
 
     ``gate`` > 0: when the innovation's squared Mahalanobis distance d2 (shared error
     included) exceeds it, or ``window`` = (the last runs' d2 summed, its gate) and that sum
@@ -1407,6 +1459,8 @@ def _update(
     H[:2, c : c + 2] = -Rt
     H[:2, c + 2] = np.array([[-syaw, cyaw], [-cyaw, -syaw]]) @ d  # d(R^T d) / d yaw_t0
     H[2, 2], H[2, c + 2] = 1.0, -1.0
+    if zero_turn:
+        h[2], H[2, 2], H[2, c + 2] = 0.0, 0.0, 0.0
     R0 = _scaled(m.covariance, _per_axis(own))
     Rm = adapt * R0
     Hs = np.zeros_like(H)  # the correlated errors' part of H (shared, memory)

@@ -216,11 +216,22 @@ def _kf_estimate(streams: Streams, params: kalman.KfParams | None = None) -> Est
     }
     if streams.wheel_odometry is not None:
         stats["wheel_measurements"] = sum(m.source == "wheel" for m in ms)
+    kf = kalman.run_filter(ms, params)
+    if len(kf.stamps_s):
+        kf = kalman.path_at(kf, streams.scan_stamps_s)  # scored where ICP is
     if streams.gyro is not None:
         stats["gyro_measurements"] = sum(m.source == "gyro" for m in ms)
-    stamps, poses = kalman.fuse(ms, params, at=streams.scan_stamps_s)  # scored where ICP is
+        # Its bias at the end and where it was learned: the seconds the rig stood still.
+        stats["gyro_still_s"] = round(kf.gyro_still_s, 3)
+        stats["gyro_bias_deg_s"] = _finite_or_none(np.degrees(kf.gyro_bias), 5)
+        stats["gyro_bias_sigma_deg_s"] = _finite_or_none(np.degrees(kf.gyro_bias_sigma), 5)
     streams.timings_s["kf_s"] = time.perf_counter() - t0
-    return Estimate(stamps, poses, stats)
+    return Estimate(kf.stamps_s, kf.poses, stats)
+
+
+def _finite_or_none(value: float, digits: int) -> float | None:
+    """A figure for the summary (JSON has no NaN): rounded, or None where not finite."""
+    return round(float(value), digits) if np.isfinite(value) else None
 
 
 def kf_inputs(streams: Streams) -> tuple[Odometry, VoResult]:

@@ -46,7 +46,11 @@ class DriveSpec:
     levels), ``image_blur_sigma_px`` and ``exposure_walk`` (the log-gain's random-walk step
     per frame) as in :class:`rigcal.sim.world_render.CameraEffects`; ``images`` False
     writes no images; ``image_format`` is how they are stored (:data:`IMAGE_FORMATS`).
-    ``duration_s`` drives only the lap's first seconds (None: the lap).
+    ``start_still_s``: seconds the rig stands still at the start before it moves (as real
+    drives begin, where IMU drivers calibrate); every sensor covers them, and the motion
+    after them is the drive's without them, later by that much (0: none).
+    ``duration_s`` drives only the lap's first seconds of motion (None: the lap), after the
+    standstill.
     ``wheel_odometry`` also writes the base's wheel odometry (:func:`wheel_odometry`);
     ``gyro`` a MEMS gyroscope's yaw rate (:func:`gyro_rates`).
     ``laps``: how many times the loop is driven, one lap after the other (the stops fall
@@ -77,6 +81,7 @@ class DriveSpec:
     wheel_odometry: bool = False
     laps: int = 1
     gyro: bool = False
+    start_still_s: float = 0.0
 
     def __post_init__(self) -> None:
         checks = [
@@ -107,6 +112,12 @@ class DriveSpec:
                 self.duration_s,
                 self.duration_s is None or self.duration_s > 0,
                 "a duration above 0 s",
+            ),
+            (
+                "start_still_s",
+                self.start_still_s,
+                0 <= self.start_still_s <= 3600,
+                "0 to 3600 s of standstill",
             ),
         ]
         for key, value, ok, expected in checks:
@@ -146,8 +157,6 @@ class Motion:
             k = int(np.searchsorted(t, at))
             t = np.concatenate([t[:k], [t[k - 1] + 1e-6], t[k:] + spec.stop_s])
             pts = np.insert(pts, k, pts[k - 1], axis=0)
-        self.t = t
-        self.xy = pts
         d = np.diff(np.vstack([pts, pts[1:2]]), axis=0)
         yaw = np.arctan2(d[:, 1], d[:, 0])
         # A standing rig keeps its last heading.
@@ -155,7 +164,15 @@ class Motion:
         for k in range(1, len(yaw)):
             if not moving[k]:
                 yaw[k] = yaw[k - 1]
-        self.yaw = np.unwrap(yaw)
+        yaw = np.unwrap(yaw)
+        if spec.start_still_s > 0:
+            # The standstill at the start: the first pose held, the motion after it later.
+            t = np.r_[0.0, t + spec.start_still_s]
+            pts = np.vstack([pts[:1], pts])
+            yaw = np.r_[yaw[:1], yaw]
+        self.t = t
+        self.xy = pts
+        self.yaw = yaw
         self.duration_s = float(t[-1])
 
     def poses(self, stamps: FloatArray) -> FloatArray:
@@ -210,8 +227,11 @@ def _rounded_path(
 
 
 def drive_duration(motion: Motion, spec: DriveSpec) -> float:
-    """How long the drive lasts: the lap, or ``spec.duration_s`` when that is shorter."""
-    return motion.duration_s if spec.duration_s is None else min(spec.duration_s, motion.duration_s)
+    """How long the drive lasts: the lap, or the standstill and ``spec.duration_s`` of
+    motion when that is shorter."""
+    if spec.duration_s is None:
+        return motion.duration_s
+    return min(spec.start_still_s + spec.duration_s, motion.duration_s)
 
 
 def laser_stamps(motion: Motion, spec: DriveSpec) -> FloatArray:
@@ -323,15 +343,34 @@ def gyro_rates(motion: Motion, spec: DriveSpec) -> tuple[FloatArray, FloatArray]
     :data:`GYRO_NOISE_DEG_S_RT_HZ` (a sample's 1-sigma is the density times sqrt(rate)).
     Its random stream is its own (seeded by the drive's
     seed and 11): a drive's other streams are the same with or without it."""
-    rng = np.random.default_rng([spec.seed, 11])
+    t, (bias, walk, noise) = _gyro_stamps(motion, spec), _gyro_errors(motion, spec)
     dt = 1.0 / GYRO_RATE_HZ
-    t: FloatArray = np.arange(0.0, drive_duration(motion, spec), dt)
     ends = np.r_[t[0] - dt, t]
     true = np.diff(np.interp(np.clip(ends, 0.0, motion.duration_s), motion.t, motion.yaw)) / dt
-    bias = np.radians(GYRO_BIAS_DEG_S) * rng.standard_normal()
-    walk = np.cumsum(np.radians(GYRO_BIAS_WALK_DEG_S_RT_S) * np.sqrt(dt) * rng.standard_normal(len(t)))
-    noise = np.radians(GYRO_NOISE_DEG_S_RT_HZ) * np.sqrt(GYRO_RATE_HZ) * rng.standard_normal(len(t))
     return t, true + bias + walk + noise
+
+
+def gyro_bias(motion: Motion, spec: DriveSpec) -> tuple[FloatArray, FloatArray]:
+    """Stamps (M,) and the bias (M,) rad/s (constant and random walk) of
+    :func:`gyro_rates`'s samples: what a filter's bias estimate is checked against."""
+    bias, walk, _ = _gyro_errors(motion, spec)
+    out: FloatArray = bias + walk
+    return _gyro_stamps(motion, spec), out
+
+
+def _gyro_stamps(motion: Motion, spec: DriveSpec) -> FloatArray:
+    out: FloatArray = np.arange(0.0, drive_duration(motion, spec), 1.0 / GYRO_RATE_HZ)
+    return out
+
+
+def _gyro_errors(motion: Motion, spec: DriveSpec) -> tuple[float, FloatArray, FloatArray]:
+    """The gyro's constant bias, bias random walk and white noise at its samples (rad/s)."""
+    rng = np.random.default_rng([spec.seed, 11])
+    n, dt = len(_gyro_stamps(motion, spec)), 1.0 / GYRO_RATE_HZ
+    bias = float(np.radians(GYRO_BIAS_DEG_S) * rng.standard_normal())
+    walk = np.cumsum(np.radians(GYRO_BIAS_WALK_DEG_S_RT_S) * np.sqrt(dt) * rng.standard_normal(n))
+    noise = np.radians(GYRO_NOISE_DEG_S_RT_HZ) * np.sqrt(GYRO_RATE_HZ) * rng.standard_normal(n)
+    return bias, walk, noise
 
 
 def write_drive(
@@ -384,6 +423,8 @@ def write_drive(
     }
     if spec.laps != 1:
         source["laps"] = spec.laps
+    if spec.start_still_s > 0:
+        source["start_still_s"] = spec.start_still_s
     if spec.images and spec.image_format != "png":
         source["image_format"] = spec.image_format
     odometry = None
