@@ -21,6 +21,7 @@ folder atomically; :func:`read_sequence` validates it.
 from __future__ import annotations
 
 import contextlib
+import posixpath
 import zipfile
 import zlib
 from collections.abc import Callable, Iterable, Mapping
@@ -430,12 +431,13 @@ def _check_scan_arrays(a: dict[str, Any], npz: Path) -> int:
 
 
 def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
-    # A spreadsheet's byte-order mark and blank lines (an editor's last newline) are no data.
-    lines = text_lines(read_text(index, "image index").removeprefix("\ufeff"))
+    # Blank lines (an editor's last newline) are no data; read_text drops a byte-order mark.
+    lines = text_lines(read_text(index, "image index"))
     if not lines or lines[0].strip() != "stamp_s,file":
         got = lines[0][:60] if lines else ""
         raise InputError(f"{index}: line 1: got {got!r}; expected the header 'stamp_s,file'")
     stamps, files = [], []
+    seen: dict[str, int] = {}
     for n, line in enumerate(lines[1:], start=2):
         if not line.strip():
             continue
@@ -444,6 +446,12 @@ def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
             raise InputError(f"{index}: line {n}: got {line[:60]!r}; expected 'stamp_s,file'")
         stamps.append(parse_real(parts[0], index, f"line {n}: stamp_s"))
         files.append(relative_inside(parts[1].strip(), index, f"line {n}: file"))
+        # One frame at two stamps would be a camera that stood still between them.
+        first = seen.setdefault(posixpath.normpath(files[-1]), n)
+        if first != n:
+            raise InputError.at(
+                index, f"line {n}: file", files[-1], f"an image no other line names (line {first} does)"
+            )
         if len(stamps) > 1 and stamps[-1] <= stamps[-2]:
             raise InputError(f"{index}: line {n}: stamp {stamps[-1]!r} not after {stamps[-2]!r}")
     return np.array(stamps), files
