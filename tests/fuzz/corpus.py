@@ -1037,6 +1037,11 @@ def bag_cases() -> list[Case]:
     out.append(Case("bag-missing-topic", [*BAG[:3], "/nope", *BAG[4:]], code=3, message="/nope"))
     out.append(Case("bag-wrong-type", [*BAG[:3], "/image", *BAG[4:]], code=3, message="/image"))
     out.append(Case("bag-onto-bag", [*BAG[:-1], "{in}/run.bag", "--force"], code=5, message="is the input"))
+    # A folder given as a ROS 2 bag that holds neither a metadata.yaml nor a storage file.
+    folder = [BAG[0], "{in}/notes", *BAG[2:]]
+    out.append(
+        Case("bag-folder-no-bag", folder, write("notes/readme.txt", "x"), 3, "notes: got a folder without")
+    )
     return out
 
 
