@@ -354,6 +354,18 @@ def text_lines(text: str) -> list[str]:
     return lines
 
 
+def csv_fields(line: str) -> list[str]:
+    """A CSV line's fields, each stripped of the spaces around it, as a spreadsheet writes
+    them (RFC 4180): a field in double quotes may hold commas and doubled quotes
+    (``"cam 1, left.png"``, ``"a ""b"".png"``), and some programs quote every field. A quote
+    left open keeps the rest of the line in its field (the caller's own check names it)."""
+    if '"' not in line:
+        return [f.strip() for f in line.split(",")]
+    import csv
+
+    return [f.strip() for f in next(csv.reader([line], skipinitialspace=True))]
+
+
 def check_keys(
     mapping: Any,
     path: str | Path | None,

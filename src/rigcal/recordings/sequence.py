@@ -35,7 +35,7 @@ import yaml
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text, text_lines
+from rigcal.io.files import atomic_folder, check_keys, csv_fields, load_yaml, read_text, text_lines
 from rigcal.io.gyro import Gyro, gyro_csv, read_gyro_csv
 from rigcal.io.kinds import kind_of_bytes
 from rigcal.io.stamps import check_seconds
@@ -433,7 +433,7 @@ def _check_scan_arrays(a: dict[str, Any], npz: Path) -> int:
 def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
     # Blank lines (an editor's last newline) are no data; read_text drops a byte-order mark.
     lines = text_lines(read_text(index, "image index"))
-    if not lines or lines[0].strip() != "stamp_s,file":
+    if not lines or csv_fields(lines[0]) != ["stamp_s", "file"]:
         got = lines[0][:60] if lines else ""
         raise InputError(f"{index}: line 1: got {got!r}; expected the header 'stamp_s,file'")
     stamps, files = [], []
@@ -441,11 +441,11 @@ def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
     for n, line in enumerate(lines[1:], start=2):
         if not line.strip():
             continue
-        parts = line.split(",")
+        parts = csv_fields(line)  # a spreadsheet's quotes (a name holding a comma) read as CSV
         if len(parts) != 2:
             raise InputError(f"{index}: line {n}: got {line[:60]!r}; expected 'stamp_s,file'")
         stamps.append(parse_real(parts[0], index, f"line {n}: stamp_s"))
-        files.append(relative_inside(parts[1].strip(), index, f"line {n}: file"))
+        files.append(relative_inside(parts[1], index, f"line {n}: file"))
         # One frame at two stamps would be a camera that stood still between them.
         first = seen.setdefault(posixpath.normpath(files[-1]), n)
         if first != n:
