@@ -283,8 +283,9 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
     for f in files:
         if not (images / f).is_file():
             raise InputError(f"{index}: image {f} not found in {images}")
-    for key in ("camera", "rig", "groundtruth"):
-        if key in d and not (folder / relative_inside(d[key], path, key)).is_file():
+    named = {key: relative_inside(d[key], path, key) for key in ("camera", "rig", "groundtruth") if key in d}
+    for key, rel in named.items():
+        if not (folder / rel).is_file():
             raise InputError.at(path, key, d[key], f"a file in {folder}")
     odometry = None
     if "odometry" in d:
@@ -298,13 +299,13 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
         tuple(scans),
         stamps,
         tuple(files),
-        d.get("camera"),
+        named.get("camera"),
         d.get("source", {}),
-        d.get("rig"),
-        d.get("groundtruth"),
+        named.get("rig"),
+        named.get("groundtruth"),
         odometry,
-        str(im["folder"]),
-        str(im["index"]),
+        relative_inside(im["folder"], path, "images.folder"),
+        relative_inside(im["index"], path, "images.index"),
         gyro,
     )
 

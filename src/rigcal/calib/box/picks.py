@@ -21,7 +21,7 @@ from rigcal.arrays import FloatArray
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, get_float, load_yaml
-from rigcal.io.validate import is_real, path_component
+from rigcal.io.validate import is_real, path_component, slashed
 from rigcal.lines import LineParams, Segment, extract_lines, fit_line
 from rigcal.scan import Scan, mean_scan, read_scan
 
@@ -366,7 +366,7 @@ def check_files_once(path: Path, captures: list[Any]) -> None:
             if not isinstance(value, str) or not value or "\0" in value:
                 continue
             try:
-                file = (path.parent / value).resolve()
+                file = (path.parent / slashed(value)).resolve()
             except (OSError, RuntimeError):  # a symlink loop: session_file names it
                 continue
             first = seen.setdefault(file, key)
@@ -382,7 +382,7 @@ def check_files_once(path: Path, captures: list[Any]) -> None:
 def session_file(base: Path, key: str, value: Any) -> Path:
     if not isinstance(value, str) or not value or "\0" in value:
         raise InputError.at(base, key, value, "a file path (relative to the picking file)")
-    p = (base.parent / value).resolve()
+    p = (base.parent / slashed(value)).resolve()  # a session written on Windows: '\' as '/'
     if not p.is_file():
         raise InputError.at(base, key, value, f"an existing file (looked for {p})")
     return p
