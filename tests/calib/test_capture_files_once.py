@@ -16,6 +16,7 @@ from rigcal.calib.board.session import read_board_session
 from rigcal.calib.box.picks import read_picks
 from rigcal.calib.marker.session import read_marker_session
 from rigcal.errors import InputError
+from rigcal.recordings.laser_text import read_image_list
 from rigcal.recordings.sequence import _read_index
 
 EXAMPLE = Path(__file__).parents[2] / "examples" / "box-session"
@@ -111,3 +112,17 @@ def test_an_image_list_naming_a_frame_twice(tmp_path):
     )
     index.write_text("stamp_s,file\n0.1,a.png\n0.2,b.png\n0.3,c.png\n")
     assert _read_index(index)[1] == ["a.png", "b.png", "c.png"]
+
+
+def test_an_import_laser_image_list_naming_a_frame_twice(tmp_path):
+    for name in ("a.png", "b.png"):
+        (tmp_path / name).write_bytes(b"not decoded here")
+    listing = tmp_path / "images.txt"
+    listing.write_text("0.1 a.png\n0.2 b.png\n0.3 ./a.png\n")
+    with pytest.raises(InputError) as err:
+        read_image_list(listing)
+    assert str(err.value) == (
+        f"{listing}: line 3: file: got 'a.png'; expected an image no other line names (line 1 does)"
+    )
+    listing.write_text("0.1 a.png\n0.2 b.png\n")
+    assert [p.name for p in read_image_list(listing)[1]] == ["a.png", "b.png"]

@@ -405,6 +405,7 @@ def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLi
     stamps: list[float] = []
     files: list[Path] = []
     numbers: list[int] = []
+    seen: dict[Path, int] = {}
     cut = None
     for k, (n, line) in enumerate(lines, start=1):
         try:
@@ -414,6 +415,15 @@ def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLi
                 raise
             cut = cut_last_line(exc, text, n, lines[-1][0], line, f"{path}: line {n}", strict)
             continue
+        # One frame at two stamps would be a camera that stood still between them.
+        first = seen.setdefault(file.resolve(), n)
+        if first != n:
+            raise InputError.at(
+                path,
+                f"line {n}: file",
+                str(file.relative_to(path.parent)),
+                f"an image no other line names (line {first} does)",
+            )
         stamps.append(stamp)
         files.append(file)
         numbers.append(n)
