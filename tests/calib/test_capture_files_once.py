@@ -102,27 +102,33 @@ def test_a_board_capture_naming_another_captures_image(tmp_path):
         read_board_session(path)
 
 
-def test_an_image_list_naming_a_frame_twice(tmp_path):
-    index = tmp_path / "images.csv"
-    index.write_text("stamp_s,file\n0.1,a.png\n0.2,b.png\n0.3,./a.png\n")
-    with pytest.raises(InputError) as err:
-        _read_index(index)
-    assert str(err.value) == (
-        f"{index}: line 4: file: got './a.png'; expected an image no other line names (line 2 does)"
-    )
-    index.write_text("stamp_s,file\n0.1,a.png\n0.2,b.png\n0.3,c.png\n")
-    assert _read_index(index)[1] == ["a.png", "b.png", "c.png"]
+def _csv_names(index: Path) -> list[str]:
+    return _read_index(index)[1]
 
 
-def test_an_import_laser_image_list_naming_a_frame_twice(tmp_path):
-    for name in ("a.png", "b.png"):
-        (tmp_path / name).write_bytes(b"not decoded here")
-    listing = tmp_path / "images.txt"
-    listing.write_text("0.1 a.png\n0.2 b.png\n0.3 ./a.png\n")
-    with pytest.raises(InputError) as err:
-        read_image_list(listing)
-    assert str(err.value) == (
-        f"{listing}: line 3: file: got 'a.png'; expected an image no other line names (line 1 does)"
+def _list_names(listing: Path) -> list[str]:
+    return [p.name for p in read_image_list(listing)[1]]
+
+
+@pytest.mark.parametrize(
+    ("name", "head", "row", "read", "shown", "lines"),
+    [  # a sequence's images.csv; import-laser's image list (its files must exist)
+        ("images.csv", "stamp_s,file\n", "{t},{f}\n", _csv_names, "./a.png", (4, 2)),
+        ("images.txt", "", "{t} {f}\n", _list_names, "a.png", (3, 1)),
+    ],
+)
+def test_an_image_list_naming_a_frame_twice(tmp_path, name, head, row, read, shown, lines):
+    for f in ("a.png", "b.png"):
+        (tmp_path / f).write_bytes(b"not decoded here")
+    path = tmp_path / name
+    path.write_text(
+        head + "".join(row.format(t=t, f=f) for t, f in [(0.1, "a.png"), (0.2, "b.png"), (0.3, "./a.png")])
     )
-    listing.write_text("0.1 a.png\n0.2 b.png\n")
-    assert [p.name for p in read_image_list(listing)[1]] == ["a.png", "b.png"]
+    with pytest.raises(InputError) as err:
+        read(path)
+    assert str(err.value) == (
+        f"{path}: line {lines[0]}: file: got {shown!r}; "
+        f"expected an image no other line names (line {lines[1]} does)"
+    )
+    path.write_text(head + "".join(row.format(t=t, f=f) for t, f in [(0.1, "a.png"), (0.2, "b.png")]))
+    assert read(path) == ["a.png", "b.png"]
