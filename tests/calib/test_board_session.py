@@ -481,18 +481,18 @@ def test_image_that_shows_no_board(session):
 
 
 def test_every_image_without_a_board_is_named_in_one_error(session):
-    cv2.imwrite(str(session.parent / "blank.png"), np.full((480, 640), 200, np.uint8))
-    for k in (1, 4):
+    for k in (1, 4):  # one file each: a file named by two captures is refused on its own
+        cv2.imwrite(str(session.parent / f"blank{k}.png"), np.full((480, 640), 200, np.uint8))
         edit(session, lambda d, k=k: d["captures"][k].pop("corners_px"))
-        edit_capture(session, k, image="blank.png")
-    message = expect_error(session, "captures[1].image, captures[4].image", "'blank.png', 'blank.png'")
+        edit_capture(session, k, image=f"blank{k}.png")
+    message = expect_error(session, "captures[1].image, captures[4].image", "'blank1.png', 'blank4.png'")
     assert "2 of 6 captures show none" in message
     assert "--skip-unseen-boards" in message
     s = read_board_session(session, skip_unseen_boards=True)
     assert [o.name for o in s.observations] == ["cap00", "cap02", "cap03", "cap05"]
     assert [o.capture for o in s.observations] == [0, 2, 3, 5]
     assert len(s.skipped) == 2
-    assert s.skipped[0].startswith("cap01 (blank.png): no 8x6 board found")
+    assert s.skipped[0].startswith("cap01 (blank1.png): no 8x6 board found")
 
 
 def test_skipped_captures_are_warned_about_in_the_report(session):

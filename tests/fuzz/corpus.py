@@ -230,6 +230,18 @@ def edit_text(rel: str, old: str, new: str) -> Callable[[Path], None]:
     return mutate
 
 
+def recode(rel: str, codec: str, old: str = "", new: str = "") -> Callable[[Path], None]:
+    """The text file saved in another encoding than UTF-8 (after one edit)."""
+
+    def mutate(inp: Path) -> None:
+        p = inp / rel
+        s = p.read_text(encoding="utf-8")
+        assert old in s, (rel, old)
+        p.write_bytes(s.replace(old, new, 1).encode(codec))
+
+    return mutate
+
+
 def npz_edit(change: Callable[[dict[str, Any]], None]) -> Callable[[Path], None]:
     def mutate(inp: Path) -> None:
         p = inp / "seq" / "scans.npz"
@@ -313,6 +325,18 @@ def picks_cases() -> list[Case]:
     out += number_cases("solve", SOLVE, rel, "camera", ["nope.yaml", None, "a\0b"], "camera")
     out += number_cases("solve", SOLVE, rel, "schema_version", [0, "1", None], "schema_version")
     out += number_cases("solve", SOLVE, rel, "captures", [None, [], "x", {}], "captures")
+    # A capture listed twice (however its paths are spelled) would be weighed twice.
+    out += number_cases(
+        "solve",
+        SOLVE,
+        rel,
+        "captures.1.image",
+        ["images/cap00.png", "./images//cap00.png"],
+        "captures[1].image",
+    )
+    out += number_cases(
+        "solve", SOLVE, rel, "captures.1.scan", ["scans/../scans/cap00.yaml"], "captures[1].scan"
+    )
     cam = "sess/camera.yaml"
     out += number_cases("solve", SOLVE, cam, "K.0.0", NOT_POSITIVE, "K")
     out += number_cases("solve", SOLVE, cam, "K.1.2", NOT_A_NUMBER, "K")
@@ -519,6 +543,27 @@ def sequence_cases() -> list[Case]:
     seq("csv-header", edit_text(rel, "stamp_s,file", "time,name"), "images.csv")
     seq("csv-short", edit_text(rel, "10.25,f001.png", "10.25"), "images.csv")
     seq("csv-missing-image", lambda p: (p / "seq/images/f001.png").unlink(), "f001.png")
+    seq(
+        "csv-image-twice",
+        edit_text(rel, "f001.png", "./f000.png"),
+        "images.csv: line 3: file: got './f000.png'",
+    )
+    # Text saved in another encoding than UTF-8 (UTF-16 with its byte-order mark is read).
+    seq(
+        "csv-utf16-no-bom",
+        recode(rel, "utf-16-le"),
+        "images.csv: got UTF-16 text without its byte-order mark",
+    )
+    seq(
+        "csv-cp1252",
+        recode(rel, "cp1252", "f001.png", "f\u00e9.png"),
+        "images.csv: line 3: got byte 0xE9, not UTF-8",
+    )
+    seq(
+        "yaml-utf16-no-bom",
+        recode("seq/sequence.yaml", "utf-16-be"),
+        "sequence.yaml: got UTF-16 text without",
+    )
     y = "seq/sequence.yaml"
     for key, vals in [
         ("scans.file", ["../../x.npz", "/etc/passwd", None, "a\0b"]),
@@ -992,6 +1037,11 @@ def bag_cases() -> list[Case]:
     out.append(Case("bag-missing-topic", [*BAG[:3], "/nope", *BAG[4:]], code=3, message="/nope"))
     out.append(Case("bag-wrong-type", [*BAG[:3], "/image", *BAG[4:]], code=3, message="/image"))
     out.append(Case("bag-onto-bag", [*BAG[:-1], "{in}/run.bag", "--force"], code=5, message="is the input"))
+    # A folder given as a ROS 2 bag that holds neither a metadata.yaml nor a storage file.
+    folder = [BAG[0], "{in}/notes", *BAG[2:]]
+    out.append(
+        Case("bag-folder-no-bag", folder, write("notes/readme.txt", "x"), 3, "notes: got a folder without")
+    )
     return out
 
 
@@ -1438,7 +1488,7 @@ def capture_cases() -> list[Case]:
         Case(f"capture-camera-K={_show(v)}", CAPTURE, set_yaml("cam6x4.yaml", "K.0.0", v), 3, "K")
         for v in NOT_POSITIVE[::2]
     ]
-    out.append(Case("capture-camera-not-utf8", CAPTURE, write("cam6x4.yaml", b"\xff\xfe"), 3, "camera"))
+    out.append(Case("capture-camera-not-utf8", CAPTURE, write("cam6x4.yaml", b"\xff\xfa\xfe"), 3, "camera"))
     out.append(
         Case(
             "capture-sequence-garbage-npz",

@@ -228,7 +228,7 @@ def test_missing_files(tmp_path):
 def test_non_utf8_file(tmp_path):
     path = tmp_path / "traj.txt"
     path.write_bytes(b"0 0 0 0 0 0 0 1 \xff\n")
-    assert tum_error(path).startswith(f"{path}: cannot read trajectory file")
+    assert tum_error(path).startswith(f"{path}: line 1: got byte 0xFF, not UTF-8; expected UTF-8 text")
 
 
 # --- overwrite refusal ---------------------------------------------------------------------

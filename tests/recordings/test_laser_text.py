@@ -170,13 +170,14 @@ def test_csv_errors(tmp_path, text, match):
 
 
 def test_image_list(tmp_path):
-    cv2.imwrite(str(tmp_path / "a.png"), np.zeros((4, 4), np.uint8))
+    for name in ("a.png", "c.png"):
+        cv2.imwrite(str(tmp_path / name), np.zeros((4, 4), np.uint8))
     (tmp_path / "l.txt").write_text("a.png 3.5\n")  # either order
     stamps, files = read_image_list(tmp_path / "l.txt")
     assert stamps.tolist() == [3.5]
     assert files == [tmp_path / "a.png"]
     for text, match in (("1.0 b.png\n", "image b.png not found"), ("1.0 a.png b.png\n", "expected a stamp"),
-                        ("1.0 a.png\n0.5 a.png\n", "line 2: got stamp 0.5; expected a stamp")):  # fmt: skip
+                        ("1.0 a.png\n0.5 c.png\n", "line 2: got stamp 0.5; expected a stamp")):  # fmt: skip
         (tmp_path / "l.txt").write_text(text)
         with pytest.raises(InputError, match=match):
             read_image_list(tmp_path / "l.txt")

@@ -47,7 +47,8 @@ _OPENERS = re.compile(r"[\[{]|[-?:](?=[ \t\r\n]|$)", re.MULTILINE)
 
 
 def read_text(path: str | Path, what: str = "file") -> str:
-    """A UTF-8 text file's contents.
+    """A text file's contents (:func:`decode_text`: UTF-8, or UTF-16 with its byte-order
+    mark), line ends made ``\\n``.
 
     Raises:
         InputError: the file is missing or unreadable, naming it as ``what``.
@@ -58,16 +59,65 @@ def read_text(path: str | Path, what: str = "file") -> str:
     try:
         if path.stat().st_size > MAX_TEXT_BYTES:
             raise InputError(f"{path}: {what} larger than {MAX_TEXT_BYTES >> 20} MiB; refusing to read it")
-        return path.read_text(encoding="utf-8")
+        data = path.read_bytes()
     except FileNotFoundError:
         raise InputError(f"{path}: {what} not found") from None
     except IsADirectoryError:
         inside = " (a sequence folder)" if (path / "sequence.yaml").is_file() else ""
         raise InputError(f"{path}: got a folder{inside}; expected a {what}") from None
-    except UnicodeDecodeError as exc:
-        raise InputError(binary_message(path, what) or f"{path}: cannot read {what}: {exc}") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read {what}: {exc}") from None
+    # Line ends made "\n" ("\r\n" and a lone "\r" too), as Python's universal newlines.
+    return decode_text(data, path, what).replace("\r\n", "\n").replace("\r", "\n")
+
+
+_UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
+
+
+def decode_text(data: bytes, path: Path, what: str, replace: bool = False) -> str:
+    """A text file's bytes as text: UTF-8, or UTF-16 when its byte-order mark says so (what
+    Windows editors save as "Unicode" and Windows PowerShell's ``>`` writes); a UTF-8
+    byte-order mark (a spreadsheet's) dropped. ``replace``: bytes that are not UTF-8
+    replaced (old logs' Latin-1 comments) rather than refused.
+
+    Raises:
+        InputError: a known binary kind of file; UTF-16 without its byte-order mark; bytes
+            that are not UTF-8 (or not UTF-16 after its mark), naming the line.
+    """
+    if data.startswith(_UTF16_BOMS):
+        try:
+            text = data.decode("utf-16")
+        except UnicodeDecodeError as exc:
+            line = data[: exc.start].decode("utf-16", "replace").count("\n") + 1
+            raise InputError(
+                f"{path}: line {line}: got bytes that are not UTF-16 after its byte-order mark; expected "
+                f"UTF-8 or UTF-16 text for this {what}"
+            ) from None
+    else:
+        # ASCII text in UTF-16 without its mark: every other byte NUL, the others not.
+        head = data[:64]
+        halves = (head[0::2], head[1::2])
+        if len(head) >= 4 and any(
+            a.count(0) == 0 and b.count(0) == len(b) for a, b in (halves, halves[::-1])
+        ):
+            message = binary_message(path, what)
+            raise InputError(
+                message
+                or f"{path}: got UTF-16 text without its byte-order mark; expected UTF-8 text (or UTF-16 "
+                f"starting with its byte-order mark) for this {what}: save it as UTF-8"
+            )
+        try:
+            text = data.decode("utf-8", errors="replace" if replace else "strict")
+        except UnicodeDecodeError as exc:
+            message = binary_message(path, what)
+            if message is not None:
+                raise InputError(message) from None
+            line = data[: exc.start].count(b"\n") + 1
+            raise InputError(
+                f"{path}: line {line}: got byte 0x{data[exc.start]:02X}, not UTF-8; expected UTF-8 text for "
+                f"this {what} (saved as Windows-1252 or Latin-1? save it as UTF-8)"
+            ) from None
+    return text.removeprefix("\ufeff")
 
 
 # Compressed logs as archives ship them (Radish's CARMEN logs are often .gz), by their
@@ -137,7 +187,7 @@ def read_log_text(path: str | Path, what: str = "log") -> str:
             ) from None
         if len(data) > MAX_TEXT_BYTES:
             raise InputError(too_large + " (uncompressed)")
-    return data.decode("utf-8", errors="replace").removeprefix("\ufeff")
+    return decode_text(data, path, what, replace=True)
 
 
 def load_yaml(path: str | Path, what: str = "file") -> Any:
@@ -302,6 +352,18 @@ def text_lines(text: str) -> list[str]:
     if lines and not lines[-1]:
         lines.pop()
     return lines
+
+
+def csv_fields(line: str) -> list[str]:
+    """A CSV line's fields, each stripped of the spaces around it, as a spreadsheet writes
+    them (RFC 4180): a field in double quotes may hold commas and doubled quotes
+    (``"cam 1, left.png"``, ``"a ""b"".png"``), and some programs quote every field. A quote
+    left open keeps the rest of the line in its field (the caller's own check names it)."""
+    if '"' not in line:
+        return [f.strip() for f in line.split(",")]
+    import csv
+
+    return [f.strip() for f in next(csv.reader([line], skipinitialspace=True))]
 
 
 def check_keys(

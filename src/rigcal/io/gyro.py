@@ -21,7 +21,7 @@ import numpy as np
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import read_text
+from rigcal.io.files import csv_fields, read_text, text_lines
 from rigcal.io.stamps import check_increasing, check_overlap, check_seconds
 
 # A pause between two samples longer than this (s) and than GAP_PERIODS of the gyro's own
@@ -111,15 +111,15 @@ def read_gyro_csv(path: str | Path, scan_stamps_s: FloatArray | None) -> Gyro:
             naming the file and line; or what :func:`checked` refuses.
     """
     text = read_text(path, "gyro file")
-    lines = text.splitlines()
-    if not lines or lines[0].strip() != HEADER:
+    lines = text_lines(text)
+    if not lines or ",".join(csv_fields(lines[0])) != HEADER:
         got = lines[0].strip() if lines else ""
         raise InputError.at(path, "line 1", got, f"the header {HEADER!r}")
     t, r = [], []
     for n, line in enumerate(lines[1:], start=2):
         if not line.strip():
             continue
-        parts = line.split(",")
+        parts = csv_fields(line)
         try:
             a, b = (float(p) for p in parts)
         except ValueError:

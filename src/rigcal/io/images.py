@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import struct
 import tempfile
 import threading
 from collections.abc import Iterator
@@ -176,17 +177,67 @@ def decode(data: bytes, flags: int) -> NDArray[Any] | None:
     error", OpenCV's own warnings) kept off the terminal: it goes to the debug log, so that
     the one line a command prints on bad input is rigcal's. (PNG decodes hold a lock while
     stderr is redirected; plain 8-bit PNGs of sequences are read by :func:`read_grey`'s
-    own decoder, JPEGs without the lock.)"""
+    own decoder, JPEGs without the lock.)
+
+    The pixels are the image's as stored, whatever its EXIF or TIFF orientation tag says
+    (a phone's or a tilted camera's "rotate 180 for display"): a camera file describes the
+    sensor's pixels, and OpenCV would turn a JPEG read as grey or colour but not one read
+    unchanged, and a TIFF always (:func:`as_stored`)."""
     import cv2
 
     if not data:
         return None
+    if flags != cv2.IMREAD_UNCHANGED:  # (-1: OpenCV applies no orientation to it but a TIFF's)
+        flags |= cv2.IMREAD_IGNORE_ORIENTATION
     if data.startswith(PNG_SIGNATURE):  # libpng writes its own "libpng error: ..." lines
         with _codec_messages_to_log():
             out = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     else:  # JPEG and the rest say nothing of their own, and decode in parallel threads
         out = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
-    return None if out is None else np.asarray(out)
+    if out is None:
+        return None
+    if data.startswith(_TIFF_SIGNATURES):
+        return as_stored(np.asarray(out), tiff_orientation(data))
+    return np.asarray(out)
+
+
+_TIFF_SIGNATURES = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")  # TIFF, BigTIFF
+
+
+def tiff_orientation(data: bytes) -> int:
+    """A TIFF's (or BigTIFF's) Orientation tag (274) in its first image directory, 1 (as
+    stored) when it has none or the directory cannot be read."""
+    order = "<" if data[:2] == b"II" else ">"
+    big = data[2:4] in (b"+\x00", b"\x00+")
+    # An entry: tag, type, count, then the value (a SHORT's in its first 2 bytes).
+    entry, value_at, count_fmt, offset_fmt = (20, 12, "Q", "Q") if big else (12, 8, "H", "I")
+    try:
+        (ifd,) = struct.unpack_from(order + offset_fmt, data, 8 if big else 4)
+        (n,) = struct.unpack_from(order + count_fmt, data, ifd)
+        first = ifd + (8 if big else 2)
+        for k in range(min(int(n), 4096)):
+            tag, kind = struct.unpack_from(order + "HH", data, first + k * entry)
+            if tag == 274 and kind == 3:  # SHORT, its value in the entry's value field
+                (value,) = struct.unpack_from(order + "H", data, first + k * entry + value_at)
+                return int(value) if 1 <= value <= 8 else 1
+    except struct.error:
+        return 1
+    return 1
+
+
+def as_stored(img: NDArray[Any], orientation: int) -> NDArray[Any]:
+    """``img`` decoded turned for display by a TIFF orientation tag (1 to 8, EXIF's
+    meanings), turned back to its pixels as stored."""
+    undo = {
+        2: lambda a: a[:, ::-1],
+        3: lambda a: a[::-1, ::-1],
+        4: lambda a: a[::-1],
+        5: lambda a: a.swapaxes(0, 1),
+        6: lambda a: np.rot90(a, 1),
+        7: lambda a: a[::-1, ::-1].swapaxes(0, 1),
+        8: lambda a: np.rot90(a, -1),
+    }
+    return np.ascontiguousarray(undo[orientation](img)) if orientation in undo else img
 
 
 def read_image(path: str | Path) -> NDArray[np.uint8]:

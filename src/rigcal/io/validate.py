@@ -216,14 +216,22 @@ def path_component(name: Any, where: Where, key: str) -> str:
 
 def relative_inside(rel: Any, where: Where, key: str) -> str:
     """``rel`` as a relative path that stays inside the folder it is joined to: no absolute
-    path, no drive, no ``..`` component, no NUL or control characters."""
+    path, no drive, no ``..`` component, no NUL or control characters. Returned with its
+    backslashes as ``/`` (:func:`slashed`)."""
     expected = "a relative path inside the folder (no '..', no leading '/', no NUL, control or bidi chars)"
     if not isinstance(rel, str) or not rel.strip() or hidden_char(rel) is not None:
         raise InputError.at(where, key, rel, expected)
-    posix, win = PurePosixPath(rel), PureWindowsPath(rel)
+    posix, win = PurePosixPath(slashed(rel)), PureWindowsPath(rel)
     if posix.is_absolute() or win.is_absolute() or win.drive or ".." in posix.parts or ".." in win.parts:
         raise InputError.at(where, key, rel, expected)
-    return rel
+    return slashed(rel)
+
+
+def slashed(rel: str) -> str:
+    """A relative path read from a file with its backslashes as ``/``: a list or session
+    written on Windows (``images\\cap00.png``) names the file it would there. (No name
+    rigcal reads or writes holds a backslash of its own.)"""
+    return rel.replace("\\", "/")
 
 
 def file_inside(folder: Path, rel: Any, where: Where, key: str) -> Path:

@@ -103,6 +103,39 @@ class ImportSummary:
         return out
 
 
+ROS2_METADATA = "metadata.yaml"
+ROS2_STORAGE = (".db3", ".mcap")  # sqlite3 and MCAP storage
+
+
+def bag_files(paths: Sequence[Path]) -> list[Path]:
+    """The files of a bag as given: a ROS 1 ``.bag``, a ROS 2 bag's folder (with its
+    ``metadata.yaml``), its ``metadata.yaml``, one of its ``.db3`` or ``.mcap`` files, or
+    a folder of such files copied without their ``metadata.yaml`` (each a part of the
+    bag: rosbags reads them alone), in name order.
+
+    Raises:
+        InputError: a path that does not exist, or a folder with neither a metadata.yaml
+            nor a .db3 or .mcap file.
+    """
+    out: list[Path] = []
+    for b in paths:
+        if b.name == ROS2_METADATA and b.is_file():
+            b = b.parent
+        if not b.exists():
+            raise InputError(f"{b}: bag not found")
+        if b.is_dir() and not (b / ROS2_METADATA).is_file():
+            found = sorted(f for f in b.iterdir() if f.suffix in ROS2_STORAGE and f.is_file())
+            if not found:
+                raise InputError(
+                    f"{b}: got a folder without {ROS2_METADATA} or a .db3 or .mcap file; expected a ROS 2 "
+                    "bag's folder (its metadata.yaml and storage files) or a ROS 1 .bag file"
+                )
+            out += found
+            continue
+        out.append(b)
+    return out
+
+
 def import_bag(
     bag: str | Path,
     output: str | Path,
@@ -140,12 +173,12 @@ def import_bag(
     from rosbags.typesys import Stores, get_typestore
 
     bag = Path(bag)
-    parts = [bag, *(Path(b) for b in more)]
-    for b in parts:
-        if not b.exists():
-            raise InputError(f"{b}: bag not found")
+    if bag.name == ROS2_METADATA and bag.is_file():  # a ROS 2 bag named by its metadata file
+        bag = bag.parent
+    parts = bag_files([bag, *(Path(b) for b in more)])
     if len(set(parts)) < len(parts):
         raise InputError.at(bag, "BAG", [str(b) for b in parts], "each part of a bag given once")
+    more = parts[1:]
     try:
         reader = AnyReader(parts, default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()

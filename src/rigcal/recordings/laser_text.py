@@ -38,7 +38,7 @@ import numpy as np
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import compressed, read_log_text, read_text, text_lines
+from rigcal.io.files import compressed, csv_fields, read_log_text, read_text, text_lines
 from rigcal.io.images import eight_bit_pngs
 from rigcal.io.log_lines import CutLine, ShortLineError, cut_last_line
 from rigcal.io.stamps import StampRepair, repair_stamps
@@ -133,7 +133,7 @@ def read_board_points(path: str | Path) -> FloatArray:
 def detect_format(path: Path) -> str:
     """``"csv"`` when the first content line is a header naming ``stamp_s``, else ``"radlocc"``."""
     first = _content_lines(path, "laser log")[0][1]
-    return "csv" if "stamp_s" in [f.strip().lower() for f in first.split(",")] else "radlocc"
+    return "csv" if "stamp_s" in [f.lower() for f in csv_fields(first)] else "radlocc"
 
 
 def read_radlocc_laser(
@@ -282,7 +282,7 @@ def _csv_scans(
     scan it ended (None: the log is whole)."""
     text = _log_text(path, "CSV laser log")
     lines = _content_lines(path, "CSV laser log", text)
-    header = [h.strip().lower() for h in lines[0][1].split(",")]
+    header = [h.lower() for h in csv_fields(lines[0][1])]
     angle_key = "angle_rad" if "angle_rad" in header else "angle_deg"
     for key in ("stamp_s", angle_key, "range_m"):
         if key not in header:
@@ -295,7 +295,7 @@ def _csv_scans(
     first_rows: list[int] = []
     cut = None
     for n, line in lines[1:]:
-        parts = line.split(",")
+        parts = csv_fields(line)
         try:
             stamp, angle, rng = _csv_row(path, n, line, parts, cols, header)
         except InputError as exc:  # a log cut short ends mid-row (rigcal.io.log_lines)
@@ -405,6 +405,7 @@ def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLi
     stamps: list[float] = []
     files: list[Path] = []
     numbers: list[int] = []
+    seen: dict[Path, int] = {}
     cut = None
     for k, (n, line) in enumerate(lines, start=1):
         try:
@@ -414,6 +415,15 @@ def _image_list(path: Path, strict: bool) -> tuple[FloatArray, list[Path], CutLi
                 raise
             cut = cut_last_line(exc, text, n, lines[-1][0], line, f"{path}: line {n}", strict)
             continue
+        # One frame at two stamps would be a camera that stood still between them.
+        first = seen.setdefault(file.resolve(), n)
+        if first != n:
+            raise InputError.at(
+                path,
+                f"line {n}: file",
+                str(file.relative_to(path.parent)),
+                f"an image no other line names (line {first} does)",
+            )
         stamps.append(stamp)
         files.append(file)
         numbers.append(n)

@@ -21,6 +21,7 @@ folder atomically; :func:`read_sequence` validates it.
 from __future__ import annotations
 
 import contextlib
+import posixpath
 import zipfile
 import zlib
 from collections.abc import Callable, Iterable, Mapping
@@ -34,7 +35,7 @@ import yaml
 
 from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
-from rigcal.io.files import atomic_folder, check_keys, load_yaml, read_text, text_lines
+from rigcal.io.files import atomic_folder, check_keys, csv_fields, load_yaml, read_text, text_lines
 from rigcal.io.gyro import Gyro, gyro_csv, read_gyro_csv
 from rigcal.io.kinds import kind_of_bytes
 from rigcal.io.stamps import check_seconds
@@ -282,8 +283,9 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
     for f in files:
         if not (images / f).is_file():
             raise InputError(f"{index}: image {f} not found in {images}")
-    for key in ("camera", "rig", "groundtruth"):
-        if key in d and not (folder / relative_inside(d[key], path, key)).is_file():
+    named = {key: relative_inside(d[key], path, key) for key in ("camera", "rig", "groundtruth") if key in d}
+    for key, rel in named.items():
+        if not (folder / rel).is_file():
             raise InputError.at(path, key, d[key], f"a file in {folder}")
     odometry = None
     if "odometry" in d:
@@ -297,13 +299,13 @@ def read_sequence(folder: str | Path, on_images: ImagesKnown | None = None) -> S
         tuple(scans),
         stamps,
         tuple(files),
-        d.get("camera"),
+        named.get("camera"),
         d.get("source", {}),
-        d.get("rig"),
-        d.get("groundtruth"),
+        named.get("rig"),
+        named.get("groundtruth"),
         odometry,
-        str(im["folder"]),
-        str(im["index"]),
+        relative_inside(im["folder"], path, "images.folder"),
+        relative_inside(im["index"], path, "images.index"),
         gyro,
     )
 
@@ -430,20 +432,27 @@ def _check_scan_arrays(a: dict[str, Any], npz: Path) -> int:
 
 
 def _read_index(index: Path) -> tuple[FloatArray, list[str]]:
-    # A spreadsheet's byte-order mark and blank lines (an editor's last newline) are no data.
-    lines = text_lines(read_text(index, "image index").removeprefix("\ufeff"))
-    if not lines or lines[0].strip() != "stamp_s,file":
+    # Blank lines (an editor's last newline) are no data; read_text drops a byte-order mark.
+    lines = text_lines(read_text(index, "image index"))
+    if not lines or csv_fields(lines[0]) != ["stamp_s", "file"]:
         got = lines[0][:60] if lines else ""
         raise InputError(f"{index}: line 1: got {got!r}; expected the header 'stamp_s,file'")
     stamps, files = [], []
+    seen: dict[str, int] = {}
     for n, line in enumerate(lines[1:], start=2):
         if not line.strip():
             continue
-        parts = line.split(",")
+        parts = csv_fields(line)  # a spreadsheet's quotes (a name holding a comma) read as CSV
         if len(parts) != 2:
             raise InputError(f"{index}: line {n}: got {line[:60]!r}; expected 'stamp_s,file'")
         stamps.append(parse_real(parts[0], index, f"line {n}: stamp_s"))
-        files.append(relative_inside(parts[1].strip(), index, f"line {n}: file"))
+        files.append(relative_inside(parts[1], index, f"line {n}: file"))
+        # One frame at two stamps would be a camera that stood still between them.
+        first = seen.setdefault(posixpath.normpath(files[-1]), n)
+        if first != n:
+            raise InputError.at(
+                index, f"line {n}: file", files[-1], f"an image no other line names (line {first} does)"
+            )
         if len(stamps) > 1 and stamps[-1] <= stamps[-2]:
             raise InputError(f"{index}: line {n}: stamp {stamps[-1]!r} not after {stamps[-2]!r}")
     return np.array(stamps), files

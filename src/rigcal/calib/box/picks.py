@@ -21,7 +21,7 @@ from rigcal.arrays import FloatArray
 from rigcal.camera import Camera, read_camera
 from rigcal.errors import InputError
 from rigcal.io.files import check_keys, get_float, load_yaml
-from rigcal.io.validate import is_real, path_component
+from rigcal.io.validate import is_real, path_component, slashed
 from rigcal.lines import LineParams, Segment, extract_lines, fit_line
 from rigcal.scan import Scan, mean_scan, read_scan
 
@@ -204,6 +204,7 @@ def read_pick_draft(path: str | Path, line_params: LineParams | None = None) -> 
     if not isinstance(captures, list) or not captures:
         raise InputError.at(path, "captures", captures, "a non-empty list of captures")
     params = line_params or line_params_for(path, laser)
+    check_files_once(path, captures)
     drafts = tuple(_read_draft(path, version, i, c, camera) for i, c in enumerate(captures))
     check_unique_names(path, [c.name for c in drafts])
     return PickDraft(
@@ -349,10 +350,39 @@ def check_unique_names(path: Path, names: list[str]) -> None:
             raise InputError.at(path, f"captures[{i}].name", n, "a name not used by another capture")
 
 
+def check_files_once(path: Path, captures: list[Any]) -> None:
+    """No file is named by two captures' ``image``, ``scan`` or ``scans`` (nor twice in one
+    capture's ``scans``), however the paths are spelled: a capture listed twice, or a
+    scan or image pasted into the wrong capture, would be weighed twice in the solve and
+    shrink its covariance, with nothing wrong to see in its answer."""
+    seen: dict[Path, str] = {}
+    for i, c in enumerate(captures):
+        if not isinstance(c, Mapping):
+            continue  # the capture's own reading says what is wrong
+        named = [(f"captures[{i}].{key}", c[key]) for key in ("image", "scan") if key in c]
+        if isinstance(c.get("scans"), list):
+            named += [(f"captures[{i}].scans[{j}]", v) for j, v in enumerate(c["scans"])]
+        for key, value in named:
+            if not isinstance(value, str) or not value or "\0" in value:
+                continue
+            try:
+                file = (path.parent / slashed(value)).resolve()
+            except (OSError, RuntimeError):  # a symlink loop: session_file names it
+                continue
+            first = seen.setdefault(file, key)
+            if first != key:
+                raise InputError.at(
+                    path,
+                    key,
+                    value,
+                    f"a file no other entry names ({first} names it too: a capture listed twice?)",
+                )
+
+
 def session_file(base: Path, key: str, value: Any) -> Path:
     if not isinstance(value, str) or not value or "\0" in value:
         raise InputError.at(base, key, value, "a file path (relative to the picking file)")
-    p = (base.parent / value).resolve()
+    p = (base.parent / slashed(value)).resolve()  # a session written on Windows: '\' as '/'
     if not p.is_file():
         raise InputError.at(base, key, value, f"an existing file (looked for {p})")
     return p
@@ -676,4 +706,5 @@ def read_session_header(
     captures = d["captures"]
     if not isinstance(captures, list) or not captures:
         raise InputError.at(path, "captures", captures, "a non-empty list of captures")
+    check_files_once(path, captures)
     return SessionHeader(d, version, camera, camera_path, laser, params, captures)
