@@ -65,8 +65,10 @@ that into a measurement of T:
    stored calibration's (Hotelling's T^2 with the clusters' effective count: an F test
    that tends to the chi-square with k dof as the clusters grow). Drifted when p <
    level. When the check with the edges cannot tell (their few corners determine no
-   direction, or too few of them), it is made again with the edge term off, the
-   photometric term alone on every scan's odometry (:func:`_photometric_alone`). When the
+   direction, or too few of them), or its edges were usable at the start estimate and
+   lost on the way to it (made with the odometry's errors estimated, its yaw is not
+   observed), it is made again with the edge term off, the photometric term alone on
+   every scan's odometry (:func:`_photometric_alone`). When the
    drive is too short, sees no returns, or observes no direction, the verdict is "cannot
    tell".
 """
@@ -381,15 +383,18 @@ def check_targetless(
         rec = base | {"check_s": round(time.perf_counter() - t_start, 3)}
         return TargetlessResult("cannot_tell", settings.level, nan6, np.zeros((6, 6)), _json(rec), reasons)
     res = _test(rig, est, patches, settings, reasons)
-    if res["verdict"] == "cannot_tell" and est.edge_stats:
+    lost = not est.edge_stats and not est.solve.get("odometry_errors_held", False)
+    if (res["verdict"] == "cannot_tell" and est.edge_stats) or lost:
         alone = _photometric_alone(rig, streams, settings)
         if alone is not None:
             # The edges' few corners could not judge (no direction determined, too few
-            # of them); the photometric term alone, on every scan's odometry, judges what
-            # it observes.
+            # of them), or the edges usable at the start were lost on the way to the
+            # estimate (made with the odometry's errors estimated, which leaves the yaw
+            # unobserved: photo_floor_free_deg); the photometric term alone, on every
+            # scan's odometry with its errors held, judges what it observes.
             patches, res, reasons = alone
             base.update(patches.info)
-            base["photometric_alone"] = "the check with the edges could not tell"
+            base["photometric_alone"] = LOST if lost else "the check with the edges could not tell"
     rec = base | res["record"] | {"check_s": round(time.perf_counter() - t_start, 3)}
     return TargetlessResult(
         res["verdict"], settings.level, res["xi"], res["cov"], _json(rec), reasons, res.get("details", {})
@@ -413,6 +418,11 @@ def _photometric_alone(
         return None
     res = _test(rig, est, patches, alone, reasons)
     return None if res["verdict"] == "cannot_tell" else (patches, res, reasons)
+
+
+LOST = "the edges were lost on the way to the estimate"
+"""The record's ``photometric_alone`` where the edges usable at the start estimate were lost
+on the way to it."""
 
 
 def _held_alone(est: _Estimate) -> bool:
