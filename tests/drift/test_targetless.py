@@ -441,6 +441,12 @@ def test_without_edges_the_odometrys_errors_are_held_and_the_yaw_is_judged(drive
     moved_res = check_targetless(stored, streams, s)
     assert moved_res.verdict == "drifted", moved_res.reasons
     assert abs(math.degrees(moved_res.correction[2]) + 0.3) < 0.1
+    # The patches chosen again under the estimate: the turned rig's correction less the
+    # unmoved one's is the turn (-0.295 deg on this drive; chosen under the stored T it
+    # was -0.324: a gain of 1.08).
+    assert rec["reselected"] >= 1
+    assert moved_res.record["reselected"] >= 1
+    assert abs(math.degrees(moved_res.correction[2] - res.correction[2]) + 0.3) < 0.015
     with_edges = check_targetless(rig, streams).record
     assert "edge_bands" in with_edges
     assert with_edges["odometry_errors_held"] is False

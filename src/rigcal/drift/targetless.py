@@ -377,7 +377,8 @@ def check_targetless(
                 est = _estimate(rig, thin, patches, settings)
         if _held_alone(est):
             patches, est = _reselected(rig, streams, est, settings)
-            base.update(patches.info)
+            # The patches' counts of the estimate; the edges found stay those of the drive.
+            base.update({k: v for k, v in patches.info.items() if k != "edges"})
     except _CannotTellError as exc:
         reasons.append(str(exc))
         rec = base | {"check_s": round(time.perf_counter() - t_start, 3)}
