@@ -14,6 +14,14 @@ and ``--report`` prints them.
 
     .venv/bin/python benchmarks/bench_targetless_rates.py --seeds 100-139 --out /tmp/rates.jsonl
     .venv/bin/python benchmarks/bench_targetless_rates.py --report --out /tmp/rates.jsonl
+
+The same drives checked again (``--keep``, then ``--recheck``) with the edge term off and the
+stored T turned, and the correction's gain on the turned axis against the unmoved rigs' rows:
+
+    .venv/bin/python benchmarks/bench_targetless_rates.py --recheck /tmp/rates.jsonl --no-edges \
+        --out /tmp/still.jsonl
+    .venv/bin/python benchmarks/bench_targetless_rates.py --recheck /tmp/rates.jsonl --no-edges \
+        --perturb rz:0.3 --out /tmp/rz.jsonl --gain /tmp/still.jsonl
 """
 
 from __future__ import annotations
@@ -149,6 +157,40 @@ def detection(rows: list[dict]) -> None:  # type: ignore[type-arg]
     )
 
 
+def gain(rows: list[dict], unmoved: list[dict]) -> None:  # type: ignore[type-arg]
+    """The correction's gain along the perturbed axis: per drive, (the unmoved rig's
+    correction less the perturbed one's) over the perturbation, on the drives both
+    judged with the axis observed; printed with its spread, and the turned rig's error
+    less the unmoved one's (an overshoot is negative for a positive perturbation)."""
+    rows = [r for r in rows if r.get("perturb") and r["verdict"] != "cannot_tell"]
+    if not rows:
+        return
+    name, size = rows[0]["perturb"]
+    axis = AXES_NAMES.index(name)
+    seen = [r for r in unmoved if r["verdict"] != "cannot_tell" and name in (r.get("observed") or [])]
+    base = {r["seed"]: r for r in seen}
+    pairs = [(base[r["seed"]], r) for r in rows if r["seed"] in base and name in (r.get("observed") or [])]
+    if not pairs:
+        print(f"gain: no drive judged with {name} observed both unmoved and perturbed")
+        return
+
+    def value(r: dict) -> float:  # type: ignore[type-arg]
+        x = (r["correction_deg"] + r["correction_mm"])[axis]
+        return math.radians(x) if axis < 3 else x / 1000.0
+
+    g = np.array([(value(u) - value(p)) / size for u, p in pairs])
+    d = (1.0 - g) * size
+    d = np.degrees(d) if axis < 3 else 1000.0 * d
+    unit = "deg" if axis < 3 else "mm"
+    sd = g.std(ddof=1) if len(g) > 1 else math.nan
+    print(
+        f"gain on {name} over {len(g)} drives: mean {g.mean():.3f} (sd {sd:.3f}, "
+        f"standard error {sd / math.sqrt(len(g)):.3f}), median {np.median(g):.3f}, "
+        f"range {g.min():.3f} to {g.max():.3f}; "
+        f"turned error less unmoved: mean {d.mean():+.4f} {unit} ({d.min():+.4f} to {d.max():+.4f})"
+    )
+
+
 def read_rows(path: Path) -> list[dict]:  # type: ignore[type-arg]
     """The checks already in ``path`` (JSON lines; none if it does not exist)."""
     if not path.exists():
@@ -278,6 +320,11 @@ def main() -> None:
     )
     ap.add_argument("--compare", type=Path, help="also list the verdicts that differ from this run's")
     ap.add_argument(
+        "--gain",
+        type=Path,
+        help="the unmoved rigs' rows of the same drives: print the correction's gain on the perturbed axis",
+    )
+    ap.add_argument(
         "--no-edges",
         action="store_true",
         help="the photometric term alone (the edge term off), as without edges",
@@ -335,6 +382,8 @@ def main() -> None:
         print(f"--- {args.out}:")
     if any(r.get("perturb") for r in rows):
         detection(rows)  # a moved rig: its alarms are detections
+        if args.gain:
+            gain(rows, read_rows(args.gain))
     else:
         report(rows, [float(x) for x in args.floor_scale.split(",")] if args.floor_scale else None)
 

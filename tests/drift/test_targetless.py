@@ -347,7 +347,10 @@ def test_edges_found_but_unusable_leave_the_photometric_term_on_every_scans_odom
     assert "edge_bands" not in res.record  # the photometric term alone
     assert res.record["edges"] >= targetless.MIN_EDGE_BANDS  # edges were found
     n = len(streams.scan_stamps_s)  # 40 Hz: the thinned odometry has every 4th scan
-    assert scans_seen == [len(range(0, n, 4)), n]
+    # Then on every scan's, and again there on the patches chosen under the estimate.
+    assert scans_seen[:2] == [len(range(0, n, 4)), n]
+    assert set(scans_seen[2:]) == {n}
+    assert 1 <= res.record["reselected"] <= targetless.MAX_RESELECTIONS
 
 
 def _photometric_alone(seed: int, yaw_deg: float, held: bool = True):  # type: ignore[no-untyped-def]
@@ -438,6 +441,12 @@ def test_without_edges_the_odometrys_errors_are_held_and_the_yaw_is_judged(drive
     moved_res = check_targetless(stored, streams, s)
     assert moved_res.verdict == "drifted", moved_res.reasons
     assert abs(math.degrees(moved_res.correction[2]) + 0.3) < 0.1
+    # The patches chosen again under the estimate: the turned rig's correction less the
+    # unmoved one's is the turn (-0.295 deg on this drive; chosen under the stored T it
+    # was -0.324: a gain of 1.08).
+    assert rec["reselected"] >= 1
+    assert moved_res.record["reselected"] >= 1
+    assert abs(math.degrees(moved_res.correction[2] - res.correction[2]) + 0.3) < 0.015
     with_edges = check_targetless(rig, streams).record
     assert "edge_bands" in with_edges
     assert with_edges["odometry_errors_held"] is False
