@@ -65,10 +65,11 @@ that into a measurement of T:
    stored calibration's (Hotelling's T^2 with the clusters' effective count: an F test
    that tends to the chi-square with k dof as the clusters grow). Drifted when p <
    level. When the check with the edges cannot tell (their few corners determine no
-   direction, or too few of them), or its edges were usable at the start estimate and
-   lost on the way to it (made with the odometry's errors estimated, its yaw is not
-   observed), it is made again with the edge term off, the photometric term alone on
-   every scan's odometry (:func:`_photometric_alone`). When the
+   direction, or too few of them), or its estimate with the edges did not settle or ran
+   away (step 5), or its edges were usable at the start estimate and lost on the way to
+   it (made with the odometry's errors estimated, its yaw is not observed), it is made
+   again with the edge term off, the photometric term alone on every scan's odometry
+   (:func:`_photometric_alone`). When the
    drive is too short, sees no returns, or observes no direction, the verdict is "cannot
    tell".
 """
@@ -338,7 +339,6 @@ def check_targetless(
     streams.rig = rig
     streams.require_images("targetless check")
     reasons: list[str] = []
-    nan6 = np.full(6, np.nan)
     duration = float(streams.image_stamps_s[-1] - streams.image_stamps_s[0])
     base: dict[str, Any] = {"duration_s": round(duration, 3), "images": streams.n_images}
     if depth := streams.first_image_depth():  # 16-bit frames read as 8 bits, one shift for all
@@ -380,25 +380,47 @@ def check_targetless(
             # The patches' counts of the estimate; the edges found stay those of the drive.
             base.update({k: v for k, v in patches.info.items() if k != "edges"})
     except _CannotTellError as exc:
-        reasons.append(str(exc))
-        rec = base | {"check_s": round(time.perf_counter() - t_start, 3)}
-        return TargetlessResult("cannot_tell", settings.level, nan6, np.zeros((6, 6)), _json(rec), reasons)
-    res = _test(rig, est, patches, settings, reasons)
-    lost = not est.edge_stats and not est.solve.get("odometry_errors_held", False)
-    if (res["verdict"] == "cannot_tell" and est.edge_stats) or lost:
+        if not (settings.edges and base.get("edges")):
+            return _cannot_tell(base, str(exc), reasons, t_start, settings)
+        unsettled: _CannotTellError | None = exc
+    else:
+        unsettled = None
+    if unsettled is not None:
+        # The estimate with the edges did not settle or ran away.
+        why: str | None = f"{UNSETTLED}: {unsettled}"
+    else:
+        res = _test(rig, est, patches, settings, reasons)
+        lost = not est.edge_stats and not est.solve.get("odometry_errors_held", False)
+        # The edges' few corners could not judge (no direction determined, too few of
+        # them), or the edges usable at the start were lost on the way to the estimate
+        # (made with the odometry's errors estimated, which leaves the yaw unobserved:
+        # photo_floor_free_deg).
+        cornered = res["verdict"] == "cannot_tell" and bool(est.edge_stats)
+        why = LOST if lost else "the check with the edges could not tell" if cornered else None
+    if why is not None:
+        # The photometric term alone, on every scan's odometry with its errors held,
+        # judges what it observes; where it cannot either, the first verdict stands.
         alone = _photometric_alone(rig, streams, settings)
         if alone is not None:
-            # The edges' few corners could not judge (no direction determined, too few
-            # of them), or the edges usable at the start were lost on the way to the
-            # estimate (made with the odometry's errors estimated, which leaves the yaw
-            # unobserved: photo_floor_free_deg); the photometric term alone, on every
-            # scan's odometry with its errors held, judges what it observes.
             patches, res, reasons = alone
             base.update(patches.info)
-            base["photometric_alone"] = LOST if lost else "the check with the edges could not tell"
+            base["photometric_alone"] = why
+        elif unsettled is not None:
+            return _cannot_tell(base, str(unsettled), reasons, t_start, settings)
     rec = base | res["record"] | {"check_s": round(time.perf_counter() - t_start, 3)}
     return TargetlessResult(
         res["verdict"], settings.level, res["xi"], res["cov"], _json(rec), reasons, res.get("details", {})
+    )
+
+
+def _cannot_tell(
+    base: dict[str, Any], reason: str, reasons: list[str], t_start: float, settings: TargetlessSettings
+) -> TargetlessResult:
+    """The "cannot tell" result with its reason, the record what the check had found."""
+    reasons.append(reason)
+    rec = base | {"check_s": round(time.perf_counter() - t_start, 3)}
+    return TargetlessResult(
+        "cannot_tell", settings.level, np.full(6, np.nan), np.zeros((6, 6)), _json(rec), reasons
     )
 
 
@@ -424,6 +446,9 @@ def _photometric_alone(
 LOST = "the edges were lost on the way to the estimate"
 """The record's ``photometric_alone`` where the edges usable at the start estimate were lost
 on the way to it."""
+UNSETTLED = "the estimate with the edges could not tell"
+"""The start of the record's ``photometric_alone`` where the estimate with the edges did not
+settle or ran away (the reason follows it)."""
 
 
 def _held_alone(est: _Estimate) -> bool:
