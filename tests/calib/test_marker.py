@@ -203,8 +203,14 @@ def test_a_v_taken_for_background_is_found_where_its_pose_predicts(sim, folder, 
 def test_a_scan_without_the_v_is_set_aside_with_the_reason(folder, tmp_path):
     s = _copy(folder, tmp_path)
     d = yaml.safe_load((s / "marker_session.yaml").read_text())
-    # Capture 5's scans are capture 4's: the target is not where cap05's image puts it.
-    d["captures"][5]["scans"] = d["captures"][4]["scans"]
+    # Capture 5's scans are copies of capture 4's: the target is not where cap05's image
+    # puts it (copies: one file named by two captures is refused on its own).
+    copies = []
+    for name in d["captures"][4]["scans"]:
+        copy = name.replace("cap04", "cap04_as_cap05")
+        shutil.copyfile(s / name, s / copy)
+        copies.append(copy)
+    d["captures"][5]["scans"] = copies
     (s / "marker_session.yaml").write_text(yaml.safe_dump(d))
     session = read_marker_session(s / "marker_session.yaml")
     assert "cap05" not in session.found
@@ -268,14 +274,14 @@ def test_weak_views():
         (lambda d: d.update(targets="nope.yaml"), r"targets: got 'nope.yaml'; expected an existing file"),
         (lambda d: d["captures"][1].pop("image"), r"captures\[1\]\.image: missing"),
         (
-            lambda d: d["captures"][1].update(image="scans/cap01_00.yaml"),
+            lambda d: d["captures"][1].update(image="truth.yaml"),
             r"captures\[1\]\.image: .*an image file",
         ),
         (lambda d: d["captures"][0].update(colour=1), r"captures\[0\]\.colour: got 1; expected no such key"),
         (lambda d: d.update(captures=[]), r"captures: got \[\]; expected a non-empty list"),
         (lambda d: d["captures"][2].update(name="cap01"), r"captures\[2\]\.name: got 'cap01'"),
         (
-            lambda d: d["captures"][1].update(scan="scans/cap01_00.yaml"),
+            lambda d: d["captures"][1].update(scan="truth.yaml"),
             r"captures\[1\]: got \['image', 'name', 'scan', 'scans'\]; expected one of scan .* or scans",
         ),
         (
