@@ -467,7 +467,7 @@ def _reselected(
     rig: Rig, streams: Streams, est: _Estimate, s: TargetlessSettings
 ) -> tuple[_Patches, _Estimate]:
     """The photometric term alone's estimate made again on patches chosen under it
-    (module docstring, step 2): (the patches, the estimate, its xi from the stored T).
+    (module docstring, step 2): the patches, and the estimate with its xi from the stored T.
 
     The patches are the returns whose grids project well inside both frames and on
     texture under the T they are chosen with; chosen under the stored T, a yaw error of
