@@ -233,8 +233,6 @@ def test_an_estimate_that_does_not_settle_or_runs_off_its_pairing_cannot_tell():
     """The estimate's region of trust: a last step still large, or a correction that
     moves the edges' projections beyond the window their image edges were paired in,
     is "cannot tell" with the reason, never a verdict."""
-    from types import SimpleNamespace
-
     from rigcal.drift.edges import Edges, band_points
     from rigcal.drift.targetless import RUNAWAY_UNITS, _CannotTellError, _runaway
 
@@ -242,17 +240,17 @@ def test_an_estimate_that_does_not_settle_or_runs_off_its_pairing_cannot_tell():
     feet = np.array([[2.5, 0.3], [3.0, -0.4], [4.0, 0.8]])
     n = len(feet)
     edges = Edges(band_points(feet), np.arange(n), np.zeros(n, np.int64), np.arange(n), np.hypot(*feet.T))
-    patches = SimpleNamespace(edges=edges)
     s = TargetlessSettings()
     T0 = rig.T_cam_laser
     near = T0 @ make_T(rotvec_to_R([0.0, 0.0, math.radians(0.5)]), [0.0, 0.0, 0.0])
-    _runaway(rig, T0, near, patches, 0.005, s)  # settled, within the window: no objection
+    _runaway(rig, T0, near, edges, 0.005, s)  # settled, within the window: no objection
     with pytest.raises(_CannotTellError, match="did not settle"):
-        _runaway(rig, T0, near, patches, 2 * RUNAWAY_UNITS, s)
+        _runaway(rig, T0, near, edges, 2 * RUNAWAY_UNITS, s)
     # 3 deg of yaw: the edges' projections move about 14 px at 260 px focal length.
     far = T0 @ make_T(rotvec_to_R([0.0, 0.0, math.radians(3.0)]), [0.0, 0.0, 0.0])
     with pytest.raises(_CannotTellError, match=r"ran away: the correction \(3.00 deg"):
-        _runaway(rig, T0, far, patches, 0.005, s)
+        _runaway(rig, T0, far, edges, 0.005, s)
+    _runaway(rig, T0, far, None, 0.005, s)  # an estimate that used no edges: nothing to run off
 
 
 def test_edges_at_one_depth_are_said_to_leave_yaw_and_a_sideways_shift_apart():
@@ -351,6 +349,45 @@ def test_edges_found_but_unusable_leave_the_photometric_term_on_every_scans_odom
     assert scans_seen[:2] == [len(range(0, n, 4)), n]
     assert set(scans_seen[2:]) == {n}
     assert 1 <= res.record["reselected"] <= targetless.MAX_RESELECTIONS
+
+
+def _never_settles(*args, **kwargs):  # type: ignore[no-untyped-def]
+    from rigcal.drift.targetless import _CannotTellError
+
+    raise _CannotTellError("the estimate did not settle (as the test makes it)")
+
+
+@pytest.mark.parametrize("edges_usable", [True, False])
+def test_the_photometric_term_alone_is_made_again_only_where_the_estimate_was_not_already_it(
+    drives, monkeypatch, edges_usable
+):
+    """An estimate that does not settle is made again with the edge term off
+    (_photometric_alone) where it used the edges; where it was already the photometric
+    term alone on every scan's odometry with its errors held (the drive's edges found but
+    unusable), it is "cannot tell" at once, with its reason, not made a second time."""
+    import rigcal.drift.targetless as targetless
+
+    if not edges_usable:
+
+        def unusable(*args, **kwargs):  # type: ignore[no-untyped-def]
+            er, J6, eusable, found = found_edges(*args, **kwargs)
+            return er, J6, np.zeros_like(eusable), found
+
+        found_edges = targetless.edge_residuals
+        monkeypatch.setattr(targetless, "edge_residuals", unusable)
+    monkeypatch.setattr(targetless, "_runaway", _never_settles)
+    again = []
+    alone = targetless._photometric_alone
+
+    def spy(*args, **kwargs):  # type: ignore[no-untyped-def]
+        again.append(True)
+        return alone(*args, **kwargs)
+
+    monkeypatch.setattr(targetless, "_photometric_alone", spy)
+    res = check_targetless(read_rig(drives["rig"]), open_streams(drives["drive"], rig_file=drives["rig"]))
+    assert res.verdict == "cannot_tell"
+    assert res.reasons == ["the estimate did not settle (as the test makes it)"]
+    assert len(again) == (1 if edges_usable else 0)
 
 
 def _photometric_alone(seed: int, yaw_deg: float, held: bool = True):  # type: ignore[no-untyped-def]

@@ -69,7 +69,9 @@ that into a measurement of T:
    away (step 5), or its edges were usable at the start estimate and lost on the way to
    it (made with the odometry's errors estimated, its yaw is not observed), it is made
    again with the edge term off, the photometric term alone on every scan's odometry
-   (:func:`_photometric_alone`). When the
+   (:func:`_photometric_alone`); an estimate that was already that one (the drive's
+   edges found but unusable) and could not tell is not made twice, and only an estimate
+   that used the edges is held to their projections' search window. When the
    drive is too short, sees no returns, or observes no direction, the verdict is "cannot
    tell".
 """
@@ -307,7 +309,14 @@ class _Patches:
 
 
 class _CannotTellError(Exception):
-    """The drive cannot decide (a reason for the verdict, not an error)."""
+    """The drive cannot decide (a reason for the verdict, not an error).
+    ``photometric_alone``: the estimate that could not tell was already the photometric
+    term alone on every scan's odometry with its errors held, so the fallback
+    (:func:`_photometric_alone`) would only make it again."""
+
+    def __init__(self, reason: str, photometric_alone: bool = False) -> None:
+        super().__init__(reason)
+        self.photometric_alone = photometric_alone
 
 
 class _EdgesUnusableError(Exception):
@@ -376,11 +385,15 @@ def check_targetless(
             with _stacks_ahead(rig, thin, patches, settings):
                 est = _estimate(rig, thin, patches, settings)
         if _held_alone(est):
-            patches, est = _reselected(rig, streams, est, settings)
+            try:
+                patches, est = _reselected(rig, streams, est, settings)
+            except _CannotTellError as exc:
+                exc.photometric_alone = True
+                raise
             # The patches' counts of the estimate; the edges found stay those of the drive.
             base.update({k: v for k, v in patches.info.items() if k != "edges"})
     except _CannotTellError as exc:
-        if not (settings.edges and base.get("edges")):
+        if not (settings.edges and base.get("edges")) or exc.photometric_alone:
             return _cannot_tell(base, str(exc), reasons, t_start, settings)
         unsettled: _CannotTellError | None = exc
     else:
@@ -1569,7 +1582,12 @@ def _estimate(
             if last_step < SETTLED_UNITS:
                 break
         del images  # the next stage's stack replaces it
-    _runaway(rig, T0, T, patches, last_step, s)
+    try:
+        # The edges' projections are checked only where the estimate used them.
+        _runaway(rig, T0, T, patches.edges if use_edges else None, last_step, s)
+    except _CannotTellError as exc:
+        exc.photometric_alone = held
+        raise
     Delta = np.linalg.inv(T0) @ T
     xi = np.concatenate([R_to_rotvec(Delta[:3, :3]), Delta[:3, 3]])
     sc = _scales(cur)
@@ -1586,7 +1604,8 @@ def _estimate(
     if determined.shape[1] == 0:
         raise _CannotTellError(
             "degenerate motion: the drive determines no direction of T_cam_laser to the "
-            f"resolution ({s.resolution_deg:g} deg, {100 * s.resolution_m:g} cm)"
+            f"resolution ({s.resolution_deg:g} deg, {100 * s.resolution_m:g} cm)",
+            photometric_alone=held,
         )
     # The clusters' jackknife (rigcal.drift.statistic): each block's patches and each
     # corner's bands left out in turn, by one Newton step from the estimate.
@@ -1665,7 +1684,7 @@ def _held(metric: FloatArray) -> FloatArray:
 
 
 def _runaway(
-    rig: Rig, T0: FloatArray, T: FloatArray, patches: _Patches, last_step: float, s: TargetlessSettings
+    rig: Rig, T0: FloatArray, T: FloatArray, edges: Edges | None, last_step: float, s: TargetlessSettings
 ) -> None:
     """ "Cannot tell" when the estimate left the region where its linearisation holds:
     it did not settle, or it moved the edges' projections farther than their image edges
@@ -1679,9 +1698,9 @@ def _runaway(
             f"the estimate did not settle: {what} still moved by {last_step:.2f} resolutions in its last "
             "step; the drive does not pin T_cam_laser down (or the stored calibration is far off)"
         )
-    if patches.edges is None:
+    if edges is None:
         return
-    Xc = patches.edges.X[:, :, patches.edges.X.shape[2] // 2].reshape(-1, 3)
+    Xc = edges.X[:, :, edges.X.shape[2] // 2].reshape(-1, 3)
     q0 = rig.camera.project(Xc @ T0[:3, :3].T + T0[:3, 3])
     q1 = rig.camera.project(Xc @ T[:3, :3].T + T[:3, 3])
     move = np.linalg.norm(q1 - q0, axis=1)
