@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from bench_wheel_odometry import killian_log
-from rigcal.io.wheel_odometry import laser_motions
+from rigcal.io.wheel_odometry import icp_starts
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.loop_closure import Closure, LoopParams, LoopResult, close_loops, compose, relative
 from rigcal.localize.metrics import anchored, evaluate, relation_error, rpe_pairs
@@ -95,10 +95,12 @@ def killian(
     scans, gt = log.scans[:n], log.laser_poses[:n]
     t = np.array([s.stamp_s for s in scans])
     duration = float(t[-1] - t[0])
-    guess = laser_motions(odom, t)
+    guess, gap_guess = icp_starts(odom, t)
     icp_odometry(scans[:50], IcpParams(method="point-to-line"), guess=guess[:49])  # compile / load kernels
     w0, c0 = time.perf_counter(), time.process_time()
-    od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess, submap_scans=submap_scans)
+    od = icp_odometry(
+        scans, IcpParams(method="point-to-line"), guess=guess, gap_guess=gap_guess, submap_scans=submap_scans
+    )
     icp_wall, icp_cpu = time.perf_counter() - w0, time.process_time() - c0
     load = [os.getloadavg()[0]]
     print(
@@ -115,7 +117,7 @@ def killian(
     # The log's odometry chained alone (the g2o's sequential edges, which its vertices
     # are the optimum of): how far the reference itself follows it step by step.
     wheels = np.zeros((len(scans), 3))
-    for k, step in enumerate(guess):
+    for k, step in enumerate(np.where(np.isnan(guess), gap_guess, guess)):
         wheels[k + 1] = compose(wheels[k][None], step[None])[0]
     rows = [
         _row("the log's odometry alone", wheels, gt, "-"),
@@ -171,8 +173,8 @@ def solver(n: int | None) -> None:
 
     log, odom, _ = killian_log()
     scans = log.scans[:n]
-    guess = laser_motions(odom, np.array([s.stamp_s for s in scans]))
-    od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess)
+    guess, gap_guess = icp_starts(odom, np.array([s.stamp_s for s in scans]))
+    od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess, gap_guess=gap_guess)
     graphs: list[pose_graph.PoseGraph] = []
     optimise = loop_closure.optimise
 

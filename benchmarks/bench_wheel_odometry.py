@@ -7,7 +7,9 @@ rigcal.recordings.carmen.carmen_odometry); each method is scored against the g2o
 SLAM-optimised poses) by ATE (evo's, SE(2)-aligned) and the relation error of Kuemmerle
 et al. 2009 over consecutive scans (mean +- std, m and deg; rigcal.localize.metrics.
 relation_error; the relations are the optimised poses' own, not the hand-verified
-relation files of the Freiburg site). Speed: the log's duration over the run's wall time
+relation files of the Freiburg site). Across the odometry's 15 gaps (its logger paused)
+its motion starts ICP unless the scans contradict it, as ``rigcal localize`` does;
+``--gaps none`` takes no motion from it there. Speed: the log's duration over the run's wall time
 (ICP, and ICP with loop closure).
 
 Simulated loops (``--sim``): each of the cubicle and corridor loops driven once and
@@ -17,7 +19,7 @@ ATE and loop closure error of ICP from the previous motion, ICP from the odometr
 with and without loop closure (rigcal.localize.loop_closure), and the odometry.
 
     uv sync --group bench        # rtb-data
-    .venv/bin/python benchmarks/bench_wheel_odometry.py [--sim [--rate-hz R]] [--scans N]
+    .venv/bin/python benchmarks/bench_wheel_odometry.py [--sim [--rate-hz R]] [--scans N] [--gaps none]
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from rigcal.geometry import pose_of, se2
-from rigcal.io.wheel_odometry import laser_motions
+from rigcal.io.wheel_odometry import icp_starts, laser_motions
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.loop_closure import close_loops
 from rigcal.localize.metrics import anchored, evaluate, relation_error
@@ -63,23 +65,31 @@ def killian_log() -> tuple[Any, Any, str]:
     return log, odom, how
 
 
-def killian(n: int | None) -> None:
+def killian(n: int | None, gaps: str = "contradict") -> None:
+    """``gaps``: across the odometry's gaps its motion starts ICP unless the scans
+    contradict it ("contradict", as rigcal localize), or ICP takes no motion from it
+    there ("none")."""
     log, odom, how = killian_log()
     scans, gt = log.scans[:n], log.laser_poses[:n]
     t = np.array([s.stamp_s for s in scans])
-    guess = laser_motions(odom, t)
+    guess, gap_guess = icp_starts(odom, t)
     duration = float(t[-1] - t[0])
     rows = {}
     for name, g in (("ICP from the previous motion", None), ("ICP from the odometry", guess)):
         t0 = time.perf_counter()
-        od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=g)
+        across = gap_guess if g is not None and gaps == "contradict" else None
+        od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=g, gap_guess=across)
+        if g is not None:
+            n_gaps = int(np.isfinite(gap_guess).all(axis=1).sum())
+            print(f"{name}: {od.gap_kept} of {n_gaps} steps across the odometry's gaps kept its motion")
         wall = time.perf_counter() - t0
         rows[name] = (od.poses, duration / wall)
         t1 = time.perf_counter()
         lc = close_loops(scans, od.poses)
         rows[f"{name} + loop closure"] = (lc.poses, duration / (wall + time.perf_counter() - t1))
         print(f"{name}: closures {lc.counts}")
-    rows["odometry (g2o sequential edges)"] = (chained(guess), float("nan"))
+    wheels = chained(np.where(np.isnan(guess), gap_guess, guess))  # its gaps' motion too
+    rows["odometry (g2o sequential edges)"] = (wheels, float("nan"))
     print(f"Killian Court: {len(scans)} scans, {duration:.0f} s of data; odometry: {how}")
     print(
         "| method | ATE (m) | loop/end error (m) | relation error (m) | relation error (deg) | x real time |"
@@ -132,11 +142,18 @@ def main() -> None:
     ap.add_argument("--sim", action="store_true", help="the simulated loops instead of Killian Court")
     ap.add_argument("--scans", type=int, default=None, help="only the log's first N scans")
     ap.add_argument("--rate-hz", type=float, default=1.0, help="the simulated laser's rate")
+    ap.add_argument(
+        "--gaps",
+        choices=("contradict", "none"),
+        default="contradict",
+        help="Killian: across the odometry's gaps its motion starts ICP unless the scans contradict it "
+        "(as rigcal localize), or none is taken there",
+    )
     a = ap.parse_args()
     if a.sim:
         simulated(a.rate_hz)
     else:
-        killian(a.scans)
+        killian(a.scans, a.gaps)
 
 
 if __name__ == "__main__":

@@ -156,6 +156,9 @@ def _icp_estimate(streams: Streams, od: Odometry) -> Estimate:
         # and those whose fit it overruled (beyond its error bound).
         "wheel_odometry_steps": from_wheels,
         "wheel_overruled_steps": od.overruled,
+        # Steps across a gap in the wheel odometry that kept its motion there as their
+        # guess (the scans did not contradict it: a logger paused, the base counting on).
+        "wheel_gap_kept_steps": od.gap_kept,
     }
     # Per step: the degeneracy indicator (smallest over largest eigenvalue of the
     # translation information: near 0, a direction the scans do not constrain, as along
@@ -333,7 +336,10 @@ def _matching_estimate(streams: Streams, method: str, params: IasmParams) -> Est
 METHODS: dict[str, Callable[[Streams, IasmParams], Estimate]] = {
     "icp": lambda s, _: _icp_estimate(s, s.laser_odometry()),
     "icp-p2p": lambda s, _: _icp_estimate(
-        s, icp_odometry(s.scans, LASER_ODOMETRY["icp-p2p"], guess=s.wheel_guess())
+        s,
+        icp_odometry(
+            s.scans, LASER_ODOMETRY["icp-p2p"], guess=s.wheel_guess(), gap_guess=s.wheel_gap_guess()
+        ),
     ),
     "odom": lambda s, _: _wheel_estimate(s),
     "vo": lambda s, _: _vo_estimate(s, _vo_result(s)),
@@ -430,8 +436,8 @@ def _warn_gaps(streams: Streams) -> None:
         long = float(np.diff(od.stamps_s).max())
         log.warning(
             "the wheel odometry pauses for over %.3g s between %d pair(s) of scans (the longest pause "
-            "%.3g s): no motion is taken from it there (ICP starts from its last motion, method odom "
-            "holds its pose)",
+            "%.3g s): its motion there starts ICP unless the scans contradict it, and the filter and "
+            "method odom take no motion from it there",
             gap_s(od),
             int(gaps.sum()),
             long,

@@ -36,7 +36,7 @@ from rigcal.geometry import pose_of, se2
 from rigcal.io.gyro import Gyro
 from rigcal.io.images import grey_of, sixteen_bit, sixteen_bit_grey, sixteen_bit_levels
 from rigcal.io.stamps import outside_scans, unit_hint, within_scans
-from rigcal.io.wheel_odometry import WheelOdometry, laser_motions
+from rigcal.io.wheel_odometry import WheelOdometry, icp_starts
 from rigcal.lines import Segment, extract_lines
 from rigcal.localize.image_cache import Gray, ImageCache
 from rigcal.localize.odometry import LASER_ODOMETRY, Odometry, icp_odometry
@@ -99,15 +99,29 @@ class Streams:
 
     def wheel_guess(self) -> FloatArray | None:
         """(N - 1, 3) the laser's motion between consecutive scans by the wheel odometry
-        (NaN where a scan is outside its span), or None without odometry."""
+        (NaN across a gap in it and where a scan is outside its span), or None without
+        odometry."""
+        starts = self._wheel_starts()
+        return None if starts is None else starts[0]
+
+    def wheel_gap_guess(self) -> FloatArray | None:
+        """(N - 1, 3) the wheel odometry's motion across its gaps
+        (:func:`rigcal.io.wheel_odometry.icp_starts`), NaN elsewhere: it starts ICP unless
+        the scans contradict it; None without odometry."""
+        starts = self._wheel_starts()
+        return None if starts is None else starts[1]
+
+    def _wheel_starts(self) -> tuple[FloatArray, FloatArray] | None:
         od = self.wheel_odometry
         if od is None:
             return None
         t = self.scan_stamps_s
-        steps = laser_motions(od, t)
+        guess, gap_guess = icp_starts(od, t)
         inside = (t >= od.stamps_s[0]) & (t <= od.stamps_s[-1])
-        steps[~(inside[:-1] & inside[1:])] = np.nan
-        return steps
+        outside = ~(inside[:-1] & inside[1:])
+        guess[outside] = np.nan
+        gap_guess[outside] = np.nan
+        return guess, gap_guess
 
     @property
     def scans(self) -> tuple[Scan, ...]:
@@ -301,6 +315,7 @@ class Streams:
             progress,
             self.lines,
             guess=self.wheel_guess(),
+            gap_guess=self.wheel_gap_guess(),
             covariance=self.odometry_covariance,
         )
         self.timings_s["icp_s"] = time.perf_counter() - t0
