@@ -241,12 +241,13 @@ def import_bag(
             seen[(part, con.topic)] = n + 1
             where = f"{part}: {con.topic} message {n}"
             msg = _deserialize(reader, raw, con.msgtype, where)
+            stamped = _Stamper(con.topic, where, recorded_ns, stamps == "strict", summary.unstamped)
             if con.topic in (odometry_topic, TF_STATIC):  # TFMessage has no header
-                wheel.add(con.topic, msg)
+                wheel.add(con.topic, msg, where, stamped)
                 if progress is not None:
                     progress(k + 1, total)
                 continue
-            stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
+            stamp = stamped(msg.header.stamp)
             if con.topic == imu_topic:
                 w = msg.angular_velocity
                 wheel.imu.append((stamp, float(w.x), float(w.y), float(w.z)))
@@ -254,17 +255,6 @@ def import_bag(
                 if progress is not None:
                     progress(k + 1, total)
                 continue
-            if stamp == 0.0 and con.topic in (scan_topic, image_topic):
-                # A driver that leaves header.stamp unset: the time the recorder got it.
-                if stamps == "strict":
-                    raise InputError.at(
-                        where,
-                        "header.stamp",
-                        0.0,
-                        "a stamp set by the driver (--stamps repair uses the record time)",
-                    )
-                stamp = 1e-9 * float(recorded_ns)
-                summary.unstamped[con.topic] = summary.unstamped.get(con.topic, 0) + 1
             if con.topic == scan_topic:
                 wheel.scan_frame = wheel.scan_frame or str(msg.header.frame_id)
                 scans.append((stamp, _scan(msg, stamp, where, summary.scan_counts)))
@@ -356,6 +346,27 @@ def _only_topic(bag: Path, topics: dict[str, str], option: str, types: tuple[str
     raise InputError.at(bag, option, "not given", f"one of {has}" if found else has)
 
 
+class _Stamper:
+    """A message's header stamp in seconds; a stamp of 0 (a driver that leaves
+    ``header.stamp`` unset) is the time the recorder got the message, counted per topic in
+    ``counts``, or refused with ``strict`` (``--stamps strict``)."""
+
+    def __init__(self, topic: str, where: str, recorded_ns: int, strict: bool, counts: dict[str, int]):
+        self.topic, self.where, self.recorded_ns = topic, where, recorded_ns
+        self.strict, self.counts = strict, counts
+
+    def __call__(self, stamp: Any, key: str = "header.stamp") -> float:
+        t = float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+        if t != 0.0:
+            return t
+        if self.strict:
+            raise InputError.at(
+                self.where, key, 0.0, "a stamp set by the driver (--stamps repair uses the record time)"
+            )
+        self.counts[self.topic] = self.counts.get(self.topic, 0) + 1
+        return 1e-9 * float(self.recorded_ns)
+
+
 class _WheelMessages:
     """The odometry topic's poses and /tf_static's transforms, gathered as the bag is read."""
 
@@ -367,42 +378,76 @@ class _WheelMessages:
         self.via_tf = False
         self.static: dict[tuple[str, str], NDArray[np.float64]] = {}  # (parent, child) -> x y yaw
         self.static_R: dict[tuple[str, str], NDArray[np.float64]] = {}  # (parent, child) -> R_parent_child
+        self.static_bad: dict[tuple[str, str], str] = {}  # (parent, child) -> why its rotation is refused
         self.scan_frame = ""
         self.imu: list[tuple[float, float, float, float]] = []  # stamp, angular velocity x y z (rad/s)
         self.imu_frames: set[str] = set()
 
-    def add(self, topic: str, msg: Any) -> None:
+    def add(self, topic: str, msg: Any, where: str, stamped: Callable[..., float]) -> None:
+        """One message of the odometry topic or of /tf_static; ``where`` names it, ``stamped``
+        turns a header stamp into seconds (:class:`_Stamper`)."""
         if topic == TF_STATIC:
-            for tf in msg.transforms:
-                t, q = tf.transform.translation, tf.transform.rotation
+            for j, tf in enumerate(msg.transforms):
+                t = tf.transform.translation
                 key = (str(tf.header.frame_id).lstrip("/"), str(tf.child_frame_id).lstrip("/"))
-                self.static[key] = np.array([float(t.x), float(t.y), _yaw(q)])
-                quat = np.array([float(q.x), float(q.y), float(q.z), float(q.w)])
-                if np.linalg.norm(quat) > 0:  # a zero quaternion is no rotation: no link
-                    self.static_R[key] = Rotation.from_quat(quat).as_matrix()
+                try:
+                    R = _rotation(tf.transform.rotation, where, f"transforms[{j}].transform.rotation")
+                except InputError as exc:  # a transform nothing may need: refused where it is used
+                    self.static_bad[key] = str(exc)
+                    continue
+                self.static[key] = np.array([float(t.x), float(t.y), _yaw(R)])
+                self.static_R[key] = R
             return
         if hasattr(msg, "transforms"):  # a tf topic: the odometry is one of its transforms
             self.via_tf = True
-            for tf in msg.transforms:
+            for j, tf in enumerate(msg.transforms):
                 key = (str(tf.header.frame_id).lstrip("/"), str(tf.child_frame_id).lstrip("/"))
                 self.tf_seen.add(key)
                 if key != self.tf_frames:
                     continue
-                t, q = tf.transform.translation, tf.transform.rotation
-                stamp = float(tf.header.stamp.sec) + 1e-9 * float(tf.header.stamp.nanosec)
-                self.poses.append((stamp, float(t.x), float(t.y), _yaw(q)))
+                t = tf.transform.translation
+                yaw = _yaw(_rotation(tf.transform.rotation, where, f"transforms[{j}].transform.rotation"))
+                stamp = stamped(tf.header.stamp, f"transforms[{j}].header.stamp")
+                self.poses.append((stamp, float(t.x), float(t.y), yaw))
                 self.frames.add(key)
             return
-        stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
         p = msg.pose.pose
-        self.poses.append((stamp, float(p.position.x), float(p.position.y), _yaw(p.orientation)))
+        yaw = _yaw(_rotation(p.orientation, where, "pose.pose.orientation"))
+        self.poses.append((stamped(msg.header.stamp), float(p.position.x), float(p.position.y), yaw))
         self.frames.add((str(msg.header.frame_id).lstrip("/"), str(msg.child_frame_id).lstrip("/")))
 
 
-def _yaw(q: Any) -> float:
-    """The heading of a quaternion (rotation about z)."""
-    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
-    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+# A quaternion whose squared norm is off 1 by more than this is refused, as tf2 refuses
+# one (its setTransform: "Ignoring transform ... because of an invalid quaternion"); within
+# it (float32 rounding, a driver's integration) it is normalised.
+QUATERNION_NORM2_TOLERANCE = 0.01
+
+
+def _rotation(q: Any, where: str, key: str) -> NDArray[np.float64]:
+    """R (3, 3) of a geometry_msgs/Quaternion (x y z w), normalised.
+
+    Raises:
+        InputError: a quaternion not finite, zero (a driver that fills no orientation) or
+            off unit length by more than tf2 accepts (:data:`QUATERNION_NORM2_TOLERANCE`),
+            whose heading would otherwise be read wrong (the yaw of a quaternion of norm
+            1/sqrt(2) about z is half its angle).
+    """
+    quat = np.array([float(q.x), float(q.y), float(q.z), float(q.w)])
+    norm2 = float(quat @ quat) if np.isfinite(quat).all() else np.nan
+    if not abs(norm2 - 1.0) <= QUATERNION_NORM2_TOLERANCE:
+        raise InputError.at(
+            where,
+            key,
+            f"{quat.tolist()} (norm {np.sqrt(norm2):.6g})",
+            f"a unit quaternion x y z w (squared norm within {QUATERNION_NORM2_TOLERANCE:g} of 1, as tf2 "
+            "takes them)",
+        )
+    return np.asarray(Rotation.from_quat(quat / np.sqrt(norm2)).as_matrix())
+
+
+def _yaw(R: NDArray[np.float64]) -> float:
+    """The heading of a rotation (about z)."""
+    return float(np.arctan2(R[1, 0], R[0, 0]))
 
 
 def bag_odometry(
@@ -440,6 +485,8 @@ def bag_odometry(
         mount = np.zeros(3)
     elif (child, wheel.scan_frame.lstrip("/")) in wheel.static:
         mount = wheel.static[(child, wheel.scan_frame.lstrip("/"))]
+    elif (child, wheel.scan_frame.lstrip("/")) in wheel.static_bad:
+        raise InputError(wheel.static_bad[(child, wheel.scan_frame.lstrip("/"))])
     else:
         raise InputError.at(
             where,
@@ -473,7 +520,13 @@ def bag_gyro(wheel: _WheelMessages, where: str, scan_stamps_s: NDArray[np.float6
             "header.frame_id",
             frame,
             f"the scans' frame {wheel.scan_frame!r} or a frame linked to it by {TF_STATIC} transforms "
-            f"(known: {sorted(wheel.static_R)})",
+            f"(known: {sorted(wheel.static_R)}"
+            + (
+                f"; refused, their rotation not a unit quaternion: {sorted(wheel.static_bad)}"
+                if wheel.static_bad
+                else ""
+            )
+            + ")",
         )
     a = np.array(wheel.imu, dtype=float).reshape(-1, 4)
     order = np.argsort(a[:, 0], kind="stable")
