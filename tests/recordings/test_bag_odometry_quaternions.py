@@ -3,7 +3,10 @@ zero (no orientation filled in), NaN or off unit length beyond what tf2 accepts 
 a wrong heading (the yaw of a quaternion of norm 1/sqrt(2) about z is half its angle): it
 is refused naming the bag, topic, message and field (exit 3, nothing written); one within
 tf2's tolerance is normalised. An odometry or IMU message stamped 0 (a driver that does
-not stamp) takes its record time, as scans and images do, and is counted."""
+not stamp) takes its record time, as scans and images do, and is counted. An IMU whose
+angular_velocity_covariance[0] is -1 (sensor_msgs/Imu: the rate is not given) is no
+gyroscope: the bag's only IMU is then left out, said on the summary line; one asked for
+with --imu-topic is refused."""
 
 from __future__ import annotations
 
@@ -32,7 +35,7 @@ def _hdr(t: float, frame: str):
     return T["std_msgs/msg/Header"](stamp=time, frame_id=frame)
 
 
-def _bag(path, quats, stamped=True, via_tf=False, mount=(0.0, 0.0, 0.0, 1.0), imu_stamped=None):
+def _bag(path, quats, stamped=True, via_tf=False, mount=(0.0, 0.0, 0.0, 1.0), imu_stamped=None, rate=0.0):
     """Three scans and images stamped at the record time; four odometry poses (x = 0.5 k,
     orientation ``quats[k]``), on /odom or as /tf's odom -> base_link, stamped at their
     record time or 0; /tf_static base_link -> laser with rotation ``mount`` and an unrelated
@@ -74,7 +77,7 @@ def _bag(path, quats, stamped=True, via_tf=False, mount=(0.0, 0.0, 0.0, 1.0), im
         return T["sensor_msgs/msg/Imu"](
             header=_hdr(t, "laser"),
             orientation=QUAT(0.0, 0.0, 0.0, 1.0), orientation_covariance=np.zeros(9),
-            angular_velocity=VEC(x=0.0, y=0.0, z=0.1), angular_velocity_covariance=np.zeros(9),
+            angular_velocity=VEC(x=0.0, y=0.0, z=0.1), angular_velocity_covariance=np.r_[rate, np.zeros(8)],
             linear_acceleration=VEC(x=0.0, y=0.0, z=-9.8), linear_acceleration_covariance=np.zeros(9),
         )  # fmt: skip
 
@@ -189,3 +192,22 @@ def test_imu_messages_stamped_0_take_their_record_time(tmp_path):
     np.testing.assert_allclose(gyro.stamps_s, RECORD_S + 0.05 * np.arange(30), atol=1e-6)
     with pytest.raises(InputError, match=r"b: /imu message 0: header\.stamp: got 0.0; expected a stamp set"):
         import_bag(bag, tmp_path / "strict", "/scan", "/cam/image", imu_topic="/imu", stamps="strict")
+
+
+def test_an_imu_without_its_angular_velocity_is_no_gyro(tmp_path, capsys):
+    bag = _bag(tmp_path / "b", UNIT, imu_stamped=True, rate=-1.0)
+    s = import_bag(bag, tmp_path / "seq", "/scan", "/cam/image")  # the bag's only IMU
+    assert s.gyro == 0
+    assert "IMU topic /imu not read: its angular_velocity_covariance[0] is -1" in " ".join(s.notes())
+    seq = read_sequence(tmp_path / "seq")
+    assert seq.gyro is None
+    assert "imu_topic" not in seq.source
+    with pytest.raises(
+        InputError,
+        match=r"b: /imu message 0: angular_velocity_covariance\[0\]: got -1.0; expected an IMU that measures",
+    ):
+        import_bag(bag, tmp_path / "asked", "/scan", "/cam/image", imu_topic="/imu")
+    assert not (tmp_path / "asked").exists()
+    argv = ["-q", "import-bag", str(bag), "--imu-topic", "/imu", "-o", str(tmp_path / "cli")]
+    assert main(argv) == 3
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith("--imu-topic none reads no IMU)")

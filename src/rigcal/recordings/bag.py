@@ -55,8 +55,9 @@ class ImportSummary:
     odometry: int = 0
     gyro: int = 0  # the IMU's samples kept as gyro.csv
     imu_topics: list[str] = field(default_factory=list)  # several IMU topics, none chosen
+    imu_no_rate: str = ""  # the bag's only IMU topic, not read: its angular velocity not given
     # What the import converted by a documented rule (docs/formats/sequence.md#from-bags):
-    scan_counts: dict[str, int] = field(default_factory=dict)  # returns at range_max, beams past a turn
+    scan_counts: dict[str, int] = field(default_factory=dict)  # returns at range_max, beams past a turn, ...
     outside: dict[str, int] = field(default_factory=dict)  # images before the first scan, after the last
     depth: dict[str, int] = field(default_factory=dict)  # 16-bit images: frames, max_level, shift_bits
     unstamped: dict[str, int] = field(default_factory=dict)  # topic -> messages stamped 0 (record time used)
@@ -78,6 +79,8 @@ class ImportSummary:
         out = []
         if self.scan_counts.get("returns_at_range_max"):
             out.append(f"{self.scan_counts['returns_at_range_max']} ranges at range_max (no return)")
+        if self.scan_counts.get("range_max_inf"):
+            out.append(f"{self.scan_counts['range_max_inf']} scans with range_max inf (no limit)")
         if self.scan_counts.get("beams_past_one_turn"):
             out.append(f"{self.scan_counts['beams_past_one_turn']} beams past one full turn (dropped)")
         if any(self.outside.values()):
@@ -87,6 +90,11 @@ class ImportSummary:
             )
         if self.imu_topics:
             out.append(f"IMU topics {self.imu_topics}, none read (--imu-topic T keeps one as the gyro)")
+        if self.imu_no_rate:
+            out.append(
+                f"IMU topic {self.imu_no_rate} not read: its angular_velocity_covariance[0] is -1 "
+                "(no angular velocity given)"
+            )
         for topic, n in self.unstamped.items():
             out.append(f"{n} {topic} messages with header.stamp 0 (stamped with their record time)")
         if self.depth:
@@ -200,6 +208,7 @@ def import_bag(
         summary = ImportSummary()
         if imu_topic is None and len(imus) > 1:
             summary.imu_topics = imus
+        imu_chosen = imu_topic is None  # the bag's only IMU, not asked for
         imu_topic = (imus[0] if len(imus) == 1 else None) if imu_topic is None else imu_topic
         imu_topic = None if imu_topic == NO_IMU else imu_topic
         wanted = {"scan": (scan_topic, SCAN_TYPES), "image": (image_topic, IMAGE_TYPES)}
@@ -249,6 +258,8 @@ def import_bag(
                 continue
             stamp = stamped(msg.header.stamp)
             if con.topic == imu_topic:
+                if float(msg.angular_velocity_covariance[0]) == -1.0 and not wheel.imu_no_rate:
+                    wheel.imu_no_rate = where  # sensor_msgs/Imu: -1 marks the rate as not given
                 w = msg.angular_velocity
                 wheel.imu.append((stamp, float(w.x), float(w.y), float(w.z)))
                 wheel.imu_frames.add(str(msg.header.frame_id).lstrip("/"))
@@ -299,7 +310,17 @@ def import_bag(
         odometry = bag_odometry(wheel, f"{bag}: {odometry_topic}", laser_offset, scan_t)
         summary.odometry = len(odometry.stamps_s)
     gyro = None
-    if imu_topic is not None:
+    if imu_topic is not None and wheel.imu_no_rate and imu_chosen:
+        summary.imu_no_rate, imu_topic = imu_topic, None  # said on the summary line, no gyro
+    elif imu_topic is not None and wheel.imu_no_rate:
+        raise InputError.at(
+            wheel.imu_no_rate,
+            "angular_velocity_covariance[0]",
+            -1.0,
+            "an IMU that measures its angular velocity (-1 marks it as not given; "
+            "--imu-topic none reads no IMU)",
+        )
+    elif imu_topic is not None:
         gyro = bag_gyro(wheel, f"{bag}: {imu_topic}", scan_t)
         summary.gyro = len(gyro.stamps_s)
     summary.outside = outside_scans(np.array([t for t, _, _ in images_sorted]), scan_t)
@@ -382,6 +403,7 @@ class _WheelMessages:
         self.scan_frame = ""
         self.imu: list[tuple[float, float, float, float]] = []  # stamp, angular velocity x y z (rad/s)
         self.imu_frames: set[str] = set()
+        self.imu_no_rate = ""  # the first IMU message marking its angular velocity as not given
 
     def add(self, topic: str, msg: Any, where: str, stamped: Callable[..., float]) -> None:
         """One message of the odometry topic or of /tf_static; ``where`` names it, ``stamped``
@@ -592,6 +614,10 @@ def _deserialize(reader: Any, raw: bytes, msgtype: str, where: str) -> Any:
         ) from None
 
 
+# A LaserScan's range_max of +inf says the driver sets no limit (ROS 2's
+# pointcloud_to_laserscan by default: a double's maximum, inf as the message's float32):
+# read as the largest range a float32 holds, so that every finite return is one.
+NO_RANGE_LIMIT_M = float(np.finfo(np.float32).max)
 # A real scanner's beam count is round((angle_max - angle_min) / angle_increment) + 1, but
 # drivers differ by one (urg_node and sick_scan drop or add the end beam), so a count
 # within one of it is accepted (docs/formats/sequence.md).
@@ -605,8 +631,9 @@ def _scan(msg: Any, stamp: float, where: str, counts: dict[str, int] | None = No
     117) as 0 (no return) and other negative ranges refused. A negative
     ``angle_increment`` (a scanner sweeping clockwise, angle_max < angle_min) gives the
     same beams in reverse order, so that the angles increase (docs/formats/scan.md). A range
-    equal to ``range_max`` is no return (inf); beams past one full turn are dropped;
-    ``counts`` (``returns_at_range_max``, ``beams_past_one_turn``) adds up both."""
+    equal to ``range_max`` is no return (inf); a ``range_max`` of +inf is no limit
+    (:data:`NO_RANGE_LIMIT_M`); beams past one full turn are dropped; ``counts``
+    (``returns_at_range_max``, ``range_max_inf``, ``beams_past_one_turn``) adds them up."""
     two_pi = 2 * np.pi
     a0 = real(float(msg.angle_min), where, "angle_min", lo=-two_pi, hi=two_pi)
     a1 = real(float(msg.angle_max), where, "angle_max", lo=-two_pi, hi=two_pi)
@@ -628,7 +655,8 @@ def _scan(msg: Any, stamp: float, where: str, counts: dict[str, int] | None = No
                 f"with angle_min {a0:g}, angle_max {a1:g}, angle_increment {step:g} rad",
             )
     lo = real(float(msg.range_min), where, "range_min", nonneg=True)
-    hi = real(float(msg.range_max), where, "range_max", positive=True)
+    unlimited = float(msg.range_max) == np.inf  # no limit: the largest range a LaserScan holds
+    hi = NO_RANGE_LIMIT_M if unlimited else real(float(msg.range_max), where, "range_max", positive=True)
     if lo >= hi:
         raise InputError.at(where, "range_min", lo, f"less than range_max = {hi:g}")
     with np.errstate(invalid="ignore"):
@@ -648,6 +676,7 @@ def _scan(msg: Any, stamp: float, where: str, counts: dict[str, int] | None = No
     turn = int(np.floor(2 * np.pi / step + 0.5)) + 1 if step > 0 else len(r)
     if counts is not None:
         counts["returns_at_range_max"] = counts.get("returns_at_range_max", 0) + int(at_max.sum())
+        counts["range_max_inf"] = counts.get("range_max_inf", 0) + int(unlimited)
         counts["beams_past_one_turn"] = counts.get("beams_past_one_turn", 0) + max(0, len(r) - turn)
     return Scan.from_uniform(a0, step, r[:turn], lo, hi, stamp)
 
