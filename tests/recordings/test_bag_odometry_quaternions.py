@@ -211,3 +211,19 @@ def test_an_imu_without_its_angular_velocity_is_no_gyro(tmp_path, capsys):
     argv = ["-q", "import-bag", str(bag), "--imu-topic", "/imu", "-o", str(tmp_path / "cli")]
     assert main(argv) == 3
     assert capsys.readouterr().err.strip().splitlines()[-1].endswith("--imu-topic none reads no IMU)")
+
+
+@pytest.mark.parametrize("via_tf", [False, True])
+def test_an_odometry_tilted_off_the_floor_is_refused(tmp_path, via_tf):
+    # Rolled 180 deg (z down, as NED): its heading would read mirrored. 0.1 rad of roll is read.
+    roll = (np.sin(0.05), 0.0, 0.0, np.cos(0.05))
+    bag = _bag(tmp_path / "ok", [*UNIT[:2], roll, UNIT[3]], via_tf=via_tf)
+    _import(bag, tmp_path / "seq", via_tf=via_tf)
+    bag = _bag(tmp_path / "b", [*UNIT[:2], (1.0, 0.0, 0.0, 0.0), UNIT[3]], via_tf=via_tf)
+    key = r"transforms\[1\]\.transform\.rotation" if via_tf else r"pose\.pose\.orientation"
+    with pytest.raises(
+        InputError,
+        match=rf"b: /(tf|odom) message 2: {key}: got 'tilted 180.0 deg'; expected planar odometry "
+        r"\(z axis up; frames with z down, as NED, are not the ROS odometry's ENU\)",
+    ):
+        _import(bag, tmp_path / "bad", via_tf=via_tf)

@@ -25,7 +25,7 @@ from rigcal.io.gyro import checked as checked_gyro
 from rigcal.io.images import eight_bit_pngs
 from rigcal.io.stamps import outside_scans
 from rigcal.io.validate import real
-from rigcal.io.wheel_odometry import WheelOdometry, checked
+from rigcal.io.wheel_odometry import WheelOdometry, check_level, checked
 from rigcal.recordings.sequence import ImageFrame, write_sequence
 from rigcal.scan import Scan
 
@@ -428,13 +428,13 @@ class _WheelMessages:
                 if key != self.tf_frames:
                     continue
                 t = tf.transform.translation
-                yaw = _yaw(_rotation(tf.transform.rotation, where, f"transforms[{j}].transform.rotation"))
+                yaw = _planar_yaw(tf.transform.rotation, where, f"transforms[{j}].transform.rotation")
                 stamp = stamped(tf.header.stamp, f"transforms[{j}].header.stamp")
                 self.poses.append((stamp, float(t.x), float(t.y), yaw))
                 self.frames.add(key)
             return
         p = msg.pose.pose
-        yaw = _yaw(_rotation(p.orientation, where, "pose.pose.orientation"))
+        yaw = _planar_yaw(p.orientation, where, "pose.pose.orientation")
         self.poses.append((stamped(msg.header.stamp), float(p.position.x), float(p.position.y), yaw))
         self.frames.add((str(msg.header.frame_id).lstrip("/"), str(msg.child_frame_id).lstrip("/")))
 
@@ -465,6 +465,14 @@ def _rotation(q: Any, where: str, key: str) -> NDArray[np.float64]:
             "takes them)",
         )
     return np.asarray(Rotation.from_quat(quat / np.sqrt(norm2)).as_matrix())
+
+
+def _planar_yaw(q: Any, where: str, key: str) -> float:
+    """The heading of an odometry orientation, refused when not a unit quaternion
+    (:func:`_rotation`) or tilted off the floor (z down: a heading read mirrored)."""
+    R = _rotation(q, where, key)
+    check_level(R[None], where, key, "frames with z down, as NED, are not the ROS odometry's ENU")
+    return _yaw(R)
 
 
 def _yaw(R: NDArray[np.float64]) -> float:
