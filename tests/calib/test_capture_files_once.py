@@ -95,11 +95,86 @@ def test_a_marker_capture_naming_a_scan_twice(tmp_path):
 
 
 def test_a_board_capture_naming_another_captures_image(tmp_path):
-    caps = [{"image": f"i{k}.png", "scan": f"s{k}.yaml"} for k in range(3)]
+    caps = [{"image": f"i{k}.png", "scan": f"s{k}.yaml", "laser_side": "auto"} for k in range(3)]
     caps[1]["image"] = str(tmp_path / "i0.png")  # absolute: the same file
     path = _plane_session(tmp_path, "board", caps)
     with pytest.raises(InputError, match=r"captures\[1\].image: got .*\(captures\[0\].image names it too"):
         read_board_session(path)
+
+
+# Each capture's own entry is checked before the files named once across the captures:
+# a capture's error wins over the duplicate it also makes, whichever capture comes first.
+MARKER_CAPTURE_ERRORS = [
+    (
+        lambda c: c.update(scan="s1x.yaml"),
+        r"captures\[1\]: got \['image', 'scan', 'scans'\]; expected one of scan",
+    ),
+    (lambda c: c.pop("scans"), r"captures\[1\]: got \['image'\]; expected one of scan"),
+    (lambda c: c.update(scans=[]), r"captures\[1\]\.scans: got \[\]; expected a non-empty list"),
+    (
+        lambda c: c.update(scans="s1a.yaml"),
+        r"captures\[1\]\.scans: got 's1a.yaml'; expected a non-empty list",
+    ),
+    (lambda c: c["scans"].append(3), r"captures\[1\]\.scans\[2\]: got 3; expected a file path"),
+    (lambda c: c.update(image=""), r"captures\[1\]\.image: got ''; expected a file path"),
+    (lambda c: c.update(colour=1), r"captures\[1\]\.colour: got 1; expected no such key"),
+    (lambda c: c.update(name="a/b"), r"captures\[1\]\.name: got 'a/b'"),
+]
+
+
+@pytest.mark.parametrize("at", [0, 2])
+@pytest.mark.parametrize(("edit", "match"), MARKER_CAPTURE_ERRORS)
+def test_a_marker_capture_error_before_a_file_named_twice(tmp_path, edit, match, at):
+    # Capture 1 is broken; capture `at`, before or after it, names capture 1's first scan.
+    caps = [{"image": f"i{k}.png", "scans": [f"s{k}a.yaml", f"s{k}b.yaml"]} for k in range(3)]
+    caps[at]["scans"][0] = "s1a.yaml"
+    edit(caps[1])
+    path = _plane_session(tmp_path, "marker", caps)
+    with pytest.raises(InputError, match=match):
+        read_marker_session(path)
+
+
+@pytest.mark.parametrize("at", [0, 2])
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda c: c.pop("laser_side"), r"captures\[1\]\.laser_side: missing"),
+        (lambda c: c.update(corners_px=[]), r"captures\[1\]: got .*; expected exactly one of corners_px"),
+        (lambda c: c.update(scans=["s1.yaml"]), r"captures\[1\]: got .*; expected one of scan"),
+        (lambda c: c.update(scan=None), r"captures\[1\]\.scan: got None; expected a file path"),
+    ],
+)
+def test_a_board_capture_error_before_a_file_named_twice(tmp_path, edit, match, at):
+    caps = [{"image": f"i{k}.png", "scan": f"s{k}.yaml", "laser_side": "auto"} for k in range(3)]
+    caps[at]["image"] = "i1.png"
+    edit(caps[1])
+    path = _plane_session(tmp_path, "board", caps)
+    doc = yaml.safe_load(path.read_text())
+    doc["schema_version"] = 4
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    with pytest.raises(InputError, match=match):
+        read_board_session(path)
+
+
+@pytest.mark.parametrize("at", [0, 5])
+@pytest.mark.parametrize(
+    ("key", "value", "match"),
+    [
+        ("image_endpoints_px", [[1, 1], [1, 1]], r"\.image_endpoints_px: .*expected two distinct box ends"),
+        ("laser_side", {"line": 3}, r"\.laser_side: got \{'line': 3\}; expected \{segment: ID\}"),
+        ("name", "a/b", r"\.name: got 'a/b'"),
+        ("scans", ["scans/cap03.yaml"], r"\.scans: got .*; expected no such key"),
+    ],
+)
+def test_a_box_capture_error_before_a_file_named_twice(box, key, value, match, at):
+    # Capture 3 is broken; capture `at`, before or after it, names capture 3's image.
+    def change(doc):
+        doc["captures"][at]["image"] = doc["captures"][3]["image"]
+        doc["captures"][3][key] = value
+
+    _edit(box, change)
+    with pytest.raises(InputError, match=r"captures\[3\]" + match):
+        read_picks(box)
 
 
 def _csv_names(index: Path) -> list[str]:

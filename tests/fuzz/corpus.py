@@ -1025,7 +1025,7 @@ def bag_cases() -> list[Case]:
         ("angle_increment", [NAN, 0.0, 7.0, INF]),
         ("angle_min", [NAN, -INF, 1e30]),
         ("range_min", [NAN, -1.0, 50.0]),
-        ("range_max", [NAN, 0.0, INF]),
+        ("range_max", [NAN, 0.0, -INF]),  # +inf: no limit (test_bag_unlimited_range.py)
     ]:
         for v in vals:
             out.append(Case(f"bag-{key}={v}", BAG, bag(**{key: v}), 3, key))

@@ -245,3 +245,26 @@ def test_writers_refuse_to_overwrite_without_force(writer, tmp_path):
     assert path.read_text() != "keep me"
     reader = read_tum if writer is write_tum else read_kitti
     np.testing.assert_allclose(reader(path).poses, traj.poses, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("stamp", "unit"),
+    [("1700000000123", "milliseconds"), ("1700000000123456", "microseconds"), ("1.7e18", "nanoseconds")],
+)
+def test_tum_stamps_in_another_unit_are_named(tmp_path, stamp, unit):
+    # A ROS 2 or logger export stamped in ns (us, ms Unix time) is not seconds.
+    path = write(tmp_path, f"{stamp} 0 0 0 0 0 0 1\n")
+    assert tum_error(path) == (
+        f"{path}: line 1: timestamp: got {float(stamp)!r}; expected seconds (Unix time is about 1.7e9 s; "
+        f"this looks like {unit}: convert to seconds)"
+    )
+
+
+@pytest.mark.parametrize("header", ["timestamp tx ty tz qx qy qz qw", "t,x,y,z,qx,qy,qz,qw"])
+def test_tum_header_line_without_its_hash_is_named(tmp_path, header):
+    path = write(tmp_path, f"{header}\n{IDENTITY_TUM}\n")
+    message = tum_error(path)
+    assert message.startswith(f"{path}: line 1: got ")
+    assert message.endswith("expected 8 numbers (a header line? start it with '#' to make it a comment)")
+    # A word among numbers is a broken pose, not a header.
+    assert "header line" not in tum_error(write(tmp_path, f"{IDENTITY_TUM}\n1 0 0 zero 0 0 0 1\n"))

@@ -24,6 +24,7 @@ from rigcal.arrays import FloatArray
 from rigcal.errors import InputError
 from rigcal.io.files import atomic_write_text, read_text, text_lines
 from rigcal.io.log_lines import CutLine, ShortLineError, cut_last_line
+from rigcal.io.stamps import check_seconds
 
 
 @dataclass(frozen=True)
@@ -53,21 +54,36 @@ def _lines(path: Path, text: str | None = None) -> list[tuple[int, list[str], st
     return out
 
 
-def _numbers(path: Path, n: int, fields: list[str], count: int, what: str, hint: str = "") -> FloatArray:
+def _numbers(
+    path: Path, n: int, fields: list[str], count: int, what: str, hint: str = "", stamped: bool = False
+) -> FloatArray:
+    """Line ``n``'s ``count`` finite numbers; ``stamped``: the first is a stamp in seconds."""
     if len(fields) != count:
         short = ShortLineError if len(fields) < count else InputError  # fewer: maybe a line cut short
         raise short(f"{path}: line {n}: got {len(fields)} fields; expected {count} ({what}){hint}")
     try:
         v = np.array([float(f) for f in fields])
     except ValueError:
+        names = not any(_is_number(f) for f in fields)  # a header row of column names
         raise InputError(
             f"{path}: line {n}: got {' '.join(fields)[:60]!r}; expected {count} numbers"
+            + (" (a header line? start it with '#' to make it a comment)" if names else "")
         ) from None
     if not np.all(np.isfinite(v)):
         raise InputError(f"{path}: line {n}: got a non-finite number; expected {count} finite numbers")
+    if stamped and abs(v[0]) > MAX_ABS:  # a stamp in ms, us or ns: named as such
+        check_seconds(v[:1], f"{path}: line {n}", "timestamp")
     if np.abs(v).max() > MAX_ABS:
         raise InputError(f"{path}: line {n}: got {np.abs(v).max():g}; expected numbers within +-{MAX_ABS:g}")
     return v
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 # Stamps (Unix seconds ~2e9) and coordinates (metres) are far below this; beyond it a
@@ -136,7 +152,7 @@ def _tum_pose(path: Path, n: int, fields: list[str], stamps: list[float]) -> tup
     """Line ``n``'s 8 numbers and its quaternion's norm, checked (stamps: those before it)."""
     planar = not stamps and len(fields) in (3, 4)  # "t x y [yaw]" from the start: a 2D tool's file
     hint = _PLANAR_HINT if planar else ""
-    v = _numbers(path, n, fields, 8, "timestamp tx ty tz qx qy qz qw", hint)
+    v = _numbers(path, n, fields, 8, "timestamp tx ty tz qx qy qz qw", hint, stamped=True)
     q = v[4:8]
     norm = float(np.linalg.norm(q))
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:

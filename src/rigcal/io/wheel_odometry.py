@@ -162,16 +162,27 @@ def planar_poses(traj: Trajectory, where: str) -> FloatArray:
     """(N, 3) x, y, yaw of a trajectory's poses, refusing ones tilted off the floor
     (an odometry file of a 3D body, or the wrong frames)."""
     R = traj.poses[:, :3, :3]
+    check_level(R, where, "pose {k}", "TUM's quaternions are qx qy qz qw, w last")
+    return np.column_stack([traj.poses[:, 0, 3], traj.poses[:, 1, 3], np.arctan2(R[:, 1, 0], R[:, 0, 0])])
+
+
+def check_level(R: FloatArray, where: str, key: str, hint: str) -> None:
+    """Refuse odometry rotations (N, 3, 3) tilted more than :data:`MAX_TILT_RAD` off the
+    floor: a 3D body's, or frames with z down (NED), whose heading would read mirrored.
+    ``key`` names the pose (``{k}``: its index), ``hint`` what may have gone wrong.
+
+    Raises:
+        InputError: ``where: key: got 'tilted 180.0 deg'; expected planar odometry ...``.
+    """
     tilt = np.arccos(np.clip(R[:, 2, 2], -1.0, 1.0))
     if (tilt > MAX_TILT_RAD).any():
         k = int(np.argmax(tilt))
         raise InputError.at(
             where,
-            f"pose {k}",
+            key.format(k=k),
             f"tilted {np.degrees(tilt[k]):.1f} deg",
-            "planar odometry (z axis up; TUM's quaternions are qx qy qz qw, w last)",
+            f"planar odometry (z axis up; {hint})",
         )
-    return np.column_stack([traj.poses[:, 0, 3], traj.poses[:, 1, 3], np.arctan2(R[:, 1, 0], R[:, 0, 0])])
 
 
 def read_odometry_tum(

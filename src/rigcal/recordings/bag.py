@@ -25,7 +25,7 @@ from rigcal.io.gyro import checked as checked_gyro
 from rigcal.io.images import eight_bit_pngs
 from rigcal.io.stamps import outside_scans
 from rigcal.io.validate import real
-from rigcal.io.wheel_odometry import WheelOdometry, checked
+from rigcal.io.wheel_odometry import WheelOdometry, check_level, checked
 from rigcal.recordings.sequence import ImageFrame, write_sequence
 from rigcal.scan import Scan
 
@@ -55,8 +55,9 @@ class ImportSummary:
     odometry: int = 0
     gyro: int = 0  # the IMU's samples kept as gyro.csv
     imu_topics: list[str] = field(default_factory=list)  # several IMU topics, none chosen
+    imu_no_rate: str = ""  # the bag's only IMU topic, not read: its angular velocity not given
     # What the import converted by a documented rule (docs/formats/sequence.md#from-bags):
-    scan_counts: dict[str, int] = field(default_factory=dict)  # returns at range_max, beams past a turn
+    scan_counts: dict[str, int] = field(default_factory=dict)  # returns at range_max, beams past a turn, ...
     outside: dict[str, int] = field(default_factory=dict)  # images before the first scan, after the last
     depth: dict[str, int] = field(default_factory=dict)  # 16-bit images: frames, max_level, shift_bits
     unstamped: dict[str, int] = field(default_factory=dict)  # topic -> messages stamped 0 (record time used)
@@ -78,6 +79,8 @@ class ImportSummary:
         out = []
         if self.scan_counts.get("returns_at_range_max"):
             out.append(f"{self.scan_counts['returns_at_range_max']} ranges at range_max (no return)")
+        if self.scan_counts.get("range_max_inf"):
+            out.append(f"{self.scan_counts['range_max_inf']} scans with range_max inf (no limit)")
         if self.scan_counts.get("beams_past_one_turn"):
             out.append(f"{self.scan_counts['beams_past_one_turn']} beams past one full turn (dropped)")
         if any(self.outside.values()):
@@ -87,6 +90,11 @@ class ImportSummary:
             )
         if self.imu_topics:
             out.append(f"IMU topics {self.imu_topics}, none read (--imu-topic T keeps one as the gyro)")
+        if self.imu_no_rate:
+            out.append(
+                f"IMU topic {self.imu_no_rate} not read: its angular_velocity_covariance[0] is -1 "
+                "(no angular velocity given)"
+            )
         for topic, n in self.unstamped.items():
             out.append(f"{n} {topic} messages with header.stamp 0 (stamped with their record time)")
         if self.depth:
@@ -200,6 +208,7 @@ def import_bag(
         summary = ImportSummary()
         if imu_topic is None and len(imus) > 1:
             summary.imu_topics = imus
+        imu_chosen = imu_topic is None  # the bag's only IMU, not asked for
         imu_topic = (imus[0] if len(imus) == 1 else None) if imu_topic is None else imu_topic
         imu_topic = None if imu_topic == NO_IMU else imu_topic
         wanted = {"scan": (scan_topic, SCAN_TYPES), "image": (image_topic, IMAGE_TYPES)}
@@ -241,30 +250,22 @@ def import_bag(
             seen[(part, con.topic)] = n + 1
             where = f"{part}: {con.topic} message {n}"
             msg = _deserialize(reader, raw, con.msgtype, where)
+            stamped = _Stamper(con.topic, where, recorded_ns, stamps == "strict", summary.unstamped)
             if con.topic in (odometry_topic, TF_STATIC):  # TFMessage has no header
-                wheel.add(con.topic, msg)
+                wheel.add(con.topic, msg, where, stamped)
                 if progress is not None:
                     progress(k + 1, total)
                 continue
-            stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
+            stamp = stamped(msg.header.stamp)
             if con.topic == imu_topic:
+                if float(msg.angular_velocity_covariance[0]) == -1.0 and not wheel.imu_no_rate:
+                    wheel.imu_no_rate = where  # sensor_msgs/Imu: -1 marks the rate as not given
                 w = msg.angular_velocity
                 wheel.imu.append((stamp, float(w.x), float(w.y), float(w.z)))
                 wheel.imu_frames.add(str(msg.header.frame_id).lstrip("/"))
                 if progress is not None:
                     progress(k + 1, total)
                 continue
-            if stamp == 0.0 and con.topic in (scan_topic, image_topic):
-                # A driver that leaves header.stamp unset: the time the recorder got it.
-                if stamps == "strict":
-                    raise InputError.at(
-                        where,
-                        "header.stamp",
-                        0.0,
-                        "a stamp set by the driver (--stamps repair uses the record time)",
-                    )
-                stamp = 1e-9 * float(recorded_ns)
-                summary.unstamped[con.topic] = summary.unstamped.get(con.topic, 0) + 1
             if con.topic == scan_topic:
                 wheel.scan_frame = wheel.scan_frame or str(msg.header.frame_id)
                 scans.append((stamp, _scan(msg, stamp, where, summary.scan_counts)))
@@ -309,7 +310,17 @@ def import_bag(
         odometry = bag_odometry(wheel, f"{bag}: {odometry_topic}", laser_offset, scan_t)
         summary.odometry = len(odometry.stamps_s)
     gyro = None
-    if imu_topic is not None:
+    if imu_topic is not None and wheel.imu_no_rate and imu_chosen:
+        summary.imu_no_rate, imu_topic = imu_topic, None  # said on the summary line, no gyro
+    elif imu_topic is not None and wheel.imu_no_rate:
+        raise InputError.at(
+            wheel.imu_no_rate,
+            "angular_velocity_covariance[0]",
+            -1.0,
+            "an IMU that measures its angular velocity (-1 marks it as not given; "
+            "--imu-topic none reads no IMU)",
+        )
+    elif imu_topic is not None:
         gyro = bag_gyro(wheel, f"{bag}: {imu_topic}", scan_t)
         summary.gyro = len(gyro.stamps_s)
     summary.outside = outside_scans(np.array([t for t, _, _ in images_sorted]), scan_t)
@@ -356,6 +367,27 @@ def _only_topic(bag: Path, topics: dict[str, str], option: str, types: tuple[str
     raise InputError.at(bag, option, "not given", f"one of {has}" if found else has)
 
 
+class _Stamper:
+    """A message's header stamp in seconds; a stamp of 0 (a driver that leaves
+    ``header.stamp`` unset) is the time the recorder got the message, counted per topic in
+    ``counts``, or refused with ``strict`` (``--stamps strict``)."""
+
+    def __init__(self, topic: str, where: str, recorded_ns: int, strict: bool, counts: dict[str, int]):
+        self.topic, self.where, self.recorded_ns = topic, where, recorded_ns
+        self.strict, self.counts = strict, counts
+
+    def __call__(self, stamp: Any, key: str = "header.stamp") -> float:
+        t = float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+        if t != 0.0:
+            return t
+        if self.strict:
+            raise InputError.at(
+                self.where, key, 0.0, "a stamp set by the driver (--stamps repair uses the record time)"
+            )
+        self.counts[self.topic] = self.counts.get(self.topic, 0) + 1
+        return 1e-9 * float(self.recorded_ns)
+
+
 class _WheelMessages:
     """The odometry topic's poses and /tf_static's transforms, gathered as the bag is read."""
 
@@ -367,42 +399,85 @@ class _WheelMessages:
         self.via_tf = False
         self.static: dict[tuple[str, str], NDArray[np.float64]] = {}  # (parent, child) -> x y yaw
         self.static_R: dict[tuple[str, str], NDArray[np.float64]] = {}  # (parent, child) -> R_parent_child
+        self.static_bad: dict[tuple[str, str], str] = {}  # (parent, child) -> why its rotation is refused
         self.scan_frame = ""
         self.imu: list[tuple[float, float, float, float]] = []  # stamp, angular velocity x y z (rad/s)
         self.imu_frames: set[str] = set()
+        self.imu_no_rate = ""  # the first IMU message marking its angular velocity as not given
 
-    def add(self, topic: str, msg: Any) -> None:
+    def add(self, topic: str, msg: Any, where: str, stamped: Callable[..., float]) -> None:
+        """One message of the odometry topic or of /tf_static; ``where`` names it, ``stamped``
+        turns a header stamp into seconds (:class:`_Stamper`)."""
         if topic == TF_STATIC:
-            for tf in msg.transforms:
-                t, q = tf.transform.translation, tf.transform.rotation
+            for j, tf in enumerate(msg.transforms):
+                t = tf.transform.translation
                 key = (str(tf.header.frame_id).lstrip("/"), str(tf.child_frame_id).lstrip("/"))
-                self.static[key] = np.array([float(t.x), float(t.y), _yaw(q)])
-                quat = np.array([float(q.x), float(q.y), float(q.z), float(q.w)])
-                if np.linalg.norm(quat) > 0:  # a zero quaternion is no rotation: no link
-                    self.static_R[key] = Rotation.from_quat(quat).as_matrix()
+                try:
+                    R = _rotation(tf.transform.rotation, where, f"transforms[{j}].transform.rotation")
+                except InputError as exc:  # a transform nothing may need: refused where it is used
+                    self.static_bad[key] = str(exc)
+                    continue
+                self.static[key] = np.array([float(t.x), float(t.y), _yaw(R)])
+                self.static_R[key] = R
             return
         if hasattr(msg, "transforms"):  # a tf topic: the odometry is one of its transforms
             self.via_tf = True
-            for tf in msg.transforms:
+            for j, tf in enumerate(msg.transforms):
                 key = (str(tf.header.frame_id).lstrip("/"), str(tf.child_frame_id).lstrip("/"))
                 self.tf_seen.add(key)
                 if key != self.tf_frames:
                     continue
-                t, q = tf.transform.translation, tf.transform.rotation
-                stamp = float(tf.header.stamp.sec) + 1e-9 * float(tf.header.stamp.nanosec)
-                self.poses.append((stamp, float(t.x), float(t.y), _yaw(q)))
+                t = tf.transform.translation
+                yaw = _planar_yaw(tf.transform.rotation, where, f"transforms[{j}].transform.rotation")
+                stamp = stamped(tf.header.stamp, f"transforms[{j}].header.stamp")
+                self.poses.append((stamp, float(t.x), float(t.y), yaw))
                 self.frames.add(key)
             return
-        stamp = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
         p = msg.pose.pose
-        self.poses.append((stamp, float(p.position.x), float(p.position.y), _yaw(p.orientation)))
+        yaw = _planar_yaw(p.orientation, where, "pose.pose.orientation")
+        self.poses.append((stamped(msg.header.stamp), float(p.position.x), float(p.position.y), yaw))
         self.frames.add((str(msg.header.frame_id).lstrip("/"), str(msg.child_frame_id).lstrip("/")))
 
 
-def _yaw(q: Any) -> float:
-    """The heading of a quaternion (rotation about z)."""
-    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
-    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+# A quaternion whose squared norm is off 1 by more than this is refused, as tf2 refuses
+# one (its setTransform: "Ignoring transform ... because of an invalid quaternion"); within
+# it (float32 rounding, a driver's integration) it is normalised.
+QUATERNION_NORM2_TOLERANCE = 0.01
+
+
+def _rotation(q: Any, where: str, key: str) -> NDArray[np.float64]:
+    """R (3, 3) of a geometry_msgs/Quaternion (x y z w), normalised.
+
+    Raises:
+        InputError: a quaternion not finite, zero (a driver that fills no orientation) or
+            off unit length by more than tf2 accepts (:data:`QUATERNION_NORM2_TOLERANCE`),
+            whose heading would otherwise be read wrong (the yaw of a quaternion of norm
+            1/sqrt(2) about z is half its angle).
+    """
+    quat = np.array([float(q.x), float(q.y), float(q.z), float(q.w)])
+    norm2 = float(quat @ quat) if np.isfinite(quat).all() else np.nan
+    if not abs(norm2 - 1.0) <= QUATERNION_NORM2_TOLERANCE:
+        raise InputError.at(
+            where,
+            key,
+            f"{quat.tolist()} (norm {np.sqrt(norm2):.6g})",
+            f"a unit quaternion x y z w (squared norm within {QUATERNION_NORM2_TOLERANCE:g} of 1, as tf2 "
+            "takes them)",
+        )
+    return np.asarray(Rotation.from_quat(quat / np.sqrt(norm2)).as_matrix())
+
+
+def _planar_yaw(q: Any, where: str, key: str) -> float:
+    """The heading of an odometry orientation, refused when not a unit quaternion
+    (:func:`_rotation`) or tilted off the floor (z down: a heading read mirrored)."""
+    R = _rotation(q, where, key)
+    check_level(R[None], where, key, "frames with z down, as NED, are not the ROS odometry's ENU")
+    return _yaw(R)
+
+
+def _yaw(R: NDArray[np.float64]) -> float:
+    """The heading of a rotation (about z)."""
+    return float(np.arctan2(R[1, 0], R[0, 0]))
 
 
 def bag_odometry(
@@ -440,6 +515,8 @@ def bag_odometry(
         mount = np.zeros(3)
     elif (child, wheel.scan_frame.lstrip("/")) in wheel.static:
         mount = wheel.static[(child, wheel.scan_frame.lstrip("/"))]
+    elif (child, wheel.scan_frame.lstrip("/")) in wheel.static_bad:
+        raise InputError(wheel.static_bad[(child, wheel.scan_frame.lstrip("/"))])
     else:
         raise InputError.at(
             where,
@@ -473,7 +550,13 @@ def bag_gyro(wheel: _WheelMessages, where: str, scan_stamps_s: NDArray[np.float6
             "header.frame_id",
             frame,
             f"the scans' frame {wheel.scan_frame!r} or a frame linked to it by {TF_STATIC} transforms "
-            f"(known: {sorted(wheel.static_R)})",
+            f"(known: {sorted(wheel.static_R)}"
+            + (
+                f"; refused, their rotation not a unit quaternion: {sorted(wheel.static_bad)}"
+                if wheel.static_bad
+                else ""
+            )
+            + ")",
         )
     a = np.array(wheel.imu, dtype=float).reshape(-1, 4)
     order = np.argsort(a[:, 0], kind="stable")
@@ -539,6 +622,10 @@ def _deserialize(reader: Any, raw: bytes, msgtype: str, where: str) -> Any:
         ) from None
 
 
+# A LaserScan's range_max of +inf says the driver sets no limit (ROS 2's
+# pointcloud_to_laserscan by default: a double's maximum, inf as the message's float32):
+# read as the largest range a float32 holds, so that every finite return is one.
+NO_RANGE_LIMIT_M = float(np.finfo(np.float32).max)
 # A real scanner's beam count is round((angle_max - angle_min) / angle_increment) + 1, but
 # drivers differ by one (urg_node and sick_scan drop or add the end beam), so a count
 # within one of it is accepted (docs/formats/sequence.md).
@@ -552,8 +639,9 @@ def _scan(msg: Any, stamp: float, where: str, counts: dict[str, int] | None = No
     117) as 0 (no return) and other negative ranges refused. A negative
     ``angle_increment`` (a scanner sweeping clockwise, angle_max < angle_min) gives the
     same beams in reverse order, so that the angles increase (docs/formats/scan.md). A range
-    equal to ``range_max`` is no return (inf); beams past one full turn are dropped;
-    ``counts`` (``returns_at_range_max``, ``beams_past_one_turn``) adds up both."""
+    equal to ``range_max`` is no return (inf); a ``range_max`` of +inf is no limit
+    (:data:`NO_RANGE_LIMIT_M`); beams past one full turn are dropped; ``counts``
+    (``returns_at_range_max``, ``range_max_inf``, ``beams_past_one_turn``) adds them up."""
     two_pi = 2 * np.pi
     a0 = real(float(msg.angle_min), where, "angle_min", lo=-two_pi, hi=two_pi)
     a1 = real(float(msg.angle_max), where, "angle_max", lo=-two_pi, hi=two_pi)
@@ -575,7 +663,8 @@ def _scan(msg: Any, stamp: float, where: str, counts: dict[str, int] | None = No
                 f"with angle_min {a0:g}, angle_max {a1:g}, angle_increment {step:g} rad",
             )
     lo = real(float(msg.range_min), where, "range_min", nonneg=True)
-    hi = real(float(msg.range_max), where, "range_max", positive=True)
+    unlimited = float(msg.range_max) == np.inf  # no limit: the largest range a LaserScan holds
+    hi = NO_RANGE_LIMIT_M if unlimited else real(float(msg.range_max), where, "range_max", positive=True)
     if lo >= hi:
         raise InputError.at(where, "range_min", lo, f"less than range_max = {hi:g}")
     with np.errstate(invalid="ignore"):
@@ -595,6 +684,7 @@ def _scan(msg: Any, stamp: float, where: str, counts: dict[str, int] | None = No
     turn = int(np.floor(2 * np.pi / step + 0.5)) + 1 if step > 0 else len(r)
     if counts is not None:
         counts["returns_at_range_max"] = counts.get("returns_at_range_max", 0) + int(at_max.sum())
+        counts["range_max_inf"] = counts.get("range_max_inf", 0) + int(unlimited)
         counts["beams_past_one_turn"] = counts.get("beams_past_one_turn", 0) + max(0, len(r) - turn)
     return Scan.from_uniform(a0, step, r[:turn], lo, hi, stamp)
 

@@ -18,6 +18,10 @@ and the odometry messages and the laser's mounting parameters:
     ODOM x y theta tv rv accel  ipc_timestamp host logger_timestamp
     PARAM robot_frontlaser_offset VALUE  (also _side_offset, _angular_offset)
 
+A log holding both (the logger writes the front laser as FLASER and, with the robot
+module running, as ROBOTLASER1) has each reading twice: a FLASER line whose ranges are a
+ROBOTLASER1 line's within a second of it is skipped and counted (:func:`same_readings`).
+
 g2o files written from CARMEN logs (the MIT Killian Court log, for one) keep the
 ROBOTLASER1 lines next to their VERTEX_SE2 / EDGE_SE2 lines; every other message (SYNC,
 other PARAMs, g2o vertices and edges, comments) is skipped and counted. In a corrected
@@ -47,6 +51,9 @@ from rigcal.scan import Scan
 LASER_MESSAGES = ("FLASER", "ROBOTLASER1")
 # Returns at or beyond this are "no return" in FLASER lines (they carry no maximum range).
 FLASER_RANGE_MAX_M = 50.0
+# CARMEN's other laser messages, not read; named in the error of a log that has only these.
+OTHER_LASER_MESSAGES = ("RAWLASER1", "RAWLASER2", "RAWLASER3", "RAWLASER4", "RLASER", "ROBOTLASER2")
+OTHER_LASERS_NOT_READ = "not read: RAWLASER lines carry no pose, RLASER and ROBOTLASER2 are a rear laser"
 # More beams than any scanner has: a larger count is a broken line.
 MAX_BEAMS = 100_000
 
@@ -112,6 +119,7 @@ def read_carmen(
     lines: list[int] = []
     skipped: Counter[str] = Counter()
     extra = _OtherMessages()
+    kinds: list[str] = []
     for no, line in enumerate(rows, start=1):
         fields = line.split()
         try:
@@ -129,9 +137,19 @@ def read_carmen(
         laser.append(pose)
         odom.append(odo)
         lines.append(no)
+        kinds.append(fields[0])
+    again = same_readings(scans, kinds)
+    if again:
+        skipped[FLASER_AGAIN] = len(again)
+        keep = [i for i in range(len(scans)) if i not in again]
+        scans, lines = [scans[i] for i in keep], [lines[i] for i in keep]
+        laser, odom = [laser[i] for i in keep], [odom[i] for i in keep]
     if not scans:
+        other = {k: n for k, n in skipped.items() if k in OTHER_LASER_MESSAGES}
+        has = f" (it has {', '.join(f'{k} {n}' for k, n in sorted(other.items()))}, {OTHER_LASERS_NOT_READ})"
         raise InputError(
-            f"{p}: no FLASER or ROBOTLASER1 lines; expected a CARMEN log or a g2o file with them"
+            f"{p}: no FLASER or ROBOTLASER1 lines{has if other else ''}; expected a CARMEN log or a g2o "
+            "file with them"
         )
     line_numbers = np.array(lines, dtype=np.int64)
     fixed = repair_stamps([s.stamp_s for s in scans], f"{p}: laser ipc_timestamp", stamps, line_numbers)
@@ -151,6 +169,42 @@ def read_carmen(
         cut,
         dict(skipped.most_common()),
     )
+
+
+# A FLASER line that is a ROBOTLASER1 line's reading again: its kind among the lines skipped.
+FLASER_AGAIN = "FLASER (a ROBOTLASER1 line's reading again)"
+# Within this (s) of a ROBOTLASER1 line, a FLASER line with its ranges is the same reading.
+SAME_READING_S = 1.0
+# Ranges equal to within this (m) are the same reading's: both lines print it to 1 cm.
+SAME_RANGE_M = 0.0051
+
+
+def same_readings(scans: list[Scan], kinds: list[str]) -> set[int]:
+    """The positions of the FLASER scans that are a ROBOTLASER1 scan's reading again: CARMEN's
+    logger writes the front laser as FLASER and, with the robot module running, as
+    ROBOTLASER1 too; read both, every scan would be read twice. Same reading: within
+    :data:`SAME_READING_S`, as many beams, returns on the same beams (below both lines'
+    maximum ranges) at ranges within :data:`SAME_RANGE_M`; two readings of a scanner never
+    agree on every beam to that."""
+    robot = [i for i, k in enumerate(kinds) if k == "ROBOTLASER1"]
+    if not robot or len(robot) == len(kinds):
+        return set()
+    t = np.array([scans[i].stamp_s for i in robot])
+    out = set()
+    for i, k in enumerate(kinds):
+        if k != "FLASER":
+            continue
+        f = scans[i]
+        for j in np.flatnonzero(np.abs(t - f.stamp_s) <= SAME_READING_S):
+            r = scans[robot[int(j)]]
+            if len(r.ranges_m) != len(f.ranges_m):
+                continue
+            top = min(f.range_max_m, r.range_max_m)
+            a, b = (np.where(np.isfinite(x.ranges_m) & (x.ranges_m < top), x.ranges_m, -1.0) for x in (f, r))
+            if np.all(np.abs(a - b) <= SAME_RANGE_M):
+                out.add(i)
+                break
+    return out
 
 
 # CARMEN's laser mounting parameters: x forward (m), y left (m), yaw (rad) on the robot.

@@ -29,9 +29,11 @@ from rigcal.calib.box.picks import (
     capture_name,
     check_image,
     check_unique_names,
+    file_entry,
     point_pairs,
     read_capture_scans,
     read_session_header,
+    scan_entries,
     segment_by_id,
     segments_by_ids,
     session_file,
@@ -235,6 +237,7 @@ def parse_board_session(
         BOARD_SESSION_SCHEMA_VERSIONS,
         ["board"],
         ["corners_vnl", "level"],
+        _capture_entry,
         " (a box-target picking file has no method key)",
     )
     d, version, camera, camera_path = head.data, head.version, head.camera, head.camera_path
@@ -258,12 +261,6 @@ def parse_board_session(
         files.append(vnl_path)
         det = read_corners_vnl(vnl_path, board, (camera.width_px, camera.height_px))
         vnl = {Path(p).name: g for p, g in zip(det.paths, det.corners, strict=True)}
-    captures = []
-    for i, c in enumerate(head.captures):
-        kp = f"captures[{i}]"
-        many = ["scans"] if version >= BOARD_SESSION_SCANS_VERSION else []
-        c = check_keys(c, path, kp, ["laser_side"], ["scan", *many, "name", "corners_px", "image"])
-        captures.append((c, capture_name(path, kp, c, i)))
     return BoardSessionFile(
         path,
         version,
@@ -273,12 +270,31 @@ def parse_board_session(
         board_shape(board, size_m),
         head.laser,
         head.params,
-        tuple(captures),
+        tuple(head.captures),
         vnl,
         corner_sigma_px,
         level,
         tuple(files),
     )
+
+
+def _capture_entry(
+    path: Path, version: int, i: int, c: Any
+) -> tuple[tuple[Mapping[str, Any], str], list[tuple[str, Any]]]:
+    """A board capture's entry checked (keys, name, exactly one of ``corners_px`` or
+    ``image``, the scan entries) with its name, and the files it names; none looked at."""
+    kp = f"captures[{i}]"
+    many = version >= BOARD_SESSION_SCANS_VERSION
+    c = check_keys(c, path, kp, ["laser_side"], ["scan", *["scans"] * many, "name", "corners_px", "image"])
+    name = capture_name(path, kp, c, i)
+    if ("corners_px" in c) == ("image" in c):
+        raise InputError.at(
+            path, kp, sorted(c), "exactly one of corners_px (listed corners) or image (detect them)"
+        )
+    named = scan_entries(path, kp, c, many, required=False)
+    if "image" in c:
+        named.insert(0, file_entry(path, f"{kp}.image", c["image"]))
+    return (c, name), named
 
 
 def _board_poses(
@@ -504,10 +520,6 @@ def _corners(
     from the session's corners file for this image's name, or detected in the image (None
     when the image shows no board)."""
     n = board.width_n * board.height_n
-    if ("corners_px" in c) == ("image" in c):
-        raise InputError.at(
-            path, kp, sorted(c), "exactly one of corners_px (listed corners) or image (detect them)"
-        )
     if "image" in c and vnl is not None:
         name = Path(str(c["image"])).name
         if name not in vnl:

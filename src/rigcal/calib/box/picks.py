@@ -9,10 +9,10 @@ capture into a :class:`BoxObservation`, the solver's input.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -204,8 +204,11 @@ def read_pick_draft(path: str | Path, line_params: LineParams | None = None) -> 
     if not isinstance(captures, list) or not captures:
         raise InputError.at(path, "captures", captures, "a non-empty list of captures")
     params = line_params or line_params_for(path, laser)
-    check_files_once(path, captures)
-    drafts = tuple(_read_draft(path, version, i, c, camera) for i, c in enumerate(captures))
+    # Each capture's entry first (its own errors win), then the files named once across
+    # the captures as read, then the files themselves.
+    entries = [_draft_entry(path, version, i, c, camera) for i, c in enumerate(captures)]
+    check_files_once(path, [f for e in entries for f in e.files])
+    drafts = tuple(_read_draft(path, i, e, camera) for i, e in enumerate(entries))
     check_unique_names(path, [c.name for c in drafts])
     return PickDraft(
         path, version, name, camera, camera_path, str(d["camera"]), dict(laser), box, drafts, params
@@ -278,17 +281,25 @@ def _box(path: Path, value: Any) -> dict[str, float]:
     return out
 
 
-def _read_draft(path: Path, version: int, i: int, c: Any, camera: Camera) -> CaptureDraft:
+class _DraftEntry(NamedTuple):
+    """A box capture's entry, validated before any file it names is looked at."""
+
+    c: Mapping[str, Any]
+    name: str
+    px: FloatArray | None
+    side: Any
+    meta: PickMeta | None
+    files: list[tuple[str, Any]]
+
+
+def _draft_entry(path: Path, version: int, i: int, c: Any, camera: Camera) -> _DraftEntry:
     kp = f"captures[{i}]"
     if version == 1:
         c = check_keys(c, path, kp, ["scan", "image", "laser_side", "image_endpoints_px"], ["name"])
     else:
         c = check_keys(c, path, kp, ["scan", "image"], ["name", "laser_side", "image_endpoints_px", "pick"])
     name = capture_name(path, kp, c, i)
-    scan_path = session_file(path, f"{kp}.scan", c["scan"])
-    image_path = session_file(path, f"{kp}.image", c["image"])
-    check_image(path, f"{kp}.image", c["image"], image_path, camera)
-    scan = read_scan(scan_path)
+    files = [file_entry(path, f"{kp}.image", c["image"]), *scan_entries(path, kp, c, many=False)]
     px = None
     if "image_endpoints_px" in c:
         px = point_pairs(c["image_endpoints_px"], path, f"{kp}.image_endpoints_px", "pixel")
@@ -309,7 +320,15 @@ def _read_draft(path: Path, version: int, i: int, c: Any, camera: Camera) -> Cap
     ):
         raise InputError.at(path, f"{kp}.laser_side", side, LASER_SIDE_EXPECTED)
     meta = _pick_meta(path, f"{kp}.pick", c["pick"]) if "pick" in c else None
-    return CaptureDraft(i, name, scan_path, image_path, scan, side, px, meta)
+    return _DraftEntry(c, name, px, side, meta, files)
+
+
+def _read_draft(path: Path, i: int, e: _DraftEntry, camera: Camera) -> CaptureDraft:
+    kp = f"captures[{i}]"
+    scan, (scan_path,) = read_capture_scans(path, kp, e.c, many=False)
+    image_path = session_file(path, f"{kp}.image", e.c["image"])
+    check_image(path, f"{kp}.image", e.c["image"], image_path, camera)
+    return CaptureDraft(i, e.name, scan_path, image_path, scan, e.side, e.px, e.meta)
 
 
 def _pick_meta(path: Path, kp: str, value: Any) -> PickMeta:
@@ -350,38 +369,39 @@ def check_unique_names(path: Path, names: list[str]) -> None:
             raise InputError.at(path, f"captures[{i}].name", n, "a name not used by another capture")
 
 
-def check_files_once(path: Path, captures: list[Any]) -> None:
-    """No file is named by two captures' ``image``, ``scan`` or ``scans`` (nor twice in one
-    capture's ``scans``), however the paths are spelled: a capture listed twice, or a
-    scan or image pasted into the wrong capture, would be weighed twice in the solve and
-    shrink its covariance, with nothing wrong to see in its answer."""
+def check_files_once(path: Path, named: list[tuple[str, Any]]) -> None:
+    """No file is named by two of the captures' file entries (``image``, ``scan``, each of
+    ``scans``; key path and value, as :func:`scan_entries` and :func:`file_entry` return
+    them after each capture's entry is validated), however the paths are spelled: a
+    capture listed twice, or a scan or image pasted into the wrong capture, would be
+    weighed twice in the solve and shrink its covariance, with nothing wrong to see in its
+    answer. The files need not exist yet (reading them comes after)."""
     seen: dict[Path, str] = {}
-    for i, c in enumerate(captures):
-        if not isinstance(c, Mapping) or ("scan" in c and "scans" in c):
-            continue  # the capture's own reading says what is wrong
-        named = [(f"captures[{i}].{key}", c[key]) for key in ("image", "scan") if key in c]
-        if isinstance(c.get("scans"), list):
-            named += [(f"captures[{i}].scans[{j}]", v) for j, v in enumerate(c["scans"])]
-        for key, value in named:
-            if not isinstance(value, str) or not value or "\0" in value:
-                continue
-            try:
-                file = (path.parent / slashed(value)).resolve()
-            except (OSError, RuntimeError):  # a symlink loop: session_file names it
-                continue
-            first = seen.setdefault(file, key)
-            if first != key:
-                raise InputError.at(
-                    path,
-                    key,
-                    value,
-                    f"a file no other entry names ({first} names it too: a capture listed twice?)",
-                )
+    for key, value in named:
+        try:
+            file = (path.parent / slashed(value)).resolve()
+        except (OSError, RuntimeError):  # a symlink loop: session_file names it
+            continue
+        first = seen.setdefault(file, key)
+        if first != key:
+            raise InputError.at(
+                path,
+                key,
+                value,
+                f"a file no other entry names ({first} names it too: a capture listed twice?)",
+            )
+
+
+def file_entry(base: Path, key: str, value: Any) -> tuple[str, Any]:
+    """A capture's file entry ``key: value`` as (key, value), checked to be a file path
+    (relative to the session file; the file is looked for by :func:`session_file`)."""
+    if not isinstance(value, str) or not value or "\0" in value:
+        raise InputError.at(base, key, value, "a file path (relative to the picking file)")
+    return key, value
 
 
 def session_file(base: Path, key: str, value: Any) -> Path:
-    if not isinstance(value, str) or not value or "\0" in value:
-        raise InputError.at(base, key, value, "a file path (relative to the picking file)")
+    file_entry(base, key, value)
     p = (base.parent / slashed(value)).resolve()  # a session written on Windows: '\' as '/'
     if not p.is_file():
         raise InputError.at(base, key, value, f"an existing file (looked for {p})")
@@ -609,28 +629,49 @@ def _ray_line(angle: float, c: FloatArray, u: FloatArray) -> FloatArray:
     return out
 
 
+def scan_entries(
+    path: Path, kp: str, capture: Mapping[str, Any], many: bool, required: bool = True
+) -> list[tuple[str, Any]]:
+    """A capture's scan entries as (key path, value), the files not yet looked at: its
+    ``scan``, or with ``many`` (a session version that has them) each of its ``scans``,
+    the scans of one still moment; exactly one of the two keys (or neither, when not
+    ``required``).
+
+    Raises:
+        InputError: both keys (or neither, when ``required``), an empty or non-list
+            ``scans``, an entry that is not a file path.
+    """
+    both = many and "scan" in capture and "scans" in capture
+    if both or (required and "scan" not in capture and "scans" not in capture):
+        raise InputError.at(path, kp, sorted(capture), "one of scan (a file) or scans (a list of files)")
+    if "scan" in capture:
+        return [file_entry(path, f"{kp}.scan", capture["scan"])]
+    if "scans" not in capture:
+        return []
+    value = capture["scans"]
+    if not isinstance(value, list) or not value:
+        raise InputError.at(path, f"{kp}.scans", value, "a non-empty list of scan files (one still moment)")
+    return [file_entry(path, f"{kp}.scans[{j}]", v) for j, v in enumerate(value)]
+
+
 def read_capture_scans(
     path: Path, kp: str, capture: Mapping[str, Any], many: bool
 ) -> tuple[Scan, list[Path]]:
     """A capture's scan: its ``scan`` file, or with ``many`` (a session version that has
     them) the per-beam robust mean (:func:`rigcal.scan.mean_scan`) of its ``scans``, the
-    scans of one still moment; exactly one of the two keys. Returns the scan and the
-    files read.
+    scans of one still moment; exactly one of the two keys (:func:`scan_entries`).
+    Returns the scan and the files read.
 
     Raises:
         InputError: both keys or neither, an empty or non-list ``scans``, a missing or bad
             scan file, or scans whose beams differ from the first one's.
     """
-    if many and ("scan" in capture) == ("scans" in capture):
-        raise InputError.at(path, kp, sorted(capture), "one of scan (a file) or scans (a list of files)")
-    if "scan" in capture:
-        p = session_file(path, f"{kp}.scan", capture["scan"])
-        return read_scan(p), [p]
-    value = capture["scans"]
-    if not isinstance(value, list) or not value:
-        raise InputError.at(path, f"{kp}.scans", value, "a non-empty list of scan files (one still moment)")
-    files = [session_file(path, f"{kp}.scans[{j}]", v) for j, v in enumerate(value)]
+    entries = scan_entries(path, kp, capture, many)
+    files = [session_file(path, key, v) for key, v in entries]
     scans = [read_scan(p) for p in files]
+    if "scan" in capture:
+        return scans[0], files
+    value = capture["scans"]
     for j, s in enumerate(scans[1:], 1):
         if s.angles_rad.shape != scans[0].angles_rad.shape or not np.allclose(
             s.angles_rad, scans[0].angles_rad, atol=1e-9
@@ -645,6 +686,11 @@ def read_capture_scans(
     return mean_scan(scans), files
 
 
+# A session reader's check of one capture's entry: (session file, schema version, index,
+# entry) -> the entry as checked and its file entries (key path, value), no file looked at.
+CaptureEntry = Callable[[Path, int, int, Any], tuple[Any, list[tuple[str, Any]]]]
+
+
 @dataclass(frozen=True)
 class SessionHeader:
     """What every plane-method session file (board, marker) starts with, validated.
@@ -655,7 +701,7 @@ class SessionHeader:
         camera, camera_path: the camera and its file.
         laser: the scanner's description (``laser``, default empty).
         params: the line extraction's settings for that scanner.
-        captures: the ``captures`` list, non-empty, entries not yet checked.
+        captures: each capture's entry as the reader's ``entry`` returned it.
     """
 
     data: Mapping[str, Any]
@@ -674,11 +720,16 @@ def read_session_header(
     versions: tuple[int, ...],
     required: list[str],
     optional: list[str],
+    entry: CaptureEntry,
     method_hint: str = "",
 ) -> SessionHeader:
     """Read a session file's top level: its keys (``schema_version``, ``method``, ``camera``,
     ``captures`` and ``required`` must be there; ``laser``, ``name`` and ``optional`` may),
-    the version among ``versions``, ``method``, the camera, ``laser`` and ``captures``.
+    the version among ``versions``, ``method``, the camera, ``laser`` and ``captures``:
+    each capture's entry checked by ``entry(path, version, index, capture)`` (its keys, name
+    and file entries, no file looked at), then :func:`check_files_once` over the file
+    entries of all of them, so that a capture's own error comes before the one across
+    captures.
 
     Raises:
         InputError: anything missing, unknown or invalid, naming the file, key and value.
@@ -706,5 +757,6 @@ def read_session_header(
     captures = d["captures"]
     if not isinstance(captures, list) or not captures:
         raise InputError.at(path, "captures", captures, "a non-empty list of captures")
-    check_files_once(path, captures)
-    return SessionHeader(d, version, camera, camera_path, laser, params, captures)
+    checked = [entry(path, version, i, c) for i, c in enumerate(captures)]
+    check_files_once(path, [f for _, files in checked for f in files])
+    return SessionHeader(d, version, camera, camera_path, laser, params, [c for c, _ in checked])

@@ -28,6 +28,7 @@ estimates the noise left from the mean's own line fits.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -43,8 +44,10 @@ from rigcal.calib.box.picks import (
     capture_name,
     check_image,
     check_unique_names,
+    file_entry,
     read_capture_scans,
     read_session_header,
+    scan_entries,
     session_file,
 )
 from rigcal.calib.marker.detect import MIN_FACE_CORNERS, TargetView, detect_target
@@ -121,6 +124,19 @@ def is_marker_session(data: Any) -> bool:
     return isinstance(data, dict) and data.get("method") == "marker"
 
 
+def _capture_entry(
+    path: Path, version: int, i: int, c: Any
+) -> tuple[tuple[Mapping[str, Any], str], list[tuple[str, Any]]]:
+    """A marker capture's entry checked (keys, name, the scan entries) with its name, and
+    the files it names; none looked at."""
+    kp = f"captures[{i}]"
+    many = version >= 2
+    required, optional = (["image"], ["name", "scan", "scans"]) if many else (["scan", "image"], ["name"])
+    c = check_keys(c, path, kp, required, optional)
+    name = capture_name(path, kp, c, i)
+    return (c, name), [file_entry(path, f"{kp}.image", c["image"]), *scan_entries(path, kp, c, many)]
+
+
 def read_marker_session(path: str | Path, joint: bool = True) -> MarkerSession:
     """Read and validate a marker session, detect the target in every capture.
 
@@ -141,6 +157,7 @@ def read_marker_session(path: str | Path, joint: bool = True) -> MarkerSession:
         MARKER_SESSION_SCHEMA_VERSIONS,
         ["targets"],
         ["corner_sigma_px"],
+        _capture_entry,
     )
     d, version, camera, camera_path = head.data, head.version, head.camera, head.camera_path
     targets_path = session_file(path, "targets", d["targets"])
@@ -161,14 +178,10 @@ def read_marker_session(path: str | Path, joint: bool = True) -> MarkerSession:
     from rigcal.io.images import read_grey_at_depth, sixteen_bit_levels
 
     images: list[tuple[str, Path]] = []
-    for i, c in enumerate(captures):
-        kp = f"captures[{i}]"
-        many = version >= 2
-        required, optional = (["image"], ["name", "scan", "scans"]) if many else (["scan", "image"], ["name"])
-        c = check_keys(c, path, kp, required, optional)
-        name = capture_name(path, kp, c, i)
+    for i, (c, name) in enumerate(captures):
         names.append(name)
-        scan, scan_files = read_capture_scans(path, kp, c, many)
+        kp = f"captures[{i}]"
+        scan, scan_files = read_capture_scans(path, kp, c, version >= 2)
         image_path = session_file(path, f"{kp}.image", c["image"])
         check_image(path, f"{kp}.image", c["image"], image_path, camera)
         files += [*scan_files, image_path]
