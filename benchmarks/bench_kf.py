@@ -823,7 +823,7 @@ def guard_evidence(args: argparse.Namespace) -> None:
             runs: list[tuple[kalman.Increment, FloatArray]] = []
             counts = np.zeros((2, 3), dtype=int)
             for m in vo:
-                out = kalman._guard(reference, runs, m, own, share, (1.0, 1.0), True, m.t1, params)
+                out = kalman._guard(reference, runs, m, own, share, (1.0, 1.0), True, m.t1, params)[0]
                 if out is None or not out.any():
                     continue
                 first = runs[0][0]
