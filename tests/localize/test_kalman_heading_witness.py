@@ -62,8 +62,8 @@ def _heading(mode, **changes):
 @pytest.mark.parametrize("turn", [False, True])
 @pytest.mark.parametrize("mode", ["weighted", "icp-first"])
 def test_the_gyro_convicts_icps_heading_and_vo_carries_the_yaw(mode, turn):
-    """ICP's yaw 0.2 mrad a step off from 8 s to 13 s (40 mrad in all; its model allows 0.2
-    mrad), VO and the gyro honest: without the witness the guard blames VO (weighted) or
+    """ICP's yaw 0.2 mrad a step off from 8 s to 13 s (40 mrad in all; its model 0.14
+    mrad over those 200 steps), VO and the gyro honest: without the witness the guard blames VO (weighted) or
     follows ICP (icp-first) and the filter ends with ICP's heading error; with the gyro as
     witness (not fused) ICP's yaw is found erring over those runs, VO is kept there and ICP's
     path loosened, and the heading ends within a fifth of that (``turn``: with the gyro's turn
