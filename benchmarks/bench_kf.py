@@ -628,11 +628,18 @@ def windows(args: argparse.Namespace, sizes: tuple[int, ...] = (1, 2, 4, 8, 16, 
     own, share = kalman._error_model("vo", params)
     total = own + 2.0 * share
     rho = np.divide(share, total, out=np.zeros(3), where=total > 0)
-    stats: dict[int, dict[str, list[FloatArray]]] = {n: {"vo": [], "icp": []} for n in sizes}
+    stats: dict[int, dict[str, list[FloatArray]]] = {n: {"vo": [], "icp": [], "gyro": []} for n in sizes}
     for seed in seeds_of(args.seeds):
         for name in args.worlds.split(","):
             ms, gt, truth_s = kept_measurements(args, name, seed, params)
             reference = kalman._IcpReference([m for m in ms if m.source == "icp"], params)
+            # The gyro's heading witness (with --gyro), its bias as the filter learns it at the
+            # standstill (the steps before the rig moves alone).
+            gyro = [m for m in ms if m.source == "gyro"]
+            heading = kalman._GyroWitness(gyro) if gyro else None
+            standing = kalman.run_filter(
+                [m for m in ms if m.source in ("icp", "gyro") and m.t1 <= args.start_still], params
+            )
             vo = sorted((m for m in ms if m.source == "vo" and m.covariance[0, 0] < 1.0), key=lambda m: m.t1)
             nees = step_nees(vo, gt, truth_s)
             bad = nees > chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)
@@ -663,20 +670,33 @@ def windows(args: argparse.Namespace, sizes: tuple[int, ...] = (1, 2, 4, 8, 16, 
                     d = ref[0] - truth
                     d[2] = np.angle(np.exp(1j * d[2]))
                     stats[n]["icp"].append((G.T @ d) ** 2 / np.diag(G.T @ ref[1] @ G))
+                    turn = (
+                        heading.between(a, b, b, standing.gyro_bias, standing.gyro_bias_sigma**2)
+                        if heading is not None and np.isfinite(standing.gyro_bias)
+                        else None
+                    )
+                    if turn is not None:
+                        off = float(np.angle(np.exp(1j * (turn[0][2] - truth[2]))))
+                        stats[n]["gyro"].append(np.array([off**2 / turn[1][2, 2]]))
     print(f"laps {args.seeds} of {args.worlds}: squared error over modelled variance")
     print("(forward / cross-track / yaw of the window's last run)\n")
     # The share of windows where an input's yaw is off the truth beyond the guard's gate: where
     # an exact third heading (kalman._witness) could find it erring at most.
     gate = kalman._guard_gate(kalman.VO_GUARD_RUNS)
+    # The gyro's yaw (kalman._GyroWitness, with --gyro) likewise: its witness's model at that length.
     print(
         "| VO runs in the window | windows | VO mean | VO median | ICP mean | ICP median "
-        "| VO yaw beyond the guard's gate | ICP yaw beyond it |"
+        "| VO yaw beyond the guard's gate | ICP yaw beyond it | gyro yaw mean / median | gyro yaw beyond it |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for n in sizes:
         v, i = np.array(stats[n]["vo"]), np.array(stats[n]["icp"])
         cells = [" / ".join(f"{x:.2f}" for x in f(a, axis=0)) for a in (v, i) for f in (np.mean, np.median)]
         cells += [f"{np.mean(a[:, 2] > gate):.4f}" for a in (v, i)]
+        g = np.array(stats[n]["gyro"]).reshape(-1)
+        cells += (
+            [f"{np.mean(g):.2f} / {np.median(g):.2f}", f"{np.mean(g > gate):.4f}"] if len(g) else ["-", "-"]
+        )
         print(f"| {n} | {len(v)} | " + " | ".join(cells) + " |")
 
 
