@@ -636,7 +636,7 @@ def windows(args: argparse.Namespace, sizes: tuple[int, ...] = (1, 2, 4, 8, 16, 
             # The gyro's heading witness (with --gyro), its bias as the filter learns it at the
             # standstill (the steps before the rig moves alone).
             gyro = [m for m in ms if m.source == "gyro"]
-            heading = kalman._GyroWitness(gyro) if gyro else None
+            heading = kalman._GyroWitness(gyro, reference) if gyro else None
             standing = kalman.run_filter(
                 [m for m in ms if m.source in ("icp", "gyro") and m.t1 <= args.start_still], params
             )

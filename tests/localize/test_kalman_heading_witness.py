@@ -129,30 +129,34 @@ def test_without_gyro_steps_the_heading_witness_changes_nothing():
 
 
 def test_the_gyros_yaw_between_two_stamps():
-    """Steps of 0.1 s turning at 0.1 then 0.3 rad/s: over [0.05, 0.25] the yaw is chained
-    (parts at a constant rate), less the bias; a part adds the rate's change times its
-    duration times the rest of the step over twice its duration squared (the error of a
-    rate changing linearly) to the variance, the bias its variance times
-    the window squared; past the last ended step its rate carries, for one step at most; a
-    gap gives none."""
+    """Gyro steps of 0.1 s turning 0.01 then 0.03 rad, ICP's of 0.05 s turning 2 mrad each:
+    over [0.05, 0.25] the gyro's whole step within (0.1 to 0.2) less the bias over it, and
+    ICP's turn over the parts before and after it; the variance the gyro step's own, the
+    bias's over its span and ICP's over the parts. The gyro's steps end by ``now``: one not
+    ended is ICP's part; none within, or a gap, gives none."""
     at = np.arange(6) * 0.1
     yaw = np.array([0.01, 0.01, 0.03, 0.03, 0.03])
-    witness = kalman._GyroWitness(kalman.gyro_increments(at, yaw))
+    t = np.arange(11) * 0.05
+    icp_cov = np.diag([1e-6, 1e-6, 1e-8])
+    icp = [kalman.Increment(t[k], t[k + 1], np.array([0.0, 0.0, 0.002]), icp_cov, "icp") for k in range(10)]
+    reference = kalman._IcpReference(icp, kalman.KF_MODES["weighted"])
+    witness = kalman._GyroWitness(kalman.gyro_increments(at, yaw), reference)
     got = witness.between(0.05, 0.25, 0.5, 0.02, 1e-6)
     assert got is not None
     motion, cov = got
-    assert motion[2] == pytest.approx(0.005 + 0.01 + 0.015 - 0.02 * 0.2)
-    noise = kalman.GYRO_NOISE**2 * 0.2
-    parts = (0.2 * 0.05 * 0.05 / 0.2) ** 2  # the first step's part: no rate before it
-    assert cov[2, 2] == pytest.approx(noise + parts + 1e-6 * 0.2**2)
+    assert motion[2] == pytest.approx(0.002 + 0.01 - 0.02 * 0.1 + 0.002)
+    parts = sum(reference.between(a, b, 0.5)[1][2, 2] for a, b in ((0.05, 0.1), (0.2, 0.25)))
+    assert cov[2, 2] == pytest.approx(kalman.GYRO_NOISE**2 * 0.1 + 1e-6 * 0.1**2 + parts)
     assert cov[0, 0] == cov[1, 1] == kalman.OPEN_SIGMA_M**2
-    # At 0.33 the step ending at 0.4 has not ended: the one before's rate carries it.
-    carried = witness.between(0.2, 0.33, 0.33, 0.0, 0.0)
+    # At 0.35 the step ending at 0.4 has not ended: ICP's turn carries the window from 0.3.
+    carried = witness.between(0.1, 0.35, 0.35, 0.0, 0.0)
     assert carried is not None
-    assert carried[0][2] == pytest.approx(0.03 + 0.3 * 0.03)
-    assert witness.between(0.2, 0.45, 0.33, 0.0, 0.0) is None
-    gap = kalman._GyroWitness(kalman.gyro_increments(at, np.array([0.01, np.nan, 0.03, 0.03, 0.03])))
-    assert gap.between(0.05, 0.25, 0.5, 0.0, 0.0) is None
+    assert carried[0][2] == pytest.approx(0.01 + 0.03 + 0.002)
+    assert witness.between(0.12, 0.18, 0.5, 0.0, 0.0) is None
+    gap = kalman._GyroWitness(
+        kalman.gyro_increments(at, np.array([0.01, np.nan, 0.03, 0.03, 0.03])), reference
+    )
+    assert gap.between(0.05, 0.35, 0.5, 0.0, 0.0) is None
 
 
 def test_the_gyros_turn_over_a_convicted_run_moves_the_heading_towards_the_gyros():
