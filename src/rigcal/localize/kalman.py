@@ -1966,7 +1966,7 @@ class _GyroWitness:
         them (:meth:`_IcpReference.between`, its variance, times ``scale``, added): a part of
         a step taken at its mean rate, or at the last ended step's past it, errs by the
         rate's jumps within it, which the simulated drives make (their velocity changes in
-        steps) and the gyro's steps cannot show (measured: docs/benchmarks.md, "The
+        steps) and the gyro's steps cannot show (measured: docs/localization.md, "The
         gyroscope as the guard's heading witness"). Against ICP's chain those parts cancel:
         the test is over the gyro's steps. None where the gyro's steps leave a gap (a part
         longer than the gyro step it lies under included), none lies within, or ICP gives
