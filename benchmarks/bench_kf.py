@@ -104,6 +104,16 @@ VARIANTS = {
 # (kalman.KfParams.gyro_zero_turn off; with --gyro, "-gyro").
 VARIANTS["kf-icp-turn"] = dataclasses.replace(VARIANTS["kf"], gyro_zero_turn=False)
 VARIANTS["kf-icp-first-icp-turn"] = dataclasses.replace(VARIANTS["kf-icp-first"], gyro_zero_turn=False)
+# The gyro as the guard's heading witness (kalman.KfParams.gyro_witness; with --gyro, "-gyro"):
+# its witness alone, its steps not fused but at the standstill (the bias); the witness alone
+# with its turn fused over the runs where it finds ICP's yaw erring ("-turn",
+# kalman.KfParams.gyro_where_icp_errs); the witness with the gyro fused as before ("-fused").
+for _key in ("kf", "kf-icp-first"):
+    VARIANTS[f"{_key}-heading"] = dataclasses.replace(VARIANTS[_key], gyro_witness=True, gyro_fused=False)
+    VARIANTS[f"{_key}-heading-turn"] = dataclasses.replace(
+        VARIANTS[f"{_key}-heading"], gyro_where_icp_errs=True
+    )
+    VARIANTS[f"{_key}-heading-fused"] = dataclasses.replace(VARIANTS[_key], gyro_witness=True)
 # The wheels fused as they come (WHEEL_SIGMAS) with no witness: round 8's default on laps with wheels.
 VARIANTS["kf-raw"] = dataclasses.replace(VARIANTS["kf"], wheel_witness=False, wheel_calibrated=False)
 # The wheels fused calibrated against ICP (kalman.KfParams.wheel_calibrated), with the witness:
@@ -143,6 +153,12 @@ ROUND9 = (
     "kf-raw",
     "kf-icp-turn",
     "kf-icp-first-icp-turn",
+    "kf-heading",
+    "kf-heading-turn",
+    "kf-heading-fused",
+    "kf-icp-first-heading",
+    "kf-icp-first-heading-turn",
+    "kf-icp-first-heading-fused",
 )
 ALL_VARIANTS = tuple(k for k in VARIANTS if k not in ROUND9)
 # The compact table: the default against round 7's and the options, lap by lap (those run).
@@ -167,7 +183,7 @@ AXES = ("forward", "cross", "yaw")
 def kept_lap(args: argparse.Namespace, name: str, seed: int) -> tuple[Any, Any, Any, FloatArray, FloatArray]:
     """A lap kept by ``--keep``: its streams (VO's result set), odometries, planar truth and
     the truth's stamps."""
-    seq = args.keep / f"{name}-seed{seed}-{args.duration_s:g}s{'-wheels' if args.wheel_odometry else ''}"
+    seq = args.keep / f"{name}-seed{seed}{lap_tag(args)}"
     streams = open_streams(seq)
     od, res = pickle.loads((seq / "odometries.pkl").read_bytes())
     streams.results["vo"] = res
@@ -175,6 +191,14 @@ def kept_lap(args: argparse.Namespace, name: str, seed: int) -> tuple[Any, Any, 
     truth = read_tum(seq / streams.sequence.groundtruth_file)
     assert truth.stamps_s is not None
     return streams, od, res, planar_at(truth, truth.stamps_s), truth.stamps_s
+
+
+def lap_tag(args: argparse.Namespace) -> str:
+    """A kept lap's folder name after its seed: its drive's length, wheels, standstill, gyro."""
+    tag = f"-{args.duration_s:g}s" if args.duration_s else ""
+    tag += "-wheels" if args.wheel_odometry else ""
+    tag += f"-still{args.start_still:g}" if args.start_still else ""
+    return tag + ("-gyro" if args.gyro else "")
 
 
 def kept_measurements(
@@ -284,6 +308,12 @@ def main() -> None:
         action="store_true",
         help="Simulate the gyroscope too; each filter then runs without it and with it (KEY-gyro).",
     )
+    ap.add_argument(
+        "--gyro-only",
+        action="store_true",
+        help="With --gyro, run each filter with the gyroscope alone (KEY-gyro; the filters without it "
+        "score as on the same kept laps without this option).",
+    )
     ap.add_argument("--keep", type=Path, help="Keep (and reuse) the sequences in this folder.")
     ap.add_argument("--reuse", action="store_true", help="Reuse each lap's odometries of an earlier run.")
     ap.add_argument(
@@ -377,7 +407,9 @@ def main() -> None:
     else:  # round 9's run by name alone; the rest as before
         for key in ROUND9:
             VARIANTS.pop(key, None)
-    if args.gyro:
+    if args.gyro and args.gyro_only:
+        shown = [k for k in ROUND7 if k.endswith("-gyro") and k.removesuffix("-gyro") in VARIANTS]
+    elif args.gyro:
         shown = [k for k in ROUND7 if k in VARIANTS or k.removesuffix("-gyro") in VARIANTS]
     else:
         shown = [k for k in ROUND7 if k in VARIANTS]
@@ -399,11 +431,7 @@ def main() -> None:
             print("|---" * 23 + "|")
         for seed in seeds_of(args.seeds):
             for name in args.worlds.split(","):
-                tag = f"-{duration:g}s" if duration else ""
-                tag += "-wheels" if args.wheel_odometry else ""
-                tag += f"-still{args.start_still:g}" if args.start_still else ""
-                tag += "-gyro" if args.gyro else ""
-                seq = root / f"{name}-seed{seed}{tag}"
+                seq = root / f"{name}-seed{seed}{lap_tag(args)}"
                 if not (seq / "sequence.yaml").exists():
                     spec = DriveSpec(
                         seed=seed,
@@ -414,7 +442,14 @@ def main() -> None:
                     )
                     write_drive(BUILTIN[name](), spec, str(seq))
                 axes = tuple(AXES.index(a) for a in args.vo_axes.split(","))
-                row = lap(seq, args.reuse, tuple(filter(None, args.without.split(","))), axes, args.gyro)
+                row = lap(
+                    seq,
+                    args.reuse,
+                    tuple(filter(None, args.without.split(","))),
+                    axes,
+                    args.gyro,
+                    args.gyro and args.gyro_only,
+                )
                 for k, v in row.items():
                     if isinstance(v, float):
                         scores[name, k].append(v)
@@ -443,6 +478,16 @@ def main() -> None:
                             f"gyro bias at the end (deg/s): simulated {np.degrees(bias[-1]):+.4f}, "
                             + ", ".join(
                                 f"{k} {row[k + '-bias-deg-s']:+.4f}" for k in shown if k.endswith("-gyro")
+                            ),
+                            flush=True,
+                        )
+                        print(
+                            "the gyro's heading verdicts (VO runs over which it found ICP's yaw / VO's "
+                            "erring): "
+                            + ", ".join(
+                                f"{k} {row[k + '-heading-verdicts']}"
+                                for k in shown
+                                if k.endswith("-gyro") and "heading" in k
                             ),
                             flush=True,
                         )
@@ -583,11 +628,18 @@ def windows(args: argparse.Namespace, sizes: tuple[int, ...] = (1, 2, 4, 8, 16, 
     own, share = kalman._error_model("vo", params)
     total = own + 2.0 * share
     rho = np.divide(share, total, out=np.zeros(3), where=total > 0)
-    stats: dict[int, dict[str, list[FloatArray]]] = {n: {"vo": [], "icp": []} for n in sizes}
+    stats: dict[int, dict[str, list[FloatArray]]] = {n: {"vo": [], "icp": [], "gyro": []} for n in sizes}
     for seed in seeds_of(args.seeds):
         for name in args.worlds.split(","):
             ms, gt, truth_s = kept_measurements(args, name, seed, params)
             reference = kalman._IcpReference([m for m in ms if m.source == "icp"], params)
+            # The gyro's heading witness (with --gyro), its bias as the filter learns it at the
+            # standstill (the steps before the rig moves alone).
+            gyro = [m for m in ms if m.source == "gyro"]
+            heading = kalman._GyroWitness(gyro, reference) if gyro else None
+            standing = kalman.run_filter(
+                [m for m in ms if m.source in ("icp", "gyro") and m.t1 <= args.start_still], params
+            )
             vo = sorted((m for m in ms if m.source == "vo" and m.covariance[0, 0] < 1.0), key=lambda m: m.t1)
             nees = step_nees(vo, gt, truth_s)
             bad = nees > chi2.ppf(0.999, 3) * np.median(nees) / chi2.ppf(0.5, 3)
@@ -618,13 +670,33 @@ def windows(args: argparse.Namespace, sizes: tuple[int, ...] = (1, 2, 4, 8, 16, 
                     d = ref[0] - truth
                     d[2] = np.angle(np.exp(1j * d[2]))
                     stats[n]["icp"].append((G.T @ d) ** 2 / np.diag(G.T @ ref[1] @ G))
+                    turn = (
+                        heading.between(a, b, b, standing.gyro_bias, standing.gyro_bias_sigma**2)
+                        if heading is not None and np.isfinite(standing.gyro_bias)
+                        else None
+                    )
+                    if turn is not None:
+                        off = float(np.angle(np.exp(1j * (turn[0][2] - truth[2]))))
+                        stats[n]["gyro"].append(np.array([off**2 / turn[1][2, 2]]))
     print(f"laps {args.seeds} of {args.worlds}: squared error over modelled variance")
     print("(forward / cross-track / yaw of the window's last run)\n")
-    print("| VO runs in the window | windows | VO mean | VO median | ICP mean | ICP median |")
-    print("|---|---|---|---|---|---|")
+    # The share of windows where an input's yaw is off the truth beyond the guard's gate: where
+    # an exact third heading (kalman._witness) could find it erring at most.
+    gate = kalman._guard_gate(kalman.VO_GUARD_RUNS)
+    # The gyro's yaw (kalman._GyroWitness, with --gyro) likewise: its witness's model at that length.
+    print(
+        "| VO runs in the window | windows | VO mean | VO median | ICP mean | ICP median "
+        "| VO yaw beyond the guard's gate | ICP yaw beyond it | gyro yaw mean / median | gyro yaw beyond it |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for n in sizes:
         v, i = np.array(stats[n]["vo"]), np.array(stats[n]["icp"])
         cells = [" / ".join(f"{x:.2f}" for x in f(a, axis=0)) for a in (v, i) for f in (np.mean, np.median)]
+        cells += [f"{np.mean(a[:, 2] > gate):.4f}" for a in (v, i)]
+        g = np.array(stats[n]["gyro"]).reshape(-1)
+        cells += (
+            [f"{np.mean(g):.2f} / {np.median(g):.2f}", f"{np.mean(g > gate):.4f}"] if len(g) else ["-", "-"]
+        )
         print(f"| {n} | {len(v)} | " + " | ".join(cells) + " |")
 
 
@@ -771,7 +843,7 @@ def guard_evidence(args: argparse.Namespace) -> None:
             runs: list[tuple[kalman.Increment, FloatArray]] = []
             counts = np.zeros((2, 3), dtype=int)
             for m in vo:
-                out = kalman._guard(reference, runs, m, own, share, (1.0, 1.0), True, m.t1, params)
+                out = kalman._guard(reference, runs, m, own, share, (1.0, 1.0), True, m.t1, params)[0]
                 if out is None or not out.any():
                     continue
                 first = runs[0][0]
@@ -804,6 +876,7 @@ def lap(
     without: tuple[str, ...] = (),
     vo_axes: tuple[int, ...] = (0, 1, 2),
     gyro: bool = False,
+    gyro_only: bool = False,
 ) -> dict[str, float]:
     """One lap's ATEs, NEES means and the filter's time. ``reuse``: take the laser and
     visual odometry from an earlier run's ``odometries.pkl`` in the lap's folder (written
@@ -811,7 +884,7 @@ def lap(
     the axes (0 forward, 1 cross-track, 2 yaw) of VO's runs the filters take, the others
     open (:func:`open_axes`); ``without``:
     the inputs ("icp", "vo", "wheel", "gyro") the filters leave out; ``gyro``: each filter
-    run without the lap's gyroscope (KEY) and with it (KEY-gyro)."""
+    run without the lap's gyroscope (KEY) and with it (KEY-gyro); ``gyro_only``: with it alone."""
     streams = open_streams(seq)
     cache = seq / "odometries.pkl"
     if reuse and cache.exists():
@@ -836,7 +909,7 @@ def lap(
 
     runs = [(key, params, ()) for key, params in VARIANTS.items()]
     if gyro:
-        runs = [(key, params, ("gyro",)) for key, params, _ in runs]
+        runs = [] if gyro_only else [(key, params, ("gyro",)) for key, params, _ in runs]
         runs += [(f"{key}-gyro", params, ()) for key, params in VARIANTS.items()]
     for key, params, left in runs:
         ms = [
@@ -852,6 +925,7 @@ def lap(
         row[key] = ate(kf.stamps_s, kf.poses)
         row[f"{key}-witnessed"] = float(sum(kf.icp_witnessed))
         row[f"{key}-bias-deg-s"] = float(np.degrees(kf.gyro_bias))
+        row[f"{key}-heading-verdicts"] = kf.gyro_witnessed  # type: ignore[assignment]
         if key == "kf-round5":
             row["kf-round5-s"] = seconds
         if key == "kf":

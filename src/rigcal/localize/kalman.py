@@ -90,7 +90,15 @@ the rig moves. Elsewhere the bias is a consider state of the gyro's steps (Schmi
 uncertainty weighs them, but they do not move it (other updates move it only through its
 correlation with the pose), as ICP's slow heading errors (over the lap) would
 otherwise be learned as the gyro's bias (measured: docs/benchmarks.md, "A gyroscope as the
-Kalman filter's third heading").
+Kalman filter's third heading"). The gyro is also the guard's heading witness
+(``gyro_witness``, :class:`_GyroWitness`, :func:`_witness`; off in every mode), as the wheels
+are its third witness: its yaw chained over the guard's windows, less the bias as learned
+(its uncertainty in the test's variance), tells which of ICP and VO errs in yaw where one of
+them is off the other two beyond both models (Bar-Shalom, Li and Kirubarajan 2001, Section
+5.4, as above), and VO's yaw is kept (ICP's path loosened) or left out accordingly; with
+``gyro_fused`` off its steps enter the filter only where the rig stands still (the bias), so
+that the driven filters follow ICP unless the gyro and VO both find ICP's heading erring
+(measured: docs/benchmarks.md, "The gyroscope as the guard's heading witness").
 
 Options measured on the simulated laps and off in every mode (docs/localization.md): VO's
 biases over seconds (``vo_bias_sigma``: a forward scale, a cross-track drift per metre and
@@ -384,7 +392,13 @@ class KfParams:
     are given: :data:`GYRO_NOISE` ...); ``gyro_still_only``: its bias learned only where the
     rig stands still (:func:`_still`; False: from every step); ``gyro_zero_turn``: there
     against a zero turn (the rig stands, so the gyro reads its bias alone; a zero-velocity
-    update) rather than against the turn ICP measured (False)."""
+    update) rather than against the turn ICP measured (False); ``gyro_witness``: the gyro
+    (where given) the guard's heading witness (:class:`_GyroWitness`, :func:`_witness`; it
+    acts with ``vo_guard``); ``gyro_fused``: its steps fused as yaw measurements (False: only
+    those over which the rig stands still, its bias's zero-turn updates, enter the filter; the
+    others serve the witness alone); ``gyro_where_icp_errs``: with ``gyro_fused`` off, the
+    gyro's turn over a VO run over which it found ICP's yaw erring fused after the run
+    (:func:`_convicted_turn`)."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
@@ -417,6 +431,9 @@ class KfParams:
     gyro_bias_walk: float = GYRO_BIAS_WALK
     gyro_still_only: bool = True
     gyro_zero_turn: bool = True
+    gyro_witness: bool = False
+    gyro_fused: bool = True
+    gyro_where_icp_errs: bool = False
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
@@ -517,7 +534,9 @@ class KfResult:
     (forward scale, cross-track per metre forward, yaw rate rad/s; ``KfParams.vo_bias_sigma``;
     None without them); the gyroscope's bias (rad/s) at the end and its 1-sigma, and the
     seconds of its steps it was learned from (those over which the rig stood still,
-    :func:`_still`; NaN, NaN and 0 without gyro steps)."""
+    :func:`_still`; NaN, NaN and 0 without gyro steps); the VO runs over which the gyro, as
+    the guard's heading witness (``KfParams.gyro_witness``), found ICP's yaw erring and those
+    over which it found VO's."""
 
     stamps_s: FloatArray
     poses: FloatArray
@@ -530,6 +549,7 @@ class KfResult:
     gyro_bias: float = float("nan")
     gyro_bias_sigma: float = float("nan")
     gyro_still_s: float = 0.0
+    gyro_witnessed: tuple[int, int] = (0, 0)
 
 
 def gyro_increments(stamps_s: FloatArray, yaw_rad: FloatArray, noise: float = GYRO_NOISE) -> list[Increment]:
@@ -717,6 +737,11 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
     # The gyro's steps over which the rig stands still (its bias learned there alone with
     # ``params.gyro_still_only``).
     still = _still(ms, [m for m in measurements if m.source == "icp"])
+    if not params.gyro_fused:
+        # The gyro's steps where the rig moves serve the witness alone: only its still ones
+        # (the bias's) enter the filter.
+        ms = [m for i, m in enumerate(ms) if m.source != "gyro" or i in still]
+        still = _still(ms, [m for m in measurements if m.source == "icp"])
     # Events (time, 0 = update / 1 = clone / 2 = a driving step's end, index); updates
     # first at equal times.
     events = [(m.t1, 0, i) for i, m in enumerate(ms)] + [(m.t0, 1, i) for i, m in enumerate(ms)]
@@ -754,6 +779,13 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
         else None
     )
     witnessed = np.zeros(3, dtype=int)  # VO runs over which the wheels found ICP erring, per direction
+    gyro_steps = [m for m in measurements if m.source == "gyro"]
+    heading = (
+        _GyroWitness(gyro_steps, reference)
+        if reference is not None and params.gyro_witness and params.vo_guard > 0 and gyro_steps
+        else None
+    )
+    gyro_witnessed = np.zeros(2, dtype=int)  # VO runs over which the gyro found ICP's / VO's yaw erring
     vo_own, vo_share = _error_model("vo", params)
     forward_ratio = float(vo_own[0] + 2.0 * vo_share[0])  # VO's forward variance ratio, matched on line
     forward_info = float(ADAPT_WINDOW)  # the information its running mean holds (runs of full weight)
@@ -834,8 +866,11 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
                 gyro_bias=gyro_bias,
                 zero_turn=True,
             )
-            if np.isfinite(inn.nis):
-                x, P = x_zero, P_zero
+            if np.isfinite(inn.nis) or not params.gyro_fused:
+                # (A still step that reads a turn is left out where the gyro serves the
+                # witness alone.)
+                if np.isfinite(inn.nis):
+                    x, P = x_zero, P_zero
                 pending[m.t0] -= 1
                 if not pending[m.t0]:
                     x, P = _drop(x, P, _offset(blocks, ("clone", m.t0)))
@@ -843,10 +878,21 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
                 _keep(stamps, poses, covs, t, x, P, tape)
                 continue
         alone = None
+        convicted = False  # the gyro found ICP's yaw erring over the run (its turn fused after it)
         if vo and reference is not None:
             icp_scale = max(1.0, mean_nis.get("icp", 1.0)) if params.adapt else 1.0
             if params.vo_guard > 0:
-                leave_out, inflate, icp_errs = _guard(
+                gyro = None
+                if heading is not None:
+                    # The bias as learned so far (the prior where no gyro step has come).
+                    held = _block(blocks, "gyro")
+                    k = _offset(blocks, held) if held is not None else -1
+                    gyro = (
+                        (heading, float(x[k]), float(P[k, k]))
+                        if held is not None
+                        else (heading, 0.0, params.gyro_bias_sigma**2)
+                    )
+                leave_out, inflate, icp_errs, gyro_errs = _guard(
                     reference,
                     guard_runs,
                     m,
@@ -857,8 +903,11 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
                     t,
                     params,
                     witness,
+                    gyro,
                 )
                 witnessed += icp_errs
+                gyro_witnessed += gyro_errs
+                convicted = bool(gyro_errs[0])
                 if inflate.any():
                     # ICP's path over the run erred beyond its model (the wheels' verdict):
                     # the pose's covariance takes that excess in the run's frame (the
@@ -933,6 +982,8 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
             for b in [b for b in blocks if b[0] == SHARED_BLOCK[m.source] and b[1] != m.t1]:
                 x, P = _drop(x, P, _offset(blocks, b))
                 blocks.remove(b)
+        if convicted and heading is not None and params.gyro_where_icp_errs and not params.gyro_fused:
+            x, P = _convicted_turn(x, P, blocks, heading, m, t)
         if np.isfinite(inn.nis):
             # Covariance matching: each input's recent innovations against its covariance.
             mean_nis[m.source] = (
@@ -965,6 +1016,7 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
         float(x[_offset(blocks, gyro_block)]) if gyro_block is not None else float("nan"),
         bias_sigma,
         float(sum(ms[i].t1 - ms[i].t0 for i in still)),
+        (int(gyro_witnessed[0]), int(gyro_witnessed[1])),
     )
 
 
@@ -979,16 +1031,21 @@ def _guard(
     now: float,
     params: KfParams,
     witness: _WheelWitness | None = None,
-) -> tuple[NDArray[np.bool_] | None, FloatArray, NDArray[np.bool_]]:
+    gyro: tuple[_GyroWitness, float, float] | None = None,
+) -> tuple[NDArray[np.bool_] | None, FloatArray, NDArray[np.bool_], NDArray[np.bool_]]:
     """The directions of VO's run ``m`` the guard leaves out (:func:`_vo_guard`), or None
     where ICP gives no reference; with the wheels' ``witness`` (:func:`_witness`) VO is kept
     along a direction where the wheels find ICP erring over any window and left out where
     they find VO erring, and the variance to add to ICP's path over the run where ICP errs
     (3,: ICP's excess over the window over its runs) and those directions (3,) come back
-    too (zeros and False without). ``runs`` (VO's last chained runs with their modelled
-    covariances) is updated in place; ``own``, ``share``: the run's error model per axis
-    (with the forward memory, ``share`` forward 0 and the memory's part the rest of the
-    forward variance ratio); ``scales``: VO's and ICP's covariance matching factors."""
+    too (zeros and False without). ``gyro`` = (the gyro's witness, its bias rad/s as the
+    filter holds it, the bias's variance): the gyro's chained yaw over each window
+    (:meth:`_GyroWitness.between`) witnesses the yaw the same way, and whether it found
+    ICP's yaw erring and whether VO's (2,) come back last. ``runs`` (VO's last chained
+    runs with their modelled covariances) is updated in place; ``own``, ``share``: the
+    run's error model per axis (with the forward memory, ``share`` forward 0 and the
+    memory's part the rest of the forward variance ratio); ``scales``: VO's and ICP's
+    covariance matching factors."""
     total = own + 2.0 * share
     rho = np.divide(share, total, out=np.zeros(3), where=total > 0)
     if memory:
@@ -1009,6 +1066,7 @@ def _guard(
     gate = _guard_gate(params.vo_guard)
     out: NDArray[np.bool_] | None = None
     icp_errs, vo_errs, inflate = np.zeros(3, dtype=bool), np.zeros(3, dtype=bool), np.zeros(3)
+    gyro_errs = np.zeros(2, dtype=bool)
     for n in windows:
         ref = reference.between(runs[-n][0].t0, m.t1, now, scales[1])
         if ref is None:
@@ -1023,9 +1081,43 @@ def _guard(
             icp_errs |= i
             vo_errs |= v
             inflate = np.maximum(inflate, excess / n)
+        turn = None
+        if gyro is not None:
+            turn = gyro[0].between(runs[-n][0].t0, m.t1, now, gyro[1], gyro[2], scales[1])
+        if turn is not None:
+            i, v, excess = _witness(runs[-n:], ref, turn, correlation[: n - 1], gate, _bias_model(params))
+            gyro_errs |= np.array([i[2], v[2]])
+            icp_errs |= i
+            vo_errs |= v
+            inflate = np.maximum(inflate, excess / n)
     if out is not None:
         out = (out & ~icp_errs) | vo_errs
-    return out, inflate, icp_errs
+    return out, inflate, icp_errs, gyro_errs
+
+
+def _convicted_turn(
+    x: FloatArray,
+    P: FloatArray,
+    blocks: list[tuple[str, float]],
+    heading: _GyroWitness,
+    m: Increment,
+    now: float,
+) -> tuple[FloatArray, FloatArray]:
+    """The state after the gyro's turn over VO's run ``m`` (:meth:`_GyroWitness.between`, as
+    the witness takes it: less the bias the state holds, the bias's variance in the turn's),
+    fused against the run's clone: where the gyro, as the guard's witness, found ICP's yaw
+    erring, the heading is the gyro's rather than VO's alone (``KfParams.gyro_where_icp_errs``).
+    No bias learned yet (no still step so far) or no turn to be had: the state as it was."""
+    held = _block(blocks, "gyro")
+    if held is None or ("clone", m.t0) not in blocks:
+        return x, P
+    at = _offset(blocks, held)
+    turn = heading.between(m.t0, m.t1, now, float(x[at]), float(P[at, at]))
+    if turn is None:
+        return x, P
+    step = Increment(m.t0, m.t1, turn[0], turn[1], "gyro")
+    x, P, _ = _update(x, P, _offset(blocks, ("clone", m.t0)), step, leave_out=np.array([True, True, False]))
+    return x, P
 
 
 def _bias_model(params: KfParams) -> tuple[FloatArray, FloatArray] | None:
@@ -1845,6 +1937,61 @@ class _WheelWitness:
         ratio = WHEEL_WINDOW_RATIO[min(int(np.log2(max(runs, 1))), len(WHEEL_WINDOW_RATIO) - 1)]
         R = _rotation3(float(motion[2]))  # the ratio's axes: those of the frame at b
         return motion, R @ _scaled(R.T @ ref[1] @ R, np.asarray(ratio)) @ R.T
+
+
+class _GyroWitness:
+    """The gyroscope as the guard's heading witness (``KfParams.gyro_witness``,
+    :func:`_witness`): its steps' yaw chained over a window, less its bias as the filter
+    holds it. An inertial sensor's errors are its own (the rate gyro model's angle random
+    walk and bias, module docstring), independent of the laser's and the camera's; with the
+    bias learned at a standstill (to 0.006 deg/s over 3 s) its yaw over the guard's longest
+    window (8 runs, 4 s) is good to about 0.5 mrad, where ICP's heading errs by milliradians.
+    It witnesses the yaw alone (its translation open)."""
+
+    def __init__(self, steps: list[Increment], reference: _IcpReference) -> None:
+        self.steps = sorted(steps, key=lambda m: (m.t1, m.t0))
+        self.t0s = np.array([m.t0 for m in self.steps])
+        self.t1s = np.array([m.t1 for m in self.steps])
+        self.reference = reference
+
+    def between(
+        self, a: float, b: float, now: float, bias: float, bias_var: float, scale: float = 1.0
+    ) -> tuple[FloatArray, FloatArray] | None:
+        """The gyro's motion from ``a`` to ``b`` (its translation 0 and open, variance
+        :data:`OPEN_SIGMA_M`^2) and its covariance (3, 3): the yaw of its whole steps within
+        the interval ended by ``now``, chained, less ``bias`` (rad/s) times their span, with
+        the steps' own variance and the bias's (``bias_var`` times the span squared). The
+        parts of the interval before the first such step and after the last (a VO run
+        starts and ends between the gyro's steps, each under 0.1 s) are ICP's own turn over
+        them (:meth:`_IcpReference.between`, its variance, times ``scale``, added): a part of
+        a step taken at its mean rate, or at the last ended step's past it, errs by the
+        rate's jumps within it, which the simulated drives make (their velocity changes in
+        steps) and the gyro's steps cannot show (measured: docs/localization.md, "The
+        gyroscope as the guard's heading witness"). Against ICP's chain those parts cancel:
+        the test is over the gyro's steps. None where the gyro's steps leave a gap (a part
+        longer than the gyro step it lies under included), none lies within, or ICP gives
+        no reference."""
+        i = int(np.searchsorted(self.t0s, a, side="left"))
+        j = int(np.searchsorted(self.t1s, min(b, now), side="right"))
+        steps = self.steps[i:j]
+        if not steps or any(steps[k + 1].t0 != steps[k].t1 for k in range(len(steps) - 1)):
+            return None
+        g0, g1 = steps[0].t0, steps[-1].t1
+        # Each part under one gyro step (ICP's turn fills no gap in the gyro's).
+        before = a == g0 or (i > 0 and self.steps[i - 1].t1 == g0 and self.steps[i - 1].t0 <= a)
+        after = b == g1 or (j < len(self.steps) and self.steps[j].t0 == g1 and self.steps[j].t1 >= b)
+        if not (before and after):
+            return None
+        yaw = sum(float(m.motion[2]) for m in steps) - bias * (g1 - g0)
+        var = sum(float(m.covariance[2, 2]) for m in steps) + bias_var * (g1 - g0) ** 2
+        for lo, hi in ((a, g0), (g1, b)):
+            if hi > lo:
+                part = self.reference.between(lo, hi, now, scale)
+                if part is None:
+                    return None
+                yaw += float(part[0][2])
+                var += float(part[1][2, 2])
+        return np.array([0.0, 0.0, yaw]), np.diag([OPEN_SIGMA_M**2, OPEN_SIGMA_M**2, var])
 
 
 def _witness(
