@@ -1,0 +1,73 @@
+"""The Kalman filter on a real log without a camera: ICP's steps and the log's odometry
+fused, against each input alone, on Killian Court.
+
+Killian Court (the rtb-data package's g2o file, 3873 scans ~0.5 m and ~2 s apart, 15
+pauses of 10-69 s), read as ``rigcal import-carmen`` does; ICP started from the odometry
+(across its gaps unless the scans contradict it: rigcal.io.wheel_odometry.icp_starts).
+The filter (rigcal.localize.kalman.run_filter) runs on ICP's steps with their covariances
+alone, driven by them (``--kf driven``), and on ICP's and the odometry's steps (the
+odometry with its rate noise model, none across its gaps) in the modes of ``rigcal
+localize --kf``, with the wheels raw (neither witness nor calibrated). Scored against the
+g2o's vertices by ATE (SE(2)-aligned), the end position error and the relation error over
+consecutive scans (rigcal.localize.metrics). ``rigcal localize --method kf`` needs images;
+this measures what the filter would do on such a log.
+
+    uv sync --group bench        # rtb-data
+    .venv/bin/python benchmarks/bench_kf_killian.py
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import numpy as np
+
+from bench_wheel_odometry import chained, killian_log
+from rigcal.io.wheel_odometry import icp_starts
+from rigcal.localize import kalman
+from rigcal.localize.icp import IcpParams
+from rigcal.localize.metrics import anchored, evaluate, relation_error
+from rigcal.localize.odometry import icp_odometry
+
+
+def main() -> None:
+    log, odom, _ = killian_log()
+    scans, gt = log.scans, log.laser_poses
+    t = np.array([s.stamp_s for s in scans])
+    guess, gap_guess = icp_starts(odom, t)
+    od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess, gap_guess=gap_guess)
+    wheels = chained(np.where(np.isnan(guess), gap_guess, guess))
+    icp = kalman.increments(t, od.poses, od.covariance, source="icp")
+    measured = np.r_[True, ~np.isnan(guess).any(axis=1)]  # no odometry step across a gap
+    wheel = kalman.increments(t, wheels, kalman.WHEEL_SIGMAS, measured=measured, source="wheel")
+    no_cov = int((~np.isfinite(od.covariance[1:]).all(axis=(1, 2))).sum())
+    print(
+        f"Killian Court: {len(scans)} scans; ICP's steps in the filter {len(icp)} of {len(t) - 1} "
+        f"({no_cov} without a covariance: the odometry overruled them); odometry steps {len(wheel)}"
+    )
+    rows = [("ICP from the odometry", od.poses), ("the odometry", wheels)]
+    raw = dataclasses.replace(kalman.KF_MODES["weighted"], wheel_witness=False, wheel_calibrated=False)
+    for name, ms, params in (
+        ("KF on ICP alone (weighted)", icp, kalman.KF_MODES["weighted"]),
+        ("KF on ICP alone (driven)", icp, kalman.KF_MODES["driven"]),
+        ("KF on ICP + odometry (weighted)", icp + wheel, kalman.KF_MODES["weighted"]),
+        ("KF on ICP + odometry (icp-first)", icp + wheel, kalman.KF_MODES["icp-first"]),
+        ("KF on ICP + odometry raw (weighted)", icp + wheel, raw),
+    ):
+        rows.append((name, kalman.path_at(kalman.run_filter(ms, params), t).poses))
+    print(f"load average (1 min) {os.getloadavg()[0]:.1f}")
+    print("| method | ATE (m) | end error (m) | relation error, consecutive (m) | (deg) |")
+    print("|---|---|---|---|---|")
+    for name, est in rows:
+        m = evaluate(anchored(est, gt), gt)
+        r = relation_error(est, gt)
+        print(
+            f"| {name} | {m['ate_rmse_m']:.3f} | {m['end_position_error_m']:.2f} "
+            f"| {r['trans_mean_m']:.4f} ± {r['trans_std_m']:.4f} "
+            f"| {r['rot_mean_deg']:.3f} ± {r['rot_std_deg']:.3f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
