@@ -7,7 +7,9 @@ pauses of 10-69 s), read as ``rigcal import-carmen`` does; ICP started from the 
 The filter (rigcal.localize.kalman.run_filter) runs on ICP's steps with their covariances
 alone, driven by them (``--kf driven``), and on ICP's and the odometry's steps (the
 odometry with its rate noise model, none across its gaps) in the modes of ``rigcal
-localize --kf``, with the wheels raw (neither witness nor calibrated). Scored against the
+localize --kf``, with the wheels raw (neither witness nor calibrated); and on ICP's steps
+with the ones the odometry overruled under the odometry's noise model instead of left
+out, and on the odometry's steps alone. Scored against the
 g2o's vertices by ATE (SE(2)-aligned), the end position error and the relation error over
 consecutive scans (rigcal.localize.metrics). ``rigcal localize --method kf`` needs images;
 this measures what the filter would do on such a log.
@@ -46,11 +48,23 @@ def main() -> None:
         f"Killian Court: {len(scans)} scans; ICP's steps in the filter {len(icp)} of {len(t) - 1} "
         f"({no_cov} without a covariance: the odometry overruled them); odometry steps {len(wheel)}"
     )
+    # ICP's steps with the overruled ones (the odometry's motion) under the odometry's
+    # rate noise model instead of left out.
+    cov = od.covariance.copy()
+    dt = np.r_[1.0, np.diff(t)]
+    missing = ~np.isfinite(cov).all(axis=(1, 2))
+    missing[0] = False  # index 0: no step
+    for k in np.flatnonzero(missing):
+        cov[k] = kalman.rate_covariance(kalman.WHEEL_SIGMAS, float(dt[k]), False)
+    filled = kalman.increments(t, od.poses, cov, source="icp")
     rows = [("ICP from the odometry", od.poses), ("the odometry", wheels)]
-    raw = dataclasses.replace(kalman.KF_MODES["weighted"], wheel_witness=False, wheel_calibrated=False)
+    weighted = kalman.KF_MODES["weighted"]
+    raw = dataclasses.replace(weighted, wheel_witness=False, wheel_calibrated=False)
     for name, ms, params in (
         ("KF on ICP alone (weighted)", icp, kalman.KF_MODES["weighted"]),
         ("KF on ICP alone (driven)", icp, kalman.KF_MODES["driven"]),
+        ("KF on ICP alone, the overruled steps under the odometry's noise (weighted)", filled, weighted),
+        ("KF on the odometry alone (weighted)", wheel, weighted),
         ("KF on ICP + odometry (weighted)", icp + wheel, kalman.KF_MODES["weighted"]),
         ("KF on ICP + odometry (icp-first)", icp + wheel, kalman.KF_MODES["icp-first"]),
         ("KF on ICP + odometry raw (weighted)", icp + wheel, raw),
