@@ -25,11 +25,10 @@ import os
 
 import numpy as np
 
-from bench_wheel_odometry import chained, killian_log
-from rigcal.io.wheel_odometry import icp_starts
+from bench_wheel_odometry import chained, killian_log, killian_row
+from rigcal.io.wheel_odometry import icp_starts, laser_motions
 from rigcal.localize import kalman
 from rigcal.localize.icp import IcpParams
-from rigcal.localize.metrics import anchored, evaluate, relation_error
 from rigcal.localize.odometry import icp_odometry
 
 
@@ -39,7 +38,7 @@ def main() -> None:
     t = np.array([s.stamp_s for s in scans])
     guess, gap_guess = icp_starts(odom, t)
     od = icp_odometry(scans, IcpParams(method="point-to-line"), guess=guess, gap_guess=gap_guess)
-    wheels = chained(np.where(np.isnan(guess), gap_guess, guess))
+    wheels = chained(laser_motions(odom, t, over_gaps=True))  # across its gaps too
     icp = kalman.increments(t, od.poses, od.covariance, source="icp")
     measured = np.r_[True, ~np.isnan(guess).any(axis=1)]  # no odometry step across a gap
     wheel = kalman.increments(t, wheels, kalman.WHEEL_SIGMAS, measured=measured, source="wheel")
@@ -74,13 +73,7 @@ def main() -> None:
     print("| method | ATE (m) | end error (m) | relation error, consecutive (m) | (deg) |")
     print("|---|---|---|---|---|")
     for name, est in rows:
-        m = evaluate(anchored(est, gt), gt)
-        r = relation_error(est, gt)
-        print(
-            f"| {name} | {m['ate_rmse_m']:.3f} | {m['end_position_error_m']:.2f} "
-            f"| {r['trans_mean_m']:.4f} ± {r['trans_std_m']:.4f} "
-            f"| {r['rot_mean_deg']:.3f} ± {r['rot_std_deg']:.3f} |"
-        )
+        print(killian_row(name, est, gt))
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from bench_wheel_odometry import killian_log
-from rigcal.io.wheel_odometry import icp_starts
+from rigcal.io.wheel_odometry import icp_starts, laser_motions
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.loop_closure import Closure, LoopParams, LoopResult, close_loops, compose, relative
 from rigcal.localize.metrics import anchored, evaluate, relation_error, rpe_pairs
@@ -117,7 +117,7 @@ def killian(
     # The log's odometry chained alone (the g2o's sequential edges, which its vertices
     # are the optimum of): how far the reference itself follows it step by step.
     wheels = np.zeros((len(scans), 3))
-    for k, step in enumerate(np.where(np.isnan(guess), gap_guess, guess)):
+    for k, step in enumerate(laser_motions(odom, t, over_gaps=True)):
         wheels[k + 1] = compose(wheels[k][None], step[None])[0]
     rows = [
         _row("the log's odometry alone", wheels, gt, "-"),

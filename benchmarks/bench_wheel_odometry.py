@@ -65,6 +65,18 @@ def killian_log() -> tuple[Any, Any, str]:
     return log, odom, how
 
 
+def killian_row(name: str, est: FloatArray, gt: FloatArray) -> str:
+    """A table row's first cells: ``name``, the ATE and end error of ``est`` (N, 3) against
+    ``gt`` and the relation error over consecutive scans (mean ± std, m and deg)."""
+    m = evaluate(anchored(est, gt), gt)
+    r = relation_error(est, gt)
+    return (
+        f"| {name} | {m['ate_rmse_m']:.3f} | {m['end_position_error_m']:.2f} "
+        f"| {r['trans_mean_m']:.4f} ± {r['trans_std_m']:.4f} "
+        f"| {r['rot_mean_deg']:.3f} ± {r['rot_std_deg']:.3f} |"
+    )
+
+
 def killian(n: int | None, gaps: str = "contradict") -> None:
     """``gaps``: across the odometry's gaps its motion starts ICP unless the scans
     contradict it ("contradict", as rigcal localize), or ICP takes no motion from it
@@ -88,21 +100,14 @@ def killian(n: int | None, gaps: str = "contradict") -> None:
         lc = close_loops(scans, od.poses)
         rows[f"{name} + loop closure"] = (lc.poses, duration / (wall + time.perf_counter() - t1))
         print(f"{name}: closures {lc.counts}")
-    wheels = chained(np.where(np.isnan(guess), gap_guess, guess))  # its gaps' motion too
-    rows["odometry (g2o sequential edges)"] = (wheels, float("nan"))
+    rows["odometry (g2o sequential edges)"] = (chained(laser_motions(odom, t, over_gaps=True)), float("nan"))
     print(f"Killian Court: {len(scans)} scans, {duration:.0f} s of data; odometry: {how}")
     print(
         "| method | ATE (m) | loop/end error (m) | relation error (m) | relation error (deg) | x real time |"
     )
     print("|---|---|---|---|---|---|")
     for name, (est, speed) in rows.items():
-        m = evaluate(anchored(est, gt), gt)
-        r = relation_error(est, gt)
-        print(
-            f"| {name} | {m['ate_rmse_m']:.3f} | {m['end_position_error_m']:.2f} "
-            f"| {r['trans_mean_m']:.4f} ± {r['trans_std_m']:.4f} "
-            f"| {r['rot_mean_deg']:.3f} ± {r['rot_std_deg']:.3f} | {speed:.0f} |"
-        )
+        print(f"{killian_row(name, est, gt)} {speed:.0f} |")
 
 
 def simulated(rate_hz: float) -> None:

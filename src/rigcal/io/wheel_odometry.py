@@ -31,9 +31,9 @@ MAX_TILT_RAD = 0.2
 # (its motion across the gap right: Killian Court's 15 gaps of 10-69 s agree with the
 # SLAM poses to 6 cm and 0.3 deg), or a base rebooted or carried (its motion nonsense).
 # Nothing in the odometry tells which, so its motion across a gap is no measurement
-# (:func:`across_gaps`): ICP tries it as a start beside its own last motion and keeps the
-# better fit (rigcal.localize.odometry.ScanOdometry.add), the filter and method odom take
-# no motion from it there.
+# (:func:`across_gaps`): it starts ICP unless the scans clearly contradict it
+# (:func:`icp_starts`, rigcal.localize.odometry.contradicts), and the filter and method
+# odom take no motion from it there.
 MAX_GAP_S = 1.0
 GAP_PERIODS = 5.0
 

@@ -106,7 +106,8 @@ def icp_odometry(
     scan in turn), each started from ``guess[k]`` (N - 1, 3: the wheel odometry's motion
     from scan k to k + 1, NaN where it has none) or else from the previous increment
     (constant velocity); ``gap_guess`` (N - 1, 3): the wheel odometry's motion across its
-    gaps, NaN elsewhere, tried beside that (:meth:`ScanOdometry.add`'s ``candidate``);
+    gaps, NaN elsewhere, a guess unless the scans contradict it (:meth:`ScanOdometry.add`'s
+    ``candidate``);
     ``progress`` is called with the scans done so far. ``lines(k)``:
     scan k's segments, to share them with other stages (by default extracted here).
     ``kernel=False`` runs the line extraction, the carrying of the lines and ICP in their

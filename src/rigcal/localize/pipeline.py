@@ -332,15 +332,17 @@ def _matching_estimate(streams: Streams, method: str, params: IasmParams) -> Est
     return Estimate(stamps, poses, stats, steps)
 
 
+def _icp_p2p(streams: Streams) -> Odometry:
+    """Point-to-point ICP over the scans, started from the wheel odometry as the default
+    laser odometry is (:meth:`Streams.wheel_starts`)."""
+    guess, gap_guess = streams.wheel_starts()
+    return icp_odometry(streams.scans, LASER_ODOMETRY["icp-p2p"], guess=guess, gap_guess=gap_guess)
+
+
 # name -> the method's estimate from the streams and IASM's and H-IASM's settings.
 METHODS: dict[str, Callable[[Streams, IasmParams], Estimate]] = {
     "icp": lambda s, _: _icp_estimate(s, s.laser_odometry()),
-    "icp-p2p": lambda s, _: _icp_estimate(
-        s,
-        icp_odometry(
-            s.scans, LASER_ODOMETRY["icp-p2p"], guess=s.wheel_guess(), gap_guess=s.wheel_gap_guess()
-        ),
-    ),
+    "icp-p2p": lambda s, _: _icp_estimate(s, _icp_p2p(s)),
     "odom": lambda s, _: _wheel_estimate(s),
     "vo": lambda s, _: _vo_estimate(s, _vo_result(s)),
     "kf": lambda s, _: _kf_estimate(s),

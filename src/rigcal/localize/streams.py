@@ -101,20 +101,16 @@ class Streams:
         """(N - 1, 3) the laser's motion between consecutive scans by the wheel odometry
         (NaN across a gap in it and where a scan is outside its span), or None without
         odometry."""
-        starts = self._wheel_starts()
-        return None if starts is None else starts[0]
+        return self.wheel_starts()[0]
 
-    def wheel_gap_guess(self) -> FloatArray | None:
-        """(N - 1, 3) the wheel odometry's motion across its gaps
-        (:func:`rigcal.io.wheel_odometry.icp_starts`), NaN elsewhere: it starts ICP unless
-        the scans contradict it; None without odometry."""
-        starts = self._wheel_starts()
-        return None if starts is None else starts[1]
-
-    def _wheel_starts(self) -> tuple[FloatArray, FloatArray] | None:
+    def wheel_starts(self) -> tuple[FloatArray | None, FloatArray | None]:
+        """ICP's starts from the wheel odometry (:func:`rigcal.io.wheel_odometry.icp_starts`):
+        its guesses (:meth:`wheel_guess`) and its motion across its gaps (NaN elsewhere),
+        which starts ICP unless the scans contradict it, both NaN where a scan is outside
+        its span; (None, None) without odometry."""
         od = self.wheel_odometry
         if od is None:
-            return None
+            return None, None
         t = self.scan_stamps_s
         guess, gap_guess = icp_starts(od, t)
         inside = (t >= od.stamps_s[0]) & (t <= od.stamps_s[-1])
@@ -309,13 +305,14 @@ class Streams:
                 raise _StoppedError
             self.report("laser odometry", k, n)
 
+        guess, gap_guess = self.wheel_starts()
         od = icp_odometry(
             self.scans,
             LASER_ODOMETRY["icp"],
             progress,
             self.lines,
-            guess=self.wheel_guess(),
-            gap_guess=self.wheel_gap_guess(),
+            guess=guess,
+            gap_guess=gap_guess,
             covariance=self.odometry_covariance,
         )
         self.timings_s["icp_s"] = time.perf_counter() - t0
