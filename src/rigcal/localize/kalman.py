@@ -398,7 +398,9 @@ class KfParams:
     those over which the rig stands still, its bias's zero-turn updates, enter the filter; the
     others serve the witness alone); ``gyro_where_icp_errs``: with ``gyro_fused`` off, the
     gyro's turn over a VO run over which it found ICP's yaw erring fused after the run
-    (:func:`_convicted_turn`)."""
+    (:func:`_convicted_turn`); ``anchored``: the causal path as the filter's relative
+    estimates chained (:class:`_Anchor`), not its pose in the world (the smoothed path is
+    the backward pass's either way)."""
 
     accel_sigma: float = 0.5
     yaw_accel_sigma: float = 1.0
@@ -434,6 +436,7 @@ class KfParams:
     gyro_witness: bool = False
     gyro_fused: bool = True
     gyro_where_icp_errs: bool = False
+    anchored: bool = False
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHTS:
@@ -798,15 +801,20 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
     tape = _TAPE.get()
     if tape is not None:
         tape.mark(0)
+    # The causal path as the filter's relative estimates chained (:class:`_Anchor`); the
+    # smoothed path is the backward pass's poses.
+    anchor = _Anchor(stamps, poses) if params.anchored and tape is None else None
     for when, kind, i in events:
         if when > t:
+            if anchor is not None:
+                x, P = anchor.move(x, P, blocks, t)
             if drive is not None:
                 x, P = drive.to(x, P, blocks, t, when)
             else:
                 x, P = _predict(x, P, when - t, params)
             t = when
         if kind == 2:
-            _keep(stamps, poses, covs, t, x, P, tape)
+            _keep(stamps, poses, covs, t, x, P, tape, anchor, blocks)
             continue
         m = ms[i]
         if kind == 1:
@@ -875,7 +883,7 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
                 if not pending[m.t0]:
                     x, P = _drop(x, P, _offset(blocks, ("clone", m.t0)))
                     blocks.remove(("clone", m.t0))
-                _keep(stamps, poses, covs, t, x, P, tape)
+                _keep(stamps, poses, covs, t, x, P, tape, anchor, blocks)
                 continue
         alone = None
         convicted = False  # the gyro found ICP's yaw erring over the run (its turn fused after it)
@@ -994,7 +1002,7 @@ def _run(measurements: list[Increment], params: KfParams, fused: list[Increment]
         if not pending[m.t0]:
             x, P = _drop(x, P, _offset(blocks, ("clone", m.t0)))
             blocks.remove(("clone", m.t0))
-        _keep(stamps, poses, covs, t, x, P, tape)
+        _keep(stamps, poses, covs, t, x, P, tape, anchor, blocks)
     gyro_block = _block(blocks, "gyro")
     bias_sigma = float("nan")
     if gyro_block is not None:
@@ -1157,17 +1165,72 @@ def _keep(
     x: FloatArray,
     P: FloatArray,
     tape: _Tape | None = None,
+    anchor: _Anchor | None = None,
+    blocks: list[tuple[str, float]] | None = None,
 ) -> None:
     """The pose and its covariance at ``t`` appended to the output (replacing the last at
-    the same stamp); the ``tape``'s mark of that output where smoothing."""
+    the same stamp): the state's pose, or with an ``anchor`` the filter's motion since the
+    last output stamp chained onto that output (:class:`_Anchor`); the ``tape``'s mark of
+    that output where smoothing."""
+    pose = anchor.pose(x, blocks or []) if anchor is not None else x[:3].copy()
     if stamps[-1] == t:
-        poses[-1], covs[-1] = x[:3].copy(), P[:3, :3].copy()
+        poses[-1], covs[-1] = pose, P[:3, :3].copy()
     else:
         stamps.append(t)
-        poses.append(x[:3].copy())
+        poses.append(pose)
         covs.append(P[:3, :3].copy())
     if tape is not None:
         tape.mark(len(stamps) - 1)
+
+
+class _Anchor:
+    """The causal path as the filter's relative estimates chained. Every input is an
+    increment, so the filter's pose in the world is unobservable: an update moves it only
+    by the linearisation's leak (the EKF's inconsistency under a large heading
+    uncertainty; Huang, Mourikis and Roumeliotis, "Observability-based rules for designing
+    consistent EKF SLAM estimators", IJRR 2010), which over a long real log (a heading
+    uncertainty of 0.3 rad, a lever arm of 50 m) moved a pose and its clone together by
+    metres where the increment corrected their relative motion by centimetres. So the
+    state holds a copy of its pose at an output stamp (the block ("anchor", stamp), taken
+    as the state moves on from the last output stamp unless an increment from an earlier
+    stamp is still pending), updated with the rest, and each output pose is that stamp's
+    output composed with the motion from the copy to the current pose: an update's
+    correction of the motion since the copy reaches the path, a move of both alike does
+    not. Without any update this is the state's own pose."""
+
+    def __init__(self, stamps: list[float], poses: list[FloatArray]) -> None:
+        self.stamps, self.poses = stamps, poses
+        self.base = poses[-1].copy()  # the output at the anchor's stamp
+
+    def move(
+        self, x: FloatArray, P: FloatArray, blocks: list[tuple[str, float]], t: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """Before the state leaves ``t``: where ``t`` is the last output stamp, the copy of
+        the pose there (replacing the one before)."""
+        held = _block(blocks, "anchor")
+        if self.stamps[-1] != t or (held is not None and held[1] == t):
+            return x, P
+        if any(kind == "clone" and at < t for kind, at in blocks):
+            # An increment from an earlier stamp is still to come: its correction of the
+            # motion since then is to reach the path, so the copy stays where it is.
+            return x, P
+        if held is not None:
+            x, P = _drop(x, P, _offset(blocks, held))
+            blocks.remove(held)
+        x, P = _clone(x, P)
+        blocks.append(("anchor", t))
+        self.base = self.poses[-1].copy()
+        return x, P
+
+    def pose(self, x: FloatArray, blocks: list[tuple[str, float]]) -> FloatArray:
+        """The output pose for the state ``x``."""
+        held = _block(blocks, "anchor")
+        if held is None:
+            return x[:3].copy()
+        a = _offset(blocks, held)
+        out = pose_of(se2(self.base) @ np.linalg.inv(se2(x[a : a + 3])) @ se2(x[:3]))
+        out[2] = self.base[2] + (x[2] - x[a + 2])  # the heading unwrapped, as the state's
+        return out
 
 
 def _se2_log(motion: FloatArray) -> FloatArray:
