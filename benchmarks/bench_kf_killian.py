@@ -11,8 +11,13 @@ localize --kf``, with the wheels raw (neither witness nor calibrated); and on IC
 with the ones the odometry overruled under the odometry's noise model instead of left
 out, and on the odometry's steps alone. Scored against the
 g2o's vertices by ATE (SE(2)-aligned), the end position error and the relation error over
-consecutive scans (rigcal.localize.metrics). ``rigcal localize --method kf`` needs images;
-this measures what the filter would do on such a log.
+consecutive scans (rigcal.localize.metrics). Then the filter as ``rigcal localize --method
+kf`` runs it on a log without images: ICP's steps, the overruled ones under the
+odometry's noise model and the odometry's own step there left out (each step measured
+once: rigcal.localize.pipeline.overruled_as_odometry), and the odometry's
+(wheel_measurements: across a gap only where ICP measured nothing), the causal path
+anchored (KfParams.anchored), in each
+mode; and the odometry's steps alone, anchored.
 
     uv sync --group bench        # rtb-data
     .venv/bin/python benchmarks/bench_kf_killian.py
@@ -30,6 +35,7 @@ from rigcal.io.wheel_odometry import icp_starts, laser_motions
 from rigcal.localize import kalman
 from rigcal.localize.icp import IcpParams
 from rigcal.localize.odometry import icp_odometry
+from rigcal.localize.pipeline import overruled_as_odometry, wheel_measurements
 
 
 def main() -> None:
@@ -68,6 +74,25 @@ def main() -> None:
         ("KF on ICP + odometry (icp-first)", icp + wheel, kalman.KF_MODES["icp-first"]),
         ("KF on ICP + odometry raw (weighted)", icp + wheel, raw),
     ):
+        rows.append((name, kalman.path_at(kalman.run_filter(ms, params), t).poses))
+    # As rigcal localize --method kf runs it without images: anchored.
+    cov_used, used = overruled_as_odometry(t, od.covariance, wheel_measurements(odom, t, od.covariance))
+    icp_used = kalman.increments(t, od.poses, cov_used, source="icp")
+    for name, ms, mode in (
+        (
+            "rigcal's KF without images: ICP + odometry, anchored (weighted, the default)",
+            icp_used + used,
+            "weighted",
+        ),
+        ("rigcal's KF without images: ICP + odometry, anchored (driven)", icp_used + used, "driven"),
+        ("rigcal's KF without images: ICP + odometry, anchored (icp-first)", icp_used + used, "icp-first"),
+        (
+            "KF on the odometry alone, across its gaps too, anchored (weighted)",
+            kalman.increments(t, wheels, kalman.WHEEL_SIGMAS, source="wheel"),
+            "weighted",
+        ),
+    ):
+        params = dataclasses.replace(kalman.KF_MODES[mode], anchored=True)
         rows.append((name, kalman.path_at(kalman.run_filter(ms, params), t).poses))
     print(f"load average (1 min) {os.getloadavg()[0]:.1f}")
     print("| method | ATE (m) | end error (m) | relation error, consecutive (m) | (deg) |")

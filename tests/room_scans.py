@@ -49,3 +49,20 @@ def room_drive(base: Path, odometry: bool = False) -> Path:
     return write_sequence(
         base / "seq", "room", scans, frames, None, {"test": True}, rig_yaml=rig_yaml, odometry=wheels
     )
+
+
+def carmen_drive(t0: float, x0: float, odom_x0: float, odom_yaw: float) -> list[tuple[float, str]]:
+    """A CARMEN log's lines (stamp, line) for 2 s at 0.5 m/s along x from ``x0`` in the
+    room: ODOM lines at 20 Hz (the base's odometry from ``odom_x0`` along ``odom_yaw``),
+    FLASER lines at 10 Hz (laser pose = truth)."""
+    out = []
+    for k in range(40):
+        t, x = t0 + 0.05 * k, x0 + 0.025 * k
+        ox = odom_x0 + 0.025 * k
+        xy = f"{ox * np.cos(odom_yaw):.4f} {ox * np.sin(odom_yaw):.4f}"
+        out.append((t, f"ODOM {xy} {odom_yaw} 0.5 0 0 {t:.6f} h {t:.6f}"))
+        if k % 2 == 0:
+            r = " ".join(f"{v:.3f}" for v in room_scan(x, 0.0).ranges_m)
+            ts = t + 0.001
+            out.append((ts, f"FLASER 181 {r} {x:.4f} 0 0 {x:.4f} 0 0 {ts:.6f} h {ts:.6f}"))
+    return out

@@ -11,24 +11,9 @@ import yaml
 
 from rigcal.cli.main import main
 from rigcal.io.wheel_odometry import across_gaps, checked, laser_motions
-from room_scans import room_scan
+from room_scans import carmen_drive
 
 PARKED_S = 3600.0
-
-
-def _drive(t0: float, x0: float, odom_x0: float, odom_yaw: float) -> list[tuple[float, str]]:
-    """2 s at 0.5 m/s: ODOM lines at 20 Hz, FLASER lines at 10 Hz (laser pose = truth)."""
-    out = []
-    for k in range(40):
-        t, x = t0 + 0.05 * k, x0 + 0.025 * k
-        ox = odom_x0 + 0.025 * k
-        xy = f"{ox * np.cos(odom_yaw):.4f} {ox * np.sin(odom_yaw):.4f}"
-        out.append((t, f"ODOM {xy} {odom_yaw} 0.5 0 0 {t:.6f} h {t:.6f}"))
-        if k % 2 == 0:
-            r = " ".join(f"{v:.3f}" for v in room_scan(x, 0.0).ranges_m)
-            ts = t + 0.001
-            out.append((ts, f"FLASER 181 {r} {x:.4f} 0 0 {x:.4f} 0 0 {ts:.6f} h {ts:.6f}"))
-    return out
 
 
 def test_steps_across_a_gap_take_no_motion_from_the_odometry():
@@ -48,7 +33,7 @@ def test_steps_across_a_gap_take_no_motion_from_the_odometry():
 def parked_log(tmp_path_factory):
     base = tmp_path_factory.mktemp("parked")
     # After the hour parked the base was rebooted: its odometry starts again at -5 m, 1 rad.
-    lines = _drive(100.0, 0.0, 0.0, 0.0) + _drive(102.0 + PARKED_S, 1.0, -5.0, 1.0)
+    lines = carmen_drive(100.0, 0.0, 0.0, 0.0) + carmen_drive(102.0 + PARKED_S, 1.0, -5.0, 1.0)
     log = base / "parked.log"
     log.write_text("\n".join(line for _, line in sorted(lines)) + "\n")
     assert main(["import-carmen", str(log), "-o", str(base / "seq")]) == 0

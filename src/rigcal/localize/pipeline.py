@@ -27,7 +27,7 @@ from rigcal.errors import InputError
 from rigcal.geometry import pose_of, se2
 from rigcal.io.gyro import Gyro
 from rigcal.io.trajectory import Trajectory, read_tum
-from rigcal.io.wheel_odometry import across_gaps, gap_s, laser_motions
+from rigcal.io.wheel_odometry import WheelOdometry, across_gaps, gap_s, laser_motions
 from rigcal.localize import kalman
 from rigcal.localize.iasm import IasmParams
 from rigcal.localize.icp import IcpParams
@@ -208,15 +208,22 @@ def _vo_estimate(streams: Streams, res: VoResult) -> Estimate:
 
 def _kf_estimate(streams: Streams, params: kalman.KfParams | None = None) -> Estimate:
     params = params or kalman.KfParams()
-    od, res = streams.laser_odometry(), _vo_result(streams)
+    images = kf_has_images(streams)
+    od, res = streams.laser_odometry(), _vo_result(streams) if images else None
+    if not images:
+        # ICP and the wheel odometry alone, over a long real log: the path from the
+        # filter's relative estimates (KfParams.anchored; docs/localization.md).
+        params = dataclasses.replace(params, anchored=True)
     t0 = time.perf_counter()
     ms = kf_measurements(streams, od, res, params)
-    stats = {
+    stats: dict[str, Any] = {
         "icp_measurements": sum(m.source == "icp" for m in ms),
         "vo_measurements": sum(m.source == "vo" for m in ms),
         "weights": params.weights,
         "prediction": f"{params.drive} steps" if params.drive else "constant velocity",
     }
+    if not images:
+        stats["inputs"] = "ICP and the wheel odometry (the sequence has no images)"
     if streams.wheel_odometry is not None:
         stats["wheel_measurements"] = sum(m.source == "wheel" for m in ms)
     kf = kalman.run_filter(ms, params)
@@ -242,34 +249,97 @@ def kf_inputs(streams: Streams) -> tuple[Odometry, VoResult]:
     return streams.laser_odometry(), _vo_result(streams)
 
 
+def kf_has_images(streams: Streams) -> bool:
+    """Whether the Kalman filter takes VO: the sequence has images (and so must have the
+    rig: :func:`_require_images`); without, it fuses ICP and the wheel odometry."""
+    return streams.n_images >= 2
+
+
 def kf_measurements(
-    streams: Streams, od: Odometry, res: VoResult, params: kalman.KfParams
+    streams: Streams, od: Odometry, res: VoResult | None, params: kalman.KfParams
 ) -> list[kalman.Increment]:
-    """The Kalman filter's inputs: ICP's steps (``od``), VO's runs (``res``) and the wheel
-    odometry's steps (when used), each with its covariance (``params.weights``;
+    """The Kalman filter's inputs: ICP's steps (``od``), VO's runs (``res``; None: a
+    sequence without images) and the wheel odometry's steps (when used:
+    :func:`wheel_measurements`), each with its covariance (``params.weights``;
     docs/localization.md)."""
-    icp, vo = _icp_estimate(streams, od), _vo_estimate(streams, res)
-    statuses = [s.status for s in res.steps]
+    icp = _icp_estimate(streams, od)
     degenerate = od.degeneracy < DEGENERATE_BELOW
+    fixed = params.weights == "fixed" or od.covariance is None
     if params.weights == "fixed" or od.covariance is None:
         ms = kalman.increments(icp.stamps_s, icp.poses, kalman.ICP_SIGMAS, degenerate, source="icp")
-        ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses)
     else:
         # The covariance already opens a degenerate step along the corridor only.
-        ms = kalman.increments(icp.stamps_s, icp.poses, od.covariance, source="icp")
-        rig = streams.require_rig("kf")
-        focal = float(np.mean(rig.camera.intrinsics[:2]))
-        vo_cov = np.array([_run_covariance(s, focal) for s in res.steps])
-        ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses, vo_cov.reshape(-1, 3, 3))
+        cov, wheel = od.covariance, None
+        if streams.wheel_odometry is not None:
+            cov, wheel = overruled_as_odometry(
+                icp.stamps_s, od.covariance, wheel_measurements(streams.wheel_odometry, icp.stamps_s, cov)
+            )
+        ms = kalman.increments(icp.stamps_s, icp.poses, cov, source="icp")
+    if res is not None:
+        vo = _vo_estimate(streams, res)
+        statuses = [s.status for s in res.steps]
+        if fixed:
+            ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses)
+        else:
+            rig = streams.require_rig("kf")
+            focal = float(np.mean(rig.camera.intrinsics[:2]))
+            vo_cov = np.array([_run_covariance(s, focal) for s in res.steps])
+            ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses, vo_cov.reshape(-1, 3, 3))
     if streams.wheel_odometry is not None:
-        wheel = _wheel_estimate(streams)
-        measured = np.r_[True, ~across_gaps(streams.wheel_odometry, wheel.stamps_s)]  # none over a gap
-        ms += kalman.increments(
-            wheel.stamps_s, wheel.poses, kalman.WHEEL_SIGMAS, measured=measured, source="wheel"
-        )
+        ms += wheel if wheel is not None else wheel_measurements(streams.wheel_odometry, icp.stamps_s)
     if streams.gyro is not None:
         ms += gyro_measurements(streams.gyro, streams.scan_stamps_s, params)
     return ms
+
+
+def wheel_measurements(
+    odom: WheelOdometry, scan_stamps_s: FloatArray, icp_covariance: FloatArray | None = None
+) -> list[kalman.Increment]:
+    """The wheel odometry's steps between the scans within its span as the filter's
+    measurements, under its noise model (:data:`rigcal.localize.kalman.WHEEL_SIGMAS`).
+    None across a gap in the odometry (:func:`rigcal.io.wheel_odometry.across_gaps`),
+    unless ICP measured nothing there (``icp_covariance`` (N, 3, 3) per scan, NaN: the
+    scans kept the odometry's motion, :func:`rigcal.localize.odometry.icp_odometry`): the
+    step is then the odometry's alone, and one measurement of it (ICP's step, the same
+    motion, is not one), where without it the filter's model would carry the pose over the
+    pause."""
+    t = np.asarray(scan_stamps_s, dtype=float)
+    within = (t >= odom.stamps_s[0]) & (t <= odom.stamps_s[-1])
+    tw = t[within]
+    if len(tw) < 2:
+        return []
+    steps = laser_motions(odom, tw, over_gaps=True)
+    measured = ~across_gaps(odom, tw)
+    if icp_covariance is not None:
+        icp_none = ~np.isfinite(np.asarray(icp_covariance)[within]).all(axis=(1, 2))[1:]
+        measured |= icp_none & np.isfinite(steps).all(axis=1)
+    T = np.eye(3)
+    poses = [pose_of(T)]
+    for step in np.where(np.isfinite(steps), steps, 0.0):
+        T = T @ se2(step)
+        poses.append(pose_of(T))
+    return kalman.increments(
+        tw, np.array(poses), kalman.WHEEL_SIGMAS, measured=np.r_[True, measured], source="wheel"
+    )
+
+
+def overruled_as_odometry(
+    stamps_s: FloatArray, icp_covariance: FloatArray, wheel: list[kalman.Increment]
+) -> tuple[FloatArray, list[kalman.Increment]]:
+    """ICP's steps the odometry overruled (no covariance: the scans kept the odometry's
+    motion, which is ICP's step there) under the odometry's noise model, and the wheels'
+    steps without those: each such step one measurement, of the odometry, where the
+    filter would otherwise have none from ICP (the driven filter a hole in its drive)."""
+    cov = np.array(icp_covariance, dtype=float)
+    at = {float(t): k for k, t in enumerate(stamps_s)}
+    kept = []
+    for m in wheel:
+        k = at.get(m.t1, -1)
+        if k > 0 and stamps_s[k - 1] == m.t0 and not np.isfinite(cov[k]).all():
+            cov[k] = m.covariance
+        else:
+            kept.append(m)
+    return cov, kept
 
 
 def gyro_measurements(
@@ -418,7 +488,7 @@ def _shared_stages(streams: Streams, methods: list[str]) -> None:
     """Compute the stages several methods share, before the methods: the feature tracks
     (when a method tracks images) with the laser odometry beside them on a second thread,
     then the laser odometry (every method but icp-p2p pairs scans and images with it)."""
-    tracking = [m for m in methods if m in TRACKING]
+    tracking = [m for m in methods if m in TRACKING and (m != "kf" or kf_has_images(streams))]
     _require_images(streams, methods)  # a clear error before any work
     streams.results["images_outside_scans"] = _leave_out_outside(streams, methods)
     if tracking:
@@ -438,8 +508,8 @@ def _warn_gaps(streams: Streams) -> None:
         long = float(np.diff(od.stamps_s).max())
         log.warning(
             "the wheel odometry pauses for over %.3g s between %d pair(s) of scans (the longest pause "
-            "%.3g s): its motion there starts ICP unless the scans contradict it, and the filter and "
-            "method odom take no motion from it there",
+            "%.3g s): its motion there starts ICP unless the scans contradict it, the filter takes it "
+            "there only where they kept it, and method odom takes none",
             gap_s(od),
             int(gaps.sum()),
             long,
@@ -463,9 +533,13 @@ def _require_images(streams: Streams, methods: list[str]) -> None:
     when the sequence has fewer than 2; else each image method's own checks (the rig, the
     images' clock and size: :meth:`Streams.require_images`)."""
     need = [m for m in methods if m in IMAGE_METHODS]
+    if streams.n_images < 2 and streams.wheel_odometry is not None and "kf" in need:
+        need.remove("kf")  # the filter fuses ICP and the wheel odometry (:func:`kf_has_images`)
     if need and streams.n_images < 2:
         odom = streams.sequence.has_odometry
-        can = [m for m in METHODS if m not in IMAGE_METHODS and (m != "odom" or odom)]
+        can = [
+            m for m in METHODS if (m not in IMAGE_METHODS or (m == "kf" and odom)) and (m != "odom" or odom)
+        ]
         raise InputError.at(
             streams._yaml(),
             "images.count",
