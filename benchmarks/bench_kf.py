@@ -104,6 +104,10 @@ VARIANTS = {
 # (kalman.KfParams.gyro_zero_turn off; with --gyro, "-gyro").
 VARIANTS["kf-icp-turn"] = dataclasses.replace(VARIANTS["kf"], gyro_zero_turn=False)
 VARIANTS["kf-icp-first-icp-turn"] = dataclasses.replace(VARIANTS["kf-icp-first"], gyro_zero_turn=False)
+# The gyro fused in icp-first (its mode takes it as the guard's witness alone), "-fused".
+VARIANTS["kf-icp-first-fused"] = dataclasses.replace(
+    VARIANTS["kf-icp-first"], gyro_witness=False, gyro_fused=True
+)
 # The gyro as the guard's heading witness (kalman.KfParams.gyro_witness; with --gyro, "-gyro"):
 # its witness alone, its steps not fused but at the standstill (the bias); the witness alone
 # with its turn fused over the runs where it finds ICP's yaw erring ("-turn",
@@ -113,7 +117,9 @@ for _key in ("kf", "kf-icp-first"):
     VARIANTS[f"{_key}-heading-turn"] = dataclasses.replace(
         VARIANTS[f"{_key}-heading"], gyro_where_icp_errs=True
     )
-    VARIANTS[f"{_key}-heading-fused"] = dataclasses.replace(VARIANTS[_key], gyro_witness=True)
+    VARIANTS[f"{_key}-heading-fused"] = dataclasses.replace(
+        VARIANTS[_key], gyro_witness=True, gyro_fused=True
+    )
 # The wheels fused as they come (WHEEL_SIGMAS) with no witness: round 8's default on laps with wheels.
 VARIANTS["kf-raw"] = dataclasses.replace(VARIANTS["kf"], wheel_witness=False, wheel_calibrated=False)
 # The wheels fused calibrated against ICP (kalman.KfParams.wheel_calibrated), with the witness:
@@ -134,6 +140,14 @@ VARIANTS.update(
             "kf-wheels",
             "kf-icp-first-wheels",
         )
+    }
+)
+# The causal path anchored (kalman.KfParams.anchored: the filter's relative estimates
+# chained, as method kf runs without images), "-anchored".
+VARIANTS.update(
+    {
+        f"{k}-anchored": dataclasses.replace(VARIANTS[k], anchored=True)
+        for k in ("kf", "kf-driven", "kf-icp-first", "kf-wheels", "kf-icp-first-wheels")
     }
 )
 ROUND9 = (
@@ -159,6 +173,8 @@ ROUND9 = (
     "kf-icp-first-heading",
     "kf-icp-first-heading-turn",
     "kf-icp-first-heading-fused",
+    "kf-icp-first-fused",
+    *(k for k in VARIANTS if k.endswith("-anchored")),
 )
 ALL_VARIANTS = tuple(k for k in VARIANTS if k not in ROUND9)
 # The compact table: the default against round 7's and the options, lap by lap (those run).

@@ -44,6 +44,12 @@ def test_gyro_steps_measure_the_yaw_alone():
     assert ms[0].covariance[2, 2] == pytest.approx(kalman.GYRO_NOISE**2 * 0.1)
 
 
+# Each mode with the gyro fused (icp-first makes it the guard's witness alone).
+FUSED = {
+    m: dataclasses.replace(kalman.KF_MODES[m], gyro_witness=False, gyro_fused=True) for m in kalman.KF_MODES
+}
+
+
 @pytest.mark.parametrize("mode", ["weighted", "icp-first"])
 def test_the_gyro_takes_the_heading_where_icp_turns_noisily(mode):
     """ICP's yaw white at 0.2 deg a step (its heading walks by degrees over 20 s): with the
@@ -54,7 +60,7 @@ def test_the_gyro_takes_the_heading_where_icp_turns_noisily(mode):
     gyro = _gyro(rng, t, truth, np.radians(0.05))
     errs = []
     for ms in (icp, icp + gyro):
-        r = kalman.path_at(kalman.run_filter(ms, kalman.KF_MODES[mode]), t)
+        r = kalman.path_at(kalman.run_filter(ms, FUSED[mode]), t)
         errs.append(float(np.sqrt(np.mean((r.poses[:, 2] - truth[:, 2]) ** 2))))
     assert errs[1] < 0.5 * errs[0]
 

@@ -69,8 +69,9 @@ rig_option = click.option(
     "--gyro",
     ["ignore", "use"],
     "use: the Kalman filter (method kf) fuses the sequence's gyroscope (gyro.csv, when it has "
-    "one), its bias learned as a state where the rig stands still; ignore (the default: on the "
-    "simulated laps the fused gyro was not better than the filter without it): runs without it.",
+    "one), its bias learned as a state where the rig stands still (with --kf icp-first: it is the "
+    "guard's heading witness, not fused); ignore (the default: on the simulated laps the fused gyro "
+    "was not better than the filter without it): runs without it.",
 )
 @click.option(
     "--loop-closure",

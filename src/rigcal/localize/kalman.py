@@ -522,8 +522,12 @@ KF_MODES["driven"] = KfParams(drive="icp")
 # "icp-first": the driven filter with VO only where ICP leaves the direction open
 # (``vo_pays`` at :data:`VO_OPEN_ONLY`): where ICP constrains the motion the path is ICP's
 # steps chained; along a corridor ICP cannot fix, VO carries it (docs/localization.md,
-# "VO only where it pays").
-KF_MODES["icp-first"] = KfParams(drive="icp", vo_pays=VO_OPEN_ONLY)
+# "VO only where it pays"). A gyroscope (where given) is the guard's heading witness and
+# not fused (``gyro_witness``, ``gyro_fused``): ICP's heading is left to ICP unless the gyro
+# and VO both find it erring (at most its best input on 10 of 10 standstill laps, against
+# 6 of 10 with the gyro fused: docs/benchmarks.md, "The gyroscope as the guard's heading
+# witness").
+KF_MODES["icp-first"] = KfParams(drive="icp", vo_pays=VO_OPEN_ONLY, gyro_witness=True, gyro_fused=False)
 
 
 @dataclass(frozen=True)
