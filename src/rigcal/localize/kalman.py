@@ -91,7 +91,7 @@ uncertainty weighs them, but they do not move it (other updates move it only thr
 correlation with the pose), as ICP's slow heading errors (over the lap) would
 otherwise be learned as the gyro's bias (measured: docs/benchmarks.md, "A gyroscope as the
 Kalman filter's third heading"). The gyro is also the guard's heading witness
-(``gyro_witness``, :class:`_GyroWitness`, :func:`_witness`; off in every mode), as the wheels
+(``gyro_witness``, :class:`_GyroWitness`, :func:`_witness`; on in "icp-first" alone), as the wheels
 are its third witness: its yaw chained over the guard's windows, less the bias as learned
 (its uncertainty in the test's variance), tells which of ICP and VO errs in yaw where one of
 them is off the other two beyond both models (Bar-Shalom, Li and Kirubarajan 2001, Section
