@@ -32,8 +32,8 @@ MAX_TILT_RAD = 0.2
 # SLAM poses to 6 cm and 0.3 deg), or a base rebooted or carried (its motion nonsense).
 # Nothing in the odometry tells which, so its motion across a gap is no measurement
 # (:func:`across_gaps`): it starts ICP unless the scans clearly contradict it
-# (:func:`icp_starts`, rigcal.localize.odometry.contradicts), and the filter and method
-# odom take no motion from it there.
+# (:func:`icp_starts`, rigcal.localize.odometry.contradicts); method odom takes no motion
+# from it there, the filter only where the scans kept it (pipeline.wheel_measurements).
 MAX_GAP_S = 1.0
 GAP_PERIODS = 5.0
 
