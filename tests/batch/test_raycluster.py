@@ -319,6 +319,7 @@ def _join(fake, monkeypatch, text):
 
     monkeypatch.setattr(raycluster, "import_ray", lambda: fake)
     monkeypatch.setattr(raycluster, "token_available", lambda: False)
+    monkeypatch.setattr(raycluster, "CLIENT_START_WAIT_S", 0.0)
     lines: list[str] = []
     with raycluster._join_cluster(parse_address(text), lines.append) as (_, session):
         return session.description, lines
@@ -336,13 +337,17 @@ def test_a_client_server_that_failed_to_start_is_asked_once_more(monkeypatch):
     assert lines[0].startswith("Ray: the head did not start this client's server; trying once more")
 
 
-def test_a_client_server_failing_twice_or_other_errors_are_one_line(monkeypatch):
-    from rigcal.batch.raycluster import CLIENT_START_FAILED
+def test_a_client_server_failing_every_attempt_or_other_errors_are_one_line(monkeypatch):
+    from rigcal.batch.raycluster import CLIENT_START_ATTEMPTS, CLIENT_START_FAILED
 
-    twice = _FlakyClientRay([ConnectionAbortedError(CLIENT_START_FAILED)] * 2)
+    twice = _FlakyClientRay([ConnectionAbortedError(CLIENT_START_FAILED)] * (CLIENT_START_ATTEMPTS - 1))
+    _, lines = _join(twice, monkeypatch, "ray://head:10001")  # the last attempt joins
+    assert twice.inits == CLIENT_START_ATTEMPTS
+    assert len(lines) == CLIENT_START_ATTEMPTS - 1
+    always = _FlakyClientRay([ConnectionAbortedError(CLIENT_START_FAILED)] * CLIENT_START_ATTEMPTS)
     with pytest.raises(InputError, match=r"^--ray: got 'ray://head:10001'; expected a Ray cluster to join"):
-        _join(twice, monkeypatch, "ray://head:10001")
-    assert twice.inits == 2
+        _join(always, monkeypatch, "ray://head:10001")
+    assert always.inits == CLIENT_START_ATTEMPTS
     other = _FlakyClientRay([ConnectionError("connection refused")])
     with pytest.raises(InputError, match="connection refused"):
         _join(other, monkeypatch, "ray://head:10001")

@@ -28,6 +28,7 @@ import shutil
 import socket
 import sys
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,10 @@ from rigcal.errors import InputError
 FORMS = "auto, local, HOST:PORT or ray://HOST:PORT"
 # Ray Client's error when the head could not start the server process of this client
 CLIENT_START_FAILED = "Starting Ray client server failed"
+# Attempts at joining through Ray Client while the head fails to start this client's server,
+# and the seconds waited before the next (a loaded head: CI's slow tests failed twice in a row).
+CLIENT_START_ATTEMPTS = 3
+CLIENT_START_WAIT_S = 2.0
 LOOPBACK = "127.0.0.1"
 _HOST_RE = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9-]*[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]*[A-Za-z0-9])?)*$")
 
@@ -278,12 +283,13 @@ def _join_cluster(address: RayAddress, log: Callable[[str], None]) -> Iterator[t
     finds on this machine, not for a named address).
 
     Through Ray Client the head starts a server process for each client; on a loaded head
-    that start can fail once ("Starting Ray client server failed") and succeed when asked
-    again, so that error alone is tried a second time."""
+    that start can fail ("Starting Ray client server failed") and succeed when asked
+    again, so that error alone is tried up to :data:`CLIENT_START_ATTEMPTS` times, the
+    wait before each next attempt :data:`CLIENT_START_WAIT_S` times the attempts so far."""
     env = {"RAY_AUTH_MODE": "token"} if token_available() else {}
     with _environ(env):
         ray = import_ray()
-        for attempt in (1, 2):
+        for attempt in range(1, CLIENT_START_ATTEMPTS + 1):
             try:
                 ray.init(address=address.target, log_to_driver=False)
                 break
@@ -291,8 +297,10 @@ def _join_cluster(address: RayAddress, log: Callable[[str], None]) -> Iterator[t
                 with contextlib.suppress(Exception):
                     ray.shutdown()
                 first = _one_line(exc)
-                if attempt == 1 and address.kind == "client" and CLIENT_START_FAILED in str(exc):
+                last = attempt == CLIENT_START_ATTEMPTS
+                if not last and address.kind == "client" and CLIENT_START_FAILED in str(exc):
                     log(f"Ray: the head did not start this client's server; trying once more ({first})")
+                    time.sleep(CLIENT_START_WAIT_S * attempt)
                     continue
                 hint = ""
                 if "uthentication" in str(exc) or "token" in str(exc):
