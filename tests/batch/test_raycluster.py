@@ -344,6 +344,11 @@ def test_a_client_server_failing_every_attempt_or_other_errors_are_one_line(monk
     _, lines = _join(twice, monkeypatch, "ray://head:10001")  # the last attempt joins
     assert twice.inits == CLIENT_START_ATTEMPTS
     assert len(lines) == CLIENT_START_ATTEMPTS - 1
+    traceback = "Initialization failure from server: Traceback (most recent call last): ..."
+    setup = _FlakyClientRay([ConnectionAbortedError(traceback)])
+    _, lines = _join(setup, monkeypatch, "ray://head:10001")
+    assert setup.inits == 2
+    assert len(lines) == 1
     always = _FlakyClientRay([ConnectionAbortedError(CLIENT_START_FAILED)] * CLIENT_START_ATTEMPTS)
     with pytest.raises(InputError, match=r"^--ray: got 'ray://head:10001'; expected a Ray cluster to join"):
         _join(always, monkeypatch, "ray://head:10001")

@@ -40,6 +40,8 @@ from rigcal.errors import InputError
 FORMS = "auto, local, HOST:PORT or ray://HOST:PORT"
 # Ray Client's error when the head could not start the server process of this client
 CLIENT_START_FAILED = "Starting Ray client server failed"
+# Ray Client's error when the head failed while setting that server up (its traceback follows).
+CLIENT_INIT_FAILED = "Initialization failure from server"
 # Attempts at joining through Ray Client while the head fails to start this client's server,
 # and the seconds waited before the next (a loaded head: CI's slow tests failed twice in a row).
 CLIENT_START_ATTEMPTS = 3
@@ -283,8 +285,9 @@ def _join_cluster(address: RayAddress, log: Callable[[str], None]) -> Iterator[t
     finds on this machine, not for a named address).
 
     Through Ray Client the head starts a server process for each client; on a loaded head
-    that start can fail ("Starting Ray client server failed") and succeed when asked
-    again, so that error alone is tried up to :data:`CLIENT_START_ATTEMPTS` times, the
+    that start can fail ("Starting Ray client server failed", or "Initialization failure
+    from server" with the head's traceback) and succeed when asked again, so those errors
+    alone are tried up to :data:`CLIENT_START_ATTEMPTS` times, the
     wait before each next attempt :data:`CLIENT_START_WAIT_S` times the attempts so far."""
     env = {"RAY_AUTH_MODE": "token"} if token_available() else {}
     with _environ(env):
@@ -298,7 +301,8 @@ def _join_cluster(address: RayAddress, log: Callable[[str], None]) -> Iterator[t
                     ray.shutdown()
                 first = _one_line(exc)
                 last = attempt == CLIENT_START_ATTEMPTS
-                if not last and address.kind == "client" and CLIENT_START_FAILED in str(exc):
+                server_side = CLIENT_START_FAILED in str(exc) or CLIENT_INIT_FAILED in str(exc)
+                if not last and address.kind == "client" and server_side:
                     log(f"Ray: the head did not start this client's server; trying once more ({first})")
                     time.sleep(CLIENT_START_WAIT_S * attempt)
                     continue
