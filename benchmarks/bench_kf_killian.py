@@ -16,8 +16,7 @@ kf`` runs it on a log without images: ICP's steps, the overruled ones under the
 odometry's noise model and the odometry's own step there left out (each step measured
 once: rigcal.localize.pipeline.overruled_as_odometry), and the odometry's
 (wheel_measurements: across a gap only where ICP measured nothing), the causal path
-anchored (KfParams.anchored), in each
-mode; and the odometry's steps alone, anchored.
+anchored (KfParams.anchored), in each mode; and the odometry's steps alone, anchored.
 
     uv sync --group bench        # rtb-data
     .venv/bin/python benchmarks/bench_kf_killian.py

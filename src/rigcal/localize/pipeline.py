@@ -263,30 +263,27 @@ def kf_measurements(
     :func:`wheel_measurements`), each with its covariance (``params.weights``;
     docs/localization.md)."""
     icp = _icp_estimate(streams, od)
-    degenerate = od.degeneracy < DEGENERATE_BELOW
-    fixed = params.weights == "fixed" or od.covariance is None
-    if params.weights == "fixed" or od.covariance is None:
+    own = None if params.weights == "fixed" else od.covariance  # None: the fixed covariances
+    odom = streams.wheel_odometry
+    wheel = wheel_measurements(odom, icp.stamps_s, own) if odom is not None else []
+    if own is None:
+        degenerate = od.degeneracy < DEGENERATE_BELOW
         ms = kalman.increments(icp.stamps_s, icp.poses, kalman.ICP_SIGMAS, degenerate, source="icp")
     else:
         # The covariance already opens a degenerate step along the corridor only.
-        cov, wheel = od.covariance, None
-        if streams.wheel_odometry is not None:
-            cov, wheel = overruled_as_odometry(
-                icp.stamps_s, od.covariance, wheel_measurements(streams.wheel_odometry, icp.stamps_s, cov)
-            )
+        cov, wheel = overruled_as_odometry(icp.stamps_s, own, wheel)
         ms = kalman.increments(icp.stamps_s, icp.poses, cov, source="icp")
     if res is not None:
         vo = _vo_estimate(streams, res)
         statuses = [s.status for s in res.steps]
-        if fixed:
+        if own is None:
             ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses)
         else:
             rig = streams.require_rig("kf")
             focal = float(np.mean(rig.camera.intrinsics[:2]))
             vo_cov = np.array([_run_covariance(s, focal) for s in res.steps])
             ms += kalman.vo_increments(vo.stamps_s, vo.poses, statuses, vo_cov.reshape(-1, 3, 3))
-    if streams.wheel_odometry is not None:
-        ms += wheel if wheel is not None else wheel_measurements(streams.wheel_odometry, icp.stamps_s)
+    ms += wheel
     if streams.gyro is not None:
         ms += gyro_measurements(streams.gyro, streams.scan_stamps_s, params)
     return ms
@@ -312,15 +309,18 @@ def wheel_measurements(
     measured = ~across_gaps(odom, tw)
     if icp_covariance is not None:
         icp_none = ~np.isfinite(np.asarray(icp_covariance)[within]).all(axis=(1, 2))[1:]
-        measured |= icp_none & np.isfinite(steps).all(axis=1)
-    T = np.eye(3)
-    poses = [pose_of(T)]
-    for step in np.where(np.isfinite(steps), steps, 0.0):
-        T = T @ se2(step)
-        poses.append(pose_of(T))
-    return kalman.increments(
-        tw, np.array(poses), kalman.WHEEL_SIGMAS, measured=np.r_[True, measured], source="wheel"
-    )
+        measured |= icp_none
+    measured &= np.isfinite(steps).all(axis=1) & (np.diff(tw) > 0)
+    return [
+        kalman.Increment(
+            float(tw[k]),
+            float(tw[k + 1]),
+            steps[k],
+            kalman.rate_covariance(kalman.WHEEL_SIGMAS, float(tw[k + 1] - tw[k])),
+            "wheel",
+        )
+        for k in np.flatnonzero(measured)
+    ]
 
 
 def overruled_as_odometry(
@@ -537,8 +537,9 @@ def _require_images(streams: Streams, methods: list[str]) -> None:
         need.remove("kf")  # the filter fuses ICP and the wheel odometry (:func:`kf_has_images`)
     if need and streams.n_images < 2:
         odom = streams.sequence.has_odometry
+        wheels = streams.wheel_odometry is not None  # the filter runs on ICP and them
         can = [
-            m for m in METHODS if (m not in IMAGE_METHODS or (m == "kf" and odom)) and (m != "odom" or odom)
+            m for m in METHODS if (m not in IMAGE_METHODS or (m == "kf" and wheels)) and (m != "odom" or odom)
         ]
         raise InputError.at(
             streams._yaml(),
